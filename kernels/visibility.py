@@ -1,0 +1,105 @@
+"""Visibility of the infinitely tiled surface (Wu §3.3, DESIGN §4): bits V_s(ω_k).
+
+Twin of ``cl/visibility.cl``; the mathematics is ``warp_biscale.reference.trace_periodic``.
+One thread per (direction, 32-facet word): neighbouring threads trace neighbouring facets (facets
+are ordered by face) along the same direction, so the BVH walks of a warp stay coherent, and each
+thread writes one whole word of bits, with no atomics. Rays are any-hit (occluded or not is all we
+need). A ray leaving the tile through its xy boundary re-enters on the opposite side until it
+passes above the tile's highest point.
+"""
+
+import warp as wp
+
+
+@wp.func
+def hit_any_triangle(vertices: wp.array(dtype=wp.vec3), faces: wp.array2d(dtype=wp.int32),
+                     o: wp.vec3, d: wp.vec3, t_lo: float, t_hi: float) -> int:
+    """Brute force: 1 if any triangle is hit with t in (t_lo, t_hi] (Möller–Trumbore, double-sided)."""
+    for f in range(faces.shape[0]):
+        a = vertices[faces[f, 0]]
+        e1 = vertices[faces[f, 1]] - a
+        e2 = vertices[faces[f, 2]] - a
+        p = wp.cross(d, e2)
+        det = wp.dot(p, e1)
+        if det != 0.0:
+            inv = 1.0 / det
+            tv = o - a
+            u = wp.dot(tv, p) * inv
+            q = wp.cross(tv, e1)
+            v = wp.dot(d, q) * inv
+            t = wp.dot(e2, q) * inv
+            if u >= 0.0 and v >= 0.0 and u + v <= 1.0 and t > t_lo and t <= t_hi:
+                return 1
+    return 0
+
+
+@wp.func
+def trace_periodic(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3), faces: wp.array2d(dtype=wp.int32),
+                   brute_force: int, start: wp.vec3, d: wp.vec3,
+                   x0: float, y0: float, px: float, py: float, z_lo: float, z_hi: float, eps: float) -> int:
+    """1 if the ray leaves the tile's height range unblocked (see reference.trace_periodic)."""
+    if d[2] <= 0.0:
+        return 0
+    o = start
+    z_top = z_hi + eps
+    back = float(0.0)  # the first segment starts on the facet; later ones reach back by eps
+    steps = 4 + int(wp.ceil((z_hi - z_lo + 2.0 * eps) / d[2] * (wp.abs(d[0]) / px + wp.abs(d[1]) / py)))
+    for _step in range(steps + 1):
+        t_top = (z_top - o[2]) / d[2]
+        t_x = float(1.0e30)
+        if d[0] > 0.0:
+            t_x = wp.max((x0 + px - o[0]) / d[0], 0.0)
+        elif d[0] < 0.0:
+            t_x = wp.max((x0 - o[0]) / d[0], 0.0)
+        t_y = float(1.0e30)
+        if d[1] > 0.0:
+            t_y = wp.max((y0 + py - o[1]) / d[1], 0.0)
+        elif d[1] < 0.0:
+            t_y = wp.max((y0 - o[1]) / d[1], 0.0)
+        t_side = wp.min(t_x, t_y)
+        t_exit = wp.min(t_top, t_side)
+        hit = int(0)
+        if brute_force != 0:
+            hit = hit_any_triangle(vertices, faces, o, d, -back, t_exit + eps)
+        elif wp.mesh_query_ray_anyhit(mesh, o - back * d, d, t_exit + eps + back):
+            hit = 1
+        if hit != 0:
+            return 0
+        if t_top <= t_side:
+            return 1
+        o = o + t_exit * d
+        if t_x <= t_exit:
+            o = wp.vec3(o[0] - wp.sign(d[0]) * px, o[1], o[2])
+        if t_y <= t_exit:
+            o = wp.vec3(o[0], o[1] - wp.sign(d[1]) * py, o[2])
+        back = eps
+    return 1
+
+
+@wp.kernel
+def visibility_bits(
+    mesh: wp.uint64,
+    vertices: wp.array(dtype=wp.vec3),
+    faces: wp.array2d(dtype=wp.int32),
+    face_normals: wp.array(dtype=wp.vec3),
+    brute_force: int,
+    position: wp.array(dtype=wp.vec3),
+    facet_face: wp.array(dtype=wp.int32),
+    directions: wp.array(dtype=wp.vec3),
+    x0: float, y0: float, px: float, py: float, z_lo: float, z_hi: float, eps: float,
+    bits: wp.array2d(dtype=wp.uint32),
+):
+    k, w = wp.tid()
+    d = directions[k]
+    n_facets = position.shape[0]
+    word = wp.uint32(0)
+    for b in range(32):
+        s = w * 32 + b
+        if s < n_facets:
+            ng = face_normals[facet_face[s]]
+            # Below the facet's own plane the ray would enter the surface: not visible.
+            if wp.dot(ng, d) > 0.0:
+                o = position[s] + eps * ng
+                if trace_periodic(mesh, vertices, faces, brute_force, o, d, x0, y0, px, py, z_lo, z_hi, eps) != 0:
+                    word = word | (wp.uint32(1) << wp.uint32(b))
+    bits[k, w] = word

@@ -1,0 +1,79 @@
+"""The K×K direction grid of DESIGN §4: cell centres of the unit square → Shirley–Chiu concentric
+disk → hemisphere by the equal-area lift z = 1 − r², so every direction owns 2π/K² sr.
+
+Direction index k = row·K + col for the cell centre (u, v) = ((col + ½)/K, (row + ½)/K).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["grid", "square_to_hemisphere", "hemisphere_to_square", "check_directions"]
+
+
+def square_to_hemisphere(uv: np.ndarray) -> np.ndarray:
+    """(N, 2) points of [0,1]² → (N, 3) unit vectors, z ≥ 0 (float64)."""
+    uv = np.asarray(uv, np.float64)
+    a = 2.0 * uv[..., 0] - 1.0
+    b = 2.0 * uv[..., 1] - 1.0
+    big_a = np.abs(a) > np.abs(b)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.where(big_a, a, b)
+        phi = np.where(big_a, (np.pi / 4) * (b / a), np.pi / 2 - (np.pi / 4) * (a / b))
+    phi = np.where((a == 0) & (b == 0), 0.0, phi)
+    # r is signed: a negative r with phi covers the opposite half of the disk.
+    x, y = r * np.cos(phi), r * np.sin(phi)
+    r2 = x * x + y * y
+    s = np.sqrt(np.maximum(2.0 - r2, 0.0))  # lift (x, y) by sqrt(1 - z²)/r = sqrt(2 - r²)
+    return np.stack([x * s, y * s, 1.0 - r2], axis=-1)
+
+
+def hemisphere_to_square(w: np.ndarray) -> np.ndarray:
+    """Inverse of `square_to_hemisphere` for unit vectors with z ≥ 0 (z is clamped to [0, 1])."""
+    w = np.asarray(w, np.float64)
+    z = np.clip(w[..., 2], 0.0, 1.0)
+    r = np.sqrt(1.0 - z)
+    phi = np.arctan2(w[..., 1], w[..., 0])  # (-π, π]
+    phi = np.where(phi < -np.pi / 4, phi + 2 * np.pi, phi)  # [-π/4, 7π/4)
+    # Four wedges of the concentric map.
+    a = np.empty_like(r)
+    b = np.empty_like(r)
+    m0 = phi < np.pi / 4
+    m1 = (phi >= np.pi / 4) & (phi < 3 * np.pi / 4)
+    m2 = (phi >= 3 * np.pi / 4) & (phi < 5 * np.pi / 4)
+    m3 = phi >= 5 * np.pi / 4
+    a[m0] = r[m0]
+    b[m0] = phi[m0] * a[m0] / (np.pi / 4)
+    b[m1] = r[m1]
+    a[m1] = -(phi[m1] - np.pi / 2) * b[m1] / (np.pi / 4)
+    a[m2] = -r[m2]
+    b[m2] = (phi[m2] - np.pi) * a[m2] / (np.pi / 4)
+    b[m3] = -r[m3]
+    a[m3] = -(phi[m3] - 3 * np.pi / 2) * b[m3] / (np.pi / 4)
+    return np.stack([(a + 1.0) / 2.0, (b + 1.0) / 2.0], axis=-1)
+
+
+def grid(k: int = 12) -> np.ndarray:
+    """(K², 3) float64 directions of the K×K grid, index row·K + col."""
+    k = int(k)
+    if k < 1:
+        raise ValueError(f"directions must be a grid size K >= 1, got {k}")
+    c = (np.arange(k) + 0.5) / k
+    u, v = np.meshgrid(c, c)  # u varies along columns, v along rows
+    return square_to_hemisphere(np.stack([u.ravel(), v.ravel()], axis=-1))
+
+
+def check_directions(name: str, w) -> np.ndarray:
+    """Validate an (N, 3) array of directions: finite, non-zero; returns unit float64 vectors."""
+    w = np.asarray(w, np.float64)
+    if w.ndim == 1 and w.shape == (3,):
+        w = w[None]
+    if w.ndim != 2 or w.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (N, 3), got {w.shape}")
+    if not np.all(np.isfinite(w)):
+        row = int(np.argwhere(~np.isfinite(w))[0][0])
+        raise ValueError(f"{name} contains NaN or inf (row {row})")
+    n = np.linalg.norm(w, axis=1)
+    if (n < 1e-12).any():
+        raise ValueError(f"{name} has a zero vector at row {int(np.argmin(n))}")
+    return w / n[:, None]

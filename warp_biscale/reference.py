@@ -1,0 +1,260 @@
+"""Float64 numpy reference: slow, obvious, the oracle every kernel is tested against.
+
+Nothing here is fast. Each function spells out the mathematics of DESIGN §4 the way a reader would
+check it by hand; the kernels in `kernels/` and `cl/` reproduce the same numbers in float32.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .brdf import BLINN_PHONG, COOK_TORRANCE, WARD
+
+__all__ = [
+    "radical_inverse",
+    "sample_facets",
+    "ray_offset",
+    "trace_periodic",
+    "visibility",
+    "brdf_cosine_weighted",
+    "visible_area",
+    "effective_brdf",
+]
+
+# ----------------------------------------------------------------------------------------------
+# Facet sampling (Wu §3.2, made stratified)
+#
+# Facet s takes the 2-D point (u1, u2) = ((s + ξ1)/Ns, frac(φ2(s) + ξ2)) of a Hammersley set with a
+# Cranley–Patterson shift (ξ1, ξ2) drawn from the seed. u1 walks the cumulative area of the faces,
+# so facet counts per face are proportional to area to within one, and every facet carries the same
+# area ΔA = A/Ns; the remainder of u1 inside its face and u2 place the point by the area-preserving
+# square→triangle map. The estimator Σ_s g(x_s) ΔA of ∫g dA is unbiased for any shift and, being a
+# low-discrepancy rule, its error falls faster than the 1/√Ns of independent sampling.
+# ----------------------------------------------------------------------------------------------
+
+
+def radical_inverse(s: np.ndarray) -> np.ndarray:
+    """Van der Corput φ2(s) on the top 24 bits (exact in float32), for uint32 s."""
+    s = np.asarray(s, np.uint64) & np.uint64(0xFFFFFFFF)
+    r = np.zeros_like(s)
+    for b in range(32):
+        r |= ((s >> np.uint64(b)) & np.uint64(1)) << np.uint64(31 - b)
+    return (r >> np.uint64(8)).astype(np.float64) / float(1 << 24)
+
+
+def facet_shift(seed: int) -> tuple[float, float]:
+    """The Cranley–Patterson shift (ξ1, ξ2) of a seed; shared by every backend."""
+    rng = np.random.default_rng(int(seed))
+    xi = rng.random(2)
+    return float(xi[0]), float(xi[1])
+
+
+def sample_facets(tile, count: int, seed: int = 0) -> dict:
+    """Reference facet set: dict of position, normal, face, area, material, color (float64)."""
+    count = int(count)
+    areas = tile.face_areas
+    cum = np.cumsum(areas)
+    total = cum[-1]
+    xi1, xi2 = facet_shift(seed)
+    s = np.arange(count)
+    target = (s + xi1) / count * total
+    face = np.minimum(np.searchsorted(cum, target, side="right"), len(areas) - 1)
+    start = cum[face] - areas[face]
+    u = np.clip((target - start) / areas[face], 0.0, 1.0)
+    v = np.mod(radical_inverse(s) + xi2, 1.0)
+    su = np.sqrt(u)
+    b0, b1, b2 = 1.0 - su, su * (1.0 - v), su * v
+    tri = tile.triangles[face]
+    pos = b0[:, None] * tri[:, 0] + b1[:, None] * tri[:, 1] + b2[:, None] * tri[:, 2]
+    if tile.vertex_normals is not None:
+        vn = tile.vertex_normals[tile.faces[face]]
+        nrm = b0[:, None] * vn[:, 0] + b1[:, None] * vn[:, 1] + b2[:, None] * vn[:, 2]
+        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    else:
+        nrm = tile.face_normals[face]
+    return {
+        "position": pos,
+        "normal": nrm,
+        "face": face.astype(np.int32),
+        "area": np.full(count, total / count),
+        "material": tile.material_ids[face],
+        "color": tile.colors[face],
+    }
+
+
+# ----------------------------------------------------------------------------------------------
+# Visibility of the infinitely tiled surface (Wu §3.3, DESIGN §4)
+# ----------------------------------------------------------------------------------------------
+
+
+def ray_offset(tile) -> float:
+    """Distance a ray origin is lifted off its facet along the face normal.
+
+    1e-5 of the tile's largest dimension: far above float32 rounding of positions (~1e-7
+    relative), far below any feature a designer builds. Derived from the tile, never a user knob.
+    """
+    zlo, zhi = tile.z_range
+    return 1e-5 * max(tile.period[0], tile.period[1], zhi - zlo)
+
+
+def _ray_hits_any(o, d, t_lo, t_hi, tri):
+    """Möller–Trumbore, double-sided: (R,) bool, any triangle hit with t in (t_lo, t_hi]."""
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    e1, e2 = b - a, c - a  # (F,3)
+    p = np.cross(d[:, None, :], e2[None])  # (R,F,3)
+    det = np.einsum("rfk,fk->rf", p, e1)
+    ok = np.abs(det) > 1e-300
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    tv = o[:, None, :] - a[None]
+    u = np.einsum("rfk,rfk->rf", tv, p) * inv
+    q = np.cross(tv, e1[None])
+    v = np.einsum("rk,rfk->rf", d, q) * inv
+    t = np.einsum("fk,rfk->rf", e2, q) * inv
+    hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > t_lo[:, None]) & (t <= t_hi[:, None])
+    return hit.any(axis=1)
+
+
+def trace_periodic(tile, origins, direction) -> np.ndarray:
+    """(R,) bool: True where the ray from `origins` along the unit `direction` (z > 0) leaves the
+    tile's height range unblocked, the tile repeated infinitely in x and y.
+
+    A ray crossing the tile's xy boundary re-enters from the opposite side, one cell at a time,
+    until it passes above the highest point. Each cell's segment is extended back by the ray
+    offset (not the first one, which starts on the facet) so that float rounding at a wrap cannot
+    open a gap.
+    """
+    d = np.asarray(direction, np.float64)
+    o = np.array(origins, np.float64)
+    r = len(o)
+    if d[2] <= 0:
+        return np.zeros(r, bool)
+    eps = ray_offset(tile)
+    x0, y0 = tile.origin
+    px, py = tile.period
+    zlo, zhi = tile.z_range
+    z_top = zhi + eps
+    tri = tile.triangles
+    visible = np.zeros(r, bool)
+    active = np.ones(r, bool)
+    back = np.zeros(r)
+    max_steps = 4 + int(np.ceil((zhi - zlo + 2 * eps) / d[2] * (abs(d[0]) / px + abs(d[1]) / py)))
+    for _ in range(max_steps + 1):
+        if not active.any():
+            break
+        idx = np.nonzero(active)[0]
+        oa = o[idx]
+        t_top = (z_top - oa[:, 2]) / d[2]
+        with np.errstate(divide="ignore"):
+            t_x = np.where(d[0] > 0, (x0 + px - oa[:, 0]) / d[0], np.where(d[0] < 0, (x0 - oa[:, 0]) / d[0], np.inf))
+            t_y = np.where(d[1] > 0, (y0 + py - oa[:, 1]) / d[1], np.where(d[1] < 0, (y0 - oa[:, 1]) / d[1], np.inf))
+        t_x, t_y = np.maximum(t_x, 0.0), np.maximum(t_y, 0.0)
+        t_exit = np.minimum(t_top, np.minimum(t_x, t_y))
+        hit = _ray_hits_any(oa, np.broadcast_to(d, oa.shape), -back[idx], t_exit + eps, tri)
+        escaped = ~hit & (t_top <= np.minimum(t_x, t_y))
+        visible[idx[escaped]] = True
+        done = hit | escaped
+        active[idx[done]] = False
+        # Move the rest to the exit point and wrap into the cell on the other side.
+        go = idx[~done]
+        if len(go) == 0:
+            break
+        te = t_exit[~done]
+        o[go] = oa[~done] + te[:, None] * d
+        wx = t_x[~done] <= te
+        wy = t_y[~done] <= te
+        o[go[wx], 0] -= np.sign(d[0]) * px
+        o[go[wy], 1] -= np.sign(d[1]) * py
+        back[go] = eps
+    return visible
+
+
+def visibility(tile, facets: dict, directions: np.ndarray) -> np.ndarray:
+    """(D, Ns) bool: V_s(ω_k), exact float64 periodic ray casting against every triangle.
+
+    V is 0 where ω lies below the facet's own face plane (the ray would enter the surface).
+    """
+    fn = tile.face_normals[facets["face"]]
+    origins = facets["position"] + ray_offset(tile) * fn
+    out = np.zeros((len(directions), len(origins)), bool)
+    for k, w in enumerate(np.asarray(directions, np.float64)):
+        up = fn @ w > 0
+        if up.any():
+            out[k, up] = trace_periodic(tile, origins[up], w)
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# Small-scale BRDFs, cosine-weighted: f_r(n, ωi, ωo)·(n·ωi)⁺·(n·ωo)⁺ (see warp_biscale.brdf)
+# ----------------------------------------------------------------------------------------------
+
+
+def brdf_cosine_weighted(kinds, params, material, n, wi, wo) -> np.ndarray:
+    """(N, 3) f_r·(n·ωi)⁺(n·ωo)⁺ for facets with normals n (N,3) and material ids (N,)."""
+    n, wi, wo = (np.asarray(x, np.float64) for x in (n, wi, wo))
+    n, wi, wo = np.broadcast_arrays(n, wi, wo)
+    kind = np.asarray(kinds)[material]
+    p = np.asarray(params, np.float64)[material]
+    kd, ks, p1, p2 = p[:, 0:3], p[:, 3:6], p[:, 6], p[:, 7]
+    ci = np.einsum("ij,ij->i", n, wi)
+    co = np.einsum("ij,ij->i", n, wo)
+    ok = (ci > 0) & (co > 0)
+    ci, co = np.maximum(ci, 0.0), np.maximum(co, 0.0)
+    h = wi + wo
+    hl = np.linalg.norm(h, axis=1)
+    h = h / np.maximum(hl, 1e-300)[:, None]
+    nh = np.clip(np.einsum("ij,ij->i", n, h), -1.0, 1.0)
+    nh_pos = np.maximum(nh, 0.0)
+    hi = np.clip(np.einsum("ij,ij->i", h, wi), 0.0, 1.0)
+    spec = np.zeros(len(n))  # scalar specular factor multiplying ks, already cosine-weighted
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore", under="ignore"):
+        m = kind == BLINN_PHONG
+        spec[m] = (p1[m] + 2) / (2 * np.pi) * nh_pos[m] ** p1[m] * ci[m] * co[m]
+        m = kind == COOK_TORRANCE
+        if m.any():
+            theta_h = np.arccos(nh[m])
+            d = np.exp(-((theta_h / p1[m]) ** 2))
+            f = p2[m] + (1 - p2[m]) * (1 - hi[m]) ** 5
+            ho = np.maximum(hi[m], 1e-300)  # h·ωo = h·ωi
+            g = np.minimum(1.0, np.minimum(2 * nh_pos[m] * co[m] / ho, 2 * nh_pos[m] * ci[m] / ho))
+            spec[m] = f * g * d / np.pi
+        m = kind == WARD
+        if m.any():
+            cos2 = np.maximum(nh[m] ** 2, 1e-300)
+            tan2 = (1 - cos2) / cos2
+            a2 = p1[m] ** 2
+            spec[m] = np.where(nh[m] > 0, np.exp(-tan2 / a2), 0.0) / (4 * np.pi * a2) * np.sqrt(ci[m] * co[m])
+    # Lambert keeps its albedo in the kd slot and ks = 0, so one expression serves every model.
+    out = kd / np.pi * (ci * co)[:, None] + ks * spec[:, None]
+    out[~ok] = 0.0
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# a_v and the ground-truth effective BRDF (DESIGN §4)
+# ----------------------------------------------------------------------------------------------
+
+
+def visible_area(facets: dict, vis: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """(D,) a_v(ω) = Σ_s V_s(ω)(n_s·ω)⁺ΔA_s."""
+    cos = np.maximum(np.asarray(directions, np.float64) @ facets["normal"].T, 0.0)  # (D, Ns)
+    return (vis * cos) @ facets["area"]
+
+
+def effective_brdf(facets: dict, vis: np.ndarray, directions, kinds, params, pair_i, pair_o) -> np.ndarray:
+    """(P, 3) f̄(ωi, ωo) = Σ_s c_s f_r(n_s,ωi,ωo)(n_s·ωi)⁺(n_s·ωo)⁺ V_s(ωi)V_s(ωo)ΔA_s / a_v(ωo).
+
+    ωi = directions[pair_i], ωo = directions[pair_o]; c_s the facet's RGB colour weight. Zero
+    where a_v(ωo) = 0 (nothing of the tile is visible from ωo).
+    """
+    directions = np.asarray(directions, np.float64)
+    a_v = visible_area(facets, vis, directions)
+    out = np.zeros((len(pair_i), 3))
+    n = facets["normal"]
+    w = facets["area"][:, None] * facets["color"]
+    for p, (i, o) in enumerate(zip(pair_i, pair_o)):
+        both = vis[i] & vis[o]
+        if not both.any() or a_v[o] <= 0:
+            continue
+        fc = brdf_cosine_weighted(kinds, params, facets["material"][both], n[both], directions[i], directions[o])
+        out[p] = (fc * w[both]).sum(axis=0) / a_v[o]
+    return out

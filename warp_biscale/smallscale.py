@@ -1,0 +1,312 @@
+"""Small-scale geometry: one period of a surface, tiled infinitely in x and y, z up.
+
+`SmallScale` is the contract between the geometry front end (trimesh files, procedural generators)
+and every stage after it. Construction validates and cleans the mesh once, so the kernels can
+assume finite coordinates, non-degenerate triangles and in-range indices.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["SmallScale", "TileWarning"]
+
+
+class TileWarning(UserWarning):
+    """Something in a tile was repaired or looks suspicious (dropped triangles, unmatched edges)."""
+
+
+def _finite_array(name: str, value, shape_tail: tuple, dtype) -> np.ndarray:
+    arr = np.asarray(value, dtype=dtype)
+    if arr.ndim != 1 + len(shape_tail) or tuple(arr.shape[1:]) != shape_tail:
+        want = "(N, " + ", ".join(str(s) for s in shape_tail) + ")" if shape_tail else "(N,)"
+        raise ValueError(f"{name} must have shape {want}, got {arr.shape}")
+    if np.issubdtype(arr.dtype, np.floating):
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            row = int(np.argwhere(bad)[0][0])
+            raise ValueError(f"{name} contains NaN or inf (first at row {row}: {arr[row].tolist()})")
+    return arr
+
+
+@dataclass(eq=False)
+class SmallScale:
+    """One period of a small-scale surface, tiled in x and y (z up).
+
+    Parameters
+    ----------
+    vertices : (V, 3) float
+        Vertex positions in the tile frame. Must be finite.
+    faces : (F, 3) int
+        Triangles as vertex indices. Zero-area and degenerate triangles are dropped with a
+        `TileWarning`; duplicate vertices are merged with a `TileWarning`.
+    material_ids : (F,) int, optional
+        Material index per face (default 0). Indexes the list of small-scale BRDFs given to the
+        pipeline; must be ≥ 0.
+    colors : (F, 3) float, optional
+        RGB colour weight per face (Wu §3.7), default (1, 1, 1). Must be finite and ≥ 0.
+    period : (Px, Py), optional
+        Tile period; default the xy extent of the vertices. The tile occupies
+        [origin, origin + period] in x and y, with origin the xy minimum of the vertices.
+    vertex_normals : (V, 3) float, optional
+        Per-vertex shading normals, interpolated across faces (Wu §3.2). If absent, facets use the
+        face normal.
+    name : str
+        A label used in messages and plots.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    material_ids: np.ndarray | None = None
+    colors: np.ndarray | None = None
+    period: tuple | None = None
+    vertex_normals: np.ndarray | None = None
+    name: str = "tile"
+    origin: np.ndarray = field(init=False)
+
+    def __post_init__(self):
+        v = _finite_array("vertices", self.vertices, (3,), np.float64)
+        f = np.asarray(self.faces)
+        if f.size == 0:
+            raise ValueError(f"tile {self.name!r} has no faces")
+        if not np.issubdtype(f.dtype, np.integer):
+            if not np.all(np.isfinite(f)) or np.any(f != np.round(f)):
+                raise ValueError("faces must hold integer vertex indices")
+        f = _finite_array("faces", f.astype(np.int64), (3,), np.int64)
+        if len(v) == 0:
+            raise ValueError(f"tile {self.name!r} has no vertices")
+        if f.min() < 0 or f.max() >= len(v):
+            raise ValueError(f"faces index vertices out of range [0, {len(v)}): min {f.min()}, max {f.max()}")
+        nf = len(f)
+        mat = np.zeros(nf, np.int32) if self.material_ids is None else np.asarray(self.material_ids)
+        if mat.shape != (nf,):
+            raise ValueError(f"material_ids must have shape ({nf},) (one per face), got {mat.shape}")
+        if not np.issubdtype(mat.dtype, np.integer):
+            if not np.all(np.isfinite(mat)) or np.any(mat != np.round(mat)):
+                raise ValueError("material_ids must be integers")
+        mat = mat.astype(np.int32)
+        if mat.min() < 0:
+            raise ValueError(f"material_ids must be >= 0, got {int(mat.min())}")
+        col = np.ones((nf, 3)) if self.colors is None else np.asarray(self.colors, np.float64)
+        if col.ndim == 1 and col.shape == (3,):
+            col = np.broadcast_to(col, (nf, 3)).copy()
+        col = _finite_array("colors", col, (3,), np.float64)
+        if len(col) != nf:
+            raise ValueError(f"colors must have one RGB row per face ({nf}), got {len(col)}")
+        if (col < 0).any():
+            raise ValueError("colors must be >= 0 (they are RGB weights)")
+        vn = None
+        if self.vertex_normals is not None:
+            vn = _finite_array("vertex_normals", self.vertex_normals, (3,), np.float64)
+            if len(vn) != len(v):
+                raise ValueError(f"vertex_normals must have one row per vertex ({len(v)}), got {len(vn)}")
+            ln = np.linalg.norm(vn, axis=1)
+            if (ln < 1e-12).any():
+                raise ValueError(f"vertex_normals has a zero-length normal at vertex {int(np.argmin(ln))}")
+            vn = vn / ln[:, None]
+
+        v, f, vn = self._merge_duplicates(v, f, vn)
+        keep = self._nondegenerate(v, f)
+        if not keep.all():
+            warnings.warn(
+                f"tile {self.name!r}: dropped {int((~keep).sum())} zero-area or degenerate triangle(s)",
+                TileWarning,
+                stacklevel=3,
+            )
+            f, mat, col = f[keep], mat[keep], col[keep]
+            if len(f) == 0:
+                raise ValueError(f"tile {self.name!r} has no faces with non-zero area")
+        # Drop vertices no face uses, so bounds describe the surface.
+        used = np.unique(f)
+        remap = np.full(len(v), -1, np.int64)
+        remap[used] = np.arange(len(used))
+        v, f = v[used], remap[f]
+        vn = vn[used] if vn is not None else None
+
+        lo, hi = v.min(axis=0), v.max(axis=0)
+        if self.period is None:
+            period = hi[:2] - lo[:2]
+        else:
+            period = np.asarray(self.period, np.float64).reshape(-1)
+            if period.shape != (2,) or not np.all(np.isfinite(period)):
+                raise ValueError(f"period must be two finite numbers (Px, Py), got {self.period!r}")
+        if (period <= 0).any():
+            raise ValueError(
+                f"tile period must be > 0 in x and y, got {tuple(period.tolist())}"
+                " (a tile needs an xy extent; give period= explicitly for a degenerate footprint)"
+            )
+        self.vertices, self.faces = v, f.astype(np.int32)
+        self.material_ids, self.colors, self.vertex_normals = mat, col, vn
+        self.period = (float(period[0]), float(period[1]))
+        self.origin = lo[:2].copy()
+        self._check_edges()
+
+    # ----------------------------------------------------------------------------- cleaning
+    @staticmethod
+    def _merge_duplicates(v, f, vn):
+        scale = max(float(np.ptp(v, axis=0).max()), 1e-30)
+        key = np.round(v / (scale * 1e-9)).astype(np.int64)
+        if vn is not None:
+            key = np.concatenate([key, np.round(vn * 1e6).astype(np.int64)], axis=1)
+        _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        if len(first) < len(v):
+            warnings.warn(f"merged {len(v) - len(first)} duplicate vertex/vertices", TileWarning, stacklevel=4)
+            v = v[first]
+            vn = vn[first] if vn is not None else None
+            f = inverse[f]
+        return v, f, vn
+
+    @staticmethod
+    def _nondegenerate(v, f):
+        a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+        cross = np.cross(b - a, c - a)
+        area2 = np.linalg.norm(cross, axis=1)
+        longest = np.max(
+            [np.linalg.norm(b - a, axis=1), np.linalg.norm(c - b, axis=1), np.linalg.norm(a - c, axis=1)], axis=0
+        )
+        repeated = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])
+        # A sliver whose height is below 1e-7 of its longest edge has no trustworthy normal.
+        return ~repeated & (area2 > 1e-7 * longest**2) & (area2 > 0)
+
+    def _check_edges(self):
+        """Warn if the profile on opposite tile edges differs (the tile then has seams)."""
+        v = self.vertices
+        tol = 1e-6 * max(self.period)
+        for axis, other in ((0, 1), (1, 0)):
+            lo = self.origin[axis]
+            hi = lo + self.period[axis]
+            left = v[np.abs(v[:, axis] - lo) < tol][:, [other, 2]]
+            right = v[np.abs(v[:, axis] - hi) < tol][:, [other, 2]]
+            if len(left) == 0 and len(right) == 0:
+                continue
+            if len(left) == 0 or len(right) == 0 or not (_covered(left, right, tol) and _covered(right, left, tol)):
+                warnings.warn(
+                    f"tile {self.name!r}: the edges at {'xy'[axis]}={lo:g} and {'xy'[axis]}={hi:g} do not match; "
+                    "the tiled surface has seams (visibility still treats it as periodic)",
+                    TileWarning,
+                    stacklevel=4,
+                )
+
+    # ----------------------------------------------------------------------------- properties
+    @property
+    def triangles(self) -> np.ndarray:
+        """(F, 3, 3) vertex positions of every face."""
+        return self.vertices[self.faces]
+
+    @property
+    def face_normals(self) -> np.ndarray:
+        """(F, 3) unit geometric normals (right-handed winding)."""
+        t = self.triangles
+        n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+        return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+    @property
+    def face_areas(self) -> np.ndarray:
+        t = self.triangles
+        return 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+
+    @property
+    def area(self) -> float:
+        return float(self.face_areas.sum())
+
+    @property
+    def z_range(self) -> tuple[float, float]:
+        return float(self.vertices[:, 2].min()), float(self.vertices[:, 2].max())
+
+    @property
+    def footprint(self) -> float:
+        """Projected (xy) area of one period: the denominator of a flat tile's a_v."""
+        return self.period[0] * self.period[1]
+
+    @property
+    def n_materials(self) -> int:
+        return int(self.material_ids.max()) + 1
+
+    def __repr__(self):
+        return (
+            f"SmallScale({self.name!r}, {len(self.vertices)} vertices, {len(self.faces)} faces, "
+            f"period={self.period}, z={self.z_range}, materials={self.n_materials})"
+        )
+
+    # ----------------------------------------------------------------------------- I/O
+    @classmethod
+    def load(cls, path, period=None, material_ids=None, colors=None, name=None) -> SmallScale:
+        """Load a triangle mesh (OBJ, PLY, STL, GLB, ...) through trimesh as one tile period.
+
+        Vertex normals stored in the file are used (interpolated across faces); otherwise facets use
+        face normals. Scenes with several meshes are concatenated, each mesh getting the next
+        material id unless `material_ids` is given.
+        """
+        import trimesh
+
+        path = os.fspath(path)
+        if not os.path.exists(path):
+            raise FileNotFoundError(f"tile file not found: {path}")
+        try:
+            loaded = trimesh.load(path, process=False, maintain_order=True)
+        except Exception as exc:  # trimesh raises many types for unreadable files
+            raise ValueError(f"could not read tile mesh {path!r}: {exc}") from exc
+        meshes = list(loaded.geometry.values()) if isinstance(loaded, trimesh.Scene) else [loaded]
+        meshes = [m for m in meshes if isinstance(m, trimesh.Trimesh) and len(m.faces)]
+        if not meshes:
+            raise ValueError(f"{path!r} holds no triangle mesh with faces")
+        verts, faces, mats, normals = [], [], [], []
+        offset = 0
+        has_normals = all(_file_has_vertex_normals(m) for m in meshes)
+        for k, m in enumerate(meshes):
+            verts.append(np.asarray(m.vertices, np.float64))
+            faces.append(np.asarray(m.faces, np.int64) + offset)
+            mats.append(np.full(len(m.faces), k, np.int32))
+            if has_normals:
+                normals.append(np.asarray(m.vertex_normals, np.float64))
+            offset += len(m.vertices)
+        return cls(
+            np.concatenate(verts),
+            np.concatenate(faces),
+            material_ids=np.concatenate(mats) if material_ids is None else material_ids,
+            colors=colors,
+            period=period,
+            vertex_normals=np.concatenate(normals) if has_normals else None,
+            name=name or os.path.splitext(os.path.basename(path))[0],
+        )
+
+    def save(self, path) -> None:
+        """Write the tile as a mesh file (format from the extension), atomically."""
+        import trimesh
+
+        from .io import atomic_path
+
+        mesh = trimesh.Trimesh(self.vertices, self.faces, process=False)
+        if self.vertex_normals is not None:
+            mesh.vertex_normals = self.vertex_normals
+        with atomic_path(path) as tmp:
+            mesh.export(tmp, file_type=os.path.splitext(os.fspath(path))[1].lstrip(".").lower())
+
+
+def _covered(a: np.ndarray, b: np.ndarray, tol: float) -> bool:
+    """Every 2-D point of `a` lies on the polyline through the points of `b` sorted by first coord."""
+    b = b[np.lexsort((b[:, 1], b[:, 0]))]
+    if len(b) == 1:
+        return bool(np.all(np.abs(a - b[0]).max(axis=1) < 10 * tol))
+    # Distance from each point of a to the nearest segment of the sorted polyline through b.
+    p0, p1 = b[:-1], b[1:]
+    d = p1 - p0
+    dd = np.maximum((d * d).sum(1), 1e-300)
+    t = np.clip(((a[:, None, :] - p0[None]) * d[None]).sum(-1) / dd[None], 0.0, 1.0)
+    near = p0[None] + t[..., None] * d[None]
+    dist = np.sqrt(((a[:, None, :] - near) ** 2).sum(-1)).min(axis=1)
+    return bool(np.all(dist < 10 * tol))
+
+
+def _file_has_vertex_normals(mesh) -> bool:
+    """trimesh computes vertex normals on demand; only trust ones the file carried."""
+    cache = getattr(mesh, "_cache", None)
+    try:
+        return "vertex_normals" in cache.cache and cache.cache["vertex_normals"] is not None
+    except Exception:
+        return False

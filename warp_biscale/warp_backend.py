@@ -1,0 +1,208 @@
+"""The NVIDIA Warp backend: kernels in ``warp_biscale.kernels``, on ``"cpu"`` or ``"cuda:N"``.
+
+Warp's CPU device runs a launch on one thread; on CUDA the same kernels run one thread per
+(direction, facet word) or per (chunk, pair).
+"""
+
+from __future__ import annotations
+
+import weakref
+
+import numpy as np
+
+from .backend import chunking
+from .model import Facets, Visibility
+from .reference import facet_shift, ray_offset
+
+_READY = False
+
+
+def init_warp():
+    global _READY
+    import warp as wp
+
+    if not _READY:
+        wp.config.log_level = wp.LOG_WARNING  # compile chatter would drown the progress display
+        wp.init()
+        _READY = True
+    return wp
+
+
+class WarpBackend:
+    """Warp on one device. `device`: None (CUDA if present, else CPU), "cpu", "cuda" or "cuda:N"."""
+
+    def __init__(self, device: str | None = None):
+        wp = init_warp()
+        if device is None:
+            device = "cuda:0" if wp.is_cuda_available() else "cpu"
+        if device == "cuda" and wp.is_cuda_available():
+            device = "cuda:0"
+        if device.startswith("cuda") and not wp.is_cuda_available():
+            raise ValueError(f"backend 'warp:{device}' asked for, but Warp finds no CUDA device here")
+        try:
+            self._device = wp.get_device(device)
+        except Exception as exc:
+            raise ValueError(f"Warp has no device {device!r}: {exc}") from None
+        self.name = f"warp:{self._device.alias}"
+        self.device = self._device.name
+        # Threads worth launching per reduction: one on the serial CPU device, enough to fill a GPU.
+        self._threads = 1 if self._device.is_cpu else 1 << 18
+        self._tiles = weakref.WeakKeyDictionary()
+        from . import kernels  # noqa: F401  (import here so a broken Warp fails at backend creation)
+
+    def __repr__(self):
+        return f"WarpBackend({self._device.alias!r})"
+
+    def synchronize(self):
+        import warp as wp
+
+        wp.synchronize_device(self._device)
+
+    # ------------------------------------------------------------------ device copies
+    def _tile(self, tile):
+        import warp as wp
+
+        entry = self._tiles.get(tile)
+        if entry is None:
+            dev = self._device
+            points = wp.array(tile.vertices.astype(np.float32), dtype=wp.vec3, device=dev)
+            faces = wp.array(tile.faces.astype(np.int32), dtype=wp.int32, device=dev)
+            mesh = wp.Mesh(points=points, indices=faces.flatten())
+            vn = tile.vertex_normals if tile.vertex_normals is not None else np.zeros((1, 3))
+            areas = tile.face_areas
+            entry = {
+                "mesh": mesh,
+                "points": points,
+                "faces": faces,
+                "vertex_normals": wp.array(vn.astype(np.float32), dtype=wp.vec3, device=dev),
+                "face_normals": wp.array(tile.face_normals.astype(np.float32), dtype=wp.vec3, device=dev),
+                "cumulative_area": wp.array(np.cumsum(areas), dtype=wp.float64, device=dev),
+                "face_area": wp.array(areas, dtype=wp.float64, device=dev),
+            }
+            self._tiles[tile] = entry
+        return entry
+
+    def _facets(self, facets: Facets):
+        import warp as wp
+
+        entry = facets.device_cache.get(self.name)
+        if entry is None:
+            dev = self._device
+            entry = {
+                "position": wp.array(facets.position, dtype=wp.vec3, device=dev),
+                "normal": wp.array(facets.normal, dtype=wp.vec3, device=dev),
+                "face": wp.array(facets.face, dtype=wp.int32, device=dev),
+                "area": wp.array(facets.area, dtype=wp.float32, device=dev),
+                "material": wp.array(facets.material, dtype=wp.int32, device=dev),
+                "weight": wp.array(facets.color * facets.area[:, None], dtype=wp.vec3, device=dev),
+            }
+            facets.device_cache[self.name] = entry
+        return entry
+
+    def _vis(self, vis: Visibility):
+        import warp as wp
+
+        entry = vis.device_cache.get(self.name)
+        if entry is None:
+            dev = self._device
+            entry = {
+                "bits": wp.array(vis.bits, dtype=wp.uint32, device=dev),
+                "directions": wp.array(vis.directions.astype(np.float32), dtype=wp.vec3, device=dev),
+            }
+            vis.device_cache[self.name] = entry
+        return entry
+
+    # ------------------------------------------------------------------ stages
+    def sample_facets(self, tile, count, seed):
+        import warp as wp
+
+        from .kernels import facets as kf
+
+        t = self._tile(tile)
+        dev = self._device
+        count = int(count)
+        pos = wp.empty(count, dtype=wp.vec3, device=dev)
+        nrm = wp.empty(count, dtype=wp.vec3, device=dev)
+        face = wp.empty(count, dtype=wp.int32, device=dev)
+        xi1, xi2 = facet_shift(seed)
+        wp.launch(kf.sample_facets, dim=count, device=dev,
+                  inputs=[t["points"], t["faces"], t["vertex_normals"], int(tile.vertex_normals is not None),
+                          t["face_normals"], t["cumulative_area"], t["face_area"], count, wp.float64(xi1),
+                          float(xi2)],
+                  outputs=[pos, nrm, face])
+        face_np = face.numpy()
+        area = np.full(count, tile.area / count, np.float32)
+        facets = Facets(pos.numpy(), nrm.numpy(), face_np, area, tile.material_ids[face_np],
+                        tile.colors[face_np].astype(np.float32), seed=int(seed))
+        # The kernel's outputs are already on the device: keep them for the next stages.
+        facets.device_cache[self.name] = {
+            "position": pos, "normal": nrm, "face": face,
+            "area": wp.array(area, dtype=wp.float32, device=dev),
+            "material": wp.array(facets.material, dtype=wp.int32, device=dev),
+            "weight": wp.array(facets.color * area[:, None], dtype=wp.vec3, device=dev),
+        }
+        return facets
+
+    def visibility(self, tile, facets, directions, brute_force=False):
+        import warp as wp
+
+        from .kernels import visibility as kv
+
+        t = self._tile(tile)
+        f = self._facets(facets)
+        dev = self._device
+        directions = np.asarray(directions, np.float64)
+        words = (len(facets) + 31) // 32
+        bits = wp.empty((len(directions), words), dtype=wp.uint32, device=dev)
+        dirs = wp.array(directions.astype(np.float32), dtype=wp.vec3, device=dev)
+        z_lo, z_hi = tile.z_range
+        wp.launch(kv.visibility_bits, dim=(len(directions), words), device=dev,
+                  inputs=[t["mesh"].id, t["points"], t["faces"], t["face_normals"], int(bool(brute_force)),
+                          f["position"], f["face"], dirs,
+                          float(tile.origin[0]), float(tile.origin[1]), float(tile.period[0]), float(tile.period[1]),
+                          z_lo, z_hi, ray_offset(tile)],
+                  outputs=[bits])
+        vis = Visibility(directions, bits.numpy(), len(facets))
+        vis.device_cache[self.name] = {"bits": bits, "directions": dirs}
+        return vis
+
+    def visible_area(self, facets, vis):
+        import warp as wp
+
+        from .kernels import truth as kt
+
+        f = self._facets(facets)
+        v = self._vis(vis)
+        dev = self._device
+        n_dirs, n_words = vis.bits.shape
+        chunks, per = chunking(n_words, n_dirs, self._threads)
+        partial = wp.empty((chunks, n_dirs), dtype=wp.float32, device=dev)
+        wp.launch(kt.visible_area_partial, dim=(chunks, n_dirs), device=dev,
+                  inputs=[v["directions"], v["bits"], f["normal"], f["area"], per], outputs=[partial])
+        a_v = wp.empty(n_dirs, dtype=wp.float32, device=dev)
+        wp.launch(kt.sum_chunks_area, dim=n_dirs, device=dev, inputs=[partial], outputs=[a_v])
+        return a_v.numpy()
+
+    def effective_brdf(self, facets, vis, kinds, params, pair_i, pair_o, a_v):
+        import warp as wp
+
+        from .kernels import truth as kt
+
+        f = self._facets(facets)
+        v = self._vis(vis)
+        dev = self._device
+        n_pairs = len(pair_i)
+        chunks, per = chunking(vis.bits.shape[1], n_pairs, self._threads)
+        pi = wp.array(np.asarray(pair_i, np.int32), dtype=wp.int32, device=dev)
+        po = wp.array(np.asarray(pair_o, np.int32), dtype=wp.int32, device=dev)
+        partial = wp.empty((chunks, n_pairs), dtype=wp.vec3, device=dev)
+        wp.launch(kt.effective_brdf_partial, dim=(chunks, n_pairs), device=dev,
+                  inputs=[v["directions"], pi, po, v["bits"], f["normal"], f["weight"], f["material"],
+                          wp.array(np.asarray(kinds, np.int32), dtype=wp.int32, device=dev),
+                          wp.array(np.asarray(params, np.float32), dtype=wp.float32, device=dev), per],
+                  outputs=[partial])
+        out = wp.empty(n_pairs, dtype=wp.vec3, device=dev)
+        wp.launch(kt.sum_chunks_brdf, dim=n_pairs, device=dev,
+                  inputs=[partial, po, wp.array(np.asarray(a_v, np.float32), dtype=wp.float32, device=dev)],
+                  outputs=[out])
+        return out.numpy()
