@@ -1,9 +1,33 @@
-"""warp_biscale: bi-scale material design on NVIDIA Warp and OpenCL."""
+"""warp_biscale: bi-scale material design on NVIDIA Warp and OpenCL.
+
+    import warp_biscale as wb
+    tile = wb.geometry.pyramid(height=0.5)            # or wb.SmallScale.load("tile.obj")
+    f = wb.effective_brdf_exact(tile, wb.Lambert(0.5), wi, wo, facets=2**16)
+    gt = wb.ground_truth(tile, [wb.BlinnPhong(1.0, 64)], facets=2**18, directions=12)
+    gt.eval(wi, wo); gt.save("t.npz"); wb.load("t.npz")
+"""
 
 from . import directions, reference
 from .backend import Backend, backends, get_backend
 from .brdf import BlinnPhong, CookTorrance, Lambert, Ward
+from .io import load
 from .model import Facets, Visibility
 from .smallscale import SmallScale, TileWarning
+from .truth import GroundTruth, effective_brdf_exact, ground_truth
 
 __version__ = "0.1.0"
+
+__all__ = [
+    "Backend", "BlinnPhong", "CookTorrance", "Facets", "GroundTruth", "Lambert", "SmallScale", "TileWarning",
+    "Visibility", "Ward", "backends", "directions", "effective_brdf_exact", "geometry", "get_backend",
+    "ground_truth", "load", "reference",
+]
+
+
+def __getattr__(name):
+    # geometry imports trimesh-free numpy code only, but keep the top-level import light.
+    if name == "geometry":
+        from . import geometry
+
+        return geometry
+    raise AttributeError(f"module 'warp_biscale' has no attribute {name!r}")

@@ -1,0 +1,88 @@
+"""File helpers: atomic writes, and the versioned npz format every saved object uses.
+
+A saved file is an ``.npz`` whose ``header`` entry is a JSON document
+``{"format": "warp_biscale.<kind>", "version": N, ...}``. `load` reads the header first and refuses
+a wrong kind, an unknown version, a truncated or a corrupt file with a message naming the file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import tempfile
+import zipfile
+
+import numpy as np
+
+__all__ = ["atomic_path", "save_npz", "read_npz", "load"]
+
+
+@contextlib.contextmanager
+def atomic_path(path):
+    """Yield a temporary path beside `path`; on success move it into place, else remove it.
+
+    A reader never sees a half-written file, and a failed write leaves the old file untouched.
+    """
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    os.makedirs(folder, exist_ok=True)
+    suffix = os.path.splitext(path)[1]
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=suffix, dir=folder)
+    os.close(fd)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.remove(tmp)
+        raise
+
+
+def save_npz(path, kind: str, version: int, header: dict, arrays: dict) -> None:
+    """Write arrays + a JSON header atomically as a compressed npz."""
+    head = {"format": f"warp_biscale.{kind}", "version": int(version), **header}
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, header=np.array(json.dumps(head)), **arrays)
+
+
+def read_npz(path, kind: str | None = None, versions=(1,)) -> tuple[dict, dict]:
+    """→ (header, arrays). Clear errors for a missing, truncated, corrupt or foreign file."""
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"no such file: {path}")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if "header" not in z.files:
+                raise ValueError(f"{path} is not a warp_biscale file (no header)")
+            head = json.loads(str(z["header"]))
+            arrays = {k: z[k] for k in z.files if k != "header"}
+    except (zipfile.BadZipFile, EOFError, OSError, json.JSONDecodeError, KeyError) as exc:
+        raise ValueError(f"{path} is truncated or corrupt: {exc}") from None
+    except ValueError as exc:
+        if "warp_biscale" in str(exc):
+            raise
+        raise ValueError(f"{path} is truncated or corrupt: {exc}") from None
+    fmt = head.get("format", "")
+    if not str(fmt).startswith("warp_biscale."):
+        raise ValueError(f"{path} is not a warp_biscale file (format {fmt!r})")
+    if kind is not None and fmt != f"warp_biscale.{kind}":
+        raise ValueError(f"{path} holds a {fmt!r}, not a warp_biscale.{kind}")
+    if head.get("version") not in versions:
+        raise ValueError(
+            f"{path} is {fmt} version {head.get('version')!r}; this warp_biscale reads version(s) "
+            f"{', '.join(map(str, versions))}"
+        )
+    return head, arrays
+
+
+def load(path):
+    """Load any saved warp_biscale object (currently: a ground-truth table)."""
+    head, _ = read_npz(path)
+    fmt = head["format"]
+    if fmt == "warp_biscale.ground_truth":
+        from .truth import GroundTruth
+
+        return GroundTruth.load(path)
+    raise ValueError(f"{path}: no loader for {fmt!r}")
