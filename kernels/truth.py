@@ -5,11 +5,18 @@ Twin of ``cl/truth.cl``; the mathematics is ``warp_biscale.reference.visible_are
 thread per (chunk, pair) writes a partial sum, and a second kernel adds the chunks. Threads of one
 chunk and neighbouring pairs read the same facets, so those reads are shared through the cache;
 no float atomics are needed (OpenCL devices lack them).
+
+Summation: a float32 running sum over 10⁶ facets loses ~n·ε (measured: 0.3 % at 2¹⁸ facets on one
+CPU thread), so each thread sums blocks of BLOCK_WORDS words (2048 facets) in float32 and adds the
+blocks into a float64 accumulator; the chunk sums are added in float64 too. The float64 work is
+one add per 2048 facets, invisible in the timings.
 """
 
 import warp as wp
 
 from .common import brdf_cosine_weighted, lowest_bit
+
+BLOCK_WORDS = wp.constant(64)
 
 
 @wp.kernel
@@ -24,25 +31,30 @@ def visible_area_partial(
     c, k = wp.tid()
     d = directions[k]
     n_words = bits.shape[1]
-    acc = float(0.0)
-    w_end = wp.min((c + 1) * words_per_chunk, n_words)
-    for w in range(c * words_per_chunk, w_end):
+    acc = wp.float64(0.0)
+    block = float(0.0)
+    w_start = c * words_per_chunk
+    w_end = wp.min(w_start + words_per_chunk, n_words)
+    for w in range(w_start, w_end):
         m = bits[k, w]
         while m != wp.uint32(0):
             b = lowest_bit(m)
             m = m & (m - wp.uint32(1))
             s = w * 32 + b
-            acc += wp.max(wp.dot(normal[s], d), 0.0) * area[s]
-    partial[c, k] = acc
+            block += wp.max(wp.dot(normal[s], d), 0.0) * area[s]
+        if (w - w_start) % BLOCK_WORDS == BLOCK_WORDS - 1:
+            acc += wp.float64(block)
+            block = 0.0
+    partial[c, k] = float(acc + wp.float64(block))
 
 
 @wp.kernel
 def sum_chunks_area(partial: wp.array2d(dtype=wp.float32), a_v: wp.array(dtype=wp.float32)):
     k = wp.tid()
-    acc = float(0.0)
+    acc = wp.float64(0.0)
     for c in range(partial.shape[0]):
-        acc += partial[c, k]
-    a_v[k] = acc
+        acc += wp.float64(partial[c, k])
+    a_v[k] = float(acc)
 
 
 @wp.kernel
@@ -65,9 +77,11 @@ def effective_brdf_partial(
     wi = directions[i]
     wo = directions[o]
     n_words = bits.shape[1]
-    acc = wp.vec3(0.0)
-    w_end = wp.min((c + 1) * words_per_chunk, n_words)
-    for w in range(c * words_per_chunk, w_end):
+    acc = wp.vec3d(0.0)
+    block = wp.vec3(0.0)
+    w_start = c * words_per_chunk
+    w_end = wp.min(w_start + words_per_chunk, n_words)
+    for w in range(w_start, w_end):
         m = bits[i, w] & bits[o, w]
         while m != wp.uint32(0):
             b = lowest_bit(m)
@@ -75,8 +89,12 @@ def effective_brdf_partial(
             s = w * 32 + b
             mat = material[s]
             f = brdf_cosine_weighted(kinds[mat], params, mat, normal[s], wi, wo)
-            acc += wp.cw_mul(f, weight[s])
-    partial[c, p] = acc
+            block += wp.cw_mul(f, weight[s])
+        if (w - w_start) % BLOCK_WORDS == BLOCK_WORDS - 1:
+            acc += wp.vec3d(block)
+            block = wp.vec3(0.0)
+    acc += wp.vec3d(block)
+    partial[c, p] = wp.vec3(acc)
 
 
 @wp.kernel
@@ -87,11 +105,11 @@ def sum_chunks_brdf(
     out: wp.array(dtype=wp.vec3),
 ):
     p = wp.tid()
-    acc = wp.vec3(0.0)
+    acc = wp.vec3d(0.0)
     for c in range(partial.shape[0]):
-        acc += partial[c, p]
+        acc += wp.vec3d(partial[c, p])
     area = a_v[pair_o[p]]
     if area > 0.0:
-        out[p] = acc / area
+        out[p] = wp.vec3(acc / wp.float64(area))
     else:
         out[p] = wp.vec3(0.0)

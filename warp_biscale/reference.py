@@ -258,3 +258,50 @@ def effective_brdf(facets: dict, vis: np.ndarray, directions, kinds, params, pai
         fc = brdf_cosine_weighted(kinds, params, facets["material"][both], n[both], directions[i], directions[o])
         out[p] = (fc * w[both]).sum(axis=0) / a_v[o]
     return out
+
+
+# ----------------------------------------------------------------------------------------------
+# Closed form: the symmetric V-groove (two planes, shadowing and masking by the opposite wall)
+# ----------------------------------------------------------------------------------------------
+
+
+def vgroove_effective_brdf(depth, width, kinds, params, wi, wo, material=0, color=(1.0, 1.0, 1.0)):
+    """(N, 3) exact f̄ of a V-groove running along y: walls from z = 0 at x = 0 and x = w down to
+    z = −depth at x = w/2, tiled with period w in x (any period in y).
+
+    Derivation. The inside of one groove is a convex triangle in the xz-plane, so a ray from a
+    wall point into it leaves either through the open top (unblocked: nothing of the tiling rises
+    above z = 0) or through the opposite wall (blocked). With t = ωx/ωz, a point of the left wall
+    at depth fraction s ∈ [0, 1] (position (s·w/2, −s·d)) reaches z = 0 at x = s(w/2 + d·t), so it
+    is visible iff s ≤ w/(w/2 + d·t): the visible fraction of the left wall is
+    v_L(ω) = min(1, w/(w/2 + d·t)) where n_L·ω > 0, and by symmetry v_R(ω) = min(1, w/(w/2 − d·t)).
+    Visibility is monotone in s, so the fraction seen from both ωi and ωo is min(v(ωi), v(ωo)).
+    Each wall is planar with one material, so f_r(n)(n·ωi)(n·ωo) is constant on it:
+    f̄ = Σ_walls f_r·(n·ωi)⁺(n·ωo)⁺·A·min(v(ωi), v(ωo)) / Σ_walls (n·ωo)⁺·A·v(ωo),
+    and the denominator equals w·ℓ·cos θo (a height field's projected area), which the tests check.
+    """
+    wi, wo = np.atleast_2d(np.asarray(wi, np.float64)), np.atleast_2d(np.asarray(wo, np.float64))
+    d, w = float(depth), float(width)
+    half = w / 2
+    length = np.hypot(d, half)
+    normals = [np.array([d, 0.0, half]) / length, np.array([-d, 0.0, half]) / length]
+    signs = [1.0, -1.0]
+
+    def frac(n, sign, om):
+        t = om[:, 0] / om[:, 2]
+        with np.errstate(divide="ignore"):
+            v = np.minimum(1.0, w / (half + sign * d * t))
+        return np.where((om @ n > 0) & (om[:, 2] > 0), v, 0.0)
+
+    num = np.zeros((len(wi), 3))
+    den = np.zeros(len(wi))
+    mat = np.full(len(wi), material, np.int32)
+    for n, sign in zip(normals, signs):
+        vi, vo = frac(n, sign, wi), frac(n, sign, wo)
+        fc = brdf_cosine_weighted(kinds, params, mat, np.broadcast_to(n, wi.shape), wi, wo)
+        num += fc * np.asarray(color) * np.minimum(vi, vo)[:, None] * length
+        den += np.maximum(wo @ n, 0.0) * vo * length
+    out = np.zeros_like(num)
+    ok = den > 0
+    out[ok] = num[ok] / den[ok, None]
+    return out

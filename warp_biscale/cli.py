@@ -1,0 +1,162 @@
+"""Command line: ``warp-biscale truth`` (ground-truth effective BRDF of a tile) and ``backends``."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+import numpy as np
+
+BUILTIN_TILES = {
+    "pyramid": ("pyramid", {}),
+    "pentagon": ("pyramid", {"sides": 5}),
+    "vgroove": ("grooves", {"profile": "v"}),
+    "ugroove": ("grooves", {"profile": "u"}),
+    "rods": ("rods", {}),
+    "woven": ("woven", {}),
+    "flat": ("flat", {}),
+}
+
+
+def load_tile(spec: str):
+    """A mesh file path, or the name of a built-in procedural tile."""
+    from . import geometry
+    from .smallscale import SmallScale
+
+    if os.path.exists(spec):
+        return SmallScale.load(spec)
+    if spec in BUILTIN_TILES:
+        fn, kwargs = BUILTIN_TILES[spec]
+        return getattr(geometry, fn)(**kwargs)
+    raise SystemExit(
+        f"error: tile {spec!r} is neither a mesh file nor a built-in tile ({', '.join(BUILTIN_TILES)})"
+    )
+
+
+def _materials(specs, tile):
+    from .brdf import Lambert, parse_brdf
+
+    if not specs:
+        return [Lambert(0.5)] * tile.n_materials
+    mats = [parse_brdf(s) for s in specs]
+    if len(mats) == 1 and tile.n_materials > 1:
+        mats = mats * tile.n_materials  # one BRDF for every material id
+    return mats
+
+
+def _incidence_slices(gt, thetas_i, n_out=61):
+    """f̄ in the plane of incidence: ωi at θi (φ = 0), ωo from −85° to 85° (negative = φ 180°)."""
+    theta_o = np.radians(np.linspace(-85, 85, n_out))
+    rows = []
+    for ti in np.radians(thetas_i):
+        wi = np.tile([np.sin(ti), 0.0, np.cos(ti)], (n_out, 1))
+        wo = np.stack([np.sin(theta_o), np.zeros(n_out), np.cos(theta_o)], 1)
+        rows.append(gt.eval(wi, wo))
+    return np.degrees(theta_o), np.array(rows)
+
+
+def _print_table(gt, thetas_i, file=sys.stdout):
+    cols = [-60, -30, 0, 30, 60]
+    print(f"\nf̄(ωi, ωo) (mean of RGB, cos θi included) in the plane of incidence, tile {gt.tile!r}, "
+          f"{gt.facets} facets, K={gt.directions}, backend {gt.backend}", file=file)
+    print("θi \\ θo " + "".join(f"{c:>10d}°" for c in cols), file=file)
+    for ti in thetas_i:
+        t = np.radians(ti)
+        wi = np.tile([np.sin(t), 0, np.cos(t)], (len(cols), 1))
+        to = np.radians(cols)
+        wo = np.stack([np.sin(to), np.zeros(len(cols)), np.cos(to)], 1)
+        f = gt.eval(wi, wo).mean(axis=1)
+        print(f"{ti:>6.0f}° " + "".join(f"{x:>11.5f}" for x in f), file=file)
+    alb = gt.albedo().mean(axis=1)
+    print(f"directional albedo over the grid: min {alb.min():.4f}, max {alb.max():.4f}", file=file)
+    print("stage times (s): " + ", ".join(f"{k} {v:.3f}" for k, v in gt.timings.items()), file=file)
+
+
+def _plot(gt, path, thetas_i):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .io import atomic_path
+
+    theta_o, slices = _incidence_slices(gt, thetas_i)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for ti, f in zip(thetas_i, slices):
+        axes[0].plot(theta_o, f.mean(axis=1), label=f"θi = {ti:g}°")
+    axes[0].set_xlabel("θo in the plane of incidence (°; negative: back side)")
+    axes[0].set_ylabel("f̄ (cos θi included), mean RGB")
+    axes[0].set_title(f"{gt.tile}: effective BRDF slices")
+    axes[0].legend()
+    axes[0].grid(alpha=0.3)
+    im = axes[1].imshow(gt.table.mean(axis=2), origin="lower", cmap="magma", aspect="auto")
+    axes[1].set_xlabel("ωo grid index")
+    axes[1].set_ylabel("ωi grid index")
+    axes[1].set_title(f"f̄ on the {gt.directions}²×{gt.directions}² grid ({gt.facets} facets)")
+    fig.colorbar(im, ax=axes[1])
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+
+
+def cmd_truth(args):
+    import warp_biscale as wb
+
+    tile = load_tile(args.tile)
+    mats = _materials(args.brdf, tile)
+    gt = wb.ground_truth(tile, mats, facets=args.facets, directions=args.directions, backend=args.backend,
+                         seed=args.seed, progress=not args.quiet)
+    thetas = [0, 30, 60, 75]
+    if not args.quiet:
+        _print_table(gt, thetas)
+    if args.output:
+        _plot(gt, args.output, thetas)
+        print(f"wrote {args.output}")
+    if args.save:
+        gt.save(args.save)
+        print(f"wrote {args.save}")
+    return 0
+
+
+def cmd_backends(args):
+    import warp_biscale as wb
+
+    for b in wb.backends():
+        extra = f"  ({b['error']})" if b.get("error") else ""
+        print(f"{b['name']:<40} {b['device'] or 'unavailable'}{extra}")
+    return 0
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(prog="warp-biscale", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("truth", help="ground-truth effective BRDF of a tile: table + PNG plot of slices")
+    p.add_argument("tile", nargs="?", default="pyramid",
+                   help=f"mesh file (OBJ/PLY/STL/GLB) or built-in tile: {', '.join(BUILTIN_TILES)} "
+                        "(default: pyramid)")
+    p.add_argument("--brdf", action="append",
+                   help="small-scale BRDF, once per material id, e.g. lambert:albedo=0.5, "
+                        "blinnphong:exponent=512,ks=1, cooktorrance:roughness=0.2,f0=0.04, ward:alpha=0.2; "
+                        "RGB as r/g/b (default lambert:albedo=0.5)")
+    p.add_argument("--facets", type=int, default=1 << 18, help="number of facets Ns (default 2^18)")
+    p.add_argument("--directions", type=int, default=12, help="direction grid size K (K² directions, default 12)")
+    p.add_argument("--backend", default="auto", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name>")
+    p.add_argument("--seed", type=int, default=0, help="facet-sampling seed (default 0)")
+    p.add_argument("-o", "--output", default="truth.png", help="PNG plot of BRDF slices (default truth.png)")
+    p.add_argument("--save", help="also save the table as .npz (read back with wb.load)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no table, no progress")
+    p.set_defaults(func=cmd_truth)
+    b = sub.add_parser("backends", help="list the compute backends present here")
+    b.set_defaults(func=cmd_backends)
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
