@@ -42,6 +42,7 @@ LEAF_SIZE = 4
 BINS = 16
 PAD = 1e-6
 MEDIAN_BELOW_LEVEL = 32
+SAH_MIN_COUNT = 32  # smaller nodes split at the object median of their longest axis
 STACK_SIZE = 64  # must match BVH_STACK in cl/visibility.cl
 
 
@@ -76,22 +77,20 @@ class Bvh:
         return np.ascontiguousarray(np.concatenate([a, b - a, c - a], axis=1), np.float32)
 
 
-def _stable_partition(perm, pos, sid, go_right, seg_start, n_left):
-    """Reorder perm[pos] (grouped by segment sid, segments starting at seg_start) so that, within each
-    segment, items with go_right False come first, both groups keeping their order."""
+def _stable_partition(perm, pos, t, go_right, sid, first, seg_start, n_left):
+    """perm with the items at positions pos (= t = perm[pos], grouped by segment sid, segment j
+    occupying pos[first[j]:...] and perm[seg_start[j]:...]) reordered so that, within each segment,
+    items with go_right False come first, both groups keeping their order."""
     left = ~go_right
-    cl = np.cumsum(left)
-    cr = np.cumsum(go_right)
-    # Exclusive prefix at each segment's first item.
-    first = np.r_[0, np.flatnonzero(sid[1:] != sid[:-1]) + 1]
-    base_l = np.repeat(cl[first] - left[first], np.diff(np.r_[first, len(pos)]))
-    base_r = np.repeat(cr[first] - go_right[first], np.diff(np.r_[first, len(pos)]))
-    rank_l = cl - base_l - 1
-    rank_r = cr - base_r - 1
-    start = seg_start[sid]
-    new = np.where(go_right, start + n_left[sid] + rank_r, start + rank_l)
+    cl = np.cumsum(left, dtype=np.int64)
+    pl = cl[first] - left[first]  # lefts before each segment
+    k = np.arange(len(pos), dtype=np.int64)
+    seg_pl = pl[sid]
+    n_l_incl = cl - seg_pl  # lefts in the segment up to and including this item
+    n_r_incl = (k - first[sid] + 1) - n_l_incl
+    new = seg_start[sid] + np.where(go_right, n_left[sid] + n_r_incl - 1, n_l_incl - 1)
     out = perm.copy()
-    out[new] = perm[pos]
+    out[new] = t
     return out
 
 
@@ -119,16 +118,15 @@ def build_bvh(vertices, faces, leaf_size: int = LEAF_SIZE) -> Bvh:
     perms = [np.argsort(cen[:, a], kind="stable") for a in range(3)]
 
     # Node records, appended level by level (breadth-first).
-    starts = [np.array([0])]
-    counts = [np.array([n_tri])]
+    starts = [np.array([0], np.int64)]
+    counts = [np.array([n_tri], np.int64)]
     childs = []  # per level: (n, 2) int64
     level_start = [0]
     n_nodes = 1
     cur_start, cur_count = starts[0], counts[0]
     level = 0
     while True:
-        n_cur = len(cur_start)
-        child = np.empty((n_cur, 2), np.int64)
+        child = np.empty((len(cur_start), 2), np.int64)
         inner = cur_count > leaf_size
         child[~inner, 0] = cur_start[~inner]
         child[~inner, 1] = -cur_count[~inner]
@@ -138,81 +136,85 @@ def build_bvh(vertices, faces, leaf_size: int = LEAF_SIZE) -> Bvh:
         s_start = cur_start[inner]
         s_count = cur_count[inner]
         m = len(s_start)
-        sid = np.repeat(np.arange(m), s_count)
-        pos = np.repeat(s_start - np.r_[0, np.cumsum(s_count)[:-1]], s_count) + np.arange(len(sid))
         first = np.r_[0, np.cumsum(s_count)[:-1]]  # offset of each segment in pos
         last = first + s_count - 1
+        n_items = int(s_count.sum())
+        sid = np.repeat(np.arange(m), s_count)
+        pos = np.arange(n_items, dtype=np.int64) + np.repeat(s_start - first, s_count)
+        t_ax = [perms[a][pos] for a in range(3)]
+        c_ax = [cen[t_ax[a], a] for a in range(3)]
+        ext = np.stack([c_ax[a][last] - c_ax[a][first] for a in range(3)], axis=1)
 
-        best_cost = np.full(m, np.inf)
-        best_axis = np.zeros(m, np.int64)
-        best_bin = np.zeros(m, np.int64)
-        bins_of = [None, None, None]  # per axis: (len(pos),) bin of the item at perms[a][pos]
-        ext_all = np.zeros((m, 3))
-        use_median = np.full(m, level >= MEDIAN_BELOW_LEVEL)
-        if not use_median[0]:
+        go_right = np.zeros(n_tri, bool)  # by triangle id, for the nodes of this level
+        split_axis = np.argmax(ext, axis=1)  # median split along the longest centroid extent
+        use_median = np.ones(m, bool)
+        sah = (s_count > SAH_MIN_COUNT) & (level < MEDIAN_BELOW_LEVEL) & (ext.max(axis=1) > 0)
+        if sah.any():
+            nodes = np.flatnonzero(sah)
+            ms = len(nodes)
+            items = np.flatnonzero(sah[sid]) if ms < m else slice(None)
+            rid = (np.cumsum(sah) - 1)[sid[items]]
+            cnt_s = s_count[nodes]
+            first_s = np.r_[0, np.cumsum(cnt_s)[:-1]]
+            best_cost = np.full(ms, np.inf)
+            best_axis = np.zeros(ms, np.int64)
+            best_bin = np.zeros(ms, np.int64)
+            bins_of = []
             for a in range(3):
-                t = perms[a][pos]
-                c = cen[t, a]
-                cmin = c[first]
-                cmax = c[last]
-                ext = cmax - cmin
-                ext_all[:, a] = ext
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    scale = np.where(ext > 0, BINS / ext, 0.0)
-                b = np.clip(((c - cmin[sid]) * scale[sid]).astype(np.int64), 0, BINS - 1)
-                bins_of[a] = b
-                key = sid * BINS + b  # non-decreasing along pos
+                t = t_ax[a][items]
+                c = c_ax[a][items]
+                e = ext[nodes, a]
+                cmin = c[first_s]
+                with np.errstate(divide="ignore"):
+                    scale = np.where(e > 0, BINS / np.where(e > 0, e, 1.0), 0.0)
+                b = np.minimum(((c - cmin[rid]) * scale[rid]).astype(np.int64), BINS - 1)
+                bins_of.append(b)
+                key = rid * BINS + b  # non-decreasing along the items (sorted by c within a node)
                 brk = np.r_[0, np.flatnonzero(key[1:] != key[:-1]) + 1]
                 gkey = key[brk]
-                glo = np.minimum.reduceat(tmin[t], brk, axis=0)
-                ghi = np.maximum.reduceat(tmax[t], brk, axis=0)
-                gcnt = np.diff(np.r_[brk, len(key)])
-                lo = np.full((m * BINS, 3), np.inf)
-                hi = np.full((m * BINS, 3), -np.inf)
-                cnt = np.zeros(m * BINS, np.int64)
-                lo[gkey], hi[gkey], cnt[gkey] = glo, ghi, gcnt
-                lo, hi, cnt = lo.reshape(m, BINS, 3), hi.reshape(m, BINS, 3), cnt.reshape(m, BINS)
-                # Left of split j = bins 0..j, right = bins j+1..BINS-1, j = 0..BINS-2.
-                l_lo = np.minimum.accumulate(lo, axis=1)[:, :-1]
-                l_hi = np.maximum.accumulate(hi, axis=1)[:, :-1]
+                lo = np.full((ms * BINS, 3), np.inf)
+                hi = np.full((ms * BINS, 3), -np.inf)
+                cnt = np.zeros(ms * BINS, np.int64)
+                lo[gkey] = np.minimum.reduceat(tmin[t], brk, axis=0)
+                hi[gkey] = np.maximum.reduceat(tmax[t], brk, axis=0)
+                cnt[gkey] = np.diff(np.r_[brk, len(key)])
+                lo, hi, cnt = lo.reshape(ms, BINS, 3), hi.reshape(ms, BINS, 3), cnt.reshape(ms, BINS)
+                # Split j: left = bins 0..j, right = bins j+1..BINS-1, j = 0..BINS-2.
                 l_n = np.cumsum(cnt, axis=1)[:, :-1]
-                r_lo = np.minimum.accumulate(lo[:, ::-1], axis=1)[:, ::-1][:, 1:]
-                r_hi = np.maximum.accumulate(hi[:, ::-1], axis=1)[:, ::-1][:, 1:]
-                r_n = s_count[:, None] - l_n
+                r_n = cnt_s[:, None] - l_n
+                l_a = _area(np.minimum.accumulate(lo, axis=1)[:, :-1], np.maximum.accumulate(hi, axis=1)[:, :-1])
+                r_a = _area(np.minimum.accumulate(lo[:, ::-1], axis=1)[:, -2::-1],
+                            np.maximum.accumulate(hi[:, ::-1], axis=1)[:, -2::-1])
                 with np.errstate(invalid="ignore"):
-                    cost = np.where((l_n > 0) & (r_n > 0), _area(l_lo, l_hi) * l_n + _area(r_lo, r_hi) * r_n, np.inf)
+                    cost = np.where((l_n > 0) & (r_n > 0), l_a * l_n + r_a * r_n, np.inf)
                 j = np.argmin(cost, axis=1)
-                cj = cost[np.arange(m), j]
+                cj = cost[np.arange(ms), j]
                 better = cj < best_cost
                 best_cost[better] = cj[better]
                 best_axis[better] = a
                 best_bin[better] = j[better]
-            use_median |= ~np.isfinite(best_cost)
-
-        # Which side each item goes: SAH nodes by bin, median nodes by rank along their longest axis.
-        go_right_tri = np.zeros(n_tri, bool)
-        if (~use_median).any():
-            ax_item = best_axis[sid]
+            ok = np.isfinite(best_cost)
+            use_median[nodes[ok]] = False
+            split_axis[nodes] = best_axis
+            item_ok = ok[rid]
             for a in range(3):
-                sel = (ax_item == a) & ~use_median[sid]
+                sel = item_ok & (best_axis[rid] == a)
                 if sel.any():
-                    go_right_tri[perms[a][pos[sel]]] = bins_of[a][sel] > best_bin[sid[sel]]
+                    go_right[t_ax[a][items][sel]] = bins_of[a][sel] > best_bin[rid[sel]]
         if use_median.any():
-            if level >= MEDIAN_BELOW_LEVEL:  # extents were not computed
-                for a in range(3):
-                    c = cen[perms[a][pos], a]
-                    ext_all[:, a] = c[last] - c[first]
-            med_axis = np.argmax(ext_all, axis=1)
-            rank = np.arange(len(pos)) - first[sid]
+            rank = np.arange(n_items) - first[sid]
+            med = use_median[sid]
             for a in range(3):
-                sel = use_median[sid] & (med_axis[sid] == a)
+                sel = med & (split_axis[sid] == a)
                 if sel.any():
-                    go_right_tri[perms[a][pos[sel]]] = rank[sel] >= s_count[sid[sel]] // 2
-        n_right = np.bincount(sid, weights=go_right_tri[perms[0][pos]], minlength=m).astype(np.int64)
+                    go_right[t_ax[a][sel]] = rank[sel] >= (s_count // 2)[sid[sel]]
+        gr0 = go_right[t_ax[0]]
+        n_right = np.bincount(sid, weights=gr0, minlength=m).astype(np.int64)
         n_left = s_count - n_right
         assert (n_left > 0).all() and (n_right > 0).all()
-        for a in range(3):
-            perms[a] = _stable_partition(perms[a], pos, sid, go_right_tri[perms[a][pos]], s_start, n_left)
+        perms[0] = _stable_partition(perms[0], pos, t_ax[0], gr0, sid, first, s_start, n_left)
+        for a in (1, 2):
+            perms[a] = _stable_partition(perms[a], pos, t_ax[a], go_right[t_ax[a]], sid, first, s_start, n_left)
 
         # Children: left = n_nodes + 2i, right = left + 1, for the i-th inner node of this level.
         kids = n_nodes + 2 * np.arange(m)
