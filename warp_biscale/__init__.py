@@ -7,7 +7,7 @@
     gt.eval(wi, wo); gt.save("t.npz"); wb.load("t.npz")
 """
 
-from . import directions, reference
+from . import directions, geometry, reference
 from .backend import Backend, backends, get_backend
 from .brdf import BlinnPhong, CookTorrance, Lambert, Ward
 from .io import load
@@ -23,11 +23,3 @@ __all__ = [
     "ground_truth", "load", "reference",
 ]
 
-
-def __getattr__(name):
-    # geometry imports trimesh-free numpy code only, but keep the top-level import light.
-    if name == "geometry":
-        from . import geometry
-
-        return geometry
-    raise AttributeError(f"module 'warp_biscale' has no attribute {name!r}")

@@ -408,9 +408,11 @@ def grooves(*, depth=0.5, width=1.0, profile="v", flat_fraction=0.0, axis="x", s
         Period across the groove, and the tile's length along it (tile units).
     profile : "v" or "u"
         "v": two planar walls meeting at the bottom. "u": a half ellipse (semi-axes
-        groove-width/2 and depth) sampled with `segments` straight pieces.
+        groove-width/2 and depth) sampled with `segments` straight pieces at equal angles; with
+        an odd number of pieces the polygon has a flat bottom a little above z = 0.
     flat_fraction : float in [0, 0.999]
-        Fraction of the period that is flat land between grooves, split half on each side.
+        Fraction of the period that is flat land between grooves, split half on each side
+        (values below 2e-6 count as 0).
     axis : "x" or "y"
         Direction the grooves run in.
     segments : int in [2, 4096]
@@ -434,6 +436,8 @@ def grooves(*, depth=0.5, width=1.0, profile="v", flat_fraction=0.0, axis="x", s
     wall_color = _color(fn, "wall_color", wall_color, default=color)
 
     land = 0.5 * flat_fraction * width
+    if land < 1e-6 * width:
+        land = 0.0  # a strip of land this narrow could only be meshed with slivers
     g = width - 2 * land  # groove opening
     if profile == "v":
         groove = np.array([[land, depth], [0.5 * width, 0.0], [width - land, depth]])

@@ -1,0 +1,196 @@
+/* Visibility of the infinitely tiled surface (Wu §3.3, DESIGN §4): bits V_s(w_k).
+ *
+ * Twin of kernels/visibility.py; the mathematics is warp_biscale.reference.trace_periodic. One
+ * work-item per (direction k, 32-facet word w), each writing one whole word of bits (no atomics).
+ * The NDRange is (words, D): OpenCL's dimension 0 varies fastest, so neighbouring work-items trace
+ * neighbouring facets (ordered by face) along the same direction, as Warp's (D, words) launch
+ * does. Rays are any-hit. A ray leaving the tile through its xy boundary re-enters on the opposite
+ * side until it passes above the tile's highest point.
+ *
+ * Triangles: `tris` (F, 9) floats [a, b - a, c - a] in BVH slot order (warp_biscale.bvh), the
+ * edges computed in float32 on the host exactly as Warp's hit_any_triangle computes them.
+ * BVH nodes: `nodes` (N, 8) floats, [min xyz, max xyz, child0, child1] with the two child words
+ * int32 bit patterns: inner (left, right), leaf (first slot, -count).
+ */
+
+#define BVH_STACK 64 /* = warp_biscale.bvh.STACK_SIZE; the builder guarantees depth <= this */
+
+/* Möller–Trumbore, double-sided, exactly the acceptance test of Warp's hit_any_triangle:
+ * det != 0, u >= 0, v >= 0, u + v <= 1, t_lo < t <= t_hi. The early outs (u outside [0, 1]) never
+ * change the outcome: u + v <= 1 with v >= 0 already implies u <= 1 in rounded arithmetic. */
+inline int hit_triangle(__global const float *tri, float3 o, float3 d, float t_lo, float t_hi)
+{
+    float3 a = vload3(0, tri);
+    float3 e1 = vload3(1, tri);
+    float3 e2 = vload3(2, tri);
+    float3 p = cross3(d, e2);
+    float det = dot3(p, e1);
+    if (det == 0.0f)
+        return 0;
+    float inv = 1.0f / det;
+    float3 tv = (float3)(o.x - a.x, o.y - a.y, o.z - a.z);
+    float u = dot3(tv, p) * inv;
+    if (u < 0.0f || u > 1.0f)
+        return 0;
+    float3 q = cross3(tv, e1);
+    float v = dot3(d, q) * inv;
+    float t = dot3(e2, q) * inv;
+    return (v >= 0.0f && u + v <= 1.0f && t > t_lo && t <= t_hi) ? 1 : 0;
+}
+
+/* Brute force: 1 if any triangle is hit with t in (t_lo, t_hi]. */
+inline int hit_any_triangle(__global const float *tris, int n_tris, float3 o, float3 d, float t_lo, float t_hi)
+{
+    for (int f = 0; f < n_tris; ++f)
+        if (hit_triangle(tris + 9 * f, o, d, t_lo, t_hi))
+            return 1;
+    return 0;
+}
+
+/* Slab test against a node's box over [t_lo, t_hi]; inv = 1/d with |d| >= 1e-20 per axis (see
+ * safe_inverse), so no 0·inf appears. Boxes are padded on the host, so inclusive comparisons and
+ * float32 rounding here can only admit a box, never lose one that holds an accepted hit. */
+inline int hit_box(__global const float *node, float3 o, float3 inv, float t_lo, float t_hi, float *t_enter)
+{
+    float tx0 = (node[0] - o.x) * inv.x, tx1 = (node[3] - o.x) * inv.x;
+    float ty0 = (node[1] - o.y) * inv.y, ty1 = (node[4] - o.y) * inv.y;
+    float tz0 = (node[2] - o.z) * inv.z, tz1 = (node[5] - o.z) * inv.z;
+    float tmin = fmax(fmax(fmin(tx0, tx1), fmin(ty0, ty1)), fmax(fmin(tz0, tz1), t_lo));
+    float tmax = fmin(fmin(fmax(tx0, tx1), fmax(ty0, ty1)), fmin(fmax(tz0, tz1), t_hi));
+    *t_enter = tmin;
+    return tmin <= tmax;
+}
+
+inline float safe_inverse(float x)
+{
+    return 1.0f / (fabs(x) < 1.0e-20f ? copysign(1.0e-20f, x) : x);
+}
+
+/* BVH any-hit: 1 if any triangle is hit with t in (t_lo, t_hi], the same test as the brute force.
+ * Both children's boxes are tested at an inner node; the nearer hit one is walked first and the
+ * other pushed on a small stack. */
+inline int bvh_any_hit(__global const float *nodes, __global const float *tris, float3 o, float3 d,
+                       float t_lo, float t_hi)
+{
+    float3 inv = (float3)(safe_inverse(d.x), safe_inverse(d.y), safe_inverse(d.z));
+    float t0, t1;
+    if (!hit_box(nodes, o, inv, t_lo, t_hi, &t0))
+        return 0;
+    int stack[BVH_STACK];
+    int sp = 0;
+    int cur = 0;
+    while (1) {
+        __global const float *node = nodes + 8 * cur;
+        int a = as_int(node[6]);
+        int b = as_int(node[7]);
+        if (b < 0) {
+            for (int i = a; i < a - b; ++i)
+                if (hit_triangle(tris + 9 * i, o, d, t_lo, t_hi))
+                    return 1;
+            if (sp == 0)
+                return 0;
+            cur = stack[--sp];
+            continue;
+        }
+        int h0 = hit_box(nodes + 8 * a, o, inv, t_lo, t_hi, &t0);
+        int h1 = hit_box(nodes + 8 * b, o, inv, t_lo, t_hi, &t1);
+        if (h0 && h1) {
+            if (t1 < t0) {
+                stack[sp++] = a;
+                cur = b;
+            } else {
+                stack[sp++] = b;
+                cur = a;
+            }
+        } else if (h0) {
+            cur = a;
+        } else if (h1) {
+            cur = b;
+        } else {
+            if (sp == 0)
+                return 0;
+            cur = stack[--sp];
+        }
+    }
+}
+
+/* 1 if the ray leaves the tile's height range unblocked (see reference.trace_periodic). Each
+ * cell's segment is tested over t in (-back, t_exit + eps]: back = 0 for the first segment (it
+ * starts on the facet), eps afterwards so that rounding at a wrap cannot open a gap. */
+inline int trace_periodic(__global const float *nodes, __global const float *tris, int n_tris, int brute_force,
+                          float3 start, float3 d, float x0, float y0, float px, float py, float z_lo, float z_hi,
+                          float eps)
+{
+    if (d.z <= 0.0f)
+        return 0;
+    float3 o = start;
+    float z_top = z_hi + eps;
+    float back = 0.0f;
+    int steps = 4 + (int)ceil((z_hi - z_lo + 2.0f * eps) / d.z * (fabs(d.x) / px + fabs(d.y) / py));
+    for (int step = 0; step < steps + 1; ++step) {
+        float t_top = (z_top - o.z) / d.z;
+        float t_x = 1.0e30f;
+        if (d.x > 0.0f)
+            t_x = fmax((x0 + px - o.x) / d.x, 0.0f);
+        else if (d.x < 0.0f)
+            t_x = fmax((x0 - o.x) / d.x, 0.0f);
+        float t_y = 1.0e30f;
+        if (d.y > 0.0f)
+            t_y = fmax((y0 + py - o.y) / d.y, 0.0f);
+        else if (d.y < 0.0f)
+            t_y = fmax((y0 - o.y) / d.y, 0.0f);
+        float t_side = fmin(t_x, t_y);
+        float t_exit = fmin(t_top, t_side);
+        int hit;
+        if (brute_force != 0)
+            hit = hit_any_triangle(tris, n_tris, o, d, -back, t_exit + eps);
+        else
+            hit = bvh_any_hit(nodes, tris, o, d, -back, t_exit + eps);
+        if (hit != 0)
+            return 0;
+        if (t_top <= t_side)
+            return 1;
+        o = (float3)(o.x + t_exit * d.x, o.y + t_exit * d.y, o.z + t_exit * d.z);
+        if (t_x <= t_exit)
+            o.x = o.x - (d.x < 0.0f ? -1.0f : 1.0f) * px;
+        if (t_y <= t_exit)
+            o.y = o.y - (d.y < 0.0f ? -1.0f : 1.0f) * py;
+        back = eps;
+    }
+    return 1;
+}
+
+__kernel void visibility_bits(
+    __global const float *nodes,         /* (N, 8) BVH records */
+    __global const float *tris,          /* (F, 9) [a, b - a, c - a], BVH slot order */
+    const int n_tris,
+    __global const float *face_normals,  /* (F, 3), original face order */
+    const int brute_force,
+    __global const float *position,      /* (Ns, 3) */
+    __global const int *facet_face,      /* (Ns,) */
+    const int n_facets,
+    __global const float *directions,    /* (D, 3) */
+    const float x0, const float y0, const float px, const float py,
+    const float z_lo, const float z_hi, const float eps,
+    __global uint *bits)                 /* (D, words) */
+{
+    int w = get_global_id(0);
+    int k = get_global_id(1);
+    int words = get_global_size(0);
+    float3 d = vload3(k, directions);
+    uint word = 0u;
+    for (int b = 0; b < 32; ++b) {
+        int s = w * 32 + b;
+        if (s < n_facets) {
+            float3 ng = vload3(facet_face[s], face_normals);
+            /* Below the facet's own plane the ray would enter the surface: not visible. */
+            if (dot3(ng, d) > 0.0f) {
+                float3 p = vload3(s, position);
+                float3 o = (float3)(p.x + eps * ng.x, p.y + eps * ng.y, p.z + eps * ng.z);
+                if (trace_periodic(nodes, tris, n_tris, brute_force, o, d, x0, y0, px, py, z_lo, z_hi, eps) != 0)
+                    word |= 1u << b;
+            }
+        }
+    }
+    bits[k * words + w] = word;
+}

@@ -1,0 +1,36 @@
+"""kernels/ and cl/ are installed inside the package (DESIGN §2), in a wheel and in this install."""
+
+import importlib
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_installed_package_has_kernels_and_cl():
+    kernels = importlib.import_module("warp_biscale.kernels.visibility")
+    assert hasattr(kernels, "visibility_bits")
+    from warp_biscale import cl
+
+    src = cl.source("visibility")
+    assert "__kernel" in src and "visibility_bits" in src
+    # Nothing generic at the top of site-packages.
+    with pytest.raises(ImportError):
+        importlib.import_module("kernels.visibility")
+
+
+def test_wheel_contains_kernels_and_cl(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q",
+                        "-w", str(tmp_path), str(ROOT)], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    wheel = next(tmp_path.glob("warp_biscale-*.whl"))
+    names = set(zipfile.ZipFile(wheel).namelist())
+    for stem in ("facets", "visibility", "truth"):
+        assert f"warp_biscale/kernels/{stem}.py" in names
+        assert f"warp_biscale/cl/{stem}.cl" in names
+    assert "warp_biscale/cl/common.cl" in names
+    assert not any(n.startswith(("kernels/", "cl/")) for n in names)
