@@ -1,0 +1,291 @@
+"""Foundation benchmark: facet sampling, visibility and the ground truth, speed against error.
+
+For every backend present (or those named), Ns = 2^14 … 2^20 facets and K = 8, 12, 16:
+- time of each stage: median over >= 5 runs after a warm-up call, device-synchronised; the
+  first call's extra time (compilation, BVH build, uploads) is reported apart as `first_call_extra_s`;
+- error of the ground truth against the exact V-groove closed form (reference.vgroove_effective_brdf),
+  for the stratified facets the library uses and for independent (i.i.d.) area-weighted facets
+  through the same kernels, so the gain of stratification is measured, not claimed.
+
+Writes one JSON record per measurement (`results.json`), a markdown table (`table.md`) and plots
+(`*.png`) into --out. A measurement predicted to exceed --budget seconds per run (from the
+backend's measured rate) is skipped and recorded as skipped.
+
+    python bench/bench_foundation.py --out bench/out/cpu
+    python bench/bench_foundation.py --backends warp:cuda opencl:nvidia --out $OUT   # on a GPU
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+import warp_biscale as wb
+from warp_biscale import reference as ref
+from warp_biscale.brdf import pack_materials
+from warp_biscale.model import Facets
+
+
+def git_commit():
+    try:
+        here = os.path.dirname(os.path.abspath(__file__))
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                              cwd=here, timeout=10).stdout.strip() or None
+    except Exception:
+        return None
+
+
+def heightfield_tile(n=64, amplitude=0.25, seed=0):
+    """A periodic random height field of n×n cells (2n² triangles): the timing workload."""
+    rng = np.random.default_rng(seed)
+    # Smooth random bumps: a few sinusoids keep it periodic and non-trivial to trace.
+    x = np.arange(n) / n
+    gx, gy = np.meshgrid(x, x, indexing="ij")
+    h = np.zeros((n, n))
+    for _ in range(6):
+        kx, ky = rng.integers(1, 5, 2)
+        h += rng.random() * np.sin(2 * np.pi * (kx * gx + ky * gy) + rng.random() * 6.28)
+    h = (h - h.min()) / np.ptp(h) * amplitude
+    return wb.geometry.heightfield(h, size=1.0)
+
+
+def vgroove(depth=0.5):
+    v = np.array([[0, 0, 0], [0.5, 0, -depth], [1, 0, 0], [0, 1, 0], [0.5, 1, -depth], [1, 1, 0]], float)
+    return wb.SmallScale(v, np.array([[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4]]), name="vgroove")
+
+
+def timed(backend, fn, runs, budget):
+    """(median seconds, runs done, first-call extra seconds)."""
+    t0 = time.perf_counter()
+    out = fn()
+    backend.synchronize()
+    first = time.perf_counter() - t0
+    times = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        out = fn()
+        backend.synchronize()
+        times.append(time.perf_counter() - t0)
+        if sum(times) > budget * runs and len(times) >= 1:
+            break
+    med = float(np.median(times))
+    return med, len(times), max(first - med, 0.0), out
+
+
+def iid_facets(tile, count, seed):
+    """Independent area-weighted facets (Wu's original sampling, without the kd-tree areas)."""
+    rng = np.random.default_rng(seed)
+    areas = tile.face_areas
+    face = rng.choice(len(areas), size=count, p=areas / areas.sum())
+    u, v = rng.random(count), rng.random(count)
+    su = np.sqrt(u)
+    tri = tile.triangles[face]
+    pos = (1 - su)[:, None] * tri[:, 0] + (su * (1 - v))[:, None] * tri[:, 1] + (su * v)[:, None] * tri[:, 2]
+    return Facets(pos.astype(np.float32), tile.face_normals[face].astype(np.float32), face.astype(np.int32),
+                  np.full(count, tile.area / count, np.float32), tile.material_ids[face],
+                  tile.colors[face].astype(np.float32), seed=seed)
+
+
+def ground_truth_table(backend, tile, fac, grid, kinds, params):
+    vis = backend.visibility(tile, fac, grid)
+    a_v = backend.visible_area(fac, vis)
+    nd = len(grid)
+    pi, po = (x.ravel() for x in np.meshgrid(np.arange(nd), np.arange(nd), indexing="ij"))
+    return backend.effective_brdf(fac, vis, kinds, params, pi, po, a_v).reshape(nd, nd, 3)
+
+
+def error_sweep(backend, exps, k, seeds, records, log):
+    """RMS / max error of the ground truth on the V-groove against its closed form."""
+    tile = vgroove()
+    mat = wb.BlinnPhong(1.0, 64, kd=0.1)
+    kinds, params = pack_materials([mat])
+    grid = wb.directions.grid(k)
+    nd = len(grid)
+    pi, po = (x.ravel() for x in np.meshgrid(np.arange(nd), np.arange(nd), indexing="ij"))
+    exact = ref.vgroove_effective_brdf(0.5, 1.0, kinds, params, grid[pi], grid[po]).reshape(nd, nd, 3)
+    for e in exps:
+        n = 1 << e
+        for method in ("stratified", "iid"):
+            rms, mx = [], []
+            for seed in range(seeds):
+                fac = backend.sample_facets(tile, n, seed) if method == "stratified" else iid_facets(tile, n, seed)
+                table = ground_truth_table(backend, tile, fac, grid, kinds, params)
+                err = table - exact
+                rms.append(float(np.sqrt((err**2).mean()) / exact.mean()))
+                mx.append(float(np.abs(err).max() / exact.max()))
+            rec = {"stage": "ground_truth_error", "method": method, "tile": "vgroove", "brdf": repr(mat),
+                   "facets": n, "K": k, "seeds": seeds, "rel_rms_error": float(np.mean(rms)),
+                   "rel_max_error": float(np.mean(mx)), "backend": backend.name, "device": backend.device}
+            records.append(rec)
+            log(f"error  {method:<10} Ns=2^{e:<2} K={k}: rel RMS {rec['rel_rms_error']:.2e}  "
+                f"rel max {rec['rel_max_error']:.2e}")
+
+
+def speed_sweep(backend, tile, exps, ks, runs, budget, records, log):
+    mat = wb.BlinnPhong(1.0, 64, kd=0.1)
+    kinds, params = pack_materials([mat])
+    rate = {}  # seconds per unit of work, to predict and skip what would blow the budget
+    for k in ks:
+        grid = wb.directions.grid(k)
+        nd = len(grid)
+        pi, po = (x.ravel() for x in np.meshgrid(np.arange(nd), np.arange(nd), indexing="ij"))
+        for e in exps:
+            n = 1 << e
+            base = {"backend": backend.name, "device": backend.device, "facets": n, "K": k,
+                    "tile": tile.name, "triangles": int(len(tile.faces))}
+            fac = backend.sample_facets(tile, n, 0)
+            if k == ks[0]:
+                med, nr, extra, _ = timed(backend, lambda: backend.sample_facets(tile, n, 0), runs, budget)
+                records.append({**base, "stage": "facets", "median_s": med, "runs": nr, "first_call_extra_s": extra})
+                log(f"{backend.name:<22} facets      Ns=2^{e:<2}        {med * 1e3:10.3f} ms")
+            work = {"visibility": n * nd, "ground_truth": n * nd * nd}
+            for stage in ("visibility", "ground_truth"):
+                if stage in rate and rate[stage] * work[stage] > budget:
+                    records.append({**base, "stage": stage, "skipped": True,
+                                    "predicted_s": rate[stage] * work[stage]})
+                    log(f"{backend.name:<22} {stage:<11} Ns=2^{e:<2} K={k:<2} skipped (predicted "
+                        f"{rate[stage] * work[stage]:.1f} s > budget {budget} s)")
+                    continue
+                if stage == "visibility":
+                    med, nr, extra, vis = timed(backend, lambda: backend.visibility(tile, fac, grid), runs, budget)
+                    extra_fields = {"rays": n * nd, "mrays_per_s": n * nd / med / 1e6,
+                                    "visible_fraction": float(vis.as_bool().mean())}
+                else:
+                    vis = backend.visibility(tile, fac, grid)
+
+                    def gt():
+                        a_v = backend.visible_area(fac, vis)
+                        return backend.effective_brdf(fac, vis, kinds, params, pi, po, a_v)
+
+                    med, nr, extra, _ = timed(backend, gt, runs, budget)
+                    extra_fields = {"pairs": nd * nd, "gfacet_pairs_per_s": n * nd * nd / med / 1e9}
+                rate[stage] = max(rate.get(stage, 0.0), med / work[stage])
+                records.append({**base, "stage": stage, "median_s": med, "runs": nr, "first_call_extra_s": extra,
+                                **extra_fields})
+                log(f"{backend.name:<22} {stage:<11} Ns=2^{e:<2} K={k:<2} {med * 1e3:10.3f} ms  ({nr} runs)")
+
+
+def write_table(records, path):
+    rows = ["| stage | backend | device | Ns | K | median ms | runs | first-call extra ms | rate |",
+            "|---|---|---|---|---|---|---|---|---|"]
+    for r in records:
+        if r["stage"] == "ground_truth_error":
+            continue
+        if r.get("skipped"):
+            rows.append(f"| {r['stage']} | {r['backend']} | {r['device']} | 2^{int(np.log2(r['facets']))} | "
+                        f"{r['K']} | skipped (~{r['predicted_s']:.0f} s) | | | |")
+            continue
+        rate = ""
+        if "mrays_per_s" in r:
+            rate = f"{r['mrays_per_s']:.1f} Mrays/s"
+        elif "gfacet_pairs_per_s" in r:
+            rate = f"{r['gfacet_pairs_per_s']:.3f} G facet-pairs/s"
+        rows.append(f"| {r['stage']} | {r['backend']} | {r['device']} | 2^{int(np.log2(r['facets']))} | {r['K']} | "
+                    f"{r['median_s'] * 1e3:.3f} | {r['runs']} | {r['first_call_extra_s'] * 1e3:.1f} | {rate} |")
+    err = [r for r in records if r["stage"] == "ground_truth_error"]
+    if err:
+        rows += ["", "Ground-truth error on the V-groove (Blinn-Phong n=64, kd=0.1) against the closed form:", "",
+                 "| facets | method | backend | K | rel. RMS error | rel. max error |", "|---|---|---|---|---|---|"]
+        for r in err:
+            rows.append(f"| 2^{int(np.log2(r['facets']))} | {r['method']} | {r['backend']} | {r['K']} | "
+                        f"{r['rel_rms_error']:.2e} | {r['rel_max_error']:.2e} |")
+    with open(path, "w") as fh:
+        fh.write("\n".join(rows) + "\n")
+
+
+def plot(records, out):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4.5))
+    for ax, stage in zip(axes[:2], ("visibility", "ground_truth")):
+        keys = sorted({(r["backend"], r["K"]) for r in records if r["stage"] == stage and not r.get("skipped")})
+        for be, k in keys:
+            pts = sorted((r["facets"], r["median_s"]) for r in records
+                         if r["stage"] == stage and r["backend"] == be and r["K"] == k and not r.get("skipped"))
+            ax.loglog(*zip(*pts), "o-", label=f"{be} K={k}")
+        ax.set_xlabel("facets Ns")
+        ax.set_ylabel("median time (s)")
+        ax.set_title(stage)
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=7)
+    ax = axes[2]
+    err = [r for r in records if r["stage"] == "ground_truth_error"]
+    gt_time = {(r["backend"], r["facets"], r["K"]): r["median_s"] for r in records
+               if r["stage"] == "ground_truth" and not r.get("skipped")}
+    for method in ("stratified", "iid"):
+        pts = sorted((r["facets"], r["rel_rms_error"]) for r in err if r["method"] == method)
+        if pts:
+            ax.loglog(*zip(*pts), "o-", label=f"{method} facets")
+    ax.set_xlabel("facets Ns")
+    ax.set_ylabel("relative RMS error vs closed form")
+    ax.set_title("ground-truth error (V-groove)")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(os.path.join(out, "foundation.png"), dpi=100)
+    plt.close(fig)
+    # Speed against error: ground-truth time (timing tile) against the V-groove error at equal Ns.
+    if err and gt_time:
+        fig, ax = plt.subplots(figsize=(6, 4.5))
+        for be, k in sorted({(b, kk) for (b, _, kk) in gt_time}):
+            pts = sorted((gt_time[(be, r["facets"], k)] * 1e3, r["rel_rms_error"]) for r in err
+                         if r["method"] == "stratified" and (be, r["facets"], k) in gt_time and r["K"] == k)
+            if pts:
+                ax.loglog(*zip(*pts), "o-", label=f"{be} K={k}")
+        ax.set_xlabel("ground-truth time (ms)")
+        ax.set_ylabel("relative RMS error")
+        ax.set_title("ground truth: error against time")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        fig.savefig(os.path.join(out, "pareto.png"), dpi=100)
+        plt.close(fig)
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--backends", nargs="*", help="backend names (default: every backend present)")
+    p.add_argument("--facets", nargs="*", type=int, default=list(range(14, 21, 2)), help="log2 facet counts")
+    p.add_argument("--directions", nargs="*", type=int, default=[8, 12, 16], help="grid sizes K")
+    p.add_argument("--runs", type=int, default=5, help="timed runs per measurement (median reported)")
+    p.add_argument("--budget", type=float, default=20.0, help="skip measurements predicted above this many s/run")
+    p.add_argument("--error-facets", nargs="*", type=int, default=[10, 12, 14, 16, 18], help="log2 Ns for the error sweep")
+    p.add_argument("--error-seeds", type=int, default=4, help="seeds averaged in the error sweep")
+    p.add_argument("--tile-cells", type=int, default=64, help="timing tile: n×n height field (2n² triangles)")
+    p.add_argument("--out", default="bench/out", help="output folder")
+    args = p.parse_args(argv)
+
+    os.makedirs(args.out, exist_ok=True)
+    names = args.backends or [b["name"] for b in wb.backends() if not b.get("error")]
+    tile = heightfield_tile(args.tile_cells)
+    records = []
+    meta = {"host": platform.node(), "machine": platform.machine(), "python": sys.version.split()[0],
+            "commit": git_commit(), "cpu_count": os.cpu_count(), "tile_triangles": int(len(tile.faces))}
+
+    def log(msg):
+        print(msg, flush=True)
+
+    log(f"timing tile: {len(tile.faces)} triangles; backends: {', '.join(names)}")
+    for name in names:
+        backend = wb.get_backend(name)
+        speed_sweep(backend, tile, args.facets, args.directions, args.runs, args.budget, records, log)
+        error_sweep(backend, args.error_facets, 8, args.error_seeds, records, log)
+        with open(os.path.join(args.out, "results.json"), "w") as fh:  # after each backend: keep partial work
+            json.dump({"meta": meta, "records": records}, fh, indent=1)
+    write_table(records, os.path.join(args.out, "table.md"))
+    plot(records, args.out)
+    log(f"wrote {args.out}/results.json, table.md, foundation.png, pareto.png")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,329 @@
+"""The OpenCL backend: kernels in ``warp_biscale.cl``, on any OpenCL device (PoCL on the CPU, a
+vendor's GPU driver).
+
+Each stage mirrors ``WarpBackend`` method by method and returns the same data model. The kernels
+are the Warp kernels' twins (same mathematics, same thread decomposition, float32 with float64
+facet search); the BVH that Warp gets from ``wp.Mesh`` is built on the host
+(``warp_biscale.bvh``) and walked by ``cl/visibility.cl``.
+
+Device memory layout: no ``float3`` in buffers (its 16-byte alignment differs between host and
+device); every (N, 3) array travels as a contiguous float32 array of stride 3 and the kernels use
+``vload3``/``vstore3``. Programs are built once per device (cached by stem) with explicit options:
+``-cl-std=CL1.2``, plus ``-cl-fp32-correctly-rounded-divide-sqrt`` where the device supports it
+(PoCL does), so that float32 ``/`` and ``sqrt`` round as on the host and in Warp's CPU kernels.
+The facet kernel needs ``cl_khr_fp64``; a device without it is refused at construction.
+
+Selection: ``OpenCLBackend(None)`` takes the first device, GPUs before other kinds;
+``OpenCLBackend("sub")`` the first device whose platform or device name contains "sub"
+(case-insensitive); a trailing ``#N`` picks the N-th such device (0-based), which ``name`` uses
+only to tell apart devices of the same name.
+"""
+
+from __future__ import annotations
+
+import re
+import weakref
+
+import numpy as np
+
+from .backend import chunking
+from .model import Facets, Visibility
+from .reference import facet_shift, ray_offset
+
+__all__ = ["OpenCLBackend", "list_devices"]
+
+# One context, queue and program cache per device, shared by every backend object on it, so that
+# buffers cached on data-model objects under the backend's name stay valid for all of them.
+_DEVICE_STATE: dict = {}
+
+
+def _ordered_devices():
+    """Every OpenCL device as (platform, device), GPUs first, then the others, in platform order.
+    Raises RuntimeError with an explanation if no OpenCL platform can be found."""
+    import pyopencl as cl
+
+    try:
+        platforms = cl.get_platforms()
+    except cl.Error as exc:  # PLATFORM_NOT_FOUND_KHR with no ICD installed
+        raise RuntimeError(
+            "no OpenCL platform found (pyopencl: "
+            f"{exc}). Install an OpenCL driver, e.g. the CPU one with `pip install \"pyopencl[pocl]\"`, "
+            "or a GPU vendor's ICD"
+        ) from None
+    found = []
+    for p in platforms:
+        try:
+            found.extend((p, d) for d in p.get_devices())
+        except cl.Error:  # a platform with no devices raises DEVICE_NOT_FOUND
+            continue
+    if not found:
+        raise RuntimeError("OpenCL platforms exist but hold no device")
+    gpus = [pd for pd in found if pd[1].type & cl.device_type.GPU]
+    return gpus + [pd for pd in found if not pd[1].type & cl.device_type.GPU]
+
+
+def _matches(selector: str, platform, device) -> bool:
+    sel = selector.lower()
+    return sel in device.name.strip().lower() or sel in platform.name.strip().lower()
+
+
+def _select(selector, devices):
+    """→ (platform, device) for a selector (None, 'substring' or 'substring#N')."""
+    if selector is None or not selector.strip():
+        return devices[0]
+    sel = selector.strip()
+    index = 0
+    m = re.fullmatch(r"(.*?)#(\d+)", sel)
+    if m and m.group(1).strip():
+        sel, index = m.group(1).strip(), int(m.group(2))
+    hits = [pd for pd in devices if _matches(sel, *pd)]
+    if index < len(hits):
+        return hits[index]
+    listing = "; ".join(f"{_name(p, d, devices)} ({d.name.strip()} on {p.name.strip()})" for p, d in devices)
+    raise ValueError(f"no OpenCL device matches {selector!r}; available: {listing}")
+
+
+def _name(platform, device, devices) -> str:
+    """The selection name that resolves back to this device."""
+    base = device.name.strip()
+    hits = [pd for pd in devices if _matches(base, *pd)]
+    index = next(i for i, pd in enumerate(hits) if pd[1] == device)
+    return f"opencl:{base}" + (f"#{index}" if index else "")
+
+
+def list_devices() -> list[dict]:
+    """Every OpenCL device as {"name": selection name, "device": description}; [] if none (never raises)."""
+    try:
+        devices = _ordered_devices()
+        return [{"name": _name(p, d, devices), "device": f"{d.name.strip()} ({p.name.strip()})"}
+                for p, d in devices]
+    except Exception:
+        return []
+
+
+def _device_state(device):
+    import pyopencl as cl
+
+    state = _DEVICE_STATE.get(device.int_ptr)
+    if state is None:
+        ctx = cl.Context([device])
+        state = {"ctx": ctx, "queue": cl.CommandQueue(ctx, device), "programs": {}, "kernels": {}}
+        _DEVICE_STATE[device.int_ptr] = state
+    return state
+
+
+class OpenCLBackend:
+    """OpenCL on one device. `selector`: None (first device, GPUs first) or a substring of a
+    platform or device name (case-insensitive), optionally ending in ``#N`` for the N-th match."""
+
+    def __init__(self, selector: str | None = None):
+        import pyopencl as cl
+
+        devices = _ordered_devices()
+        platform, device = _select(selector, devices)
+        if not device.double_fp_config and "cl_khr_fp64" not in device.extensions:
+            raise ValueError(
+                f"OpenCL device {device.name.strip()!r} has no double precision (cl_khr_fp64), which facet "
+                "sampling needs (float64 cumulative-area search); choose another device"
+            )
+        self._cl = cl
+        self._device = device
+        self.name = _name(platform, device, devices)
+        self.device = f"{device.name.strip()} ({platform.name.strip()})"
+        state = _device_state(device)
+        self._ctx, self._queue = state["ctx"], state["queue"]
+        self._programs, self._kernels = state["programs"], state["kernels"]
+        options = ["-cl-std=CL1.2"]
+        if device.single_fp_config & cl.device_fp_config.CORRECTLY_ROUNDED_DIVIDE_SQRT:
+            options.append("-cl-fp32-correctly-rounded-divide-sqrt")
+        self.build_options = options
+        # Work-items worth launching per reduction: a few per core on a CPU, enough to fill a GPU.
+        is_cpu = bool(device.type & cl.device_type.CPU)
+        self._threads = max(1, device.max_compute_units) * 4 if is_cpu else 1 << 18
+        self._tiles = weakref.WeakKeyDictionary()
+
+    def __repr__(self):
+        return f"OpenCLBackend({self.name!r})"
+
+    def synchronize(self):
+        self._queue.finish()
+
+    # ------------------------------------------------------------------ programs
+    def _kernel(self, stem: str, name: str):
+        key = (stem, name)
+        kernel = self._kernels.get(key)
+        if kernel is None:
+            program = self._programs.get(stem)
+            if program is None:
+                program = self._build(stem)
+                self._programs[stem] = program
+            kernel = self._cl.Kernel(program, name)
+            self._kernels[key] = kernel
+        return kernel
+
+    def _build(self, stem: str):
+        from . import cl as cl_sources
+
+        cl = self._cl
+        src = cl_sources.source(stem)
+        try:
+            return cl.Program(self._ctx, src).build(options=self.build_options)
+        except cl.Error as exc:
+            hint = ""
+            if "pthread" in self.device.lower() or "portable computing" in self.device.lower():
+                hint = " (PoCL links kernels with the system linker: is `ld` from binutils on PATH?)"
+            raise RuntimeError(f"building cl/{stem}.cl for {self.device} failed{hint}:\n{exc}") from None
+
+    # ------------------------------------------------------------------ device copies
+    def _buffer(self, array, dtype):
+        """A read-only device copy of a host array (a one-element dummy for an empty one)."""
+        cl = self._cl
+        host = np.ascontiguousarray(array, dtype=dtype)
+        if host.size == 0:
+            host = np.zeros(1, dtype)
+        return cl.Buffer(self._ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=host)
+
+    def _empty(self, n_items, dtype):
+        return self._cl.Buffer(self._ctx, self._cl.mem_flags.READ_WRITE,
+                               size=max(1, int(n_items)) * np.dtype(dtype).itemsize)
+
+    def _read(self, buf, shape, dtype):
+        out = np.empty(shape, dtype)
+        if out.size:
+            self._cl.enqueue_copy(self._queue, out, buf)
+        return out
+
+    def _tile(self, tile, need_bvh=False):
+        entry = self._tiles.get(tile)
+        if entry is None:
+            vn = tile.vertex_normals if tile.vertex_normals is not None else np.zeros((1, 3))
+            areas = tile.face_areas
+            entry = {
+                "points": self._buffer(tile.vertices, np.float32),
+                "faces": self._buffer(tile.faces, np.int32),
+                "vertex_normals": self._buffer(vn, np.float32),
+                "face_normals": self._buffer(tile.face_normals, np.float32),
+                "cumulative_area": self._buffer(np.cumsum(areas), np.float64),
+                "face_area": self._buffer(areas, np.float64),
+            }
+            self._tiles[tile] = entry
+        if need_bvh and "nodes" not in entry:
+            from .bvh import build_bvh
+
+            bvh = build_bvh(tile.vertices, tile.faces)
+            entry["bvh"] = bvh
+            entry["nodes"] = self._buffer(bvh.packed(), np.float32)
+            entry["tris"] = self._buffer(bvh.triangle_table(tile.vertices, tile.faces), np.float32)
+        return entry
+
+    def _facets(self, facets: Facets):
+        entry = facets.device_cache.get(self.name)
+        if entry is None or entry.get("ctx") is not self._ctx:
+            entry = {
+                "ctx": self._ctx,
+                "position": self._buffer(facets.position, np.float32),
+                "normal": self._buffer(facets.normal, np.float32),
+                "face": self._buffer(facets.face, np.int32),
+                "area": self._buffer(facets.area, np.float32),
+                "material": self._buffer(facets.material, np.int32),
+                "weight": self._buffer(facets.color * facets.area[:, None], np.float32),
+            }
+            facets.device_cache[self.name] = entry
+        return entry
+
+    def _vis(self, vis: Visibility):
+        entry = vis.device_cache.get(self.name)
+        if entry is None or entry.get("ctx") is not self._ctx:
+            entry = {
+                "ctx": self._ctx,
+                "bits": self._buffer(vis.bits, np.uint32),
+                "directions": self._buffer(vis.directions, np.float32),
+            }
+            vis.device_cache[self.name] = entry
+        return entry
+
+    # ------------------------------------------------------------------ stages
+    def sample_facets(self, tile, count, seed):
+        count = int(count)
+        if count < 1:
+            raise ValueError(f"facet count must be >= 1, got {count}")
+        t = self._tile(tile)
+        pos = self._empty(3 * count, np.float32)
+        nrm = self._empty(3 * count, np.float32)
+        face = self._empty(count, np.int32)
+        xi1, xi2 = facet_shift(seed)
+        k = self._kernel("facets", "sample_facets")
+        k(self._queue, (count,), None,
+          t["points"], t["faces"], t["vertex_normals"], np.int32(tile.vertex_normals is not None),
+          t["face_normals"], t["cumulative_area"], t["face_area"], np.int32(len(tile.faces)), np.int32(count),
+          np.float64(xi1), np.float32(xi2), pos, nrm, face)
+        face_np = self._read(face, count, np.int32)
+        area = np.full(count, tile.area / count, np.float32)
+        facets = Facets(self._read(pos, (count, 3), np.float32), self._read(nrm, (count, 3), np.float32), face_np,
+                        area, tile.material_ids[face_np], tile.colors[face_np].astype(np.float32), seed=int(seed))
+        # The kernel's outputs are already on the device: keep them for the next stages.
+        facets.device_cache[self.name] = {
+            "ctx": self._ctx, "position": pos, "normal": nrm, "face": face,
+            "area": self._buffer(area, np.float32),
+            "material": self._buffer(facets.material, np.int32),
+            "weight": self._buffer(facets.color * area[:, None], np.float32),
+        }
+        return facets
+
+    def visibility(self, tile, facets, directions, brute_force=False):
+        t = self._tile(tile, need_bvh=True)
+        f = self._facets(facets)
+        directions = np.asarray(directions, np.float64)
+        n_dirs = len(directions)
+        n = len(facets)
+        words = (n + 31) // 32
+        bits = self._empty(n_dirs * words, np.uint32)
+        dirs = self._buffer(directions, np.float32)
+        if n_dirs:
+            z_lo, z_hi = tile.z_range
+            k = self._kernel("visibility", "visibility_bits")
+            k(self._queue, (words, n_dirs), None,
+              t["nodes"], t["tris"], np.int32(len(tile.faces)), t["face_normals"], np.int32(bool(brute_force)),
+              f["position"], f["face"], np.int32(n), dirs,
+              np.float32(tile.origin[0]), np.float32(tile.origin[1]), np.float32(tile.period[0]),
+              np.float32(tile.period[1]), np.float32(z_lo), np.float32(z_hi), np.float32(ray_offset(tile)),
+              bits)
+        vis = Visibility(directions, self._read(bits, (n_dirs, words), np.uint32), n)
+        vis.device_cache[self.name] = {"ctx": self._ctx, "bits": bits, "directions": dirs}
+        return vis
+
+    def visible_area(self, facets, vis):
+        f = self._facets(facets)
+        v = self._vis(vis)
+        n_dirs, n_words = vis.bits.shape
+        if n_dirs == 0:
+            return np.zeros(0, np.float32)
+        chunks, per = chunking(n_words, n_dirs, self._threads)
+        partial = self._empty(chunks * n_dirs, np.float32)
+        self._kernel("truth", "visible_area_partial")(
+            self._queue, (n_dirs, chunks), None,
+            v["directions"], v["bits"], np.int32(n_words), f["normal"], f["area"], np.int32(per), partial)
+        a_v = self._empty(n_dirs, np.float32)
+        self._kernel("truth", "sum_chunks_area")(self._queue, (n_dirs,), None, partial, np.int32(chunks), a_v)
+        return self._read(a_v, n_dirs, np.float32)
+
+    def effective_brdf(self, facets, vis, kinds, params, pair_i, pair_o, a_v):
+        f = self._facets(facets)
+        v = self._vis(vis)
+        n_pairs = len(pair_i)
+        if n_pairs == 0:
+            return np.zeros((0, 3), np.float32)
+        n_words = vis.bits.shape[1]
+        chunks, per = chunking(n_words, n_pairs, self._threads)
+        pi = self._buffer(pair_i, np.int32)
+        po = self._buffer(pair_o, np.int32)
+        partial = self._empty(chunks * n_pairs * 3, np.float32)
+        self._kernel("truth", "effective_brdf_partial")(
+            self._queue, (n_pairs, chunks), None,
+            v["directions"], pi, po, v["bits"], np.int32(n_words), f["normal"], f["weight"], f["material"],
+            self._buffer(kinds, np.int32), self._buffer(np.asarray(params, np.float32).reshape(-1, 8), np.float32),
+            np.int32(per), partial)
+        out = self._empty(n_pairs * 3, np.float32)
+        self._kernel("truth", "sum_chunks_brdf")(
+            self._queue, (n_pairs,), None, partial, np.int32(chunks), po, self._buffer(a_v, np.float32), out)
+        return self._read(out, (n_pairs, 3), np.float32)
