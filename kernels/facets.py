@@ -4,6 +4,11 @@ Twin of ``cl/facets.cl``; the mathematics is ``warp_biscale.reference.sample_fac
 takes u1 = (s + ξ1)/Ns along the cumulative face area (float64, so a face is found exactly even
 among 10⁶ faces) and u2 = frac(φ2(s) + ξ2), mapped into its face by the area-preserving
 square→triangle map. Every facet carries ΔA = A/Ns.
+
+`offset` (here and in every main kernel of a stage) is added to the last launch index, so that
+the backend can split one launch into slices, one per CPU core: Warp's CPU device runs a launch
+on one thread, and launches from several Python threads run in parallel. OpenCL's global work
+offset does the same for the twins.
 """
 
 import warp as wp
@@ -33,11 +38,12 @@ def sample_facets(
     count: int,
     xi1: wp.float64,
     xi2: float,
+    offset: int,
     position: wp.array(dtype=wp.vec3),
     normal: wp.array(dtype=wp.vec3),
     face: wp.array(dtype=wp.int32),
 ):
-    s = wp.tid()
+    s = wp.tid() + offset
     n_faces = cumulative_area.shape[0]
     total = cumulative_area[n_faces - 1]
     target = (wp.float64(s) + xi1) / wp.float64(count) * total

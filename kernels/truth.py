@@ -24,9 +24,11 @@ def visible_area_partial(
     normal: wp.array(dtype=wp.vec3),
     area: wp.array(dtype=wp.float32),
     words_per_chunk: int,
+    offset: int,
     partial: wp.array2d(dtype=wp.float32),
 ):
-    c, k = wp.tid()
+    c, k_local = wp.tid()
+    k = k_local + offset
     d = directions[k]
     n_words = bits.shape[1]
     acc = wp.float64(0.0)
@@ -65,9 +67,11 @@ def effective_brdf_partial(
     kinds: wp.array(dtype=wp.int32),
     params: wp.array2d(dtype=wp.float32),
     words_per_chunk: int,
+    offset: int,
     partial: wp.array2d(dtype=wp.vec3),
 ):
-    c, p = wp.tid()
+    c, p_local = wp.tid()
+    p = p_local + offset
     i = pair_i[p]
     o = pair_o[p]
     wi = directions[i]

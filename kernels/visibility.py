@@ -87,9 +87,11 @@ def visibility_bits(
     facet_face: wp.array(dtype=wp.int32),
     directions: wp.array(dtype=wp.vec3),
     x0: float, y0: float, px: float, py: float, z_lo: float, z_hi: float, eps: float,
+    offset: int,
     bits: wp.array2d(dtype=wp.uint32),
 ):
-    k, w = wp.tid()
+    k, w_local = wp.tid()
+    w = w_local + offset
     d = directions[k]
     n_facets = position.shape[0]
     word = wp.uint32(0)
