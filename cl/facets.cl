@@ -8,7 +8,7 @@
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
 
 /* Van der Corput phi2(s) on the top 24 bits, exact in float32. */
-inline float radical_inverse_24(int s)
+CL_INLINE float radical_inverse_24(int s)
 {
     uint x = (uint)s;
     x = ((x >> 1) & 0x55555555u) | ((x & 0x55555555u) << 1);
@@ -63,21 +63,21 @@ __kernel void sample_facets(
     int i0 = faces[3 * f + 0];
     int i1 = faces[3 * f + 1];
     int i2 = faces[3 * f + 2];
-    float3 p0 = vload3(i0, vertices);
-    float3 p1 = vload3(i1, vertices);
-    float3 p2 = vload3(i2, vertices);
-    vstore3((float3)(b0 * p0.x + b1 * p1.x + b2 * p2.x,
-                     b0 * p0.y + b1 * p1.y + b2 * p2.y,
-                     b0 * p0.z + b1 * p1.z + b2 * p2.z), s, position);
+    float3 p0 = load3(vertices, i0);
+    float3 p1 = load3(vertices, i1);
+    float3 p2 = load3(vertices, i2);
+    store3(position, s, (float3)(b0 * p0.x + b1 * p1.x + b2 * p2.x,
+                                 b0 * p0.y + b1 * p1.y + b2 * p2.y,
+                                 b0 * p0.z + b1 * p1.z + b2 * p2.z));
     if (use_vertex_normals != 0) {
-        float3 n0 = vload3(i0, vertex_normals);
-        float3 n1 = vload3(i1, vertex_normals);
-        float3 n2 = vload3(i2, vertex_normals);
-        vstore3(normalize3((float3)(b0 * n0.x + b1 * n1.x + b2 * n2.x,
-                                    b0 * n0.y + b1 * n1.y + b2 * n2.y,
-                                    b0 * n0.z + b1 * n1.z + b2 * n2.z)), s, normal);
+        float3 n0 = load3(vertex_normals, i0);
+        float3 n1 = load3(vertex_normals, i1);
+        float3 n2 = load3(vertex_normals, i2);
+        store3(normal, s, normalize3((float3)(b0 * n0.x + b1 * n1.x + b2 * n2.x,
+                                             b0 * n0.y + b1 * n1.y + b2 * n2.y,
+                                             b0 * n0.z + b1 * n1.z + b2 * n2.z)));
     } else {
-        vstore3(vload3(f, face_normals), s, normal);
+        store3(normal, s, load3(face_normals, f));
     }
     face[s] = f;
 }

@@ -3,10 +3,17 @@
  * Twin of kernels/truth.py; the mathematics is warp_biscale.reference.visible_area and
  * reference.effective_brdf. Both sums over facets are split into chunks of 32-facet words: one
  * work-item per (chunk c, output) writes partial[c, output], and a second kernel adds the chunks
- * in order. No atomics (OpenCL has no float atomics). NDRanges are (outputs, chunks): dimension 0
- * varies fastest, matching the linear order of Warp's (chunks, outputs) launch. 3-vectors are
- * float arrays of stride 3.
+ * in order.
+ *
+ * Summation as in the Warp twin: each 32-facet word is summed in float32 and added into a float64
+ * accumulator (a float32 running sum of n similar terms loses up to ~n·eps/2), the partial is
+ * stored as float32, and the chunks are added in float64. Needs cl_khr_fp64.
+ *
+ * No atomics (OpenCL has no float atomics). NDRanges are (outputs, chunks): dimension 0 varies
+ * fastest, matching the linear order of Warp's (chunks, outputs) launch; it is rounded up to a
+ * whole work-group and the surplus work-items return. 3-vectors are float arrays of stride 3.
  */
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
 
 __kernel void visible_area_partial(
     __global const float *directions,  /* (D, 3) */
@@ -15,34 +22,40 @@ __kernel void visible_area_partial(
     __global const float *normal,      /* (Ns, 3) */
     __global const float *area,        /* (Ns,) */
     const int words_per_chunk,
+    const int n_dirs,
     __global float *partial)           /* (chunks, D) */
 {
     int k = get_global_id(0);
     int c = get_global_id(1);
-    int n_dirs = get_global_size(0);
-    float3 d = vload3(k, directions);
-    float acc = 0.0f;
-    int w_end = min((c + 1) * words_per_chunk, n_words);
-    for (int w = c * words_per_chunk; w < w_end; ++w) {
+    if (k >= n_dirs)
+        return;
+    float3 d = load3(directions, k);
+    double acc = 0.0;
+    int w_start = c * words_per_chunk;
+    int w_end = w_start + words_per_chunk < n_words ? w_start + words_per_chunk : n_words;
+    for (int w = w_start; w < w_end; ++w) {
         uint m = bits[k * n_words + w];
+        float block = 0.0f;
         while (m != 0u) {
             int b = lowest_bit(m);
             m = m & (m - 1u);
             int s = w * 32 + b;
-            acc += fmax(dot3(vload3(s, normal), d), 0.0f) * area[s];
+            block += maxf(dot3(load3(normal, s), d), 0.0f) * area[s];
         }
+        acc += (double)block;
     }
-    partial[c * n_dirs + k] = acc;
+    partial[c * n_dirs + k] = (float)acc;
 }
 
-__kernel void sum_chunks_area(__global const float *partial, const int chunks, __global float *a_v)
+__kernel void sum_chunks_area(__global const float *partial, const int chunks, const int n_dirs, __global float *a_v)
 {
     int k = get_global_id(0);
-    int n_dirs = get_global_size(0);
-    float acc = 0.0f;
+    if (k >= n_dirs)
+        return;
+    double acc = 0.0;
     for (int c = 0; c < chunks; ++c)
-        acc += partial[c * n_dirs + k];
-    a_v[k] = acc;
+        acc += (double)partial[c * n_dirs + k];
+    a_v[k] = (float)acc;
 }
 
 __kernel void effective_brdf_partial(
@@ -57,49 +70,60 @@ __kernel void effective_brdf_partial(
     __global const int *kinds,         /* (M,) */
     __global const float *params,      /* (M, 8) */
     const int words_per_chunk,
+    const int n_pairs,
     __global float *partial)           /* (chunks, P, 3) */
 {
     int p = get_global_id(0);
     int c = get_global_id(1);
-    int n_pairs = get_global_size(0);
+    if (p >= n_pairs)
+        return;
     int i = pair_i[p];
     int o = pair_o[p];
-    float3 wi = vload3(i, directions);
-    float3 wo = vload3(o, directions);
-    float3 acc = (float3)(0.0f, 0.0f, 0.0f);
-    int w_end = min((c + 1) * words_per_chunk, n_words);
-    for (int w = c * words_per_chunk; w < w_end; ++w) {
+    float3 wi = load3(directions, i);
+    float3 wo = load3(directions, o);
+    double ax = 0.0, ay = 0.0, az = 0.0;
+    int w_start = c * words_per_chunk;
+    int w_end = w_start + words_per_chunk < n_words ? w_start + words_per_chunk : n_words;
+    for (int w = w_start; w < w_end; ++w) {
         uint m = bits[i * n_words + w] & bits[o * n_words + w];
+        float3 block = (float3)(0.0f, 0.0f, 0.0f);
         while (m != 0u) {
             int b = lowest_bit(m);
             m = m & (m - 1u);
             int s = w * 32 + b;
             int mat = material[s];
-            float3 f = brdf_cosine_weighted(kinds[mat], params, mat, vload3(s, normal), wi, wo);
-            float3 wt = vload3(s, weight);
-            acc = (float3)(acc.x + f.x * wt.x, acc.y + f.y * wt.y, acc.z + f.z * wt.z);
+            float3 f = brdf_cosine_weighted(kinds[mat], params, mat, load3(normal, s), wi, wo);
+            float3 wt = load3(weight, s);
+            block = (float3)(block.x + f.x * wt.x, block.y + f.y * wt.y, block.z + f.z * wt.z);
         }
+        ax += (double)block.x;
+        ay += (double)block.y;
+        az += (double)block.z;
     }
-    vstore3(acc, c * n_pairs + p, partial);
+    store3(partial, c * n_pairs + p, (float3)((float)ax, (float)ay, (float)az));
 }
 
 __kernel void sum_chunks_brdf(
     __global const float *partial,     /* (chunks, P, 3) */
     const int chunks,
+    const int n_pairs,
     __global const int *pair_o,        /* (P,) */
     __global const float *a_v,         /* (D,) */
     __global float *out)               /* (P, 3) */
 {
     int p = get_global_id(0);
-    int n_pairs = get_global_size(0);
-    float3 acc = (float3)(0.0f, 0.0f, 0.0f);
+    if (p >= n_pairs)
+        return;
+    double ax = 0.0, ay = 0.0, az = 0.0;
     for (int c = 0; c < chunks; ++c) {
-        float3 x = vload3(c * n_pairs + p, partial);
-        acc = (float3)(acc.x + x.x, acc.y + x.y, acc.z + x.z);
+        float3 x = load3(partial, c * n_pairs + p);
+        ax += (double)x.x;
+        ay += (double)x.y;
+        az += (double)x.z;
     }
     float area = a_v[pair_o[p]];
     if (area > 0.0f)
-        vstore3((float3)(acc.x / area, acc.y / area, acc.z / area), p, out);
+        store3(out, p, (float3)((float)(ax / (double)area), (float)(ay / (double)area), (float)(az / (double)area)));
     else
-        vstore3((float3)(0.0f, 0.0f, 0.0f), p, out);
+        store3(out, p, (float3)(0.0f, 0.0f, 0.0f));
 }

@@ -48,7 +48,9 @@ def _real(fn, name, value, lo=None, hi=None, lo_open=False, hi_open=False) -> fl
     if bad_lo or bad_hi:
         left = "-inf" if lo is None else f"{lo:g}"
         right = "inf" if hi is None else f"{hi:g}"
-        interval = f"{'(' if lo_open or lo is None else '['}{left}, {right}{')' if hi_open or hi is None else ']'}"
+        interval = (
+            f"{'(' if lo_open or lo is None else '['}{left}, {right}{')' if hi_open or hi is None else ']'}"
+        )
         raise ValueError(f"{fn}: {name} must be in {interval}, got {value!r}")
     return v
 
@@ -138,8 +140,14 @@ def _weld(points: np.ndarray):
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
-    uniq, inverse = np.unique(points, axis=0, return_inverse=True)
-    inverse = inverse.reshape(-1)
+    # Exact duplicates: sort the rows and keep the first of each run (lexsort is several times
+    # faster than np.unique(axis=0) on float rows, and treats -0.0 and 0.0 as equal).
+    order = np.lexsort(points.T[::-1])
+    srt = points[order]
+    first = np.r_[True, (np.diff(srt, axis=0) != 0).any(axis=1)]
+    uniq = srt[first]
+    inverse = np.empty(len(points), np.int64)
+    inverse[order] = np.cumsum(first) - 1
     scale = max(float(np.ptp(points, axis=0).max()), 1e-30)
     pairs = cKDTree(uniq).query_pairs(1e-8 * scale, output_type="ndarray")
     if len(pairs):
@@ -313,12 +321,28 @@ def flat(*, size=1.0, material=0, color=_WHITE) -> SmallScale:
     color = _color(fn, "color", color)
     v = np.array([[0, 0, 0], [size, 0, 0], [size, size, 0], [0, size, 0]], np.float64)
     f = np.array([[0, 1, 2], [0, 2, 3]])
-    return SmallScale(v, f, material_ids=[material] * 2, colors=np.tile(color, (2, 1)), period=(size, size),
-                      name=f"flat(size={size:g})")
+    return SmallScale(
+        v,
+        f,
+        material_ids=[material] * 2,
+        colors=np.tile(color, (2, 1)),
+        period=(size, size),
+        name=f"flat(size={size:g})",
+    )
 
 
-def pyramid(*, height=0.5, base_fraction=1.0, sides=4, rotation=0.0, size=1.0, material=0,
-            base_material=None, color=_WHITE, base_color=None) -> SmallScale:
+def pyramid(
+    *,
+    height=0.5,
+    base_fraction=1.0,
+    sides=4,
+    rotation=0.0,
+    size=1.0,
+    material=0,
+    base_material=None,
+    color=_WHITE,
+    base_color=None,
+) -> SmallScale:
     """A regular n-gon pyramid centred in a square tile, on flat ground (Wu Fig. 5).
 
     The base polygon lies at z = 0 with its vertices at angles rotation + 2πk/sides around the tile
@@ -388,12 +412,27 @@ def pyramid(*, height=0.5, base_fraction=1.0, sides=4, rotation=0.0, size=1.0, m
     soup.add(lateral, material, color)
     soup.add(_tri3(_ground(1, size, {(0, 0): p})), base_material, base_color)
     params = _fmt(height=height, base_fraction=base_fraction, sides=sides, rotation=rotation, size=size)
-    return soup.build(fn, (size, size), f"pyramid(sides={sides}, height={height:g}, base_fraction={base_fraction:g})",
-                      params)
+    return soup.build(
+        fn,
+        (size, size),
+        f"pyramid(sides={sides}, height={height:g}, base_fraction={base_fraction:g})",
+        params,
+    )
 
 
-def grooves(*, depth=0.5, width=1.0, profile="v", flat_fraction=0.0, axis="x", segments=16, material=0,
-            wall_material=None, color=_WHITE, wall_color=None) -> SmallScale:
+def grooves(
+    *,
+    depth=0.5,
+    width=1.0,
+    profile="v",
+    flat_fraction=0.0,
+    axis="x",
+    segments=16,
+    material=0,
+    wall_material=None,
+    color=_WHITE,
+    wall_color=None,
+) -> SmallScale:
     """Parallel grooves, one per period, running along `axis` (Wu Fig. 4, the grooved cup).
 
     The tile is width × width. Across the groove (the other axis) the profile is: flat land at
@@ -447,7 +486,11 @@ def grooves(*, depth=0.5, width=1.0, profile="v", flat_fraction=0.0, axis="x", s
         groove[0], groove[-1] = (land, depth), (width - land, depth)  # exact rims
         groove = _thin_polyline(groove, 1e-6 * width)
     walls = np.stack([groove[:-1], groove[1:]], axis=1)  # (S, 2 ends, (t, z))
-    lands = [np.array([[(0.0, depth), (land, depth)], [(width - land, depth), (width, depth)]])] if land > 0 else []
+    lands = (
+        [np.array([[(0.0, depth), (land, depth)], [(width - land, depth), (width, depth)]])]
+        if land > 0
+        else []
+    )
 
     def extrude(segs):
         # Each profile piece (t0,z0)-(t1,z1) swept over s in [0, width] along the groove: a quad
@@ -468,7 +511,9 @@ def grooves(*, depth=0.5, width=1.0, profile="v", flat_fraction=0.0, axis="x", s
         soup.add(extrude(segs), material, color)
     soup.add(extrude(walls), wall_material, wall_color)
     params = _fmt(depth=depth, width=width, profile=profile, flat_fraction=flat_fraction, segments=segments)
-    name = f"grooves({profile}, depth={depth:g}, width={width:g}, flat_fraction={flat_fraction:g}, axis={axis})"
+    name = (
+        f"grooves({profile}, depth={depth:g}, width={width:g}, flat_fraction={flat_fraction:g}, axis={axis})"
+    )
     return soup.build(fn, (width, width), name, params)
 
 
@@ -485,8 +530,22 @@ def _thin_polyline(pts, tol) -> np.ndarray:
     return np.array(kept)
 
 
-def rods(*, radius=0.1, spacing=0.5, length=0.5, count=None, perturbation=0.0, seed=0, orientation=(0.0, 0.0),
-         segments=12, ground=True, material=0, ground_material=None, color=_WHITE, ground_color=None) -> SmallScale:
+def rods(
+    *,
+    radius=0.1,
+    spacing=0.5,
+    length=0.5,
+    count=None,
+    perturbation=0.0,
+    seed=0,
+    orientation=(0.0, 0.0),
+    segments=12,
+    ground=True,
+    material=0,
+    ground_material=None,
+    color=_WHITE,
+    ground_color=None,
+) -> SmallScale:
     """Short cylinders standing on a ground plane, one per grid cell (Wu Fig. 6, velvet).
 
     The tile is count × count square cells of side `spacing`, period count·spacing in x and y. In
@@ -533,8 +592,10 @@ def rods(*, radius=0.1, spacing=0.5, length=0.5, count=None, perturbation=0.0, s
     spacing = _real(fn, "spacing", spacing, lo=0, lo_open=True)
     radius = _real(fn, "radius", radius, lo=0, lo_open=True)
     if radius >= 0.499 * spacing:
-        raise ValueError(f"{fn}: radius={radius!r} does not fit a cell of spacing={spacing!r}; "
-                         f"radius must be < 0.499*spacing = {0.499 * spacing:g}")
+        raise ValueError(
+            f"{fn}: radius={radius!r} does not fit a cell of spacing={spacing!r}; "
+            f"radius must be < 0.499*spacing = {0.499 * spacing:g}"
+        )
     length = _real(fn, "length", length, lo=0, lo_open=True)
     perturbation = _real(fn, "perturbation", perturbation, lo=0.0, hi=np.pi / 2)
     if count is None:
@@ -545,7 +606,9 @@ def rods(*, radius=0.1, spacing=0.5, length=0.5, count=None, perturbation=0.0, s
     try:
         tilt, azimuth = orientation
     except (TypeError, ValueError):
-        raise ValueError(f"{fn}: orientation must be (tilt, azimuth) in radians, got {orientation!r}") from None
+        raise ValueError(
+            f"{fn}: orientation must be (tilt, azimuth) in radians, got {orientation!r}"
+        ) from None
     tilt = _real(fn, "orientation[0] (tilt)", tilt, lo=0.0, hi=np.pi / 2, hi_open=True)
     azimuth = _real(fn, "orientation[1] (azimuth)", azimuth)
     segments = _int(fn, "segments", segments, 3, 256)
@@ -557,7 +620,9 @@ def rods(*, radius=0.1, spacing=0.5, length=0.5, count=None, perturbation=0.0, s
     ground_color = _color(fn, "ground_color", ground_color, default=color)
 
     shape = _RodShape(radius, length, spacing, segments)
-    mean = np.array([[math.sin(tilt) * math.cos(azimuth), math.sin(tilt) * math.sin(azimuth), math.cos(tilt)]])
+    mean = np.array(
+        [[math.sin(tilt) * math.cos(azimuth), math.sin(tilt) * math.sin(azimuth), math.cos(tilt)]]
+    )
     if not shape.fits(mean)[0]:
         raise ValueError(
             f"{fn}: a rod of length={length:g} and radius={radius:g} tilted by orientation[0]={tilt:g} rad "
@@ -594,22 +659,32 @@ def rods(*, radius=0.1, spacing=0.5, length=0.5, count=None, perturbation=0.0, s
     top_centre = feet + length * axes
     nxt = np.roll(np.arange(segments), -1)
     soup = _Soup()
-    sides = np.concatenate([
-        np.stack([bottom, bottom[:, nxt], top[:, nxt]], axis=2),
-        np.stack([bottom, top[:, nxt], top], axis=2),
-    ], axis=1)
+    sides = np.concatenate(
+        [
+            np.stack([bottom, bottom[:, nxt], top[:, nxt]], axis=2),
+            np.stack([bottom, top[:, nxt], top], axis=2),
+        ],
+        axis=1,
+    )
     soup.add(sides, material, color)
-    soup.add(np.stack([np.broadcast_to(top_centre[:, None], top.shape), top, top[:, nxt]], axis=2), material, color)
+    soup.add(
+        np.stack([np.broadcast_to(top_centre[:, None], top.shape), top, top[:, nxt]], axis=2), material, color
+    )
     if ground:
-        holes = {(int(i), int(j)): bottom[k, :, :2] for k, (i, j) in enumerate(zip(ii.ravel(), jj.ravel()))}
+        holes = {(int(i), int(j)): bottom[k, :, :2] for k, (i, j) in enumerate(zip(ii.ravel(), jj.ravel(), strict=True))}
         soup.add(_tri3(_ground(count, spacing, holes)), ground_material, ground_color)
     else:
-        soup.add(np.stack([np.broadcast_to(feet[:, None], bottom.shape), bottom[:, nxt], bottom], axis=2),
-                 material, color)
+        soup.add(
+            np.stack([np.broadcast_to(feet[:, None], bottom.shape), bottom[:, nxt], bottom], axis=2),
+            material,
+            color,
+        )
     period = count * spacing
     params = _fmt(radius=radius, spacing=spacing, length=length, segments=segments)
-    name = (f"rods({count}x{count}, radius={radius:g}, length={length:g}, perturbation={perturbation:g}, "
-            f"seed={int(seed)}{'' if ground else ', no ground'})")
+    name = (
+        f"rods({count}x{count}, radius={radius:g}, length={length:g}, perturbation={perturbation:g}, "
+        f"seed={int(seed)}{'' if ground else ', no ground'})"
+    )
     return soup.build(fn, (period, period), name, params, suppress_edge_warning=not ground)
 
 
@@ -663,8 +738,19 @@ class _RodShape:
         return up & inside & tall
 
 
-def woven(*, warp_width=0.8, weft_width=0.8, warp_height=0.2, weft_height=0.2, spacing=1.0, segments=16,
-          warp_material=0, weft_material=1, warp_color=_WHITE, weft_color=_WHITE) -> SmallScale:
+def woven(
+    *,
+    warp_width=0.8,
+    weft_width=0.8,
+    warp_height=0.2,
+    weft_height=0.2,
+    spacing=1.0,
+    segments=16,
+    warp_material=0,
+    weft_material=1,
+    warp_color=_WHITE,
+    weft_color=_WHITE,
+) -> SmallScale:
     """A plain weave of closed tubular threads (Wu Fig. 7, two-hue shot silk).
 
     Warp threads run along x at y = spacing/2 and 3·spacing/2; weft threads run along y at
@@ -699,13 +785,17 @@ def woven(*, warp_width=0.8, weft_width=0.8, warp_height=0.2, weft_height=0.2, s
     for name, value in (("warp_width", warp_width), ("weft_width", weft_width)):
         widths[name] = _real(fn, name, value, lo=0, lo_open=True)
         if widths[name] > 0.9998 * spacing:
-            raise ValueError(f"{fn}: {name}={value!r} leaves no gap between threads; it must be <= 0.9998*spacing "
-                             f"= {0.9998 * spacing:g}")
+            raise ValueError(
+                f"{fn}: {name}={value!r} leaves no gap between threads; it must be <= 0.9998*spacing "
+                f"= {0.9998 * spacing:g}"
+            )
     for name, value in (("warp_height", warp_height), ("weft_height", weft_height)):
         heights[name] = _real(fn, name, value, lo=0, lo_open=True)
         if not 1e-4 * spacing <= heights[name] <= 100 * spacing:
-            raise ValueError(f"{fn}: {name}={value!r} must be in [1e-4*spacing, 100*spacing] = "
-                             f"[{1e-4 * spacing:g}, {100 * spacing:g}]")
+            raise ValueError(
+                f"{fn}: {name}={value!r} must be in [1e-4*spacing, 100*spacing] = "
+                f"[{1e-4 * spacing:g}, {100 * spacing:g}]"
+            )
     segments = _int(fn, "segments", segments, 3, 256)
     warp_material = _material(fn, "warp_material", warp_material)
     weft_material = _material(fn, "weft_material", weft_material)
@@ -724,12 +814,22 @@ def woven(*, warp_width=0.8, weft_width=0.8, warp_height=0.2, weft_height=0.2, s
     soup = _Soup()
     # Warp j rises over weft j and dips under the other; weft i does the opposite at its crossings.
     for j, sign in ((0, 1.0), (1, -1.0)):
-        soup.add(_tube_along_x(t, (j + 0.5) * spacing, sign * amp * wave, aw, bw, alpha), warp_material, warp_color)
+        soup.add(
+            _tube_along_x(t, (j + 0.5) * spacing, sign * amp * wave, aw, bw, alpha), warp_material, warp_color
+        )
     for i, sign in ((0, -1.0), (1, 1.0)):
         tube = _tube_along_x(t, (i + 0.5) * spacing, sign * amp * wave, af, bf, alpha)
-        soup.add(tube[:, ::-1][..., [1, 0, 2]], weft_material, weft_color)  # swap x, y: mirror, so flip winding
-    params = _fmt(warp_width=2 * aw, weft_width=2 * af, warp_height=2 * bw, weft_height=2 * bf, spacing=spacing,
-                  segments=segments)
+        soup.add(
+            tube[:, ::-1][..., [1, 0, 2]], weft_material, weft_color
+        )  # swap x, y: mirror, so flip winding
+    params = _fmt(
+        warp_width=2 * aw,
+        weft_width=2 * af,
+        warp_height=2 * bw,
+        weft_height=2 * bf,
+        spacing=spacing,
+        segments=segments,
+    )
     name = f"woven(warp {2 * aw:g}x{2 * bw:g}, weft {2 * af:g}x{2 * bf:g}, spacing={spacing:g})"
     return soup.build(fn, (period, period), name, params)
 
@@ -745,7 +845,9 @@ def _tube_along_x(x, y0, zc, a, b, alpha) -> np.ndarray:
     p00, p01 = ring[:-1], np.roll(ring[:-1], -1, axis=1)
     p10, p11 = ring[1:], np.roll(ring[1:], -1, axis=1)
     # Around the ring alpha turns counter-clockwise seen from +x, so (p00, p01, p11) faces outward.
-    return np.concatenate([np.stack([p00, p01, p11], axis=2), np.stack([p00, p11, p10], axis=2)]).reshape(-1, 3, 3)
+    return np.concatenate([np.stack([p00, p01, p11], axis=2), np.stack([p00, p11, p10], axis=2)]).reshape(
+        -1, 3, 3
+    )
 
 
 def _weave_amplitude(aw, bw, af, bf, s, n_along) -> float:
@@ -800,13 +902,17 @@ def heightfield(heights, *, size=1.0, scale=1.0, material=0, color=_WHITE) -> Sm
     try:
         h = np.array(heights, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ValueError(f"{fn}: heights must be a 2-D array of real numbers, got {type(heights).__name__}") from None
+        raise ValueError(
+            f"{fn}: heights must be a 2-D array of real numbers, got {type(heights).__name__}"
+        ) from None
     if h.ndim != 2 or h.shape[0] < 2 or h.shape[1] < 2:
         raise ValueError(f"{fn}: heights must be a 2-D array of at least 2x2, got shape {h.shape}")
     bad = ~np.isfinite(h)
     if bad.any():
         i, j = np.argwhere(bad)[0]
-        raise ValueError(f"{fn}: heights contains NaN or inf ({int(bad.sum())} value(s); first at row {i}, column {j})")
+        raise ValueError(
+            f"{fn}: heights contains NaN or inf ({int(bad.sum())} value(s); first at row {i}, column {j})"
+        )
     size = _real(fn, "size", size, lo=0, lo_open=True)
     scale = _real(fn, "scale", scale)
     material = _material(fn, "material", material)
@@ -820,11 +926,19 @@ def heightfield(heights, *, size=1.0, scale=1.0, material=0, color=_WHITE) -> Sm
     v = np.stack([gx.ravel(), gy.ravel(), z.ravel()], axis=1)
     idx = np.arange((rows + 1) * (cols + 1)).reshape(rows + 1, cols + 1)
     v00, v10, v01, v11 = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
-    f = np.concatenate([np.stack([v00, v10, v11], -1).reshape(-1, 3), np.stack([v00, v11, v01], -1).reshape(-1, 3)])
+    f = np.concatenate(
+        [np.stack([v00, v10, v11], -1).reshape(-1, 3), np.stack([v00, v11, v01], -1).reshape(-1, 3)]
+    )
     _check_faces(fn, v, f, _fmt(shape=h.shape, size=size, scale=scale) + " (slopes too steep for the grid)")
     nf = len(f)
-    return SmallScale(v, f, material_ids=np.full(nf, material), colors=np.tile(color, (nf, 1)), period=(size, size),
-                      name=f"heightfield({rows}x{cols}, scale={scale:g})")
+    return SmallScale(
+        v,
+        f,
+        material_ids=np.full(nf, material),
+        colors=np.tile(color, (nf, 1)),
+        period=(size, size),
+        name=f"heightfield({rows}x{cols}, scale={scale:g})",
+    )
 
 
 def heightfield_from_image(path, *, size=1.0, scale=1.0, material=0, color=_WHITE) -> SmallScale:

@@ -7,11 +7,13 @@ facet search); the BVH that Warp gets from ``wp.Mesh`` is built on the host
 (``warp_biscale.bvh``) and walked by ``cl/visibility.cl``.
 
 Device memory layout: no ``float3`` in buffers (its 16-byte alignment differs between host and
-device); every (N, 3) array travels as a contiguous float32 array of stride 3 and the kernels use
-``vload3``/``vstore3``. Programs are built once per device (cached by stem) with explicit options:
+device); every (N, 3) array travels as a contiguous float32 array of stride 3, which the kernels
+read and write with the ``load3``/``store3`` helpers of ``cl/common.cl``. Programs are built once per device (cached by stem) with explicit options:
 ``-cl-std=CL1.2``, plus ``-cl-fp32-correctly-rounded-divide-sqrt`` where the device supports it
 (PoCL does), so that float32 ``/`` and ``sqrt`` round as on the host and in Warp's CPU kernels.
-The facet kernel needs ``cl_khr_fp64``; a device without it is refused at construction.
+The facet search and the truth sums need ``cl_khr_fp64``; a device without it is refused at
+construction. Launches use a fixed work-group size along dimension 0 (8 on a CPU, 64 on a GPU)
+with the global size rounded up to it, since PoCL compiles a kernel once per work-group size.
 
 Selection: ``OpenCLBackend(None)`` takes the first device, GPUs before other kinds;
 ``OpenCLBackend("sub")`` the first device whose platform or device name contains "sub"
@@ -37,11 +39,20 @@ __all__ = ["OpenCLBackend", "list_devices"]
 _DEVICE_STATE: dict = {}
 
 
+def _pyopencl():
+    try:
+        import pyopencl
+    except ImportError as exc:
+        raise RuntimeError(
+            f"the OpenCL backend needs pyopencl ({exc}); install it with `pip install \"pyopencl[pocl]\"`"
+        ) from None
+    return pyopencl
+
+
 def _ordered_devices():
     """Every OpenCL device as (platform, device), GPUs first, then the others, in platform order.
-    Raises RuntimeError with an explanation if no OpenCL platform can be found."""
-    import pyopencl as cl
-
+    Raises RuntimeError with an explanation if pyopencl or every OpenCL platform is missing."""
+    cl = _pyopencl()
     try:
         platforms = cl.get_platforms()
     except cl.Error as exc:  # PLATFORM_NOT_FOUND_KHR with no ICD installed
@@ -102,8 +113,7 @@ def list_devices() -> list[dict]:
 
 
 def _device_state(device):
-    import pyopencl as cl
-
+    cl = _pyopencl()
     state = _DEVICE_STATE.get(device.int_ptr)
     if state is None:
         ctx = cl.Context([device])
@@ -117,8 +127,7 @@ class OpenCLBackend:
     platform or device name (case-insensitive), optionally ending in ``#N`` for the N-th match."""
 
     def __init__(self, selector: str | None = None):
-        import pyopencl as cl
-
+        cl = _pyopencl()
         devices = _ordered_devices()
         platform, device = _select(selector, devices)
         if not device.double_fp_config and "cl_khr_fp64" not in device.extensions:
@@ -140,6 +149,10 @@ class OpenCLBackend:
         # Work-items worth launching per reduction: a few per core on a CPU, enough to fill a GPU.
         is_cpu = bool(device.type & cl.device_type.CPU)
         self._threads = max(1, device.max_compute_units) * 4 if is_cpu else 1 << 18
+        # A fixed work-group size along dimension 0 (the global size is rounded up to it): PoCL
+        # compiles a kernel once per work-group size, and would otherwise recompile for every new
+        # facet or pair count. Small on a CPU (a group runs on one core), a few warps on a GPU.
+        self._group = max(1, min(8 if is_cpu else 64, device.max_work_group_size))
         self._tiles = weakref.WeakKeyDictionary()
 
     def __repr__(self):
@@ -174,6 +187,14 @@ class OpenCLBackend:
                 hint = " (PoCL links kernels with the system linker: is `ld` from binutils on PATH?)"
             raise RuntimeError(f"building cl/{stem}.cl for {self.device} failed{hint}:\n{exc}") from None
 
+    def _launch(self, stem, name, shape, *args):
+        """Run kernel `name` over `shape` work-items, dimension 0 rounded up to whole work-groups
+        (the kernels return early past their real size)."""
+        g = self._group
+        global_size = (-(-shape[0] // g) * g, *shape[1:])
+        local_size = (g,) + (1,) * (len(shape) - 1)
+        self._kernel(stem, name)(self._queue, global_size, local_size, *args)
+
     # ------------------------------------------------------------------ device copies
     def _buffer(self, array, dtype):
         """A read-only device copy of a host array (a one-element dummy for an empty one)."""
@@ -199,7 +220,7 @@ class OpenCLBackend:
             vn = tile.vertex_normals if tile.vertex_normals is not None else np.zeros((1, 3))
             areas = tile.face_areas
             entry = {
-                "points": self._buffer(tile.vertices, np.float32),
+                "points": self._buffer(tile.to_local(tile.vertices), np.float32),
                 "faces": self._buffer(tile.faces, np.int32),
                 "vertex_normals": self._buffer(vn, np.float32),
                 "face_normals": self._buffer(tile.face_normals, np.float32),
@@ -210,10 +231,11 @@ class OpenCLBackend:
         if need_bvh and "nodes" not in entry:
             from .bvh import build_bvh
 
-            bvh = build_bvh(tile.vertices, tile.faces)
+            local = tile.to_local(tile.vertices).astype(np.float64)
+            bvh = build_bvh(local, tile.faces)
             entry["bvh"] = bvh
             entry["nodes"] = self._buffer(bvh.packed(), np.float32)
-            entry["tris"] = self._buffer(bvh.triangle_table(tile.vertices, tile.faces), np.float32)
+            entry["tris"] = self._buffer(bvh.triangle_table(local, tile.faces), np.float32)
         return entry
 
     def _facets(self, facets: Facets):
@@ -221,7 +243,6 @@ class OpenCLBackend:
         if entry is None or entry.get("ctx") is not self._ctx:
             entry = {
                 "ctx": self._ctx,
-                "position": self._buffer(facets.position, np.float32),
                 "normal": self._buffer(facets.normal, np.float32),
                 "face": self._buffer(facets.face, np.int32),
                 "area": self._buffer(facets.area, np.float32),
@@ -230,6 +251,14 @@ class OpenCLBackend:
             }
             facets.device_cache[self.name] = entry
         return entry
+
+    def _facet_positions(self, facets: Facets, tile):
+        """Facet positions on the device in `tile`'s local frame (see `SmallScale.to_local`)."""
+        entry = self._facets(facets)
+        if entry.get("position_tile") is not tile:
+            entry["position"] = self._buffer(tile.to_local(facets.position), np.float32)
+            entry["position_tile"] = tile
+        return entry["position"]
 
     def _vis(self, vis: Visibility):
         entry = vis.device_cache.get(self.name)
@@ -252,18 +281,19 @@ class OpenCLBackend:
         nrm = self._empty(3 * count, np.float32)
         face = self._empty(count, np.int32)
         xi1, xi2 = facet_shift(seed)
-        k = self._kernel("facets", "sample_facets")
-        k(self._queue, (count,), None,
-          t["points"], t["faces"], t["vertex_normals"], np.int32(tile.vertex_normals is not None),
-          t["face_normals"], t["cumulative_area"], t["face_area"], np.int32(len(tile.faces)), np.int32(count),
-          np.float64(xi1), np.float32(xi2), pos, nrm, face)
+        self._launch("facets", "sample_facets", (count,),
+                     t["points"], t["faces"], t["vertex_normals"], np.int32(tile.vertex_normals is not None),
+                     t["face_normals"], t["cumulative_area"], t["face_area"], np.int32(len(tile.faces)),
+                     np.int32(count), np.float64(xi1), np.float32(xi2), pos, nrm, face)
         face_np = self._read(face, count, np.int32)
         area = np.full(count, tile.area / count, np.float32)
-        facets = Facets(self._read(pos, (count, 3), np.float32), self._read(nrm, (count, 3), np.float32), face_np,
-                        area, tile.material_ids[face_np], tile.colors[face_np].astype(np.float32), seed=int(seed))
+        facets = Facets(tile.from_local(self._read(pos, (count, 3), np.float32)),
+                        self._read(nrm, (count, 3), np.float32),
+                        face_np, area, tile.material_ids[face_np], tile.colors[face_np].astype(np.float32),
+                        seed=int(seed))
         # The kernel's outputs are already on the device: keep them for the next stages.
         facets.device_cache[self.name] = {
-            "ctx": self._ctx, "position": pos, "normal": nrm, "face": face,
+            "ctx": self._ctx, "position": pos, "position_tile": tile, "normal": nrm, "face": face,
             "area": self._buffer(area, np.float32),
             "material": self._buffer(facets.material, np.int32),
             "weight": self._buffer(facets.color * area[:, None], np.float32),
@@ -272,6 +302,7 @@ class OpenCLBackend:
 
     def visibility(self, tile, facets, directions, brute_force=False):
         t = self._tile(tile, need_bvh=True)
+        position = self._facet_positions(facets, tile)
         f = self._facets(facets)
         directions = np.asarray(directions, np.float64)
         n_dirs = len(directions)
@@ -281,13 +312,12 @@ class OpenCLBackend:
         dirs = self._buffer(directions, np.float32)
         if n_dirs:
             z_lo, z_hi = tile.z_range
-            k = self._kernel("visibility", "visibility_bits")
-            k(self._queue, (words, n_dirs), None,
-              t["nodes"], t["tris"], np.int32(len(tile.faces)), t["face_normals"], np.int32(bool(brute_force)),
-              f["position"], f["face"], np.int32(n), dirs,
-              np.float32(tile.origin[0]), np.float32(tile.origin[1]), np.float32(tile.period[0]),
-              np.float32(tile.period[1]), np.float32(z_lo), np.float32(z_hi), np.float32(ray_offset(tile)),
-              bits)
+            self._launch("visibility", "visibility_bits", (words, n_dirs),
+                         t["nodes"], t["tris"], np.int32(len(tile.faces)), t["face_normals"],
+                         np.int32(bool(brute_force)), position, f["face"], np.int32(n), dirs,
+                         np.float32(0.0), np.float32(0.0), np.float32(tile.period[0]),
+                         np.float32(tile.period[1]), np.float32(0.0), np.float32(z_hi - z_lo),
+                         np.float32(ray_offset(tile)), np.int32(words), bits)
         vis = Visibility(directions, self._read(bits, (n_dirs, words), np.uint32), n)
         vis.device_cache[self.name] = {"ctx": self._ctx, "bits": bits, "directions": dirs}
         return vis
@@ -300,11 +330,11 @@ class OpenCLBackend:
             return np.zeros(0, np.float32)
         chunks, per = chunking(n_words, n_dirs, self._threads)
         partial = self._empty(chunks * n_dirs, np.float32)
-        self._kernel("truth", "visible_area_partial")(
-            self._queue, (n_dirs, chunks), None,
-            v["directions"], v["bits"], np.int32(n_words), f["normal"], f["area"], np.int32(per), partial)
+        self._launch("truth", "visible_area_partial", (n_dirs, chunks),
+                     v["directions"], v["bits"], np.int32(n_words), f["normal"], f["area"], np.int32(per),
+                     np.int32(n_dirs), partial)
         a_v = self._empty(n_dirs, np.float32)
-        self._kernel("truth", "sum_chunks_area")(self._queue, (n_dirs,), None, partial, np.int32(chunks), a_v)
+        self._launch("truth", "sum_chunks_area", (n_dirs,), partial, np.int32(chunks), np.int32(n_dirs), a_v)
         return self._read(a_v, n_dirs, np.float32)
 
     def effective_brdf(self, facets, vis, kinds, params, pair_i, pair_o, a_v):
@@ -318,12 +348,12 @@ class OpenCLBackend:
         pi = self._buffer(pair_i, np.int32)
         po = self._buffer(pair_o, np.int32)
         partial = self._empty(chunks * n_pairs * 3, np.float32)
-        self._kernel("truth", "effective_brdf_partial")(
-            self._queue, (n_pairs, chunks), None,
-            v["directions"], pi, po, v["bits"], np.int32(n_words), f["normal"], f["weight"], f["material"],
-            self._buffer(kinds, np.int32), self._buffer(np.asarray(params, np.float32).reshape(-1, 8), np.float32),
-            np.int32(per), partial)
+        self._launch("truth", "effective_brdf_partial", (n_pairs, chunks),
+                     v["directions"], pi, po, v["bits"], np.int32(n_words), f["normal"], f["weight"],
+                     f["material"], self._buffer(kinds, np.int32),
+                     self._buffer(np.asarray(params, np.float32).reshape(-1, 8), np.float32),
+                     np.int32(per), np.int32(n_pairs), partial)
         out = self._empty(n_pairs * 3, np.float32)
-        self._kernel("truth", "sum_chunks_brdf")(
-            self._queue, (n_pairs,), None, partial, np.int32(chunks), po, self._buffer(a_v, np.float32), out)
+        self._launch("truth", "sum_chunks_brdf", (n_pairs,),
+                     partial, np.int32(chunks), np.int32(n_pairs), po, self._buffer(a_v, np.float32), out)
         return self._read(out, (n_pairs, 3), np.float32)

@@ -224,6 +224,24 @@ class SmallScale:
         return self.period[0] * self.period[1]
 
     @property
+    def corner(self) -> np.ndarray:
+        """(x0, y0, z_lo): the tile's lowest corner, origin of the frame the kernels trace in."""
+        return np.array([self.origin[0], self.origin[1], self.z_range[0]])
+
+    def to_local(self, points) -> np.ndarray:
+        """float32 coordinates relative to `corner`, shifted in float64 before the cast.
+
+        A tile modelled at (1000, −1000, 100) would otherwise lose ~6e-5 to float32 rounding, more
+        than the ray offset (1e-5 of the tile size), and self-shadow at random. The backends trace
+        in this frame: the tile's cell is [0, Px] × [0, Py] and its height range [0, z_hi − z_lo].
+        """
+        return (np.asarray(points, np.float64) - self.corner).astype(np.float32)
+
+    def from_local(self, points) -> np.ndarray:
+        """Inverse of `to_local` (float32 out, as the facets are)."""
+        return (np.asarray(points, np.float64) + self.corner).astype(np.float32)
+
+    @property
     def n_materials(self) -> int:
         return int(self.material_ids.max()) + 1
 

@@ -22,17 +22,6 @@ from .reference import facet_shift, ray_offset
 _READY = False
 
 
-def init_warp():
-    global _READY
-    import warp as wp
-
-    if not _READY:
-        wp.config.log_level = wp.LOG_WARNING  # compile chatter would drown the progress display
-        wp.init()
-        _READY = True
-    return wp
-
-
 class WarpBackend:
     """Warp on one device. `device`: None (CUDA if present, else CPU), "cpu", "cuda" or "cuda:N"."""
 
@@ -95,7 +84,7 @@ class WarpBackend:
         entry = self._tiles.get(tile)
         if entry is None:
             dev = self._device
-            points = wp.array(tile.vertices.astype(np.float32), dtype=wp.vec3, device=dev)
+            points = wp.array(tile.to_local(tile.vertices), dtype=wp.vec3, device=dev)
             faces = wp.array(tile.faces.astype(np.int32), dtype=wp.int32, device=dev)
             mesh = wp.Mesh(points=points, indices=faces.flatten())
             vn = tile.vertex_normals if tile.vertex_normals is not None else np.zeros((1, 3))
@@ -119,7 +108,6 @@ class WarpBackend:
         if entry is None:
             dev = self._device
             entry = {
-                "position": wp.array(facets.position, dtype=wp.vec3, device=dev),
                 "normal": wp.array(facets.normal, dtype=wp.vec3, device=dev),
                 "face": wp.array(facets.face, dtype=wp.int32, device=dev),
                 "area": wp.array(facets.area, dtype=wp.float32, device=dev),
@@ -128,6 +116,16 @@ class WarpBackend:
             }
             facets.device_cache[self.name] = entry
         return entry
+
+    def _facet_positions(self, facets: Facets, tile):
+        """Facet positions on the device in `tile`'s local frame (see `SmallScale.to_local`)."""
+        import warp as wp
+
+        entry = self._facets(facets)
+        if entry.get("position_tile") is not tile:
+            entry["position"] = wp.array(tile.to_local(facets.position), dtype=wp.vec3, device=self._device)
+            entry["position_tile"] = tile
+        return entry["position"]
 
     def _vis(self, vis: Visibility):
         import warp as wp
@@ -161,11 +159,11 @@ class WarpBackend:
                      [pos, nrm, face])
         face_np = face.numpy()
         area = np.full(count, tile.area / count, np.float32)
-        facets = Facets(pos.numpy(), nrm.numpy(), face_np, area, tile.material_ids[face_np],
+        facets = Facets(tile.from_local(pos.numpy()), nrm.numpy(), face_np, area, tile.material_ids[face_np],
                         tile.colors[face_np].astype(np.float32), seed=int(seed))
         # The kernel's outputs are already on the device: keep them for the next stages.
         facets.device_cache[self.name] = {
-            "position": pos, "normal": nrm, "face": face,
+            "position": pos, "position_tile": tile, "normal": nrm, "face": face,
             "area": wp.array(area, dtype=wp.float32, device=dev),
             "material": wp.array(facets.material, dtype=wp.int32, device=dev),
             "weight": wp.array(facets.color * area[:, None], dtype=wp.vec3, device=dev),
@@ -178,6 +176,7 @@ class WarpBackend:
         from .kernels import visibility as kv
 
         t = self._tile(tile)
+        position = self._facet_positions(facets, tile)
         f = self._facets(facets)
         dev = self._device
         directions = np.asarray(directions, np.float64)
@@ -187,9 +186,8 @@ class WarpBackend:
         z_lo, z_hi = tile.z_range
         self._launch(kv.visibility_bits, (len(directions), words),
                      [t["mesh"].id, t["points"], t["faces"], t["face_normals"], int(bool(brute_force)),
-                      f["position"], f["face"], dirs,
-                      float(tile.origin[0]), float(tile.origin[1]), float(tile.period[0]), float(tile.period[1]),
-                      z_lo, z_hi, ray_offset(tile)],
+                      position, f["face"], dirs,
+                      0.0, 0.0, float(tile.period[0]), float(tile.period[1]), 0.0, z_hi - z_lo, ray_offset(tile)],
                      [bits])
         vis = Visibility(directions, bits.numpy(), len(facets))
         vis.device_cache[self.name] = {"bits": bits, "directions": dirs}
