@@ -73,7 +73,7 @@ def volume(tile, mask=None):
     return float((tile.face_areas[m] * tile.face_normals[m][:, 2] * zbar).sum())
 
 
-# ---------------------------------------------------------------------------------------------- defaults
+# ------------------------------------------------------------------------------------------------- defaults
 
 DEFAULTS = [
     ("flat", lambda: make(flat), True),
@@ -99,7 +99,7 @@ def test_defaults_are_valid_tiles(prefix, build, height_field_like):
         check_height_field_like(tile)
 
 
-# ---------------------------------------------------------------------------------------------- flat
+# ----------------------------------------------------------------------------------------------------- flat
 
 
 @FAST
@@ -114,7 +114,7 @@ def test_flat(size, material, color):
     np.testing.assert_array_equal(tile.colors, np.tile(color, (2, 1)))
 
 
-# ---------------------------------------------------------------------------------------------- pyramid
+# -------------------------------------------------------------------------------------------------- pyramid
 
 
 def max_fraction(sides, rotation):
@@ -184,7 +184,7 @@ def test_full_pyramid_has_no_ground():
     check_height_field_like(tile)
 
 
-# ---------------------------------------------------------------------------------------------- grooves
+# -------------------------------------------------------------------------------------------------- grooves
 
 
 @FAST
@@ -259,7 +259,7 @@ def test_grooves_axis_y_is_axis_x_mirrored():
     assert ty.area == pytest.approx(tx.area, rel=1e-12)
 
 
-# ---------------------------------------------------------------------------------------------- rods
+# ----------------------------------------------------------------------------------------------------- rods
 
 
 def rod_cells(tile, spacing):
@@ -359,7 +359,7 @@ def test_rods_orientation_tilts_the_rods():
     assert top[2] <= length * math.cos(tilt) + 0.05 * math.sin(tilt) + 1e-12
 
 
-# ---------------------------------------------------------------------------------------------- woven
+# ---------------------------------------------------------------------------------------------------- woven
 
 
 def upward_crossings(points, tris):
@@ -540,7 +540,7 @@ def test_heightfield_from_image_errors(tmp_path):
         heightfield_from_image(tiny)
 
 
-# ------------------------------------------------------------------------------------- invalid parameters
+# --------------------------------------------------------------------------------------- invalid parameters
 
 INVALID = [
     (flat, dict(size=0), "size"),
@@ -640,7 +640,7 @@ def test_parameters_are_keyword_only():
         pyramid(0.5)
 
 
-# ---------------------------------------------------------------------------------------- file round trip
+# ------------------------------------------------------------------------------------------ file round trip
 
 TILES = st.one_of(
     st.builds(lambda h, n: pyramid(height=h, sides=n), st.floats(0.05, 2), st.integers(3, 8)),

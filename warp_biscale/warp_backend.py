@@ -22,6 +22,17 @@ from .reference import facet_shift, ray_offset
 _READY = False
 
 
+def init_warp():
+    global _READY
+    import warp as wp
+
+    if not _READY:
+        wp.config.log_level = wp.LOG_WARNING  # compile chatter would drown the progress display
+        wp.init()
+        _READY = True
+    return wp
+
+
 class WarpBackend:
     """Warp on one device. `device`: None (CUDA if present, else CPU), "cpu", "cuda" or "cuda:N"."""
 
