@@ -129,3 +129,15 @@ def test_save_round_trip(tmp_path):
     tile.save(tmp_path / "t.ply")
     back = wb.SmallScale.load(tmp_path / "t.ply")
     np.testing.assert_allclose(back.area, tile.area, rtol=1e-6)
+
+
+def test_origin_for_geometry_inside_its_cell():
+    tri = np.array([[0.2, 0.2, 0.0], [0.4, 0.2, 0.0], [0.3, 0.4, 0.1]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        tile = wb.SmallScale(tri, np.array([[0, 1, 2]]), period=(1, 1), origin=(0, 0))
+    np.testing.assert_allclose(tile.origin, [0, 0])
+    with pytest.raises(ValueError, match="outside the tile cell"):
+        wb.SmallScale(tri, np.array([[0, 1, 2]]), period=(0.1, 1), origin=(0, 0))
+    with pytest.raises(ValueError, match="origin must be two finite"):
+        wb.SmallScale(tri, np.array([[0, 1, 2]]), period=(1, 1), origin=(np.nan, 0))

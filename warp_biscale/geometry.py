@@ -109,24 +109,14 @@ class _Soup:
             self.mats.append(np.full(len(tris), material, np.int32))
             self.cols.append(np.broadcast_to(color, (len(tris), 3)))
 
-    def build(self, fn, period, name, params, suppress_edge_warning=False) -> SmallScale:
+    def build(self, fn, period, name, params) -> SmallScale:
         tris = np.concatenate(self.tris)
         vertices, faces = _weld(tris.reshape(-1, 3))
         _check_faces(fn, vertices, faces, params)
-        kwargs = dict(
-            material_ids=np.concatenate(self.mats),
-            colors=np.concatenate(self.cols),
-            period=period,
-            name=name,
-        )
-        if not suppress_edge_warning:
-            return SmallScale(vertices, faces, **kwargs)
-        with warnings.catch_warnings():
-            # SmallScale takes the tile origin from the vertices' xy minimum even when `period` is
-            # given, so a tile whose geometry does not reach its own boundary (rods without ground)
-            # always "fails" its edge check. Such a tile has nothing on its boundary and no seams.
-            warnings.filterwarnings("ignore", message=r".*do not match.*", category=TileWarning)
-            return SmallScale(vertices, faces, **kwargs)
+        # Every generated tile occupies [0, Px] × [0, Py], whether or not its geometry reaches
+        # the boundary (rods without ground do not).
+        return SmallScale(vertices, faces, material_ids=np.concatenate(self.mats),
+                          colors=np.concatenate(self.cols), period=period, name=name, origin=(0.0, 0.0))
 
 
 def _weld(points: np.ndarray):
@@ -690,7 +680,7 @@ def rods(
         f"rods({count}x{count}, radius={radius:g}, length={length:g}, perturbation={perturbation:g}, "
         f"seed={int(seed)}{'' if ground else ', no ground'})"
     )
-    return soup.build(fn, (period, period), name, params, suppress_edge_warning=not ground)
+    return soup.build(fn, (period, period), name, params)
 
 
 def _perpendicular_frame(axes):

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -50,8 +50,11 @@ class SmallScale:
     colors : (F, 3) float, optional
         RGB colour weight per face (Wu §3.7), default (1, 1, 1). Must be finite and ≥ 0.
     period : (Px, Py), optional
-        Tile period; default the xy extent of the vertices. The tile occupies
-        [origin, origin + period] in x and y, with origin the xy minimum of the vertices.
+        Tile period; default the xy extent of the vertices.
+    origin : (x0, y0), optional
+        Lower corner of the tile's cell, which occupies [origin, origin + period] in x and y;
+        default the xy minimum of the vertices. Give it with `period` when the geometry does not
+        reach the cell's boundary (rods standing free in their cell, say).
     vertex_normals : (V, 3) float, optional
         Per-vertex shading normals, interpolated across faces (Wu §3.2). If absent, facets use the
         face normal.
@@ -66,7 +69,7 @@ class SmallScale:
     period: tuple | None = None
     vertex_normals: np.ndarray | None = None
     name: str = "tile"
-    origin: np.ndarray = field(init=False)
+    origin: np.ndarray | None = None
 
     def __post_init__(self):
         v = _finite_array("vertices", self.vertices, (3,), np.float64)
@@ -142,7 +145,21 @@ class SmallScale:
         self.vertices, self.faces = v, f.astype(np.int32)
         self.material_ids, self.colors, self.vertex_normals = mat, col, vn
         self.period = (float(period[0]), float(period[1]))
-        self.origin = lo[:2].copy()
+        if self.origin is None:
+            self.origin = lo[:2].copy()
+        else:
+            origin = np.asarray(self.origin, np.float64).reshape(-1)
+            if origin.shape != (2,) or not np.all(np.isfinite(origin)):
+                raise ValueError(f"origin must be two finite numbers (x0, y0), got {self.origin!r}")
+            self.origin = origin
+        outside = (v[:, :2] < self.origin - 1e-9 * max(self.period)) | (
+            v[:, :2] > self.origin + period + 1e-9 * max(self.period))
+        if outside.any():
+            row = int(np.argwhere(outside.any(axis=1))[0][0])
+            raise ValueError(
+                f"vertex {row} {v[row].tolist()} lies outside the tile cell [{self.origin.tolist()}, "
+                f"{(self.origin + period).tolist()}] given by origin and period"
+            )
         self._check_edges()
 
     # ----------------------------------------------------------------------------- cleaning
@@ -307,18 +324,30 @@ class SmallScale:
 
 
 def _covered(a: np.ndarray, b: np.ndarray, tol: float) -> bool:
-    """Every 2-D point of `a` lies on the polyline through the points of `b` sorted by first coord."""
+    """Every 2-D point of `a` lies on the polyline through the points of `b` sorted by first coord.
+
+    A heuristic: it accepts matching vertex sets at once, and otherwise lets the opposite edge
+    be tessellated differently. Where an edge crosses several separate pieces (woven tubes), the
+    sorted polyline joins unrelated points, so it errs towards no warning.
+    """
+    from scipy.spatial import cKDTree
+
+    dist, _ = cKDTree(b).query(a)
+    if np.all(dist < 10 * tol):  # the common case: the same boundary vertices on both edges
+        return True
     b = b[np.lexsort((b[:, 1], b[:, 0]))]
     if len(b) == 1:
-        return bool(np.all(np.abs(a - b[0]).max(axis=1) < 10 * tol))
-    # Distance from each point of a to the nearest segment of the sorted polyline through b.
+        return False
     p0, p1 = b[:-1], b[1:]
     d = p1 - p0
     dd = np.maximum((d * d).sum(1), 1e-300)
-    t = np.clip(((a[:, None, :] - p0[None]) * d[None]).sum(-1) / dd[None], 0.0, 1.0)
-    near = p0[None] + t[..., None] * d[None]
-    dist = np.sqrt(((a[:, None, :] - near) ** 2).sum(-1)).min(axis=1)
-    return bool(np.all(dist < 10 * tol))
+    for start in range(0, len(a), 256):  # chunks keep memory at 256 × len(b)
+        ac = a[start:start + 256]
+        t = np.clip(((ac[:, None, :] - p0[None]) * d[None]).sum(-1) / dd[None], 0.0, 1.0)
+        near = p0[None] + t[..., None] * d[None]
+        if not np.all(np.sqrt(((ac[:, None, :] - near) ** 2).sum(-1)).min(axis=1) < 10 * tol):
+            return False
+    return True
 
 
 def _file_has_vertex_normals(mesh) -> bool:
