@@ -1,11 +1,11 @@
 /* Visibility of the infinitely tiled surface (Wu §3.3, DESIGN §4): bits V_s(w_k).
  *
  * Twin of kernels/visibility.py; the mathematics is warp_biscale.reference.trace_periodic. One
- * work-item per (direction k, 32-facet word w), each writing one whole word of bits (no atomics).
- * The NDRange is (words, D): OpenCL's dimension 0 varies fastest, so neighbouring work-items trace
- * neighbouring facets (ordered by face) along the same direction, as Warp's (D, words) launch
- * does; dimension 0 is rounded up to a whole work-group and the surplus work-items return. Rays
- * are any-hit. A ray leaving the tile through its xy boundary re-enters on the opposite side
+ * work-item per ray (facet s, direction k) writes a byte, and pack_bits folds 32 bytes into a word
+ * (no atomics). The NDRange is (Ns, D): OpenCL's dimension 0 varies fastest, so neighbouring
+ * work-items trace neighbouring facets (ordered by face) along the same direction, as Warp's
+ * (D, Ns) launch does; dimension 0 is rounded up to a whole work-group and the surplus work-items
+ * return. Rays are any-hit. A ray leaving the tile through its xy boundary re-enters on the opposite side
  * until it passes above the tile's highest point.
  *
  * One difference from the Warp twin, by design: Warp's BVH query (wp.mesh_query_ray_anyhit) uses
@@ -170,7 +170,7 @@ CL_INLINE int trace_periodic(__global const float *nodes, __global const float *
     return 1;
 }
 
-__kernel void visibility_bits(
+__kernel void visibility_rays(
     __global const float *nodes,         /* (N, 8) BVH records */
     __global const float *tris,          /* (F, 9) [a, b - a, c - a], BVH slot order */
     const int n_tris,
@@ -182,27 +182,38 @@ __kernel void visibility_bits(
     __global const float *directions,    /* (D, 3) */
     const float x0, const float y0, const float px, const float py,
     const float z_lo, const float z_hi, const float eps,
-    const int words,
-    __global uint *bits)                 /* (D, words) */
+    __global uchar *visible)             /* (D, Ns) */
+{
+    int s = get_global_id(0);
+    int k = get_global_id(1);
+    if (s >= n_facets) /* dimension 0 is rounded up to a whole work-group */
+        return;
+    float3 d = load3(directions, k);
+    float3 ng = load3(face_normals, facet_face[s]);
+    uchar v = 0;
+    /* Below the facet's own plane the ray would enter the surface: not visible. */
+    if (dot3(ng, d) > 0.0f) {
+        float3 p = load3(position, s);
+        float3 o = (float3)(p.x + eps * ng.x, p.y + eps * ng.y, p.z + eps * ng.z);
+        if (trace_periodic(nodes, tris, n_tris, brute_force, o, d, x0, y0, px, py, z_lo, z_hi, eps) != 0)
+            v = 1;
+    }
+    visible[(long)k * n_facets + s] = v;
+}
+
+/* Pack one byte per ray into words of 32 facets: bit (s mod 32) of word s / 32. */
+__kernel void pack_bits(__global const uchar *visible, const int n_facets, const int words,
+                        __global uint *bits)
 {
     int w = get_global_id(0);
     int k = get_global_id(1);
-    if (w >= words) /* dimension 0 is rounded up to a whole work-group */
+    if (w >= words)
         return;
-    float3 d = load3(directions, k);
     uint word = 0u;
     for (int b = 0; b < 32; ++b) {
         int s = w * 32 + b;
-        if (s < n_facets) {
-            float3 ng = load3(face_normals, facet_face[s]);
-            /* Below the facet's own plane the ray would enter the surface: not visible. */
-            if (dot3(ng, d) > 0.0f) {
-                float3 p = load3(position, s);
-                float3 o = (float3)(p.x + eps * ng.x, p.y + eps * ng.y, p.z + eps * ng.z);
-                if (trace_periodic(nodes, tris, n_tris, brute_force, o, d, x0, y0, px, py, z_lo, z_hi, eps) != 0)
-                    word |= 1u << b;
-            }
-        }
+        if (s < n_facets && visible[(long)k * n_facets + s] != 0)
+            word |= 1u << b;
     }
     bits[k * words + w] = word;
 }

@@ -13,11 +13,11 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def test_installed_package_has_kernels_and_cl():
     kernels = importlib.import_module("warp_biscale.kernels.visibility")
-    assert hasattr(kernels, "visibility_bits")
+    assert hasattr(kernels, "visibility_rays")
     from warp_biscale import cl
 
     src = cl.source("visibility")
-    assert "__kernel" in src and "visibility_bits" in src
+    assert "__kernel" in src and "visibility_rays" in src
     # Nothing generic installed at the top level (a `kernels` found in this checkout, when the
     # current directory is on sys.path, is not an installed one).
     for generic in ("kernels", "cl"):

@@ -312,12 +312,14 @@ class OpenCLBackend:
         dirs = self._buffer(directions, np.float32)
         if n_dirs:
             z_lo, z_hi = tile.z_range
-            self._launch("visibility", "visibility_bits", (words, n_dirs),
+            visible = self._empty(n_dirs * n, np.uint8)
+            self._launch("visibility", "visibility_rays", (n, n_dirs),
                          t["nodes"], t["tris"], np.int32(len(tile.faces)), t["face_normals"],
                          np.int32(bool(brute_force)), position, f["face"], np.int32(n), dirs,
                          np.float32(0.0), np.float32(0.0), np.float32(tile.period[0]),
                          np.float32(tile.period[1]), np.float32(0.0), np.float32(z_hi - z_lo),
-                         np.float32(ray_offset(tile)), np.int32(words), bits)
+                         np.float32(ray_offset(tile)), visible)
+            self._launch("visibility", "pack_bits", (words, n_dirs), visible, np.int32(n), np.int32(words), bits)
         vis = Visibility(directions, self._read(bits, (n_dirs, words), np.uint32), n)
         vis.device_cache[self.name] = {"ctx": self._ctx, "bits": bits, "directions": dirs}
         return vis
