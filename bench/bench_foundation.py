@@ -259,7 +259,8 @@ def main(argv=None):
     p.add_argument("--directions", nargs="*", type=int, default=[8, 12, 16], help="grid sizes K")
     p.add_argument("--runs", type=int, default=5, help="timed runs per measurement (median reported)")
     p.add_argument("--budget", type=float, default=20.0, help="skip measurements predicted above this many s/run")
-    p.add_argument("--error-facets", nargs="*", type=int, default=[10, 12, 14, 16, 18], help="log2 Ns for the error sweep")
+    p.add_argument("--error-facets", nargs="*", type=int, default=[10, 12, 14, 16, 18],
+                   help="log2 Ns for the error sweep")
     p.add_argument("--error-seeds", type=int, default=4, help="seeds averaged in the error sweep")
     p.add_argument("--tile-cells", type=int, default=64, help="timing tile: n×n height field (2n² triangles)")
     p.add_argument("--out", default="bench/out", help="output folder")

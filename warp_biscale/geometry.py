@@ -20,12 +20,11 @@ from __future__ import annotations
 
 import math
 import os
-import warnings
 from numbers import Integral, Real
 
 import numpy as np
 
-from .smallscale import SmallScale, TileWarning
+from .smallscale import SmallScale
 
 __all__ = ["flat", "pyramid", "grooves", "rods", "woven", "heightfield", "heightfield_from_image"]
 
@@ -857,7 +856,8 @@ def _weave_amplitude(aw, bw, af, bf, s, n_along) -> float:
     cross-sections lie inside the ellipse (they only help); linear interpolation between the
     n_along samples moves each centre line by at most eps·A·|cos| with eps = π²/(2·n_along²)
     (second derivative bound over one sample step), which we absorb by solving with A·(1 - 2·eps).
-    The margin is 1% of the mean half-height (0.5% of the mean thread height). H(A) is increasing (cos > 0 for |u| < s/2).
+    The margin is 1% of the mean half-height (0.5% of the mean thread height). H(A) is increasing
+    (cos > 0 for |u| < s/2).
     """
     t = np.linspace(0.0, 1.0, 4097)
     cu, ru = np.cos(np.pi * af * t / s), np.sqrt(np.maximum(1 - t * t, 0.0))

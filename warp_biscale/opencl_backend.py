@@ -8,7 +8,8 @@ facet search); the BVH that Warp gets from ``wp.Mesh`` is built on the host
 
 Device memory layout: no ``float3`` in buffers (its 16-byte alignment differs between host and
 device); every (N, 3) array travels as a contiguous float32 array of stride 3, which the kernels
-read and write with the ``load3``/``store3`` helpers of ``cl/common.cl``. Programs are built once per device (cached by stem) with explicit options:
+read and write with the ``load3``/``store3`` helpers of ``cl/common.cl``. Programs are built once
+per device (cached by stem) with explicit options:
 ``-cl-std=CL1.2``, plus ``-cl-fp32-correctly-rounded-divide-sqrt`` where the device supports it
 (PoCL does), so that float32 ``/`` and ``sqrt`` round as on the host and in Warp's CPU kernels.
 The facet search and the truth sums need ``cl_khr_fp64``; a device without it is refused at
