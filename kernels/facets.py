@@ -7,8 +7,8 @@ square→triangle map. Every facet carries ΔA = A/Ns.
 
 `offset` (here and in every main kernel of a stage) is added to the last launch index, so that
 the backend can split one launch into slices, one per CPU core: Warp's CPU device runs a launch
-on one thread, and launches from several Python threads run in parallel. OpenCL's global work
-offset does the same for the twins.
+on one thread, and launches from several Python threads run in parallel. The OpenCL twins need no
+slicing: PoCL spreads one launch over every core itself.
 """
 
 import warp as wp
