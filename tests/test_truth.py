@@ -182,3 +182,14 @@ def test_nan_directions_rejected(vgroove):
     with pytest.raises(ValueError, match="same length"):
         wb.effective_brdf_exact(vgroove, wb.Lambert(0.5), wi[:1], wi[:1].repeat(2, 0), facets=64,
                                 backend="warp:cpu")
+
+
+def test_saved_files_get_ordinary_permissions(tmp_path, vgroove):
+    import os
+    import stat
+
+    gt = wb.ground_truth(vgroove, wb.Lambert(0.5), facets=256, directions=3, backend="warp:cpu")
+    gt.save(tmp_path / "t.npz")
+    umask = os.umask(0)
+    os.umask(umask)
+    assert stat.S_IMODE(os.stat(tmp_path / "t.npz").st_mode) == 0o666 & ~umask
