@@ -141,3 +141,11 @@ def test_origin_for_geometry_inside_its_cell():
         wb.SmallScale(tri, np.array([[0, 1, 2]]), period=(0.1, 1), origin=(0, 0))
     with pytest.raises(ValueError, match="origin must be two finite"):
         wb.SmallScale(tri, np.array([[0, 1, 2]]), period=(1, 1), origin=(np.nan, 0))
+
+
+def test_tile_is_immutable():
+    tile = random_heightfield(n=3)
+    with pytest.raises(ValueError, match="read-only"):
+        tile.vertices[0, 2] = 5.0
+    with pytest.raises(ValueError, match="read-only"):
+        tile.material_ids[0] = 3

@@ -35,7 +35,8 @@ def _finite_array(name: str, value, shape_tail: tuple, dtype) -> np.ndarray:
 
 @dataclass(eq=False)
 class SmallScale:
-    """One period of a small-scale surface, tiled in x and y (z up).
+    """One period of a small-scale surface, tiled in x and y (z up). Immutable once built (its
+    arrays are read-only): to edit a tile, build a new one.
 
     Parameters
     ----------
@@ -161,6 +162,17 @@ class SmallScale:
                 f"{(self.origin + period).tolist()}] given by origin and period"
             )
         self._check_edges()
+        # A tile is immutable once built: backends cache device copies (and a BVH) per tile object,
+        # so an edited tile must be a new SmallScale. Face geometry is computed once here.
+        t = self.vertices[self.faces]
+        cross = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+        norm = np.linalg.norm(cross, axis=1)
+        self._face_areas = 0.5 * norm
+        self._face_normals = cross / norm[:, None]
+        for arr in (self.vertices, self.faces, self.material_ids, self.colors, self.vertex_normals, self.origin,
+                    self._face_areas, self._face_normals):
+            if arr is not None:
+                arr.flags.writeable = False
 
     # ----------------------------------------------------------------------------- cleaning
     @staticmethod
@@ -218,18 +230,16 @@ class SmallScale:
     @property
     def face_normals(self) -> np.ndarray:
         """(F, 3) unit geometric normals (right-handed winding)."""
-        t = self.triangles
-        n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
-        return n / np.linalg.norm(n, axis=1, keepdims=True)
+        return self._face_normals
 
     @property
     def face_areas(self) -> np.ndarray:
-        t = self.triangles
-        return 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+        """(F,) triangle areas."""
+        return self._face_areas
 
     @property
     def area(self) -> float:
-        return float(self.face_areas.sum())
+        return float(self._face_areas.sum())
 
     @property
     def z_range(self) -> tuple[float, float]:
