@@ -2,8 +2,9 @@
 (the ray then wraps by n periods: still exact, fewer BVH queries per ray). Bits are checked equal.
 
 Measured on an H100, 2^16 facets × 144 directions, 32k-triangle height field (per-ray kernel):
-LBVH 14.6 ms, SAH 9.5 ms; SAH 3×3 block 9.5 ms, 5×5 block 9.7 ms: the queries per ray are not
-what costs, the BVH walk is (NVIDIA OpenCL walking warp_biscale.bvh: 5.4 ms for the whole stage).
+LBVH 14.6 ms; SAH with 1 / 2 / 4 / 8 triangles a leaf 7.7 / 7.4 / 9.5 / 12.4 ms; SAH 3×3 block
+9.6 ms, 5×5 block 9.7 ms: the queries per ray are not what costs, the BVH walk is (NVIDIA OpenCL
+walking warp_biscale.bvh: 5.4 ms for the whole stage).
 An earlier kernel with one thread per 32-ray word took 24.1 ms (LBVH) / 17.0 ms (SAH).
 
     python bench/probe_visibility.py --device cuda:0 --facets 16 --directions 12 --tile-cells 128
@@ -49,7 +50,8 @@ def main():
     geo = [0.0, 0.0, float(tile.period[0]), float(tile.period[1]), 0.0, z_hi - z_lo, ray_offset(tile)]
     local = tile.to_local(tile.vertices)
     px, py = tile.period
-    for block, ctor in ((1, "lbvh"), (1, "sah"), (3, "sah"), (3, "lbvh"), (5, "sah")):
+    for block, ctor, leaf in ((1, "lbvh", None), (1, "sah", 1), (1, "sah", 2), (1, "sah", 4), (1, "sah", 8),
+                              (3, "sah", 4)):
         # An n×n block of copies centred on the tile; the ray wraps by n periods (still exact).
         shifts = [(i * px, j * py, 0.0) for i in range(-(block // 2), block // 2 + 1)
                   for j in range(-(block // 2), block // 2 + 1)]
@@ -61,7 +63,7 @@ def main():
         geo = [lo * px, lo * py, block * px, block * py, 0.0, z_hi - z_lo, ray_offset(tile)]
         try:
             t0 = time.perf_counter()
-            mesh = wp.Mesh(points=pts, indices=faces.flatten(), bvh_constructor=ctor)
+            mesh = wp.Mesh(points=pts, indices=faces.flatten(), bvh_constructor=ctor, bvh_leaf_size=leaf)
             wp.synchronize_device(dev)
             build = time.perf_counter() - t0
         except Exception as exc:
@@ -85,7 +87,7 @@ def main():
                 wp.synchronize_device(dev)
                 ts.append(time.perf_counter() - t0)
             same = np.array_equal(bits.numpy(), ref_bits)
-            print(f"block {block} {ctor:6s} build {build * 1e3:7.2f} ms  {name:8s} {np.median(ts) * 1e3:8.3f} ms "
+            print(f"block {block} {ctor:6s} leaf {leaf} build {build * 1e3:7.2f} ms  {name:8s} {np.median(ts) * 1e3:8.3f} ms "
                   f"({n * nd / np.median(ts) / 1e9:.2f} Grays/s) bits identical: {same}", flush=True)
 
 
