@@ -63,7 +63,8 @@ def main():
         geo = [lo * px, lo * py, block * px, block * py, 0.0, z_hi - z_lo, ray_offset(tile)]
         try:
             t0 = time.perf_counter()
-            mesh = wp.Mesh(points=pts, indices=faces.flatten(), bvh_constructor=ctor, bvh_leaf_size=leaf)
+            mesh = wp.Mesh(points=pts, indices=faces.flatten(), bvh_constructor=ctor,
+                           bvh_leaf_size=leaf)
             wp.synchronize_device(dev)
             build = time.perf_counter() - t0
         except Exception as exc:
@@ -87,8 +88,8 @@ def main():
                 wp.synchronize_device(dev)
                 ts.append(time.perf_counter() - t0)
             same = np.array_equal(bits.numpy(), ref_bits)
-            print(f"block {block} {ctor:6s} leaf {leaf} build {build * 1e3:7.2f} ms  {name:8s} {np.median(ts) * 1e3:8.3f} ms "
-                  f"({n * nd / np.median(ts) / 1e9:.2f} Grays/s) bits identical: {same}", flush=True)
+            print(f"block {block} {ctor:6s} leaf {leaf} build {build * 1e3:7.2f} ms  {name:8s} "
+                  f"{np.median(ts) * 1e3:8.3f} ms ({n * nd / np.median(ts) / 1e9:.2f} Grays/s) bits identical: {same}", flush=True)
 
 
 if __name__ == "__main__":
