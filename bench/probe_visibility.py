@@ -89,7 +89,8 @@ def main():
                 ts.append(time.perf_counter() - t0)
             same = np.array_equal(bits.numpy(), ref_bits)
             print(f"block {block} {ctor:6s} leaf {leaf} build {build * 1e3:7.2f} ms  {name:8s} "
-                  f"{np.median(ts) * 1e3:8.3f} ms ({n * nd / np.median(ts) / 1e9:.2f} Grays/s) bits identical: {same}", flush=True)
+                  f"{np.median(ts) * 1e3:8.3f} ms ({n * nd / np.median(ts) / 1e9:.2f} Grays/s) "
+                  f"bits identical: {same}", flush=True)
 
 
 if __name__ == "__main__":
