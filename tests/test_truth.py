@@ -79,6 +79,9 @@ def test_bounds_nonnegative_and_energy(backend):
 
 
 def test_effective_brdf_exact_matches_grid_table(backend):
+    """A driver test, not a kernel test (the kernels are checked against the reference in
+    test_stages): arbitrary pairs, deduplicated directions and their index bookkeeping must give
+    exactly the grid table's numbers."""
     tile = random_heightfield(n=6, seed=4)
     mat = wb.BlinnPhong(1.0, 32, kd=0.2)
     gt = wb.ground_truth(tile, mat, facets=4096, directions=6, backend=backend, seed=3)
