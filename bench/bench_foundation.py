@@ -56,11 +56,6 @@ def heightfield_tile(n=64, amplitude=0.25, seed=0):
     return wb.geometry.heightfield(h, size=1.0)
 
 
-def vgroove(depth=0.5):
-    v = np.array([[0, 0, 0], [0.5, 0, -depth], [1, 0, 0], [0, 1, 0], [0.5, 1, -depth], [1, 1, 0]], float)
-    return wb.SmallScale(v, np.array([[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4]]), name="vgroove")
-
-
 def timed(backend, fn, runs, budget):
     """(median seconds, runs done, first-call extra seconds)."""
     t0 = time.perf_counter()
@@ -97,18 +92,18 @@ def ground_truth_table(backend, tile, fac, grid, kinds, params):
     vis = backend.visibility(tile, fac, grid)
     a_v = backend.visible_area(fac, vis)
     nd = len(grid)
-    pi, po = (x.ravel() for x in np.meshgrid(np.arange(nd), np.arange(nd), indexing="ij"))
+    pi, po = wb.directions.all_pairs(nd)
     return backend.effective_brdf(fac, vis, kinds, params, pi, po, a_v).reshape(nd, nd, 3)
 
 
 def error_sweep(backend, exps, k, seeds, records, log):
     """RMS / max error of the ground truth on the V-groove against its closed form."""
-    tile = vgroove()
+    tile = ref.vgroove_tile(0.5, 1.0)
     mat = wb.BlinnPhong(1.0, 64, kd=0.1)
     kinds, params = pack_materials([mat])
     grid = wb.directions.grid(k)
     nd = len(grid)
-    pi, po = (x.ravel() for x in np.meshgrid(np.arange(nd), np.arange(nd), indexing="ij"))
+    pi, po = wb.directions.all_pairs(nd)
     exact = ref.vgroove_effective_brdf(0.5, 1.0, kinds, params, grid[pi], grid[po]).reshape(nd, nd, 3)
     for e in exps:
         n = 1 << e
@@ -135,7 +130,7 @@ def speed_sweep(backend, tile, exps, ks, runs, budget, records, log):
     for k in ks:
         grid = wb.directions.grid(k)
         nd = len(grid)
-        pi, po = (x.ravel() for x in np.meshgrid(np.arange(nd), np.arange(nd), indexing="ij"))
+        pi, po = wb.directions.all_pairs(nd)
         for e in exps:
             n = 1 << e
             base = {"backend": backend.name, "device": backend.device, "facets": n, "K": k,
@@ -246,7 +241,8 @@ def plot(records, out):
         ax.set_ylabel("relative RMS error")
         ax.set_title("ground truth: error against time")
         ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize=8)
+        if ax.get_legend_handles_labels()[0]:  # empty when no K of the error sweep was timed
+            ax.legend(fontsize=8)
         fig.tight_layout()
         fig.savefig(os.path.join(out, "pareto.png"), dpi=100)
         plt.close(fig)

@@ -25,11 +25,8 @@ def backend(request):
 
 
 def vgroove_tile(depth=0.5, width=1.0):
-    """A V-groove along y, walls from z=0 at x=0 and x=w to z=-depth at x=w/2."""
-    v = np.array([[0, 0, 0], [width / 2, 0, -depth], [width, 0, 0],
-                  [0, width, 0], [width / 2, width, -depth], [width, width, 0]], float)
-    f = np.array([[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4]])
-    return wb.SmallScale(v, f, name="vgroove")
+    """A V-groove along y, walls from z=0 at x=0 and x=w to z=-depth at x=w/2 (the closed form's tile)."""
+    return wb.reference.vgroove_tile(depth, width)
 
 
 def flat_tile(size=1.0, z=0.0):

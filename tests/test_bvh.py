@@ -12,6 +12,7 @@ import time
 import numpy as np
 import pytest
 
+from warp_biscale import reference
 from warp_biscale.bvh import LEAF_SIZE, PAD, STACK_SIZE, build_bvh
 
 f32 = np.float32
@@ -32,8 +33,8 @@ def height_field(n, amp=0.1, seed=0, flat=False):
 
 
 def vgroove():
-    v = np.array([[0, 0, 0], [0.5, 0, -0.5], [1, 0, 0], [0, 1, 0], [0.5, 1, -0.5], [1, 1, 0]], float)
-    return v, np.array([[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4]])
+    tile = reference.vgroove_tile(0.5, 1.0)
+    return np.array(tile.vertices), np.array(tile.faces)
 
 
 def soup(n, seed=1):

@@ -10,8 +10,7 @@ from warp_biscale.brdf import pack_materials
 
 
 def _pairs(grid):
-    nd = len(grid)
-    pi, po = (x.ravel() for x in np.meshgrid(np.arange(nd), np.arange(nd), indexing="ij"))
+    pi, po = wb.directions.all_pairs(len(grid))
     return grid[pi], grid[po]
 
 

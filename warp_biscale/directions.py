@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["grid", "square_to_hemisphere", "hemisphere_to_square", "check_directions"]
+__all__ = ["grid", "all_pairs", "square_to_hemisphere", "hemisphere_to_square", "check_directions",
+           "cell_cosine_integrals"]
 
 
 def square_to_hemisphere(uv: np.ndarray) -> np.ndarray:
@@ -61,6 +62,15 @@ def grid(k: int = 12) -> np.ndarray:
     c = (np.arange(k) + 0.5) / k
     u, v = np.meshgrid(c, c)  # u varies along columns, v along rows
     return square_to_hemisphere(np.stack([u.ravel(), v.ravel()], axis=-1))
+
+
+def all_pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(pair_i, pair_o): every (i, o) of n directions, ωi-major (pair p = i·n + o), int32.
+
+    The layout of a K²×K² table flattened row by row: table[i, o] is pair i·n + o.
+    """
+    i, o = np.meshgrid(np.arange(n, dtype=np.int32), np.arange(n, dtype=np.int32), indexing="ij")
+    return i.ravel(), o.ravel()
 
 
 def check_directions(name: str, w) -> np.ndarray:

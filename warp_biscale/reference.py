@@ -19,6 +19,8 @@ __all__ = [
     "brdf_cosine_weighted",
     "visible_area",
     "effective_brdf",
+    "vgroove_tile",
+    "vgroove_effective_brdf",
 ]
 
 # ----------------------------------------------------------------------------------------------
@@ -263,6 +265,17 @@ def effective_brdf(facets: dict, vis: np.ndarray, directions, kinds, params, pai
 # ----------------------------------------------------------------------------------------------
 # Closed form: the symmetric V-groove (two planes, shadowing and masking by the opposite wall)
 # ----------------------------------------------------------------------------------------------
+
+
+def vgroove_tile(depth=0.5, width=1.0):
+    """The tile `vgroove_effective_brdf` describes: one V-groove along y, walls from z = 0 at x = 0
+    and x = w down to z = −depth at x = w/2, period w × w."""
+    from .smallscale import SmallScale
+
+    v = np.array([[0, 0, 0], [width / 2, 0, -depth], [width, 0, 0],
+                  [0, width, 0], [width / 2, width, -depth], [width, width, 0]], float)
+    f = np.array([[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4]])
+    return SmallScale(v, f, name="vgroove")
 
 
 def vgroove_effective_brdf(depth, width, kinds, params, wi, wo, material=0, color=(1.0, 1.0, 1.0)):

@@ -128,11 +128,12 @@ def ground_truth(tile, materials, facets: int = 1 << 20, directions: int = 12, b
     # All pairs, a few ωi rows per launch so the progress display moves on long runs.
     table = np.zeros((nd, nd, 3), np.float32)
     rows = max(1, min(nd, (1 << 16) // nd))
+    pair_i, pair_o = dirs.all_pairs(nd)
     prog.stage(f"effective BRDF ({nd}x{nd})", nd)
     for start in range(0, nd, rows):
         stop = min(nd, start + rows)
-        pi, po = np.meshgrid(np.arange(start, stop), np.arange(nd), indexing="ij")
-        f = timer("effective_brdf", be.effective_brdf, fac, vis, kinds, params, pi.ravel(), po.ravel(), a_v)
+        batch = slice(start * nd, stop * nd)
+        f = timer("effective_brdf", be.effective_brdf, fac, vis, kinds, params, pair_i[batch], pair_o[batch], a_v)
         table[start:stop] = f.reshape(stop - start, nd, 3)
         prog.advance(stop - start)
     prog.done()
