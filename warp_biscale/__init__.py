@@ -5,11 +5,15 @@
     f = wb.effective_brdf_exact(tile, wb.Lambert(0.5), wi, wo, facets=2**16)
     gt = wb.ground_truth(tile, [wb.BlinnPhong(1.0, 64)], facets=2**18, directions=12)
     gt.eval(wi, wo); gt.save("t.npz"); wb.load("t.npz")
+    mat = wb.bake(tile, [wb.BlinnPhong(1.0, 512)], lobes=8, directions=12, facets=2**16)
+    mat.eval(wi, wo); mat.save("m.wbm"); mat.timings; wb.compare(mat, gt)
 """
 
-from . import directions, geometry, reference
+from . import directions, geometry, lobes, reference, sg
+from .bake import Bvndf, bake
 from .backend import Backend, backends, get_backend
 from .brdf import BlinnPhong, CookTorrance, Lambert, Ward
+from .effective import EffectiveBRDF, compare
 from .io import load
 from .model import Facets, Visibility
 from .smallscale import SmallScale, TileWarning
@@ -18,7 +22,7 @@ from .truth import GroundTruth, effective_brdf_exact, ground_truth
 __version__ = "0.1.0"
 
 __all__ = [
-    "Backend", "BlinnPhong", "CookTorrance", "Facets", "GroundTruth", "Lambert", "SmallScale", "TileWarning",
+    "Backend", "BlinnPhong", "Bvndf", "EffectiveBRDF", "bake", "compare", "lobes", "sg", "CookTorrance", "Facets", "GroundTruth", "Lambert", "SmallScale", "TileWarning",
     "Visibility", "Ward", "backends", "directions", "effective_brdf_exact", "geometry", "get_backend",
     "ground_truth", "load", "reference",
 ]

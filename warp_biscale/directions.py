@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["grid", "all_pairs", "square_to_hemisphere", "hemisphere_to_square", "check_directions",
+__all__ = ["grid", "all_pairs", "bilinear_corners", "square_to_hemisphere", "hemisphere_to_square", "check_directions",
            "cell_cosine_integrals"]
 
 
@@ -71,6 +71,22 @@ def all_pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
     """
     i, o = np.meshgrid(np.arange(n, dtype=np.int32), np.arange(n, dtype=np.int32), indexing="ij")
     return i.ravel(), o.ravel()
+
+
+def bilinear_corners(w, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Bilinear interpolation on the K×K grid in the square domain: (N, 4) grid indices, (N, 4) weights.
+
+    Directions outside the outermost cell centres are clamped to the edge cells.
+    """
+    uv = hemisphere_to_square(w)
+    x = np.clip(uv * k - 0.5, 0.0, k - 1.0)
+    x0 = np.minimum(np.floor(x).astype(np.int64), k - 1)
+    x1 = np.minimum(x0 + 1, k - 1)
+    t = x - x0
+    cols = [x0[:, 0], x1[:, 0], x0[:, 0], x1[:, 0]]
+    rows = [x0[:, 1], x0[:, 1], x1[:, 1], x1[:, 1]]
+    wts = [(1 - t[:, 0]) * (1 - t[:, 1]), t[:, 0] * (1 - t[:, 1]), (1 - t[:, 0]) * t[:, 1], t[:, 0] * t[:, 1]]
+    return np.stack([r * k + c for r, c in zip(rows, cols)], 1), np.stack(wts, 1)
 
 
 def check_directions(name: str, w) -> np.ndarray:

@@ -35,6 +35,8 @@ from .reference import facet_shift, ray_offset
 
 __all__ = ["OpenCLBackend", "list_devices"]
 
+_MAX_LOBES = 16  # private per-lobe arrays of cl/amplitudes.cl (MAX_LOBES there)
+
 # One context, queue and program cache per device, shared by every backend object on it, so that
 # buffers cached on data-model objects under the backend's name stay valid for all of them.
 _DEVICE_STATE: dict = {}
@@ -360,3 +362,109 @@ class OpenCLBackend:
         self._launch("truth", "sum_chunks_brdf", (n_pairs,),
                      partial, np.int32(chunks), np.int32(n_pairs), po, self._buffer(a_v, np.float32), out)
         return self._read(out, (n_pairs, 3), np.float32)
+
+    # ------------------------------------------------------------------ SG bake stages
+    def _check_lobes(self, n_lobes):
+        if not 1 <= n_lobes <= _MAX_LOBES:
+            raise ValueError(f"the OpenCL amplitude kernels take 1 to {_MAX_LOBES} lobes, got {n_lobes}")
+
+    def normal_bins(self, facets, resolution):
+        f = self._facets(facets)
+        n = len(facets)
+        bins = self._empty(n, np.int32)
+        if n:
+            self._launch("bvndf", "normal_bins", (n,), f["normal"], np.int32(resolution), np.int32(n), bins)
+        return self._read(bins, n, np.int32)
+
+    def bvndf_histogram(self, facets, vis, order, bin_start, weight, pair_i, pair_o):
+        v = self._vis(vis)
+        n_bins, n_pairs = len(bin_start) - 1, len(pair_i)
+        hist = self._empty(n_pairs * n_bins, np.float32)
+        if n_pairs and n_bins > 0:
+            self._launch("bvndf", "bvndf_histogram", (n_bins, n_pairs),
+                         self._buffer(pair_i, np.int32), self._buffer(pair_o, np.int32), v["bits"],
+                         np.int32(vis.bits.shape[1]), self._buffer(order, np.int32),
+                         self._buffer(bin_start, np.int32), self._buffer(weight, np.float32),
+                         np.int32(n_bins), np.int32(n_pairs), hist)
+        return self._read(hist, (n_pairs, max(n_bins, 0)), np.float32)
+
+    def ndf_statistics(self, facets, axes, sharpness, log_weight):
+        f = self._facets(facets)
+        n, j = len(facets), len(axes)
+        if n == 0 or j == 0:
+            return np.zeros((j, 4))
+        resp = f.get(("resp", j))
+        if resp is None:
+            resp = f[("resp", j)] = self._empty(n * j, np.float32)
+        self._launch("em", "ndf_responsibilities", (n,),
+                     f["normal"], f["area"], self._buffer(axes, np.float32), self._buffer(sharpness, np.float32),
+                     self._buffer(log_weight, np.float32), np.int32(j), np.int32(n), resp)
+        chunks, per = chunking(n, j, self._threads)
+        partial = self._empty(chunks * j * 4, np.float64)
+        self._launch("em", "ndf_sums_partial", (j, chunks),
+                     f["normal"], resp, np.int32(j), np.int32(n), np.int32(per), partial)
+        out = self._empty(j * 4, np.float64)
+        self._launch("em", "sum_chunks_stats", (j,), partial, np.int32(chunks), np.int32(j), out)
+        return self._read(out, (j, 4), np.float64)
+
+    def _lobe_values(self, normal_buf, n, axes, sharpness, stride):
+        """(n, stride) float32 device table G_j(n_s) of unit-amplitude lobes, zero past J."""
+        j = len(axes)
+        values = self._empty(n * stride, np.float32)
+        if n:
+            self._launch("amplitudes", "lobe_values", (n,),
+                         normal_buf, self._buffer(axes, np.float32), self._buffer(sharpness, np.float32),
+                         np.int32(j), np.int32(stride), np.int32(n), values)
+        return values
+
+    def lobe_moments(self, facets, vis, weight, axes, sharpness, pair_i, pair_o):
+        f = self._facets(facets)
+        v = self._vis(vis)
+        n, j, n_pairs = len(facets), len(axes), len(pair_i)
+        self._check_lobes(j)
+        if n_pairs == 0:
+            return np.zeros((0, j + 1), np.float32)
+        values = self._lobe_values(f["normal"], n, axes, sharpness, -(-j // 4) * 4)
+        weight = np.asarray(weight, np.float32)
+        channel_bits = Visibility.pack((weight > 0)[None, :])[0]
+        n_words = vis.bits.shape[1]
+        chunks, per = chunking(n_words, n_pairs, self._threads)
+        partial = self._empty(chunks * n_pairs * (j + 1), np.float32)
+        self._launch("amplitudes", "lobe_moments_partial", (n_pairs, chunks),
+                     v["directions"], self._buffer(pair_i, np.int32), self._buffer(pair_o, np.int32), v["bits"],
+                     np.int32(n_words), self._buffer(channel_bits, np.uint32), self._buffer(weight, np.float32),
+                     f["normal"], values, np.int32(j), np.int32(per), np.int32(n_pairs), partial)
+        if chunks == 1:
+            return self._read(partial, (n_pairs, j + 1), np.float32)
+        out = self._empty(n_pairs * (j + 1), np.float32)
+        self._launch("amplitudes", "sum_chunks_moments", (n_pairs,),
+                     partial, np.int32(chunks), np.int32(n_pairs), np.int32(j + 1), out)
+        return self._read(out, (n_pairs, j + 1), np.float32)
+
+    def histogram_moments(self, hist, bin_normal, directions, axes, sharpness, pair_i, pair_o):
+        bin_normal = np.asarray(bin_normal, np.float32)
+        n_bins, j, n_pairs = len(bin_normal), len(axes), len(pair_i)
+        self._check_lobes(j)
+        if n_pairs == 0:
+            return np.zeros((0, j + 1), np.float32)
+        bn = self._buffer(bin_normal, np.float32)
+        bin_values = self._lobe_values(bn, n_bins, axes, sharpness, j)
+        out = self._empty(n_pairs * (j + 1), np.float32)
+        self._launch("amplitudes", "histogram_moments", (n_pairs,),
+                     self._buffer(directions, np.float32), self._buffer(pair_i, np.int32),
+                     self._buffer(pair_o, np.int32), self._buffer(hist, np.float32), np.int32(n_bins), bn,
+                     bin_values, np.int32(j), np.int32(n_pairs), out)
+        return self._read(out, (n_pairs, j + 1), np.float32)
+
+    def solve_amplitudes(self, moments, a_v, rows, integrals, pair_i, pair_o, n_dirs):
+        j, n_pairs = len(integrals), len(pair_i)
+        self._check_lobes(j)
+        if n_pairs == 0:
+            return np.zeros((0, j), np.float32)
+        mu = self._empty(n_pairs * j, np.float32)
+        self._launch("amplitudes", "solve_amplitudes", (n_pairs,),
+                     self._buffer(pair_i, np.int32), self._buffer(pair_o, np.int32), np.int32(n_dirs),
+                     self._buffer(a_v, np.float32), self._buffer(moments, np.float32),
+                     self._buffer(rows, np.float64), self._buffer(integrals, np.float64), np.int32(j),
+                     np.int32(n_pairs), mu)
+        return self._read(mu, (n_pairs, j), np.float32)

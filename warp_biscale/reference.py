@@ -21,6 +21,13 @@ __all__ = [
     "effective_brdf",
     "vgroove_tile",
     "vgroove_effective_brdf",
+    "cube_bin",
+    "bvndf_histogram",
+    "ndf_statistics",
+    "lobe_values",
+    "lobe_moments",
+    "histogram_moments",
+    "solve_amplitudes",
 ]
 
 # ----------------------------------------------------------------------------------------------
@@ -317,4 +324,129 @@ def vgroove_effective_brdf(depth, width, kinds, params, wi, wo, material=0, colo
     out = np.zeros_like(num)
     ok = den > 0
     out[ok] = num[ok] / den[ok, None]
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# The SG bake (Iwasaki §4–5): normal bins, BVNDF histogram, spherical EM statistics, amplitudes
+# ----------------------------------------------------------------------------------------------
+
+
+def cube_bin(n, resolution: int) -> np.ndarray:
+    """(N,) int cube-map bin of unit normals: face·R² + row·R + col (DESIGN §4).
+
+    Faces 0..5 are +x, −x, +y, −y, +z, −z, chosen by the largest |component| (ties go to the
+    earlier axis); on face ±x (u, v) = (y, z)/|x|, on ±y (x, z)/|y|, on ±z (x, y)/|z|, and
+    col = ⌊(u + 1)/2·R⌋, row = ⌊(v + 1)/2·R⌋, clamped to R − 1.
+    """
+    n = np.asarray(n, np.float64)
+    a = np.abs(n)
+    on_x = (a[:, 0] >= a[:, 1]) & (a[:, 0] >= a[:, 2])
+    on_y = ~on_x & (a[:, 1] >= a[:, 2])
+    on_z = ~on_x & ~on_y
+    face = np.where(on_x, np.where(n[:, 0] >= 0, 0, 1), np.where(on_y, np.where(n[:, 1] >= 0, 2, 3),
+                                                                 np.where(n[:, 2] >= 0, 4, 5)))
+    major = np.where(on_x, a[:, 0], np.where(on_y, a[:, 1], a[:, 2]))
+    major = np.where(major > 0, major, 1.0)
+    u = np.where(on_x, n[:, 1], n[:, 0]) / major
+    v = np.where(on_z, n[:, 1], n[:, 2]) / major
+    col = np.clip(np.floor((u + 1.0) * 0.5 * resolution), 0, resolution - 1).astype(np.int64)
+    row = np.clip(np.floor((v + 1.0) * 0.5 * resolution), 0, resolution - 1).astype(np.int64)
+    return face * resolution * resolution + row * resolution + col
+
+
+def bvndf_histogram(facets: dict, vis: np.ndarray, bins: np.ndarray, weight: np.ndarray, pair_i, pair_o):
+    """(P, L) N[p, l] = Σ_{s in bin l} V_s(ωi)V_s(ωo)·weight_s (Iwasaki §5; Wu Eq. 11).
+
+    `bins` (Ns,) is each facet's index into the L non-empty bins; `weight` (Ns,) is ΔA_s times the
+    facet's colour channel (zero for facets of other materials). No cosines: this is γ itself.
+    """
+    n_bins = int(bins.max()) + 1
+    out = np.zeros((len(pair_i), n_bins))
+    for p, (i, o) in enumerate(zip(pair_i, pair_o)):
+        both = vis[i] & vis[o]
+        out[p] = np.bincount(bins[both], weights=weight[both], minlength=n_bins)
+    return out
+
+
+def ndf_statistics(normal: np.ndarray, area: np.ndarray, axes, sharpness, log_weight) -> np.ndarray:
+    """One spherical-EM E-step's sufficient statistics (Han 2007; Banerjee 2005), (J, 4):
+
+    [Σ_s r_sj ΔA_s, Σ_s r_sj ΔA_s n_s] with responsibilities r_sj ∝ exp(log_weight_j − η_j(1 − ξ_j·n_s))
+    (log_weight_j = log α_j + log of the von Mises–Fisher normalisation η_j / (2π(1 − e^{−2η_j}))).
+    """
+    from .sg import one_minus_cos
+
+    normal = np.asarray(normal, np.float64)
+    logp = np.asarray(log_weight, np.float64)[None, :] - np.asarray(sharpness, np.float64)[None, :] * one_minus_cos(
+        normal[:, None, :], np.asarray(axes, np.float64)[None, :, :])
+    logp -= logp.max(axis=1, keepdims=True)
+    r = np.exp(logp)
+    r /= r.sum(axis=1, keepdims=True)
+    r *= np.asarray(area, np.float64)[:, None]
+    return np.concatenate([r.sum(axis=0)[:, None], r.T @ normal], axis=1)
+
+
+def lobe_values(normal, axes, sharpness) -> np.ndarray:
+    """(Ns, J) G_j(n_s) = exp(−η_j(1 − ξ_j·n_s)), unit amplitude."""
+    from .sg import one_minus_cos
+
+    return np.exp(-np.asarray(sharpness, np.float64)[None, :] * one_minus_cos(
+        np.asarray(normal, np.float64)[:, None, :], np.asarray(axes, np.float64)[None, :, :]))
+
+
+def lobe_moments(facets: dict, vis: np.ndarray, directions, weight, axes, sharpness, pair_i, pair_o) -> np.ndarray:
+    """(P, J + 1) the exact facet sums of DESIGN §5, before the division by a_v(ωo):
+
+    [Σ_s P_si P_so w_s G_j(n_s) for each lobe j,  Σ_s P_si P_so w_s],  P_sk = V_s(ω_k)(n_s·ω_k)⁺,
+    w_s = `weight` (ΔA_s times a colour channel). Symmetric in (i, o). Divided by a_v(ωo) they are
+    b_kj = ∫γ̃ G_j and c_k = ∫γ̃ for the pair k.
+    """
+    directions = np.asarray(directions, np.float64)
+    n = facets["normal"]
+    proj = vis * np.maximum(directions @ n.T, 0.0)  # (D, Ns)
+    g = lobe_values(n, axes, sharpness) * np.asarray(weight, np.float64)[:, None]
+    g = np.concatenate([g, np.asarray(weight, np.float64)[:, None]], axis=1)
+    return np.stack([(proj[i] * proj[o]) @ g for i, o in zip(pair_i, pair_o)])
+
+
+def histogram_moments(hist: np.ndarray, bin_normal, directions, axes, sharpness, pair_i, pair_o) -> np.ndarray:
+    """(P, J + 1) the same sums as `lobe_moments` from the binned histogram (the histogram route):
+
+    every facet of bin l is taken at the bin's mean normal n_l: Σ_l N[p, l](n_l·ωi)⁺(n_l·ωo)⁺[G_j(n_l), 1].
+    `hist` (P, L) is `bvndf_histogram` for the same pairs.
+    """
+    directions = np.asarray(directions, np.float64)
+    bn = np.asarray(bin_normal, np.float64)
+    cos = np.maximum(directions @ bn.T, 0.0)  # (D, L)
+    g = np.concatenate([lobe_values(bn, axes, sharpness), np.ones((len(bn), 1))], axis=1)
+    return np.stack([(np.asarray(hist[p], np.float64) * cos[i] * cos[o]) @ g
+                     for p, (i, o) in enumerate(zip(pair_i, pair_o))])
+
+
+def solve_amplitudes(moments: np.ndarray, a_v: np.ndarray, pair_o, solve_rows: np.ndarray, integrals: np.ndarray):
+    """(P, J) amplitudes μ ≥ 0 for each (ordered) pair; `moments` (P, J + 1) from `lobe_moments`.
+
+    With b = moments[:J]/a_v(ωo) and c = moments[J]/a_v(ωo) (= ∫γ̃): μ = `solve_rows` @ b, Iwasaki's
+    least-squares amplitudes (`lobes.amplitude_system` builds the rows: A⁻¹, calibrated per lobe);
+    negative amplitudes are set to 0, and μ is scaled so that Σ_j μ_j ∫G_j = ∫γ̃ = c exactly, which
+    keeps the diffuse part of f̄ (Eq. 9) exact and f̄ never negative. If every amplitude is 0 but
+    c > 0, the lobe with the largest b_j takes all of c.
+    """
+    solve_rows = np.asarray(solve_rows, np.float64)
+    integrals = np.asarray(integrals, np.float64)
+    j = len(integrals)
+    out = np.zeros((len(moments), j))
+    for p, (m, o) in enumerate(zip(np.asarray(moments, np.float64), pair_o)):
+        if a_v[o] <= 0 or m[j] <= 0:
+            continue
+        b, c = m[:j] / a_v[o], m[j] / a_v[o]
+        mu = np.maximum(solve_rows @ b, 0.0)
+        total = mu @ integrals
+        if total > 0:
+            mu *= c / total
+        else:
+            best = int(np.argmax(b))
+            mu[best] = c / integrals[best]
+        out[p] = mu
     return out

@@ -186,17 +186,7 @@ class GroundTruth:
         return dirs.grid(self.directions)
 
     def _corners(self, w):
-        """Bilinear corners in the square domain: (N, 4) grid indices and (N, 4) weights."""
-        k = self.directions
-        uv = dirs.hemisphere_to_square(w)
-        x = np.clip(uv * k - 0.5, 0.0, k - 1.0)
-        x0 = np.minimum(np.floor(x).astype(np.int64), k - 1)
-        x1 = np.minimum(x0 + 1, k - 1)
-        t = x - x0
-        cols = [x0[:, 0], x1[:, 0], x0[:, 0], x1[:, 0]]
-        rows = [x0[:, 1], x0[:, 1], x1[:, 1], x1[:, 1]]
-        wts = [(1 - t[:, 0]) * (1 - t[:, 1]), t[:, 0] * (1 - t[:, 1]), (1 - t[:, 0]) * t[:, 1], t[:, 0] * t[:, 1]]
-        return np.stack([r * k + c for r, c in zip(rows, cols)], 1), np.stack(wts, 1)
+        return dirs.bilinear_corners(w, self.directions)
 
     def eval(self, wi, wo) -> np.ndarray:
         """(N, 3) f̄ at arbitrary (ωi, ωo) by interpolation; 0 where either is below the horizon."""

@@ -251,3 +251,123 @@ class WarpBackend:
                   inputs=[partial, po, wp.array(np.asarray(a_v, np.float32), dtype=wp.float32, device=dev)],
                   outputs=[out])
         return out.numpy()
+
+    # ------------------------------------------------------------------ SG bake stages
+    def _array(self, data, dtype):
+        import warp as wp
+
+        return wp.array(np.ascontiguousarray(data), dtype=dtype, device=self._device)
+
+    def normal_bins(self, facets, resolution):
+        import warp as wp
+
+        from .kernels import bvndf as kb
+
+        f = self._facets(facets)
+        bins = wp.empty(len(facets), dtype=wp.int32, device=self._device)
+        self._launch(kb.normal_bins, len(facets), [f["normal"], int(resolution)], [bins])
+        return bins.numpy()
+
+    def bvndf_histogram(self, facets, vis, order, bin_start, weight, pair_i, pair_o):
+        import warp as wp
+
+        from .kernels import bvndf as kb
+
+        v = self._vis(vis)
+        n_bins = len(bin_start) - 1
+        hist = wp.empty((len(pair_i), n_bins), dtype=wp.float32, device=self._device)
+        self._launch(kb.bvndf_histogram, (len(pair_i), n_bins),
+                     [self._array(np.asarray(pair_i, np.int32), wp.int32), self._array(np.asarray(pair_o, np.int32), wp.int32),
+                      v["bits"], self._array(np.asarray(order, np.int32), wp.int32),
+                      self._array(np.asarray(bin_start, np.int32), wp.int32),
+                      self._array(np.asarray(weight, np.float32), wp.float32)],
+                     [hist])
+        return hist.numpy()
+
+    def ndf_statistics(self, facets, axes, sharpness, log_weight):
+        import warp as wp
+
+        from .kernels import em as ke
+
+        f = self._facets(facets)
+        dev = self._device
+        n, j = len(facets), len(axes)
+        resp = f.get(("resp", j))
+        if resp is None:
+            resp = f[("resp", j)] = wp.empty((n, j), dtype=wp.float32, device=dev)
+        self._launch(ke.ndf_responsibilities, n,
+                     [f["normal"], f["area"], self._array(np.asarray(axes, np.float32), wp.vec3),
+                      self._array(np.asarray(sharpness, np.float32), wp.float32),
+                      self._array(np.asarray(log_weight, np.float32), wp.float32)],
+                     [resp])
+        chunks, per = chunking(n, j, self._threads)
+        partial = wp.empty((chunks, j), dtype=wp.vec4d, device=dev)
+        self._launch(ke.ndf_sums_partial, (chunks, j), [f["normal"], resp, per], [partial])
+        out = wp.empty(j, dtype=wp.vec4d, device=dev)
+        wp.launch(ke.sum_chunks_stats, dim=j, inputs=[partial], outputs=[out], device=dev)
+        return out.numpy().astype(np.float64)
+
+    def lobe_moments(self, facets, vis, weight, axes, sharpness, pair_i, pair_o):
+        import warp as wp
+
+        from .kernels import amplitudes as ka
+
+        f = self._facets(facets)
+        v = self._vis(vis)
+        dev = self._device
+        n, j, n_pairs = len(facets), len(axes), len(pair_i)
+        values = wp.empty((n, j), dtype=wp.float32, device=dev)
+        self._launch(ka.lobe_values, n,
+                     [f["normal"], self._array(np.asarray(axes, np.float32), wp.vec3),
+                      self._array(np.asarray(sharpness, np.float32), wp.float32)], [values])
+        weight = np.asarray(weight, np.float32)
+        channel_bits = Visibility.pack((weight > 0)[None, :])[0]
+        chunks, per = chunking(vis.bits.shape[1], n_pairs, self._threads)
+        partial = wp.empty((chunks, n_pairs, j + 1), dtype=wp.float32, device=dev)
+        self._launch(ka.lobe_moments_partial, (chunks, n_pairs),
+                     [v["directions"], self._array(np.asarray(pair_i, np.int32), wp.int32),
+                      self._array(np.asarray(pair_o, np.int32), wp.int32), v["bits"],
+                      self._array(channel_bits, wp.uint32), self._array(weight, wp.float32), f["normal"], values, per],
+                     [partial])
+        if chunks == 1:
+            return partial.numpy()[0]
+        out = wp.empty((n_pairs, j + 1), dtype=wp.float32, device=dev)
+        self._launch(ka.sum_chunks_moments, n_pairs, [partial], [out])
+        return out.numpy()
+
+    def histogram_moments(self, hist, bin_normal, directions, axes, sharpness, pair_i, pair_o):
+        import warp as wp
+
+        from .kernels import amplitudes as ka
+
+        dev = self._device
+        bin_normal = np.asarray(bin_normal, np.float32)
+        j = len(axes)
+        bn = self._array(bin_normal, wp.vec3)
+        bin_values = wp.empty((len(bin_normal), j), dtype=wp.float32, device=dev)
+        self._launch(ka.lobe_values, len(bin_normal),
+                     [bn, self._array(np.asarray(axes, np.float32), wp.vec3),
+                      self._array(np.asarray(sharpness, np.float32), wp.float32)], [bin_values])
+        out = wp.empty((len(pair_i), j + 1), dtype=wp.float32, device=dev)
+        self._launch(ka.histogram_moments, len(pair_i),
+                     [self._array(np.asarray(directions, np.float32), wp.vec3),
+                      self._array(np.asarray(pair_i, np.int32), wp.int32),
+                      self._array(np.asarray(pair_o, np.int32), wp.int32),
+                      self._array(np.asarray(hist, np.float32), wp.float32), bn, bin_values], [out])
+        return out.numpy()
+
+    def solve_amplitudes(self, moments, a_v, rows, integrals, pair_i, pair_o, n_dirs):
+        import warp as wp
+
+        from .kernels import amplitudes as ka
+
+        j = len(integrals)
+        mu = wp.empty((len(pair_i), j), dtype=wp.float32, device=self._device)
+        self._launch(ka.solve_amplitudes, len(pair_i),
+                     [self._array(np.asarray(pair_i, np.int32), wp.int32),
+                      self._array(np.asarray(pair_o, np.int32), wp.int32), int(n_dirs),
+                      self._array(np.asarray(a_v, np.float32), wp.float32),
+                      self._array(np.asarray(moments, np.float32), wp.float32),
+                      self._array(np.asarray(rows, np.float64), wp.float64),
+                      self._array(np.asarray(integrals, np.float64), wp.float64)], [mu])
+        return mu.numpy()

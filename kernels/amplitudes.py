@@ -1,0 +1,182 @@
+"""Gram amplitudes (Iwasaki §4, DESIGN §5): the lobe moments b, c of every direction pair and the solve.
+
+Twin of ``cl/amplitudes.cl``; the mathematics is ``warp_biscale.reference.lobe_values``,
+``lobe_moments``, ``histogram_moments`` and ``solve_amplitudes``.
+
+Facet route: b_kj·a_v(ωo) = Σ_s P_si P_so w_s G_j(n_s) with P_sk = V_s(ω_k)(n_s·ω_k)⁺ is the J weighted
+Gram products PᵀW_jP. It is symmetric in (i, o), so only the unordered pairs i ≤ o are summed: one
+thread per (chunk of facet words, unordered pair) walks the set bits of V(ωi) ∧ V(ωo) ∧ channel and
+keeps J + 1 accumulators (J lobes and the plain sum c) in registers; G_j(n_s) is tabulated once per
+facet (`lobe_values`). Summation as in the ground truth: float32 within a 32-facet word, float64
+across words and chunks.
+
+Histogram route: the same sums over the L non-empty normal bins, each taken at its mean normal.
+
+Solve: one thread per ordered pair (i, o) reads the unordered pair's moments, divides by a_v(ωo),
+applies the J×J solve rows (float64: A⁻¹ of close lobes has large entries of both signs), clamps
+negative amplitudes and rescales to the exact energy c, as the reference does.
+"""
+
+import warp as wp
+
+MAX_LOBES = 16
+vec16 = wp.types.vector(length=MAX_LOBES, dtype=wp.float32)
+vec16d = wp.types.vector(length=MAX_LOBES, dtype=wp.float64)
+
+
+@wp.func
+def lowest_bit(m: wp.uint32) -> int:
+    return wp.bit_count((m & (~m + wp.uint32(1))) - wp.uint32(1))
+
+
+@wp.kernel
+def lobe_values(
+    normal: wp.array(dtype=wp.vec3),
+    axes: wp.array(dtype=wp.vec3),
+    sharpness: wp.array(dtype=wp.float32),
+    offset: int,
+    values: wp.array2d(dtype=wp.float32),
+):
+    s = wp.tid() + offset
+    n = normal[s]
+    for j in range(axes.shape[0]):
+        d = axes[j] - n
+        values[s, j] = wp.exp(-sharpness[j] * 0.5 * wp.dot(d, d))  # 1 − ξ·n as ‖ξ − n‖²/2: exact near ξ = n
+
+
+@wp.kernel
+def lobe_moments_partial(
+    directions: wp.array(dtype=wp.vec3),
+    pair_i: wp.array(dtype=wp.int32),
+    pair_o: wp.array(dtype=wp.int32),
+    bits: wp.array2d(dtype=wp.uint32),
+    channel_bits: wp.array(dtype=wp.uint32),
+    weight: wp.array(dtype=wp.float32),
+    normal: wp.array(dtype=wp.vec3),
+    values: wp.array2d(dtype=wp.float32),
+    words_per_chunk: int,
+    offset: int,
+    partial: wp.array3d(dtype=wp.float32),
+):
+    c, u_local = wp.tid()
+    u = u_local + offset
+    i = pair_i[u]
+    o = pair_o[u]
+    wi = directions[i]
+    wo = directions[o]
+    n_lobes = values.shape[1]
+    n_words = bits.shape[1]
+    acc = vec16d()
+    acc_c = wp.float64(0.0)
+    w_start = c * words_per_chunk
+    w_end = wp.min(w_start + words_per_chunk, n_words)
+    for w in range(w_start, w_end):
+        m = bits[i, w] & bits[o, w] & channel_bits[w]
+        if m == wp.uint32(0):
+            continue
+        block = vec16()
+        block_c = float(0.0)
+        while m != wp.uint32(0):
+            b = lowest_bit(m)
+            m = m & (m - wp.uint32(1))
+            s = w * 32 + b
+            n = normal[s]
+            p = wp.max(wp.dot(n, wi), 0.0) * wp.max(wp.dot(n, wo), 0.0) * weight[s]
+            block_c += p
+            for j in range(n_lobes):
+                block[j] += p * values[s, j]
+        acc_c += wp.float64(block_c)
+        for j in range(n_lobes):
+            acc[j] += wp.float64(block[j])
+    for j in range(n_lobes):
+        partial[c, u, j] = float(acc[j])
+    partial[c, u, n_lobes] = float(acc_c)
+
+
+@wp.kernel
+def sum_chunks_moments(partial: wp.array3d(dtype=wp.float32), offset: int, out: wp.array2d(dtype=wp.float32)):
+    u = wp.tid() + offset
+    for j in range(partial.shape[2]):
+        acc = wp.float64(0.0)
+        for c in range(partial.shape[0]):
+            acc += wp.float64(partial[c, u, j])
+        out[u, j] = float(acc)
+
+
+@wp.kernel
+def histogram_moments(
+    directions: wp.array(dtype=wp.vec3),
+    pair_i: wp.array(dtype=wp.int32),
+    pair_o: wp.array(dtype=wp.int32),
+    hist: wp.array2d(dtype=wp.float32),
+    bin_normal: wp.array(dtype=wp.vec3),
+    bin_values: wp.array2d(dtype=wp.float32),
+    offset: int,
+    out: wp.array2d(dtype=wp.float32),
+):
+    u = wp.tid() + offset
+    wi = directions[pair_i[u]]
+    wo = directions[pair_o[u]]
+    n_lobes = bin_values.shape[1]
+    acc = vec16d()
+    acc_c = wp.float64(0.0)
+    for l in range(hist.shape[1]):
+        h = hist[u, l]
+        if h == 0.0:
+            continue
+        n = bin_normal[l]
+        p = wp.float64(wp.max(wp.dot(n, wi), 0.0) * wp.max(wp.dot(n, wo), 0.0) * h)
+        acc_c += p
+        for j in range(n_lobes):
+            acc[j] += p * wp.float64(bin_values[l, j])
+    for j in range(n_lobes):
+        out[u, j] = float(acc[j])
+    out[u, n_lobes] = float(acc_c)
+
+
+@wp.kernel
+def solve_amplitudes(
+    pair_i: wp.array(dtype=wp.int32),
+    pair_o: wp.array(dtype=wp.int32),
+    n_dirs: int,
+    a_v: wp.array(dtype=wp.float32),
+    moments: wp.array2d(dtype=wp.float32),
+    rows: wp.array2d(dtype=wp.float64),
+    integrals: wp.array(dtype=wp.float64),
+    offset: int,
+    mu: wp.array2d(dtype=wp.float32),
+):
+    p = wp.tid() + offset
+    i = pair_i[p]
+    o = pair_o[p]
+    lo = wp.min(i, o)
+    hi = wp.max(i, o)
+    u = lo * n_dirs - lo * (lo - 1) / 2 + (hi - lo)  # index of (lo, hi) among the pairs lo <= hi, row-major
+    n_lobes = rows.shape[0]
+    area = wp.float64(a_v[o])
+    c = wp.float64(moments[u, n_lobes])
+    if area <= wp.float64(0.0) or c <= wp.float64(0.0):
+        for j in range(n_lobes):
+            mu[p, j] = 0.0
+        return
+    c = c / area
+    sol = vec16d()
+    total = wp.float64(0.0)
+    for j in range(n_lobes):
+        x = wp.float64(0.0)
+        for k in range(n_lobes):
+            x += rows[j, k] * wp.float64(moments[u, k])
+        x = wp.max(x / area, wp.float64(0.0))
+        sol[j] = x
+        total += x * integrals[j]
+    if total > wp.float64(0.0):
+        for j in range(n_lobes):
+            mu[p, j] = float(sol[j] * (c / total))
+    else:  # every amplitude clamped: all of ∫γ̃ goes to the lobe with the largest b_j
+        best = int(0)
+        for j in range(1, n_lobes):
+            if moments[u, j] > moments[u, best]:
+                best = j
+        for j in range(n_lobes):
+            mu[p, j] = 0.0
+        mu[p, best] = float(c / integrals[best])

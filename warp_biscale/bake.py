@@ -1,0 +1,283 @@
+"""The SG bake (Iwasaki 2012 §4–5): the one driver for facets → visibility → BVNDF → EM → amplitudes → tables.
+
+The driver calls backend primitives only and never asks which backend it holds. What depends on
+the geometry alone (facets, visibility, BVNDF, lobes, amplitudes) is kept per tile, so baking the
+same tile again with other small-scale BRDFs recomputes only the tables (`timings` then holds
+only "tables"); `EffectiveBRDF.with_materials` does the same on a material in hand.
+"""
+
+from __future__ import annotations
+
+import collections
+import weakref
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import directions as dirs
+from . import lobes as lobes_mod
+from . import sg
+from .backend import get_backend
+from .effective import METHODS, EffectiveBRDF
+from .progress import as_progress
+from .truth import _check_count, _prepare, _Timer
+
+__all__ = ["bake", "Bvndf", "ROUTES"]
+
+ROUTES = ("facets", "histogram")
+EM_ITERATIONS = 100
+HISTOGRAM_BYTES = 1 << 30  # the dense histogram N (pairs × non-empty bins) is refused beyond this
+
+
+@dataclass(eq=False)
+class Bvndf:
+    """The binned BVNDF of one bake (Iwasaki §5): cube-map bins at `resolution` (6×R×R).
+
+    bins (L,) the non-empty bin ids, normal (L, 3) each bin's area-weighted mean facet normal,
+    area (L,) Γ: the tile area whose normal falls in the bin (the NDF), solid_angle (L,) of each bin,
+    a_v (K²,) the visible projected area of each grid direction, and histogram (U, L) N over the
+    unordered direction pairs i ≤ o (`pair_index`) when it was computed (route "histogram" or
+    ``bake(..., bvndf=True)``), else None.
+    """
+
+    resolution: int
+    bins: np.ndarray
+    normal: np.ndarray
+    area: np.ndarray
+    a_v: np.ndarray
+    histogram: np.ndarray | None = None
+
+    @property
+    def solid_angle(self) -> np.ndarray:
+        r = self.resolution
+        rem = self.bins % (r * r)
+        row, col = rem // r, rem % r
+        edge = np.linspace(-1.0, 1.0, r + 1)
+
+        def f(u, v):
+            return np.arctan2(u * v, np.sqrt(u * u + v * v + 1.0))
+
+        u0, u1, v0, v1 = edge[col], edge[col + 1], edge[row], edge[row + 1]
+        return f(u1, v1) - f(u0, v1) - f(u1, v0) + f(u0, v0)
+
+    @property
+    def ndf(self) -> np.ndarray:
+        """Γ per steradian in each non-empty bin."""
+        return self.area / self.solid_angle
+
+    def pair_index(self, i, o):
+        """Row of `histogram` for the direction pair (i, o) (either order)."""
+        n = len(self.a_v)
+        lo, hi = np.minimum(i, o), np.maximum(i, o)
+        return lo * n - lo * (lo - 1) // 2 + (hi - lo)
+
+    def arrays(self) -> dict:
+        out = {"bins": self.bins, "normal": self.normal, "area": self.area, "a_v": self.a_v}
+        if self.histogram is not None:
+            out["histogram"] = self.histogram
+        return out
+
+    @classmethod
+    def from_arrays(cls, resolution, arrays) -> Bvndf:
+        return cls(int(resolution), arrays["bins"], arrays["normal"], arrays["area"], arrays["a_v"],
+                   arrays.get("histogram"))
+
+
+def _channels(facets, n_materials):
+    """Split the facets' weights into scalar channels: → list of (material, rgb multiplier, weight (Ns,)).
+
+    Tiles usually give each material one colour: then each (material, colour) group is one channel
+    with weight ΔA on its facets and the colour applied afterwards. A tile with many colours falls
+    back to three channels per material (weight ΔA·c_s for each of R, G, B).
+    """
+    area = facets.area.astype(np.float64)
+    key = np.concatenate([facets.material[:, None].astype(np.float64), facets.color.astype(np.float64)], 1)
+    groups, inverse = np.unique(key, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    out = []
+    if len(groups) <= 2 * n_materials + 2:
+        for g, row in enumerate(groups):
+            out.append((int(row[0]), row[1:], np.where(inverse == g, area, 0.0)))
+    else:
+        for m in range(n_materials):
+            mine = facets.material == m
+            if not mine.any():
+                continue
+            for c in range(3):
+                out.append((m, np.eye(3)[c], np.where(mine, area * facets.color[:, c], 0.0)))
+    return out
+
+
+def _fit_lobes(be, fac, bv, count, timer, tolerance, probe_sharpness):
+    """EM for `count` lobes, or the smallest J meeting `tolerance` when count == "auto"."""
+
+    def fit(j):
+        lob = lobes_mod.initial_lobes(bv.normal, bv.area, j)
+        for _ in range(EM_ITERATIONS):
+            stats = timer("ndf_fit", be.ndf_statistics, fac, lob.axes, lob.sharpness, lob.log_weight)
+            new = lobes_mod.m_step(stats, lob)
+            done = lobes_mod.converged(new, lob)
+            lob = new
+            if done:
+                break
+        return lob
+
+    if count != "auto":
+        lob = fit(count)
+        return lob, lobes_mod.ndf_error(lob, bv.normal, bv.area, probe_sharpness)
+    best = None
+    for j in range(1, lobes_mod.MAX_LOBES + 1):
+        lob = fit(j)
+        err = lobes_mod.ndf_error(lob, bv.normal, bv.area, probe_sharpness)
+        if best is None or err < best[1]:
+            best = (lob, err)
+        if err <= tolerance or len(lob) < j:  # met, or fewer distinct normals than lobes asked for
+            break
+    return best
+
+
+_GEOMETRY = weakref.WeakKeyDictionary()  # tile → OrderedDict(key → geometry result), most recent last
+_GEOMETRY_PER_TILE = 4
+
+
+def _check_lobes(lobes):
+    if isinstance(lobes, str):
+        if lobes != "auto":
+            raise ValueError(f"lobes must be an integer in [1, {lobes_mod.MAX_LOBES}] or 'auto', got {lobes!r}")
+        return lobes
+    try:
+        j = int(lobes)
+    except (TypeError, ValueError):
+        j = None
+    if j is None or j != lobes or not (1 <= j <= lobes_mod.MAX_LOBES):
+        raise ValueError(f"lobes must be an integer in [1, {lobes_mod.MAX_LOBES}] or 'auto', got {lobes!r}")
+    return j
+
+
+def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, normal_res: int = 128,
+         facets: int = 1 << 16, backend="auto", seed: int = 0, route: str = "facets", tolerance: float = 0.02,
+         bvndf: bool = False, progress=None) -> EffectiveBRDF:
+    """Bake a tile and its small-scale BRDFs into an SG effective BRDF (Iwasaki 2012).
+
+    Parameters
+    ----------
+    tile : SmallScale
+    materials : Brdf or list of Brdf, indexed by the tile's material ids.
+    method : "sg" (Eq. 15, the SG closure, for rendering) or "sg-exact" (Eq. 10) for `eval`.
+    lobes : J, the number of SG lobes of the NDF (1–16), or "auto": the smallest J whose NDF fit error
+        (`lobes.ndf_error`, seen at the sharpest small-scale lobe) is ≤ `tolerance`.
+    directions : K, the K×K direction grid (DESIGN §4); tables are K²×K².
+    normal_res : R, the cube map of normal bins (6×R×R).
+    facets : Ns; seed : facet-sampling seed.
+    route : how the amplitudes' right-hand sides are summed: "facets" (exact facet sums, default)
+        or "histogram" (from the binned BVNDF, each bin at its mean normal).
+    bvndf : also keep the histogram N in the result (`mat.bvndf.histogram`) for inspection.
+
+    Returns an `EffectiveBRDF` with per-stage `timings` (seconds, device-synchronised).
+    """
+    mats, _, _ = _prepare(tile, materials)
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if route not in ROUTES:
+        raise ValueError(f"route must be one of {ROUTES}, got {route!r}")
+    count = _check_count(facets)
+    j_req = _check_lobes(lobes)
+    k = int(directions)
+    if k != directions or not (2 <= k <= 32):
+        raise ValueError(f"directions must be an integer grid size K in [2, 32], got {directions!r}")
+    r = int(normal_res)
+    if r != normal_res or not (1 <= r <= 1024):
+        raise ValueError(f"normal_res must be an integer in [1, 1024], got {normal_res!r}")
+    if not (np.isfinite(tolerance) and tolerance > 0):
+        raise ValueError(f"tolerance must be a number > 0, got {tolerance!r}")
+    be = get_backend(backend)
+    spec = [sg.specular_lobe(m, [[0, 0, 1.0]], [[0, 0, 1.0]])[0] for m in mats]
+    probe = max([s for s in spec if s is not None], default=64.0)
+    key = (count, int(seed), k, r, j_req, route, float(tolerance) if j_req == "auto" else None,
+           probe if j_req == "auto" else None, bool(bvndf), be.name)
+    cache = _GEOMETRY.setdefault(tile, collections.OrderedDict())
+    geo = cache.get(key)
+    timer = _Timer(be)
+    prog = as_progress(progress)
+    if geo is None:
+        geo = _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, bvndf, timer, prog)
+        cache[key] = geo
+        while len(cache) > _GEOMETRY_PER_TILE:
+            cache.popitem(last=False)
+    else:
+        cache.move_to_end(key)
+    prog.stage("tables", 1)
+    import time
+
+    t0 = time.perf_counter()
+    nd = k * k
+    amps = np.zeros((len(mats), nd * nd, len(geo["lobes"]), 3), np.float32)
+    for m, mult, mu in geo["channels"]:
+        amps[m] += mu[:, :, None] * mult[None, None, :].astype(np.float32)
+    mat = EffectiveBRDF(geo["lobes"], amps.reshape(len(mats), nd, nd, len(geo["lobes"]), 3), mats, k, method,
+                        info={**geo["info"], "backend": be.name, "tile": tile.name}, bvndf=geo["bvndf"])
+    timer.timings["tables"] = time.perf_counter() - t0
+    mat.timings = dict(timer.timings)
+    prog.done()
+    return mat
+
+
+def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, keep_hist, timer, prog):
+    grid = dirs.grid(k)
+    nd = len(grid)
+    prog.stage(f"facets ({count})", 1)
+    fac = timer("facets", be.sample_facets, tile, count, seed)
+    prog.stage(f"visibility ({nd} dirs)", 1)
+    vis = timer("visibility", be.visibility, tile, fac, grid)
+    prog.stage(f"BVNDF ({6 * r * r} normal bins)", 1)
+    a_v = timer("bvndf", be.visible_area, fac, vis)
+    bins = timer("bvndf", be.normal_bins, fac, r)
+    # Non-empty bins by counting (no sort): Γ and each bin's mean normal.
+    area = fac.area.astype(np.float64)
+    mass = np.bincount(bins, weights=area, minlength=6 * r * r)
+    occupied = np.flatnonzero(mass > 0)
+    slot = np.full(6 * r * r, -1, np.int64)
+    slot[occupied] = np.arange(len(occupied))
+    facet_bin = slot[bins]
+    mean = np.stack([np.bincount(facet_bin, weights=area * fac.normal[:, c], minlength=len(occupied))
+                     for c in range(3)], 1)
+    mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-300)
+    bv = Bvndf(r, occupied.astype(np.int32), mean, mass[occupied], np.asarray(a_v, np.float64))
+    iu, ou = np.triu_indices(nd)
+    iu, ou = iu.astype(np.int32), ou.astype(np.int32)
+    channels = _channels(fac, tile.n_materials)
+    need_hist = route == "histogram" or keep_hist
+    if need_hist:
+        nbytes = len(iu) * len(occupied) * 4 * (len(channels) + 1)
+        if nbytes > HISTOGRAM_BYTES:
+            raise ValueError(
+                f"the BVNDF histogram would take {nbytes / 2**30:.1f} GiB ({len(iu)} direction pairs × "
+                f"{len(occupied)} non-empty normal bins); use route='facets', fewer directions or a smaller normal_res")
+        order = np.argsort(facet_bin, kind="stable").astype(np.int32)
+        start = np.searchsorted(facet_bin[order], np.arange(len(occupied) + 1)).astype(np.int32)
+        hists = [timer("bvndf", be.bvndf_histogram, fac, vis, order, start, w.astype(np.float32), iu, ou)
+                 for _, _, w in channels]
+        if keep_hist:
+            bv.histogram = timer("bvndf", be.bvndf_histogram, fac, vis, order, start, area.astype(np.float32), iu, ou)
+    prog.stage("NDF fit (spherical EM)", 1)
+    lob, ndf_err = _fit_lobes(be, fac, bv, j_req, timer, tolerance, probe)
+    rows, integrals, _, cond = lobes_mod.amplitude_system(lob, bv.normal, bv.area)
+    prog.stage(f"amplitudes ({len(lob)} lobes, {len(channels)} channel(s))", len(channels))
+    pi, po = dirs.all_pairs(nd)
+    out = []
+    for c, (m, mult, w) in enumerate(channels):
+        if route == "facets":
+            mom = timer("amplitudes", be.lobe_moments, fac, vis, w.astype(np.float32), lob.axes, lob.sharpness, iu, ou)
+        else:
+            mom = timer("amplitudes", be.histogram_moments, hists[c], bv.normal, grid, lob.axes, lob.sharpness, iu, ou)
+        mu = timer("amplitudes", be.solve_amplitudes, mom, a_v, rows, integrals, pi, po, nd)
+        bad = ~np.isfinite(mu)
+        if bad.any():
+            raise FloatingPointError(f"the amplitude solve produced {int(bad.sum())} non-finite values")
+        out.append((m, np.asarray(mult, np.float64), np.maximum(mu, 0.0)))
+        prog.advance()
+    info = {"facets": count, "seed": int(seed), "normal_res": r, "route": route, "lobes": len(lob),
+            "lobes_requested": j_req, "ndf_error": ndf_err, "ndf_probe_sharpness": probe,
+            "em_iterations": lob.iterations, "gram_condition": cond, "nonempty_bins": int(len(occupied)),
+            "channels": len(channels)}
+    return {"lobes": lob, "channels": out, "bvndf": bv, "info": info}

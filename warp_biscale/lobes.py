@@ -1,0 +1,180 @@
+"""SG lobes of the NDF (Iwasaki §4): the spherical EM's host side, and the amplitude system.
+
+The E-step sums (`Backend.ndf_statistics`) run on the device; this module holds what is tiny and
+runs on the host in float64: the deterministic initialisation, the M-step update from the sums,
+the J×J Gram matrix A of the lobes and its (regularised, energy-constrained) solve rows, and the
+NDF fit error that `lobes="auto"` uses.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import sg
+
+__all__ = ["LobeSet", "initial_lobes", "m_step", "amplitude_system", "ndf_error", "MAX_LOBES"]
+
+MAX_LOBES = 16  # the kernels keep one accumulator per lobe in registers
+RIDGE = 1e-6  # Tikhonov term on the unit-diagonal Gram matrix: bounds its condition number by ~1e6
+
+
+@dataclass(eq=False)
+class LobeSet:
+    """J SG lobes fitted to the NDF: axes (J, 3) unit, sharpness (J,), weight (J,) the fraction
+    α_j of the tile's area each lobe holds. As an NDF, Γ(n) ≈ Σ_j A·α_j·vMF_j(n) with A the area."""
+
+    axes: np.ndarray
+    sharpness: np.ndarray
+    weight: np.ndarray
+    iterations: int = 0
+
+    def __post_init__(self):
+        self.axes = np.asarray(self.axes, np.float64).reshape(-1, 3)
+        self.sharpness = np.asarray(self.sharpness, np.float64).reshape(-1)
+        self.weight = np.asarray(self.weight, np.float64).reshape(-1)
+        j = len(self.axes)
+        if not (1 <= j <= MAX_LOBES) or self.sharpness.shape != (j,) or self.weight.shape != (j,):
+            raise ValueError(f"a LobeSet needs 1..{MAX_LOBES} lobes with one sharpness and weight each")
+        if not (np.all(np.isfinite(self.axes)) and np.all(self.sharpness > 0) and np.all(np.isfinite(self.sharpness))):
+            raise ValueError("lobe axes must be finite and sharpness finite and > 0")
+        self.axes = self.axes / np.linalg.norm(self.axes, axis=1, keepdims=True)
+
+    def __len__(self):
+        return len(self.axes)
+
+    @property
+    def log_weight(self) -> np.ndarray:
+        """log α_j + log of the vMF normalisation η/(2π(1 − e^{−2η})): the E-step's per-lobe constant."""
+        eta = self.sharpness
+        return np.log(np.maximum(self.weight, 1e-300)) + np.log(eta) - np.log(2 * np.pi) - np.log(-np.expm1(-2 * eta))
+
+    def ndf(self, n, area: float = 1.0) -> np.ndarray:
+        """Γ(n) ≈ Σ_j area·α_j·vMF_j(n), per steradian."""
+        amp = area * self.weight * self.sharpness / (2 * np.pi * -np.expm1(-2 * self.sharpness))
+        return sg.evaluate(np.asarray(n, np.float64)[..., None, :], self.axes, self.sharpness, amp).sum(-1)
+
+
+def _mean_resultant_to_sharpness(rbar):
+    """Solve coth κ − 1/κ = r̄ (the 3-D vMF's mean resultant length) for κ, by Newton's method
+    from Banerjee's approximation κ ≈ r̄(3 − r̄²)/(1 − r̄²); r̄ → 1 (a delta) gives `SHARPNESS_MAX`."""
+    rbar = np.clip(np.asarray(rbar, np.float64), 1e-9, 1.0)
+    kappa = np.full_like(rbar, sg.SHARPNESS_MAX)
+    live = rbar < 1.0 - 1e-12
+    r = rbar[live]
+    k = r * (3 - r * r) / (1 - r * r)
+    for _ in range(20):
+        big = k > 20  # coth κ = 1 to double precision
+        coth = np.where(big, 1.0, 1.0 / np.tanh(np.where(big, 1.0, k)))
+        f = coth - 1.0 / k - r
+        df = 1.0 / k**2 - np.where(big, 0.0, 1.0 / np.sinh(np.where(big, 1.0, k)) ** 2)
+        k = np.maximum(k - f / np.where(df > 0, df, 1.0), 1e-9)
+    kappa[live] = k
+    return np.clip(kappa, sg.SHARPNESS_MIN, sg.SHARPNESS_MAX)
+
+
+def initial_lobes(normal, area, count: int, resolution: int = 16) -> LobeSet:
+    """Deterministic start for EM: the facets' normals binned on a coarse cube map, the heaviest bin
+    first, then repeatedly the bin farthest (weighted by its area) from every axis chosen so far.
+    Stops early when every bin sits on a chosen axis (fewer distinct normals than `count`)."""
+    from .reference import cube_bin
+
+    normal = np.asarray(normal, np.float64)
+    area = np.asarray(area, np.float64)
+    bins = cube_bin(normal, resolution)
+    uniq, inv = np.unique(bins, return_inverse=True)
+    w = np.bincount(inv, weights=area)
+    mean = np.stack([np.bincount(inv, weights=area * normal[:, c]) for c in range(3)], 1)
+    norm = np.linalg.norm(mean, axis=1)
+    mean = mean / np.where(norm > 0, norm, 1.0)[:, None]
+    chosen = [int(np.argmax(w))]
+    dist = sg.one_minus_cos(mean, mean[chosen[0]])
+    while len(chosen) < count:
+        score = w * dist
+        best = int(np.argmax(score))
+        if score[best] <= 1e-12 * w.sum():
+            break
+        chosen.append(best)
+        dist = np.minimum(dist, sg.one_minus_cos(mean, mean[best]))
+    axes = mean[chosen]
+    # Hard-assign bins to the nearest axis for the starting weight and sharpness.
+    owner = np.argmax(mean @ axes.T, axis=1)
+    weight = np.array([w[owner == j].sum() for j in range(len(axes))])
+    resultant = np.array([np.linalg.norm((w[owner == j, None] * mean[owner == j]).sum(0)) for j in range(len(axes))])
+    sharp = np.clip(_mean_resultant_to_sharpness(resultant / np.maximum(weight, 1e-300)), 1.0, 1e4)
+    return LobeSet(axes, sharp, weight / weight.sum())
+
+
+def m_step(stats, previous: LobeSet) -> LobeSet:
+    """The M-step from E-step sums `stats` (J, 4) = [Σ r ΔA, Σ r ΔA n]; lobes that hold no area are dropped."""
+    stats = np.asarray(stats, np.float64)
+    mass = stats[:, 0]
+    keep = mass > 1e-9 * mass.sum()
+    if not keep.any():
+        return previous
+    mass, resultant = mass[keep], stats[keep, 1:]
+    length = np.linalg.norm(resultant, axis=1)
+    axes = np.where(length[:, None] > 0, resultant / np.where(length > 0, length, 1.0)[:, None], previous.axes[keep])
+    sharp = _mean_resultant_to_sharpness(length / mass)
+    return LobeSet(axes, sharp, mass / mass.sum(), previous.iterations + 1)
+
+
+def converged(a: LobeSet, b: LobeSet, tol: float = 1e-5) -> bool:
+    """Axes within `tol` rad, log-sharpness and weights within `tol` (relative) of the last step."""
+    if len(a) != len(b):
+        return False
+    return bool(np.all(sg.one_minus_cos(a.axes, b.axes) < 0.5 * tol * tol)
+                and np.all(np.abs(np.log(a.sharpness / b.sharpness)) < tol * 100)
+                and np.all(np.abs(a.weight - b.weight) < tol))
+
+
+def amplitude_system(lobes: LobeSet, bin_normal=None, bin_area=None):
+    """→ (solve_rows (J, J), integrals (J,), gram (J, J), condition number).
+
+    Iwasaki's amplitudes solve A μ = b per direction pair, A_ij = ∫G_iG_j (unit amplitudes), the
+    same matrix for every pair: it is inverted once here (regularised on its unit diagonal, ridge
+    `RIDGE`, so near-duplicate lobes cannot blow the amplitudes up).
+
+    Calibration (our addition): least squares against data sharper than its lobe over-weights the
+    lobe, up to twice for a delta (a flat facet, capped sharpness): ⟨δ, G⟩/⟨G, G⟩ = η/π where η/2π
+    keeps ∫. With the NDF itself (bins `bin_normal`, `bin_area`: no visibility, no cosines) the
+    right amplitude of lobe j is known, A·α_j·η_j/(2π(1 − e^{−2η_j})) from EM, so each row is scaled
+    by (that) / (A⁻¹b_NDF)_j, which is 1/2 for a delta lobe and ~1 for a lobe that matches its data.
+    The solve kernel then keeps the energy of γ̃ exact (see `reference.solve_amplitudes`).
+    """
+    ax, eta = lobes.axes, lobes.sharpness
+    gram = sg.inner_product(ax[:, None, :], eta[:, None], 1.0, ax[None, :, :], eta[None, :], 1.0)
+    integrals = sg.integral(eta)
+    d = np.sqrt(np.diag(gram))
+    unit = gram / np.outer(d, d) + RIDGE * np.eye(len(eta))
+    inv = np.linalg.inv(unit) / np.outer(d, d)
+    if bin_normal is not None:
+        area = np.asarray(bin_area, np.float64)
+        b_ndf = sg.evaluate(np.asarray(bin_normal, np.float64)[:, None, :], ax[None], eta[None]).T @ area
+        lsq = inv @ b_ndf
+        target = area.sum() * lobes.weight * eta / (2 * np.pi * -np.expm1(-2 * eta))
+        scale = np.where(lsq > 1e-12 * target.max(), target / np.where(lsq > 0, lsq, 1.0), 1.0)
+        inv = inv * scale[:, None]
+    return inv, integrals, gram, float(np.linalg.cond(unit))
+
+
+def ndf_error(lobes: LobeSet, bin_normal, bin_area, probe_sharpness: float) -> float:
+    """Relative RMS error of the fitted NDF seen through probe SGs of sharpness `probe_sharpness`.
+
+    The probes sit on the non-empty normal bins (`bin_normal`, area `bin_area`); for each, the data
+    gives Σ_l Γ_l G_q(n_l) and the lobes give Σ_j A α_j ⟨vMF_j, G_q⟩ (closed form). This is the NDF
+    error a small-scale lobe of that sharpness sees (Iwasaki Eq. 10 without visibility), and it is
+    finite for a delta NDF, unlike a pointwise comparison.
+    """
+    bn = np.asarray(bin_normal, np.float64)
+    ba = np.asarray(bin_area, np.float64)
+    total = ba.sum()
+    if len(bn) > 2048:  # the heaviest bins carry the error that matters; keep the probe count bounded
+        bn_q = bn[np.argsort(-ba)[:2048]]
+    else:
+        bn_q = bn
+    data = sg.evaluate(bn[None, :, :], bn_q[:, None, :], probe_sharpness) @ ba
+    amp = total * lobes.weight * lobes.sharpness / (2 * np.pi * -np.expm1(-2 * lobes.sharpness))
+    model = sg.inner_product(bn_q[:, None, :], probe_sharpness, 1.0, lobes.axes[None], lobes.sharpness[None], amp).sum(1)
+    return float(np.sqrt(np.sum((data - model) ** 2) / max(np.sum(data**2), 1e-300)))
