@@ -22,8 +22,8 @@ from .truth import GroundTruth, effective_brdf_exact, ground_truth
 __version__ = "0.1.0"
 
 __all__ = [
-    "Backend", "BlinnPhong", "Bvndf", "EffectiveBRDF", "bake", "compare", "lobes", "sg", "CookTorrance", "Facets", "GroundTruth", "Lambert", "SmallScale", "TileWarning",
-    "Visibility", "Ward", "backends", "directions", "effective_brdf_exact", "geometry", "get_backend",
-    "ground_truth", "load", "reference",
+    "Backend", "BlinnPhong", "Bvndf", "CookTorrance", "EffectiveBRDF", "Facets", "GroundTruth", "Lambert",
+    "SmallScale", "TileWarning", "Visibility", "Ward", "backends", "bake", "compare", "directions",
+    "effective_brdf_exact", "geometry", "get_backend", "ground_truth", "load", "lobes", "reference", "sg",
 ]
 

@@ -176,5 +176,6 @@ def ndf_error(lobes: LobeSet, bin_normal, bin_area, probe_sharpness: float) -> f
         bn_q = bn
     data = sg.evaluate(bn[None, :, :], bn_q[:, None, :], probe_sharpness) @ ba
     amp = total * lobes.weight * lobes.sharpness / (2 * np.pi * -np.expm1(-2 * lobes.sharpness))
-    model = sg.inner_product(bn_q[:, None, :], probe_sharpness, 1.0, lobes.axes[None], lobes.sharpness[None], amp).sum(1)
+    model = sg.inner_product(bn_q[:, None, :], probe_sharpness, 1.0, lobes.axes[None], lobes.sharpness[None],
+                             amp).sum(1)
     return float(np.sqrt(np.sum((data - model) ** 2) / max(np.sum(data**2), 1e-300)))

@@ -277,8 +277,9 @@ class WarpBackend:
         n_bins = len(bin_start) - 1
         hist = wp.empty((len(pair_i), n_bins), dtype=wp.float32, device=self._device)
         self._launch(kb.bvndf_histogram, (len(pair_i), n_bins),
-                     [self._array(np.asarray(pair_i, np.int32), wp.int32), self._array(np.asarray(pair_o, np.int32), wp.int32),
-                      v["bits"], self._array(np.asarray(order, np.int32), wp.int32),
+                     [self._array(np.asarray(pair_i, np.int32), wp.int32),
+                      self._array(np.asarray(pair_o, np.int32), wp.int32), v["bits"],
+                      self._array(np.asarray(order, np.int32), wp.int32),
                       self._array(np.asarray(bin_start, np.int32), wp.int32),
                       self._array(np.asarray(weight, np.float32), wp.float32)],
                      [hist])
