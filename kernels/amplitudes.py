@@ -7,7 +7,7 @@ Facet route: b_kj·a_v(ωo) = Σ_s P_si P_so w_s G_j(n_s) with P_sk = V_s(ω_k)(
 Gram products PᵀW_jP. It is symmetric in (i, o), so only the unordered pairs i ≤ o are summed: one
 thread per (chunk of facet words, unordered pair) walks the set bits of V(ωi) ∧ V(ωo) ∧ channel and
 keeps J + 1 accumulators (J lobes and the plain sum c) in registers; G_j(n_s) is tabulated once per
-facet (`lobe_values`). Summation as in the ground truth: float32 within a 32-facet word, float64
+facet (`lobe_values`) as a 16-vector, zero beyond J, so the hot loop adds whole vectors. Summation as in the ground truth: float32 within a 32-facet word, float64
 across words and chunks.
 
 Histogram route: the same sums over the L non-empty normal bins, each taken at its mean normal.
@@ -35,13 +35,15 @@ def lobe_values(
     axes: wp.array(dtype=wp.vec3),
     sharpness: wp.array(dtype=wp.float32),
     offset: int,
-    values: wp.array2d(dtype=wp.float32),
+    values: wp.array(dtype=vec16),
 ):
     s = wp.tid() + offset
     n = normal[s]
+    v = vec16()  # lobes beyond J stay 0
     for j in range(axes.shape[0]):
         d = axes[j] - n
-        values[s, j] = wp.exp(-sharpness[j] * 0.5 * wp.dot(d, d))  # 1 − ξ·n as ‖ξ − n‖²/2: exact near ξ = n
+        v[j] = wp.exp(-sharpness[j] * 0.5 * wp.dot(d, d))  # 1 − ξ·n as ‖ξ − n‖²/2: exact near ξ = n
+    values[s] = v
 
 
 @wp.kernel
@@ -53,7 +55,8 @@ def lobe_moments_partial(
     channel_bits: wp.array(dtype=wp.uint32),
     weight: wp.array(dtype=wp.float32),
     normal: wp.array(dtype=wp.vec3),
-    values: wp.array2d(dtype=wp.float32),
+    values: wp.array(dtype=vec16),
+    n_lobes: int,
     words_per_chunk: int,
     offset: int,
     partial: wp.array3d(dtype=wp.float32),
@@ -64,7 +67,6 @@ def lobe_moments_partial(
     o = pair_o[u]
     wi = directions[i]
     wo = directions[o]
-    n_lobes = values.shape[1]
     n_words = bits.shape[1]
     acc = vec16d()
     acc_c = wp.float64(0.0)
@@ -83,11 +85,9 @@ def lobe_moments_partial(
             n = normal[s]
             p = wp.max(wp.dot(n, wi), 0.0) * wp.max(wp.dot(n, wo), 0.0) * weight[s]
             block_c += p
-            for j in range(n_lobes):
-                block[j] += p * values[s, j]
+            block += p * values[s]  # all 16 lanes at once: no per-lobe indexing in the hot loop
         acc_c += wp.float64(block_c)
-        for j in range(n_lobes):
-            acc[j] += wp.float64(block[j])
+        acc += vec16d(block)
     for j in range(n_lobes):
         partial[c, u, j] = float(acc[j])
     partial[c, u, n_lobes] = float(acc_c)
@@ -110,14 +110,14 @@ def histogram_moments(
     pair_o: wp.array(dtype=wp.int32),
     hist: wp.array2d(dtype=wp.float32),
     bin_normal: wp.array(dtype=wp.vec3),
-    bin_values: wp.array2d(dtype=wp.float32),
+    bin_values: wp.array(dtype=vec16),
+    n_lobes: int,
     offset: int,
     out: wp.array2d(dtype=wp.float32),
 ):
     u = wp.tid() + offset
     wi = directions[pair_i[u]]
     wo = directions[pair_o[u]]
-    n_lobes = bin_values.shape[1]
     acc = vec16d()
     acc_c = wp.float64(0.0)
     for l in range(hist.shape[1]):
@@ -127,8 +127,7 @@ def histogram_moments(
         n = bin_normal[l]
         p = wp.float64(wp.max(wp.dot(n, wi), 0.0) * wp.max(wp.dot(n, wo), 0.0) * h)
         acc_c += p
-        for j in range(n_lobes):
-            acc[j] += p * wp.float64(bin_values[l, j])
+        acc += p * vec16d(bin_values[l])
     for j in range(n_lobes):
         out[u, j] = float(acc[j])
     out[u, n_lobes] = float(acc_c)

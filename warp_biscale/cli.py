@@ -1,4 +1,5 @@
-"""Command line: ``warp-biscale truth`` (ground-truth effective BRDF of a tile) and ``backends``."""
+"""Command line: ``warp-biscale bake`` (SG effective BRDF of a tile), ``truth`` (its ground truth) and
+``backends``."""
 
 from __future__ import annotations
 
@@ -120,6 +121,39 @@ def cmd_truth(args):
     return 0
 
 
+def cmd_bake(args):
+    import warp_biscale as wb
+
+    tile = load_tile(args.tile)
+    mats = _materials(args.brdf, tile)
+    lobes = args.lobes if args.lobes == "auto" else _int_arg("--lobes", args.lobes)
+    mat = wb.bake(tile, mats, method=args.method, lobes=lobes, directions=args.directions, normal_res=args.normal_res,
+                  facets=args.facets, backend=args.backend, seed=args.seed, route=args.route,
+                  progress=not args.quiet)
+    if not args.quiet:
+        info = mat.info
+        print(f"{tile.name}: {info['lobes']} lobes (NDF fit error {info['ndf_error']:.2%} at sharpness "
+              f"{info['ndf_probe_sharpness']:g}), {info['nonempty_bins']} non-empty normal bins, "
+              f"{mat.nbytes_per_material / 2**20:.2f} MiB per material")
+        print("  ".join(f"{k} {v * 1e3:.1f} ms" for k, v in mat.timings.items()))
+    if args.truth:
+        gt = wb.ground_truth(tile, mats, facets=args.truth, directions=args.directions, backend=args.backend,
+                             seed=args.seed + 1, progress=not args.quiet)
+        c = wb.compare(mat, gt)
+        print(f"against the ground truth ({args.truth} facets): PSNR {c['psnr']:.1f} dB, RMSE {c['rmse']:.3g}, "
+              f"max relative error {c['max_rel_error']:.3g}")
+    mat.save(args.output)
+    print(f"wrote {args.output}")
+    return 0
+
+
+def _int_arg(name, text):
+    try:
+        return int(text)
+    except ValueError:
+        raise ValueError(f"{name} must be an integer or 'auto', got {text!r}") from None
+
+
 def cmd_backends(args):
     import warp_biscale as wb
 
@@ -149,6 +183,25 @@ def main(argv=None):
     p.add_argument("--save", help="also save the table as .npz (read back with wb.load)")
     p.add_argument("-q", "--quiet", action="store_true", help="no table, no progress")
     p.set_defaults(func=cmd_truth)
+    k = sub.add_parser("bake", help="bake a tile's SG effective BRDF (Iwasaki 2012) into a material file")
+    k.add_argument("tile", nargs="?", default="pyramid",
+                   help=f"mesh file (OBJ/PLY/STL/GLB) or built-in tile: {', '.join(BUILTIN_TILES)} (default: pyramid)")
+    k.add_argument("--brdf", action="append", help="small-scale BRDF, once per material id (as for `truth`)")
+    k.add_argument("--lobes", default="8", help="number of SG lobes J (1-16) or 'auto' (default 8)")
+    k.add_argument("--facets", type=int, default=1 << 16, help="number of facets Ns (default 2^16)")
+    k.add_argument("--directions", type=int, default=12, help="direction grid size K (default 12)")
+    k.add_argument("--normal-res", type=int, default=128, help="normal cube-map resolution R (default 128)")
+    k.add_argument("--method", default="sg", choices=["sg", "sg-exact"],
+                   help="specular term: sg = SG closure, Eq. 15 (default); sg-exact = Eq. 10")
+    k.add_argument("--route", default="facets", choices=["facets", "histogram"],
+                   help="amplitude right-hand sides from exact facet sums (default) or the BVNDF histogram")
+    k.add_argument("--backend", default="auto", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name>")
+    k.add_argument("--seed", type=int, default=0, help="facet-sampling seed (default 0)")
+    k.add_argument("--truth", type=int, metavar="FACETS",
+                   help="also compute the ground truth with this many facets and print the error against it")
+    k.add_argument("-o", "--output", default="material.wbm", help="material file to write (default material.wbm)")
+    k.add_argument("-q", "--quiet", action="store_true", help="no summary, no progress")
+    k.set_defaults(func=cmd_bake)
     b = sub.add_parser("backends", help="list the compute backends present here")
     b.set_defaults(func=cmd_backends)
     args = parser.parse_args(argv)

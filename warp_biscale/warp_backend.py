@@ -317,7 +317,7 @@ class WarpBackend:
         v = self._vis(vis)
         dev = self._device
         n, j, n_pairs = len(facets), len(axes), len(pair_i)
-        values = wp.empty((n, j), dtype=wp.float32, device=dev)
+        values = wp.empty(n, dtype=ka.vec16, device=dev)
         self._launch(ka.lobe_values, n,
                      [f["normal"], self._array(np.asarray(axes, np.float32), wp.vec3),
                       self._array(np.asarray(sharpness, np.float32), wp.float32)], [values])
@@ -328,7 +328,8 @@ class WarpBackend:
         self._launch(ka.lobe_moments_partial, (chunks, n_pairs),
                      [v["directions"], self._array(np.asarray(pair_i, np.int32), wp.int32),
                       self._array(np.asarray(pair_o, np.int32), wp.int32), v["bits"],
-                      self._array(channel_bits, wp.uint32), self._array(weight, wp.float32), f["normal"], values, per],
+                      self._array(channel_bits, wp.uint32), self._array(weight, wp.float32), f["normal"], values, j,
+                      per],
                      [partial])
         if chunks == 1:
             return partial.numpy()[0]
@@ -345,7 +346,7 @@ class WarpBackend:
         bin_normal = np.asarray(bin_normal, np.float32)
         j = len(axes)
         bn = self._array(bin_normal, wp.vec3)
-        bin_values = wp.empty((len(bin_normal), j), dtype=wp.float32, device=dev)
+        bin_values = wp.empty(len(bin_normal), dtype=ka.vec16, device=dev)
         self._launch(ka.lobe_values, len(bin_normal),
                      [bn, self._array(np.asarray(axes, np.float32), wp.vec3),
                       self._array(np.asarray(sharpness, np.float32), wp.float32)], [bin_values])
@@ -354,7 +355,7 @@ class WarpBackend:
                      [self._array(np.asarray(directions, np.float32), wp.vec3),
                       self._array(np.asarray(pair_i, np.int32), wp.int32),
                       self._array(np.asarray(pair_o, np.int32), wp.int32),
-                      self._array(np.asarray(hist, np.float32), wp.float32), bn, bin_values], [out])
+                      self._array(np.asarray(hist, np.float32), wp.float32), bn, bin_values, j], [out])
         return out.numpy()
 
     def solve_amplitudes(self, moments, a_v, rows, integrals, pair_i, pair_o, n_dirs):
