@@ -189,19 +189,24 @@ class EffectiveBRDF:
 
 
 def compare(mat, gt, method: str | None = None) -> dict:
-    """Error of an effective BRDF against a ground truth (`wb.ground_truth`), on the truth's grid.
+    """Error of an effective BRDF (an `EffectiveBRDF`, or another `GroundTruth`, e.g. one with fewer
+    facets) against a ground truth (`wb.ground_truth`), on the truth's grid.
 
     Metric of Wu Table 4: the cosine-weighted BRDF f̄ (our tables include cos θi) over all K²×K²
     pairs and RGB. Returns rmse, psnr = 20·log10(peak / rmse) with peak the truth's maximum, and
     max_rel_error = max |f̄ − f̄_gt| / f̄_gt over the entries where f̄_gt ≥ 1 % of the peak.
     """
     ref = np.asarray(gt.table, np.float64)
-    if getattr(mat, "directions", None) == gt.directions and hasattr(mat, "table"):
+    same_grid = getattr(mat, "directions", None) == gt.directions
+    if same_grid and callable(getattr(mat, "table", None)):
         est = mat.table(method)
+    elif same_grid:  # a GroundTruth: its table is an array
+        est = np.asarray(mat.table, np.float64)
     else:
         g = dirs.grid(gt.directions)
         pi, po = dirs.all_pairs(len(g))
-        est = mat.eval(g[pi], g[po], method).reshape(ref.shape)
+        args = (method,) if isinstance(mat, EffectiveBRDF) else ()
+        est = mat.eval(g[pi], g[po], *args).reshape(ref.shape)
     diff = est - ref
     rmse = float(np.sqrt(np.mean(diff**2)))
     peak = float(ref.max())
