@@ -78,3 +78,24 @@ def test_backends_command_lists_warp_cpu():
 def test_help_lists_commands():
     r = run_cli("--help")
     assert r.returncode == 0 and "truth" in r.stdout and "backends" in r.stdout
+
+
+def test_bake_writes_a_material_file_that_loads(tmp_path):
+    out = tmp_path / "m.wbm"
+    r = run_cli("bake", "vgroove", "--facets", "4096", "--directions", "6", "--backend", "warp:cpu",
+                "--brdf", "cooktorrance:roughness=0.2,ks=0.9,kd=0.1", "--lobes", "auto", "--truth", "8192",
+                "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    assert "lobes (NDF fit error" in r.stdout and "PSNR" in r.stdout and "MiB per material" in r.stdout
+    assert "amplitudes" in r.stderr  # progress lines
+    mat = wb.load(out)
+    assert isinstance(mat, wb.EffectiveBRDF) and mat.directions == 6 and len(mat.lobes) == 2
+    assert mat.materials == [wb.CookTorrance(0.9, 0.2, kd=0.1)]
+
+
+def test_bake_bad_input_is_named(tmp_path):
+    r = run_cli("bake", "pyramid", "--lobes", "lots", "-o", str(tmp_path / "m.wbm"))
+    assert r.returncode == 2 and "--lobes must be an integer or 'auto'" in r.stderr
+    r = run_cli("bake", "pyramid", "--brdf", "phong:exponent=-1", "-o", str(tmp_path / "m.wbm"))
+    assert r.returncode == 2 and "exponent" in r.stderr
+    assert not (tmp_path / "m.wbm").exists()
