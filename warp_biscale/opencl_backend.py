@@ -424,7 +424,7 @@ class OpenCLBackend:
         self._check_lobes(j)
         if n_pairs == 0:
             return np.zeros((0, j + 1), np.float32)
-        values = self._lobe_values(f["normal"], n, axes, sharpness, -(-j // 4) * 4)
+        values = self._lobe_values(f["normal"], n, axes, sharpness, -(-j // getattr(self, "_lg", 4)) * getattr(self, "_lg", 4))
         weight = np.asarray(weight, np.float32)
         channel_bits = Visibility.pack((weight > 0)[None, :])[0]
         n_words = vis.bits.shape[1]
