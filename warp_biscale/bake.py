@@ -86,23 +86,20 @@ class Bvndf:
 def _channels(facets, n_materials):
     """Split the facets' weights into scalar channels: → list of (material, rgb multiplier, weight (Ns,)).
 
-    Tiles usually give each material one colour: then each (material, colour) group is one channel
-    with weight ΔA on its facets and the colour applied afterwards. A tile with many colours falls
-    back to three channels per material (weight ΔA·c_s for each of R, G, B).
+    A material whose facets all have one colour is one channel, weight ΔA on its facets and the
+    colour applied afterwards (the usual case: one sum instead of three). A material with several
+    colours gets three channels, weights ΔA·c_s for R, G and B.
     """
     area = facets.area.astype(np.float64)
-    key = np.concatenate([facets.material[:, None].astype(np.float64), facets.color.astype(np.float64)], 1)
-    groups, inverse = np.unique(key, axis=0, return_inverse=True)
-    inverse = inverse.reshape(-1)
     out = []
-    if len(groups) <= 2 * n_materials + 2:
-        for g, row in enumerate(groups):
-            out.append((int(row[0]), row[1:], np.where(inverse == g, area, 0.0)))
-    else:
-        for m in range(n_materials):
-            mine = facets.material == m
-            if not mine.any():
-                continue
+    for m in range(n_materials):
+        mine = facets.material == m
+        if not mine.any():
+            continue
+        colors = facets.color[mine].astype(np.float64)
+        if (colors == colors[0]).all():
+            out.append((m, colors[0], np.where(mine, area, 0.0)))
+        else:
             for c in range(3):
                 out.append((m, np.eye(3)[c], np.where(mine, area * facets.color[:, c], 0.0)))
     return out
