@@ -1,0 +1,386 @@
+"""The SG bake: each new kernel against the float64 reference on every backend present, the EM and
+amplitude system on hard cases, and the whole bake against closed forms and the ground truth.
+
+Tolerances, and why:
+- normal bins: identical except where a float32 normal sits within rounding of a bin edge; we allow
+  1 in 10 000 (measured: 0 on the tiles here).
+- histogram, EM statistics, lobe moments: the kernels add float32 terms in float64 (moments: float32
+  inside a 32-facet word); relative 1e-5 of the largest entry covers float32 products of unit vectors
+  (~1e-7) summed over at most a few thousand facets. Measured: ≤ 1e-7.
+- solve: float64 rows applied to float32 moments; relative 1e-5 (measured ~1e-7).
+- the whole bake of a flat Lambertian tile: 1e-5 absolute on f̄ ~ 0.16 (float32 tables).
+"""
+
+import sys
+
+import numpy as np
+import pytest
+from conftest import flat_tile, random_heightfield, vgroove_tile
+
+import warp_biscale as wb
+from warp_biscale import directions as dirs
+from warp_biscale import lobes as lobes_mod
+from warp_biscale import reference as ref
+
+bake_module = sys.modules["warp_biscale.bake"]
+
+
+@pytest.fixture(autouse=True)
+def _fresh_geometry_cache():
+    bake_module._GEOMETRY.clear()
+    yield
+    bake_module._GEOMETRY.clear()
+
+
+def _case(backend, tile, count=1500, k=4, seed=0):
+    fac = backend.sample_facets(tile, count, seed)
+    grid = dirs.grid(k)
+    vis = backend.visibility(tile, fac, grid)
+    return fac, fac.as_dict(), grid, vis, vis.as_bool()
+
+
+def _close(a, b, rel=1e-5):
+    scale = max(np.abs(b).max(), 1e-30)
+    err = np.abs(np.asarray(a, np.float64) - b).max() / scale
+    assert err <= rel, err
+
+
+# ------------------------------------------------------------------ kernels against the reference
+def test_normal_bins_match_reference(backend):
+    rng = np.random.default_rng(0)
+    n = rng.normal(size=(5000, 3))
+    # Axis-aligned and diagonal normals: ties between faces, bin edges at u = 0.
+    n = np.concatenate([n, np.eye(3), -np.eye(3), [[1, 1, 0], [1, 1, 1], [0, -1, 1], [-1, 0, -1]]])
+    n = (n / np.linalg.norm(n, axis=1, keepdims=True)).astype(np.float32)
+    fac = wb.Facets(np.zeros_like(n), n, np.zeros(len(n), np.int32), np.ones(len(n), np.float32),
+                    np.zeros(len(n), np.int32), np.ones_like(n))
+    for res in (1, 16, 128):
+        got = backend.normal_bins(fac, res)
+        want = ref.cube_bin(n.astype(np.float64), res)
+        assert (got != want).sum() <= max(1, len(n) // 10000)
+        assert got.min() >= 0 and got.max() < 6 * res * res
+
+
+def test_bvndf_histogram_matches_reference(backend, heightfield):
+    fac, fd, grid, vis, vb = _case(backend, heightfield)
+    bins = ref.cube_bin(fd["normal"], 32)
+    _, inv = np.unique(bins, return_inverse=True)
+    order = np.argsort(inv, kind="stable")
+    start = np.searchsorted(inv[order], np.arange(inv.max() + 2))
+    iu, ou = np.triu_indices(len(grid))
+    w = fd["area"] * fd["color"][:, 1]
+    got = backend.bvndf_histogram(fac, vis, order, start, w, iu, ou)
+    _close(got, ref.bvndf_histogram(fd, vb, inv, w, iu, ou))
+
+
+def test_ndf_statistics_match_reference(backend, heightfield):
+    fac, fd, *_ = _case(backend, heightfield)
+    lob = lobes_mod.initial_lobes(fd["normal"], fd["area"], 6)
+    got = backend.ndf_statistics(fac, lob.axes, lob.sharpness, lob.log_weight)
+    _close(got, ref.ndf_statistics(fd["normal"], fd["area"], lob.axes, lob.sharpness, lob.log_weight))
+
+
+@pytest.mark.parametrize("n_lobes", [1, 5, 16])
+def test_lobe_moments_match_reference(backend, heightfield, n_lobes):
+    fac, fd, grid, vis, vb = _case(backend, heightfield)
+    lob = lobes_mod.initial_lobes(fd["normal"], fd["area"], n_lobes)
+    iu, ou = np.triu_indices(len(grid))
+    w = fd["area"] * (fd["material"] == 0)
+    got = backend.lobe_moments(fac, vis, w, lob.axes, lob.sharpness, iu, ou)
+    assert got.shape == (len(iu), len(lob) + 1)
+    _close(got, ref.lobe_moments(fd, vb, grid, w, lob.axes, lob.sharpness, iu, ou))
+
+
+def test_histogram_moments_match_reference(backend, heightfield):
+    fac, fd, grid, vis, vb = _case(backend, heightfield)
+    lob = lobes_mod.initial_lobes(fd["normal"], fd["area"], 4)
+    rng = np.random.default_rng(2)
+    iu, ou = np.triu_indices(len(grid))
+    hist = rng.random((len(iu), 50)).astype(np.float32) * (rng.random((len(iu), 50)) < 0.5)
+    bn = rng.normal(size=(50, 3))
+    bn[:, 2] = np.abs(bn[:, 2])
+    bn /= np.linalg.norm(bn, axis=1, keepdims=True)
+    got = backend.histogram_moments(hist, bn, grid, lob.axes, lob.sharpness, iu, ou)
+    _close(got, ref.histogram_moments(hist, bn, grid, lob.axes, lob.sharpness, iu, ou))
+
+
+def test_solve_amplitudes_matches_reference(backend, heightfield):
+    fac, fd, grid, vis, vb = _case(backend, heightfield)
+    nd = len(grid)
+    lob = lobes_mod.initial_lobes(fd["normal"], fd["area"], 6)
+    iu, ou = np.triu_indices(nd)
+    mom = ref.lobe_moments(fd, vb, grid, fd["area"], lob.axes, lob.sharpness, iu, ou)
+    # Hard rows: random signs so that many pairs clamp, and one pair with every amplitude clamped.
+    rng = np.random.default_rng(4)
+    rows = rng.normal(size=(len(lob), len(lob)))
+    rows[:, 0] = -np.abs(rows[:, 0]) * 10
+    a_v = ref.visible_area(fd, vb, grid)
+    a_v[1] = 0.0  # nothing visible from ω1: its pairs give 0
+    integrals = wb.sg.integral(lob.sharpness)
+    pi, po = dirs.all_pairs(nd)
+    got = backend.solve_amplitudes(mom, a_v, rows, integrals, pi, po, nd)
+    lo, hi = np.minimum(pi, po), np.maximum(pi, po)
+    want = ref.solve_amplitudes(mom[lo * nd - lo * (lo - 1) // 2 + hi - lo], a_v, po, rows, integrals)
+    _close(got, want)
+    assert (got >= 0).all() and np.isfinite(got).all()
+    assert not got[po == 1].any()
+    # Energy: Σ μ_j ∫G_j = c wherever c > 0.
+    c = mom[lo * nd - lo * (lo - 1) // 2 + hi - lo][:, -1] / np.where(a_v[po] > 0, a_v[po], 1)
+    ok = a_v[po] > 0
+    np.testing.assert_allclose((got @ integrals)[ok], c[ok], rtol=1e-5, atol=1e-9)
+
+
+# ------------------------------------------------------------------ EM and the amplitude system
+def _em(backend, fac, j):
+    lob = lobes_mod.initial_lobes(fac.normal, fac.area, j)
+    for _ in range(30):
+        new = lobes_mod.m_step(backend.ndf_statistics(fac, lob.axes, lob.sharpness, lob.log_weight), lob)
+        if lobes_mod.converged(new, lob):
+            return new
+        lob = new
+    return lob
+
+
+def test_em_finds_pyramid_faces(backend):
+    tile = wb.geometry.pyramid()
+    fac = backend.sample_facets(tile, 4096, 0)
+    lob = _em(backend, fac, 8)
+    # J larger than the number of distinct normals: one lobe per face normal, none duplicated.
+    normals = tile.face_normals[np.unique(np.round(tile.face_normals, 6), axis=0, return_index=True)[1]]
+    assert len(lob) == len(normals)
+    for n in normals:
+        assert np.max(lob.axes @ n) > 1 - 1e-9
+    # Each is a delta: the sharpness is capped, and the weights are the faces' area fractions.
+    assert np.all(lob.sharpness == wb.sg.SHARPNESS_MAX)
+    np.testing.assert_allclose(lob.weight.sum(), 1.0, rtol=1e-9)
+
+
+def test_em_matches_reference_em(backend, heightfield):
+    fac = backend.sample_facets(heightfield, 2000, 0)
+    fd = fac.as_dict()
+    got = _em(backend, fac, 4)
+    lob = lobes_mod.initial_lobes(fd["normal"], fd["area"], 4)
+    for _ in range(got.iterations):
+        lob = lobes_mod.m_step(ref.ndf_statistics(fd["normal"], fd["area"], lob.axes, lob.sharpness,
+                                                  lob.log_weight), lob)
+    # Same iterations from the same start: float32 E-step sums agree to ~1e-6.
+    np.testing.assert_allclose(got.axes, lob.axes, atol=1e-4)
+    np.testing.assert_allclose(got.sharpness, lob.sharpness, rtol=1e-3)
+
+
+def test_flat_tile_is_one_capped_lobe():
+    lob = lobes_mod.initial_lobes(np.tile([0, 0, 1.0], (100, 1)), np.ones(100), 8)
+    assert len(lob) == 1
+    lob = lobes_mod.m_step(ref.ndf_statistics(np.tile([0, 0, 1.0], (100, 1)), np.ones(100), lob.axes,
+                                              lob.sharpness, lob.log_weight), lob)
+    assert lob.sharpness[0] == wb.sg.SHARPNESS_MAX
+
+
+def test_sharpness_from_mean_resultant_is_exact():
+    kappa = np.array([0.01, 1.0, 10.0, 300.0, 1e5])
+    rbar = 1 / np.tanh(kappa) - 1 / kappa
+    np.testing.assert_allclose(lobes_mod._mean_resultant_to_sharpness(rbar), kappa, rtol=1e-6)
+
+
+def test_amplitude_system_near_duplicate_lobes_stays_bounded():
+    ax = np.array([[0, 0, 1.0], [1e-7, 0, 1.0], [0.5, 0, 0.8]])
+    lob = lobes_mod.LobeSet(ax, [100.0, 100.0, 50.0], [0.4, 0.4, 0.2])
+    rows, integrals, gram, cond = lobes_mod.amplitude_system(lob)
+    assert cond < 1e7  # the ridge bounds it; unregularised it would be ~1e12
+    assert np.isfinite(rows).all()
+    # b of a single lobe on the first axis: amplitudes stay of the order of the data.
+    b = gram[0]
+    assert np.abs(rows @ b).max() < 10
+
+
+def test_amplitude_calibration_halves_lsq_for_a_delta():
+    lob = lobes_mod.LobeSet([[0, 0, 1.0]], [wb.sg.SHARPNESS_MAX], [1.0])
+    rows, *_ = lobes_mod.amplitude_system(lob, np.array([[0, 0, 1.0]]), np.array([2.0]))
+    plain, *_ = lobes_mod.amplitude_system(lob)
+    np.testing.assert_allclose(rows / plain, 0.5, rtol=1e-5)  # the ridge (1e-6) shifts it by 1e-6
+
+
+# ------------------------------------------------------------------ the whole bake
+def test_flat_lambert_through_the_whole_bake(backend):
+    mat = wb.bake(flat_tile(), wb.Lambert((0.2, 0.5, 0.8)), lobes=4, directions=6, facets=2048, backend=backend)
+    assert len(mat.lobes) == 1 and mat.lobes.sharpness[0] == wb.sg.SHARPNESS_MAX
+    g = mat.grid
+    want = np.array([0.2, 0.5, 0.8]) / np.pi * g[:, 2][:, None, None]
+    np.testing.assert_allclose(mat.table(), np.broadcast_to(want, (len(g), len(g), 3)), atol=1e-5)
+    # Off the grid too: μ/cos θi is interpolated, so the cosine comes out exact.
+    rng = np.random.default_rng(0)
+    wi = rng.normal(size=(200, 3))
+    wi[:, 2] = np.abs(wi[:, 2])
+    wo = rng.normal(size=(200, 3))
+    wo[:, 2] = np.abs(wo[:, 2])
+    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    np.testing.assert_allclose(mat.eval(wi, wo), np.outer(wi[:, 2], [0.2, 0.5, 0.8]) / np.pi, atol=1e-5)
+
+
+def test_flat_glossy_matches_ground_truth(backend):
+    tile = flat_tile()
+    m = wb.BlinnPhong(ks=1.0, exponent=64, kd=0.1)
+    mat = wb.bake(tile, m, directions=6, facets=2048, backend=backend)
+    gt = wb.ground_truth(tile, m, facets=2048, directions=6, backend=backend)
+    # Only the SG fit of the Blinn–Phong lobe differs (exact at n = h, ~1/n in its integral).
+    assert wb.compare(mat, gt)["psnr"] > 45
+
+
+def test_vgroove_against_closed_form(backend):
+    tile = vgroove_tile(0.5)
+    m = wb.BlinnPhong(ks=1.0, exponent=512)
+    mat = wb.bake(tile, m, directions=8, facets=1 << 14, backend=backend)
+    assert len(mat.lobes) == 2
+    g = mat.grid
+    pi, po = dirs.all_pairs(len(g))
+    kinds, params = wb.brdf.pack_materials([m])
+    want = ref.vgroove_effective_brdf(0.5, 1.0, kinds, params, g[pi], g[po])
+    got = mat.table().reshape(-1, 3)
+    rmse = np.sqrt(np.mean((got - want) ** 2))
+    assert 20 * np.log10(want.max() / rmse) > 45  # measured 60+ dB: the SG lobe and facet noise
+
+
+@pytest.mark.parametrize("brdf", [wb.BlinnPhong(1.0, 512), wb.CookTorrance(1.0, 0.2)], ids=["bp512", "ct0.2"])
+def test_pyramid_psnr_against_ground_truth(brdf):
+    tile = wb.geometry.pyramid()
+    gt = wb.ground_truth(tile, brdf, facets=1 << 15, directions=8, backend="warp:cpu")
+    mat = wb.bake(tile, brdf, directions=8, facets=1 << 14, backend="warp:cpu")
+    c = wb.compare(mat, gt)
+    assert c["psnr"] >= 35, c
+    exact = wb.compare(mat, gt, method="sg-exact")
+    assert exact["psnr"] >= 35, exact
+
+
+def test_histogram_route_agrees_with_facet_route():
+    tile = random_heightfield(6, amplitude=0.2)
+    m = wb.BlinnPhong(1.0, 64)
+    a = wb.bake(tile, m, directions=6, facets=4096, lobes=4, backend="warp:cpu").table()
+    b = wb.bake(tile, m, directions=6, facets=4096, lobes=4, backend="warp:cpu", route="histogram").table()
+    # Binning at R = 128 moves each facet's normal by < 0.5°: a few per cent of f̄ at most.
+    assert np.sqrt(np.mean((a - b) ** 2)) < 0.02 * a.max()
+
+
+def test_colours_and_several_materials(backend):
+    tile = random_heightfield(6, amplitude=0.2, materials=2)
+    mats = [wb.Lambert((0.9, 0.1, 0.1)), wb.BlinnPhong(ks=(0.2, 0.4, 0.9), exponent=32, kd=0.2)]
+    mat = wb.bake(tile, mats, directions=5, facets=4096, lobes=6, backend=backend)
+    gt = wb.ground_truth(tile, mats, facets=4096, directions=5, backend=backend)
+    assert mat.amplitudes.shape[0] == 2
+    # The diffuse part is exact by construction (energy-exact amplitudes): compare with ks = 0.
+    diffuse_only = [mats[0], wb.BlinnPhong(ks=0.0, exponent=32, kd=0.2)]
+    gt_d = wb.ground_truth(tile, diffuse_only, facets=4096, directions=5, backend=backend)
+    np.testing.assert_allclose(mat.with_materials(diffuse_only).table(), gt_d.table, rtol=1e-4, atol=1e-6)
+    # 72 random facet orientations fitted by 6 lobes: the specular part is approximate (measured 29.3 dB).
+    assert wb.compare(mat, gt)["psnr"] > 25
+
+
+def test_effective_brdf_never_negative_or_nan(backend):
+    tile = random_heightfield(8, amplitude=0.6, seed=3)  # deep, rough: shadowing and grazing everywhere
+    mat = wb.bake(tile, wb.Ward(ks=1.0, alpha=0.1), directions=6, facets=4096, lobes=16, backend=backend)
+    t = mat.table()
+    assert np.isfinite(t).all() and (t >= 0).all()
+    w = dirs.square_to_hemisphere(np.random.default_rng(1).random((500, 2)))
+    w[:50, 2] = 0.0  # on the horizon
+    f = mat.eval(w, w[::-1])
+    assert np.isfinite(f).all() and (f >= 0).all()
+
+
+def test_lobes_auto():
+    mat = wb.bake(wb.geometry.pyramid(), wb.BlinnPhong(1.0, 512), lobes="auto", directions=4, facets=4096,
+                  backend="warp:cpu")
+    assert mat.info["lobes"] == 5 and mat.info["ndf_error"] <= 0.02
+    mat = wb.bake(flat_tile(), wb.Lambert(0.5), lobes="auto", directions=4, facets=1024, backend="warp:cpu")
+    assert mat.info["lobes"] == 1
+
+
+# ------------------------------------------------------------------ edits, files, errors
+def test_material_edit_reuses_the_geometry():
+    tile = wb.geometry.pyramid()
+    a = wb.bake(tile, wb.BlinnPhong(1.0, 512), directions=6, facets=4096, backend="warp:cpu")
+    assert {"facets", "visibility", "bvndf", "ndf_fit", "amplitudes", "tables"} <= set(a.timings)
+    b = wb.bake(tile, wb.CookTorrance((0.9, 0.6, 0.2), 0.3), directions=6, facets=4096, backend="warp:cpu")
+    assert set(b.timings) == {"tables"}  # nothing but the tables was recomputed
+    c = a.with_materials([wb.CookTorrance((0.9, 0.6, 0.2), 0.3)])
+    np.testing.assert_array_equal(b.table(), c.table())
+    bake_module._GEOMETRY.clear()
+    fresh = wb.bake(tile, wb.CookTorrance((0.9, 0.6, 0.2), 0.3), directions=6, facets=4096, backend="warp:cpu")
+    np.testing.assert_allclose(fresh.table(), b.table(), rtol=1e-6, atol=1e-9)
+    # Another geometry parameter is another bake.
+    d = wb.bake(tile, wb.BlinnPhong(1.0, 512), directions=6, facets=2048, backend="warp:cpu")
+    assert "visibility" in d.timings
+
+
+def test_save_load_round_trip(tmp_path):
+    mat = wb.bake(random_heightfield(4), [wb.CookTorrance(0.8, 0.25, kd=0.1)], directions=4, facets=1024,
+                  backend="warp:cpu", bvndf=True)
+    path = tmp_path / "m.wbm"
+    mat.save(path)
+    back = wb.load(path)
+    assert isinstance(back, wb.EffectiveBRDF)
+    np.testing.assert_array_equal(back.table(), mat.table())
+    assert back.materials == mat.materials and back.method == mat.method
+    np.testing.assert_array_equal(back.bvndf.histogram, mat.bvndf.histogram)
+    assert back.bvndf.histogram.shape == (len(np.triu_indices(16)[0]), len(back.bvndf.bins))
+    np.testing.assert_allclose(back.bvndf.area.sum(), random_heightfield(4).area, rtol=1e-6)
+
+
+def test_bad_files_get_clear_errors(tmp_path):
+    mat = wb.bake(flat_tile(), wb.Lambert(0.5), directions=3, facets=256, backend="warp:cpu")
+    good = tmp_path / "m.wbm"
+    mat.save(good)
+    data = good.read_bytes()
+    (tmp_path / "trunc.wbm").write_bytes(data[: len(data) // 2])
+    with pytest.raises(ValueError, match="truncated or corrupt"):
+        wb.load(tmp_path / "trunc.wbm")
+    (tmp_path / "junk.wbm").write_bytes(b"not a zip at all")
+    with pytest.raises(ValueError, match="truncated or corrupt"):
+        wb.load(tmp_path / "junk.wbm")
+    import json
+
+    with np.load(good) as z:
+        arrays = {k: z[k] for k in z.files}
+    head = json.loads(str(arrays["header"]))
+    head["version"] = 99
+    arrays["header"] = np.array(json.dumps(head))
+    np.savez(tmp_path / "future.npz", **arrays)
+    with pytest.raises(ValueError, match="version 99"):
+        wb.load(tmp_path / "future.npz")
+    # A failed save leaves the old file as it was.
+    bad = wb.EffectiveBRDF(mat.lobes, mat.amplitudes, mat.materials, mat.directions)
+    bad.info = {"unserialisable": object()}
+    with pytest.raises(TypeError):
+        bad.save(good)
+    assert good.read_bytes() == data
+
+
+def test_compare_metrics():
+    mat = wb.bake(flat_tile(), wb.Lambert(0.5), directions=4, facets=512, backend="warp:cpu")
+    gt = wb.GroundTruth(mat.table(), np.ones(16), 4, 512)
+    c = wb.compare(mat, gt)
+    assert c["rmse"] < 1e-6 and c["psnr"] > 100 and c["max_rel_error"] < 1e-5
+    gt2 = wb.GroundTruth(mat.table() * 1.1, np.ones(16), 4, 512)
+    c2 = wb.compare(mat, gt2)
+    np.testing.assert_allclose(c2["max_rel_error"], 0.1 / 1.1, rtol=1e-4)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"lobes": 0}, "lobes must be"), ({"lobes": 17}, "lobes must be"), ({"lobes": "many"}, "lobes must be"),
+    ({"lobes": 2.5}, "lobes must be"), ({"directions": 1}, "directions must be"), ({"normal_res": 0}, "normal_res"),
+    ({"route": "magic"}, "route must be"), ({"method": "asg"}, "method must be"), ({"facets": 0}, "facets must be"),
+    ({"tolerance": float("nan")}, "tolerance"),
+])
+def test_bad_arguments_are_named(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        wb.bake(flat_tile(), wb.Lambert(0.5), backend="warp:cpu", **kwargs)
+
+
+def test_missing_material_is_named():
+    with pytest.raises(ValueError, match="material ids 0..1"):
+        wb.bake(random_heightfield(4, materials=2), [wb.Lambert(0.5)], backend="warp:cpu")
+
+
+def test_histogram_too_large_is_refused(monkeypatch):
+    monkeypatch.setattr(bake_module, "HISTOGRAM_BYTES", 1000)
+    with pytest.raises(ValueError, match="GiB"):
+        wb.bake(random_heightfield(4), wb.Lambert(0.5), route="histogram", directions=4, facets=1024,
+                backend="warp:cpu")
