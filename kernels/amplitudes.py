@@ -7,8 +7,8 @@ Facet route: b_kj·a_v(ωo) = Σ_s P_si P_so w_s G_j(n_s) with P_sk = V_s(ω_k)(
 Gram products PᵀW_jP. It is symmetric in (i, o), so only the unordered pairs i ≤ o are summed: one
 thread per (chunk of facet words, unordered pair) walks the set bits of V(ωi) ∧ V(ωo) ∧ channel and
 keeps J + 1 accumulators (J lobes and the plain sum c) in registers; G_j(n_s) is tabulated once per
-facet (`lobe_values`) as a 16-vector, zero beyond J, so the hot loop adds whole vectors. Summation as in the ground truth: float32 within a 32-facet word, float64
-across words and chunks.
+facet (`lobe_values`) as a 16-vector, zero beyond J, so the hot loop adds whole vectors. Summation
+as in the ground truth: float32 within a 32-facet word, float64 across words and chunks.
 
 Histogram route: the same sums over the L non-empty normal bins, each taken at its mean normal.
 
@@ -19,14 +19,11 @@ negative amplitudes and rescales to the exact energy c, as the reference does.
 
 import warp as wp
 
+from .common import lowest_bit
+
 MAX_LOBES = 16
 vec16 = wp.types.vector(length=MAX_LOBES, dtype=wp.float32)
 vec16d = wp.types.vector(length=MAX_LOBES, dtype=wp.float64)
-
-
-@wp.func
-def lowest_bit(m: wp.uint32) -> int:
-    return wp.bit_count((m & (~m + wp.uint32(1))) - wp.uint32(1))
 
 
 @wp.kernel
@@ -42,7 +39,8 @@ def lobe_values(
     v = vec16()  # lobes beyond J stay 0
     for j in range(axes.shape[0]):
         d = axes[j] - n
-        v[j] = wp.exp(-sharpness[j] * 0.5 * wp.dot(d, d))  # 1 − ξ·n as ‖ξ − n‖²/2: exact near ξ = n
+        e = wp.exp(-sharpness[j] * 0.5 * wp.dot(d, d))  # 1 − ξ·n as ‖ξ − n‖²/2: exact near ξ = n
+        v[j] = wp.where(e < 1.0e-30, 0.0, e)  # no denormals: their products cost ~3x on a CPU
     values[s] = v
 
 

@@ -9,6 +9,7 @@ only "tables"); `EffectiveBRDF.with_materials` does the same on a material in ha
 from __future__ import annotations
 
 import collections
+import time
 import weakref
 from dataclasses import dataclass
 
@@ -119,9 +120,8 @@ def _fit_lobes(be, fac, bv, count, timer, tolerance, probe_sharpness):
                 break
         return lob
 
-    if count != "auto":
-        lob = fit(count)
-        return lob, lobes_mod.ndf_error(lob, bv.normal, bv.area, probe_sharpness)
+    if count != "auto":  # the NDF error is what "auto" needs; with a fixed J it is not worth its time
+        return fit(count), None
     best = None
     for j in range(1, lobes_mod.MAX_LOBES + 1):
         lob = fit(j)
@@ -204,15 +204,15 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
     else:
         cache.move_to_end(key)
     prog.stage("tables", 1)
-    import time
-
     t0 = time.perf_counter()
-    nd = k * k
-    amps = np.zeros((len(mats), nd * nd, len(geo["lobes"]), 3), np.float32)
-    for m, mult, mu in geo["channels"]:
-        amps[m] += mu[:, :, None] * mult[None, None, :].astype(np.float32)
-    mat = EffectiveBRDF(geo["lobes"], amps.reshape(len(mats), nd, nd, len(geo["lobes"]), 3), mats, k, method,
-                        info={**geo["info"], "backend": be.name, "tile": tile.name}, bvndf=geo["bvndf"])
+    amps, energy = geo["amplitudes"], geo["energy"]
+    if len(mats) > len(amps):  # materials beyond the tile's ids reflect nothing
+        extra = len(mats) - len(amps)
+        amps = np.concatenate([amps, np.zeros((extra,) + amps.shape[1:], amps.dtype)])
+        energy = np.concatenate([energy, np.zeros((extra,) + energy.shape[1:], energy.dtype)])
+    mat = EffectiveBRDF(geo["lobes"], amps, mats, k, method,
+                        info={**geo["info"], "backend": be.name, "tile": tile.name}, bvndf=geo["bvndf"],
+                        _energy=energy)
     timer.timings["tables"] = time.perf_counter() - t0
     mat.timings = dict(timer.timings)
     prog.done()
@@ -273,8 +273,16 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
             raise FloatingPointError(f"the amplitude solve produced {int(bad.sum())} non-finite values")
         out.append((m, np.asarray(mult, np.float64), np.maximum(mu, 0.0)))
         prog.advance()
+    # Per material and RGB, once: the channels' amplitudes times their colours (BRDF-independent).
+    amps = np.zeros((tile.n_materials, nd * nd, len(lob), 3), np.float32)
+    for m, mult, mu in out:
+        amps[m] += mu[:, :, None] * mult[None, None, :].astype(np.float32)
+    amps = amps.reshape(tile.n_materials, nd, nd, len(lob), 3)
+    if not np.all(np.isfinite(amps)):
+        raise FloatingPointError("the amplitude tables hold non-finite values")
+    energy = np.einsum("miojc,j->mioc", amps, integrals.astype(np.float32))
     info = {"facets": count, "seed": int(seed), "normal_res": r, "route": route, "lobes": len(lob),
             "lobes_requested": j_req, "ndf_error": ndf_err, "ndf_probe_sharpness": probe,
             "em_iterations": lob.iterations, "gram_condition": cond, "nonempty_bins": int(len(occupied)),
             "channels": len(channels)}
-    return {"lobes": lob, "channels": out, "bvndf": bv, "info": info}
+    return {"lobes": lob, "amplitudes": amps, "energy": energy, "bvndf": bv, "info": info}

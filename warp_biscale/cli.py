@@ -132,8 +132,9 @@ def cmd_bake(args):
                   progress=not args.quiet)
     if not args.quiet:
         info = mat.info
-        print(f"{tile.name}: {info['lobes']} lobes (NDF fit error {info['ndf_error']:.2%} at sharpness "
-              f"{info['ndf_probe_sharpness']:g}), {info['nonempty_bins']} non-empty normal bins, "
+        fit = (f" (NDF fit error {info['ndf_error']:.2%} at sharpness {info['ndf_probe_sharpness']:g})"
+               if info["ndf_error"] is not None else "")
+        print(f"{tile.name}: {info['lobes']} lobes{fit}, {info['nonempty_bins']} non-empty normal bins, "
               f"{mat.nbytes_per_material / 2**20:.2f} MiB per material")
         print("  ".join(f"{k} {v * 1e3:.1f} ms" for k, v in mat.timings.items()))
     if args.truth:

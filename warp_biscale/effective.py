@@ -50,7 +50,7 @@ class EffectiveBRDF:
     VERSION = 1
 
     def __init__(self, lobes: LobeSet, amplitudes, materials, directions: int, method: str = "sg", timings=None,
-                 info=None, bvndf=None):
+                 info=None, bvndf=None, _energy=None):
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
         self.lobes = lobes
@@ -60,8 +60,8 @@ class EffectiveBRDF:
         j = len(lobes)
         if self.amplitudes.ndim != 5 or self.amplitudes.shape[1:] != (nd, nd, j, 3):
             raise ValueError(f"amplitudes must have shape (M, {nd}, {nd}, {j}, 3), got {self.amplitudes.shape}")
-        if not np.all(np.isfinite(self.amplitudes)) or (self.amplitudes < 0).any():
-            raise ValueError("amplitudes must be finite and >= 0")
+        if _energy is None and (not np.all(np.isfinite(self.amplitudes)) or (self.amplitudes < 0).any()):
+            raise ValueError("amplitudes must be finite and >= 0")  # (checked once, where _energy was made)
         self.materials = brdf_mod.as_material_list(materials)
         if len(self.materials) != len(self.amplitudes):
             raise ValueError(f"{len(self.amplitudes)} amplitude table(s) but {len(self.materials)} material(s)")
@@ -70,6 +70,9 @@ class EffectiveBRDF:
         self.info = dict(info or {})
         self.bvndf = bvndf
         self._integrals = sg.integral(self.lobes.sharpness)
+        # Σ_j μ_mj ∫G_j = ∫γ̃ per material: independent of the BRDFs, so a material edit reuses it.
+        self._energy = (np.einsum("miojc,j->mioc", self.amplitudes, self._integrals.astype(np.float32))
+                        if _energy is None else _energy)
         self.diffuse = self._diffuse_table()
 
     def __repr__(self):
@@ -79,12 +82,12 @@ class EffectiveBRDF:
     # ------------------------------------------------------------------ tables
     def _diffuse_table(self) -> np.ndarray:
         """f̄d on the grid (Eq. 9): Σ_m kd_m/π Σ_j μ_mj ∫G_j."""
-        out = np.zeros(self.amplitudes.shape[1:3] + (3,), np.float64)
+        out = np.zeros(self.amplitudes.shape[1:3] + (3,), np.float32)
         for m, mat in enumerate(self.materials):
-            kd = np.asarray(mat.albedo if isinstance(mat, brdf_mod.Lambert) else mat.kd, np.float64) / np.pi
+            kd = np.asarray(mat.albedo if isinstance(mat, brdf_mod.Lambert) else mat.kd, np.float32) / np.float32(np.pi)
             if kd.any():
-                out += np.einsum("iojc,j->ioc", self.amplitudes[m], self._integrals) * kd
-        return out.astype(np.float32)
+                out += self._energy[m] * kd
+        return out
 
     @property
     def nbytes_per_material(self) -> int:
@@ -101,7 +104,7 @@ class EffectiveBRDF:
 
         t0 = time.perf_counter()
         out = EffectiveBRDF(self.lobes, self.amplitudes, materials, self.directions, self.method,
-                            info=self.info, bvndf=self.bvndf)
+                            info=self.info, bvndf=self.bvndf, _energy=self._energy)
         out.timings = {"tables": time.perf_counter() - t0}
         return out
 

@@ -16,6 +16,11 @@ The facet search and the truth sums need ``cl_khr_fp64``; a device without it is
 construction. Launches use a fixed work-group size along dimension 0 (8 on a CPU, 64 on a GPU)
 with the global size rounded up to it, since PoCL compiles a kernel once per work-group size.
 
+The SG bake stages (``cl/bvndf.cl``, ``cl/em.cl``, ``cl/amplitudes.cl``) reduce without atomics
+as their Warp twins do (float64 across words, chunks and bins). The lobe table G_j(n) has rows of
+8⌈J/8⌉ floats, zero past J, read as float8 (PoCL turns them into AVX2 vector adds), so the moment
+and solve kernels take at most 16 lobes, their private arrays' size.
+
 Selection: ``OpenCLBackend(None)`` takes the first device, GPUs before other kinds;
 ``OpenCLBackend("sub")`` the first device whose platform or device name contains "sub"
 (case-insensitive); a trailing ``#N`` picks the N-th such device (0-based), which ``name`` uses
@@ -399,7 +404,8 @@ class OpenCLBackend:
         self._launch("em", "ndf_responsibilities", (n,),
                      f["normal"], f["area"], self._buffer(axes, np.float32), self._buffer(sharpness, np.float32),
                      self._buffer(log_weight, np.float32), np.int32(j), np.int32(n), resp)
-        chunks, per = chunking(n, j, self._threads)
+        chunks, per = chunking(-(-n // 256), j, self._threads)  # ≥ 256 facets a chunk: few chunks to add
+        per *= 256
         partial = self._empty(chunks * j * 4, np.float64)
         self._launch("em", "ndf_sums_partial", (j, chunks),
                      f["normal"], resp, np.int32(j), np.int32(n), np.int32(per), partial)
@@ -407,9 +413,10 @@ class OpenCLBackend:
         self._launch("em", "sum_chunks_stats", (j,), partial, np.int32(chunks), np.int32(j), out)
         return self._read(out, (j, 4), np.float64)
 
-    def _lobe_values(self, normal_buf, n, axes, sharpness, stride):
-        """(n, stride) float32 device table G_j(n_s) of unit-amplitude lobes, zero past J."""
+    def _lobe_values(self, normal_buf, n, axes, sharpness):
+        """(n, 8⌈J/8⌉) float32 device table G_j(n_s) of unit-amplitude lobes, zero past J (read as float8)."""
         j = len(axes)
+        stride = -(-j // 8) * 8
         values = self._empty(n * stride, np.float32)
         if n:
             self._launch("amplitudes", "lobe_values", (n,),
@@ -424,7 +431,7 @@ class OpenCLBackend:
         self._check_lobes(j)
         if n_pairs == 0:
             return np.zeros((0, j + 1), np.float32)
-        values = self._lobe_values(f["normal"], n, axes, sharpness, -(-j // getattr(self, "_lg", 4)) * getattr(self, "_lg", 4))
+        values = self._lobe_values(f["normal"], n, axes, sharpness)
         weight = np.asarray(weight, np.float32)
         channel_bits = Visibility.pack((weight > 0)[None, :])[0]
         n_words = vis.bits.shape[1]
@@ -448,7 +455,7 @@ class OpenCLBackend:
         if n_pairs == 0:
             return np.zeros((0, j + 1), np.float32)
         bn = self._buffer(bin_normal, np.float32)
-        bin_values = self._lobe_values(bn, n_bins, axes, sharpness, j)
+        bin_values = self._lobe_values(bn, n_bins, axes, sharpness)
         out = self._empty(n_pairs * (j + 1), np.float32)
         self._launch("amplitudes", "histogram_moments", (n_pairs,),
                      self._buffer(directions, np.float32), self._buffer(pair_i, np.int32),

@@ -301,7 +301,8 @@ class WarpBackend:
                       self._array(np.asarray(sharpness, np.float32), wp.float32),
                       self._array(np.asarray(log_weight, np.float32), wp.float32)],
                      [resp])
-        chunks, per = chunking(n, j, self._threads)
+        chunks, per = chunking(-(-n // 256), j, self._threads)  # ≥ 256 facets a chunk: few chunks to add
+        per *= 256
         partial = wp.empty((chunks, j), dtype=wp.vec4d, device=dev)
         self._launch(ke.ndf_sums_partial, (chunks, j), [f["normal"], resp, per], [partial])
         out = wp.empty(j, dtype=wp.vec4d, device=dev)

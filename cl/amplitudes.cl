@@ -1,0 +1,235 @@
+/* Gram amplitudes (Iwasaki §4, DESIGN §5): the lobe moments b, c of every direction pair and the solve.
+ *
+ * Twin of kernels/amplitudes.py; the mathematics is warp_biscale.reference.lobe_values,
+ * lobe_moments, histogram_moments and solve_amplitudes. Needs cl_khr_fp64.
+ *
+ * Facet route: b_kj·a_v(ωo) = Σ_s P_si P_so w_s G_j(n_s) with P_sk = V_s(ω_k)(n_s·ω_k)⁺. It is
+ * symmetric in (i, o), so only the unordered pairs i ≤ o are summed: one work-item per (unordered
+ * pair, chunk of facet words) walks the set bits of V(ωi) ∧ V(ωo) ∧ channel and keeps J + 1
+ * accumulators (J lobes and the plain sum c) in registers; G_j(n_s) is tabulated once per facet
+ * (lobe_values). Summation as in the ground truth: float32 within a 32-facet word, float64 across
+ * words and chunks.
+ *
+ * Histogram route: the same sums over the L non-empty normal bins, each taken at its mean normal.
+ *
+ * Lobe layout: the table G_j(n) has a row of 8·⌈J/8⌉ floats, zero past J, read as one or two float8
+ * (values past J are 0 and are never written out), so the hot loops add whole vectors — per lane the
+ * same float32 (facet route) or float64 (histogram route) operations as the Warp twin's vec16, and
+ * on PoCL (AVX2) about 1.3–1.5× faster than a loop over j (J = 8 and 16, 2^14 facets, 144
+ * directions). Vectors are converted lane by lane rather than with convert_/vstore builtins, which
+ * PoCL calls out of line (with the double8 ones the program lost its kernels: INVALID_KERNEL_NAME).
+ *
+ * Solve: one work-item per ordered pair (i, o) reads the unordered pair's moments, divides by
+ * a_v(ωo), applies the J×J solve rows (float64: A⁻¹ of close lobes has large entries of both signs),
+ * clamps negative amplitudes and rescales to the exact energy c, as the reference does.
+ *
+ * At most MAX_LOBES lobes (private arrays). NDRanges as in cl/truth.cl: (outputs, chunks), dimension
+ * 0 varying fastest as the last dimension of Warp's (chunks, outputs) launch, rounded up to a whole
+ * work-group; the surplus work-items return. 3-vectors are float arrays of stride 3.
+ */
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+
+#define MAX_LOBES 16
+
+/* A macro, not a function: PoCL warns that a double8 return value changes the ABI without AVX-512. */
+#define TO_DOUBLE8(v) \
+    ((double8)((double)(v).s0, (double)(v).s1, (double)(v).s2, (double)(v).s3, (double)(v).s4, (double)(v).s5, \
+               (double)(v).s6, (double)(v).s7))
+
+/* values[s, j] = exp(−η_j/2·‖ξ_j − n_s‖²) (1 − ξ·n written as ‖ξ − n‖²/2: exact near ξ = n), rows of
+ * `stride` floats, zero past J. */
+__kernel void lobe_values(
+    __global const float *normal,     /* (Ns, 3) */
+    __global const float *axes,       /* (J, 3) */
+    __global const float *sharpness,  /* (J,) */
+    const int n_lobes,
+    const int stride,
+    const int n_facets,
+    __global float *values)           /* (Ns, stride), zero past J */
+{
+    int s = get_global_id(0);
+    if (s >= n_facets)
+        return;
+    float3 n = load3(normal, s);
+    for (int j = 0; j < n_lobes; ++j) {
+        float3 a = load3(axes, j);
+        float3 d = (float3)(a.x - n.x, a.y - n.y, a.z - n.z);
+        float e = exp(-sharpness[j] * 0.5f * dot3(d, d));
+        values[(size_t)s * stride + j] = e < 1.0e-30f ? 0.0f : e; /* no denormals: ~3x slower on a CPU */
+    }
+    for (int j = n_lobes; j < stride; ++j)
+        values[(size_t)s * stride + j] = 0.0f;
+}
+
+__kernel void lobe_moments_partial(
+    __global const float *directions,    /* (D, 3) */
+    __global const int *pair_i,          /* (U,) */
+    __global const int *pair_o,          /* (U,) */
+    __global const uint *bits,           /* (D, words) */
+    const int n_words,
+    __global const uint *channel_bits,   /* (words,) weight > 0 */
+    __global const float *weight,        /* (Ns,) */
+    __global const float *normal,        /* (Ns, 3) */
+    __global const float8 *values,       /* (Ns, groups) groups = ⌈J/8⌉, zero past J */
+    const int n_lobes,
+    const int words_per_chunk,
+    const int n_pairs,
+    __global float *partial)             /* (chunks, U, J + 1) */
+{
+    int u = get_global_id(0);
+    int c = get_global_id(1);
+    if (u >= n_pairs)
+        return;
+    int i = pair_i[u];
+    int o = pair_o[u];
+    int groups = (n_lobes + 7) >> 3;
+    float3 wi = load3(directions, i);
+    float3 wo = load3(directions, o);
+    __global const uint *bi = bits + (size_t)i * n_words;
+    __global const uint *bo = bits + (size_t)o * n_words;
+    double8 a0 = (double8)(0.0), a1 = (double8)(0.0);
+    double acc_c = 0.0;
+    int w_start = c * words_per_chunk;
+    int w_end = w_start + words_per_chunk < n_words ? w_start + words_per_chunk : n_words;
+    for (int w = w_start; w < w_end; ++w) {
+        uint m = bi[w] & bo[w] & channel_bits[w];
+        if (m == 0u)
+            continue;
+        float8 b0 = (float8)(0.0f), b1 = (float8)(0.0f);
+        float block_c = 0.0f;
+        while (m != 0u) {
+            int b = lowest_bit(m);
+            m = m & (m - 1u);
+            int s = w * 32 + b;
+            float3 n = load3(normal, s);
+            float p = maxf(dot3(n, wi), 0.0f) * maxf(dot3(n, wo), 0.0f) * weight[s];
+            block_c += p;
+            __global const float8 *g = values + (size_t)s * groups;
+            b0 += p * g[0];
+            if (groups > 1)
+                b1 += p * g[1];
+        }
+        acc_c += (double)block_c;
+        a0 += TO_DOUBLE8(b0);
+        if (groups > 1)
+            a1 += TO_DOUBLE8(b1);
+    }
+    double acc[MAX_LOBES] = {a0.s0, a0.s1, a0.s2, a0.s3, a0.s4, a0.s5, a0.s6, a0.s7,
+                      a1.s0, a1.s1, a1.s2, a1.s3, a1.s4, a1.s5, a1.s6, a1.s7};
+    __global float *out = partial + ((size_t)c * n_pairs + u) * (n_lobes + 1);
+    for (int j = 0; j < n_lobes; ++j)
+        out[j] = (float)acc[j];
+    out[n_lobes] = (float)acc_c;
+}
+
+__kernel void sum_chunks_moments(__global const float *partial,  /* (chunks, U, J + 1) */
+                                 const int chunks, const int n_pairs, const int width,
+                                 __global float *out)            /* (U, J + 1) */
+{
+    int u = get_global_id(0);
+    if (u >= n_pairs)
+        return;
+    for (int j = 0; j < width; ++j) {
+        double acc = 0.0;
+        for (int c = 0; c < chunks; ++c)
+            acc += (double)partial[((size_t)c * n_pairs + u) * width + j];
+        out[(size_t)u * width + j] = (float)acc;
+    }
+}
+
+__kernel void histogram_moments(
+    __global const float *directions,   /* (D, 3) */
+    __global const int *pair_i,         /* (P,) */
+    __global const int *pair_o,         /* (P,) */
+    __global const float *hist,         /* (P, L) */
+    const int n_bins,
+    __global const float *bin_normal,   /* (L, 3) */
+    __global const float8 *bin_values,  /* (L, groups) groups = ⌈J/8⌉, zero past J */
+    const int n_lobes,
+    const int n_pairs,
+    __global float *out)                /* (P, J + 1) */
+{
+    int u = get_global_id(0);
+    if (u >= n_pairs)
+        return;
+    int groups = (n_lobes + 7) >> 3;
+    float3 wi = load3(directions, pair_i[u]);
+    float3 wo = load3(directions, pair_o[u]);
+    double8 a0 = (double8)(0.0), a1 = (double8)(0.0);
+    double acc_c = 0.0;
+    __global const float *row = hist + (size_t)u * n_bins;
+    for (int l = 0; l < n_bins; ++l) {
+        float h = row[l];
+        if (h == 0.0f)
+            continue;
+        float3 n = load3(bin_normal, l);
+        double p = (double)(maxf(dot3(n, wi), 0.0f) * maxf(dot3(n, wo), 0.0f) * h);
+        acc_c += p;
+        __global const float8 *g = bin_values + (size_t)l * groups;
+        a0 += p * TO_DOUBLE8(g[0]);
+        if (groups > 1)
+            a1 += p * TO_DOUBLE8(g[1]);
+    }
+    double acc[MAX_LOBES] = {a0.s0, a0.s1, a0.s2, a0.s3, a0.s4, a0.s5, a0.s6, a0.s7,
+                      a1.s0, a1.s1, a1.s2, a1.s3, a1.s4, a1.s5, a1.s6, a1.s7};
+    __global float *o = out + (size_t)u * (n_lobes + 1);
+    for (int j = 0; j < n_lobes; ++j)
+        o[j] = (float)acc[j];
+    o[n_lobes] = (float)acc_c;
+}
+
+__kernel void solve_amplitudes(
+    __global const int *pair_i,        /* (P,) ordered pairs */
+    __global const int *pair_o,        /* (P,) */
+    const int n_dirs,
+    __global const float *a_v,         /* (D,) */
+    __global const float *moments,     /* (U, J + 1) unordered pairs lo <= hi, row-major */
+    __global const double *rows,       /* (J, J) */
+    __global const double *integrals,  /* (J,) */
+    const int n_lobes,
+    const int n_pairs,
+    __global float *mu)                /* (P, J) */
+{
+    int p = get_global_id(0);
+    if (p >= n_pairs)
+        return;
+    int i = pair_i[p];
+    int o = pair_o[p];
+    int lo = i < o ? i : o;
+    int hi = i < o ? o : i;
+    int u = lo * n_dirs - lo * (lo - 1) / 2 + (hi - lo);  /* index of (lo, hi) among the pairs lo <= hi */
+    __global const float *m = moments + (size_t)u * (n_lobes + 1);
+    __global float *out = mu + (size_t)p * n_lobes;
+    double area = (double)a_v[o];
+    double c = (double)m[n_lobes];
+    if (area <= 0.0 || c <= 0.0) {
+        for (int j = 0; j < n_lobes; ++j)
+            out[j] = 0.0f;
+        return;
+    }
+    c = c / area;
+    double sol[MAX_LOBES];
+    double total = 0.0;
+    for (int j = 0; j < n_lobes; ++j) {
+        __global const double *r = rows + (size_t)j * n_lobes;
+        double x = 0.0;
+        for (int k = 0; k < n_lobes; ++k)
+            x += r[k] * (double)m[k];
+        x = x / area;
+        x = x > 0.0 ? x : 0.0;
+        sol[j] = x;
+        total += x * integrals[j];
+    }
+    if (total > 0.0) {
+        for (int j = 0; j < n_lobes; ++j)
+            out[j] = (float)(sol[j] * (c / total));
+    } else { /* every amplitude clamped: all of ∫γ̃ goes to the lobe with the largest b_j */
+        int best = 0;
+        for (int j = 1; j < n_lobes; ++j)
+            if (m[j] > m[best])
+                best = j;
+        for (int j = 0; j < n_lobes; ++j)
+            out[j] = 0.0f;
+        out[best] = (float)(c / integrals[best]);
+    }
+}
