@@ -106,7 +106,7 @@ def part_targets(backend, tile, facets, runs, records, log):
     log(f"  {backend} material-only edit: {med * 1e3:.2f} ms")
 
 
-def part_pareto(backends, gt_backend, fams, gt_facets, facet_list, lobe_list, runs, records, log):
+def part_pareto(backends, gt_backend, fams, gt_facets, facet_list, lobe_list, runs, records, log, save=None):
     for tname, tile in fams.items():
         for bname, brdf in BRDFS.items():
             mats = [brdf] * tile.n_materials
@@ -145,6 +145,8 @@ def part_pareto(backends, gt_backend, fams, gt_facets, facet_list, lobe_list, ru
                     records.append({"part": "pareto", "method": "ground truth", "backend": backend, "tile": tname,
                                     "brdf": bname, "facets": facets, "time_s": t, **c})
                     log(f"    {backend} ground truth Ns={facets}: {t * 1e3:.1f} ms PSNR {c['psnr']:.1f} dB")
+            if save:
+                save()  # keep what is done if a time limit cuts the run
 
 
 def reference_bake(tile, brdf, facets, k, j):
@@ -304,7 +306,8 @@ def main(argv=None):
         fams = families()
         if args.tiles:
             fams = {k: v for k, v in fams.items() if k in args.tiles}
-        part_pareto(names, names[0], fams, args.gt_facets, args.pareto_facets, args.lobes, args.runs, records, log)
+        part_pareto(names, names[0], fams, args.gt_facets, args.pareto_facets, args.lobes, args.runs, records, log,
+                    save)
         save()
     plot(records, args.out)
     log(f"wrote {args.out}/results.json, table.md, pareto.png")
