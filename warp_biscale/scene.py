@@ -1,0 +1,339 @@
+"""The large-scale side of rendering: a mesh, a camera and local lights (Wang 2009 §6–7).
+
+World space is right-handed with +y up (trimesh's and most asset formats' convention). All
+arrays are numpy; backends keep device copies in each object's `device_cache`.
+
+Lights are small spherical emitters represented *exactly* as one spherical Gaussian each (Wang
+Eq. 32–33). Their radiance, seen from a point x, is L(ω) = G(ω; l̂, η, μ) with the SG's
+equivalent solid angle 2π/η equal to the solid angle Ω the emitter subtends, and ∫G = the
+irradiance it delivers at normal incidence. The SG renderer and the Monte Carlo reference both
+use this emitter, so their images differ only by the rendering method, not by the light model.
+
+- `DirectionalLight(direction, irradiance, angular_radius)`: l̂ = direction (towards the light),
+  Ω = π·α² (α in radians), ∫G = irradiance.
+- `PointLight(position, intensity, radius)`: l̂ = (p − x)/d, Ω = π·r²/d², ∫G = intensity / d².
+  A point light must lie outside every object's convex hull (Wang §7): its shadow is a ray to
+  its centre.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .smallscale import _finite_array
+
+__all__ = ["Mesh", "Camera", "PointLight", "DirectionalLight", "light_sg"]
+
+MIN_LIGHT_SOLID_ANGLE = 1e-6  # sr: caps a light's SG sharpness at 2π·1e6 (the SG closed forms hold to 1e6)
+
+
+def _vec3(name, v) -> np.ndarray:
+    try:
+        a = np.asarray(v, np.float64).reshape(3)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be three numbers, got {v!r}") from None
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} contains NaN or inf: {v!r}")
+    return a
+
+
+def _unit(name, v) -> np.ndarray:
+    a = _vec3(name, v)
+    n = np.linalg.norm(a)
+    if n == 0:
+        raise ValueError(f"{name} must be a non-zero vector, got {v!r}")
+    return a / n
+
+
+def _rgb(name, v) -> np.ndarray:
+    a = np.asarray(v, np.float64).reshape(-1)
+    if a.size == 1:
+        a = np.repeat(a, 3)
+    if a.shape != (3,) or not np.all(np.isfinite(a)) or (a < 0).any():
+        raise ValueError(f"{name} must be a number >= 0 or an RGB triple of them, got {v!r}")
+    return a
+
+
+@dataclass(eq=False)
+class Mesh:
+    """A triangle mesh with per-vertex normals (smooth shading), optional UVs and a material id per face.
+
+    vertices (V, 3) float64, faces (F, 3) int32, normals (V, 3) unit, uvs (V, 2) or None,
+    face_material (F,) int32 indices into the scene's material list.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    normals: np.ndarray | None = None
+    uvs: np.ndarray | None = None
+    face_material: np.ndarray | None = None
+    device_cache: dict = field(default_factory=dict, repr=False)
+
+    def __post_init__(self):
+        self.vertices = _finite_array("Mesh.vertices", self.vertices, (3,), np.float64)
+        faces = np.asarray(self.faces)
+        if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0 or not np.issubdtype(faces.dtype, np.integer):
+            raise ValueError(f"Mesh.faces must be a non-empty (F, 3) integer array, got shape {faces.shape}")
+        if faces.min() < 0 or faces.max() >= len(self.vertices):
+            raise ValueError(f"Mesh.faces must index vertices 0..{len(self.vertices) - 1}, "
+                             f"found {faces.min()}..{faces.max()}")
+        self.faces = faces.astype(np.int32)
+        if self.normals is None:
+            self.normals = self._smooth_normals()
+        else:
+            n = _finite_array("Mesh.normals", self.normals, (3,), np.float64)
+            if len(n) != len(self.vertices):
+                raise ValueError(f"Mesh.normals has {len(n)} rows for {len(self.vertices)} vertices")
+            length = np.linalg.norm(n, axis=1, keepdims=True)
+            self.normals = np.where(length > 0, n / np.where(length > 0, length, 1.0), self._smooth_normals())
+        if self.uvs is not None:
+            self.uvs = _finite_array("Mesh.uvs", self.uvs, (2,), np.float64)
+            if len(self.uvs) != len(self.vertices):
+                raise ValueError(f"Mesh.uvs has {len(self.uvs)} rows for {len(self.vertices)} vertices")
+        if self.face_material is None:
+            self.face_material = np.zeros(len(self.faces), np.int32)
+        self.face_material = np.asarray(self.face_material, np.int32).reshape(-1)
+        if len(self.face_material) != len(self.faces) or (self.face_material < 0).any():
+            raise ValueError("Mesh.face_material must hold one id >= 0 per face")
+
+    def _smooth_normals(self) -> np.ndarray:
+        tri = self.vertices[self.faces]
+        fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # length = 2 × area: area-weighted
+        n = np.zeros_like(self.vertices)
+        for k in range(3):
+            np.add.at(n, self.faces[:, k], fn)
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        return np.where(length > 0, n / np.where(length > 0, length, 1.0), np.array([0.0, 1.0, 0.0]))
+
+    @property
+    def face_normals(self) -> np.ndarray:
+        tri = self.vertices[self.faces]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        return np.where(length > 0, n / np.where(length > 0, length, 1.0), 0.0)
+
+    @property
+    def bounds(self) -> np.ndarray:
+        return np.stack([self.vertices.min(0), self.vertices.max(0)])
+
+    @property
+    def scale(self) -> float:
+        """The larger of the extent and the largest coordinate magnitude (sets ray offsets)."""
+        return float(max(np.ptp(self.vertices, axis=0).max(), np.abs(self.vertices).max(), 1e-30))
+
+    def __len__(self):
+        return len(self.faces)
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_trimesh(cls, tm, material: int = 0) -> Mesh:
+        uv = getattr(getattr(tm, "visual", None), "uv", None)
+        uvs = None if uv is None or len(uv) != len(tm.vertices) else np.asarray(uv, np.float64)
+        normals = np.asarray(tm.vertex_normals, np.float64) if len(tm.vertices) else None
+        return cls(np.asarray(tm.vertices, np.float64), np.asarray(tm.faces), normals, uvs,
+                   np.full(len(tm.faces), material, np.int32))
+
+    @classmethod
+    def load(cls, path, material: int = 0) -> Mesh:
+        """Any mesh trimesh reads (OBJ, PLY, STL, GLB, ...); a scene is flattened into one mesh."""
+        import trimesh
+
+        try:
+            tm = trimesh.load(str(path), force="mesh", process=False)
+        except Exception as exc:
+            raise ValueError(f"cannot read mesh {path}: {exc}") from None
+        if not isinstance(tm, trimesh.Trimesh) or len(tm.faces) == 0:
+            raise ValueError(f"{path} holds no triangles")
+        return cls.from_trimesh(tm, material)
+
+    @classmethod
+    def sphere(cls, radius=1.0, center=(0.0, 0.0, 0.0), subdivisions=4, material: int = 0) -> Mesh:
+        """An icosphere with exact normals and equirectangular UVs."""
+        import trimesh
+
+        tm = trimesh.creation.icosphere(subdivisions=subdivisions, radius=1.0)
+        v = np.asarray(tm.vertices, np.float64)
+        n = v / np.linalg.norm(v, axis=1, keepdims=True)
+        uvs = np.stack([0.5 + np.arctan2(n[:, 0], n[:, 2]) / (2 * np.pi),
+                        np.arccos(np.clip(n[:, 1], -1, 1)) / np.pi], 1)
+        return cls(n * radius + np.asarray(center, np.float64), np.asarray(tm.faces), n, uvs,
+                   np.full(len(tm.faces), material, np.int32))
+
+    @classmethod
+    def torus(cls, major=1.0, minor=0.35, center=(0.0, 0.0, 0.0), segments=(96, 48), material: int = 0) -> Mesh:
+        """A torus around +y with exact normals and (u, v) = (around, across) UVs."""
+        nu, nv = segments
+        u = np.arange(nu) * 2 * np.pi / nu
+        v = np.arange(nv) * 2 * np.pi / nv
+        uu, vv = np.meshgrid(u, v, indexing="ij")
+        ring = np.stack([np.cos(uu), np.zeros_like(uu), np.sin(uu)], -1)
+        normal = ring * np.cos(vv)[..., None] + np.array([0.0, 1.0, 0.0]) * np.sin(vv)[..., None]
+        pos = ring * major + normal * minor
+        a = np.arange(nu)[:, None] * nv + np.arange(nv)[None, :]
+        b = ((np.arange(nu)[:, None] + 1) % nu) * nv + np.arange(nv)[None, :]
+        c = ((np.arange(nu)[:, None] + 1) % nu) * nv + (np.arange(nv)[None, :] + 1) % nv
+        d = np.arange(nu)[:, None] * nv + (np.arange(nv)[None, :] + 1) % nv
+        faces = np.concatenate([np.stack([a, d, b], -1).reshape(-1, 3), np.stack([b, d, c], -1).reshape(-1, 3)])
+        uvs = np.stack([uu / (2 * np.pi), vv / (2 * np.pi)], -1).reshape(-1, 2)
+        return cls(pos.reshape(-1, 3) + np.asarray(center, np.float64), faces, normal.reshape(-1, 3), uvs,
+                   np.full(len(faces), material, np.int32))
+
+    @classmethod
+    def plane(cls, size=4.0, height=0.0, divisions=32, material: int = 0) -> Mesh:
+        """A square floor at y = height, facing +y, divided into divisions² quads (SSDF vertices)."""
+        t = np.linspace(-size / 2, size / 2, divisions + 1)
+        xx, zz = np.meshgrid(t, t, indexing="ij")
+        pos = np.stack([xx, np.full_like(xx, height), zz], -1).reshape(-1, 3)
+        n1 = divisions + 1
+        i, j = np.meshgrid(np.arange(divisions), np.arange(divisions), indexing="ij")
+        a = (i * n1 + j).ravel()
+        faces = np.concatenate([np.stack([a, a + 1, a + n1 + 1], 1), np.stack([a, a + n1 + 1, a + n1], 1)])
+        uvs = np.stack([(xx + size / 2) / size, (zz + size / 2) / size], -1).reshape(-1, 2)
+        return cls(pos, faces, np.tile([0.0, 1.0, 0.0], (len(pos), 1)), uvs, np.full(len(faces), material, np.int32))
+
+    @staticmethod
+    def merge(meshes) -> Mesh:
+        """One mesh from several (the kernels trace one BVH); each keeps its faces' material ids."""
+        meshes = list(meshes)
+        if not meshes:
+            raise ValueError("no meshes to merge")
+        offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
+        any_uv = any(m.uvs is not None for m in meshes)
+        uvs = (np.concatenate([m.uvs if m.uvs is not None else np.zeros((len(m.vertices), 2)) for m in meshes])
+               if any_uv else None)
+        return Mesh(np.concatenate([m.vertices for m in meshes]),
+                    np.concatenate([m.faces + o for m, o in zip(meshes, offsets)]),
+                    np.concatenate([m.normals for m in meshes]), uvs,
+                    np.concatenate([m.face_material for m in meshes]))
+
+
+@dataclass(eq=False)
+class Camera:
+    """A pinhole camera. Pixel (x, y), y down, is the ray through its centre:
+    d ∝ forward + (2(x + ½)/W − 1)·tan(fov/2)·(W/H)·right + (1 − 2(y + ½)/H)·tan(fov/2)·up."""
+
+    eye: object = (0.0, 0.0, 4.0)
+    target: object = (0.0, 0.0, 0.0)
+    up: object = (0.0, 1.0, 0.0)
+    fov: float = 40.0  # vertical field of view, degrees
+    width: int = 512
+    height: int = 512
+
+    def __post_init__(self):
+        self.eye = _vec3("Camera.eye", self.eye)
+        self.target = _vec3("Camera.target", self.target)
+        self.up = _unit("Camera.up", self.up)
+        if np.linalg.norm(self.target - self.eye) == 0:
+            raise ValueError("Camera.eye and Camera.target coincide")
+        if not (0 < float(self.fov) < 180):
+            raise ValueError(f"Camera.fov must lie in (0, 180) degrees, got {self.fov!r}")
+        self.fov = float(self.fov)
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            if int(v) != v or not (1 <= int(v) <= 16384):
+                raise ValueError(f"Camera.{name} must be an integer in 1..16384, got {v!r}")
+            setattr(self, name, int(v))
+        if abs(np.dot(self.basis()[0], self.up)) > 1 - 1e-9:
+            raise ValueError("Camera.up is parallel to the viewing direction")
+
+    def basis(self):
+        """(forward, right, up) unit vectors, and tan(fov/2)."""
+        f = self.target - self.eye
+        f = f / np.linalg.norm(f)
+        r = np.cross(f, self.up)
+        r = r / max(np.linalg.norm(r), 1e-300)
+        u = np.cross(r, f)
+        return f, r, u, float(np.tan(np.radians(self.fov) / 2))
+
+    def packed(self) -> np.ndarray:
+        """(16,) float32: eye, forward, right·tan·aspect, up·tan, width, height, 0, 0 (what the kernels read)."""
+        f, r, u, t = self.basis()
+        aspect = self.width / self.height
+        return np.concatenate([self.eye, f, r * t * aspect, u * t, [self.width, self.height, 0, 0]]).astype(np.float32)
+
+    def rays(self) -> tuple[np.ndarray, np.ndarray]:
+        """(H·W, 3) origins and unit directions in float64, row-major from the top-left pixel."""
+        f, r, u, t = self.basis()
+        x = (2 * (np.arange(self.width) + 0.5) / self.width - 1) * t * self.width / self.height
+        y = (1 - 2 * (np.arange(self.height) + 0.5) / self.height) * t
+        d = f[None, None] + x[None, :, None] * r + y[:, None, None] * u
+        d = d.reshape(-1, 3)
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        return np.broadcast_to(self.eye, d.shape).copy(), d
+
+
+@dataclass(eq=False)
+class DirectionalLight:
+    """A distant disk emitter: `direction` points towards it; `irradiance` (RGB) at normal incidence;
+    `angular_radius` in degrees (the sun is 0.27°)."""
+
+    direction: object = (0.0, 1.0, 0.0)
+    irradiance: object = 1.0
+    angular_radius: float = 2.0
+
+    def __post_init__(self):
+        self.direction = _unit("DirectionalLight.direction", self.direction)
+        self.irradiance = _rgb("DirectionalLight.irradiance", self.irradiance)
+        a = float(self.angular_radius)
+        if not (0 < a < 90):
+            raise ValueError(f"DirectionalLight.angular_radius must lie in (0, 90) degrees, "
+                             f"got {self.angular_radius!r}")
+        self.angular_radius = a
+
+    def packed(self) -> np.ndarray:
+        """(8,) [0 (directional), direction, irradiance, solid angle]."""
+        omega = np.pi * np.radians(self.angular_radius) ** 2
+        return np.array([0, *self.direction, *self.irradiance, omega], np.float32)
+
+
+@dataclass(eq=False)
+class PointLight:
+    """A small spherical emitter at `position` with `intensity` (RGB, W/sr) and `radius`."""
+
+    position: object = (0.0, 4.0, 0.0)
+    intensity: object = 10.0
+    radius: float = 0.05
+
+    def __post_init__(self):
+        self.position = _vec3("PointLight.position", self.position)
+        self.intensity = _rgb("PointLight.intensity", self.intensity)
+        r = float(self.radius)
+        if not (np.isfinite(r) and r > 0):
+            raise ValueError(f"PointLight.radius must be > 0, got {self.radius!r}")
+        self.radius = r
+
+    def packed(self) -> np.ndarray:
+        """(8,) [1 (point), position, intensity, radius]."""
+        return np.array([1, *self.position, *self.intensity, self.radius], np.float32)
+
+
+def light_sg(packed: np.ndarray, x: np.ndarray):
+    """The SG emitters of packed lights (L, 8) seen from points x (N, 3), in float64.
+
+    → axis (N, L, 3), sharpness (N, L), amplitude (N, L, 3), distance (N, L) (inf for directional).
+    η = 2π/Ω (Ω capped below at MIN_LIGHT_SOLID_ANGLE) and μ = E·η / (2π(1 − e^(−2η))) so ∫G = E.
+    """
+    packed = np.asarray(packed, np.float64).reshape(-1, 8)
+    x = np.asarray(x, np.float64).reshape(-1, 3)
+    n, n_l = len(x), len(packed)
+    axis = np.zeros((n, n_l, 3))
+    omega = np.zeros((n, n_l))
+    power = np.zeros((n, n_l, 3))
+    dist = np.full((n, n_l), np.inf)
+    for k, row in enumerate(packed):
+        if row[0] == 0:
+            axis[:, k] = row[1:4]
+            omega[:, k] = row[7]
+            power[:, k] = row[4:7]
+        else:
+            d = row[1:4][None] - x
+            dk = np.maximum(np.linalg.norm(d, axis=1), 1e-30)
+            axis[:, k] = d / dk[:, None]
+            omega[:, k] = np.pi * row[7] ** 2 / dk**2
+            power[:, k] = row[4:7][None] / dk[:, None] ** 2
+            dist[:, k] = dk
+    eta = 2 * np.pi / np.maximum(omega, MIN_LIGHT_SOLID_ANGLE)
+    amp = power * (eta / (2 * np.pi * -np.expm1(-2 * eta)))[..., None]
+    return axis, eta, amp, dist
