@@ -337,3 +337,30 @@ def light_sg(packed: np.ndarray, x: np.ndarray):
     eta = 2 * np.pi / np.maximum(omega, MIN_LIGHT_SOLID_ANGLE)
     amp = power * (eta / (2 * np.pi * -np.expm1(-2 * eta)))[..., None]
     return axis, eta, amp, dist
+
+
+def vertex_tangents(mesh: Mesh) -> np.ndarray:
+    """(V, 3) unit tangents ⟂ the vertex normals: the direction of increasing u of the UVs (Lengyel's
+    per-face dP/du accumulated over each vertex's faces), which orients an anisotropic effective BRDF's
+    tile x-axis on the surface. Where there are no UVs, or they are degenerate around a vertex, the
+    tangent is the normal's projection of a fixed world axis (x, or z where the normal is along x)."""
+    n = mesh.normals
+    acc = np.zeros_like(mesh.vertices)
+    if mesh.uvs is not None:
+        p = mesh.vertices[mesh.faces]
+        uv = mesh.uvs[mesh.faces]
+        e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+        d1, d2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+        det = d1[:, 0] * d2[:, 1] - d2[:, 0] * d1[:, 1]
+        ok = np.abs(det) > 1e-20
+        t = np.where(ok[:, None], (e1 * d2[:, 1:2] - e2 * d1[:, 1:2]) / np.where(ok, det, 1.0)[:, None], 0.0)
+        t *= np.linalg.norm(np.cross(e1, e2), axis=1)[:, None] / np.maximum(np.linalg.norm(t, axis=1), 1e-300)[:, None]
+        for k in range(3):
+            np.add.at(acc, mesh.faces[:, k], t)
+    acc -= n * np.einsum("ij,ij->i", acc, n)[:, None]
+    length = np.linalg.norm(acc, axis=1)
+    ref = np.where((np.abs(n[:, 0]) < 0.9)[:, None], np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]))
+    fallback = ref - n * np.einsum("ij,ij->i", ref, n)[:, None]
+    fallback /= np.linalg.norm(fallback, axis=1, keepdims=True)
+    big = length > 1e-8 * max(length.max(initial=0.0), 1e-300)
+    return np.where(big[:, None], acc / np.where(big, length, 1.0)[:, None], fallback)

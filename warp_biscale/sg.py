@@ -126,3 +126,112 @@ def specular_lobe(brdf, wi, wo):
     if isinstance(brdf, Ward):
         return 2.0 / brdf.alpha**2, ks[None, :] / (4.0 * np.pi * brdf.alpha**2 * cos_d)[:, None], h
     return None, np.zeros((len(wi), 3)), h
+
+
+# ---------------------------------------------------------------------------------------------------
+# Lighting integrals of one SG against a half-space, tabulated for the renderer (DESIGN §5, Wang §5.3)
+#
+# With c = ξ·m for the lobe axis ξ and a unit vector m:
+#   cosine_fraction(c, η)     = ∫ G(ω; ξ, η, 1)·max(ω·m, 0) dω / ∫G   (m the surface normal: the SG
+#                               times the clamped cosine, exact where Wang's one-lobe fit Eq. 40 is not)
+#   hemisphere_fraction(c, η) = ∫_{ω·m ≥ 0} G(ω; ξ, η, 1) dω / ∫G     (Wang's f_h(θd, λ)/f_h(π/2, λ),
+#                               Eq. 30–31, with c = sin θd: m is the normal of the reconstructed
+#                               visibility hemisphere, at angle π/2 − θd from the lobe axis)
+# Both are exact 1-D integrals over the polar angle θ about ξ of a closed-form azimuthal measure; the
+# renderer reads them from `lighting_table()` by bilinear interpolation in (log10 η, c).
+# ---------------------------------------------------------------------------------------------------
+
+TABLE_LOG10_ETA = (-4.0, 6.0)  # η from 1e-4 (a near-constant lobe: ambient light) to SHARPNESS_MAX
+TABLE_ROWS = 161  # 16 per decade of η: the fractions are smooth in log η
+TABLE_COLUMNS = 257  # over c in [-1, 1]; the step of a sharp lobe is smeared over 2/256 in c (0.45°)
+_GL_NODES = 48
+
+
+def _half_space_fractions(c, eta):
+    """(cosine_fraction, hemisphere_fraction) for arrays c, η of one shape, by Gauss–Legendre in
+    y = (1 − e^{−η(1−cos θ)})/(1 − e^{−2η}), which makes the SG weight uniform, on the pieces between
+    the kinks of the azimuthal measure (θ = |θd| and π − |θd|, θd = asin c)."""
+    c = np.clip(np.asarray(c, np.float64), -1.0, 1.0)
+    eta = np.asarray(eta, np.float64)
+    c, eta = np.broadcast_arrays(c, eta)
+    shape = c.shape
+    c, eta = c.reshape(-1), eta.reshape(-1)
+    s = np.sqrt(np.maximum(1.0 - c * c, 0.0))
+    a = -np.expm1(-2.0 * eta)  # 1 − e^{−2η}
+
+    def y_of_theta(theta):
+        return -np.expm1(-eta * (1.0 - np.cos(theta))) / a
+
+    td = np.abs(np.arcsin(c))
+    cuts = np.stack([np.zeros_like(c), y_of_theta(td), y_of_theta(np.pi - td), np.ones_like(c)], 1)
+    cuts = np.sort(np.clip(cuts, 0.0, 1.0), axis=1)
+    nodes, weights = np.polynomial.legendre.leggauss(_GL_NODES)
+    cos_total = np.zeros_like(c)
+    hemi_total = np.zeros_like(c)
+    for k in range(3):
+        lo, hi = cuts[:, k:k + 1], cuts[:, k + 1:k + 2]
+        y = lo + (hi - lo) * (nodes[None] + 1) / 2
+        w = (hi - lo) / 2 * weights[None]
+        q = np.maximum(1.0 - y, 0.0)
+        # 1 − cos θ = −log(1 − a·y)/η with 1 − a·y written as e^{−2η} + a·(1 − y): no log(0) for sharp lobes
+        x = np.minimum(-np.log(np.maximum(np.exp(-2.0 * eta)[:, None] + a[:, None] * q, 1e-300)) / eta[:, None], 2.0)
+        cos_t = 1.0 - x
+        sin_t = np.sqrt(np.maximum(x * (2.0 - x), 0.0))
+        big_a = c[:, None] * cos_t  # ω·m = A + B cos φ
+        big_b = s[:, None] * sin_t
+        ratio = np.where(big_b > 0, -big_a / np.where(big_b > 0, big_b, 1.0), np.where(big_a >= 0, -2.0, 2.0))
+        phi0 = np.arccos(np.clip(ratio, -1.0, 1.0))  # ω·m ≥ 0 for |φ| ≤ φ0
+        cos_measure = 2.0 * (big_a * phi0 + big_b * np.sin(phi0))
+        cos_total += np.sum(w * cos_measure, axis=1)
+        hemi_total += np.sum(w * 2.0 * phi0, axis=1)
+    return (np.maximum(cos_total / (2 * np.pi), 0.0).reshape(shape),
+            np.clip(hemi_total / (2 * np.pi), 0.0, 1.0).reshape(shape))
+
+
+def cosine_fraction(c, eta):
+    """∫ G(ω; ξ, η, 1)·max(ω·n, 0) dω / ∫G with c = ξ·n (exact quadrature, float64)."""
+    return _half_space_fractions(c, eta)[0]
+
+
+def hemisphere_fraction(c, eta):
+    """The fraction of an SG's integral on the side ω·m ≥ 0 of a great circle, c = ξ·m = sin θd
+    (exact quadrature, float64). 0.5 at c = 0; hemisphere_fraction(−c) = 1 − hemisphere_fraction(c)."""
+    return _half_space_fractions(c, eta)[1]
+
+
+def table_axes():
+    """(log10 η of the rows, c of the columns) of `lighting_table`."""
+    return (np.linspace(*TABLE_LOG10_ETA, TABLE_ROWS), np.linspace(-1.0, 1.0, TABLE_COLUMNS))
+
+
+_TABLE = None
+
+
+def lighting_table() -> np.ndarray:
+    """(2, TABLE_ROWS, TABLE_COLUMNS) float32: [0] cosine_fraction, [1] hemisphere_fraction on the grid
+    of `table_axes` (built once, ~0.1 s)."""
+    global _TABLE
+    if _TABLE is None:
+        log_eta, c = table_axes()
+        cc, ee = np.meshgrid(c, 10.0**log_eta)
+        cos_f, hemi_f = _half_space_fractions(cc, ee)
+        _TABLE = np.stack([cos_f, hemi_f]).astype(np.float32)
+        _TABLE.setflags(write=False)
+    return _TABLE
+
+
+def table_lookup(table, which: int, c, eta):
+    """Bilinear lookup of lighting_table()[which] at (c, η), float64: the semantics the shade kernels
+    implement (η clamped to the table's range, c to [−1, 1])."""
+    table = np.asarray(table, np.float64)[which]
+    rows, cols = table.shape
+    lo, hi = TABLE_LOG10_ETA
+    le = np.clip(np.log10(np.maximum(np.asarray(eta, np.float64), 1e-30)), lo, hi)
+    tr = (le - lo) / (hi - lo) * (rows - 1)
+    tc = (np.clip(np.asarray(c, np.float64), -1.0, 1.0) + 1.0) / 2.0 * (cols - 1)
+    r0 = np.minimum(np.floor(tr).astype(np.int64), rows - 2)
+    c0 = np.minimum(np.floor(tc).astype(np.int64), cols - 2)
+    fr = tr - r0
+    fc = tc - c0
+    return ((1 - fr) * ((1 - fc) * table[r0, c0] + fc * table[r0, c0 + 1])
+            + fr * ((1 - fc) * table[r0 + 1, c0] + fc * table[r0 + 1, c0 + 1]))
