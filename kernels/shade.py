@@ -1,0 +1,422 @@
+"""Per-pixel SG shading (Wang 2009 §7, Iwasaki 2012 §5): the shade stage.
+
+Twin of ``cl/shade.cl``; the mathematics and the packed inputs are ``warp_biscale.shading``
+(``shade_reference`` is the float64 oracle). One thread per pixel: it rebuilds the surface point
+from the G-buffer (face, barycentrics), sums the environment's SG lobes and each light's SG
+emitter against the diffuse part, then the warped specular lobes against the prefiltered
+environment and the lights, each lobe shadowed by the SSDF (environment) or the light's shadow ray.
+"""
+
+import warp as wp
+
+from warp_biscale import sg as _sg
+
+PI = wp.constant(3.14159265358979)
+LOG_LO = wp.constant(_sg.TABLE_LOG10_ETA[0])
+LOG_HI = wp.constant(_sg.TABLE_LOG10_ETA[1])
+SHARPNESS_MAX = wp.constant(_sg.SHARPNESS_MAX)
+MIN_COS_VIEW = wp.constant(1.0e-4)  # = shading.MIN_COS_VIEW
+
+vec4i = wp.vec4i
+
+
+@wp.func
+def sg_integral(eta: float) -> float:
+    """∫G = 2π(1 − e^{−2η})/η, with its series below η = 1e-3 (no cancellation)."""
+    if eta < 1.0e-3:
+        return 2.0 * PI * (2.0 - 2.0 * eta + 1.3333333 * eta * eta)
+    return 2.0 * PI * (1.0 - wp.exp(-2.0 * eta)) / eta
+
+
+@wp.func
+def table_lookup(table: wp.array3d(dtype=wp.float32), which: int, c: float, eta: float) -> float:
+    """Bilinear in (log10 η, c): sg.table_lookup."""
+    rows = table.shape[1]
+    cols = table.shape[2]
+    le = wp.clamp(wp.log(wp.max(eta, 1.0e-30)) * 0.4342944819, LOG_LO, LOG_HI)
+    tr = (le - LOG_LO) / (LOG_HI - LOG_LO) * float(rows - 1)
+    tc = (wp.clamp(c, -1.0, 1.0) + 1.0) * 0.5 * float(cols - 1)
+    r0 = wp.min(int(wp.floor(tr)), rows - 2)
+    c0 = wp.min(int(wp.floor(tc)), cols - 2)
+    fr = tr - float(r0)
+    fc = tc - float(c0)
+    top = (1.0 - fc) * table[which, r0, c0] + fc * table[which, r0, c0 + 1]
+    bottom = (1.0 - fc) * table[which, r0 + 1, c0] + fc * table[which, r0 + 1, c0 + 1]
+    return (1.0 - fr) * top + fr * bottom
+
+
+@wp.func
+def cosine_integral(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: float, n: wp.vec3) -> float:
+    """∫ G(ω; axis, η, 1)(n·ω)⁺ dω."""
+    return sg_integral(eta) * table_lookup(table, 0, wp.dot(axis, n), eta)
+
+
+@wp.func
+def beyond_horizon(table: wp.array3d(dtype=wp.float32), theta: float, axis: wp.vec3, eta: float, n: wp.vec3) -> float:
+    """The share of a lobe's horizon-clipped integral left visible by the SSDF's θd at its axis:
+    hemisphere_fraction(sin θd, η) / hemisphere_fraction(axis·n, η), clamped to [0, 1]."""
+    c = wp.sin(wp.clamp(theta, -0.5 * PI, 0.5 * PI))
+    vis = table_lookup(table, 1, c, eta) / wp.max(table_lookup(table, 1, wp.dot(axis, n), eta), 1.0e-6)
+    return wp.clamp(vis, 0.0, 1.0)
+
+
+@wp.func
+def equirect_bilinear(maps: wp.array(dtype=wp.vec3), offset: int, h: int, w: int, d: wp.vec3) -> wp.vec3:
+    """Bilinear lookup of one equirect level (environment.py's convention: wrap φ, clamp θ)."""
+    theta = wp.acos(wp.clamp(d[1], -1.0, 1.0))
+    phi = wp.atan2(d[2], d[0])
+    if phi < 0.0:
+        phi = phi + 2.0 * PI
+    row = theta * float(h) / PI - 0.5
+    col = phi * float(w) / (2.0 * PI) - 0.5
+    r0f = wp.floor(row)
+    c0f = wp.floor(col)
+    fr = row - r0f
+    fc = col - c0f
+    r0 = wp.clamp(int(r0f), 0, h - 1)
+    r1 = wp.clamp(int(r0f) + 1, 0, h - 1)
+    c0 = ((int(c0f) % w) + w) % w
+    c1 = (c0 + 1) % w
+    a = maps[offset + r0 * w + c0] * (1.0 - fc) + maps[offset + r0 * w + c1] * fc
+    b = maps[offset + r1 * w + c0] * (1.0 - fc) + maps[offset + r1 * w + c1] * fc
+    return a * (1.0 - fr) + b * fr
+
+
+@wp.func
+def prefiltered(maps: wp.array(dtype=wp.vec3), levels: wp.array2d(dtype=wp.float32), d: wp.vec3, eta: float) -> wp.vec3:
+    """Λ(d, η): linear in log2 η between the two nearest levels (reference.prefiltered_lookup)."""
+    n = levels.shape[0]
+    t = wp.clamp(wp.log2(wp.max(eta, 1.0e-30)) - levels[0, 0], 0.0, float(n - 1))
+    l0 = wp.max(wp.min(int(wp.floor(t)), n - 2), 0)
+    l1 = wp.min(l0 + 1, n - 1)
+    f = wp.clamp(t - float(l0), 0.0, 1.0)
+    a = equirect_bilinear(maps, int(levels[l0, 1]), int(levels[l0, 2]), int(levels[l0, 3]), d)
+    b = equirect_bilinear(maps, int(levels[l1, 1]), int(levels[l1, 2]), int(levels[l1, 3]), d)
+    return a * (1.0 - f) + b * f
+
+
+@wp.func
+def ssdf_theta(basis: wp.array2d(dtype=wp.float32), coeffs: wp.array2d(dtype=wp.float32), i0: int, i1: int, i2: int,
+               w0: float, w1: float, w2: float, res: int, d: wp.vec3) -> float:
+    """θd(d) from the PCA basis and the barycentric blend of three vertices' coefficients
+    (octahedral map, fold along z, bilinear clamped: reference.ssdf_eval)."""
+    s = wp.abs(d[0]) + wp.abs(d[1]) + wp.abs(d[2])
+    px = d[0] / s
+    py = d[1] / s
+    if d[2] < 0.0:
+        sx = 1.0
+        if px < 0.0:
+            sx = -1.0
+        sy = 1.0
+        if py < 0.0:
+            sy = -1.0
+        qx = (1.0 - wp.abs(py)) * sx
+        qy = (1.0 - wp.abs(px)) * sy
+        px = qx
+        py = qy
+    x = wp.clamp((px + 1.0) * 0.5 * float(res) - 0.5, 0.0, float(res - 1))
+    y = wp.clamp((py + 1.0) * 0.5 * float(res) - 0.5, 0.0, float(res - 1))
+    x0 = wp.min(int(wp.floor(x)), res - 1)
+    y0 = wp.min(int(wp.floor(y)), res - 1)
+    x1 = wp.min(x0 + 1, res - 1)
+    y1 = wp.min(y0 + 1, res - 1)
+    fx = x - float(x0)
+    fy = y - float(y0)
+    k00 = y0 * res + x0
+    k10 = y0 * res + x1
+    k01 = y1 * res + x0
+    k11 = y1 * res + x1
+    theta = float(0.0)
+    for r in range(basis.shape[0]):
+        c = float(1.0)
+        if r > 0:
+            c = w0 * coeffs[i0, r - 1] + w1 * coeffs[i1, r - 1] + w2 * coeffs[i2, r - 1]
+        v = ((1.0 - fx) * (1.0 - fy) * basis[r, k00] + fx * (1.0 - fy) * basis[r, k10]
+             + (1.0 - fx) * fy * basis[r, k01] + fx * fy * basis[r, k11])
+        theta = theta + c * v
+    return theta
+
+
+@wp.func
+def concentric_uv(w: wp.vec3) -> wp.vec2:
+    """directions.hemisphere_to_square (z clamped to [0, 1])."""
+    z = wp.clamp(w[2], 0.0, 1.0)
+    r = wp.sqrt(1.0 - z)
+    phi = wp.atan2(w[1], w[0])
+    if phi < -0.25 * PI:
+        phi = phi + 2.0 * PI
+    q = 0.25 * PI
+    a = float(0.0)
+    b = float(0.0)
+    if phi < q:
+        a = r
+        b = phi * a / q
+    elif phi < 3.0 * q:
+        b = r
+        a = -(phi - 0.5 * PI) * b / q
+    elif phi < 5.0 * q:
+        a = -r
+        b = (phi - PI) * a / q
+    else:
+        b = -r
+        a = -(phi - 1.5 * PI) * b / q
+    return wp.vec2((a + 1.0) * 0.5, (b + 1.0) * 0.5)
+
+
+@wp.func
+def grid_corners(w: wp.vec3, k: int) -> vec4i:
+    """The four K×K grid indices around w (directions.bilinear_corners' order)."""
+    uv = concentric_uv(w)
+    x = wp.clamp(uv[0] * float(k) - 0.5, 0.0, float(k - 1))
+    y = wp.clamp(uv[1] * float(k) - 0.5, 0.0, float(k - 1))
+    x0 = wp.min(int(wp.floor(x)), k - 1)
+    y0 = wp.min(int(wp.floor(y)), k - 1)
+    x1 = wp.min(x0 + 1, k - 1)
+    y1 = wp.min(y0 + 1, k - 1)
+    return vec4i(y0 * k + x0, y0 * k + x1, y1 * k + x0, y1 * k + x1)
+
+
+@wp.func
+def grid_weights(w: wp.vec3, k: int) -> wp.vec4:
+    uv = concentric_uv(w)
+    x = wp.clamp(uv[0] * float(k) - 0.5, 0.0, float(k - 1))
+    y = wp.clamp(uv[1] * float(k) - 0.5, 0.0, float(k - 1))
+    tx = x - float(wp.min(int(wp.floor(x)), k - 1))
+    ty = y - float(wp.min(int(wp.floor(y)), k - 1))
+    return wp.vec4((1.0 - tx) * (1.0 - ty), tx * (1.0 - ty), (1.0 - tx) * ty, tx * ty)
+
+
+@wp.func
+def table_rgb(table: wp.array(dtype=wp.float32), base: int, k2: int, j_count: int, j: int, wi_local: wp.vec3, k: int,
+              oo: vec4i, ow: wp.vec4) -> wp.vec3:
+    """Bilinear (ωi) × bilinear (ωo) lookup of a (K², K², J, 3) table at lobe j."""
+    ii = grid_corners(wi_local, k)
+    iw = grid_weights(wi_local, k)
+    out = wp.vec3(0.0)
+    for a in range(4):
+        for b in range(4):
+            idx = base + ((ii[a] * k2 + oo[b]) * j_count + j) * 3
+            wgt = iw[a] * ow[b]
+            out = out + wgt * wp.vec3(table[idx], table[idx + 1], table[idx + 2])
+    return out
+
+
+@wp.func
+def specular_scale(row: wp.array2d(dtype=wp.float32), m: int, cos_d_in: float) -> wp.vec3:
+    """M of an analytic row at cos θd (shading.specular_scale)."""
+    kind = int(row[m, 0])
+    ks = wp.vec3(row[m, 4], row[m, 5], row[m, 6])
+    p1 = row[m, 7]
+    p2 = row[m, 8]
+    cos_d = wp.clamp(cos_d_in, MIN_COS_VIEW, 1.0)
+    if kind == 1:
+        return ks * ((p1 + 2.0) / (2.0 * PI))
+    if kind == 2:
+        e = 1.0 - cos_d
+        fres = p2 + (1.0 - p2) * e * e * e * e * e
+        return ks * (fres / (PI * cos_d * cos_d))
+    if kind == 3:
+        return ks / (4.0 * PI * p1 * p1 * cos_d)
+    return wp.vec3(0.0)
+
+
+@wp.func
+def ndf_sharpness(row: wp.array2d(dtype=wp.float32), m: int) -> float:
+    kind = int(row[m, 0])
+    if kind == 1:
+        return row[m, 7]
+    return 2.0 / (row[m, 7] * row[m, 7])
+
+
+@wp.func
+def light_axis(lights: wp.array2d(dtype=wp.float32), l: int, pos: wp.vec3) -> wp.vec3:
+    if lights[l, 0] == 0.0:
+        return wp.vec3(lights[l, 1], lights[l, 2], lights[l, 3])
+    return wp.normalize(wp.vec3(lights[l, 1], lights[l, 2], lights[l, 3]) - pos)
+
+
+@wp.func
+def light_sharpness(lights: wp.array2d(dtype=wp.float32), l: int, pos: wp.vec3) -> float:
+    """η = 2π/Ω (scene.light_sg)."""
+    omega = lights[l, 7]
+    if lights[l, 0] != 0.0:
+        d = wp.length(wp.vec3(lights[l, 1], lights[l, 2], lights[l, 3]) - pos)
+        omega = PI * lights[l, 7] * lights[l, 7] / wp.max(d * d, 1.0e-30)
+    return 2.0 * PI / wp.max(omega, 1.0e-6)
+
+
+@wp.func
+def light_amplitude(lights: wp.array2d(dtype=wp.float32), l: int, pos: wp.vec3, eta: float) -> wp.vec3:
+    """μ with ∫G = the irradiance at normal incidence."""
+    power = wp.vec3(lights[l, 4], lights[l, 5], lights[l, 6])
+    if lights[l, 0] != 0.0:
+        d = wp.length(wp.vec3(lights[l, 1], lights[l, 2], lights[l, 3]) - pos)
+        power = power / wp.max(d * d, 1.0e-30)
+    return power / sg_integral(eta)
+
+
+@wp.func
+def product_integral(table: wp.array3d(dtype=wp.float32), a1: wp.vec3, e1: float, a2: wp.vec3, e2: float,
+                     n: wp.vec3) -> float:
+    """∫ G(a1, e1)·G(a2, e2)·(n·ω)⁺: the product SG (sg.product) against the clamped cosine."""
+    v = e1 * a1 + e2 * a2
+    s = a1 + a2
+    d = wp.sqrt(wp.max((e1 - e2) * (e1 - e2) + e1 * e2 * wp.dot(s, s), 0.0))
+    diff = a1 - a2
+    gap = e1 * e2 * wp.dot(diff, diff) / (e1 + e2 + d)
+    axis = wp.vec3(0.0, 0.0, 1.0)
+    if wp.length(v) > 0.0:
+        axis = wp.normalize(v)
+    return wp.exp(-gap) * cosine_integral(table, axis, d, n)
+
+
+@wp.kernel
+def shade_pixels(
+    face: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec2), light_vis: wp.array2d(dtype=wp.uint8),
+    faces: wp.array2d(dtype=wp.int32), positions: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp.vec3),
+    tangents: wp.array(dtype=wp.vec3), face_material: wp.array(dtype=wp.int32),
+    camera: wp.array(dtype=wp.float32),
+    n_lights: int, lights: wp.array2d(dtype=wp.float32),
+    n_env: int, env_sgs: wp.array2d(dtype=wp.float32),
+    env_maps: wp.array(dtype=wp.vec3), env_levels: wp.array2d(dtype=wp.float32),
+    has_ssdf: int, ssdf_res: int, ssdf_basis: wp.array2d(dtype=wp.float32), ssdf_coeffs: wp.array2d(dtype=wp.float32),
+    table: wp.array3d(dtype=wp.float32),
+    mat_info: wp.array2d(dtype=wp.int32), analytic: wp.array2d(dtype=wp.float32),
+    eff_info: wp.array2d(dtype=wp.int32), eff_lobes: wp.array2d(dtype=wp.float32),
+    eff_sub: wp.array2d(dtype=wp.float32), eff_tables: wp.array(dtype=wp.float32),
+    eff_diffuse: wp.array(dtype=wp.float32),
+    n_pixels: int, offset: int,
+    radiance: wp.array(dtype=wp.vec3),
+):
+    p = wp.tid() + offset
+    if p >= n_pixels:
+        return
+    eye = wp.vec3(camera[0], camera[1], camera[2])
+    f = face[p]
+    if f < 0:
+        width = int(camera[12])
+        x = float(p % width)
+        y = float(p // width)
+        d = wp.normalize(wp.vec3(camera[3], camera[4], camera[5])
+                         + (2.0 * (x + 0.5) / camera[12] - 1.0) * wp.vec3(camera[6], camera[7], camera[8])
+                         + (1.0 - 2.0 * (y + 0.5) / camera[13]) * wp.vec3(camera[9], camera[10], camera[11]))
+        radiance[p] = prefiltered(env_maps, env_levels, d, 1.0e30)
+        return
+    i0 = faces[f, 0]
+    i1 = faces[f, 1]
+    i2 = faces[f, 2]
+    w1 = bary[p][0]
+    w2 = bary[p][1]
+    w0 = 1.0 - w1 - w2
+    pos = w0 * positions[i0] + w1 * positions[i1] + w2 * positions[i2]
+    n = wp.normalize(w0 * normals[i0] + w1 * normals[i1] + w2 * normals[i2])
+    t = w0 * tangents[i0] + w1 * tangents[i1] + w2 * tangents[i2]
+    t = t - wp.dot(t, n) * n
+    if wp.length(t) < 1.0e-12:
+        ref = wp.vec3(0.0, 0.0, 1.0)
+        if wp.abs(n[0]) < 0.9:
+            ref = wp.vec3(1.0, 0.0, 0.0)
+        t = ref - wp.dot(ref, n) * n
+    t = wp.normalize(t)
+    b = wp.cross(n, t)
+    wo = wp.normalize(eye - pos)
+    cos_o = wp.max(wp.dot(wo, n), MIN_COS_VIEW)
+    wo_local = wp.normalize(wp.vec3(wp.dot(wo, t), wp.dot(wo, b), cos_o))
+
+    mat = face_material[f]
+    kind = mat_info[mat, 0]
+    idx = mat_info[mat, 1]
+    has_spec = mat_info[mat, 2]
+    k = int(0)
+    k2 = int(0)
+    j_count = int(0)
+    oo = vec4i(0, 0, 0, 0)
+    ow = wp.vec4(0.0)
+    kd = wp.vec3(0.0)
+    if kind == 0:
+        kd = wp.vec3(analytic[idx, 1], analytic[idx, 2], analytic[idx, 3]) / PI
+    else:
+        k = eff_info[idx, 0]
+        k2 = k * k
+        j_count = eff_info[idx, 1]
+        oo = grid_corners(wo_local, k)
+        ow = grid_weights(wo_local, k)
+    out = wp.vec3(0.0)
+
+    # Diffuse: environment lobes (SSDF-shadowed), then lights (shadow rays).
+    for e in range(n_env):
+        axis = wp.vec3(env_sgs[e, 0], env_sgs[e, 1], env_sgs[e, 2])
+        eta = env_sgs[e, 3]
+        amount = cosine_integral(table, axis, eta, n)
+        if has_ssdf != 0:
+            theta = ssdf_theta(ssdf_basis, ssdf_coeffs, i0, i1, i2, w0, w1, w2, ssdf_res, axis)
+            amount = amount * beyond_horizon(table, theta, axis, eta, n)
+        fd = kd
+        if kind != 0:
+            al = wp.vec3(wp.dot(axis, t), wp.dot(axis, b), wp.dot(axis, n))
+            fd = table_rgb(eff_diffuse, eff_info[idx, 6], k2, 1, 0, al, k, oo, ow)
+        out = out + wp.cw_mul(fd, wp.vec3(env_sgs[e, 4], env_sgs[e, 5], env_sgs[e, 6])) * amount
+    for l in range(n_lights):
+        if light_vis[p, l] == wp.uint8(0):
+            continue
+        axis = light_axis(lights, l, pos)
+        eta = light_sharpness(lights, l, pos)
+        fd = kd
+        if kind != 0:
+            al = wp.vec3(wp.dot(axis, t), wp.dot(axis, b), wp.dot(axis, n))
+            fd = table_rgb(eff_diffuse, eff_info[idx, 6], k2, 1, 0, al, k, oo, ow)
+        out = out + wp.cw_mul(fd, light_amplitude(lights, l, pos, eta)) * cosine_integral(table, axis, eta, n)
+
+    # Specular: each warped lobe against the prefiltered environment and each light.
+    if has_spec != 0:
+        n_sub = 1
+        n_lobes = 1
+        if kind != 0:
+            n_sub = eff_info[idx, 2]
+            n_lobes = j_count
+        for s in range(n_sub):
+            for j in range(n_lobes):
+                axis = wp.vec3(0.0)
+                eta = float(0.0)
+                amp = wp.vec3(0.0)
+                if kind == 0:
+                    amp = specular_scale(analytic, idx, cos_o)
+                    axis = wp.normalize(2.0 * cos_o * n - wo)
+                    eta = ndf_sharpness(analytic, idx) / (4.0 * cos_o)
+                else:
+                    sub = eff_info[idx, 4] + s
+                    lobe = eff_info[idx, 3] + j
+                    xi = eff_lobes[lobe, 0] * t + eff_lobes[lobe, 1] * b + eff_lobes[lobe, 2] * n
+                    c_oj = wp.dot(wo, xi)
+                    if c_oj <= 0.0:
+                        continue
+                    scale = specular_scale(eff_sub, sub, c_oj)
+                    if scale[0] + scale[1] + scale[2] <= 0.0:
+                        continue
+                    eta_j = eff_lobes[lobe, 3]
+                    eta_s = ndf_sharpness(eff_sub, sub)
+                    axis = wp.normalize(2.0 * c_oj * xi - wo)
+                    al = wp.vec3(wp.dot(axis, t), wp.dot(axis, b), wp.dot(axis, n))
+                    base = eff_info[idx, 5] + s * k2 * k2 * j_count * 3
+                    mu = table_rgb(eff_tables, base, k2, j_count, j, al, k, oo, ow)
+                    amp = wp.cw_mul(scale, mu) * (2.0 * PI / (eta_j + eta_s))
+                    eta = 1.0 / (1.0 / eta_j + 1.0 / eta_s) / (4.0 * wp.max(c_oj, MIN_COS_VIEW))
+                eta = wp.min(eta, SHARPNESS_MAX)
+                amount = cosine_integral(table, axis, eta, n)
+                if has_ssdf != 0:
+                    theta = ssdf_theta(ssdf_basis, ssdf_coeffs, i0, i1, i2, w0, w1, w2, ssdf_res, axis)
+                    amount = amount * beyond_horizon(table, theta, axis, eta, n)
+                out = out + wp.cw_mul(amp, prefiltered(env_maps, env_levels, axis, eta)) * amount
+                for l in range(n_lights):
+                    if light_vis[p, l] == wp.uint8(0):
+                        continue
+                    la = light_axis(lights, l, pos)
+                    le = light_sharpness(lights, l, pos)
+                    out = out + wp.cw_mul(amp, light_amplitude(lights, l, pos, le)) * product_integral(
+                        table, axis, eta, la, le, n)
+    # Never NaN, inf or negative (a degenerate normal, say, must not poison the image).
+    for c in range(3):
+        v = out[c]
+        if not (v >= 0.0 and v < 3.0e38):
+            out[c] = 0.0
+    radiance[p] = out
