@@ -7,6 +7,11 @@
     gt.eval(wi, wo); gt.save("t.npz"); wb.load("t.npz")
     mat = wb.bake(tile, [wb.BlinnPhong(1.0, 512)], lobes=8, directions=12, facets=2**16)
     mat.eval(wi, wo); mat.save("m.wbm"); mat.timings; wb.compare(mat, gt)
+
+    scene = wb.Scene(wb.Mesh.sphere(), [mat], wb.Camera(eye=(0, 0, 4)), wb.Environment.sky(),
+                     [wb.PointLight((2, 3, 2), 20.0)])
+    img = wb.render(scene, method="sg"); img.save("out.png"); img.timings
+    ref = wb.render(scene, method="mc", samples=1024); wb.compare_images(img.image, ref.image)
 """
 
 from . import directions, geometry, lobes, reference, sg
@@ -14,7 +19,11 @@ from .bake import Bvndf, bake
 from .backend import Backend, backends, get_backend
 from .brdf import BlinnPhong, CookTorrance, Lambert, Ward
 from .effective import EffectiveBRDF, compare
+from .environment import Environment
+from .images import compare_images, read_image, write_image
 from .io import load
+from .render import Rendering, Scene, render
+from .scene import Camera, DirectionalLight, Mesh, PointLight
 from .model import Facets, Visibility
 from .smallscale import SmallScale, TileWarning
 from .truth import GroundTruth, effective_brdf_exact, ground_truth
@@ -22,8 +31,10 @@ from .truth import GroundTruth, effective_brdf_exact, ground_truth
 __version__ = "0.1.0"
 
 __all__ = [
-    "Backend", "BlinnPhong", "Bvndf", "CookTorrance", "EffectiveBRDF", "Facets", "GroundTruth", "Lambert",
-    "SmallScale", "TileWarning", "Visibility", "Ward", "backends", "bake", "compare", "directions",
-    "effective_brdf_exact", "geometry", "get_backend", "ground_truth", "load", "lobes", "reference", "sg",
+    "Backend", "BlinnPhong", "Bvndf", "Camera", "CookTorrance", "DirectionalLight", "EffectiveBRDF", "Environment",
+    "Facets", "GroundTruth", "Lambert", "Mesh", "PointLight", "Rendering", "Scene", "SmallScale", "TileWarning",
+    "Visibility", "Ward", "backends", "bake", "compare", "compare_images", "directions", "effective_brdf_exact",
+    "geometry", "get_backend", "ground_truth", "load", "lobes", "read_image", "reference", "render", "sg",
+    "write_image",
 ]
 
