@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import warp_biscale as wb
-from warp_biscale import render as rmod
+from warp_biscale.render import Scene, pack_frame
 from warp_biscale.environment import Environment
 from warp_biscale.scene import Camera, DirectionalLight, Mesh, PointLight
 from warp_biscale.shading import shade_reference
@@ -30,7 +30,7 @@ def effective_material():
 
 def _scenes(effective):
     env = _sg_environment()
-    lone = rmod.Scene(
+    lone = Scene(
         Mesh.sphere(radius=1.0, subdivisions=3),
         [wb.BlinnPhong(0.5, 150, kd=(0.5, 0.3, 0.2))],
         Camera(eye=(0.3, 0.4, 3.2), width=40, height=32, fov=45),
@@ -38,7 +38,7 @@ def _scenes(effective):
     sphere = Mesh.sphere(radius=0.6, center=(0.0, 0.6, 0.0), subdivisions=3, material=0)
     torus = Mesh.torus(0.5, 0.18, center=(1.1, 0.2, 0.0), segments=(32, 16), material=1)
     floor = Mesh.plane(size=4.0, height=0.0, divisions=12, material=2)
-    occluded = rmod.Scene(
+    occluded = Scene(
         Mesh.merge([sphere, torus, floor]),
         [wb.CookTorrance(0.6, 0.25, kd=0.3), wb.Ward(0.4, 0.15, kd=(0.2, 0.4, 0.3)), effective],
         Camera(eye=(0.0, 2.2, 3.5), target=(0.2, 0.3, 0.0), width=40, height=32, fov=50),
@@ -49,7 +49,7 @@ def _scenes(effective):
 @pytest.mark.parametrize("which", ["lone", "occluded"])
 def test_shade_kernel_matches_reference(backend, which, effective_material):
     scene = _scenes(effective_material)[which]
-    frame = rmod.pack_frame(scene, backend)
+    frame = pack_frame(scene, backend)
     assert bool(frame["has_ssdf"]) == (which == "occluded")  # the lone convex sphere needs no SSDF
     ref = shade_reference(frame)
     out = backend.shade(scene.mesh, frame, frame["camera"], frame["lights"],
@@ -69,7 +69,7 @@ def test_shade_kernel_matches_reference(backend, which, effective_material):
 def test_shade_uses_device_gbuffer(backend, effective_material):
     """The render path: G-buffer and shadows left on the device by trace_primary/trace_shadows."""
     scene = _scenes(effective_material)["occluded"]
-    frame = rmod.pack_frame(scene, backend)
+    frame = pack_frame(scene, backend)
     host = backend.shade(scene.mesh, frame, frame["camera"], frame["lights"],
                          gbuffer={"face": frame["face"], "bary": frame["bary"], "light_vis": frame["light_vis"]})
     backend.trace_primary(scene.mesh, scene.camera, to_host=False)
