@@ -108,3 +108,215 @@ CL_INLINE float3 brdf_cosine_weighted(int kind, __global const float *params, in
 __constant int DE_BRUIJN_32[32] = {0,  1,  28, 2,  29, 14, 24, 3, 30, 22, 20, 15, 25, 17, 4,  8,
                                    31, 27, 13, 23, 21, 19, 16, 7, 26, 12, 18, 6,  11, 5,  10, 9};
 CL_INLINE int lowest_bit(uint m) { return DE_BRUIJN_32[((m & (0u - m)) * 0x077CB531u) >> 27]; }
+
+/* ============================================================================================
+ * Ray casting against a triangle mesh through a BVH: shared by cl/visibility.cl (any-hit on the
+ * small-scale tile) and cl/trace.cl (closest and any hit on the large-scale mesh), so both walk
+ * one traversal.
+ *
+ * Triangles: `tris` (F, 9) floats [a, b - a, c - a] in BVH slot order (warp_biscale.bvh), the
+ * edges computed in float32 on the host exactly as kernels/visibility.py's hit_any_triangle
+ * computes them. BVH nodes: `nodes` (N, 8) floats, [min xyz, max xyz, child0, child1] with the
+ * two child words int32 bit patterns: inner (left, right), leaf (first slot, -count). A slot maps
+ * back to its original face through Bvh.tri_index (uploaded by the backend where needed).
+ * ============================================================================================ */
+
+#define BVH_STACK 64 /* = warp_biscale.bvh.STACK_SIZE; the builder guarantees depth <= this */
+
+/* Möller–Trumbore, double-sided, exactly the acceptance test of kernels/visibility.py's hit_any_triangle:
+ * det != 0, u >= 0, v >= 0, u + v <= 1, t_lo < t <= t_hi, every quantity computed with the same
+ * operations in the same order (p = d × e2, det = p·e1, tv = o − a, q = tv × e1, ...). The early
+ * out on u outside [0, 1] never changes the outcome: u + v <= 1 with v >= 0 implies u <= 1 in
+ * rounded arithmetic too. */
+CL_INLINE int hit_triangle(__global const float *tri, float3 o, float3 d, float t_lo, float t_hi)
+{
+    float ax = tri[0], ay = tri[1], az = tri[2];
+    float e1x = tri[3], e1y = tri[4], e1z = tri[5];
+    float e2x = tri[6], e2y = tri[7], e2z = tri[8];
+    float px = d.y * e2z - d.z * e2y, py = d.z * e2x - d.x * e2z, pz = d.x * e2y - d.y * e2x;
+    float det = px * e1x + py * e1y + pz * e1z;
+    if (det == 0.0f)
+        return 0;
+    float inv = 1.0f / det;
+    float tx = o.x - ax, ty = o.y - ay, tz = o.z - az;
+    float u = (tx * px + ty * py + tz * pz) * inv;
+    if (u < 0.0f || u > 1.0f)
+        return 0;
+    float qx = ty * e1z - tz * e1y, qy = tz * e1x - tx * e1z, qz = tx * e1y - ty * e1x;
+    float v = (d.x * qx + d.y * qy + d.z * qz) * inv;
+    float t = (e2x * qx + e2y * qy + e2z * qz) * inv;
+    return (v >= 0.0f && u + v <= 1.0f && t > t_lo && t <= t_hi) ? 1 : 0;
+}
+
+/* Brute force: 1 if any triangle is hit with t in (t_lo, t_hi]. */
+CL_INLINE int hit_any_triangle(__global const float *tris, int n_tris, float3 o, float3 d, float t_lo, float t_hi)
+{
+    for (int f = 0; f < n_tris; ++f)
+        if (hit_triangle(tris + 9 * f, o, d, t_lo, t_hi))
+            return 1;
+    return 0;
+}
+
+/* Slab test against a node's box over [t_lo, t_hi]; inv = 1/d with |d| >= 1e-20 per axis (see
+ * safe_inverse), so no 0·inf appears. Boxes are padded on the host, so inclusive comparisons and
+ * float32 rounding here can only admit a box, never lose one that holds an accepted hit. */
+CL_INLINE int hit_box(__global const float *node, float3 o, float3 inv, float t_lo, float t_hi, float *t_enter)
+{
+    float tx0 = (node[0] - o.x) * inv.x, tx1 = (node[3] - o.x) * inv.x;
+    float ty0 = (node[1] - o.y) * inv.y, ty1 = (node[4] - o.y) * inv.y;
+    float tz0 = (node[2] - o.z) * inv.z, tz1 = (node[5] - o.z) * inv.z;
+    float tmin = maxf(maxf(minf(tx0, tx1), minf(ty0, ty1)), maxf(minf(tz0, tz1), t_lo));
+    float tmax = minf(minf(maxf(tx0, tx1), maxf(ty0, ty1)), minf(maxf(tz0, tz1), t_hi));
+    *t_enter = tmin;
+    return tmin <= tmax;
+}
+
+/* 1/x with x pushed away from zero to ±1e-20 (as Warp's mesh queries do for a zero component). */
+CL_INLINE float safe_inverse(float x)
+{
+    return 1.0f / (x >= 0.0f ? maxf(x, 1.0e-20f) : minf(x, -1.0e-20f));
+}
+
+/* BVH any-hit: 1 if any triangle is hit with t in (t_lo, t_hi], the same test as the brute force.
+ * Both children's boxes are tested at an inner node; the nearer hit one is walked first and the
+ * other pushed on a small stack. */
+CL_INLINE int bvh_any_hit(__global const float *nodes, __global const float *tris, float3 o, float3 d,
+                          float t_lo, float t_hi)
+{
+    float3 inv = (float3)(safe_inverse(d.x), safe_inverse(d.y), safe_inverse(d.z));
+    float t0, t1;
+    if (!hit_box(nodes, o, inv, t_lo, t_hi, &t0))
+        return 0;
+    int stack[BVH_STACK];
+    int sp = 0;
+    int cur = 0;
+    while (1) {
+        __global const float *node = nodes + 8 * cur;
+        int a = as_int(node[6]);
+        int b = as_int(node[7]);
+        if (b < 0) {
+            for (int i = a; i < a - b; ++i)
+                if (hit_triangle(tris + 9 * i, o, d, t_lo, t_hi))
+                    return 1;
+            if (sp == 0)
+                return 0;
+            cur = stack[--sp];
+            continue;
+        }
+        int h0 = hit_box(nodes + 8 * a, o, inv, t_lo, t_hi, &t0);
+        int h1 = hit_box(nodes + 8 * b, o, inv, t_lo, t_hi, &t1);
+        if (h0 && h1) {
+            if (t1 < t0) {
+                stack[sp++] = a;
+                cur = b;
+            } else {
+                stack[sp++] = b;
+                cur = a;
+            }
+        } else if (h0) {
+            cur = a;
+        } else if (h1) {
+            cur = b;
+        } else {
+            if (sp == 0)
+                return 0;
+            cur = stack[--sp];
+        }
+    }
+}
+
+/* Möller–Trumbore for the closest hit: the operations of hit_triangle (so a ray both accept is
+ * the same hit), also returning t and the barycentric weights u (of vertex b) and v (of vertex c)
+ * of a hit with t in (t_lo, t_hi]; vertex a gets 1 - u - v. */
+CL_INLINE int intersect_triangle(__global const float *tri, float3 o, float3 d, float t_lo, float t_hi,
+                                 float *t_out, float *u_out, float *v_out)
+{
+    float ax = tri[0], ay = tri[1], az = tri[2];
+    float e1x = tri[3], e1y = tri[4], e1z = tri[5];
+    float e2x = tri[6], e2y = tri[7], e2z = tri[8];
+    float px = d.y * e2z - d.z * e2y, py = d.z * e2x - d.x * e2z, pz = d.x * e2y - d.y * e2x;
+    float det = px * e1x + py * e1y + pz * e1z;
+    if (det == 0.0f)
+        return 0;
+    float inv = 1.0f / det;
+    float tx = o.x - ax, ty = o.y - ay, tz = o.z - az;
+    float u = (tx * px + ty * py + tz * pz) * inv;
+    if (u < 0.0f || u > 1.0f)
+        return 0;
+    float qx = ty * e1z - tz * e1y, qy = tz * e1x - tx * e1z, qz = tx * e1y - ty * e1x;
+    float v = (d.x * qx + d.y * qy + d.z * qz) * inv;
+    float t = (e2x * qx + e2y * qy + e2z * qz) * inv;
+    if (!(v >= 0.0f && u + v <= 1.0f && t > t_lo && t <= t_hi))
+        return 0;
+    *t_out = t;
+    *u_out = u;
+    *v_out = v;
+    return 1;
+}
+
+/* BVH closest hit: the slot of the nearest triangle hit with t in (t_lo, t_hi], or -1, with its t
+ * and barycentric (u, v). The walk of bvh_any_hit, except that the far bound shrinks to the
+ * nearest hit so far: boxes entered beyond it are skipped, also when popped (the stack keeps each
+ * node's entry distance, since the bound may have shrunk since it was pushed). A ray through an
+ * edge shared by two triangles hits both at one t; the first found is kept. */
+CL_INLINE int bvh_closest_hit(__global const float *nodes, __global const float *tris, float3 o, float3 d,
+                              float t_lo, float t_hi, float *t_hit, float *u_hit, float *v_hit)
+{
+    float3 inv = (float3)(safe_inverse(d.x), safe_inverse(d.y), safe_inverse(d.z));
+    float best = t_hi, best_u = 0.0f, best_v = 0.0f;
+    int slot = -1;
+    float t0, t1;
+    if (!hit_box(nodes, o, inv, t_lo, best, &t0))
+        return -1;
+    int stack[BVH_STACK];
+    float stack_t[BVH_STACK];
+    int sp = 0;
+    int cur = 0;
+    while (1) {
+        __global const float *node = nodes + 8 * cur;
+        int a = as_int(node[6]);
+        int b = as_int(node[7]);
+        int descend = 0;
+        if (b < 0) {
+            for (int i = a; i < a - b; ++i) {
+                float t, u, v;
+                if (intersect_triangle(tris + 9 * i, o, d, t_lo, best, &t, &u, &v) && (slot < 0 || t < best)) {
+                    best = t;
+                    best_u = u;
+                    best_v = v;
+                    slot = i;
+                }
+            }
+        } else {
+            int h0 = hit_box(nodes + 8 * a, o, inv, t_lo, best, &t0);
+            int h1 = hit_box(nodes + 8 * b, o, inv, t_lo, best, &t1);
+            if (h0 && h1) {
+                if (t1 < t0) {
+                    stack_t[sp] = t0;
+                    stack[sp++] = a;
+                    cur = b;
+                } else {
+                    stack_t[sp] = t1;
+                    stack[sp++] = b;
+                    cur = a;
+                }
+                descend = 1;
+            } else if (h0 || h1) {
+                cur = h0 ? a : b;
+                descend = 1;
+            }
+        }
+        if (!descend) {
+            /* Pop the next node still in front of the nearest hit. */
+            while (sp > 0 && stack_t[sp - 1] > best)
+                --sp;
+            if (sp == 0)
+                break;
+            cur = stack[--sp];
+        }
+    }
+    *t_hit = best;
+    *u_hit = best_u;
+    *v_hit = best_v;
+    return slot;
+}

@@ -44,6 +44,45 @@ class Backend(Protocol):
                        pair_i: np.ndarray, pair_o: np.ndarray, a_v: np.ndarray) -> np.ndarray:
         """(P, 3) float32 f̄ for direction index pairs into vis.directions (reference.effective_brdf)."""
 
+    # --- Ray casting against the large-scale mesh (stage `trace`: kernels/trace.py, cl/trace.cl) ---
+    # The backend keeps the mesh on the device in mesh.device_cache[backend.name], a dict, built once
+    # per mesh (rebuilt if mesh.vertices or mesh.faces is replaced). Keys, Warp | OpenCL:
+    #   "points" (V,) wp.vec3 | V·3 float32 Buffer          vertex positions (float32)
+    #   "faces" (F, 3) wp.int32 | F·3 int32                  vertex indices
+    #   "normals" (V,) wp.vec3 | V·3 float32                 Mesh.normals (shading normals)
+    #   "face_normals" (F,) wp.vec3 | F·3 float32            unit geometric normals (Mesh.face_normals)
+    #   "mesh" wp.Mesh (SAH, 2 a leaf) | "bvh" Bvh, "nodes" N·8 float32, "tris" F·9 float32 (slot order),
+    #          "tri_index" F int32 (slot → face)             the BVH
+    # and, after trace_primary / trace_shadows, the G-buffer of the last frame (P = W·H pixels, row y·W + x):
+    #   "gbuffer_face" (P,) wp.int32 | P int32               closest face, −1 = miss
+    #   "gbuffer_bary" (P,) wp.vec2 | P·2 float32            (u, v) weights of the face's vertices 1 and 2
+    #   "gbuffer_position" (P,) wp.vec3 | P·3 float32        hit point (0 on a miss)
+    #   "gbuffer_t" (P,) wp.float32 | P float32              ray distance (inf on a miss)
+    #   "gbuffer_eye" (3,) numpy float32, "gbuffer_size" int P
+    #   "gbuffer_light_vis" (P, L) wp.uint8 | P·L uint8      1 = light l visible from pixel p (row-major)
+    # The G-buffer arrays are reused from frame to frame (same size): a new trace overwrites them.
+    def trace_primary(self, mesh, camera, to_host: bool = True) -> dict | None:
+        """The G-buffer of `camera` on `mesh` (reference.trace_primary): camera rays generated in the
+        kernel (Camera.packed), closest hit. Fills mesh.device_cache[self.name]["gbuffer_*"] (above)
+        and, with to_host, returns numpy {"face" (P,) int32 (−1 = miss), "bary" (P, 2) float32 (u, v),
+        "position" (P, 3) float32 (barycentric combination of the vertices, on the surface), "t" (P,)
+        float32 (inf on a miss), "eye" (3,) float32}; without, returns None (no copies to the host)."""
+
+    def trace_occluded(self, mesh, origins: np.ndarray, directions: np.ndarray, t_max,
+                       t_min: float | None = None) -> np.ndarray:
+        """(N,) bool: any triangle of `mesh` hit with t in (t_min, t_max] (reference.trace_occluded).
+        origins, directions (N, 3) (unit), t_max (N,) or a number, inf allowed. The CALLER moves each
+        origin off its surface (e.g. along the normal by trace.SHADOW_OFFSET × mesh.scale); t_min
+        (default trace.T_MIN × mesh.scale) only guards against rounding. Any ray count (chunked)."""
+
+    def trace_shadows(self, mesh, gbuffer, lights_packed, to_host: bool = True) -> np.ndarray | None:
+        """(P, L) uint8, 1 = light visible (reference.trace_shadows): from each hit pixel, a ray from the
+        hit point moved trace.SHADOW_OFFSET × mesh.scale along the geometric normal turned to the eye's
+        side, towards each light row of `lights_packed` ((L, 8) Light.packed()); a point light's ray
+        stops that offset short of it. Misses and lights below the normal's horizon get 0. `gbuffer`:
+        None or the dict trace_primary last returned (both use the device copy), or any dict with
+        face, position, eye (uploaded). Fills "gbuffer_light_vis"; returns None unless to_host."""
+
 
 def chunking(n_words: int, n_outputs: int, threads: int) -> tuple[int, int]:
     """Split n_words facet words into chunks so that n_outputs × chunks ≈ threads.

@@ -475,3 +475,107 @@ class OpenCLBackend:
                      self._buffer(rows, np.float64), self._buffer(integrals, np.float64), np.int32(j),
                      np.int32(n_pairs), mu)
         return self._read(mu, (n_pairs, j), np.float32)
+
+    # ------------------------------------------------------------------ stage trace (helper-A)
+    # Ray casting against the large-scale mesh; see Backend.trace_primary for the device-cache keys.
+    def _trace_mesh(self, mesh):
+        """mesh.device_cache[self.name], holding the mesh's device arrays and its host-built BVH, built
+        once per mesh; rebuilt if mesh.vertices or mesh.faces has been replaced."""
+        from .bvh import build_bvh
+
+        entry = mesh.device_cache.setdefault(self.name, {})
+        if (entry.get("vertices_host") is not mesh.vertices or entry.get("faces_host") is not mesh.faces
+                or entry.get("ctx") is not self._ctx):
+            if "vertices_host" in entry:
+                entry.clear()  # the geometry changed: everything derived from it is stale
+            bvh = build_bvh(mesh.vertices, mesh.faces)
+            entry.update(
+                ctx=self._ctx, vertices_host=mesh.vertices, faces_host=mesh.faces,
+                points=self._buffer(mesh.vertices, np.float32), faces=self._buffer(mesh.faces, np.int32),
+                normals=self._buffer(mesh.normals, np.float32),
+                face_normals=self._buffer(mesh.face_normals, np.float32),
+                bvh=bvh, nodes=self._buffer(bvh.packed(), np.float32),
+                tris=self._buffer(bvh.triangle_table(mesh.vertices, mesh.faces), np.float32),
+                tri_index=self._buffer(bvh.tri_index, np.int32),
+            )
+        return entry
+
+    def _trace_reuse(self, entry, key, n_items, dtype):
+        """entry[key] if it is a buffer of this many items, else a new one (frames reuse their buffers)."""
+        size = max(1, int(n_items)) * np.dtype(dtype).itemsize
+        buf = entry.get(key)
+        if buf is None or buf.size != size:
+            buf = entry[key] = self._empty(n_items, dtype)
+        return buf
+
+    def trace_primary(self, mesh, camera, to_host=True):
+        import pyopencl.cltypes as cltypes
+
+        from .trace import check_camera, check_mesh
+
+        check_mesh(mesh)
+        check_camera(camera)
+        m = self._trace_mesh(mesh)
+        n = camera.width * camera.height
+        face = self._trace_reuse(m, "gbuffer_face", n, np.int32)
+        bary = self._trace_reuse(m, "gbuffer_bary", 2 * n, np.float32)
+        position = self._trace_reuse(m, "gbuffer_position", 3 * n, np.float32)
+        t = self._trace_reuse(m, "gbuffer_t", n, np.float32)
+        c = camera.packed()
+        eye, forward, right, up = (cltypes.make_float4(*c[k:k + 3], 0.0) for k in (0, 3, 6, 9))
+        self._launch("trace", "trace_primary", (n,), m["nodes"], m["tris"], m["tri_index"], eye, forward, right, up,
+                     np.int32(camera.width), np.int32(camera.height), face, bary, position, t)
+        m["gbuffer_eye"] = c[0:3].copy()
+        m["gbuffer_size"] = n
+        m["gbuffer_host"] = None
+        if not to_host:
+            return None
+        g = {"face": self._read(face, n, np.int32), "bary": self._read(bary, (n, 2), np.float32),
+             "position": self._read(position, (n, 3), np.float32), "t": self._read(t, n, np.float32),
+             "eye": c[0:3].copy()}
+        m["gbuffer_host"] = g
+        return g
+
+    def trace_occluded(self, mesh, origins, directions, t_max, t_min=None):
+        from .trace import CHUNK_RAYS, check_mesh, check_rays, offsets
+
+        check_mesh(mesh)
+        o, d, t_hi = check_rays(origins, directions, t_max)
+        t_lo = offsets(mesh)[1] if t_min is None else float(t_min)
+        if not np.isfinite(t_lo) or t_lo < 0:
+            raise ValueError(f"t_min must be a finite number >= 0, got {t_min!r}")
+        n = len(o)
+        out = np.zeros(n, bool)
+        if n == 0:
+            return out
+        m = self._trace_mesh(mesh)
+        for lo in range(0, n, CHUNK_RAYS):
+            hi = min(n, lo + CHUNK_RAYS)
+            occluded = self._empty(hi - lo, np.uint8)
+            self._launch("trace", "trace_occluded", (hi - lo,), m["nodes"], m["tris"],
+                         self._buffer(o[lo:hi], np.float32), self._buffer(d[lo:hi], np.float32), np.float32(t_lo),
+                         self._buffer(t_hi[lo:hi], np.float32), np.int32(hi - lo), occluded)
+            out[lo:hi] = self._read(occluded, hi - lo, np.uint8) != 0
+        return out
+
+    def trace_shadows(self, mesh, gbuffer, lights_packed, to_host=True):
+        from .trace import check_gbuffer, check_lights, check_mesh, offsets
+
+        check_mesh(mesh)
+        lights = check_lights(lights_packed)
+        m = self._trace_mesh(mesh)
+        if gbuffer is None or gbuffer is m.get("gbuffer_host"):
+            if "gbuffer_face" not in m:
+                raise ValueError("gbuffer is None, but trace_primary has not run on this mesh with this backend")
+            face, position, eye, n = m["gbuffer_face"], m["gbuffer_position"], m["gbuffer_eye"], m["gbuffer_size"]
+        else:
+            f, p, eye = check_gbuffer(gbuffer, len(mesh.faces))
+            face, position, n = self._buffer(f, np.int32), self._buffer(p, np.float32), len(f)
+        n_lights = len(lights)
+        vis = self._trace_reuse(m, "gbuffer_light_vis", n * n_lights, np.uint8)
+        if n and n_lights:
+            eps, t_min = offsets(mesh)
+            self._launch("trace", "trace_shadows", (n, n_lights), m["nodes"], m["tris"], m["face_normals"], face,
+                         position, *(np.float32(e) for e in eye), self._buffer(lights, np.float32), np.float32(eps),
+                         np.float32(t_min), np.int32(n), np.int32(n_lights), vis)
+        return self._read(vis, (n, n_lights), np.uint8) if to_host else None

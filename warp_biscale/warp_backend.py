@@ -374,3 +374,122 @@ class WarpBackend:
                       self._array(np.asarray(rows, np.float64), wp.float64),
                       self._array(np.asarray(integrals, np.float64), wp.float64)], [mu])
         return mu.numpy()
+
+    # ------------------------------------------------------------------ stage trace (helper-A)
+    # Ray casting against the large-scale mesh; see Backend.trace_primary for the device-cache keys.
+    def _trace_host(self, a):
+        """A host copy of a device array (on the CPU, .numpy() is a view that the next frame overwrites)."""
+        out = a.numpy()
+        return out.copy() if self._device.is_cpu else out
+
+    def _trace_mesh(self, mesh):
+        """mesh.device_cache[self.name], holding the mesh's device arrays and its wp.Mesh (BVH), built
+        once per mesh; rebuilt if mesh.vertices or mesh.faces has been replaced."""
+        import warp as wp
+
+        entry = mesh.device_cache.setdefault(self.name, {})
+        if entry.get("vertices_host") is not mesh.vertices or entry.get("faces_host") is not mesh.faces:
+            if "vertices_host" in entry:
+                entry.clear()  # the geometry changed: everything derived from it is stale
+            dev = self._device
+            points = wp.array(mesh.vertices.astype(np.float32), dtype=wp.vec3, device=dev)
+            faces = wp.array(mesh.faces.astype(np.int32), dtype=wp.int32, device=dev)
+            entry.update(
+                vertices_host=mesh.vertices, faces_host=mesh.faces, points=points, faces=faces,
+                # SAH with 2 triangles a leaf, as _tile: its rays ran 2× faster than Warp's default LBVH.
+                mesh=wp.Mesh(points=points, indices=faces.flatten(), bvh_constructor="sah", bvh_leaf_size=2),
+                normals=wp.array(mesh.normals.astype(np.float32), dtype=wp.vec3, device=dev),
+                face_normals=wp.array(mesh.face_normals.astype(np.float32), dtype=wp.vec3, device=dev),
+            )
+        return entry
+
+    def _trace_reuse(self, entry, key, shape, dtype):
+        """entry[key] if it is a device array of this shape, else a new one (frames reuse their buffers)."""
+        import warp as wp
+
+        shape = tuple(shape) if isinstance(shape, (tuple, list)) else (int(shape),)
+        a = entry.get(key)
+        if a is None or tuple(a.shape) != shape or a.dtype != dtype:
+            a = entry[key] = wp.empty(shape, dtype=dtype, device=self._device)
+        return a
+
+    def trace_primary(self, mesh, camera, to_host=True):
+        import warp as wp
+
+        from .kernels import trace as kt
+        from .trace import check_camera, check_mesh
+
+        check_mesh(mesh)
+        check_camera(camera)
+        m = self._trace_mesh(mesh)
+        n = camera.width * camera.height
+        face = self._trace_reuse(m, "gbuffer_face", n, wp.int32)
+        bary = self._trace_reuse(m, "gbuffer_bary", n, wp.vec2)
+        position = self._trace_reuse(m, "gbuffer_position", n, wp.vec3)
+        t = self._trace_reuse(m, "gbuffer_t", n, wp.float32)
+        c = camera.packed()
+        self._launch(kt.trace_primary, n,
+                     [m["mesh"].id, m["points"], m["faces"], wp.vec3(*c[0:3]), wp.vec3(*c[3:6]), wp.vec3(*c[6:9]),
+                      wp.vec3(*c[9:12]), camera.width, camera.height],
+                     [face, bary, position, t])
+        m["gbuffer_eye"] = c[0:3].copy()
+        m["gbuffer_size"] = n
+        m["gbuffer_host"] = None
+        if not to_host:
+            return None
+        g = {"face": self._trace_host(face), "bary": self._trace_host(bary), "position": self._trace_host(position),
+             "t": self._trace_host(t), "eye": c[0:3].copy()}
+        m["gbuffer_host"] = g
+        return g
+
+    def trace_occluded(self, mesh, origins, directions, t_max, t_min=None):
+        import warp as wp
+
+        from .kernels import trace as kt
+        from .trace import CHUNK_RAYS, check_mesh, check_rays, offsets
+
+        check_mesh(mesh)
+        o, d, t_hi = check_rays(origins, directions, t_max)
+        t_lo = offsets(mesh)[1] if t_min is None else float(t_min)
+        if not np.isfinite(t_lo) or t_lo < 0:
+            raise ValueError(f"t_min must be a finite number >= 0, got {t_min!r}")
+        n = len(o)
+        out = np.zeros(n, bool)
+        if n == 0:
+            return out
+        m = self._trace_mesh(mesh)
+        for lo in range(0, n, CHUNK_RAYS):
+            hi = min(n, lo + CHUNK_RAYS)
+            occluded = wp.empty(hi - lo, dtype=wp.uint8, device=self._device)
+            self._launch(kt.trace_occluded, hi - lo,
+                         [m["mesh"].id, self._array(o[lo:hi], wp.vec3), self._array(d[lo:hi], wp.vec3), t_lo,
+                          self._array(t_hi[lo:hi], wp.float32)],
+                         [occluded])
+            out[lo:hi] = occluded.numpy() != 0
+        return out
+
+    def trace_shadows(self, mesh, gbuffer, lights_packed, to_host=True):
+        import warp as wp
+
+        from .kernels import trace as kt
+        from .trace import check_gbuffer, check_lights, check_mesh, offsets
+
+        check_mesh(mesh)
+        lights = check_lights(lights_packed)
+        m = self._trace_mesh(mesh)
+        if gbuffer is None or gbuffer is m.get("gbuffer_host"):
+            if "gbuffer_face" not in m:
+                raise ValueError("gbuffer is None, but trace_primary has not run on this mesh with this backend")
+            face, position, eye = m["gbuffer_face"], m["gbuffer_position"], m["gbuffer_eye"]
+        else:
+            f, p, eye = check_gbuffer(gbuffer, len(mesh.faces))
+            face, position = self._array(f, wp.int32), self._array(p, wp.vec3)
+        n, n_lights = face.shape[0], len(lights)
+        vis = self._trace_reuse(m, "gbuffer_light_vis", (n, n_lights), wp.uint8)
+        if n and n_lights:
+            eps, t_min = offsets(mesh)
+            self._launch(kt.trace_shadows, (n_lights, n),
+                         [m["mesh"].id, m["face_normals"], face, position, wp.vec3(*eye),
+                          self._array(lights, wp.float32), eps, t_min],
+                         [vis])
+        return self._trace_host(vis) if to_host else None

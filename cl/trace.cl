@@ -1,0 +1,123 @@
+/* Ray casting against the large-scale mesh: camera rays (the G-buffer), any-hit rays (SSDF
+ * visibility, shadows, the Monte Carlo reference) and per-light shadow rays.
+ *
+ * Twin of kernels/trace.py (conventions stated there); the mathematics is
+ * warp_biscale.reference (trace_closest, trace_occluded, trace_shadows). The BVH is built on the
+ * host (warp_biscale.bvh) and walked by bvh_closest_hit / bvh_any_hit of cl/common.cl, the walk
+ * the small-scale visibility stage uses; a BVH slot maps back to its face through `tri_index`.
+ * Every kernel is one work-item per ray along dimension 0, which the backend rounds up to a whole
+ * work-group; the surplus work-items return. 3-vectors travel as float arrays of stride 3.
+ */
+
+/* Camera ray of pixel i (row-major, y down): normalize(forward + sx·right + sy·up), with right and up
+ * already scaled by tan(fov/2)·aspect and tan(fov/2) (Camera.packed). The camera travels as four
+ * float4 (w unused) rather than one float16, whose by-value ABI PoCL warns about without AVX-512. */
+CL_INLINE float3 camera_ray(float4 forward, float4 right, float4 up, int i, int width, int height)
+{
+    int x = i % width;
+    int y = i / width;
+    float sx = 2.0f * ((float)x + 0.5f) / (float)width - 1.0f;
+    float sy = 1.0f - 2.0f * ((float)y + 0.5f) / (float)height;
+    float3 d = (float3)(forward.x + sx * right.x + sy * up.x, forward.y + sx * right.y + sy * up.y,
+                        forward.z + sx * right.z + sy * up.z);
+    return normalize3(d);
+}
+
+__kernel void trace_primary(
+    __global const float *nodes,     /* (N, 8) BVH records */
+    __global const float *tris,      /* (F, 9) [a, b - a, c - a], BVH slot order */
+    __global const int *tri_index,   /* (F,) slot -> face */
+    const float4 eye, const float4 forward, const float4 right, const float4 up, /* Camera.packed() */
+    const int width, const int height,
+    __global int *face_out,          /* (P,) face or -1 */
+    __global float *bary_out,        /* (P, 2) weights of vertices 1 and 2 */
+    __global float *position_out,    /* (P, 3) */
+    __global float *t_out)           /* (P,) inf on a miss */
+{
+    int i = get_global_id(0);
+    if (i >= width * height)
+        return;
+    float3 o = (float3)(eye.x, eye.y, eye.z);
+    float3 d = camera_ray(forward, right, up, i, width, height);
+    float t, u, v;
+    int slot = bvh_closest_hit(nodes, tris, o, d, 0.0f, INFINITY, &t, &u, &v);
+    if (slot >= 0) {
+        /* On the triangle by construction: a + u(b - a) + v(c - a) from the same float32 edges
+         * the Warp twin computes. */
+        __global const float *tri = tris + 9 * slot;
+        face_out[i] = tri_index[slot];
+        bary_out[2 * i] = u;
+        bary_out[2 * i + 1] = v;
+        store3(position_out, i,
+               (float3)(tri[0] + u * tri[3] + v * tri[6], tri[1] + u * tri[4] + v * tri[7],
+                        tri[2] + u * tri[5] + v * tri[8]));
+        t_out[i] = t;
+    } else {
+        face_out[i] = -1;
+        bary_out[2 * i] = 0.0f;
+        bary_out[2 * i + 1] = 0.0f;
+        store3(position_out, i, (float3)(0.0f, 0.0f, 0.0f));
+        t_out[i] = INFINITY;
+    }
+}
+
+/* Any hit with t in (t_min, t_max[i]]; the caller has moved the origins off their surfaces. */
+__kernel void trace_occluded(
+    __global const float *nodes,
+    __global const float *tris,
+    __global const float *origins,     /* (R, 3) */
+    __global const float *directions,  /* (R, 3) unit */
+    const float t_min,
+    __global const float *t_max,       /* (R,) inf allowed */
+    const int n_rays,
+    __global uchar *occluded)          /* (R,) */
+{
+    int i = get_global_id(0);
+    if (i >= n_rays)
+        return;
+    float t_hi = t_max[i];
+    occluded[i] = (t_hi > t_min && bvh_any_hit(nodes, tris, load3(origins, i), load3(directions, i), t_min, t_hi))
+                      ? 1 : 0;
+}
+
+/* Shadow rays of each hit pixel towards each light (NDRange (P, L)). The origin is the hit point
+ * moved eps along the geometric normal turned to the camera's side, the side the surface is
+ * seen from; a light below that normal's horizon, or a missed pixel, gets 0. A point light's
+ * ray stops eps short of its centre; a directional light's never stops. */
+__kernel void trace_shadows(
+    __global const float *nodes,
+    __global const float *tris,
+    __global const float *face_normals,  /* (F, 3) unit, original face order */
+    __global const int *face,            /* (P,) */
+    __global const float *position,      /* (P, 3) */
+    const float eye_x, const float eye_y, const float eye_z,
+    __global const float *lights,        /* (L, 8) Light.packed() rows */
+    const float eps, const float t_min,
+    const int n_pixels, const int n_lights,
+    __global uchar *visible)             /* (P, L) */
+{
+    int p = get_global_id(0);
+    int k = get_global_id(1);
+    if (p >= n_pixels)
+        return;
+    int f = face[p];
+    uchar vis = 0;
+    if (f >= 0) {
+        float3 x = load3(position, p);
+        float3 n = load3(face_normals, f);
+        if (dot3(n, (float3)(eye_x - x.x, eye_y - x.y, eye_z - x.z)) < 0.0f)
+            n = (float3)(-n.x, -n.y, -n.z);
+        float3 o = (float3)(x.x + eps * n.x, x.y + eps * n.y, x.z + eps * n.z);
+        __global const float *light = lights + 8 * k;
+        float3 d = (float3)(light[1], light[2], light[3]);
+        float t_hi = INFINITY;
+        if (light[0] != 0.0f) {
+            d = (float3)(d.x - o.x, d.y - o.y, d.z - o.z);
+            t_hi = sqrt(dot3(d, d)) - eps;
+        }
+        d = normalize3(d);
+        if (dot3(n, d) > 0.0f)
+            vis = (t_hi > t_min && bvh_any_hit(nodes, tris, o, d, t_min, t_hi)) ? 0 : 1;
+    }
+    visible[(long)p * n_lights + k] = vis;
+}

@@ -1,0 +1,130 @@
+"""Ray casting against the large-scale mesh: camera rays (the G-buffer), any-hit rays (SSDF
+visibility, shadows, the Monte Carlo reference) and per-light shadow rays.
+
+Twin of ``cl/trace.cl``; the mathematics is ``warp_biscale.reference`` (``trace_closest``,
+``trace_occluded``, ``trace_shadows``). Warp walks its own BVH (``wp.Mesh``, SAH with 2 triangles a
+leaf, built once per mesh and kept in the mesh's device cache).
+
+Conventions shared with the OpenCL twin and the reference:
+- pixel (x, y), y down, is thread y·W + x; its ray is normalize(forward + sx·R + sy·U) with
+  sx = 2(x + ½)/W − 1, sy = 1 − 2(y + ½)/H (`Camera.packed`), generated here, not on the host;
+- barycentric (u, v) are the weights of the face's vertices 1 and 2 (vertex 0 gets 1 − u − v),
+  and the hit position is a + u(b − a) + v(c − a), on the triangle, not o + t·d;
+- any-hit rays count a triangle hit with t in (t_min, t_max]. Warp's query tests [0, max_t), so
+  the ray starts at o + t_min·d with max_t = t_max − t_min: the two agree except for a hit
+  within float32 rounding of either end.
+"""
+
+import warp as wp
+
+
+@wp.func
+def surface_point(points: wp.array(dtype=wp.vec3), faces: wp.array2d(dtype=wp.int32), f: int,
+                  u: float, v: float) -> wp.vec3:
+    """a + u(b − a) + v(c − a) for face f: the same operations as cl/trace.cl, whose triangle table
+    holds exactly these float32 edges."""
+    a = points[faces[f, 0]]
+    return a + u * (points[faces[f, 1]] - a) + v * (points[faces[f, 2]] - a)
+
+
+@wp.kernel
+def trace_primary(
+    mesh: wp.uint64,
+    points: wp.array(dtype=wp.vec3),
+    faces: wp.array2d(dtype=wp.int32),
+    eye: wp.vec3,
+    forward: wp.vec3,
+    right: wp.vec3,  # right·tan(fov/2)·aspect
+    up: wp.vec3,  # up·tan(fov/2)
+    width: int,
+    height: int,
+    offset: int,
+    face_out: wp.array(dtype=wp.int32),
+    bary_out: wp.array(dtype=wp.vec2),
+    position_out: wp.array(dtype=wp.vec3),
+    t_out: wp.array(dtype=wp.float32),
+):
+    i = wp.tid() + offset
+    x = i % width
+    y = i // width
+    sx = 2.0 * (float(x) + 0.5) / float(width) - 1.0
+    sy = 1.0 - 2.0 * (float(y) + 0.5) / float(height)
+    d = wp.normalize(forward + sx * right + sy * up)
+    q = wp.mesh_query_ray(mesh, eye, d, wp.inf)
+    if q.result:
+        # Warp's (u, v) weigh vertices 0 and 1; ours weigh vertices 1 and 2.
+        u = q.v
+        v = 1.0 - q.u - q.v
+        face_out[i] = q.face
+        bary_out[i] = wp.vec2(u, v)
+        position_out[i] = surface_point(points, faces, q.face, u, v)
+        t_out[i] = q.t
+    else:
+        face_out[i] = -1
+        bary_out[i] = wp.vec2(0.0, 0.0)
+        position_out[i] = wp.vec3(0.0, 0.0, 0.0)
+        t_out[i] = wp.inf
+
+
+@wp.kernel
+def trace_occluded(
+    mesh: wp.uint64,
+    origins: wp.array(dtype=wp.vec3),
+    directions: wp.array(dtype=wp.vec3),
+    t_min: float,
+    t_max: wp.array(dtype=wp.float32),
+    offset: int,
+    occluded: wp.array(dtype=wp.uint8),
+):
+    i = wp.tid() + offset
+    d = directions[i]
+    reach = t_max[i] - t_min
+    hit = wp.uint8(0)
+    if reach > 0.0:
+        if wp.mesh_query_ray_anyhit(mesh, origins[i] + t_min * d, d, reach):
+            hit = wp.uint8(1)
+    occluded[i] = hit
+
+
+@wp.kernel
+def trace_shadows(
+    mesh: wp.uint64,
+    face_normals: wp.array(dtype=wp.vec3),
+    face: wp.array(dtype=wp.int32),
+    position: wp.array(dtype=wp.vec3),
+    eye: wp.vec3,
+    lights: wp.array2d(dtype=wp.float32),  # (L, 8) Light.packed() rows
+    eps: float,
+    t_min: float,
+    offset: int,
+    visible: wp.array2d(dtype=wp.uint8),  # (N, L)
+):
+    """One thread per (light, pixel); neighbouring threads take neighbouring pixels towards one
+    light, so their BVH walks stay coherent."""
+    k, p_local = wp.tid()
+    p = p_local + offset
+    f = face[p]
+    v = wp.uint8(0)
+    if f >= 0:
+        x = position[p]
+        # The geometric normal on the camera's side: the side the surface is seen from, so the
+        # offset origin lies in front of it whichever way the face is wound.
+        n = face_normals[f]
+        if wp.dot(n, eye - x) < 0.0:
+            n = -n
+        o = x + eps * n
+        d = wp.vec3(lights[k, 1], lights[k, 2], lights[k, 3])
+        t_hi = float(wp.inf)
+        if lights[k, 0] != 0.0:  # a point light: towards its centre, stopping eps short of it
+            d = d - o
+            t_hi = wp.length(d) - eps
+        d = wp.normalize(d)
+        # Below the geometric horizon the light is behind the surface (and a ray would enter it).
+        if wp.dot(n, d) > 0.0:
+            reach = t_hi - t_min
+            if reach > 0.0:
+                if not wp.mesh_query_ray_anyhit(mesh, o + t_min * d, d, reach):
+                    v = wp.uint8(1)
+            else:
+                v = wp.uint8(1)
+    visible[p, k] = v

@@ -1,0 +1,365 @@
+"""Ray casting against the large-scale mesh (stage `trace`), on every backend present, against the
+float64 brute-force reference (`reference.trace_closest`, `trace_occluded`, `trace_shadows`).
+
+Tolerances, and why:
+- The kernels trace float32 rays against float32 vertices; the reference traces float64 camera
+  rays (`Camera.rays`) against float64 vertices. Rounding a vertex moves a triangle's plane by
+  δ ≈ 1e-7 × scale, which moves the hit along a ray meeting the plane at cos θ by δ / cos θ. So t
+  and position are held to 1e-5 × scale where cos θ ≥ 0.1 and to 1e-6 × scale / cos θ everywhere
+  (measured: at most 1e-7 × scale / cos θ). The position is a barycentric combination of the
+  vertices, so its distance from the hit face's plane is held to 1e-6 × scale at any angle.
+- Face ids: a ray within rounding of an edge can hit either neighbour, or miss past a silhouette.
+  A mismatch is *explained* when the float64 ray also meets the other result's face inside a
+  margin of BARY_TOL in barycentric units at a t within 1e-5 relative of the reference t (or, for
+  a hit/miss disagreement, passes within BARY_TOL of the hit face's edge). Unexplained mismatches:
+  none allowed; explained ones: at most 0.5 % of the pixels (measured: 0 on this scene).
+- Any-hit and shadow rays: the reference is evaluated with triangles grown and shrunk by BARY_TOL
+  (`tol` = ±BARY_TOL); where the two agree a ray is unambiguous and the kernels must agree with
+  it exactly; the ambiguous rays (grazing an edge within rounding) may go either way, and must be
+  fewer than 1 %. BARY_TOL = 1e-3 is large next to float32 rounding of the barycentrics (~1e-4 at
+  the most grazing hits here) and small enough that ambiguity stays rare.
+"""
+
+import numpy as np
+import pytest
+
+import warp_biscale.trace as trace_module
+from warp_biscale import reference as ref
+from warp_biscale.scene import Camera, DirectionalLight, Mesh, PointLight
+from warp_biscale.trace import SHADOW_OFFSET, T_MIN, offsets
+
+BARY_TOL = 1e-3
+
+
+def showcase_mesh(offset=(0.0, 0.0, 0.0)):
+    """A sphere in a torus on a floor (~1500 triangles), plus a zero-area triangle (collinear
+    vertices) that no ray may hit and that must not produce NaN."""
+    sliver = Mesh(np.array([[-1.5, 1.0, -1.5], [-1.0, 1.0, -1.0], [-0.5, 1.0, -0.5]]), np.array([[0, 1, 2]]))
+    parts = [Mesh.sphere(0.5, (0, 0.5, 0), subdivisions=2), Mesh.torus(1.0, 0.25, (0, 0.25, 0), segments=(32, 16)),
+             Mesh.plane(4.0, 0.0, 8), sliver]
+    m = Mesh.merge(parts)
+    return Mesh(m.vertices + np.asarray(offset, float), m.faces, m.normals)
+
+
+def showcase_camera(offset=(0.0, 0.0, 0.0), width=80, height=60):
+    o = np.asarray(offset, float)
+    # Looking down at the floor from above its edge, with sky above the horizon (misses).
+    return Camera(eye=o + (2.5, 1.6, 3.0), target=o + (0, 0.3, 0), fov=50, width=width, height=height)
+
+
+@pytest.fixture(scope="module", params=[(0.0, 0.0, 0.0), (100.0, -50.0, 20.0)], ids=["origin", "offset"])
+def showcase(request):
+    mesh, cam = showcase_mesh(request.param), showcase_camera(request.param)
+    return mesh, cam, ref.trace_primary(mesh, cam)
+
+
+def _cos_incidence(mesh, face, d):
+    return np.abs(np.sum(mesh.face_normals[np.maximum(face, 0)] * d, axis=1))
+
+
+def _explained(mesh, face, o, d, t_ref):
+    """Where the float64 ray meets `face` inside BARY_TOL at a t within 1e-5 relative of t_ref."""
+    u, v, t = ref.intersect_faces(mesh.vertices, mesh.faces, np.maximum(face, 0), o, d)
+    with np.errstate(invalid="ignore"):
+        inside = (u >= -BARY_TOL) & (v >= -BARY_TOL) & (u + v <= 1 + BARY_TOL)
+        return (face >= 0) & inside & (np.abs(t - t_ref) <= 1e-5 * np.abs(t_ref))
+
+
+def _near_edge(u, v):
+    return np.minimum(np.minimum(u, v), 1 - u - v) <= BARY_TOL
+
+
+def _face_mismatches(mesh, cam, g, r):
+    """(unexplained, differ) masks over the pixels of kernel G-buffer g vs reference r (module notes)."""
+    o, d = cam.rays()
+    hit_ref, hit = r["face"] >= 0, g["face"] >= 0
+    differ = g["face"] != r["face"]
+    # Both hit, different faces: the kernel's face must be a near-tie of the reference hit.
+    ok_both = _explained(mesh, g["face"], o, d, r["t"])
+    # Reference hits, kernel misses: the reference hit grazes an edge (a silhouette).
+    ok_lost = _near_edge(r["bary"][:, 0], r["bary"][:, 1])
+    # Kernel hits, reference misses: the kernel's face is hit by the float64 ray inside the margin.
+    u, v, t = ref.intersect_faces(mesh.vertices, mesh.faces, np.maximum(g["face"], 0), o, d)
+    with np.errstate(invalid="ignore"):
+        ok_gained = (u >= -BARY_TOL) & (v >= -BARY_TOL) & (u + v <= 1 + BARY_TOL) & (t > 0)
+    unexplained = differ & np.where(hit & hit_ref, ~ok_both, np.where(hit_ref, ~ok_lost, ~ok_gained))
+    return unexplained, differ
+
+
+def test_primary_matches_reference(backend, showcase):
+    mesh, cam, r = showcase
+    g = backend.trace_primary(mesh, cam)
+    n = cam.width * cam.height
+    assert g["face"].dtype == np.int32 and g["face"].shape == (n,)
+    assert g["bary"].dtype == np.float32 and g["bary"].shape == (n, 2)
+    assert g["position"].dtype == np.float32 and g["position"].shape == (n, 3)
+    assert g["t"].dtype == np.float32 and g["t"].shape == (n,)
+    np.testing.assert_allclose(g["eye"], cam.eye, rtol=1e-7)
+    hit_ref, hit = r["face"] >= 0, g["face"] >= 0
+    assert 0.3 * n < hit_ref.sum() < n  # the scene fills part of the frame, sky the rest
+
+    o, d = cam.rays()
+    unexplained, differ = _face_mismatches(mesh, cam, g, r)
+    assert not unexplained.any(), f"{unexplained.sum()} unexplained face mismatches of {n} pixels"
+    assert differ.sum() <= 0.005 * n, f"{differ.sum()} face mismatches of {n} pixels"
+
+    same = ~differ & hit
+    scale = mesh.scale
+    cos = _cos_incidence(mesh, r["face"], d)[same]
+    err_t = np.abs(g["t"][same].astype(np.float64) - r["t"][same])
+    err_x = np.linalg.norm(g["position"][same] - r["position"][same], axis=1)
+    for err in (err_t, err_x):
+        assert (err[cos >= 0.1] <= 1e-5 * scale).all(), err[cos >= 0.1].max() / scale
+        assert (err * cos <= 1e-6 * scale).all(), (err * cos).max() / scale
+    # The position is on its face (the barycentric combination), at any angle.
+    tri = mesh.vertices[mesh.faces[g["face"][hit]]]
+    off_plane = np.abs(np.sum((g["position"][hit] - tri[:, 0]) * mesh.face_normals[g["face"][hit]], axis=1))
+    assert off_plane.max() <= 1e-6 * scale
+    bu, bv = g["bary"][hit, 0], g["bary"][hit, 1]
+    assert (bu >= -1e-6).all() and (bv >= -1e-6).all() and (bu + bv <= 1 + 1e-6).all()
+    pos = ((1 - bu - bv)[:, None] * tri[:, 0] + bu[:, None] * tri[:, 1] + bv[:, None] * tri[:, 2])
+    np.testing.assert_allclose(g["position"][hit], pos, atol=1e-6 * scale)
+    # Misses: face −1, t inf, zeros; never NaN anywhere.
+    assert np.isinf(g["t"][~hit]).all() and (g["t"][hit] > 0).all()
+    assert not g["bary"][~hit].any() and not g["position"][~hit].any()
+    assert np.isfinite(g["bary"]).all() and np.isfinite(g["position"]).all()
+    assert not (g["face"] == len(mesh.faces) - 1).any()  # the zero-area triangle
+
+
+def test_primary_all_miss(backend):
+    mesh = showcase_mesh()
+    cam = Camera(eye=(0, 1, 5), target=(0, 1, 10), fov=60, width=32, height=24)  # looking away
+    g = backend.trace_primary(mesh, cam)
+    assert (g["face"] == -1).all() and np.isinf(g["t"]).all()
+    assert not g["position"].any() and not g["bary"].any()
+    assert (ref.trace_primary(mesh, cam)["face"] == -1).all()
+
+
+def test_primary_non_square_and_pixel_order(backend):
+    """Row-major from the top-left, y down: a floor seen from above fills the lower rows only."""
+    mesh = Mesh.plane(4.0, 0.0, 4)
+    cam = Camera(eye=(0, 1, 3), target=(0, 1, 0), fov=60, width=40, height=16)  # horizon across the middle
+    g = backend.trace_primary(mesh, cam)
+    hit = (g["face"] >= 0).reshape(16, 40)
+    assert not hit[:8].any() and hit[8:].any()
+    # Pixel centres of this symmetric view land exactly on the floor's grid lines: ties, explained.
+    unexplained, _ = _face_mismatches(mesh, cam, g, ref.trace_primary(mesh, cam))
+    assert not unexplained.any()
+
+
+def test_device_cache(backend):
+    mesh, cam = showcase_mesh(), showcase_camera(width=40, height=30)
+    assert backend.trace_primary(mesh, cam, to_host=False) is None
+    entry = mesh.device_cache[backend.name]
+    for key in ("points", "faces", "normals", "face_normals", "gbuffer_face", "gbuffer_bary", "gbuffer_position",
+                "gbuffer_t", "gbuffer_eye"):
+        assert key in entry, key
+    points = entry["points"]
+    g = backend.trace_primary(mesh, cam)
+    assert mesh.device_cache[backend.name]["points"] is points  # not re-uploaded for a second frame
+    lights = np.stack([PointLight((1, 3, 1)).packed()])
+    # The device G-buffer (gbuffer=None) and the host one give the same shadows.
+    assert backend.trace_shadows(mesh, None, lights, to_host=False) is None
+    assert "gbuffer_light_vis" in mesh.device_cache[backend.name]
+    np.testing.assert_array_equal(backend.trace_shadows(mesh, None, lights), backend.trace_shadows(mesh, g, lights))
+    # Replaced geometry is re-uploaded: the scene moved down by 0.5 is traced where it now is.
+    mesh.vertices = mesh.vertices - [0.0, 0.5, 0.0]
+    g2 = backend.trace_primary(mesh, cam)
+    assert mesh.device_cache[backend.name]["points"] is not points
+    assert (g2["face"] == ref.trace_primary(mesh, cam)["face"]).mean() > 0.99
+    np.testing.assert_allclose(g2["position"][g2["face"] >= 0, 1].min(), -0.5, atol=1e-5)
+
+
+def _random_rays(mesh, n, seed):
+    """Random rays through the scene's box, a third with t_max = inf."""
+    rng = np.random.default_rng(seed)
+    lo, hi = mesh.bounds
+    o = rng.uniform(lo - 0.3, hi + 0.3, (n, 3))
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    t_max = rng.uniform(0.0, 1.5 * np.ptp(mesh.vertices, axis=0).max(), n)
+    t_max[::3] = np.inf
+    return o, d, t_max
+
+
+def _grazing_rays(mesh, n, seed):
+    """Nearly horizontal rays just above the floor (y = 0): parallel to a big flat part, and some
+    dipping into it far away."""
+    rng = np.random.default_rng(seed)
+    eps = SHADOW_OFFSET * mesh.scale
+    o = np.stack([rng.uniform(-2, 2, n), np.full(n, eps), rng.uniform(-2, 2, n)], 1)
+    phi = rng.uniform(0, 2 * np.pi, n)
+    dip = rng.choice([0.0, 1e-4, -1e-4, -1e-2], n)
+    d = np.stack([np.cos(phi), dip, np.sin(phi)], 1)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return o, d, np.full(n, np.inf)
+
+
+def _surface_rays(mesh, n, seed):
+    """Rays leaving random surface points, moved off the surface by the caller's offset along the
+    face normal on the side of the ray (as shadow and SSDF rays are): concave spots (torus inside,
+    floor beside the torus) are hit, convex ones are not."""
+    rng = np.random.default_rng(seed)
+    real = np.flatnonzero(np.linalg.norm(mesh.face_normals, axis=1) > 0)
+    f = rng.choice(real, n)
+    a, b = rng.random(n), rng.random(n)
+    flip = a + b > 1
+    a[flip], b[flip] = 1 - a[flip], 1 - b[flip]
+    tri = mesh.vertices[mesh.faces[f]]
+    x = tri[:, 0] + a[:, None] * (tri[:, 1] - tri[:, 0]) + b[:, None] * (tri[:, 2] - tri[:, 0])
+    nrm = mesh.face_normals[f]
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    side = np.sign(np.sum(d * nrm, axis=1))[:, None]
+    o = x + SHADOW_OFFSET * mesh.scale * side * nrm
+    return o, d, np.full(n, np.inf)
+
+
+def _check_occluded(mesh, got, o, d, t_max, what):
+    t_min = T_MIN * mesh.scale
+    grown = ref.trace_occluded(mesh.vertices, mesh.faces, o, d, t_min, t_max, tol=BARY_TOL)
+    shrunk = ref.trace_occluded(mesh.vertices, mesh.faces, o, d, t_min, t_max, tol=-BARY_TOL)
+    exact = ref.trace_occluded(mesh.vertices, mesh.faces, o, d, t_min, t_max)
+    clear = grown == shrunk
+    assert got.dtype == bool and got.shape == (len(o),)
+    bad = clear & (got != exact)
+    assert not bad.any(), f"{what}: {bad.sum()} of {clear.sum()} unambiguous rays disagree"
+    assert (~clear).sum() <= 0.01 * len(o), f"{what}: {(~clear).sum()} ambiguous rays"
+    return exact
+
+
+@pytest.fixture(scope="module")
+def mesh():
+    return showcase_mesh()
+
+
+@pytest.mark.parametrize("kind", ["random", "grazing", "surface"])
+def test_occluded_matches_reference(backend, mesh, kind):
+    o, d, t_max = {"random": _random_rays, "grazing": _grazing_rays, "surface": _surface_rays}[kind](mesh, 3000, 5)
+    got = backend.trace_occluded(mesh, o, d, t_max)
+    exact = _check_occluded(mesh, got, o, d, t_max, f"{backend.name} {kind}")
+    assert 0.05 < exact.mean() < 0.95  # both outcomes are exercised
+
+
+def test_occluded_limits(backend, mesh):
+    # Straight down onto the floor from y = 1, beside the torus and off every edge of the floor's grid.
+    o = np.array([[1.8, 1.0, 1.65]] * 4)
+    d = np.array([[0.0, -1.0, 0.0]] * 4)
+    # The floor is at t = 1: (t_min, t_max] includes it for t_max >= 1 only.
+    got = backend.trace_occluded(mesh, o, d, np.array([0.999, 1.001, np.inf, 0.0]))
+    np.testing.assert_array_equal(got, [False, True, True, False])
+    # A scalar t_max applies to every ray; an empty batch is fine.
+    np.testing.assert_array_equal(backend.trace_occluded(mesh, o, d, np.inf), [True] * 4)
+    assert backend.trace_occluded(mesh, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)).shape == (0,)
+    # Upwards from the same point: nothing above.
+    assert not backend.trace_occluded(mesh, o, -d, np.inf).any()
+
+
+def test_occluded_chunks(backend, mesh, monkeypatch):
+    """Any number of rays: a batch is cut into launches of CHUNK_RAYS (made small here)."""
+    o, d, t_max = _random_rays(mesh, 2500, 9)
+    whole = backend.trace_occluded(mesh, o, d, t_max)
+    monkeypatch.setattr(trace_module, "CHUNK_RAYS", 1000)
+    np.testing.assert_array_equal(backend.trace_occluded(mesh, o, d, t_max), whole)
+
+
+def test_occluded_million_rays(backend):
+    """2^20 rays in one call (SSDF-sized), a sample of them checked against the reference."""
+    m = Mesh.merge([Mesh.sphere(0.5, (0, 0.5, 0), subdivisions=1), Mesh.plane(4.0, 0.0, 2)])
+    o, d, t_max = _random_rays(m, 1 << 20, 3)
+    got = backend.trace_occluded(m, o, d, t_max)
+    pick = np.random.default_rng(0).choice(len(o), 4000, replace=False)
+    _check_occluded(m, got[pick], o[pick], d[pick], t_max[pick], f"{backend.name} 2^20")
+    assert 0.05 < got.mean() < 0.95
+
+
+def _shadow_scene():
+    """A sphere hovering over a floor, seen from above; a point light and a directional light above
+    it (each casts a shadow on the floor), and a light from below (below every seen horizon)."""
+    mesh = Mesh.merge([Mesh.sphere(0.5, (0, 0.8, 0), subdivisions=3), Mesh.plane(4.0, 0.0, 16)])
+    cam = Camera(eye=(0.0, 3.5, 3.0), target=(0, 0.2, 0), fov=55, width=72, height=56)
+    lights = np.stack([PointLight((0.3, 3.0, 0.2)).packed(), DirectionalLight((-0.5, 1.0, 0.3)).packed(),
+                       DirectionalLight((0.1, -1.0, 0.2)).packed()])
+    return mesh, cam, lights
+
+
+def test_shadows_match_reference(backend):
+    mesh, cam, lights = _shadow_scene()
+    g = backend.trace_primary(mesh, cam)
+    vis = backend.trace_shadows(mesh, g, lights)
+    n = len(g["face"])
+    assert vis.dtype == np.uint8 and vis.shape == (n, 3) and set(np.unique(vis)) <= {0, 1}
+    eps, t_min = offsets(mesh)
+    args = (mesh.vertices, mesh.faces, g["face"], g["position"], g["eye"], lights, eps, t_min)
+    exact = ref.trace_shadows(*args)
+    clear = ref.trace_shadows(*args, tol=BARY_TOL) == ref.trace_shadows(*args, tol=-BARY_TOL)
+    bad = clear & (vis != exact)
+    assert not bad.any(), f"{bad.sum()} unambiguous shadow rays disagree"
+    assert (~clear).sum() <= 0.01 * vis.size
+    # The sphere shadows the floor: floor pixels facing the light but occluded, for both lights above.
+    floor = g["face"] >= len(Mesh.sphere(0.5, subdivisions=3).faces)
+    for k in (0, 1):
+        dark = floor & (vis[:, k] == 0)
+        assert dark.sum() > 20, f"light {k}: no shadow on the floor"
+        assert (floor & (vis[:, k] == 1)).sum() > dark.sum()  # most of the floor is lit
+    # Misses see no light; a light from below is below the horizon of everything seen from above.
+    assert not vis[g["face"] < 0].any()
+    assert not vis[floor, 2].any()
+    # The same from the reference G-buffer: lit fractions agree closely.
+    r = ref.trace_primary(mesh, cam)
+    lit_ref = ref.trace_shadows(mesh.vertices, mesh.faces, r["face"], r["position"], r["eye"], lights, eps, t_min)
+    np.testing.assert_allclose(vis.mean(0), lit_ref.mean(0), atol=0.005)
+
+
+def test_shadows_offset_and_orientation(backend):
+    """A single floor seen from below: the oriented normal points down, so a light above is behind
+    it (0) and a light below is visible (1); no self-shadowing at any light elevation down to 2°."""
+    mesh = Mesh.plane(4.0, 0.0, 8)
+    cam = Camera(eye=(0.0, -2.0, 0.5), target=(0, 0, 0), fov=40, width=24, height=24)
+    g = backend.trace_primary(mesh, cam)
+    assert (g["face"] >= 0).all()
+    elevations = np.radians([90, 30, 10, 2])
+    below = np.stack([DirectionalLight((np.cos(e), -np.sin(e), 0)).packed() for e in elevations])
+    above = np.stack([DirectionalLight((0, 1, 0)).packed(), PointLight((0, 2, 0)).packed()])
+    assert backend.trace_shadows(mesh, g, below).all()
+    assert not backend.trace_shadows(mesh, g, above).any()
+    assert backend.trace_shadows(mesh, g, np.zeros((0, 8))).shape == (len(g["face"]), 0)
+
+
+def test_bad_inputs(backend, mesh):
+    o, d, t_max = _random_rays(mesh, 10, 1)
+    with pytest.raises(ValueError, match="origins"):
+        backend.trace_occluded(mesh, o[:, :2], d, t_max)
+    nan_o = o.copy()
+    nan_o[3, 1] = np.nan
+    with pytest.raises(ValueError, match="origins"):
+        backend.trace_occluded(mesh, nan_o, d, t_max)
+    with pytest.raises(ValueError, match="directions"):
+        backend.trace_occluded(mesh, o, d[:5], t_max)
+    with pytest.raises(ValueError, match="directions"):
+        backend.trace_occluded(mesh, o, 2 * d, t_max)
+    with pytest.raises(ValueError, match="t_max"):
+        backend.trace_occluded(mesh, o, d, t_max[:5])
+    with pytest.raises(ValueError, match="t_max"):
+        backend.trace_occluded(mesh, o, d, np.full(10, np.nan))
+    with pytest.raises(ValueError, match="mesh"):
+        backend.trace_occluded(mesh.vertices, o, d, t_max)
+    cam = showcase_camera(width=8, height=6)
+    with pytest.raises(ValueError, match="camera"):
+        backend.trace_primary(mesh, cam.packed())
+    with pytest.raises(ValueError, match="mesh"):
+        backend.trace_primary(None, cam)
+    g = backend.trace_primary(mesh, cam)
+    good = PointLight().packed()
+    with pytest.raises(ValueError, match="lights_packed"):
+        backend.trace_shadows(mesh, g, np.zeros((2, 7)))
+    with pytest.raises(ValueError, match="lights_packed"):
+        backend.trace_shadows(mesh, g, np.where(np.arange(8) == 2, np.nan, good)[None])
+    with pytest.raises(ValueError, match="lights_packed"):
+        backend.trace_shadows(mesh, g, np.where(np.arange(8) == 0, 2.0, good)[None])
+    with pytest.raises(ValueError, match="gbuffer"):
+        backend.trace_shadows(mesh, {"face": g["face"]}, good)
+    with pytest.raises(ValueError, match="gbuffer"):
+        backend.trace_shadows(mesh, dict(g, face=g["face"] + len(mesh.faces)), good)
+    with pytest.raises(ValueError, match="gbuffer"):
+        backend.trace_shadows(showcase_mesh(), None, good)  # no trace_primary on this mesh yet

@@ -1,0 +1,124 @@
+"""Host side of the ray-casting stage (`kernels/trace.py`, `cl/trace.cl`): the offsets both backends
+and the reference use, and the input checks the backends share, so that every backend rejects the
+same bad input with the same message.
+
+Offsets, relative to `Mesh.scale` (the larger of the extent and the largest coordinate magnitude):
+
+- `T_MIN` = 1e-6: an any-hit ray counts hits with t in (t_min, t_max], t_min = T_MIN × scale,
+  about ten float32 roundings of a coordinate: a ray whose origin sits a rounding error off a
+  surface does not hit that surface at t ≈ 0.
+- `SHADOW_OFFSET` = 1e-4: a shadow ray starts this far (× scale) off the hit point along the
+  oriented geometric normal, and a point light's ray stops this far short of the light's centre.
+  Far above float32 rounding, far below any modelled feature.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["T_MIN", "SHADOW_OFFSET", "CHUNK_RAYS", "offsets", "check_mesh", "check_camera", "check_rays",
+           "check_lights", "check_gbuffer"]
+
+T_MIN = 1e-6
+SHADOW_OFFSET = 1e-4
+CHUNK_RAYS = 1 << 22  # any-hit rays per launch: bounds device memory (~100 MB a chunk) for any ray count
+
+
+def offsets(mesh) -> tuple[float, float]:
+    """(eps, t_min) of `mesh`: the shadow-ray offset and the any-hit lower bound, absolute."""
+    return SHADOW_OFFSET * mesh.scale, T_MIN * mesh.scale
+
+
+def check_mesh(mesh):
+    from .scene import Mesh
+
+    if not isinstance(mesh, Mesh):
+        raise ValueError(f"mesh must be a warp_biscale.scene.Mesh, got {type(mesh).__name__}")
+    return mesh
+
+
+def check_camera(camera):
+    from .scene import Camera
+
+    if not isinstance(camera, Camera):
+        raise ValueError(f"camera must be a warp_biscale.scene.Camera, got {type(camera).__name__}")
+    return camera
+
+
+def _array(name, value, dtype=np.float64) -> np.ndarray:
+    try:
+        return np.asarray(value, dtype)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a numeric array, got {type(value).__name__}") from None
+
+
+def check_rays(origins, directions, t_max):
+    """→ float32 (N, 3) origins, (N, 3) directions, (N,) t_max. Directions must be unit (to 1e-3):
+    t is a distance. t_max may be a scalar (every ray) and may be inf, never NaN."""
+    o = _array("origins", origins)
+    d = _array("directions", directions)
+    if o.ndim != 2 or o.shape[1] != 3:
+        raise ValueError(f"origins must be an (N, 3) array, got shape {o.shape}")
+    if d.shape != o.shape:
+        raise ValueError(f"directions must have the shape of origins {o.shape}, got {d.shape}")
+    if not np.isfinite(o).all():
+        raise ValueError("origins contains NaN or inf")
+    if not np.isfinite(d).all():
+        raise ValueError("directions contains NaN or inf")
+    if len(d) and np.abs(np.linalg.norm(d, axis=1) - 1.0).max() > 1e-3:
+        raise ValueError("directions must be unit vectors (|d| = 1 to within 1e-3)")
+    t = _array("t_max", t_max)
+    if t.ndim == 0:
+        t = np.full(len(o), float(t))
+    if t.shape != (len(o),):
+        raise ValueError(f"t_max must be a number or an ({len(o)},) array, got shape {t.shape}")
+    if np.isnan(t).any():
+        raise ValueError("t_max contains NaN")
+    return (np.ascontiguousarray(o, np.float32), np.ascontiguousarray(d, np.float32),
+            np.ascontiguousarray(t, np.float32))
+
+
+def check_lights(lights) -> np.ndarray:
+    """→ (L, 8) float32 packed light rows (`PointLight.packed()` / `DirectionalLight.packed()`), or a
+    list of such rows or light objects."""
+    if isinstance(lights, (list, tuple)):
+        lights = [x.packed() if hasattr(x, "packed") else x for x in lights]
+        lights = np.zeros((0, 8)) if not lights else lights
+    a = _array("lights_packed", lights)
+    if a.ndim == 1 and a.size == 8:
+        a = a[None]
+    if a.ndim != 2 or a.shape[1] != 8:
+        raise ValueError(f"lights_packed must be an (L, 8) array of Light.packed() rows, got shape {a.shape}")
+    if not np.isfinite(a).all():
+        raise ValueError("lights_packed contains NaN or inf")
+    if not np.isin(a[:, 0], (0, 1)).all():
+        raise ValueError("lights_packed column 0 must be 0 (directional) or 1 (point)")
+    dirs = a[a[:, 0] == 0, 1:4]
+    if len(dirs) and (np.linalg.norm(dirs, axis=1) == 0).any():
+        raise ValueError("lights_packed: a directional light has a zero direction")
+    return np.ascontiguousarray(a, np.float32)
+
+
+def check_gbuffer(gbuffer, n_faces):
+    """→ (face int32 (N,), position float32 (N, 3), eye float32 (3,)) from a gbuffer dict (what
+    `trace_primary` returns, or one built by hand with the keys face, position and eye)."""
+    if not isinstance(gbuffer, dict):
+        raise ValueError(f"gbuffer must be the dict trace_primary returns (or None), got {type(gbuffer).__name__}")
+    for key in ("face", "position", "eye"):
+        if key not in gbuffer:
+            raise ValueError(f"gbuffer has no {key!r} (needs face, position and eye)")
+    face = _array("gbuffer['face']", gbuffer["face"], np.int64)
+    pos = _array("gbuffer['position']", gbuffer["position"])
+    eye = _array("gbuffer['eye']", gbuffer["eye"]).reshape(-1)
+    if face.ndim != 1:
+        raise ValueError(f"gbuffer['face'] must be (N,), got shape {face.shape}")
+    if pos.shape != (len(face), 3):
+        raise ValueError(f"gbuffer['position'] must be ({len(face)}, 3), got shape {pos.shape}")
+    if eye.shape != (3,) or not np.isfinite(eye).all():
+        raise ValueError("gbuffer['eye'] must be three finite numbers")
+    if len(face) and (face.min() < -1 or face.max() >= n_faces):
+        raise ValueError(f"gbuffer['face'] must hold -1 (miss) or a face index 0..{n_faces - 1}")
+    if not np.isfinite(pos[face >= 0]).all():
+        raise ValueError("gbuffer['position'] contains NaN or inf at a hit pixel")
+    return (np.ascontiguousarray(face, np.int32), np.ascontiguousarray(pos, np.float32),
+            np.ascontiguousarray(eye, np.float32))
