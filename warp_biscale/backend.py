@@ -44,6 +44,12 @@ class Backend(Protocol):
                        pair_i: np.ndarray, pair_o: np.ndarray, a_v: np.ndarray) -> np.ndarray:
         """(P, 3) float32 f̄ for direction index pairs into vis.directions (reference.effective_brdf)."""
 
+    # --- SSDF visibility of the large-scale mesh (stage `ssdf`, warp_biscale.ssdf) ---
+    def ssdf_distance(self, grid, visible: np.ndarray) -> np.ndarray:
+        """(V, N) float32 θd (rad) of (V, N) bool per-vertex visibility over `grid` (an ssdf.SsdfGrid,
+        N = S² directions): ±(angle to the nearest opposite-class direction − grid.half_angle), + visible,
+        − occluded, ±π with no opposite class (reference.ssdf_distance). Exact; blocks pruned by cones."""
+
     # --- Ray casting against the large-scale mesh (stage `trace`: kernels/trace.py, cl/trace.cl) ---
     # The backend keeps the mesh on the device in mesh.device_cache[backend.name], a dict, built once
     # per mesh (rebuilt if mesh.vertices or mesh.faces is replaced). Keys, Warp | OpenCL:

@@ -476,6 +476,37 @@ class OpenCLBackend:
                      np.int32(n_pairs), mu)
         return self._read(mu, (n_pairs, j), np.float32)
 
+    # ------------------------------------------------------------------ SSDF (stage `ssdf`, warp_biscale.ssdf)
+    def _ssdf_grid(self, grid):
+        entry = grid.device_cache.get(self.name)
+        if entry is None or entry.get("ctx") is not self._ctx:
+            entry = grid.device_cache[self.name] = {
+                "ctx": self._ctx,
+                "directions": self._buffer(grid.directions, np.float32),
+                "half_angle": self._buffer(grid.half_angle, np.float32),
+                "members": self._buffer(grid.block_members, np.int32),
+                "axis": self._buffer(grid.block_axis, np.float32),
+                "cos": self._buffer(np.cos(grid.block_radius), np.float32),
+                "sin": self._buffer(np.sin(grid.block_radius), np.float32),
+            }
+        return entry
+
+    def ssdf_distance(self, grid, visible):
+        visible = np.asarray(visible, bool)
+        n_v, n = visible.shape
+        if n != len(grid.directions):
+            raise ValueError(f"visible has {n} columns for a grid of {len(grid.directions)} directions")
+        if n_v == 0:
+            return np.zeros((0, n), np.float32)
+        g = self._ssdf_grid(grid)
+        n_blocks, n_members = grid.block_members.shape
+        theta = self._empty(n_v * n, np.float32)
+        self._launch("ssdf", "ssdf_distance", (n, n_v),
+                     self._buffer(visible, np.uint8), g["directions"], g["half_angle"], g["members"], g["axis"],
+                     g["cos"], g["sin"], self._buffer(grid.block_classes(visible), np.uint8), np.int32(n),
+                     np.int32(n_v), np.int32(n_blocks), np.int32(n_members), theta)
+        return self._read(theta, (n_v, n), np.float32)
+
     # ------------------------------------------------------------------ stage trace (helper-A)
     # Ray casting against the large-scale mesh; see Backend.trace_primary for the device-cache keys.
     def _trace_mesh(self, mesh):

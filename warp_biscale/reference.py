@@ -453,6 +453,64 @@ def solve_amplitudes(moments: np.ndarray, a_v: np.ndarray, pair_o, solve_rows: n
 
 
 # ==============================================================================================
+# SSDF visibility of the large-scale mesh (Wang 2009 §5; warp_biscale.ssdf) — helper-D's section.
+#
+# θd over an octahedral S×S grid of world directions: the exact angle to the nearest texel
+# direction of the opposite class, less half the texel's nearest-neighbour angle, signed by the
+# texel's class (+ visible, − occluded); ±π when every texel has one class. Evaluated at arbitrary
+# directions by bilinear lookup of each PCA basis image (edge mirroring ignored, see ssdf).
+# ==============================================================================================
+
+
+def ssdf_distance(visible, directions, half_angle) -> np.ndarray:
+    """(V, N) float64 θd (rad) of (V, N) bool visibility over N unit `directions` (N, 3), with
+    `half_angle` (N,) h_k: θd = ±(min angle to an opposite-class direction − h_k), ±π if none.
+    Brute force over all N² direction pairs; angles by atan2(|a×b|, a·b) (accurate near 0)."""
+    visible = np.asarray(visible, bool)
+    d = np.asarray(directions, np.float64)
+    h = np.asarray(half_angle, np.float64)
+    angle = np.arctan2(np.linalg.norm(np.cross(d[:, None, :], d[None, :, :]), axis=-1), d @ d.T)  # (N, N)
+    out = np.empty(visible.shape)
+    for v, row in enumerate(visible):
+        opposite = row[:, None] != row[None, :]
+        a = np.where(opposite, angle, np.inf).min(axis=1)
+        sign = np.where(row, 1.0, -1.0)
+        out[v] = np.where(np.isinf(a), sign * np.pi, sign * (a - h))
+    return out
+
+
+def ssdf_eval(field_basis, coeffs_per_point, resolution: int, dirs) -> np.ndarray:
+    """θd (rad, float64) of a PCA-compressed SSDF at directions `dirs` (P, 3) or (P, K, 3).
+
+    field_basis (R+1, S²): row 0 the mean, rows 1.. eigenvectors; coeffs_per_point (P, R);
+    θd = basis_0(ω) + Σ_r c_r·basis_r(ω), each basis image looked up bilinearly at texel
+    coordinates x = u·S − ½, y = v·S − ½ (u, v = ssdf.octahedral_encode(ω)), clamped to
+    [0, S − 1], texel (i, j) at flat index j·S + i. → (P,) or (P, K).
+    """
+    from .ssdf import octahedral_encode
+
+    s = int(resolution)
+    basis = np.asarray(field_basis, np.float64).reshape(-1, s * s)
+    c = np.atleast_2d(np.asarray(coeffs_per_point, np.float64))
+    if c.shape[1] != basis.shape[0] - 1:
+        raise ValueError(f"coeffs_per_point has {c.shape[1]} terms for a basis of {basis.shape[0] - 1}")
+    d = np.asarray(dirs, np.float64)
+    single = d.ndim == 2
+    if single:
+        d = d[:, None, :]
+    uv = octahedral_encode(d)  # (P, K, 2)
+    x = np.clip(uv[..., 0] * s - 0.5, 0.0, s - 1.0)
+    y = np.clip(uv[..., 1] * s - 0.5, 0.0, s - 1.0)
+    i0 = np.minimum(np.floor(x), s - 2).astype(np.int64)
+    j0 = np.minimum(np.floor(y), s - 2).astype(np.int64)
+    fx, fy = x - i0, y - j0
+    images = (basis[:, j0 * s + i0] * ((1 - fx) * (1 - fy)) + basis[:, j0 * s + i0 + 1] * (fx * (1 - fy))
+              + basis[:, (j0 + 1) * s + i0] * ((1 - fx) * fy) + basis[:, (j0 + 1) * s + i0 + 1] * (fx * fy))
+    theta = images[0] + np.einsum("pr,rpk->pk", c, images[1:])
+    return theta[:, 0] if single else theta
+
+
+# ==============================================================================================
 # Ray casting against the large-scale mesh (stage `trace`: kernels/trace.py, cl/trace.cl)
 #
 # Brute force over every triangle, float64 Möller–Trumbore, double-sided. Barycentric (u, v) are

@@ -375,6 +375,41 @@ class WarpBackend:
                       self._array(np.asarray(integrals, np.float64), wp.float64)], [mu])
         return mu.numpy()
 
+    # ------------------------------------------------------------------ SSDF (stage `ssdf`, warp_biscale.ssdf)
+    def _ssdf_grid(self, grid):
+        import warp as wp
+
+        entry = grid.device_cache.get(self.name)
+        if entry is None:
+            entry = grid.device_cache[self.name] = {
+                "directions": self._array(grid.directions.astype(np.float32), wp.vec3),
+                "half_angle": self._array(grid.half_angle.astype(np.float32), wp.float32),
+                "members": self._array(grid.block_members.astype(np.int32), wp.int32),
+                "axis": self._array(grid.block_axis.astype(np.float32), wp.vec3),
+                "cos": self._array(np.cos(grid.block_radius).astype(np.float32), wp.float32),
+                "sin": self._array(np.sin(grid.block_radius).astype(np.float32), wp.float32),
+            }
+        return entry
+
+    def ssdf_distance(self, grid, visible):
+        import warp as wp
+
+        from .kernels import ssdf as ks
+
+        visible = np.asarray(visible, bool)
+        n_v, n = visible.shape
+        if n != len(grid.directions):
+            raise ValueError(f"visible has {n} columns for a grid of {len(grid.directions)} directions")
+        if n_v == 0:
+            return np.zeros((0, n), np.float32)
+        g = self._ssdf_grid(grid)
+        theta = wp.empty((n_v, n), dtype=wp.float32, device=self._device)
+        self._launch(ks.ssdf_distance, (n_v, n),
+                     [self._array(visible.astype(np.uint8), wp.uint8), g["directions"], g["half_angle"],
+                      g["members"], g["axis"], g["cos"], g["sin"], self._array(grid.block_classes(visible), wp.uint8)],
+                     [theta])
+        return theta.numpy()
+
     # ------------------------------------------------------------------ stage trace (helper-A)
     # Ray casting against the large-scale mesh; see Backend.trace_primary for the device-cache keys.
     def _trace_host(self, a):
