@@ -528,3 +528,78 @@ class WarpBackend:
                           self._array(lights, wp.float32), eps, t_min],
                          [vis])
         return self._trace_host(vis) if to_host else None
+
+    # ------------------------------------------------------------------ shade (rendering)
+
+    def _shade_static(self, static):
+        """Device copies of a scene's static shade inputs, made once and kept in the dict itself."""
+        import warp as wp
+
+        per_backend = static.setdefault("_device", {})
+        dev = per_backend.get(self.name)
+        if dev is None:
+            def arr(key, dtype, width=None):
+                a = np.asarray(static[key])
+                if a.size == 0:  # Warp wants no empty arrays: a one-element dummy (the kernel never reads it)
+                    a = np.zeros((1, width) if width else 1, a.dtype)
+                return wp.array(np.ascontiguousarray(a), dtype=dtype, device=self._device)
+
+            dev = per_backend[self.name] = {
+                "faces": arr("faces", wp.int32, 3),
+                "positions": arr("positions", wp.vec3), "normals": arr("normals", wp.vec3),
+                "tangents": arr("tangents", wp.vec3), "face_material": arr("face_material", wp.int32),
+                "env_sgs": arr("env_sgs", wp.float32, 7), "env_maps": arr("env_maps", wp.vec3),
+                "env_levels": arr("env_levels", wp.float32, 4),
+                "ssdf_basis": arr("ssdf_basis", wp.float32, 1), "ssdf_coeffs": arr("ssdf_coeffs", wp.float32, 1),
+                "table": arr("table", wp.float32), "mat_info": arr("mat_info", wp.int32, 4),
+                "analytic": arr("analytic", wp.float32, 9), "eff_info": arr("eff_info", wp.int32, 8),
+                "eff_lobes": arr("eff_lobes", wp.float32, 4), "eff_sub": arr("eff_sub", wp.float32, 9),
+                "eff_tables": arr("eff_tables", wp.float32), "eff_diffuse": arr("eff_diffuse", wp.float32),
+            }
+        return dev
+
+    def shade(self, mesh, static, camera_packed, lights_packed, gbuffer=None, to_host=True):
+        """(H·W, 3) float32 radiance by kernels/shade.py (shading.shade_reference is its oracle).
+
+        `static`: the scene's packed inputs (`render._static_inputs`: mesh arrays, lighting, SSDF,
+        materials, table). The G-buffer is the one the last `trace_primary` / `trace_shadows` left on
+        the device for `mesh`, or a host dict {face, bary, light_vis} (`gbuffer`)."""
+        import warp as wp
+
+        from .kernels import shade as ks
+
+        dev = self._shade_static(static)
+        m = self._trace_mesh(mesh)
+        lights = np.asarray(lights_packed, np.float32).reshape(-1, 8)
+        n_lights = len(lights)
+        if gbuffer is None:
+            if "gbuffer_face" not in m:
+                raise ValueError("no G-buffer on the device for this mesh: call trace_primary first")
+            face, bary = m["gbuffer_face"], m["gbuffer_bary"]
+            n = int(face.shape[0])
+            vis = m.get("gbuffer_light_vis") if n_lights else None
+            if n_lights and (vis is None or tuple(vis.shape) != (n, n_lights)):
+                raise ValueError("no shadow rays on the device for these lights: call trace_shadows first")
+        else:
+            face = wp.array(np.asarray(gbuffer["face"], np.int32), dtype=wp.int32, device=self._device)
+            bary = wp.array(np.asarray(gbuffer["bary"], np.float32), dtype=wp.vec2, device=self._device)
+            n = int(face.shape[0])
+            vis = (wp.array(np.ascontiguousarray(gbuffer["light_vis"], np.uint8), dtype=wp.uint8, device=self._device)
+                   if n_lights else None)
+        if vis is None:
+            vis = wp.zeros((1, 1), dtype=wp.uint8, device=self._device)
+        light_arr = wp.array(lights if n_lights else np.zeros((1, 8), np.float32), dtype=wp.float32,
+                             device=self._device)
+        out = self._trace_reuse(m, "radiance", n, wp.vec3)
+        self._launch(ks.shade_pixels, n,
+                     [face, bary, vis, dev["faces"], dev["positions"], dev["normals"], dev["tangents"],
+                      dev["face_material"], wp.array(np.asarray(camera_packed, np.float32), dtype=wp.float32,
+                                                     device=self._device),
+                      n_lights, light_arr, len(static["env_sgs"]), dev["env_sgs"], dev["env_maps"], dev["env_levels"],
+                      int(static["has_ssdf"]), int(static["ssdf_res"]), dev["ssdf_basis"], dev["ssdf_coeffs"],
+                      dev["table"], dev["mat_info"], dev["analytic"], dev["eff_info"], dev["eff_lobes"],
+                      dev["eff_sub"], dev["eff_tables"], dev["eff_diffuse"], n],
+                     [out])
+        if not to_host:
+            return None
+        return self._trace_host(out).reshape(n, 3).astype(np.float32)
