@@ -89,6 +89,19 @@ class Backend(Protocol):
         None or the dict trace_primary last returned (both use the device copy), or any dict with
         face, position, eye (uploaded). Fills "gbuffer_light_vis"; returns None unless to_host."""
 
+    # --- Per-pixel SG shading (stage `shade`: kernels/shade.py, cl/shade.cl; warp_biscale.shading) ---
+    def shade(self, mesh, static: dict, camera_packed: np.ndarray, lights_packed: np.ndarray, gbuffer=None,
+              to_host: bool = True) -> np.ndarray | None:
+        """(P, 3) float32 outgoing radiance of every pixel (shading.shade_reference; P = W·H, row-major),
+        never NaN, inf or negative; background pixels get the environment along the camera ray.
+        `static`: the scene's packed inputs (render._static_inputs: mesh arrays, SG lighting, SSDF,
+        shading.pack_materials, sg.lighting_table()), uploaded once and kept in
+        static["_device"][self.name]. camera_packed: Camera.packed() (16,); lights_packed (L, 8).
+        The G-buffer: gbuffer None → the one the last trace_primary / trace_shadows left on the
+        device for `mesh` (the render path; ValueError if absent or traced for another light count),
+        or a host dict {face (P,), bary (P, 2), light_vis (P, L)} (uploaded). The output buffer is kept
+        in mesh.device_cache[self.name]["radiance"] and reused; returns None unless to_host."""
+
 
 def chunking(n_words: int, n_outputs: int, threads: int) -> tuple[int, int]:
     """Split n_words facet words into chunks so that n_outputs × chunks ≈ threads.

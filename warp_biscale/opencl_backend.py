@@ -610,3 +610,97 @@ class OpenCLBackend:
                          position, *(np.float32(e) for e in eye), self._buffer(lights, np.float32), np.float32(eps),
                          np.float32(t_min), np.int32(n), np.int32(n_lights), vis)
         return self._read(vis, (n, n_lights), np.uint8) if to_host else None
+
+    # ------------------------------------------------------------------ stage shade (helper-F)
+    # Per-pixel SG shading (cl/shade.cl, twin of kernels/shade.py); see Backend.shade.
+    def _shade_static(self, static):
+        """Device copies of a scene's static shade inputs, made once and kept in the dict itself
+        (static["_device"][self.name]); empty arrays become one-element dummies the kernel never reads."""
+        per_backend = static.setdefault("_device", {})
+        dev = per_backend.get(self.name)
+        if dev is None or dev.get("ctx") is not self._ctx:
+            from . import sg
+
+            basis = np.asarray(static["ssdf_basis"], np.float32)
+            coeffs = np.asarray(static["ssdf_coeffs"], np.float32)
+            has_ssdf = int(static["has_ssdf"])
+            table = np.asarray(static["table"], np.float32)
+            levels = np.asarray(static["env_levels"], np.float32).reshape(-1, 4)
+            if len(levels) == 0:
+                raise ValueError("static['env_levels'] is empty: the prefiltered environment needs >= 1 level")
+            if has_ssdf and (coeffs.shape[1] != basis.shape[0] - 1 or basis.shape[1] != int(static["ssdf_res"]) ** 2):
+                raise ValueError(f"static['ssdf_basis'] {basis.shape} and ['ssdf_coeffs'] {coeffs.shape} do not fit "
+                                 f"ssdf_res {static['ssdf_res']} (want (R + 1, res²) and (V, R))")
+            dev = per_backend[self.name] = {
+                "ctx": self._ctx,
+                **{key: self._buffer(static[key], np.int32) for key in ("faces", "face_material", "mat_info",
+                                                                          "eff_info")},
+                **{key: self._buffer(static[key], np.float32) for key in (
+                    "positions", "normals", "tangents", "env_sgs", "env_maps", "analytic", "eff_lobes", "eff_sub",
+                    "eff_tables", "eff_diffuse")},
+                "env_levels": self._buffer(levels, np.float32), "ssdf_basis": self._buffer(basis, np.float32),
+                "ssdf_coeffs": self._buffer(coeffs, np.float32), "table": self._buffer(table, np.float32),
+                # Counts and shapes that the kernel takes by value.
+                "n_env": np.int32(len(static["env_sgs"])), "n_levels": np.int32(len(levels)),
+                "ssdf_args": (np.int32(has_ssdf), np.int32(static["ssdf_res"]), np.int32(basis.shape[0]),
+                              np.int32(coeffs.shape[1] if has_ssdf else 0)),
+                "table_args": (np.int32(table.shape[1]), np.int32(table.shape[2]),
+                               np.float32(sg.TABLE_LOG10_ETA[0]), np.float32(sg.TABLE_LOG10_ETA[1]),
+                               np.float32(sg.SHARPNESS_MAX)),
+            }
+        return dev
+
+    def shade(self, mesh, static, camera_packed, lights_packed, gbuffer=None, to_host=True):
+        """(H·W, 3) float32 radiance by cl/shade.cl (shading.shade_reference is its oracle).
+
+        `static`: the scene's packed inputs (`render._static_inputs`: mesh arrays, lighting, SSDF,
+        materials, table). The G-buffer is the one the last `trace_primary` / `trace_shadows` left on
+        the device for `mesh`, or a host dict {face, bary, light_vis} (`gbuffer`)."""
+        import pyopencl.cltypes as cltypes
+
+        dev = self._shade_static(static)
+        m = self._trace_mesh(mesh)
+        lights = np.asarray(lights_packed, np.float32).reshape(-1, 8)
+        n_lights = len(lights)
+        if gbuffer is None:
+            if "gbuffer_face" not in m:
+                raise ValueError("no G-buffer on the device for this mesh: call trace_primary first")
+            face, bary, n = m["gbuffer_face"], m["gbuffer_bary"], int(m["gbuffer_size"])
+            vis = m.get("gbuffer_light_vis") if n_lights else None
+            if n_lights and (vis is None or vis.size != max(1, n * n_lights)):
+                raise ValueError("no shadow rays on the device for these lights: call trace_shadows first")
+        else:
+            f = np.asarray(gbuffer["face"], np.int32).reshape(-1)
+            n = len(f)
+            bary_h = np.asarray(gbuffer["bary"], np.float32)
+            if bary_h.shape != (n, 2):
+                raise ValueError(f"gbuffer['bary'] must have shape ({n}, 2), got {bary_h.shape}")
+            if n and int(f.max()) >= len(mesh.faces):
+                raise ValueError(f"gbuffer['face'] holds face {int(f.max())} of a mesh with {len(mesh.faces)}")
+            face, bary = self._buffer(f, np.int32), self._buffer(bary_h, np.float32)
+            vis = None
+            if n_lights:
+                vis_h = np.asarray(gbuffer["light_vis"], np.uint8)
+                if vis_h.shape != (n, n_lights):
+                    raise ValueError(f"gbuffer['light_vis'] must have shape ({n}, {n_lights}), got {vis_h.shape}")
+                vis = self._buffer(vis_h, np.uint8)
+        if vis is None:
+            vis = self._trace_reuse(m, "shade_no_vis", 1, np.uint8)
+        light_buf = self._trace_reuse(m, "shade_lights", max(1, n_lights) * 8, np.float32)
+        if n_lights:
+            self._cl.enqueue_copy(self._queue, light_buf, np.ascontiguousarray(lights))
+        c = np.asarray(camera_packed, np.float32).reshape(16)
+        eye, forward, right, up = (cltypes.make_float4(*c[k:k + 3], 0.0) for k in (0, 3, 6, 9))
+        out = self._trace_reuse(m, "radiance", 3 * n, np.float32)
+        if n:
+            self._launch("shade", "shade_pixels", (n,),
+                         face, bary, vis, dev["faces"], dev["positions"], dev["normals"], dev["tangents"],
+                         dev["face_material"], eye, forward, right, up, np.float32(c[12]), np.float32(c[13]),
+                         np.int32(n_lights), light_buf, dev["n_env"], dev["env_sgs"], dev["env_maps"],
+                         dev["n_levels"], dev["env_levels"], *dev["ssdf_args"], dev["ssdf_basis"],
+                         dev["ssdf_coeffs"], dev["table"], *dev["table_args"], dev["mat_info"], dev["analytic"],
+                         dev["eff_info"], dev["eff_lobes"], dev["eff_sub"], dev["eff_tables"], dev["eff_diffuse"],
+                         np.int32(n), out)
+        if not to_host:
+            return None
+        return self._read(out, (n, 3), np.float32)

@@ -1,0 +1,484 @@
+/* Per-pixel SG shading (Wang 2009 §7, Iwasaki 2012 §5): the shade stage.
+ *
+ * Twin of kernels/shade.py, function for function and in the same operation order; the
+ * mathematics and the packed inputs are warp_biscale.shading (shade_reference is the float64
+ * oracle). One work-item per pixel along dimension 0 (rounded up to a whole work-group; the
+ * surplus returns): it rebuilds the surface point from the G-buffer (face, barycentrics), sums
+ * the environment's SG lobes and each light's SG emitter against the diffuse part, then the
+ * warped specular lobes against the prefiltered environment and the lights, each lobe shadowed
+ * by the SSDF (environment) or the light's shadow ray.
+ *
+ * Layouts (no float3 in global memory): positions, normals, tangents, env_maps and the output are
+ * float arrays of stride 3; bary stride 2; light_vis (P, L) uchar; table (2, rows, cols);
+ * env_levels (n_levels, 4) [log2 η, texel offset, H, W]; ssdf_basis (n_basis, res²);
+ * ssdf_coeffs (V, n_coeffs); the material arrays as warp_biscale.shading.pack_materials.
+ * The two one-cell bilinear helpers that Warp calls twice (grid_corners, grid_weights) are one
+ * function here (grid_bilinear): the same values, one concentric map instead of two.
+ */
+
+#define SHADE_PI 3.14159265358979f
+#define MIN_COS_VIEW 1.0e-4f /* = shading.MIN_COS_VIEW */
+
+/* ∫G = 2π(1 − e^{−2η})/η, with its series below η = 1e-3 (no cancellation). */
+CL_INLINE float sg_integral(float eta)
+{
+    if (eta < 1.0e-3f)
+        return 2.0f * SHADE_PI * (2.0f - 2.0f * eta + 1.3333333f * eta * eta);
+    return 2.0f * SHADE_PI * (1.0f - exp(-2.0f * eta)) / eta;
+}
+
+/* The lighting table (2, rows, cols) over (log10 η, c) and its η range (sg.TABLE_LOG10_ETA). */
+typedef struct {
+    __global const float *p;
+    int rows, cols;
+    float lo, hi;
+} Table;
+
+/* A table row position for one η: lookups that share η (a lobe's cosine integral and its SSDF
+ * fractions) share it, so log(η) is taken once; the arithmetic is sg.table_lookup's, split in two. */
+typedef struct {
+    int r0;
+    float fr;
+} EtaRow;
+
+CL_INLINE EtaRow eta_row(Table t, float eta)
+{
+    float le = clampf(log(maxf(eta, 1.0e-30f)) * 0.4342944819f, t.lo, t.hi);
+    float tr = (le - t.lo) / (t.hi - t.lo) * (float)(t.rows - 1);
+    EtaRow r;
+    r.r0 = min((int)floor(tr), t.rows - 2);
+    r.fr = tr - (float)r.r0;
+    return r;
+}
+
+/* Bilinear in (log10 η, c): sg.table_lookup of table `which` at c and a row from eta_row. */
+CL_INLINE float lookup(Table t, int which, EtaRow r, float c)
+{
+    float tc = (clampf(c, -1.0f, 1.0f) + 1.0f) * 0.5f * (float)(t.cols - 1);
+    int c0 = min((int)floor(tc), t.cols - 2);
+    float fc = tc - (float)c0;
+    __global const float *t0 = t.p + (which * t.rows + r.r0) * t.cols + c0;
+    __global const float *t1 = t0 + t.cols;
+    float top = (1.0f - fc) * t0[0] + fc * t0[1];
+    float bottom = (1.0f - fc) * t1[0] + fc * t1[1];
+    return (1.0f - r.fr) * top + r.fr * bottom;
+}
+
+/* ∫ G(ω; axis, η, 1)(n·ω)⁺ dω, η given with its table row. */
+CL_INLINE float cosine_integral(Table t, float3 axis, float eta, EtaRow r, float3 n)
+{
+    return sg_integral(eta) * lookup(t, 0, r, dot3(axis, n));
+}
+
+/* Bilinear lookup of one equirect level (environment.py's convention: wrap φ, clamp θ). */
+CL_INLINE float3 equirect_bilinear(__global const float *maps, int offset, int h, int w, float3 d)
+{
+    float theta = acos(clampf(d.y, -1.0f, 1.0f));
+    float phi = atan2(d.z, d.x);
+    if (phi < 0.0f)
+        phi = phi + 2.0f * SHADE_PI;
+    float row = theta * (float)h / SHADE_PI - 0.5f;
+    float col = phi * (float)w / (2.0f * SHADE_PI) - 0.5f;
+    float r0f = floor(row);
+    float c0f = floor(col);
+    float fr = row - r0f;
+    float fc = col - c0f;
+    int r0 = clamp((int)r0f, 0, h - 1);
+    int r1 = clamp((int)r0f + 1, 0, h - 1);
+    int c0 = (((int)c0f % w) + w) % w;
+    int c1 = (c0 + 1) % w;
+    float3 a = load3(maps, offset + r0 * w + c0) * (1.0f - fc) + load3(maps, offset + r0 * w + c1) * fc;
+    float3 b = load3(maps, offset + r1 * w + c0) * (1.0f - fc) + load3(maps, offset + r1 * w + c1) * fc;
+    return a * (1.0f - fr) + b * fr;
+}
+
+/* Λ(d, η): linear in log2 η between the two nearest levels (reference.prefiltered_lookup). */
+CL_INLINE float3 prefiltered(__global const float *maps, __global const float *levels, int n, float3 d, float eta)
+{
+    float t = clampf(log2(maxf(eta, 1.0e-30f)) - levels[0], 0.0f, (float)(n - 1));
+    int l0 = max(min((int)floor(t), n - 2), 0);
+    int l1 = min(l0 + 1, n - 1);
+    float f = clampf(t - (float)l0, 0.0f, 1.0f);
+    __global const float *a4 = levels + 4 * l0;
+    __global const float *b4 = levels + 4 * l1;
+    float3 a = equirect_bilinear(maps, (int)a4[1], (int)a4[2], (int)a4[3], d);
+    float3 b = equirect_bilinear(maps, (int)b4[1], (int)b4[2], (int)b4[3], d);
+    return a * (1.0f - f) + b * f;
+}
+
+/* The SSDF of a pixel: basis, the three vertices' coefficient rows and their barycentric weights. */
+typedef struct {
+    __global const float *basis;
+    __global const float *c0, *c1, *c2;
+    float w0, w1, w2;
+    int n_basis, res;
+} Ssdf;
+
+/* θd(d) from the PCA basis and the barycentric blend of three vertices' coefficients
+ * (octahedral map, fold along z, bilinear clamped: reference.ssdf_eval). */
+CL_INLINE float ssdf_theta(Ssdf s, float3 d)
+{
+    float sum = absf(d.x) + absf(d.y) + absf(d.z);
+    float px = d.x / sum;
+    float py = d.y / sum;
+    if (d.z < 0.0f) {
+        float sx = px < 0.0f ? -1.0f : 1.0f;
+        float sy = py < 0.0f ? -1.0f : 1.0f;
+        float qx = (1.0f - absf(py)) * sx;
+        float qy = (1.0f - absf(px)) * sy;
+        px = qx;
+        py = qy;
+    }
+    int res = s.res;
+    float x = clampf((px + 1.0f) * 0.5f * (float)res - 0.5f, 0.0f, (float)(res - 1));
+    float y = clampf((py + 1.0f) * 0.5f * (float)res - 0.5f, 0.0f, (float)(res - 1));
+    int x0 = min((int)floor(x), res - 1);
+    int y0 = min((int)floor(y), res - 1);
+    int x1 = min(x0 + 1, res - 1);
+    int y1 = min(y0 + 1, res - 1);
+    float fx = x - (float)x0;
+    float fy = y - (float)y0;
+    int k00 = y0 * res + x0;
+    int k10 = y0 * res + x1;
+    int k01 = y1 * res + x0;
+    int k11 = y1 * res + x1;
+    int texels = res * res;
+    float theta = 0.0f;
+    for (int r = 0; r < s.n_basis; ++r) {
+        float c = 1.0f;
+        if (r > 0)
+            c = s.w0 * s.c0[r - 1] + s.w1 * s.c1[r - 1] + s.w2 * s.c2[r - 1];
+        __global const float *b = s.basis + r * texels;
+        float v = ((1.0f - fx) * (1.0f - fy) * b[k00] + fx * (1.0f - fy) * b[k10] + (1.0f - fx) * fy * b[k01]
+                   + fx * fy * b[k11]);
+        theta = theta + c * v;
+    }
+    return theta;
+}
+
+/* The fraction of a lobe's horizon-clipped integral that the SSDF leaves visible. */
+CL_INLINE float ssdf_visible(Ssdf s, Table t, float3 axis, EtaRow r, float3 n)
+{
+    float theta = ssdf_theta(s, axis);
+    float c = sin(clampf(theta, -0.5f * SHADE_PI, 0.5f * SHADE_PI));
+    float vis = lookup(t, 1, r, c) / maxf(lookup(t, 1, r, dot3(axis, n)), 1.0e-6f);
+    return clampf(vis, 0.0f, 1.0f);
+}
+
+/* directions.hemisphere_to_square (z clamped to [0, 1]). */
+CL_INLINE float2 concentric_uv(float3 w)
+{
+    float z = clampf(w.z, 0.0f, 1.0f);
+    float r = sqrt(1.0f - z);
+    float phi = atan2(w.y, w.x);
+    if (phi < -0.25f * SHADE_PI)
+        phi = phi + 2.0f * SHADE_PI;
+    float q = 0.25f * SHADE_PI;
+    float a, b;
+    if (phi < q) {
+        a = r;
+        b = phi * a / q;
+    } else if (phi < 3.0f * q) {
+        b = r;
+        a = -(phi - 0.5f * SHADE_PI) * b / q;
+    } else if (phi < 5.0f * q) {
+        a = -r;
+        b = (phi - SHADE_PI) * a / q;
+    } else {
+        b = -r;
+        a = -(phi - 1.5f * SHADE_PI) * b / q;
+    }
+    return (float2)((a + 1.0f) * 0.5f, (b + 1.0f) * 0.5f);
+}
+
+/* The four K×K grid indices around w and their weights (directions.bilinear_corners' order):
+ * kernels/shade.py's grid_corners and grid_weights in one. */
+CL_INLINE void grid_bilinear(float3 w, int k, int *idx, float *wgt)
+{
+    float2 uv = concentric_uv(w);
+    float x = clampf(uv.x * (float)k - 0.5f, 0.0f, (float)(k - 1));
+    float y = clampf(uv.y * (float)k - 0.5f, 0.0f, (float)(k - 1));
+    int x0 = min((int)floor(x), k - 1);
+    int y0 = min((int)floor(y), k - 1);
+    int x1 = min(x0 + 1, k - 1);
+    int y1 = min(y0 + 1, k - 1);
+    float tx = x - (float)x0;
+    float ty = y - (float)y0;
+    idx[0] = y0 * k + x0;
+    idx[1] = y0 * k + x1;
+    idx[2] = y1 * k + x0;
+    idx[3] = y1 * k + x1;
+    wgt[0] = (1.0f - tx) * (1.0f - ty);
+    wgt[1] = tx * (1.0f - ty);
+    wgt[2] = (1.0f - tx) * ty;
+    wgt[3] = tx * ty;
+}
+
+/* Bilinear (ωi) × bilinear (ωo) lookup of a (K², K², J, 3) table at lobe j; oo, ow: ωo's corners. */
+CL_INLINE float3 table_rgb(__global const float *table, int base, int k2, int j_count, int j, float3 wi_local, int k,
+                           const int *oo, const float *ow)
+{
+    int ii[4];
+    float iw[4];
+    grid_bilinear(wi_local, k, ii, iw);
+    float3 out = (float3)(0.0f, 0.0f, 0.0f);
+    for (int a = 0; a < 4; ++a) {
+        for (int b = 0; b < 4; ++b) {
+            int i = base + ((ii[a] * k2 + oo[b]) * j_count + j) * 3;
+            float wgt = iw[a] * ow[b];
+            out = out + wgt * (float3)(table[i], table[i + 1], table[i + 2]);
+        }
+    }
+    return out;
+}
+
+/* M of an analytic row (9 floats: kind, kd rgb, ks rgb, p1, p2) at cos θd (shading.specular_scale). */
+CL_INLINE float3 specular_scale(__global const float *row, float cos_d_in)
+{
+    int kind = (int)row[0];
+    float3 ks = (float3)(row[4], row[5], row[6]);
+    float p1 = row[7];
+    float p2 = row[8];
+    float cos_d = clampf(cos_d_in, MIN_COS_VIEW, 1.0f);
+    if (kind == BLINN_PHONG)
+        return ks * ((p1 + 2.0f) / (2.0f * SHADE_PI));
+    if (kind == COOK_TORRANCE) {
+        float e = 1.0f - cos_d;
+        float fres = p2 + (1.0f - p2) * e * e * e * e * e;
+        return ks * (fres / (SHADE_PI * cos_d * cos_d));
+    }
+    if (kind == WARD)
+        return ks / (4.0f * SHADE_PI * p1 * p1 * cos_d);
+    return (float3)(0.0f, 0.0f, 0.0f);
+}
+
+CL_INLINE float ndf_sharpness(__global const float *row)
+{
+    if ((int)row[0] == BLINN_PHONG)
+        return row[7];
+    return 2.0f / (row[7] * row[7]);
+}
+
+/* A light's SG emitter seen from pos (scene.light_sg): axis, η = 2π/Ω, μ with ∫G = the irradiance
+ * at normal incidence. Rows: [type 0 directional | 1 point, xyz, rgb, solid angle | radius]. */
+CL_INLINE float3 light_axis(__global const float *row, float3 pos)
+{
+    float3 v = (float3)(row[1], row[2], row[3]);
+    if (row[0] == 0.0f)
+        return v;
+    return normalize3(v - pos);
+}
+
+CL_INLINE float light_sharpness(__global const float *row, float3 pos)
+{
+    float omega = row[7];
+    if (row[0] != 0.0f) {
+        float3 v = (float3)(row[1], row[2], row[3]) - pos;
+        float d = sqrt(dot3(v, v));
+        omega = SHADE_PI * row[7] * row[7] / maxf(d * d, 1.0e-30f);
+    }
+    return 2.0f * SHADE_PI / maxf(omega, 1.0e-6f);
+}
+
+CL_INLINE float3 light_amplitude(__global const float *row, float3 pos, float eta)
+{
+    float3 power = (float3)(row[4], row[5], row[6]);
+    if (row[0] != 0.0f) {
+        float3 v = (float3)(row[1], row[2], row[3]) - pos;
+        float d = sqrt(dot3(v, v));
+        power = power / maxf(d * d, 1.0e-30f);
+    }
+    return power / sg_integral(eta);
+}
+
+/* ∫ G(a1, e1)·G(a2, e2)·(n·ω)⁺: the product SG (sg.product) against the clamped cosine. */
+CL_INLINE float product_integral(Table t, float3 a1, float e1, float3 a2, float e2, float3 n)
+{
+    float3 v = e1 * a1 + e2 * a2;
+    float3 s = a1 + a2;
+    float d = sqrt(maxf((e1 - e2) * (e1 - e2) + e1 * e2 * dot3(s, s), 0.0f));
+    float3 diff = a1 - a2;
+    float gap = e1 * e2 * dot3(diff, diff) / (e1 + e2 + d);
+    float3 axis = (float3)(0.0f, 0.0f, 1.0f);
+    if (sqrt(dot3(v, v)) > 0.0f)
+        axis = normalize3(v);
+    return exp(-gap) * cosine_integral(t, axis, d, eta_row(t, d), n);
+}
+
+__kernel void shade_pixels(
+    __global const int *face,           /* (P,) G-buffer face, -1 = miss */
+    __global const float *bary,         /* (P, 2) weights of vertices 1 and 2 */
+    __global const uchar *light_vis,    /* (P, L) 1 = light visible */
+    __global const int *faces,          /* (F, 3) */
+    __global const float *positions,    /* (V, 3) */
+    __global const float *normals,      /* (V, 3) */
+    __global const float *tangents,     /* (V, 3) */
+    __global const int *face_material,  /* (F,) */
+    const float4 eye, const float4 forward, const float4 right, const float4 up, /* Camera.packed() */
+    const float cam_w, const float cam_h,
+    const int n_lights, __global const float *lights,                 /* (L, 8) */
+    const int n_env, __global const float *env_sgs,                   /* (K, 7) [axis, η, rgb] */
+    __global const float *env_maps, const int n_levels, __global const float *env_levels,
+    const int has_ssdf, const int ssdf_res, const int n_basis, const int n_coeffs,
+    __global const float *ssdf_basis, __global const float *ssdf_coeffs,
+    __global const float *table, const int table_rows, const int table_cols, const float log_lo, const float log_hi,
+    const float sharpness_max,
+    __global const int *mat_info,       /* (Mat, 4) */
+    __global const float *analytic,     /* (A, 9) */
+    __global const int *eff_info,       /* (E, 8) */
+    __global const float *eff_lobes,    /* (ΣJ, 4) */
+    __global const float *eff_sub,      /* (Σn_sub, 9) */
+    __global const float *eff_tables, __global const float *eff_diffuse,
+    const int n_pixels,
+    __global float *radiance)           /* (P, 3) */
+{
+    int p = get_global_id(0);
+    if (p >= n_pixels)
+        return;
+    float3 eye3 = (float3)(eye.x, eye.y, eye.z);
+    int f = face[p];
+    if (f < 0) {
+        int width = (int)cam_w;
+        float x = (float)(p % width);
+        float y = (float)(p / width);
+        float3 d = normalize3((float3)(forward.x, forward.y, forward.z)
+                              + (2.0f * (x + 0.5f) / cam_w - 1.0f) * (float3)(right.x, right.y, right.z)
+                              + (1.0f - 2.0f * (y + 0.5f) / cam_h) * (float3)(up.x, up.y, up.z));
+        store3(radiance, p, prefiltered(env_maps, env_levels, n_levels, d, 1.0e30f));
+        return;
+    }
+    Table tab = {table, table_rows, table_cols, log_lo, log_hi};
+    int i0 = faces[3 * f];
+    int i1 = faces[3 * f + 1];
+    int i2 = faces[3 * f + 2];
+    float w1 = bary[2 * p];
+    float w2 = bary[2 * p + 1];
+    float w0 = 1.0f - w1 - w2;
+    float3 pos = w0 * load3(positions, i0) + w1 * load3(positions, i1) + w2 * load3(positions, i2);
+    float3 n = normalize3(w0 * load3(normals, i0) + w1 * load3(normals, i1) + w2 * load3(normals, i2));
+    float3 t = w0 * load3(tangents, i0) + w1 * load3(tangents, i1) + w2 * load3(tangents, i2);
+    t = t - dot3(t, n) * n;
+    if (sqrt(dot3(t, t)) < 1.0e-12f) {
+        float3 ref = absf(n.x) < 0.9f ? (float3)(1.0f, 0.0f, 0.0f) : (float3)(0.0f, 0.0f, 1.0f);
+        t = ref - dot3(ref, n) * n;
+    }
+    t = normalize3(t);
+    float3 b = cross3(n, t);
+    float3 wo = normalize3(eye3 - pos);
+    float cos_o = maxf(dot3(wo, n), MIN_COS_VIEW);
+    float3 wo_local = normalize3((float3)(dot3(wo, t), dot3(wo, b), cos_o));
+
+    Ssdf ssdf = {ssdf_basis, ssdf_coeffs + i0 * n_coeffs, ssdf_coeffs + i1 * n_coeffs, ssdf_coeffs + i2 * n_coeffs,
+                 w0, w1, w2, n_basis, ssdf_res};
+    __global const uchar *vis = light_vis + p * n_lights;
+
+    int mat = face_material[f];
+    int kind = mat_info[4 * mat];
+    int idx = mat_info[4 * mat + 1];
+    int has_spec = mat_info[4 * mat + 2];
+    int k = 0, k2 = 0, j_count = 0, diffuse_base = 0;
+    int oo[4] = {0, 0, 0, 0};
+    float ow[4] = {0.0f, 0.0f, 0.0f, 0.0f};
+    float3 kd = (float3)(0.0f, 0.0f, 0.0f);
+    __global const int *ei = eff_info + 8 * idx;
+    if (kind == 0) {
+        kd = (float3)(analytic[9 * idx + 1], analytic[9 * idx + 2], analytic[9 * idx + 3]) / SHADE_PI;
+    } else {
+        k = ei[0];
+        k2 = k * k;
+        j_count = ei[1];
+        diffuse_base = ei[6];
+        grid_bilinear(wo_local, k, oo, ow);
+    }
+    float3 out = (float3)(0.0f, 0.0f, 0.0f);
+
+    /* Diffuse: environment lobes (SSDF-shadowed), then lights (shadow rays). */
+    for (int e = 0; e < n_env; ++e) {
+        __global const float *lobe = env_sgs + 7 * e;
+        float3 axis = (float3)(lobe[0], lobe[1], lobe[2]);
+        float eta = lobe[3];
+        EtaRow row = eta_row(tab, eta);
+        float amount = cosine_integral(tab, axis, eta, row, n);
+        if (has_ssdf != 0)
+            amount = amount * ssdf_visible(ssdf, tab, axis, row, n);
+        float3 fd = kd;
+        if (kind != 0) {
+            float3 al = (float3)(dot3(axis, t), dot3(axis, b), dot3(axis, n));
+            fd = table_rgb(eff_diffuse, diffuse_base, k2, 1, 0, al, k, oo, ow);
+        }
+        out = out + fd * (float3)(lobe[4], lobe[5], lobe[6]) * amount;
+    }
+    for (int l = 0; l < n_lights; ++l) {
+        if (vis[l] == 0)
+            continue;
+        __global const float *row = lights + 8 * l;
+        float3 axis = light_axis(row, pos);
+        float eta = light_sharpness(row, pos);
+        float3 fd = kd;
+        if (kind != 0) {
+            float3 al = (float3)(dot3(axis, t), dot3(axis, b), dot3(axis, n));
+            fd = table_rgb(eff_diffuse, diffuse_base, k2, 1, 0, al, k, oo, ow);
+        }
+        out = out + fd * light_amplitude(row, pos, eta) * cosine_integral(tab, axis, eta, eta_row(tab, eta), n);
+    }
+
+    /* Specular: each warped lobe against the prefiltered environment and each light. */
+    if (has_spec != 0) {
+        int n_sub = 1;
+        int n_lobes = 1;
+        if (kind != 0) {
+            n_sub = ei[2];
+            n_lobes = j_count;
+        }
+        for (int s = 0; s < n_sub; ++s) {
+            for (int j = 0; j < n_lobes; ++j) {
+                float3 axis;
+                float eta;
+                float3 amp;
+                if (kind == 0) {
+                    __global const float *row = analytic + 9 * idx;
+                    amp = specular_scale(row, cos_o);
+                    axis = normalize3(2.0f * cos_o * n - wo);
+                    eta = ndf_sharpness(row) / (4.0f * cos_o);
+                } else {
+                    __global const float *sub = eff_sub + 9 * (ei[4] + s);
+                    __global const float *lobe = eff_lobes + 4 * (ei[3] + j);
+                    float3 xi = lobe[0] * t + lobe[1] * b + lobe[2] * n;
+                    float c_oj = dot3(wo, xi);
+                    if (c_oj <= 0.0f)
+                        continue;
+                    float3 scale = specular_scale(sub, c_oj);
+                    if (scale.x + scale.y + scale.z <= 0.0f)
+                        continue;
+                    float eta_j = lobe[3];
+                    float eta_s = ndf_sharpness(sub);
+                    axis = normalize3(2.0f * c_oj * xi - wo);
+                    float3 al = (float3)(dot3(axis, t), dot3(axis, b), dot3(axis, n));
+                    int base = ei[5] + s * k2 * k2 * j_count * 3;
+                    float3 mu = table_rgb(eff_tables, base, k2, j_count, j, al, k, oo, ow);
+                    amp = scale * mu * (2.0f * SHADE_PI / (eta_j + eta_s));
+                    eta = 1.0f / (1.0f / eta_j + 1.0f / eta_s) / (4.0f * maxf(c_oj, MIN_COS_VIEW));
+                }
+                eta = minf(eta, sharpness_max);
+                EtaRow er = eta_row(tab, eta);
+                float amount = cosine_integral(tab, axis, eta, er, n);
+                if (has_ssdf != 0)
+                    amount = amount * ssdf_visible(ssdf, tab, axis, er, n);
+                out = out + amp * prefiltered(env_maps, env_levels, n_levels, axis, eta) * amount;
+                for (int l = 0; l < n_lights; ++l) {
+                    if (vis[l] == 0)
+                        continue;
+                    __global const float *row = lights + 8 * l;
+                    float3 la = light_axis(row, pos);
+                    float le = light_sharpness(row, pos);
+                    out = out + amp * light_amplitude(row, pos, le) * product_integral(tab, axis, eta, la, le, n);
+                }
+            }
+        }
+    }
+    /* Never NaN, inf or negative (a degenerate normal, say, must not poison the image). */
+    out.x = (out.x >= 0.0f && out.x < 3.0e38f) ? out.x : 0.0f;
+    out.y = (out.y >= 0.0f && out.y < 3.0e38f) ? out.y : 0.0f;
+    out.z = (out.z >= 0.0f && out.z < 3.0e38f) ? out.z : 0.0f;
+    store3(radiance, p, out);
+}
