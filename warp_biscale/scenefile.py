@@ -1,0 +1,782 @@
+"""TOML scene files: a whole render job — objects, materials (analytic, baked at load time, or read
+from a ``.wbm`` file), lights, environment, camera and render settings — in one text file.
+
+    sf = load_scene("examples/bi-scale.toml")       # → SceneFile (bakes what needs baking)
+    sf.scene                                        # the render.Scene
+    result = sf.render()                            # render with the file's [render] settings
+    result.save("out.png", exposure=sf.exposure)
+    sf.tiles["gold"]                                # the SmallScale tile each baked material came from
+
+or ``warp-biscale render scene.toml -o out.png``. Every table and key is optional except where marked
+*required*; defaults are those of the Python constructors they feed. A full example::
+
+    [render]
+    width = 640                  # image size in pixels (default 512 × 512)
+    height = 480
+    method = "sg"                # "sg" (per-pixel SG shading) or "mc" (Monte Carlo reference)
+    samples = 64                 # mc only: samples per pixel (>= 2); seed = 0 too
+    exposure = 0.0               # stops, applied when writing a PNG
+    env_lobes = 9                # SG lobes fitted to the environment (diffuse term)
+    ssdf_resolution = 32         # SSDF directions per side; ssdf_terms = 16 PCA terms
+    backend = "auto"             # auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name>
+
+    [camera]                     # no [camera] / no eye: framed on the objects' bounding sphere
+    eye = [0.0, 1.6, 4.2]
+    target = [0.0, 0.3, 0.0]     # default: the centre of the objects' bounds
+    up = [0.0, 1.0, 0.0]
+    fov = 40.0                   # vertical, degrees
+
+    [environment]                # type: "sky" | "studio" | "constant" | "file" | "sgs" | "none"
+    type = "sky"                 # + Environment.sky's parameters:
+    sun_direction = [0.5, 0.7, 0.4]
+    sun_angular_radius = 2.0     # sun_irradiance / sun_radiance, sky_zenith, sky_horizon, ground,
+    height = 64                  # height, width, sun_edge, supersample
+    width = 128
+    # type = "file": path = "studio.hdr" (relative to this file) ; every type: scale = 1.0 multiplies it
+    # type = "constant": radiance ; type = "studio": background, lights = [{direction = [..],
+    #   half_width = 20, half_height = 10, radiance = 5.0}, ...] ; type = "sgs": axes, sharpness,
+    #   amplitudes, constant
+
+    [[light]]                    # any number of them
+    type = "point"               # "point": position, intensity (W/sr, RGB or scalar), radius
+    position = [2.0, 4.0, 3.0]
+    intensity = 20.0
+    radius = 0.1
+    [[light]]
+    type = "directional"         # "directional": direction (towards the light), irradiance, angular_radius (deg)
+    direction = [-0.3, 1.0, 0.2]
+    irradiance = [1.0, 0.95, 0.9]
+
+    [[object]]
+    mesh = "torus"               # required: "sphere" | "torus" | "plane" | a mesh file (OBJ/PLY/STL/GLB,
+    material = "gold"            #   relative to this file); material: required, a [material.NAME]
+    major = 1.0                  # torus: major, minor, center, segments = [96, 48]
+    minor = 0.4                  # sphere: radius, center, subdivisions ; plane: size, height, divisions
+    translate = [0.0, 0.4, 0.0]  # every object: scale (number), rotate ([x, y, z] degrees, x first),
+    rotate = [30.0, 0.0, 0.0]    #   translate, applied in that order
+    [[object]]
+    mesh = "plane"
+    size = 8.0
+    material = "floor"
+
+    [material.floor]
+    type = "lambert"             # "lambert": albedo ; "blinnphong": ks, exponent, kd ;
+    albedo = [0.5, 0.5, 0.5]     # "cooktorrance": ks, roughness, f0, kd ; "ward": ks, alpha, kd
+
+    [material.gold]
+    type = "bake"                # baked at load time (in memory) with the SG bake (`wb.bake`)
+    tile = "pyramid"             # required: a built-in tile (as `warp-biscale bake` takes) or a mesh file
+    tile_params = { height = 0.4, color = [1.0, 0.8, 0.4] }   # keyword arguments of the tile's generator
+    brdf = ["blinnphong:exponent=256,ks=0.9"]                 # one per tile material id (or one for all)
+    lobes = 6                    # J, or "auto" ; directions (K), facets, normal_res, method, route, seed
+
+    [material.steel]
+    type = "file"                # a material file written by `warp-biscale bake` / EffectiveBRDF.save
+    path = "steel.wbm"           # relative to this file; brdf = [...] optionally swaps its small-scale BRDFs
+
+Errors name the file, the line, the table and the key — ``scene.toml:12: [material.gold] exponent
+must be a number, got 'high'`` — for TOML syntax errors, unknown tables and keys (a typo never passes
+silently), wrong types, missing required keys, undefined materials, missing files and bad values.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+try:  # Python >= 3.11
+    import tomllib
+except ModuleNotFoundError:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+__all__ = ["SceneFile", "SceneError", "load_scene", "loads_scene", "MESH_BUILTINS", "MATERIAL_TYPES",
+           "ENVIRONMENT_TYPES", "LIGHT_TYPES"]
+
+
+class SceneError(ValueError):
+    """A bad scene file: `path`, `line` (1-based, or None) and `key` (None for a whole table)."""
+
+    def __init__(self, message, path=None, line=None, key=None):
+        super().__init__(message)
+        self.path, self.line, self.key = path, line, key
+
+
+# ------------------------------------------------------------------------------------------------
+# key → line
+
+_BARE = r'[A-Za-z0-9_-]+|"(?:[^"\\]|\\.)*"|\'[^\']*\''
+_KEY_RE = re.compile(rf"^\s*((?:{_BARE})(?:\s*\.\s*(?:{_BARE}))*)\s*=")
+_HEADER_RE = re.compile(rf"^\s*(\[\[?)\s*((?:{_BARE})(?:\s*\.\s*(?:{_BARE}))*)\s*(\]\]?)\s*(#.*)?$")
+_INLINE_KEY_RE = re.compile(rf"[{{,]\s*((?:{_BARE})(?:\s*\.\s*(?:{_BARE}))*)\s*=")
+
+
+def _split_key(text: str) -> tuple:
+    return tuple(p[1:-1] if p[0] in "\"'" else p for p in re.findall(_BARE, text))
+
+
+class _Locator:
+    """Where each key and table of a TOML text is: (table path + dotted key) → 1-based line.
+
+    Arrays of tables get their element index in the path: ``[[object]]`` #2's ``mesh`` is
+    ("object", 1, "mesh"). Keys inside an inline table are found on their line too."""
+
+    def __init__(self, text: str):
+        self.lines: dict = {}
+        arrays: dict = {}
+        table: tuple = ()
+        in_string = None
+        for no, raw in enumerate(text.splitlines(), 1):
+            if in_string:
+                if raw.count(in_string) % 2 == 1:
+                    in_string = None
+                continue
+            m = _HEADER_RE.match(raw)
+            if m and not _KEY_RE.match(raw):
+                names = _split_key(m.group(2))
+                path: tuple = ()
+                for i, name in enumerate(names):
+                    path += (name,)
+                    if names[: i + 1] in arrays and i < len(names) - 1:
+                        path += (arrays[names[: i + 1]],)
+                if m.group(1) == "[[":
+                    arrays[names] = arrays.get(names, -1) + 1
+                    path += (arrays[names],)
+                table = path
+                self.lines.setdefault(table, no)
+                continue
+            m = _KEY_RE.match(raw)
+            if m:
+                key = table + _split_key(m.group(1))
+                self.lines.setdefault(key, no)
+                rest = raw[m.end():]
+                for k in _INLINE_KEY_RE.finditer(rest):
+                    self.lines.setdefault(key + _split_key(k.group(1)), no)
+                for quote in ('"""', "'''"):
+                    if rest.count(quote) % 2 == 1:
+                        in_string = quote
+
+    def line(self, path: tuple):
+        """The line of `path`, else of its closest enclosing key or table (None if none is written)."""
+        path = tuple(path)
+        while path:
+            if path in self.lines:
+                return self.lines[path]
+            path = path[:-1]
+        return None
+
+
+# ------------------------------------------------------------------------------------------------
+# typed access to one table
+
+
+def _show(v) -> str:
+    return repr(v) if isinstance(v, str) else str(v).replace("'", '"') if isinstance(v, (list, dict)) else str(v)
+
+
+class _Ctx:
+    """The file being read: its name, directory and key locator; `error` builds a located SceneError."""
+
+    def __init__(self, text, path, base_dir):
+        self.path = path
+        self.name = os.path.basename(path) if path else "<scene>"
+        self.base_dir = base_dir
+        self.loc = _Locator(text)
+
+    def error(self, table: tuple, key, message):
+        where = key if isinstance(key, tuple) else (() if key is None else (key,))
+        line = self.loc.line(table + where)
+        head = f"{self.name}:{line}:" if line else f"{self.name}:"
+        return SceneError(f"{head} {_table_name(table)} {message}", self.path, line,
+                          ".".join(map(str, where)) or None)
+
+    def resolve(self, rel: str) -> str:
+        p = os.path.expanduser(rel)
+        return p if os.path.isabs(p) else os.path.normpath(os.path.join(self.base_dir, p))
+
+
+def _table_name(table: tuple) -> str:
+    if not table:
+        return "(top level)"
+    if isinstance(table[-1], int):
+        return f"[[{'.'.join(map(str, table[:-1]))}]] #{table[-1] + 1}"
+    return "[" + ".".join(map(str, table)) + "]"
+
+
+def _is_num(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _check_number(v):
+    if not _is_num(v):
+        return None, "a number"
+    if not math.isfinite(v):
+        return None, "a finite number"
+    return float(v), None
+
+
+def _check_int(v):
+    if not isinstance(v, int) or isinstance(v, bool):
+        return None, "an integer"
+    return v, None
+
+
+def _check_vec3(v):
+    if not (isinstance(v, list) and len(v) == 3 and all(_is_num(x) for x in v)):
+        return None, "three numbers [x, y, z]"
+    return [float(x) for x in v], None
+
+
+def _check_rgb(v):
+    if _is_num(v):
+        return float(v), None
+    if isinstance(v, list) and len(v) == 3 and all(_is_num(x) for x in v):
+        return [float(x) for x in v], None
+    return None, "a number or an RGB triple [r, g, b]"
+
+
+def _check_str(v):
+    return (v, None) if isinstance(v, str) else (None, "a string")
+
+
+def _check_int2(v):
+    if not (isinstance(v, list) and len(v) == 2 and all(isinstance(x, int) and not isinstance(x, bool) for x in v)):
+        return None, "two integers [a, b]"
+    return tuple(v), None
+
+
+def _check_strlist(v):
+    if isinstance(v, str):
+        return [v], None
+    if isinstance(v, list) and v and all(isinstance(x, str) for x in v):
+        return list(v), None
+    return None, "a string or a non-empty list of strings"
+
+
+def _check_lobes(v):
+    if v == "auto":
+        return v, None
+    if isinstance(v, int) and not isinstance(v, bool):
+        return v, None
+    return None, 'an integer or "auto"'
+
+
+def _check_table(v):
+    return (v, None) if isinstance(v, dict) else (None, "a table { key = value, ... }")
+
+
+def _check_list(v):
+    return (v, None) if isinstance(v, list) else (None, "a list")
+
+
+NUM, INT, VEC3, RGB, STR, INT2, STRLIST, LOBES, TABLE, LIST = (
+    _check_number, _check_int, _check_vec3, _check_rgb, _check_str, _check_int2, _check_strlist, _check_lobes,
+    _check_table, _check_list)
+
+
+def _read(ctx: _Ctx, table: tuple, data, schema: dict, required=(), where: str = "") -> dict:
+    """Check `data` (a dict) against `schema` (key → checker): unknown keys, missing required keys and
+    wrong types are SceneErrors naming the key and its line. → the converted values given."""
+    if not isinstance(data, dict):
+        raise ctx.error(table, None, f"must be a table, got {_show(data)}")
+    for key in data:
+        if key not in schema:
+            allowed = ", ".join(sorted(schema)) or "none"
+            raise ctx.error(table, key, f"unknown key {key!r}{where} (allowed: {allowed})")
+    for key in required:
+        if key not in data:
+            raise ctx.error(table, None, f"needs the key {key!r}{where}")
+    out = {}
+    for key, value in data.items():
+        conv, want = schema[key](value)
+        if want is not None:
+            raise ctx.error(table, key, f"{key} must be {want}, got {_show(value)}")
+        out[key] = conv
+    return out
+
+
+def _build(ctx: _Ctx, table: tuple, values: dict, fn, *args, **extra):
+    """Call a constructor with the table's values; its ValueError gets the line of the key it names."""
+    try:
+        return fn(*args, **values, **extra)
+    except (ValueError, TypeError) as exc:
+        raise _located(ctx, table, values, exc) from None
+
+
+def _located(ctx, table, values, exc) -> SceneError:
+    msg = str(exc)
+    hits = [(m.start(), k) for k in values for m in [re.search(rf"(?<![A-Za-z0-9_]){re.escape(k)}(?![A-Za-z0-9_])",
+                                                                msg)] if m]
+    key = min(hits)[1] if hits else None
+    return ctx.error(table, key, msg)
+
+
+# ------------------------------------------------------------------------------------------------
+# schema
+
+RENDER_KEYS = {"width": INT, "height": INT, "method": STR, "samples": INT, "seed": INT, "exposure": NUM,
+               "env_lobes": INT, "ssdf_resolution": INT, "ssdf_terms": INT, "backend": STR}
+CAMERA_KEYS = {"eye": VEC3, "target": VEC3, "up": VEC3, "fov": NUM}
+_SIZE = {"height": INT, "width": INT}
+ENVIRONMENT_TYPES = {
+    "none": {},
+    "constant": {"radiance": RGB, **_SIZE},
+    "sky": {"sun_direction": VEC3, "sun_angular_radius": NUM, "sun_radiance": RGB, "sun_irradiance": RGB,
+            "sky_zenith": RGB, "sky_horizon": RGB, "ground": RGB, "sun_edge": NUM, "supersample": INT, **_SIZE},
+    "studio": {"lights": LIST, "background": RGB, "supersample": INT, **_SIZE},
+    "file": {"path": STR},
+    "sgs": {"axes": LIST, "sharpness": LIST, "amplitudes": LIST, "constant": RGB, **_SIZE},
+}
+SOFTBOX_KEYS = {"direction": VEC3, "half_width": NUM, "half_height": NUM, "radiance": RGB}
+LIGHT_TYPES = {
+    "point": {"position": VEC3, "intensity": RGB, "radius": NUM},
+    "directional": {"direction": VEC3, "irradiance": RGB, "angular_radius": NUM},
+}
+_PLACE = {"scale": NUM, "rotate": VEC3, "translate": VEC3}
+MESH_BUILTINS = {
+    "sphere": {"radius": NUM, "center": VEC3, "subdivisions": INT},
+    "torus": {"major": NUM, "minor": NUM, "center": VEC3, "segments": INT2},
+    "plane": {"size": NUM, "height": NUM, "divisions": INT},
+}
+_BRDF_KEYS = {
+    "lambert": {"albedo": RGB},
+    "blinnphong": {"ks": RGB, "exponent": NUM, "kd": RGB},
+    "cooktorrance": {"ks": RGB, "roughness": NUM, "f0": NUM, "kd": RGB},
+    "ward": {"ks": RGB, "alpha": NUM, "kd": RGB},
+}
+BAKE_KEYS = {"tile": STR, "tile_params": TABLE, "brdf": STRLIST, "lobes": LOBES, "directions": INT, "facets": INT,
+             "normal_res": INT, "method": STR, "route": STR, "seed": INT}
+MATERIAL_TYPES = {**_BRDF_KEYS, "bake": BAKE_KEYS, "file": {"path": STR, "brdf": STRLIST}}
+TOP_LEVEL = ("render", "camera", "environment", "light", "object", "material")
+
+
+# ------------------------------------------------------------------------------------------------
+# the result
+
+
+@dataclass(eq=False)
+class SceneFile:
+    """A loaded scene file: the `scene` (render.Scene) and the [render] settings.
+
+    `material_names[i]` names `scene.materials[i]`; `materials` maps every name to its material (None
+    for a bake material no object uses: it is checked, not baked); `tiles` maps each bake material's
+    name to the SmallScale tile it was baked from; `timings` holds the load's seconds ("bake NAME" per
+    baked material, "load" in all)."""
+
+    scene: object
+    path: str | None = None
+    width: int = 512
+    height: int = 512
+    method: str = "sg"
+    samples: int | None = None
+    seed: int | None = None
+    exposure: float = 0.0
+    backend: str = "auto"
+    material_names: list = field(default_factory=list)
+    materials: dict = field(default_factory=dict)
+    tiles: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+
+    def resize(self, width: int, height: int) -> None:
+        """Render at another image size (the camera's view is kept; the vertical fov is what it fixes)."""
+        from .scene import Camera
+
+        c = self.scene.camera
+        self.scene.camera = Camera(c.eye, c.target, c.up, c.fov, width, height)
+        self.width, self.height = self.scene.camera.width, self.scene.camera.height
+
+    def render_options(self, method: str | None = None) -> dict:
+        """Keyword options for `render.render` beyond method and backend (mc: samples, seed)."""
+        if (method or self.method) != "mc":
+            return {}
+        return {k: v for k, v in (("samples", self.samples), ("seed", self.seed)) if v is not None}
+
+    def render(self, method: str | None = None, backend=None, progress=None, **options):
+        """Render with the file's settings (`method`, `backend` and options override them)."""
+        from .render import render
+
+        method = method or self.method
+        return render(self.scene, method=method, backend=backend or self.backend, progress=progress,
+                      **{**self.render_options(method), **options})
+
+
+def load_scene(path, backend=None, progress=None) -> SceneFile:
+    """Read a TOML scene file (see the module docstring) → SceneFile. Paths in it are relative to the
+    file. `backend` overrides [render] backend (also for baking); `progress` reports the bakes."""
+    path = os.fspath(path)
+    try:
+        with open(path, "rb") as f:
+            data = f.read()
+    except FileNotFoundError:
+        raise FileNotFoundError(f"no such scene file: {path}") from None
+    except IsADirectoryError:
+        raise SceneError(f"{path} is a directory, not a scene file", path) from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise SceneError(f"{os.path.basename(path)}: not UTF-8 text ({exc})", path) from None
+    return loads_scene(text, path=path, backend=backend, progress=progress)
+
+
+def loads_scene(text: str, path: str | None = None, base_dir: str | None = None, backend=None,
+                progress=None) -> SceneFile:
+    """`load_scene` on TOML text; `path` names it in messages, `base_dir` (default: path's folder, else
+    the working directory) anchors its relative paths."""
+    t_load = time.perf_counter()
+    if base_dir is None:
+        base_dir = os.path.dirname(os.path.abspath(path)) if path else os.getcwd()
+    ctx = _Ctx(text, path, base_dir)
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        msg = str(exc)
+        m = re.search(r"\(at line (\d+), column (\d+)\)", msg)
+        if m:
+            line, where, msg = int(m.group(1)), f"{ctx.name}:{m.group(1)}:{m.group(2)}:", msg[:m.start()].strip()
+        else:  # "(at end of document)": the last line
+            line = max(1, len(text.splitlines()))
+            where = f"{ctx.name}:{line}:"
+            msg = msg.replace("(at end of document)", "at the end of the file").strip()
+        raise SceneError(f"{where} invalid TOML: {msg}", path, line) from None
+    for key in doc:
+        if key not in TOP_LEVEL:
+            raise ctx.error((), key, f"unknown table or key {key!r} (allowed: {', '.join(TOP_LEVEL)})")
+
+    sf = SceneFile(scene=None, path=path)
+    scene_opts = _render_settings(ctx, doc.get("render", {}), sf)
+    if backend is not None:
+        sf.backend = backend
+    cam = _read(ctx, ("camera",), doc.get("camera", {}), CAMERA_KEYS)
+    defs = _material_defs(ctx, doc.get("material", {}))
+    meshes, used = _objects(ctx, doc.get("object", []), defs)
+    env = _environment(ctx, doc.get("environment"))
+    lights = _lights(ctx, doc.get("light", []))
+    camera = _camera(ctx, cam, meshes, sf)
+
+    from .progress import as_progress
+    from .render import Scene
+    from .scene import Mesh
+
+    prog = as_progress(progress)
+    for name, (kind, values) in defs.items():
+        table = ("material", name)
+        t0 = time.perf_counter()
+        sf.materials[name] = _material(ctx, table, kind, values, sf, name, name in used, prog)
+        if kind == "bake" and name in used:
+            sf.timings[f"bake {name}"] = time.perf_counter() - t0
+    sf.material_names = list(used)
+    mesh = Mesh.merge(meshes) if len(meshes) > 1 else meshes[0]
+    try:
+        sf.scene = Scene(mesh, [sf.materials[n] for n in used], camera, env, lights, **scene_opts)
+    except ValueError as exc:
+        raise _located(ctx, ("render",), scene_opts, exc) from None
+    sf.timings["load"] = time.perf_counter() - t_load
+    return sf
+
+
+# ------------------------------------------------------------------------------------------------
+# sections
+
+
+def _render_settings(ctx, data, sf):
+    from .render import METHODS
+
+    table = ("render",)
+    v = _read(ctx, table, data, RENDER_KEYS)
+    for key in ("width", "height"):
+        if key in v and not (1 <= v[key] <= 16384):
+            raise ctx.error(table, key, f"{key} must be an integer in 1..16384, got {v[key]}")
+        setattr(sf, key, v.get(key, getattr(sf, key)))
+    if "method" in v and v["method"] not in METHODS:
+        raise ctx.error(table, "method", f"method must be one of {', '.join(METHODS)}, got {v['method']!r}")
+    for key, lo in (("samples", 2), ("env_lobes", 1), ("ssdf_resolution", 1), ("ssdf_terms", 1)):
+        if key in v and v[key] < lo:
+            raise ctx.error(table, key, f"{key} must be >= {lo}, got {v[key]}")
+    if "seed" in v and v["seed"] < 0:
+        raise ctx.error(table, "seed", f"seed must be >= 0, got {v['seed']}")
+    if "backend" in v:
+        from .backend import get_backend
+
+        try:  # an unknown name fails here, with its line; a known one is only resolved at render time
+            get_backend(v["backend"])
+        except (ValueError, RuntimeError) as exc:
+            raise ctx.error(table, "backend", str(exc)) from None
+    sf.method = v.get("method", sf.method)
+    sf.samples = v.get("samples")
+    sf.seed = v.get("seed")
+    sf.exposure = v.get("exposure", sf.exposure)
+    sf.backend = v.get("backend", sf.backend)
+    return {k: v[k] for k in ("env_lobes", "ssdf_resolution", "ssdf_terms") if k in v}
+
+
+def _typed(ctx, table, data, types: dict, what: str):
+    """The `type` key of a table and its type's keys → (type, values)."""
+    if not isinstance(data, dict):
+        raise ctx.error(table, None, f"must be a table, got {_show(data)}")
+    kind = data.get("type")
+    if kind is None:
+        raise ctx.error(table, None, f"needs a type: one of {', '.join(map(repr, types))}")
+    if not isinstance(kind, str) or kind.lower() not in types:
+        raise ctx.error(table, "type", f"unknown {what} type {_show(kind)}; choose one of "
+                                       f"{', '.join(map(repr, types))}")
+    kind = kind.lower()
+    rest = {k: v for k, v in data.items() if k != "type"}
+    return kind, _read(ctx, table, rest, types[kind], where=f" for a {kind} {what}")
+
+
+def _environment(ctx, data):
+    from .environment import Environment, Softbox
+
+    if data is None:
+        return None
+    table = ("environment",)
+    types = {k: {**v, "scale": NUM} if k != "none" else v for k, v in ENVIRONMENT_TYPES.items()}
+    kind, v = _typed(ctx, table, data, types, "environment")
+    scale = v.pop("scale", None)
+    if scale is not None and scale < 0:
+        raise ctx.error(table, "scale", f"scale must be >= 0, got {scale:g}")
+    if kind == "none":
+        return None
+    if kind == "constant":
+        env = _build(ctx, table, v, Environment.constant)
+    elif kind == "sky":
+        env = _build(ctx, table, v, Environment.sky)
+    elif kind == "studio":
+        if "lights" in v:
+            boxes = []
+            for i, box in enumerate(v["lights"]):
+                b = _read(ctx, table, box, SOFTBOX_KEYS, required=("direction", "half_width", "half_height"),
+                          where=f" in studio light #{i + 1}")
+                try:
+                    boxes.append(Softbox(**b))
+                except (ValueError, TypeError) as exc:
+                    raise ctx.error(table, "lights", f"light #{i + 1}: {exc}") from None
+            v["lights"] = boxes
+        env = _build(ctx, table, v, Environment.studio)
+    elif kind == "sgs":
+        for key in ("axes", "sharpness", "amplitudes"):
+            if key not in v:
+                raise ctx.error(table, None, f"needs the key {key!r} for an sgs environment")
+        env = _build(ctx, table, v, Environment.from_sgs)
+    else:  # file
+        if "path" not in v:
+            raise ctx.error(table, None, "needs the key 'path' for a file environment")
+        full = ctx.resolve(v["path"])
+        if not os.path.isfile(full):
+            raise ctx.error(table, "path", f"no such environment file: {v['path']} (looked for {full})")
+        try:
+            env = Environment.from_file(full)
+        except (ValueError, OSError) as exc:
+            raise ctx.error(table, "path", str(exc)) from None
+    if scale is not None and scale != 1.0:
+        env = Environment(env.radiance * np.float32(scale), name=env.name)
+    return env
+
+
+def _lights(ctx, data):
+    from .scene import DirectionalLight, PointLight
+
+    if isinstance(data, dict):
+        raise ctx.error(("light",), None, "must be written [[light]] (an array of tables), not [light]")
+    out = []
+    for i, item in enumerate(data):
+        table = ("light", i)
+        kind, v = _typed(ctx, table, item, LIGHT_TYPES, "light")
+        out.append(_build(ctx, table, v, PointLight if kind == "point" else DirectionalLight))
+    return out
+
+
+def _material_defs(ctx, data) -> dict:
+    """name → (type, checked values), in file order (built later, once we know which are used)."""
+    if not isinstance(data, dict):
+        raise ctx.error(("material",), None, "must be a table of [material.NAME] tables")
+    out = {}
+    for name, item in data.items():
+        table = ("material", name)
+        if not isinstance(item, dict):
+            raise ctx.error(table, None, f"must be a table [material.{name}] with a type, got {_show(item)}")
+        kind, v = _typed(ctx, table, item, MATERIAL_TYPES, "material")
+        if kind in ("bake", "file"):
+            need = "tile" if kind == "bake" else "path"
+            if need not in v:
+                raise ctx.error(table, None, f"needs the key {need!r} for a {kind} material")
+        out[name] = (kind, v)
+    return out
+
+
+def _objects(ctx, data, defs):
+    """→ (list of Mesh with material ids set, material names in order of first use)."""
+    from .scene import Mesh
+
+    if isinstance(data, dict):
+        raise ctx.error(("object",), None, "must be written [[object]] (an array of tables), not [object]")
+    if not data:
+        raise SceneError(f"{ctx.name}: the scene has no [[object]]: add at least one", ctx.path)
+    used: list = []
+    meshes = []
+    for i, item in enumerate(data):
+        table = ("object", i)
+        if not isinstance(item, dict):
+            raise ctx.error(table, None, f"must be a table, got {_show(item)}")
+        base = {"mesh": STR, "material": STR, **_PLACE}
+        if "mesh" not in item:
+            raise ctx.error(table, None, f"needs the key 'mesh': {', '.join(map(repr, MESH_BUILTINS))} or a mesh file")
+        if "material" not in item:
+            raise ctx.error(table, None, "needs the key 'material' (the NAME of a [material.NAME])")
+        mesh_kind = item["mesh"]
+        schema = {**base, **MESH_BUILTINS.get(mesh_kind, {})} if isinstance(mesh_kind, str) else base
+        v = _read(ctx, table, item, schema, where=f" for mesh {_show(mesh_kind)}")
+        name = v.pop("material")
+        if name not in defs:
+            known = ", ".join(map(repr, defs)) or "none are defined"
+            raise ctx.error(table, "material", f"material {name!r} is not defined by a [material.{name}] table "
+                                               f"(materials: {known})")
+        if name not in used:
+            used.append(name)
+        mid = used.index(name)
+        spec = v.pop("mesh")
+        place = {k: v.pop(k) for k in list(v) if k in _PLACE}
+        if spec in MESH_BUILTINS:
+            mesh = _build(ctx, table, v, getattr(Mesh, spec), material=mid)
+        else:
+            full = ctx.resolve(spec)
+            if not os.path.isfile(full):
+                raise ctx.error(table, "mesh", f"mesh {spec!r} is neither a built-in ({', '.join(MESH_BUILTINS)}) "
+                                               f"nor an existing mesh file (looked for {full})")
+            try:
+                mesh = Mesh.load(full, material=mid)
+            except ValueError as exc:
+                raise ctx.error(table, "mesh", str(exc)) from None
+        meshes.append(_place(ctx, table, mesh, place))
+    return meshes, used
+
+
+def _rotation(deg) -> np.ndarray:
+    rx, ry, rz = np.radians(deg)
+    cx, sx, cy, sy, cz, sz = np.cos(rx), np.sin(rx), np.cos(ry), np.sin(ry), np.cos(rz), np.sin(rz)
+    mx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    my = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    mz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    return mz @ my @ mx  # x first, then y, then z
+
+
+def _place(ctx, table, mesh, place):
+    from .scene import Mesh
+
+    if not place:
+        return mesh
+    s = place.get("scale", 1.0)
+    if not s > 0:
+        raise ctx.error(table, "scale", f"scale must be > 0, got {s:g}")
+    r = _rotation(place.get("rotate", (0.0, 0.0, 0.0)))
+    t = np.asarray(place.get("translate", (0.0, 0.0, 0.0)))
+    return Mesh(mesh.vertices @ (s * r).T + t, mesh.faces, mesh.normals @ r.T, mesh.uvs, mesh.face_material)
+
+
+def _camera(ctx, v, meshes, sf):
+    """The camera from the checked [camera] values; no eye: framed on the objects' bounding sphere."""
+    from .scene import Camera
+
+    table = ("camera",)
+    lo = np.min([m.vertices.min(0) for m in meshes], axis=0)
+    hi = np.max([m.vertices.max(0) for m in meshes], axis=0)
+    if "target" not in v:
+        v["target"] = ((lo + hi) / 2).tolist()
+    if "eye" not in v:  # frame the bounding sphere from the front and a little above
+        fov = v.get("fov", 40.0)
+        if not 0 < fov < 180:
+            raise ctx.error(table, "fov", f"fov must lie in (0, 180) degrees, got {fov:g}")
+        radius = max(float(np.linalg.norm(hi - lo)) / 2, 1e-6)
+        dist = 1.1 * radius / math.sin(math.radians(min(fov, fov * sf.width / sf.height)) / 2)
+        d = np.array([0.0, 0.35, 1.0]) / np.linalg.norm([0.0, 0.35, 1.0])
+        v["eye"] = (np.asarray(v["target"]) + dist * d).tolist()
+    return _build(ctx, table, v, Camera, width=sf.width, height=sf.height)
+
+
+def _brdfs(ctx, table, specs):
+    from .brdf import parse_brdf
+
+    out = []
+    for s in specs:
+        try:
+            out.append(parse_brdf(s))
+        except ValueError as exc:
+            raise ctx.error(table, "brdf", f"brdf {s!r}: {exc}") from None
+    return out
+
+
+def _material(ctx, table, kind, v, sf, name, used, prog):
+    from . import brdf as brdf_mod
+
+    if kind in _BRDF_KEYS:
+        cls = {"lambert": brdf_mod.Lambert, "blinnphong": brdf_mod.BlinnPhong,
+               "cooktorrance": brdf_mod.CookTorrance, "ward": brdf_mod.Ward}[kind]
+        return _build(ctx, table, v, cls)
+    if kind == "file":
+        from .effective import EffectiveBRDF
+        from .io import load
+
+        full = ctx.resolve(v["path"])
+        if not os.path.isfile(full):
+            raise ctx.error(table, "path", f"no such material file: {v['path']} (looked for {full})")
+        try:
+            mat = load(full)
+        except (ValueError, OSError, KeyError) as exc:
+            raise ctx.error(table, "path", f"cannot read material file {v['path']}: {exc}") from None
+        if not isinstance(mat, EffectiveBRDF):
+            raise ctx.error(table, "path", f"{v['path']} holds a {type(mat).__name__}, not a baked material (.wbm)")
+        if "brdf" in v:
+            mats = _brdfs(ctx, table, v["brdf"])
+            if len(mats) == 1 and len(mat.materials) > 1:
+                mats = mats * len(mat.materials)
+            try:
+                mat = mat.with_materials(mats)
+            except ValueError as exc:
+                raise ctx.error(table, "brdf", str(exc)) from None
+        return mat
+    return _bake(ctx, table, v, sf, name, used, prog)
+
+
+def _bake(ctx, table, v, sf, name, used, prog):
+    from . import geometry
+    from .bake import bake
+    from .cli import BUILTIN_TILES
+    from .smallscale import SmallScale
+
+    spec = v["tile"]
+    params = v.get("tile_params", {})
+    try:
+        if spec in BUILTIN_TILES:
+            fn, kwargs = BUILTIN_TILES[spec]
+            tile = getattr(geometry, fn)(**{**kwargs, **params})
+        else:
+            full = ctx.resolve(spec)
+            if not os.path.isfile(full):
+                raise ctx.error(table, "tile", f"tile {spec!r} is neither a built-in tile "
+                                               f"({', '.join(BUILTIN_TILES)}) nor an existing mesh file "
+                                               f"(looked for {full})")
+            tile = SmallScale.load(full, **params)
+    except SceneError:
+        raise
+    except (ValueError, TypeError) as exc:  # the line of the tile parameter it names, else of tile_params
+        msg = str(exc)
+        named = [k for k in params if re.search(rf"(?<![A-Za-z0-9_]){re.escape(k)}(?![A-Za-z0-9_])", msg)]
+        key = ("tile_params", named[0]) if named else ("tile_params" if params else "tile")
+        raise ctx.error(table, key, f"tile {spec!r}: {msg}") from None
+    sf.tiles[name] = tile
+    from .brdf import Lambert
+
+    mats = _brdfs(ctx, table, v["brdf"]) if "brdf" in v else [Lambert(0.5)]
+    if len(mats) == 1 and tile.n_materials > 1:
+        mats = mats * tile.n_materials
+    if len(mats) < tile.n_materials:
+        raise ctx.error(table, "brdf", f"the tile uses material ids 0..{tile.n_materials - 1}: give {tile.n_materials} "
+                                       f"brdf strings (or one for all), got {len(mats)}")
+    opts = {k: v[k] for k in ("lobes", "directions", "facets", "normal_res", "method", "route", "seed") if k in v}
+    if not used:  # validated, not baked: nothing in the scene shows it
+        return None
+    return _build(ctx, table, opts, bake, tile, mats, backend=sf.backend, progress=prog)
