@@ -125,8 +125,10 @@ def _static_inputs(scene: Scene, backend, progress, timings) -> dict:
     res = 1
     if scene.environment is not None:
         t0 = time.perf_counter()
+        # skip_unoccluded: a mesh that blocks none of its vertices' rays (a lone convex object) gets no
+        # distance transform or PCA; its visibility is the horizon, which the shading has exactly.
         field_ = ssdf_mod.build(mesh, backend, resolution=scene.ssdf_resolution, terms=scene.ssdf_terms,
-                                progress=progress)
+                                progress=progress, skip_unoccluded=True)
         timings["ssdf"] = time.perf_counter() - t0
         if field_.occluded:
             has_ssdf = True
