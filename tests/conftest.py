@@ -3,6 +3,13 @@ CUDA and NVIDIA OpenCL on a GPU machine), and small tiles built by hand."""
 
 import numpy as np
 import pytest
+from hypothesis import settings
+
+# Property tests draw the same examples on every run (seeded by the test's name), so CI is reproducible;
+# set HYPOTHESIS_PROFILE=explore locally to search for new counterexamples.
+settings.register_profile("ci", derandomize=True, database=None)
+settings.register_profile("explore")
+settings.load_profile(__import__("os").environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 import warp_biscale as wb
 

@@ -139,17 +139,23 @@ def pyramid_lateral(height, base_fraction, sides, size):
 )
 def test_pyramid_valid_and_seamless(height, sides, rotation, size, rel):
     base_fraction = rel * max_fraction(sides, rotation)
-    tile = make(
-        pyramid,
-        height=height * size,
-        base_fraction=base_fraction,
-        sides=sides,
-        rotation=rotation,
-        size=size,
-        base_material=1,
-        color=(1, 0, 0),
-        base_color=(0, 1, 0),
-    )
+    try:
+        tile = make(
+            pyramid,
+            height=height * size,
+            base_fraction=base_fraction,
+            sides=sides,
+            rotation=rotation,
+            size=size,
+            base_material=1,
+            color=(1, 0, 0),
+            base_color=(0, 1, 0),
+        )
+    except ValueError as exc:
+        # A base corner a hair off the tile edge (e.g. rotation 2e-7) would need a sliver triangle: the
+        # generator refuses such proportions by design, with this message; any other error is a failure.
+        assert "sliver" in str(exc)
+        assume(False)
     check_tile(tile, "pyramid")
     check_height_field_like(tile)
     lateral = tile.material_ids == 0
