@@ -415,3 +415,13 @@ def test_locator_paths():
     assert loc.line(("b", "c d", "not_a_key")) == 11  # inside a string: falls back to the table
     assert loc.line(("b", "c d", "after")) == 16
     assert loc.line(("a", "missing")) == 2 and loc.line(("nothing",)) is None
+
+
+def test_bi_scale_example_is_the_demo_scene():
+    import tomllib
+
+    from warp_biscale import demo
+
+    with open(EXAMPLES / "bi-scale.toml", "rb") as f:
+        example = tomllib.load(f)
+    assert example == tomllib.loads(demo.scene_text(512))
