@@ -99,3 +99,146 @@ def test_bake_bad_input_is_named(tmp_path):
     r = run_cli("bake", "pyramid", "--brdf", "phong:exponent=-1", "-o", str(tmp_path / "m.wbm"))
     assert r.returncode == 2 and "exponent" in r.stderr
     assert not (tmp_path / "m.wbm").exists()
+
+
+# ------------------------------------------------------------------------------------------------ render, demo, view
+# (helper-G) Tiny images: a 2-core CI runs the whole suite in minutes.
+
+TINY_SCENE = """\
+[render]
+width = 32
+height = 24
+backend = "warp:cpu"
+
+[camera]
+eye = [0.0, 1.5, 4.0]
+target = [0.0, 0.4, 0.0]
+fov = 35
+
+[environment]
+type = "sky"
+height = 16
+width = 32
+supersample = 1
+
+[[light]]
+type = "point"
+position = [2.0, 3.0, 2.0]
+intensity = 10.0
+
+[[object]]
+mesh = "sphere"
+radius = 0.6
+center = [0.0, 0.6, 0.0]
+subdivisions = 2
+material = "shiny"
+
+[[object]]
+mesh = "plane"
+size = 4.0
+divisions = 4
+material = "floor"
+
+[material.shiny]
+type = "blinnphong"
+kd = [0.5, 0.2, 0.1]
+ks = 0.5
+exponent = 100.0
+
+[material.floor]
+type = "lambert"
+albedo = 0.5
+"""
+
+
+def _tiny_scene(tmp_path, text=TINY_SCENE):
+    p = tmp_path / "scene.toml"
+    p.write_text(text)
+    return p
+
+
+def test_render_png_with_overrides(tmp_path):
+    out = tmp_path / "out.png"
+    r = run_cli("render", str(_tiny_scene(tmp_path)), "-o", str(out), "--width", "40", "--exposure", "0.5")
+    assert r.returncode == 0, r.stderr
+    assert "stage times:" in r.stdout and "shade" in r.stdout
+    assert f"wrote {out} (40×24 pixels, method sg, backend warp:cpu" in r.stdout
+    img = np.asarray(Image.open(out).convert("RGB"))
+    assert img.shape == (24, 40, 3)
+    assert img.mean() > 20 and img.std() > 5  # lit, and not one flat colour
+
+
+def test_render_exr_reads_back_linear(tmp_path):
+    from warp_biscale.images import read_exr
+
+    out = tmp_path / "out.exr"
+    r = run_cli("render", str(_tiny_scene(tmp_path)), "-o", str(out), "--height", "16", "-q")
+    assert r.returncode == 0, r.stderr
+    img = read_exr(out)
+    assert img.shape == (16, 32, 3) and img.dtype == np.float32
+    assert np.isfinite(img).all() and (img >= 0).all()
+    assert img.mean() > 0.01 and img.std() > 0.005
+
+
+def test_render_monte_carlo(tmp_path):
+    out = tmp_path / "mc.png"
+    r = run_cli("render", str(_tiny_scene(tmp_path)), "-o", str(out), "--method", "mc", "--samples", "8",
+                "--width", "16", "--height", "12", "-q")
+    assert r.returncode == 0, r.stderr
+    assert "method mc" in r.stdout
+    assert np.asarray(Image.open(out)).shape == (12, 16, 3)
+
+
+def test_render_bakes_a_bake_material(tmp_path):
+    text = TINY_SCENE.replace('[material.shiny]\ntype = "blinnphong"\nkd = [0.5, 0.2, 0.1]\nks = 0.5\n'
+                              'exponent = 100.0',
+                              '[material.shiny]\ntype = "bake"\ntile = "vgroove"\nbrdf = "ward:alpha=0.2"\n'
+                              'lobes = 2\ndirections = 4\nfacets = 512\nnormal_res = 16')
+    out = tmp_path / "b.png"
+    r = run_cli("render", str(_tiny_scene(tmp_path, text)), "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    assert "baked material 'shiny': tile grooves(" in r.stdout and "512 facets" in r.stdout
+    assert out.exists()
+
+
+@pytest.mark.parametrize("edit, args, message", [
+    (("fov = 35", "fvo = 35"), [], "scene.toml:9: [camera] unknown key 'fvo'"),
+    (('material = "floor"', 'material = "flor"'), [], "[[object]] #2 material 'flor' is not defined"),
+    (("exponent = 100.0", "exponent = -3"), [], "[material.shiny] BlinnPhong.exponent must be a finite number > 0"),
+    (None, ["--samples", "4"], "--samples is for --method mc"),
+    (None, ["--width", "0"], "Camera.width must be an integer in 1..16384"),
+])
+def test_render_errors_are_clear(tmp_path, edit, args, message):
+    text = TINY_SCENE if edit is None else TINY_SCENE.replace(*edit)
+    out = tmp_path / "x.png"
+    r = run_cli("render", str(_tiny_scene(tmp_path, text)), "-o", str(out), *args)
+    assert r.returncode != 0
+    assert message in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr
+    assert not out.exists()
+
+
+def test_render_refuses_unknown_extension_and_missing_file(tmp_path):
+    r = run_cli("render", str(_tiny_scene(tmp_path)), "-o", str(tmp_path / "x.jpg"))
+    assert r.returncode != 0 and "must end in .png, .exr, .hdr" in r.stderr
+    r = run_cli("render", str(tmp_path / "none.toml"))
+    assert r.returncode != 0 and "no such scene file" in r.stderr
+
+
+def test_demo_writes_a_png(tmp_path):
+    out = tmp_path / "demo.png"
+    r = run_cli("demo", "--size", "48", "-o", str(out), "--backend", "warp:cpu")
+    assert r.returncode == 0, r.stderr
+    assert "baked material 'demo_tile': tile pyramid(" in r.stdout
+    assert "demo done in" in r.stdout and str(out) in r.stdout
+    img = np.asarray(Image.open(out).convert("RGB"))
+    assert img.shape == (36, 48, 3)
+    assert img.std() > 10 and len(np.unique(img.reshape(-1, 3), axis=0)) > 50
+
+
+def test_view_screenshot_offscreen(tmp_path):
+    out = tmp_path / "view.png"
+    r = run_cli("view", str(_tiny_scene(tmp_path)), "--screenshot", str(out), "--size", "96", "48")
+    assert r.returncode == 0, r.stderr
+    img = np.asarray(Image.open(out).convert("RGB"))
+    assert img.shape == (48, 96, 3) and img[:, :48].std() > 5 and img[:, 48:].std() > 5

@@ -1,5 +1,6 @@
-"""Command line: ``warp-biscale bake`` (SG effective BRDF of a tile), ``truth`` (its ground truth) and
-``backends``."""
+"""Command line: ``warp-biscale demo`` (bake a tile and render a scene with it), ``render`` (a TOML scene
+file to PNG / EXR / HDR), ``view`` (the interactive viewer), ``bake`` (SG effective BRDF of a tile),
+``truth`` (its ground truth) and ``backends``."""
 
 from __future__ import annotations
 
@@ -164,9 +165,139 @@ def cmd_backends(args):
     return 0
 
 
+# ------------------------------------------------------------------------------------------------ rendering
+
+IMAGE_EXTENSIONS = (".png", ".exr", ".hdr", ".pic")
+
+
+def _check_output(path):
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in IMAGE_EXTENSIONS:
+        raise ValueError(f"output {path!r} must end in {', '.join(IMAGE_EXTENSIONS)} (PNG is tone-mapped; EXR and "
+                         "HDR keep the linear radiance)")
+
+
+def _print_bakes(sf):
+    for key, seconds in sf.timings.items():
+        if key.startswith("bake "):
+            name = key[5:]
+            mat = sf.materials[name]
+            print(f"baked material {name!r}: tile {sf.tiles[name].name}, {mat.info.get('facets')} facets, "
+                  f"{len(mat.lobes)} lobes, K={mat.directions}, in {seconds:.2f} s")
+
+
+def _print_rendering(result, path, exposure=0.0):
+    h, w = result.image.shape[:2]
+    print("stage times: " + ", ".join(f"{k} {v * 1e3:.1f} ms" for k, v in result.timings.items()))
+    info = result.info
+    print(f"wrote {path} ({w}×{h} pixels, method {info.get('method')}, backend {info.get('backend')}"
+          + (f", exposure {exposure:+g}" if exposure and path.lower().endswith(".png") else "") + ")")
+
+
+def cmd_render(args):
+    from .progress import as_progress
+    from .scenefile import load_scene
+
+    _check_output(args.output)
+    prog = as_progress(not args.quiet)
+    sf = load_scene(args.scene, backend=args.backend, progress=prog)
+    if args.width is not None or args.height is not None:
+        sf.resize(sf.width if args.width is None else args.width, sf.height if args.height is None else args.height)
+    method = args.method or sf.method
+    options = sf.render_options(method)
+    if args.samples is not None:
+        if method != "mc":
+            raise ValueError("--samples is for --method mc (the SG renderer takes no samples)")
+        options["samples"] = args.samples
+    exposure = sf.exposure if args.exposure is None else args.exposure
+    if not args.quiet:
+        _print_bakes(sf)
+    result = sf.render(method=method, progress=prog, **options)
+    prog.done()
+    result.save(args.output, exposure=exposure)
+    _print_rendering(result, args.output, exposure)
+    return 0
+
+
+def cmd_demo(args):
+    import time
+
+    from . import demo
+    from .progress import as_progress
+
+    _check_output(args.output)
+    t0 = time.perf_counter()
+    prog = as_progress(not args.quiet)
+    sf = demo.demo_scene(size=args.size, backend=args.backend, progress=prog)
+    if not args.quiet:
+        _print_bakes(sf)
+    result = sf.render(progress=prog)
+    prog.done()
+    result.save(args.output, exposure=sf.exposure)
+    _print_rendering(result, args.output)
+    print(f"demo done in {time.perf_counter() - t0:.1f} s: open {os.path.abspath(args.output)} "
+          f"(the scene is examples/bi-scale.toml; `warp-biscale view` shows it interactively)")
+    return 0
+
+
+def cmd_view(args):
+    from .progress import as_progress
+    from .viewer import view
+
+    if args.screenshot:
+        _check_output(args.screenshot)
+        if not args.screenshot.lower().endswith(".png"):
+            raise ValueError(f"--screenshot {args.screenshot!r} must be a .png")
+    try:
+        view(args.scene, screenshot=args.screenshot, size=tuple(args.size), backend=args.backend,
+             progress=as_progress(not args.quiet))
+    except RuntimeError as exc:  # no display, no OpenGL: say so, no traceback
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if args.screenshot:
+        print(f"wrote {args.screenshot}")
+    return 0
+
+
+def _add_render_commands(sub):
+    r = sub.add_parser("render", help="render a TOML scene file to PNG / EXR / HDR",
+                       description="Render a TOML scene file (schema: `python -m pydoc warp_biscale.scenefile`; "
+                                   "examples/*.toml). Baked materials are baked first.")
+    r.add_argument("scene", help="the scene file (.toml)")
+    r.add_argument("-o", "--output", default="render.png",
+                   help="image to write: .png (tone-mapped sRGB), .exr or .hdr (linear radiance); default render.png")
+    r.add_argument("--method", choices=["sg", "mc"], help="sg: per-pixel SG shading; mc: Monte Carlo reference "
+                                                           "(default: the file's [render] method, else sg)")
+    r.add_argument("--samples", type=int, help="samples per pixel for --method mc")
+    r.add_argument("--backend", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name> (default: the file's)")
+    r.add_argument("--width", type=int, help="image width in pixels (overrides the file)")
+    r.add_argument("--height", type=int, help="image height in pixels (overrides the file)")
+    r.add_argument("--exposure", type=float, help="PNG exposure in stops (default: the file's, else 0)")
+    r.add_argument("-q", "--quiet", action="store_true", help="no progress, no bake summary")
+    r.set_defaults(func=cmd_render)
+    d = sub.add_parser("demo", help="bake a built-in tile and render a scene with it (a few seconds on a CPU)")
+    d.add_argument("-o", "--output", default="demo.png", help="image to write (default demo.png)")
+    d.add_argument("--size", type=int, default=512, help="image width in pixels (height 3/4 of it; default 512)")
+    d.add_argument("--backend", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name> (default auto)")
+    d.add_argument("-q", "--quiet", action="store_true", help="no progress, no bake summary")
+    d.set_defaults(func=cmd_demo)
+    v = sub.add_parser("view", help="interactive viewer: our rendering + the small-scale tile (pyvista)",
+                       description="Left: the scene rendered by warp_biscale from the viewer's camera (re-rendered "
+                                   "when you release the mouse), sliders for a light's azimuth/elevation and the "
+                                   "first material's main parameter; right: the first baked material's tile.")
+    v.add_argument("scene", help="the scene file (.toml)")
+    v.add_argument("--screenshot", metavar="PNG", help="render offscreen, write this PNG and exit (no window)")
+    v.add_argument("--size", type=int, nargs=2, metavar=("W", "H"), default=(1200, 600),
+                   help="window size in pixels (default 1200 600)")
+    v.add_argument("--backend", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name> (default: the file's)")
+    v.add_argument("-q", "--quiet", action="store_true", help="no progress")
+    v.set_defaults(func=cmd_view)
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="warp-biscale", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
+    _add_render_commands(sub)
     p = sub.add_parser("truth", help="ground-truth effective BRDF of a tile: table + PNG plot of slices")
     p.add_argument("tile", nargs="?", default="pyramid",
                    help=f"mesh file (OBJ/PLY/STL/GLB) or built-in tile: {', '.join(BUILTIN_TILES)} "
