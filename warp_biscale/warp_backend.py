@@ -438,6 +438,18 @@ class WarpBackend:
             )
         return entry
 
+    def _small_upload(self, entry, key, host):
+        """entry's device copy of a small float32 array (camera, lights), uploaded again only when its
+        values change: a frame that moves nothing allocates and copies nothing."""
+        import warp as wp
+
+        host = np.ascontiguousarray(host, np.float32)
+        held = entry.get(key + "_host")
+        if held is None or held.shape != host.shape or not np.array_equal(held, host):
+            entry[key + "_host"] = host.copy()
+            entry[key] = wp.array(host, dtype=wp.float32, device=self._device)
+        return entry[key]
+
     def _trace_reuse(self, entry, key, shape, dtype):
         """entry[key] if it is a device array of this shape, else a new one (frames reuse their buffers)."""
         import warp as wp
@@ -522,10 +534,12 @@ class WarpBackend:
         n, n_lights = face.shape[0], len(lights)
         vis = self._trace_reuse(m, "gbuffer_light_vis", (n, n_lights), wp.uint8)
         if n and n_lights:
-            eps, t_min = offsets(mesh)
+            if "offsets" not in m:  # per mesh, not per frame: mesh.scale scans every vertex
+                m["offsets"] = offsets(mesh)
+            eps, t_min = m["offsets"]
             self._launch(kt.trace_shadows, (n_lights, n),
                          [m["mesh"].id, m["face_normals"], face, position, wp.vec3(*eye),
-                          self._array(lights, wp.float32), eps, t_min],
+                          self._small_upload(m, "lights", lights), eps, t_min],
                          [vis])
         return self._trace_host(vis) if to_host else None
 
@@ -587,14 +601,14 @@ class WarpBackend:
             vis = (wp.array(np.ascontiguousarray(gbuffer["light_vis"], np.uint8), dtype=wp.uint8, device=self._device)
                    if n_lights else None)
         if vis is None:
-            vis = wp.zeros((1, 1), dtype=wp.uint8, device=self._device)
-        light_arr = wp.array(lights if n_lights else np.zeros((1, 8), np.float32), dtype=wp.float32,
-                             device=self._device)
+            vis = m.get("no_light_vis")
+            if vis is None:
+                vis = m["no_light_vis"] = wp.zeros((1, 1), dtype=wp.uint8, device=self._device)
+        light_arr = self._small_upload(m, "shade_lights", lights if n_lights else np.zeros((1, 8), np.float32))
         out = self._trace_reuse(m, "radiance", n, wp.vec3)
         self._launch(ks.shade_pixels, n,
                      [face, bary, vis, dev["faces"], dev["positions"], dev["normals"], dev["tangents"],
-                      dev["face_material"], wp.array(np.asarray(camera_packed, np.float32), dtype=wp.float32,
-                                                     device=self._device),
+                      dev["face_material"], self._small_upload(m, "shade_camera", camera_packed),
                       n_lights, light_arr, len(static["env_sgs"]), dev["env_sgs"], dev["env_maps"], dev["env_levels"],
                       int(static["has_ssdf"]), int(static["ssdf_res"]), dev["ssdf_basis"], dev["ssdf_coeffs"],
                       dev["table"], dev["mat_info"], dev["analytic"], dev["eff_info"], dev["eff_lobes"],
