@@ -238,7 +238,16 @@ def test_demo_writes_a_png(tmp_path):
 
 def test_view_screenshot_offscreen(tmp_path):
     out = tmp_path / "view.png"
-    r = run_cli("view", str(_tiny_scene(tmp_path)), "--screenshot", str(out), "--size", "96", "48")
+    r = run_cli("view", str(_tiny_scene(tmp_path)), "--screenshot", str(out), "--size", "96", "48",
+                "--render-scale", "0.5")
     assert r.returncode == 0, r.stderr
     img = np.asarray(Image.open(out).convert("RGB"))
     assert img.shape == (48, 96, 3) and img[:, :48].std() > 5 and img[:, 48:].std() > 5
+
+
+def test_view_without_a_display_says_so(tmp_path):
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    r = subprocess.run([_console_script(), "view", str(_tiny_scene(tmp_path))], capture_output=True, text=True,
+                       cwd=tmp_path, env=env, timeout=600)
+    assert r.returncode == 2
+    assert "no display" in r.stderr and "--screenshot" in r.stderr and "Traceback" not in r.stderr

@@ -193,6 +193,8 @@ def test_screenshot_of_a_baked_scene(tmp_path):
         assert v.frames == 1 and v.image.shape == (64, 64, 3)
         assert v.scene.camera.width == 64 and v.scene.camera.height == 64
         left, right = _check_screenshot(img, path)
+        # pyvista did not reset our camera at the first screenshot: it still is the scene file's
+        np.testing.assert_allclose(v.left.camera.GetPosition(), [0.0, 1.2, 3.5], atol=1e-9)
         # the left viewport shows our rendering (tone-mapped), not pyvista's proxy
         from warp_biscale.images import tonemap
 

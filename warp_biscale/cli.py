@@ -236,7 +236,7 @@ def cmd_demo(args):
     result.save(args.output, exposure=sf.exposure)
     _print_rendering(result, args.output)
     print(f"demo done in {time.perf_counter() - t0:.1f} s: open {os.path.abspath(args.output)} "
-          f"(the scene is examples/bi-scale.toml; `warp-biscale view` shows it interactively)")
+          "(the scene of examples/bi-scale.toml in the source tree; `warp-biscale view` shows a scene interactively)")
     return 0
 
 
@@ -250,7 +250,7 @@ def cmd_view(args):
             raise ValueError(f"--screenshot {args.screenshot!r} must be a .png")
     try:
         view(args.scene, screenshot=args.screenshot, size=tuple(args.size), backend=args.backend,
-             progress=as_progress(not args.quiet))
+             progress=as_progress(not args.quiet), render_scale=args.render_scale)
     except RuntimeError as exc:  # no display, no OpenGL: say so, no traceback
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -290,6 +290,8 @@ def _add_render_commands(sub):
     v.add_argument("--size", type=int, nargs=2, metavar=("W", "H"), default=(1200, 600),
                    help="window size in pixels (default 1200 600)")
     v.add_argument("--backend", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name> (default: the file's)")
+    v.add_argument("--render-scale", type=float, default=1.0, metavar="S",
+                   help="render at S x the viewport's resolution (e.g. 0.5 for quicker frames on a CPU; default 1)")
     v.add_argument("-q", "--quiet", action="store_true", help="no progress")
     v.set_defaults(func=cmd_view)
 

@@ -60,6 +60,8 @@ def camera_to_pyvista(camera, pv_camera) -> None:
     pv_camera.SetFocalPoint(*camera.target)
     pv_camera.SetViewUp(*camera.up)
     pv_camera.SetViewAngle(camera.fov)
+    if hasattr(pv_camera, "is_set"):  # pyvista resets an unset camera at the first show / screenshot
+        pv_camera.is_set = True
 
 
 # ------------------------------------------------------------------------------------------------ editing
@@ -324,7 +326,9 @@ class Viewer:
     def _show(renderer, u8):
         import pyvista as pv
 
-        renderer.SetBackgroundTexture(pv.Texture(np.ascontiguousarray(u8)))
+        tex = pv.Texture(np.ascontiguousarray(u8))
+        tex.interpolate = True  # smooth when render_scale < 1
+        renderer.SetBackgroundTexture(tex)
         renderer.SetTexturedBackground(True)
 
     def _set_light(self, azimuth=None, elevation=None):
@@ -362,6 +366,7 @@ class Viewer:
             c.SetViewAngle(30.0)
             self.right.ResetCamera()
             self.right.camera.Zoom(1.3)
+            self.right.camera.is_set = True  # keep this view at the first show
         else:
             self.right.set_background("black")
             p.add_text(f"material {self.edit_name!r} on a sphere", position="upper_left", font_size=9,
