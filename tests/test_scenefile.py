@@ -418,9 +418,9 @@ def test_locator_paths():
 
 
 def test_bi_scale_example_is_the_demo_scene():
-    import tomllib
-
     from warp_biscale import demo
+
+    tomllib = scenefile.tomllib  # tomli on Python 3.10
 
     with open(EXAMPLES / "bi-scale.toml", "rb") as f:
         example = tomllib.load(f)
