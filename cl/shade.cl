@@ -10,7 +10,7 @@
  *
  * Layouts (no float3 in global memory): positions, normals, tangents, env_maps and the output are
  * float arrays of stride 3; bary stride 2; light_vis (P, L) uchar; table (2, rows, cols);
- * env_levels (n_levels, 4) [log2 η, texel offset, H, W]; ssdf_basis (n_basis, res²);
+ * env_levels (n_levels, 4) [log2 η, texel offset, H, W]; ssdf_basis texel-major (res², n_basis) (the transpose of static['ssdf_basis']);
  * ssdf_coeffs (V, n_coeffs); the material arrays as warp_biscale.shading.pack_materials.
  * The two one-cell bilinear helpers that Warp calls twice (grid_corners, grid_weights) are one
  * function here (grid_bilinear): the same values, one concentric map instead of two.
@@ -149,15 +149,19 @@ CL_INLINE float ssdf_theta(Ssdf s, float3 d)
     int k10 = y0 * res + x1;
     int k01 = y1 * res + x0;
     int k11 = y1 * res + x1;
-    int texels = res * res;
+    /* The basis is texel-major (res², n_basis): each corner's terms are one contiguous run. */
+    int nb = s.n_basis;
+    __global const float *b00 = s.basis + k00 * nb;
+    __global const float *b10 = s.basis + k10 * nb;
+    __global const float *b01 = s.basis + k01 * nb;
+    __global const float *b11 = s.basis + k11 * nb;
+    float w00 = (1.0f - fx) * (1.0f - fy), w10 = fx * (1.0f - fy), w01 = (1.0f - fx) * fy, w11 = fx * fy;
     float theta = 0.0f;
-    for (int r = 0; r < s.n_basis; ++r) {
+    for (int r = 0; r < nb; ++r) {
         float c = 1.0f;
         if (r > 0)
             c = s.w0 * s.c0[r - 1] + s.w1 * s.c1[r - 1] + s.w2 * s.c2[r - 1];
-        __global const float *b = s.basis + r * texels;
-        float v = ((1.0f - fx) * (1.0f - fy) * b[k00] + fx * (1.0f - fy) * b[k10] + (1.0f - fx) * fy * b[k01]
-                   + fx * fy * b[k11]);
+        float v = w00 * b00[r] + w10 * b10[r] + w01 * b01[r] + w11 * b11[r];
         theta = theta + c * v;
     }
     return theta;

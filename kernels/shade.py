@@ -126,14 +126,16 @@ def ssdf_theta(basis: wp.array2d(dtype=wp.float32), coeffs: wp.array2d(dtype=wp.
     k10 = y0 * res + x1
     k01 = y1 * res + x0
     k11 = y1 * res + x1
+    w00 = (1.0 - fx) * (1.0 - fy)
+    w10 = fx * (1.0 - fy)
+    w01 = (1.0 - fx) * fy
+    w11 = fx * fy
     theta = float(0.0)
-    for r in range(basis.shape[0]):
+    for r in range(basis.shape[1]):  # basis is texel-major (res², terms + 1): contiguous per corner
         c = float(1.0)
         if r > 0:
             c = w0 * coeffs[i0, r - 1] + w1 * coeffs[i1, r - 1] + w2 * coeffs[i2, r - 1]
-        v = ((1.0 - fx) * (1.0 - fy) * basis[r, k00] + fx * (1.0 - fy) * basis[r, k10]
-             + (1.0 - fx) * fy * basis[r, k01] + fx * fy * basis[r, k11])
-        theta = theta + c * v
+        theta = theta + c * (w00 * basis[k00, r] + w10 * basis[k10, r] + w01 * basis[k01, r] + w11 * basis[k11, r])
     return theta
 
 

@@ -638,7 +638,7 @@ class OpenCLBackend:
                 **{key: self._buffer(static[key], np.float32) for key in (
                     "positions", "normals", "tangents", "env_sgs", "env_maps", "analytic", "eff_lobes", "eff_sub",
                     "eff_tables", "eff_diffuse")},
-                "env_levels": self._buffer(levels, np.float32), "ssdf_basis": self._buffer(basis, np.float32),
+                "env_levels": self._buffer(levels, np.float32), "ssdf_basis": self._buffer(basis.T, np.float32),  # texel-major
                 "ssdf_coeffs": self._buffer(coeffs, np.float32), "table": self._buffer(table, np.float32),
                 # Counts and shapes that the kernel takes by value.
                 "n_env": np.int32(len(static["env_sgs"])), "n_levels": np.int32(len(levels)),

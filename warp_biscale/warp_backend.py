@@ -564,7 +564,10 @@ class WarpBackend:
                 "tangents": arr("tangents", wp.vec3), "face_material": arr("face_material", wp.int32),
                 "env_sgs": arr("env_sgs", wp.float32, 7), "env_maps": arr("env_maps", wp.vec3),
                 "env_levels": arr("env_levels", wp.float32, 4),
-                "ssdf_basis": arr("ssdf_basis", wp.float32, 1), "ssdf_coeffs": arr("ssdf_coeffs", wp.float32, 1),
+                # texel-major (res², terms + 1): a lookup reads each corner's terms contiguously
+                "ssdf_basis": wp.array(np.ascontiguousarray(np.asarray(static["ssdf_basis"], np.float32).T),
+                                       dtype=wp.float32, device=self._device),
+                "ssdf_coeffs": arr("ssdf_coeffs", wp.float32, 1),
                 "table": arr("table", wp.float32), "mat_info": arr("mat_info", wp.int32, 4),
                 "analytic": arr("analytic", wp.float32, 9), "eff_info": arr("eff_info", wp.int32, 8),
                 "eff_lobes": arr("eff_lobes", wp.float32, 4), "eff_sub": arr("eff_sub", wp.float32, 9),
