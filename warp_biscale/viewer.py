@@ -365,7 +365,7 @@ class Viewer:
             c.SetViewUp(0.0, 0.0, 1.0)
             c.SetViewAngle(30.0)
             self.right.ResetCamera()
-            self.right.camera.Zoom(1.3)
+            self.right.camera.Zoom(1.05)
             self.right.camera.is_set = True  # keep this view at the first show
         else:
             self.right.set_background("black")
