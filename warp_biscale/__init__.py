@@ -24,6 +24,7 @@ from .images import compare_images, read_image, write_image
 from .io import load
 from .render import Rendering, Scene, render
 from .scene import Camera, DirectionalLight, Mesh, PointLight
+from .scenefile import load_scene
 from .model import Facets, Visibility
 from .smallscale import SmallScale, TileWarning
 from .truth import GroundTruth, effective_brdf_exact, ground_truth
@@ -34,7 +35,7 @@ __all__ = [
     "Backend", "BlinnPhong", "Bvndf", "Camera", "CookTorrance", "DirectionalLight", "EffectiveBRDF", "Environment",
     "Facets", "GroundTruth", "Lambert", "Mesh", "PointLight", "Rendering", "Scene", "SmallScale", "TileWarning",
     "Visibility", "Ward", "backends", "bake", "compare", "compare_images", "directions", "effective_brdf_exact",
-    "geometry", "get_backend", "ground_truth", "load", "lobes", "read_image", "reference", "render", "sg",
+    "geometry", "get_backend", "ground_truth", "load", "load_scene", "lobes", "read_image", "reference", "render", "sg",
     "write_image",
 ]
 

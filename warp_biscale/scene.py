@@ -341,9 +341,10 @@ def light_sg(packed: np.ndarray, x: np.ndarray):
 
 def vertex_tangents(mesh: Mesh) -> np.ndarray:
     """(V, 3) unit tangents ⟂ the vertex normals: the direction of increasing u of the UVs (Lengyel's
-    per-face dP/du accumulated over each vertex's faces), which orients an anisotropic effective BRDF's
-    tile x-axis on the surface. Where there are no UVs, or they are degenerate around a vertex, the
-    tangent is the normal's projection of a fixed world axis (x, or z where the normal is along x)."""
+    per-face dP/du accumulated over each vertex's faces, faces across a UV seam excluded), which orients
+    an anisotropic effective BRDF's tile x-axis on the surface. Where there are no UVs, or they are
+    degenerate around a vertex, the tangent is the normal's projection of a fixed world axis (x, or z where
+    the normal is along x)."""
     n = mesh.normals
     acc = np.zeros_like(mesh.vertices)
     if mesh.uvs is not None:
@@ -352,7 +353,10 @@ def vertex_tangents(mesh: Mesh) -> np.ndarray:
         e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
         d1, d2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
         det = d1[:, 0] * d2[:, 1] - d2[:, 0] * d1[:, 1]
-        ok = np.abs(det) > 1e-20
+        # Faces across a UV seam (a wrapped u or v jumps by most of the unit range, as on a closed torus or
+        # sphere) have a meaningless dP/du: they are left out, their vertices take the other faces' tangents.
+        span = np.ptp(uv, axis=1).max(axis=1)
+        ok = (np.abs(det) > 1e-20) & (span < 0.5)
         t = np.where(ok[:, None], (e1 * d2[:, 1:2] - e2 * d1[:, 1:2]) / np.where(ok, det, 1.0)[:, None], 0.0)
         t *= np.linalg.norm(np.cross(e1, e2), axis=1)[:, None] / np.maximum(np.linalg.norm(t, axis=1), 1e-300)[:, None]
         for k in range(3):
