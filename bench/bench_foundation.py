@@ -34,6 +34,10 @@ from warp_biscale.model import Facets
 
 
 def git_commit():
+    """The commit measured: $WARP_BISCALE_COMMIT when set (a copy of the tree on another machine may carry a
+    stale .git), else git's HEAD here."""
+    if os.environ.get("WARP_BISCALE_COMMIT"):
+        return os.environ["WARP_BISCALE_COMMIT"]
     try:
         here = os.path.dirname(os.path.abspath(__file__))
         return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
