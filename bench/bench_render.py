@@ -146,9 +146,9 @@ def write_table(records, meta, path):
              "|---|---|---|---|---|---|---|---|---|---|"]
     for r in records:
         if r["part"] == "frames":
-            lines.append(f"| {r['backend']} | {r['sweep']} | {r['width']}×{r['height']} | {r['lobes']} | {r['lights']} | "
-                         f"{r['terms']} | {r['frame_s'] * 1e3:.3f} | {r['fps']:.1f} | {r['precompute_s']:.2f} | "
-                         f"{r['readback_s'] * 1e3:.2f} |")
+            lines.append(f"| {r['backend']} | {r['sweep']} | {r['width']}×{r['height']} | {r['lobes']} | "
+                         f"{r['lights']} | {r['terms']} | {r['frame_s'] * 1e3:.3f} | {r['fps']:.1f} | "
+                         f"{r['precompute_s']:.2f} | {r['readback_s'] * 1e3:.2f} |")
     pareto = [r for r in records if r["part"] == "pareto"]
     if pareto:
         lines += ["", "| backend | size | J | ms/frame | PSNR vs MC (dB) | RMSE | MC spp | MC stderr rms |",
@@ -199,7 +199,8 @@ def main(argv=None):
     OUT_DIR[0] = args.out
     backends = args.backends or [b["name"] for b in wb.backends() if not b.get("error") and b["device"]]
     if args.quick:
-        sizes, lobes, lights, terms, pareto_size = [(512, 512), (256, 256)], [1, 4, 8, 16], [0, 1, 4], [4, 16, 48], (96, 72)
+        sizes, pareto_size = [(512, 512), (256, 256)], (96, 72)
+        lobes, lights, terms = [1, 4, 8, 16], [0, 1, 4], [4, 16, 48]
     else:
         sizes = [(1920, 1080), (512, 512), (1024, 1024), (1280, 720)]
         lobes, lights, terms, pareto_size = [1, 4, 8, 16], [0, 1, 4], [4, 16, 48], (320, 240)

@@ -1,17 +1,19 @@
 """Shared fixtures: one test body runs on every backend present (Warp CPU, PoCL here and in CI;
 CUDA and NVIDIA OpenCL on a GPU machine), and small tiles built by hand."""
 
+import os
+
 import numpy as np
 import pytest
 from hypothesis import settings
+
+import warp_biscale as wb
 
 # Property tests draw the same examples on every run (seeded by the test's name), so CI is reproducible;
 # set HYPOTHESIS_PROFILE=explore locally to search for new counterexamples.
 settings.register_profile("ci", derandomize=True, database=None)
 settings.register_profile("explore")
-settings.load_profile(__import__("os").environ.get("HYPOTHESIS_PROFILE", "ci"))
-
-import warp_biscale as wb
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 
 def _present_backends():

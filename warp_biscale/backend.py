@@ -102,6 +102,12 @@ class Backend(Protocol):
         or a host dict {face (P,), bary (P, 2), light_vis (P, L)} (uploaded). The output buffer is kept
         in mesh.device_cache[self.name]["radiance"] and reused; returns None unless to_host."""
 
+    # --- Prefiltered environment (stage `envmap`: kernels/envmap.py, cl/envmap.cl; warp_biscale.lighting) ---
+    def prefilter_level(self, radiance: np.ndarray, sharpness: float, height: int, width: int) -> np.ndarray:
+        """(height, width, 3) float32 Λ(p, η) = Σ_t G(ω_t; p, η) L_t Ω_t / Σ_t G Ω_t at the texel centres p of
+        a height×width equirect map, from the equirect radiance (h, w, 3) (reference.prefilter_level);
+        one thread per output texel over the input texels with G ≥ 1e−7 (lighting.NEGLIGIBLE)."""
+
 
 def chunking(n_words: int, n_outputs: int, threads: int) -> tuple[int, int]:
     """Split n_words facet words into chunks so that n_outputs × chunks ≈ threads.

@@ -638,7 +638,8 @@ class OpenCLBackend:
                 **{key: self._buffer(static[key], np.float32) for key in (
                     "positions", "normals", "tangents", "env_sgs", "env_maps", "analytic", "eff_lobes", "eff_sub",
                     "eff_tables", "eff_diffuse")},
-                "env_levels": self._buffer(levels, np.float32), "ssdf_basis": self._buffer(basis.T, np.float32),  # texel-major
+                "env_levels": self._buffer(levels, np.float32),
+                "ssdf_basis": self._buffer(basis.T, np.float32),  # texel-major (res², terms + 1)
                 "ssdf_coeffs": self._buffer(coeffs, np.float32), "table": self._buffer(table, np.float32),
                 # Counts and shapes that the kernel takes by value.
                 "n_env": np.int32(len(static["env_sgs"])), "n_levels": np.int32(len(levels)),
@@ -704,3 +705,21 @@ class OpenCLBackend:
         if not to_host:
             return None
         return self._read(out, (n, 3), np.float32)
+
+    # ------------------------------------------------------------------ envmap (helper-C: prefiltered environment)
+    def prefilter_level(self, radiance, sharpness, height, width):
+        from .lighting import SUPPORT, equirect_tables
+
+        radiance = np.ascontiguousarray(radiance, np.float32)
+        height, width, eta = int(height), int(width), float(sharpness)
+        h_in, w_in = radiance.shape[:2]
+        in_rows, in_cols = equirect_tables(h_in, w_in)
+        out_rows, out_cols = equirect_tables(height, width)
+        n = height * width
+        out = self._empty(3 * n, np.float32)
+        self._launch("envmap", "prefilter_level", (n,),
+                     self._buffer(radiance, np.float32), self._buffer(in_rows, np.float32), np.int32(h_in),
+                     self._buffer(in_cols, np.float32), np.int32(w_in), self._buffer(out_rows, np.float32),
+                     self._buffer(out_cols, np.float32), np.int32(width), np.float32(eta),
+                     np.float32(1.0 - SUPPORT / eta), np.int32(n), out)
+        return self._read(out, (height, width, 3), np.float32)

@@ -664,3 +664,150 @@ def trace_shadows(vertices, faces, face, position, eye, lights_packed, eps, t_mi
             vis[up] = ~trace_occluded(v, f, o[up], d[up], t_min, t_max[up], tol)
         out[hit, k] = vis
     return out
+
+
+# ----------------------------------------------------------------------------------------------
+# Environment lighting (helper-C, stage `envmap`; warp_biscale/lighting.py): the prefiltered
+# environment Λ(p, η) of Wang Eq. 34–35, its packed-level lookup, and irradiance of an equirect
+# map and of an SG mixture (the measures the diffuse SG fit is judged by).
+# ----------------------------------------------------------------------------------------------
+
+__all__ += ["prefilter_level", "prefiltered_lookup", "environment_irradiance", "sg_irradiance"]
+
+
+def prefilter_level(radiance, sharpness: float, height: int, width: int) -> np.ndarray:
+    """(height, width, 3) Λ(p, η) = Σ_t G(ω_t; p, η) L_t Ω_t / Σ_t G(ω_t; p, η) Ω_t at the texel centres p
+    of a height×width equirect map, by brute force over every texel t of `radiance` (h, w, 3).
+
+    G(ω; p, η) = exp(−η(1 − ω·p)); ω_t and Ω_t are the texel centres and exact solid angles of the
+    environment.py convention. The quadrature Σ_t G Ω_t estimates ∫G = 2π(1 − e^{−2η})/η; dividing
+    by it rather than by the closed form makes a constant map exact and cancels most of the
+    quadrature error of lobes a few texels wide (see lighting.py).
+    """
+    from .environment import equirect_directions
+    from .sg import one_minus_cos
+
+    rad = np.asarray(radiance, np.float64)
+    d_in = equirect_directions(*rad.shape[:2]).reshape(-1, 3)
+    omega = np.repeat(_equirect_solid_angles(*rad.shape[:2]), rad.shape[1])
+    flat = rad.reshape(-1, 3)
+    p = equirect_directions(height, width).reshape(-1, 3)
+    out = np.empty((len(p), 3))
+    chunk = max(1, (1 << 22) // len(d_in))
+    for a in range(0, len(p), chunk):
+        g = np.exp(-float(sharpness) * one_minus_cos(p[a:a + chunk, None, :], d_in[None])) * omega[None]
+        out[a:a + chunk] = (g @ flat) / g.sum(1)[:, None]
+    return out.reshape(height, width, 3)
+
+
+def _equirect_solid_angles(height: int, width: int) -> np.ndarray:
+    """(height,) the solid angle of one texel of each row: (cos θ0 − cos θ1)·2π/W."""
+    edges = np.cos(np.pi * np.arange(height + 1) / height)
+    return (edges[:-1] - edges[1:]) * 2 * np.pi / width
+
+
+def _bilinear_equirect(image, d):
+    """(N, 3) bilinear samples of an (h, w, 3) equirect image in unit directions d (N, 3):
+    environment.py's convention (texel centres at integer coordinates, φ wraps, θ clamps)."""
+    from .environment import direction_to_equirect
+
+    h, w = image.shape[:2]
+    row, col = direction_to_equirect(d, h, w)
+    r0, c0 = np.floor(row), np.floor(col)
+    fr, fc = row - r0, col - c0
+    r0, c0 = r0.astype(np.int64), c0.astype(np.int64)
+    out = np.zeros((len(d), 3))
+    for dr, wr in ((0, 1 - fr), (1, fr)):
+        rr = np.clip(r0 + dr, 0, h - 1)
+        for dc, wc in ((0, 1 - fc), (1, fc)):
+            out += (wr * wc)[:, None] * image[rr, np.mod(c0 + dc, w)]
+    return out
+
+
+def prefiltered_lookup(maps, levels, p, eta) -> np.ndarray:
+    """(..., 3) Λ(p, η) from the packed levels (lighting.PrefilteredEnvironment): the oracle of the
+    shade kernels' lookup.
+
+    `maps` (Σ h_l·w_l, 3), `levels` (n, 4) rows [log2 η_l, offset, h_l, w_l] with log2 η_l
+    consecutive integers. t = clamp(log2 max(η, 1e−30) − log2 η_0, 0, n − 1), l = max(min(⌊t⌋, n − 2), 0),
+    f = t − l: (1 − f)·bilinear(level l) + f·bilinear(level min(l + 1, n − 1)), each level an equirect
+    map (environment.py convention: φ wraps, θ clamps). p (..., 3) unit, η (...) broadcast together.
+    (lighting.prefilter always makes n ≥ 2; n = 1 is that one level, as in the shade kernels.)
+    """
+    maps = np.asarray(maps, np.float64)
+    levels = np.asarray(levels, np.float64)
+    n = len(levels)
+    if n < 1:
+        raise ValueError("prefiltered_lookup needs at least one level")
+    p = np.asarray(p, np.float64)
+    eta = np.asarray(eta, np.float64)
+    shape = np.broadcast_shapes(p.shape[:-1], eta.shape)
+    p = np.broadcast_to(p, (*shape, 3)).reshape(-1, 3)
+    eta = np.broadcast_to(eta, shape).reshape(-1)
+    t = np.clip(np.log2(np.maximum(eta, 1e-30)) - levels[0, 0], 0.0, n - 1.0)
+    lev = np.maximum(np.minimum(np.floor(t), n - 2), 0).astype(np.int64)
+    f = np.clip(t - lev, 0.0, 1.0)
+    images = []
+    for off, h, w in levels[:, 1:].astype(np.int64):
+        images.append(maps[off:off + h * w].reshape(h, w, 3))
+    out = np.zeros((len(p), 3))
+    for l in np.unique(lev):
+        m = lev == l
+        out[m] = ((1 - f[m])[:, None] * _bilinear_equirect(images[l], p[m])
+                  + f[m][:, None] * _bilinear_equirect(images[min(l + 1, n - 1)], p[m]))
+    return out.reshape(*shape, 3)
+
+
+def environment_irradiance(radiance, normals) -> np.ndarray:
+    """(N, 3) E(n) = ∫ L(ω) max(ω·n, 0) dω of an (h, w, 3) equirect map for unit normals (N, 3),
+    by the texel-centre rule Σ_t L_t Ω_t max(ω_t·n, 0)."""
+    from .environment import equirect_directions
+
+    rad = np.asarray(radiance, np.float64)
+    h, w = rad.shape[:2]
+    weighted = (rad * _equirect_solid_angles(h, w)[:, None, None]).reshape(-1, 3)
+    d = equirect_directions(h, w).reshape(-1, 3)
+    normals = np.asarray(normals, np.float64).reshape(-1, 3)
+    out = np.empty((len(normals), 3))
+    chunk = max(1, (1 << 22) // len(d))
+    for a in range(0, len(normals), chunk):
+        out[a:a + chunk] = np.maximum(normals[a:a + chunk] @ d.T, 0.0) @ weighted
+    return out
+
+
+def _clamped_cosine_ring(u, cos_a):
+    """∫_0^{2π} max(a + b cos φ, 0) dφ with a = (1 − u)cos α, b = √(u(2 − u))·sin α: the clamped cosine
+    about a normal at angle α from the lobe axis, integrated over the ring 1 − ω·ξ = u."""
+    sin_a = np.sqrt(np.maximum(1.0 - cos_a * cos_a, 0.0))
+    a = (1.0 - u) * cos_a
+    b = np.sqrt(np.maximum(u * (2.0 - u), 0.0)) * sin_a
+    safe_b = np.where(b > 0, b, 1.0)
+    ratio = np.clip(-a / safe_b, -1.0, 1.0)
+    partial = 2.0 * (a * np.arccos(ratio) + np.sqrt(np.maximum(b * b - a * a, 0.0)))
+    return np.where(a >= b, 2.0 * np.pi * a, np.where(a <= -b, 0.0, partial))
+
+
+def sg_irradiance(axes, sharpness, amplitude, normals, nodes: int = 64) -> np.ndarray:
+    """(N, 3) E(n) = Σ_k ∫ G(ω; ξ_k, η_k, μ_k) max(ω·n, 0) dω for K lobes, axes (K, 3), sharpness (K,),
+    amplitude (K, 3), unit normals (N, 3).
+
+    With u = 1 − ω·ξ, dω = du dφ and the φ integral in closed form (`_clamped_cosine_ring`), each
+    term is ∫_0^2 e^{−ηu} ring(u) du, done by Gauss–Legendre on 32 panels of `nodes` points over
+    u ∈ [0, min(2, 50/η)] (e^{−50} is nothing): exact to ~1e−7 relative at any sharpness.
+    """
+    axes = np.asarray(axes, np.float64).reshape(-1, 3)
+    sharpness = np.asarray(sharpness, np.float64).reshape(-1)
+    amplitude = np.asarray(amplitude, np.float64).reshape(-1, 3)
+    normals = np.asarray(normals, np.float64).reshape(-1, 3)
+    x, wq = np.polynomial.legendre.leggauss(nodes)
+    panels = 32
+    out = np.zeros((len(normals), 3))
+    for xi, eta, mu in zip(axes, sharpness, amplitude):
+        top = min(2.0, 50.0 / eta)
+        edges = np.linspace(0.0, top, panels + 1)
+        half = 0.5 * (edges[1:] - edges[:-1])
+        u = ((edges[:-1] + half)[:, None] + half[:, None] * x[None]).reshape(-1)
+        w = (half[:, None] * wq[None]).reshape(-1) * np.exp(-eta * u)
+        cos_a = np.clip(normals @ xi, -1.0, 1.0)
+        out += (_clamped_cosine_ring(u[None, :], cos_a[:, None]) @ w)[:, None] * mu[None, :]
+    return out

@@ -620,3 +620,22 @@ class WarpBackend:
         if not to_host:
             return None
         return self._trace_host(out).reshape(n, 3).astype(np.float32)
+
+    # ------------------------------------------------------------------ envmap (helper-C: prefiltered environment)
+    def prefilter_level(self, radiance, sharpness, height, width):
+        import warp as wp
+
+        from .kernels import envmap as ke
+        from .lighting import SUPPORT, equirect_tables
+
+        radiance = np.ascontiguousarray(radiance, np.float32)
+        height, width, eta = int(height), int(width), float(sharpness)
+        in_rows, in_cols = equirect_tables(*radiance.shape[:2])
+        out_rows, out_cols = equirect_tables(height, width)
+        out = wp.empty(height * width, dtype=wp.vec3, device=self._device)
+        self._launch(ke.prefilter_level, height * width,
+                     [self._array(radiance.reshape(-1, 3), wp.vec3), self._array(in_rows, wp.vec4),
+                      self._array(in_cols, wp.vec3), self._array(out_rows, wp.vec4), self._array(out_cols, wp.vec3),
+                      eta, 1.0 - SUPPORT / eta],
+                     [out])
+        return out.numpy().reshape(height, width, 3)

@@ -1,0 +1,448 @@
+"""Environment lighting for the SG renderer (Wang 2009 §6, Iwasaki 2012 §5).
+
+Two representations of one `Environment`, built once by `prepare` and cached on it:
+
+- `EnvironmentSGs` (`fit_sgs`), for the diffuse term: K SG lobes (default 9, as Iwasaki §5 after
+  Wang §6). Only the environment's low frequencies matter there, but its energy must be kept, so
+  the fit is a *mixture* fit, not a pointwise one: an ambient lobe (η = 1e−3, nearly constant)
+  takes the map's per-channel minimum, and spherical EM (the bake's E-step kernel,
+  `Backend.ndf_statistics`, on texel directions weighted by luminance × solid angle) splits the
+  rest into K − 1 lobes; each lobe's RGB power is the texels' power weighted by the lobe's EM
+  responsibilities, and its amplitude is that power over ∫G. So the fit's power equals the map's
+  per channel (to float32 rounding), a constant map is fitted exactly (to the ambient lobe's 1e−3
+  variation) and a sun of one texel becomes one lobe carrying exactly its power.
+- `PrefilteredEnvironment` (`prefilter`), for the specular lobes: Λ(p, η) = ∫G(ω; p, η, 1)L(ω)dω / ∫G,
+  the SG-weighted average radiance (Wang Eq. 34–35 divided by ∫G, so that it interpolates well in
+  log η), tabulated on levels η_l = 2^(l0 + l), l0 = −3, each an equirect map (environment.py's
+  convention) at its own resolution, computed by the envmap stage (`Backend.prefilter_level`).
+
+Packed for the shade kernels (the contract with the renderer): ``maps`` float32 (Σ h_l·w_l, 3), the
+levels' texels concatenated row-major, and ``levels`` float32 (n, 4) rows [log2 η_l, offset (index of
+the level's first texel), h_l, w_l]; `reference.prefiltered_lookup` is the lookup's semantics.
+
+Level resolution (`level_plan`). A lobe's angular scale is σ = 1/√η (G ≈ exp(−θ²/(2σ²))); level l
+has h_l = ⌈s·π·√η_l⌉ rows (row spacing σ/s, s = `TEXELS_PER_SIGMA` = 3), at least `MIN_HEIGHT` = 8,
+and columns in the base map's aspect, and is summed from the base map area-averaged (power
+preserving, `downsample`) to `INPUT_FACTOR` = 2 times its rows, so every level sees its lobe through
+the same number of input texels and costs (its texels) × (a fixed support). Measured on 128×256 maps
+(sky with a 2° and a 0.5° sun, studio, one hot texel, noise; lookup vs float64 Λ of the base map at
+1000 directions, error / max Λ): at the levels' own η, s = 2 → 4–7 % away from the poles and 14 %
+within half a row of a pole (the lookup clamps θ there, an error of first order, ≈ 0.3/s); s = 3 →
+≤ 4 % and ≤ 9 %; s = 4 → ≤ 2.5 % and ≤ 7 % at 1.3× the texels of s = 3. Between levels the
+interpolation in log η adds its own ≈ 5 % (a factor 2 in η), so s = 3 is where the grid stops
+being the larger error.
+
+Where the levels stop. Once a level needs the base map's rows it is computed *at* the base
+resolution (from the base map itself), and levels continue until a lobe's σ is below half a row
+(`STOP_TEXELS_PER_SIGMA` = 0.5); then the base map itself (Λ = L) is the last level, with the nominal
+sharpness 2^(l0 + n − 1). Why not stop at the first level that needs the base rows: the base map
+resolves features down to its texel (a sun), far sharper than that level's η, so interpolating
+towards it over the last octave put the sun's raw radiance into lobes of η ≈ 360 (128 rows): 2× the
+true peak of Λ for the 2° sun, 12–24× for a 0.5° sun or a one-texel light (energy is still right,
+the shape is not). Continuing to σ = ½ row brings that octave to ≤ 0.37 × (0.5° sun), ≤ 0.13 × for
+the others, at 7.4× the base map's texels instead of 2.4× (128×256: 17 levels, η up to 2^12, base
+nominal 2^13). Level 0 is always prefiltered, so n ≥ 2 even for a 2×4 map. Offsets are float32 in
+`levels`, exact to 2^24 texels: for a map so large that the full plan passes that, the sharpest
+base-resolution levels are left out (down to the plain stop rule) rather than failing.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import sg
+from .environment import Environment
+
+__all__ = ["EnvironmentSGs", "PrefilteredEnvironment", "EnvironmentLighting", "fit_sgs", "prefilter", "prepare",
+           "downsample", "level_plan", "equirect_tables"]
+
+LOG2_ETA0 = -3  # the broadest level, η = 1/8: σ ≈ 160°, nearly the whole-sphere average
+TEXELS_PER_SIGMA = 3.0  # rows per lobe σ (see the module docstring and tests/test_lighting.py)
+STOP_TEXELS_PER_SIGMA = 0.5  # levels at the base resolution continue until σ < ½ row
+MIN_HEIGHT = 8  # the broadest levels' rows
+INPUT_FACTOR = 2  # a level's input has this many times its rows (capped at the base map's)
+NEGLIGIBLE = 1e-7  # G below this is dropped from the prefilter sums
+SUPPORT = float(-np.log(NEGLIGIBLE))  # η(1 − ω·p) beyond which G < NEGLIGIBLE (16.118)
+MAX_TEXELS = 1 << 24  # `levels` holds texel offsets in float32: exact up to 2^24
+AMBIENT_SHARPNESS = sg.SHARPNESS_MIN  # 1e−3: G varies by 0.2 % over the sphere
+FIT_HEIGHT = 128  # the SG fit works on the map area-averaged to at most this many rows
+LUMINANCE = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709: the EM weights' scalar radiance
+
+
+# ----------------------------------------------------------------------------------------------
+# Equirect helpers (environment.py's convention)
+# ----------------------------------------------------------------------------------------------
+
+
+def equirect_tables(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """The envmap kernels' per-row and per-column tables of an equirect map, float32:
+    rows (height, 4) [cos θ, sin θ, θ, Ω] (Ω the solid angle of one texel of the row, sr) and
+    columns (width, 3) [cos φ, sin φ, φ], at the texel centres θ = π(i + ½)/H, φ = 2π(j + ½)/W."""
+    theta = np.pi * (np.arange(height) + 0.5) / height
+    edges = np.cos(np.pi * np.arange(height + 1) / height)
+    omega = (edges[:-1] - edges[1:]) * 2 * np.pi / width
+    phi = 2 * np.pi * (np.arange(width) + 0.5) / width
+    rows = np.stack([np.cos(theta), np.sin(theta), theta, omega], 1)
+    cols = np.stack([np.cos(phi), np.sin(phi), phi], 1)
+    return rows.astype(np.float32), cols.astype(np.float32)
+
+
+def _resample_axis(values, fine_edges, coarse_edges, axis):
+    """Integrals of a piecewise-constant function over coarse cells: `values` (…) are the function's
+    integrals over the fine cells along `axis` (fine_edges increasing, in the cells' measure); the
+    running integral is linear inside each fine cell, so it is interpolated exactly at coarse edges."""
+    values = np.moveaxis(values, axis, 0)
+    running = np.concatenate([np.zeros((1, *values.shape[1:])), np.cumsum(values, 0)], 0)
+    k = np.clip(np.searchsorted(fine_edges, coarse_edges, side="right") - 1, 0, len(fine_edges) - 2)
+    frac = (coarse_edges - fine_edges[k]) / (fine_edges[k + 1] - fine_edges[k])
+    frac = frac.reshape(-1, *([1] * (values.ndim - 1)))
+    at_edges = running[k] + frac * (running[k + 1] - running[k])
+    return np.moveaxis(np.diff(at_edges, axis=0), 0, axis)
+
+
+def downsample(radiance, height: int, width: int) -> np.ndarray:
+    """(height, width, 3) float64 area-weighted average of an equirect map (h, w, 3) over each coarse
+    texel (any sizes, not only integer factors; partly covered fine texels count by the covered
+    solid angle). Power preserving: Σ L Ω over the coarse map equals the fine map's (to rounding)."""
+    rad = np.asarray(radiance, np.float64)
+    h, w = rad.shape[:2]
+    if (height, width) == (h, w):
+        return rad.copy()
+    # θ: the measure of a row is 1 − cos θ; φ: the measure is φ itself (fractions of the full turn).
+    u_fine = 1.0 - np.cos(np.pi * np.arange(h + 1) / h)
+    u_coarse = 1.0 - np.cos(np.pi * np.arange(height + 1) / height)
+    u_coarse[-1] = u_fine[-1] = 2.0
+    rows = _resample_axis(rad * np.diff(u_fine)[:, None, None], u_fine, u_coarse, 0)
+    p_fine = np.arange(w + 1) / w
+    p_coarse = np.arange(width + 1) / width
+    cells = _resample_axis(rows / w, p_fine, p_coarse, 1)
+    return cells / (np.diff(u_coarse)[:, None, None] / width)
+
+
+# ----------------------------------------------------------------------------------------------
+# The prefiltered environment (specular lobes)
+# ----------------------------------------------------------------------------------------------
+
+
+def level_plan(height: int, width: int, texels_per_sigma: float = TEXELS_PER_SIGMA,
+               min_height: int = MIN_HEIGHT, input_factor: int = INPUT_FACTOR,
+               stop_texels_per_sigma: float = STOP_TEXELS_PER_SIGMA) -> list[dict]:
+    """The levels of a height×width base map (module docstring): a list of {log2_eta, height, width,
+    in_height, in_width}; the last entry is the base map itself (in_height = in_width = 0: nothing to
+    compute). stop_texels_per_sigma = texels_per_sigma gives the plain rule (stop at the first level
+    that needs the base rows). Levels beyond that rule are dropped while the base map's offset would
+    pass `MAX_TEXELS`."""
+    plan = _plan(height, width, texels_per_sigma, min_height, input_factor, stop_texels_per_sigma)
+    plain = len(_plan(height, width, texels_per_sigma, min_height, input_factor, texels_per_sigma))
+    while len(plan) > plain and sum(p["height"] * p["width"] for p in plan[:-1]) > MAX_TEXELS:
+        plan = plan[:-2] + [dict(plan[-1], log2_eta=plan[-2]["log2_eta"])]
+    return plan
+
+
+def _plan(height, width, texels_per_sigma, min_height, input_factor, stop):
+    plan = []
+    l2 = LOG2_ETA0
+    while True:
+        rows = max(int(min_height), int(np.ceil(texels_per_sigma * np.pi * np.sqrt(2.0**l2))))
+        if np.ceil(stop * np.pi * np.sqrt(2.0**l2)) >= height and plan:
+            plan.append({"log2_eta": l2, "height": height, "width": width, "in_height": 0, "in_width": 0})
+            return plan
+        rows = min(rows, height)
+        cols = max(2, min(width, int(round(rows * width / height))))
+        in_rows = min(height, input_factor * rows)
+        in_cols = width if in_rows == height else max(2, min(width, int(round(in_rows * width / height))))
+        plan.append({"log2_eta": l2, "height": rows, "width": cols, "in_height": in_rows, "in_width": in_cols})
+        l2 += 1
+
+
+@dataclass(eq=False)
+class PrefilteredEnvironment:
+    """Λ(p, η) tabulated on n ≥ 2 levels (see the module docstring for the layout).
+
+    maps (Σ h_l·w_l, 3) float32 ≥ 0, levels (n, 4) float32 [log2 η_l, offset, h_l, w_l]; `timings` holds
+    each computed level's seconds (backend synchronised)."""
+
+    maps: np.ndarray
+    levels: np.ndarray
+    timings: list = field(default_factory=list, repr=False)
+
+    def __post_init__(self):
+        self.maps = np.ascontiguousarray(self.maps, np.float32)
+        self.levels = np.ascontiguousarray(self.levels, np.float32)
+        if self.maps.ndim != 2 or self.maps.shape[1] != 3:
+            raise ValueError(f"PrefilteredEnvironment.maps must be (N, 3), got {self.maps.shape}")
+        if self.levels.ndim != 2 or self.levels.shape[1] != 4 or len(self.levels) < 2:
+            raise ValueError(f"PrefilteredEnvironment.levels must be (n >= 2, 4), got {self.levels.shape}")
+        sizes = self.levels[:, 2].astype(np.int64) * self.levels[:, 3].astype(np.int64)
+        offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+        if (not np.array_equal(self.levels[:, 1].astype(np.int64), offsets) or sizes.sum() != len(self.maps)
+                or not np.array_equal(np.diff(self.levels[:, 0]), np.ones(len(self.levels) - 1))):
+            raise ValueError("PrefilteredEnvironment.levels must list consecutive log2 η and contiguous "
+                             "offsets that cover maps")
+        if not (np.all(np.isfinite(self.maps)) and (self.maps >= 0).all()):
+            raise ValueError("PrefilteredEnvironment.maps holds NaN, inf or negative radiance")
+
+    def __len__(self):
+        return len(self.levels)
+
+    @property
+    def sharpness(self) -> np.ndarray:
+        """(n,) η_l (the last, the base map's, is nominal)."""
+        return 2.0 ** self.levels[:, 0].astype(np.float64)
+
+    def level(self, l: int) -> np.ndarray:
+        """Level l as an (h_l, w_l, 3) float32 image."""
+        _, off, h, w = (int(x) for x in self.levels[l])
+        return self.maps[off:off + h * w].reshape(h, w, 3)
+
+    def lookup(self, p, eta) -> np.ndarray:
+        """(..., 3) float64 Λ(p, η) for unit p (..., 3) and η (...) (`reference.prefiltered_lookup`)."""
+        from .reference import prefiltered_lookup
+
+        return prefiltered_lookup(self.maps, self.levels, p, eta)
+
+
+def prefilter(env: Environment, backend="auto", texels_per_sigma: float = TEXELS_PER_SIGMA,
+              min_height: int = MIN_HEIGHT, stop_texels_per_sigma: float = STOP_TEXELS_PER_SIGMA
+              ) -> PrefilteredEnvironment:
+    """The prefiltered levels of `env` (`level_plan`), each computed by `backend.prefilter_level`."""
+    from .backend import get_backend
+
+    be = get_backend(backend)
+    plan = level_plan(env.height, env.width, texels_per_sigma, min_height, INPUT_FACTOR, stop_texels_per_sigma)
+    last = sum(p["height"] * p["width"] for p in plan[:-1])
+    if last > MAX_TEXELS:
+        raise ValueError(f"environment {env.name!r} ({env.height}x{env.width}) is too large: its base map would "
+                         f"start at texel {last} of the packed levels, past the {MAX_TEXELS} a float32 offset "
+                         "addresses exactly; use env.resized(...) first")
+    maps, levels, timings, offset = [], [], [], 0
+    inputs = {}  # (in_height, in_width) → downsampled map: two levels share each input
+    for p in plan:
+        if p["in_height"] == 0:
+            level = env.radiance
+        else:
+            key = (p["in_height"], p["in_width"])
+            if key not in inputs:
+                inputs[key] = (env.radiance if key == (env.height, env.width)
+                               else downsample(env.radiance, *key).astype(np.float32))
+            t0 = time.perf_counter()
+            level = be.prefilter_level(inputs[key], 2.0 ** p["log2_eta"], p["height"], p["width"])
+            be.synchronize()
+            timings.append(time.perf_counter() - t0)
+        maps.append(level.reshape(-1, 3))
+        levels.append([p["log2_eta"], offset, p["height"], p["width"]])
+        offset += p["height"] * p["width"]
+    return PrefilteredEnvironment(np.concatenate(maps), np.asarray(levels, np.float32), timings)
+
+
+# ----------------------------------------------------------------------------------------------
+# The SG fit (diffuse term)
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(eq=False)
+class EnvironmentSGs:
+    """K SG lobes L(ω) ≈ Σ_k μ_k exp(η_k(ω·ξ_k − 1)): axes ξ (K, 3) unit, sharpness η (K,) > 0,
+    amplitude μ (K, 3) RGB radiance ≥ 0. K ≥ 1 (a black map gives one zero-amplitude lobe)."""
+
+    axes: np.ndarray
+    sharpness: np.ndarray
+    amplitude: np.ndarray
+    iterations: int = 0
+
+    def __post_init__(self):
+        self.axes = np.asarray(self.axes, np.float64).reshape(-1, 3)
+        self.sharpness = np.asarray(self.sharpness, np.float64).reshape(-1)
+        self.amplitude = np.asarray(self.amplitude, np.float64).reshape(-1, 3)
+        k = len(self.axes)
+        if k < 1 or self.sharpness.shape != (k,) or self.amplitude.shape != (k, 3):
+            raise ValueError(f"EnvironmentSGs needs K >= 1 lobes with axes (K, 3), sharpness (K,), amplitude "
+                             f"(K, 3); got {self.axes.shape}, {self.sharpness.shape}, {self.amplitude.shape}")
+        if not (np.all(np.isfinite(self.axes)) and np.all(np.isfinite(self.amplitude))
+                and np.all(np.isfinite(self.sharpness)) and (self.sharpness > 0).all() and (self.amplitude >= 0).all()):
+            raise ValueError("EnvironmentSGs: axes and amplitudes must be finite, amplitudes >= 0, sharpness > 0")
+        self.axes = self.axes / np.linalg.norm(self.axes, axis=1, keepdims=True)
+
+    def __len__(self):
+        return len(self.sharpness)
+
+    def packed(self) -> np.ndarray:
+        """(K, 7) float32 rows [ξx, ξy, ξz, η, μr, μg, μb] (what the shade kernels read)."""
+        return np.concatenate([self.axes, self.sharpness[:, None], self.amplitude], 1).astype(np.float32)
+
+    def evaluate(self, d) -> np.ndarray:
+        """(..., 3) float64 radiance of the fit in unit directions d (..., 3)."""
+        d = np.asarray(d, np.float64)
+        g = sg.evaluate(d[..., None, :], self.axes, self.sharpness)  # (..., K)
+        return g @ self.amplitude
+
+    def power(self) -> np.ndarray:
+        """(3,) ∫ fit dω = Σ_k μ_k ∫G_k (closed form)."""
+        return sg.integral(self.sharpness) @ self.amplitude
+
+    def irradiance(self, normals) -> np.ndarray:
+        """(N, 3) ∫ fit(ω) max(ω·n, 0) dω for unit normals (N, 3) (`reference.sg_irradiance`)."""
+        from .reference import sg_irradiance
+
+        return sg_irradiance(self.axes, self.sharpness, self.amplitude, normals)
+
+
+def _texel_facets(directions, weight):
+    """Texel directions as `Facets` (unit normals with areas) for the bake's EM kernel."""
+    from .model import Facets
+
+    n = len(directions)
+    return Facets(np.zeros((n, 3), np.float32), directions.astype(np.float32), np.zeros(n, np.int32),
+                  weight.astype(np.float32), np.zeros(n, np.int32), np.ones((n, 3), np.float32))
+
+
+def fit_sgs(env: Environment, lobes: int = 9, backend="auto", ambient: bool = True,
+            iterations: int = 30, refine: bool = True) -> EnvironmentSGs:
+    """K ≤ `lobes` SG lobes for the diffuse term (see the module docstring). Deterministic.
+
+    `lobes` in [1, 16] counts the ambient lobe (present when `ambient` and lobes ≥ 2; always first);
+    EM may return fewer lobes than asked when the map has fewer distinct bright regions. The map is
+    first area-averaged to at most `FIT_HEIGHT` rows (power kept). EM runs at most `iterations` steps
+    (`lobes.converged` stops it earlier). Sharpness: EM sees each texel as a point, so a lobe's
+    sharpness is widened by its texel's own spread (1/η ← 1/η + Ω/12, a square texel of solid
+    angle Ω), which caps a one-texel sun at the map's resolution instead of η = 10⁶.
+    """
+    from . import lobes as lobes_mod
+    from .backend import get_backend
+
+    try:
+        k = int(lobes)
+    except (TypeError, ValueError):
+        k = None
+    if k is None or k != lobes or not 1 <= k <= lobes_mod.MAX_LOBES:
+        raise ValueError(f"lobes must be an integer in [1, {lobes_mod.MAX_LOBES}], got {lobes!r}")
+    be = get_backend(backend)
+    if env.height > FIT_HEIGHT:
+        rows = FIT_HEIGHT
+        cols = max(2, int(round(rows * env.width / env.height)))
+        rad = downsample(env.radiance, rows, cols)
+        small = Environment(rad.astype(np.float32), name=env.name)
+    else:
+        small = env
+    rad = small.radiance.astype(np.float64).reshape(-1, 3)
+    omega = small.solid_angles().reshape(-1)
+    dirs = small.directions().reshape(-1, 3)
+    with_ambient = bool(ambient) and k >= 2
+    floor = rad.min(axis=0) if with_ambient else np.zeros(3)
+    rest = np.maximum(rad - floor, 0.0)
+    weight = (rest @ LUMINANCE) * omega
+    keep = weight > 0  # every texel with any power left has luminance > 0
+    axes, sharp, amp = [], [], []
+    if with_ambient:
+        axes.append([0.0, 1.0, 0.0])
+        sharp.append(AMBIENT_SHARPNESS)
+        amp.append(floor * 4 * np.pi / sg.integral(AMBIENT_SHARPNESS))
+    steps = 0
+    if keep.any():
+        scale = weight[keep].sum()
+        d = dirs[keep]
+        facets = _texel_facets(d, weight[keep] / scale)
+        lob = lobes_mod.initial_lobes(d, weight[keep] / scale, k - int(with_ambient))
+        for _ in range(int(iterations)):
+            stats = be.ndf_statistics(facets, lob.axes, lob.sharpness, lob.log_weight)
+            new = lobes_mod.m_step(stats, lob)
+            done = lobes_mod.converged(new, lob)
+            lob = new
+            steps += 1
+            if done:
+                break
+        # Each lobe's RGB power: the texels' power split by the final lobes' responsibilities (the same
+        # E-step kernel with the channel's power as the facet area; responsibilities sum to 1 per texel).
+        power = np.stack([be.ndf_statistics(_texel_facets(d, rest[keep, c] * omega[keep] / scale), lob.axes,
+                                            lob.sharpness, lob.log_weight)[:, 0] for c in range(3)], 1) * scale
+        texel = omega[np.argmax(lob.axes @ dirs.T, axis=1)]  # the solid angle of the texel under each axis
+        eta = 1.0 / (1.0 / lob.sharpness + texel / 12.0)
+        for j in range(len(lob)):
+            axes.append(lob.axes[j])
+            sharp.append(eta[j])
+            amp.append(np.maximum(power[j], 0.0) / sg.integral(eta[j]))
+    if not axes:  # black map, no ambient lobe asked for: one lobe of zero amplitude
+        axes, sharp, amp = [[0.0, 1.0, 0.0]], [1.0], [np.zeros(3)]
+    axes, sharp, amp = np.asarray(axes, np.float64), np.asarray(sharp, np.float64), np.asarray(amp, np.float64)
+    if refine and len(axes) > 1:
+        amp = _refine_amplitudes(small, axes, sharp, amp)
+    return EnvironmentSGs(axes, sharp, amp, iterations=steps)
+
+
+def fibonacci_directions(n: int) -> np.ndarray:
+    """(n, 3) float64 unit directions spread evenly over the sphere (the Fibonacci lattice)."""
+    i = np.arange(n) + 0.5
+    y = 1.0 - 2.0 * i / n
+    r = np.sqrt(np.maximum(1.0 - y * y, 0.0))
+    phi = np.pi * (1.0 + np.sqrt(5.0)) * i
+    return np.stack([r * np.cos(phi), y, r * np.sin(phi)], 1)
+
+
+REFINE_NORMALS = 256
+
+
+def _refine_amplitudes(env, axes, sharp, amp):
+    """Amplitudes re-solved per channel for the irradiance the diffuse term sees: non-negative least
+    squares of Σ_k μ_k E_k(n) against the map's E(n) on `REFINE_NORMALS` normals, with the power
+    Σ_k μ_k ∫G_k = ∫L held (a heavily weighted row, then an exact rescale)."""
+    from scipy.optimize import nnls
+
+    from .reference import environment_irradiance, sg_irradiance
+
+    normals = fibonacci_directions(REFINE_NORMALS)
+    target = environment_irradiance(env.radiance, normals)  # (N, 3)
+    basis = np.stack([sg_irradiance(a[None], [e], [[1.0, 1.0, 1.0]], normals)[:, 0]
+                      for a, e in zip(axes, sharp)], 1)  # (N, K)
+    integrals = sg.integral(sharp)
+    power = env.power()
+    out = amp.copy()
+    for c in range(3):
+        if power[c] <= 0:
+            out[:, c] = 0.0
+            continue
+        scale = target[:, c].mean()
+        rows = np.vstack([basis / scale, 1e3 * integrals[None] / power[c]])
+        rhs = np.concatenate([target[:, c] / scale, [1e3]])
+        mu = nnls(rows, rhs, maxiter=50 * len(axes))[0]
+        total = mu @ integrals
+        out[:, c] = mu * (power[c] / total) if total > 0 else amp[:, c]
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# Both, cached per environment
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(eq=False)
+class EnvironmentLighting:
+    """What the renderer needs of an environment: `sgs` (diffuse) and `prefiltered` (specular);
+    `timings` seconds of the fit and of the prefilter."""
+
+    sgs: EnvironmentSGs
+    prefiltered: PrefilteredEnvironment
+    timings: dict = field(default_factory=dict)
+
+
+def prepare(env: Environment, backend="auto", lobes: int = 9) -> EnvironmentLighting:
+    """`fit_sgs` + `prefilter` of `env` on `backend`, cached in env.device_cache per backend name and
+    lobe count, so re-rendering under the same environment costs nothing. An Environment is treated as
+    immutable: a changed map is a new Environment."""
+    from .backend import get_backend
+
+    be = get_backend(backend)
+    key = ("lighting", be.name, int(lobes))
+    cached = env.device_cache.get(key)
+    if cached is not None:
+        return cached
+    t0 = time.perf_counter()
+    sgs = fit_sgs(env, lobes, be)
+    t1 = time.perf_counter()
+    pre = prefilter(env, be)
+    t2 = time.perf_counter()
+    out = EnvironmentLighting(sgs, pre, {"fit": t1 - t0, "prefilter": t2 - t1})
+    env.device_cache[key] = out
+    return out
