@@ -4,6 +4,7 @@
  * mathematics is warp_biscale.reference.prefilter_level. One work-item per output texel p, no
  * atomics: Σ_t G(ω_t; p, η) L_t Ω_t / Σ_t G Ω_t over the input texels t inside the lobe's support
  * (ω·p ≥ cos_min = 1 − 16.118/η, i.e. G ≥ 1e-7), each row summed in float32, rows in double.
+ * An empty support gives the nearest texel's radiance (the limit η → ∞).
  *
  * Layout: radiance (h_in·w_in, 3) floats row-major; in_rows / out_rows (h, 4) [cos θ, sin θ, θ, Ω];
  * in_cols / out_cols (w, 3) [cos φ, sin φ, φ]; out (h_out·w_out, 3). Needs cl_khr_fp64.
@@ -78,8 +79,34 @@ __kernel void prefilter_level(
         a2 += (double)s2 * omega;
         total += (double)sw * omega;
     }
-    float3 v = (float3)(0.0f, 0.0f, 0.0f);
-    if (total > 0.0)
+    float3 v;
+    if (total > 0.0) {
         v = (float3)((float)(a0 / total), (float)(a1 / total), (float)(a2 / total));
+    } else {
+        /* No texel centre within the support: the nearest texel's radiance (the limit η → ∞),
+         * searched among the 3×3 texels around the one containing p. */
+        int ic = (int)floor(r[2] * (float)h_in / ENV_PI);
+        ic = ic < 0 ? 0 : (ic > h_in - 1 ? h_in - 1 : ic);
+        int jc = (int)floor(c[2] * (float)w_in / ENV_TWO_PI);
+        float best = -2.0f;
+        int best_k = 0;
+        int lo = ic - 1 > 0 ? ic - 1 : 0;
+        int hi = ic + 1 < h_in - 1 ? ic + 1 : h_in - 1;
+        for (int ii = lo; ii <= hi; ++ii) {
+            __global const float *q = in_rows + 4 * ii;
+            for (int dj = -1; dj <= 1; ++dj) {
+                int jj = (jc + dj) % w_in;
+                if (jj < 0)
+                    jj += w_in;
+                __global const float *cc = in_cols + 3 * jj;
+                float cosine = q[1] * cc[0] * p.x + q[0] * p.y + q[1] * cc[1] * p.z;
+                if (cosine > best) {
+                    best = cosine;
+                    best_k = ii * w_in + jj;
+                }
+            }
+        }
+        v = load3(radiance, best_k);
+    }
     store3(out, t, v);
 }

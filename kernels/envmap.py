@@ -8,7 +8,8 @@ input texels t and writes their ratio. Only texels inside the lobe's support are
 G = exp(−η(1 − ω·p)) < 1e−7 is dropped, i.e. ω·p < cos_min = 1 − 16.118/η. The rows that can reach
 it are |θ − θp| ≤ arccos(cos_min); in row θ the columns are |φ − φp| ≤ arccos(x) with
 x = (cos_min − cos θ cos θp)/(sin θ sin θp) (x > 1: none, x ≤ −1: the whole row). So a thread's work
-is the number of input texels in its lobe's support, not the whole map.
+is the number of input texels in its lobe's support, not the whole map. A support holding no texel
+centre (η far beyond the input's resolution) gives the nearest texel's radiance, the limit η → ∞.
 
 Precision: 1 − ω·p is taken as ‖ω − p‖²/2 (no cancellation for sharp lobes, where η(1 − ω·p) would
 otherwise carry η·6e−8 of noise); each row is summed in float32 (at most w_in positive terms) and
@@ -82,4 +83,22 @@ def prefilter_level(
     if total > wp.float64(0.0):
         out[t] = wp.vec3(acc / total)
     else:
-        out[t] = wp.vec3(0.0)
+        # No input texel within the support (a lobe far narrower than the input's texels, which
+        # lighting.level_plan never asks for): the limit η → ∞ of the ratio, the radiance of the
+        # nearest texel centre, found among the 3×3 texels around the one containing p.
+        ic = wp.min(wp.max(int(wp.floor(r[2] * float(h_in) / PI)), 0), h_in - 1)
+        jc = int(wp.floor(c[2] * float(w_in) / TWO_PI))
+        best = float(-2.0)
+        best_k = int(0)
+        for ii in range(wp.max(ic - 1, 0), wp.min(ic + 1, h_in - 1) + 1):
+            q = in_rows[ii]
+            for dj in range(-1, 2):
+                jj = (jc + dj) % w_in
+                if jj < 0:
+                    jj += w_in
+                cc = in_cols[jj]
+                cosine = q[1] * cc[0] * p[0] + q[0] * p[1] + q[1] * cc[1] * p[2]
+                if cosine > best:
+                    best = cosine
+                    best_k = ii * w_in + jj
+        out[t] = radiance[best_k]

@@ -672,17 +672,17 @@ def trace_shadows(vertices, faces, face, position, eye, lights_packed, eps, t_mi
 # map and of an SG mixture (the measures the diffuse SG fit is judged by).
 # ----------------------------------------------------------------------------------------------
 
-__all__ += ["prefilter_level", "prefiltered_lookup", "environment_irradiance", "sg_irradiance"]
+__all__ += ["lobe_average", "prefilter_level", "prefiltered_lookup", "environment_irradiance", "sg_irradiance"]
 
 
-def prefilter_level(radiance, sharpness: float, height: int, width: int) -> np.ndarray:
-    """(height, width, 3) Λ(p, η) = Σ_t G(ω_t; p, η) L_t Ω_t / Σ_t G(ω_t; p, η) Ω_t at the texel centres p
-    of a height×width equirect map, by brute force over every texel t of `radiance` (h, w, 3).
+def lobe_average(radiance, p, sharpness) -> np.ndarray:
+    """(N, 3) Λ(p, η) = Σ_t G(ω_t; p, η) L_t Ω_t / Σ_t G(ω_t; p, η) Ω_t for unit directions p (N, 3), by
+    brute force over every texel t of the equirect map `radiance` (h, w, 3).
 
     G(ω; p, η) = exp(−η(1 − ω·p)); ω_t and Ω_t are the texel centres and exact solid angles of the
-    environment.py convention. The quadrature Σ_t G Ω_t estimates ∫G = 2π(1 − e^{−2η})/η; dividing
-    by it rather than by the closed form makes a constant map exact and cancels most of the
-    quadrature error of lobes a few texels wide (see lighting.py).
+    environment.py convention. Σ_t G Ω_t estimates ∫G = 2π(1 − e^{−2η})/η; dividing by it rather than
+    by the closed form makes a constant map exact and cancels most of the quadrature error of lobes
+    a few texels wide.
     """
     from .environment import equirect_directions
     from .sg import one_minus_cos
@@ -691,13 +691,26 @@ def prefilter_level(radiance, sharpness: float, height: int, width: int) -> np.n
     d_in = equirect_directions(*rad.shape[:2]).reshape(-1, 3)
     omega = np.repeat(_equirect_solid_angles(*rad.shape[:2]), rad.shape[1])
     flat = rad.reshape(-1, 3)
-    p = equirect_directions(height, width).reshape(-1, 3)
+    p = np.asarray(p, np.float64).reshape(-1, 3)
     out = np.empty((len(p), 3))
     chunk = max(1, (1 << 22) // len(d_in))
     for a in range(0, len(p), chunk):
-        g = np.exp(-float(sharpness) * one_minus_cos(p[a:a + chunk, None, :], d_in[None])) * omega[None]
+        u = one_minus_cos(p[a:a + chunk, None, :], d_in[None])
+        # The ratio is unchanged by a common factor exp(η·min u): with it the nearest texel weighs 1, so
+        # no lobe is too sharp (the limit η → ∞ is the nearest texel's radiance, ties averaged).
+        g = np.exp(-float(sharpness) * (u - u.min(1, keepdims=True))) * omega[None]
         out[a:a + chunk] = (g @ flat) / g.sum(1)[:, None]
-    return out.reshape(height, width, 3)
+    return out
+
+
+def prefilter_level(radiance, sharpness: float, height: int, width: int) -> np.ndarray:
+    """(height, width, 3) `lobe_average` of `radiance` (h, w, 3) at the texel centres of a height×width
+    equirect map: one level of the prefiltered environment (the envmap kernel's oracle; the kernel
+    also drops texels with G < 1e−7, which this keeps)."""
+    from .environment import equirect_directions
+
+    return lobe_average(radiance, equirect_directions(height, width).reshape(-1, 3), sharpness).reshape(
+        height, width, 3)
 
 
 def _equirect_solid_angles(height: int, width: int) -> np.ndarray:
@@ -787,13 +800,14 @@ def _clamped_cosine_ring(u, cos_a):
     return np.where(a >= b, 2.0 * np.pi * a, np.where(a <= -b, 0.0, partial))
 
 
-def sg_irradiance(axes, sharpness, amplitude, normals, nodes: int = 64) -> np.ndarray:
+def sg_irradiance(axes, sharpness, amplitude, normals, nodes: int = 32) -> np.ndarray:
     """(N, 3) E(n) = Σ_k ∫ G(ω; ξ_k, η_k, μ_k) max(ω·n, 0) dω for K lobes, axes (K, 3), sharpness (K,),
     amplitude (K, 3), unit normals (N, 3).
 
     With u = 1 − ω·ξ, dω = du dφ and the φ integral in closed form (`_clamped_cosine_ring`), each
     term is ∫_0^2 e^{−ηu} ring(u) du, done by Gauss–Legendre on 32 panels of `nodes` points over
-    u ∈ [0, min(2, 50/η)] (e^{−50} is nothing): exact to ~1e−7 relative at any sharpness.
+    u ∈ [0, min(2, 50/η)] (e^{−50} is nothing). Error per lobe, measured against adaptive quadrature
+    for η = 1e−3 … 1e6: ≤ 8e−7·∫G at 32 nodes (1.3e−7 at 64; the ring has kinks at u = 1 ∓ sin α).
     """
     axes = np.asarray(axes, np.float64).reshape(-1, 3)
     sharpness = np.asarray(sharpness, np.float64).reshape(-1)
