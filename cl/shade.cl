@@ -243,13 +243,10 @@ CL_INLINE float3 table_rgb(__global const float *table, int base, int k2, int j_
     return out;
 }
 
-/* M of an analytic row (9 floats: kind, kd rgb, ks rgb, p1, p2) at cos θd (shading.specular_scale). */
-CL_INLINE float3 specular_scale(__global const float *row, float cos_d_in)
+/* M of an analytic BRDF's values at cos θd (shading.specular_scale). Values, not a row pointer: a
+ * textured material's ks and p1 differ per pixel. */
+CL_INLINE float3 specular_scale(int kind, float3 ks, float p1, float p2, float cos_d_in)
 {
-    int kind = (int)row[0];
-    float3 ks = (float3)(row[4], row[5], row[6]);
-    float p1 = row[7];
-    float p2 = row[8];
     float cos_d = clampf(cos_d_in, MIN_COS_VIEW, 1.0f);
     if (kind == BLINN_PHONG)
         return ks * ((p1 + 2.0f) / (2.0f * SHADE_PI));
@@ -263,11 +260,33 @@ CL_INLINE float3 specular_scale(__global const float *row, float cos_d_in)
     return (float3)(0.0f, 0.0f, 0.0f);
 }
 
-CL_INLINE float ndf_sharpness(__global const float *row)
+CL_INLINE float ndf_sharpness(int kind, float p1)
 {
-    if ((int)row[0] == BLINN_PHONG)
-        return row[7];
-    return 2.0f / (row[7] * row[7]);
+    if (kind == BLINN_PHONG)
+        return p1;
+    return 2.0f / (p1 * p1);
+}
+
+/* Bilinear, repeat-wrapped lookup of texture `slot` (svbrdf.sample: texel (i, j) centred at
+ * ((j + ½)/W, (i + ½)/H), row 0 at v = 0). tex_info (T, 4) [texel offset, H, W, 0]; tex_data RGB texels. */
+CL_INLINE float3 texture_bilinear(__global const int *tex_info, __global const float *tex_data, int slot, float2 uv)
+{
+    int off = tex_info[4 * slot];
+    int h = tex_info[4 * slot + 1];
+    int w = tex_info[4 * slot + 2];
+    float x = uv.x * (float)w - 0.5f;
+    float y = uv.y * (float)h - 0.5f;
+    float x0f = floor(x);
+    float y0f = floor(y);
+    float fx = x - x0f;
+    float fy = y - y0f;
+    int j0 = (((int)x0f % w) + w) % w;
+    int i0 = (((int)y0f % h) + h) % h;
+    int j1 = (j0 + 1) % w;
+    int i1 = (i0 + 1) % h;
+    float3 top = load3(tex_data, off + i0 * w + j0) * (1.0f - fx) + load3(tex_data, off + i0 * w + j1) * fx;
+    float3 bottom = load3(tex_data, off + i1 * w + j0) * (1.0f - fx) + load3(tex_data, off + i1 * w + j1) * fx;
+    return top * (1.0f - fy) + bottom * fy;
 }
 
 /* A light's SG emitter seen from pos (scene.light_sg): axis, η = 2π/Ω, μ with ∫G = the irradiance
@@ -340,6 +359,9 @@ __kernel void shade_pixels(
     __global const float *eff_lobes,    /* (ΣJ, 4) */
     __global const float *eff_sub,      /* (Σn_sub, 9) */
     __global const float *eff_tables, __global const float *eff_diffuse,
+    __global const float *uvs,          /* (V, 2) */
+    __global const int *tex_info,       /* (T, 4) [texel offset, H, W, 0] */
+    __global const float *tex_data,     /* (Σ H·W, 3) */
     const int n_pixels,
     __global float *radiance)           /* (P, 3) */
 {
@@ -392,8 +414,29 @@ __kernel void shade_pixels(
     float ow[4] = {0.0f, 0.0f, 0.0f, 0.0f};
     float3 kd = (float3)(0.0f, 0.0f, 0.0f);
     __global const int *ei = eff_info + 8 * idx;
+    /* An analytic material's row, read once into per-pixel values: a textured one (slot >= 0) scales
+     * kd, ks and p1 by its maps at the pixel's UV, and everything below uses these values only. */
+    int a_kind = 0;
+    float3 a_kd = (float3)(0.0f, 0.0f, 0.0f);
+    float3 a_ks = (float3)(0.0f, 0.0f, 0.0f);
+    float a_p1 = 0.0f;
+    float a_p2 = 0.0f;
     if (kind == 0) {
-        kd = (float3)(analytic[9 * idx + 1], analytic[9 * idx + 2], analytic[9 * idx + 3]) / SHADE_PI;
+        __global const float *row = analytic + 9 * idx;
+        a_kind = (int)row[0];
+        a_kd = (float3)(row[1], row[2], row[3]);
+        a_ks = (float3)(row[4], row[5], row[6]);
+        a_p1 = row[7];
+        a_p2 = row[8];
+        int slot = mat_info[4 * mat + 3];
+        if (slot >= 0) {
+            float2 uv = w0 * (float2)(uvs[2 * i0], uvs[2 * i0 + 1]) + w1 * (float2)(uvs[2 * i1], uvs[2 * i1 + 1])
+                        + w2 * (float2)(uvs[2 * i2], uvs[2 * i2 + 1]);
+            a_kd = a_kd * texture_bilinear(tex_info, tex_data, slot, uv);
+            a_ks = a_ks * texture_bilinear(tex_info, tex_data, slot + 1, uv);
+            a_p1 = a_p1 * texture_bilinear(tex_info, tex_data, slot + 2, uv).x;
+        }
+        kd = a_kd / SHADE_PI;
     } else {
         k = ei[0];
         k2 = k * k;
@@ -447,10 +490,9 @@ __kernel void shade_pixels(
                 float eta;
                 float3 amp;
                 if (kind == 0) {
-                    __global const float *row = analytic + 9 * idx;
-                    amp = specular_scale(row, cos_o);
+                    amp = specular_scale(a_kind, a_ks, a_p1, a_p2, cos_o);
                     axis = normalize3(2.0f * cos_o * n - wo);
-                    eta = ndf_sharpness(row) / (4.0f * cos_o);
+                    eta = ndf_sharpness(a_kind, a_p1) / (4.0f * cos_o);
                 } else {
                     __global const float *sub = eff_sub + 9 * (ei[4] + s);
                     __global const float *lobe = eff_lobes + 4 * (ei[3] + j);
@@ -458,11 +500,13 @@ __kernel void shade_pixels(
                     float c_oj = dot3(wo, xi);
                     if (c_oj <= 0.0f)
                         continue;
-                    float3 scale = specular_scale(sub, c_oj);
+                    int s_kind = (int)sub[0];
+                    float s_p1 = sub[7];
+                    float3 scale = specular_scale(s_kind, (float3)(sub[4], sub[5], sub[6]), s_p1, sub[8], c_oj);
                     if (scale.x + scale.y + scale.z <= 0.0f)
                         continue;
                     float eta_j = lobe[3];
-                    float eta_s = ndf_sharpness(sub);
+                    float eta_s = ndf_sharpness(s_kind, s_p1);
                     axis = normalize3(2.0f * c_oj * xi - wo);
                     float3 al = (float3)(dot3(axis, t), dot3(axis, b), dot3(axis, n));
                     int base = ei[5] + s * k2 * k2 * j_count * 3;

@@ -204,12 +204,9 @@ def table_rgb(table: wp.array(dtype=wp.float32), base: int, k2: int, j_count: in
 
 
 @wp.func
-def specular_scale(row: wp.array2d(dtype=wp.float32), m: int, cos_d_in: float) -> wp.vec3:
-    """M of an analytic row at cos θd (shading.specular_scale)."""
-    kind = int(row[m, 0])
-    ks = wp.vec3(row[m, 4], row[m, 5], row[m, 6])
-    p1 = row[m, 7]
-    p2 = row[m, 8]
+def specular_scale(kind: int, ks: wp.vec3, p1: float, p2: float, cos_d_in: float) -> wp.vec3:
+    """M of an analytic BRDF's values at cos θd (shading.specular_scale). Values, not a row index: a
+    textured material's ks and p1 differ per pixel."""
     cos_d = wp.clamp(cos_d_in, MIN_COS_VIEW, 1.0)
     if kind == 1:
         return ks * ((p1 + 2.0) / (2.0 * PI))
@@ -223,11 +220,33 @@ def specular_scale(row: wp.array2d(dtype=wp.float32), m: int, cos_d_in: float) -
 
 
 @wp.func
-def ndf_sharpness(row: wp.array2d(dtype=wp.float32), m: int) -> float:
-    kind = int(row[m, 0])
+def ndf_sharpness(kind: int, p1: float) -> float:
     if kind == 1:
-        return row[m, 7]
-    return 2.0 / (row[m, 7] * row[m, 7])
+        return p1
+    return 2.0 / (p1 * p1)
+
+
+@wp.func
+def texture_bilinear(tex_info: wp.array2d(dtype=wp.int32), tex_data: wp.array(dtype=wp.vec3), slot: int,
+                     uv: wp.vec2) -> wp.vec3:
+    """Bilinear, repeat-wrapped lookup of texture `slot` (svbrdf.sample: texel (i, j) centred at
+    ((j + ½)/W, (i + ½)/H), row 0 at v = 0)."""
+    off = tex_info[slot, 0]
+    h = tex_info[slot, 1]
+    w = tex_info[slot, 2]
+    x = uv[0] * float(w) - 0.5
+    y = uv[1] * float(h) - 0.5
+    x0f = wp.floor(x)
+    y0f = wp.floor(y)
+    fx = x - x0f
+    fy = y - y0f
+    j0 = ((int(x0f) % w) + w) % w
+    i0 = ((int(y0f) % h) + h) % h
+    j1 = (j0 + 1) % w
+    i1 = (i0 + 1) % h
+    top = tex_data[off + i0 * w + j0] * (1.0 - fx) + tex_data[off + i0 * w + j1] * fx
+    bottom = tex_data[off + i1 * w + j0] * (1.0 - fx) + tex_data[off + i1 * w + j1] * fx
+    return top * (1.0 - fy) + bottom * fy
 
 
 @wp.func
@@ -287,6 +306,7 @@ def shade_pixels(
     eff_info: wp.array2d(dtype=wp.int32), eff_lobes: wp.array2d(dtype=wp.float32),
     eff_sub: wp.array2d(dtype=wp.float32), eff_tables: wp.array(dtype=wp.float32),
     eff_diffuse: wp.array(dtype=wp.float32),
+    uvs: wp.array(dtype=wp.vec2), tex_info: wp.array2d(dtype=wp.int32), tex_data: wp.array(dtype=wp.vec3),
     n_pixels: int, offset: int,
     radiance: wp.array(dtype=wp.vec3),
 ):
@@ -335,8 +355,26 @@ def shade_pixels(
     oo = vec4i(0, 0, 0, 0)
     ow = wp.vec4(0.0)
     kd = wp.vec3(0.0)
+    # An analytic material's row, read once into per-pixel values: a textured one (slot >= 0) scales
+    # kd, ks and p1 by its maps at the pixel's UV, and everything below uses these values only.
+    a_kind = int(0)
+    a_kd = wp.vec3(0.0)
+    a_ks = wp.vec3(0.0)
+    a_p1 = float(0.0)
+    a_p2 = float(0.0)
     if kind == 0:
-        kd = wp.vec3(analytic[idx, 1], analytic[idx, 2], analytic[idx, 3]) / PI
+        a_kind = int(analytic[idx, 0])
+        a_kd = wp.vec3(analytic[idx, 1], analytic[idx, 2], analytic[idx, 3])
+        a_ks = wp.vec3(analytic[idx, 4], analytic[idx, 5], analytic[idx, 6])
+        a_p1 = analytic[idx, 7]
+        a_p2 = analytic[idx, 8]
+        slot = mat_info[mat, 3]
+        if slot >= 0:
+            uv = w0 * uvs[i0] + w1 * uvs[i1] + w2 * uvs[i2]
+            a_kd = wp.cw_mul(a_kd, texture_bilinear(tex_info, tex_data, slot, uv))
+            a_ks = wp.cw_mul(a_ks, texture_bilinear(tex_info, tex_data, slot + 1, uv))
+            a_p1 = a_p1 * texture_bilinear(tex_info, tex_data, slot + 2, uv)[0]
+        kd = a_kd / PI
     else:
         k = eff_info[idx, 0]
         k2 = k * k
@@ -382,9 +420,9 @@ def shade_pixels(
                 eta = float(0.0)
                 amp = wp.vec3(0.0)
                 if kind == 0:
-                    amp = specular_scale(analytic, idx, cos_o)
+                    amp = specular_scale(a_kind, a_ks, a_p1, a_p2, cos_o)
                     axis = wp.normalize(2.0 * cos_o * n - wo)
-                    eta = ndf_sharpness(analytic, idx) / (4.0 * cos_o)
+                    eta = ndf_sharpness(a_kind, a_p1) / (4.0 * cos_o)
                 else:
                     sub = eff_info[idx, 4] + s
                     lobe = eff_info[idx, 3] + j
@@ -392,11 +430,14 @@ def shade_pixels(
                     c_oj = wp.dot(wo, xi)
                     if c_oj <= 0.0:
                         continue
-                    scale = specular_scale(eff_sub, sub, c_oj)
+                    s_kind = int(eff_sub[sub, 0])
+                    s_p1 = eff_sub[sub, 7]
+                    scale = specular_scale(s_kind, wp.vec3(eff_sub[sub, 4], eff_sub[sub, 5], eff_sub[sub, 6]), s_p1,
+                                           eff_sub[sub, 8], c_oj)
                     if scale[0] + scale[1] + scale[2] <= 0.0:
                         continue
                     eta_j = eff_lobes[lobe, 3]
-                    eta_s = ndf_sharpness(eff_sub, sub)
+                    eta_s = ndf_sharpness(s_kind, s_p1)
                     axis = wp.normalize(2.0 * c_oj * xi - wo)
                     al = wp.vec3(wp.dot(axis, t), wp.dot(axis, b), wp.dot(axis, n))
                     base = eff_info[idx, 5] + s * k2 * k2 * j_count * 3

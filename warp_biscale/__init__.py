@@ -27,13 +27,15 @@ from .scene import Camera, DirectionalLight, Mesh, PointLight
 from .scenefile import load_scene
 from .model import Facets, Visibility
 from .smallscale import SmallScale, TileWarning
+from .svbrdf import Textured
 from .truth import GroundTruth, effective_brdf_exact, ground_truth
 
 __version__ = "0.1.0"
 
 __all__ = [
     "Backend", "BlinnPhong", "Bvndf", "Camera", "CookTorrance", "DirectionalLight", "EffectiveBRDF", "Environment",
-    "Facets", "GroundTruth", "Lambert", "Mesh", "PointLight", "Rendering", "Scene", "SmallScale", "TileWarning",
+    "Facets", "GroundTruth", "Lambert", "Mesh", "PointLight", "Rendering", "Scene", "SmallScale", "Textured",
+    "TileWarning",
     "Visibility", "Ward", "backends", "bake", "compare", "compare_images", "directions", "effective_brdf_exact",
     "geometry", "get_backend", "ground_truth", "load", "load_scene", "lobes", "read_image", "reference", "render", "sg",
     "write_image",

@@ -634,10 +634,10 @@ class OpenCLBackend:
             dev = per_backend[self.name] = {
                 "ctx": self._ctx,
                 **{key: self._buffer(static[key], np.int32) for key in ("faces", "face_material", "mat_info",
-                                                                          "eff_info")},
+                                                                          "eff_info", "tex_info")},
                 **{key: self._buffer(static[key], np.float32) for key in (
                     "positions", "normals", "tangents", "env_sgs", "env_maps", "analytic", "eff_lobes", "eff_sub",
-                    "eff_tables", "eff_diffuse")},
+                    "eff_tables", "eff_diffuse", "uvs", "tex_data")},
                 "env_levels": self._buffer(levels, np.float32),
                 "ssdf_basis": self._buffer(basis.T, np.float32),  # texel-major (res², terms + 1)
                 "ssdf_coeffs": self._buffer(coeffs, np.float32), "table": self._buffer(table, np.float32),
@@ -701,7 +701,7 @@ class OpenCLBackend:
                          dev["n_levels"], dev["env_levels"], *dev["ssdf_args"], dev["ssdf_basis"],
                          dev["ssdf_coeffs"], dev["table"], *dev["table_args"], dev["mat_info"], dev["analytic"],
                          dev["eff_info"], dev["eff_lobes"], dev["eff_sub"], dev["eff_tables"], dev["eff_diffuse"],
-                         np.int32(n), out)
+                         dev["uvs"], dev["tex_info"], dev["tex_data"], np.int32(n), out)
         if not to_host:
             return None
         return self._read(out, (n, 3), np.float32)

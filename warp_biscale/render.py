@@ -53,19 +53,25 @@ class Scene:
     def __post_init__(self):
         from .brdf import Brdf
         from .effective import EffectiveBRDF
+        from .svbrdf import Textured
 
         if not isinstance(self.mesh, Mesh):
             raise ValueError(f"Scene.mesh must be a Mesh, got {type(self.mesh).__name__}")
-        if isinstance(self.materials, (Brdf, EffectiveBRDF)):
+        if isinstance(self.materials, (Brdf, EffectiveBRDF, Textured)):
             self.materials = [self.materials]
         self.materials = list(self.materials)
         for i, m in enumerate(self.materials):
-            if not isinstance(m, (Brdf, EffectiveBRDF)):
-                raise ValueError(f"Scene.materials[{i}] must be a BRDF or an EffectiveBRDF, got {m!r}")
+            if not isinstance(m, (Brdf, EffectiveBRDF, Textured)):
+                raise ValueError(f"Scene.materials[{i}] must be a BRDF, a Textured BRDF or an EffectiveBRDF, got {m!r}")
         used = int(self.mesh.face_material.max()) + 1
         if used > len(self.materials):
             raise ValueError(f"the mesh uses material ids 0..{used - 1} but the scene has {len(self.materials)} "
                              "material(s)")
+        if self.mesh.uvs is None:  # a texture lookup needs the surface's (u, v)
+            for i in np.unique(self.mesh.face_material):
+                if isinstance(self.materials[i], Textured):
+                    raise ValueError(f"Scene.materials[{i}] ({self.materials[i]!r}) is textured but the mesh has no "
+                                     "UVs (Mesh.uvs is None): give the mesh texture coordinates")
         if not isinstance(self.camera, Camera):
             raise ValueError(f"Scene.camera must be a Camera, got {type(self.camera).__name__}")
         if self.environment is not None and not isinstance(self.environment, Environment):
@@ -148,6 +154,9 @@ def _static_inputs(scene: Scene, backend, progress, timings) -> dict:
         "normals": mesh.normals.astype(np.float32),
         "tangents": host["tangents"],
         "face_material": mesh.face_material,
+        # texture coordinates for the textured materials' lookups (zeros when the mesh has none: no
+        # textured material can then be rendered, Scene checks it)
+        "uvs": (mesh.uvs if mesh.uvs is not None else np.zeros((len(mesh.vertices), 2))).astype(np.float32),
         "env_sgs": light.sgs.packed(),
         "env_maps": light.prefiltered.maps,
         "env_levels": light.prefiltered.levels,

@@ -25,7 +25,13 @@ SG or tabulated against one:
   one ray to the emitter's centre per pixel (`backend.trace_shadows`).
 
 Material packing (what the kernels read; `pack_materials`):
-``mat_info`` (Mat, 4) int32 [type (0 analytic, 1 effective), index, has_specular, 0];
+``mat_info`` (Mat, 4) int32 [type (0 analytic, 1 effective), index, has_specular, texture slot]: the slot
+is −1, or for a `svbrdf.Textured` analytic material the first of its three ``tex_info`` rows (kd, ks,
+parameter map; an absent map is a shared 1×1 texture of ones);
+``tex_info`` (T, 4) int32 [texel offset into tex_data, H, W, 0]; ``tex_data`` float32 (Σ H·W·3), row-major
+RGB texels (a parameter map is stored in all three channels; the kernels read channel 0). The kernels read
+the analytic row once into per-pixel values, scale them by the maps at the pixel's UV (``uvs`` (V, 2),
+bilinear, repeat: `svbrdf.sample`) and use only those values afterwards;
 ``analytic`` (A, 9) float32 [brdf kind, kd rgb, ks rgb, p1, p2] (brdf.pack_materials' row with the kind first);
 ``eff_info`` (E, 8) int32 [K, J, n_sub, lobe_offset, sub_offset, table_offset, diffuse_offset, 0];
 ``eff_lobes`` (ΣJ, 4) float32 [axis in the tile frame, η]; ``eff_sub`` (Σn_sub, 9) like ``analytic``;
@@ -43,6 +49,7 @@ from . import brdf as brdf_mod
 from . import directions as dirs
 from . import sg
 from .scene import light_sg
+from .svbrdf import Textured
 
 __all__ = ["pack_materials", "shade_reference", "MIN_COS_VIEW"]
 
@@ -55,25 +62,41 @@ def _analytic_row(m) -> np.ndarray:
 
 
 def _has_specular(m) -> bool:
+    if isinstance(m, Textured):  # the maps only scale ks: no specular term appears where ks = 0
+        m = m.brdf
     return not isinstance(m, brdf_mod.Lambert) and float(np.max(m.ks)) > 0
 
 
 def pack_materials(materials) -> dict:
-    """Pack a scene's materials (analytic `Brdf`s and `EffectiveBRDF`s) for the shade stage."""
+    """Pack a scene's materials (analytic `Brdf`s, `svbrdf.Textured` ones and `EffectiveBRDF`s) for the shade stage."""
     from .effective import EffectiveBRDF
 
     info, analytic, eff_info, eff_lobes, eff_sub, eff_tables, eff_diffuse = [], [], [], [], [], [], []
     n_lobes = n_sub = n_table = n_diffuse = 0
+    # Textures: entry 0 is the shared 1×1 texture of ones that stands in for an absent map.
+    tex_info, tex_data, n_texels = [[0, 1, 1, 0]], [np.ones(3, np.float32)], 1
     for idx, m in enumerate(materials):
-        if isinstance(m, brdf_mod.Brdf):
-            info.append([0, len(analytic), int(_has_specular(m)), 0])
+        if isinstance(m, Textured):
+            info.append([0, len(analytic), int(_has_specular(m)), len(tex_info)])
+            analytic.append(_analytic_row(m.brdf))
+            for tex in m.maps:
+                if tex is None:
+                    tex_info.append([0, 1, 1, 0])
+                    continue
+                if tex.ndim == 2:  # the parameter map: its value in all three channels
+                    tex = np.repeat(tex[..., None], 3, axis=2)
+                tex_info.append([n_texels, tex.shape[0], tex.shape[1], 0])
+                tex_data.append(np.ascontiguousarray(tex, np.float32).ravel())
+                n_texels += tex.shape[0] * tex.shape[1]
+        elif isinstance(m, brdf_mod.Brdf):
+            info.append([0, len(analytic), int(_has_specular(m)), -1])
             analytic.append(_analytic_row(m))
         elif isinstance(m, EffectiveBRDF):
             k2 = m.directions**2
             j = len(m.lobes)
             subs = m.materials
             cos_i = m.grid[:, 2]
-            info.append([1, len(eff_info), int(any(_has_specular(s) for s in subs)), 0])
+            info.append([1, len(eff_info), int(any(_has_specular(s) for s in subs)), -1])
             eff_info.append([m.directions, j, len(subs), n_lobes, n_sub, n_table, n_diffuse, 0])
             eff_lobes.append(np.concatenate([m.lobes.axes, m.lobes.sharpness[:, None]], 1).astype(np.float32))
             eff_sub.extend(_analytic_row(s) for s in subs)
@@ -87,7 +110,7 @@ def pack_materials(materials) -> dict:
             n_diffuse += diffuse.size
             assert k2 * k2 * j * 3 * len(subs) == table.size
         else:
-            raise ValueError(f"material {idx} is neither a BRDF nor an EffectiveBRDF: {m!r}")
+            raise ValueError(f"material {idx} is neither a BRDF, a Textured BRDF nor an EffectiveBRDF: {m!r}")
 
     def stack(rows, width, dtype):
         return np.asarray(rows, dtype).reshape(-1, width) if rows else np.zeros((0, width), dtype)
@@ -100,6 +123,8 @@ def pack_materials(materials) -> dict:
         "eff_sub": stack(eff_sub, 9, np.float32),
         "eff_tables": np.concatenate(eff_tables) if eff_tables else np.zeros(0, np.float32),
         "eff_diffuse": np.concatenate(eff_diffuse) if eff_diffuse else np.zeros(0, np.float32),
+        "tex_info": np.asarray(tex_info, np.int32).reshape(-1, 4),
+        "tex_data": np.concatenate(tex_data).astype(np.float32),
     }
 
 
@@ -118,20 +143,23 @@ def _normalize(v):
 
 
 def specular_scale(row, cos_d):
-    """(N, 3) M of a small-scale analytic BRDF row at cos θd (sg.specular_lobe at the lobe centre) and
-    its NDF sharpness η_s. Rows without a specular term give M = 0."""
-    kind = int(row[0])
-    ks = np.asarray(row[4:7], np.float64)
-    p1, p2 = float(row[7]), float(row[8])
+    """(N, 3) M of an analytic BRDF row at cos θd (sg.specular_lobe at the lobe centre) and its NDF
+    sharpness η_s. `row` is one packed row (9,) or one per point (N, 9) (a textured material's values at
+    each pixel); η_s is then a scalar or (N,). Rows without a specular term give M = 0."""
+    row = np.asarray(row, np.float64)
+    kind = int(row[..., 0].flat[0])
+    ks = row[..., 4:7]
+    p1, p2 = row[..., 7], row[..., 8]
     cos_d = np.clip(np.asarray(cos_d, np.float64), MIN_COS_VIEW, 1.0)
+    shape = (len(cos_d), 3)
     if kind == brdf_mod.BLINN_PHONG:
-        return np.tile(ks * (p1 + 2) / (2 * np.pi), (len(cos_d), 1)), p1
+        return np.broadcast_to(ks * ((p1 + 2) / (2 * np.pi))[..., None], shape).copy(), p1
     if kind == brdf_mod.COOK_TORRANCE:
         fres = p2 + (1 - p2) * (1 - cos_d) ** 5
-        return ks[None] * (fres / (np.pi * cos_d**2))[:, None], 2 / p1**2
+        return ks * (fres / (np.pi * cos_d**2))[:, None], 2 / p1**2
     if kind == brdf_mod.WARD:
-        return ks[None] / (4 * np.pi * p1**2 * cos_d)[:, None], 2 / p1**2
-    return np.zeros((len(cos_d), 3)), 1.0
+        return ks / (4 * np.pi * p1**2 * cos_d)[:, None], 2 / p1**2
+    return np.zeros(shape), 1.0
 
 
 def _table_interp(table_flat, base, k, j_count, j, wi_local, wo_local):
@@ -150,7 +178,7 @@ def _table_interp(table_flat, base, k, j_count, j, wi_local, wo_local):
 
 def shade_reference(frame: dict) -> np.ndarray:
     """(N, 3) float64 radiance of every pixel of a packed frame (see `render.pack_frame` for the keys)."""
-    from . import reference
+    from . import reference, svbrdf
 
     table = frame["table"]
     face = frame["face"]
@@ -218,10 +246,18 @@ def shade_reference(frame: dict) -> np.ndarray:
         m = len(sel)
 
         if kind == 0:
-            row = frame["analytic"][idx].astype(np.float64)
+            # The analytic row as per-pixel values, scaled by the material's maps at each pixel's UV.
+            row = np.tile(frame["analytic"][idx].astype(np.float64), (m, 1))
+            slot = int(frame["mat_info"][mat][3])
+            if slot >= 0:
+                uv = interp(frame["uvs"])[sel]
+                for which, cols in ((0, slice(1, 4)), (1, slice(4, 7)), (2, slice(7, 8))):
+                    off, th, tw = (int(x) for x in frame["tex_info"][slot + which][:3])
+                    image = frame["tex_data"][3 * off:3 * (off + th * tw)].reshape(th, tw, 3)
+                    row[:, cols] *= svbrdf.sample(image, uv)[:, :cols.stop - cols.start]
 
-            def diffuse_over_cos(axis_world, row=row, m=m):
-                return np.tile(row[1:4] / np.pi, (m, 1))
+            def diffuse_over_cos(axis_world, row=row):
+                return row[:, 1:4] / np.pi
         else:
             ei = frame["eff_info"][idx]
             k = int(ei[0])

@@ -572,6 +572,9 @@ class WarpBackend:
                 "analytic": arr("analytic", wp.float32, 9), "eff_info": arr("eff_info", wp.int32, 8),
                 "eff_lobes": arr("eff_lobes", wp.float32, 4), "eff_sub": arr("eff_sub", wp.float32, 9),
                 "eff_tables": arr("eff_tables", wp.float32), "eff_diffuse": arr("eff_diffuse", wp.float32),
+                "uvs": arr("uvs", wp.vec2), "tex_info": arr("tex_info", wp.int32, 4),
+                "tex_data": wp.array(np.ascontiguousarray(np.asarray(static["tex_data"], np.float32).reshape(-1, 3)),
+                                     dtype=wp.vec3, device=self._device),
             }
         return dev
 
@@ -615,7 +618,8 @@ class WarpBackend:
                       n_lights, light_arr, len(static["env_sgs"]), dev["env_sgs"], dev["env_maps"], dev["env_levels"],
                       int(static["has_ssdf"]), int(static["ssdf_res"]), dev["ssdf_basis"], dev["ssdf_coeffs"],
                       dev["table"], dev["mat_info"], dev["analytic"], dev["eff_info"], dev["eff_lobes"],
-                      dev["eff_sub"], dev["eff_tables"], dev["eff_diffuse"], n],
+                      dev["eff_sub"], dev["eff_tables"], dev["eff_diffuse"], dev["uvs"], dev["tex_info"],
+                      dev["tex_data"], n],
                      [out])
         if not to_host:
             return None
