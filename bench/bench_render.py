@@ -135,7 +135,8 @@ def part_pareto(backends, size, lobe_list, samples, runs, records, log):
             if j == lobe_list[-1]:
                 from warp_biscale.images import write_png
 
-                write_png(os.path.join(OUT_DIR[0], f"sg-J{j}-{be.name.replace(':', '_').replace(' ', '_')}.png"), img.image)
+                tag = be.name.replace(':', '_').replace(' ', '_')
+                write_png(os.path.join(OUT_DIR[0], f"sg-J{j}-{tag}.png"), img.image)
                 write_png(os.path.join(OUT_DIR[0], f"mc-{be.name.replace(':', '_').replace(' ', '_')}.png"), ref.image)
 
 

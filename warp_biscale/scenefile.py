@@ -62,6 +62,8 @@ or ``warp-biscale render scene.toml -o out.png``. Every table and key is optiona
     [material.floor]
     type = "lambert"             # "lambert": albedo ; "blinnphong": ks, exponent, kd ;
     albedo = [0.5, 0.5, 0.5]     # "cooktorrance": ks, roughness, f0, kd ; "ward": ks, alpha, kd
+    kd_map = "floor.png"         # optional maps (svbrdf.Textured, images relative to this file): kd_map,
+                                 #   and ks_map, parameter_map (multiplies exponent | roughness | alpha)
 
     [material.gold]
     type = "bake"                # baked at load time (in memory) with the SG bake (`wb.bake`)
@@ -342,11 +344,12 @@ MESH_BUILTINS = {
     "torus": {"major": NUM, "minor": NUM, "center": VEC3, "segments": INT2},
     "plane": {"size": NUM, "height": NUM, "divisions": INT},
 }
+_MAPS = {"kd_map": STR, "ks_map": STR, "parameter_map": STR}  # svbrdf.Textured: image paths, relative to the file
 _BRDF_KEYS = {
-    "lambert": {"albedo": RGB},
-    "blinnphong": {"ks": RGB, "exponent": NUM, "kd": RGB},
-    "cooktorrance": {"ks": RGB, "roughness": NUM, "f0": NUM, "kd": RGB},
-    "ward": {"ks": RGB, "alpha": NUM, "kd": RGB},
+    "lambert": {"albedo": RGB, "kd_map": STR},
+    "blinnphong": {"ks": RGB, "exponent": NUM, "kd": RGB, **_MAPS},
+    "cooktorrance": {"ks": RGB, "roughness": NUM, "f0": NUM, "kd": RGB, **_MAPS},
+    "ward": {"ks": RGB, "alpha": NUM, "kd": RGB, **_MAPS},
 }
 BAKE_KEYS = {"tile": STR, "tile_params": TABLE, "brdf": STRLIST, "lobes": LOBES, "directions": INT, "facets": INT,
              "normal_res": INT, "method": STR, "route": STR, "seed": INT}
@@ -715,7 +718,19 @@ def _material(ctx, table, kind, v, sf, name, used, prog):
     if kind in _BRDF_KEYS:
         cls = {"lambert": brdf_mod.Lambert, "blinnphong": brdf_mod.BlinnPhong,
                "cooktorrance": brdf_mod.CookTorrance, "ward": brdf_mod.Ward}[kind]
-        return _build(ctx, table, v, cls)
+        v = dict(v)
+        maps = {key: v.pop(key) for key in _MAPS if key in v}
+        mat = _build(ctx, table, v, cls)
+        if not maps:
+            return mat
+        from .svbrdf import Textured
+
+        for key, rel in maps.items():
+            full = ctx.resolve(rel)
+            if not os.path.isfile(full):
+                raise ctx.error(table, key, f"{key} {rel!r}: no such image file (looked for {full})")
+            maps[key] = full
+        return _build(ctx, table, maps, Textured, mat)
     if kind == "file":
         from .effective import EffectiveBRDF
         from .io import load
