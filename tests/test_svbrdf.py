@@ -188,3 +188,21 @@ type = "%s"
     (tmp_path / "b.toml").write_text(base % ("ward", "ks = 0.3\nalpha = 0.2\nparameter_map = 3"))
     with pytest.raises(ValueError, match=r"b\.toml:\d+: \[material\.floor\] parameter_map"):
         wb.load_scene(tmp_path / "b.toml")
+
+
+def test_monte_carlo_evaluates_the_maps(backend):
+    """The Monte Carlo reference looks the maps up at each pixel's UV: maps of ones give the untextured image
+    bit for bit (same strategies, same samples), and a constant kd map c on a Lambert scales it by c."""
+    def mc(mat):
+        scene = _scene([wb.Lambert(0.5), mat], lights=True, size=(16, 12))
+        return wb.render(scene, method="mc", backend=backend, samples=8, seed=3).image
+
+    base = wb.BlinnPhong(0.5, 80, kd=0.3)
+    ones = Textured(base, kd_map=np.ones((2, 2, 3)), ks_map=np.ones((3, 1, 3)), parameter_map=np.ones((1, 2)))
+    np.testing.assert_allclose(mc(ones), mc(base), rtol=1e-12, atol=0)
+    lam = wb.Lambert(0.6)
+    scaled = mc(Textured(lam, kd_map=np.full((2, 3, 3), 0.25)))
+    plain = mc(lam)
+    floor = np.abs(scaled - plain).max(axis=2) > 0
+    assert floor.sum() > 20
+    np.testing.assert_allclose(scaled[floor], 0.25 * plain[floor], rtol=1e-9)

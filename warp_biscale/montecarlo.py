@@ -69,6 +69,7 @@ from .effective import EffectiveBRDF
 from .progress import Progress
 from .scene import light_sg, vertex_tangents
 from .shading import MIN_COS_VIEW
+from .svbrdf import Textured
 from .trace import offsets
 from .truth import GroundTruth
 
@@ -364,6 +365,30 @@ class _AnalyticMaterial:
         return self.brdf.eval(n, w, ctx["wo"][pix]) * np.maximum(_dot(n, w), 0.0)[:, None]
 
 
+class _TexturedMaterial(_AnalyticMaterial):
+    """A `svbrdf.Textured` BRDF: its parameters at each sample's pixel UV (float64 lookups, `Textured.at`).
+    The sampling strategy and sample shares are the untextured BRDF's — still unbiased (they only
+    importance-sample), less efficient where a map sharpens the lobe."""
+
+    def __init__(self, tex):
+        super().__init__(tex.brdf)
+        self.tex = tex
+
+    def f(self, ctx, pix, w):
+        from .brdf import pack_materials
+        from .reference import brdf_cosine_weighted
+
+        n, wo = ctx["n"][pix], ctx["wo"][pix]
+        kinds, _ = pack_materials([self.brdf])
+        params = self.tex.at(ctx["uv"][pix])
+        fc = brdf_cosine_weighted(np.full(len(params), kinds[0]), params, np.arange(len(params)), n, w, wo)
+        co = _dot(n, wo)
+        ok = (_dot(n, w) > 0) & (co > 0)
+        out = np.zeros_like(fc)
+        out[ok] = fc[ok] / co[ok][:, None]  # f_r·(n·ω)⁺ = (f_r·(n·ω)⁺(n·ωo)⁺)/(n·ωo), as Brdf.eval then ×cos
+        return out
+
+
 class _EffectiveMaterial:
     def __init__(self, mat: EffectiveBRDF, truth: GroundTruth | None):
         self.mat, self.truth = mat, truth
@@ -430,7 +455,7 @@ def _gbuffer_frame(scene, g):
 
     → dict pix (P,) int, mat (P,) int, pos, n, t, b, wo (ωo with ωo·n clamped to MIN_COS_VIEW, world),
     wo_local (tile frame), origin (pos + offset along the viewer-side geometric normal), ng (that normal),
-    all (P, 3) float64."""
+    all (P, 3) float64; uv (P, 2) the interpolated texture coordinates (zeros without mesh UVs)."""
     mesh = scene.mesh
     eye = scene.camera.packed()[0:3].astype(np.float64)
     face = np.asarray(g["face"])
@@ -462,8 +487,9 @@ def _gbuffer_frame(scene, g):
     ng = mesh.face_normals[f]
     ng = np.where((_dot(ng, eye[None] - pos) < 0)[:, None], -ng, ng)
     eps = offsets(mesh)[0]
+    uv = interp(mesh.uvs) if mesh.uvs is not None else np.zeros((len(pix), 2))  # textured materials' lookups
     return {"pix": pix, "mat": mesh.face_material[f], "pos": pos, "n": n, "t": t, "b": b, "wo": wo_clamped,
-            "wo_local": wo_local, "ng": ng, "origin": pos + eps * ng}
+            "wo_local": wo_local, "ng": ng, "origin": pos + eps * ng, "uv": uv}
 
 
 def render(scene, backend="auto", samples: int = 256, seed: int = 0, truths=None, progress=None,
@@ -509,6 +535,8 @@ def render(scene, backend="auto", samples: int = 256, seed: int = 0, truths=None
         if isinstance(m, EffectiveBRDF):
             materials[i] = _EffectiveMaterial(m, truth_of.get(i))
             labels[i] = materials[i].label
+        elif isinstance(m, Textured):
+            materials[i] = _TexturedMaterial(m)
         else:
             materials[i] = _AnalyticMaterial(m)
         strategies, weights, terms = _plan(env_strategy, materials[i], len(lights))
