@@ -68,7 +68,7 @@ from .brdf import Brdf, Lambert
 from .effective import EffectiveBRDF
 from .progress import Progress
 from .scene import light_sg, vertex_tangents
-from .shading import MIN_COS_VIEW
+from .shading import MIN_COS_VIEW, surface_frames
 from .svbrdf import Textured
 from .trace import offsets
 from .truth import GroundTruth
@@ -461,33 +461,19 @@ def _gbuffer_frame(scene, g):
     face = np.asarray(g["face"])
     pix = np.flatnonzero(face >= 0)
     f = face[pix]
-    tri = mesh.faces[f]
     bary = np.asarray(g["bary"])[pix].astype(np.float64)
-    wts = np.stack([1 - bary[:, 0] - bary[:, 1], bary[:, 0], bary[:, 1]], 1)
     host = mesh.device_cache.setdefault("host", {})
     if "tangents" not in host:  # the render driver's cache: the same float32 tangents the SG renderer reads
         host["tangents"] = vertex_tangents(mesh).astype(np.float32)
-
-    def interp(attr):
-        return np.einsum("nk,nkc->nc", wts, attr.astype(np.float32)[tri].astype(np.float64))
-
-    pos = interp(mesh.vertices)
-    n = _normalize(interp(mesh.normals))
-    t = interp(host["tangents"])
-    t = t - n * _dot(t, n)[:, None]
-    bad = np.linalg.norm(t, axis=1) < 1e-12
-    ref = np.where((np.abs(n[:, 0]) < 0.9)[:, None], np.array([1.0, 0, 0]), np.array([0, 0, 1.0]))
-    t = np.where(bad[:, None], ref - n * _dot(ref, n)[:, None], t)
-    t = _normalize(t)
-    b = np.cross(n, t)
-    wo = _normalize(eye[None] - pos)
-    cos_o = np.maximum(_dot(wo, n), MIN_COS_VIEW)
-    wo_local = _normalize(np.stack([_dot(wo, t), _dot(wo, b), cos_o], 1))
+    # The float32 vertex data the kernels read, blended exactly as the SG reference blends it.
+    sf = surface_frames(mesh.faces, mesh.vertices.astype(np.float32), mesh.normals.astype(np.float32),
+                        host["tangents"], f, bary, eye)
+    interp, pos, n, t, b, wo_local = sf["interp"], sf["pos"], sf["n"], sf["t"], sf["b"], sf["wo_local"]
     wo_clamped = wo_local[:, 0:1] * t + wo_local[:, 1:2] * b + wo_local[:, 2:3] * n
     ng = mesh.face_normals[f]
     ng = np.where((_dot(ng, eye[None] - pos) < 0)[:, None], -ng, ng)
     eps = offsets(mesh)[0]
-    uv = interp(mesh.uvs) if mesh.uvs is not None else np.zeros((len(pix), 2))  # textured materials' lookups
+    uv = interp(mesh.uvs.astype(np.float32)) if mesh.uvs is not None else np.zeros((len(pix), 2))  # texture lookups
     return {"pix": pix, "mat": mesh.face_material[f], "pos": pos, "n": n, "t": t, "b": b, "wo": wo_clamped,
             "wo_local": wo_local, "ng": ng, "origin": pos + eps * ng, "uv": uv}
 

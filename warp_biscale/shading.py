@@ -51,7 +51,7 @@ from . import sg
 from .scene import light_sg
 from .svbrdf import Textured
 
-__all__ = ["pack_materials", "shade_reference", "MIN_COS_VIEW"]
+__all__ = ["pack_materials", "shade_reference", "surface_frames", "MIN_COS_VIEW"]
 
 MIN_COS_VIEW = 1e-4  # ωo·n is clamped here: silhouette pixels whose interpolated normal faces away
 
@@ -176,6 +176,38 @@ def _table_interp(table_flat, base, k, j_count, j, wi_local, wo_local):
     return out
 
 
+def surface_frames(faces, positions, normals, tangents, face, bary, eye) -> dict:
+    """The shading frame of hit pixels, exactly as the shade kernels build it (the SG reference and the Monte
+    Carlo reference share it, so their images differ only by the method).
+
+    faces (F, 3), positions / normals / tangents (V, 3) as the kernels read them (float32), face (P,) the hit
+    faces, bary (P, 2) the weights of their vertices 1 and 2, eye (3,). → dict of float64 arrays: `interp`
+    (a function blending a per-vertex (V, C) attribute), pos, n (unit interpolated normal), t, b (tangent,
+    bitangent; t ⟂ n from the interpolated tangent, or a fixed axis where that vanishes), wo (unit, to the
+    eye), cos_o = max(ωo·n, MIN_COS_VIEW), wo_local (ωo in (t, b, n) with that clamp), all (P, 3) / (P,).
+    """
+    tri = np.asarray(faces)[face]
+    u, v = np.asarray(bary[:, 0], np.float64), np.asarray(bary[:, 1], np.float64)
+    wts = np.stack([1 - u - v, u, v], 1)
+
+    def interp(attr):
+        return np.einsum("nk,nkc->nc", wts, np.asarray(attr)[tri].astype(np.float64))
+
+    pos = interp(positions)
+    n = _normalize(interp(normals))
+    t = interp(tangents)
+    t = t - n * _dot(t, n)[:, None]
+    bad = np.linalg.norm(t, axis=1) < 1e-12
+    ref = np.where((np.abs(n[:, 0]) < 0.9)[:, None], np.array([1.0, 0, 0]), np.array([0, 0, 1.0]))
+    t = np.where(bad[:, None], ref - n * _dot(ref, n)[:, None], t)
+    t = _normalize(t)
+    b = np.cross(n, t)
+    wo = _normalize(np.asarray(eye, np.float64)[None] - pos)
+    cos_o = np.maximum(_dot(wo, n), MIN_COS_VIEW)
+    wo_local = _normalize(np.stack([_dot(wo, t), _dot(wo, b), cos_o], 1))
+    return {"interp": interp, "pos": pos, "n": n, "t": t, "b": b, "wo": wo, "cos_o": cos_o, "wo_local": wo_local}
+
+
 def shade_reference(frame: dict) -> np.ndarray:
     """(N, 3) float64 radiance of every pixel of a packed frame (see `render.pack_frame` for the keys)."""
     from . import reference, svbrdf
@@ -200,25 +232,10 @@ def shade_reference(frame: dict) -> np.ndarray:
     if len(pix) == 0:
         return out
     f = face[pix]
-    tri = frame["faces"][f]
-    u, v = frame["bary"][pix, 0].astype(np.float64), frame["bary"][pix, 1].astype(np.float64)
-    wts = np.stack([1 - u - v, u, v], 1)
-
-    def interp(attr):
-        return np.einsum("nk,nkc->nc", wts, attr[tri].astype(np.float64))
-
-    pos = interp(frame["positions"])
-    n = _normalize(interp(frame["normals"]))
-    t = interp(frame["tangents"])
-    t = t - n * _dot(t, n)[:, None]
-    bad = np.linalg.norm(t, axis=1) < 1e-12
-    ref = np.where((np.abs(n[:, 0]) < 0.9)[:, None], np.array([1.0, 0, 0]), np.array([0, 0, 1.0]))
-    t = np.where(bad[:, None], ref - n * _dot(ref, n)[:, None], t)
-    t = _normalize(t)
-    b = np.cross(n, t)
-    wo = _normalize(eye[None] - pos)
-    cos_o = np.maximum(_dot(wo, n), MIN_COS_VIEW)
-    wo_local = _normalize(np.stack([_dot(wo, t), _dot(wo, b), cos_o], 1))
+    sf = surface_frames(frame["faces"], frame["positions"], frame["normals"], frame["tangents"], f,
+                        frame["bary"][pix], eye)
+    interp, pos, n, t, b = sf["interp"], sf["pos"], sf["n"], sf["t"], sf["b"]
+    wo, cos_o, wo_local = sf["wo"], sf["cos_o"], sf["wo_local"]
 
     has_ssdf = bool(frame["has_ssdf"])
     coeffs = interp(frame["ssdf_coeffs"]) if has_ssdf else None
