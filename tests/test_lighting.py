@@ -164,7 +164,7 @@ def test_lookup_single_level_as_the_shade_kernels():
     maps = np.arange(24, dtype=np.float32).reshape(8, 3)
     levels = np.array([[2.0, 0, 2, 4]], np.float32)
     d = _unit(20, 7)
-    expected = reference._bilinear_equirect(maps.reshape(2, 4, 3).astype(np.float64), d)
+    expected = wb.environment.equirect_bilinear(maps.reshape(2, 4, 3).astype(np.float64), d)
     for eta in (0.1, 4.0, 1e9):
         np.testing.assert_allclose(reference.prefiltered_lookup(maps, levels, d, eta), expected, rtol=1e-12)
 

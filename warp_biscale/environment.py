@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Environment", "Softbox", "equirect_directions", "direction_to_equirect", "sun_profile",
-           "sun_integrals"]
+__all__ = ["Environment", "Softbox", "equirect_directions", "direction_to_equirect", "equirect_bilinear",
+           "equirect_row_solid_angles", "sun_profile", "sun_integrals"]
 
 
 def equirect_directions(height: int, width: int) -> np.ndarray:
@@ -33,6 +33,32 @@ def direction_to_equirect(d: np.ndarray, height: int, width: int) -> tuple[np.nd
     theta = np.arccos(np.clip(d[..., 1], -1.0, 1.0))
     phi = np.mod(np.arctan2(d[..., 2], d[..., 0]), 2 * np.pi)
     return theta * height / np.pi - 0.5, phi * width / (2 * np.pi) - 0.5
+
+
+def equirect_row_solid_angles(height: int, width: int) -> np.ndarray:
+    """(height,) float64 exact solid angle of one texel of each row: (cos θ0 − cos θ1)·2π/W."""
+    edges = np.cos(np.pi * np.arange(height + 1) / height)
+    return (edges[:-1] - edges[1:]) * 2 * np.pi / width
+
+
+def equirect_bilinear(image, d) -> np.ndarray:
+    """(..., 3) float64 bilinear samples of an (h, w, 3) equirect image in unit directions d (..., 3):
+    texel centres at integer coordinates (`direction_to_equirect`), φ wraps, θ clamps."""
+    image = np.asarray(image, np.float64)
+    h, w = image.shape[:2]
+    row, col = direction_to_equirect(d, h, w)
+    r0 = np.floor(row)
+    c0 = np.floor(col)
+    fr = row - r0
+    fc = col - c0
+    r0 = r0.astype(np.int64)
+    c0 = c0.astype(np.int64)
+    out = 0.0
+    for dr, wr in ((0, 1 - fr), (1, fr)):
+        rr = np.clip(r0 + dr, 0, h - 1)
+        for dc, wc in ((0, 1 - fc), (1, fc)):
+            out = out + (wr * wc)[..., None] * image[rr, np.mod(c0 + dc, w)]
+    return out
 
 
 @dataclass(eq=False)
@@ -66,27 +92,12 @@ class Environment:
 
     def solid_angles(self) -> np.ndarray:
         """(H, W) float64 exact solid angle of each texel: (cos θ0 − cos θ1)·2π/W."""
-        edges = np.cos(np.pi * np.arange(self.height + 1) / self.height)
-        return np.broadcast_to(((edges[:-1] - edges[1:]) * 2 * np.pi / self.width)[:, None],
+        return np.broadcast_to(equirect_row_solid_angles(self.height, self.width)[:, None],
                                (self.height, self.width)).copy()
 
     def lookup(self, d) -> np.ndarray:
         """(..., 3) float64 bilinear radiance in unit directions d (..., 3)."""
-        row, col = direction_to_equirect(d, self.height, self.width)
-        r0 = np.floor(row)
-        c0 = np.floor(col)
-        fr = row - r0
-        fc = col - c0
-        r0 = r0.astype(np.int64)
-        c0 = c0.astype(np.int64)
-        rad = self.radiance.astype(np.float64)
-        out = 0.0
-        for dr, wr in ((0, 1 - fr), (1, fr)):
-            rr = np.clip(r0 + dr, 0, self.height - 1)
-            for dc, wc in ((0, 1 - fc), (1, fc)):
-                cc = np.mod(c0 + dc, self.width)
-                out = out + (wr * wc)[..., None] * rad[rr, cc]
-        return out
+        return equirect_bilinear(self.radiance, d)
 
     def power(self) -> np.ndarray:
         """∫L dω (RGB), exact for the texel-constant map."""

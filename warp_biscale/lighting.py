@@ -60,7 +60,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import sg
-from .environment import Environment
+from .environment import Environment, equirect_row_solid_angles
 
 __all__ = ["EnvironmentSGs", "PrefilteredEnvironment", "EnvironmentLighting", "fit_sgs", "prefilter", "prepare",
            "downsample", "level_plan", "equirect_tables"]
@@ -88,8 +88,7 @@ def equirect_tables(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     rows (height, 4) [cos θ, sin θ, θ, Ω] (Ω the solid angle of one texel of the row, sr) and
     columns (width, 3) [cos φ, sin φ, φ], at the texel centres θ = π(i + ½)/H, φ = 2π(j + ½)/W."""
     theta = np.pi * (np.arange(height) + 0.5) / height
-    edges = np.cos(np.pi * np.arange(height + 1) / height)
-    omega = (edges[:-1] - edges[1:]) * 2 * np.pi / width
+    omega = equirect_row_solid_angles(height, width)
     phi = 2 * np.pi * (np.arange(width) + 0.5) / width
     rows = np.stack([np.cos(theta), np.sin(theta), theta, omega], 1)
     cols = np.stack([np.cos(phi), np.sin(phi), phi], 1)

@@ -684,12 +684,12 @@ def lobe_average(radiance, p, sharpness) -> np.ndarray:
     by the closed form makes a constant map exact and cancels most of the quadrature error of lobes
     a few texels wide.
     """
-    from .environment import equirect_directions
+    from .environment import equirect_directions, equirect_row_solid_angles
     from .sg import one_minus_cos
 
     rad = np.asarray(radiance, np.float64)
     d_in = equirect_directions(*rad.shape[:2]).reshape(-1, 3)
-    omega = np.repeat(_equirect_solid_angles(*rad.shape[:2]), rad.shape[1])
+    omega = np.repeat(equirect_row_solid_angles(*rad.shape[:2]), rad.shape[1])
     flat = rad.reshape(-1, 3)
     p = np.asarray(p, np.float64).reshape(-1, 3)
     out = np.empty((len(p), 3))
@@ -713,30 +713,6 @@ def prefilter_level(radiance, sharpness: float, height: int, width: int) -> np.n
         height, width, 3)
 
 
-def _equirect_solid_angles(height: int, width: int) -> np.ndarray:
-    """(height,) the solid angle of one texel of each row: (cos θ0 − cos θ1)·2π/W."""
-    edges = np.cos(np.pi * np.arange(height + 1) / height)
-    return (edges[:-1] - edges[1:]) * 2 * np.pi / width
-
-
-def _bilinear_equirect(image, d):
-    """(N, 3) bilinear samples of an (h, w, 3) equirect image in unit directions d (N, 3):
-    environment.py's convention (texel centres at integer coordinates, φ wraps, θ clamps)."""
-    from .environment import direction_to_equirect
-
-    h, w = image.shape[:2]
-    row, col = direction_to_equirect(d, h, w)
-    r0, c0 = np.floor(row), np.floor(col)
-    fr, fc = row - r0, col - c0
-    r0, c0 = r0.astype(np.int64), c0.astype(np.int64)
-    out = np.zeros((len(d), 3))
-    for dr, wr in ((0, 1 - fr), (1, fr)):
-        rr = np.clip(r0 + dr, 0, h - 1)
-        for dc, wc in ((0, 1 - fc), (1, fc)):
-            out += (wr * wc)[:, None] * image[rr, np.mod(c0 + dc, w)]
-    return out
-
-
 def prefiltered_lookup(maps, levels, p, eta) -> np.ndarray:
     """(..., 3) Λ(p, η) from the packed levels (lighting.PrefilteredEnvironment): the oracle of the
     shade kernels' lookup.
@@ -747,6 +723,8 @@ def prefiltered_lookup(maps, levels, p, eta) -> np.ndarray:
     map (environment.py convention: φ wraps, θ clamps). p (..., 3) unit, η (...) broadcast together.
     (lighting.prefilter always makes n ≥ 2; n = 1 is that one level, as in the shade kernels.)
     """
+    from .environment import equirect_bilinear
+
     maps = np.asarray(maps, np.float64)
     levels = np.asarray(levels, np.float64)
     n = len(levels)
@@ -766,19 +744,19 @@ def prefiltered_lookup(maps, levels, p, eta) -> np.ndarray:
     out = np.zeros((len(p), 3))
     for l in np.unique(lev):
         m = lev == l
-        out[m] = ((1 - f[m])[:, None] * _bilinear_equirect(images[l], p[m])
-                  + f[m][:, None] * _bilinear_equirect(images[min(l + 1, n - 1)], p[m]))
+        out[m] = ((1 - f[m])[:, None] * equirect_bilinear(images[l], p[m])
+                  + f[m][:, None] * equirect_bilinear(images[min(l + 1, n - 1)], p[m]))
     return out.reshape(*shape, 3)
 
 
 def environment_irradiance(radiance, normals) -> np.ndarray:
     """(N, 3) E(n) = ∫ L(ω) max(ω·n, 0) dω of an (h, w, 3) equirect map for unit normals (N, 3),
     by the texel-centre rule Σ_t L_t Ω_t max(ω_t·n, 0)."""
-    from .environment import equirect_directions
+    from .environment import equirect_directions, equirect_row_solid_angles
 
     rad = np.asarray(radiance, np.float64)
     h, w = rad.shape[:2]
-    weighted = (rad * _equirect_solid_angles(h, w)[:, None, None]).reshape(-1, 3)
+    weighted = (rad * equirect_row_solid_angles(h, w)[:, None, None]).reshape(-1, 3)
     d = equirect_directions(h, w).reshape(-1, 3)
     normals = np.asarray(normals, np.float64).reshape(-1, 3)
     out = np.empty((len(normals), 3))
