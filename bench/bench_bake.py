@@ -160,14 +160,10 @@ def reference_bake(tile, brdf, facets, k, j):
     area = np.bincount(inv, weights=fd["area"])
     mean = np.stack([np.bincount(inv, weights=fd["area"] * fd["normal"][:, c]) for c in range(3)], 1)
     mean /= np.linalg.norm(mean, axis=1, keepdims=True)
-    lob = lobes_mod.initial_lobes(mean, area, j)
-    for _ in range(bake_module.EM_ITERATIONS):
-        new = lobes_mod.m_step(ref.ndf_statistics(fd["normal"], fd["area"], lob.axes, lob.sharpness,
-                                                  lob.log_weight), lob)
-        done = lobes_mod.converged(new, lob)
-        lob = new
-        if done:
-            break
+    start = lobes_mod.initial_lobes(mean, area, j)
+    axes, sharp, weight, _ = ref.ndf_em(fd["normal"], fd["area"], start.axes, start.sharpness, start.weight,
+                                        bake_module.EM_ITERATIONS)
+    lob = lobes_mod.LobeSet(axes, sharp, weight).alive()
     rows, integrals, _, _ = lobes_mod.amplitude_system(lob, mean, area)
     iu, ou = np.triu_indices(len(grid))
     mom = ref.lobe_moments(fd, vb, grid, fd["area"], lob.axes, lob.sharpness, iu, ou)

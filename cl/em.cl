@@ -1,10 +1,13 @@
-/* Spherical EM's E-step (Han 2007, as Iwasaki §4): responsibilities and their sufficient statistics.
+/* Spherical EM (Han 2007, as Iwasaki §4): E-step responsibilities, their sufficient statistics, and the M-step.
  *
- * Twin of kernels/em.py; the mathematics is warp_biscale.reference.ndf_statistics. One work-item per
- * facet writes its J responsibilities (times ΔA, float32); then one work-item per (lobe, chunk of
- * facets) sums [r ΔA, r ΔA n] in float64 and a last kernel adds the chunks in order, so no atomics
- * are needed. float64 sums matter here: the sharpness comes from 1 − r̄, r̄ = ‖Σ r ΔA n‖ / Σ r ΔA,
- * which is ~1e−5 for a sharp lobe. Needs cl_khr_fp64.
+ * Twin of kernels/em.py; the mathematics is warp_biscale.reference.ndf_statistics / ndf_em. One
+ * work-item per facet writes its J responsibilities (times ΔA, float32); then one work-item per
+ * (lobe, chunk of facets) sums [r ΔA, r ΔA n] in float64 and a third kernel adds the chunks in
+ * order, so no atomics are needed. float64 sums matter here: the sharpness comes from 1 − r̄,
+ * r̄ = ‖Σ r ΔA n‖ / Σ r ΔA, which is ~1e−5 for a sharp lobe. em_m_step (one work-item) is
+ * warp_biscale.lobes.m_step and converged in float64, so the whole EM loop is enqueued without a
+ * host round trip per step. state = [done, steps]: once done is set, every kernel of the later
+ * steps returns at once. Needs cl_khr_fp64.
  *
  * No limit on J here (nothing is held per lobe in private memory). NDRanges: (facets,), then
  * (lobes, chunks), dimension 0 varying fastest as the last dimension of Warp's (chunks, lobes)
@@ -29,10 +32,11 @@ __kernel void ndf_responsibilities(
     __global const float *log_weight,  /* (J,) */
     const int n_lobes,
     const int n_facets,
+    __global const int *state,         /* (2,) [done, steps] */
     __global float *resp)              /* (Ns, J) */
 {
     int s = get_global_id(0);
-    if (s >= n_facets)
+    if (s >= n_facets || state[0] != 0)
         return;
     float3 n = load3(normal, s);
     __global float *r = resp + (size_t)s * n_lobes;
@@ -56,11 +60,12 @@ __kernel void ndf_sums_partial(
     const int n_lobes,
     const int n_facets,
     const int facets_per_chunk,
+    __global const int *state,     /* (2,) */
     __global double *partial)      /* (chunks, J, 4) */
 {
     int j = get_global_id(0);
     int c = get_global_id(1);
-    if (j >= n_lobes)
+    if (j >= n_lobes || state[0] != 0)
         return;
     int start = c * facets_per_chunk;
     int stop = start + facets_per_chunk < n_facets ? start + facets_per_chunk : n_facets;
@@ -81,10 +86,10 @@ __kernel void ndf_sums_partial(
 }
 
 __kernel void sum_chunks_stats(__global const double *partial, const int chunks, const int n_lobes,
-                               __global double *out)  /* (J, 4) */
+                               __global const int *state, __global double *out)  /* (J, 4) */
 {
     int j = get_global_id(0);
-    if (j >= n_lobes)
+    if (j >= n_lobes || state[0] != 0)
         return;
     double a0 = 0.0, a1 = 0.0, a2 = 0.0, a3 = 0.0;
     for (int c = 0; c < chunks; ++c) {
@@ -98,4 +103,105 @@ __kernel void sum_chunks_stats(__global const double *partial, const int chunks,
     out[4 * j + 1] = a1;
     out[4 * j + 2] = a2;
     out[4 * j + 3] = a3;
+}
+
+#define DEAD_MASS 1.0e-9         /* lobes.DEAD_MASS */
+#define EM_TOL 1.0e-4            /* lobes.CONVERGENCE_TOL */
+#define SHARP_MIN 1.0e-3         /* sg.SHARPNESS_MIN */
+#define SHARP_MAX 1.0e6          /* sg.SHARPNESS_MAX */
+#define DEAD_LOG_WEIGHT -1.0e30f /* a dead lobe's E-step constant: exp(−1e30 − top) = 0 */
+
+/* lobes._mean_resultant_to_sharpness: Newton on coth κ − 1/κ = r̄ from Banerjee's start. */
+CL_INLINE double sharpness_from_mean_resultant(double rbar)
+{
+    double r = rbar < 1.0e-9 ? 1.0e-9 : (rbar > 1.0 ? 1.0 : rbar);
+    double k = SHARP_MAX;
+    if (r < 1.0 - 1.0e-12) {
+        k = r * (3.0 - r * r) / (1.0 - r * r);
+        for (int it = 0; it < 20; ++it) {
+            double coth = 1.0, csch2 = 0.0;
+            if (k <= 20.0) {  /* coth κ = 1 to double precision beyond */
+                coth = 1.0 / tanh(k);
+                double sh = sinh(k);
+                csch2 = 1.0 / (sh * sh);
+            }
+            double f = coth - 1.0 / k - r;
+            double df = 1.0 / (k * k) - csch2;
+            if (df <= 0.0)
+                df = 1.0;
+            k = k - f / df;
+            if (k < 1.0e-9)
+                k = 1.0e-9;
+        }
+    }
+    return k < SHARP_MIN ? SHARP_MIN : (k > SHARP_MAX ? SHARP_MAX : k);
+}
+
+/* One work-item: lobes.m_step and lobes.converged on the float64 lobes, then the float32 copies the
+ * E-step reads (log_weight as LobeSet.log_weight). */
+__kernel void em_m_step(
+    __global const double *stats,  /* (J, 4) */
+    const int n_lobes,
+    const int max_steps,
+    __global int *state,           /* (2,) [done, steps] */
+    __global double *axes64,       /* (J, 3) */
+    __global double *sharpness64,  /* (J,) */
+    __global double *weight64,     /* (J,) */
+    __global float *axes,          /* (J, 3) */
+    __global float *sharpness,     /* (J,) */
+    __global float *log_weight)    /* (J,) */
+{
+    if (get_global_id(0) != 0 || state[0] != 0)
+        return;
+    double total = 0.0, kept = 0.0;
+    for (int j = 0; j < n_lobes; ++j)
+        total += stats[4 * j];
+    for (int j = 0; j < n_lobes; ++j)
+        if (stats[4 * j] > DEAD_MASS * total)
+            kept += stats[4 * j];
+    if (kept <= 0.0) {  /* no lobe holds area: m_step keeps the lobes, and EM stops */
+        state[0] = 1;
+        return;
+    }
+    int done = 1;
+    for (int j = 0; j < n_lobes; ++j) {
+        double m = stats[4 * j];
+        double ox = axes64[3 * j], oy = axes64[3 * j + 1], oz = axes64[3 * j + 2];
+        double old_sharp = sharpness64[j], old_weight = weight64[j];
+        double ax = ox, ay = oy, az = oz, k = old_sharp, w = 0.0;
+        if (m > DEAD_MASS * total) {
+            double rx = stats[4 * j + 1], ry = stats[4 * j + 2], rz = stats[4 * j + 3];
+            double length = sqrt(rx * rx + ry * ry + rz * rz);
+            if (length > 0.0) {
+                ax = rx / length;
+                ay = ry / length;
+                az = rz / length;
+            }
+            k = sharpness_from_mean_resultant(length / m);
+            w = m / kept;
+            double dx = ax - ox, dy = ay - oy, dz = az - oz;
+            if (0.5 * (dx * dx + dy * dy + dz * dz) >= 0.5 * EM_TOL * EM_TOL)
+                done = 0;
+            if (fabs(log(k / old_sharp)) >= 10.0 * EM_TOL)
+                done = 0;
+            if (fabs(w - old_weight) >= EM_TOL)
+                done = 0;
+        } else if (old_weight > 0.0) {  /* died in this step */
+            done = 0;
+        }
+        axes64[3 * j] = ax;
+        axes64[3 * j + 1] = ay;
+        axes64[3 * j + 2] = az;
+        sharpness64[j] = k;
+        weight64[j] = w;
+        axes[3 * j] = (float)ax;
+        axes[3 * j + 1] = (float)ay;
+        axes[3 * j + 2] = (float)az;
+        sharpness[j] = (float)k;
+        log_weight[j] = w > 0.0 ? (float)(log(w) + log(k) - log(6.283185307179586) - log(1.0 - exp(-2.0 * k)))
+                                : DEAD_LOG_WEIGHT;
+    }
+    state[1] += 1;
+    if (done || state[1] >= max_steps)
+        state[0] = 1;
 }

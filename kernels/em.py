@@ -1,10 +1,13 @@
-"""Spherical EM's E-step (Han 2007, as Iwasaki §4): responsibilities and their sufficient statistics.
+"""Spherical EM (Han 2007, as Iwasaki §4): E-step responsibilities, their sufficient statistics, and the M-step.
 
-Twin of ``cl/em.cl``; the mathematics is ``warp_biscale.reference.ndf_statistics``. One thread per
-facet writes its J responsibilities (times ΔA); then one thread per (chunk of facets, lobe) sums
-[r ΔA, r ΔA n] in float64 and a last kernel adds the chunks, so no atomics are needed. float64 sums
-matter here: the sharpness comes from 1 − r̄, r̄ = ‖Σ r ΔA n‖ / Σ r ΔA, which is ~1e−5 for a sharp lobe.
-The M-step (a handful of numbers) runs on the host (``warp_biscale.lobes.m_step``).
+Twin of ``cl/em.cl``; the mathematics is ``warp_biscale.reference.ndf_statistics`` / ``ndf_em``. One
+thread per facet writes its J responsibilities (times ΔA); then one thread per (chunk of facets,
+lobe) sums [r ΔA, r ΔA n] in float64 and a third kernel adds the chunks, so no atomics are needed.
+float64 sums matter here: the sharpness comes from 1 − r̄, r̄ = ‖Σ r ΔA n‖ / Σ r ΔA, which is ~1e−5
+for a sharp lobe. `em_m_step` (one thread: J ≤ 16 lobes) is ``warp_biscale.lobes.m_step`` and
+``converged`` in float64 on the device, so the whole EM loop is queued without a host round trip
+per step (on an H100, 30 steps went from 21.7 ms with the host M-step to the figure in bench/).
+`state` = [done, steps]: once done is set, every kernel of the later steps returns at once.
 """
 
 import warp as wp
@@ -17,9 +20,12 @@ def ndf_responsibilities(
     axes: wp.array(dtype=wp.vec3),
     sharpness: wp.array(dtype=wp.float32),
     log_weight: wp.array(dtype=wp.float32),
+    state: wp.array(dtype=wp.int32),
     offset: int,
     resp: wp.array2d(dtype=wp.float32),
 ):
+    if state[0] != 0:
+        return
     s = wp.tid() + offset
     n = normal[s]
     n_lobes = axes.shape[0]
@@ -43,9 +49,12 @@ def ndf_sums_partial(
     normal: wp.array(dtype=wp.vec3),
     resp: wp.array2d(dtype=wp.float32),
     facets_per_chunk: int,
+    state: wp.array(dtype=wp.int32),
     offset: int,
     partial: wp.array2d(dtype=wp.vec4d),
 ):
+    if state[0] != 0:
+        return
     c, j_local = wp.tid()
     j = j_local + offset
     n_facets = normal.shape[0]
@@ -60,9 +69,110 @@ def ndf_sums_partial(
 
 
 @wp.kernel
-def sum_chunks_stats(partial: wp.array2d(dtype=wp.vec4d), out: wp.array(dtype=wp.vec4d)):
-    j = wp.tid()
+def sum_chunks_stats(partial: wp.array2d(dtype=wp.vec4d), state: wp.array(dtype=wp.int32), offset: int,
+                     out: wp.array(dtype=wp.vec4d)):
+    if state[0] != 0:
+        return
+    j = wp.tid() + offset
     acc = wp.vec4d(wp.float64(0.0))
     for c in range(partial.shape[0]):
         acc += partial[c, j]
     out[j] = acc
+
+
+DEAD_MASS = wp.constant(wp.float64(1.0e-9))  # lobes.DEAD_MASS
+TOL = wp.constant(wp.float64(1.0e-4))  # lobes.CONVERGENCE_TOL
+SHARPNESS_MIN = wp.constant(wp.float64(1.0e-3))  # sg.SHARPNESS_MIN
+SHARPNESS_MAX = wp.constant(wp.float64(1.0e6))  # sg.SHARPNESS_MAX
+DEAD_LOG_WEIGHT = wp.constant(-1.0e30)  # a dead lobe's E-step constant: exp(−1e30 − top) = 0
+
+
+@wp.func
+def sharpness_from_mean_resultant(rbar: wp.float64) -> wp.float64:
+    """lobes._mean_resultant_to_sharpness: Newton on coth κ − 1/κ = r̄ from Banerjee's start."""
+    one = wp.float64(1.0)
+    r = wp.clamp(rbar, wp.float64(1.0e-9), one)
+    k = SHARPNESS_MAX
+    if r < one - wp.float64(1.0e-12):
+        k = r * (wp.float64(3.0) - r * r) / (one - r * r)
+        for _it in range(20):
+            coth = one
+            csch2 = wp.float64(0.0)
+            if k <= wp.float64(20.0):  # coth κ = 1 to double precision beyond
+                coth = one / wp.tanh(k)
+                sh = wp.sinh(k)
+                csch2 = one / (sh * sh)
+            f = coth - one / k - r
+            df = one / (k * k) - csch2
+            if df <= wp.float64(0.0):
+                df = one
+            k = wp.max(k - f / df, wp.float64(1.0e-9))
+    return wp.clamp(k, SHARPNESS_MIN, SHARPNESS_MAX)
+
+
+@wp.kernel
+def em_m_step(
+    stats: wp.array(dtype=wp.vec4d),
+    max_steps: int,
+    state: wp.array(dtype=wp.int32),
+    axes64: wp.array(dtype=wp.vec3d),
+    sharpness64: wp.array(dtype=wp.float64),
+    weight64: wp.array(dtype=wp.float64),
+    axes: wp.array(dtype=wp.vec3),
+    sharpness: wp.array(dtype=wp.float32),
+    log_weight: wp.array(dtype=wp.float32),
+):
+    """One thread: lobes.m_step and lobes.converged on the float64 lobes, then the float32 copies
+    the E-step reads (log_weight as LobeSet.log_weight)."""
+    if state[0] != 0:
+        return
+    n_lobes = stats.shape[0]
+    total = wp.float64(0.0)
+    for j in range(n_lobes):
+        total += stats[j][0]
+    kept = wp.float64(0.0)
+    for j in range(n_lobes):
+        if stats[j][0] > DEAD_MASS * total:
+            kept += stats[j][0]
+    if kept <= wp.float64(0.0):  # no lobe holds area: m_step keeps the lobes, and EM stops
+        state[0] = 1
+        return
+    done = int(1)
+    for j in range(n_lobes):
+        m = stats[j][0]
+        old_axis = axes64[j]
+        old_sharp = sharpness64[j]
+        old_weight = weight64[j]
+        ax = old_axis
+        k = old_sharp
+        w = wp.float64(0.0)
+        if m > DEAD_MASS * total:
+            res = wp.vec3d(stats[j][1], stats[j][2], stats[j][3])
+            length = wp.length(res)
+            if length > wp.float64(0.0):
+                ax = res / length
+            k = sharpness_from_mean_resultant(length / m)
+            w = m / kept
+            d = ax - old_axis
+            if wp.float64(0.5) * wp.dot(d, d) >= wp.float64(0.5) * TOL * TOL:
+                done = 0
+            if wp.abs(wp.log(k / old_sharp)) >= wp.float64(10.0) * TOL:
+                done = 0
+            if wp.abs(w - old_weight) >= TOL:
+                done = 0
+        elif old_weight > wp.float64(0.0):  # died in this step
+            done = 0
+        axes64[j] = ax
+        sharpness64[j] = k
+        weight64[j] = w
+        axes[j] = wp.vec3(float(ax[0]), float(ax[1]), float(ax[2]))
+        sharpness[j] = float(k)
+        if w > wp.float64(0.0):
+            two_pi = wp.float64(6.283185307179586)
+            norm = wp.log(k) - wp.log(two_pi) - wp.log(wp.float64(1.0) - wp.exp(wp.float64(-2.0) * k))
+            log_weight[j] = float(wp.log(w) + norm)
+        else:
+            log_weight[j] = DEAD_LOG_WEIGHT
+    state[1] = state[1] + 1
+    if done != 0 or state[1] >= max_steps:
+        state[0] = 1

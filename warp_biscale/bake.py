@@ -106,19 +106,11 @@ def _channels(facets, n_materials):
     return out
 
 
-def _fit_lobes(be, fac, bv, count, timer, tolerance, probe_sharpness):
+def _fit_lobes(be, fac, bv, count, tolerance, probe_sharpness):
     """EM for `count` lobes, or the smallest J meeting `tolerance` when count == "auto"."""
 
     def fit(j):
-        lob = lobes_mod.initial_lobes(bv.normal, bv.area, j)
-        for _ in range(EM_ITERATIONS):
-            stats = timer("ndf_fit", be.ndf_statistics, fac, lob.axes, lob.sharpness, lob.log_weight)
-            new = lobes_mod.m_step(stats, lob)
-            done = lobes_mod.converged(new, lob)
-            lob = new
-            if done:
-                break
-        return lob
+        return lobes_mod.fit(be, fac, lobes_mod.initial_lobes(bv.normal, bv.area, j), EM_ITERATIONS)
 
     if count != "auto":  # the NDF error is what "auto" needs; with a fixed J it is not worth its time
         return fit(count), None
@@ -257,7 +249,7 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
         if keep_hist:
             bv.histogram = timer("bvndf", be.bvndf_histogram, fac, vis, order, start, area.astype(np.float32), iu, ou)
     prog.stage("NDF fit (spherical EM)", 1)
-    lob, ndf_err = _fit_lobes(be, fac, bv, j_req, timer, tolerance, probe)
+    lob, ndf_err = timer("ndf_fit", _fit_lobes, be, fac, bv, j_req, tolerance, probe)
     rows, integrals, _, cond = lobes_mod.amplitude_system(lob, bv.normal, bv.area)
     prog.stage(f"amplitudes ({len(lob)} lobes, {len(channels)} channel(s))", len(channels))
     pi, po = dirs.all_pairs(nd)

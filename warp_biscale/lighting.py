@@ -352,15 +352,9 @@ def fit_sgs(env: Environment, lobes: int = 9, backend="auto", ambient: bool = Tr
         scale = weight[keep].sum()
         d = dirs[keep]
         facets = _texel_facets(d, weight[keep] / scale)
-        lob = lobes_mod.initial_lobes(d, weight[keep] / scale, k - int(with_ambient))
-        for _ in range(int(iterations)):
-            stats = be.ndf_statistics(facets, lob.axes, lob.sharpness, lob.log_weight)
-            new = lobes_mod.m_step(stats, lob)
-            done = lobes_mod.converged(new, lob)
-            lob = new
-            steps += 1
-            if done:
-                break
+        lob = lobes_mod.fit(be, facets, lobes_mod.initial_lobes(d, weight[keep] / scale, k - int(with_ambient)),
+                            int(iterations))
+        steps = lob.iterations
         # Each lobe's RGB power: the texels' power split by the final lobes' responsibilities (the same
         # E-step kernel with the channel's power as the facet area; responsibilities sum to 1 per texel).
         power = np.stack([be.ndf_statistics(_texel_facets(d, rest[keep, c] * omega[keep] / scale), lob.axes,

@@ -1,9 +1,10 @@
 """SG lobes of the NDF (Iwasaki §4): the spherical EM's host side, and the amplitude system.
 
-The E-step sums (`Backend.ndf_statistics`) run on the device; this module holds what is tiny and
-runs on the host in float64: the deterministic initialisation, the M-step update from the sums,
-the J×J Gram matrix A of the lobes and its (regularised, energy-constrained) solve rows, and the
-NDF fit error that `lobes="auto"` uses.
+The whole EM loop runs on the device (`Backend.ndf_em`: E-step sums and M-step, no host round trip
+per step). This module holds the deterministic initialisation, `m_step` and `converged` (the
+float64 definition that the device M-step mirrors; `reference.ndf_em` is the host loop), `fit`
+(the driver's entry), the J×J Gram matrix A of the lobes and its (regularised, energy-constrained)
+solve rows, and the NDF fit error that `lobes="auto"` uses.
 """
 
 from __future__ import annotations
@@ -14,16 +15,20 @@ import numpy as np
 
 from . import sg
 
-__all__ = ["LobeSet", "initial_lobes", "m_step", "amplitude_system", "ndf_error", "MAX_LOBES"]
+__all__ = ["LobeSet", "initial_lobes", "m_step", "converged", "fit", "amplitude_system", "ndf_error", "MAX_LOBES"]
 
 MAX_LOBES = 16  # the kernels keep one accumulator per lobe in registers
 RIDGE = 1e-6  # Tikhonov term on the unit-diagonal Gram matrix: bounds its condition number by ~1e6
+CONVERGENCE_TOL = 1e-4  # see `converged`
+DEAD_MASS = 1e-9  # a lobe holding less than this fraction of the area after an E-step is dead (weight 0)
 
 
 @dataclass(eq=False)
 class LobeSet:
     """J SG lobes fitted to the NDF: axes (J, 3) unit, sharpness (J,), weight (J,) the fraction
-    α_j of the tile's area each lobe holds. As an NDF, Γ(n) ≈ Σ_j A·α_j·vMF_j(n) with A the area."""
+    α_j of the tile's area each lobe holds. As an NDF, Γ(n) ≈ Σ_j A·α_j·vMF_j(n) with A the area.
+    During EM a lobe that lost all its area keeps weight 0 (dead: it takes no responsibility);
+    `alive()` drops such lobes."""
 
     axes: np.ndarray
     sharpness: np.ndarray
@@ -46,9 +51,19 @@ class LobeSet:
 
     @property
     def log_weight(self) -> np.ndarray:
-        """log α_j + log of the vMF normalisation η/(2π(1 − e^{−2η})): the E-step's per-lobe constant."""
+        """log α_j + log of the vMF normalisation η/(2π(1 − e^{−2η})): the E-step's per-lobe constant
+        (−inf for a dead lobe, so that it takes no responsibility)."""
         eta = self.sharpness
-        return np.log(np.maximum(self.weight, 1e-300)) + np.log(eta) - np.log(2 * np.pi) - np.log(-np.expm1(-2 * eta))
+        with np.errstate(divide="ignore"):
+            log_alpha = np.where(self.weight > 0, np.log(np.where(self.weight > 0, self.weight, 1.0)), -np.inf)
+        return log_alpha + np.log(eta) - np.log(2 * np.pi) - np.log(-np.expm1(-2 * eta))
+
+    def alive(self) -> LobeSet:
+        """The lobes of weight > 0."""
+        live = self.weight > 0
+        if live.all():
+            return self
+        return LobeSet(self.axes[live], self.sharpness[live], self.weight[live], self.iterations)
 
     def ndf(self, n, area: float = 1.0) -> np.ndarray:
         """Γ(n) ≈ Σ_j area·α_j·vMF_j(n), per steradian."""
@@ -107,27 +122,44 @@ def initial_lobes(normal, area, count: int, resolution: int = 16) -> LobeSet:
 
 
 def m_step(stats, previous: LobeSet) -> LobeSet:
-    """The M-step from E-step sums `stats` (J, 4) = [Σ r ΔA, Σ r ΔA n]; lobes that hold no area are dropped."""
+    """The M-step from E-step sums `stats` (J, 4) = [Σ r ΔA, Σ r ΔA n]. A lobe holding at most
+    `DEAD_MASS` of the area dies: weight 0, axis and sharpness kept (the device M-step, kernels/em.py
+    `em_m_step`, is this function in float64)."""
     stats = np.asarray(stats, np.float64)
     mass = stats[:, 0]
-    keep = mass > 1e-9 * mass.sum()
+    keep = mass > DEAD_MASS * mass.sum()
     if not keep.any():
         return previous
-    mass, resultant = mass[keep], stats[keep, 1:]
-    length = np.linalg.norm(resultant, axis=1)
-    axes = np.where(length[:, None] > 0, resultant / np.where(length > 0, length, 1.0)[:, None], previous.axes[keep])
-    sharp = _mean_resultant_to_sharpness(length / mass)
-    return LobeSet(axes, sharp, mass / mass.sum(), previous.iterations + 1)
+    length = np.linalg.norm(stats[:, 1:], axis=1)
+    live = keep & (length > 0)
+    axes = previous.axes.copy()
+    axes[live] = stats[live, 1:] / length[live, None]
+    sharp = previous.sharpness.copy()
+    sharp[keep] = _mean_resultant_to_sharpness(length[keep] / mass[keep])
+    weight = np.where(keep, mass, 0.0) / mass[keep].sum()
+    return LobeSet(axes, sharp, weight, previous.iterations + 1)
 
 
-def converged(a: LobeSet, b: LobeSet, tol: float = 1e-4) -> bool:
-    """EM has settled: axes moved less than `tol` rad, sharpness by less than 10·`tol` relative,
-    weights by less than `tol`. (Tighter than the NDF's own sampling noise at 2¹⁶ facets, ~1e−3.)"""
+def converged(a: LobeSet, b: LobeSet, tol: float = CONVERGENCE_TOL) -> bool:
+    """EM has settled from `b` to `a`: no lobe died, and each live lobe's axis moved less than `tol`
+    rad, its sharpness by less than 10·`tol` relative, its weight by less than `tol`. (Tighter than
+    the NDF's own sampling noise at 2¹⁶ facets, ~1e−3.)"""
     if len(a) != len(b):
         return False
-    return bool(np.all(sg.one_minus_cos(a.axes, b.axes) < 0.5 * tol * tol)
-                and np.all(np.abs(np.log(a.sharpness / b.sharpness)) < 10 * tol)
-                and np.all(np.abs(a.weight - b.weight) < tol))
+    live = a.weight > 0
+    if np.any((b.weight > 0) & ~live):
+        return False
+    return bool(np.all(sg.one_minus_cos(a.axes[live], b.axes[live]) < 0.5 * tol * tol)
+                and np.all(np.abs(np.log(a.sharpness[live] / b.sharpness[live])) < 10 * tol)
+                and np.all(np.abs(a.weight[live] - b.weight[live]) < tol))
+
+
+def fit(backend, facets, start: LobeSet, iterations: int) -> LobeSet:
+    """Spherical EM from `start` on the device: at most `iterations` steps, stopping after the first
+    step that `converged`; dead lobes dropped. `iterations` of the result counts the steps taken."""
+    axes, sharpness, weight, steps = backend.ndf_em(facets, start.axes, start.sharpness, start.weight,
+                                                    int(iterations))
+    return LobeSet(axes, sharpness, weight, start.iterations + int(steps)).alive()
 
 
 def amplitude_system(lobes: LobeSet, bin_normal=None, bin_area=None):

@@ -393,25 +393,59 @@ class OpenCLBackend:
                          np.int32(n_bins), np.int32(n_pairs), hist)
         return self._read(hist, (n_pairs, max(n_bins, 0)), np.float32)
 
-    def ndf_statistics(self, facets, axes, sharpness, log_weight):
+    def _em_step(self, facets, n_lobes, axes, sharpness, log_weight, state):
+        """Enqueue one E-step (three kernels) → the (J, 4) float64 statistics buffer."""
         f = self._facets(facets)
-        n, j = len(facets), len(axes)
-        if n == 0 or j == 0:
-            return np.zeros((j, 4))
+        n, j = len(facets), n_lobes
         resp = f.get(("resp", j))
         if resp is None:
             resp = f[("resp", j)] = self._empty(n * j, np.float32)
-        self._launch("em", "ndf_responsibilities", (n,),
-                     f["normal"], f["area"], self._buffer(axes, np.float32), self._buffer(sharpness, np.float32),
-                     self._buffer(log_weight, np.float32), np.int32(j), np.int32(n), resp)
         chunks, per = chunking(-(-n // 256), j, self._threads)  # ≥ 256 facets a chunk: few chunks to add
         per *= 256
-        partial = self._empty(chunks * j * 4, np.float64)
+        key = ("em_partial", j, chunks)
+        if key not in f:  # reused by every step of an EM
+            f[key] = (self._empty(chunks * j * 4, np.float64), self._empty(j * 4, np.float64))
+        partial, out = f[key]
+        self._launch("em", "ndf_responsibilities", (n,),
+                     f["normal"], f["area"], axes, sharpness, log_weight, np.int32(j), np.int32(n), state, resp)
         self._launch("em", "ndf_sums_partial", (j, chunks),
-                     f["normal"], resp, np.int32(j), np.int32(n), np.int32(per), partial)
-        out = self._empty(j * 4, np.float64)
-        self._launch("em", "sum_chunks_stats", (j,), partial, np.int32(chunks), np.int32(j), out)
+                     f["normal"], resp, np.int32(j), np.int32(n), np.int32(per), state, partial)
+        self._launch("em", "sum_chunks_stats", (j,), partial, np.int32(chunks), np.int32(j), state, out)
+        return out
+
+    def ndf_statistics(self, facets, axes, sharpness, log_weight):
+        n, j = len(facets), len(axes)
+        if n == 0 or j == 0:
+            return np.zeros((j, 4))
+        out = self._em_step(facets, j, self._buffer(axes, np.float32), self._buffer(sharpness, np.float32),
+                            self._buffer(log_weight, np.float32), self._buffer(np.zeros(2), np.int32))
         return self._read(out, (j, 4), np.float64)
+
+    def ndf_em(self, facets, axes, sharpness, weight, iterations):
+        from .lobes import LobeSet
+
+        start = LobeSet(axes, sharpness, weight)
+        j = len(start)
+        if len(facets) == 0 or int(iterations) <= 0:
+            return start.axes, start.sharpness, start.weight, 0
+        cl = self._cl
+        rw = cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR
+
+        def buffer(a, dtype):
+            return cl.Buffer(self._ctx, rw, hostbuf=np.ascontiguousarray(a, dtype))
+
+        state = buffer(np.zeros(2), np.int32)
+        axes32, sharp32 = buffer(start.axes, np.float32), buffer(start.sharpness, np.float32)
+        logw32 = buffer(np.maximum(start.log_weight, -1e30), np.float32)
+        axes64, sharp64, weight64 = (buffer(start.axes, np.float64), buffer(start.sharpness, np.float64),
+                                     buffer(start.weight, np.float64))
+        # All steps are enqueued at once: after convergence the kernels return at their first line.
+        for _ in range(int(iterations)):
+            stats = self._em_step(facets, j, axes32, sharp32, logw32, state)
+            self._launch("em", "em_m_step", (1,), stats, np.int32(j), np.int32(iterations), state,
+                         axes64, sharp64, weight64, axes32, sharp32, logw32)
+        return (self._read(axes64, (j, 3), np.float64), self._read(sharp64, j, np.float64),
+                self._read(weight64, j, np.float64), int(self._read(state, 2, np.int32)[1]))
 
     def _lobe_values(self, normal_buf, n, axes, sharpness):
         """(n, 8⌈J/8⌉) float32 device table G_j(n_s) of unit-amplitude lobes, zero past J (read as float8)."""

@@ -24,6 +24,7 @@ __all__ = [
     "cube_bin",
     "bvndf_histogram",
     "ndf_statistics",
+    "ndf_em",
     "lobe_values",
     "lobe_moments",
     "histogram_moments",
@@ -385,6 +386,22 @@ def ndf_statistics(normal: np.ndarray, area: np.ndarray, axes, sharpness, log_we
     r /= r.sum(axis=1, keepdims=True)
     r *= np.asarray(area, np.float64)[:, None]
     return np.concatenate([r.sum(axis=0)[:, None], r.T @ normal], axis=1)
+
+
+def ndf_em(normal: np.ndarray, area: np.ndarray, axes, sharpness, weight, iterations: int):
+    """Spherical EM in float64 (Backend.ndf_em): from lobes (axes, sharpness, weight), at most
+    `iterations` steps of `ndf_statistics` + `lobes.m_step`, stopping after the first step that
+    `lobes.converged`. → (axes (J, 3), sharpness (J,), weight (J,), steps); dead lobes keep weight 0."""
+    from . import lobes
+
+    lob = lobes.LobeSet(axes, sharpness, weight)
+    for _ in range(int(iterations)):
+        new = lobes.m_step(ndf_statistics(normal, area, lob.axes, lob.sharpness, lob.log_weight), lob)
+        done = lobes.converged(new, lob)
+        lob = new
+        if done:
+            break
+    return lob.axes, lob.sharpness, lob.weight, lob.iterations
 
 
 def lobe_values(normal, axes, sharpness) -> np.ndarray:

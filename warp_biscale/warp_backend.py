@@ -285,29 +285,72 @@ class WarpBackend:
                      [hist])
         return hist.numpy()
 
-    def ndf_statistics(self, facets, axes, sharpness, log_weight):
+    def _em_launches(self, facets, n_lobes, axes, sharpness, log_weight, state):
+        """The E-step's three kernels as callables (recorded launches on a GPU: re-issuing one skips
+        Python's argument packing, ~20 µs a launch) → (steps, stats (J,) vec4d)."""
+        import functools
+
         import warp as wp
 
         from .kernels import em as ke
 
         f = self._facets(facets)
         dev = self._device
-        n, j = len(facets), len(axes)
+        n, j = len(facets), n_lobes
         resp = f.get(("resp", j))
         if resp is None:
             resp = f[("resp", j)] = wp.empty((n, j), dtype=wp.float32, device=dev)
-        self._launch(ke.ndf_responsibilities, n,
-                     [f["normal"], f["area"], self._array(np.asarray(axes, np.float32), wp.vec3),
-                      self._array(np.asarray(sharpness, np.float32), wp.float32),
-                      self._array(np.asarray(log_weight, np.float32), wp.float32)],
-                     [resp])
         chunks, per = chunking(-(-n // 256), j, self._threads)  # ≥ 256 facets a chunk: few chunks to add
         per *= 256
         partial = wp.empty((chunks, j), dtype=wp.vec4d, device=dev)
-        self._launch(ke.ndf_sums_partial, (chunks, j), [f["normal"], resp, per], [partial])
-        out = wp.empty(j, dtype=wp.vec4d, device=dev)
-        wp.launch(ke.sum_chunks_stats, dim=j, inputs=[partial], outputs=[out], device=dev)
-        return out.numpy().astype(np.float64)
+        stats = wp.empty(j, dtype=wp.vec4d, device=dev)
+        launches = [(ke.ndf_responsibilities, n, [f["normal"], f["area"], axes, sharpness, log_weight, state], [resp]),
+                    (ke.ndf_sums_partial, (chunks, j), [f["normal"], resp, per, state], [partial]),
+                    (ke.sum_chunks_stats, j, [partial, state], [stats])]
+        if self._slices > 1:
+            steps = [functools.partial(self._launch, *launch) for launch in launches]
+        else:
+            steps = [wp.launch(kernel, dim=dim, inputs=[*inputs, 0], outputs=outputs, device=dev,
+                               record_cmd=True).launch
+                     for kernel, dim, inputs, outputs in launches]
+        return steps, stats
+
+    def ndf_statistics(self, facets, axes, sharpness, log_weight):
+        import warp as wp
+
+        state = wp.zeros(2, dtype=wp.int32, device=self._device)
+        steps, stats = self._em_launches(facets, len(axes), self._array(np.asarray(axes, np.float32), wp.vec3),
+                                         self._array(np.asarray(sharpness, np.float32), wp.float32),
+                                         self._array(np.asarray(log_weight, np.float32), wp.float32), state)
+        for step in steps:
+            step()
+        return stats.numpy().astype(np.float64)
+
+    def ndf_em(self, facets, axes, sharpness, weight, iterations):
+        import warp as wp
+
+        from .kernels import em as ke
+        from .lobes import LobeSet
+
+        dev = self._device
+        start = LobeSet(axes, sharpness, weight)
+        j = len(start)
+        state = wp.zeros(2, dtype=wp.int32, device=dev)
+        axes32 = self._array(start.axes.astype(np.float32), wp.vec3)
+        sharp32 = self._array(start.sharpness.astype(np.float32), wp.float32)
+        logw32 = self._array(np.maximum(start.log_weight, -1e30).astype(np.float32), wp.float32)
+        axes64 = self._array(start.axes, wp.vec3d)
+        sharp64 = self._array(start.sharpness, wp.float64)
+        weight64 = self._array(start.weight, wp.float64)
+        steps, stats = self._em_launches(facets, j, axes32, sharp32, logw32, state)
+        m_step = wp.launch(ke.em_m_step, dim=1, inputs=[stats, int(iterations), state, axes64, sharp64, weight64],
+                           outputs=[axes32, sharp32, logw32], device=dev, record_cmd=True)
+        # All steps are queued at once: after convergence the kernels return at their first line.
+        for _ in range(int(iterations)):
+            for step in steps:
+                step()
+            m_step.launch()
+        return axes64.numpy(), sharp64.numpy(), weight64.numpy(), int(state.numpy()[1])
 
     def lobe_moments(self, facets, vis, weight, axes, sharpness, pair_i, pair_o):
         import warp as wp

@@ -1,0 +1,67 @@
+"""Per-kernel device time of one EM step (warp backend): which of the four kernels dominates.
+
+    python bench/probe_em.py warp:cuda 65536 8
+"""
+
+import os
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import warp_biscale as wb  # noqa: E402
+from bench_foundation import heightfield_tile  # noqa: E402
+from warp_biscale import lobes as lobes_mod  # noqa: E402
+
+
+def main(backend, facets, j):
+    import warp as wp
+
+    be = wb.get_backend(backend)
+    fac = be.sample_facets(heightfield_tile(), facets, 0)
+    start = lobes_mod.initial_lobes(fac.normal, fac.area, j)
+    for iters in (1, 30):
+        be.ndf_em(fac, start.axes, start.sharpness, start.weight, iters)
+        be.synchronize()
+        t0 = time.perf_counter()
+        out = be.ndf_em(fac, start.axes, start.sharpness, start.weight, iters)
+        print(f"ndf_em iterations={iters}: {(time.perf_counter() - t0) * 1e3:.2f} ms, steps {out[3]}")
+    if not backend.startswith("warp"):
+        return
+    state = wp.zeros(2, dtype=wp.int32, device=be._device)
+    a32 = be._array(start.axes.astype(np.float32), wp.vec3)
+    s32 = be._array(start.sharpness.astype(np.float32), wp.float32)
+    l32 = be._array(start.log_weight.astype(np.float32), wp.float32)
+    steps, stats = be._em_launches(fac, j, a32, s32, l32, state)
+    from warp_biscale.kernels import em as ke
+
+    a64, s64, w64 = be._array(start.axes, wp.vec3d), be._array(start.sharpness, wp.float64), be._array(
+        start.weight, wp.float64)
+    m = wp.launch(ke.em_m_step, dim=1, inputs=[stats, 1000000, state, a64, s64, w64], outputs=[a32, s32, l32],
+                  device=be._device, record_cmd=True)
+    names = ["responsibilities", "sums_partial", "sum_chunks"]
+    for name, step in zip(names, steps):
+        step()
+        be.synchronize()
+        t0 = time.perf_counter()
+        for _ in range(200):
+            step()
+        be.synchronize()
+        print(f"  {name}: {(time.perf_counter() - t0) / 200 * 1e6:.1f} us")
+    be.synchronize()
+    t0 = time.perf_counter()
+    for _ in range(200):
+        state.zero_()
+    be.synchronize()
+    t_zero = (time.perf_counter() - t0) / 200
+    t0 = time.perf_counter()
+    for _ in range(200):
+        state.zero_()
+        m.launch()
+    be.synchronize()
+    print(f"  m_step: {((time.perf_counter() - t0) / 200 - t_zero) * 1e6:.1f} us (memset {t_zero * 1e6:.1f} us)")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1], int(sys.argv[2]), int(sys.argv[3]))
