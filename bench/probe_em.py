@@ -29,38 +29,33 @@ def main(backend, facets, j):
         print(f"ndf_em iterations={iters}: {(time.perf_counter() - t0) * 1e3:.2f} ms, steps {out[3]}")
     if not backend.startswith("warp"):
         return
-    state = wp.zeros(2, dtype=wp.int32, device=be._device)
+    from warp_biscale.kernels import em as ke
+
+    dev = be._device
+    state = wp.zeros(2, dtype=wp.int32, device=dev)
+    moved = wp.zeros(j, dtype=wp.int32, device=dev)
     a32 = be._array(start.axes.astype(np.float32), wp.vec3)
     s32 = be._array(start.sharpness.astype(np.float32), wp.float32)
     l32 = be._array(start.log_weight.astype(np.float32), wp.float32)
+    a64, s64, w64 = (be._array(start.axes, wp.vec3d), be._array(start.sharpness, wp.float64),
+                     be._array(start.weight, wp.float64))
     steps, stats = be._em_launches(fac, j, a32, s32, l32, state)
-    from warp_biscale.kernels import em as ke
-
-    a64, s64, w64 = be._array(start.axes, wp.vec3d), be._array(start.sharpness, wp.float64), be._array(
-        start.weight, wp.float64)
-    m = wp.launch(ke.em_m_step, dim=1, inputs=[stats, 1000000, state, a64, s64, w64], outputs=[a32, s32, l32],
-                  device=be._device, record_cmd=True)
-    names = ["responsibilities", "sums_partial", "sum_chunks"]
-    for name, step in zip(names, steps):
-        step()
-        be.synchronize()
-        t0 = time.perf_counter()
-        for _ in range(200):
-            step()
-        be.synchronize()
-        print(f"  {name}: {(time.perf_counter() - t0) / 200 * 1e6:.1f} us")
+    steps.append(be._recorded(ke.em_m_step, j, [stats, state, a64, s64, w64], [a32, s32, l32, moved], split=False))
+    steps.append(be._recorded(ke.em_finish, 1, [moved, 1000000], [state], split=False))
     be.synchronize()
     t0 = time.perf_counter()
     for _ in range(200):
         state.zero_()
     be.synchronize()
     t_zero = (time.perf_counter() - t0) / 200
-    t0 = time.perf_counter()
-    for _ in range(200):
-        state.zero_()
-        m.launch()
-    be.synchronize()
-    print(f"  m_step: {((time.perf_counter() - t0) / 200 - t_zero) * 1e6:.1f} us (memset {t_zero * 1e6:.1f} us)")
+    names = ["responsibilities", "sums_partial", "sum_chunks 1", "sum_chunks 2", "m_step", "finish"]
+    for name, step in zip(names, steps):
+        t0 = time.perf_counter()
+        for _ in range(200):
+            state.zero_()
+            step()
+        be.synchronize()
+        print(f"  {name}: {((time.perf_counter() - t0) / 200 - t_zero) * 1e6:.1f} us (memset {t_zero * 1e6:.1f} us)")
 
 
 if __name__ == "__main__":

@@ -2,9 +2,10 @@
  *
  * Twin of kernels/em.py; the mathematics is warp_biscale.reference.ndf_statistics / ndf_em. One
  * work-item per facet writes its J responsibilities (times ΔA, float32); then one work-item per
- * (lobe, chunk of facets) sums [r ΔA, r ΔA n] in float64 and a third kernel adds the chunks in
- * order, so no atomics are needed. float64 sums matter here: the sharpness comes from 1 − r̄,
- * r̄ = ‖Σ r ΔA n‖ / Σ r ΔA, which is ~1e−5 for a sharp lobe. em_m_step (one work-item) is
+ * (lobe, chunk of 64 facets on a GPU) sums [r ΔA, r ΔA n] in float64 and sum_chunks_stats adds
+ * groups of chunks in order, twice, so no atomics are needed and no work-item runs a long serial
+ * chain. float64 sums matter here: the sharpness comes from 1 − r̄, r̄ = ‖Σ r ΔA n‖ / Σ r ΔA, which
+ * is ~1e−5 for a sharp lobe. em_m_step (one work-item per lobe) and em_finish (one work-item) are
  * warp_biscale.lobes.m_step and converged in float64, so the whole EM loop is enqueued without a
  * host round trip per step. state = [done, steps]: once done is set, every kernel of the later
  * steps returns at once. Needs cl_khr_fp64.
@@ -85,24 +86,29 @@ __kernel void ndf_sums_partial(
     out[3] = a3;
 }
 
-__kernel void sum_chunks_stats(__global const double *partial, const int chunks, const int n_lobes,
-                               __global const int *state, __global double *out)  /* (J, 4) */
+/* out[g, j] = Σ partial[c, j] over the chunks c of group g, in order. NDRange (lobes, groups). */
+__kernel void sum_chunks_stats(__global const double *partial, const int chunks, const int chunks_per_group,
+                               const int n_lobes, __global const int *state, __global double *out)
 {
     int j = get_global_id(0);
+    int g = get_global_id(1);
     if (j >= n_lobes || state[0] != 0)
         return;
+    int start = g * chunks_per_group;
+    int stop = start + chunks_per_group < chunks ? start + chunks_per_group : chunks;
     double a0 = 0.0, a1 = 0.0, a2 = 0.0, a3 = 0.0;
-    for (int c = 0; c < chunks; ++c) {
+    for (int c = start; c < stop; ++c) {
         __global const double *x = partial + 4 * ((size_t)c * n_lobes + j);
         a0 += x[0];
         a1 += x[1];
         a2 += x[2];
         a3 += x[3];
     }
-    out[4 * j] = a0;
-    out[4 * j + 1] = a1;
-    out[4 * j + 2] = a2;
-    out[4 * j + 3] = a3;
+    __global double *o = out + 4 * ((size_t)g * n_lobes + j);
+    o[0] = a0;
+    o[1] = a1;
+    o[2] = a2;
+    o[3] = a3;
 }
 
 #define DEAD_MASS 1.0e-9         /* lobes.DEAD_MASS */
@@ -111,7 +117,8 @@ __kernel void sum_chunks_stats(__global const double *partial, const int chunks,
 #define SHARP_MAX 1.0e6          /* sg.SHARPNESS_MAX */
 #define DEAD_LOG_WEIGHT -1.0e30f /* a dead lobe's E-step constant: exp(−1e30 − top) = 0 */
 
-/* lobes._mean_resultant_to_sharpness: Newton on coth κ − 1/κ = r̄ from Banerjee's start. */
+/* lobes._mean_resultant_to_sharpness: 20 Newton steps on coth κ − 1/κ = r̄ from Banerjee's start
+ * (stopping once a step leaves κ unchanged: the later ones would too). */
 CL_INLINE double sharpness_from_mean_resultant(double rbar)
 {
     double r = rbar < 1.0e-9 ? 1.0e-9 : (rbar > 1.0 ? 1.0 : rbar);
@@ -129,79 +136,100 @@ CL_INLINE double sharpness_from_mean_resultant(double rbar)
             double df = 1.0 / (k * k) - csch2;
             if (df <= 0.0)
                 df = 1.0;
-            k = k - f / df;
-            if (k < 1.0e-9)
-                k = 1.0e-9;
+            double k_new = k - f / df;
+            if (k_new < 1.0e-9)
+                k_new = 1.0e-9;
+            if (k_new == k)
+                break;
+            k = k_new;
         }
     }
     return k < SHARP_MIN ? SHARP_MIN : (k > SHARP_MAX ? SHARP_MAX : k);
 }
 
-/* One work-item: lobes.m_step and lobes.converged on the float64 lobes, then the float32 copies the
- * E-step reads (log_weight as LobeSet.log_weight). */
+/* One work-item per lobe: lobes.m_step on the float64 lobes from the E-step sums stats (J, 4), the
+ * float32 copies the E-step reads (log_weight as LobeSet.log_weight), and moved[j] = 1 where
+ * lobes.converged fails for lobe j (it moved, or died in this step), −1 when no lobe holds area
+ * (m_step then keeps the lobes and EM stops). */
 __kernel void em_m_step(
     __global const double *stats,  /* (J, 4) */
     const int n_lobes,
-    const int max_steps,
-    __global int *state,           /* (2,) [done, steps] */
+    __global const int *state,     /* (2,) [done, steps] */
     __global double *axes64,       /* (J, 3) */
     __global double *sharpness64,  /* (J,) */
     __global double *weight64,     /* (J,) */
     __global float *axes,          /* (J, 3) */
     __global float *sharpness,     /* (J,) */
-    __global float *log_weight)    /* (J,) */
+    __global float *log_weight,    /* (J,) */
+    __global int *moved)           /* (J,) */
+{
+    int j = get_global_id(0);
+    if (j >= n_lobes || state[0] != 0)
+        return;
+    double total = 0.0, kept = 0.0;
+    for (int i = 0; i < n_lobes; ++i)
+        total += stats[4 * i];
+    for (int i = 0; i < n_lobes; ++i)
+        if (stats[4 * i] > DEAD_MASS * total)
+            kept += stats[4 * i];
+    if (kept <= 0.0) {
+        moved[j] = -1;
+        return;
+    }
+    double m = stats[4 * j];
+    double ox = axes64[3 * j], oy = axes64[3 * j + 1], oz = axes64[3 * j + 2];
+    double old_sharp = sharpness64[j], old_weight = weight64[j];
+    double ax = ox, ay = oy, az = oz, k = old_sharp, w = 0.0;
+    int flag = 0;
+    if (m > DEAD_MASS * total) {
+        double rx = stats[4 * j + 1], ry = stats[4 * j + 2], rz = stats[4 * j + 3];
+        double length = sqrt(rx * rx + ry * ry + rz * rz);
+        if (length > 0.0) {
+            ax = rx / length;
+            ay = ry / length;
+            az = rz / length;
+        }
+        k = sharpness_from_mean_resultant(length / m);
+        w = m / kept;
+        double dx = ax - ox, dy = ay - oy, dz = az - oz;
+        if (0.5 * (dx * dx + dy * dy + dz * dz) >= 0.5 * EM_TOL * EM_TOL)
+            flag = 1;
+        if (fabs(log(k / old_sharp)) >= 10.0 * EM_TOL)
+            flag = 1;
+        if (fabs(w - old_weight) >= EM_TOL)
+            flag = 1;
+    } else if (old_weight > 0.0) {  /* died in this step */
+        flag = 1;
+    }
+    moved[j] = flag;
+    axes64[3 * j] = ax;
+    axes64[3 * j + 1] = ay;
+    axes64[3 * j + 2] = az;
+    sharpness64[j] = k;
+    weight64[j] = w;
+    axes[3 * j] = (float)ax;
+    axes[3 * j + 1] = (float)ay;
+    axes[3 * j + 2] = (float)az;
+    sharpness[j] = (float)k;
+    log_weight[j] = w > 0.0 ? (float)(log(w) + log(k) - log(6.283185307179586) - log(1.0 - exp(-2.0 * k)))
+                            : DEAD_LOG_WEIGHT;
+}
+
+/* One work-item: count the step and stop EM when no lobe moved (lobes.converged) or at max_steps. */
+__kernel void em_finish(__global const int *moved, const int n_lobes, const int max_steps, __global int *state)
 {
     if (get_global_id(0) != 0 || state[0] != 0)
         return;
-    double total = 0.0, kept = 0.0;
-    for (int j = 0; j < n_lobes; ++j)
-        total += stats[4 * j];
-    for (int j = 0; j < n_lobes; ++j)
-        if (stats[4 * j] > DEAD_MASS * total)
-            kept += stats[4 * j];
-    if (kept <= 0.0) {  /* no lobe holds area: m_step keeps the lobes, and EM stops */
-        state[0] = 1;
-        return;
-    }
-    int done = 1;
+    int any_moved = 0;
     for (int j = 0; j < n_lobes; ++j) {
-        double m = stats[4 * j];
-        double ox = axes64[3 * j], oy = axes64[3 * j + 1], oz = axes64[3 * j + 2];
-        double old_sharp = sharpness64[j], old_weight = weight64[j];
-        double ax = ox, ay = oy, az = oz, k = old_sharp, w = 0.0;
-        if (m > DEAD_MASS * total) {
-            double rx = stats[4 * j + 1], ry = stats[4 * j + 2], rz = stats[4 * j + 3];
-            double length = sqrt(rx * rx + ry * ry + rz * rz);
-            if (length > 0.0) {
-                ax = rx / length;
-                ay = ry / length;
-                az = rz / length;
-            }
-            k = sharpness_from_mean_resultant(length / m);
-            w = m / kept;
-            double dx = ax - ox, dy = ay - oy, dz = az - oz;
-            if (0.5 * (dx * dx + dy * dy + dz * dz) >= 0.5 * EM_TOL * EM_TOL)
-                done = 0;
-            if (fabs(log(k / old_sharp)) >= 10.0 * EM_TOL)
-                done = 0;
-            if (fabs(w - old_weight) >= EM_TOL)
-                done = 0;
-        } else if (old_weight > 0.0) {  /* died in this step */
-            done = 0;
+        if (moved[j] < 0) {  /* no lobe held area: the step did nothing, and EM stops */
+            state[0] = 1;
+            return;
         }
-        axes64[3 * j] = ax;
-        axes64[3 * j + 1] = ay;
-        axes64[3 * j + 2] = az;
-        sharpness64[j] = k;
-        weight64[j] = w;
-        axes[3 * j] = (float)ax;
-        axes[3 * j + 1] = (float)ay;
-        axes[3 * j + 2] = (float)az;
-        sharpness[j] = (float)k;
-        log_weight[j] = w > 0.0 ? (float)(log(w) + log(k) - log(6.283185307179586) - log(1.0 - exp(-2.0 * k)))
-                                : DEAD_LOG_WEIGHT;
+        if (moved[j] != 0)
+            any_moved = 1;
     }
     state[1] += 1;
-    if (done || state[1] >= max_steps)
+    if (!any_moved || state[1] >= max_steps)
         state[0] = 1;
 }

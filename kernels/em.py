@@ -2,11 +2,14 @@
 
 Twin of ``cl/em.cl``; the mathematics is ``warp_biscale.reference.ndf_statistics`` / ``ndf_em``. One
 thread per facet writes its J responsibilities (times ΔA); then one thread per (chunk of facets,
-lobe) sums [r ΔA, r ΔA n] in float64 and a third kernel adds the chunks, so no atomics are needed.
-float64 sums matter here: the sharpness comes from 1 − r̄, r̄ = ‖Σ r ΔA n‖ / Σ r ΔA, which is ~1e−5
-for a sharp lobe. `em_m_step` (one thread: J ≤ 16 lobes) is ``warp_biscale.lobes.m_step`` and
-``converged`` in float64 on the device, so the whole EM loop is queued without a host round trip
-per step (on an H100, 30 steps went from 21.7 ms with the host M-step to the figure in bench/).
+lobe) sums [r ΔA, r ΔA n] in float64 over 64 facets (on a GPU; one chunk a slice on the CPU) and
+`sum_chunks_stats` adds groups of chunks, twice, so no atomics are needed and no thread runs a long
+serial chain. float64 sums matter here: the sharpness comes from 1 − r̄, r̄ = ‖Σ r ΔA n‖ / Σ r ΔA,
+which is ~1e−5 for a sharp lobe. `em_m_step` (one thread per lobe) and `em_finish` (one thread) are
+``warp_biscale.lobes.m_step`` and ``converged`` in float64, so the whole EM loop is queued without a
+host round trip per step. Measured on an H100 (2^16 facets, J = 8), per step: the host M-step
+with its round trip ~700 µs; one M-step thread for all lobes and 256-facet chunks 200 µs (the
+M-step thread alone 60 µs, the chunk sum 40 µs); this layout: see bench/README.md.
 `state` = [done, steps]: once done is set, every kernel of the later steps returns at once.
 """
 
@@ -69,15 +72,19 @@ def ndf_sums_partial(
 
 
 @wp.kernel
-def sum_chunks_stats(partial: wp.array2d(dtype=wp.vec4d), state: wp.array(dtype=wp.int32), offset: int,
-                     out: wp.array(dtype=wp.vec4d)):
+def sum_chunks_stats(partial: wp.array2d(dtype=wp.vec4d), chunks_per_group: int, state: wp.array(dtype=wp.int32),
+                     offset: int, out: wp.array2d(dtype=wp.vec4d)):
+    """out[g, j] = Σ partial[c, j] over the chunks c of group g, in order."""
     if state[0] != 0:
         return
-    j = wp.tid() + offset
+    g, j_local = wp.tid()
+    j = j_local + offset
+    start = g * chunks_per_group
+    stop = wp.min(start + chunks_per_group, partial.shape[0])
     acc = wp.vec4d(wp.float64(0.0))
-    for c in range(partial.shape[0]):
+    for c in range(start, stop):
         acc += partial[c, j]
-    out[j] = acc
+    out[g, j] = acc
 
 
 DEAD_MASS = wp.constant(wp.float64(1.0e-9))  # lobes.DEAD_MASS
@@ -89,7 +96,8 @@ DEAD_LOG_WEIGHT = wp.constant(-1.0e30)  # a dead lobe's E-step constant: exp(−
 
 @wp.func
 def sharpness_from_mean_resultant(rbar: wp.float64) -> wp.float64:
-    """lobes._mean_resultant_to_sharpness: Newton on coth κ − 1/κ = r̄ from Banerjee's start."""
+    """lobes._mean_resultant_to_sharpness: 20 Newton steps on coth κ − 1/κ = r̄ from Banerjee's start
+    (stopping once a step leaves κ unchanged: the later ones would too)."""
     one = wp.float64(1.0)
     r = wp.clamp(rbar, wp.float64(1.0e-9), one)
     k = SHARPNESS_MAX
@@ -106,73 +114,94 @@ def sharpness_from_mean_resultant(rbar: wp.float64) -> wp.float64:
             df = one / (k * k) - csch2
             if df <= wp.float64(0.0):
                 df = one
-            k = wp.max(k - f / df, wp.float64(1.0e-9))
+            k_new = wp.max(k - f / df, wp.float64(1.0e-9))
+            if k_new == k:
+                break
+            k = k_new
     return wp.clamp(k, SHARPNESS_MIN, SHARPNESS_MAX)
 
 
 @wp.kernel
 def em_m_step(
-    stats: wp.array(dtype=wp.vec4d),
-    max_steps: int,
+    stats: wp.array2d(dtype=wp.vec4d),
     state: wp.array(dtype=wp.int32),
     axes64: wp.array(dtype=wp.vec3d),
     sharpness64: wp.array(dtype=wp.float64),
     weight64: wp.array(dtype=wp.float64),
+    offset: int,
     axes: wp.array(dtype=wp.vec3),
     sharpness: wp.array(dtype=wp.float32),
     log_weight: wp.array(dtype=wp.float32),
+    moved: wp.array(dtype=wp.int32),
 ):
-    """One thread: lobes.m_step and lobes.converged on the float64 lobes, then the float32 copies
-    the E-step reads (log_weight as LobeSet.log_weight)."""
+    """One thread per lobe: lobes.m_step on the float64 lobes from the E-step sums stats[0, :], the
+    float32 copies the E-step reads (log_weight as LobeSet.log_weight), and moved[j] = 1 where
+    lobes.converged fails for lobe j (it moved, or died in this step), −1 when no lobe holds area
+    (m_step then keeps the lobes and EM stops)."""
     if state[0] != 0:
         return
-    n_lobes = stats.shape[0]
+    j = wp.tid() + offset
+    n_lobes = stats.shape[1]
     total = wp.float64(0.0)
-    for j in range(n_lobes):
-        total += stats[j][0]
+    for i in range(n_lobes):
+        total += stats[0, i][0]
     kept = wp.float64(0.0)
-    for j in range(n_lobes):
-        if stats[j][0] > DEAD_MASS * total:
-            kept += stats[j][0]
-    if kept <= wp.float64(0.0):  # no lobe holds area: m_step keeps the lobes, and EM stops
-        state[0] = 1
+    for i in range(n_lobes):
+        if stats[0, i][0] > DEAD_MASS * total:
+            kept += stats[0, i][0]
+    if kept <= wp.float64(0.0):
+        moved[j] = -1
         return
-    done = int(1)
-    for j in range(n_lobes):
-        m = stats[j][0]
-        old_axis = axes64[j]
-        old_sharp = sharpness64[j]
-        old_weight = weight64[j]
-        ax = old_axis
-        k = old_sharp
-        w = wp.float64(0.0)
-        if m > DEAD_MASS * total:
-            res = wp.vec3d(stats[j][1], stats[j][2], stats[j][3])
-            length = wp.length(res)
-            if length > wp.float64(0.0):
-                ax = res / length
-            k = sharpness_from_mean_resultant(length / m)
-            w = m / kept
-            d = ax - old_axis
-            if wp.float64(0.5) * wp.dot(d, d) >= wp.float64(0.5) * TOL * TOL:
-                done = 0
-            if wp.abs(wp.log(k / old_sharp)) >= wp.float64(10.0) * TOL:
-                done = 0
-            if wp.abs(w - old_weight) >= TOL:
-                done = 0
-        elif old_weight > wp.float64(0.0):  # died in this step
-            done = 0
-        axes64[j] = ax
-        sharpness64[j] = k
-        weight64[j] = w
-        axes[j] = wp.vec3(float(ax[0]), float(ax[1]), float(ax[2]))
-        sharpness[j] = float(k)
-        if w > wp.float64(0.0):
-            two_pi = wp.float64(6.283185307179586)
-            norm = wp.log(k) - wp.log(two_pi) - wp.log(wp.float64(1.0) - wp.exp(wp.float64(-2.0) * k))
-            log_weight[j] = float(wp.log(w) + norm)
-        else:
-            log_weight[j] = DEAD_LOG_WEIGHT
+    m = stats[0, j][0]
+    old_axis = axes64[j]
+    old_sharp = sharpness64[j]
+    old_weight = weight64[j]
+    ax = old_axis
+    k = old_sharp
+    w = wp.float64(0.0)
+    flag = int(0)
+    if m > DEAD_MASS * total:
+        res = wp.vec3d(stats[0, j][1], stats[0, j][2], stats[0, j][3])
+        length = wp.length(res)
+        if length > wp.float64(0.0):
+            ax = res / length
+        k = sharpness_from_mean_resultant(length / m)
+        w = m / kept
+        d = ax - old_axis
+        if wp.float64(0.5) * wp.dot(d, d) >= wp.float64(0.5) * TOL * TOL:
+            flag = 1
+        if wp.abs(wp.log(k / old_sharp)) >= wp.float64(10.0) * TOL:
+            flag = 1
+        if wp.abs(w - old_weight) >= TOL:
+            flag = 1
+    elif old_weight > wp.float64(0.0):  # died in this step
+        flag = 1
+    moved[j] = flag
+    axes64[j] = ax
+    sharpness64[j] = k
+    weight64[j] = w
+    axes[j] = wp.vec3(float(ax[0]), float(ax[1]), float(ax[2]))
+    sharpness[j] = float(k)
+    if w > wp.float64(0.0):
+        two_pi = wp.float64(6.283185307179586)
+        norm = wp.log(k) - wp.log(two_pi) - wp.log(wp.float64(1.0) - wp.exp(wp.float64(-2.0) * k))
+        log_weight[j] = float(wp.log(w) + norm)
+    else:
+        log_weight[j] = DEAD_LOG_WEIGHT
+
+
+@wp.kernel
+def em_finish(moved: wp.array(dtype=wp.int32), max_steps: int, offset: int, state: wp.array(dtype=wp.int32)):
+    """One thread: count the step and stop EM when no lobe moved (lobes.converged) or at `max_steps`."""
+    if state[0] != 0:
+        return
+    any_moved = int(0)
+    for j in range(moved.shape[0]):
+        if moved[j] < 0:  # no lobe held area: the step did nothing, and EM stops
+            state[0] = 1
+            return
+        if moved[j] != 0:
+            any_moved = 1
     state[1] = state[1] + 1
-    if done != 0 or state[1] >= max_steps:
+    if any_moved == 0 or state[1] >= max_steps:
         state[0] = 1

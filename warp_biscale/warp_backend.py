@@ -286,9 +286,8 @@ class WarpBackend:
         return hist.numpy()
 
     def _em_launches(self, facets, n_lobes, axes, sharpness, log_weight, state):
-        """The E-step's three kernels as callables (recorded launches on a GPU: re-issuing one skips
-        Python's argument packing, ~20 µs a launch) → (steps, stats (J,) vec4d)."""
-        import functools
+        """The E-step's kernels as callables (recorded launches on a GPU: re-issuing one skips Python's
+        argument packing, ~20 µs a launch) → (steps, stats (1, J) vec4d)."""
 
         import warp as wp
 
@@ -300,20 +299,32 @@ class WarpBackend:
         resp = f.get(("resp", j))
         if resp is None:
             resp = f[("resp", j)] = wp.empty((n, j), dtype=wp.float32, device=dev)
-        chunks, per = chunking(-(-n // 256), j, self._threads)  # ≥ 256 facets a chunk: few chunks to add
-        per *= 256
+        # Short serial chains for a GPU: chunks of 64 facets, then two sums over ~√chunks chunks each.
+        chunks, per = chunking(-(-n // 64), j, self._threads)
+        per *= 64
+        group = int(np.ceil(np.sqrt(chunks)))
+        groups = -(-chunks // group)
         partial = wp.empty((chunks, j), dtype=wp.vec4d, device=dev)
-        stats = wp.empty(j, dtype=wp.vec4d, device=dev)
+        partial2 = wp.empty((groups, j), dtype=wp.vec4d, device=dev)
+        stats = wp.empty((1, j), dtype=wp.vec4d, device=dev)
         launches = [(ke.ndf_responsibilities, n, [f["normal"], f["area"], axes, sharpness, log_weight, state], [resp]),
                     (ke.ndf_sums_partial, (chunks, j), [f["normal"], resp, per, state], [partial]),
-                    (ke.sum_chunks_stats, j, [partial, state], [stats])]
-        if self._slices > 1:
-            steps = [functools.partial(self._launch, *launch) for launch in launches]
-        else:
-            steps = [wp.launch(kernel, dim=dim, inputs=[*inputs, 0], outputs=outputs, device=dev,
-                               record_cmd=True).launch
-                     for kernel, dim, inputs, outputs in launches]
-        return steps, stats
+                    (ke.sum_chunks_stats, (groups, j), [partial, group, state], [partial2]),
+                    (ke.sum_chunks_stats, (1, j), [partial2, groups, state], [stats])]
+        return [self._recorded(*launch, split=k < 2) for k, launch in enumerate(launches)], stats
+
+    def _recorded(self, kernel, dim, inputs, outputs, split=True):
+        """A callable that re-issues this launch (see _launch): recorded (re-issued without Python's
+        argument packing), or with `split` on the CPU sliced over the cores (a sliced launch costs
+        ~200 µs there, so tiny kernels are not split)."""
+        import functools
+
+        import warp as wp
+
+        if split and self._slices > 1:
+            return functools.partial(self._launch, kernel, dim, inputs, outputs)
+        return wp.launch(kernel, dim=dim, inputs=[*inputs, 0], outputs=outputs, device=self._device,
+                         record_cmd=True).launch
 
     def ndf_statistics(self, facets, axes, sharpness, log_weight):
         import warp as wp
@@ -324,7 +335,7 @@ class WarpBackend:
                                          self._array(np.asarray(log_weight, np.float32), wp.float32), state)
         for step in steps:
             step()
-        return stats.numpy().astype(np.float64)
+        return stats.numpy()[0].astype(np.float64)
 
     def ndf_em(self, facets, axes, sharpness, weight, iterations):
         import warp as wp
@@ -336,6 +347,7 @@ class WarpBackend:
         start = LobeSet(axes, sharpness, weight)
         j = len(start)
         state = wp.zeros(2, dtype=wp.int32, device=dev)
+        moved = wp.zeros(j, dtype=wp.int32, device=dev)
         axes32 = self._array(start.axes.astype(np.float32), wp.vec3)
         sharp32 = self._array(start.sharpness.astype(np.float32), wp.float32)
         logw32 = self._array(np.maximum(start.log_weight, -1e30).astype(np.float32), wp.float32)
@@ -343,13 +355,13 @@ class WarpBackend:
         sharp64 = self._array(start.sharpness, wp.float64)
         weight64 = self._array(start.weight, wp.float64)
         steps, stats = self._em_launches(facets, j, axes32, sharp32, logw32, state)
-        m_step = wp.launch(ke.em_m_step, dim=1, inputs=[stats, int(iterations), state, axes64, sharp64, weight64],
-                           outputs=[axes32, sharp32, logw32], device=dev, record_cmd=True)
+        steps.append(self._recorded(ke.em_m_step, j, [stats, state, axes64, sharp64, weight64],
+                                    [axes32, sharp32, logw32, moved], split=False))
+        steps.append(self._recorded(ke.em_finish, 1, [moved, int(iterations)], [state], split=False))
         # All steps are queued at once: after convergence the kernels return at their first line.
         for _ in range(int(iterations)):
             for step in steps:
                 step()
-            m_step.launch()
         return axes64.numpy(), sharp64.numpy(), weight64.numpy(), int(state.numpy()[1])
 
     def lobe_moments(self, facets, vis, weight, axes, sharpness, pair_i, pair_o):
