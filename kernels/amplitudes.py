@@ -7,7 +7,7 @@ Facet route: b_kj·a_v(ωo) = Σ_s P_si P_so w_s G_j(n_s) with P_sk = V_s(ω_k)(
 Gram products PᵀW_jP. It is symmetric in (i, o), so only the unordered pairs i ≤ o are summed: one
 thread per (chunk of facet words, unordered pair) walks the set bits of V(ωi) ∧ V(ωo) ∧ channel and
 keeps J + 1 accumulators (J lobes and the plain sum c) in registers; G_j(n_s) is tabulated once per
-facet (`lobe_values`) as a 16-vector, zero beyond J, so the hot loop adds whole vectors. Summation
+facet (`lobe_values`) as an 8- or 16-vector, zero beyond J, so the hot loop adds whole vectors. Summation
 as in the ground truth: float32 within a 32-facet word, float64 across words and chunks.
 
 Histogram route: the same sums over the L non-empty normal bins, each taken at its mean normal.
@@ -26,69 +26,86 @@ vec16 = wp.types.vector(length=MAX_LOBES, dtype=wp.float32)
 vec16d = wp.types.vector(length=MAX_LOBES, dtype=wp.float64)
 
 
-@wp.kernel
-def lobe_values(
-    normal: wp.array(dtype=wp.vec3),
-    axes: wp.array(dtype=wp.vec3),
-    sharpness: wp.array(dtype=wp.float32),
-    offset: int,
-    values: wp.array(dtype=vec16),
-):
-    s = wp.tid() + offset
-    n = normal[s]
-    v = vec16()  # lobes beyond J stay 0
-    for j in range(axes.shape[0]):
-        d = axes[j] - n
-        e = wp.exp(-sharpness[j] * 0.5 * wp.dot(d, d))  # 1 − ξ·n as ‖ξ − n‖²/2: exact near ξ = n
-        v[j] = wp.where(e < 1.0e-30, 0.0, e)  # no denormals: their products cost ~3x on a CPU
-    values[s] = v
+def _facet_kernels(lanes: int):
+    """`lobe_values` and `lobe_moments_partial` on `lanes`-vectors (8 for J ≤ 8, else 16; the OpenCL
+    twin reads float8 blocks likewise): the hot loop adds whole vectors, and at J ≤ 8 half the lanes
+    halve its loads and adds (pyramid, 2^14 facets, K = 12, J = 5, Warp CPU: see bench/README.md)."""
+    vec = wp.types.vector(length=lanes, dtype=wp.float32)
+    vecd = wp.types.vector(length=lanes, dtype=wp.float64)
+
+    @wp.kernel(module="unique")
+    def lobe_values(
+        normal: wp.array(dtype=wp.vec3),
+        axes: wp.array(dtype=wp.vec3),
+        sharpness: wp.array(dtype=wp.float32),
+        offset: int,
+        values: wp.array(dtype=vec),
+    ):
+        s = wp.tid() + offset
+        n = normal[s]
+        v = vec()  # lobes beyond J stay 0
+        for j in range(axes.shape[0]):
+            d = axes[j] - n
+            e = wp.exp(-sharpness[j] * 0.5 * wp.dot(d, d))  # 1 − ξ·n as ‖ξ − n‖²/2: exact near ξ = n
+            v[j] = wp.where(e < 1.0e-30, 0.0, e)  # no denormals: their products cost ~3x on a CPU
+        values[s] = v
+
+    @wp.kernel(module="unique")
+    def lobe_moments_partial(
+        directions: wp.array(dtype=wp.vec3),
+        pair_i: wp.array(dtype=wp.int32),
+        pair_o: wp.array(dtype=wp.int32),
+        bits: wp.array2d(dtype=wp.uint32),
+        channel_bits: wp.array(dtype=wp.uint32),
+        weight: wp.array(dtype=wp.float32),
+        normal: wp.array(dtype=wp.vec3),
+        values: wp.array(dtype=vec),
+        n_lobes: int,
+        words_per_chunk: int,
+        offset: int,
+        partial: wp.array3d(dtype=wp.float32),
+    ):
+        c, u_local = wp.tid()
+        u = u_local + offset
+        i = pair_i[u]
+        o = pair_o[u]
+        wi = directions[i]
+        wo = directions[o]
+        n_words = bits.shape[1]
+        acc = vecd()
+        acc_c = wp.float64(0.0)
+        w_start = c * words_per_chunk
+        w_end = wp.min(w_start + words_per_chunk, n_words)
+        for w in range(w_start, w_end):
+            m = bits[i, w] & bits[o, w] & channel_bits[w]
+            if m == wp.uint32(0):
+                continue
+            block = vec()
+            block_c = float(0.0)
+            while m != wp.uint32(0):
+                b = lowest_bit(m)
+                m = m & (m - wp.uint32(1))
+                s = w * 32 + b
+                n = normal[s]
+                p = wp.max(wp.dot(n, wi), 0.0) * wp.max(wp.dot(n, wo), 0.0) * weight[s]
+                block_c += p
+                block += p * values[s]  # all lanes at once: no per-lobe indexing in the hot loop
+            acc_c += wp.float64(block_c)
+            acc += vecd(block)
+        for j in range(n_lobes):
+            partial[c, u, j] = float(acc[j])
+        partial[c, u, n_lobes] = float(acc_c)
+
+    return vec, lobe_values, lobe_moments_partial
 
 
-@wp.kernel
-def lobe_moments_partial(
-    directions: wp.array(dtype=wp.vec3),
-    pair_i: wp.array(dtype=wp.int32),
-    pair_o: wp.array(dtype=wp.int32),
-    bits: wp.array2d(dtype=wp.uint32),
-    channel_bits: wp.array(dtype=wp.uint32),
-    weight: wp.array(dtype=wp.float32),
-    normal: wp.array(dtype=wp.vec3),
-    values: wp.array(dtype=vec16),
-    n_lobes: int,
-    words_per_chunk: int,
-    offset: int,
-    partial: wp.array3d(dtype=wp.float32),
-):
-    c, u_local = wp.tid()
-    u = u_local + offset
-    i = pair_i[u]
-    o = pair_o[u]
-    wi = directions[i]
-    wo = directions[o]
-    n_words = bits.shape[1]
-    acc = vec16d()
-    acc_c = wp.float64(0.0)
-    w_start = c * words_per_chunk
-    w_end = wp.min(w_start + words_per_chunk, n_words)
-    for w in range(w_start, w_end):
-        m = bits[i, w] & bits[o, w] & channel_bits[w]
-        if m == wp.uint32(0):
-            continue
-        block = vec16()
-        block_c = float(0.0)
-        while m != wp.uint32(0):
-            b = lowest_bit(m)
-            m = m & (m - wp.uint32(1))
-            s = w * 32 + b
-            n = normal[s]
-            p = wp.max(wp.dot(n, wi), 0.0) * wp.max(wp.dot(n, wo), 0.0) * weight[s]
-            block_c += p
-            block += p * values[s]  # all 16 lanes at once: no per-lobe indexing in the hot loop
-        acc_c += wp.float64(block_c)
-        acc += vec16d(block)
-    for j in range(n_lobes):
-        partial[c, u, j] = float(acc[j])
-    partial[c, u, n_lobes] = float(acc_c)
+FACET_KERNELS = {lanes: _facet_kernels(lanes) for lanes in (8, MAX_LOBES)}  # lanes → (vec, lobe_values, moments)
+lobe_values = FACET_KERNELS[MAX_LOBES][1]  # histogram route: bin values as 16-vectors
+
+
+def facet_kernels(n_lobes: int):
+    """(vec type, lobe_values, lobe_moments_partial) with the fewest lanes holding `n_lobes`."""
+    return FACET_KERNELS[8 if n_lobes <= 8 else MAX_LOBES]
 
 
 @wp.kernel

@@ -9,7 +9,6 @@ On CUDA a launch is one launch.
 from __future__ import annotations
 
 import os
-import sys
 import weakref
 from concurrent.futures import ThreadPoolExecutor
 
@@ -79,8 +78,9 @@ class WarpBackend:
         if parts <= 1:
             wp.launch(kernel, dim=dim, inputs=[*inputs, 0], outputs=outputs, device=self._device)
             return
-        # Compile/load before the threads race to do it.
-        wp.load_module(sys.modules[kernel.func.__module__], device=self._device)
+        # Compile/load before the threads race to do it (the kernel's own Warp module: kernels made
+        # by a factory live in a module of their own).
+        wp.load_module(kernel.module, device=self._device)
         bounds = np.linspace(0, n, parts + 1).astype(int)
         futures = [self._pool.submit(wp.launch, kernel, dim=(*dim[:-1], int(b - a)), inputs=[*inputs, int(a)],
                                      outputs=outputs, device=self._device)
@@ -373,15 +373,16 @@ class WarpBackend:
         v = self._vis(vis)
         dev = self._device
         n, j, n_pairs = len(facets), len(axes), len(pair_i)
-        values = wp.empty(n, dtype=ka.vec16, device=dev)
-        self._launch(ka.lobe_values, n,
+        vec, lobe_values, lobe_moments_partial = ka.facet_kernels(j)
+        values = wp.empty(n, dtype=vec, device=dev)
+        self._launch(lobe_values, n,
                      [f["normal"], self._array(np.asarray(axes, np.float32), wp.vec3),
                       self._array(np.asarray(sharpness, np.float32), wp.float32)], [values])
         weight = np.asarray(weight, np.float32)
         channel_bits = Visibility.pack((weight > 0)[None, :])[0]
         chunks, per = chunking(vis.bits.shape[1], n_pairs, self._threads)
         partial = wp.empty((chunks, n_pairs, j + 1), dtype=wp.float32, device=dev)
-        self._launch(ka.lobe_moments_partial, (chunks, n_pairs),
+        self._launch(lobe_moments_partial, (chunks, n_pairs),
                      [v["directions"], self._array(np.asarray(pair_i, np.int32), wp.int32),
                       self._array(np.asarray(pair_o, np.int32), wp.int32), v["bits"],
                       self._array(channel_bits, wp.uint32), self._array(weight, wp.float32), f["normal"], values, j,
