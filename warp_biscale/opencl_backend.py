@@ -34,7 +34,7 @@ import weakref
 
 import numpy as np
 
-from .backend import chunking
+from .backend import chunking, run_em_steps
 from .model import Facets, Visibility
 from .reference import facet_shift, ray_offset
 
@@ -464,10 +464,11 @@ class OpenCLBackend:
         launches += [self._prepared("em", "em_m_step", (j,), stats, np.int32(j), state, axes64, sharp64, weight64,
                                     axes32, sharp32, logw32, moved),
                      self._prepared("em", "em_finish", (1,), moved, np.int32(j), np.int32(iterations), state)]
-        # All steps are enqueued at once: after convergence the kernels return at their first line.
-        for _ in range(int(iterations)):
+        def enqueue_step():
             for launch in launches:
                 launch()
+
+        run_em_steps(iterations, enqueue_step, lambda: bool(self._read(state, 2, np.int32)[0]))
         return (self._read(axes64, (j, 3), np.float64), self._read(sharp64, j, np.float64),
                 self._read(weight64, j, np.float64), int(self._read(state, 2, np.int32)[1]))
 

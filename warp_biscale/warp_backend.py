@@ -14,7 +14,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from .backend import chunking
+from .backend import chunking, run_em_steps
 from .model import Facets, Visibility
 from .reference import facet_shift, ray_offset
 
@@ -358,10 +358,11 @@ class WarpBackend:
         steps.append(self._recorded(ke.em_m_step, j, [stats, state, axes64, sharp64, weight64],
                                     [axes32, sharp32, logw32, moved], split=False))
         steps.append(self._recorded(ke.em_finish, 1, [moved, int(iterations)], [state], split=False))
-        # All steps are queued at once: after convergence the kernels return at their first line.
-        for _ in range(int(iterations)):
+        def enqueue_step():
             for step in steps:
                 step()
+
+        run_em_steps(iterations, enqueue_step, lambda: bool(state.numpy()[0]))
         return axes64.numpy(), sharp64.numpy(), weight64.numpy(), int(state.numpy()[1])
 
     def lobe_moments(self, facets, vis, weight, axes, sharpness, pair_i, pair_o):
