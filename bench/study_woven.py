@@ -1,20 +1,17 @@
 """Why the woven tile's SG bake is inaccurate: float64 oracle study (one ingredient replaced at a time).
 
-Every part bakes nothing on the device beyond facets + visibility (PoCL)
-the rest is float64 numpy on
-the same 2^16 facets, compared with a ground truth of 2^18 facets at K = 12 (cached under --cache).
+Nothing runs on the device beyond facets + visibility (PoCL); the rest is float64 numpy on the same
+2^16 facets, compared with a ground truth of 2^18 facets at K = 12 (cached under --cache).
 
     PYTHONPATH=. python bench/study_woven.py --part floor solve weights lobes local --family woven
 
 Parts:
 - floor:   exact visibility-weighted NDF (the facets themselves) with the SG small-scale BRDF
-           (Σ_s γ̃_s M G(n_s
-           h, η_s)): the error no lobe set can remove.
+           (Σ_s γ̃_s M G(n_s; h, η_s)): the error no lobe set can remove.
 - solve:   the bake's lobes, amplitudes by (a) the bake's calibrated solve + energy rescale,
            (b) plain least squares, (c) clamped, (d) clamped + energy rescale.
 - weights: EM on the NDF weighted by area (the bake), area × any visibility, area × Σ_k P_sk,
-           area × Σ_i P_si Σ_o P_so / a_v(o)
-           J = 8, 16.
+           area × Σ_i P_si Σ_o P_so / a_v(o); J = 8, 16.
 - lobes:   J = 16, 32, 64, 128 isotropic lobes (numpy only: the kernels stop at 16).
 - local:   per-pair weighted least squares, weight W_h(n) = exp(η_w(n·h − 1)) around the pair's half
            vector (per-pair J×J Gram of SG triple products); clamp, with / without the per-lobe
@@ -100,15 +97,9 @@ def fit_lobes_w(S, J, weight, iters=30, r=128, init_r=16):
     mean /= np.linalg.norm(mean, axis=1, keepdims=True)
     keep = area > 0
     mean, area = mean[keep], area[keep]
-    lob = L.initial_lobes(mean, area, J, init_r)
-    for _ in range(iters):
-        st = ref.ndf_statistics(d["normal"], weight, lob.axes, lob.sharpness, lob.log_weight)
-        new = L.m_step(st, lob)
-        done = L.converged(new, lob)
-        lob = new
-        if done:
-            break
-    return lob, mean, area
+    start = L.initial_lobes(mean, area, J, init_r)
+    axes, sharp, lobe_weight, _ = ref.ndf_em(d["normal"], weight, start.axes, start.sharpness, start.weight, iters)
+    return L.LobeSet(axes, sharp, lobe_weight).alive(), mean, area
 
 def solve_variants(S, lob, mean, area, weight=None):
     d = S["d"]
