@@ -35,7 +35,7 @@ def main(backend, facets=1 << 16, min_ms=0.2):
         total = sum(t for _, _, t in timings) * stats.unit * 1e3
         print(f"== {name} ({os.path.basename(fn)}:{line0}) {total:.2f} ms")
         lines = open(fn).read().splitlines()
-        for lineno, hits, t in timings:
+        for lineno, _hits, t in timings:
             ms = t * stats.unit * 1e3
             if ms >= min_ms:
                 print(f"  {lineno:5d} {ms:8.2f} ms  {lines[lineno - 1].strip()[:100]}")

@@ -405,3 +405,41 @@ def test_histogram_too_large_is_refused(monkeypatch):
     with pytest.raises(ValueError, match="GiB"):
         wb.bake(random_heightfield(4), wb.Lambert(0.5), route="histogram", directions=4, facets=1024,
                 backend="warp:cpu")
+
+
+def test_moments_stay_on_device_for_the_solve(backend, heightfield):
+    """lobe_moments(..., to_host=False) hands solve_amplitudes a device array: same amplitudes bit for bit."""
+    fac, fd, grid, vis, vb = _case(backend, heightfield)
+    nd = len(grid)
+    lob = lobes_mod.initial_lobes(fd["normal"], fd["area"], 6)
+    iu, ou = np.triu_indices(nd)
+    w = fd["area"].astype(np.float32)
+    host = backend.lobe_moments(fac, vis, w, lob.axes, lob.sharpness, iu, ou)
+    device = backend.lobe_moments(fac, vis, w, lob.axes, lob.sharpness, iu, ou, to_host=False)
+    assert not isinstance(device, np.ndarray)
+    rows, integrals, _, _ = lobes_mod.amplitude_system(lob)
+    a_v = backend.visible_area(fac, vis)
+    pi, po = dirs.all_pairs(nd)
+    np.testing.assert_array_equal(backend.solve_amplitudes(device, a_v, rows, integrals, pi, po, nd),
+                                  backend.solve_amplitudes(host, a_v, rows, integrals, pi, po, nd))
+
+
+def test_upload_cache_reuses_by_content():
+    from warp_biscale.backend import UploadCache
+
+    uploads = []
+    cache = UploadCache(size=2)
+
+    def upload(host):
+        uploads.append(host.copy())
+        return len(uploads)
+
+    a = np.arange(10)
+    assert cache.get(a, np.int32, upload) == 1
+    assert cache.get(a.copy(), np.int32, upload) == 1  # same content, another object: no upload
+    assert cache.get(a, np.int64, upload) == 2  # another dtype is another device array
+    b = a.copy()
+    b[3] = -1
+    assert cache.get(b, np.int32, upload) == 3  # content changed
+    assert cache.get(a, np.int32, upload) == 4  # evicted (size 2: the least recently used went first)
+    assert uploads[0].dtype == np.int32 and len(uploads) == 4

@@ -12,14 +12,16 @@ present, else Warp CPU).
 
 from __future__ import annotations
 
+import collections
 import functools
+import hashlib
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from .model import Facets, Visibility
 
-__all__ = ["Backend", "get_backend", "backends", "chunking", "run_em_steps"]
+__all__ = ["Backend", "get_backend", "backends", "chunking", "run_em_steps", "UploadCache"]
 
 
 @runtime_checkable
@@ -43,6 +45,24 @@ class Backend(Protocol):
     def effective_brdf(self, facets: Facets, vis: Visibility, kinds: np.ndarray, params: np.ndarray,
                        pair_i: np.ndarray, pair_o: np.ndarray, a_v: np.ndarray) -> np.ndarray:
         """(P, 3) float32 f̄ for direction index pairs into vis.directions (reference.effective_brdf)."""
+
+    # --- SG bake (stages em, amplitudes: kernels/, cl/; warp_biscale.bake) ---
+    def ndf_statistics(self, facets: Facets, axes, sharpness, log_weight) -> np.ndarray:
+        """(J, 4) float64 one E-step's sums [Σ r ΔA, Σ r ΔA n] (reference.ndf_statistics)."""
+
+    def ndf_em(self, facets: Facets, axes, sharpness, weight, iterations: int):
+        """Spherical EM on the device from lobes (axes (J, 3), sharpness, weight): at most `iterations`
+        steps, stopping after the first step that lobes.converged → (axes, sharpness, weight, steps),
+        float64, dead lobes with weight 0 (reference.ndf_em)."""
+
+    def lobe_moments(self, facets: Facets, vis: Visibility, weight, axes, sharpness, pair_i, pair_o,
+                     to_host: bool = True):
+        """(P, J + 1) float32 facet sums of DESIGN §5 for the unordered pairs (reference.lobe_moments);
+        with to_host=False a device array for solve_amplitudes (no round trip through the host)."""
+
+    def solve_amplitudes(self, moments, a_v, rows, integrals, pair_i, pair_o, n_dirs: int) -> np.ndarray:
+        """(P, J) float32 μ ≥ 0 for the ordered pairs (reference.solve_amplitudes); `moments` a host
+        array or what lobe_moments(..., to_host=False) returned."""
 
     # --- SSDF visibility of the large-scale mesh (stage `ssdf`, warp_biscale.ssdf) ---
     def ssdf_distance(self, grid, visible: np.ndarray) -> np.ndarray:
@@ -107,6 +127,32 @@ class Backend(Protocol):
         """(height, width, 3) float32 Λ(p, η) = Σ_t G(ω_t; p, η) L_t Ω_t / Σ_t G Ω_t at the texel centres p of
         a height×width equirect map, from the equirect radiance (h, w, 3) (reference.prefilter_level);
         one thread per output texel over the input texels with G ≥ 1e−7 (lighting.NEGLIGIBLE)."""
+
+
+class UploadCache:
+    """Device copies of small host arrays that recur from call to call (direction pairs, grids), by
+    content: on the H100's host every upload costs ~0.3 ms (a synchronous copy from pageable memory
+    that also waits for the queued kernels), and a bake made a dozen of them. Holds `size` arrays,
+    most recent last; a hit compares the bytes, not only their hash."""
+
+    def __init__(self, size: int = 32):
+        self._size = size
+        self._entries = collections.OrderedDict()
+
+    def get(self, array, dtype, upload):
+        """The device copy of `array` as `dtype`, from `upload(contiguous host array)` on a miss."""
+        host = np.ascontiguousarray(array, dtype=dtype)
+        data = host.tobytes()
+        key = (host.dtype.str, host.shape, hashlib.blake2b(data, digest_size=16).digest())
+        hit = self._entries.get(key)
+        if hit is not None and hit[0] == data:
+            self._entries.move_to_end(key)
+            return hit[1]
+        device = upload(host)
+        self._entries[key] = (data, device)
+        while len(self._entries) > self._size:
+            self._entries.popitem(last=False)
+        return device
 
 
 def run_em_steps(iterations: int, enqueue_step, done) -> None:

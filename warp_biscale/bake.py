@@ -256,7 +256,8 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     out = []
     for c, (m, mult, w) in enumerate(channels):
         if route == "facets":
-            mom = timer("amplitudes", be.lobe_moments, fac, vis, w.astype(np.float32), lob.axes, lob.sharpness, iu, ou)
+            mom = timer("amplitudes", be.lobe_moments, fac, vis, w.astype(np.float32), lob.axes, lob.sharpness, iu, ou,
+                        to_host=False)  # stays on the device for the solve
         else:
             mom = timer("amplitudes", be.histogram_moments, hists[c], bv.normal, grid, lob.axes, lob.sharpness, iu, ou)
         mu = timer("amplitudes", be.solve_amplitudes, mom, a_v, rows, integrals, pi, po, nd)

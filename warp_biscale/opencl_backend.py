@@ -34,7 +34,7 @@ import weakref
 
 import numpy as np
 
-from .backend import chunking, run_em_steps
+from .backend import UploadCache, chunking, run_em_steps
 from .model import Facets, Visibility
 from .reference import facet_shift, ray_offset
 
@@ -162,6 +162,7 @@ class OpenCLBackend:
         # facet or pair count. Small on a CPU (a group runs on one core), a few warps on a GPU.
         self._group = max(1, min(8 if is_cpu else 64, device.max_work_group_size))
         self._tiles = weakref.WeakKeyDictionary()
+        self._uploads = UploadCache()
 
     def __repr__(self):
         return f"OpenCLBackend({self.name!r})"
@@ -483,7 +484,11 @@ class OpenCLBackend:
                          np.int32(j), np.int32(stride), np.int32(n), values)
         return values
 
-    def lobe_moments(self, facets, vis, weight, axes, sharpness, pair_i, pair_o):
+    def _recurring(self, array, dtype):
+        """A read-only device copy of an input that recurs between calls (pair lists): see UploadCache."""
+        return self._uploads.get(array, dtype, lambda host: self._buffer(host, dtype))
+
+    def lobe_moments(self, facets, vis, weight, axes, sharpness, pair_i, pair_o, to_host=True):
         f = self._facets(facets)
         v = self._vis(vis)
         n, j, n_pairs = len(facets), len(axes), len(pair_i)
@@ -497,15 +502,16 @@ class OpenCLBackend:
         chunks, per = chunking(n_words, n_pairs, self._threads)
         partial = self._empty(chunks * n_pairs * (j + 1), np.float32)
         self._launch("amplitudes", "lobe_moments_partial", (n_pairs, chunks),
-                     v["directions"], self._buffer(pair_i, np.int32), self._buffer(pair_o, np.int32), v["bits"],
-                     np.int32(n_words), self._buffer(channel_bits, np.uint32), self._buffer(weight, np.float32),
-                     f["normal"], values, np.int32(j), np.int32(per), np.int32(n_pairs), partial)
-        if chunks == 1:
-            return self._read(partial, (n_pairs, j + 1), np.float32)
-        out = self._empty(n_pairs * (j + 1), np.float32)
-        self._launch("amplitudes", "sum_chunks_moments", (n_pairs,),
-                     partial, np.int32(chunks), np.int32(n_pairs), np.int32(j + 1), out)
-        return self._read(out, (n_pairs, j + 1), np.float32)
+                     v["directions"], self._recurring(pair_i, np.int32), self._recurring(pair_o, np.int32),
+                     v["bits"], np.int32(n_words), self._buffer(channel_bits, np.uint32),
+                     self._buffer(weight, np.float32), f["normal"], values, np.int32(j), np.int32(per),
+                     np.int32(n_pairs), partial)
+        out = partial
+        if chunks > 1:
+            out = self._empty(n_pairs * (j + 1), np.float32)
+            self._launch("amplitudes", "sum_chunks_moments", (n_pairs,),
+                         partial, np.int32(chunks), np.int32(n_pairs), np.int32(j + 1), out)
+        return self._read(out, (n_pairs, j + 1), np.float32) if to_host else out
 
     def histogram_moments(self, hist, bin_normal, directions, axes, sharpness, pair_i, pair_o):
         bin_normal = np.asarray(bin_normal, np.float32)
@@ -529,8 +535,9 @@ class OpenCLBackend:
             return np.zeros((0, j), np.float32)
         mu = self._empty(n_pairs * j, np.float32)
         self._launch("amplitudes", "solve_amplitudes", (n_pairs,),
-                     self._buffer(pair_i, np.int32), self._buffer(pair_o, np.int32), np.int32(n_dirs),
-                     self._buffer(a_v, np.float32), self._buffer(moments, np.float32),
+                     self._recurring(pair_i, np.int32), self._recurring(pair_o, np.int32), np.int32(n_dirs),
+                     self._buffer(a_v, np.float32),
+                     moments if isinstance(moments, self._cl.Buffer) else self._buffer(moments, np.float32),
                      self._buffer(rows, np.float64), self._buffer(integrals, np.float64), np.int32(j),
                      np.int32(n_pairs), mu)
         return self._read(mu, (n_pairs, j), np.float32)

@@ -14,7 +14,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from .backend import chunking, run_em_steps
+from .backend import UploadCache, chunking, run_em_steps
 from .model import Facets, Visibility
 from .reference import facet_shift, ray_offset
 
@@ -55,6 +55,7 @@ class WarpBackend:
         # Threads worth launching per reduction: one per slice on the CPU, enough to fill a GPU.
         self._threads = 1 if self._device.is_cpu else 1 << 18
         self._tiles = weakref.WeakKeyDictionary()
+        self._uploads = UploadCache()
         from . import kernels  # noqa: F401  (import here so a broken Warp fails at backend creation)
 
     def __repr__(self):
@@ -258,6 +259,12 @@ class WarpBackend:
 
         return wp.array(np.ascontiguousarray(data), dtype=dtype, device=self._device)
 
+    def _recurring(self, data, np_dtype, dtype):
+        """A read-only device copy of an input that recurs between calls (pair lists): see UploadCache."""
+        import warp as wp
+
+        return self._uploads.get(data, np_dtype, lambda host: wp.array(host, dtype=dtype, device=self._device))
+
     def normal_bins(self, facets, resolution):
         import warp as wp
 
@@ -365,7 +372,7 @@ class WarpBackend:
         run_em_steps(iterations, enqueue_step, lambda: bool(state.numpy()[0]))
         return axes64.numpy(), sharp64.numpy(), weight64.numpy(), int(state.numpy()[1])
 
-    def lobe_moments(self, facets, vis, weight, axes, sharpness, pair_i, pair_o):
+    def lobe_moments(self, facets, vis, weight, axes, sharpness, pair_i, pair_o, to_host=True):
         import warp as wp
 
         from .kernels import amplitudes as ka
@@ -384,16 +391,17 @@ class WarpBackend:
         chunks, per = chunking(vis.bits.shape[1], n_pairs, self._threads)
         partial = wp.empty((chunks, n_pairs, j + 1), dtype=wp.float32, device=dev)
         self._launch(lobe_moments_partial, (chunks, n_pairs),
-                     [v["directions"], self._array(np.asarray(pair_i, np.int32), wp.int32),
-                      self._array(np.asarray(pair_o, np.int32), wp.int32), v["bits"],
+                     [v["directions"], self._recurring(pair_i, np.int32, wp.int32),
+                      self._recurring(pair_o, np.int32, wp.int32), v["bits"],
                       self._array(channel_bits, wp.uint32), self._array(weight, wp.float32), f["normal"], values, j,
                       per],
                      [partial])
         if chunks == 1:
-            return partial.numpy()[0]
-        out = wp.empty((n_pairs, j + 1), dtype=wp.float32, device=dev)
-        self._launch(ka.sum_chunks_moments, n_pairs, [partial], [out])
-        return out.numpy()
+            out = partial.reshape((n_pairs, j + 1))
+        else:
+            out = wp.empty((n_pairs, j + 1), dtype=wp.float32, device=dev)
+            self._launch(ka.sum_chunks_moments, n_pairs, [partial], [out])
+        return self._trace_host(out) if to_host else out
 
     def histogram_moments(self, hist, bin_normal, directions, axes, sharpness, pair_i, pair_o):
         import warp as wp
@@ -423,11 +431,11 @@ class WarpBackend:
 
         j = len(integrals)
         mu = wp.empty((len(pair_i), j), dtype=wp.float32, device=self._device)
+        if not isinstance(moments, wp.array):  # a host array, not lobe_moments(..., to_host=False)
+            moments = self._array(np.asarray(moments, np.float32), wp.float32)
         self._launch(ka.solve_amplitudes, len(pair_i),
-                     [self._array(np.asarray(pair_i, np.int32), wp.int32),
-                      self._array(np.asarray(pair_o, np.int32), wp.int32), int(n_dirs),
-                      self._array(np.asarray(a_v, np.float32), wp.float32),
-                      self._array(np.asarray(moments, np.float32), wp.float32),
+                     [self._recurring(pair_i, np.int32, wp.int32), self._recurring(pair_o, np.int32, wp.int32),
+                      int(n_dirs), self._array(np.asarray(a_v, np.float32), wp.float32), moments,
                       self._array(np.asarray(rows, np.float64), wp.float64),
                       self._array(np.asarray(integrals, np.float64), wp.float64)], [mu])
         return mu.numpy()
