@@ -180,7 +180,7 @@ class WarpBackend:
         # The kernel's outputs are already on the device: keep them for the next stages.
         facets.device_cache[self.name] = {
             "position": pos, "position_tile": tile, "normal": nrm, "face": face,
-            "area": wp.array(area, dtype=wp.float32, device=dev),
+            "area": self._recurring(area, np.float32, wp.float32),  # read-only: shared by bakes of this count
             "material": wp.array(facets.material, dtype=wp.int32, device=dev),
             "weight": wp.array(facets.color * area[:, None], dtype=wp.vec3, device=dev),
         }
@@ -200,7 +200,7 @@ class WarpBackend:
         words = (n + 31) // 32
         visible = wp.empty((len(directions), n), dtype=wp.uint8, device=dev)
         bits = wp.empty((len(directions), words), dtype=wp.uint32, device=dev)
-        dirs = wp.array(directions.astype(np.float32), dtype=wp.vec3, device=dev)
+        dirs = self._recurring(directions, np.float32, wp.vec3)
         z_lo, z_hi = tile.z_range
         self._launch(kv.visibility_rays, (len(directions), n),
                      [t["mesh"].id, t["points"], t["faces"], t["face_normals"], int(bool(brute_force)),
