@@ -111,6 +111,31 @@ __kernel void sum_chunks_stats(__global const double *partial, const int chunks,
     o[3] = a3;
 }
 
+/* EM weight of a facet: ΔA_s · mean_k V_s(ω_k)(n_s·ω_k)⁺, its projected area over the direction grid
+ * (reference.visible_weights): a facet no grid direction sees weighs nothing. Summed in Warp's order. */
+__kernel void visible_weights(
+    __global const float *directions,  /* (D, 3) */
+    __global const uint *bits,         /* (D, words) */
+    const int n_dirs,
+    const int n_words,
+    __global const float *normal,      /* (Ns, 3) */
+    __global const float *area,        /* (Ns,) */
+    const int n_facets,
+    __global float *weight)            /* (Ns,) */
+{
+    int s = get_global_id(0);
+    if (s >= n_facets)
+        return;
+    float3 n = load3(normal, s);
+    int word = s / 32;
+    uint bit = (uint)(s % 32);
+    float acc = 0.0f;
+    for (int k = 0; k < n_dirs; ++k)
+        if ((bits[(size_t)k * n_words + word] >> bit) & 1u)
+            acc += maxf(dot3(n, load3(directions, k)), 0.0f);
+    weight[s] = area[s] * acc / (float)n_dirs;
+}
+
 #define DEAD_MASS 1.0e-9         /* lobes.DEAD_MASS */
 #define EM_TOL 1.0e-4            /* lobes.CONVERGENCE_TOL */
 #define SHARP_MIN 1.0e-3         /* sg.SHARPNESS_MIN */

@@ -87,6 +87,28 @@ def sum_chunks_stats(partial: wp.array2d(dtype=wp.vec4d), chunks_per_group: int,
     out[g, j] = acc
 
 
+@wp.kernel
+def visible_weights(
+    directions: wp.array(dtype=wp.vec3),
+    bits: wp.array2d(dtype=wp.uint32),
+    normal: wp.array(dtype=wp.vec3),
+    area: wp.array(dtype=wp.float32),
+    offset: int,
+    weight: wp.array(dtype=wp.float32),
+):
+    """EM weight of a facet: ΔA_s · mean_k V_s(ω_k)(n_s·ω_k)⁺, its projected area over the direction
+    grid (reference.visible_weights): a facet no grid direction sees weighs nothing."""
+    s = wp.tid() + offset
+    n = normal[s]
+    word = s / 32
+    bit = wp.uint32(s % 32)
+    acc = float(0.0)
+    for k in range(directions.shape[0]):
+        if ((bits[k, word] >> bit) & wp.uint32(1)) != wp.uint32(0):
+            acc += wp.max(wp.dot(n, directions[k]), 0.0)
+    weight[s] = area[s] * acc / float(directions.shape[0])
+
+
 DEAD_MASS = wp.constant(wp.float64(1.0e-9))  # lobes.DEAD_MASS
 TOL = wp.constant(wp.float64(1.0e-4))  # lobes.CONVERGENCE_TOL
 SHARPNESS_MIN = wp.constant(wp.float64(1.0e-3))  # sg.SHARPNESS_MIN

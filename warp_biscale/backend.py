@@ -50,10 +50,14 @@ class Backend(Protocol):
     def ndf_statistics(self, facets: Facets, axes, sharpness, log_weight) -> np.ndarray:
         """(J, 4) float64 one E-step's sums [Σ r ΔA, Σ r ΔA n] (reference.ndf_statistics)."""
 
-    def ndf_em(self, facets: Facets, axes, sharpness, weight, iterations: int):
+    def visible_weights(self, facets: Facets, vis: Visibility) -> np.ndarray:
+        """(Ns,) float32 ΔA_s · mean_k V_s(ω_k)(n_s·ω_k)⁺ over vis.directions (reference.visible_weights)."""
+
+    def ndf_em(self, facets: Facets, axes, sharpness, weight, iterations: int, facet_weight=None):
         """Spherical EM on the device from lobes (axes (J, 3), sharpness, weight): at most `iterations`
         steps, stopping after the first step that lobes.converged → (axes, sharpness, weight, steps),
-        float64, dead lobes with weight 0 (reference.ndf_em)."""
+        float64, dead lobes with weight 0 (reference.ndf_em). Facets weigh their area, or
+        `facet_weight` (Ns,)."""
 
     def lobe_moments(self, facets: Facets, vis: Visibility, weight, axes, sharpness, pair_i, pair_o,
                      to_host: bool = True):

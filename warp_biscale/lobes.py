@@ -154,11 +154,12 @@ def converged(a: LobeSet, b: LobeSet, tol: float = CONVERGENCE_TOL) -> bool:
                 and np.all(np.abs(a.weight[live] - b.weight[live]) < tol))
 
 
-def fit(backend, facets, start: LobeSet, iterations: int) -> LobeSet:
+def fit(backend, facets, start: LobeSet, iterations: int, facet_weight=None) -> LobeSet:
     """Spherical EM from `start` on the device: at most `iterations` steps, stopping after the first
-    step that `converged`; dead lobes dropped. `iterations` of the result counts the steps taken."""
+    step that `converged`; dead lobes dropped. Each facet weighs its area, or `facet_weight` (Ns,).
+    `iterations` of the result counts the steps taken."""
     axes, sharpness, weight, steps = backend.ndf_em(facets, start.axes, start.sharpness, start.weight,
-                                                    int(iterations))
+                                                    int(iterations), facet_weight)
     return LobeSet(axes, sharpness, weight, start.iterations + int(steps)).alive()
 
 

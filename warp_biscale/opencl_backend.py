@@ -407,8 +407,19 @@ class OpenCLBackend:
                          np.int32(n_bins), np.int32(n_pairs), hist)
         return self._read(hist, (n_pairs, max(n_bins, 0)), np.float32)
 
-    def _em_launches(self, facets, n_lobes, axes, sharpness, log_weight, state):
-        """One E-step's four kernels as prepared launches → (launches, the (J, 4) float64 statistics buffer)."""
+    def visible_weights(self, facets, vis):
+        f = self._facets(facets)
+        v = self._vis(vis)
+        n = len(facets)
+        n_dirs, n_words = vis.bits.shape
+        weight = self._empty(n, np.float32)
+        self._launch("em", "visible_weights", (n,), v["directions"], v["bits"], np.int32(n_dirs), np.int32(n_words),
+                     f["normal"], f["area"], np.int32(n), weight)
+        return self._read(weight, n, np.float32)
+
+    def _em_launches(self, facets, n_lobes, axes, sharpness, log_weight, state, facet_weight=None):
+        """One E-step's four kernels as prepared launches → (launches, the (J, 4) float64 statistics buffer).
+        Facets weigh their area, or `facet_weight` (a device buffer)."""
         f = self._facets(facets)
         n, j = len(facets), n_lobes
         resp = f.get(("resp", j))
@@ -422,7 +433,8 @@ class OpenCLBackend:
         partial, partial2 = self._empty(chunks * j * 4, np.float64), self._empty(groups * j * 4, np.float64)
         out = self._empty(j * 4, np.float64)
         launches = [
-            self._prepared("em", "ndf_responsibilities", (n,), f["normal"], f["area"], axes, sharpness, log_weight,
+            self._prepared("em", "ndf_responsibilities", (n,), f["normal"],
+                           f["area"] if facet_weight is None else facet_weight, axes, sharpness, log_weight,
                            np.int32(j), np.int32(n), state, resp),
             self._prepared("em", "ndf_sums_partial", (j, chunks), f["normal"], resp, np.int32(j), np.int32(n),
                            np.int32(per), state, partial),
@@ -443,7 +455,7 @@ class OpenCLBackend:
             launch()
         return self._read(out, (j, 4), np.float64)
 
-    def ndf_em(self, facets, axes, sharpness, weight, iterations):
+    def ndf_em(self, facets, axes, sharpness, weight, iterations, facet_weight=None):
         from .lobes import LobeSet
 
         start = LobeSet(axes, sharpness, weight)
@@ -461,7 +473,8 @@ class OpenCLBackend:
         logw32 = buffer(np.maximum(start.log_weight, -1e30), np.float32)
         axes64, sharp64, weight64 = (buffer(start.axes, np.float64), buffer(start.sharpness, np.float64),
                                      buffer(start.weight, np.float64))
-        launches, stats = self._em_launches(facets, j, axes32, sharp32, logw32, state)
+        fw = None if facet_weight is None else self._buffer(facet_weight, np.float32)
+        launches, stats = self._em_launches(facets, j, axes32, sharp32, logw32, state, fw)
         launches += [self._prepared("em", "em_m_step", (j,), stats, np.int32(j), state, axes64, sharp64, weight64,
                                     axes32, sharp32, logw32, moved),
                      self._prepared("em", "em_finish", (1,), moved, np.int32(j), np.int32(iterations), state)]

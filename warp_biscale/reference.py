@@ -25,6 +25,7 @@ __all__ = [
     "bvndf_histogram",
     "ndf_statistics",
     "ndf_em",
+    "visible_weights",
     "lobe_values",
     "lobe_moments",
     "histogram_moments",
@@ -386,6 +387,15 @@ def ndf_statistics(normal: np.ndarray, area: np.ndarray, axes, sharpness, log_we
     r /= r.sum(axis=1, keepdims=True)
     r *= np.asarray(area, np.float64)[:, None]
     return np.concatenate([r.sum(axis=0)[:, None], r.T @ normal], axis=1)
+
+
+def visible_weights(facets: dict, vis: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """(Ns,) the EM weight of each facet: ΔA_s · mean_k V_s(ω_k)(n_s·ω_k)⁺, its projected area averaged
+    over the direction grid. The bake fits its lobes to the NDF weighted so (what some grid
+    direction sees of it) rather than to the bare NDF: lobes spent on normals that no direction
+    sees (the closed undersides of woven threads: 45 % of the woven tile's area at K = 12) are wasted."""
+    cos = np.maximum(np.asarray(directions, np.float64) @ facets["normal"].T, 0.0)  # (D, Ns)
+    return facets["area"] * (vis * cos).mean(axis=0)
 
 
 def ndf_em(normal: np.ndarray, area: np.ndarray, axes, sharpness, weight, iterations: int):

@@ -292,10 +292,21 @@ class WarpBackend:
                      [hist])
         return hist.numpy()
 
-    def _em_launches(self, facets, n_lobes, axes, sharpness, log_weight, state):
-        """The E-step's kernels as callables (recorded launches on a GPU: re-issuing one skips Python's
-        argument packing, ~20 µs a launch) → (steps, stats (1, J) vec4d)."""
+    def visible_weights(self, facets, vis):
+        import warp as wp
 
+        from .kernels import em as ke
+
+        f = self._facets(facets)
+        v = self._vis(vis)
+        weight = wp.empty(len(facets), dtype=wp.float32, device=self._device)
+        self._launch(ke.visible_weights, len(facets), [v["directions"], v["bits"], f["normal"], f["area"]], [weight])
+        return self._trace_host(weight)
+
+    def _em_launches(self, facets, n_lobes, axes, sharpness, log_weight, state, facet_weight=None):
+        """The E-step's kernels as callables (recorded launches on a GPU: re-issuing one skips Python's
+        argument packing, ~20 µs a launch) → (steps, stats (1, J) vec4d). Facets weigh their area, or
+        `facet_weight` (a device array)."""
         import warp as wp
 
         from .kernels import em as ke
@@ -314,7 +325,8 @@ class WarpBackend:
         partial = wp.empty((chunks, j), dtype=wp.vec4d, device=dev)
         partial2 = wp.empty((groups, j), dtype=wp.vec4d, device=dev)
         stats = wp.empty((1, j), dtype=wp.vec4d, device=dev)
-        launches = [(ke.ndf_responsibilities, n, [f["normal"], f["area"], axes, sharpness, log_weight, state], [resp]),
+        mass = f["area"] if facet_weight is None else facet_weight
+        launches = [(ke.ndf_responsibilities, n, [f["normal"], mass, axes, sharpness, log_weight, state], [resp]),
                     (ke.ndf_sums_partial, (chunks, j), [f["normal"], resp, per, state], [partial]),
                     (ke.sum_chunks_stats, (groups, j), [partial, group, state], [partial2]),
                     (ke.sum_chunks_stats, (1, j), [partial2, groups, state], [stats])]
@@ -344,7 +356,7 @@ class WarpBackend:
             step()
         return stats.numpy()[0].astype(np.float64)
 
-    def ndf_em(self, facets, axes, sharpness, weight, iterations):
+    def ndf_em(self, facets, axes, sharpness, weight, iterations, facet_weight=None):
         import warp as wp
 
         from .kernels import em as ke
@@ -361,7 +373,8 @@ class WarpBackend:
         axes64 = self._array(start.axes, wp.vec3d)
         sharp64 = self._array(start.sharpness, wp.float64)
         weight64 = self._array(start.weight, wp.float64)
-        steps, stats = self._em_launches(facets, j, axes32, sharp32, logw32, state)
+        fw = None if facet_weight is None else self._array(np.asarray(facet_weight, np.float32), wp.float32)
+        steps, stats = self._em_launches(facets, j, axes32, sharp32, logw32, state, fw)
         steps.append(self._recorded(ke.em_m_step, j, [stats, state, axes64, sharp64, weight64],
                                     [axes32, sharp32, logw32, moved], split=False))
         steps.append(self._recorded(ke.em_finish, 1, [moved, int(iterations)], [state], split=False))
