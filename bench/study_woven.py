@@ -214,6 +214,7 @@ def main():
         for j in (8, 16):
             mat = wb.bake(tile, [BRDFS["blinnphong512"]] * tile.n_materials, lobes=j, directions=a.directions,
                           facets=a.facets, backend="opencl")
+            # Calibrated on the bare-area bins: the bake before its EM weighed facets by what the grid sees.
             for name, mu in solve_variants(S, mat.lobes, mat.bvndf.normal, mat.bvndf.area).items():
                 print(f"solve J={j} {name:22s} {scores(S, mat.lobes, mu, gts)}", flush=True)
     if "weights" in a.part:

@@ -2,7 +2,7 @@
 
 Twin of ``cl/em.cl``; the mathematics is ``warp_biscale.reference.ndf_statistics`` / ``ndf_em``. One
 thread per facet writes its J responsibilities (times ΔA); then one thread per (chunk of facets,
-lobe) sums [r ΔA, r ΔA n] in float64 over 64 facets (on a GPU; one chunk a slice on the CPU) and
+lobe) sums [r ΔA, r ΔA n] in float64 over 64 facets (on a GPU; on the CPU one chunk, sliced over lobes) and
 `sum_chunks_stats` adds groups of chunks, twice, so no atomics are needed and no thread runs a long
 serial chain. float64 sums matter here: the sharpness comes from 1 − r̄, r̄ = ‖Σ r ΔA n‖ / Σ r ΔA,
 which is ~1e−5 for a sharp lobe. `em_m_step` (one thread per lobe) and `em_finish` (one thread) are

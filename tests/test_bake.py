@@ -443,6 +443,7 @@ def test_upload_cache_reuses_by_content():
     assert cache.get(b, np.int32, upload) == 3  # content changed
     assert cache.get(a, np.int32, upload) == 4  # evicted (size 2: the least recently used went first)
     assert uploads[0].dtype == np.int32 and len(uploads) == 4
+    assert cache.get(a, np.int32, upload, tag="vec3") == 5  # same bytes, another device view
 
 
 def test_visible_weights_match_reference(backend):
@@ -489,3 +490,45 @@ def test_bake_fits_lobes_to_what_the_grid_sees():
     fac = be.sample_facets(tile, 1 << 13, 0)
     bare = lobes_mod.fit(be, fac, lobes_mod.initial_lobes(fac.normal, fac.area, 16), 30)
     assert bare.weight[bare.axes[:, 2] < 0].sum() > 0.3
+
+
+def test_em_and_moments_in_the_gpu_layout(backend, heightfield, monkeypatch):
+    """On a CPU every reduction is one chunk; a GPU sums 64-facet chunks in two levels and hands the solve
+    summed chunk moments on the device. Force that layout here (the thread count a GPU asks for) and hold
+    it to the float64 reference: the same tolerances as the CPU layout's tests."""
+    monkeypatch.setattr(backend, "_threads", 1 << 18)
+    fac = backend.sample_facets(heightfield, 20000, 0)
+    fd = fac.as_dict()
+    for j in (1, 4, 16):
+        start = lobes_mod.initial_lobes(fd["normal"], fd["area"], j)
+        got = backend.ndf_em(fac, start.axes, start.sharpness, start.weight, 30)
+        want = ref.ndf_em(fd["normal"], fd["area"], start.axes, start.sharpness, start.weight, got[3])
+        assert abs(got[3] - want[3]) <= 1
+        np.testing.assert_allclose(got[0], want[0], atol=1e-4)
+        np.testing.assert_allclose(got[1], want[1], rtol=1e-3)
+    grid = dirs.grid(4)
+    vis = backend.visibility(heightfield, fac, grid)
+    lob = lobes_mod.initial_lobes(fd["normal"], fd["area"], 9)
+    iu, ou = np.triu_indices(len(grid))
+    w = fd["area"].astype(np.float32)
+    device = backend.lobe_moments(fac, vis, w, lob.axes, lob.sharpness, iu, ou, to_host=False)
+    host = backend.lobe_moments(fac, vis, w, lob.axes, lob.sharpness, iu, ou)
+    _close(host, ref.lobe_moments(fd, vis.as_bool(), grid, fd["area"], lob.axes, lob.sharpness, iu, ou))
+    rows, integrals, _, _ = lobes_mod.amplitude_system(lob)
+    a_v = backend.visible_area(fac, vis)
+    pi, po = dirs.all_pairs(len(grid))
+    np.testing.assert_array_equal(backend.solve_amplitudes(device, a_v, rows, integrals, pi, po, len(grid)),
+                                  backend.solve_amplitudes(host, a_v, rows, integrals, pi, po, len(grid)))
+
+
+def test_em_stops_at_the_step_cap(backend, heightfield):
+    """A height-field EM that has not converged after 3 steps stops at exactly 3 (the host looks at the
+    stop flag after step 2, then the cap ends it), as the reference loop does."""
+    fac = backend.sample_facets(heightfield, 2000, 0)
+    fd = fac.as_dict()
+    start = lobes_mod.initial_lobes(fd["normal"], fd["area"], 4)
+    want = ref.ndf_em(fd["normal"], fd["area"], start.axes, start.sharpness, start.weight, 3)
+    assert want[3] == 3  # not converged earlier: the cap is what stops it
+    got = backend.ndf_em(fac, start.axes, start.sharpness, start.weight, 3)
+    assert got[3] == 3
+    np.testing.assert_allclose(got[0], want[0], atol=1e-4)

@@ -143,11 +143,12 @@ class UploadCache:
         self._size = size
         self._entries = collections.OrderedDict()
 
-    def get(self, array, dtype, upload):
-        """The device copy of `array` as `dtype`, from `upload(contiguous host array)` on a miss."""
+    def get(self, array, dtype, upload, tag=None):
+        """The device copy of `array` as `dtype`, from `upload(contiguous host array)` on a miss; `tag`
+        tells apart device copies of one host array (e.g. Warp's wp.vec3 and wp.float32 views)."""
         host = np.ascontiguousarray(array, dtype=dtype)
         data = host.tobytes()
-        key = (host.dtype.str, host.shape, hashlib.blake2b(data, digest_size=16).digest())
+        key = (host.dtype.str, host.shape, tag, hashlib.blake2b(data, digest_size=16).digest())
         hit = self._entries.get(key)
         if hit is not None and hit[0] == data:
             self._entries.move_to_end(key)

@@ -156,7 +156,8 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
     materials : Brdf or list of Brdf, indexed by the tile's material ids.
     method : "sg" (Eq. 15, the SG closure, for rendering) or "sg-exact" (Eq. 10) for `eval`.
     lobes : J, the number of SG lobes of the NDF (1–16), or "auto": the smallest J whose NDF fit error
-        (`lobes.ndf_error`, seen at the sharpest small-scale lobe) is ≤ `tolerance`.
+        (`lobes.ndf_error`, seen at the sharpest small-scale lobe, on the NDF weighted by what the
+        direction grid sees, as the lobes are fitted) is ≤ `tolerance`.
     directions : K, the K×K direction grid (DESIGN §4); tables are K²×K².
     normal_res : R, the cube map of normal bins (6×R×R).
     facets : Ns; seed : facet-sampling seed.
@@ -259,6 +260,7 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     facet_weight = timer("ndf_fit", be.visible_weights, fac, vis).astype(np.float64)
     if not facet_weight.any():  # no grid direction sees the tile at all: fall back on the bare NDF
         facet_weight = area
+    # (The bins keep their area-weighted mean normals: within a bin at R = 128 the weighting barely moves it.)
     bin_weight = np.bincount(facet_bin, weights=facet_weight, minlength=len(occupied))
     seen = bin_weight > 0
     lob, ndf_err = timer("ndf_fit", _fit_lobes, be, fac, facet_weight.astype(np.float32), bv.normal[seen],

@@ -172,7 +172,8 @@ def amplitude_system(lobes: LobeSet, bin_normal=None, bin_area=None):
 
     Calibration (our addition): least squares against data sharper than its lobe over-weights the
     lobe, up to twice for a delta (a flat facet, capped sharpness): ⟨δ, G⟩/⟨G, G⟩ = η/π where η/2π
-    keeps ∫. With the NDF itself (bins `bin_normal`, `bin_area`: no visibility, no cosines) the
+    keeps ∫. With the NDF the lobes were fitted to (bins `bin_normal`, `bin_area`: in the bake the
+    facets weighted by `reference.visible_weights`, no pair's visibility or cosines) the
     right amplitude of lobe j is known, A·α_j·η_j/(2π(1 − e^{−2η_j})) from EM, so each row is scaled
     by (that) / (A⁻¹b_NDF)_j, which is 1/2 for a delta lobe and ~1 for a lobe that matches its data.
     The solve kernel then keeps the energy of γ̃ exact (see `reference.solve_amplitudes`).
@@ -198,8 +199,9 @@ def ndf_error(lobes: LobeSet, bin_normal, bin_area, probe_sharpness: float) -> f
 
     The probes sit on the non-empty normal bins (`bin_normal`, area `bin_area`); for each, the data
     gives Σ_l Γ_l G_q(n_l) and the lobes give Σ_j A α_j ⟨vMF_j, G_q⟩ (closed form). This is the NDF
-    error a small-scale lobe of that sharpness sees (Iwasaki Eq. 10 without visibility), and it is
-    finite for a delta NDF, unlike a pointwise comparison.
+    error a small-scale lobe of that sharpness sees (Iwasaki Eq. 10 without the pair's visibility;
+    the bake passes the NDF weighted by `reference.visible_weights`, the one its lobes fit), and it
+    is finite for a delta NDF, unlike a pointwise comparison.
     """
     bn = np.asarray(bin_normal, np.float64)
     ba = np.asarray(bin_area, np.float64)

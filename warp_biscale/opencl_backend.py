@@ -460,7 +460,7 @@ class OpenCLBackend:
 
         start = LobeSet(axes, sharpness, weight)
         j = len(start)
-        if len(facets) == 0 or int(iterations) <= 0:
+        if int(iterations) <= 0:
             return start.axes, start.sharpness, start.weight, 0
         cl = self._cl
         rw = cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR
@@ -498,7 +498,8 @@ class OpenCLBackend:
         return values
 
     def _recurring(self, array, dtype):
-        """A read-only device copy of an input that recurs between calls (pair lists): see UploadCache."""
+        """A read-only device copy of an input that recurs between calls (pair lists): see UploadCache.
+        No kernel may write into it."""
         return self._uploads.get(array, dtype, lambda host: self._buffer(host, dtype))
 
     def lobe_moments(self, facets, vis, weight, axes, sharpness, pair_i, pair_o, to_host=True):

@@ -260,10 +260,12 @@ class WarpBackend:
         return wp.array(np.ascontiguousarray(data), dtype=dtype, device=self._device)
 
     def _recurring(self, data, np_dtype, dtype):
-        """A read-only device copy of an input that recurs between calls (pair lists): see UploadCache."""
+        """A read-only device copy of an input that recurs between calls (pair lists, the direction
+        grid, equal facet areas): see UploadCache. No kernel may write into it."""
         import warp as wp
 
-        return self._uploads.get(data, np_dtype, lambda host: wp.array(host, dtype=dtype, device=self._device))
+        return self._uploads.get(data, np_dtype, lambda host: wp.array(host, dtype=dtype, device=self._device),
+                                 tag=dtype)
 
     def normal_bins(self, facets, resolution):
         import warp as wp
@@ -330,7 +332,10 @@ class WarpBackend:
                     (ke.ndf_sums_partial, (chunks, j), [f["normal"], resp, per, state], [partial]),
                     (ke.sum_chunks_stats, (groups, j), [partial, group, state], [partial2]),
                     (ke.sum_chunks_stats, (1, j), [partial2, groups, state], [stats])]
-        return [self._recorded(*launch, split=k < 2) for k, launch in enumerate(launches)], stats
+        steps = [self._recorded(*launch, split=k < 2) for k, launch in enumerate(launches)]
+        # A recorded launch keeps its arguments only as a Warp internal: hold the scratch arrays here.
+        steps.append(lambda held=(resp, partial, partial2): None)
+        return steps, stats
 
     def _recorded(self, kernel, dim, inputs, outputs, split=True):
         """A callable that re-issues this launch (see _launch): recorded (re-issued without Python's
