@@ -48,7 +48,8 @@ def main(backend, facets, j):
         state.zero_()
     be.synchronize()
     t_zero = (time.perf_counter() - t0) / 200
-    names = ["responsibilities", "sums_partial", "sum_chunks 1", "sum_chunks 2", "m_step", "finish"]
+    names = ["responsibilities", "sums_partial", "sum_chunks 1", "sum_chunks 2", "(holds the scratch arrays)",
+             "m_step", "finish"]
     for name, step in zip(names, steps):
         t0 = time.perf_counter()
         for _ in range(200):
