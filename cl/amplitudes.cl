@@ -71,6 +71,7 @@ __kernel void lobe_moments_partial(
     __global const float *weight,        /* (Ns,) */
     __global const float *normal,        /* (Ns, 3) */
     __global const float8 *values,       /* (Ns, groups) groups = ⌈J/8⌉, zero past J */
+    __global const int *run_end,         /* (Ns,) one past the run of facets sharing s's normal and weight */
     const int n_lobes,
     const int words_per_chunk,
     const int n_pairs,
@@ -99,10 +100,13 @@ __kernel void lobe_moments_partial(
         float block_c = 0.0f;
         while (m != 0u) {
             int b = lowest_bit(m);
-            m = m & (m - 1u);
             int s = w * 32 + b;
+            /* The visible facets of s's run in this word (same normal, weight, lobe values): one count. */
+            int end = run_end[s] - w * 32;
+            uint seg = end < 32 ? m & ((1u << end) - 1u) : m;
+            m = m & ~seg;
             float3 n = load3(normal, s);
-            float p = maxf(dot3(n, wi), 0.0f) * maxf(dot3(n, wo), 0.0f) * weight[s];
+            float p = maxf(dot3(n, wi), 0.0f) * maxf(dot3(n, wo), 0.0f) * weight[s] * (float)bit_count(seg);
             block_c += p;
             __global const float8 *g = values + (size_t)s * groups;
             b0 += p * g[0];

@@ -109,6 +109,15 @@ __constant int DE_BRUIJN_32[32] = {0,  1,  28, 2,  29, 14, 24, 3, 30, 22, 20, 15
                                    31, 27, 13, 23, 21, 19, 16, 7, 26, 12, 18, 6,  11, 5,  10, 9};
 CL_INLINE int lowest_bit(uint m) { return DE_BRUIJN_32[((m & (0u - m)) * 0x077CB531u) >> 27]; }
 
+/* Set bits of a word, by SWAR arithmetic (OpenCL's popcount is a library call in PoCL, see above). */
+CL_INLINE int bit_count(uint x)
+{
+    x = x - ((x >> 1) & 0x55555555u);
+    x = (x & 0x33333333u) + ((x >> 2) & 0x33333333u);
+    x = (x + (x >> 4)) & 0x0F0F0F0Fu;
+    return (int)((x * 0x01010101u) >> 24);
+}
+
 /* ============================================================================================
  * Ray casting against a triangle mesh through a BVH: shared by cl/visibility.cl (any-hit on the
  * small-scale tile) and cl/trace.cl (closest and any hit on the large-scale mesh), so both walk

@@ -60,6 +60,7 @@ def _facet_kernels(lanes: int):
         weight: wp.array(dtype=wp.float32),
         normal: wp.array(dtype=wp.vec3),
         values: wp.array(dtype=vec),
+        run_end: wp.array(dtype=wp.int32),
         n_lobes: int,
         words_per_chunk: int,
         offset: int,
@@ -84,10 +85,15 @@ def _facet_kernels(lanes: int):
             block_c = float(0.0)
             while m != wp.uint32(0):
                 b = lowest_bit(m)
-                m = m & (m - wp.uint32(1))
                 s = w * 32 + b
+                # The visible facets of s's run in this word (same normal, weight, lobe values): one count.
+                end = run_end[s] - w * 32
+                seg = m
+                if end < 32:
+                    seg = m & ((wp.uint32(1) << wp.uint32(end)) - wp.uint32(1))
+                m = m & ~seg
                 n = normal[s]
-                p = wp.max(wp.dot(n, wi), 0.0) * wp.max(wp.dot(n, wo), 0.0) * weight[s]
+                p = wp.max(wp.dot(n, wi), 0.0) * wp.max(wp.dot(n, wo), 0.0) * weight[s] * float(wp.bit_count(seg))
                 block_c += p
                 block += p * values[s]  # all lanes at once: no per-lobe indexing in the hot loop
             acc_c += wp.float64(block_c)

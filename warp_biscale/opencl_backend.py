@@ -35,7 +35,7 @@ import weakref
 import numpy as np
 
 from .backend import UploadCache, chunking, run_em_steps
-from .model import Facets, Visibility
+from .model import Facets, Visibility, run_ends
 from .reference import facet_shift, ray_offset
 
 __all__ = ["OpenCLBackend", "list_devices"]
@@ -518,7 +518,8 @@ class OpenCLBackend:
         self._launch("amplitudes", "lobe_moments_partial", (n_pairs, chunks),
                      v["directions"], self._recurring(pair_i, np.int32), self._recurring(pair_o, np.int32),
                      v["bits"], np.int32(n_words), self._buffer(channel_bits, np.uint32),
-                     self._buffer(weight, np.float32), f["normal"], values, np.int32(j), np.int32(per),
+                     self._buffer(weight, np.float32), f["normal"], values,
+                     self._buffer(run_ends(facets.normal, weight), np.int32), np.int32(j), np.int32(per),
                      np.int32(n_pairs), partial)
         out = partial
         if chunks > 1:

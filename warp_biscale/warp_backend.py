@@ -15,7 +15,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from .backend import UploadCache, chunking, run_em_steps
-from .model import Facets, Visibility
+from .model import Facets, Visibility, run_ends
 from .reference import facet_shift, ray_offset
 
 _READY = False
@@ -411,8 +411,8 @@ class WarpBackend:
         self._launch(lobe_moments_partial, (chunks, n_pairs),
                      [v["directions"], self._recurring(pair_i, np.int32, wp.int32),
                       self._recurring(pair_o, np.int32, wp.int32), v["bits"],
-                      self._array(channel_bits, wp.uint32), self._array(weight, wp.float32), f["normal"], values, j,
-                      per],
+                      self._array(channel_bits, wp.uint32), self._array(weight, wp.float32), f["normal"], values,
+                      self._array(run_ends(facets.normal, weight), wp.int32), j, per],
                      [partial])
         if chunks == 1:
             out = partial.reshape((n_pairs, j + 1))
