@@ -136,8 +136,10 @@ CL_INLINE int bit_count(uint x)
  * det != 0, u >= 0, v >= 0, u + v <= 1, t_lo < t <= t_hi, every quantity computed with the same
  * operations in the same order (p = d × e2, det = p·e1, tv = o − a, q = tv × e1, ...). The early
  * out on u outside [0, 1] never changes the outcome: u + v <= 1 with v >= 0 implies u <= 1 in
- * rounded arithmetic too. */
-CL_INLINE int hit_triangle(__global const float *tri, float3 o, float3 d, float t_lo, float t_hi)
+ * rounded arithmetic too. A hit also returns t and the barycentric weights u (of vertex b) and
+ * v (of vertex c); vertex a gets 1 - u - v. */
+CL_INLINE int intersect_triangle(__global const float *tri, float3 o, float3 d, float t_lo, float t_hi,
+                                 float *t_out, float *u_out, float *v_out)
 {
     float ax = tri[0], ay = tri[1], az = tri[2];
     float e1x = tri[3], e1y = tri[4], e1z = tri[5];
@@ -154,7 +156,19 @@ CL_INLINE int hit_triangle(__global const float *tri, float3 o, float3 d, float 
     float qx = ty * e1z - tz * e1y, qy = tz * e1x - tx * e1z, qz = tx * e1y - ty * e1x;
     float v = (d.x * qx + d.y * qy + d.z * qz) * inv;
     float t = (e2x * qx + e2y * qy + e2z * qz) * inv;
-    return (v >= 0.0f && u + v <= 1.0f && t > t_lo && t <= t_hi) ? 1 : 0;
+    if (!(v >= 0.0f && u + v <= 1.0f && t > t_lo && t <= t_hi))
+        return 0;
+    *t_out = t;
+    *u_out = u;
+    *v_out = v;
+    return 1;
+}
+
+/* Any hit with t in (t_lo, t_hi]: intersect_triangle without its outputs (inlined, they cost nothing). */
+CL_INLINE int hit_triangle(__global const float *tri, float3 o, float3 d, float t_lo, float t_hi)
+{
+    float t, u, v;
+    return intersect_triangle(tri, o, d, t_lo, t_hi, &t, &u, &v);
 }
 
 /* Brute force: 1 if any triangle is hit with t in (t_lo, t_hi]. */
@@ -234,34 +248,6 @@ CL_INLINE int bvh_any_hit(__global const float *nodes, __global const float *tri
     }
 }
 
-/* Möller–Trumbore for the closest hit: the operations of hit_triangle (so a ray both accept is
- * the same hit), also returning t and the barycentric weights u (of vertex b) and v (of vertex c)
- * of a hit with t in (t_lo, t_hi]; vertex a gets 1 - u - v. */
-CL_INLINE int intersect_triangle(__global const float *tri, float3 o, float3 d, float t_lo, float t_hi,
-                                 float *t_out, float *u_out, float *v_out)
-{
-    float ax = tri[0], ay = tri[1], az = tri[2];
-    float e1x = tri[3], e1y = tri[4], e1z = tri[5];
-    float e2x = tri[6], e2y = tri[7], e2z = tri[8];
-    float px = d.y * e2z - d.z * e2y, py = d.z * e2x - d.x * e2z, pz = d.x * e2y - d.y * e2x;
-    float det = px * e1x + py * e1y + pz * e1z;
-    if (det == 0.0f)
-        return 0;
-    float inv = 1.0f / det;
-    float tx = o.x - ax, ty = o.y - ay, tz = o.z - az;
-    float u = (tx * px + ty * py + tz * pz) * inv;
-    if (u < 0.0f || u > 1.0f)
-        return 0;
-    float qx = ty * e1z - tz * e1y, qy = tz * e1x - tx * e1z, qz = tx * e1y - ty * e1x;
-    float v = (d.x * qx + d.y * qy + d.z * qz) * inv;
-    float t = (e2x * qx + e2y * qy + e2z * qz) * inv;
-    if (!(v >= 0.0f && u + v <= 1.0f && t > t_lo && t <= t_hi))
-        return 0;
-    *t_out = t;
-    *u_out = u;
-    *v_out = v;
-    return 1;
-}
 
 /* BVH closest hit: the slot of the nearest triangle hit with t in (t_lo, t_hi], or -1, with its t
  * and barycentric (u, v). The walk of bvh_any_hit, except that the far bound shrinks to the

@@ -649,13 +649,9 @@ class OpenCLBackend:
         return g
 
     def trace_occluded(self, mesh, origins, directions, t_max, t_min=None):
-        from .trace import CHUNK_RAYS, check_mesh, check_rays, offsets
+        from .trace import CHUNK_RAYS, check_occlusion
 
-        check_mesh(mesh)
-        o, d, t_hi = check_rays(origins, directions, t_max)
-        t_lo = offsets(mesh)[1] if t_min is None else float(t_min)
-        if not np.isfinite(t_lo) or t_lo < 0:
-            raise ValueError(f"t_min must be a finite number >= 0, got {t_min!r}")
+        o, d, t_lo, t_hi = check_occlusion(mesh, origins, directions, t_max, t_min)
         n = len(o)
         out = np.zeros(n, bool)
         if n == 0:

@@ -78,6 +78,17 @@ def check_rays(origins, directions, t_max):
             np.ascontiguousarray(t, np.float32))
 
 
+def check_occlusion(mesh, origins, directions, t_max, t_min):
+    """The inputs of Backend.trace_occluded → (origins, directions, t_lo, t_max (N,)) as check_rays,
+    t_lo = `t_min` or the mesh's any-hit lower bound (`offsets`)."""
+    check_mesh(mesh)
+    o, d, t_hi = check_rays(origins, directions, t_max)
+    t_lo = offsets(mesh)[1] if t_min is None else float(t_min)
+    if not np.isfinite(t_lo) or t_lo < 0:
+        raise ValueError(f"t_min must be a finite number >= 0, got {t_min!r}")
+    return o, d, t_lo, t_hi
+
+
 def check_lights(lights) -> np.ndarray:
     """→ (L, 8) float32 packed light rows (`PointLight.packed()` / `DirectionalLight.packed()`), or a
     list of such rows or light objects."""
