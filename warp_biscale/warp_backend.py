@@ -307,7 +307,7 @@ class WarpBackend:
 
     def _em_launches(self, facets, n_lobes, axes, sharpness, log_weight, state, facet_weight=None):
         """The E-step's kernels as callables (recorded launches on a GPU: re-issuing one skips Python's
-        argument packing, ~20 µs a launch) → (steps, stats (1, J) vec4d). Facets weigh their area, or
+        argument packing) → (steps, stats (1, J) vec4d). Facets weigh their area, or
         `facet_weight` (a device array)."""
         import warp as wp
 
