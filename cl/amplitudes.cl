@@ -126,6 +126,33 @@ __kernel void lobe_moments_partial(
     out[n_lobes] = (float)acc_c;
 }
 
+/* One work-item per 32-facet word (model.run_ends): bit b of channel_bits[w] is weight > 0, and
+ * run_end[s] is one past the run of facets sharing s's normal and weight, cut at the word's end (all
+ * the moment kernels need), found walking the word backwards. */
+__kernel void facet_runs(__global const float *normal,   /* (Ns, 3) */
+                         __global const float *weight,   /* (Ns,) */
+                         const int n,
+                         __global uint *channel_bits,    /* (⌈Ns/32⌉,) */
+                         __global int *run_end)          /* (Ns,) */
+{
+    int w = get_global_id(0);
+    int start = w * 32;
+    if (start >= n)
+        return;
+    int stop = min(start + 32, n);
+    int end = stop;
+    uint mask = 0u;
+    for (int s = stop - 1; s >= start; --s) {
+        if (s + 1 < stop && (normal[3 * s] != normal[3 * s + 3] || normal[3 * s + 1] != normal[3 * s + 4] ||
+                             normal[3 * s + 2] != normal[3 * s + 5] || weight[s] != weight[s + 1]))
+            end = s + 1;
+        run_end[s] = end;
+        if (weight[s] > 0.0f)
+            mask |= 1u << (s - start);
+    }
+    channel_bits[w] = mask;
+}
+
 __kernel void sum_chunks_moments(__global const float *partial,  /* (chunks, U, J + 1) */
                                  const int chunks, const int n_pairs, const int width,
                                  __global float *out)            /* (U, J + 1) */

@@ -26,6 +26,36 @@ vec16 = wp.types.vector(length=MAX_LOBES, dtype=wp.float32)
 vec16d = wp.types.vector(length=MAX_LOBES, dtype=wp.float64)
 
 
+@wp.kernel
+def facet_runs(
+    normal: wp.array(dtype=wp.vec3),
+    weight: wp.array(dtype=wp.float32),
+    offset: int,
+    channel_bits: wp.array(dtype=wp.uint32),
+    run_end: wp.array(dtype=wp.int32),
+):
+    """One thread per 32-facet word (model.run_ends): bit b of channel_bits[w] is weight > 0, and
+    run_end[s] is one past the run of facets sharing s's normal and weight, cut at the word's end
+    (all the moment kernels need), found walking the word backwards."""
+    w = wp.tid() + offset
+    n = normal.shape[0]
+    start = w * 32
+    stop = wp.min(start + 32, n)
+    end = stop
+    mask = wp.uint32(0)
+    for i in range(stop - start):
+        s = stop - 1 - i
+        if s + 1 < stop:
+            a = normal[s]
+            b = normal[s + 1]
+            if a[0] != b[0] or a[1] != b[1] or a[2] != b[2] or weight[s] != weight[s + 1]:
+                end = s + 1
+        run_end[s] = end
+        if weight[s] > 0.0:
+            mask = mask | (wp.uint32(1) << wp.uint32(s - start))
+    channel_bits[w] = mask
+
+
 def _facet_kernels(lanes: int):
     """`lobe_values` and `lobe_moments_partial` on `lanes`-vectors (8 for J ≤ 8, else 16; the OpenCL
     twin reads float8 blocks likewise): the hot loop adds whole vectors, and at J ≤ 8 half the lanes

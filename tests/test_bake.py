@@ -540,22 +540,27 @@ def test_run_ends():
     normal = np.array([[0, 0, 1], [0, 0, 1], [0, 1, 0], [0, 1, 0], [0, 1, 0], [0, 0, 1]], np.float32)
     weight = np.array([1, 1, 1, 1, 2, 2], np.float32)
     np.testing.assert_array_equal(run_ends(normal, weight), [2, 2, 4, 4, 5, 6])
+    # A run is cut at the end of its 32-facet word (all the moment kernels need).
+    same = np.tile([[0, 0, 1]], (70, 1)).astype(np.float32)
+    np.testing.assert_array_equal(run_ends(same, np.ones(70, np.float32)), [32] * 32 + [64] * 32 + [70] * 6)
 
 
 @pytest.mark.parametrize("tile_name", ["pyramid", "woven"])
-@pytest.mark.parametrize("weights", ["area", "random"])
+@pytest.mark.parametrize("weights", ["area", "random", "held"])
 def test_lobe_moments_by_runs_match_reference(backend, tile_name, weights):
-    """The moment kernels count a run of facets with the same normal and weight by one popcount per word.
-    Against the float64 per-facet sums: pyramid (runs of ~800 facets, many words in one run), woven (runs
-    of 1–2, many runs in a word), and random per-facet weights (every run one facet long)."""
+    """The moment kernels count a run of facets with the same normal and weight by one popcount per word
+    (the runs found on the device, kernel `facet_runs`). Against the float64 per-facet sums: pyramid
+    (runs of ~800 facets, many words in one run), woven (runs of 1–2, many runs in a word), random
+    per-facet weights (every run one facet long), and weight None: the area the backend holds."""
     tile = getattr(wb.geometry, tile_name)()
     fac = backend.sample_facets(tile, 3000, 0)
     fd = fac.as_dict()
     grid = dirs.grid(5)
     vis = backend.visibility(tile, fac, grid)
     w = fd["area"] * (np.random.default_rng(3).random(len(fac)) if weights == "random" else 1.0)
-    w[: len(w) // 10] = 0.0  # a block of facets outside the channel (the runs elsewhere stay long)
+    if weights != "held":
+        w[: len(w) // 10] = 0.0  # a block of facets outside the channel (the runs elsewhere stay long)
     lob = lobes_mod.initial_lobes(fd["normal"], fd["area"], 6)
     iu, ou = np.triu_indices(len(grid))
-    got = backend.lobe_moments(fac, vis, w, lob.axes, lob.sharpness, iu, ou)
+    got = backend.lobe_moments(fac, vis, None if weights == "held" else w, lob.axes, lob.sharpness, iu, ou)
     _close(got, ref.lobe_moments(fd, vis.as_bool(), grid, w, lob.axes, lob.sharpness, iu, ou))

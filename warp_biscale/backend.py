@@ -61,8 +61,10 @@ class Backend(Protocol):
 
     def lobe_moments(self, facets: Facets, vis: Visibility, weight, axes, sharpness, pair_i, pair_o,
                      to_host: bool = True):
-        """(P, J + 1) float32 facet sums of DESIGN §5 for the unordered pairs (reference.lobe_moments);
-        with to_host=False a device array for solve_amplitudes (no round trip through the host)."""
+        """(P, J + 1) float32 facet sums of DESIGN §5 for the unordered pairs (reference.lobe_moments),
+        each facet weighing `weight` (Ns,), or its area ΔA when `weight` is None (a tile of one material
+        and one colour: nothing uploaded); with to_host=False a device array for solve_amplitudes (no
+        round trip through the host)."""
 
     def solve_amplitudes(self, moments, a_v, rows, integrals, pair_i, pair_o, n_dirs: int) -> np.ndarray:
         """(P, J) float32 μ ≥ 0 for the ordered pairs (reference.solve_amplitudes); `moments` a host

@@ -84,16 +84,21 @@ class Bvndf:
                    arrays.get("histogram"))
 
 
-def _channels(facets, n_materials):
-    """Split the facets' weights into scalar channels: → list of (material, rgb multiplier, weight (Ns,)).
+def _channels(tile, facets):
+    """Split the facets' weights into scalar channels: → list of (material, rgb multiplier, weight).
 
-    A material whose facets all have one colour is one channel, weight ΔA on its facets and the
-    colour applied afterwards (the usual case: one sum instead of three). A material with several
-    colours gets three channels, weights ΔA·c_s for R, G and B.
+    A tile whose faces all have one material and one colour is one channel whose weight is the
+    facets' area, None (the backends then use the area they hold: no per-facet host work). Otherwise
+    a material whose facets all have one colour is one channel, weight ΔA on its facets (Ns,) and the
+    colour applied afterwards (one sum instead of three); a material with several colours gets three
+    channels, weights ΔA·c_s for R, G and B.
     """
+    ids, colors = tile.material_ids, tile.colors
+    if len(ids) and (ids == ids[0]).all() and (colors == colors[0]).all():
+        return [(int(ids[0]), colors[0].astype(np.float64), None)]
     area = facets.area.astype(np.float64)
     out = []
-    for m in range(n_materials):
+    for m in range(tile.n_materials):
         mine = facets.material == m
         if not mine.any():
             continue
@@ -237,7 +242,7 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     bv = Bvndf(r, occupied.astype(np.int32), mean, mass[occupied], np.asarray(a_v, np.float64))
     iu, ou = np.triu_indices(nd)
     iu, ou = iu.astype(np.int32), ou.astype(np.int32)
-    channels = _channels(fac, tile.n_materials)
+    channels = _channels(tile, fac)
     need_hist = route == "histogram" or keep_hist
     if need_hist:
         nbytes = len(iu) * len(occupied) * 4 * (len(channels) + 1)
@@ -247,7 +252,8 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
                 f"{len(occupied)} non-empty normal bins); use route='facets', fewer directions or a smaller normal_res")
         order = np.argsort(facet_bin, kind="stable").astype(np.int32)
         start = np.searchsorted(facet_bin[order], np.arange(len(occupied) + 1)).astype(np.int32)
-        hists = [timer("bvndf", be.bvndf_histogram, fac, vis, order, start, w.astype(np.float32), iu, ou)
+        hists = [timer("bvndf", be.bvndf_histogram, fac, vis, order, start,
+                       (area if w is None else w).astype(np.float32), iu, ou)
                  for _, _, w in channels]
         if keep_hist:
             bv.histogram = timer("bvndf", be.bvndf_histogram, fac, vis, order, start, area.astype(np.float32), iu, ou)
@@ -271,7 +277,7 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     out = []
     for c, (m, mult, w) in enumerate(channels):
         if route == "facets":
-            mom = timer("amplitudes", be.lobe_moments, fac, vis, w.astype(np.float32), lob.axes, lob.sharpness, iu, ou,
+            mom = timer("amplitudes", be.lobe_moments, fac, vis, w, lob.axes, lob.sharpness, iu, ou,
                         to_host=False)  # stays on the device for the solve
         else:
             mom = timer("amplitudes", be.histogram_moments, hists[c], bv.normal, grid, lob.axes, lob.sharpness, iu, ou)

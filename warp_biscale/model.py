@@ -1,46 +1,83 @@
-"""Data passed between stages: plain dataclasses of numpy arrays, validated on construction.
+"""Data passed between stages: facets and visibility (numpy arrays, validated on construction).
 
 Backends may keep device copies of these arrays (in `device_cache`) so that one bake's stages do
-not re-upload them; the numpy arrays are always the truth.
+not re-upload them. What a backend made on its device (`Facets.deferred`, `Visibility.deferred`) is
+read back to the host only when host code asks for it.
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass, field
 
 import numpy as np
 
 __all__ = ["Facets", "Visibility", "run_ends"]
 
 
-@dataclass(eq=False)
 class Facets:
     """Ns area-weighted facets of a tile (Wu §3.2), float32 as the kernels use them.
 
     position (Ns,3), normal (Ns,3) unit shading normal, face (Ns,) source triangle,
     area (Ns,) ΔA_s, material (Ns,) id, color (Ns,3) RGB weight; `seed` made them.
+
+    Facets that a backend sampled stay on its device (`deferred`): a host array is read back the
+    first time it is asked for, so a bake whose stages all run on the device copies none of them.
     """
 
-    position: np.ndarray
-    normal: np.ndarray
-    face: np.ndarray
-    area: np.ndarray
-    material: np.ndarray
-    color: np.ndarray
-    seed: int = 0
-    device_cache: dict = field(default_factory=dict, repr=False)
+    FIELDS = ("position", "normal", "face", "area", "material", "color")
+    _SHAPES = {"position": (3,), "normal": (3,), "face": (), "area": (), "material": (), "color": (3,)}
 
-    def __post_init__(self):
-        n = len(self.position)
-        for name, shape in (("position", (n, 3)), ("normal", (n, 3)), ("face", (n,)), ("area", (n,)),
-                            ("material", (n,)), ("color", (n, 3))):
-            if getattr(self, name).shape != shape:
-                raise ValueError(f"Facets.{name} must have shape {shape}, got {getattr(self, name).shape}")
-        if n == 0:
+    def __init__(self, position, normal, face, area, material, color, seed: int = 0):
+        self._count = len(position)
+        self._host = dict(zip(self.FIELDS, (position, normal, face, area, material, color)))
+        self._load = None
+        self.seed = int(seed)
+        self.device_cache = {}
+        for name in self.FIELDS:
+            self._check(name, self._host[name])
+        if self._count == 0:
             raise ValueError("Facets needs at least one facet")
 
+    @classmethod
+    def deferred(cls, count: int, load, seed: int = 0, **known) -> Facets:
+        """Facets whose arrays are made on first use by `load(name)` (a backend's read-back);
+        `known` arrays (by name) are given now."""
+        self = cls.__new__(cls)
+        self._count = int(count)
+        if self._count < 1:
+            raise ValueError("Facets needs at least one facet")
+        self._host = {}
+        self._load = load
+        self.seed = int(seed)
+        self.device_cache = {}
+        for name, value in known.items():
+            self._check(name, value)
+            self._host[name] = value
+        return self
+
+    def _check(self, name, value):
+        shape = (self._count, *self._SHAPES[name])
+        if getattr(value, "shape", None) != shape:
+            raise ValueError(f"Facets.{name} must have shape {shape}, got {getattr(value, 'shape', None)}")
+
+    def _get(self, name):
+        value = self._host.get(name)
+        if value is None:
+            value = self._load(name)
+            self._check(name, value)
+            self._host[name] = value
+        return value
+
+    position = property(lambda self: self._get("position"))
+    normal = property(lambda self: self._get("normal"))
+    face = property(lambda self: self._get("face"))
+    area = property(lambda self: self._get("area"))
+    material = property(lambda self: self._get("material"))
+    color = property(lambda self: self._get("color"))
+
     def __len__(self):
-        return len(self.position)
+        return self._count
+
+    def __repr__(self):
+        return f"Facets({self._count}, seed={self.seed})"
 
     def as_dict(self) -> dict:
         """The arrays as float64, in the form `warp_biscale.reference` takes."""
@@ -54,27 +91,54 @@ class Facets:
         }
 
 
-@dataclass(eq=False)
 class Visibility:
     """V_s(ω_k) for D directions and Ns facets, one bit each.
 
     bits (D, ceil(Ns/32)) uint32: bit (s mod 32) of word s // 32 in row k is V_s(ω_k). Rows are
     per direction so that a kernel tracing one direction for many neighbouring facets writes whole
-    words, and the ground truth ANDs the rows of ωi and ωo a word at a time.
+    words, and the ground truth ANDs the rows of ωi and ωo a word at a time. A backend's result
+    stays on its device (`deferred`) until host code reads `bits`.
     """
 
-    directions: np.ndarray
-    bits: np.ndarray
-    n_facets: int
-    device_cache: dict = field(default_factory=dict, repr=False)
+    def __init__(self, directions, bits, n_facets: int):
+        self.directions = directions
+        self.n_facets = int(n_facets)
+        self.device_cache = {}
+        self._load = None
+        self._bits = self._check(bits)
 
-    def __post_init__(self):
-        words = (self.n_facets + 31) // 32
-        if self.bits.shape != (len(self.directions), words) or self.bits.dtype != np.uint32:
+    @classmethod
+    def deferred(cls, directions, n_facets: int, load) -> Visibility:
+        """Bits made on first use by `load()` (a backend's read-back)."""
+        self = cls.__new__(cls)
+        self.directions = directions
+        self.n_facets = int(n_facets)
+        self.device_cache = {}
+        self._load = load
+        self._bits = None
+        return self
+
+    @property
+    def words(self) -> int:
+        """Words per direction row: ceil(Ns/32)."""
+        return (self.n_facets + 31) // 32
+
+    def _check(self, bits):
+        if bits.shape != (len(self.directions), self.words) or bits.dtype != np.uint32:
             raise ValueError(
-                f"Visibility.bits must be uint32 of shape ({len(self.directions)}, {words}), "
-                f"got {self.bits.dtype} {self.bits.shape}"
+                f"Visibility.bits must be uint32 of shape ({len(self.directions)}, {self.words}), "
+                f"got {bits.dtype} {bits.shape}"
             )
+        return bits
+
+    @property
+    def bits(self) -> np.ndarray:
+        if self._bits is None:
+            self._bits = self._check(self._load())
+        return self._bits
+
+    def __repr__(self):
+        return f"Visibility({len(self.directions)} directions, {self.n_facets} facets)"
 
     def as_bool(self) -> np.ndarray:
         """(D, Ns) bool."""
@@ -96,9 +160,10 @@ class Visibility:
 
 def run_ends(normal, weight) -> np.ndarray:
     """(Ns,) int32: for each facet, the index one past the run of consecutive facets that share its
-    normal and weight. Facets come ordered by face, and every facet of a flat face has the face's
-    normal and weight, so a face's facets form one run; the lobe-moment kernels then count a run's
-    visible facets in a 32-facet word with one popcount instead of adding them one by one."""
+    normal and weight, cut at the end of its 32-facet word (the kernels' `facet_runs` is this).
+    Facets come ordered by face, and every facet of a flat face has the face's normal and weight, so
+    a face's facets form one run; the lobe-moment kernels then count a run's visible facets in a
+    32-facet word with one popcount instead of adding them one by one."""
     normal = np.asarray(normal)
     weight = np.asarray(weight)
     n = len(weight)
@@ -108,4 +173,5 @@ def run_ends(normal, weight) -> np.ndarray:
     change[1:] = (normal[1:] != normal[:-1]).any(axis=1) | (weight[1:] != weight[:-1])
     starts = np.flatnonzero(change)
     ends = np.append(starts[1:], n)
-    return np.repeat(ends, ends - starts).astype(np.int32)
+    word_end = np.minimum((np.arange(n) // 32 + 1) * 32, n)
+    return np.minimum(np.repeat(ends, ends - starts), word_end).astype(np.int32)

@@ -35,7 +35,7 @@ import weakref
 import numpy as np
 
 from .backend import UploadCache, chunking, run_em_steps
-from .model import Facets, Visibility, run_ends
+from .model import Facets, Visibility
 from .reference import facet_shift, ray_offset
 
 __all__ = ["OpenCLBackend", "list_devices"]
@@ -262,17 +262,10 @@ class OpenCLBackend:
         return entry
 
     def _facets(self, facets: Facets):
+        """facets.device_cache[self.name]: the facets' buffers, each uploaded when first asked for."""
         entry = facets.device_cache.get(self.name)
         if entry is None or entry.get("ctx") is not self._ctx:
-            entry = {
-                "ctx": self._ctx,
-                "normal": self._buffer(facets.normal, np.float32),
-                "face": self._buffer(facets.face, np.int32),
-                "area": self._buffer(facets.area, np.float32),
-                "material": self._buffer(facets.material, np.int32),
-                "weight": self._buffer(facets.color * facets.area[:, None], np.float32),
-            }
-            facets.device_cache[self.name] = entry
+            entry = facets.device_cache[self.name] = _DeviceFacets(self, facets, {"ctx": self._ctx})
         return entry
 
     def _facet_positions(self, facets: Facets, tile):
@@ -308,19 +301,17 @@ class OpenCLBackend:
                      t["points"], t["faces"], t["vertex_normals"], np.int32(tile.vertex_normals is not None),
                      t["face_normals"], t["cumulative_area"], t["face_area"], np.int32(len(tile.faces)),
                      np.int32(count), np.float64(xi1), np.float32(xi2), pos, nrm, face)
-        face_np = self._read(face, count, np.int32)
         area = np.full(count, tile.area / count, np.float32)
-        facets = Facets(tile.from_local(self._read(pos, (count, 3), np.float32)),
-                        self._read(nrm, (count, 3), np.float32),
-                        face_np, area, tile.material_ids[face_np], tile.colors[face_np].astype(np.float32),
-                        seed=int(seed))
-        # The kernel's outputs are already on the device: keep them for the next stages.
-        facets.device_cache[self.name] = {
+        # The facets stay on the device: the host reads back only what host code asks for.
+        host = {"position": lambda: tile.from_local(self._read(pos, (count, 3), np.float32)),
+                "normal": lambda: self._read(nrm, (count, 3), np.float32),
+                "face": lambda: self._read(face, count, np.int32),
+                "material": lambda: tile.material_ids[facets.face],
+                "color": lambda: tile.colors[facets.face].astype(np.float32)}
+        facets = Facets.deferred(count, lambda name: host[name](), seed=int(seed), area=area)
+        facets.device_cache[self.name] = _DeviceFacets(self, facets, {
             "ctx": self._ctx, "position": pos, "position_tile": tile, "normal": nrm, "face": face,
-            "area": self._buffer(area, np.float32),
-            "material": self._buffer(facets.material, np.int32),
-            "weight": self._buffer(facets.color * area[:, None], np.float32),
-        }
+            "area": self._recurring(area, np.float32)})  # read-only: shared by bakes of this count
         return facets
 
     def visibility(self, tile, facets, directions, brute_force=False):
@@ -343,14 +334,14 @@ class OpenCLBackend:
                          np.float32(tile.period[1]), np.float32(0.0), np.float32(z_hi - z_lo),
                          np.float32(ray_offset(tile)), visible)
             self._launch("visibility", "pack_bits", (words, n_dirs), visible, np.int32(n), np.int32(words), bits)
-        vis = Visibility(directions, self._read(bits, (n_dirs, words), np.uint32), n)
+        vis = Visibility.deferred(directions, n, lambda: self._read(bits, (n_dirs, words), np.uint32))
         vis.device_cache[self.name] = {"ctx": self._ctx, "bits": bits, "directions": dirs}
         return vis
 
     def visible_area(self, facets, vis):
         f = self._facets(facets)
         v = self._vis(vis)
-        n_dirs, n_words = vis.bits.shape
+        n_dirs, n_words = len(vis.directions), vis.words
         if n_dirs == 0:
             return np.zeros(0, np.float32)
         chunks, per = chunking(n_words, n_dirs, self._threads)
@@ -368,7 +359,7 @@ class OpenCLBackend:
         n_pairs = len(pair_i)
         if n_pairs == 0:
             return np.zeros((0, 3), np.float32)
-        n_words = vis.bits.shape[1]
+        n_words = vis.words
         chunks, per = chunking(n_words, n_pairs, self._threads)
         pi = self._buffer(pair_i, np.int32)
         po = self._buffer(pair_o, np.int32)
@@ -403,7 +394,7 @@ class OpenCLBackend:
         if n_pairs and n_bins > 0:
             self._launch("bvndf", "bvndf_histogram", (n_bins, n_pairs),
                          self._buffer(pair_i, np.int32), self._buffer(pair_o, np.int32), v["bits"],
-                         np.int32(vis.bits.shape[1]), self._buffer(order, np.int32),
+                         np.int32(vis.words), self._buffer(order, np.int32),
                          self._buffer(bin_start, np.int32), self._buffer(weight, np.float32),
                          np.int32(n_bins), np.int32(n_pairs), hist)
         return self._read(hist, (n_pairs, max(n_bins, 0)), np.float32)
@@ -412,7 +403,7 @@ class OpenCLBackend:
         f = self._facets(facets)
         v = self._vis(vis)
         n = len(facets)
-        n_dirs, n_words = vis.bits.shape
+        n_dirs, n_words = len(vis.directions), vis.words
         weight = self._empty(n, np.float32)
         self._launch("em", "visible_weights", (n,), v["directions"], v["bits"], np.int32(n_dirs), np.int32(n_words),
                      f["normal"], f["area"], np.int32(n), weight)
@@ -511,16 +502,17 @@ class OpenCLBackend:
         if n_pairs == 0:
             return np.zeros((0, j + 1), np.float32)
         values = self._lobe_values(f["normal"], n, axes, sharpness)
-        weight = np.asarray(weight, np.float32)
-        channel_bits = Visibility.pack((weight > 0)[None, :])[0]
-        n_words = vis.bits.shape[1]
+        weight = f["area"] if weight is None else self._buffer(np.asarray(weight, np.float32), np.float32)
+        n_words = vis.words
+        channel_bits = self._empty(n_words, np.uint32)
+        run_end = self._empty(n, np.int32)
+        self._launch("amplitudes", "facet_runs", (n_words,), f["normal"], weight, np.int32(n), channel_bits, run_end)
         chunks, per = chunking(n_words, n_pairs, self._threads)
         partial = self._empty(chunks * n_pairs * (j + 1), np.float32)
         self._launch("amplitudes", "lobe_moments_partial", (n_pairs, chunks),
                      v["directions"], self._recurring(pair_i, np.int32), self._recurring(pair_o, np.int32),
-                     v["bits"], np.int32(n_words), self._buffer(channel_bits, np.uint32),
-                     self._buffer(weight, np.float32), f["normal"], values,
-                     self._buffer(run_ends(facets.normal, weight), np.int32), np.int32(j), np.int32(per),
+                     v["bits"], np.int32(n_words), channel_bits, weight, f["normal"], values, run_end,
+                     np.int32(j), np.int32(per),
                      np.int32(n_pairs), partial)
         out = partial
         if chunks > 1:
@@ -801,3 +793,23 @@ class OpenCLBackend:
                      self._buffer(out_cols, np.float32), np.int32(width), np.float32(eta),
                      np.float32(1.0 - SUPPORT / eta), np.int32(n), out)
         return self._read(out, (height, width, 3), np.float32)
+
+
+class _DeviceFacets(dict):
+    """A Facets' OpenCL buffers by name, each made from the host arrays when first asked for (the
+    sampling kernel's own outputs are given at once)."""
+
+    def __init__(self, backend, facets, given):
+        super().__init__(given)
+        self._backend = backend
+        self._facets = weakref.ref(facets)
+
+    def __missing__(self, key):
+        facets, buffer = self._facets(), self._backend._buffer
+        make = {"normal": lambda: buffer(facets.normal, np.float32), "face": lambda: buffer(facets.face, np.int32),
+                "area": lambda: buffer(facets.area, np.float32), "material": lambda: buffer(facets.material, np.int32),
+                "weight": lambda: buffer(facets.color * facets.area[:, None], np.float32)}
+        if key not in make:
+            raise KeyError(key)
+        value = self[key] = make[key]()
+        return value

@@ -15,7 +15,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from .backend import UploadCache, chunking, run_em_steps
-from .model import Facets, Visibility, run_ends
+from .model import Facets, Visibility
 from .reference import facet_shift, ray_offset
 
 _READY = False
@@ -118,19 +118,10 @@ class WarpBackend:
         return entry
 
     def _facets(self, facets: Facets):
-        import warp as wp
-
+        """facets.device_cache[self.name]: the facets' device arrays, each uploaded when first asked for."""
         entry = facets.device_cache.get(self.name)
         if entry is None:
-            dev = self._device
-            entry = {
-                "normal": wp.array(facets.normal, dtype=wp.vec3, device=dev),
-                "face": wp.array(facets.face, dtype=wp.int32, device=dev),
-                "area": wp.array(facets.area, dtype=wp.float32, device=dev),
-                "material": wp.array(facets.material, dtype=wp.int32, device=dev),
-                "weight": wp.array(facets.color * facets.area[:, None], dtype=wp.vec3, device=dev),
-            }
-            facets.device_cache[self.name] = entry
+            entry = facets.device_cache[self.name] = _DeviceFacets(self, facets)
         return entry
 
     def _facet_positions(self, facets: Facets, tile):
@@ -173,17 +164,15 @@ class WarpBackend:
                      [t["points"], t["faces"], t["vertex_normals"], int(tile.vertex_normals is not None),
                       t["face_normals"], t["cumulative_area"], t["face_area"], count, wp.float64(xi1), float(xi2)],
                      [pos, nrm, face])
-        face_np = face.numpy()
         area = np.full(count, tile.area / count, np.float32)
-        facets = Facets(tile.from_local(pos.numpy()), nrm.numpy(), face_np, area, tile.material_ids[face_np],
-                        tile.colors[face_np].astype(np.float32), seed=int(seed))
-        # The kernel's outputs are already on the device: keep them for the next stages.
-        facets.device_cache[self.name] = {
+        # The facets stay on the device: the host reads back only what host code asks for.
+        host = {"position": lambda: tile.from_local(self._trace_host(pos)), "normal": lambda: self._trace_host(nrm),
+                "face": lambda: self._trace_host(face), "material": lambda: tile.material_ids[facets.face],
+                "color": lambda: tile.colors[facets.face].astype(np.float32)}
+        facets = Facets.deferred(count, lambda name: host[name](), seed=int(seed), area=area)
+        facets.device_cache[self.name] = _DeviceFacets(self, facets, {
             "position": pos, "position_tile": tile, "normal": nrm, "face": face,
-            "area": self._recurring(area, np.float32, wp.float32),  # read-only: shared by bakes of this count
-            "material": wp.array(facets.material, dtype=wp.int32, device=dev),
-            "weight": wp.array(facets.color * area[:, None], dtype=wp.vec3, device=dev),
-        }
+            "area": self._recurring(area, np.float32, wp.float32)})  # read-only: shared by bakes of this count
         return facets
 
     def visibility(self, tile, facets, directions, brute_force=False):
@@ -208,7 +197,7 @@ class WarpBackend:
                       0.0, 0.0, float(tile.period[0]), float(tile.period[1]), 0.0, z_hi - z_lo, ray_offset(tile)],
                      [visible])
         self._launch(kv.pack_bits, (len(directions), words), [visible], [bits])
-        vis = Visibility(directions, bits.numpy(), len(facets))
+        vis = Visibility.deferred(directions, len(facets), lambda: self._trace_host(bits))
         vis.device_cache[self.name] = {"bits": bits, "directions": dirs}
         return vis
 
@@ -220,7 +209,7 @@ class WarpBackend:
         f = self._facets(facets)
         v = self._vis(vis)
         dev = self._device
-        n_dirs, n_words = vis.bits.shape
+        n_dirs, n_words = len(vis.directions), vis.words
         chunks, per = chunking(n_words, n_dirs, self._threads)
         partial = wp.empty((chunks, n_dirs), dtype=wp.float32, device=dev)
         self._launch(kt.visible_area_partial, (chunks, n_dirs),
@@ -238,7 +227,7 @@ class WarpBackend:
         v = self._vis(vis)
         dev = self._device
         n_pairs = len(pair_i)
-        chunks, per = chunking(vis.bits.shape[1], n_pairs, self._threads)
+        chunks, per = chunking(vis.words, n_pairs, self._threads)
         pi = wp.array(np.asarray(pair_i, np.int32), dtype=wp.int32, device=dev)
         po = wp.array(np.asarray(pair_o, np.int32), dtype=wp.int32, device=dev)
         partial = wp.empty((chunks, n_pairs), dtype=wp.vec3, device=dev)
@@ -404,15 +393,16 @@ class WarpBackend:
         self._launch(lobe_values, n,
                      [f["normal"], self._array(np.asarray(axes, np.float32), wp.vec3),
                       self._array(np.asarray(sharpness, np.float32), wp.float32)], [values])
-        weight = np.asarray(weight, np.float32)
-        channel_bits = Visibility.pack((weight > 0)[None, :])[0]
-        chunks, per = chunking(vis.bits.shape[1], n_pairs, self._threads)
+        weight = f["area"] if weight is None else self._array(np.asarray(weight, np.float32), wp.float32)
+        channel_bits = wp.empty(vis.words, dtype=wp.uint32, device=dev)
+        run_end = wp.empty(n, dtype=wp.int32, device=dev)
+        self._launch(ka.facet_runs, vis.words, [f["normal"], weight], [channel_bits, run_end])
+        chunks, per = chunking(vis.words, n_pairs, self._threads)
         partial = wp.empty((chunks, n_pairs, j + 1), dtype=wp.float32, device=dev)
         self._launch(lobe_moments_partial, (chunks, n_pairs),
                      [v["directions"], self._recurring(pair_i, np.int32, wp.int32),
                       self._recurring(pair_o, np.int32, wp.int32), v["bits"],
-                      self._array(channel_bits, wp.uint32), self._array(weight, wp.float32), f["normal"], values,
-                      self._array(run_ends(facets.normal, weight), wp.int32), j, per],
+                      channel_bits, weight, f["normal"], values, run_end, j, per],
                      [partial])
         if chunks == 1:
             out = partial.reshape((n_pairs, j + 1))
@@ -722,3 +712,27 @@ class WarpBackend:
                       eta, 1.0 - SUPPORT / eta],
                      [out])
         return out.numpy().reshape(height, width, 3)
+
+
+class _DeviceFacets(dict):
+    """A Facets' Warp arrays by name, each made from the host arrays when first asked for (the
+    sampling kernel's own outputs are given at once)."""
+
+    def __init__(self, backend, facets, given=None):
+        super().__init__(given or {})
+        self._backend = backend
+        self._facets = weakref.ref(facets)
+
+    def __missing__(self, key):
+        import warp as wp
+
+        facets, dev = self._facets(), self._backend._device
+        make = {"normal": lambda: wp.array(facets.normal, dtype=wp.vec3, device=dev),
+                "face": lambda: wp.array(facets.face, dtype=wp.int32, device=dev),
+                "area": lambda: wp.array(facets.area, dtype=wp.float32, device=dev),
+                "material": lambda: wp.array(facets.material, dtype=wp.int32, device=dev),
+                "weight": lambda: wp.array(facets.color * facets.area[:, None], dtype=wp.vec3, device=dev)}
+        if key not in make:
+            raise KeyError(key)
+        value = self[key] = make[key]()
+        return value
