@@ -285,16 +285,27 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
         bad = ~np.isfinite(mu)
         if bad.any():
             raise FloatingPointError(f"the amplitude solve produced {int(bad.sum())} non-finite values")
-        out.append((m, np.asarray(mult, np.float64), np.maximum(mu, 0.0)))
+        out.append((m, np.asarray(mult, np.float32), np.maximum(mu, 0.0, out=mu)))
         prog.advance()
-    # Per material and RGB, once: the channels' amplitudes times their colours (BRDF-independent).
-    amps = np.zeros((tile.n_materials, nd * nd, len(lob), 3), np.float32)
+    # Per material and RGB, once: the channels' amplitudes times their colours (BRDF-independent), and
+    # their energies Σ_j μ_j ∫G_j (float64 from μ: the tables need not be summed again).
+    n_mat = tile.n_materials
+    amps = np.empty((n_mat, nd * nd, len(lob), 3), np.float32)
+    energy = np.zeros((n_mat, nd * nd, 3), np.float64)
+    written = np.zeros(n_mat, bool)
     for m, mult, mu in out:
-        amps[m] += mu[:, :, None] * mult[None, None, :].astype(np.float32)
-    amps = amps.reshape(tile.n_materials, nd, nd, len(lob), 3)
-    if not np.all(np.isfinite(amps)):
+        for c in range(3):  # one colour at a time: ~2× faster than broadcasting over a last axis of 3
+            if written[m]:
+                amps[m, :, :, c] += mu * mult[c]
+            else:
+                np.multiply(mu, mult[c], out=amps[m, :, :, c])
+        written[m] = True
+        energy[m] += (mu @ integrals)[:, None] * mult
+    amps[~written] = 0.0
+    if not np.all(np.isfinite(energy)):
         raise FloatingPointError("the amplitude tables hold non-finite values")
-    energy = np.einsum("miojc,j->mioc", amps, integrals.astype(np.float32))
+    amps = amps.reshape(n_mat, nd, nd, len(lob), 3)
+    energy = energy.reshape(n_mat, nd, nd, 3).astype(np.float32)
     info = {"facets": count, "seed": int(seed), "normal_res": r, "route": route, "lobes": len(lob),
             "lobes_requested": j_req, "ndf_error": ndf_err, "ndf_probe_sharpness": probe,
             "em_iterations": lob.iterations, "gram_condition": cond, "nonempty_bins": int(len(occupied)),
