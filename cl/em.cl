@@ -258,3 +258,47 @@ __kernel void em_finish(__global const int *moved, const int n_lobes, const int 
     if (!any_moved || state[1] >= max_steps)
         state[0] = 1;
 }
+
+/* One work-item per lobe: the starting lobes from one packed upload, start[j] = [ξ (3), η, α,
+ * log_weight] (LobeSet.log_weight, ≥ −1e30), into the float64 state and its float32 copies; EM's
+ * `state` is reset. (One upload instead of seven: a host copy costs more than this launch.) */
+__kernel void em_load(__global const double *start,  /* (J, 6) */
+                      const int n_lobes,
+                      __global double *axes64, __global double *sharpness64, __global double *weight64,
+                      __global float *axes, __global float *sharpness, __global float *log_weight,
+                      __global int *state)
+{
+    int j = get_global_id(0);
+    if (j >= n_lobes)
+        return;
+    __global const double *s = start + 6 * j;
+    for (int c = 0; c < 3; ++c) {
+        axes64[3 * j + c] = s[c];
+        axes[3 * j + c] = (float)s[c];
+    }
+    sharpness64[j] = s[3];
+    weight64[j] = s[4];
+    sharpness[j] = (float)s[3];
+    log_weight[j] = (float)s[5];
+    if (j == 0) {
+        state[0] = 0;
+        state[1] = 0;
+    }
+}
+
+/* One work-item per lobe: the fitted lobes and the steps taken packed for one read-back,
+ * out[j] = [ξ (3), η, α, steps]. */
+__kernel void em_result(__global const double *axes64, __global const double *sharpness64,
+                        __global const double *weight64, __global const int *state, const int n_lobes,
+                        __global double *out)  /* (J, 6) */
+{
+    int j = get_global_id(0);
+    if (j >= n_lobes)
+        return;
+    __global double *o = out + 6 * j;
+    for (int c = 0; c < 3; ++c)
+        o[c] = axes64[3 * j + c];
+    o[3] = sharpness64[j];
+    o[4] = weight64[j];
+    o[5] = (double)state[1];
+}

@@ -228,3 +228,41 @@ def em_finish(moved: wp.array(dtype=wp.int32), max_steps: int, offset: int, stat
     state[1] = state[1] + 1
     if any_moved == 0 or state[1] >= max_steps:
         state[0] = 1
+
+
+@wp.kernel
+def em_load(start: wp.array2d(dtype=wp.float64), offset: int,
+            axes64: wp.array(dtype=wp.vec3d), sharpness64: wp.array(dtype=wp.float64),
+            weight64: wp.array(dtype=wp.float64), axes: wp.array(dtype=wp.vec3),
+            sharpness: wp.array(dtype=wp.float32), log_weight: wp.array(dtype=wp.float32),
+            state: wp.array(dtype=wp.int32)):
+    """One thread per lobe: the starting lobes from one packed upload, start[j] = [ξ (3), η, α,
+    log_weight] (LobeSet.log_weight, ≥ −1e30), into the float64 state and its float32 copies; EM's
+    `state` is reset. (One upload instead of seven: a host copy costs more than this launch.)"""
+    j = wp.tid() + offset
+    ax = wp.vec3d(start[j, 0], start[j, 1], start[j, 2])
+    axes64[j] = ax
+    sharpness64[j] = start[j, 3]
+    weight64[j] = start[j, 4]
+    axes[j] = wp.vec3(float(ax[0]), float(ax[1]), float(ax[2]))
+    sharpness[j] = float(start[j, 3])
+    log_weight[j] = float(start[j, 5])
+    if j == 0:
+        state[0] = 0
+        state[1] = 0
+
+
+@wp.kernel
+def em_result(axes64: wp.array(dtype=wp.vec3d), sharpness64: wp.array(dtype=wp.float64),
+              weight64: wp.array(dtype=wp.float64), state: wp.array(dtype=wp.int32), offset: int,
+              out: wp.array2d(dtype=wp.float64)):
+    """One thread per lobe: the fitted lobes and the steps taken packed for one read-back,
+    out[j] = [ξ (3), η, α, steps]."""
+    j = wp.tid() + offset
+    ax = axes64[j]
+    out[j, 0] = ax[0]
+    out[j, 1] = ax[1]
+    out[j, 2] = ax[2]
+    out[j, 3] = sharpness64[j]
+    out[j, 4] = weight64[j]
+    out[j, 5] = wp.float64(state[1])

@@ -177,6 +177,19 @@ def run_em_steps(iterations: int, enqueue_step, done) -> None:
             check *= 2
 
 
+def em_start_rows(start) -> np.ndarray:
+    """(J, 6) float64 rows [ξ (3), η, α, log_weight ≥ −1e30] of a LobeSet: the one upload that the
+    device EM's `em_load` kernel unpacks."""
+    return np.ascontiguousarray(np.column_stack([start.axes, start.sharpness, start.weight,
+                                                 np.maximum(start.log_weight, -1e30)]), np.float64)
+
+
+def em_result_rows(rows) -> tuple:
+    """The (J, 6) rows `em_result` packs → (axes, sharpness, weight, steps)."""
+    rows = np.asarray(rows, np.float64)
+    return rows[:, :3].copy(), rows[:, 3].copy(), rows[:, 4].copy(), int(rows[0, 5])
+
+
 def chunking(n_words: int, n_outputs: int, threads: int) -> tuple[int, int]:
     """Split n_words facet words into chunks so that n_outputs × chunks ≈ threads.
 

@@ -170,7 +170,8 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
         or "histogram" (from the binned BVNDF, each bin at its mean normal).
     bvndf : also keep the histogram N in the result (`mat.bvndf.histogram`) for inspection.
 
-    Returns an `EffectiveBRDF` with per-stage `timings` (seconds, device-synchronised).
+    Returns an `EffectiveBRDF` with per-stage `timings` (seconds, device-synchronised; the host bins the
+    normals while the device traces the visibility rays, and "visibility" times the two together).
     """
     mats, _, _ = _prepare(tile, materials)
     if method not in METHODS:
@@ -224,11 +225,13 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     nd = len(grid)
     prog.stage(f"facets ({count})", 1)
     fac = timer("facets", be.sample_facets, tile, count, seed)
-    prog.stage(f"visibility ({nd} dirs)", 1)
-    vis = timer("visibility", be.visibility, tile, fac, grid)
-    prog.stage(f"BVNDF ({6 * r * r} normal bins)", 1)
-    a_v = timer("bvndf", be.visible_area, fac, vis)
     bins = timer("bvndf", be.normal_bins, fac, r)
+    normal = fac.normal  # (read back now, before the rays are queued behind it)
+    prog.stage(f"visibility ({nd} dirs)", 1)
+    # The rays are queued, and while the device traces them the host bins the normals: "visibility"
+    # times both together (on a GPU the binning is the shorter; Warp's CPU device traces before it returns).
+    t0 = time.perf_counter()
+    vis = be.visibility(tile, fac, grid)
     # Non-empty bins by counting (no sort): Γ and each bin's mean normal.
     area = fac.area.astype(np.float64)
     mass = np.bincount(bins, weights=area, minlength=6 * r * r)
@@ -236,9 +239,13 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     slot = np.full(6 * r * r, -1, np.int64)
     slot[occupied] = np.arange(len(occupied))
     facet_bin = slot[bins]
-    mean = np.stack([np.bincount(facet_bin, weights=area * fac.normal[:, c], minlength=len(occupied))
+    mean = np.stack([np.bincount(facet_bin, weights=area * normal[:, c], minlength=len(occupied))
                      for c in range(3)], 1)
     mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-300)
+    be.synchronize()
+    timer.timings["visibility"] = timer.timings.get("visibility", 0.0) + time.perf_counter() - t0
+    prog.stage(f"BVNDF ({6 * r * r} normal bins)", 1)
+    a_v = timer("bvndf", be.visible_area, fac, vis)
     bv = Bvndf(r, occupied.astype(np.int32), mean, mass[occupied], np.asarray(a_v, np.float64))
     iu, ou = np.triu_indices(nd)
     iu, ou = iu.astype(np.int32), ou.astype(np.int32)
@@ -263,13 +270,14 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     # direction sees. Measured against 2^18-facet ground truths (PoCL, 2^16 facets, K = 12; also
     # bench/study_woven.py): woven gains 2.2 / 2.8 dB at J = 16 (Blinn–Phong n = 512 / Cook–Torrance
     # m = 0.2) and +1.4 / −0.3 dB at J = 8; the other five families move by at most 0.2 dB.
-    facet_weight = timer("ndf_fit", be.visible_weights, fac, vis).astype(np.float64)
+    em_weight = timer("ndf_fit", be.visible_weights, fac, vis)  # float32, also kept on the device for EM
+    facet_weight = em_weight.astype(np.float64)
     if not facet_weight.any():  # no grid direction sees the tile at all: fall back on the bare NDF
-        facet_weight = area
+        facet_weight, em_weight = area, None
     # (The bins keep their area-weighted mean normals: within a bin at R = 128 the weighting barely moves it.)
     bin_weight = np.bincount(facet_bin, weights=facet_weight, minlength=len(occupied))
     seen = bin_weight > 0
-    lob, ndf_err = timer("ndf_fit", _fit_lobes, be, fac, facet_weight.astype(np.float32), bv.normal[seen],
+    lob, ndf_err = timer("ndf_fit", _fit_lobes, be, fac, em_weight, bv.normal[seen],
                          bin_weight[seen], j_req, tolerance, probe)
     rows, integrals, _, cond = lobes_mod.amplitude_system(lob, bv.normal[seen], bin_weight[seen])
     prog.stage(f"amplitudes ({len(lob)} lobes, {len(channels)} channel(s))", len(channels))

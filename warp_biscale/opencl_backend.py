@@ -34,7 +34,7 @@ import weakref
 
 import numpy as np
 
-from .backend import UploadCache, chunking, run_em_steps
+from .backend import UploadCache, chunking, em_result_rows, em_start_rows, run_em_steps
 from .model import Facets, Visibility
 from .reference import facet_shift, ray_offset
 
@@ -407,7 +407,9 @@ class OpenCLBackend:
         weight = self._empty(n, np.float32)
         self._launch("em", "visible_weights", (n,), v["directions"], v["bits"], np.int32(n_dirs), np.int32(n_words),
                      f["normal"], f["area"], np.int32(n), weight)
-        return self._read(weight, n, np.float32)
+        host = self._read(weight, n, np.float32)
+        f["visible_weight"] = (host, weight)  # ndf_em given `host` itself uses the device copy
+        return host
 
     def _em_launches(self, facets, n_lobes, axes, sharpness, log_weight, state, facet_weight=None):
         """One E-step's four kernels as prepared launches → (launches, the (J, 4) float64 statistics buffer).
@@ -454,29 +456,33 @@ class OpenCLBackend:
         j = len(start)
         if int(iterations) <= 0:
             return start.axes, start.sharpness, start.weight, 0
-        cl = self._cl
-        rw = cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR
-
-        def buffer(a, dtype):
-            return cl.Buffer(self._ctx, rw, hostbuf=np.ascontiguousarray(a, dtype))
-
-        state, moved = buffer(np.zeros(2), np.int32), buffer(np.zeros(j), np.int32)
-        axes32, sharp32 = buffer(start.axes, np.float32), buffer(start.sharpness, np.float32)
-        logw32 = buffer(np.maximum(start.log_weight, -1e30), np.float32)
-        axes64, sharp64, weight64 = (buffer(start.axes, np.float64), buffer(start.sharpness, np.float64),
-                                     buffer(start.weight, np.float64))
-        fw = None if facet_weight is None else self._buffer(facet_weight, np.float32)
+        state, moved = self._empty(2, np.int32), self._empty(j, np.int32)
+        axes32, sharp32, logw32 = (self._empty(n, np.float32) for n in (3 * j, j, j))
+        axes64, sharp64, weight64 = (self._empty(n, np.float64) for n in (3 * j, j, j))
+        result = self._empty(6 * j, np.float64)
+        fw = None if facet_weight is None else self._facet_weight(self._facets(facets), facet_weight)
         launches, stats = self._em_launches(facets, j, axes32, sharp32, logw32, state, fw)
         launches += [self._prepared("em", "em_m_step", (j,), stats, np.int32(j), state, axes64, sharp64, weight64,
                                     axes32, sharp32, logw32, moved),
                      self._prepared("em", "em_finish", (1,), moved, np.int32(j), np.int32(iterations), state)]
+        self._launch("em", "em_load", (j,), self._buffer(em_start_rows(start), np.float64), np.int32(j),
+                     axes64, sharp64, weight64, axes32, sharp32, logw32, state)
+
         def enqueue_step():
             for launch in launches:
                 launch()
 
         run_em_steps(iterations, enqueue_step, lambda: bool(self._read(state, 2, np.int32)[0]))
-        return (self._read(axes64, (j, 3), np.float64), self._read(sharp64, j, np.float64),
-                self._read(weight64, j, np.float64), int(self._read(state, 2, np.int32)[1]))
+        self._launch("em", "em_result", (j,), axes64, sharp64, weight64, state, np.int32(j), result)
+        return em_result_rows(self._read(result, (j, 6), np.float64))
+
+    def _facet_weight(self, f, facet_weight):
+        """The device copy of a facet weight: the one `visible_weights` left on the device when
+        `facet_weight` is the very array it returned, else an upload."""
+        held = f.get("visible_weight")
+        if held is not None and held[0] is facet_weight:
+            return held[1]
+        return self._buffer(facet_weight, np.float32)
 
     def _lobe_values(self, normal_buf, n, axes, sharpness):
         """(n, 8⌈J/8⌉) float32 device table G_j(n_s) of unit-amplitude lobes, zero past J (read as float8)."""

@@ -14,7 +14,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from .backend import UploadCache, chunking, run_em_steps
+from .backend import UploadCache, chunking, em_result_rows, em_start_rows, run_em_steps
 from .model import Facets, Visibility
 from .reference import facet_shift, ray_offset
 
@@ -294,7 +294,9 @@ class WarpBackend:
         v = self._vis(vis)
         weight = wp.empty(len(facets), dtype=wp.float32, device=self._device)
         self._launch(ke.visible_weights, len(facets), [v["directions"], v["bits"], f["normal"], f["area"]], [weight])
-        return self._trace_host(weight)
+        host = self._trace_host(weight)
+        f["visible_weight"] = (host, weight)  # ndf_em given `host` itself uses the device copy
+        return host
 
     def _em_launches(self, normal, mass, n_lobes, axes, sharpness, log_weight, state, resp):
         """The E-step's kernels as callables (recorded launches on a GPU: re-issuing one skips Python's
@@ -361,36 +363,31 @@ class WarpBackend:
         return stats.numpy()[0].astype(np.float64)
 
     def _em_program(self, normal, mass, j, iterations, resp):
-        """Buffers and launches of an EM of `iterations` steps for J lobes over these facet arrays →
-        dict: the lobe arrays (float32 for the E-step, float64 state), `state`, `steps` (callables)."""
+        """Buffers and launches of an EM of at most `iterations` steps for J lobes over these facet
+        arrays → dict: `start` and `result` (J, 6) float64 (em_start_rows / em_result_rows), `state`,
+        and the launches as callables: `load`, `steps` (one EM step) and `unload`."""
         import warp as wp
 
         from .kernels import em as ke
 
         dev = self._device
-        prog = {"state": wp.zeros(2, dtype=wp.int32, device=dev), "moved": wp.zeros(j, dtype=wp.int32, device=dev),
-                "axes32": wp.zeros(j, dtype=wp.vec3, device=dev), "sharp32": wp.zeros(j, dtype=wp.float32, device=dev),
-                "logw32": wp.zeros(j, dtype=wp.float32, device=dev), "axes64": wp.zeros(j, dtype=wp.vec3d, device=dev),
-                "sharp64": wp.zeros(j, dtype=wp.float64, device=dev),
-                "weight64": wp.zeros(j, dtype=wp.float64, device=dev)}
-        steps, stats = self._em_launches(normal, mass, j, prog["axes32"], prog["sharp32"], prog["logw32"],
-                                         prog["state"], resp)
-        steps.append(self._recorded(ke.em_m_step, j, [stats, prog["state"], prog["axes64"], prog["sharp64"],
-                                                      prog["weight64"]],
-                                    [prog["axes32"], prog["sharp32"], prog["logw32"], prog["moved"]], split=False))
+        prog = {name: wp.zeros(j, dtype=dtype, device=dev) for name, dtype in (
+            ("moved", wp.int32), ("axes32", wp.vec3), ("sharp32", wp.float32), ("logw32", wp.float32),
+            ("axes64", wp.vec3d), ("sharp64", wp.float64), ("weight64", wp.float64))}
+        prog["state"] = wp.zeros(2, dtype=wp.int32, device=dev)
+        prog["start"] = wp.zeros((j, 6), dtype=wp.float64, device=dev)
+        prog["result"] = wp.zeros((j, 6), dtype=wp.float64, device=dev)
+        lobes64 = [prog["axes64"], prog["sharp64"], prog["weight64"]]
+        lobes32 = [prog["axes32"], prog["sharp32"], prog["logw32"]]
+        steps, stats = self._em_launches(normal, mass, j, *lobes32, prog["state"], resp)
+        steps.append(self._recorded(ke.em_m_step, j, [stats, prog["state"], *lobes64], [*lobes32, prog["moved"]],
+                                    split=False))
         steps.append(self._recorded(ke.em_finish, 1, [prog["moved"], int(iterations)], [prog["state"]], split=False))
         prog["steps"] = steps
+        prog["load"] = self._recorded(ke.em_load, j, [prog["start"]], [*lobes64, *lobes32, prog["state"]],
+                                      split=False)
+        prog["unload"] = self._recorded(ke.em_result, j, [*lobes64, prog["state"]], [prog["result"]], split=False)
         return prog
-
-    @staticmethod
-    def _em_start(prog, start):
-        prog["state"].zero_()
-        prog["axes32"].assign(start.axes.astype(np.float32))
-        prog["sharp32"].assign(start.sharpness.astype(np.float32))
-        prog["logw32"].assign(np.maximum(start.log_weight, -1e30).astype(np.float32))
-        prog["axes64"].assign(start.axes)
-        prog["sharp64"].assign(start.sharpness)
-        prog["weight64"].assign(start.weight)
 
     def _em_graph(self, n, j, iterations, weighted):
         """On CUDA, the whole EM of one shape (Ns, J, step cap, weighted or not) as one captured CUDA
@@ -414,9 +411,11 @@ class WarpBackend:
                               resp=wp.empty((n, MAX_LOBES), dtype=wp.float32, device=dev))
             prog = self._em_program(shared["normal"], shared["mass"], j, iterations, shared["resp"])
             with wp.ScopedCapture(device=dev, force_module_load=False) as capture:
+                prog["load"]()
                 for _ in range(int(iterations)):
                     for step in prog["steps"]:
                         step()
+                prog["unload"]()
             graph = {"prog": prog, "graph": capture.graph}
         self._em_graphs[key] = graph  # most recent last
         while len(self._em_graphs) > 2 * 16:
@@ -429,27 +428,40 @@ class WarpBackend:
         from .lobes import LobeSet
 
         start = LobeSet(axes, sharpness, weight)
+        if int(iterations) <= 0:
+            return start.axes, start.sharpness, start.weight, 0
         j = len(start)
         f = self._facets(facets)
-        mass = f["area"] if facet_weight is None else self._array(np.asarray(facet_weight, np.float32), wp.float32)
+        mass = f["area"] if facet_weight is None else self._facet_weight(f, facet_weight)
         if self._device.is_cuda:
             graph = self._em_graph(len(facets), j, iterations, facet_weight is not None)
             prog = graph["prog"]
             wp.copy(self._em_buffers["normal"], f["normal"])
             wp.copy(self._em_buffers["mass"], mass)
-            self._em_start(prog, start)
+            prog["start"].assign(em_start_rows(start))
             wp.capture_launch(graph["graph"])
         else:
             prog = self._em_program(f["normal"], mass, j, iterations, self._resp(facets, j))
-            self._em_start(prog, start)
+            prog["start"].assign(em_start_rows(start))
+            prog["load"]()
 
             def enqueue_step():
                 for step in prog["steps"]:
                     step()
 
             run_em_steps(iterations, enqueue_step, lambda: bool(prog["state"].numpy()[0]))
-        return (self._trace_host(prog["axes64"]), self._trace_host(prog["sharp64"]),
-                self._trace_host(prog["weight64"]), int(prog["state"].numpy()[1]))
+            prog["unload"]()
+        return em_result_rows(self._trace_host(prog["result"]))
+
+    def _facet_weight(self, f, facet_weight):
+        """The device copy of a facet weight: the one `visible_weights` left on the device when
+        `facet_weight` is the very array it returned, else an upload."""
+        import warp as wp
+
+        held = f.get("visible_weight")
+        if held is not None and held[0] is facet_weight:
+            return held[1]
+        return self._array(np.asarray(facet_weight, np.float32), wp.float32)
 
     def lobe_moments(self, facets, vis, weight, axes, sharpness, pair_i, pair_o, to_host=True):
         import warp as wp
