@@ -84,7 +84,10 @@ def _mean_resultant_to_sharpness(rbar):
         coth = np.where(big, 1.0, 1.0 / np.tanh(np.where(big, 1.0, k)))
         f = coth - 1.0 / k - r
         df = 1.0 / k**2 - np.where(big, 0.0, 1.0 / np.sinh(np.where(big, 1.0, k)) ** 2)
-        k = np.maximum(k - f / np.where(df > 0, df, 1.0), 1e-9)
+        k_new = np.maximum(k - f / np.where(df > 0, df, 1.0), 1e-9)
+        if np.array_equal(k_new, k):  # a fixed point: the remaining steps would change nothing
+            break
+        k = k_new
     kappa[live] = k
     return np.clip(kappa, sg.SHARPNESS_MIN, sg.SHARPNESS_MAX)
 
@@ -98,7 +101,9 @@ def initial_lobes(normal, area, count: int, resolution: int = 16) -> LobeSet:
     normal = np.asarray(normal, np.float64)
     area = np.asarray(area, np.float64)
     bins = cube_bin(normal, resolution)
-    uniq, inv = np.unique(bins, return_inverse=True)
+    used = np.zeros(6 * resolution * resolution, np.int64)  # the non-empty coarse bins, by counting
+    used[bins] = 1
+    inv = (np.cumsum(used) - 1)[bins]
     w = np.bincount(inv, weights=area)
     mean = np.stack([np.bincount(inv, weights=area * normal[:, c]) for c in range(3)], 1)
     norm = np.linalg.norm(mean, axis=1)
