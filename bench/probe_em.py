@@ -40,7 +40,7 @@ def main(backend, facets, j):
     a64, s64, w64 = (be._array(start.axes, wp.vec3d), be._array(start.sharpness, wp.float64),
                      be._array(start.weight, wp.float64))
     f = be._facets(fac)
-    steps, stats = be._em_launches(f["normal"], f["area"], j, a32, s32, l32, state, be._resp(fac, j))
+    steps, stats = be._em_launches(f["normal"], f["area"], j, a32, s32, l32, state, be._resp(fac, j))  # warp only
     steps.append(be._recorded(ke.em_m_step, j, [stats, state, a64, s64, w64], [a32, s32, l32, moved], split=False))
     steps.append(be._recorded(ke.em_finish, 1, [moved, 1000000], [state], split=False))
     be.synchronize()

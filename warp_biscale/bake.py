@@ -26,7 +26,11 @@ from .truth import _check_count, _prepare, _Timer
 __all__ = ["bake", "Bvndf", "ROUTES"]
 
 ROUTES = ("facets", "histogram")
-EM_ITERATIONS = 30  # the cap: well-separated lobes settle in 2–10; on a smooth NDF more steps barely move f̄ (bench)
+# The cap on EM steps: well-separated lobes settle in 2–3. On a smooth NDF (height field, woven) EM
+# creeps on, and steps past 16 moved the PSNR against the 2^18-facet ground truths by −0.3 to +0.7 dB
+# (mean −0.02 dB; J = 8 and 16, Blinn–Phong n = 512 and Cook–Torrance m = 0.2, PoCL, 2^16 facets),
+# while each step costs ~55 µs of dependent launches on an H100.
+EM_ITERATIONS = 16
 HISTOGRAM_BYTES = 1 << 30  # the dense histogram N (pairs × non-empty bins) is refused beyond this
 
 
@@ -308,7 +312,7 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
             else:
                 np.multiply(mu, mult[c], out=amps[m, :, :, c])
         written[m] = True
-        energy[m] += (mu @ integrals)[:, None] * mult
+        energy[m] += (mu @ integrals.astype(np.float32))[:, None] * mult
     amps[~written] = 0.0
     if not np.all(np.isfinite(energy)):
         raise FloatingPointError("the amplitude tables hold non-finite values")
