@@ -446,6 +446,49 @@ def test_upload_cache_reuses_by_content():
     assert cache.get(a, np.int32, upload, tag="vec3") == 5  # same bytes, another device view
 
 
+def test_upload_cache_knows_a_frozen_array_without_hashing(monkeypatch):
+    """An owned read-only array seen before is a hit by identity (its bytes are not hashed again); a
+    writable one, or a read-only view, is looked up by content every time."""
+    import hashlib
+
+    from warp_biscale import backend as backend_mod
+
+    hashed = []
+    real = hashlib.blake2b
+    monkeypatch.setattr(backend_mod.hashlib, "blake2b", lambda data, **kw: hashed.append(1) or real(data, **kw))
+    cache = backend_mod.UploadCache()
+    pi, po = dirs.unordered_pairs(5)
+    assert not pi.flags.writeable and dirs.unordered_pairs(5)[0] is pi  # made once, read-only
+    first = cache.get(pi, np.int32, lambda host: object())
+    n = len(hashed)
+    assert cache.get(pi, np.int32, lambda host: object()) is first and len(hashed) == n
+    assert cache.get(dirs.unordered_pairs(5)[0], np.int32, lambda host: object()) is first and len(hashed) == n
+    writable = np.array(pi)
+    assert cache.get(writable, np.int32, lambda host: object()) is first and len(hashed) == n + 1
+    view = pi[:]
+    assert cache.get(view, np.int32, lambda host: object()) is first and len(hashed) == n + 2
+    np.testing.assert_array_equal(pi, np.triu_indices(5)[0])
+    np.testing.assert_array_equal(po, np.triu_indices(5)[1])
+
+
+def test_sampled_facets_are_freed_without_the_cycle_collector(backend):
+    """Facets read back lazily hold no reference cycle: dropping them frees their device arrays at once."""
+    import gc
+    import weakref
+
+    tile = wb.geometry.pyramid()
+    gc.disable()
+    try:
+        fac = backend.sample_facets(tile, 1000, 0)
+        assert fac.material.shape == (1000,) and fac.color.shape == (1000, 3) and fac.position.shape == (1000, 3)
+        backend.visibility(tile, fac, dirs.grid(3))
+        gone = weakref.ref(fac)
+        del fac
+        assert gone() is None
+    finally:
+        gc.enable()
+
+
 def test_visible_weights_match_reference(backend):
     """EM facet weights ΔA·mean_k V(ω_k)(n·ω_k)⁺ against the float64 reference: float32 sums of ≤ 144
     terms in [0, 1], so 1e-5 of the largest weight. On the woven tile a large share of the area (the

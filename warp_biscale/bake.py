@@ -251,8 +251,7 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     prog.stage(f"BVNDF ({6 * r * r} normal bins)", 1)
     a_v = timer("bvndf", be.visible_area, fac, vis)
     bv = Bvndf(r, occupied.astype(np.int32), mean, mass[occupied], np.asarray(a_v, np.float64))
-    iu, ou = np.triu_indices(nd)
-    iu, ou = iu.astype(np.int32), ou.astype(np.int32)
+    iu, ou = dirs.unordered_pairs(nd)
     channels = _channels(tile, fac)
     need_hist = route == "histogram" or keep_hist
     if need_hist:
@@ -283,24 +282,27 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     seen = bin_weight > 0
     lob, ndf_err = timer("ndf_fit", _fit_lobes, be, fac, em_weight, bv.normal[seen],
                          bin_weight[seen], j_req, tolerance, probe)
-    rows, integrals, _, cond = lobes_mod.amplitude_system(lob, bv.normal[seen], bin_weight[seen])
     prog.stage(f"amplitudes ({len(lob)} lobes, {len(channels)} channel(s))", len(channels))
+    # "amplitudes" times the whole stage: the moment sums are queued first, and the host solves for
+    # the Gram system's rows while the device sums; then the solves and the tables.
+    t0 = time.perf_counter()
+    if route == "facets":  # the moments stay on the device for the solve
+        moments = [be.lobe_moments(fac, vis, w, lob.axes, lob.sharpness, iu, ou, to_host=False)
+                   for _, _, w in channels]
+    else:
+        moments = [be.histogram_moments(hist, bv.normal, grid, lob.axes, lob.sharpness, iu, ou) for hist in hists]
+    rows, integrals, _, cond = lobes_mod.amplitude_system(lob, bv.normal[seen], bin_weight[seen])
     pi, po = dirs.all_pairs(nd)
     out = []
-    for c, (m, mult, w) in enumerate(channels):
-        if route == "facets":
-            mom = timer("amplitudes", be.lobe_moments, fac, vis, w, lob.axes, lob.sharpness, iu, ou,
-                        to_host=False)  # stays on the device for the solve
-        else:
-            mom = timer("amplitudes", be.histogram_moments, hists[c], bv.normal, grid, lob.axes, lob.sharpness, iu, ou)
-        mu = timer("amplitudes", be.solve_amplitudes, mom, a_v, rows, integrals, pi, po, nd)
+    for (m, mult, _), mom in zip(channels, moments):
+        mu = be.solve_amplitudes(mom, a_v, rows, integrals, pi, po, nd)
         bad = ~np.isfinite(mu)
         if bad.any():
             raise FloatingPointError(f"the amplitude solve produced {int(bad.sum())} non-finite values")
         out.append((m, np.asarray(mult, np.float32), np.maximum(mu, 0.0, out=mu)))
         prog.advance()
     # Per material and RGB, once: the channels' amplitudes times their colours (BRDF-independent), and
-    # their energies Σ_j μ_j ∫G_j (float64 from μ: the tables need not be summed again).
+    # their energies Σ_j μ_j ∫G_j (from μ: the tables need not be summed again).
     n_mat = tile.n_materials
     amps = np.empty((n_mat, nd * nd, len(lob), 3), np.float32)
     energy = np.zeros((n_mat, nd * nd, 3), np.float64)
@@ -318,6 +320,8 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
         raise FloatingPointError("the amplitude tables hold non-finite values")
     amps = amps.reshape(n_mat, nd, nd, len(lob), 3)
     energy = energy.reshape(n_mat, nd, nd, 3).astype(np.float32)
+    be.synchronize()
+    timer.timings["amplitudes"] = timer.timings.get("amplitudes", 0.0) + time.perf_counter() - t0
     info = {"facets": count, "seed": int(seed), "normal_res": r, "route": route, "lobes": len(lob),
             "lobes_requested": j_req, "ndf_error": ndf_err, "ndf_probe_sharpness": probe,
             "em_iterations": lob.iterations, "gram_condition": cond, "nonempty_bins": int(len(occupied)),

@@ -6,10 +6,12 @@ Direction index k = row·K + col for the cell centre (u, v) = ((col + ½)/K, (ro
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
-__all__ = ["grid", "all_pairs", "bilinear_corners", "square_to_hemisphere", "hemisphere_to_square", "check_directions",
-           "cell_cosine_integrals"]
+__all__ = ["grid", "all_pairs", "unordered_pairs", "bilinear_corners", "square_to_hemisphere", "hemisphere_to_square",
+           "check_directions", "cell_cosine_integrals"]
 
 
 def square_to_hemisphere(uv: np.ndarray) -> np.ndarray:
@@ -64,13 +66,30 @@ def grid(k: int = 12) -> np.ndarray:
     return square_to_hemisphere(np.stack([u.ravel(), v.ravel()], axis=-1))
 
 
+def _frozen(*arrays):
+    out = tuple(np.array(a) for a in arrays)  # owned copies
+    for a in out:
+        a.flags.writeable = False
+    return out
+
+
+@functools.lru_cache(maxsize=8)
 def all_pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """(pair_i, pair_o): every (i, o) of n directions, ωi-major (pair p = i·n + o), int32.
+    """(pair_i, pair_o): every (i, o) of n directions, ωi-major (pair p = i·n + o), int32, read-only
+    (made once per n: a backend then knows them again without hashing them, `backend.UploadCache`).
 
     The layout of a K²×K² table flattened row by row: table[i, o] is pair i·n + o.
     """
     i, o = np.meshgrid(np.arange(n, dtype=np.int32), np.arange(n, dtype=np.int32), indexing="ij")
-    return i.ravel(), o.ravel()
+    return _frozen(i.ravel(), o.ravel())
+
+
+@functools.lru_cache(maxsize=8)
+def unordered_pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(pair_i, pair_o): the unordered pairs i ≤ o of n directions (np.triu_indices order), int32,
+    read-only, made once per n."""
+    i, o = np.triu_indices(n)
+    return _frozen(i.astype(np.int32), o.astype(np.int32))
 
 
 def bilinear_corners(w, k: int) -> tuple[np.ndarray, np.ndarray]:

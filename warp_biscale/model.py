@@ -38,7 +38,8 @@ class Facets:
 
     @classmethod
     def deferred(cls, count: int, load, seed: int = 0, **known) -> Facets:
-        """Facets whose arrays are made on first use by `load(name)` (a backend's read-back);
+        """Facets whose arrays are made on first use by `load(name, facets)` (a backend's read-back;
+        given the facets rather than holding them, so no reference cycle keeps device arrays alive);
         `known` arrays (by name) are given now."""
         self = cls.__new__(cls)
         self._count = int(count)
@@ -61,7 +62,7 @@ class Facets:
     def _get(self, name):
         value = self._host.get(name)
         if value is None:
-            value = self._load(name)
+            value = self._load(name, self)
             self._check(name, value)
             self._host[name] = value
         return value

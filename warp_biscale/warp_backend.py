@@ -14,7 +14,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from .backend import UploadCache, chunking, em_result_rows, em_start_rows, run_em_steps
+from .backend import UploadCache, chunking, em_result_rows, em_start_rows, equal_areas, run_em_steps
 from .model import Facets, Visibility
 from .reference import facet_shift, ray_offset
 
@@ -166,12 +166,12 @@ class WarpBackend:
                      [t["points"], t["faces"], t["vertex_normals"], int(tile.vertex_normals is not None),
                       t["face_normals"], t["cumulative_area"], t["face_area"], count, wp.float64(xi1), float(xi2)],
                      [pos, nrm, face])
-        area = np.full(count, tile.area / count, np.float32)
+        area = equal_areas(count, float(np.float32(tile.area / count)))
         # The facets stay on the device: the host reads back only what host code asks for.
-        host = {"position": lambda: tile.from_local(self._trace_host(pos)), "normal": lambda: self._trace_host(nrm),
-                "face": lambda: self._trace_host(face), "material": lambda: tile.material_ids[facets.face],
-                "color": lambda: tile.colors[facets.face].astype(np.float32)}
-        facets = Facets.deferred(count, lambda name: host[name](), seed=int(seed), area=area)
+        host = {"position": lambda f: tile.from_local(self._trace_host(pos)), "normal": lambda f: self._trace_host(nrm),
+                "face": lambda f: self._trace_host(face), "material": lambda f: tile.material_ids[f.face],
+                "color": lambda f: tile.colors[f.face].astype(np.float32)}
+        facets = Facets.deferred(count, lambda name, f: host[name](f), seed=int(seed), area=area)
         facets.device_cache[self.name] = _DeviceFacets(self, facets, {
             "position": pos, "position_tile": tile, "normal": nrm, "face": face,
             "area": self._recurring(area, np.float32, wp.float32)})  # read-only: shared by bakes of this count
