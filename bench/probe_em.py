@@ -7,7 +7,6 @@ import os
 import sys
 import time
 
-import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import warp_biscale as wb  # noqa: E402
@@ -16,7 +15,6 @@ from warp_biscale import lobes as lobes_mod  # noqa: E402
 
 
 def main(backend, facets, j):
-    import warp as wp
 
     be = wb.get_backend(backend)
     fac = be.sample_facets(heightfield_tile(), facets, 0)
@@ -29,20 +27,13 @@ def main(backend, facets, j):
         print(f"ndf_em iterations={iters}: {(time.perf_counter() - t0) * 1e3:.2f} ms, steps {out[3]}")
     if not backend.startswith("warp"):
         return
-    from warp_biscale.kernels import em as ke
 
-    dev = be._device
-    state = wp.zeros(2, dtype=wp.int32, device=dev)
-    moved = wp.zeros(j, dtype=wp.int32, device=dev)
-    a32 = be._array(start.axes.astype(np.float32), wp.vec3)
-    s32 = be._array(start.sharpness.astype(np.float32), wp.float32)
-    l32 = be._array(start.log_weight.astype(np.float32), wp.float32)
-    a64, s64, w64 = (be._array(start.axes, wp.vec3d), be._array(start.sharpness, wp.float64),
-                     be._array(start.weight, wp.float64))
     f = be._facets(fac)
-    steps, stats = be._em_launches(f["normal"], f["area"], j, a32, s32, l32, state, be._resp(fac, j))  # warp only
-    steps.append(be._recorded(ke.em_m_step, j, [stats, state, a64, s64, w64], [a32, s32, l32, moved], split=False))
-    steps.append(be._recorded(ke.em_finish, 1, [moved, 1000000], [state], split=False))
+    # The bake's EM program (warp backend), with a step cap it never reaches: every step runs.
+    prog = be._em_program(f["normal"], f["area"], j, 1000000, be._resp(fac, j))
+    prog["start"].assign(wb.backend.em_start_rows(start))
+    prog["load"]()
+    steps, state = prog["steps"], prog["state"]
     be.synchronize()
     t0 = time.perf_counter()
     for _ in range(200):
