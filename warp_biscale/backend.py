@@ -190,6 +190,32 @@ def run_em_steps(iterations: int, enqueue_step, done) -> None:
             check *= 2
 
 
+def facet_host_array(facets, key: str) -> np.ndarray | None:
+    """The host array behind a facet device array: normal, face, area, material, or weight (ΔA·colour,
+    (Ns, 3)); None for another key."""
+    if key == "weight":
+        return facets.color * facets.area[:, None]
+    return getattr(facets, key) if key in ("normal", "face", "area", "material") else None
+
+
+class DeviceFacets(dict):
+    """A Facets' device arrays by name (facets.device_cache[backend.name]): the sampling kernel's own
+    outputs are given at once; any other (`facet_host_array`) is uploaded by `upload(key, host)` when
+    first asked for. Holds the facets weakly, so they and their device arrays go together."""
+
+    def __init__(self, upload, facets, given=None):
+        super().__init__(given or {})
+        self._upload = upload
+        self._facets = weakref.ref(facets)
+
+    def __missing__(self, key):
+        host = facet_host_array(self._facets(), key)
+        if host is None:
+            raise KeyError(key)
+        value = self[key] = self._upload(key, host)
+        return value
+
+
 @functools.lru_cache(maxsize=8)
 def equal_areas(count: int, value: float) -> np.ndarray:
     """(count,) float32 ΔA = `value` for every facet, read-only and made once per (count, value): the

@@ -34,7 +34,7 @@ import weakref
 
 import numpy as np
 
-from .backend import UploadCache, chunking, em_result_rows, em_start_rows, equal_areas, run_em_steps
+from .backend import DeviceFacets, UploadCache, chunking, em_result_rows, em_start_rows, equal_areas, run_em_steps
 from .model import Facets, Visibility
 from .reference import facet_shift, ray_offset
 
@@ -267,8 +267,11 @@ class OpenCLBackend:
         """facets.device_cache[self.name]: the facets' buffers, each uploaded when first asked for."""
         entry = facets.device_cache.get(self.name)
         if entry is None or entry.get("ctx") is not self._ctx:
-            entry = facets.device_cache[self.name] = _DeviceFacets(self, facets, {"ctx": self._ctx})
+            entry = facets.device_cache[self.name] = DeviceFacets(self._upload_facet_array, facets, {"ctx": self._ctx})
         return entry
+
+    def _upload_facet_array(self, key, host):
+        return self._buffer(host, np.int32 if key in ("face", "material") else np.float32)
 
     def _facet_positions(self, facets: Facets, tile):
         """Facet positions on the device in `tile`'s local frame (see `SmallScale.to_local`)."""
@@ -311,7 +314,7 @@ class OpenCLBackend:
                 "material": lambda f: tile.material_ids[f.face],
                 "color": lambda f: tile.colors[f.face].astype(np.float32)}
         facets = Facets.deferred(count, lambda name, f: host[name](f), seed=int(seed), area=area)
-        facets.device_cache[self.name] = _DeviceFacets(self, facets, {
+        facets.device_cache[self.name] = DeviceFacets(self._upload_facet_array, facets, {
             "ctx": self._ctx, "position": pos, "position_tile": tile, "normal": nrm, "face": face,
             "area": self._recurring(area, np.float32)})  # read-only: shared by bakes of this count
         return facets
@@ -449,9 +452,10 @@ class OpenCLBackend:
 
     def _em_program(self, n, j, iterations, weighted):
         """The buffers and prepared launches of an EM of one shape (Ns, J, step cap, weighted or not),
-        made once and kept (the facets are copied into its buffers): setting up 30-odd buffers and
-        kernels cost ~1.4 ms a call on NVIDIA OpenCL (H100, 2^16 facets, J = 8). → dict: `normal`,
-        `mass`, `start` / `result` (J, 6) float64 (em_start_rows / em_result_rows), `state`, and the
+        made once and kept (the facets are copied into its buffers). Made at every call, they left a
+        one-step ndf_em at 1.50 ms on NVIDIA OpenCL against 0.27 ms with Warp's graph (H100, 2^16
+        facets, J = 8). → dict: `normal`, `mass`, `start` / `result` (J, 6) float64
+        (em_start_rows / em_result_rows), `state`, and the
         launches `load`, `steps` (one EM step), `unload`."""
         key = (n, j, int(iterations), bool(weighted))
         prog = self._em_programs.pop(key, None)
@@ -833,22 +837,3 @@ class OpenCLBackend:
                      np.float32(1.0 - SUPPORT / eta), np.int32(n), out)
         return self._read(out, (height, width, 3), np.float32)
 
-
-class _DeviceFacets(dict):
-    """A Facets' OpenCL buffers by name, each made from the host arrays when first asked for (the
-    sampling kernel's own outputs are given at once)."""
-
-    def __init__(self, backend, facets, given):
-        super().__init__(given)
-        self._backend = backend
-        self._facets = weakref.ref(facets)
-
-    def __missing__(self, key):
-        facets, buffer = self._facets(), self._backend._buffer
-        make = {"normal": lambda: buffer(facets.normal, np.float32), "face": lambda: buffer(facets.face, np.int32),
-                "area": lambda: buffer(facets.area, np.float32), "material": lambda: buffer(facets.material, np.int32),
-                "weight": lambda: buffer(facets.color * facets.area[:, None], np.float32)}
-        if key not in make:
-            raise KeyError(key)
-        value = self[key] = make[key]()
-        return value

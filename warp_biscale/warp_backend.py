@@ -14,7 +14,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from .backend import UploadCache, chunking, em_result_rows, em_start_rows, equal_areas, run_em_steps
+from .backend import DeviceFacets, UploadCache, chunking, em_result_rows, em_start_rows, equal_areas, run_em_steps
 from .model import Facets, Visibility
 from .reference import facet_shift, ray_offset
 
@@ -123,8 +123,14 @@ class WarpBackend:
         """facets.device_cache[self.name]: the facets' device arrays, each uploaded when first asked for."""
         entry = facets.device_cache.get(self.name)
         if entry is None:
-            entry = facets.device_cache[self.name] = _DeviceFacets(self, facets)
+            entry = facets.device_cache[self.name] = DeviceFacets(self._upload_facet_array, facets)
         return entry
+
+    def _upload_facet_array(self, key, host):
+        import warp as wp
+
+        dtype = {"normal": wp.vec3, "face": wp.int32, "area": wp.float32, "material": wp.int32, "weight": wp.vec3}[key]
+        return wp.array(host, dtype=dtype, device=self._device)
 
     def _facet_positions(self, facets: Facets, tile):
         """Facet positions on the device in `tile`'s local frame (see `SmallScale.to_local`)."""
@@ -172,7 +178,7 @@ class WarpBackend:
                 "face": lambda f: self._trace_host(face), "material": lambda f: tile.material_ids[f.face],
                 "color": lambda f: tile.colors[f.face].astype(np.float32)}
         facets = Facets.deferred(count, lambda name, f: host[name](f), seed=int(seed), area=area)
-        facets.device_cache[self.name] = _DeviceFacets(self, facets, {
+        facets.device_cache[self.name] = DeviceFacets(self._upload_facet_array, facets, {
             "position": pos, "position_tile": tile, "normal": nrm, "face": face,
             "area": self._recurring(area, np.float32, wp.float32)})  # read-only: shared by bakes of this count
         return facets
@@ -798,26 +804,3 @@ class WarpBackend:
                      [out])
         return out.numpy().reshape(height, width, 3)
 
-
-class _DeviceFacets(dict):
-    """A Facets' Warp arrays by name, each made from the host arrays when first asked for (the
-    sampling kernel's own outputs are given at once)."""
-
-    def __init__(self, backend, facets, given=None):
-        super().__init__(given or {})
-        self._backend = backend
-        self._facets = weakref.ref(facets)
-
-    def __missing__(self, key):
-        import warp as wp
-
-        facets, dev = self._facets(), self._backend._device
-        make = {"normal": lambda: wp.array(facets.normal, dtype=wp.vec3, device=dev),
-                "face": lambda: wp.array(facets.face, dtype=wp.int32, device=dev),
-                "area": lambda: wp.array(facets.area, dtype=wp.float32, device=dev),
-                "material": lambda: wp.array(facets.material, dtype=wp.int32, device=dev),
-                "weight": lambda: wp.array(facets.color * facets.area[:, None], dtype=wp.vec3, device=dev)}
-        if key not in make:
-            raise KeyError(key)
-        value = self[key] = make[key]()
-        return value
