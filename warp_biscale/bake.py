@@ -26,11 +26,11 @@ from .truth import _check_count, _prepare, _Timer
 __all__ = ["bake", "Bvndf", "ROUTES"]
 
 ROUTES = ("facets", "histogram")
-# The cap on EM steps: well-separated lobes settle in 2–3. On a smooth NDF (height field, woven) EM
-# creeps on, and steps past 16 moved the PSNR against the 2^18-facet ground truths by −0.3 to +0.7 dB
-# (mean −0.02 dB; J = 8 and 16, Blinn–Phong n = 512 and Cook–Torrance m = 0.2, PoCL, 2^16 facets),
-# while each step costs ~55 µs of dependent launches on an H100.
-EM_ITERATIONS = 16
+# The cap on EM steps: well-separated lobes settle in 2–5. On a smooth NDF (height field, woven) EM
+# creeps on, and against the 2^18-facet ground truths (PoCL, 2^16 facets, J = 8 and 16, Blinn–Phong
+# n = 512 and Cook–Torrance m = 0.2) steps 9–16 moved the PSNR by −0.7 to +0.4 dB, mean +0.01 dB
+# (steps past 16: −0.3 to +0.7, mean −0.02), while each step costs ~55 µs of dependent launches on an H100.
+EM_ITERATIONS = 8
 HISTOGRAM_BYTES = 1 << 30  # the dense histogram N (pairs × non-empty bins) is refused beyond this
 
 
@@ -293,33 +293,35 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
         moments = [be.histogram_moments(hist, bv.normal, grid, lob.axes, lob.sharpness, iu, ou) for hist in hists]
     rows, integrals, _, cond = lobes_mod.amplitude_system(lob, bv.normal[seen], bin_weight[seen])
     pi, po = dirs.all_pairs(nd)
+    integrals32 = integrals.astype(np.float32)
     out = []
     for (m, mult, _), mom in zip(channels, moments):
         mu = be.solve_amplitudes(mom, a_v, rows, integrals, pi, po, nd)
-        bad = ~np.isfinite(mu)
-        if bad.any():
-            raise FloatingPointError(f"the amplitude solve produced {int(bad.sum())} non-finite values")
+        if not np.isfinite(mu).all():
+            raise FloatingPointError(f"the amplitude solve produced {int((~np.isfinite(mu)).sum())} non-finite values")
         out.append((m, np.asarray(mult, np.float32), np.maximum(mu, 0.0, out=mu)))
         prog.advance()
     # Per material and RGB, once: the channels' amplitudes times their colours (BRDF-independent), and
     # their energies Σ_j μ_j ∫G_j (from μ: the tables need not be summed again).
     n_mat = tile.n_materials
     amps = np.empty((n_mat, nd * nd, len(lob), 3), np.float32)
-    energy = np.zeros((n_mat, nd * nd, 3), np.float64)
+    energy = np.zeros((n_mat, nd * nd, 3), np.float32)
     written = np.zeros(n_mat, bool)
     for m, mult, mu in out:
-        for c in range(3):  # one colour at a time: ~2× faster than broadcasting over a last axis of 3
+        mu_energy = mu @ integrals32
+        # One colour at a time: numpy broadcasting over a last axis of 3 was 2–5× slower.
+        for c in range(3):
             if written[m]:
                 amps[m, :, :, c] += mu * mult[c]
             else:
                 np.multiply(mu, mult[c], out=amps[m, :, :, c])
+            energy[m, :, c] += mu_energy * mult[c]
         written[m] = True
-        energy[m] += (mu @ integrals.astype(np.float32))[:, None] * mult
     amps[~written] = 0.0
     if not np.all(np.isfinite(energy)):
         raise FloatingPointError("the amplitude tables hold non-finite values")
     amps = amps.reshape(n_mat, nd, nd, len(lob), 3)
-    energy = energy.reshape(n_mat, nd, nd, 3).astype(np.float32)
+    energy = energy.reshape(n_mat, nd, nd, 3)
     be.synchronize()
     timer.timings["amplitudes"] = timer.timings.get("amplitudes", 0.0) + time.perf_counter() - t0
     info = {"facets": count, "seed": int(seed), "normal_res": r, "route": route, "lobes": len(lob),

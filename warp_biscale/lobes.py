@@ -85,9 +85,12 @@ def _mean_resultant_to_sharpness(rbar):
         f = coth - 1.0 / k - r
         df = 1.0 / k**2 - np.where(big, 0.0, 1.0 / np.sinh(np.where(big, 1.0, k)) ** 2)
         k_new = np.maximum(k - f / np.where(df > 0, df, 1.0), 1e-9)
-        if np.array_equal(k_new, k):  # a fixed point: the remaining steps would change nothing
-            break
+        # Converged: Newton's next step would move κ by ~(1e−12)², below float64 (waiting for an exact
+        # fixed point instead ran all 20 steps, as some κ oscillate in their last bit).
+        settled = np.all(np.abs(k_new - k) <= 1e-12 * k)
         k = k_new
+        if settled:
+            break
     kappa[live] = k
     return np.clip(kappa, sg.SHARPNESS_MIN, sg.SHARPNESS_MAX)
 
@@ -120,8 +123,9 @@ def initial_lobes(normal, area, count: int, resolution: int = 16) -> LobeSet:
     axes = mean[chosen]
     # Hard-assign bins to the nearest axis for the starting weight and sharpness.
     owner = np.argmax(mean @ axes.T, axis=1)
-    weight = np.array([w[owner == j].sum() for j in range(len(axes))])
-    resultant = np.array([np.linalg.norm((w[owner == j, None] * mean[owner == j]).sum(0)) for j in range(len(axes))])
+    weight = np.bincount(owner, weights=w, minlength=len(axes))
+    resultant = np.linalg.norm(np.stack([np.bincount(owner, weights=w * mean[:, c], minlength=len(axes))
+                                         for c in range(3)], 1), axis=1)
     sharp = np.clip(_mean_resultant_to_sharpness(resultant / np.maximum(weight, 1e-300)), 1.0, 1e4)
     return LobeSet(axes, sharp, weight / weight.sum())
 
