@@ -197,6 +197,29 @@ def test_flat_tile_is_one_capped_lobe():
     assert lob.sharpness[0] == wb.sg.SHARPNESS_MAX
 
 
+@pytest.mark.parametrize("resolution", [16, 32, 128])
+def test_coarse_bins_from_fine_bins_match_binning_the_normals(resolution):
+    """The bake hands initial_lobes the coarse bins of its fine bins' mean normals by integer
+    arithmetic; that must be the bin that cube_bin gives those normals, and the same start."""
+    rng = np.random.default_rng(3)
+    n = rng.normal(size=(20000, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    fine = ref.cube_bin(n, resolution)
+    np.testing.assert_array_equal(bake_module._coarse_bins(fine, resolution), ref.cube_bin(n, 16))
+    # The means of the non-empty fine bins, as the bake has them.
+    ids, inv = np.unique(fine, return_inverse=True)
+    mean = np.stack([np.bincount(inv, weights=n[:, c]) for c in range(3)], 1)
+    mean /= np.linalg.norm(mean, axis=1, keepdims=True)
+    weight = np.bincount(inv) * 1.0
+    coarse = bake_module._coarse_bins(ids, resolution)
+    np.testing.assert_array_equal(coarse, ref.cube_bin(mean, 16))
+    a = lobes_mod.initial_lobes(mean, weight, 8, coarse_bins=coarse)
+    b = lobes_mod.initial_lobes(mean, weight, 8)
+    np.testing.assert_array_equal(a.axes, b.axes)
+    np.testing.assert_array_equal(a.sharpness, b.sharpness)
+    assert bake_module._coarse_bins(ids, 24) is None  # 16 does not divide 24: initial_lobes bins itself
+
+
 def test_sharpness_from_mean_resultant_is_exact():
     kappa = np.array([0.01, 1.0, 10.0, 300.0, 1e5])
     rbar = 1 / np.tanh(kappa) - 1 / kappa

@@ -115,12 +115,13 @@ def _channels(tile, facets):
     return out
 
 
-def _fit_lobes(be, fac, facet_weight, bin_normal, bin_weight, count, tolerance, probe_sharpness):
+def _fit_lobes(be, fac, facet_weight, bin_normal, bin_weight, count, tolerance, probe_sharpness, coarse_bins=None):
     """EM for `count` lobes, or the smallest J meeting `tolerance` when count == "auto", on the NDF
-    weighted by `facet_weight` (binned: `bin_weight` at `bin_normal`)."""
+    weighted by `facet_weight` (binned: `bin_weight` at `bin_normal`, in the coarse bins `coarse_bins`
+    of `lobes.initial_lobes` when known)."""
 
     def fit(j):
-        start = lobes_mod.initial_lobes(bin_normal, bin_weight, j)
+        start = lobes_mod.initial_lobes(bin_normal, bin_weight, j, coarse_bins=coarse_bins)
         return lobes_mod.fit(be, fac, start, EM_ITERATIONS, facet_weight)
 
     if count != "auto":  # the NDF error is what "auto" needs; with a fixed J it is not worth its time
@@ -134,6 +135,18 @@ def _fit_lobes(be, fac, facet_weight, bin_normal, bin_weight, count, tolerance, 
         if err <= tolerance or len(lob) < j:  # met, or fewer distinct normals than lobes asked for
             break
     return best
+
+
+def _coarse_bins(fine, resolution, coarse=16):
+    """The bins of `lobes.initial_lobes` (cube map at `coarse`) holding the fine cube-map bins `fine`
+    (at `resolution`), by integer arithmetic when `coarse` divides `resolution` (a fine bin's mean
+    normal lies in its bin, so in the coarse bin around it), else None (initial_lobes bins the normals)."""
+    if resolution % coarse:
+        return None
+    f = resolution // coarse
+    face, rem = np.divmod(np.asarray(fine, np.int64), resolution * resolution)
+    row, col = np.divmod(rem, resolution)
+    return face * coarse * coarse + (row // f) * coarse + col // f
 
 
 _GEOMETRY = weakref.WeakKeyDictionary()  # tile → OrderedDict(key → geometry result), most recent last
@@ -281,7 +294,7 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     bin_weight = np.bincount(facet_bin, weights=facet_weight, minlength=len(occupied))
     seen = bin_weight > 0
     lob, ndf_err = timer("ndf_fit", _fit_lobes, be, fac, em_weight, bv.normal[seen],
-                         bin_weight[seen], j_req, tolerance, probe)
+                         bin_weight[seen], j_req, tolerance, probe, _coarse_bins(occupied[seen], r))
     prog.stage(f"amplitudes ({len(lob)} lobes, {len(channels)} channel(s))", len(channels))
     # "amplitudes" times the whole stage: the moment sums are queued first, and the host solves for
     # the Gram system's rows while the device sums; then the solves and the tables.
