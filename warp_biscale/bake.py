@@ -238,7 +238,7 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
 
 
 def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, keep_hist, timer, prog):
-    grid = dirs.grid(k)
+    grid = dirs.frozen_grid(k)
     nd = len(grid)
     prog.stage(f"facets ({count})", 1)
     fac = timer("facets", be.sample_facets, tile, count, seed)

@@ -10,7 +10,8 @@ import functools
 
 import numpy as np
 
-__all__ = ["grid", "all_pairs", "unordered_pairs", "bilinear_corners", "square_to_hemisphere", "hemisphere_to_square",
+__all__ = ["grid", "frozen_grid", "all_pairs", "unordered_pairs", "bilinear_corners", "square_to_hemisphere",
+           "hemisphere_to_square",
            "check_directions", "cell_cosine_integrals"]
 
 
@@ -71,6 +72,13 @@ def _frozen(*arrays):
     for a in out:
         a.flags.writeable = False
     return out
+
+
+@functools.lru_cache(maxsize=8)
+def frozen_grid(k: int = 12) -> np.ndarray:
+    """`grid(k)`, made once per K and read-only (the bake's; a backend then knows it again without
+    hashing it, `backend.UploadCache`; building it costs ~0.2 ms)."""
+    return _frozen(grid(k))[0]
 
 
 @functools.lru_cache(maxsize=8)
