@@ -245,7 +245,8 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     bins = timer("bvndf", be.normal_bins, fac, r)
     normal = fac.normal  # (read back now, before the rays are queued behind it)
     prog.stage(f"visibility ({nd} dirs)", 1)
-    # The rays are queued, and while the device traces them the host bins the normals: "visibility"
+    # The rays are queued, and while the device traces them the host bins the normals (and splits the
+    # facets into channels): "visibility"
     # times both together (on a GPU the binning is the shorter; Warp's CPU device traces before it returns).
     t0 = time.perf_counter()
     vis = be.visibility(tile, fac, grid)
@@ -259,13 +260,13 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     mean = np.stack([np.bincount(facet_bin, weights=area * normal[:, c], minlength=len(occupied))
                      for c in range(3)], 1)
     mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-300)
+    channels = _channels(tile, fac)
     be.synchronize()
     timer.timings["visibility"] = timer.timings.get("visibility", 0.0) + time.perf_counter() - t0
     prog.stage(f"BVNDF ({6 * r * r} normal bins)", 1)
     a_v = timer("bvndf", be.visible_area, fac, vis)
     bv = Bvndf(r, occupied.astype(np.int32), mean, mass[occupied], np.asarray(a_v, np.float64))
     iu, ou = dirs.unordered_pairs(nd)
-    channels = _channels(tile, fac)
     need_hist = route == "histogram" or keep_hist
     if need_hist:
         nbytes = len(iu) * len(occupied) * 4 * (len(channels) + 1)
