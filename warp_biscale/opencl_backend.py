@@ -163,6 +163,7 @@ class OpenCLBackend:
         self._group = max(1, min(8 if is_cpu else 64, device.max_work_group_size))
         self._tiles = weakref.WeakKeyDictionary()
         self._uploads = UploadCache()
+        self._held_visible_area = None  # (host, device) of the last visible_area
         self._em_programs = {}  # (Ns, J, steps, weighted) → an EM's buffers and launches: see _em_program
         self._em_buffers = {}
 
@@ -356,7 +357,18 @@ class OpenCLBackend:
                      np.int32(n_dirs), partial)
         a_v = self._empty(n_dirs, np.float32)
         self._launch("truth", "sum_chunks_area", (n_dirs,), partial, np.int32(chunks), np.int32(n_dirs), a_v)
-        return self._read(a_v, n_dirs, np.float32)
+        host = self._read(a_v, n_dirs, np.float32)
+        host.flags.writeable = False  # (so that the device copy stays what it holds)
+        self._held_visible_area = (host, a_v)  # solve_amplitudes given `host` itself uses the device copy
+        return host
+
+    def _visible_area_buffer(self, a_v):
+        """The device copy of a_v: the one `visible_area` kept when `a_v` is the very array it returned,
+        else an upload."""
+        held = self._held_visible_area
+        if held is not None and held[0] is a_v:
+            return held[1]
+        return self._buffer(a_v, np.float32)
 
     def effective_brdf(self, facets, vis, kinds, params, pair_i, pair_o, a_v):
         f = self._facets(facets)
@@ -545,11 +557,15 @@ class OpenCLBackend:
         if n_pairs == 0:
             return np.zeros((0, j + 1), np.float32)
         values = self._lobe_values(f["normal"], n, axes, sharpness)
+        runs = f.get("area_runs") if weight is None else None  # the area's runs depend on the facets alone
         weight = f["area"] if weight is None else self._buffer(np.asarray(weight, np.float32), np.float32)
         n_words = vis.words
-        channel_bits = self._empty(n_words, np.uint32)
-        run_end = self._empty(n, np.int32)
-        self._launch("amplitudes", "facet_runs", (n_words,), f["normal"], weight, np.int32(n), channel_bits, run_end)
+        if runs is None:
+            runs = (self._empty(n_words, np.uint32), self._empty(n, np.int32))
+            self._launch("amplitudes", "facet_runs", (n_words,), f["normal"], weight, np.int32(n), *runs)
+            if weight is f["area"]:
+                f["area_runs"] = runs
+        channel_bits, run_end = runs
         chunks, per = chunking(n_words, n_pairs, self._threads)
         partial = self._empty(chunks * n_pairs * (j + 1), np.float32)
         self._launch("amplitudes", "lobe_moments_partial", (n_pairs, chunks),
@@ -587,7 +603,7 @@ class OpenCLBackend:
         mu = self._empty(n_pairs * j, np.float32)
         self._launch("amplitudes", "solve_amplitudes", (n_pairs,),
                      self._recurring(pair_i, np.int32), self._recurring(pair_o, np.int32), np.int32(n_dirs),
-                     self._buffer(a_v, np.float32),
+                     self._visible_area_buffer(a_v),
                      moments if isinstance(moments, self._cl.Buffer) else self._buffer(moments, np.float32),
                      self._buffer(rows, np.float64), self._buffer(integrals, np.float64), np.int32(j),
                      np.int32(n_pairs), mu)

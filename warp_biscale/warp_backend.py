@@ -56,6 +56,7 @@ class WarpBackend:
         self._threads = 1 if self._device.is_cpu else 1 << 18
         self._tiles = weakref.WeakKeyDictionary()
         self._uploads = UploadCache()
+        self._held_visible_area = None  # (host, device) of the last visible_area
         self._em_graphs = {}  # (Ns, J, steps, weighted) → captured EM (CUDA): see _em_graph
         self._em_buffers = {}
         from . import kernels  # noqa: F401  (import here so a broken Warp fails at backend creation)
@@ -224,7 +225,20 @@ class WarpBackend:
                      [v["directions"], v["bits"], f["normal"], f["area"], per], [partial])
         a_v = wp.empty(n_dirs, dtype=wp.float32, device=dev)
         wp.launch(kt.sum_chunks_area, dim=n_dirs, device=dev, inputs=[partial], outputs=[a_v])
-        return a_v.numpy()
+        host = self._trace_host(a_v)
+        host.flags.writeable = False  # (so that the device copy stays what it holds)
+        self._held_visible_area = (host, a_v)  # solve_amplitudes given `host` itself uses the device copy
+        return host
+
+    def _visible_area_array(self, a_v):
+        """The device copy of a_v: the one `visible_area` kept when `a_v` is the very array it returned,
+        else an upload (an upload costs more than the solve on a GPU host)."""
+        import warp as wp
+
+        held = self._held_visible_area
+        if held is not None and held[0] is a_v:
+            return held[1]
+        return self._array(np.asarray(a_v, np.float32), wp.float32)
 
     def effective_brdf(self, facets, vis, kinds, params, pair_i, pair_o, a_v):
         import warp as wp
@@ -484,10 +498,14 @@ class WarpBackend:
         self._launch(lobe_values, n,
                      [f["normal"], self._array(np.asarray(axes, np.float32), wp.vec3),
                       self._array(np.asarray(sharpness, np.float32), wp.float32)], [values])
+        runs = f.get("area_runs") if weight is None else None  # the area's runs depend on the facets alone
         weight = f["area"] if weight is None else self._array(np.asarray(weight, np.float32), wp.float32)
-        channel_bits = wp.empty(vis.words, dtype=wp.uint32, device=dev)
-        run_end = wp.empty(n, dtype=wp.int32, device=dev)
-        self._launch(ka.facet_runs, vis.words, [f["normal"], weight], [channel_bits, run_end])
+        if runs is None:
+            runs = (wp.empty(vis.words, dtype=wp.uint32, device=dev), wp.empty(n, dtype=wp.int32, device=dev))
+            self._launch(ka.facet_runs, vis.words, [f["normal"], weight], list(runs))
+            if weight is f["area"]:
+                f["area_runs"] = runs
+        channel_bits, run_end = runs
         chunks, per = chunking(vis.words, n_pairs, self._threads)
         partial = wp.empty((chunks, n_pairs, j + 1), dtype=wp.float32, device=dev)
         self._launch(lobe_moments_partial, (chunks, n_pairs),
@@ -534,7 +552,7 @@ class WarpBackend:
             moments = self._array(np.asarray(moments, np.float32), wp.float32)
         self._launch(ka.solve_amplitudes, len(pair_i),
                      [self._recurring(pair_i, np.int32, wp.int32), self._recurring(pair_o, np.int32, wp.int32),
-                      int(n_dirs), self._array(np.asarray(a_v, np.float32), wp.float32), moments,
+                      int(n_dirs), self._visible_area_array(a_v), moments,
                       self._array(np.asarray(rows, np.float64), wp.float64),
                       self._array(np.asarray(integrals, np.float64), wp.float64)], [mu])
         return mu.numpy()
