@@ -23,6 +23,10 @@
  * a_v(ωo), applies the J×J solve rows (float64: A⁻¹ of close lobes has large entries of both signs),
  * clamps negative amplitudes and rescales to the exact energy c, as the reference does.
  *
+ * Tables: one work-item per ordered pair adds a channel's amplitudes times its colour into the
+ * material's (P, J, 3) table and their energy Σ_j μ_j ∫G_j into (P, 3), on the device (the same numpy
+ * on the lent H100's host took ~1 ms a bake).
+ *
  * At most MAX_LOBES lobes (private arrays). NDRanges as in cl/truth.cl: (outputs, chunks), dimension
  * 0 varying fastest as the last dimension of Warp's (chunks, outputs) launch, rounded up to a whole
  * work-group; the surplus work-items return. 3-vectors are float arrays of stride 3.
@@ -262,5 +266,41 @@ __kernel void solve_amplitudes(
         for (int j = 0; j < n_lobes; ++j)
             out[j] = 0.0f;
         out[best] = (float)(c / integrals[best]);
+    }
+}
+
+/* reference.amplitude_tables for one channel: amps[p, j, :] (+)= max(μ_pj, 0)·color and energy[p, :]
+ * (+)= Σ_j max(μ_pj, 0) ∫G_j · color (added when `accumulate`, else written). A non-finite μ makes the
+ * pair's energy NaN, which the host checks. */
+__kernel void amplitude_tables(
+    __global const float *mu,          /* (P, J) */
+    __global const double *integrals,  /* (J,) */
+    const float red, const float green, const float blue,
+    const int accumulate,
+    const int n_lobes,
+    const int n_pairs,
+    __global float *amps,              /* (P, J, 3) */
+    __global float *energy)            /* (P, 3) */
+{
+    int p = get_global_id(0);
+    if (p >= n_pairs)
+        return;
+    float color[3] = {red, green, blue};
+    double total = 0.0;
+    int finite = 1;
+    for (int j = 0; j < n_lobes; ++j) {
+        float m = mu[(size_t)p * n_lobes + j];
+        if (!isfinite(m))
+            finite = 0;
+        m = m > 0.0f ? m : 0.0f;
+        total += (double)m * integrals[j];
+        __global float *a = amps + ((size_t)p * n_lobes + j) * 3;
+        for (int c = 0; c < 3; ++c)
+            a[c] = (accumulate ? a[c] : 0.0f) + m * color[c];
+    }
+    float e = (float)total;
+    for (int c = 0; c < 3; ++c) {
+        float v = (accumulate ? energy[(size_t)p * 3 + c] : 0.0f) + e * color[c];
+        energy[(size_t)p * 3 + c] = finite ? v : NAN;
     }
 }

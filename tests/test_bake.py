@@ -638,6 +638,45 @@ def test_lobe_moments_by_runs_match_reference(backend, tile_name, weights):
         _close(got, ref.lobe_moments(fd, vis.as_bool(), grid, w, lob.axes, lob.sharpness, iu, ou))
 
 
+
+def test_amplitude_tables_match_reference(backend):
+    """A material's tables on the device: channels added with their colours, μ < 0 clamped, energies
+    Σ μ_j ∫G_j; a NaN or ±inf μ makes its pair's energy NaN (the bake's check); μ from the host or
+    left on the device by solve_amplitudes."""
+    rng = np.random.default_rng(5)
+    n_pairs, j = 300, 7
+    integrals = rng.random(j) * 3 + 0.1
+    chans = [(rng.normal(size=(n_pairs, j)).astype(np.float32), rng.random(3)) for _ in range(3)]
+    chans[1][0][5, 2] = np.nan
+    chans[2][0][9, 0] = np.inf
+    chans[0][0][11, 6] = -np.inf
+    got_a, got_e = backend.amplitude_tables(chans, integrals, n_pairs)
+    want_a, want_e = ref.amplitude_tables(chans, integrals)
+    assert got_a.shape == (n_pairs, j, 3) and got_e.shape == (n_pairs, 3)
+    bad = np.zeros(n_pairs, bool)
+    bad[[5, 9, 11]] = True
+    assert np.isnan(got_e[bad]).all() and np.isnan(want_e[bad]).all()
+    np.testing.assert_allclose(got_a[~bad], want_a[~bad], rtol=1e-6, atol=1e-7)  # float32 products
+    np.testing.assert_allclose(got_e[~bad], want_e[~bad], rtol=1e-5)  # float64 sum, float32 out
+    assert (got_a[~bad] >= 0).all()
+    # One channel, μ kept on the device by the solve: the same table as from its host copy.
+    fac, fd, grid, vis, vb = _case(backend, wb.geometry.pyramid())
+    nd = len(grid)
+    a_v = backend.visible_area(fac, vis)
+    lob = lobes_mod.initial_lobes(fd["normal"], fd["area"], 4)
+    iu, ou = np.triu_indices(nd)
+    mom = backend.lobe_moments(fac, vis, None, lob.axes, lob.sharpness, iu, ou)
+    rows, integ, _, _ = lobes_mod.amplitude_system(lob)
+    pi, po = dirs.all_pairs(nd)
+    on_device = backend.solve_amplitudes(mom, a_v, rows, integ, pi, po, nd, to_host=False)
+    host = backend.solve_amplitudes(mom, a_v, rows, integ, pi, po, nd)
+    a, e = backend.amplitude_tables([(on_device, [1.0, 0.5, 0.25])], integ, nd * nd)
+    want_a, want_e = ref.amplitude_tables([(host, [1.0, 0.5, 0.25])], integ)
+    np.testing.assert_allclose(a, want_a, rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(e, want_e, rtol=1e-5, atol=1e-7)
+    a0, e0 = backend.amplitude_tables([], integ, nd * nd)  # a material with no facets reflects nothing
+    assert not a0.any() and not e0.any()
+
 def test_solve_amplitudes_with_the_held_visible_area(backend, heightfield):
     """solve_amplitudes given the very a_v that visible_area returned uses its device copy (no upload);
     the result equals the solve with an uploaded copy, also after a later visible_area replaced it."""

@@ -67,9 +67,15 @@ class Backend(Protocol):
         and one colour: nothing uploaded); with to_host=False a device array for solve_amplitudes (no
         round trip through the host)."""
 
-    def solve_amplitudes(self, moments, a_v, rows, integrals, pair_i, pair_o, n_dirs: int) -> np.ndarray:
+    def solve_amplitudes(self, moments, a_v, rows, integrals, pair_i, pair_o, n_dirs: int, to_host: bool = True):
         """(P, J) float32 μ ≥ 0 for the ordered pairs (reference.solve_amplitudes); `moments` a host
-        array or what lobe_moments(..., to_host=False) returned."""
+        array or what lobe_moments(..., to_host=False) returned. With to_host=False μ stays on the
+        device (for amplitude_tables)."""
+
+    def amplitude_tables(self, channels, integrals, n_pairs: int) -> tuple:
+        """A material's (P, J, 3) amplitude table and (P, 3) energies, float32, from its channels
+        [(μ, rgb)] (reference.amplitude_tables; μ a host (P, J) array or what solve_amplitudes(...,
+        to_host=False) returned; J = len(integrals)). A non-finite μ gives its pair a NaN energy."""
 
     # --- SSDF visibility of the large-scale mesh (stage `ssdf`, warp_biscale.ssdf) ---
     def ssdf_distance(self, grid, visible: np.ndarray) -> np.ndarray:

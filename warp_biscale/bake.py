@@ -307,33 +307,23 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
         moments = [be.histogram_moments(hist, bv.normal, grid, lob.axes, lob.sharpness, iu, ou) for hist in hists]
     rows, integrals, _, cond = lobes_mod.amplitude_system(lob, bv.normal[seen], bin_weight[seen])
     pi, po = dirs.all_pairs(nd)
-    integrals32 = integrals.astype(np.float32)
-    out = []
-    for (m, mult, _), mom in zip(channels, moments):
-        mu = be.solve_amplitudes(mom, a_v, rows, integrals, pi, po, nd)
-        if not np.isfinite(mu).all():
-            raise FloatingPointError(f"the amplitude solve produced {int((~np.isfinite(mu)).sum())} non-finite values")
-        out.append((m, np.asarray(mult, np.float32), np.maximum(mu, 0.0, out=mu)))
+    solved = []
+    for (m, mult, _), mom in zip(channels, moments):  # μ stays on the device for the tables
+        solved.append((m, mult, be.solve_amplitudes(mom, a_v, rows, integrals, pi, po, nd, to_host=False)))
         prog.advance()
-    # Per material and RGB, once: the channels' amplitudes times their colours (BRDF-independent), and
+    # Per material, on the device: the channels' amplitudes times their colours (BRDF-independent) and
     # their energies Σ_j μ_j ∫G_j (from μ: the tables need not be summed again).
-    n_mat = tile.n_materials
-    amps = np.empty((n_mat, nd * nd, len(lob), 3), np.float32)
-    energy = np.zeros((n_mat, nd * nd, 3), np.float32)
-    written = np.zeros(n_mat, bool)
-    for m, mult, mu in out:
-        mu_energy = mu @ integrals32
-        # One colour at a time: numpy broadcasting over a last axis of 3 was 2–5× slower.
-        for c in range(3):
-            if written[m]:
-                amps[m, :, :, c] += mu * mult[c]
-            else:
-                np.multiply(mu, mult[c], out=amps[m, :, :, c])
-            energy[m, :, c] += mu_energy * mult[c]
-        written[m] = True
-    amps[~written] = 0.0
-    if not np.all(np.isfinite(energy)):
-        raise FloatingPointError("the amplitude tables hold non-finite values")
+    n_mat, n_pairs = tile.n_materials, nd * nd
+    tables = [be.amplitude_tables([(mu, mult) for mm, mult, mu in solved if mm == m], integrals, n_pairs)
+              for m in range(n_mat)]
+    if n_mat == 1:
+        amps, energy = tables[0][0][None], tables[0][1][None]
+    else:
+        amps = np.stack([a for a, _ in tables])
+        energy = np.stack([e for _, e in tables])
+    bad = ~np.isfinite(energy).all(axis=-1)
+    if bad.any():
+        raise FloatingPointError(f"the amplitude solve gave non-finite values in {int(bad.sum())} direction pairs")
     amps = amps.reshape(n_mat, nd, nd, len(lob), 3)
     energy = energy.reshape(n_mat, nd, nd, 3)
     be.synchronize()

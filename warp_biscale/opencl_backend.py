@@ -595,7 +595,7 @@ class OpenCLBackend:
                      bin_values, np.int32(j), np.int32(n_pairs), out)
         return self._read(out, (n_pairs, j + 1), np.float32)
 
-    def solve_amplitudes(self, moments, a_v, rows, integrals, pair_i, pair_o, n_dirs):
+    def solve_amplitudes(self, moments, a_v, rows, integrals, pair_i, pair_o, n_dirs, to_host=True):
         j, n_pairs = len(integrals), len(pair_i)
         self._check_lobes(j)
         if n_pairs == 0:
@@ -607,7 +607,22 @@ class OpenCLBackend:
                      moments if isinstance(moments, self._cl.Buffer) else self._buffer(moments, np.float32),
                      self._buffer(rows, np.float64), self._buffer(integrals, np.float64), np.int32(j),
                      np.int32(n_pairs), mu)
-        return self._read(mu, (n_pairs, j), np.float32)
+        return self._read(mu, (n_pairs, j), np.float32) if to_host else mu
+
+    def amplitude_tables(self, channels, integrals, n_pairs):
+        j = len(integrals)
+        if n_pairs == 0 or not channels:
+            return np.zeros((n_pairs, j, 3), np.float32), np.zeros((n_pairs, 3), np.float32)
+        self._check_lobes(j)
+        amps = self._empty(n_pairs * j * 3, np.float32)
+        energy = self._empty(n_pairs * 3, np.float32)
+        integ = self._buffer(np.asarray(integrals, np.float64), np.float64)
+        for k, (mu, rgb) in enumerate(channels):
+            if not isinstance(mu, self._cl.Buffer):
+                mu = self._buffer(np.asarray(mu, np.float32).reshape(n_pairs, j), np.float32)
+            self._launch("amplitudes", "amplitude_tables", (n_pairs,), mu, integ,
+                         *(np.float32(c) for c in rgb), np.int32(k > 0), np.int32(j), np.int32(n_pairs), amps, energy)
+        return self._read(amps, (n_pairs, j, 3), np.float32), self._read(energy, (n_pairs, 3), np.float32)
 
     # ------------------------------------------------------------------ SSDF (stage `ssdf`, warp_biscale.ssdf)
     def _ssdf_grid(self, grid):

@@ -30,6 +30,7 @@ __all__ = [
     "lobe_moments",
     "histogram_moments",
     "solve_amplitudes",
+    "amplitude_tables",
 ]
 
 # ----------------------------------------------------------------------------------------------
@@ -478,6 +479,22 @@ def solve_amplitudes(moments: np.ndarray, a_v: np.ndarray, pair_o, solve_rows: n
         out[p] = mu
     return out
 
+
+
+def amplitude_tables(channels, integrals):
+    """A material's tables from its channels [(μ (P, J), rgb (3,))]: → (amps (P, J, 3), energy (P, 3)),
+    amps = Σ_channels max(μ, 0)·rgb and energy = Σ_channels (max(μ, 0) @ ∫G)·rgb, in float64. A pair
+    with a non-finite μ gets a NaN energy (its amps are then unspecified)."""
+    integrals = np.asarray(integrals, np.float64)
+    amps, energy = 0.0, 0.0
+    for mu, rgb in channels:
+        mu = np.asarray(mu, np.float64)
+        rgb = np.asarray(rgb, np.float64)
+        bad = ~np.isfinite(mu).all(axis=1)
+        mu = np.maximum(np.where(bad[:, None], 0.0, mu), 0.0)
+        amps = amps + mu[..., None] * rgb
+        energy = energy + np.where(bad, np.nan, mu @ integrals)[:, None] * rgb
+    return amps, energy
 
 # ==============================================================================================
 # SSDF visibility of the large-scale mesh (Wang 2009 §5; warp_biscale.ssdf) — helper-D's section.

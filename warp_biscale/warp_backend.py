@@ -541,7 +541,7 @@ class WarpBackend:
                       self._array(np.asarray(hist, np.float32), wp.float32), bn, bin_values, j], [out])
         return out.numpy()
 
-    def solve_amplitudes(self, moments, a_v, rows, integrals, pair_i, pair_o, n_dirs):
+    def solve_amplitudes(self, moments, a_v, rows, integrals, pair_i, pair_o, n_dirs, to_host=True):
         import warp as wp
 
         from .kernels import amplitudes as ka
@@ -555,7 +555,26 @@ class WarpBackend:
                       int(n_dirs), self._visible_area_array(a_v), moments,
                       self._array(np.asarray(rows, np.float64), wp.float64),
                       self._array(np.asarray(integrals, np.float64), wp.float64)], [mu])
-        return mu.numpy()
+        return self._trace_host(mu) if to_host else mu
+
+    def amplitude_tables(self, channels, integrals, n_pairs):
+        import warp as wp
+
+        from .kernels import amplitudes as ka
+
+        dev = self._device
+        j = len(integrals)
+        amps = wp.empty((n_pairs, j, 3), dtype=wp.float32, device=dev)
+        energy = wp.empty((n_pairs, 3), dtype=wp.float32, device=dev)
+        if n_pairs == 0 or not channels:
+            return np.zeros((n_pairs, j, 3), np.float32), np.zeros((n_pairs, 3), np.float32)
+        integ = self._array(np.asarray(integrals, np.float64), wp.float64)
+        for k, (mu, rgb) in enumerate(channels):
+            if not isinstance(mu, wp.array):
+                mu = self._array(np.asarray(mu, np.float32).reshape(n_pairs, j), wp.float32)
+            self._launch(ka.amplitude_tables, n_pairs,
+                         [mu, integ, wp.vec3(*(float(c) for c in rgb)), int(k > 0)], [amps, energy])
+        return self._trace_host(amps), self._trace_host(energy)
 
     # ------------------------------------------------------------------ SSDF (stage `ssdf`, warp_biscale.ssdf)
     def _ssdf_grid(self, grid):
