@@ -37,7 +37,7 @@ def traced(owner, name, label=None):
 def main(backend, facets=1 << 16, runs=5):
     be = wb.get_backend(backend)
     for name in ("sample_facets", "normal_bins", "visibility", "visible_area", "visible_weights", "ndf_em",
-                 "lobe_moments", "solve_amplitudes", "synchronize"):
+                 "lobe_moments", "solve_amplitudes", "amplitude_tables", "synchronize"):
         traced(be, name)
     for name in ("initial_lobes", "amplitude_system"):
         traced(lobes_mod, name)

@@ -288,7 +288,7 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     # bench/study_woven.py): woven gains 2.2 / 2.8 dB at J = 16 (Blinn–Phong n = 512 / Cook–Torrance
     # m = 0.2) and +1.4 / −0.3 dB at J = 8; the other five families move by at most 0.2 dB.
     em_weight = timer("ndf_fit", be.visible_weights, fac, vis)  # float32, also kept on the device for EM
-    facet_weight = em_weight.astype(np.float64)
+    facet_weight = em_weight  # (np.bincount sums float32 weights in float64)
     if not facet_weight.any():  # no grid direction sees the tile at all: fall back on the bare NDF
         facet_weight, em_weight = area, None
     # (The bins keep their area-weighted mean normals: within a bin at R = 128 the weighting barely moves it.)
