@@ -694,3 +694,18 @@ def test_solve_amplitudes_with_the_held_visible_area(backend, heightfield):
     other_vis = backend.visibility(heightfield, fac, dirs.grid(3))
     backend.visible_area(fac, other_vis)  # holds another a_v now
     np.testing.assert_array_equal(held, backend.solve_amplitudes(mom, a_v, rows, integrals, pi, po, nd))
+
+
+def test_tile_seen_by_no_grid_direction_falls_back_on_the_bare_ndf(backend, monkeypatch):
+    """Visible weights all 0 (no grid direction sees any facet): EM and the bins weigh the bare area,
+    exactly as if every facet weighed its area."""
+    tile = wb.geometry.pyramid()
+    kw = dict(lobes=4, directions=4, facets=2048, backend=backend)
+    monkeypatch.setattr(backend, "visible_weights", lambda fac, vis: np.zeros(len(fac), np.float32))
+    blind = wb.bake(tile, wb.BlinnPhong(1.0, 64), **kw)
+    bake_module._GEOMETRY.clear()
+    monkeypatch.setattr(backend, "visible_weights", lambda fac, vis: np.array(fac.area, np.float32))
+    by_area = wb.bake(tile, wb.BlinnPhong(1.0, 64), **kw)
+    np.testing.assert_allclose(blind.lobes.axes, by_area.lobes.axes, rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(blind.amplitudes, by_area.amplitudes, rtol=1e-6, atol=1e-7)
+    assert np.isfinite(blind.amplitudes).all()
