@@ -408,7 +408,7 @@ def test_compare_metrics():
 
 
 @pytest.mark.parametrize("kwargs, match", [
-    ({"lobes": 0}, "lobes must be"), ({"lobes": 17}, "lobes must be"), ({"lobes": "many"}, "lobes must be"),
+    ({"lobes": 0}, "lobes must be"), ({"lobes": 129}, "lobes must be"), ({"lobes": "many"}, "lobes must be"),
     ({"lobes": 2.5}, "lobes must be"), ({"directions": 1}, "directions must be"), ({"normal_res": 0}, "normal_res"),
     ({"route": "magic"}, "route must be"), ({"method": "asg"}, "method must be"), ({"facets": 0}, "facets must be"),
     ({"tolerance": float("nan")}, "tolerance"),
@@ -709,3 +709,75 @@ def test_tile_seen_by_no_grid_direction_falls_back_on_the_bare_ndf(backend, monk
     np.testing.assert_allclose(blind.lobes.axes, by_area.lobes.axes, rtol=1e-6, atol=1e-7)
     np.testing.assert_allclose(blind.amplitudes, by_area.amplitudes, rtol=1e-6, atol=1e-7)
     assert np.isfinite(blind.amplitudes).all()
+
+
+# ------------------------------------------------------------------ more lobes than the kernels hold
+@pytest.mark.parametrize("n_lobes", [6, 24])
+def test_host_solve_matches_reference(heightfield, n_lobes):
+    """lobes.solve_amplitudes (the bake's solve past KERNEL_LOBES lobes) is reference.solve_amplitudes
+    vectorised: same hard rows as the kernel test (many pairs clamp, some clamp entirely), a direction
+    that sees nothing, and a pair with no visible area."""
+    fd = ref.sample_facets(heightfield, 1500, 0)
+    grid = dirs.grid(4)
+    nd = len(grid)
+    vb = ref.visibility(heightfield, fd, grid)
+    rng = np.random.default_rng(7)
+    axes = rng.normal(size=(n_lobes, 3))
+    axes[:, 2] = np.abs(axes[:, 2])
+    lob = lobes_mod.LobeSet(axes, rng.uniform(5, 500, n_lobes), np.full(n_lobes, 1.0 / n_lobes))
+    iu, ou = np.triu_indices(nd)
+    mom = ref.lobe_moments(fd, vb, grid, fd["area"], lob.axes, lob.sharpness, iu, ou)
+    rows = rng.normal(size=(n_lobes, n_lobes))
+    rows[:, 0] = -np.abs(rows[:, 0]) * 10
+    a_v = ref.visible_area(fd, vb, grid)
+    a_v[1] = 0.0
+    integrals = wb.sg.integral(lob.sharpness)
+    pi, po = dirs.all_pairs(nd)
+    got = lobes_mod.solve_amplitudes(mom, a_v, pi, po, nd, rows, integrals)
+    lo, hi = np.minimum(pi, po), np.maximum(pi, po)
+    want = ref.solve_amplitudes(mom[lo * nd - lo * (lo - 1) // 2 + hi - lo], a_v, po, rows, integrals)
+    assert got.dtype == np.float32 and got.shape == (nd * nd, n_lobes)
+    _close(got, want, rel=1e-6)  # float64 throughout, rounded to float32 at the end
+    assert not got[po == 1].any()
+
+
+@pytest.mark.parametrize("route", ["facets", "histogram"])
+def test_grouped_moments_past_the_kernel_lobes_match_reference(backend, heightfield, route):
+    """40 lobes through kernels that hold 16: three groups stitched on the host."""
+    fac, fd, grid, vis, vb = _case(backend, heightfield)
+    rng = np.random.default_rng(8)
+    axes = rng.normal(size=(40, 3))
+    axes[:, 2] = np.abs(axes[:, 2])
+    lob = lobes_mod.LobeSet(axes, rng.uniform(2, 300, 40), np.full(40, 1 / 40))
+    iu, ou = np.triu_indices(len(grid))
+    if route == "facets":
+        got = bake_module._grouped_moments(
+            lambda w, ax, eta: backend.lobe_moments(fac, vis, w, ax, eta, iu, ou), None, lob)
+        want = ref.lobe_moments(fd, vb, grid, fd["area"], lob.axes, lob.sharpness, iu, ou)
+    else:
+        hist = rng.random((len(iu), 50)).astype(np.float32) * (rng.random((len(iu), 50)) < 0.5)
+        bn = rng.normal(size=(50, 3))
+        bn[:, 2] = np.abs(bn[:, 2])
+        bn /= np.linalg.norm(bn, axis=1, keepdims=True)
+        got = bake_module._grouped_moments(
+            lambda h, ax, eta: backend.histogram_moments(h, bn, grid, ax, eta, iu, ou), hist, lob)
+        want = ref.histogram_moments(hist, bn, grid, lob.axes, lob.sharpness, iu, ou)
+    assert got.shape == (len(iu), 41)
+    _close(got, want)
+    with pytest.raises(ValueError, match="1 to 16 lobes"):
+        backend.lobe_moments(fac, vis, None, lob.axes[:17], lob.sharpness[:17], iu, ou)
+
+
+def test_bake_past_the_kernel_lobes(backend):
+    """A bake of 40 lobes on the woven tile (many distinct normals): more than 16 lobes come back, and
+    each pair's energy Σ_j μ_j ∫G_j is still ∫γ̃, the same as with 8 lobes."""
+    tile = wb.geometry.woven()
+    brdfs = [wb.BlinnPhong(1.0, 64)] * tile.n_materials
+    kw = dict(directions=4, facets=4096, backend=backend)
+    few = wb.bake(tile, brdfs, lobes=8, **kw)
+    many = wb.bake(tile, brdfs, lobes=40, **kw)
+    assert 16 < len(many.lobes) <= 40 and many.amplitudes.shape[3] == len(many.lobes)
+    np.testing.assert_allclose(many._energy, few._energy, rtol=1e-4, atol=1e-6)
+    wi = dirs.grid(3)
+    value = many.eval(wi, wi[::-1])
+    assert np.isfinite(value).all() and (value >= 0).all()

@@ -46,11 +46,23 @@ def _scenes(effective):
     return {"lone": lone, "occluded": occluded}
 
 
-@pytest.mark.parametrize("which", ["lone", "occluded"])
-def test_shade_kernel_matches_reference(backend, which, effective_material):
-    scene = _scenes(effective_material)[which]
+@pytest.fixture(scope="module")
+def many_lobe_material():
+    """More lobes (past the bake kernels' 16) than the shading has seen elsewhere: the woven tile."""
+    tile = wb.geometry.woven()
+    return wb.bake(tile, [wb.BlinnPhong(0.6, 200, kd=0.2)] * tile.n_materials, lobes=24, directions=4,
+                   facets=2**12, backend="warp:cpu")
+
+
+@pytest.mark.parametrize("which", ["lone", "occluded", "occluded-24-lobes"])
+def test_shade_kernel_matches_reference(backend, which, effective_material, many_lobe_material):
+    if which == "occluded-24-lobes":
+        assert len(many_lobe_material.lobes) > 16
+        scene = _scenes(many_lobe_material)["occluded"]
+    else:
+        scene = _scenes(effective_material)[which]
     frame = pack_frame(scene, backend)
-    assert bool(frame["has_ssdf"]) == (which == "occluded")  # the lone convex sphere needs no SSDF
+    assert bool(frame["has_ssdf"]) == (which != "lone")  # the lone convex sphere needs no SSDF
     ref = shade_reference(frame)
     out = backend.shade(scene.mesh, frame, frame["camera"], frame["lights"],
                         gbuffer={"face": frame["face"], "bary": frame["bary"], "light_vis": frame["light_vis"]})

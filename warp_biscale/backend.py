@@ -244,6 +244,14 @@ def em_result_rows(rows) -> tuple:
     return rows[:, :3].copy(), rows[:, 3].copy(), rows[:, 4].copy(), int(rows[0, 5])
 
 
+def check_kernel_lobes(n_lobes: int) -> None:
+    """The amplitude kernels (moments, solve) hold one accumulator per lobe in registers: 1 to
+    lobes.KERNEL_LOBES lobes a call (the bake passes more in groups)."""
+    from .lobes import KERNEL_LOBES
+
+    if not 1 <= n_lobes <= KERNEL_LOBES:
+        raise ValueError(f"the amplitude kernels take 1 to {KERNEL_LOBES} lobes a call, got {n_lobes}")
+
 def chunking(n_words: int, n_outputs: int, threads: int) -> tuple[int, int]:
     """Split n_words facet words into chunks so that n_outputs × chunks ≈ threads.
 

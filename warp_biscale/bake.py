@@ -127,7 +127,7 @@ def _fit_lobes(be, fac, facet_weight, bin_normal, bin_weight, count, tolerance, 
     if count != "auto":  # the NDF error is what "auto" needs; with a fixed J it is not worth its time
         return fit(count), None
     best = None
-    for j in range(1, lobes_mod.MAX_LOBES + 1):
+    for j in range(1, lobes_mod.KERNEL_LOBES + 1):  # (past 16 lobes, ask for J: each EM then costs more)
         lob = fit(j)
         err = lobes_mod.ndf_error(lob, bin_normal, bin_weight, probe_sharpness)
         if best is None or err < best[1]:
@@ -148,6 +148,17 @@ def _coarse_bins(fine, resolution, coarse=16):
     row, col = np.divmod(rem, resolution)
     return face * coarse * coarse + (row // f) * coarse + col // f
 
+
+def _grouped_moments(sums, data, lob):
+    """The moments (U, J + 1) of all of `lob`'s lobes from `sums(data, axes, sharpness)`, which takes
+    at most lobes.KERNEL_LOBES lobes a call: one call for few lobes (its result as it comes, possibly
+    on the device), else one per group, stitched on the host (each group's last column is the same
+    plain sum c)."""
+    k = lobes_mod.KERNEL_LOBES
+    if len(lob) <= k:
+        return sums(data, lob.axes, lob.sharpness)
+    parts = [np.asarray(sums(data, lob.axes[a:a + k], lob.sharpness[a:a + k])) for a in range(0, len(lob), k)]
+    return np.concatenate([p[:, :-1] for p in parts] + [parts[0][:, -1:]], axis=1)
 
 _GEOMETRY = weakref.WeakKeyDictionary()  # tile → OrderedDict(key → geometry result), most recent last
 _GEOMETRY_PER_TILE = 4
@@ -177,9 +188,12 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
     tile : SmallScale
     materials : Brdf or list of Brdf, indexed by the tile's material ids.
     method : "sg" (Eq. 15, the SG closure, for rendering) or "sg-exact" (Eq. 10) for `eval`.
-    lobes : J, the number of SG lobes of the NDF (1–16), or "auto": the smallest J whose NDF fit error
-        (`lobes.ndf_error`, seen at the sharpest small-scale lobe, on the NDF weighted by what the
-        direction grid sees, as the lobes are fitted) is ≤ `tolerance`.
+    lobes : J, the number of SG lobes of the NDF (1–128), or "auto": the smallest J ≤ 16 whose NDF fit
+        error (`lobes.ndf_error`, seen at the sharpest small-scale lobe, on the NDF weighted by what the
+        direction grid sees, as the lobes are fitted) is ≤ `tolerance`. Past 16 lobes the moment kernels
+        run once per group of 16 and the amplitudes are solved on the host (float64), so the bake costs
+        about J/16 times the J = 16 bake; a tile whose NDF has sharp curved ridges (woven threads) needs
+        ~128 lobes for 35 dB (bench/README.md).
     directions : K, the K×K direction grid (DESIGN §4); tables are K²×K².
     normal_res : R, the cube map of normal bins (6×R×R).
     facets : Ns; seed : facet-sampling seed.
@@ -299,16 +313,24 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     # "amplitudes" times the whole stage: the moment sums are queued first, and the host solves for
     # the Gram system's rows while the device sums; then the solves and the tables.
     t0 = time.perf_counter()
-    if route == "facets":  # the moments stay on the device for the solve
-        moments = [be.lobe_moments(fac, vis, w, lob.axes, lob.sharpness, iu, ou, to_host=False)
-                   for _, _, w in channels]
+    few = len(lob) <= lobes_mod.KERNEL_LOBES  # else the lobes go through the kernels in groups
+    if route == "facets":  # with few lobes the moments stay on the device for the solve
+        def sums(w, ax, eta):
+            return be.lobe_moments(fac, vis, w, ax, eta, iu, ou, to_host=not few)
+        moments = [_grouped_moments(sums, w, lob) for _, _, w in channels]
     else:
-        moments = [be.histogram_moments(hist, bv.normal, grid, lob.axes, lob.sharpness, iu, ou) for hist in hists]
+        def sums(hist, ax, eta):
+            return be.histogram_moments(hist, bv.normal, grid, ax, eta, iu, ou)
+        moments = [_grouped_moments(sums, hist, lob) for hist in hists]
     rows, integrals, _, cond = lobes_mod.amplitude_system(lob, bv.normal[seen], bin_weight[seen])
     pi, po = dirs.all_pairs(nd)
     solved = []
     for (m, mult, _), mom in zip(channels, moments):  # μ stays on the device for the tables
-        solved.append((m, mult, be.solve_amplitudes(mom, a_v, rows, integrals, pi, po, nd, to_host=False)))
+        if few:
+            mu = be.solve_amplitudes(mom, a_v, rows, integrals, pi, po, nd, to_host=False)
+        else:  # past the solve kernel's registers: float64 on the host
+            mu = lobes_mod.solve_amplitudes(mom, a_v, pi, po, nd, rows, integrals)
+        solved.append((m, mult, mu))
         prog.advance()
     # Per material, on the device: the channels' amplitudes times their colours (BRDF-independent) and
     # their energies Σ_j μ_j ∫G_j (from μ: the tables need not be summed again).

@@ -324,8 +324,8 @@ def fit_sgs(env: Environment, lobes: int = 9, backend="auto", ambient: bool = Tr
         k = int(lobes)
     except (TypeError, ValueError):
         k = None
-    if k is None or k != lobes or not 1 <= k <= lobes_mod.MAX_LOBES:
-        raise ValueError(f"lobes must be an integer in [1, {lobes_mod.MAX_LOBES}], got {lobes!r}")
+    if k is None or k != lobes or not 1 <= k <= lobes_mod.KERNEL_LOBES:
+        raise ValueError(f"lobes must be an integer in [1, {lobes_mod.KERNEL_LOBES}], got {lobes!r}")
     be = get_backend(backend)
     if env.height > FIT_HEIGHT:
         rows = FIT_HEIGHT

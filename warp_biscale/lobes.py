@@ -15,9 +15,13 @@ import numpy as np
 
 from . import sg
 
-__all__ = ["LobeSet", "initial_lobes", "m_step", "converged", "fit", "amplitude_system", "ndf_error", "MAX_LOBES"]
+__all__ = ["LobeSet", "initial_lobes", "m_step", "converged", "fit", "amplitude_system", "solve_amplitudes",
+           "ndf_error", "MAX_LOBES", "KERNEL_LOBES"]
 
-MAX_LOBES = 16  # the kernels keep one accumulator per lobe in registers
+MAX_LOBES = 128  # lobes of a LobeSet (the bake's J)
+# The amplitude kernels keep one accumulator per lobe in registers: the bake passes more lobes through
+# them in groups of this many (and solves for J > KERNEL_LOBES amplitudes on the host, `solve_amplitudes`).
+KERNEL_LOBES = 16
 RIDGE = 1e-6  # Tikhonov term on the unit-diagonal Gram matrix: bounds its condition number by ~1e6
 CONVERGENCE_TOL = 1e-4  # see `converged`
 DEAD_MASS = 1e-9  # a lobe holding less than this fraction of the area after an E-step is dead (weight 0)
@@ -208,6 +212,31 @@ def amplitude_system(lobes: LobeSet, bin_normal=None, bin_area=None):
         inv = inv * scale[:, None]
     return inv, integrals, gram, float(np.linalg.cond(unit))
 
+
+def solve_amplitudes(moments, a_v, pair_i, pair_o, n_dirs: int, rows, integrals) -> np.ndarray:
+    """(P, J) float32 amplitudes for the ordered pairs, on the host in float64: `reference.solve_amplitudes`
+    vectorised over the pairs (the bake's solve when J > KERNEL_LOBES, beyond the solve kernel's registers).
+    `moments` (U, J + 1) over the unordered pairs i ≤ o (`directions.unordered_pairs` order)."""
+    moments = np.asarray(moments, np.float64)
+    rows = np.asarray(rows, np.float64)
+    integrals = np.asarray(integrals, np.float64)
+    j = len(integrals)
+    pi, po = np.asarray(pair_i, np.int64), np.asarray(pair_o, np.int64)
+    lo, hi = np.minimum(pi, po), np.maximum(pi, po)
+    m = moments[lo * n_dirs - lo * (lo - 1) // 2 + hi - lo]
+    area = np.asarray(a_v, np.float64)[po]
+    live = (area > 0) & (m[:, j] > 0)
+    safe = np.where(live, area, 1.0)
+    b, c = m[:, :j] / safe[:, None], m[:, j] / safe
+    mu = np.maximum(b @ rows.T, 0.0)
+    total = mu @ integrals
+    mu *= np.where(total > 0, c / np.where(total > 0, total, 1.0), 0.0)[:, None]
+    # Every amplitude clamped: all of ∫γ̃ goes to the lobe with the largest b_j.
+    none = live & ~(total > 0)
+    best = np.argmax(m[:, :j], axis=1)
+    mu[none, best[none]] = c[none] / integrals[best[none]]
+    mu[~live] = 0.0
+    return mu.astype(np.float32)
 
 def ndf_error(lobes: LobeSet, bin_normal, bin_area, probe_sharpness: float) -> float:
     """Relative RMS error of the fitted NDF seen through probe SGs of sharpness `probe_sharpness`.

@@ -34,13 +34,13 @@ import weakref
 
 import numpy as np
 
-from .backend import DeviceFacets, UploadCache, chunking, em_result_rows, em_start_rows, equal_areas, run_em_steps
+from .backend import (DeviceFacets, UploadCache, check_kernel_lobes, chunking, em_result_rows, em_start_rows,
+                      equal_areas, run_em_steps)
 from .model import Facets, Visibility
 from .reference import facet_shift, ray_offset
 
 __all__ = ["OpenCLBackend", "list_devices"]
 
-_MAX_LOBES = 16  # private per-lobe arrays of cl/amplitudes.cl (MAX_LOBES there)
 
 # One context, queue and program cache per device, shared by every backend object on it, so that
 # buffers cached on data-model objects under the backend's name stay valid for all of them.
@@ -393,8 +393,7 @@ class OpenCLBackend:
 
     # ------------------------------------------------------------------ SG bake stages
     def _check_lobes(self, n_lobes):
-        if not 1 <= n_lobes <= _MAX_LOBES:
-            raise ValueError(f"the OpenCL amplitude kernels take 1 to {_MAX_LOBES} lobes, got {n_lobes}")
+        check_kernel_lobes(n_lobes)  # (private per-lobe arrays of cl/amplitudes.cl, MAX_LOBES there)
 
     def normal_bins(self, facets, resolution):
         f = self._facets(facets)
@@ -473,13 +472,16 @@ class OpenCLBackend:
         prog = self._em_programs.pop(key, None)
         if prog is None:
             shared = self._em_buffers
-            if shared.get("n") != n:  # the facet buffers, for every J (resp has room for MAX_LOBES)
-                from .lobes import MAX_LOBES
+            if shared.get("n") != n or shared["lobes"] < j:
+                # The facet buffers, shared by every J up to resp's room (at least KERNEL_LOBES): the
+                # programs made over the old ones go with them.
+                from .lobes import KERNEL_LOBES
 
                 self._em_programs.clear()
                 shared.clear()
-                shared.update(n=n, normal=self._empty(3 * n, np.float32), mass=self._empty(n, np.float32),
-                              resp=self._empty(n * MAX_LOBES, np.float32))
+                room = max(j, KERNEL_LOBES)
+                shared.update(n=n, lobes=room, normal=self._empty(3 * n, np.float32), mass=self._empty(n, np.float32),
+                              resp=self._empty(n * room, np.float32))
             prog = {"normal": shared["normal"], "mass": shared["mass"],
                     "state": self._empty(2, np.int32), "moved": self._empty(j, np.int32),
                     "start": self._empty(6 * j, np.float64), "result": self._empty(6 * j, np.float64)}
@@ -613,7 +615,6 @@ class OpenCLBackend:
         j = len(integrals)
         if n_pairs == 0 or not channels:
             return np.zeros((n_pairs, j, 3), np.float32), np.zeros((n_pairs, 3), np.float32)
-        self._check_lobes(j)
         amps = self._empty(n_pairs * j * 3, np.float32)
         energy = self._empty(n_pairs * 3, np.float32)
         integ = self._buffer(np.asarray(integrals, np.float64), np.float64)

@@ -14,7 +14,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from .backend import DeviceFacets, UploadCache, chunking, em_result_rows, em_start_rows, equal_areas, run_em_steps
+from .backend import (DeviceFacets, UploadCache, check_kernel_lobes, chunking, em_result_rows, em_start_rows,
+                      equal_areas, run_em_steps)
 from .model import Facets, Visibility
 from .reference import facet_shift, ray_offset
 
@@ -422,14 +423,16 @@ class WarpBackend:
         if graph is None:
             dev = self._device
             shared = self._em_buffers
-            if shared.get("n") != n:  # the facet buffers, for every J (resp has MAX_LOBES columns)
-                from .lobes import MAX_LOBES
+            if shared.get("n") != n or shared["resp"].shape[1] < j:
+                # The facet buffers, shared by every J up to resp's columns (at least KERNEL_LOBES): the
+                # graphs captured over the old ones go with them.
+                from .lobes import KERNEL_LOBES
 
                 self._em_graphs.clear()
                 shared.clear()
                 shared.update(n=n, normal=wp.empty(n, dtype=wp.vec3, device=dev),
                               mass=wp.empty(n, dtype=wp.float32, device=dev),
-                              resp=wp.empty((n, MAX_LOBES), dtype=wp.float32, device=dev))
+                              resp=wp.empty((n, max(j, KERNEL_LOBES)), dtype=wp.float32, device=dev))
             prog = self._em_program(shared["normal"], shared["mass"], j, iterations, shared["resp"])
             with wp.ScopedCapture(device=dev, force_module_load=False) as capture:
                 prog["load"]()
@@ -493,6 +496,7 @@ class WarpBackend:
         v = self._vis(vis)
         dev = self._device
         n, j, n_pairs = len(facets), len(axes), len(pair_i)
+        check_kernel_lobes(j)
         vec, lobe_values, lobe_moments_partial = ka.facet_kernels(j)
         values = wp.empty(n, dtype=vec, device=dev)
         self._launch(lobe_values, n,
@@ -528,6 +532,7 @@ class WarpBackend:
         dev = self._device
         bin_normal = np.asarray(bin_normal, np.float32)
         j = len(axes)
+        check_kernel_lobes(j)
         bn = self._array(bin_normal, wp.vec3)
         bin_values = wp.empty(len(bin_normal), dtype=ka.vec16, device=dev)
         self._launch(ka.lobe_values, len(bin_normal),
@@ -547,6 +552,7 @@ class WarpBackend:
         from .kernels import amplitudes as ka
 
         j = len(integrals)
+        check_kernel_lobes(j)
         mu = wp.empty((len(pair_i), j), dtype=wp.float32, device=self._device)
         if not isinstance(moments, wp.array):  # a host array, not lobe_moments(..., to_host=False)
             moments = self._array(np.asarray(moments, np.float32), wp.float32)
