@@ -160,6 +160,7 @@ def _grouped_moments(sums, data, lob):
     parts = [np.asarray(sums(data, lob.axes[a:a + k], lob.sharpness[a:a + k])) for a in range(0, len(lob), k)]
     return np.concatenate([p[:, :-1] for p in parts] + [parts[0][:, -1:]], axis=1)
 
+
 _GEOMETRY = weakref.WeakKeyDictionary()  # tile → OrderedDict(key → geometry result), most recent last
 _GEOMETRY_PER_TILE = 4
 
@@ -192,8 +193,8 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
         error (`lobes.ndf_error`, seen at the sharpest small-scale lobe, on the NDF weighted by what the
         direction grid sees, as the lobes are fitted) is ≤ `tolerance`. Past 16 lobes the moment kernels
         run once per group of 16 and the amplitudes are solved on the host (float64), so the bake costs
-        about J/16 times the J = 16 bake; a tile whose NDF has sharp curved ridges (woven threads) needs
-        ~128 lobes for 35 dB (bench/README.md).
+        up to about J/16 times the J = 16 bake (woven on an H100: 21 ms at J = 16, 140 ms at 128); a
+        tile whose NDF has sharp curved ridges (woven threads) needs ~128 lobes for 35 dB (bench/README.md).
     directions : K, the K×K direction grid (DESIGN §4); tables are K²×K².
     normal_res : R, the cube map of normal bins (6×R×R).
     facets : Ns; seed : facet-sampling seed.
@@ -260,8 +261,8 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     normal = fac.normal  # (read back now, before the rays are queued behind it)
     prog.stage(f"visibility ({nd} dirs)", 1)
     # The rays are queued, and while the device traces them the host bins the normals (and splits the
-    # facets into channels): "visibility"
-    # times both together (on a GPU the binning is the shorter; Warp's CPU device traces before it returns).
+    # facets into channels): "visibility" times both together (on a GPU the binning is the shorter;
+    # Warp's CPU device traces before it returns).
     t0 = time.perf_counter()
     vis = be.visibility(tile, fac, grid)
     # Non-empty bins by counting (no sort): Γ and each bin's mean normal.

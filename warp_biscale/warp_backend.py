@@ -570,10 +570,10 @@ class WarpBackend:
 
         dev = self._device
         j = len(integrals)
-        amps = wp.empty((n_pairs, j, 3), dtype=wp.float32, device=dev)
-        energy = wp.empty((n_pairs, 3), dtype=wp.float32, device=dev)
         if n_pairs == 0 or not channels:
             return np.zeros((n_pairs, j, 3), np.float32), np.zeros((n_pairs, 3), np.float32)
+        amps = wp.empty((n_pairs, j, 3), dtype=wp.float32, device=dev)
+        energy = wp.empty((n_pairs, 3), dtype=wp.float32, device=dev)
         integ = self._array(np.asarray(integrals, np.float64), wp.float64)
         for k, (mu, rgb) in enumerate(channels):
             if not isinstance(mu, wp.array):
