@@ -781,3 +781,15 @@ def test_bake_past_the_kernel_lobes(backend):
     wi = dirs.grid(3)
     value = many.eval(wi, wi[::-1])
     assert np.isfinite(value).all() and (value >= 0).all()
+
+
+def test_lobes_auto_goes_past_the_kernel_lobes_when_16_do_not_fit():
+    """The woven tile's NDF error stays far above the default tolerance within 16 lobes: "auto" goes on
+    to AUTO_LOBES past 16; with a loose tolerance it stops within 16."""
+    tile = wb.geometry.woven()
+    brdfs = [wb.BlinnPhong(1.0, 512)] * tile.n_materials
+    kw = dict(lobes="auto", directions=4, facets=4096, backend="warp:cpu")
+    loose = wb.bake(tile, brdfs, tolerance=0.6, **kw)
+    assert loose.info["lobes"] <= 16 and loose.info["ndf_error"] <= 0.6
+    tight = wb.bake(tile, brdfs, **kw)
+    assert tight.info["lobes"] > 16 and tight.info["ndf_error"] < loose.info["ndf_error"]

@@ -321,9 +321,9 @@ def main(argv=None):
     k.add_argument("tile", nargs="?", default="pyramid",
                    help=f"mesh file (OBJ/PLY/STL/GLB) or built-in tile: {', '.join(BUILTIN_TILES)} (default: pyramid)")
     k.add_argument("--brdf", action="append", help="small-scale BRDF, once per material id (as for `truth`)")
-    k.add_argument("--lobes", default="8", help="SG lobes J: 1-128 (past 16 a bake costs about J/16 times "
-                   "more; a woven tile needs ~128 for 35 dB) or 'auto' (the smallest J <= 16 meeting the NDF "
-                   "tolerance); default 8")
+    k.add_argument("--lobes", default="8", help="SG lobes J: 1-128 (past 16 a bake costs up to about J/16 "
+                   "times more; a woven tile needs ~128 for 35 dB) or 'auto' (the smallest J meeting the NDF "
+                   "tolerance, up to 128); default 8")
     k.add_argument("--facets", type=int, default=1 << 16, help="number of facets Ns (default 2^16)")
     k.add_argument("--directions", type=int, default=12, help="direction grid size K (default 12)")
     k.add_argument("--normal-res", type=int, default=128, help="normal cube-map resolution R (default 128)")
