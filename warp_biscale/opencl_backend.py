@@ -607,7 +607,7 @@ class OpenCLBackend:
                      self._recurring(pair_i, np.int32), self._recurring(pair_o, np.int32), np.int32(n_dirs),
                      self._visible_area_buffer(a_v),
                      moments if isinstance(moments, self._cl.Buffer) else self._buffer(moments, np.float32),
-                     self._buffer(rows, np.float64), self._buffer(integrals, np.float64), np.int32(j),
+                     self._recurring(rows, np.float64), self._recurring(integrals, np.float64), np.int32(j),
                      np.int32(n_pairs), mu)
         return self._read(mu, (n_pairs, j), np.float32) if to_host else mu
 
@@ -617,7 +617,7 @@ class OpenCLBackend:
             return np.zeros((n_pairs, j, 3), np.float32), np.zeros((n_pairs, 3), np.float32)
         amps = self._empty(n_pairs * j * 3, np.float32)
         energy = self._empty(n_pairs * 3, np.float32)
-        integ = self._buffer(np.asarray(integrals, np.float64), np.float64)
+        integ = self._recurring(integrals, np.float64)  # (the solve's upload, if it ran just before)
         for k, (mu, rgb) in enumerate(channels):
             if not isinstance(mu, self._cl.Buffer):
                 mu = self._buffer(np.asarray(mu, np.float32).reshape(n_pairs, j), np.float32)

@@ -559,8 +559,8 @@ class WarpBackend:
         self._launch(ka.solve_amplitudes, len(pair_i),
                      [self._recurring(pair_i, np.int32, wp.int32), self._recurring(pair_o, np.int32, wp.int32),
                       int(n_dirs), self._visible_area_array(a_v), moments,
-                      self._array(np.asarray(rows, np.float64), wp.float64),
-                      self._array(np.asarray(integrals, np.float64), wp.float64)], [mu])
+                      self._recurring(rows, np.float64, wp.float64),  # (integrals recur in amplitude_tables)
+                      self._recurring(integrals, np.float64, wp.float64)], [mu])
         return self._trace_host(mu) if to_host else mu
 
     def amplitude_tables(self, channels, integrals, n_pairs):
@@ -574,7 +574,7 @@ class WarpBackend:
             return np.zeros((n_pairs, j, 3), np.float32), np.zeros((n_pairs, 3), np.float32)
         amps = wp.empty((n_pairs, j, 3), dtype=wp.float32, device=dev)
         energy = wp.empty((n_pairs, 3), dtype=wp.float32, device=dev)
-        integ = self._array(np.asarray(integrals, np.float64), wp.float64)
+        integ = self._recurring(integrals, np.float64, wp.float64)  # (the solve's upload, if it ran just before)
         for k, (mu, rgb) in enumerate(channels):
             if not isinstance(mu, wp.array):
                 mu = self._array(np.asarray(mu, np.float32).reshape(n_pairs, j), wp.float32)
