@@ -8,6 +8,9 @@ walking warp_biscale.bvh: 5.4 ms for the whole stage).
 An earlier kernel with one thread per 32-ray word took 24.1 ms (LBVH) / 17.0 ms (SAH).
 
     python bench/probe_visibility.py --device cuda:0 --facets 16 --directions 12 --tile-cells 128
+
+`--block-dims 64 128 256` times the per-ray kernel of the SAH leaf-2 BVH (the backend's) at those
+thread-block sizes (Warp's default is 256).
 """
 
 import argparse
@@ -30,6 +33,7 @@ def main():
     p.add_argument("--directions", type=int, default=12)
     p.add_argument("--tile-cells", type=int, default=128)
     p.add_argument("--runs", type=int, default=10)
+    p.add_argument("--block-dims", type=int, nargs="*", default=[256])
     a = p.parse_args()
     init_warp()
     dev = wp.get_device(a.device)
@@ -73,12 +77,15 @@ def main():
         bits = wp.empty((nd, words), dtype=wp.uint32, device=dev)
         flags = wp.empty((nd, n), dtype=wp.uint8, device=dev)
 
-        def per_ray():
-            wp.launch(kv.visibility_rays, dim=(nd, n), device=dev,
+        def per_ray(block_dim=256):
+            wp.launch(kv.visibility_rays, dim=(nd, n), device=dev, block_dim=block_dim,
                       inputs=[mesh.id, pts, faces, fn, 0, pos, ff, dirs, *geo, 0], outputs=[flags])
             wp.launch(kv.pack_bits, dim=(nd, words), device=dev, inputs=[flags, 0], outputs=[bits])
 
-        for name, fn_ in (("per_ray", per_ray),):
+        runs = [("per_ray", per_ray)]
+        if (block, ctor, leaf) == (1, "sah", 2):
+            runs += [(f"per_ray block_dim {b}", lambda b=b: per_ray(b)) for b in a.block_dims if b != 256]
+        for name, fn_ in runs:
             fn_()
             wp.synchronize_device(dev)
             ts = []
