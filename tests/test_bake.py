@@ -793,3 +793,20 @@ def test_lobes_auto_goes_past_the_kernel_lobes_when_16_do_not_fit():
     assert loose.info["lobes"] <= 16 and loose.info["ndf_error"] <= 0.6
     tight = wb.bake(tile, brdfs, **kw)
     assert tight.info["lobes"] > 16 and tight.info["ndf_error"] < loose.info["ndf_error"]
+
+
+def test_reused_device_scratch_does_not_leak_into_earlier_results(backend):
+    """Backends may reuse scratch device arrays from call to call: what a call returned stays as it was."""
+    a = backend.sample_facets(wb.geometry.pyramid(), 3000, 0)
+    b = backend.sample_facets(wb.geometry.woven(), 3000, 0)
+    bins_a = backend.normal_bins(a, 16)
+    kept = bins_a.copy()
+    backend.normal_bins(b, 16)
+    np.testing.assert_array_equal(bins_a, kept)
+    integ = np.ones(3)
+    rng = np.random.default_rng(9)
+    t1 = backend.amplitude_tables([(rng.random((40, 3)), [1.0, 1.0, 1.0])], integ, 40)
+    kept = [x.copy() for x in t1]
+    backend.amplitude_tables([(rng.random((40, 3)), [0.5, 0.2, 0.1])], integ, 40)
+    np.testing.assert_array_equal(t1[0], kept[0])
+    np.testing.assert_array_equal(t1[1], kept[1])

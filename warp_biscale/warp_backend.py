@@ -20,6 +20,7 @@ from .model import Facets, Visibility
 from .reference import facet_shift, ray_offset
 
 _READY = False
+SCRATCH_BYTES = 64 << 20  # the largest scratch array a backend keeps between calls (see _scratch)
 
 
 def init_warp():
@@ -58,6 +59,7 @@ class WarpBackend:
         self._tiles = weakref.WeakKeyDictionary()
         self._uploads = UploadCache()
         self._held_visible_area = None  # (host, device) of the last visible_area
+        self._scratch_arrays = {}  # role → device scratch array, see _scratch
         self._em_graphs = {}  # (Ns, J, steps, weighted) → captured EM (CUDA): see _em_graph
         self._em_buffers = {}
         from . import kernels  # noqa: F401  (import here so a broken Warp fails at backend creation)
@@ -199,7 +201,7 @@ class WarpBackend:
         directions = np.asarray(directions, np.float64)
         n = len(facets)
         words = (n + 31) // 32
-        visible = wp.empty((len(directions), n), dtype=wp.uint8, device=dev)
+        visible = self._scratch("visible", (len(directions), n), wp.uint8)  # (packed into bits at once)
         bits = wp.empty((len(directions), words), dtype=wp.uint32, device=dev)
         dirs = self._recurring(directions, np.float32, wp.vec3)
         z_lo, z_hi = tile.z_range
@@ -227,7 +229,7 @@ class WarpBackend:
         dev = self._device
         n_dirs, n_words = len(vis.directions), vis.words
         chunks, per = chunking(n_words, n_dirs, self._threads)
-        partial = wp.empty((chunks, n_dirs), dtype=wp.float32, device=dev)
+        partial = self._scratch("visible_area_partial", (chunks, n_dirs), wp.float32)
         self._launch(kt.visible_area_partial, (chunks, n_dirs),
                      [v["directions"], v["bits"], f["normal"], f["area"], per], [partial])
         a_v = wp.empty(n_dirs, dtype=wp.float32, device=dev)
@@ -291,9 +293,9 @@ class WarpBackend:
         from .kernels import bvndf as kb
 
         f = self._facets(facets)
-        bins = wp.empty(len(facets), dtype=wp.int32, device=self._device)
+        bins = self._scratch("normal_bins", len(facets), wp.int32)
         self._launch(kb.normal_bins, len(facets), [f["normal"], int(resolution)], [bins])
-        return bins.numpy()
+        return self._trace_host(bins)
 
     def bvndf_histogram(self, facets, vis, order, bin_start, weight, pair_i, pair_o):
         import warp as wp
@@ -504,7 +506,7 @@ class WarpBackend:
         n, j, n_pairs = len(facets), len(axes), len(pair_i)
         check_kernel_lobes(j)
         vec, lobe_values, lobe_moments_partial = ka.facet_kernels(j)
-        values = wp.empty(n, dtype=vec, device=dev)
+        values = self._scratch("lobe_values", n, vec)
         self._launch(lobe_values, n,
                      [f["normal"], self._array(np.asarray(axes, np.float32), wp.vec3),
                       self._array(np.asarray(sharpness, np.float32), wp.float32)], [values])
@@ -517,7 +519,11 @@ class WarpBackend:
                 f["area_runs"] = runs
         channel_bits, run_end = runs
         chunks, per = chunking(vis.words, n_pairs, self._threads)
-        partial = wp.empty((chunks, n_pairs, j + 1), dtype=wp.float32, device=dev)
+        shape = (chunks, n_pairs, j + 1)
+        if chunks > 1:
+            partial = self._scratch("moments_partial", shape, wp.float32)
+        else:  # the partial sums are the result: not scratch
+            partial = wp.empty(shape, dtype=wp.float32, device=dev)
         self._launch(lobe_moments_partial, (chunks, n_pairs),
                      [v["directions"], self._recurring(pair_i, np.int32, wp.int32),
                       self._recurring(pair_o, np.int32, wp.int32), v["bits"],
@@ -574,12 +580,11 @@ class WarpBackend:
 
         from .kernels import amplitudes as ka
 
-        dev = self._device
         j = len(integrals)
         if n_pairs == 0 or not channels:
             return np.zeros((n_pairs, j, 3), np.float32), np.zeros((n_pairs, 3), np.float32)
-        amps = wp.empty((n_pairs, j, 3), dtype=wp.float32, device=dev)
-        energy = wp.empty((n_pairs, 3), dtype=wp.float32, device=dev)
+        amps = self._scratch("amplitude_tables", (n_pairs, j, 3), wp.float32)  # (both read back below)
+        energy = self._scratch("amplitude_energy", (n_pairs, 3), wp.float32)
         integ = self._recurring(integrals, np.float64, wp.float64)  # (the solve's upload, if it ran just before)
         for k, (mu, rgb) in enumerate(channels):
             if not isinstance(mu, wp.array):
@@ -672,6 +677,19 @@ class WarpBackend:
         if a is None or tuple(a.shape) != shape or a.dtype != dtype:
             a = entry[key] = wp.empty(shape, dtype=dtype, device=self._device)
         return a
+
+    def _scratch(self, role, shape, dtype):
+        """A device array that no caller keeps (a kernel's intermediate, or a table read back at once),
+        reused from call to call while its shape and type match: each wp.empty cost the lent H100's
+        host 0.08–0.16 ms, and a bake made a dozen. Launches on one stream, and read-backs that copy,
+        keep reuse safe. Arrays over SCRATCH_BYTES are not kept."""
+        import warp as wp
+
+        shape = tuple(shape) if isinstance(shape, (tuple, list)) else (int(shape),)
+        if int(np.prod(shape)) * wp.types.type_size_in_bytes(dtype) > SCRATCH_BYTES:
+            self._scratch_arrays.pop(role, None)
+            return wp.empty(shape, dtype=dtype, device=self._device)
+        return self._trace_reuse(self._scratch_arrays, role, shape, dtype)
 
     def trace_primary(self, mesh, camera, to_host=True):
         import warp as wp
