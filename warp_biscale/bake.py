@@ -76,9 +76,7 @@ class Bvndf:
 
     def pair_index(self, i, o):
         """Row of `histogram` for the direction pair (i, o) (either order)."""
-        n = len(self.a_v)
-        lo, hi = np.minimum(i, o), np.maximum(i, o)
-        return lo * n - lo * (lo - 1) // 2 + (hi - lo)
+        return dirs.unordered_index(i, o, len(self.a_v))
 
     def arrays(self) -> dict:
         out = {"bins": self.bins, "normal": self.normal, "area": self.area, "a_v": self.a_v}

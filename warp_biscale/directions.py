@@ -10,9 +10,8 @@ import functools
 
 import numpy as np
 
-__all__ = ["grid", "frozen_grid", "all_pairs", "unordered_pairs", "bilinear_corners", "square_to_hemisphere",
-           "hemisphere_to_square",
-           "check_directions", "cell_cosine_integrals"]
+__all__ = ["grid", "frozen_grid", "all_pairs", "unordered_pairs", "unordered_index", "bilinear_corners",
+           "square_to_hemisphere", "hemisphere_to_square", "check_directions", "cell_cosine_integrals"]
 
 
 def square_to_hemisphere(uv: np.ndarray) -> np.ndarray:
@@ -98,6 +97,12 @@ def unordered_pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
     read-only, made once per n."""
     i, o = np.triu_indices(n)
     return _frozen(i.astype(np.int32), o.astype(np.int32))
+
+
+def unordered_index(i, o, n: int):
+    """Index of the direction pair (i, o), either order, among `unordered_pairs(n)`."""
+    lo, hi = np.minimum(i, o), np.maximum(i, o)
+    return lo * n - lo * (lo - 1) // 2 + (hi - lo)
 
 
 def bilinear_corners(w, k: int) -> tuple[np.ndarray, np.ndarray]:

@@ -221,9 +221,10 @@ def solve_amplitudes(moments, a_v, pair_i, pair_o, n_dirs: int, rows, integrals)
     rows = np.asarray(rows, np.float64)
     integrals = np.asarray(integrals, np.float64)
     j = len(integrals)
+    from .directions import unordered_index
+
     pi, po = np.asarray(pair_i, np.int64), np.asarray(pair_o, np.int64)
-    lo, hi = np.minimum(pi, po), np.maximum(pi, po)
-    m = moments[lo * n_dirs - lo * (lo - 1) // 2 + hi - lo]
+    m = moments[unordered_index(pi, po, n_dirs)]
     area = np.asarray(a_v, np.float64)[po]
     live = (area > 0) & (m[:, j] > 0)
     safe = np.where(live, area, 1.0)

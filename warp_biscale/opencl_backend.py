@@ -394,9 +394,6 @@ class OpenCLBackend:
         return self._read(out, (n_pairs, 3), np.float32)
 
     # ------------------------------------------------------------------ SG bake stages
-    def _check_lobes(self, n_lobes):
-        check_kernel_lobes(n_lobes)  # (private per-lobe arrays of cl/amplitudes.cl, MAX_LOBES there)
-
     def normal_bins(self, facets, resolution):
         f = self._facets(facets)
         n = len(facets)
@@ -557,7 +554,7 @@ class OpenCLBackend:
         f = self._facets(facets)
         v = self._vis(vis)
         n, j, n_pairs = len(facets), len(axes), len(pair_i)
-        self._check_lobes(j)
+        check_kernel_lobes(j)  # (private per-lobe arrays of cl/amplitudes.cl)
         if n_pairs == 0:
             return np.zeros((0, j + 1), np.float32)
         values = self._lobe_values(f["normal"], n, axes, sharpness)
@@ -587,7 +584,7 @@ class OpenCLBackend:
     def histogram_moments(self, hist, bin_normal, directions, axes, sharpness, pair_i, pair_o):
         bin_normal = np.asarray(bin_normal, np.float32)
         n_bins, j, n_pairs = len(bin_normal), len(axes), len(pair_i)
-        self._check_lobes(j)
+        check_kernel_lobes(j)  # (private per-lobe arrays of cl/amplitudes.cl)
         if n_pairs == 0:
             return np.zeros((0, j + 1), np.float32)
         bn = self._buffer(bin_normal, np.float32)
@@ -601,7 +598,7 @@ class OpenCLBackend:
 
     def solve_amplitudes(self, moments, a_v, rows, integrals, pair_i, pair_o, n_dirs, to_host=True):
         j, n_pairs = len(integrals), len(pair_i)
-        self._check_lobes(j)
+        check_kernel_lobes(j)  # (private per-lobe arrays of cl/amplitudes.cl)
         if n_pairs == 0:
             return np.zeros((0, j), np.float32)
         mu = self._empty(n_pairs * j, np.float32)
