@@ -810,3 +810,85 @@ def test_reused_device_scratch_does_not_leak_into_earlier_results(backend):
     backend.amplitude_tables([(rng.random((40, 3)), [0.5, 0.2, 0.1])], integ, 40)
     np.testing.assert_array_equal(t1[0], kept[0])
     np.testing.assert_array_equal(t1[1], kept[1])
+
+
+# ------------------------------------------------------------------ results left on the device
+def test_em_lobes_left_on_the_device_feed_the_moments(backend, heightfield):
+    """ndf_em(..., to_host=False) queues the EM and hands back its lobes on the device: read back, they are
+    what ndf_em returns (the same kernels on the same input: equal), and lobe_moments summed over them
+    before the read-back matches the float64 reference at the lobes read back (tolerance as the moments').
+    A dead lobe stays in the device lobes (J columns): the bake sums again for the live ones."""
+    fac, fd, grid, vis, vb = _case(backend, heightfield)
+    start = lobes_mod.initial_lobes(fd["normal"], fd["area"], 6)
+    args = (fac, start.axes, start.sharpness, start.weight, 8)
+    em = backend.ndf_em(*args, to_host=False)
+    assert len(em) == em.count == 6
+    iu, ou = np.triu_indices(len(grid))
+    w = fd["area"] * 0.5
+    got = np.asarray(backend.lobe_moments(fac, vis, w, em, None, iu, ou))  # queued behind the EM
+    axes, sharp, weight, steps = em.host()
+    want_em = backend.ndf_em(*args)
+    assert steps == want_em[3]
+    for a, b in zip((axes, sharp, weight), want_em[:3]):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-15)
+    assert got.shape == (len(iu), 7)
+    _close(got, ref.lobe_moments(fd, vb, grid, w, axes, sharp, iu, ou))
+    # Dead lobe (the fixture of test_em_step_cap_and_dead_lobes): still a column of the device lobes.
+    normal = np.tile([0.0, 0.0, 1.0], (512, 1))
+    flat = wb.model.Facets(np.zeros((512, 3)), normal, np.zeros(512, np.int32), np.full(512, 1 / 512, np.float32),
+                           np.zeros(512, np.int32), np.ones((512, 3), np.float32))
+    down = backend.ndf_em(flat, [[0.0, 0.3, 0.954], [0.0, 0.0, -1.0]], [5.0, 50.0], [0.5, 0.5], 1, to_host=False)
+    assert len(down) == 2 and down.host()[2][1] == 0.0
+
+
+def test_em_not_run_still_hands_back_device_lobes(backend, heightfield):
+    """iterations 0: the start lobes themselves, on the device as well."""
+    fac, fd, grid, vis, vb = _case(backend, heightfield)
+    start = lobes_mod.initial_lobes(fd["normal"], fd["area"], 3)
+    em = backend.ndf_em(fac, start.axes, start.sharpness, start.weight, 0, to_host=False)
+    assert em.host()[3] == 0
+    np.testing.assert_array_equal(em.host()[0], start.axes)
+    iu, ou = np.triu_indices(len(grid))
+    _close(backend.lobe_moments(fac, vis, None, em, None, iu, ou),
+           ref.lobe_moments(fd, vb, grid, fd["area"], start.axes, start.sharpness, iu, ou))
+
+
+def test_visible_area_left_on_the_device(backend, heightfield):
+    """visible_area(..., to_host=False): read back it is visible_area's result, and the solve takes it as it
+    takes the host array (equal results)."""
+    fac, fd, grid, vis, vb = _case(backend, heightfield)
+    nd = len(grid)
+    kept = backend.visible_area(fac, vis, to_host=False)
+    host = backend.visible_area(fac, vis)
+    np.testing.assert_array_equal(kept.host(), host)
+    lob = lobes_mod.initial_lobes(fd["normal"], fd["area"], 4)
+    iu, ou = np.triu_indices(nd)
+    mom = backend.lobe_moments(fac, vis, None, lob.axes, lob.sharpness, iu, ou)
+    rows, integrals, _, _ = lobes_mod.amplitude_system(lob)
+    pi, po = dirs.all_pairs(nd)
+    np.testing.assert_array_equal(backend.solve_amplitudes(mom, kept, rows, integrals, pi, po, nd),
+                                  backend.solve_amplitudes(mom, host.copy(), rows, integrals, pi, po, nd))
+
+
+def test_bake_sums_again_when_a_lobe_dies_in_em(backend, monkeypatch):
+    """The bake queues the moments behind the EM for all its lobes; when one died (simulated: the host drops
+    the last lobe), it sums again for the live ones, and the result is the bake of those lobes."""
+    tile = wb.geometry.pyramid()
+    kw = dict(lobes=4, directions=4, facets=2048, backend=backend)
+    honest = wb.bake(tile, wb.BlinnPhong(1.0, 64), **kw)
+    bake_module._GEOMETRY.clear()
+    from_em = lobes_mod.from_em
+
+    def one_dies(start, result):
+        lob = from_em(start, result)
+        return lobes_mod.LobeSet(lob.axes[:-1], lob.sharpness[:-1], lob.weight[:-1] / lob.weight[:-1].sum(),
+                                 lob.iterations)
+
+    monkeypatch.setattr(lobes_mod, "from_em", one_dies)
+    fewer = wb.bake(tile, wb.BlinnPhong(1.0, 64), **kw)
+    assert len(fewer.lobes) == len(honest.lobes) - 1 == fewer.amplitudes.shape[-2]
+    np.testing.assert_array_equal(fewer.lobes.axes, honest.lobes.axes[:-1])
+    assert np.isfinite(fewer.amplitudes).all() and (fewer.amplitudes >= 0).all()
+    # The live lobes' sums are what the queued sums held for them: the same amplitude system on the same
+    # columns, so each pair's energy (the plain sum c) is unchanged.
+    np.testing.assert_allclose(fewer._energy, honest._energy, rtol=1e-5, atol=1e-7)

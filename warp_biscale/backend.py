@@ -22,7 +22,37 @@ import numpy as np
 
 from .model import Facets, Visibility
 
-__all__ = ["Backend", "get_backend", "backends", "chunking", "run_em_steps", "UploadCache"]
+__all__ = ["Backend", "get_backend", "backends", "chunking", "run_em_steps", "UploadCache", "OnDevice", "DeviceLobes"]
+
+
+class OnDevice:
+    """A result left on the device, so that the host need not wait for it: `device` is the backend's own
+    array (or arrays) for its next calls, `host()` the host copy, read back when first asked for (the
+    copy may have been queued with the result: then it waits for that result alone, not for work
+    queued after it)."""
+
+    def __init__(self, device, read):
+        self.device = device
+        self._read = read
+        self._host = None
+
+    def host(self):
+        if self._host is None:
+            self._host = self._read()
+        return self._host
+
+
+class DeviceLobes(OnDevice):
+    """The lobes of `Backend.ndf_em(..., to_host=False)`: `device` the backend's own float32 (axes,
+    sharpness) arrays, which `lobe_moments` takes in place of host axes until the backend's next
+    ndf_em; `count` J; `host()` → (axes, sharpness, weight, steps) as ndf_em returns them."""
+
+    def __init__(self, device, count, read):
+        super().__init__(device, read)
+        self.count = int(count)
+
+    def __len__(self):
+        return self.count
 
 
 @runtime_checkable
@@ -40,8 +70,9 @@ class Backend(Protocol):
         """V_s(ω) bits for (D, 3) unit directions (reference.visibility); brute_force tests every
         triangle instead of walking the BVH (for testing the BVH)."""
 
-    def visible_area(self, facets: Facets, vis: Visibility) -> np.ndarray:
-        """(D,) float32 a_v(ω) (reference.visible_area)."""
+    def visible_area(self, facets: Facets, vis: Visibility, to_host: bool = True) -> np.ndarray:
+        """(D,) float32 a_v(ω) (reference.visible_area); with to_host=False an OnDevice (for
+        solve_amplitudes; `host()` reads it back)."""
 
     def effective_brdf(self, facets: Facets, vis: Visibility, kinds: np.ndarray, params: np.ndarray,
                        pair_i: np.ndarray, pair_o: np.ndarray, a_v: np.ndarray) -> np.ndarray:
@@ -54,23 +85,27 @@ class Backend(Protocol):
     def visible_weights(self, facets: Facets, vis: Visibility) -> np.ndarray:
         """(Ns,) float32 ΔA_s · mean_k V_s(ω_k)(n_s·ω_k)⁺ over vis.directions (reference.visible_weights)."""
 
-    def ndf_em(self, facets: Facets, axes, sharpness, weight, iterations: int, facet_weight=None):
+    def ndf_em(self, facets: Facets, axes, sharpness, weight, iterations: int, facet_weight=None,
+               to_host: bool = True):
         """Spherical EM on the device from lobes (axes (J, 3), sharpness, weight): at most `iterations`
         steps, stopping after the first step that lobes.converged → (axes, sharpness, weight, steps),
         float64, dead lobes with weight 0 (reference.ndf_em). Facets weigh their area, or
-        `facet_weight` (Ns,)."""
+        `facet_weight` (Ns,). With to_host=False the EM is only queued: → DeviceLobes, whose lobes
+        lobe_moments can sum over before the host has them."""
 
     def lobe_moments(self, facets: Facets, vis: Visibility, weight, axes, sharpness, pair_i, pair_o,
                      to_host: bool = True):
         """(P, J + 1) float32 facet sums of DESIGN §5 for the unordered pairs (reference.lobe_moments),
         each facet weighing `weight` (Ns,), or its area ΔA when `weight` is None (a tile of one material
         and one colour: nothing uploaded); with to_host=False a device array for solve_amplitudes (no
-        round trip through the host)."""
+        round trip through the host). `axes` may be the DeviceLobes of this backend's last ndf_em
+        (`sharpness` None): its J lobes, dead ones included, as the device holds them (float32)."""
 
     def solve_amplitudes(self, moments, a_v, rows, integrals, pair_i, pair_o, n_dirs: int, to_host: bool = True):
         """(P, J) float32 μ ≥ 0 for the ordered pairs (reference.solve_amplitudes); `moments` a host
-        array or what lobe_moments(..., to_host=False) returned. With to_host=False μ stays on the
-        device (for amplitude_tables)."""
+        array or what lobe_moments(..., to_host=False) returned; `a_v` a host array or what
+        visible_area(..., to_host=False) returned. With to_host=False μ stays on the device (for
+        amplitude_tables)."""
 
     def amplitude_tables(self, channels, integrals, n_pairs: int) -> tuple:
         """A material's (P, J, 3) amplitude table and (P, 3) energies, float32, from its channels

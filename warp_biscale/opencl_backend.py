@@ -34,8 +34,8 @@ import weakref
 
 import numpy as np
 
-from .backend import (DeviceFacets, UploadCache, check_kernel_lobes, chunking, em_result_rows, em_start_rows,
-                      equal_areas, run_em_steps)
+from .backend import (DeviceFacets, DeviceLobes, OnDevice, UploadCache, check_kernel_lobes, chunking, em_result_rows,
+                      em_start_rows, equal_areas, run_em_steps)
 from .model import Facets, Visibility
 from .reference import facet_shift, ray_offset
 
@@ -346,12 +346,13 @@ class OpenCLBackend:
         vis.device_cache[self.name] = {"ctx": self._ctx, "bits": bits, "directions": dirs}
         return vis
 
-    def visible_area(self, facets, vis):
+    def visible_area(self, facets, vis, to_host=True):
         f = self._facets(facets)
         v = self._vis(vis)
         n_dirs, n_words = len(vis.directions), vis.words
         if n_dirs == 0:
-            return np.zeros(0, np.float32)
+            none = np.zeros(0, np.float32)
+            return none if to_host else OnDevice(self._empty(1, np.float32), lambda: none)
         chunks, per = chunking(n_words, n_dirs, self._threads)
         partial = self._empty(chunks * n_dirs, np.float32)
         self._launch("truth", "visible_area_partial", (n_dirs, chunks),
@@ -359,14 +360,18 @@ class OpenCLBackend:
                      np.int32(n_dirs), partial)
         a_v = self._empty(n_dirs, np.float32)
         self._launch("truth", "sum_chunks_area", (n_dirs,), partial, np.int32(chunks), np.int32(n_dirs), a_v)
+        if not to_host:
+            return OnDevice(a_v, lambda: self._read(a_v, n_dirs, np.float32))
         host = self._read(a_v, n_dirs, np.float32)
         host.flags.writeable = False  # (so that the device copy stays what it holds)
         self._held_visible_area = (host, a_v)  # solve_amplitudes given `host` itself uses the device copy
         return host
 
     def _visible_area_buffer(self, a_v):
-        """The device copy of a_v: the one `visible_area` kept when `a_v` is the very array it returned,
-        else an upload."""
+        """The device copy of a_v: visible_area(..., to_host=False)'s, or the one `visible_area` kept when
+        `a_v` is the very array it returned, else an upload."""
+        if isinstance(a_v, OnDevice):
+            return a_v.device
         held = self._held_visible_area
         if held is not None and held[0] is a_v:
             return held[1]
@@ -485,6 +490,7 @@ class OpenCLBackend:
                     "state": self._empty(2, np.int32), "moved": self._empty(j, np.int32),
                     "start": self._empty(6 * j, np.float64), "result": self._empty(6 * j, np.float64)}
             lobes32 = [self._empty(m, np.float32) for m in (3 * j, j, j)]
+            prog["axes32"], prog["sharp32"] = lobes32[:2]  # (what DeviceLobes hands to lobe_moments)
             lobes64 = [self._empty(m, np.float64) for m in (3 * j, j, j)]
             steps, stats = self._em_launches(prog["normal"], prog["mass"], n, j, *lobes32, prog["state"],
                                              shared["resp"])
@@ -502,13 +508,17 @@ class OpenCLBackend:
             self._em_programs.pop(next(iter(self._em_programs)))
         return prog
 
-    def ndf_em(self, facets, axes, sharpness, weight, iterations, facet_weight=None):
+    def ndf_em(self, facets, axes, sharpness, weight, iterations, facet_weight=None, to_host=True):
         from .lobes import LobeSet
 
         start = LobeSet(axes, sharpness, weight)
         j, n = len(start), len(facets)
         if int(iterations) <= 0:
-            return start.axes, start.sharpness, start.weight, 0
+            result = (start.axes, start.sharpness, start.weight, 0)
+            if to_host:
+                return result
+            return DeviceLobes((self._buffer(start.axes, np.float32), self._buffer(start.sharpness, np.float32)), j,
+                               lambda: result)
         f = self._facets(facets)
         mass = f["area"] if facet_weight is None else self._facet_weight(f, facet_weight)
         prog = self._em_program(n, j, iterations, facet_weight is not None)
@@ -524,6 +534,13 @@ class OpenCLBackend:
 
         run_em_steps(iterations, enqueue_step, lambda: bool(self._read(prog["state"], 2, np.int32)[0]))
         prog["unload"]()
+        if not to_host:
+            # The result's copy is queued behind the EM: reading it back waits for the EM, not for what
+            # the caller queues after it.
+            rows = np.empty((j, 6), np.float64)
+            copied = cl.enqueue_copy(self._queue, rows, prog["result"], is_blocking=False)
+            return DeviceLobes((prog["axes32"], prog["sharp32"]), j,
+                               lambda: (copied.wait(), em_result_rows(rows))[1])
         return em_result_rows(self._read(prog["result"], (j, 6), np.float64))
 
     def _facet_weight(self, f, facet_weight):
@@ -535,13 +552,18 @@ class OpenCLBackend:
         return self._buffer(facet_weight, np.float32)
 
     def _lobe_values(self, normal_buf, n, axes, sharpness):
-        """(n, 8⌈J/8⌉) float32 device table G_j(n_s) of unit-amplitude lobes, zero past J (read as float8)."""
-        j = len(axes)
+        """(n, 8⌈J/8⌉) float32 device table G_j(n_s) of unit-amplitude lobes, zero past J (read as float8);
+        `axes` host axes, or a DeviceLobes (sharpness None)."""
+        if isinstance(axes, DeviceLobes):  # the lobes an EM left on the device: no upload
+            j = axes.count
+            axes_buf, sharpness_buf = axes.device
+        else:
+            j = len(axes)
+            axes_buf, sharpness_buf = self._buffer(axes, np.float32), self._buffer(sharpness, np.float32)
         stride = -(-j // 8) * 8
         values = self._empty(n * stride, np.float32)
         if n:
-            self._launch("amplitudes", "lobe_values", (n,),
-                         normal_buf, self._buffer(axes, np.float32), self._buffer(sharpness, np.float32),
+            self._launch("amplitudes", "lobe_values", (n,), normal_buf, axes_buf, sharpness_buf,
                          np.int32(j), np.int32(stride), np.int32(n), values)
         return values
 
@@ -553,7 +575,7 @@ class OpenCLBackend:
     def lobe_moments(self, facets, vis, weight, axes, sharpness, pair_i, pair_o, to_host=True):
         f = self._facets(facets)
         v = self._vis(vis)
-        n, j, n_pairs = len(facets), len(axes), len(pair_i)
+        n, j, n_pairs = len(facets), len(axes), len(pair_i)  # (len of a DeviceLobes: its count)
         check_kernel_lobes(j)  # (private per-lobe arrays of cl/amplitudes.cl)
         if n_pairs == 0:
             return np.zeros((0, j + 1), np.float32)

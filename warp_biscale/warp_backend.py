@@ -14,8 +14,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from .backend import (DeviceFacets, UploadCache, check_kernel_lobes, chunking, em_result_rows, em_start_rows,
-                      equal_areas, run_em_steps)
+from .backend import (DeviceFacets, DeviceLobes, OnDevice, UploadCache, check_kernel_lobes, chunking, em_result_rows,
+                      em_start_rows, equal_areas, run_em_steps)
 from .model import Facets, Visibility
 from .reference import facet_shift, ray_offset
 
@@ -219,7 +219,7 @@ class WarpBackend:
         vis.device_cache[self.name] = {"bits": bits, "directions": dirs}
         return vis
 
-    def visible_area(self, facets, vis):
+    def visible_area(self, facets, vis, to_host=True):
         import warp as wp
 
         from .kernels import truth as kt
@@ -234,16 +234,21 @@ class WarpBackend:
                      [v["directions"], v["bits"], f["normal"], f["area"], per], [partial])
         a_v = wp.empty(n_dirs, dtype=wp.float32, device=dev)
         wp.launch(kt.sum_chunks_area, dim=n_dirs, device=dev, inputs=[partial], outputs=[a_v])
+        if not to_host:
+            return OnDevice(a_v, lambda: self._trace_host(a_v))
         host = self._trace_host(a_v)
         host.flags.writeable = False  # (so that the device copy stays what it holds)
         self._held_visible_area = (host, a_v)  # solve_amplitudes given `host` itself uses the device copy
         return host
 
     def _visible_area_array(self, a_v):
-        """The device copy of a_v: the one `visible_area` kept when `a_v` is the very array it returned,
-        else an upload (an upload costs more than the solve on a GPU host)."""
+        """The device copy of a_v: visible_area(..., to_host=False)'s, or the one `visible_area` kept when
+        `a_v` is the very array it returned, else an upload (an upload costs more than the solve on a
+        GPU host)."""
         import warp as wp
 
+        if isinstance(a_v, OnDevice):
+            return a_v.device
         held = self._held_visible_area
         if held is not None and held[0] is a_v:
             return held[1]
@@ -454,15 +459,19 @@ class WarpBackend:
             self._em_graphs.pop(next(iter(self._em_graphs)))
         return graph
 
-    def ndf_em(self, facets, axes, sharpness, weight, iterations, facet_weight=None):
+    def ndf_em(self, facets, axes, sharpness, weight, iterations, facet_weight=None, to_host=True):
         import warp as wp
 
         from .lobes import LobeSet
 
         start = LobeSet(axes, sharpness, weight)
-        if int(iterations) <= 0:
-            return start.axes, start.sharpness, start.weight, 0
         j = len(start)
+        if int(iterations) <= 0:
+            result = (start.axes, start.sharpness, start.weight, 0)
+            if to_host:
+                return result
+            return DeviceLobes((self._array(start.axes.astype(np.float32), wp.vec3),
+                                self._array(start.sharpness.astype(np.float32), wp.float32)), j, lambda: result)
         f = self._facets(facets)
         mass = f["area"] if facet_weight is None else self._facet_weight(f, facet_weight)
         if self._device.is_cuda:
@@ -472,6 +481,20 @@ class WarpBackend:
             wp.copy(self._em_buffers["mass"], mass)
             prog["start"].assign(em_start_rows(start))
             wp.capture_launch(graph["graph"])
+            if not to_host:
+                # The result's copy is queued behind the EM into pinned memory, with an event to wait on:
+                # reading it back then waits for the EM, not for what the caller queues after it.
+                if "result_host" not in prog:
+                    prog["result_host"] = wp.empty((j, 6), dtype=wp.float64, device="cpu", pinned=True)
+                    prog["result_ready"] = wp.Event(self._device)
+                wp.copy(prog["result_host"], prog["result"])
+                wp.get_stream(self._device).record_event(prog["result_ready"])
+
+                def read(host=prog["result_host"], ready=prog["result_ready"]):
+                    wp.synchronize_event(ready)
+                    return em_result_rows(host.numpy().copy())
+
+                return DeviceLobes((prog["axes32"], prog["sharp32"]), j, read)
         else:
             prog = self._em_program(f["normal"], mass, j, iterations, self._resp(facets, j))
             prog["start"].assign(em_start_rows(start))
@@ -483,6 +506,9 @@ class WarpBackend:
 
             run_em_steps(iterations, enqueue_step, lambda: bool(prog["state"].numpy()[0]))
             prog["unload"]()
+            if not to_host:
+                return DeviceLobes((prog["axes32"], prog["sharp32"]), j,
+                                   lambda: em_result_rows(self._trace_host(prog["result"])))
         return em_result_rows(self._trace_host(prog["result"]))
 
     def _facet_weight(self, f, facet_weight):
@@ -503,13 +529,18 @@ class WarpBackend:
         f = self._facets(facets)
         v = self._vis(vis)
         dev = self._device
-        n, j, n_pairs = len(facets), len(axes), len(pair_i)
+        if isinstance(axes, DeviceLobes):  # the lobes an EM left on the device: no upload
+            j = axes.count
+            axes_arr, sharpness_arr = axes.device
+        else:
+            j = len(axes)
+            axes_arr = self._array(np.asarray(axes, np.float32), wp.vec3)
+            sharpness_arr = self._array(np.asarray(sharpness, np.float32), wp.float32)
+        n, n_pairs = len(facets), len(pair_i)
         check_kernel_lobes(j)
         vec, lobe_values, lobe_moments_partial = ka.facet_kernels(j)
         values = self._scratch("lobe_values", n, vec)
-        self._launch(lobe_values, n,
-                     [f["normal"], self._array(np.asarray(axes, np.float32), wp.vec3),
-                      self._array(np.asarray(sharpness, np.float32), wp.float32)], [values])
+        self._launch(lobe_values, n, [f["normal"], axes_arr, sharpness_arr], [values])
         runs = f.get("area_runs") if weight is None else None  # the area's runs depend on the facets alone
         weight = f["area"] if weight is None else self._array(np.asarray(weight, np.float32), wp.float32)
         if runs is None:
