@@ -24,6 +24,8 @@ from .model import Facets, Visibility
 
 __all__ = ["Backend", "get_backend", "backends", "chunking", "run_em_steps", "UploadCache", "OnDevice", "DeviceLobes"]
 
+SCRATCH_BYTES = 64 << 20  # the largest scratch array a backend keeps between calls (see their _scratch)
+
 
 class OnDevice:
     """A result left on the device, so that the host need not wait for it: `device` is the backend's own

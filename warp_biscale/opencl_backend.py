@@ -34,8 +34,8 @@ import weakref
 
 import numpy as np
 
-from .backend import (DeviceFacets, DeviceLobes, OnDevice, UploadCache, check_kernel_lobes, chunking, em_result_rows,
-                      em_start_rows, equal_areas, run_em_steps)
+from .backend import (SCRATCH_BYTES, DeviceFacets, DeviceLobes, OnDevice, UploadCache, check_kernel_lobes, chunking,
+                      em_result_rows, em_start_rows, equal_areas, run_em_steps)
 from .model import Facets, Visibility
 from .reference import facet_shift, ray_offset
 
@@ -164,6 +164,7 @@ class OpenCLBackend:
         self._tiles = weakref.WeakKeyDictionary()
         self._uploads = UploadCache()
         self._held_visible_area = None  # (host, device) of the last visible_area
+        self._scratch_buffers = {}  # role → device buffer, see _scratch
         self._em_programs = {}  # (Ns, J, steps, weighted) → an EM's buffers and launches: see _em_program
         self._em_buffers = {}
 
@@ -233,6 +234,22 @@ class OpenCLBackend:
     def _empty(self, n_items, dtype):
         return self._cl.Buffer(self._ctx, self._cl.mem_flags.READ_WRITE,
                                size=max(1, int(n_items)) * np.dtype(dtype).itemsize)
+
+    def _scratch(self, role, n_items, dtype):
+        """A device buffer that no caller keeps (a kernel's intermediate), reused from call to call while
+        it is large enough. Why: a buffer released while queued kernels still use it made NVIDIA's
+        OpenCL wait for them (on the lent H100 the visibility call returned only when the rays were
+        done, its ray buffer released at the call's end), so intermediates outlive their call. The
+        in-order queue keeps reuse safe. Buffers over SCRATCH_BYTES are not kept."""
+        nbytes = max(1, int(n_items)) * np.dtype(dtype).itemsize
+        held = self._scratch_buffers.get(role)
+        if held is not None and held.size >= nbytes:
+            return held
+        if nbytes > SCRATCH_BYTES:
+            self._scratch_buffers.pop(role, None)
+            return self._empty(n_items, dtype)
+        buf = self._scratch_buffers[role] = self._empty(n_items, dtype)
+        return buf
 
     def _read(self, buf, shape, dtype):
         out = np.empty(shape, dtype)
@@ -332,7 +349,7 @@ class OpenCLBackend:
         dirs = self._buffer(directions, np.float32)
         if n_dirs:
             z_lo, z_hi = tile.z_range
-            visible = self._empty(n_dirs * n, np.uint8)
+            visible = self._scratch("visible", n_dirs * n, np.uint8)  # (packed into bits at once)
             # (Work-groups of 32, like the Warp twin's blocks, were no faster here: the stage took
             # 5.2–5.6 ms on NVIDIA OpenCL with 32 and 4.9–5.3 ms with the device's 64.)
             self._launch("visibility", "visibility_rays", (n, n_dirs),
@@ -354,7 +371,7 @@ class OpenCLBackend:
             none = np.zeros(0, np.float32)
             return none if to_host else OnDevice(self._empty(1, np.float32), lambda: none)
         chunks, per = chunking(n_words, n_dirs, self._threads)
-        partial = self._empty(chunks * n_dirs, np.float32)
+        partial = self._scratch("visible_area_partial", chunks * n_dirs, np.float32)
         self._launch("truth", "visible_area_partial", (n_dirs, chunks),
                      v["directions"], v["bits"], np.int32(n_words), f["normal"], f["area"], np.int32(per),
                      np.int32(n_dirs), partial)
@@ -551,7 +568,7 @@ class OpenCLBackend:
             return held[1]
         return self._buffer(facet_weight, np.float32)
 
-    def _lobe_values(self, normal_buf, n, axes, sharpness):
+    def _lobe_values(self, normal_buf, n, axes, sharpness, role="lobe_values"):
         """(n, 8⌈J/8⌉) float32 device table G_j(n_s) of unit-amplitude lobes, zero past J (read as float8);
         `axes` host axes, or a DeviceLobes (sharpness None)."""
         if isinstance(axes, DeviceLobes):  # the lobes an EM left on the device: no upload
@@ -561,7 +578,7 @@ class OpenCLBackend:
             j = len(axes)
             axes_buf, sharpness_buf = self._buffer(axes, np.float32), self._buffer(sharpness, np.float32)
         stride = -(-j // 8) * 8
-        values = self._empty(n * stride, np.float32)
+        values = self._scratch(role, n * stride, np.float32)
         if n:
             self._launch("amplitudes", "lobe_values", (n,), normal_buf, axes_buf, sharpness_buf,
                          np.int32(j), np.int32(stride), np.int32(n), values)
@@ -584,13 +601,15 @@ class OpenCLBackend:
         weight = f["area"] if weight is None else self._buffer(np.asarray(weight, np.float32), np.float32)
         n_words = vis.words
         if runs is None:
-            runs = (self._empty(n_words, np.uint32), self._empty(n, np.int32))
+            if weight is f["area"]:  # kept with the facets
+                runs = f["area_runs"] = (self._empty(n_words, np.uint32), self._empty(n, np.int32))
+            else:
+                runs = (self._scratch("runs_bits", n_words, np.uint32), self._scratch("runs_end", n, np.int32))
             self._launch("amplitudes", "facet_runs", (n_words,), f["normal"], weight, np.int32(n), *runs)
-            if weight is f["area"]:
-                f["area_runs"] = runs
         channel_bits, run_end = runs
         chunks, per = chunking(n_words, n_pairs, self._threads)
-        partial = self._empty(chunks * n_pairs * (j + 1), np.float32)
+        shape = chunks * n_pairs * (j + 1)  # (with one chunk the partial sums are the result: not scratch)
+        partial = self._scratch("moments_partial", shape, np.float32) if chunks > 1 else self._empty(shape, np.float32)
         self._launch("amplitudes", "lobe_moments_partial", (n_pairs, chunks),
                      v["directions"], self._recurring(pair_i, np.int32), self._recurring(pair_o, np.int32),
                      v["bits"], np.int32(n_words), channel_bits, weight, f["normal"], values, run_end,
@@ -610,7 +629,7 @@ class OpenCLBackend:
         if n_pairs == 0:
             return np.zeros((0, j + 1), np.float32)
         bn = self._buffer(bin_normal, np.float32)
-        bin_values = self._lobe_values(bn, n_bins, axes, sharpness)
+        bin_values = self._lobe_values(bn, n_bins, axes, sharpness, role="bin_lobe_values")
         out = self._empty(n_pairs * (j + 1), np.float32)
         self._launch("amplitudes", "histogram_moments", (n_pairs,),
                      self._buffer(directions, np.float32), self._buffer(pair_i, np.int32),

@@ -14,13 +14,12 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from .backend import (DeviceFacets, DeviceLobes, OnDevice, UploadCache, check_kernel_lobes, chunking, em_result_rows,
-                      em_start_rows, equal_areas, run_em_steps)
+from .backend import (SCRATCH_BYTES, DeviceFacets, DeviceLobes, OnDevice, UploadCache, check_kernel_lobes, chunking,
+                      em_result_rows, em_start_rows, equal_areas, run_em_steps)
 from .model import Facets, Visibility
 from .reference import facet_shift, ray_offset
 
 _READY = False
-SCRATCH_BYTES = 64 << 20  # the largest scratch array a backend keeps between calls (see _scratch)
 
 
 def init_warp():
