@@ -212,7 +212,9 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
     bvndf : also keep the histogram N in the result (`mat.bvndf.histogram`) for inspection.
 
     Returns an `EffectiveBRDF` with per-stage `timings` (seconds, device-synchronised; the host bins the
-    normals while the device traces the visibility rays, and "visibility" times the two together).
+    normals while the device traces the visibility rays, and "visibility" times the two together; a_v and
+    the moment sums are only queued in "bvndf" and "ndf_fit", and the device time they take shows in the
+    stage that next waits for the device).
     """
     mats, _, _ = _prepare(tile, materials)
     if method not in METHODS:
