@@ -831,6 +831,12 @@ def test_em_lobes_left_on_the_device_feed_the_moments(backend, heightfield):
     assert steps == want_em[3]
     for a, b in zip((axes, sharp, weight), want_em[:3]):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-15)
+    # And against the float64 EM at the device's step count (tolerances of test_em_matches_reference_em).
+    r_axes, r_sharp, r_weight, _ = ref.ndf_em(fd["normal"], fd["area"], start.axes, start.sharpness, start.weight,
+                                              steps)
+    np.testing.assert_allclose(axes, r_axes, atol=1e-4)
+    np.testing.assert_allclose(sharp, r_sharp, rtol=1e-3)
+    np.testing.assert_allclose(weight, r_weight, atol=1e-5)
     assert got.shape == (len(iu), 7)
     _close(got, ref.lobe_moments(fd, vb, grid, w, axes, sharp, iu, ou))
     # Dead lobe (the fixture of test_em_step_cap_and_dead_lobes): still a column of the device lobes.
@@ -861,6 +867,7 @@ def test_visible_area_left_on_the_device(backend, heightfield):
     kept = backend.visible_area(fac, vis, to_host=False)
     host = backend.visible_area(fac, vis)
     np.testing.assert_array_equal(kept.host(), host)
+    _close(kept.host(), ref.visible_area(fd, vb, grid))  # (float32 sums of float32 terms, as the moments')
     lob = lobes_mod.initial_lobes(fd["normal"], fd["area"], 4)
     iu, ou = np.triu_indices(nd)
     mom = backend.lobe_moments(fac, vis, None, lob.axes, lob.sharpness, iu, ou)
