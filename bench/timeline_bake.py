@@ -1,7 +1,7 @@
 """Host timeline of one warm 2^16-facet bake: when each backend call and host step starts and ends
 (no added synchronisation, ~1 µs of overhead a call), so the gaps between them are visible.
 
-    python bench/timeline_bake.py warp:cuda [--gpu]
+    python bench/timeline_bake.py warp:cuda [--gpu] [--facets N] [--tile pyramid] [--runs 5]
 
 With --gpu (Warp CUDA only) each call also records a CUDA event on the device's stream before and
 after it (no synchronisation; a few µs a call): the timeline then shows, for each call, when the GPU
@@ -51,7 +51,7 @@ def traced(owner, name, label=None):
     setattr(owner, name, wrapper)
 
 
-def main(backend, facets=1 << 16, runs=5, gpu=False):
+def main(backend, facets=1 << 16, runs=5, gpu=False, tile="heightfield"):
     be = wb.get_backend(backend)
     if gpu:
         GPU["device"] = be._device  # (Warp CUDA: the backend's device)
@@ -62,7 +62,8 @@ def main(backend, facets=1 << 16, runs=5, gpu=False):
         traced(lobes_mod, name)
     traced(bake_module, "_channels")
     traced(bake_module, "EffectiveBRDF")
-    kw = dict(tile=heightfield_tile(), materials=wb.BlinnPhong(1.0, 512), lobes=8, directions=12, normal_res=128,
+    tile = heightfield_tile() if tile == "heightfield" else getattr(wb.geometry, tile)()
+    kw = dict(tile=tile, materials=wb.BlinnPhong(1.0, 512), lobes=8, directions=12, normal_res=128,
               facets=facets, backend=be)
     wb.bake(**kw)
     rows = []
@@ -121,4 +122,13 @@ def _gpu_ms(start, event):
 
 
 if __name__ == "__main__":
-    main(sys.argv[1], gpu="--gpu" in sys.argv[2:])
+    import argparse
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("backend")
+    ap.add_argument("--gpu", action="store_true", help="CUDA events per call and device activities (Warp CUDA)")
+    ap.add_argument("--facets", type=int, default=1 << 16)
+    ap.add_argument("--tile", default="heightfield", help="heightfield (the targets' tile) or a geometry family")
+    ap.add_argument("--runs", type=int, default=5)
+    a = ap.parse_args()
+    main(a.backend, facets=a.facets, runs=a.runs, gpu=a.gpu, tile=a.tile)

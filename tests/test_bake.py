@@ -21,6 +21,7 @@ import warp_biscale as wb
 from warp_biscale import directions as dirs
 from warp_biscale import lobes as lobes_mod
 from warp_biscale import reference as ref
+from warp_biscale.backend import OnDevice
 
 bake_module = sys.modules["warp_biscale.bake"]
 
@@ -527,6 +528,25 @@ def test_visible_weights_match_reference(backend):
     assert unseen.mean() > 0.2 and not got[unseen].any()
 
 
+def test_visible_weights_left_on_the_device_feed_the_em(backend):
+    """visible_weights(..., to_host=False), as the bake queues it behind the rays: read back it is the host
+    call's result (and so the reference's, 1e-5 as above), and EM weighs the facets by it on the device
+    exactly as by the host array (the same float32 weights: equal lobes)."""
+    tile = wb.geometry.woven()
+    fac = backend.sample_facets(tile, 4096, 0)
+    grid = dirs.grid(6)
+    vis = backend.visibility(tile, fac, grid)
+    kept = backend.visible_weights(fac, vis, to_host=False)
+    host = backend.visible_weights(fac, vis)
+    np.testing.assert_array_equal(kept.host(), host)
+    _close(kept.host(), ref.visible_weights(fac.as_dict(), vis.as_bool(), grid))
+    start = lobes_mod.initial_lobes(fac.normal, host, 4)
+    by_kept = backend.ndf_em(fac, start.axes, start.sharpness, start.weight, 30, kept)
+    by_host = backend.ndf_em(fac, start.axes, start.sharpness, start.weight, 30, host.copy())  # (an upload)
+    for a, b in zip(by_kept, by_host):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_em_with_facet_weights_matches_reference(backend, heightfield):
     """The device EM with facet weights in place of the areas (the bake's visibility weighting) against
     reference.ndf_em on the same weights; tolerances as in test_em_matches_reference_em."""
@@ -701,10 +721,17 @@ def test_tile_seen_by_no_grid_direction_falls_back_on_the_bare_ndf(backend, monk
     exactly as if every facet weighed its area."""
     tile = wb.geometry.pyramid()
     kw = dict(lobes=4, directions=4, facets=2048, backend=backend)
-    monkeypatch.setattr(backend, "visible_weights", lambda fac, vis: np.zeros(len(fac), np.float32))
+
+    def weights(values):  # visible_weights replaced: the bake asks for them left on the device
+        def fake(fac, vis, to_host=True):
+            host = values(fac)
+            return host if to_host else OnDevice(None, lambda: host)  # (no device copy: ndf_em uploads it)
+        return fake
+
+    monkeypatch.setattr(backend, "visible_weights", weights(lambda fac: np.zeros(len(fac), np.float32)))
     blind = wb.bake(tile, wb.BlinnPhong(1.0, 64), **kw)
     bake_module._GEOMETRY.clear()
-    monkeypatch.setattr(backend, "visible_weights", lambda fac, vis: np.array(fac.area, np.float32))
+    monkeypatch.setattr(backend, "visible_weights", weights(lambda fac: np.array(fac.area, np.float32)))
     by_area = wb.bake(tile, wb.BlinnPhong(1.0, 64), **kw)
     np.testing.assert_allclose(blind.lobes.axes, by_area.lobes.axes, rtol=1e-6, atol=1e-7)
     np.testing.assert_allclose(blind.amplitudes, by_area.amplitudes, rtol=1e-6, atol=1e-7)

@@ -31,7 +31,7 @@ class OnDevice:
     """A result left on the device, so that the host need not wait for it: `device` is the backend's own
     array (or arrays) for its next calls, `host()` the host copy, read back when first asked for (the
     copy may have been queued with the result: then it waits for that result alone, not for work
-    queued after it)."""
+    queued after it). `device` None: a host copy alone, which a backend given it uploads."""
 
     def __init__(self, device, read):
         self.device = device
@@ -84,16 +84,18 @@ class Backend(Protocol):
     def ndf_statistics(self, facets: Facets, axes, sharpness, log_weight) -> np.ndarray:
         """(J, 4) float64 one E-step's sums [Σ r ΔA, Σ r ΔA n] (reference.ndf_statistics)."""
 
-    def visible_weights(self, facets: Facets, vis: Visibility) -> np.ndarray:
-        """(Ns,) float32 ΔA_s · mean_k V_s(ω_k)(n_s·ω_k)⁺ over vis.directions (reference.visible_weights)."""
+    def visible_weights(self, facets: Facets, vis: Visibility, to_host: bool = True):
+        """(Ns,) float32 ΔA_s · mean_k V_s(ω_k)(n_s·ω_k)⁺ over vis.directions (reference.visible_weights);
+        with to_host=False only queued: → OnDevice, which ndf_em takes as its `facet_weight`."""
 
     def ndf_em(self, facets: Facets, axes, sharpness, weight, iterations: int, facet_weight=None,
                to_host: bool = True):
         """Spherical EM on the device from lobes (axes (J, 3), sharpness, weight): at most `iterations`
         steps, stopping after the first step that lobes.converged → (axes, sharpness, weight, steps),
         float64, dead lobes with weight 0 (reference.ndf_em). Facets weigh their area, or
-        `facet_weight` (Ns,). With to_host=False the EM is only queued: → DeviceLobes, whose lobes
-        lobe_moments can sum over before the host has them."""
+        `facet_weight` (Ns,), or visible_weights(..., to_host=False)'s OnDevice. With to_host=False
+        the EM is only queued: → DeviceLobes, whose lobes lobe_moments can sum over before the host
+        has them."""
 
     def lobe_moments(self, facets: Facets, vis: Visibility, weight, axes, sharpness, pair_i, pair_o,
                      to_host: bool = True):

@@ -212,9 +212,9 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
     bvndf : also keep the histogram N in the result (`mat.bvndf.histogram`) for inspection.
 
     Returns an `EffectiveBRDF` with per-stage `timings` (seconds, device-synchronised; the host bins the
-    normals while the device traces the visibility rays, and "visibility" times the two together; a_v and
-    the moment sums are only queued in "bvndf" and "ndf_fit", and the device time they take shows in the
-    stage that next waits for the device).
+    normals while the device traces the visibility rays and sums a_v and the EM's facet weights behind
+    them, and "visibility" times all of it together; the moment sums are only queued in "ndf_fit", and
+    the device time they take shows in the stage that next waits for the device).
     """
     mats, _, _ = _prepare(tile, materials)
     if method not in METHODS:
@@ -273,11 +273,20 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     bins = timer("bvndf", be.normal_bins, fac, r)
     normal = fac.normal  # (read back now, before the rays are queued behind it)
     prog.stage(f"visibility ({nd} dirs)", 1)
-    # The rays are queued, and while the device traces them the host bins the normals (and splits the
-    # facets into channels): "visibility" times both together (on a GPU the binning is the shorter;
-    # Warp's CPU device traces before it returns).
+    # The rays are queued, then a_v and the EM's facet weights behind them (they stay on the device
+    # until read), and while the device works the host bins the normals (and splits the facets into
+    # channels): "visibility" times all of it (on a GPU the binning is the shorter; Warp's CPU device
+    # runs each call before it returns). Queued here rather than after the wait, the two calls' host
+    # time overlaps the rays (~0.5 ms of the H100 bake's critical path).
     t0 = time.perf_counter()
     vis = be.visibility(tile, fac, grid)
+    a_v = be.visible_area(fac, vis, to_host=False)
+    # The lobes fit the NDF as the direction grid sees it: each facet weighs its projected area
+    # averaged over the grid (reference.visible_weights), so no lobe is spent on normals that no
+    # direction sees. Measured against 2^18-facet ground truths (PoCL, 2^16 facets, K = 12; also
+    # bench/study_woven.py): woven gains 2.2 / 2.8 dB at J = 16 (Blinn–Phong n = 512 / Cook–Torrance
+    # m = 0.2) and +1.4 / −0.3 dB at J = 8; the other five families move by at most 0.2 dB.
+    em_weight = be.visible_weights(fac, vis, to_host=False)  # float32 OnDevice, what EM weighs on the device
     # Non-empty bins by counting (no sort): Γ and each bin's mean normal.
     area = fac.area.astype(np.float64)
     mass = np.bincount(bins, weights=area, minlength=6 * r * r)
@@ -292,11 +301,6 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     be.synchronize()
     timer.timings["visibility"] = timer.timings.get("visibility", 0.0) + time.perf_counter() - t0
     prog.stage(f"BVNDF ({6 * r * r} normal bins)", 1)
-    # a_v stays on the device until the solve needs it, and is read back at the end: only queued here
-    # (not synchronised: the device sums it while the host goes on to the EM's weights).
-    t0 = time.perf_counter()
-    a_v = be.visible_area(fac, vis, to_host=False)
-    timer.timings["bvndf"] = timer.timings.get("bvndf", 0.0) + time.perf_counter() - t0
     bv = Bvndf(r, occupied.astype(np.int32), mean, mass[occupied], None)
     iu, ou = dirs.unordered_pairs(nd)
     need_hist = route == "histogram" or keep_hist
@@ -314,14 +318,11 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
         if keep_hist:
             bv.histogram = timer("bvndf", be.bvndf_histogram, fac, vis, order, start, area.astype(np.float32), iu, ou)
     prog.stage("NDF fit (spherical EM)", 1)
-    # The lobes fit the NDF as the direction grid sees it: each facet weighs its projected area
-    # averaged over the grid (reference.visible_weights), so no lobe is spent on normals that no
-    # direction sees. Measured against 2^18-facet ground truths (PoCL, 2^16 facets, K = 12; also
-    # bench/study_woven.py): woven gains 2.2 / 2.8 dB at J = 16 (Blinn–Phong n = 512 / Cook–Torrance
-    # m = 0.2) and +1.4 / −0.3 dB at J = 8; the other five families move by at most 0.2 dB.
-    em_weight = timer("ndf_fit", be.visible_weights, fac, vis)  # float32, also kept on the device for EM
     # (The bins keep their area-weighted mean normals: within a bin at R = 128 the weighting barely moves it.)
-    bin_weight = np.bincount(facet_bin, weights=em_weight, minlength=len(occupied))  # (summed in float64)
+    # "ndf_fit" ends when the lobes are on the host, the EM done (the queueing of the sums counts in it;
+    # not synchronised further, so that the device sums while the host goes on).
+    t0 = time.perf_counter()
+    bin_weight = np.bincount(facet_bin, weights=em_weight.host(), minlength=len(occupied))  # (summed in float64)
     if not bin_weight.any():  # no grid direction sees the tile at all: fall back on the bare NDF
         bin_weight, em_weight = mass[occupied], None
     seen = bin_weight > 0
@@ -334,9 +335,6 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
             return None
         return em.count, [be.lobe_moments(fac, vis, w, em, None, iu, ou, to_host=False) for _, _, w in channels]
 
-    # "ndf_fit" ends when the lobes are on the host, the EM done (the queueing of the sums counts in it;
-    # not synchronised further, so that the device sums while the host goes on).
-    t0 = time.perf_counter()
     lob, ndf_err, queued = _fit_lobes(be, fac, em_weight, bv.normal[seen], bin_weight[seen], j_req, tolerance, probe,
                                       _coarse_bins(occupied[seen], r), queue)
     timer.timings["ndf_fit"] = timer.timings.get("ndf_fit", 0.0) + time.perf_counter() - t0

@@ -436,7 +436,7 @@ class OpenCLBackend:
                          np.int32(n_bins), np.int32(n_pairs), hist)
         return self._read(hist, (n_pairs, max(n_bins, 0)), np.float32)
 
-    def visible_weights(self, facets, vis):
+    def visible_weights(self, facets, vis, to_host=True):
         f = self._facets(facets)
         v = self._vis(vis)
         n = len(facets)
@@ -444,6 +444,8 @@ class OpenCLBackend:
         weight = self._empty(n, np.float32)
         self._launch("em", "visible_weights", (n,), v["directions"], v["bits"], np.int32(n_dirs), np.int32(n_words),
                      f["normal"], f["area"], np.int32(n), weight)
+        if not to_host:
+            return OnDevice(weight, lambda: self._read(weight, n, np.float32))
         host = self._read(weight, n, np.float32)
         f["visible_weight"] = (host, weight)  # ndf_em given `host` itself uses the device copy
         return host
@@ -561,8 +563,13 @@ class OpenCLBackend:
         return em_result_rows(self._read(prog["result"], (j, 6), np.float64))
 
     def _facet_weight(self, f, facet_weight):
-        """The device copy of a facet weight: the one `visible_weights` left on the device when
-        `facet_weight` is the very array it returned, else an upload."""
+        """The device copy of a facet weight: visible_weights(..., to_host=False)'s, or the one
+        `visible_weights` left on the device when `facet_weight` is the very array it returned, else an
+        upload."""
+        if isinstance(facet_weight, OnDevice):
+            if facet_weight.device is not None:
+                return facet_weight.device
+            facet_weight = facet_weight.host()  # (one with a host copy alone: uploaded)
         held = f.get("visible_weight")
         if held is not None and held[0] is facet_weight:
             return held[1]

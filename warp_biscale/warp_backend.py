@@ -318,7 +318,7 @@ class WarpBackend:
                      [hist])
         return hist.numpy()
 
-    def visible_weights(self, facets, vis):
+    def visible_weights(self, facets, vis, to_host=True):
         import warp as wp
 
         from .kernels import em as ke
@@ -327,6 +327,8 @@ class WarpBackend:
         v = self._vis(vis)
         weight = wp.empty(len(facets), dtype=wp.float32, device=self._device)
         self._launch(ke.visible_weights, len(facets), [v["directions"], v["bits"], f["normal"], f["area"]], [weight])
+        if not to_host:
+            return OnDevice(weight, lambda: self._trace_host(weight))
         host = self._trace_host(weight)
         f["visible_weight"] = (host, weight)  # ndf_em given `host` itself uses the device copy
         return host
@@ -511,10 +513,15 @@ class WarpBackend:
         return em_result_rows(self._trace_host(prog["result"]))
 
     def _facet_weight(self, f, facet_weight):
-        """The device copy of a facet weight: the one `visible_weights` left on the device when
-        `facet_weight` is the very array it returned, else an upload."""
+        """The device copy of a facet weight: visible_weights(..., to_host=False)'s, or the one
+        `visible_weights` left on the device when `facet_weight` is the very array it returned, else an
+        upload."""
         import warp as wp
 
+        if isinstance(facet_weight, OnDevice):
+            if facet_weight.device is not None:
+                return facet_weight.device
+            facet_weight = facet_weight.host()  # (one with a host copy alone: uploaded)
         held = f.get("visible_weight")
         if held is not None and held[0] is facet_weight:
             return held[1]
