@@ -44,6 +44,20 @@ class OnDevice:
         return self._host
 
 
+def device_facet_weight(facet_weight, held, upload):
+    """The device copy of a facet weight for a backend's ndf_em: visible_weights(..., to_host=False)'s
+    (an OnDevice with a host copy alone is uploaded), or `held[1]` when `facet_weight` is the very host
+    array `held[0]` that visible_weights returned and left on the device as `held[1]`, else
+    `upload(facet_weight)`."""
+    if isinstance(facet_weight, OnDevice):
+        if facet_weight.device is not None:
+            return facet_weight.device
+        facet_weight = facet_weight.host()
+    if held is not None and held[0] is facet_weight:
+        return held[1]
+    return upload(facet_weight)
+
+
 class DeviceLobes(OnDevice):
     """The lobes of `Backend.ndf_em(..., to_host=False)`: `device` the backend's own float32 (axes,
     sharpness) arrays, which `lobe_moments` takes in place of host axes until the backend's next

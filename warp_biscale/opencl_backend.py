@@ -35,7 +35,7 @@ import weakref
 import numpy as np
 
 from .backend import (SCRATCH_BYTES, DeviceFacets, DeviceLobes, OnDevice, UploadCache, check_kernel_lobes, chunking,
-                      em_result_rows, em_start_rows, equal_areas, run_em_steps)
+                      device_facet_weight, em_result_rows, em_start_rows, equal_areas, run_em_steps)
 from .model import Facets, Visibility
 from .reference import facet_shift, ray_offset
 
@@ -563,17 +563,8 @@ class OpenCLBackend:
         return em_result_rows(self._read(prog["result"], (j, 6), np.float64))
 
     def _facet_weight(self, f, facet_weight):
-        """The device copy of a facet weight: visible_weights(..., to_host=False)'s, or the one
-        `visible_weights` left on the device when `facet_weight` is the very array it returned, else an
-        upload."""
-        if isinstance(facet_weight, OnDevice):
-            if facet_weight.device is not None:
-                return facet_weight.device
-            facet_weight = facet_weight.host()  # (one with a host copy alone: uploaded)
-        held = f.get("visible_weight")
-        if held is not None and held[0] is facet_weight:
-            return held[1]
-        return self._buffer(facet_weight, np.float32)
+        return device_facet_weight(facet_weight, f.get("visible_weight"),
+                                   lambda host: self._buffer(host, np.float32))
 
     def _lobe_values(self, normal_buf, n, axes, sharpness, role="lobe_values"):
         """(n, 8⌈J/8⌉) float32 device table G_j(n_s) of unit-amplitude lobes, zero past J (read as float8);

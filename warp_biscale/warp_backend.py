@@ -15,7 +15,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from .backend import (SCRATCH_BYTES, DeviceFacets, DeviceLobes, OnDevice, UploadCache, check_kernel_lobes, chunking,
-                      em_result_rows, em_start_rows, equal_areas, run_em_steps)
+                      device_facet_weight, em_result_rows, em_start_rows, equal_areas, run_em_steps)
 from .model import Facets, Visibility
 from .reference import facet_shift, ray_offset
 
@@ -513,19 +513,10 @@ class WarpBackend:
         return em_result_rows(self._trace_host(prog["result"]))
 
     def _facet_weight(self, f, facet_weight):
-        """The device copy of a facet weight: visible_weights(..., to_host=False)'s, or the one
-        `visible_weights` left on the device when `facet_weight` is the very array it returned, else an
-        upload."""
         import warp as wp
 
-        if isinstance(facet_weight, OnDevice):
-            if facet_weight.device is not None:
-                return facet_weight.device
-            facet_weight = facet_weight.host()  # (one with a host copy alone: uploaded)
-        held = f.get("visible_weight")
-        if held is not None and held[0] is facet_weight:
-            return held[1]
-        return self._array(np.asarray(facet_weight, np.float32), wp.float32)
+        return device_facet_weight(facet_weight, f.get("visible_weight"),
+                                   lambda host: self._array(np.asarray(host, np.float32), wp.float32))
 
     def lobe_moments(self, facets, vis, weight, axes, sharpness, pair_i, pair_o, to_host=True):
         import warp as wp
