@@ -710,6 +710,9 @@ def test_solve_amplitudes_with_the_held_visible_area(backend, heightfield):
     rows, integrals, _, _ = lobes_mod.amplitude_system(lob)
     pi, po = dirs.all_pairs(nd)
     held = backend.solve_amplitudes(mom, a_v, rows, integrals, pi, po, nd)
+    lo, hi = np.minimum(pi, po), np.maximum(pi, po)  # (and against the float64 reference, as above)
+    _close(held, ref.solve_amplitudes(np.asarray(mom, np.float64)[lo * nd - lo * (lo - 1) // 2 + hi - lo],
+                                      ref.visible_area(fd, vb, grid), po, rows, integrals))
     np.testing.assert_array_equal(held, backend.solve_amplitudes(mom, a_v.copy(), rows, integrals, pi, po, nd))
     other_vis = backend.visibility(heightfield, fac, dirs.grid(3))
     backend.visible_area(fac, other_vis)  # holds another a_v now
