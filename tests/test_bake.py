@@ -547,6 +547,24 @@ def test_visible_weights_left_on_the_device_feed_the_em(backend):
         np.testing.assert_array_equal(a, b)
 
 
+def test_visible_weights_left_on_the_device_read_back_in_any_order(backend):
+    """Two visible_weights(..., to_host=False) of equal length, each queued with its copy to the host (on a
+    GPU into one reused pinned buffer) and with work queued behind it, read back last first: each is still
+    its own weights (the host call's, bit for bit)."""
+    grid = dirs.grid(5)
+    pending, want = [], []
+    for tile in (wb.geometry.woven(), wb.geometry.pyramid()):
+        fac = backend.sample_facets(tile, 3000, 0)
+        vis = backend.visibility(tile, fac, grid)
+        want.append(backend.visible_weights(fac, vis))
+        pending.append(backend.visible_weights(fac, vis, to_host=False))
+        start = lobes_mod.initial_lobes(fac.normal, want[-1], 3)
+        backend.ndf_em(fac, start.axes, start.sharpness, start.weight, 4, pending[-1], to_host=False)
+    assert not np.array_equal(want[0], want[1])
+    np.testing.assert_array_equal(pending[1].host(), want[1])
+    np.testing.assert_array_equal(pending[0].host(), want[0])
+
+
 def test_em_with_facet_weights_matches_reference(backend, heightfield):
     """The device EM with facet weights in place of the areas (the bake's visibility weighting) against
     reference.ndf_em on the same weights; tolerances as in test_em_matches_reference_em."""

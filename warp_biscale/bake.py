@@ -299,11 +299,13 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
                      for c in range(3)])  # (3, L): numpy's loops run along the bins (3 innermost: ~4× slower)
     mean = np.ascontiguousarray((mean / np.maximum(np.sqrt((mean * mean).sum(0)), 1e-300)).T)
     channels = _channels(tile, fac)
+    # (and what the host needs after the rays that does not depend on them)
+    bv = Bvndf(r, occupied.astype(np.int32), mean, mass[occupied], None)
+    iu, ou = dirs.unordered_pairs(nd)
+    coarse = _coarse_bins(occupied, r)
     be.synchronize()
     timer.timings["visibility"] = timer.timings.get("visibility", 0.0) + time.perf_counter() - t0
     prog.stage(f"BVNDF ({6 * r * r} normal bins)", 1)
-    bv = Bvndf(r, occupied.astype(np.int32), mean, mass[occupied], None)
-    iu, ou = dirs.unordered_pairs(nd)
     need_hist = route == "histogram" or keep_hist
     if need_hist:
         nbytes = len(iu) * len(occupied) * 4 * (len(channels) + 1)
@@ -327,6 +329,11 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     if not bin_weight.any():  # no grid direction sees the tile at all: fall back on the bare NDF
         bin_weight, em_weight = mass[occupied], None
     seen = bin_weight > 0
+    if seen.all():  # (as a rule: no gathers then)
+        seen_normal, seen_weight, seen_coarse = bv.normal, bin_weight, coarse
+    else:
+        seen_normal, seen_weight = bv.normal[seen], bin_weight[seen]
+        seen_coarse = None if coarse is None else coarse[seen]
 
     def queue(em):
         """With the facet route and a J the kernels hold, the moment sums are queued behind the EM from
@@ -336,8 +343,8 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
             return None
         return em.count, [be.lobe_moments(fac, vis, w, em, None, iu, ou, to_host=False) for _, _, w in channels]
 
-    lob, ndf_err, queued = _fit_lobes(be, fac, em_weight, bv.normal[seen], bin_weight[seen], j_req, tolerance, probe,
-                                      _coarse_bins(occupied[seen], r), queue)
+    lob, ndf_err, queued = _fit_lobes(be, fac, em_weight, seen_normal, seen_weight, j_req, tolerance, probe,
+                                      seen_coarse, queue)
     timer.timings["ndf_fit"] = timer.timings.get("ndf_fit", 0.0) + time.perf_counter() - t0
     prog.stage(f"amplitudes ({len(lob)} lobes, {len(channels)} channel(s))", len(channels))
     # "amplitudes" times the whole stage: the moment sums are queued first, and the host solves for
@@ -354,7 +361,7 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
         def sums(hist, ax, eta):
             return be.histogram_moments(hist, bv.normal, grid, ax, eta, iu, ou)
         moments = [_grouped_moments(sums, hist, lob) for hist in hists]
-    rows, integrals, _, cond = lobes_mod.amplitude_system(lob, bv.normal[seen], bin_weight[seen])
+    rows, integrals, _, cond = lobes_mod.amplitude_system(lob, seen_normal, seen_weight)
     pi, po = dirs.all_pairs(nd)
     solved = []
     for (m, mult, _), mom in zip(channels, moments):  # μ stays on the device for the tables

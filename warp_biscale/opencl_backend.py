@@ -445,7 +445,11 @@ class OpenCLBackend:
         self._launch("em", "visible_weights", (n,), v["directions"], v["bits"], np.int32(n_dirs), np.int32(n_words),
                      f["normal"], f["area"], np.int32(n), weight)
         if not to_host:
-            return OnDevice(weight, lambda: self._read(weight, n, np.float32))
+            # Its copy is queued now: reading it back then waits for the weights, not for the EM that the
+            # bake queues behind them.
+            host = np.empty(n, np.float32)
+            copied = self._cl.enqueue_copy(self._queue, host, weight, is_blocking=False) if n else None
+            return OnDevice(weight, lambda: (copied and copied.wait(), host)[1])
         host = self._read(weight, n, np.float32)
         f["visible_weight"] = (host, weight)  # ndf_em given `host` itself uses the device copy
         return host

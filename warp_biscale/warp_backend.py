@@ -59,6 +59,7 @@ class WarpBackend:
         self._uploads = UploadCache()
         self._held_visible_area = None  # (host, device) of the last visible_area
         self._scratch_arrays = {}  # role → device scratch array, see _scratch
+        self._pinned = {}  # (shape, dtype) → pinned host buffer for queued read-backs, see _read_later
         self._em_graphs = {}  # (Ns, J, steps, weighted) → captured EM (CUDA): see _em_graph
         self._em_buffers = {}
         from . import kernels  # noqa: F401  (import here so a broken Warp fails at backend creation)
@@ -328,7 +329,7 @@ class WarpBackend:
         weight = wp.empty(len(facets), dtype=wp.float32, device=self._device)
         self._launch(ke.visible_weights, len(facets), [v["directions"], v["bits"], f["normal"], f["area"]], [weight])
         if not to_host:
-            return OnDevice(weight, lambda: self._trace_host(weight))
+            return OnDevice(weight, self._read_later(weight))
         host = self._trace_host(weight)
         f["visible_weight"] = (host, weight)  # ndf_em given `host` itself uses the device copy
         return host
@@ -658,6 +659,37 @@ class WarpBackend:
 
     # ------------------------------------------------------------------ stage trace (helper-A)
     # Ray casting against the large-scale mesh; see Backend.trace_primary for the device-cache keys.
+    def _read_later(self, a):
+        """→ a function returning a host copy of device array `a` as it is now. On a GPU the copy is queued
+        at once into pinned memory with an event behind it: the function then waits for `a`'s work alone,
+        not for what is queued after it (the bake queues its EM behind the rays and reads the EM's facet
+        weights while the EM runs)."""
+        import warp as wp
+
+        if not self._device.is_cuda:
+            return lambda: self._trace_host(a)
+        key = (a.shape, a.dtype)
+        held = self._pinned.get(key)  # (pinned array, event, the read of its last copy)
+        if held is None:  # (pinned allocations are slow: one buffer per shape, reused)
+            held = self._pinned[key] = [wp.empty(a.shape, dtype=a.dtype, device="cpu", pinned=True),
+                                        wp.Event(self._device), None]
+        elif held[2] is not None:
+            held[2]()  # the buffer's last copy is read out before the buffer is reused
+        host, ready = held[0], held[1]
+        wp.copy(host, a)
+        wp.get_stream(self._device).record_event(ready)
+        out = []
+
+        def read():
+            if not out:
+                wp.synchronize_event(ready)
+                out.append(host.numpy().copy())
+                held[2] = None
+            return out[0]
+
+        held[2] = read
+        return read
+
     def _trace_host(self, a):
         """A host copy of a device array (on the CPU, .numpy() is a view that the next frame overwrites)."""
         out = a.numpy()
