@@ -100,7 +100,8 @@ class Backend(Protocol):
 
     def visible_weights(self, facets: Facets, vis: Visibility, to_host: bool = True):
         """(Ns,) float32 ΔA_s · mean_k V_s(ω_k)(n_s·ω_k)⁺ over vis.directions (reference.visible_weights);
-        with to_host=False only queued: → OnDevice, which ndf_em takes as its `facet_weight`."""
+        with to_host=False only queued: → OnDevice, which ndf_em takes as its `facet_weight`, its copy to
+        the host queued with it (its host() then waits for the weights, not for work queued after them)."""
 
     def ndf_em(self, facets: Facets, axes, sharpness, weight, iterations: int, facet_weight=None,
                to_host: bool = True):

@@ -662,8 +662,7 @@ class WarpBackend:
     def _read_later(self, a):
         """→ a function returning a host copy of device array `a` as it is now. On a GPU the copy is queued
         at once into pinned memory with an event behind it: the function then waits for `a`'s work alone,
-        not for what is queued after it (the bake queues its EM behind the rays and reads the EM's facet
-        weights while the EM runs)."""
+        not for what is queued after it, and the data is on the host, in pinned memory, when it does."""
         import warp as wp
 
         if not self._device.is_cuda:
