@@ -550,12 +550,13 @@ def test_visible_weights_left_on_the_device_feed_the_em(backend):
 def test_visible_weights_left_on_the_device_read_back_in_any_order(backend):
     """Two visible_weights(..., to_host=False) of equal length, each queued with its copy to the host (on a
     GPU into one reused pinned buffer) and with work queued behind it, read back last first: each is still
-    its own weights (the host call's, bit for bit)."""
+    its own weights (the host call's, bit for bit, and the float64 reference's within 1e-5 as above)."""
     grid = dirs.grid(5)
-    pending, want = [], []
+    pending, want, exact = [], [], []
     for tile in (wb.geometry.woven(), wb.geometry.pyramid()):
         fac = backend.sample_facets(tile, 3000, 0)
         vis = backend.visibility(tile, fac, grid)
+        exact.append(ref.visible_weights(fac.as_dict(), vis.as_bool(), grid))
         want.append(backend.visible_weights(fac, vis))
         pending.append(backend.visible_weights(fac, vis, to_host=False))
         start = lobes_mod.initial_lobes(fac.normal, want[-1], 3)
@@ -563,6 +564,8 @@ def test_visible_weights_left_on_the_device_read_back_in_any_order(backend):
     assert not np.array_equal(want[0], want[1])
     np.testing.assert_array_equal(pending[1].host(), want[1])
     np.testing.assert_array_equal(pending[0].host(), want[0])
+    for got, ref_weights in zip(pending, exact):
+        _close(got.host(), ref_weights)
 
 
 def test_em_with_facet_weights_matches_reference(backend, heightfield):

@@ -44,18 +44,18 @@ class OnDevice:
         return self._host
 
 
-def device_facet_weight(facet_weight, held, upload):
-    """The device copy of a facet weight for a backend's ndf_em: visible_weights(..., to_host=False)'s
-    (an OnDevice with a host copy alone is uploaded), or `held[1]` when `facet_weight` is the very host
-    array `held[0]` that visible_weights returned and left on the device as `held[1]`, else
-    `upload(facet_weight)`."""
-    if isinstance(facet_weight, OnDevice):
-        if facet_weight.device is not None:
-            return facet_weight.device
-        facet_weight = facet_weight.host()
-    if held is not None and held[0] is facet_weight:
+def device_copy(value, held, upload):
+    """The device copy of an input that a backend call may have left on the device (a facet weight from
+    visible_weights, a_v from visible_area): `value.device` for an OnDevice (one with a host copy alone
+    is uploaded), or `held[1]` when `value` is the very host array `held[0]` that the call returned and
+    kept on the device as `held[1]`, else `upload(value)`."""
+    if isinstance(value, OnDevice):
+        if value.device is not None:
+            return value.device
+        value = value.host()
+    if held is not None and held[0] is value:
         return held[1]
-    return upload(facet_weight)
+    return upload(value)
 
 
 class DeviceLobes(OnDevice):
@@ -305,6 +305,7 @@ def check_kernel_lobes(n_lobes: int) -> None:
 
     if not 1 <= n_lobes <= KERNEL_LOBES:
         raise ValueError(f"the amplitude kernels take 1 to {KERNEL_LOBES} lobes a call, got {n_lobes}")
+
 
 def chunking(n_words: int, n_outputs: int, threads: int) -> tuple[int, int]:
     """Split n_words facet words into chunks so that n_outputs × chunks ≈ threads.

@@ -35,7 +35,7 @@ import weakref
 import numpy as np
 
 from .backend import (SCRATCH_BYTES, DeviceFacets, DeviceLobes, OnDevice, UploadCache, check_kernel_lobes, chunking,
-                      device_facet_weight, em_result_rows, em_start_rows, equal_areas, run_em_steps)
+                      device_copy, em_result_rows, em_start_rows, equal_areas, run_em_steps)
 from .model import Facets, Visibility
 from .reference import facet_shift, ray_offset
 
@@ -251,6 +251,13 @@ class OpenCLBackend:
         buf = self._scratch_buffers[role] = self._empty(n_items, dtype)
         return buf
 
+    def _read_later(self, buf, shape, dtype):
+        """→ a function returning a host copy of `buf` as it is now: the copy is queued at once (not
+        blocking), so the function waits for `buf`'s work alone, not for what is queued after it."""
+        out = np.empty(shape, dtype)
+        copied = self._cl.enqueue_copy(self._queue, out, buf, is_blocking=False) if out.size else None
+        return lambda: (copied and copied.wait(), out)[1]
+
     def _read(self, buf, shape, dtype):
         out = np.empty(shape, dtype)
         if out.size:
@@ -385,14 +392,8 @@ class OpenCLBackend:
         return host
 
     def _visible_area_buffer(self, a_v):
-        """The device copy of a_v: visible_area(..., to_host=False)'s, or the one `visible_area` kept when
-        `a_v` is the very array it returned, else an upload."""
-        if isinstance(a_v, OnDevice):
-            return a_v.device
-        held = self._held_visible_area
-        if held is not None and held[0] is a_v:
-            return held[1]
-        return self._buffer(a_v, np.float32)
+        """The device copy of a_v (see backend.device_copy)."""
+        return device_copy(a_v, self._held_visible_area, lambda host: self._buffer(host, np.float32))
 
     def effective_brdf(self, facets, vis, kinds, params, pair_i, pair_o, a_v):
         f = self._facets(facets)
@@ -445,11 +446,7 @@ class OpenCLBackend:
         self._launch("em", "visible_weights", (n,), v["directions"], v["bits"], np.int32(n_dirs), np.int32(n_words),
                      f["normal"], f["area"], np.int32(n), weight)
         if not to_host:
-            # Its copy is queued now: reading it back then waits for the weights, not for the EM that the
-            # bake queues behind them.
-            host = np.empty(n, np.float32)
-            copied = self._cl.enqueue_copy(self._queue, host, weight, is_blocking=False) if n else None
-            return OnDevice(weight, lambda: (copied and copied.wait(), host)[1])
+            return OnDevice(weight, self._read_later(weight, n, np.float32))
         host = self._read(weight, n, np.float32)
         f["visible_weight"] = (host, weight)  # ndf_em given `host` itself uses the device copy
         return host
@@ -560,14 +557,12 @@ class OpenCLBackend:
         if not to_host:
             # The result's copy is queued behind the EM: reading it back waits for the EM, not for what
             # the caller queues after it.
-            rows = np.empty((j, 6), np.float64)
-            copied = cl.enqueue_copy(self._queue, rows, prog["result"], is_blocking=False)
-            return DeviceLobes((prog["axes32"], prog["sharp32"]), j,
-                               lambda: (copied.wait(), em_result_rows(rows))[1])
+            read = self._read_later(prog["result"], (j, 6), np.float64)
+            return DeviceLobes((prog["axes32"], prog["sharp32"]), j, lambda: em_result_rows(read()))
         return em_result_rows(self._read(prog["result"], (j, 6), np.float64))
 
     def _facet_weight(self, f, facet_weight):
-        return device_facet_weight(facet_weight, f.get("visible_weight"),
+        return device_copy(facet_weight, f.get("visible_weight"),
                                    lambda host: self._buffer(host, np.float32))
 
     def _lobe_values(self, normal_buf, n, axes, sharpness, role="lobe_values"):

@@ -15,7 +15,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from .backend import (SCRATCH_BYTES, DeviceFacets, DeviceLobes, OnDevice, UploadCache, check_kernel_lobes, chunking,
-                      device_facet_weight, em_result_rows, em_start_rows, equal_areas, run_em_steps)
+                      device_copy, em_result_rows, em_start_rows, equal_areas, run_em_steps)
 from .model import Facets, Visibility
 from .reference import facet_shift, ray_offset
 
@@ -242,17 +242,11 @@ class WarpBackend:
         return host
 
     def _visible_area_array(self, a_v):
-        """The device copy of a_v: visible_area(..., to_host=False)'s, or the one `visible_area` kept when
-        `a_v` is the very array it returned, else an upload (an upload costs more than the solve on a
-        GPU host)."""
+        """The device copy of a_v (see backend.device_copy): an upload costs more than the solve on a GPU host."""
         import warp as wp
 
-        if isinstance(a_v, OnDevice):
-            return a_v.device
-        held = self._held_visible_area
-        if held is not None and held[0] is a_v:
-            return held[1]
-        return self._array(np.asarray(a_v, np.float32), wp.float32)
+        return device_copy(a_v, self._held_visible_area, lambda host: self._array(np.asarray(host, np.float32),
+                                                                                  wp.float32))
 
     def effective_brdf(self, facets, vis, kinds, params, pair_i, pair_o, a_v):
         import warp as wp
@@ -484,19 +478,10 @@ class WarpBackend:
             prog["start"].assign(em_start_rows(start))
             wp.capture_launch(graph["graph"])
             if not to_host:
-                # The result's copy is queued behind the EM into pinned memory, with an event to wait on:
-                # reading it back then waits for the EM, not for what the caller queues after it.
-                if "result_host" not in prog:
-                    prog["result_host"] = wp.empty((j, 6), dtype=wp.float64, device="cpu", pinned=True)
-                    prog["result_ready"] = wp.Event(self._device)
-                wp.copy(prog["result_host"], prog["result"])
-                wp.get_stream(self._device).record_event(prog["result_ready"])
-
-                def read(host=prog["result_host"], ready=prog["result_ready"]):
-                    wp.synchronize_event(ready)
-                    return em_result_rows(host.numpy().copy())
-
-                return DeviceLobes((prog["axes32"], prog["sharp32"]), j, read)
+                # The result's copy is queued behind the EM: reading it back waits for the EM, not for what
+                # the caller queues after it.
+                read = self._read_later(prog["result"])
+                return DeviceLobes((prog["axes32"], prog["sharp32"]), j, lambda: em_result_rows(read()))
         else:
             prog = self._em_program(f["normal"], mass, j, iterations, self._resp(facets, j))
             prog["start"].assign(em_start_rows(start))
@@ -516,7 +501,7 @@ class WarpBackend:
     def _facet_weight(self, f, facet_weight):
         import warp as wp
 
-        return device_facet_weight(facet_weight, f.get("visible_weight"),
+        return device_copy(facet_weight, f.get("visible_weight"),
                                    lambda host: self._array(np.asarray(host, np.float32), wp.float32))
 
     def lobe_moments(self, facets, vis, weight, axes, sharpness, pair_i, pair_o, to_host=True):
