@@ -549,7 +549,7 @@ def test_visible_weights_left_on_the_device_feed_the_em(backend):
 
 def test_visible_weights_left_on_the_device_read_back_in_any_order(backend):
     """Two visible_weights(..., to_host=False) of equal length, each queued with its copy to the host (on a
-    GPU into one reused pinned buffer) and with work queued behind it, read back last first: each is still
+    GPU into pinned memory) and with work queued behind it, read back last first: each is still
     its own weights (the host call's, bit for bit, and the float64 reference's within 1e-5 as above)."""
     grid = dirs.grid(5)
     pending, want, exact = [], [], []

@@ -59,7 +59,6 @@ class WarpBackend:
         self._uploads = UploadCache()
         self._held_visible_area = None  # (host, device) of the last visible_area
         self._scratch_arrays = {}  # role → device scratch array, see _scratch
-        self._pinned = {}  # (shape, dtype) → pinned host buffer for queued read-backs, see _read_later
         self._em_graphs = {}  # (Ns, J, steps, weighted) → captured EM (CUDA): see _em_graph
         self._em_buffers = {}
         from . import kernels  # noqa: F401  (import here so a broken Warp fails at backend creation)
@@ -647,31 +646,20 @@ class WarpBackend:
     def _read_later(self, a):
         """→ a function returning a host copy of device array `a` as it is now. On a GPU the copy is queued
         at once into pinned memory with an event behind it: the function then waits for `a`'s work alone,
-        not for what is queued after it, and the data is on the host, in pinned memory, when it does."""
+        not for what is queued after it. (A fresh pinned buffer each call: on the lent H100 allocating one
+        for 2^16 floats cost ~17 µs, bench/probe_pinned.py.)"""
         import warp as wp
 
         if not self._device.is_cuda:
             return lambda: self._trace_host(a)
-        key = (a.shape, a.dtype)
-        held = self._pinned.get(key)  # (pinned array, event, the read of its last copy)
-        if held is None:  # (pinned allocations are slow: one buffer per shape, reused)
-            held = self._pinned[key] = [wp.empty(a.shape, dtype=a.dtype, device="cpu", pinned=True),
-                                        wp.Event(self._device), None]
-        elif held[2] is not None:
-            held[2]()  # the buffer's last copy is read out before the buffer is reused
-        host, ready = held[0], held[1]
+        host = wp.empty(a.shape, dtype=a.dtype, device="cpu", pinned=True)
         wp.copy(host, a)
-        wp.get_stream(self._device).record_event(ready)
-        out = []
+        ready = wp.get_stream(self._device).record_event(wp.Event(self._device))
 
         def read():
-            if not out:
-                wp.synchronize_event(ready)
-                out.append(host.numpy().copy())
-                held[2] = None
-            return out[0]
+            wp.synchronize_event(ready)
+            return host.numpy()
 
-        held[2] = read
         return read
 
     def _trace_host(self, a):
