@@ -11,7 +11,8 @@ Parts (each writes records into --out/results.json; table.md and plots follow):
   the same small case, for the "≥ 20× faster than the reference" target.
 
 Times are medians over >= --runs runs after a warm-up call (compilation and uploads are reported
-apart as `first_call_extra_s`), device-synchronised; each run starts from an empty geometry cache.
+apart as `first_call_extra_s`) and --warmup-s seconds of warm bakes, device-synchronised; each run
+starts from an empty geometry cache. The targets record every run (`runs_s`).
 
     python bench/bench_bake.py --out bench/results/bake-cpu-2core                       # here
     python bench/bench_bake.py --backends warp:cuda opencl:nvidia --out $OUT --gt-facets 1048576
@@ -54,8 +55,12 @@ def families():
 BRDFS = {"blinnphong512": wb.BlinnPhong(1.0, 512), "cooktorrance0.2": wb.CookTorrance(1.0, 0.2)}
 
 
+WARMUP_S = 0.0  # --warmup-s
+
+
 def timed_bake(backend, runs, **kw):
-    """(median s, per-stage medians, first-call extra s, material)."""
+    """(median s, per-stage medians, first-call extra s, material, every run's s). After the first call,
+    warm bakes go on for WARMUP_S seconds before the timed runs (a GPU's clocks and the host's caches settle)."""
     be = wb.get_backend(backend)
 
     def once():
@@ -66,6 +71,9 @@ def timed_bake(backend, runs, **kw):
         return time.perf_counter() - t0, mat
 
     first, mat = once()
+    warm_until = time.perf_counter() + WARMUP_S
+    while time.perf_counter() < warm_until:
+        once()
     totals, stages = [], []
     for _ in range(runs):
         t, mat = once()
@@ -73,23 +81,25 @@ def timed_bake(backend, runs, **kw):
         stages.append(mat.timings)
     med = float(np.median(totals))
     per_stage = {k: float(np.median([s.get(k, 0.0) for s in stages])) for k in stages[0]}
-    return med, per_stage, max(first - med, 0.0), mat
+    return med, per_stage, max(first - med, 0.0), mat, totals
 
 
 def part_targets(backend, tile, facets, runs, records, log):
     mat_a, mat_b = wb.BlinnPhong(1.0, 512), wb.CookTorrance((0.9, 0.6, 0.2), 0.3)
     for route in ("facets", "histogram"):
         try:
-            med, stages, extra, mat = timed_bake(backend, runs, tile=tile, materials=mat_a, lobes=8, directions=12,
-                                                 normal_res=128, facets=facets, route=route)
+            med, stages, extra, mat, runs_s = timed_bake(backend, runs, tile=tile, materials=mat_a, lobes=8,
+                                                         directions=12, normal_res=128, facets=facets, route=route)
         except ValueError as exc:  # the histogram may be refused as too large
             log(f"  {backend} bake route={route}: skipped ({exc})")
             continue
         records.append({"part": "targets", "what": "whole bake", "backend": backend, "route": route,
                         "facets": facets, "K": 12, "R": 128, "J": 8, "tile": tile.name, "time_s": med,
-                        "stages_s": stages, "first_call_extra_s": extra, "lobes": mat.info["lobes"],
+                        "stages_s": stages, "first_call_extra_s": extra, "runs_s": runs_s, "warmup_s": WARMUP_S,
+                        "lobes": mat.info["lobes"],
                         "nonempty_bins": mat.info["nonempty_bins"]})
-        log(f"  {backend} whole bake route={route} {facets} facets: {med * 1e3:.1f} ms  "
+        log(f"  {backend} whole bake route={route} {facets} facets: {med * 1e3:.1f} ms "
+            f"(runs {min(runs_s) * 1e3:.1f}–{max(runs_s) * 1e3:.1f})  "
             + "  ".join(f"{k} {v * 1e3:.1f}" for k, v in stages.items()))
     # Material-only edit: geometry cached, only the tables are rebuilt.
     be = wb.get_backend(backend)
@@ -120,7 +130,7 @@ def part_pareto(backends, gt_backend, fams, gt_facets, facet_list, lobe_list, ru
                             if route == "histogram" and (j != 8 or facets != facet_list[-1]):
                                 continue
                             try:
-                                med, stages, extra, mat = timed_bake(backend, runs, tile=tile, materials=mats,
+                                med, stages, extra, mat, runs_s = timed_bake(backend, runs, tile=tile, materials=mats,
                                                                      lobes=j, directions=12, facets=facets,
                                                                      route=route)
                             except ValueError as exc:
@@ -182,7 +192,7 @@ def part_reference(backends, facets, k, runs, records, log):
                     "tile": tile.name, "time_s": t_ref})
     log(f"  float64 reference bake, pyramid, {facets} facets, K={k}: {t_ref:.2f} s")
     for backend in backends:
-        med, stages, extra, mat = timed_bake(backend, runs, tile=tile, materials=brdf, lobes=8, directions=k,
+        med, stages, extra, mat, runs_s = timed_bake(backend, runs, tile=tile, materials=brdf, lobes=8, directions=k,
                                              facets=facets)
         records.append({"part": "reference", "backend": backend, "facets": facets, "K": k, "tile": tile.name,
                         "time_s": med, "speedup_vs_reference": t_ref / med})
@@ -269,9 +279,13 @@ def main(argv=None):
     ap.add_argument("--tiles", nargs="*", help="families for the pareto part (default all)")
     ap.add_argument("--reference-facets", type=int, default=1 << 14)
     ap.add_argument("--runs", type=int, default=5)
+    ap.add_argument("--warmup-s", type=float, default=0.0,
+                    help="seconds of warm bakes after the first call, before the timed runs")
     ap.add_argument("--device-note", default="")
     ap.add_argument("--out", required=True)
     args = ap.parse_args(argv)
+    global WARMUP_S
+    WARMUP_S = args.warmup_s
     os.makedirs(args.out, exist_ok=True)
     names = args.backends or [b["name"] for b in wb.backends() if not b.get("error")]
     meta = {"commit": git_commit(), "host": platform.node(), "cpu_count": os.cpu_count(), "backends": names,

@@ -30,7 +30,8 @@ def main(backend, min_ms=0.2, runs=1, facets=1 << 16):
     prof = LineProfiler(bake_module._bake_geometry, bake_module.bake, bake_module._fit_lobes, lobes_mod.fit,
                         lobes_mod.initial_lobes, lobes_mod.amplitude_system, be.sample_facets, be.visibility,
                         be.visible_area, be.visible_weights, be.normal_bins, be.ndf_em, be.lobe_moments,
-                        be.solve_amplitudes)
+                        be.solve_amplitudes, be.amplitude_tables, lobes_mod.from_em, wb.EffectiveBRDF.__init__,
+                        *[getattr(be, name) for name in ("_read_later", "_launch") if hasattr(be, name)])
     for _ in range(runs):
         prof.runcall(wb.bake, **kw)
         be.synchronize()

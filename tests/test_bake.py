@@ -568,6 +568,23 @@ def test_visible_weights_left_on_the_device_read_back_in_any_order(backend):
         _close(got.host(), ref_weights)
 
 
+def test_read_back_weights_stay_when_more_are_read_through_the_same_buffer(backend):
+    """A read-back host copy is the caller's own: reading back more weights of the same length (on a GPU
+    through the pinned buffer the first read gave back to the pool) leaves it as it was."""
+    grid = dirs.grid(5)
+    got, want = [], []
+    for tile in (wb.geometry.woven(), wb.geometry.pyramid(), wb.geometry.woven()):
+        fac = backend.sample_facets(tile, 3000, 0)
+        vis = backend.visibility(tile, fac, grid)
+        want.append(ref.visible_weights(fac.as_dict(), vis.as_bool(), grid))
+        got.append(backend.visible_weights(fac, vis, to_host=False).host())
+    assert np.abs(want[0] - want[1]).max() > 1e-3
+    for g, w in zip(got, want):
+        _close(g, w)
+    np.testing.assert_array_equal(got[0], got[2])
+    assert not np.shares_memory(got[0], got[2])
+
+
 def test_em_with_facet_weights_matches_reference(backend, heightfield):
     """The device EM with facet weights in place of the areas (the bake's visibility weighting) against
     reference.ndf_em on the same weights; tolerances as in test_em_matches_reference_em."""

@@ -333,11 +333,19 @@ def _make(name: str) -> Backend:
                      "'opencl:<platform or device substring>'")
 
 
+_BACKEND_TYPES = set()  # types that passed isinstance(·, Backend)
+
+
 def get_backend(backend="auto") -> Backend:
     """A backend by name (cached: the same name returns the same object), or pass one through."""
-    if isinstance(backend, Backend) and not isinstance(backend, str):
-        return backend
     if not isinstance(backend, str):
+        # (isinstance against the runtime-checkable protocol looks up each of its ~30 members: ~20 µs
+        # here, more on the lent GPU machine's host, at the start of every bake and render; once a type)
+        if type(backend) in _BACKEND_TYPES:
+            return backend
+        if isinstance(backend, Backend):
+            _BACKEND_TYPES.add(type(backend))
+            return backend
         raise ValueError(f"backend must be a name or a Backend, got {backend!r}")
     name = backend.strip().lower() or "auto"
     if name == "auto":

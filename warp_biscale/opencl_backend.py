@@ -385,7 +385,7 @@ class OpenCLBackend:
         a_v = self._empty(n_dirs, np.float32)
         self._launch("truth", "sum_chunks_area", (n_dirs,), partial, np.int32(chunks), np.int32(n_dirs), a_v)
         if not to_host:
-            return OnDevice(a_v, lambda: self._read(a_v, n_dirs, np.float32))
+            return OnDevice(a_v, self._read_later(a_v, n_dirs, np.float32))  # (queued now: no wait when read)
         host = self._read(a_v, n_dirs, np.float32)
         host.flags.writeable = False  # (so that the device copy stays what it holds)
         self._held_visible_area = (host, a_v)  # solve_amplitudes given `host` itself uses the device copy

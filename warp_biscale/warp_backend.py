@@ -61,6 +61,7 @@ class WarpBackend:
         self._scratch_arrays = {}  # role → device scratch array, see _scratch
         self._em_graphs = {}  # (Ns, J, steps, weighted) → captured EM (CUDA): see _em_graph
         self._em_buffers = {}
+        self._pinned = {}  # (shape, dtype) → [(pinned host array, event)] free for _read_later
         from . import kernels  # noqa: F401  (import here so a broken Warp fails at backend creation)
 
     def __repr__(self):
@@ -234,7 +235,7 @@ class WarpBackend:
         a_v = wp.empty(n_dirs, dtype=wp.float32, device=dev)
         wp.launch(kt.sum_chunks_area, dim=n_dirs, device=dev, inputs=[partial], outputs=[a_v])
         if not to_host:
-            return OnDevice(a_v, lambda: self._trace_host(a_v))
+            return OnDevice(a_v, self._read_later(a_v))  # (read at the bake's end: queued now, no wait then)
         host = self._trace_host(a_v)
         host.flags.writeable = False  # (so that the device copy stays what it holds)
         self._held_visible_area = (host, a_v)  # solve_amplitudes given `host` itself uses the device copy
@@ -646,19 +647,27 @@ class WarpBackend:
     def _read_later(self, a):
         """→ a function returning a host copy of device array `a` as it is now. On a GPU the copy is queued
         at once into pinned memory with an event behind it: the function then waits for `a`'s work alone,
-        not for what is queued after it. (A fresh pinned buffer each call: on the lent H100 allocating one
-        for 2^16 floats cost ~17 µs, bench/probe_pinned.py.)"""
+        not for what is queued after it. The pinned buffers are pooled per shape: a buffer goes back to the
+        pool once its copy is read out (into a host array of the caller's own), and one never read is left
+        to Python. (A fresh pinned buffer each call cost the lent H100's host ~1 ms a bake in place of
+        ~30 µs in a loop, bench/profile_bake_lines.py: freeing and pinning memory there is slow.)"""
         import warp as wp
 
         if not self._device.is_cuda:
             return lambda: self._trace_host(a)
-        host = wp.empty(a.shape, dtype=a.dtype, device="cpu", pinned=True)
+        free = self._pinned.setdefault((a.shape, a.dtype), [])
+        host, ready = free.pop() if free else (wp.empty(a.shape, dtype=a.dtype, device="cpu", pinned=True),
+                                               wp.Event(self._device))
         wp.copy(host, a)
-        ready = wp.get_stream(self._device).record_event(wp.Event(self._device))
+        wp.get_stream(self._device).record_event(ready)
+        out = []
 
         def read():
-            wp.synchronize_event(ready)
-            return host.numpy()
+            if not out:
+                wp.synchronize_event(ready)
+                out.append(host.numpy().copy())
+                free.append((host, ready))
+            return out[0]
 
         return read
 
