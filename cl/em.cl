@@ -302,3 +302,141 @@ __kernel void em_result(__global const double *axes64, __global const double *sh
     o[4] = weight64[j];
     o[5] = (double)state[1];
 }
+
+/* ---- EM's start on the device: lobes.initial_lobes over the facets (each at its normal, weighing its
+ * EM weight), so that EM can be enqueued behind the rays without the host reading the weights first. The
+ * host groups the facets by coarse cube-map bin (lobes.start_groups: one int array `groups` = [order (Ns) |
+ * bounds (C + 1) | first (M + 1)], facets order[bounds[c]:bounds[c + 1]] one chunk of one bin, the chunks
+ * of bin m first[m]:first[m + 1]), so every sum runs in a fixed order without atomics. */
+
+/* One work-item per chunk c: partial[c] = Σ w [1, n] (double, stride 4) over its facets, in order. */
+__kernel void em_start_partial(__global const int *groups, const int n_facets, const int n_chunks,
+                               __global const float *normal, __global const float *weight,
+                               __global double *partial)
+{
+    int c = get_global_id(0);
+    if (c >= n_chunks)
+        return;
+    double a0 = 0.0, a1 = 0.0, a2 = 0.0, a3 = 0.0;
+    for (int i = groups[n_facets + c]; i < groups[n_facets + c + 1]; ++i) {
+        int s = groups[i];
+        double w = (double)weight[s];
+        a0 += w;
+        a1 += w * (double)normal[3 * s];
+        a2 += w * (double)normal[3 * s + 1];
+        a3 += w * (double)normal[3 * s + 2];
+    }
+    partial[4 * c] = a0;
+    partial[4 * c + 1] = a1;
+    partial[4 * c + 2] = a2;
+    partial[4 * c + 3] = a3;
+}
+
+/* One work-item: lobes.initial_lobes from the chunks' sums → start (J, 6) rows [ξ (3), η, α, log_weight]
+ * (backend.em_start_rows), slots past the distinct bins dead (α = 0, log_weight = −1e30); kernels/em.py's
+ * em_start_pick in the same order. bins (M, 4) [Σw, unit mean normal], dist (M,), chosen (J,): scratch. */
+__kernel void em_start_pick(__global const double *partial, __global const int *groups, const int first_at,
+                            const int n_bins, const int n_lobes, __global double *bins, __global double *dist,
+                            __global int *chosen, __global double *start)
+{
+    if (get_global_id(0) != 0)
+        return;
+    double total = 0.0;
+    int heaviest = 0;
+    for (int m = 0; m < n_bins; ++m) {
+        double a0 = 0.0, a1 = 0.0, a2 = 0.0, a3 = 0.0;
+        for (int c = groups[first_at + m]; c < groups[first_at + m + 1]; ++c) {
+            a0 += partial[4 * c];
+            a1 += partial[4 * c + 1];
+            a2 += partial[4 * c + 2];
+            a3 += partial[4 * c + 3];
+        }
+        double length = sqrt(a1 * a1 + a2 * a2 + a3 * a3);
+        if (length > 0.0) {
+            a1 /= length;
+            a2 /= length;
+            a3 /= length;
+        }
+        bins[4 * m] = a0;
+        bins[4 * m + 1] = a1;
+        bins[4 * m + 2] = a2;
+        bins[4 * m + 3] = a3;
+        total += a0;
+        if (a0 > bins[4 * heaviest])  /* (the first of equals, as numpy's argmax) */
+            heaviest = m;
+    }
+    /* The heaviest bin, then repeatedly the bin of largest w·(1 − n·ξ) to its nearest chosen axis ξ. */
+    chosen[0] = heaviest;
+    int picked = 1;
+    double ax = bins[4 * heaviest + 1], ay = bins[4 * heaviest + 2], az = bins[4 * heaviest + 3];
+    double threshold = 1.0e-12 * total;
+    for (int m = 0; m < n_bins; ++m)
+        dist[m] = 1.0e300;
+    for (;;) {
+        int best = -1;
+        double best_score = -1.0;
+        for (int m = 0; m < n_bins; ++m) {
+            double dx = bins[4 * m + 1] - ax, dy = bins[4 * m + 2] - ay, dz = bins[4 * m + 3] - az;
+            double e = fmin(dist[m], 0.5 * (dx * dx + dy * dy + dz * dz));
+            dist[m] = e;
+            double score = bins[4 * m] * e;
+            if (score > best_score) {
+                best_score = score;
+                best = m;
+            }
+        }
+        if (picked == n_lobes || best_score <= threshold)
+            break;
+        chosen[picked] = best;
+        ax = bins[4 * best + 1];
+        ay = bins[4 * best + 2];
+        az = bins[4 * best + 3];
+        ++picked;
+    }
+    /* Each bin to its nearest chosen axis: the lobes' weights and mean resultants (accumulated in start). */
+    for (int k = 0; k < 6 * n_lobes; ++k)
+        start[k] = 0.0;
+    for (int m = 0; m < n_bins; ++m) {
+        double w = bins[4 * m], nx = bins[4 * m + 1], ny = bins[4 * m + 2], nz = bins[4 * m + 3];
+        int owner = 0;
+        double top = -2.0;
+        for (int j = 0; j < picked; ++j) {
+            int b = chosen[j];
+            double c = bins[4 * b + 1] * nx + bins[4 * b + 2] * ny + bins[4 * b + 3] * nz;
+            if (c > top) {
+                top = c;
+                owner = j;
+            }
+        }
+        start[6 * owner] += w * nx;
+        start[6 * owner + 1] += w * ny;
+        start[6 * owner + 2] += w * nz;
+        start[6 * owner + 4] += w;
+    }
+    for (int j = 0; j < n_lobes; ++j) {
+        __global double *s = start + 6 * j;
+        if (j < picked && total > 0.0) {
+            int b = chosen[j];
+            double w = s[4];
+            double r = sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]) / fmax(w, 1.0e-300);
+            r = fmin(fmax(r, 0.0), 1.0 - 1.0e-12);
+            /* Banerjee's κ ≈ r̄(3 − r̄²)/(1 − r̄²): enough for a start (lobes.initial_lobes). */
+            double k = fmin(fmax(r * (3.0 - r * r) / (1.0 - r * r), 1.0), 1.0e4);
+            double alpha = w / total;
+            s[0] = bins[4 * b + 1];
+            s[1] = bins[4 * b + 2];
+            s[2] = bins[4 * b + 3];
+            s[3] = k;
+            s[4] = alpha;
+            s[5] = alpha > 0.0 ? log(alpha) + log(k) - log(6.283185307179586) - log(1.0 - exp(-2.0 * k))
+                               : DEAD_LOG_WEIGHT;
+        } else {  /* a dead slot: no distinct bin left for it (or no weight at all) */
+            s[0] = 0.0;
+            s[1] = 0.0;
+            s[2] = 1.0;
+            s[3] = 1.0;
+            s[4] = 0.0;
+            s[5] = DEAD_LOG_WEIGHT;
+        }
+    }
+}

@@ -266,3 +266,121 @@ def em_result(axes64: wp.array(dtype=wp.vec3d), sharpness64: wp.array(dtype=wp.f
     out[j, 3] = sharpness64[j]
     out[j, 4] = weight64[j]
     out[j, 5] = wp.float64(state[1])
+
+
+# ------------------------------------------------------------------ EM's start on the device
+# lobes.initial_lobes over the facets (each at its normal, weighing its EM weight), so that EM can be
+# queued behind the rays without the host reading the weights first. The host groups the facets by coarse
+# cube-map bin (lobes.start_groups: one int32 array `groups` = [order (Ns) | bounds (C + 1) | first (M + 1)],
+# facets order[bounds[c]:bounds[c + 1]] one chunk of ≤ START_CHUNK facets of one bin, the chunks of bin m
+# first[m]:first[m + 1]), so every sum runs in a fixed order without atomics.
+
+
+@wp.kernel
+def em_start_partial(groups: wp.array(dtype=wp.int32), n_facets: int, normal: wp.array(dtype=wp.vec3),
+                     weight: wp.array(dtype=wp.float32), offset: int, partial: wp.array(dtype=wp.vec4d)):
+    """One thread per chunk c: partial[c] = Σ w [1, n] (float64) over its facets, in order."""
+    c = wp.tid() + offset
+    acc = wp.vec4d(wp.float64(0.0))
+    for i in range(groups[n_facets + c], groups[n_facets + c + 1]):
+        s = groups[i]
+        w = wp.float64(weight[s])
+        n = wp.vec3d(normal[s])
+        acc += wp.vec4d(w, w * n[0], w * n[1], w * n[2])
+    partial[c] = acc
+
+
+@wp.kernel
+def em_start_pick(partial: wp.array(dtype=wp.vec4d), groups: wp.array(dtype=wp.int32), first_at: int, n_bins: int,
+                  offset: int, bins: wp.array(dtype=wp.vec4d), dist: wp.array(dtype=wp.float64),
+                  chosen: wp.array(dtype=wp.int32), start: wp.array2d(dtype=wp.float64)):
+    """One thread: lobes.initial_lobes from the chunks' sums → start (J, 6) rows [ξ (3), η, α, log_weight]
+    (backend.em_start_rows), slots past the distinct bins dead (α = 0, log_weight = −1e30). The bins'
+    sums [Σw, unit mean normal] go to `bins`, the greedy pick's distances to `dist`."""
+    n_lobes = start.shape[0]
+    total = wp.float64(0.0)
+    heaviest = int(0)
+    for m in range(n_bins):
+        acc = wp.vec4d(wp.float64(0.0))
+        for c in range(groups[first_at + m], groups[first_at + m + 1]):
+            acc += partial[c]
+        v = wp.vec3d(acc[1], acc[2], acc[3])
+        length = wp.length(v)
+        if length > wp.float64(0.0):
+            v = v / length
+        bins[m] = wp.vec4d(acc[0], v[0], v[1], v[2])
+        total += acc[0]
+        if acc[0] > bins[heaviest][0]:  # (the first of equals, as numpy's argmax)
+            heaviest = m
+    # The heaviest bin, then repeatedly the bin of largest w·(1 − n·ξ) to its nearest chosen axis ξ.
+    chosen[0] = heaviest
+    picked = int(1)
+    axis = wp.vec3d(bins[heaviest][1], bins[heaviest][2], bins[heaviest][3])
+    threshold = wp.float64(1.0e-12) * total
+    done = int(0)
+    for m in range(n_bins):
+        dist[m] = wp.float64(1.0e300)
+    while picked <= n_lobes and done == 0:
+        best = int(-1)
+        best_score = wp.float64(-1.0)
+        for m in range(n_bins):
+            b = bins[m]
+            d = wp.vec3d(b[1], b[2], b[3]) - axis
+            e = wp.min(dist[m], wp.float64(0.5) * wp.dot(d, d))
+            dist[m] = e
+            score = b[0] * e
+            if score > best_score:
+                best_score = score
+                best = m
+        if picked == n_lobes or best_score <= threshold:
+            done = 1
+        else:
+            chosen[picked] = best
+            axis = wp.vec3d(bins[best][1], bins[best][2], bins[best][3])
+            picked += 1
+    # Each bin to its nearest chosen axis: the lobes' weights and mean resultants (accumulated in start).
+    for j in range(n_lobes):
+        for col in range(6):
+            start[j, col] = wp.float64(0.0)
+    for m in range(n_bins):
+        b = bins[m]
+        n = wp.vec3d(b[1], b[2], b[3])
+        owner = int(0)
+        top = wp.float64(-2.0)
+        for j in range(picked):
+            a = bins[chosen[j]]
+            cos = wp.dot(wp.vec3d(a[1], a[2], a[3]), n)
+            if cos > top:
+                top = cos
+                owner = j
+        start[owner, 0] = start[owner, 0] + b[0] * n[0]  # (not `+=`: Warp makes that an atomic add)
+        start[owner, 1] = start[owner, 1] + b[0] * n[1]
+        start[owner, 2] = start[owner, 2] + b[0] * n[2]
+        start[owner, 4] = start[owner, 4] + b[0]
+    one = wp.float64(1.0)
+    for j in range(n_lobes):
+        if j < picked and total > wp.float64(0.0):
+            a = bins[chosen[j]]
+            w = start[j, 4]
+            r = wp.length(wp.vec3d(start[j, 0], start[j, 1], start[j, 2])) / wp.max(w, wp.float64(1.0e-300))
+            r = wp.clamp(r, wp.float64(0.0), one - wp.float64(1.0e-12))
+            # Banerjee's κ ≈ r̄(3 − r̄²)/(1 − r̄²): enough for a start (lobes.initial_lobes).
+            k = wp.clamp(r * (wp.float64(3.0) - r * r) / (one - r * r), one, wp.float64(1.0e4))
+            alpha = w / total
+            start[j, 0] = a[1]
+            start[j, 1] = a[2]
+            start[j, 2] = a[3]
+            start[j, 3] = k
+            start[j, 4] = alpha
+            if alpha > wp.float64(0.0):
+                start[j, 5] = wp.log(alpha) + wp.log(k) - wp.log(wp.float64(6.283185307179586)) - wp.log(
+                    one - wp.exp(wp.float64(-2.0) * k))
+            else:
+                start[j, 5] = wp.float64(DEAD_LOG_WEIGHT)
+        else:  # a dead slot: no distinct bin left for it (or no weight at all)
+            start[j, 0] = wp.float64(0.0)
+            start[j, 1] = wp.float64(0.0)
+            start[j, 2] = wp.float64(1.0)
+            start[j, 3] = one
+            start[j, 4] = wp.float64(0.0)
+            start[j, 5] = wp.float64(DEAD_LOG_WEIGHT)
