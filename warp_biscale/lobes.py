@@ -145,37 +145,6 @@ def initial_lobes(normal, area, count: int, resolution: int = 16, coarse_bins=No
     return LobeSet(axes, sharp, weight / weight.sum())
 
 
-START_CHUNK = 64  # facets one thread of em_start_partial sums (kernels/em.py): short serial chains
-
-
-def start_groups(coarse_bins, chunk: int = START_CHUNK):
-    """The facets grouped by their coarse bin of `initial_lobes` (`coarse_bins` (Ns,), cube map at 16),
-    for `Backend.em_start`, which picks `initial_lobes`' start on the device, each sum in a fixed order:
-    → (groups, n_chunks, n_bins), groups one int32 array [order (Ns) | bounds (C + 1) | first (M + 1)]:
-    facets order[bounds[c]:bounds[c + 1]] are chunk c (≤ `chunk` facets of one bin), the chunks of the
-    m-th non-empty bin are first[m]:first[m + 1]. Bins in increasing order, facets in their order."""
-    coarse = np.asarray(coarse_bins)
-    n = len(coarse)
-    if n == 0:
-        raise ValueError("EM's start needs at least one facet")
-    # int16 keys (6·16² bins) sort by radix: 0.1–0.4 ms for 2^16 facets where int64 keys took ~2 ms.
-    key = coarse.astype(np.int16)
-    order = np.argsort(key, kind="stable")
-    count = np.bincount(key, minlength=6 * 16 * 16)
-    size = count[count > 0]
-    n_bins = len(size)
-    per_bin = -(-size // chunk)
-    first = np.zeros(n_bins + 1, np.int64)
-    np.cumsum(per_bin, out=first[1:])
-    n_chunks = int(first[-1])
-    bin_start = np.zeros(n_bins, np.int64)
-    np.cumsum(size[:-1], out=bin_start[1:])
-    owner = np.repeat(np.arange(n_bins), per_bin)  # each chunk's bin
-    bounds = bin_start[owner] + (np.arange(n_chunks) - first[owner]) * chunk
-    groups = np.concatenate([order, bounds, [n], first]).astype(np.int32)
-    return groups, n_chunks, n_bins
-
-
 def m_step(stats, previous: LobeSet) -> LobeSet:
     """The M-step from E-step sums `stats` (J, 4) = [Σ r ΔA, Σ r ΔA n]. A lobe holding at most
     `DEAD_MASS` of the area dies: weight 0, axis and sharpness kept (the device M-step, kernels/em.py
@@ -217,12 +186,11 @@ def fit(backend, facets, start: LobeSet, iterations: int, facet_weight=None) -> 
                                          facet_weight))
 
 
-def from_em(start, result) -> LobeSet:
-    """The live lobes of an EM from `start` (a LobeSet, or `Backend.em_start`'s DeviceStart: no steps
-    before), given what `Backend.ndf_em` returned (axes, sharpness, weight, steps)."""
+def from_em(start: LobeSet, result) -> LobeSet:
+    """The live lobes of an EM from `start`, given what `Backend.ndf_em` returned (axes, sharpness,
+    weight, steps)."""
     axes, sharpness, weight, steps = result
-    before = start.iterations if isinstance(start, LobeSet) else 0
-    return LobeSet(axes, sharpness, weight, before + int(steps)).alive()
+    return LobeSet(axes, sharpness, weight, start.iterations + int(steps)).alive()
 
 
 def amplitude_system(lobes: LobeSet, bin_normal=None, bin_area=None):

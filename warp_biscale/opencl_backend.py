@@ -34,8 +34,8 @@ import weakref
 
 import numpy as np
 
-from .backend import (SCRATCH_BYTES, DeviceFacets, DeviceLobes, DeviceStart, OnDevice, UploadCache, check_kernel_lobes,
-                      chunking, device_copy, em_result_rows, em_start_rows, equal_areas, run_em_steps)
+from .backend import (SCRATCH_BYTES, DeviceFacets, DeviceLobes, OnDevice, UploadCache, check_kernel_lobes, chunking,
+                      device_copy, em_result_rows, em_start_rows, equal_areas, run_em_steps)
 from .model import Facets, Visibility
 from .reference import facet_shift, ray_offset
 
@@ -165,7 +165,6 @@ class OpenCLBackend:
         self._uploads = UploadCache()
         self._held_visible_area = None  # (host, device) of the last visible_area
         self._scratch_buffers = {}  # role → device buffer, see _scratch
-        self._staging = {}  # role → (event, host array) of its last upload, see _staged
         self._em_programs = {}  # (Ns, J, steps, weighted) → an EM's buffers and launches: see _em_program
         self._em_buffers = {}
 
@@ -452,34 +451,6 @@ class OpenCLBackend:
         f["visible_weight"] = (host, weight)  # ndf_em given `host` itself uses the device copy
         return host
 
-    def _staged(self, role, host):
-        """A device buffer kept per role (see _scratch) holding the array `host`, its upload queued without
-        waiting (behind the work ahead); the host copy is kept until the next upload of the role, which first
-        waits for this one."""
-        held = self._staging.pop(role, None)
-        if held is not None:
-            held[0].wait()
-        host = np.ascontiguousarray(host)
-        buf = self._scratch(role, host.size, host.dtype)
-        self._staging[role] = (self._cl.enqueue_copy(self._queue, buf, host, is_blocking=False), host)
-        return buf
-
-    def em_start(self, facets, facet_weight, groups, n_chunks, n_bins, count):
-        f = self._facets(facets)
-        n, j = len(facets), int(count)
-        weight = self._facet_weight(f, facet_weight)
-        g = self._staged("em_start_groups", np.asarray(groups, np.int32))
-        partial = self._scratch("em_start_partial", 4 * n_chunks, np.float64)
-        bins = self._scratch("em_start_bins", 4 * n_bins, np.float64)
-        dist = self._scratch("em_start_dist", n_bins, np.float64)
-        chosen = self._scratch("em_start_chosen", j, np.int32)
-        rows = self._empty(6 * j, np.float64)
-        self._launch("em", "em_start_partial", (n_chunks,), g, np.int32(n), np.int32(n_chunks), f["normal"], weight,
-                     partial)
-        self._launch("em", "em_start_pick", (1,), partial, g, np.int32(n + n_chunks + 1), np.int32(n_bins), np.int32(j),
-                     bins, dist, chosen, rows)
-        return DeviceStart(rows, j, self._read_later(rows, (j, 6), np.float64))
-
     def _em_launches(self, normal, mass, n, n_lobes, axes, sharpness, log_weight, state, resp):
         """One E-step's four kernels as prepared launches over `n` facets (`normal`, weighing `mass`,
         scratch `resp` (Ns, J)) → (launches, the (J, 4) float64 statistics buffer)."""
@@ -560,11 +531,9 @@ class OpenCLBackend:
     def ndf_em(self, facets, axes, sharpness, weight, iterations, facet_weight=None, to_host=True):
         from .lobes import LobeSet
 
-        on_device = isinstance(axes, DeviceStart)  # (em_start's rows: copied on the device)
-        start = None if on_device else LobeSet(axes, sharpness, weight)
-        j, n = axes.count if on_device else len(start), len(facets)
+        start = LobeSet(axes, sharpness, weight)
+        j, n = len(start), len(facets)
         if int(iterations) <= 0:
-            start = axes.host() if on_device else start
             result = (start.axes, start.sharpness, start.weight, 0)
             if to_host:
                 return result
@@ -576,10 +545,7 @@ class OpenCLBackend:
         cl = self._cl
         cl.enqueue_copy(self._queue, prog["normal"], f["normal"], byte_count=12 * n)
         cl.enqueue_copy(self._queue, prog["mass"], mass, byte_count=4 * n)
-        if on_device:
-            cl.enqueue_copy(self._queue, prog["start"], axes.device, byte_count=48 * j)
-        else:
-            cl.enqueue_copy(self._queue, prog["start"], em_start_rows(start))
+        cl.enqueue_copy(self._queue, prog["start"], em_start_rows(start))
         prog["load"]()
 
         def enqueue_step():

@@ -14,8 +14,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from .backend import (SCRATCH_BYTES, DeviceFacets, DeviceLobes, DeviceStart, OnDevice, UploadCache, check_kernel_lobes,
-                      chunking, device_copy, em_result_rows, em_start_rows, equal_areas, run_em_steps)
+from .backend import (SCRATCH_BYTES, DeviceFacets, DeviceLobes, OnDevice, UploadCache, check_kernel_lobes, chunking,
+                      device_copy, em_result_rows, em_start_rows, equal_areas, run_em_steps)
 from .model import Facets, Visibility
 from .reference import facet_shift, ray_offset
 
@@ -62,7 +62,6 @@ class WarpBackend:
         self._em_graphs = {}  # (Ns, J, steps, weighted) → captured EM (CUDA): see _em_graph
         self._em_buffers = {}
         self._pinned = {}  # (shape, dtype) → [(pinned host array, event)] free for _read_later
-        self._staging = {}  # role → (device array, pinned host array or None, event, [recorded]): see _staged
         from . import kernels  # noqa: F401  (import here so a broken Warp fails at backend creation)
 
     def __repr__(self):
@@ -329,52 +328,6 @@ class WarpBackend:
         f["visible_weight"] = (host, weight)  # ndf_em given `host` itself uses the device copy
         return host
 
-    def _staged(self, role, host):
-        """A device array kept per role whose first len(host) items are the 1-D array `host`, grown when
-        too small. On a GPU the upload goes through a pinned buffer kept with it, so that it is queued
-        behind the work ahead without the host waiting for that work (as an upload from pageable memory
-        may); before refilling the pinned buffer the host waits for its last copy alone."""
-        import warp as wp
-
-        held = self._staging.get(role)
-        if held is None or held[0].shape[0] < len(host) or held[0].dtype != wp.dtype_from_numpy(host.dtype):
-            dtype = wp.dtype_from_numpy(host.dtype)
-            room = max(len(host), 1) * 5 // 4  # (room for the next bake's slightly longer array)
-            pinned = wp.empty(room, dtype=dtype, device="cpu", pinned=True) if self._device.is_cuda else None
-            event = wp.Event(self._device) if self._device.is_cuda else None
-            held = self._staging[role] = (wp.empty(room, dtype=dtype, device=self._device), pinned, event, [False])
-        device, pinned, event, recorded = held
-        if pinned is None:  # the CPU: the array's numpy view is its memory (launches run before they return)
-            device.numpy()[:len(host)] = host
-            return device
-        if recorded[0]:
-            wp.synchronize_event(event)
-        pinned.numpy()[:len(host)] = host
-        wp.copy(device, pinned, count=len(host))
-        wp.get_stream(self._device).record_event(event)
-        recorded[0] = True
-        return device
-
-    def em_start(self, facets, facet_weight, groups, n_chunks, n_bins, count):
-        import warp as wp
-
-        from .kernels import em as ke
-
-        f = self._facets(facets)
-        n, j = len(facets), int(count)
-        weight = self._facet_weight(f, facet_weight)
-        g = self._staged("em_start_groups", np.asarray(groups, np.int32))
-        # (scratch of fixed room, so that it is kept from bake to bake: C ≤ Ns/64 + M chunks, M ≤ 6·16² bins)
-        partial = self._scratch("em_start_partial", n // 64 + 6 * 16 * 16 + 1, wp.vec4d)
-        bins = self._scratch("em_start_bins", 6 * 16 * 16, wp.vec4d)
-        dist = self._scratch("em_start_dist", 6 * 16 * 16, wp.float64)
-        chosen = self._scratch("em_start_chosen", j, wp.int32)
-        rows = wp.empty((j, 6), dtype=wp.float64, device=self._device)
-        self._launch(ke.em_start_partial, int(n_chunks), [g, n, f["normal"], weight], [partial])
-        wp.launch(ke.em_start_pick, dim=1, device=self._device,
-                  inputs=[partial, g, n + int(n_chunks) + 1, int(n_bins), 0], outputs=[bins, dist, chosen, rows])
-        return DeviceStart(rows, j, self._read_later(rows))
-
     def _em_launches(self, normal, mass, n_lobes, axes, sharpness, log_weight, state, resp):
         """The E-step's kernels as callables (recorded launches on a GPU: re-issuing one skips Python's
         argument packing) over facets `normal` (vec3) weighing `mass` (float32), with `resp` (Ns, ≥ J)
@@ -507,11 +460,9 @@ class WarpBackend:
 
         from .lobes import LobeSet
 
-        on_device = isinstance(axes, DeviceStart)  # (em_start's rows: copied on the device)
-        start = None if on_device else LobeSet(axes, sharpness, weight)
-        j = axes.count if on_device else len(start)
+        start = LobeSet(axes, sharpness, weight)
+        j = len(start)
         if int(iterations) <= 0:
-            start = axes.host() if on_device else start
             result = (start.axes, start.sharpness, start.weight, 0)
             if to_host:
                 return result
@@ -519,19 +470,12 @@ class WarpBackend:
                                 self._array(start.sharpness.astype(np.float32), wp.float32)), j, lambda: result)
         f = self._facets(facets)
         mass = f["area"] if facet_weight is None else self._facet_weight(f, facet_weight)
-
-        def load_start(rows):
-            if on_device:
-                wp.copy(rows, axes.device)
-            else:
-                rows.assign(em_start_rows(start))
-
         if self._device.is_cuda:
             graph = self._em_graph(len(facets), j, iterations, facet_weight is not None)
             prog = graph["prog"]
             wp.copy(self._em_buffers["normal"], f["normal"])
             wp.copy(self._em_buffers["mass"], mass)
-            load_start(prog["start"])
+            prog["start"].assign(em_start_rows(start))
             wp.capture_launch(graph["graph"])
             if not to_host:
                 # The result's copy is queued behind the EM: reading it back waits for the EM, not for what
@@ -540,7 +484,7 @@ class WarpBackend:
                 return DeviceLobes((prog["axes32"], prog["sharp32"]), j, lambda: em_result_rows(read()))
         else:
             prog = self._em_program(f["normal"], mass, j, iterations, self._resp(facets, j))
-            load_start(prog["start"])
+            prog["start"].assign(em_start_rows(start))
             prog["load"]()
 
             def enqueue_step():
