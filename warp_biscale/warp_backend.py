@@ -22,6 +22,9 @@ from .reference import facet_shift, ray_offset
 _READY = False
 
 
+RAY_PIECES = 4  # slices per core of the visibility rays on the CPU (see _launch)
+
+
 def init_warp():
     global _READY
     import warp as wp
@@ -72,17 +75,19 @@ class WarpBackend:
 
         wp.synchronize_device(self._device)
 
-    def _launch(self, kernel, dim, inputs, outputs, block_dim=256):
+    def _launch(self, kernel, dim, inputs, outputs, block_dim=256, pieces=1):
         """Launch `kernel` over `dim`; its last input is an offset into the last dimension.
 
-        On the CPU the last dimension is cut into one slice per core, launched in parallel. On a GPU
-        `block_dim` threads make a block (Warp's default 256).
+        On the CPU the last dimension is cut into `pieces` slices per core, launched in parallel (a core
+        that finishes its slice takes the next: for a kernel whose work varies along that dimension,
+        such as the visibility rays, more pieces even out the cores). On a GPU `block_dim` threads make
+        a block (Warp's default 256).
         """
         import warp as wp
 
         dim = tuple(dim) if isinstance(dim, (tuple, list)) else (int(dim),)
         n = dim[-1]
-        parts = min(self._slices, n)
+        parts = min(self._slices * pieces, n) if self._slices > 1 else 1
         if parts <= 1:
             wp.launch(kernel, dim=dim, inputs=[*inputs, 0], outputs=outputs, device=self._device,
                       block_dim=block_dim)
@@ -213,7 +218,7 @@ class WarpBackend:
                      [t["mesh"].id, t["points"], t["faces"], t["face_normals"], int(bool(brute_force)),
                       position, f["face"], dirs,
                       0.0, 0.0, float(tile.period[0]), float(tile.period[1]), 0.0, z_hi - z_lo, ray_offset(tile)],
-                     [visible], block_dim=32)
+                     [visible], block_dim=32, pieces=RAY_PIECES)
         self._launch(kv.pack_bits, (len(directions), words), [visible], [bits])
         vis = Visibility.deferred(directions, len(facets), lambda: self._trace_host(bits))
         vis.device_cache[self.name] = {"bits": bits, "directions": dirs}
