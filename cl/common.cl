@@ -315,3 +315,37 @@ CL_INLINE int bvh_closest_hit(__global const float *nodes, __global const float 
     *v_hit = best_v;
     return slot;
 }
+
+/* The cube-map bin of unit normal n at `resolution` (reference.cube_bin): face·R² + row·R + col. */
+CL_INLINE int cube_bin(float3 n, int resolution)
+{
+    float ax = absf(n.x);
+    float ay = absf(n.y);
+    float az = absf(n.z);
+    int face;
+    float major, u, v;
+    if (ax >= ay && ax >= az) {
+        face = n.x >= 0.0f ? 0 : 1;
+        major = ax;
+        u = n.y;
+        v = n.z;
+    } else if (ay >= az) {
+        face = n.y >= 0.0f ? 2 : 3;
+        major = ay;
+        u = n.x;
+        v = n.z;
+    } else {
+        face = n.z >= 0.0f ? 4 : 5;
+        major = az;
+        u = n.x;
+        v = n.y;
+    }
+    if (major <= 0.0f)
+        major = 1.0f;
+    float r = (float)resolution;
+    int col = (int)floor((u / major + 1.0f) * 0.5f * r);
+    int row = (int)floor((v / major + 1.0f) * 0.5f * r);
+    col = col < 0 ? 0 : (col > resolution - 1 ? resolution - 1 : col);
+    row = row < 0 ? 0 : (row > resolution - 1 ? resolution - 1 : row);
+    return face * resolution * resolution + row * resolution + col;
+}

@@ -302,3 +302,202 @@ __kernel void em_result(__global const double *axes64, __global const double *sh
     o[4] = weight64[j];
     o[5] = (double)state[1];
 }
+
+/* ---- EM's start on the device: lobes.initial_lobes over the facets (each at its normal, weighing its EM
+ * weight, in its cube-map bin at 16), so that EM can be enqueued behind the rays without the host reading
+ * the weights first; kernels/em.py's start_bin_sums and start_pick. The bins' sums are fixed point
+ * (round(x·scale) as long, scale = 2^52 / a bound on Σw) added by integer atomics: integer sums do not
+ * depend on their order, so the start is the same from run to run without the host sorting the facets.
+ * The pick runs in one work-group of START_GROUP, its argmax and sums work-group reductions. */
+#pragma OPENCL EXTENSION cl_khr_int64_base_atomics : enable
+#define START_RES 16
+#define START_GROUP 256
+#define BIG_INDEX 2147483647
+
+/* One work-item per facet: its coarse bin's [Σw, Σw n] (stride 4) += its own, in fixed point. */
+__kernel void start_bin_sums(__global const float *normal, __global const float *weight, const double scale,
+                             const int n_facets, __global long *sums)
+{
+    int s = get_global_id(0);
+    if (s >= n_facets)
+        return;
+    double w = (double)weight[s];
+    if (w == 0.0)
+        return;
+    float3 n = load3(normal, s);
+    __global long *b = sums + 4 * cube_bin(n, START_RES);
+    double q = w * scale;
+    atom_add((volatile __global long *)b, (long)round(q));
+    atom_add((volatile __global long *)(b + 1), (long)round(q * (double)n.x));
+    atom_add((volatile __global long *)(b + 2), (long)round(q * (double)n.y));
+    atom_add((volatile __global long *)(b + 3), (long)round(q * (double)n.z));
+}
+
+/* Work-group reductions over START_GROUP work-items: every work-item calls them and gets the result
+ * (the fences also make each work-item's global writes before the call visible to the others). */
+CL_INLINE double group_sum(double x, __local double *scratch)
+{
+    int l = get_local_id(0);
+    scratch[l] = x;
+    barrier(CLK_LOCAL_MEM_FENCE | CLK_GLOBAL_MEM_FENCE);
+    for (int stride = START_GROUP / 2; stride > 0; stride >>= 1) {
+        if (l < stride)
+            scratch[l] += scratch[l + stride];
+        barrier(CLK_LOCAL_MEM_FENCE);
+    }
+    double r = scratch[0];
+    barrier(CLK_LOCAL_MEM_FENCE);
+    return r;
+}
+
+CL_INLINE double group_max(double x, __local double *scratch)
+{
+    int l = get_local_id(0);
+    scratch[l] = x;
+    barrier(CLK_LOCAL_MEM_FENCE | CLK_GLOBAL_MEM_FENCE);
+    for (int stride = START_GROUP / 2; stride > 0; stride >>= 1) {
+        if (l < stride && scratch[l + stride] > scratch[l])
+            scratch[l] = scratch[l + stride];
+        barrier(CLK_LOCAL_MEM_FENCE);
+    }
+    double r = scratch[0];
+    barrier(CLK_LOCAL_MEM_FENCE);
+    return r;
+}
+
+CL_INLINE int group_min(int x, __local int *scratch)
+{
+    int l = get_local_id(0);
+    scratch[l] = x;
+    barrier(CLK_LOCAL_MEM_FENCE | CLK_GLOBAL_MEM_FENCE);
+    for (int stride = START_GROUP / 2; stride > 0; stride >>= 1) {
+        if (l < stride && scratch[l + stride] < scratch[l])
+            scratch[l] = scratch[l + stride];
+        barrier(CLK_LOCAL_MEM_FENCE);
+    }
+    int r = scratch[0];
+    barrier(CLK_LOCAL_MEM_FENCE);
+    return r;
+}
+
+/* One work-group of START_GROUP: lobes.initial_lobes from the bins' sums → start (J, 6) rows [ξ (3), η, α,
+ * log_weight] (backend.em_start_rows), slots past the distinct bins dead (α = 0, log_weight = −1e30).
+ * Each work-item takes the bins lane, lane + START_GROUP, …; bins (stride 4: weight, unit mean normal),
+ * dist, owner: scratch per bin, chosen (J): the picked bins. */
+__kernel __attribute__((reqd_work_group_size(START_GROUP, 1, 1)))
+void start_pick(__global const long *sums, const int n_bins, const double scale, const int n_lobes,
+                __global double *bins, __global double *dist, __global int *owner, __global int *chosen,
+                __global double *start)
+{
+    __local double dscratch[START_GROUP];
+    __local int iscratch[START_GROUP];
+    int lane = get_local_id(0);
+    double inv = 1.0 / scale;
+    double part = 0.0, top_w = -1.0;
+    int top_m = BIG_INDEX;
+    for (int m = lane; m < n_bins; m += START_GROUP) {
+        double w = (double)sums[4 * m] * inv;
+        double vx = (double)sums[4 * m + 1] * inv, vy = (double)sums[4 * m + 2] * inv, vz = (double)sums[4 * m + 3] * inv;
+        double length = sqrt(vx * vx + vy * vy + vz * vz);
+        if (length > 0.0) {
+            vx /= length;
+            vy /= length;
+            vz /= length;
+        }
+        bins[4 * m] = w;
+        bins[4 * m + 1] = vx;
+        bins[4 * m + 2] = vy;
+        bins[4 * m + 3] = vz;
+        dist[m] = 1.0e300;
+        part += w;
+        if (w > top_w) {
+            top_w = w;
+            top_m = m;
+        }
+    }
+    double total = group_sum(part, dscratch);
+    double heaviest_w = group_max(top_w, dscratch);
+    int pick = group_min(top_w == heaviest_w ? top_m : BIG_INDEX, iscratch);
+    /* Then repeatedly the bin of largest w·(1 − n·ξ) to its nearest chosen axis ξ (numpy's first argmax). */
+    double threshold = 1.0e-12 * total;
+    int picked = 0;
+    for (;;) {
+        chosen[picked] = pick;  /* (every work-item writes the same) */
+        ++picked;
+        double ax = bins[4 * pick + 1], ay = bins[4 * pick + 2], az = bins[4 * pick + 3];
+        double best_s = -1.0;
+        int best_m = BIG_INDEX;
+        for (int m = lane; m < n_bins; m += START_GROUP) {
+            double dx = bins[4 * m + 1] - ax, dy = bins[4 * m + 2] - ay, dz = bins[4 * m + 3] - az;
+            double e = fmin(dist[m], 0.5 * (dx * dx + dy * dy + dz * dz));
+            dist[m] = e;
+            double score = bins[4 * m] * e;
+            if (score > best_s) {
+                best_s = score;
+                best_m = m;
+            }
+        }
+        double top = group_max(best_s, dscratch);
+        pick = group_min(best_s == top ? best_m : BIG_INDEX, iscratch);
+        if (picked == n_lobes || top <= threshold)
+            break;
+    }
+    /* Each bin to its nearest chosen axis; then each lobe's weight and mean resultant, one group sum a lobe. */
+    for (int m = lane; m < n_bins; m += START_GROUP) {
+        double nx = bins[4 * m + 1], ny = bins[4 * m + 2], nz = bins[4 * m + 3];
+        int o = 0;
+        double top_cos = -2.0;
+        for (int j = 0; j < picked; ++j) {
+            int c = chosen[j];
+            double cs = bins[4 * c + 1] * nx + bins[4 * c + 2] * ny + bins[4 * c + 3] * nz;
+            if (cs > top_cos) {
+                top_cos = cs;
+                o = j;
+            }
+        }
+        owner[m] = o;
+    }
+    for (int j = 0; j < n_lobes; ++j) {
+        double a0 = 0.0, a1 = 0.0, a2 = 0.0, a3 = 0.0;
+        if (j < picked) {
+            for (int m = lane; m < n_bins; m += START_GROUP) {
+                if (owner[m] == j) {
+                    double w = bins[4 * m];
+                    a0 += w;
+                    a1 += w * bins[4 * m + 1];
+                    a2 += w * bins[4 * m + 2];
+                    a3 += w * bins[4 * m + 3];
+                }
+            }
+        }
+        a0 = group_sum(a0, dscratch);
+        a1 = group_sum(a1, dscratch);
+        a2 = group_sum(a2, dscratch);
+        a3 = group_sum(a3, dscratch);
+        if (lane != 0)
+            continue;
+        __global double *s = start + 6 * j;
+        if (j < picked && total > 0.0) {
+            int c = chosen[j];
+            double r = sqrt(a1 * a1 + a2 * a2 + a3 * a3) / fmax(a0, 1.0e-300);
+            r = fmin(fmax(r, 0.0), 1.0 - 1.0e-12);
+            /* Banerjee's κ ≈ r̄(3 − r̄²)/(1 − r̄²): enough for a start (lobes.initial_lobes). */
+            double k = fmin(fmax(r * (3.0 - r * r) / (1.0 - r * r), 1.0), 1.0e4);
+            double alpha = a0 / total;
+            s[0] = bins[4 * c + 1];
+            s[1] = bins[4 * c + 2];
+            s[2] = bins[4 * c + 3];
+            s[3] = k;
+            s[4] = alpha;
+            s[5] = alpha > 0.0 ? log(alpha) + log(k) - log(6.283185307179586) - log(1.0 - exp(-2.0 * k))
+                               : DEAD_LOG_WEIGHT;
+        } else {  /* a dead slot: no distinct bin left for it (or no weight at all) */
+            s[0] = 0.0;
+            s[1] = 0.0;
+            s[2] = 1.0;
+            s[3] = 1.0;
+            s[4] = 0.0;
+            s[5] = DEAD_LOG_WEIGHT;
+        }
+    }
+}

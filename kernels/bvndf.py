@@ -8,39 +8,13 @@ are ordered by bin once (the driver sorts the bin ids), so bin l owns the contig
 
 import warp as wp
 
+from .common import cube_bin
+
 
 @wp.kernel
 def normal_bins(normal: wp.array(dtype=wp.vec3), resolution: int, offset: int, bins: wp.array(dtype=wp.int32)):
     s = wp.tid() + offset
-    n = normal[s]
-    ax = wp.abs(n[0])
-    ay = wp.abs(n[1])
-    az = wp.abs(n[2])
-    face = int(0)
-    major = float(0.0)
-    u = float(0.0)
-    v = float(0.0)
-    if ax >= ay and ax >= az:
-        face = wp.where(n[0] >= 0.0, 0, 1)
-        major = ax
-        u = n[1]
-        v = n[2]
-    elif ay >= az:
-        face = wp.where(n[1] >= 0.0, 2, 3)
-        major = ay
-        u = n[0]
-        v = n[2]
-    else:
-        face = wp.where(n[2] >= 0.0, 4, 5)
-        major = az
-        u = n[0]
-        v = n[1]
-    if major <= 0.0:
-        major = 1.0
-    r = float(resolution)
-    col = wp.clamp(int(wp.floor((u / major + 1.0) * 0.5 * r)), 0, resolution - 1)
-    row = wp.clamp(int(wp.floor((v / major + 1.0) * 0.5 * r)), 0, resolution - 1)
-    bins[s] = face * resolution * resolution + row * resolution + col
+    bins[s] = cube_bin(normal[s], resolution)
 
 
 @wp.func

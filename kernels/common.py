@@ -50,3 +50,36 @@ def brdf_cosine_weighted(kind: int, params: wp.array2d(dtype=wp.float32), m: int
 def lowest_bit(m: wp.uint32) -> int:
     """Index of the lowest set bit of a non-zero word."""
     return wp.bit_count((m & (~m + wp.uint32(1))) - wp.uint32(1))
+
+
+@wp.func
+def cube_bin(n: wp.vec3, resolution: int) -> int:
+    """The cube-map bin of unit normal n at `resolution` (reference.cube_bin): face·R² + row·R + col."""
+    ax = wp.abs(n[0])
+    ay = wp.abs(n[1])
+    az = wp.abs(n[2])
+    face = int(0)
+    major = float(0.0)
+    u = float(0.0)
+    v = float(0.0)
+    if ax >= ay and ax >= az:
+        face = wp.where(n[0] >= 0.0, 0, 1)
+        major = ax
+        u = n[1]
+        v = n[2]
+    elif ay >= az:
+        face = wp.where(n[1] >= 0.0, 2, 3)
+        major = ay
+        u = n[0]
+        v = n[2]
+    else:
+        face = wp.where(n[2] >= 0.0, 4, 5)
+        major = az
+        u = n[0]
+        v = n[1]
+    if major <= 0.0:
+        major = 1.0
+    r = float(resolution)
+    col = wp.clamp(int(wp.floor((u / major + 1.0) * 0.5 * r)), 0, resolution - 1)
+    row = wp.clamp(int(wp.floor((v / major + 1.0) * 0.5 * r)), 0, resolution - 1)
+    return face * resolution * resolution + row * resolution + col

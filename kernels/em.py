@@ -16,6 +16,8 @@ layout: see bench/README.md.
 
 import warp as wp
 
+from .common import cube_bin
+
 
 @wp.kernel
 def ndf_responsibilities(
@@ -266,3 +268,145 @@ def em_result(axes64: wp.array(dtype=wp.vec3d), sharpness64: wp.array(dtype=wp.f
     out[j, 3] = sharpness64[j]
     out[j, 4] = weight64[j]
     out[j, 5] = wp.float64(state[1])
+
+
+# ------------------------------------------------------------------ EM's start on the device
+# lobes.initial_lobes over the facets (each at its normal, weighing its EM weight, in its cube-map bin at
+# START_RES), so that EM can be queued behind the rays without the host reading the weights first. The
+# bins' sums are fixed point (round(x·scale) as int64, scale = 2^52 / a bound on Σw) added by integer
+# atomics: integer sums do not depend on their order, so the start is the same from run to run, without
+# the host sorting the facets by bin. The pick runs in one block, its argmax and sums block reductions.
+
+START_RES = wp.constant(16)  # lobes.initial_lobes' coarse cube map
+
+
+@wp.kernel
+def start_bin_sums(normal: wp.array(dtype=wp.vec3), weight: wp.array(dtype=wp.float32), scale: wp.float64,
+                   offset: int, sums: wp.array2d(dtype=wp.int64)):
+    """One thread per facet: its coarse bin's [Σw, Σw n] += its own, in fixed point (sums zeroed first)."""
+    s = wp.tid() + offset
+    w = wp.float64(weight[s])
+    if w == wp.float64(0.0):
+        return
+    n = normal[s]
+    b = cube_bin(n, START_RES)
+    q = w * scale
+    wp.atomic_add(sums, b, 0, wp.int64(wp.round(q)))
+    wp.atomic_add(sums, b, 1, wp.int64(wp.round(q * wp.float64(n[0]))))
+    wp.atomic_add(sums, b, 2, wp.int64(wp.round(q * wp.float64(n[1]))))
+    wp.atomic_add(sums, b, 3, wp.int64(wp.round(q * wp.float64(n[2]))))
+
+
+BIG_INDEX = wp.constant(2147483647)
+
+
+@wp.kernel
+def start_pick(sums: wp.array2d(dtype=wp.int64), scale: wp.float64, bins: wp.array(dtype=wp.vec4d),
+               dist: wp.array(dtype=wp.float64), owner: wp.array(dtype=wp.int32), chosen: wp.array(dtype=wp.int32),
+               start: wp.array2d(dtype=wp.float64)):
+    """One block (launch_tiled, dim [1]; on the CPU a block of one): lobes.initial_lobes from the bins' sums
+    → start (J, 6) rows [ξ (3), η, α, log_weight] (backend.em_start_rows), slots past the distinct bins
+    dead (α = 0, log_weight = −1e30). Each thread takes the bins lane, lane + block_dim, …; bins (the
+    weight and unit mean normal), dist, owner: scratch per bin, chosen: the picked bins."""
+    _block, lane = wp.tid()
+    width = wp.block_dim()
+    n_bins = sums.shape[0]
+    n_lobes = start.shape[0]
+    inv = wp.float64(1.0) / scale
+    # The bins' weights and unit mean normals; the total and the heaviest bin (the first of equals).
+    part = wp.float64(0.0)
+    top_w = wp.float64(-1.0)
+    top_m = int(BIG_INDEX)
+    for m in range(lane, n_bins, width):
+        w = wp.float64(sums[m, 0]) * inv
+        v = wp.vec3d(wp.float64(sums[m, 1]), wp.float64(sums[m, 2]), wp.float64(sums[m, 3])) * inv
+        length = wp.length(v)
+        if length > wp.float64(0.0):
+            v = v / length
+        bins[m] = wp.vec4d(w, v[0], v[1], v[2])
+        dist[m] = wp.float64(1.0e300)
+        part += w
+        if w > top_w:
+            top_w = w
+            top_m = m
+    total = wp.tile_sum(wp.tile(part))[0]
+    heaviest_w = wp.tile_max(wp.tile(top_w))[0]
+    cand = int(BIG_INDEX)
+    if top_w == heaviest_w:
+        cand = top_m
+    pick = wp.tile_min(wp.tile(cand))[0]
+    # Then repeatedly the bin of largest w·(1 − n·ξ) to its nearest chosen axis ξ (numpy's first argmax).
+    threshold = wp.float64(1.0e-12) * total
+    picked = int(0)
+    done = int(0)
+    while done == 0:
+        chosen[picked] = pick  # (every thread writes the same)
+        picked += 1
+        a = bins[pick]
+        axis = wp.vec3d(a[1], a[2], a[3])
+        best_s = wp.float64(-1.0)
+        best_m = int(BIG_INDEX)
+        for m in range(lane, n_bins, width):
+            b = bins[m]
+            d = wp.vec3d(b[1], b[2], b[3]) - axis
+            e = wp.min(dist[m], wp.float64(0.5) * wp.dot(d, d))
+            dist[m] = e
+            score = b[0] * e
+            if score > best_s:
+                best_s = score
+                best_m = m
+        top = wp.tile_max(wp.tile(best_s))[0]
+        cand = int(BIG_INDEX)
+        if best_s == top:
+            cand = best_m
+        pick = wp.tile_min(wp.tile(cand))[0]
+        if picked == n_lobes or top <= threshold:
+            done = 1
+    # Each bin to its nearest chosen axis; then each lobe's weight and mean resultant, one block sum a lobe.
+    for m in range(lane, n_bins, width):
+        b = bins[m]
+        n = wp.vec3d(b[1], b[2], b[3])
+        o = int(0)
+        top_cos = wp.float64(-2.0)
+        for j in range(picked):
+            c = bins[chosen[j]]
+            cos = wp.dot(wp.vec3d(c[1], c[2], c[3]), n)
+            if cos > top_cos:
+                top_cos = cos
+                o = j
+        owner[m] = o
+    one = wp.float64(1.0)
+    for j in range(n_lobes):
+        acc = wp.vec4d(wp.float64(0.0))
+        if j < picked:
+            for m in range(lane, n_bins, width):
+                if owner[m] == j:
+                    b = bins[m]
+                    acc += wp.vec4d(b[0], b[0] * b[1], b[0] * b[2], b[0] * b[3])
+        lobe = wp.tile_sum(wp.tile(acc, preserve_type=True))[0]
+        if lane == 0:
+            if j < picked and total > wp.float64(0.0):
+                c = bins[chosen[j]]
+                w = lobe[0]
+                r = wp.length(wp.vec3d(lobe[1], lobe[2], lobe[3])) / wp.max(w, wp.float64(1.0e-300))
+                r = wp.clamp(r, wp.float64(0.0), one - wp.float64(1.0e-12))
+                # Banerjee's κ ≈ r̄(3 − r̄²)/(1 − r̄²): enough for a start (lobes.initial_lobes).
+                k = wp.clamp(r * (wp.float64(3.0) - r * r) / (one - r * r), one, wp.float64(1.0e4))
+                alpha = w / total
+                start[j, 0] = c[1]
+                start[j, 1] = c[2]
+                start[j, 2] = c[3]
+                start[j, 3] = k
+                start[j, 4] = alpha
+                if alpha > wp.float64(0.0):
+                    start[j, 5] = wp.log(alpha) + wp.log(k) - wp.log(wp.float64(6.283185307179586)) - wp.log(
+                        one - wp.exp(wp.float64(-2.0) * k))
+                else:
+                    start[j, 5] = wp.float64(DEAD_LOG_WEIGHT)
+            else:  # a dead slot: no distinct bin left for it (or no weight at all)
+                start[j, 0] = wp.float64(0.0)
+                start[j, 1] = wp.float64(0.0)
+                start[j, 2] = wp.float64(1.0)
+                start[j, 3] = one
+                start[j, 4] = wp.float64(0.0)
+                start[j, 5] = wp.float64(DEAD_LOG_WEIGHT)

@@ -190,6 +190,85 @@ def test_em_step_cap_and_dead_lobes(backend):
     assert len(lob) == 1 and lob.sharpness[0] == wb.sg.SHARPNESS_MAX
 
 
+def _device_start(backend, fac, weight, j):
+    """em_start, and the coarse bins it used (the device's own cube-map binning, tested against the
+    reference's in test_normal_bins_match_reference)."""
+    return backend.em_start(fac, weight, j), backend.normal_bins(fac, lobes_mod.START_RES)
+
+
+@pytest.mark.parametrize("tile_name", ["pyramid", "ugroove", "woven", "heightfield"])
+@pytest.mark.parametrize("j", [1, 8, 16])
+def test_em_start_on_the_device_matches_initial_lobes(backend, tile_name, j):
+    """em_start (fixed-point bin sums, then the greedy pick, owners and Banerjee's κ in one block on the
+    device) against the float64 lobes.initial_lobes over the same facets and weights, bins and J; and the
+    same rows bit for bit when run again. Tolerance: each facet's fixed-point term is exact to 2^-53 of the
+    total area, so a bin's sum to ~Ns·1e-16 of it (~1e-12 here, relative to the smallest bins ~1e-9);
+    κ = r̄(3 − r̄²)/(1 − r̄²) amplifies r̄'s error by up to ~1/(1 − r̄) (≤ 1e4, κ's cap): 1e-9 on axes and
+    weights, 1e-5 relative on κ. Slots past the distinct normals (the pyramid's 5 at J = 8, 16) are
+    dead: weight 0."""
+    tile = {"pyramid": wb.geometry.pyramid(), "ugroove": wb.geometry.grooves(profile="u"),
+            "woven": wb.geometry.woven(), "heightfield": random_heightfield()}[tile_name]
+    fac = backend.sample_facets(tile, 3000, 0)
+    vis = backend.visibility(tile, fac, dirs.grid(6))
+    weight = backend.visible_weights(fac, vis, to_host=False)
+    start, coarse = _device_start(backend, fac, weight, j)
+    got = start.host()
+    want = lobes_mod.initial_lobes(fac.normal, weight.host(), j, coarse_bins=coarse)
+    assert len(start) == len(got) == j
+    live = got.weight > 0
+    assert live.sum() == len(want) and live[:len(want)].all()
+    np.testing.assert_allclose(got.axes[live], want.axes, atol=1e-9)
+    np.testing.assert_allclose(got.sharpness[live], want.sharpness, rtol=1e-5)
+    np.testing.assert_allclose(got.weight[live], want.weight, atol=1e-9)
+    assert np.isfinite(got.axes).all() and (got.sharpness[~live] == 1).all()
+    again = _device_start(backend, fac, weight, j)[0].host()
+    for a, b in ((again.axes, got.axes), (again.sharpness, got.sharpness), (again.weight, got.weight)):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_em_start_on_the_device_hard_cases(backend):
+    """A flat tile (one normal): one live lobe and J − 1 dead slots; no weight at all: every slot dead, finite
+    rows (the bake then falls back on the bare NDF); EM from a start with dead slots is EM from its live
+    lobes (the dead take no responsibility)."""
+    tile = flat_tile()
+    fac = backend.sample_facets(tile, 1000, 0)
+    start, _ = _device_start(backend, fac, fac.area, 8)
+    got = start.host()
+    assert (got.weight > 0).sum() == 1 and got.weight.max() == 1.0
+    np.testing.assert_allclose(got.axes[got.weight > 0][0], [0, 0, 1], atol=1e-7)
+    none, _ = _device_start(backend, fac, np.zeros(len(fac), np.float32), 4)
+    rows = none.host()
+    assert (rows.weight == 0).all() and np.isfinite(rows.axes).all() and np.isfinite(rows.sharpness).all()
+    pyr = backend.sample_facets(wb.geometry.pyramid(), 2000, 0)
+    start, coarse = _device_start(backend, pyr, pyr.area, 8)
+    live = lobes_mod.initial_lobes(pyr.normal, pyr.area, 8, coarse_bins=coarse)
+    assert len(live) == 5
+    from_device = lobes_mod.from_em(start, backend.ndf_em(pyr, start, None, None, 30))
+    from_host = lobes_mod.fit(backend, pyr, live, 30)
+    np.testing.assert_allclose(from_device.axes, from_host.axes, atol=1e-9)
+    np.testing.assert_allclose(from_device.weight, from_host.weight, atol=1e-9)
+    np.testing.assert_array_equal(from_device.sharpness, from_host.sharpness)
+
+
+def test_bake_lobes_are_em_from_initial_lobes_over_the_facets(backend):
+    """With a fixed J the bake picks EM's start on the device and queues EM behind the rays: its lobes are
+    EM (lobes.fit, EM_ITERATIONS steps) from lobes.initial_lobes over the facets, weighing the visible
+    weights, in the facets' coarse bins. Tolerance as test_em_matches_reference_em's float32 E-step (the
+    two starts agree to ~1e-12, test_em_start_on_the_device_matches_initial_lobes)."""
+    tile = random_heightfield()
+    k = 6
+    mat = wb.bake(tile, wb.BlinnPhong(1.0, 64), lobes=8, directions=k, facets=3000, backend=backend)
+    fac = backend.sample_facets(tile, 3000, 0)
+    vis = backend.visibility(tile, fac, dirs.frozen_grid(k))
+    weight = backend.visible_weights(fac, vis)
+    start = lobes_mod.initial_lobes(fac.normal, weight, 8, coarse_bins=backend.normal_bins(fac, lobes_mod.START_RES))
+    want = lobes_mod.fit(backend, fac, start, bake_module.EM_ITERATIONS, weight)
+    assert len(mat.lobes) == len(want) and mat.lobes.iterations == want.iterations
+    np.testing.assert_allclose(mat.lobes.axes, want.axes, atol=1e-4)
+    np.testing.assert_allclose(mat.lobes.sharpness, want.sharpness, rtol=1e-3)
+    np.testing.assert_allclose(mat.lobes.weight, want.weight, atol=1e-5)
+
+
 def test_flat_tile_is_one_capped_lobe():
     lob = lobes_mod.initial_lobes(np.tile([0, 0, 1.0], (100, 1)), np.ones(100), 8)
     assert len(lob) == 1

@@ -71,6 +71,38 @@ class DeviceLobes(OnDevice):
         return self.count
 
 
+class DeviceStart(OnDevice):
+    """EM's start picked on the device by `Backend.em_start`: `device` the backend's (J, 6) float64 rows
+    [ξ (3), η, α, log_weight] (em_start_rows), which ndf_em takes in place of host lobes; `count` J;
+    `host()` → the LobeSet of all J slots (a slot past the distinct normals has weight 0)."""
+
+    def __init__(self, device, count, read):
+        super().__init__(device, lambda: start_lobes(read()))
+        self.count = int(count)
+
+    def __len__(self):
+        return self.count
+
+
+def start_scale(facets, facet_weight) -> float:
+    """The fixed point of em_start's bin sums: round(x · scale) as int64, scale = 2^52 over a bound on
+    Σ|w| (the facets' area for None or visible weights, which are at most the area), so no sum passes
+    2^63 and each is exact to 2^-52 of that bound per facet."""
+    if facet_weight is None or isinstance(facet_weight, OnDevice):
+        bound = float(np.sum(facets.area, dtype=np.float64))
+    else:
+        bound = float(np.sum(np.abs(np.asarray(facet_weight, np.float64))))
+    return 2.0**52 / bound if bound > 0 else 1.0
+
+
+def start_lobes(rows):
+    """The LobeSet of (J, 6) start rows [ξ (3), η, α, log_weight] (em_start_rows' layout)."""
+    from .lobes import LobeSet
+
+    rows = np.asarray(rows, np.float64)
+    return LobeSet(rows[:, :3], rows[:, 3], rows[:, 4])
+
+
 @runtime_checkable
 class Backend(Protocol):
     name: str  # the selection name that reproduces this backend, e.g. "warp:cpu"
@@ -103,9 +135,17 @@ class Backend(Protocol):
         with to_host=False only queued: → OnDevice, which ndf_em takes as its `facet_weight`, its copy to
         the host queued with it (its host() then waits for the weights, not for work queued after them)."""
 
+    def em_start(self, facets: Facets, facet_weight, count: int) -> DeviceStart:
+        """EM's start for `count` lobes picked on the device: lobes.initial_lobes(the facets' normals,
+        `facet_weight`, count, their cube-map bins at lobes.START_RES), each bin's sums in fixed point
+        (start_scale). `facet_weight` None (the areas), visible_weights(..., to_host=False)'s OnDevice
+        or a host array (Ns,). Only queued: → DeviceStart, which ndf_em takes as its start before the
+        host has it (so that EM can be queued behind the rays)."""
+
     def ndf_em(self, facets: Facets, axes, sharpness, weight, iterations: int, facet_weight=None,
                to_host: bool = True):
-        """Spherical EM on the device from lobes (axes (J, 3), sharpness, weight): at most `iterations`
+        """Spherical EM on the device from lobes (axes (J, 3), sharpness, weight), or from em_start's
+        DeviceStart as `axes` (sharpness and weight None): at most `iterations`
         steps, stopping after the first step that lobes.converged → (axes, sharpness, weight, steps),
         float64, dead lobes with weight 0 (reference.ndf_em). Facets weigh their area, or
         `facet_weight` (Ns,), or visible_weights(..., to_host=False)'s OnDevice. With to_host=False

@@ -123,7 +123,9 @@ def _fit_lobes(be, fac, facet_weight, bin_normal, bin_weight, count, tolerance, 
     weighted by `facet_weight` (binned: `bin_weight` at `bin_normal`, in the coarse bins `coarse_bins`
     of `lobes.initial_lobes` when known) → (lobes, NDF error or None, queued). With a fixed count,
     `queue(em)` is called with the EM's DeviceLobes before the host waits for them (work on the fitted
-    lobes queued behind the EM), and `queued` is what it returned; else None."""
+    lobes queued behind the EM), and `queued` is what it returned; else None. (With a fixed J the bake
+    picks the start on the device instead, `Backend.em_start`; this serves lobes="auto" and a tile that
+    no grid direction sees.)"""
 
     def fit(j, then=None):
         start = lobes_mod.initial_lobes(bin_normal, bin_weight, j, coarse_bins=coarse_bins)
@@ -213,8 +215,9 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
 
     Returns an `EffectiveBRDF` with per-stage `timings` (seconds, device-synchronised; the host bins the
     normals while the device traces the visibility rays and sums a_v and the EM's facet weights behind
-    them, and "visibility" times all of it together; the moment sums are only queued in "ndf_fit", and
-    the device time they take shows in the stage that next waits for the device).
+    them, and "visibility" times all of it together, until the weights are back; with a fixed J the EM's
+    start, the EM and the moment sums are queued behind the rays too, and the device time they take shows
+    in the stage that next waits for the device).
     """
     mats, _, _ = _prepare(tile, materials)
     if method not in METHODS:
@@ -275,7 +278,8 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     prog.stage(f"visibility ({nd} dirs)", 1)
     # The rays are queued, then a_v and the EM's facet weights behind them (they stay on the device
     # until read), and while the device works the host bins the normals (and splits the facets into
-    # channels): "visibility" times all of it (Warp's CPU device runs each call before it returns).
+    # channels): "visibility" times all of it, until the facet weights are back (Warp's CPU device runs
+    # each call before it returns).
     # (The weights' copy to the host is queued with them: on one lease that and making Bvndf, the pairs
     # and the coarse bins here took Warp CUDA's bake from 8.0–8.9 to 7.1–7.7 ms; bake-h100-early-reads.)
     # Queued here rather than after waiting for the rays, the two calls' host time overlaps the rays:
@@ -290,6 +294,25 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     # bench/study_woven.py): woven gains 2.2 / 2.8 dB at J = 16 (Blinn–Phong n = 512 / Cook–Torrance
     # m = 0.2) and +1.4 / −0.3 dB at J = 8; the other five families move by at most 0.2 dB.
     em_weight = be.visible_weights(fac, vis, to_host=False)  # float32 OnDevice, what EM weighs on the device
+    channels = _channels(tile, fac)
+    iu, ou = dirs.unordered_pairs(nd)
+
+    def queue(em):
+        """With the facet route and a J the kernels hold, the moment sums are queued behind the EM from
+        the lobes it left on the device: the host then waits for the EM alone, and sets up the Gram
+        system while the device sums (on the lent H100 the host's work here outlasts the device's)."""
+        if route != "facets" or em.count > lobes_mod.KERNEL_LOBES:
+            return None
+        return em.count, [be.lobe_moments(fac, vis, w, em, None, iu, ou, to_host=False) for _, _, w in channels]
+
+    device_em = None
+    if j_req != "auto":
+        # With a fixed J the EM's start (lobes.initial_lobes over the facets, in their coarse bins) is picked
+        # on the device, so the EM and the moment sums are queued behind the rays before the host has read
+        # anything: the device goes from the rays to the EM without waiting for the host.
+        em_start = be.em_start(fac, em_weight, j_req)
+        device_em = be.ndf_em(fac, em_start, None, None, EM_ITERATIONS, em_weight, to_host=False)
+        device_queued = queue(device_em)
     # Non-empty bins by counting (no sort): Γ and each bin's mean normal.
     area = fac.area.astype(np.float64)
     mass = np.bincount(bins, weights=area, minlength=6 * r * r)
@@ -300,12 +323,9 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     mean = np.stack([np.bincount(facet_bin, weights=area * normal[:, c], minlength=len(occupied))
                      for c in range(3)])  # (3, L): numpy's loops run along the bins (3 innermost: ~4× slower)
     mean = np.ascontiguousarray((mean / np.maximum(np.sqrt((mean * mean).sum(0)), 1e-300)).T)
-    channels = _channels(tile, fac)
     # (and what the host needs after the rays that does not depend on them)
     bv = Bvndf(r, occupied.astype(np.int32), mean, mass[occupied], None)
-    iu, ou = dirs.unordered_pairs(nd)
-    coarse = _coarse_bins(occupied, r)
-    be.synchronize()
+    weight_host = em_weight.host()  # (waits for the rays and the weights, not for what is queued behind them)
     timer.timings["visibility"] = timer.timings.get("visibility", 0.0) + time.perf_counter() - t0
     prog.stage(f"BVNDF ({6 * r * r} normal bins)", 1)
     need_hist = route == "histogram" or keep_hist
@@ -327,26 +347,20 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     # "ndf_fit" ends when the lobes are on the host, the EM done (the queueing of the sums counts in it;
     # not synchronised further, so that the device sums while the host goes on).
     t0 = time.perf_counter()
-    bin_weight = np.bincount(facet_bin, weights=em_weight.host(), minlength=len(occupied))  # (summed in float64)
+    bin_weight = np.bincount(facet_bin, weights=weight_host, minlength=len(occupied))  # (summed in float64)
     if not bin_weight.any():  # no grid direction sees the tile at all: fall back on the bare NDF
-        bin_weight, em_weight = mass[occupied], None
+        bin_weight, em_weight, device_em = mass[occupied], None, None
     seen = bin_weight > 0
     if seen.all():  # (as a rule: no gathers then)
-        seen_normal, seen_weight, seen_coarse = bv.normal, bin_weight, coarse
+        seen_normal, seen_weight = bv.normal, bin_weight
     else:
         seen_normal, seen_weight = bv.normal[seen], bin_weight[seen]
-        seen_coarse = None if coarse is None else coarse[seen]
-
-    def queue(em):
-        """With the facet route and a J the kernels hold, the moment sums are queued behind the EM from
-        the lobes it left on the device: the host then waits for the EM alone, and sets up the Gram
-        system while the device sums (on the lent H100 the host's work here outlasts the device's)."""
-        if route != "facets" or em.count > lobes_mod.KERNEL_LOBES:
-            return None
-        return em.count, [be.lobe_moments(fac, vis, w, em, None, iu, ou, to_host=False) for _, _, w in channels]
-
-    lob, ndf_err, queued = _fit_lobes(be, fac, em_weight, seen_normal, seen_weight, j_req, tolerance, probe,
-                                      seen_coarse, queue)
+    if device_em is not None:
+        lob, ndf_err, queued = lobes_mod.from_em(em_start, device_em.host()), None, device_queued
+    else:
+        coarse = _coarse_bins(occupied[seen], r)
+        lob, ndf_err, queued = _fit_lobes(be, fac, em_weight, seen_normal, seen_weight, j_req, tolerance, probe,
+                                          coarse, queue)
     timer.timings["ndf_fit"] = timer.timings.get("ndf_fit", 0.0) + time.perf_counter() - t0
     prog.stage(f"amplitudes ({len(lob)} lobes, {len(channels)} channel(s))", len(channels))
     # "amplitudes" times the whole stage: the moment sums are queued first, and the host solves for

@@ -24,6 +24,7 @@ MAX_LOBES = 128  # lobes of a LobeSet (the bake's J)
 KERNEL_LOBES = 16
 RIDGE = 1e-6  # Tikhonov term on the unit-diagonal Gram matrix: bounds its condition number by ~1e6
 CONVERGENCE_TOL = 1e-4  # see `converged`
+START_RES = 16  # initial_lobes' coarse cube map: the device start (Backend.em_start) bins at it too
 DEAD_MASS = 1e-9  # a lobe holding less than this fraction of the area after an E-step is dead (weight 0)
 
 
@@ -99,7 +100,7 @@ def _mean_resultant_to_sharpness(rbar):
     return np.clip(kappa, sg.SHARPNESS_MIN, sg.SHARPNESS_MAX)
 
 
-def initial_lobes(normal, area, count: int, resolution: int = 16, coarse_bins=None) -> LobeSet:
+def initial_lobes(normal, area, count: int, resolution: int = START_RES, coarse_bins=None) -> LobeSet:
     """Deterministic start for EM: the facets' normals binned on a coarse cube map, the heaviest bin
     first, then repeatedly the bin farthest (weighted by its area) from every axis chosen so far.
     Stops early when every bin sits on a chosen axis (fewer distinct normals than `count`).
@@ -186,11 +187,12 @@ def fit(backend, facets, start: LobeSet, iterations: int, facet_weight=None) -> 
                                          facet_weight))
 
 
-def from_em(start: LobeSet, result) -> LobeSet:
-    """The live lobes of an EM from `start`, given what `Backend.ndf_em` returned (axes, sharpness,
-    weight, steps)."""
+def from_em(start, result) -> LobeSet:
+    """The live lobes of an EM from `start` (a LobeSet, or `Backend.em_start`'s DeviceStart: no steps
+    before), given what `Backend.ndf_em` returned (axes, sharpness, weight, steps)."""
     axes, sharpness, weight, steps = result
-    return LobeSet(axes, sharpness, weight, start.iterations + int(steps)).alive()
+    before = start.iterations if isinstance(start, LobeSet) else 0
+    return LobeSet(axes, sharpness, weight, before + int(steps)).alive()
 
 
 def amplitude_system(lobes: LobeSet, bin_normal=None, bin_area=None):

@@ -34,9 +34,10 @@ import weakref
 
 import numpy as np
 
-from .backend import (SCRATCH_BYTES, DeviceFacets, DeviceLobes, OnDevice, UploadCache, check_kernel_lobes, chunking,
-                      device_copy, em_result_rows, em_start_rows, equal_areas, run_em_steps)
+from .backend import (SCRATCH_BYTES, DeviceFacets, DeviceLobes, DeviceStart, OnDevice, UploadCache, check_kernel_lobes,
+                      chunking, device_copy, em_result_rows, em_start_rows, equal_areas, run_em_steps, start_scale)
 from .model import Facets, Visibility
+from .lobes import START_RES
 from .reference import facet_shift, ray_offset
 
 __all__ = ["OpenCLBackend", "list_devices"]
@@ -451,6 +452,23 @@ class OpenCLBackend:
         f["visible_weight"] = (host, weight)  # ndf_em given `host` itself uses the device copy
         return host
 
+    def em_start(self, facets, facet_weight, count):
+        f = self._facets(facets)
+        n, j = len(facets), int(count)
+        weight = f["area"] if facet_weight is None else self._facet_weight(f, facet_weight)
+        scale = start_scale(facets, facet_weight)
+        n_bins = 6 * START_RES * START_RES
+        sums = self._scratch("start_sums", 4 * n_bins, np.int64)
+        self._cl.enqueue_fill_buffer(self._queue, sums, np.int64(0), 0, 32 * n_bins)
+        scratch = [self._scratch("start_bins", 4 * n_bins, np.float64), self._scratch("start_dist", n_bins, np.float64),
+                   self._scratch("start_owner", n_bins, np.int32), self._scratch("start_chosen", j, np.int32)]
+        rows = self._empty(6 * j, np.float64)
+        self._launch("em", "start_bin_sums", (n,), f["normal"], weight, np.float64(scale), np.int32(n), sums)
+        group = 256  # (START_GROUP of cl/em.cl: one work-group)
+        self._kernel("em", "start_pick")(self._queue, (group,), (group,), sums, np.int32(n_bins), np.float64(scale),
+                                         np.int32(j), *scratch, rows)
+        return DeviceStart(rows, j, self._read_later(rows, (j, 6), np.float64))
+
     def _em_launches(self, normal, mass, n, n_lobes, axes, sharpness, log_weight, state, resp):
         """One E-step's four kernels as prepared launches over `n` facets (`normal`, weighing `mass`,
         scratch `resp` (Ns, J)) → (launches, the (J, 4) float64 statistics buffer)."""
@@ -531,9 +549,11 @@ class OpenCLBackend:
     def ndf_em(self, facets, axes, sharpness, weight, iterations, facet_weight=None, to_host=True):
         from .lobes import LobeSet
 
-        start = LobeSet(axes, sharpness, weight)
-        j, n = len(start), len(facets)
+        on_device = isinstance(axes, DeviceStart)  # (em_start's rows: copied on the device)
+        start = None if on_device else LobeSet(axes, sharpness, weight)
+        j, n = axes.count if on_device else len(start), len(facets)
         if int(iterations) <= 0:
+            start = axes.host() if on_device else start
             result = (start.axes, start.sharpness, start.weight, 0)
             if to_host:
                 return result
@@ -545,7 +565,10 @@ class OpenCLBackend:
         cl = self._cl
         cl.enqueue_copy(self._queue, prog["normal"], f["normal"], byte_count=12 * n)
         cl.enqueue_copy(self._queue, prog["mass"], mass, byte_count=4 * n)
-        cl.enqueue_copy(self._queue, prog["start"], em_start_rows(start))
+        if on_device:
+            cl.enqueue_copy(self._queue, prog["start"], axes.device, byte_count=48 * j)
+        else:
+            cl.enqueue_copy(self._queue, prog["start"], em_start_rows(start))
         prog["load"]()
 
         def enqueue_step():

@@ -14,9 +14,10 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from .backend import (SCRATCH_BYTES, DeviceFacets, DeviceLobes, OnDevice, UploadCache, check_kernel_lobes, chunking,
-                      device_copy, em_result_rows, em_start_rows, equal_areas, run_em_steps)
+from .backend import (SCRATCH_BYTES, DeviceFacets, DeviceLobes, DeviceStart, OnDevice, UploadCache, check_kernel_lobes,
+                      chunking, device_copy, em_result_rows, em_start_rows, equal_areas, run_em_steps, start_scale)
 from .model import Facets, Visibility
+from .lobes import START_RES
 from .reference import facet_shift, ray_offset
 
 _READY = False
@@ -333,6 +334,28 @@ class WarpBackend:
         f["visible_weight"] = (host, weight)  # ndf_em given `host` itself uses the device copy
         return host
 
+    def em_start(self, facets, facet_weight, count):
+        import warp as wp
+
+        from .kernels import em as ke
+
+        f = self._facets(facets)
+        j = int(count)
+        weight = f["area"] if facet_weight is None else self._facet_weight(f, facet_weight)
+        scale = start_scale(facets, facet_weight)
+        n_bins = 6 * START_RES * START_RES
+        sums = self._scratch("start_sums", (n_bins, 4), wp.int64)
+        sums.zero_()
+        scratch = [self._scratch("start_bins", n_bins, wp.vec4d), self._scratch("start_dist", n_bins, wp.float64),
+                   self._scratch("start_owner", n_bins, wp.int32), self._scratch("start_chosen", j, wp.int32)]
+        rows = wp.empty((j, 6), dtype=wp.float64, device=self._device)
+        # (One launch, not sliced over the CPU's cores: there Warp's atomic_add is a plain add.)
+        wp.launch(ke.start_bin_sums, dim=len(facets), inputs=[f["normal"], weight, scale, 0], outputs=[sums],
+                  device=self._device)
+        wp.launch_tiled(ke.start_pick, dim=[1], inputs=[sums, scale], outputs=[*scratch, rows], block_dim=256,
+                        device=self._device)
+        return DeviceStart(rows, j, self._read_later(rows))
+
     def _em_launches(self, normal, mass, n_lobes, axes, sharpness, log_weight, state, resp):
         """The E-step's kernels as callables (recorded launches on a GPU: re-issuing one skips Python's
         argument packing) over facets `normal` (vec3) weighing `mass` (float32), with `resp` (Ns, ≥ J)
@@ -465,9 +488,11 @@ class WarpBackend:
 
         from .lobes import LobeSet
 
-        start = LobeSet(axes, sharpness, weight)
-        j = len(start)
+        on_device = isinstance(axes, DeviceStart)  # (em_start's rows: copied on the device)
+        start = None if on_device else LobeSet(axes, sharpness, weight)
+        j = axes.count if on_device else len(start)
         if int(iterations) <= 0:
+            start = axes.host() if on_device else start
             result = (start.axes, start.sharpness, start.weight, 0)
             if to_host:
                 return result
@@ -475,12 +500,19 @@ class WarpBackend:
                                 self._array(start.sharpness.astype(np.float32), wp.float32)), j, lambda: result)
         f = self._facets(facets)
         mass = f["area"] if facet_weight is None else self._facet_weight(f, facet_weight)
+
+        def load_start(rows):
+            if on_device:
+                wp.copy(rows, axes.device)
+            else:
+                rows.assign(em_start_rows(start))
+
         if self._device.is_cuda:
             graph = self._em_graph(len(facets), j, iterations, facet_weight is not None)
             prog = graph["prog"]
             wp.copy(self._em_buffers["normal"], f["normal"])
             wp.copy(self._em_buffers["mass"], mass)
-            prog["start"].assign(em_start_rows(start))
+            load_start(prog["start"])
             wp.capture_launch(graph["graph"])
             if not to_host:
                 # The result's copy is queued behind the EM: reading it back waits for the EM, not for what
@@ -489,7 +521,7 @@ class WarpBackend:
                 return DeviceLobes((prog["axes32"], prog["sharp32"]), j, lambda: em_result_rows(read()))
         else:
             prog = self._em_program(f["normal"], mass, j, iterations, self._resp(facets, j))
-            prog["start"].assign(em_start_rows(start))
+            load_start(prog["start"])
             prog["load"]()
 
             def enqueue_step():
