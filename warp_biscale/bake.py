@@ -305,14 +305,6 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
             return None
         return em.count, [be.lobe_moments(fac, vis, w, em, None, iu, ou, to_host=False) for _, _, w in channels]
 
-    device_em = None
-    if j_req != "auto":
-        # With a fixed J the EM's start (lobes.initial_lobes over the facets, in their coarse bins) is picked
-        # on the device, so the EM and the moment sums are queued behind the rays before the host has read
-        # anything: the device goes from the rays to the EM without waiting for the host.
-        em_start = be.em_start(fac, em_weight, j_req)
-        device_em = be.ndf_em(fac, em_start, None, None, EM_ITERATIONS, em_weight, to_host=False)
-        device_queued = queue(device_em)
     # Non-empty bins by counting (no sort): Γ and each bin's mean normal.
     area = fac.area.astype(np.float64)
     mass = np.bincount(bins, weights=area, minlength=6 * r * r)
@@ -325,6 +317,15 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     mean = np.ascontiguousarray((mean / np.maximum(np.sqrt((mean * mean).sum(0)), 1e-300)).T)
     # (and what the host needs after the rays that does not depend on them)
     bv = Bvndf(r, occupied.astype(np.int32), mean, mass[occupied], None)
+    device_em = None
+    if j_req != "auto":
+        # With a fixed J the EM's start (lobes.initial_lobes over the facets, in their coarse bins) is picked
+        # on the device, so the EM and the moment sums are queued behind the rays before the host has read
+        # anything: the device goes from the rays to the EM without waiting for the host. (Queued after the
+        # binning: NVIDIA OpenCL's EM looks at its stop flag, which waits for the rays.)
+        em_start = be.em_start(fac, em_weight, j_req)
+        device_em = be.ndf_em(fac, em_start, None, None, EM_ITERATIONS, em_weight, to_host=False)
+        device_queued = queue(device_em)
     weight_host = em_weight.host()  # (waits for the rays and the weights, not for what is queued behind them)
     timer.timings["visibility"] = timer.timings.get("visibility", 0.0) + time.perf_counter() - t0
     prog.stage(f"BVNDF ({6 * r * r} normal bins)", 1)
