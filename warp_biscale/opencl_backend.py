@@ -467,7 +467,7 @@ class OpenCLBackend:
         group = 256  # (START_GROUP of cl/em.cl: one work-group)
         self._kernel("em", "start_pick")(self._queue, (group,), (group,), sums, np.int32(n_bins), np.float64(scale),
                                          np.int32(j), *scratch, rows)
-        return DeviceStart(rows, j, self._read_later(rows, (j, 6), np.float64))
+        return DeviceStart(rows, j, lambda: self._read(rows, (j, 6), np.float64))  # (read only if asked)
 
     def _em_launches(self, normal, mass, n, n_lobes, axes, sharpness, log_weight, state, resp):
         """One E-step's four kernels as prepared launches over `n` facets (`normal`, weighing `mass`,

@@ -354,7 +354,7 @@ class WarpBackend:
                   device=self._device)
         wp.launch_tiled(ke.start_pick, dim=[1], inputs=[sums, scale], outputs=[*scratch, rows], block_dim=256,
                         device=self._device)
-        return DeviceStart(rows, j, self._read_later(rows))
+        return DeviceStart(rows, j, lambda: self._trace_host(rows))  # (read only if asked: the bake never does)
 
     def _em_launches(self, normal, mass, n_lobes, axes, sharpness, log_weight, state, resp):
         """The E-step's kernels as callables (recorded launches on a GPU: re-issuing one skips Python's
