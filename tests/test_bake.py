@@ -1024,6 +1024,23 @@ def test_visible_area_left_on_the_device(backend, heightfield):
                                   backend.solve_amplitudes(mom, host.copy(), rows, integrals, pi, po, nd))
 
 
+def test_bake_sums_the_moments_once_when_lobes_outnumber_the_normals(backend, monkeypatch):
+    """J = 8 on the pyramid (5 face normals): the device start asks for no more lobes than the facets'
+    coarse bins, so no slot is left dead, EM fits 5 lobes and the moments queued behind it are the ones
+    the solve uses (summed once, not again for the live lobes)."""
+    calls = []
+    moments = backend.lobe_moments
+
+    def counted(*args, **kwargs):
+        calls.append(len(args[3]))
+        return moments(*args, **kwargs)
+
+    monkeypatch.setattr(backend, "lobe_moments", counted)
+    mat = wb.bake(wb.geometry.pyramid(), wb.BlinnPhong(1.0, 64), lobes=8, directions=4, facets=2048, backend=backend)
+    assert len(mat.lobes) == 5 and mat.info["lobes_requested"] == 8
+    assert calls == [5]
+
+
 def test_bake_sums_again_when_a_lobe_dies_in_em(backend, monkeypatch):
     """The bake queues the moments behind the EM for all its lobes; when one died (simulated: the host drops
     the last lobe), it sums again for the live ones, and the result is the bake of those lobes."""

@@ -323,7 +323,11 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
         # on the device, so the EM and the moment sums are queued behind the rays before the host has read
         # anything: the device goes from the rays to the EM without waiting for the host. (Queued after the
         # binning: NVIDIA OpenCL's EM looks at its stop flag, which waits for the rays.)
-        em_start = be.em_start(fac, em_weight, j_req)
+        # No more lobes than the facets' coarse bins (the pyramid's 5 at J = 8): a slot the start leaves dead
+        # would cost EM its E-step and the moments a second sum for the live lobes.
+        coarse = _coarse_bins(occupied, r)
+        j_dev = j_req if coarse is None else min(j_req, int(np.count_nonzero(np.bincount(coarse))))
+        em_start = be.em_start(fac, em_weight, j_dev)
         device_em = be.ndf_em(fac, em_start, None, None, EM_ITERATIONS, em_weight, to_host=False)
         device_queued = queue(device_em)
     weight_host = em_weight.host()  # (waits for the rays and the weights, not for what is queued behind them)
