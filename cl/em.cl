@@ -350,32 +350,23 @@ CL_INLINE double group_sum(double x, __local double *scratch)
     return r;
 }
 
-CL_INLINE double group_max(double x, __local double *scratch)
+/* The first index m of the largest x over the work-group (each work-item offers its own first largest);
+ * every work-item gets it, and the largest x in *top. */
+CL_INLINE int group_first_max(double x, int m, __local double *xs, __local int *ms, double *top)
 {
     int l = get_local_id(0);
-    scratch[l] = x;
+    xs[l] = x;
+    ms[l] = m;
     barrier(CLK_LOCAL_MEM_FENCE | CLK_GLOBAL_MEM_FENCE);
     for (int stride = START_GROUP / 2; stride > 0; stride >>= 1) {
-        if (l < stride && scratch[l + stride] > scratch[l])
-            scratch[l] = scratch[l + stride];
+        if (l < stride && (xs[l + stride] > xs[l] || (xs[l + stride] == xs[l] && ms[l + stride] < ms[l]))) {
+            xs[l] = xs[l + stride];
+            ms[l] = ms[l + stride];
+        }
         barrier(CLK_LOCAL_MEM_FENCE);
     }
-    double r = scratch[0];
-    barrier(CLK_LOCAL_MEM_FENCE);
-    return r;
-}
-
-CL_INLINE int group_min(int x, __local int *scratch)
-{
-    int l = get_local_id(0);
-    scratch[l] = x;
-    barrier(CLK_LOCAL_MEM_FENCE | CLK_GLOBAL_MEM_FENCE);
-    for (int stride = START_GROUP / 2; stride > 0; stride >>= 1) {
-        if (l < stride && scratch[l + stride] < scratch[l])
-            scratch[l] = scratch[l + stride];
-        barrier(CLK_LOCAL_MEM_FENCE);
-    }
-    int r = scratch[0];
+    int r = ms[0];
+    *top = xs[0];
     barrier(CLK_LOCAL_MEM_FENCE);
     return r;
 }
@@ -416,8 +407,8 @@ void start_pick(__global const long *sums, const int n_bins, const double scale,
         }
     }
     double total = group_sum(part, dscratch);
-    double heaviest_w = group_max(top_w, dscratch);
-    int pick = group_min(top_w == heaviest_w ? top_m : BIG_INDEX, iscratch);
+    double heaviest_w;
+    int pick = group_first_max(top_w, top_m, dscratch, iscratch, &heaviest_w);
     /* Then repeatedly the bin of largest w·(1 − n·ξ) to its nearest chosen axis ξ (numpy's first argmax). */
     double threshold = 1.0e-12 * total;
     int picked = 0;
@@ -437,8 +428,8 @@ void start_pick(__global const long *sums, const int n_bins, const double scale,
                 best_m = m;
             }
         }
-        double top = group_max(best_s, dscratch);
-        pick = group_min(best_s == top ? best_m : BIG_INDEX, iscratch);
+        double top;
+        pick = group_first_max(best_s, best_m, dscratch, iscratch, &top);
         if (picked == n_lobes || top <= threshold)
             break;
     }
