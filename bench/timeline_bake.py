@@ -59,9 +59,8 @@ def main(backend, facets=1 << 16, runs=5, gpu=False, tile="heightfield"):
                  "lobe_moments", "solve_amplitudes", "amplitude_tables", "synchronize", "em_start"):
         if hasattr(be, name):  # (em_start: since the EM's start is picked on the device)
             traced(be, name)
-    for name in ("initial_lobes", "start_groups", "amplitude_system"):
-        if hasattr(lobes_mod, name):
-            traced(lobes_mod, name)
+    for name in ("initial_lobes", "amplitude_system"):
+        traced(lobes_mod, name)
     traced(bake_module, "_channels")
     traced(bake_module, "EffectiveBRDF")
     tile = heightfield_tile() if tile == "heightfield" else getattr(wb.geometry, tile)()

@@ -58,10 +58,8 @@ def device_copy(value, held, upload):
     return upload(value)
 
 
-class DeviceLobes(OnDevice):
-    """The lobes of `Backend.ndf_em(..., to_host=False)`: `device` the backend's own float32 (axes,
-    sharpness) arrays, which `lobe_moments` takes in place of host axes until the backend's next
-    ndf_em; `count` J; `host()` → (axes, sharpness, weight, steps) as ndf_em returns them."""
+class _LobesOnDevice(OnDevice):
+    """J lobes left on the device: `count` J, also its len()."""
 
     def __init__(self, device, count, read):
         super().__init__(device, read)
@@ -71,17 +69,19 @@ class DeviceLobes(OnDevice):
         return self.count
 
 
-class DeviceStart(OnDevice):
+class DeviceLobes(_LobesOnDevice):
+    """The lobes of `Backend.ndf_em(..., to_host=False)`: `device` the backend's own float32 (axes,
+    sharpness) arrays, which `lobe_moments` takes in place of host axes until the backend's next
+    ndf_em; `count` J; `host()` → (axes, sharpness, weight, steps) as ndf_em returns them."""
+
+
+class DeviceStart(_LobesOnDevice):
     """EM's start picked on the device by `Backend.em_start`: `device` the backend's (J, 6) float64 rows
     [ξ (3), η, α, log_weight] (em_start_rows), which ndf_em takes in place of host lobes; `count` J;
     `host()` → the LobeSet of all J slots (a slot past the distinct normals has weight 0)."""
 
     def __init__(self, device, count, read):
-        super().__init__(device, lambda: start_lobes(read()))
-        self.count = int(count)
-
-    def __len__(self):
-        return self.count
+        super().__init__(device, count, lambda: start_lobes(read()))
 
 
 def start_scale(facets, facet_weight) -> float:
