@@ -16,21 +16,66 @@ settings.register_profile("explore")
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 
-def _present_backends():
-    names = []
-    for b in wb.backends():
-        if b.get("error") or b["device"] is None:
-            continue
-        names.append(b["name"])
-    return names
+BACKEND_ENTRIES = wb.backends()  # probed once for the whole session
 
 
-BACKENDS = _present_backends()
+def backend_params(entries):
+    """One `backend` parameter per backend found here, usable or not, and per expected backend that is
+    absent (Warp's CPU device, an OpenCL device): an unusable or absent one is an explicit skip that
+    gives its reason, never a silent drop. A backend that is neither found nor expected on this kind of
+    machine (Warp CUDA on a CPU-only one) is left out; `warp-biscale backends` says why."""
+    params = []
+    for b in entries:
+        expected = b["name"] == "warp:cpu" or b["kind"] == "opencl"
+        if b["usable"] or b["device"] is not None or expected:
+            marks = () if b["usable"] else (pytest.mark.skip(reason=f"backend {b['name']} unusable: {b['reason']}"),)
+            params.append(pytest.param(b["name"], marks=marks, id=b["name"]))
+    return params
 
 
-@pytest.fixture(params=BACKENDS, scope="session")
+BACKEND_PARAMS = backend_params(BACKEND_ENTRIES)
+BACKENDS = [b["name"] for b in BACKEND_ENTRIES if b["usable"]]  # the usable ones, for tests that compare them
+
+
+@pytest.fixture(params=BACKEND_PARAMS, scope="session")
 def backend(request):
     return wb.get_backend(request.param)
+
+
+# CI sets WARP_BISCALE_REQUIRE_BACKENDS (e.g. "warp:cpu,opencl:cpu": kind:type pairs) so that a run in which
+# a required backend is unusable, or ran no test, fails instead of passing on the others alone.
+REQUIRED = [r.strip() for r in os.environ.get("WARP_BISCALE_REQUIRE_BACKENDS", "").split(",") if r.strip()]
+_PASSED_ON = set()  # names of backends on which at least one test passed
+
+
+def _matching(requirement):
+    kind, _, kind_type = requirement.partition(":")
+    return [b for b in BACKEND_ENTRIES if b["kind"] == kind and (not kind_type or b["type"] == kind_type)]
+
+
+def pytest_configure(config):
+    for requirement in REQUIRED:
+        found = _matching(requirement)
+        if not any(b["usable"] for b in found):
+            why = "; ".join(f"{b['name']}: {b['reason']}" for b in found) or "none found"
+            raise pytest.UsageError(f"required backend {requirement} is not usable here ({why})")
+
+
+def pytest_runtest_logreport(report):
+    if report.when == "call" and report.passed:
+        for b in BACKEND_ENTRIES:
+            if b["usable"] and any(f"{a}{b['name']}{z}" in report.nodeid for a in "[-" for z in "]-"):
+                _PASSED_ON.add(b["name"])
+
+
+def pytest_sessionfinish(session, exitstatus):
+    if not REQUIRED or exitstatus != 0:
+        return
+    for requirement in REQUIRED:
+        if not any(b["name"] in _PASSED_ON for b in _matching(requirement)):
+            session.config.pluginmanager.get_plugin("terminalreporter").write_line(
+                f"FAILED: no test ran on a required backend ({requirement})", red=True)
+            session.exitstatus = pytest.ExitCode.TESTS_FAILED
 
 
 def vgroove_tile(depth=0.5, width=1.0):

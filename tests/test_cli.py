@@ -64,7 +64,7 @@ def test_truth_mesh_file(tmp_path):
 ])
 def test_truth_errors_are_clear(tmp_path, args, message):
     r = run_cli(*args, "-o", str(tmp_path / "x.png"))
-    assert r.returncode != 0
+    assert r.returncode == 2
     assert message in r.stderr
     assert not (tmp_path / "x.png").exists()
 
@@ -72,7 +72,12 @@ def test_truth_errors_are_clear(tmp_path, args, message):
 def test_backends_command_lists_warp_cpu():
     r = run_cli("backends")
     assert r.returncode == 0
-    assert "warp:cpu" in r.stdout
+    assert "warp:cpu" in r.stdout and "usable" in r.stdout and "auto picks" in r.stdout
+    assert "Warp CUDA warning" not in r.stderr  # said once, in the listing, instead
+    r = run_cli("backends", "-q", "--require", "warp:cpu")
+    assert r.returncode == 0 and r.stdout == "" and r.stderr == ""
+    r = run_cli("backends", "-q", "--require", "metal")
+    assert r.returncode == 1 and "no usable metal backend here" in r.stderr
 
 
 def test_help_lists_commands():
@@ -102,7 +107,7 @@ def test_bake_bad_input_is_named(tmp_path):
 
 
 # ------------------------------------------------------------------------------------------------ render, demo, view
-# (helper-G) Tiny images: a 2-core CI runs the whole suite in minutes.
+# Tiny images: a 2-core CI runs the whole suite in minutes.
 
 TINY_SCENE = """\
 [render]
@@ -159,7 +164,7 @@ def _tiny_scene(tmp_path, text=TINY_SCENE):
 
 def test_render_png_with_overrides(tmp_path):
     out = tmp_path / "out.png"
-    r = run_cli("render", str(_tiny_scene(tmp_path)), "-o", str(out), "--width", "40", "--exposure", "0.5")
+    r = run_cli("render", str(_tiny_scene(tmp_path)), "-o", str(out), "--size", "40", "24", "--exposure", "0.5")
     assert r.returncode == 0, r.stderr
     assert "stage times:" in r.stdout and "shade" in r.stdout
     assert f"wrote {out} (40×24 pixels, method sg, backend warp:cpu" in r.stdout
@@ -172,7 +177,7 @@ def test_render_exr_reads_back_linear(tmp_path):
     from warp_biscale.images import read_exr
 
     out = tmp_path / "out.exr"
-    r = run_cli("render", str(_tiny_scene(tmp_path)), "-o", str(out), "--height", "16", "-q")
+    r = run_cli("render", str(_tiny_scene(tmp_path)), "-o", str(out), "--size", "32", "16", "-q")
     assert r.returncode == 0, r.stderr
     img = read_exr(out)
     assert img.shape == (16, 32, 3) and img.dtype == np.float32
@@ -183,7 +188,7 @@ def test_render_exr_reads_back_linear(tmp_path):
 def test_render_monte_carlo(tmp_path):
     out = tmp_path / "mc.png"
     r = run_cli("render", str(_tiny_scene(tmp_path)), "-o", str(out), "--method", "mc", "--samples", "8",
-                "--width", "16", "--height", "12", "-q")
+                "--size", "16", "12")
     assert r.returncode == 0, r.stderr
     assert "method mc" in r.stdout
     assert np.asarray(Image.open(out)).shape == (12, 16, 3)
@@ -206,13 +211,14 @@ def test_render_bakes_a_bake_material(tmp_path):
     (('material = "floor"', 'material = "flor"'), [], "[[object]] #2 material 'flor' is not defined"),
     (("exponent = 100.0", "exponent = -3"), [], "[material.shiny] BlinnPhong.exponent must be a finite number > 0"),
     (None, ["--samples", "4"], "--samples is for --method mc"),
-    (None, ["--width", "0"], "Camera.width must be an integer in 1..16384"),
+    (None, ["--size", "0"], "--size values must be integers in 1..16384, got 0"),
+    (None, ["--size", "40", "30", "20"], "--size takes a width and an optional height"),
 ])
 def test_render_errors_are_clear(tmp_path, edit, args, message):
     text = TINY_SCENE if edit is None else TINY_SCENE.replace(*edit)
     out = tmp_path / "x.png"
     r = run_cli("render", str(_tiny_scene(tmp_path, text)), "-o", str(out), *args)
-    assert r.returncode != 0
+    assert r.returncode == 2
     assert message in r.stderr, r.stderr
     assert "Traceback" not in r.stderr
     assert not out.exists()
@@ -249,5 +255,75 @@ def test_view_without_a_display_says_so(tmp_path):
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     r = subprocess.run([_console_script(), "view", str(_tiny_scene(tmp_path))], capture_output=True, text=True,
                        cwd=tmp_path, env=env, timeout=600)
-    assert r.returncode == 2
+    assert r.returncode == 1  # a failure of this machine, not of the input
     assert "no display" in r.stderr and "--screenshot" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_version_and_module_entry_point():
+    r = run_cli("--version")
+    assert r.returncode == 0 and r.stdout.strip() == f"warp-biscale {wb.__version__}"
+    r = subprocess.run([sys.executable, "-m", "warp_biscale", "--version"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and r.stdout.strip() == f"warp-biscale {wb.__version__}"
+
+
+def _unwritable_dir(tmp_path):
+    """A folder in which this user can create no file: one without write permission, or for root (whom
+    permissions do not stop) /proc, where no file can be created."""
+    if os.geteuid() == 0:
+        return "/proc"
+    d = tmp_path / "locked"
+    d.mkdir()
+    d.chmod(0o500)
+    return str(d)
+
+
+# Every command that writes a file, with arguments that would otherwise compute for seconds.
+WRITERS = {
+    "render": lambda scene, out: ["render", scene, "-o", out],
+    "demo": lambda scene, out: ["demo", "-o", out],
+    "view": lambda scene, out: ["view", scene, "--screenshot", out],
+    "bake": lambda scene, out: ["bake", "pyramid", "-o", out],
+    "truth": lambda scene, out: ["truth", "pyramid", "-o", out],
+    "truth --save": lambda scene, out: ["truth", "pyramid", "-o", os.path.join(os.path.dirname(scene), "p.png"),
+                                        "--save", out],
+}
+GOOD_SUFFIX = {"render": ".png", "demo": ".png", "view": ".png", "bake": ".wbm", "truth": ".png",
+               "truth --save": ".npz"}
+
+
+@pytest.mark.parametrize("case", ["directory", "unwritable folder", "folder is a file", "unknown suffix"])
+@pytest.mark.parametrize("command", list(WRITERS))
+def test_unwritable_output_is_refused_before_any_work(tmp_path, command, case):
+    scene = str(_tiny_scene(tmp_path))
+    suffix = GOOD_SUFFIX[command]
+    (tmp_path / "afile").write_text("x")
+    out = {"directory": str(tmp_path),
+           "unwritable folder": os.path.join(_unwritable_dir(tmp_path), "sub", "out" + suffix),
+           "folder is a file": str(tmp_path / "afile" / ("out" + suffix)),
+           "unknown suffix": str(tmp_path / "out.txt")}[case]
+    r = run_cli(*WRITERS[command](scene, out))
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.startswith("error: ") and out in r.stderr and r.stderr.count("\n") == 1, r.stderr
+    assert "done in" not in r.stderr and r.stdout == ""  # refused before the first stage
+
+
+@pytest.mark.parametrize("exposure, message", [
+    ("nan", "exposure must be a finite number of stops, got nan"),
+    ("inf", "exposure must be a finite number of stops, got inf"),
+    ("-40", "exposure -40 stops would turn the whole image black"),
+    ("40", "exposure 40 stops would turn the whole image white"),
+])
+def test_bad_exposure_is_refused_before_rendering(tmp_path, exposure, message):
+    out = tmp_path / "x.png"
+    r = run_cli("render", str(_tiny_scene(tmp_path)), "-o", str(out), f"--exposure={exposure}")
+    assert r.returncode == 2 and message in r.stderr and r.stderr.count("\n") == 1, r.stderr
+    assert not out.exists()
+
+
+def test_quiet_means_quiet(tmp_path):
+    for args in (["render", str(_tiny_scene(tmp_path)), "-o", str(tmp_path / "r.png")],
+                 ["bake", "vgroove", "--facets", "1024", "--directions", "4", "--lobes", "2", "--truth", "1024",
+                  "-o", str(tmp_path / "m.wbm")],
+                 ["truth", "vgroove", "--facets", "1024", "--directions", "4", "-o", str(tmp_path / "t.png")]):
+        r = run_cli(*args, "--backend", "warp:cpu", "-q")
+        assert r.returncode == 0 and r.stdout == "" and r.stderr == "", (args, r.stdout, r.stderr)

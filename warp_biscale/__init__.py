@@ -14,6 +14,8 @@
     ref = wb.render(scene, method="mc", samples=1024); wb.compare_images(img.image, ref.image)
 """
 
+__version__ = "0.1.0"  # before the imports: warp_biscale.cli reads it while the package is importing
+
 from . import directions, geometry, lobes, reference, sg
 from .bake import Bvndf, bake
 from .backend import Backend, backends, get_backend
@@ -29,8 +31,6 @@ from .model import Facets, Visibility
 from .smallscale import SmallScale, TileWarning
 from .svbrdf import Textured
 from .truth import GroundTruth, effective_brdf_exact, ground_truth
-
-__version__ = "0.1.0"
 
 __all__ = [
     "Backend", "BlinnPhong", "Bvndf", "Camera", "CookTorrance", "DirectionalLight", "EffectiveBRDF", "Environment",

@@ -22,7 +22,8 @@ import numpy as np
 
 from .model import Facets, Visibility
 
-__all__ = ["Backend", "get_backend", "backends", "chunking", "run_em_steps", "UploadCache", "OnDevice", "DeviceLobes"]
+__all__ = ["Backend", "get_backend", "backends", "probe_expected", "chunking", "run_em_steps", "UploadCache",
+           "OnDevice", "DeviceLobes"]
 
 SCRATCH_BYTES = 64 << 20  # the largest scratch array a backend keeps between calls (see their _scratch)
 
@@ -377,10 +378,12 @@ _BACKEND_TYPES = set()  # types that passed isinstance(·, Backend)
 
 
 def get_backend(backend="auto") -> Backend:
-    """A backend by name (cached: the same name returns the same object), or pass one through."""
+    """A backend by name (cached: the same name returns the same object), or pass one through. Only a
+    device whose probe passed is used (see `backends`); "auto" is Warp (CUDA, else CPU), or the first
+    usable OpenCL device where Warp is unusable."""
     if not isinstance(backend, str):
-        # (isinstance against the runtime-checkable protocol looks up each of its ~30 members: ~20 µs
-        # here, more on the lent GPU machine's host, at the start of every bake and render; once a type)
+        # (isinstance against the runtime-checkable protocol looks up each of its ~30 members, at the
+        # start of every bake and render: once a type)
         if type(backend) in _BACKEND_TYPES:
             return backend
         if isinstance(backend, Backend):
@@ -388,29 +391,58 @@ def get_backend(backend="auto") -> Backend:
             return backend
         raise ValueError(f"backend must be a name or a Backend, got {backend!r}")
     name = backend.strip().lower() or "auto"
-    if name == "auto":
-        name = "warp"
-    return _make(name)
+    if name != "auto":
+        return _make(name)
+    try:
+        return _make("warp")
+    except (ValueError, RuntimeError) as warp_error:
+        try:
+            return _make("opencl")
+        except (ValueError, RuntimeError) as opencl_error:
+            raise ValueError(f"no usable backend here: {warp_error}; {opencl_error}") from None
+
+
+# The probe's input: zero, one, small, large, negative and non-dyadic values.
+PROBE_VALUES = np.array([0.0, 1.0, -2.5, 3.0e-3, 1.0e10, -7.0 / 3.0, 12345.678, 0.1], np.float64)
+
+
+def probe_expected(values) -> np.ndarray:
+    """What the probe kernels (kernels/probe.py, cl/probe.cl) return for `values`: x² + x/2 + 1."""
+    values = np.asarray(values, np.float64)
+    return values * values + 0.5 * values + 1.0
+
+
+def probe_mismatch(out) -> str | None:
+    """None if the probe's output is right, else what was wrong, in one line. Tolerance 1e-12 relative:
+    the kernels compute in float64, and a fused multiply-add may round once less than numpy."""
+    want = probe_expected(PROBE_VALUES)
+    out = np.asarray(out, np.float64)
+    if out.shape != want.shape or not np.allclose(out, want, rtol=1e-12, atol=0.0):
+        return f"its probe kernel ran but returned wrong values ({out.tolist()}, expected {want.tolist()})"
+    return None
+
+
+def one_line(text) -> str:
+    """The first non-empty line of an error's text (a build log or a native message may span many)."""
+    lines = [line.strip() for line in str(text).splitlines() if line.strip()]
+    return lines[0] if lines else type(text).__name__
 
 
 def backends() -> list[dict]:
-    """What is present: a list of {name, kind, device} for every backend that can run here."""
+    """Every backend found here, usable or not: dicts {name, kind ("warp" | "opencl"), device (in words;
+    None when nothing was found), type ("cpu" | "gpu" | None), usable, reason}. Each found device is
+    probed once per process (a tiny float64 kernel built and run, its output checked against
+    `probe_expected`); `reason` says in one line why an entry is unusable and what to do ("" when
+    usable). Without a CUDA driver, an unusable "warp:cuda" entry says so (Warp then runs on the CPU)."""
     found = []
     try:
-        import warp as wp
+        from .warp_backend import list_devices as warp_devices
 
-        from .warp_backend import init_warp
-
-        init_warp()
-        for dev in wp.get_devices():
-            found.append({"name": f"warp:{dev.alias}", "kind": "warp", "device": dev.name})
+        found.extend(warp_devices())
     except Exception as exc:  # an unusable Warp install is reported, not fatal
-        found.append({"name": "warp", "kind": "warp", "device": None, "error": str(exc)})
-    try:
-        from .opencl_backend import list_devices
+        found.append({"name": "warp:cpu", "kind": "warp", "device": None, "type": "cpu", "usable": False,
+                      "reason": f"Warp cannot start here: {one_line(exc)}"})
+    from .opencl_backend import list_devices as opencl_devices
 
-        for entry in list_devices():
-            found.append({"name": entry["name"], "kind": "opencl", "device": entry["device"]})
-    except Exception as exc:
-        found.append({"name": "opencl", "kind": "opencl", "device": None, "error": str(exc)})
+    found.extend(opencl_devices())
     return found

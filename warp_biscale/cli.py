@@ -10,6 +10,12 @@ import sys
 
 import numpy as np
 
+from . import __version__
+from .backend import one_line
+from .images import check_exposure
+from .io import check_output
+from .progress import set_quiet
+
 BUILTIN_TILES = {
     "pyramid": ("pyramid", {}),
     "pentagon": ("pyramid", {"sides": 5}),
@@ -31,9 +37,7 @@ def load_tile(spec: str):
     if spec in BUILTIN_TILES:
         fn, kwargs = BUILTIN_TILES[spec]
         return getattr(geometry, fn)(**kwargs)
-    raise SystemExit(
-        f"error: tile {spec!r} is neither a mesh file nor a built-in tile ({', '.join(BUILTIN_TILES)})"
-    )
+    raise ValueError(f"tile {spec!r} is neither a mesh file nor a built-in tile ({', '.join(BUILTIN_TILES)})")
 
 
 def _materials(specs, tile):
@@ -71,7 +75,9 @@ def _print_table(gt, thetas_i, file=sys.stdout):
         f = gt.eval(wi, wo).mean(axis=1)
         print(f"{ti:>6.0f}° " + "".join(f"{x:>11.5f}" for x in f), file=file)
     alb = gt.albedo().mean(axis=1)
-    print(f"directional albedo over the grid: min {alb.min():.4f}, max {alb.max():.4f}", file=file)
+    print(f"directional albedo by {gt.directions}×{gt.directions} grid quadrature: min {alb.min():.4f}, max "
+          f"{alb.max():.4f} (a lobe narrower than the grid's spacing is over- or under-counted here: a value "
+          "above 1 is quadrature error, not an energy gain)", file=file)
     print("stage times (s): " + ", ".join(f"{k} {v:.3f}" for k, v in gt.timings.items()), file=file)
 
 
@@ -106,6 +112,9 @@ def _plot(gt, path, thetas_i):
 def cmd_truth(args):
     import warp_biscale as wb
 
+    check_output(args.output, (".png",), "--output")
+    if args.save:
+        check_output(args.save, (".npz",), "--save")
     tile = load_tile(args.tile)
     mats = _materials(args.brdf, tile)
     gt = wb.ground_truth(tile, mats, facets=args.facets, directions=args.directions, backend=args.backend,
@@ -115,16 +124,17 @@ def cmd_truth(args):
         _print_table(gt, thetas)
     if args.output:
         _plot(gt, args.output, thetas)
-        print(f"wrote {args.output}")
+        _say(args, f"wrote {args.output}")
     if args.save:
         gt.save(args.save)
-        print(f"wrote {args.save}")
+        _say(args, f"wrote {args.save}")
     return 0
 
 
 def cmd_bake(args):
     import warp_biscale as wb
 
+    check_output(args.output, (".wbm", ".npz"), "--output")
     tile = load_tile(args.tile)
     mats = _materials(args.brdf, tile)
     lobes = args.lobes if args.lobes == "auto" else _int_arg("--lobes", args.lobes)
@@ -142,11 +152,17 @@ def cmd_bake(args):
         gt = wb.ground_truth(tile, mats, facets=args.truth, directions=args.directions, backend=args.backend,
                              seed=args.seed + 1, progress=not args.quiet)
         c = wb.compare(mat, gt)
-        print(f"against the ground truth ({args.truth} facets): PSNR {c['psnr']:.1f} dB, RMSE {c['rmse']:.3g}, "
-              f"max relative error {c['max_rel_error']:.3g}")
+        _say(args, f"against the ground truth ({args.truth} facets): PSNR {c['psnr']:.1f} dB, RMSE {c['rmse']:.3g}, "
+                   f"max relative error {c['max_rel_error']:.3g}")
     mat.save(args.output)
-    print(f"wrote {args.output}")
+    _say(args, f"wrote {args.output}")
     return 0
+
+
+def _say(args, text):
+    """A result line: on stdout unless -q."""
+    if not args.quiet:
+        print(text)
 
 
 def _int_arg(name, text):
@@ -159,10 +175,18 @@ def _int_arg(name, text):
 def cmd_backends(args):
     import warp_biscale as wb
 
-    for b in wb.backends():
-        extra = f"  ({b['error']})" if b.get("error") else ""
-        print(f"{b['name']:<40} {b['device'] or 'unavailable'}{extra}")
-    return 0
+    entries = wb.backends()
+    if not args.quiet:
+        for b in entries:
+            state = "usable" if b["usable"] else f"unusable: {b['reason']}"
+            print(f"{b['name']:<28} {b['device'] or '-':<48} {state}")
+    usable = [b for b in entries if b["usable"]]
+    _say(args, f"auto picks {wb.get_backend('auto').name}" if usable else "no usable backend here")
+    missing = [r for r in args.require or ()
+               if not any(b["kind"] == r.partition(":")[0] and r.partition(":")[2] in ("", b["type"]) for b in usable)]
+    for r in missing:
+        print(f"error: no usable {r} backend here", file=sys.stderr)
+    return 1 if missing or not usable else 0
 
 
 # ------------------------------------------------------------------------------------------------ rendering
@@ -170,11 +194,26 @@ def cmd_backends(args):
 IMAGE_EXTENSIONS = (".png", ".exr", ".hdr", ".pic")
 
 
-def _check_output(path):
+def _check_output(path, what="output"):
+    check_output(path, what=what)
     ext = os.path.splitext(path)[1].lower()
     if ext not in IMAGE_EXTENSIONS:
-        raise ValueError(f"output {path!r} must end in {', '.join(IMAGE_EXTENSIONS)} (PNG is tone-mapped; EXR and "
+        raise ValueError(f"{what} {path!r} must end in {', '.join(IMAGE_EXTENSIONS)} (PNG is tone-mapped; EXR and "
                          "HDR keep the linear radiance)")
+
+
+def _size(values, width, height):
+    """--size W [H] → (width, height): one number sets the width and keeps the aspect of (width, height)."""
+    if values is None:
+        return width, height
+    if len(values) > 2:
+        raise ValueError(f"--size takes a width and an optional height, got {len(values)} numbers")
+    for v in values:
+        if not 1 <= v <= 16384:
+            raise ValueError(f"--size values must be integers in 1..16384, got {v}")
+    if len(values) == 2:
+        return values[0], values[1]
+    return values[0], max(1, round(values[0] * height / width))
 
 
 def _print_bakes(sf):
@@ -199,10 +238,12 @@ def cmd_render(args):
     from .scenefile import load_scene
 
     _check_output(args.output)
+    if args.exposure is not None:
+        check_exposure(args.exposure)
     prog = as_progress(not args.quiet)
     sf = load_scene(args.scene, backend=args.backend, progress=prog)
-    if args.width is not None or args.height is not None:
-        sf.resize(sf.width if args.width is None else args.width, sf.height if args.height is None else args.height)
+    if args.size is not None:
+        sf.resize(*_size(args.size, sf.width, sf.height))
     method = args.method or sf.method
     options = sf.render_options(method)
     if args.samples is not None:
@@ -215,7 +256,8 @@ def cmd_render(args):
     result = sf.render(method=method, progress=prog, **options)
     prog.done()
     result.save(args.output, exposure=exposure)
-    _print_rendering(result, args.output, exposure)
+    if not args.quiet:
+        _print_rendering(result, args.output, exposure)
     return 0
 
 
@@ -228,15 +270,18 @@ def cmd_demo(args):
     _check_output(args.output)
     t0 = time.perf_counter()
     prog = as_progress(not args.quiet)
-    sf = demo.demo_scene(size=args.size, backend=args.backend, progress=prog)
+    sf = demo.demo_scene(backend=args.backend, progress=prog)
+    if args.size is not None:
+        sf.resize(*_size(args.size, sf.width, sf.height))
     if not args.quiet:
         _print_bakes(sf)
     result = sf.render(progress=prog)
     prog.done()
     result.save(args.output, exposure=sf.exposure)
-    _print_rendering(result, args.output)
-    print(f"demo done in {time.perf_counter() - t0:.1f} s: open {os.path.abspath(args.output)} "
-          "(the scene of examples/bi-scale.toml in the source tree; `warp-biscale view` shows a scene interactively)")
+    if not args.quiet:
+        _print_rendering(result, args.output)
+        print(f"demo done in {time.perf_counter() - t0:.1f} s: open {os.path.abspath(args.output)} (the scene of "
+              "examples/bi-scale.toml in the source tree; `warp-biscale view` shows a scene interactively)")
     return 0
 
 
@@ -245,18 +290,21 @@ def cmd_view(args):
     from .viewer import view
 
     if args.screenshot:
-        _check_output(args.screenshot)
         if not args.screenshot.lower().endswith(".png"):
             raise ValueError(f"--screenshot {args.screenshot!r} must be a .png")
+        _check_output(args.screenshot, "--screenshot")
     try:
-        view(args.scene, screenshot=args.screenshot, size=tuple(args.size), backend=args.backend,
+        view(args.scene, screenshot=args.screenshot, size=_size(args.size, 1200, 600), backend=args.backend,
              progress=as_progress(not args.quiet), render_scale=args.render_scale)
     except RuntimeError as exc:  # no display, no OpenGL: say so, no traceback
         print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return 1
     if args.screenshot:
-        print(f"wrote {args.screenshot}")
+        _say(args, f"wrote {args.screenshot}")
     return 0
+
+
+SIZE_HELP = "WIDTH [HEIGHT] in pixels (a width alone keeps the aspect)"
 
 
 def _add_render_commands(sub):
@@ -270,14 +318,14 @@ def _add_render_commands(sub):
                                                            "(default: the file's [render] method, else sg)")
     r.add_argument("--samples", type=int, help="samples per pixel for --method mc")
     r.add_argument("--backend", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name> (default: the file's)")
-    r.add_argument("--width", type=int, help="image width in pixels (overrides the file)")
-    r.add_argument("--height", type=int, help="image height in pixels (overrides the file)")
-    r.add_argument("--exposure", type=float, help="PNG exposure in stops (default: the file's, else 0)")
+    r.add_argument("--size", type=int, nargs="+", metavar="N", help=SIZE_HELP + " (default: the file's)")
+    r.add_argument("--exposure", type=float, help="PNG exposure in stops: 0 leaves the radiance, -1 halves it, "
+                                                  "+1 doubles it (default: the file's, else 0)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress, no bake summary")
     r.set_defaults(func=cmd_render)
     d = sub.add_parser("demo", help="bake a built-in tile and render a scene with it (a few seconds on a CPU)")
     d.add_argument("-o", "--output", default="demo.png", help="image to write (default demo.png)")
-    d.add_argument("--size", type=int, default=512, help="image width in pixels (height 3/4 of it; default 512)")
+    d.add_argument("--size", type=int, nargs="+", metavar="N", help=SIZE_HELP + " (default 512 384)")
     d.add_argument("--backend", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name> (default auto)")
     d.add_argument("-q", "--quiet", action="store_true", help="no progress, no bake summary")
     d.set_defaults(func=cmd_demo)
@@ -287,8 +335,7 @@ def _add_render_commands(sub):
                                    "first material's main parameter; right: the first baked material's tile.")
     v.add_argument("scene", help="the scene file (.toml)")
     v.add_argument("--screenshot", metavar="PNG", help="render offscreen, write this PNG and exit (no window)")
-    v.add_argument("--size", type=int, nargs=2, metavar=("W", "H"), default=(1200, 600),
-                   help="window size in pixels (default 1200 600)")
+    v.add_argument("--size", type=int, nargs="+", metavar="N", help=SIZE_HELP + " of the window (default 1200 600)")
     v.add_argument("--backend", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name> (default: the file's)")
     v.add_argument("--render-scale", type=float, default=1.0, metavar="S",
                    help="render at S x the viewport's resolution (e.g. 0.5 for quicker frames on a CPU; default 1)")
@@ -298,6 +345,7 @@ def _add_render_commands(sub):
 
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="warp-biscale", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"warp-biscale {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     _add_render_commands(sub)
     p = sub.add_parser("truth", help="ground-truth effective BRDF of a tile: table + PNG plot of slices")
@@ -338,14 +386,25 @@ def main(argv=None):
     k.add_argument("-o", "--output", default="material.wbm", help="material file to write (default material.wbm)")
     k.add_argument("-q", "--quiet", action="store_true", help="no summary, no progress")
     k.set_defaults(func=cmd_bake)
-    b = sub.add_parser("backends", help="list the compute backends present here")
+    b = sub.add_parser("backends", help="list the compute backends found here, usable or not, and why")
+    b.add_argument("--require", action="append", metavar="KIND[:TYPE]",
+                   help="exit 1 unless a backend of this kind is usable, e.g. opencl:cpu, warp:gpu, opencl")
+    b.add_argument("-q", "--quiet", action="store_true", help="no listing (with --require: only the exit code)")
     b.set_defaults(func=cmd_backends)
     args = parser.parse_args(argv)
+    set_quiet(args.quiet)
+    # Exit codes: 2 for a usage or input error (argparse's own too), 1 for a failure on the way.
     try:
         return args.func(args)
-    except (ValueError, FileNotFoundError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+    except (ValueError, FileNotFoundError, IsADirectoryError, NotADirectoryError) as exc:
+        print(f"error: {one_line(exc) if isinstance(exc, OSError) else exc}", file=sys.stderr)
         return 2
+    except (RuntimeError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

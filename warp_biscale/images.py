@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 
 import numpy as np
 
@@ -273,6 +274,25 @@ def linear_to_srgb(v) -> np.ndarray:
     return np.where(v <= 0.0031308, 12.92 * v, 1.055 * np.power(np.maximum(v, 0.0031308), 1 / 2.4) - 0.055)
 
 
+EXPOSURE_LIMIT = 24.0  # stops: 2^±24 maps any radiance a scene has to all black or all white in 8 bits
+
+
+def check_exposure(exposure) -> float:
+    """A PNG exposure in stops (the image is scaled by 2^exposure: 0 leaves it, negative darkens), refused
+    in one line when it is not a finite number within ±EXPOSURE_LIMIT, beyond which an 8-bit image of
+    any radiance between 1e-7 and 1e7 is uniformly black or white."""
+    try:
+        value = float(exposure)
+    except (TypeError, ValueError):
+        raise ValueError(f"exposure must be a number of stops, got {exposure!r}") from None
+    if not math.isfinite(value):
+        raise ValueError(f"exposure must be a finite number of stops, got {exposure!r}")
+    if abs(value) > EXPOSURE_LIMIT:
+        raise ValueError(f"exposure {value:g} stops would turn the whole image {'white' if value > 0 else 'black'}; "
+                         f"use a value within ±{EXPOSURE_LIMIT:g} (0 leaves the radiance as it is)")
+    return value
+
+
 def tonemap(image, exposure: float = 0.0, operator: str = "aces") -> np.ndarray:
     """Linear (H, W, 3) radiance → (H, W, 3) uint8 sRGB for display.
 
@@ -306,6 +326,9 @@ def write_png(path, image, exposure: float = 0.0, operator: str = "aces") -> Non
     from PIL import Image
 
     u8 = tonemap(image, exposure=exposure, operator=operator)
+    if not u8.any() and np.asarray(image).max() > 0:
+        warnings.warn(f"{os.fspath(path)}: exposure {exposure:g} stops turns the whole image black "
+                      f"(brightest radiance {float(np.asarray(image).max()):.3g}); raise it", stacklevel=2)
     with atomic_path(path) as tmp:
         Image.fromarray(u8, "RGB").save(tmp, format="PNG")
 

@@ -15,7 +15,31 @@ import zipfile
 
 import numpy as np
 
-__all__ = ["atomic_path", "save_npz", "read_npz", "load"]
+__all__ = ["atomic_path", "check_output", "save_npz", "read_npz", "load"]
+
+
+def check_output(path, suffixes=None, what: str = "output") -> None:
+    """Refuse, before any work, an output path that cannot be written, in one line naming it: a suffix not
+    in `suffixes` (lower-case, with the dot), an existing directory, or a folder (the nearest one that
+    exists: atomic_path makes the missing ones) that is not a directory or takes no new file. The
+    folder is tried by creating and removing a temporary file in it, so what the system would refuse
+    (a read-only file system, a folder without write permission for this user) is refused here."""
+    path = os.fspath(path)
+    if os.path.isdir(path):
+        raise ValueError(f"{what} {path!r} is a directory; give a file name")
+    if suffixes is not None and os.path.splitext(path)[1].lower() not in suffixes:
+        raise ValueError(f"{what} {path!r} must end in {', '.join(suffixes)}")
+    folder = os.path.dirname(os.path.abspath(path))
+    while not os.path.exists(folder):
+        folder = os.path.dirname(folder)
+    if not os.path.isdir(folder):
+        raise ValueError(f"{what} {path!r} cannot be written: {folder!r} is a file, not a directory")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".tmp-check-", dir=folder)
+    except OSError as exc:
+        raise ValueError(f"{what} {path!r} cannot be written: {exc.strerror or exc} ({folder})") from None
+    os.close(fd)
+    os.remove(probe)
 
 
 @contextlib.contextmanager

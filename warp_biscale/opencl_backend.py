@@ -34,10 +34,12 @@ import weakref
 
 import numpy as np
 
-from .backend import (SCRATCH_BYTES, DeviceFacets, DeviceLobes, DeviceStart, OnDevice, UploadCache, check_kernel_lobes,
-                      chunking, device_copy, em_result_rows, em_start_rows, equal_areas, run_em_steps, start_scale)
+from .backend import (PROBE_VALUES, SCRATCH_BYTES, DeviceFacets, DeviceLobes, DeviceStart, OnDevice, UploadCache,
+                      check_kernel_lobes, chunking, device_copy, em_result_rows, em_start_rows, equal_areas, one_line,
+                      probe_mismatch, run_em_steps, start_scale)
 from .model import Facets, Visibility
 from .lobes import START_RES
+from .progress import compile_notice
 from .reference import facet_shift, ray_offset
 
 __all__ = ["OpenCLBackend", "list_devices"]
@@ -46,6 +48,7 @@ __all__ = ["OpenCLBackend", "list_devices"]
 # One context, queue and program cache per device, shared by every backend object on it, so that
 # buffers cached on data-model objects under the backend's name stay valid for all of them.
 _DEVICE_STATE: dict = {}
+_PROBES: dict = {}  # device int_ptr → None (usable) or why not, in one line
 
 
 def _pyopencl():
@@ -88,9 +91,16 @@ def _matches(selector: str, platform, device) -> bool:
 
 
 def _select(selector, devices):
-    """→ (platform, device) for a selector (None, 'substring' or 'substring#N')."""
+    """→ (platform, device) for a selector (None, 'substring' or 'substring#N'): None takes the first
+    usable device; a named device that is unusable is a ValueError saying why."""
     if selector is None or not selector.strip():
-        return devices[0]
+        reasons = []
+        for p, d in devices:
+            reason = probe(p, d)
+            if reason is None:
+                return p, d
+            reasons.append(f"{_name(p, d, devices)}: {reason}")
+        raise ValueError("no usable OpenCL device: " + "; ".join(reasons))
     sel = selector.strip()
     index = 0
     m = re.fullmatch(r"(.*?)#(\d+)", sel)
@@ -98,7 +108,11 @@ def _select(selector, devices):
         sel, index = m.group(1).strip(), int(m.group(2))
     hits = [pd for pd in devices if _matches(sel, *pd)]
     if index < len(hits):
-        return hits[index]
+        p, d = hits[index]
+        reason = probe(p, d)
+        if reason is not None:
+            raise ValueError(f"OpenCL device {_name(p, d, devices)!r} is unusable: {reason}")
+        return p, d
     listing = "; ".join(f"{_name(p, d, devices)} ({d.name.strip()} on {p.name.strip()})" for p, d in devices)
     raise ValueError(f"no OpenCL device matches {selector!r}; available: {listing}")
 
@@ -111,14 +125,32 @@ def _name(platform, device, devices) -> str:
     return f"opencl:{base}" + (f"#{index}" if index else "")
 
 
+def _version(platform) -> str:
+    """The platform's version up to its build details, e.g. "OpenCL 3.0 PoCL 3.0-rc2 Linux"."""
+    return " ".join(platform.version.split(",")[0].split())
+
+
+def _description(platform, device) -> str:
+    """The device in words, with its platform's version (two PoCLs side by side differ only there)."""
+    return f"{device.name.strip()} ({platform.name.strip()}, {_version(platform)})"
+
+
 def list_devices() -> list[dict]:
-    """Every OpenCL device as {"name": selection name, "device": description}; [] if none (never raises)."""
+    """Every OpenCL device as a backends() entry {name, kind, device, type, usable, reason}, each
+    probed; with no OpenCL platform at all, one unusable entry "opencl" that says why. Never raises."""
     try:
         devices = _ordered_devices()
-        return [{"name": _name(p, d, devices), "device": f"{d.name.strip()} ({p.name.strip()})"}
-                for p, d in devices]
-    except Exception:
-        return []
+    except Exception as exc:
+        return [{"name": "opencl", "kind": "opencl", "device": None, "type": None, "usable": False,
+                 "reason": one_line(exc)}]
+    cl = _pyopencl()
+    found = []
+    for p, d in devices:
+        reason = probe(p, d)
+        found.append({"name": _name(p, d, devices), "kind": "opencl", "device": _description(p, d),
+                      "type": "gpu" if d.type & cl.device_type.GPU else "cpu", "usable": reason is None,
+                      "reason": reason or ""})
+    return found
 
 
 def _device_state(device):
@@ -131,6 +163,71 @@ def _device_state(device):
     return state
 
 
+def build_options(device) -> list[str]:
+    """The options every program is built with on `device` (the module docstring says why)."""
+    cl = _pyopencl()
+    options = ["-cl-std=CL1.2"]
+    if device.single_fp_config & cl.device_fp_config.CORRECTLY_ROUNDED_DIVIDE_SQRT:
+        options.append("-cl-fp32-correctly-rounded-divide-sqrt")
+    return options
+
+
+def build_failure(platform, device, log) -> str:
+    """Why a program did not build on `device`, in one line, with the fix where one is known."""
+    text = str(log)
+    if "unknown target CPU" in text:
+        return (f"{_version(platform)} is too old for this CPU (its LLVM cannot name it: \"unknown "
+                "target CPU\"); install the system PoCL (`apt-get install pocl-opencl-icd` on Debian/Ubuntu), "
+                "which warp_biscale then finds with no other step")
+    if ("ld" in text.split() or "linker" in text) and "portable computing" in platform.name.lower():
+        return ("PoCL links kernels with the system linker, which failed (is `ld` from binutils on PATH?): "
+                + one_line(text))
+    return f"kernels do not build: {one_line(text)}"
+
+
+def build_program(ctx, stem: str, options):
+    """Build cl/<stem>.cl (with common.cl) in `ctx`; raises pyopencl's error with the build log."""
+    from . import cl as cl_sources
+
+    cl = _pyopencl()
+    with compile_notice():
+        return cl.Program(ctx, cl_sources.source(stem)).build(options=options)
+
+
+def probe(platform, device) -> str | None:
+    """None if `device` builds cl/probe.cl (with the shared helpers of common.cl, under the options of
+    every build) and runs it right, else why not, in one line. Once per device and process."""
+    key = device.int_ptr
+    if key not in _PROBES:
+        _PROBES[key] = _run_probe(platform, device)
+    return _PROBES[key]
+
+
+def _run_probe(platform, device) -> str | None:
+    cl = _pyopencl()
+    if not device.double_fp_config and "cl_khr_fp64" not in device.extensions:
+        return ("no double precision (cl_khr_fp64), which facet sampling needs (a float64 cumulative-area "
+                "search): choose another device")
+    try:
+        state = _device_state(device)
+    except Exception as exc:
+        return f"cannot open the device: {one_line(exc)}"
+    try:
+        program = build_program(state["ctx"], "probe", build_options(device))
+    except Exception as exc:
+        return build_failure(platform, device, exc)
+    try:
+        mf = cl.mem_flags
+        values = cl.Buffer(state["ctx"], mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=PROBE_VALUES)
+        out = np.zeros_like(PROBE_VALUES)
+        out_buf = cl.Buffer(state["ctx"], mf.WRITE_ONLY, size=out.nbytes)
+        program.probe(state["queue"], (len(out),), None, values, out_buf, np.int32(len(out)))
+        cl.enqueue_copy(state["queue"], out, out_buf)
+    except Exception as exc:
+        return f"the probe kernel built but did not run: {one_line(exc)}"
+    return probe_mismatch(out)
+
+
 class OpenCLBackend:
     """OpenCL on one device. `selector`: None (first device, GPUs first) or a substring of a
     platform or device name (case-insensitive), optionally ending in ``#N`` for the N-th match."""
@@ -139,22 +236,15 @@ class OpenCLBackend:
         cl = _pyopencl()
         devices = _ordered_devices()
         platform, device = _select(selector, devices)
-        if not device.double_fp_config and "cl_khr_fp64" not in device.extensions:
-            raise ValueError(
-                f"OpenCL device {device.name.strip()!r} has no double precision (cl_khr_fp64), which facet "
-                "sampling needs (float64 cumulative-area search); choose another device"
-            )
         self._cl = cl
         self._device = device
+        self._platform = platform
         self.name = _name(platform, device, devices)
         self.device = f"{device.name.strip()} ({platform.name.strip()})"
         state = _device_state(device)
         self._ctx, self._queue = state["ctx"], state["queue"]
         self._programs, self._kernels = state["programs"], state["kernels"]
-        options = ["-cl-std=CL1.2"]
-        if device.single_fp_config & cl.device_fp_config.CORRECTLY_ROUNDED_DIVIDE_SQRT:
-            options.append("-cl-fp32-correctly-rounded-divide-sqrt")
-        self.build_options = options
+        self.build_options = build_options(device)
         # Work-items worth launching per reduction: a few per core on a CPU, enough to fill a GPU.
         is_cpu = bool(device.type & cl.device_type.CPU)
         self._threads = max(1, device.max_compute_units) * 4 if is_cpu else 1 << 18
@@ -189,17 +279,11 @@ class OpenCLBackend:
         return kernel
 
     def _build(self, stem: str):
-        from . import cl as cl_sources
-
-        cl = self._cl
-        src = cl_sources.source(stem)
         try:
-            return cl.Program(self._ctx, src).build(options=self.build_options)
-        except cl.Error as exc:
-            hint = ""
-            if "pthread" in self.device.lower() or "portable computing" in self.device.lower():
-                hint = " (PoCL links kernels with the system linker: is `ld` from binutils on PATH?)"
-            raise RuntimeError(f"building cl/{stem}.cl for {self.device} failed{hint}:\n{exc}") from None
+            return build_program(self._ctx, stem, self.build_options)
+        except self._cl.Error as exc:
+            raise RuntimeError(f"building cl/{stem}.cl for {self.device} failed: "
+                               f"{build_failure(self._platform, self._device, exc)}\n{exc}") from None
 
     def _prepared(self, stem, name, shape, *args):
         """A callable that enqueues kernel `name` over `shape` (as _launch) with `args` set once: for a

@@ -2,8 +2,43 @@
 
 from __future__ import annotations
 
+import contextlib
 import sys
+import threading
 import time
+
+# Library-wide word to the user: set_quiet(True) (the command line's -q) silences compile_notice.
+_QUIET = False
+_COMPILE_NOTICE_SAID = False
+COMPILE_NOTICE_DELAY = 0.5  # s: a build that takes longer is a compile, not a cache hit
+
+
+def set_quiet(quiet: bool) -> None:
+    """Silence (or restore) the library's own words on stderr outside a Progress (compile_notice)."""
+    global _QUIET
+    _QUIET = bool(quiet)
+
+
+@contextlib.contextmanager
+def compile_notice(stream=None):
+    """Around a kernel build (a Warp module load, an OpenCL program build): if it runs longer than
+    COMPILE_NOTICE_DELAY, which a cached build never does, say "compiling kernels (first run only)…"
+    on stderr, once per process, so a first run's half minute of compiling is not silent."""
+    def say():
+        global _COMPILE_NOTICE_SAID
+        if not _QUIET and not _COMPILE_NOTICE_SAID:
+            _COMPILE_NOTICE_SAID = True
+            out = stream or sys.stderr
+            out.write("compiling kernels (first run only)…\n")
+            out.flush()
+
+    timer = threading.Timer(COMPILE_NOTICE_DELAY, say)
+    timer.daemon = True
+    timer.start()
+    try:
+        yield
+    finally:
+        timer.cancel()
 
 
 class Progress:

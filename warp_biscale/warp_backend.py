@@ -9,6 +9,8 @@ On CUDA a launch is one launch.
 from __future__ import annotations
 
 import os
+import sys
+import tempfile
 import weakref
 from concurrent.futures import ThreadPoolExecutor
 
@@ -18,23 +20,89 @@ from .backend import (SCRATCH_BYTES, DeviceFacets, DeviceLobes, DeviceStart, OnD
                       chunking, device_copy, em_result_rows, em_start_rows, equal_areas, run_em_steps, start_scale)
 from .model import Facets, Visibility
 from .lobes import START_RES
+from .progress import compile_notice
 from .reference import facet_shift, ray_offset
 
 _READY = False
+_NO_CUDA_DRIVER = False  # Warp's native library found no CUDA driver (a CPU-only machine)
+_PROBES: dict = {}  # device alias → None (usable) or why not, in one line
+_CUDA_DRIVER_WARNING = "Could not find or load the NVIDIA CUDA driver"
 
 
 RAY_PIECES = 4  # slices per core of the visibility rays on the CPU (see _launch)
 
 
+def _stderr_of(call) -> str:
+    """Run `call()` with file descriptor 2 sent to a temporary file, and return what was written there
+    (a native library writes to the descriptor, past sys.stderr)."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as held:
+        os.dup2(held.fileno(), 2)
+        try:
+            call()
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        held.seek(0)
+        return held.read().decode("utf-8", "replace")
+
+
 def init_warp():
-    global _READY
+    global _READY, _NO_CUDA_DRIVER
     import warp as wp
 
     if not _READY:
         wp.config.log_level = wp.LOG_WARNING  # compile chatter would drown the progress display
-        wp.init()
+        # Warp's native library warns on stderr when it finds no CUDA driver: on a CPU-only machine
+        # that is every command. `backends()` says it once instead; any other message passes on.
+        text = _stderr_of(wp.init)
+        _NO_CUDA_DRIVER = _CUDA_DRIVER_WARNING in text
+        rest = "".join(line for line in text.splitlines(True) if _CUDA_DRIVER_WARNING not in line)
+        if rest:
+            sys.stderr.write(rest)
+            sys.stderr.flush()
         _READY = True
     return wp
+
+
+def probe(device) -> str | None:
+    """None if Warp builds and runs the probe kernel (kernels/probe.py) right on `device` (a Warp
+    device), else why not, in one line. Once per device and process."""
+    alias = device.alias
+    if alias not in _PROBES:
+        import warp as wp
+
+        from .backend import PROBE_VALUES, one_line, probe_mismatch
+
+        try:
+            from .kernels import probe as kp
+
+            with compile_notice():
+                wp.load_module(kp.probe.module, device=device)
+            values = wp.array(PROBE_VALUES, dtype=wp.float64, device=device)
+            out = wp.zeros(len(PROBE_VALUES), dtype=wp.float64, device=device)
+            wp.launch(kp.probe, dim=len(PROBE_VALUES), inputs=[values], outputs=[out], device=device)
+            _PROBES[alias] = probe_mismatch(out.numpy())
+        except Exception as exc:
+            _PROBES[alias] = f"Warp cannot build or run a kernel on {device.name}: {one_line(exc)}"
+    return _PROBES[alias]
+
+
+def list_devices() -> list[dict]:
+    """Warp's devices as backends() entries (each probed); without CUDA an unusable "warp:cuda" entry
+    that says why."""
+    wp = init_warp()
+    found = []
+    for dev in wp.get_devices():
+        reason = probe(dev)
+        found.append({"name": f"warp:{dev.alias}", "kind": "warp", "device": dev.name,
+                      "type": "cpu" if dev.is_cpu else "gpu", "usable": reason is None, "reason": reason or ""})
+    if not wp.is_cuda_available():
+        why = ("no NVIDIA CUDA driver found" if _NO_CUDA_DRIVER else "the CUDA driver reports no GPU")
+        found.append({"name": "warp:cuda", "kind": "warp", "device": None, "type": "gpu", "usable": False,
+                      "reason": f"{why}: no GPU here, Warp runs on the CPU"})
+    return found
 
 
 class WarpBackend:
@@ -52,6 +120,9 @@ class WarpBackend:
             self._device = wp.get_device(device)
         except Exception as exc:
             raise ValueError(f"Warp has no device {device!r}: {exc}") from None
+        reason = probe(self._device)
+        if reason:
+            raise ValueError(f"backend 'warp:{self._device.alias}' is unusable here: {reason}")
         self.name = f"warp:{self._device.alias}"
         self.device = self._device.name
         # Launch slices: one per core on the CPU (each slice runs on one thread), one on a GPU.
@@ -60,6 +131,7 @@ class WarpBackend:
         # Threads worth launching per reduction: one per slice on the CPU, enough to fill a GPU.
         self._threads = 1 if self._device.is_cpu else 1 << 18
         self._tiles = weakref.WeakKeyDictionary()
+        self._loaded = set()  # (id of a Warp module, block_dim) loaded by _load
         self._uploads = UploadCache()
         self._held_visible_area = None  # (host, device) of the last visible_area
         self._scratch_arrays = {}  # role → device scratch array, see _scratch
@@ -89,19 +161,30 @@ class WarpBackend:
         dim = tuple(dim) if isinstance(dim, (tuple, list)) else (int(dim),)
         n = dim[-1]
         parts = min(self._slices * pieces, n) if self._slices > 1 else 1
+        # Compile/load before the threads race to do it (the kernel's own Warp module: kernels made
+        # by a factory live in a module of their own).
+        self._load(kernel, block_dim)
         if parts <= 1:
             wp.launch(kernel, dim=dim, inputs=[*inputs, 0], outputs=outputs, device=self._device,
                       block_dim=block_dim)
             return
-        # Compile/load before the threads race to do it (the kernel's own Warp module: kernels made
-        # by a factory live in a module of their own).
-        wp.load_module(kernel.module, device=self._device)
         bounds = np.linspace(0, n, parts + 1).astype(int)
         futures = [self._pool.submit(wp.launch, kernel, dim=(*dim[:-1], int(b - a)), inputs=[*inputs, int(a)],
                                      outputs=outputs, device=self._device)
                    for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
         for f in futures:
             f.result()
+
+    def _load(self, kernel, block_dim=None):
+        """Load `kernel`'s Warp module before its first launch: on a first run that compiles it, which
+        compile_notice tells the user about when it takes a while."""
+        import warp as wp
+
+        key = (id(kernel.module), block_dim)
+        if key not in self._loaded:
+            with compile_notice():
+                wp.load_module(kernel.module, device=self._device, block_dim=block_dim)
+            self._loaded.add(key)
 
     # ------------------------------------------------------------------ device copies
     def _tile(self, tile):
@@ -239,6 +322,7 @@ class WarpBackend:
         self._launch(kt.visible_area_partial, (chunks, n_dirs),
                      [v["directions"], v["bits"], f["normal"], f["area"], per], [partial])
         a_v = wp.empty(n_dirs, dtype=wp.float32, device=dev)
+        self._load(kt.sum_chunks_area)
         wp.launch(kt.sum_chunks_area, dim=n_dirs, device=dev, inputs=[partial], outputs=[a_v])
         if not to_host:
             return OnDevice(a_v, self._read_later(a_v))  # (read at the bake's end: queued now, no wait then)
@@ -273,6 +357,7 @@ class WarpBackend:
                       wp.array(np.asarray(params, np.float32), dtype=wp.float32, device=dev), per],
                      [partial])
         out = wp.empty(n_pairs, dtype=wp.vec3, device=dev)
+        self._load(kt.sum_chunks_brdf)
         wp.launch(kt.sum_chunks_brdf, dim=n_pairs, device=dev,
                   inputs=[partial, po, wp.array(np.asarray(a_v, np.float32), dtype=wp.float32, device=dev)],
                   outputs=[out])
@@ -350,6 +435,8 @@ class WarpBackend:
                    self._scratch("start_owner", n_bins, wp.int32), self._scratch("start_chosen", j, wp.int32)]
         rows = wp.empty((j, 6), dtype=wp.float64, device=self._device)
         # (One launch, not sliced over the CPU's cores: there Warp's atomic_add is a plain add.)
+        self._load(ke.start_bin_sums)
+        self._load(ke.start_pick, 256)
         wp.launch(ke.start_bin_sums, dim=len(facets), inputs=[f["normal"], weight, scale, 0], outputs=[sums],
                   device=self._device)
         wp.launch_tiled(ke.start_pick, dim=[1], inputs=[sums, scale], outputs=[*scratch, rows], block_dim=256,
@@ -403,6 +490,7 @@ class WarpBackend:
 
         if split and self._slices > 1:
             return functools.partial(self._launch, kernel, dim, inputs, outputs)
+        self._load(kernel)
         return wp.launch(kernel, dim=dim, inputs=[*inputs, 0], outputs=outputs, device=self._device,
                          record_cmd=True).launch
 
