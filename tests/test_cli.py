@@ -211,6 +211,10 @@ def test_render_bakes_a_bake_material(tmp_path):
     (('material = "floor"', 'material = "flor"'), [], "[[object]] #2 material 'flor' is not defined"),
     (("exponent = 100.0", "exponent = -3"), [], "[material.shiny] BlinnPhong.exponent must be a finite number > 0"),
     (None, ["--samples", "4"], "--samples is for --method mc"),
+    (("radius = 0.6", "radius = -0.8"), [], "scene.toml:24: [[object]] #1 Mesh.sphere radius must be > 0, got -0.8"),
+    (("width = 32\n", "width = 32\nenv_lobes = 32\n"), [],
+     "scene.toml:3: [render] env_lobes must be an integer in 1..16"),
+    (("width = 32\n", "width = 32\nexposure = -99\n"), [], "scene.toml:3: [render] exposure -99 stops would turn"),
     (None, ["--size", "0"], "--size values must be integers in 1..16384, got 0"),
     (None, ["--size", "40", "30", "20"], "--size takes a width and an optional height"),
 ])

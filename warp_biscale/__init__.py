@@ -19,7 +19,7 @@ __version__ = "0.1.0"  # before the imports: warp_biscale.cli reads it while the
 from . import directions, geometry, lobes, reference, sg
 from .bake import Bvndf, bake
 from .backend import Backend, backends, get_backend
-from .brdf import BlinnPhong, CookTorrance, Lambert, Ward
+from .brdf import BlinnPhong, CookTorrance, EnergyWarning, Lambert, Ward
 from .effective import EffectiveBRDF, compare
 from .environment import Environment
 from .images import compare_images, read_image, write_image
@@ -33,7 +33,8 @@ from .svbrdf import Textured
 from .truth import GroundTruth, effective_brdf_exact, ground_truth
 
 __all__ = [
-    "Backend", "BlinnPhong", "Bvndf", "Camera", "CookTorrance", "DirectionalLight", "EffectiveBRDF", "Environment",
+    "Backend", "BlinnPhong", "Bvndf", "Camera", "CookTorrance", "DirectionalLight", "EffectiveBRDF", "EnergyWarning",
+    "Environment",
     "Facets", "GroundTruth", "Lambert", "Mesh", "PointLight", "Rendering", "Scene", "SmallScale", "Textured",
     "TileWarning",
     "Visibility", "Ward", "backends", "bake", "compare", "compare_images", "directions", "effective_brdf_exact",

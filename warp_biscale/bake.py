@@ -197,7 +197,8 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
     Parameters
     ----------
     tile : SmallScale
-    materials : Brdf or list of Brdf, indexed by the tile's material ids.
+    materials : Brdf or list of Brdf, indexed by the tile's material ids (more BRDFs than ids: a
+        `TileWarning`; the extra ones reflect nothing).
     method : "sg" (Eq. 15, the SG closure, for rendering) or "sg-exact" (Eq. 10) for `eval`.
     lobes : J, the number of SG lobes of the NDF (1–128), or "auto": the first J of `AUTO_LOBES` (1–16,
         then 24, 32, 48, 64, 96, 128) whose NDF fit error (`lobes.ndf_error`, seen at the sharpest

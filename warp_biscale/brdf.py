@@ -12,18 +12,26 @@ Packed layout shared by the reference, the Warp and the OpenCL kernels, one row 
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 __all__ = ["Lambert", "BlinnPhong", "CookTorrance", "Ward", "Brdf", "pack_materials", "as_material_list",
-           "parse_brdf"]
+           "parse_brdf", "EnergyWarning"]
 
 LAMBERT, BLINN_PHONG, COOK_TORRANCE, WARD = 0, 1, 2, 3
 
 
+class EnergyWarning(UserWarning):
+    """A material reflects more light than it receives (a diffuse albedo above 1): allowed, but not physical."""
+
+
 def _rgb(name, value) -> tuple:
-    a = np.asarray(value, np.float64).reshape(-1)
+    try:
+        a = np.asarray(value, np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number or an RGB triple, got {value!r}") from None
     if a.size == 1:
         a = np.repeat(a, 3)
     if a.shape != (3,):
@@ -33,11 +41,34 @@ def _rgb(name, value) -> tuple:
     return tuple(float(x) for x in a)
 
 
+def warn_energy(name, rgb, stacklevel: int = 2) -> None:
+    """An `EnergyWarning` when a diffuse reflectance (an RGB triple: Lambert albedo, kd) has a channel > 1:
+    a Lambertian term reflects its albedo of what it receives, so more than 1 creates light."""
+    a = np.asarray(rgb, np.float64).reshape(-1)
+    if not (a > 1).any():
+        return
+    if np.all(a == a[0]):
+        shown = f"{a[0]:g} > 1"
+    else:
+        k = int(np.argmax(a))
+        shown = f"({', '.join(f'{x:g}' for x in a)}): {'rgb'[k]} = {a[k]:g} > 1"
+    warnings.warn(f"{name} {shown} reflects more light than it receives (an energy gain; keep it <= 1)",
+                  EnergyWarning, stacklevel=stacklevel + 1)
+
+
 def _positive(name, value) -> float:
-    x = float(value)
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a finite number > 0, got {value!r}") from None
     if not np.isfinite(x) or x <= 0:
         raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
     return x
+
+
+# The stack level of a warning from a BRDF's __post_init__ that points at the line constructing it
+# (warn_energy ← __post_init__ ← the dataclass __init__ ← the caller).
+_CALLER = 3
 
 
 class Brdf:
@@ -72,6 +103,7 @@ class Lambert(Brdf):
 
     def __post_init__(self):
         object.__setattr__(self, "albedo", _rgb("Lambert.albedo", self.albedo))
+        warn_energy("Lambert albedo", self.albedo, stacklevel=_CALLER)
 
     def packed(self):
         return np.array([*self.albedo, 0, 0, 0, 0, 0], np.float64)
@@ -89,6 +121,7 @@ class BlinnPhong(Brdf):
     def __post_init__(self):
         object.__setattr__(self, "ks", _rgb("BlinnPhong.ks", self.ks))
         object.__setattr__(self, "kd", _rgb("BlinnPhong.kd", self.kd))
+        warn_energy("BlinnPhong kd", self.kd, stacklevel=_CALLER)
         object.__setattr__(self, "exponent", _positive("BlinnPhong.exponent", self.exponent))
 
     def packed(self):
@@ -113,8 +146,12 @@ class CookTorrance(Brdf):
     def __post_init__(self):
         object.__setattr__(self, "ks", _rgb("CookTorrance.ks", self.ks))
         object.__setattr__(self, "kd", _rgb("CookTorrance.kd", self.kd))
+        warn_energy("CookTorrance kd", self.kd, stacklevel=_CALLER)
         object.__setattr__(self, "roughness", _positive("CookTorrance.roughness", self.roughness))
-        f0 = float(self.f0)
+        try:
+            f0 = float(self.f0)
+        except (TypeError, ValueError):
+            f0 = float("nan")
         if not (0.0 <= f0 <= 1.0):
             raise ValueError(f"CookTorrance.f0 must lie in [0, 1], got {self.f0!r}")
         object.__setattr__(self, "f0", f0)
@@ -135,6 +172,7 @@ class Ward(Brdf):
     def __post_init__(self):
         object.__setattr__(self, "ks", _rgb("Ward.ks", self.ks))
         object.__setattr__(self, "kd", _rgb("Ward.kd", self.kd))
+        warn_energy("Ward kd", self.kd, stacklevel=_CALLER)
         object.__setattr__(self, "alpha", _positive("Ward.alpha", self.alpha))
 
     def packed(self):

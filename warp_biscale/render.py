@@ -22,15 +22,34 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import sg
+from . import ssdf as ssdf_mod
 from .backend import get_backend
 from .environment import Environment
 from .progress import Progress
-from .scene import Camera, DirectionalLight, Mesh, PointLight, vertex_tangents
+from .scene import Camera, DirectionalLight, Mesh, PointLight, _integer, vertex_tangents
 from .shading import pack_materials
 
 __all__ = ["Scene", "Rendering", "render", "pack_frame", "METHODS"]
 
 METHODS = ("sg", "mc")
+
+SSDF_RESOLUTIONS = ssdf_mod.RESOLUTIONS  # the SSDF's octahedral grid: resolution² directions
+SETTINGS_UNITS = {"env_lobes": " (the SG lighting kernels' lobe count)",
+                  "ssdf_resolution": " (SSDF directions per side)", "ssdf_terms": " (at most ssdf_resolution²)"}
+
+
+def settings_ranges(ssdf_resolution=32) -> dict:
+    """The valid (lo, hi) of Scene's env_lobes, ssdf_resolution and ssdf_terms (at most the texel count
+    ssdf_resolution², computed from the given resolution when it is an in-range integer): checked by Scene
+    and, with the file's line, by scene files' [render]."""
+    from .lobes import KERNEL_LOBES
+
+    try:
+        s = int(ssdf_resolution)
+        s = s if s == ssdf_resolution and SSDF_RESOLUTIONS[0] <= s <= SSDF_RESOLUTIONS[1] else SSDF_RESOLUTIONS[1]
+    except (TypeError, ValueError, OverflowError):
+        s = SSDF_RESOLUTIONS[1]
+    return {"env_lobes": (1, KERNEL_LOBES), "ssdf_resolution": SSDF_RESOLUTIONS, "ssdf_terms": (1, s * s)}
 
 
 @dataclass(eq=False)
@@ -80,10 +99,8 @@ class Scene:
         for i, light in enumerate(self.lights):
             if not isinstance(light, (PointLight, DirectionalLight)):
                 raise ValueError(f"Scene.lights[{i}] must be a PointLight or DirectionalLight, got {light!r}")
-        for name in ("env_lobes", "ssdf_resolution", "ssdf_terms"):
-            v = getattr(self, name)
-            if int(v) != v or int(v) < 1:
-                raise ValueError(f"Scene.{name} must be an integer >= 1, got {v!r}")
+        for name, (lo, hi) in settings_ranges(self.ssdf_resolution).items():
+            setattr(self, name, _integer(f"Scene.{name}", getattr(self, name), lo, hi, SETTINGS_UNITS[name]))
 
     @property
     def lights_packed(self) -> np.ndarray:

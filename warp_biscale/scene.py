@@ -47,8 +47,42 @@ def _unit(name, v) -> np.ndarray:
     return a / n
 
 
+def _number(name, v, what: str = "a finite number") -> float:
+    """A finite real number (a bool is not one), else a ValueError naming `name`."""
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        x = None
+    if x is None or isinstance(v, (bool, np.bool_)) or not np.isfinite(x):
+        raise ValueError(f"{name} must be {what}, got {v!r}")
+    return x
+
+
+def _positive(name, v) -> float:
+    x = _number(name, v, "a finite number > 0")
+    if not x > 0:
+        raise ValueError(f"{name} must be > 0, got {v!r}")
+    return x
+
+
+def _integer(name, v, lo: int, hi: int | None = None, note: str = "") -> int:
+    """An integer (an integral float is accepted) in lo..hi (hi None: >= lo), else a ValueError naming
+    `name` (and `note`, what the range is)."""
+    try:
+        ok = not isinstance(v, (bool, np.bool_)) and int(v) == v and lo <= int(v) and (hi is None or int(v) <= hi)
+    except (TypeError, ValueError, OverflowError):
+        ok = False
+    if not ok:
+        what = f">= {lo}" if hi is None else f"in {lo}..{hi}"
+        raise ValueError(f"{name} must be an integer {what}{note}, got {v!r}")
+    return int(v)
+
+
 def _rgb(name, v) -> np.ndarray:
-    a = np.asarray(v, np.float64).reshape(-1)
+    try:
+        a = np.asarray(v, np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number >= 0 or an RGB triple of them, got {v!r}") from None
     if a.size == 1:
         a = np.repeat(a, 3)
     if a.shape != (3,) or not np.all(np.isfinite(a)) or (a < 0).any():
@@ -129,6 +163,7 @@ class Mesh:
     # ------------------------------------------------------------------ construction
     @classmethod
     def from_trimesh(cls, tm, material: int = 0) -> Mesh:
+        material = _integer("Mesh.from_trimesh material", material, 0)
         uv = getattr(getattr(tm, "visual", None), "uv", None)
         uvs = None if uv is None or len(uv) != len(tm.vertices) else np.asarray(uv, np.float64)
         normals = np.asarray(tm.vertex_normals, np.float64) if len(tm.vertices) else None
@@ -140,6 +175,7 @@ class Mesh:
         """Any mesh trimesh reads (OBJ, PLY, STL, GLB, ...); a scene is flattened into one mesh."""
         import trimesh
 
+        material = _integer("Mesh.load material", material, 0)
         try:
             tm = trimesh.load(str(path), force="mesh", process=False)
         except Exception as exc:
@@ -153,18 +189,32 @@ class Mesh:
         """An icosphere with exact normals and equirectangular UVs."""
         import trimesh
 
+        radius = _positive("Mesh.sphere radius", radius)
+        center = _vec3("Mesh.sphere center", center)
+        subdivisions = _integer("Mesh.sphere subdivisions", subdivisions, 0)
+        material = _integer("Mesh.sphere material", material, 0)
         tm = trimesh.creation.icosphere(subdivisions=subdivisions, radius=1.0)
         v = np.asarray(tm.vertices, np.float64)
         n = v / np.linalg.norm(v, axis=1, keepdims=True)
         uvs = np.stack([0.5 + np.arctan2(n[:, 0], n[:, 2]) / (2 * np.pi),
                         np.arccos(np.clip(n[:, 1], -1, 1)) / np.pi], 1)
-        return cls(n * radius + np.asarray(center, np.float64), np.asarray(tm.faces), n, uvs,
+        return cls(n * radius + center, np.asarray(tm.faces), n, uvs,
                    np.full(len(tm.faces), material, np.int32))
 
     @classmethod
     def torus(cls, major=1.0, minor=0.35, center=(0.0, 0.0, 0.0), segments=(96, 48), material: int = 0) -> Mesh:
         """A torus around +y with exact normals and (u, v) = (around, across) UVs."""
-        nu, nv = segments
+        major = _positive("Mesh.torus major", major)
+        minor = _positive("Mesh.torus minor", minor)
+        center = _vec3("Mesh.torus center", center)
+        material = _integer("Mesh.torus material", material, 0)
+        try:
+            nu, nv = segments
+        except (TypeError, ValueError):
+            raise ValueError(f"Mesh.torus segments must be two integers >= 3 (around, across), "
+                             f"got {segments!r}") from None
+        nu = _integer("Mesh.torus segments[0] (around)", nu, 3)
+        nv = _integer("Mesh.torus segments[1] (across)", nv, 3)
         u = np.arange(nu) * 2 * np.pi / nu
         v = np.arange(nv) * 2 * np.pi / nv
         uu, vv = np.meshgrid(u, v, indexing="ij")
@@ -177,12 +227,16 @@ class Mesh:
         d = np.arange(nu)[:, None] * nv + (np.arange(nv)[None, :] + 1) % nv
         faces = np.concatenate([np.stack([a, d, b], -1).reshape(-1, 3), np.stack([b, d, c], -1).reshape(-1, 3)])
         uvs = np.stack([uu / (2 * np.pi), vv / (2 * np.pi)], -1).reshape(-1, 2)
-        return cls(pos.reshape(-1, 3) + np.asarray(center, np.float64), faces, normal.reshape(-1, 3), uvs,
+        return cls(pos.reshape(-1, 3) + center, faces, normal.reshape(-1, 3), uvs,
                    np.full(len(faces), material, np.int32))
 
     @classmethod
     def plane(cls, size=4.0, height=0.0, divisions=32, material: int = 0) -> Mesh:
         """A square floor at y = height, facing +y, divided into divisions² quads (SSDF vertices)."""
+        size = _positive("Mesh.plane size", size)
+        height = _number("Mesh.plane height", height)
+        divisions = _integer("Mesh.plane divisions", divisions, 1)
+        material = _integer("Mesh.plane material", material, 0)
         t = np.linspace(-size / 2, size / 2, divisions + 1)
         xx, zz = np.meshgrid(t, t, indexing="ij")
         pos = np.stack([xx, np.full_like(xx, height), zz], -1).reshape(-1, 3)
@@ -227,14 +281,12 @@ class Camera:
         self.up = _unit("Camera.up", self.up)
         if np.linalg.norm(self.target - self.eye) == 0:
             raise ValueError("Camera.eye and Camera.target coincide")
-        if not (0 < float(self.fov) < 180):
+        fov = _number("Camera.fov", self.fov)
+        if not (0 < fov < 180):
             raise ValueError(f"Camera.fov must lie in (0, 180) degrees, got {self.fov!r}")
-        self.fov = float(self.fov)
+        self.fov = fov
         for name in ("width", "height"):
-            v = getattr(self, name)
-            if int(v) != v or not (1 <= int(v) <= 16384):
-                raise ValueError(f"Camera.{name} must be an integer in 1..16384, got {v!r}")
-            setattr(self, name, int(v))
+            setattr(self, name, _integer(f"Camera.{name}", getattr(self, name), 1, 16384))
         if abs(np.dot(self.basis()[0], self.up)) > 1 - 1e-9:
             raise ValueError("Camera.up is parallel to the viewing direction")
 
@@ -276,7 +328,7 @@ class DirectionalLight:
     def __post_init__(self):
         self.direction = _unit("DirectionalLight.direction", self.direction)
         self.irradiance = _rgb("DirectionalLight.irradiance", self.irradiance)
-        a = float(self.angular_radius)
+        a = _number("DirectionalLight.angular_radius", self.angular_radius)
         if not (0 < a < 90):
             raise ValueError(f"DirectionalLight.angular_radius must lie in (0, 90) degrees, "
                              f"got {self.angular_radius!r}")
@@ -299,10 +351,7 @@ class PointLight:
     def __post_init__(self):
         self.position = _vec3("PointLight.position", self.position)
         self.intensity = _rgb("PointLight.intensity", self.intensity)
-        r = float(self.radius)
-        if not (np.isfinite(r) and r > 0):
-            raise ValueError(f"PointLight.radius must be > 0, got {self.radius!r}")
-        self.radius = r
+        self.radius = _positive("PointLight.radius", self.radius)
 
     def packed(self) -> np.ndarray:
         """(8,) [1 (point), position, intensity, radius]."""

@@ -16,8 +16,8 @@ or ``warp-biscale render scene.toml -o out.png``. Every table and key is optiona
     method = "sg"                # "sg" (per-pixel SG shading) or "mc" (Monte Carlo reference)
     samples = 64                 # mc only: samples per pixel (>= 2); seed = 0 too
     exposure = 0.0               # stops, applied when writing a PNG
-    env_lobes = 9                # SG lobes fitted to the environment (diffuse term)
-    ssdf_resolution = 32         # SSDF directions per side; ssdf_terms = 16 PCA terms
+    env_lobes = 9                # SG lobes fitted to the environment (diffuse term), 1..16
+    ssdf_resolution = 32         # SSDF directions per side (2..128); ssdf_terms = 16 PCA terms (<= resolution²)
     backend = "auto"             # auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name>
 
     [camera]                     # no [camera] / no eye: framed on the objects' bounding sphere
@@ -78,18 +78,24 @@ or ``warp-biscale render scene.toml -o out.png``. Every table and key is optiona
 
 Errors name the file, the line, the table and the key — ``scene.toml:12: [material.gold] exponent
 must be a number, got 'high'`` — for TOML syntax errors, unknown tables and keys (a typo never passes
-silently), wrong types, missing required keys, undefined materials, missing files and bad values.
+silently), wrong types, missing required keys, undefined materials, missing files and bad values (sizes
+<= 0, nan, inf, settings out of range). The warnings of a material that reflects more light than it
+receives (`brdf.EnergyWarning`) and of BRDFs beyond a tile's material ids (`TileWarning`) name them too.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import re
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from .images import check_exposure
 
 try:  # Python >= 3.11
     import tomllib
@@ -230,14 +236,16 @@ def _check_int(v):
 def _check_vec3(v):
     if not (isinstance(v, list) and len(v) == 3 and all(_is_num(x) for x in v)):
         return None, "three numbers [x, y, z]"
+    if not all(math.isfinite(x) for x in v):
+        return None, "three finite numbers [x, y, z] (no nan or inf)"
     return [float(x) for x in v], None
 
 
 def _check_rgb(v):
-    if _is_num(v):
-        return float(v), None
-    if isinstance(v, list) and len(v) == 3 and all(_is_num(x) for x in v):
-        return [float(x) for x in v], None
+    if _is_num(v) or (isinstance(v, list) and len(v) == 3 and all(_is_num(x) for x in v)):
+        if not all(math.isfinite(x) for x in (v if isinstance(v, list) else [v])):
+            return None, "a finite number or an RGB triple of them (no nan or inf)"
+        return (float(v) if _is_num(v) else [float(x) for x in v]), None
     return None, "a number or an RGB triple [r, g, b]"
 
 
@@ -301,20 +309,51 @@ def _read(ctx: _Ctx, table: tuple, data, schema: dict, required=(), where: str =
     return out
 
 
-def _build(ctx: _Ctx, table: tuple, values: dict, fn, *args, **extra):
-    """Call a constructor with the table's values; its ValueError gets the line of the key it names."""
+def _build(ctx: _Ctx, table: tuple, values: dict, fn, *args, warn_key=None, **extra):
+    """Call a constructor with the table's values; its ValueError gets the line of the key it names, and so
+    do its EnergyWarnings and TileWarnings (else they get the line of `warn_key`, else of the table)."""
     try:
-        return fn(*args, **values, **extra)
+        with _located_warnings(ctx, table, values, warn_key):
+            return fn(*args, **values, **extra)
     except (ValueError, TypeError) as exc:
         raise _located(ctx, table, values, exc) from None
 
 
+def _named_key(msg: str, keys):
+    """The key of `keys` that `msg` names first (as a whole word), else None."""
+    hits = [(m.start(), k) for k in keys for m in [re.search(rf"(?<![A-Za-z0-9_]){re.escape(k)}(?![A-Za-z0-9_])",
+                                                              msg)] if m]
+    return min(hits)[1] if hits else None
+
+
 def _located(ctx, table, values, exc) -> SceneError:
     msg = str(exc)
-    hits = [(m.start(), k) for k in values for m in [re.search(rf"(?<![A-Za-z0-9_]){re.escape(k)}(?![A-Za-z0-9_])",
-                                                                msg)] if m]
-    key = min(hits)[1] if hits else None
-    return ctx.error(table, key, msg)
+    return ctx.error(table, _named_key(msg, values), msg)
+
+
+@contextlib.contextmanager
+def _located_warnings(ctx: _Ctx, table: tuple, keys, default_key=None):
+    """Re-issue the EnergyWarnings (a BRDF's energy gain) and TileWarnings raised inside with the file, line
+    and table of the key they name (else `default_key`'s); other warnings pass through unchanged."""
+    caught: list = []
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            yield
+    finally:  # (also when the body raises: what it warned of before still shows)
+        _reissue(ctx, table, keys, default_key, caught)
+
+
+def _reissue(ctx, table, keys, default_key, caught):
+    from .brdf import EnergyWarning
+    from .smallscale import TileWarning
+
+    for w in caught:
+        if issubclass(w.category, (EnergyWarning, TileWarning)):
+            msg = str(w.message)
+            warnings.warn(str(ctx.error(table, _named_key(msg, keys) or default_key, msg)), w.category, stacklevel=4)
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, source=w.source)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -486,7 +525,7 @@ def loads_scene(text: str, path: str | None = None, base_dir: str | None = None,
 
 
 def _render_settings(ctx, data, sf):
-    from .render import METHODS
+    from .render import METHODS, SETTINGS_UNITS, Scene, settings_ranges
 
     table = ("render",)
     v = _read(ctx, table, data, RENDER_KEYS)
@@ -496,9 +535,13 @@ def _render_settings(ctx, data, sf):
         setattr(sf, key, v.get(key, getattr(sf, key)))
     if "method" in v and v["method"] not in METHODS:
         raise ctx.error(table, "method", f"method must be one of {', '.join(METHODS)}, got {v['method']!r}")
-    for key, lo in (("samples", 2), ("env_lobes", 1), ("ssdf_resolution", 1), ("ssdf_terms", 1)):
-        if key in v and v[key] < lo:
-            raise ctx.error(table, key, f"{key} must be >= {lo}, got {v[key]}")
+    if "samples" in v and v["samples"] < 2:
+        raise ctx.error(table, "samples", f"samples must be >= 2, got {v['samples']}")
+    # the ranges render.Scene checks (env_lobes up to the lighting kernels' lobes, the SSDF's grid sizes):
+    # a bad value is named here with its line, not when the render starts
+    for key, (lo, hi) in settings_ranges(v.get("ssdf_resolution", Scene.ssdf_resolution)).items():
+        if key in v and not lo <= v[key] <= hi:
+            raise ctx.error(table, key, f"{key} must be an integer in {lo}..{hi}{SETTINGS_UNITS[key]}, got {v[key]}")
     if "seed" in v and v["seed"] < 0:
         raise ctx.error(table, "seed", f"seed must be >= 0, got {v['seed']}")
     if "backend" in v:
@@ -511,6 +554,11 @@ def _render_settings(ctx, data, sf):
     sf.method = v.get("method", sf.method)
     sf.samples = v.get("samples")
     sf.seed = v.get("seed")
+    if "exposure" in v:
+        try:
+            check_exposure(v["exposure"])
+        except ValueError as exc:
+            raise ctx.error(table, "exposure", str(exc)) from None
     sf.exposure = v.get("exposure", sf.exposure)
     sf.backend = v.get("backend", sf.backend)
     return {k: v[k] for k in ("env_lobes", "ssdf_resolution", "ssdf_terms") if k in v}
@@ -706,7 +754,8 @@ def _brdfs(ctx, table, specs):
     out = []
     for s in specs:
         try:
-            out.append(parse_brdf(s))
+            with _located_warnings(ctx, table, (), "brdf"):
+                out.append(parse_brdf(s))
         except ValueError as exc:
             raise ctx.error(table, "brdf", f"brdf {s!r}: {exc}") from None
     return out
@@ -794,4 +843,4 @@ def _bake(ctx, table, v, sf, name, used, prog):
     opts = {k: v[k] for k in ("lobes", "directions", "facets", "normal_res", "method", "route", "seed") if k in v}
     if not used:  # validated, not baked: nothing in the scene shows it
         return None
-    return _build(ctx, table, opts, bake, tile, mats, backend=sf.backend, progress=prog)
+    return _build(ctx, table, opts, bake, tile, mats, warn_key="brdf", backend=sf.backend, progress=prog)

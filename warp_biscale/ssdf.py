@@ -95,10 +95,14 @@ def octahedral_decode(uv) -> np.ndarray:
     return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
 
+RESOLUTIONS = (2, 128)  # the octahedral grid's directions per side: at least one per hemisphere quadrant
+
+
 def _check_resolution(resolution) -> int:
     s = int(resolution)
-    if s != resolution or not 2 <= s <= 128:
-        raise ValueError(f"SSDF resolution must be an integer in 2..128, got {resolution!r}")
+    if s != resolution or not RESOLUTIONS[0] <= s <= RESOLUTIONS[1]:
+        lo, hi = RESOLUTIONS
+        raise ValueError(f"SSDF resolution must be an integer in {lo}..{hi}, got {resolution!r}")
     return s
 
 

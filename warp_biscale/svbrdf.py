@@ -96,6 +96,13 @@ class Textured:
         self.kd_map = _load_map("kd_map", kd_map, True)
         self.ks_map = _load_map("ks_map", ks_map, True)
         self.parameter_map = _load_map("parameter_map", parameter_map, False)
+        if self.kd_map is not None:  # the diffuse reflectance kd ⊙ kd_map where the map is brightest
+            lambert = isinstance(brdf, brdf_mod.Lambert)
+            kd = np.asarray(brdf.albedo if lambert else brdf.kd, np.float64)
+            peak = kd * self.kd_map.reshape(-1, 3).max(axis=0).astype(np.float64)
+            if not (kd > 1).any():  # (a kd above 1 was warned of by the BRDF itself)
+                name = f"Textured {type(brdf).__name__} {'albedo' if lambert else 'kd'} × kd_map (at its brightest)"
+                brdf_mod.warn_energy(name, peak, stacklevel=2)
 
     @property
     def maps(self) -> tuple:

@@ -9,6 +9,7 @@ infinitely tiled surface. The driver calls backend primitives only; it never ask
 from __future__ import annotations
 
 import time
+import warnings
 
 import numpy as np
 
@@ -34,12 +35,21 @@ def _check_count(facets) -> int:
 
 
 def _prepare(tile, materials):
-    from .smallscale import SmallScale
+    """The tile checked and its materials normalised (one BRDF or a list, indexed by the tile's material ids):
+    → (list of Brdf, kinds, params). Fewer BRDFs than the tile's ids is an error; more (than one) is a
+    `TileWarning`, since the extra ones are never used. Shared by `ground_truth`, `effective_brdf_exact`
+    and `bake.bake`; the warning points at their caller."""
+    from .smallscale import SmallScale, TileWarning
 
     if not isinstance(tile, SmallScale):
         raise ValueError(f"tile must be a SmallScale (wb.SmallScale.load(...) or wb.geometry.*), got {tile!r}")
     mats = as_material_list(materials)
     kinds, params = pack_materials(mats, tile.n_materials)
+    n = tile.n_materials
+    if len(mats) > n:
+        unused = f"BRDF {n} is" if len(mats) == n + 1 else f"BRDFs {n}..{len(mats) - 1} are"
+        ids = "1 material id" if n == 1 else f"{n} material ids"
+        warnings.warn(f"{len(mats)} BRDFs given for a tile with {ids}: {unused} unused", TileWarning, stacklevel=3)
     return mats, kinds, params
 
 
@@ -125,9 +135,10 @@ def ground_truth(tile, materials, facets: int = 1 << 20, directions: int = 12, b
     prog.stage(f"visibility ({nd} dirs)", 1)
     vis = timer("visibility", be.visibility, tile, fac, grid)
     a_v = timer("visible_area", be.visible_area, fac, vis)
-    # All pairs, a few ωi rows per launch so the progress display moves on long runs.
+    # All pairs, a few ωi rows per launch (at most ~2^28 facet-pair terms) so that the progress display
+    # moves on long runs; a launch that large still fills a GPU.
     table = np.zeros((nd, nd, 3), np.float32)
-    rows = max(1, min(nd, (1 << 16) // nd))
+    rows = max(1, min(nd, (1 << 28) // (nd * count)))
     pair_i, pair_o = dirs.all_pairs(nd)
     prog.stage(f"effective BRDF ({nd}x{nd})", nd)
     for start in range(0, nd, rows):

@@ -1,0 +1,302 @@
+"""Every bad input is refused before the work, in one line that names it: non-positive sizes, NaN and inf
+in scene construction (and their file:line in a scene file), an energy gain in a BRDF (a warning), BRDFs
+beyond a tile's material ids (a warning) and [render] settings beyond what the renderer takes."""
+
+import sys
+import textwrap
+import warnings
+
+import numpy as np
+import pytest
+
+import warp_biscale as wb
+from warp_biscale import ssdf
+from warp_biscale.brdf import EnergyWarning
+from warp_biscale.lobes import KERNEL_LOBES
+from warp_biscale.render import SSDF_RESOLUTIONS
+from warp_biscale.scenefile import SceneError, load_scene
+
+NAN, INF = float("nan"), float("inf")
+
+
+def _scene(**settings):
+    return wb.Scene(wb.Mesh.sphere(subdivisions=0), wb.Lambert(0.5), **settings)
+
+
+BAD = [
+    # Mesh.sphere
+    (lambda: wb.Mesh.sphere(radius=-0.8), "Mesh.sphere radius must be > 0, got -0.8"),
+    (lambda: wb.Mesh.sphere(radius=0), "Mesh.sphere radius must be > 0"),
+    (lambda: wb.Mesh.sphere(radius=NAN), "Mesh.sphere radius must be a finite number > 0, got nan"),
+    (lambda: wb.Mesh.sphere(radius=INF), "Mesh.sphere radius"),
+    (lambda: wb.Mesh.sphere(subdivisions=-1), "Mesh.sphere subdivisions must be an integer >= 0, got -1"),
+    (lambda: wb.Mesh.sphere(subdivisions=1.5), "Mesh.sphere subdivisions"),
+    (lambda: wb.Mesh.sphere(center=(0, NAN, 0)), "Mesh.sphere center"),
+    (lambda: wb.Mesh.sphere(material=-1), "Mesh.sphere material must be an integer >= 0"),
+    # Mesh.torus
+    (lambda: wb.Mesh.torus(major=-1.0), "Mesh.torus major must be > 0, got -1.0"),
+    (lambda: wb.Mesh.torus(minor=0.0), "Mesh.torus minor must be > 0, got 0.0"),
+    (lambda: wb.Mesh.torus(minor=NAN), "Mesh.torus minor"),
+    (lambda: wb.Mesh.torus(segments=(2, 48)), "Mesh.torus segments[0] (around) must be an integer >= 3, got 2"),
+    (lambda: wb.Mesh.torus(segments=(96, 0)), "Mesh.torus segments[1] (across)"),
+    (lambda: wb.Mesh.torus(segments=5), "Mesh.torus segments must be two integers"),
+    (lambda: wb.Mesh.torus(center=(INF, 0, 0)), "Mesh.torus center"),
+    # Mesh.plane
+    (lambda: wb.Mesh.plane(size=-4.0), "Mesh.plane size must be > 0, got -4.0"),
+    (lambda: wb.Mesh.plane(size=0), "Mesh.plane size"),
+    (lambda: wb.Mesh.plane(height=NAN), "Mesh.plane height must be a finite number"),
+    (lambda: wb.Mesh.plane(divisions=0), "Mesh.plane divisions must be an integer >= 1, got 0"),
+    # Camera
+    (lambda: wb.Camera(fov=NAN), "Camera.fov"),
+    (lambda: wb.Camera(fov="wide"), "Camera.fov"),
+    (lambda: wb.Camera(width=NAN), "Camera.width must be an integer in 1..16384, got nan"),
+    (lambda: wb.Camera(height=-2), "Camera.height"),
+    # lights
+    (lambda: wb.PointLight(intensity=-1.0), "PointLight.intensity"),
+    (lambda: wb.PointLight(intensity=INF), "PointLight.intensity"),
+    (lambda: wb.PointLight(intensity=(1.0, NAN, 1.0)), "PointLight.intensity"),
+    (lambda: wb.PointLight(intensity="bright"), "PointLight.intensity"),
+    (lambda: wb.PointLight(radius=-0.1), "PointLight.radius must be > 0, got -0.1"),
+    (lambda: wb.PointLight(radius=NAN), "PointLight.radius"),
+    (lambda: wb.PointLight(position=(0, INF, 0)), "PointLight.position"),
+    (lambda: wb.DirectionalLight(irradiance=-2.0), "DirectionalLight.irradiance"),
+    (lambda: wb.DirectionalLight(irradiance=NAN), "DirectionalLight.irradiance"),
+    (lambda: wb.DirectionalLight(angular_radius=NAN), "DirectionalLight.angular_radius"),
+    (lambda: wb.DirectionalLight(angular_radius="big"), "DirectionalLight.angular_radius"),
+    # BRDFs
+    (lambda: wb.Lambert(-0.5), "Lambert.albedo"),
+    (lambda: wb.Lambert(NAN), "Lambert.albedo"),
+    (lambda: wb.Lambert("grey"), "Lambert.albedo"),
+    (lambda: wb.BlinnPhong(0.5, -10.0), "BlinnPhong.exponent must be a finite number > 0, got -10.0"),
+    (lambda: wb.BlinnPhong(0.5, "sharp"), "BlinnPhong.exponent"),
+    (lambda: wb.CookTorrance(0.5, 0.2, f0=NAN), "CookTorrance.f0"),
+    (lambda: wb.CookTorrance(0.5, 0.2, f0="glass"), "CookTorrance.f0"),
+    (lambda: wb.Ward(0.5, INF), "Ward.alpha"),
+    # render settings: the ranges the renderer takes
+    (lambda: _scene(env_lobes=KERNEL_LOBES + 1), f"Scene.env_lobes must be an integer in 1..{KERNEL_LOBES}"),
+    (lambda: _scene(env_lobes=0), "Scene.env_lobes"),
+    (lambda: _scene(env_lobes=NAN), "Scene.env_lobes"),
+    (lambda: _scene(ssdf_resolution=1), "Scene.ssdf_resolution must be an integer in 2..128"),
+    (lambda: _scene(ssdf_resolution=129), "Scene.ssdf_resolution"),
+    (lambda: _scene(ssdf_resolution=8, ssdf_terms=65), "Scene.ssdf_terms must be an integer in 1..64"),
+    (lambda: _scene(ssdf_terms=0), "Scene.ssdf_terms"),
+]
+
+
+@pytest.mark.parametrize("make, names", BAD, ids=[names for _, names in BAD])
+def test_bad_input_is_refused_in_one_line_naming_it(make, names):
+    with pytest.raises(ValueError) as info:
+        make()
+    msg = str(info.value)
+    assert names in msg, msg
+    assert "\n" not in msg, msg
+
+
+def test_good_sizes_still_build():
+    assert len(wb.Mesh.sphere(radius=0.8, subdivisions=0).faces) == 20
+    assert len(wb.Mesh.torus(0.5, 0.1, segments=(3, 3)).faces) == 18
+    assert len(wb.Mesh.plane(size=1.0, divisions=1).faces) == 2
+    np.testing.assert_allclose(np.linalg.norm(wb.Mesh.sphere(radius=np.float32(2.0)).vertices, axis=1), 2.0)
+    s = _scene(env_lobes=KERNEL_LOBES, ssdf_resolution=8, ssdf_terms=64)
+    assert (s.env_lobes, s.ssdf_resolution, s.ssdf_terms) == (KERNEL_LOBES, 8, 64)
+
+
+def test_ssdf_resolution_range_is_the_ssdf_modules():
+    lo, hi = SSDF_RESOLUTIONS
+    for ok in (lo, hi):
+        ssdf._check_resolution(ok)
+    for bad in (lo - 1, hi + 1):
+        with pytest.raises(ValueError):
+            ssdf._check_resolution(bad)
+
+
+# ------------------------------------------------------------------------------------------------ energy
+
+
+@pytest.mark.parametrize("make, match", [
+    (lambda: wb.Lambert(1.2), r"Lambert albedo 1\.2 > 1 reflects more light than it receives"),
+    (lambda: wb.Lambert((0.5, 1.3, 0.5)), r"Lambert albedo \(0\.5, 1\.3, 0\.5\): g = 1\.3 > 1"),
+    (lambda: wb.BlinnPhong(0.5, 100, kd=1.5), r"BlinnPhong kd 1\.5 > 1 reflects more light"),
+    (lambda: wb.CookTorrance(0.5, 0.2, kd=(1.1, 0.2, 0.2)), r"CookTorrance kd .*r = 1\.1 > 1"),
+    (lambda: wb.Ward(0.5, 0.2, kd=2.0), r"Ward kd 2 > 1"),
+    (lambda: wb.Textured(wb.Lambert(0.8), kd_map=np.full((2, 2, 3), 1.5)),
+     r"Textured Lambert albedo × kd_map \(at its brightest\) 1\.2 > 1"),
+])
+def test_an_energy_gain_warns_naming_the_input(make, match):
+    with pytest.warns(EnergyWarning, match=match) as record:
+        make()
+    assert all(w.filename == __file__ for w in record if issubclass(w.category, EnergyWarning))
+
+
+def test_physical_brdfs_do_not_warn():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", EnergyWarning)
+        wb.Lambert(1.0)
+        wb.BlinnPhong(1.0, 100, kd=1.0)  # ks is not a reflectance on its own: not checked
+        wb.Ward(0.9, 0.2, kd=(1.0, 0.5, 0.0))
+        wb.Textured(wb.BlinnPhong(0.5, 100, kd=0.5), kd_map=np.full((2, 2, 3), 2.0))  # 0.5 × 2 = 1
+
+
+def test_energy_warning_is_a_user_warning():
+    assert issubclass(EnergyWarning, UserWarning)
+
+
+# ------------------------------------------------------------------------------------------------ unused BRDFs
+
+
+@pytest.fixture
+def two_id_tile():
+    tile = wb.geometry.pyramid(height=0.3, base_material=1)
+    assert tile.n_materials == 2
+    return tile
+
+
+class _NoWork(Exception):
+    pass
+
+
+def _no_work(*a, **k):
+    raise _NoWork
+
+
+@pytest.mark.parametrize("call", ["bake", "ground_truth", "effective_brdf_exact"])
+def test_brdfs_beyond_the_tiles_ids_warn_before_the_work(two_id_tile, call, monkeypatch):
+    for mod in ("warp_biscale.bake", "warp_biscale.truth"):  # (wb.bake is the function: the module by name)
+        monkeypatch.setattr(sys.modules[mod], "get_backend", _no_work)
+    fn = {"bake": lambda m: wb.bake(two_id_tile, m),
+          "ground_truth": lambda m: wb.ground_truth(two_id_tile, m),
+          "effective_brdf_exact": lambda m: wb.effective_brdf_exact(two_id_tile, m, [[0, 0, 1.0]], [[0, 0, 1.0]])}
+    mats = [wb.Lambert(0.5), wb.Lambert(0.4), wb.Lambert(0.3), wb.Lambert(0.2)]
+    with pytest.warns(wb.TileWarning, match=r"^3 BRDFs given for a tile with 2 material ids: BRDF 2 is unused$") as rec:
+        with pytest.raises(_NoWork):
+            fn[call](mats[:3])
+    assert [w.filename for w in rec if issubclass(w.category, wb.TileWarning)] == [__file__]  # the caller's line
+    with pytest.warns(wb.TileWarning, match=r"^4 BRDFs given for a tile with 2 material ids: BRDFs 2\.\.3 are unused$"):
+        with pytest.raises(_NoWork):
+            fn[call](mats)
+
+
+def test_as_many_brdfs_as_ids_or_one_do_not_warn(two_id_tile, monkeypatch):
+    monkeypatch.setattr(sys.modules["warp_biscale.truth"], "get_backend", _no_work)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", wb.TileWarning)
+        for mats in ([wb.Lambert(0.5), wb.Lambert(0.4)], wb.Lambert(0.5)):
+            with pytest.raises((_NoWork, ValueError)):  # one BRDF for two ids: refused by pack_materials
+                wb.ground_truth(two_id_tile, mats)
+
+
+def test_extra_brdfs_still_bake(two_id_tile):
+    with pytest.warns(wb.TileWarning, match="BRDF 2 is unused"):
+        mat = wb.bake(two_id_tile, [wb.Lambert(0.5), wb.Lambert(0.4), wb.Lambert(0.3)], lobes=2, directions=4,
+                      facets=512, normal_res=16, backend="warp:cpu")
+    assert len(mat.materials) == 3
+
+
+# ------------------------------------------------------------------------------------------------ scene files
+
+BASE = """\
+[[object]]
+mesh = "sphere"
+subdivisions = 1
+material = "m"
+
+[material.m]
+type = "lambert"
+albedo = 0.5
+"""
+
+
+def _load_error(tmp_path, text):
+    p = tmp_path / "scene.toml"
+    p.write_text(textwrap.dedent(text))
+    with pytest.raises(SceneError) as info:
+        load_scene(p, backend="warp:cpu")
+    assert "\n" not in str(info.value)
+    return info.value
+
+
+def _line(text, snippet):
+    return next(i for i, line in enumerate(text.splitlines(), 1) if snippet in line)
+
+
+@pytest.mark.parametrize("extra, snippet, words", [
+    ("radius = -0.8\n", "radius = -0.8", ["[[object]] #1", "Mesh.sphere radius must be > 0, got -0.8"]),
+    ("subdivisions = -2\n", "subdivisions = -2", ["Mesh.sphere subdivisions must be an integer >= 0, got -2"]),
+    ("translate = [nan, 0, 0]\n", "translate", ["translate must be three finite numbers"]),
+    ("rotate = [0, inf, 0]\n", "rotate", ["rotate must be three finite numbers"]),
+    ("scale = 0\n", "scale = 0", ["scale must be > 0, got 0"]),
+])
+def test_scene_file_sphere_errors_have_file_and_line(tmp_path, extra, snippet, words):
+    text = BASE.replace("subdivisions = 1\n", "subdivisions = 1\n" + extra) if "subdivisions" not in extra \
+        else BASE.replace("subdivisions = 1\n", extra)
+    err = _load_error(tmp_path, text)
+    line = _line(text, snippet)
+    assert str(err).startswith(f"scene.toml:{line}:"), str(err)
+    assert err.line == line
+    for w in words:
+        assert w in str(err), str(err)
+
+
+@pytest.mark.parametrize("mesh, extra, snippet, word", [
+    ("torus", "minor = -0.1\n", "minor", "Mesh.torus minor must be > 0, got -0.1"),
+    ("torus", "segments = [2, 48]\n", "segments", "Mesh.torus segments[0] (around) must be an integer >= 3"),
+    ("plane", "size = 0.0\n", "size", "Mesh.plane size must be > 0, got 0.0"),
+    ("plane", "divisions = 0\n", "divisions", "Mesh.plane divisions must be an integer >= 1, got 0"),
+])
+def test_scene_file_mesh_errors_have_file_and_line(tmp_path, mesh, extra, snippet, word):
+    text = BASE.replace('mesh = "sphere"\nsubdivisions = 1\n', f'mesh = "{mesh}"\n{extra}')
+    err = _load_error(tmp_path, text)
+    assert str(err).startswith(f"scene.toml:{_line(text, snippet)}:"), str(err)
+    assert word in str(err)
+
+
+@pytest.mark.parametrize("render, snippet, word", [
+    (f"env_lobes = {2 * KERNEL_LOBES}", "env_lobes",
+     f"[render] env_lobes must be an integer in 1..{KERNEL_LOBES} (the SG lighting kernels' lobe count), "
+     f"got {2 * KERNEL_LOBES}"),
+    ("env_lobes = 0", "env_lobes", "env_lobes must be an integer in 1.."),
+    ("ssdf_resolution = 1", "ssdf_resolution", "ssdf_resolution must be an integer in 2..128"),
+    ("ssdf_resolution = 256", "ssdf_resolution", "ssdf_resolution must be an integer in 2..128"),
+    ("ssdf_resolution = 8\nssdf_terms = 100", "ssdf_terms", "ssdf_terms must be an integer in 1..64"),
+    ("ssdf_terms = 2000", "ssdf_terms", "ssdf_terms must be an integer in 1..1024"),  # the default 32²
+    ("samples = 1", "samples", "samples must be >= 2"),
+])
+def test_scene_file_render_settings_are_checked_at_load(tmp_path, render, snippet, word):
+    text = f"[render]\nwidth = 64\n{render}\n\n" + BASE
+    err = _load_error(tmp_path, text)
+    assert str(err).startswith(f"scene.toml:{_line(text, snippet)}:"), str(err)
+    assert err.key == snippet
+    assert word in str(err), str(err)
+
+
+def test_scene_file_light_errors_have_file_and_line(tmp_path):
+    text = BASE + '\n[[light]]\ntype = "point"\nposition = [0, 3, 0]\nintensity = -5.0\n'
+    err = _load_error(tmp_path, text)
+    assert str(err).startswith(f"scene.toml:{_line(text, 'intensity')}: [[light]] #1 PointLight.intensity")
+    text = BASE + '\n[[light]]\ntype = "directional"\nirradiance = [1, nan, 1]\n'
+    err = _load_error(tmp_path, text)
+    assert str(err).startswith(f"scene.toml:{_line(text, 'irradiance')}: [[light]] #1 irradiance must be a finite")
+
+
+def test_scene_file_energy_warning_has_file_and_line(tmp_path):
+    text = BASE.replace("albedo = 0.5", "albedo = 1.2")
+    p = tmp_path / "scene.toml"
+    p.write_text(text)
+    line = _line(text, "albedo")
+    with pytest.warns(EnergyWarning, match=rf"^scene\.toml:{line}: \[material\.m\] Lambert albedo 1\.2 > 1"):
+        sf = load_scene(p, backend="warp:cpu")
+    assert sf.scene.materials[0].albedo == (1.2, 1.2, 1.2)  # a warning, not an error
+
+
+def test_scene_file_unused_brdf_warning_has_file_and_line(tmp_path, monkeypatch):
+    monkeypatch.setattr(sys.modules["warp_biscale.bake"], "get_backend", _no_work)
+    text = BASE.replace('material = "m"', 'material = "b"') + (
+        '\n[material.b]\ntype = "bake"\ntile = "pyramid"\n'
+        'tile_params = { height = 0.3, base_material = 1 }\n'
+        'brdf = ["lambert:albedo=0.5", "lambert:albedo=0.4", "lambert:albedo=0.3"]\n')
+    p = tmp_path / "scene.toml"
+    p.write_text(text)
+    with pytest.warns(wb.TileWarning, match=rf"^scene\.toml:{_line(text, 'brdf')}: \[material\.b\] 3 BRDFs given "
+                                            r"for a tile with 2 material ids"):
+        with pytest.raises(_NoWork):
+            load_scene(p, backend="warp:cpu")
