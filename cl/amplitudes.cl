@@ -1,4 +1,4 @@
-/* Gram amplitudes (Iwasaki §4, DESIGN §5): the lobe moments b, c of every direction pair and the solve.
+/* Gram amplitudes (Iwasaki §4, docs/design.md §5): the lobe moments b, c of every direction pair and the solve.
  *
  * Twin of kernels/amplitudes.py; the mathematics is warp_biscale.reference.lobe_values,
  * lobe_moments, histogram_moments and solve_amplitudes. Needs cl_khr_fp64.

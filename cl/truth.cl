@@ -1,4 +1,4 @@
-/* a_v(w) and the ground-truth effective BRDF (DESIGN §4), exact small-scale BRDFs.
+/* a_v(w) and the ground-truth effective BRDF (docs/design.md §4), exact small-scale BRDFs.
  *
  * Twin of kernels/truth.py; the mathematics is warp_biscale.reference.visible_area and
  * reference.effective_brdf. Both sums over facets are split into chunks of 32-facet words: one

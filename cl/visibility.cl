@@ -1,4 +1,4 @@
-/* Visibility of the infinitely tiled surface (Wu §3.3, DESIGN §4): bits V_s(w_k).
+/* Visibility of the infinitely tiled surface (Wu §3.3, docs/design.md §4): bits V_s(w_k).
  *
  * Twin of kernels/visibility.py; the mathematics is warp_biscale.reference.trace_periodic. One
  * work-item per ray (facet s, direction k) writes a byte, and pack_bits folds 32 bytes into a word

@@ -1,4 +1,4 @@
-"""Visibility of the infinitely tiled surface (Wu §3.3, DESIGN §4): bits V_s(ω_k).
+"""Visibility of the infinitely tiled surface (Wu §3.3, docs/design.md §4): bits V_s(ω_k).
 
 Twin of ``cl/visibility.cl``; the mathematics is ``warp_biscale.reference.trace_periodic``.
 One thread per ray (direction, facet) writes a byte, and `pack_bits` folds 32 bytes into a word (no

@@ -171,7 +171,7 @@ def test_from_sgs_is_the_formula_at_texel_centres_and_has_the_sg_power():
     xi = axes / np.linalg.norm(axes, axis=1, keepdims=True)
     want = 0.1 + sum(np.exp(eta[k] * (d @ xi[k] - 1))[..., None] * mu[k] for k in range(2))
     np.testing.assert_allclose(env.radiance, want, rtol=1e-6)
-    # ∫G = 2πμ(1 − e^{−2η})/η (DESIGN §5); the map's midpoint rule is within 1% at these sharpnesses.
+    # ∫G = 2πμ(1 − e^{−2η})/η (docs/design.md §5); the map's midpoint rule is within 1% at these sharpnesses.
     sg_power = sum(2 * math.pi * mu[k] * -math.expm1(-2 * eta[k]) / eta[k] for k in range(2))
     np.testing.assert_allclose(env.power(), 0.4 * math.pi + sg_power, rtol=0.01)
 

@@ -1,4 +1,4 @@
-"""kernels/ and cl/ are installed inside the package (DESIGN §2), in a wheel and in this install."""
+"""kernels/ and cl/ are installed inside the package (docs/design.md §2), in a wheel and in this install."""
 
 import importlib
 import importlib.util

@@ -155,7 +155,7 @@ class Backend(Protocol):
 
     def lobe_moments(self, facets: Facets, vis: Visibility, weight, axes, sharpness, pair_i, pair_o,
                      to_host: bool = True):
-        """(P, J + 1) float32 facet sums of DESIGN §5 for the unordered pairs (reference.lobe_moments),
+        """(P, J + 1) float32 facet sums of docs/design.md §5 for the unordered pairs (reference.lobe_moments),
         each facet weighing `weight` (Ns,), or its area ΔA when `weight` is None (a tile of one material
         and one colour: nothing uploaded); with to_host=False a device array for solve_amplitudes (no
         round trip through the host). `axes` may be the DeviceLobes of this backend's last ndf_em

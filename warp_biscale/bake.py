@@ -207,7 +207,7 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
         run once per group of 16 and the amplitudes are solved on the host (float64), so the bake costs
         up to about J/16 times the J = 16 bake (woven on an H100: 21 ms at J = 16, 140 ms at 128); a
         tile whose NDF has sharp curved ridges (woven threads) needs ~128 lobes for 35 dB (bench/README.md).
-    directions : K, the K×K direction grid (DESIGN §4); tables are K²×K².
+    directions : K, the K×K direction grid (docs/design.md §4); tables are K²×K².
     normal_res : R, the cube map of normal bins (6×R×R).
     facets : Ns; seed : facet-sampling seed.
     route : how the amplitudes' right-hand sides are summed: "facets" (exact facet sums, default)

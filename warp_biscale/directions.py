@@ -1,4 +1,4 @@
-"""The K×K direction grid of DESIGN §4: cell centres of the unit square → Shirley–Chiu concentric
+"""The K×K direction grid of docs/design.md §4: cell centres of the unit square → Shirley–Chiu concentric
 disk → hemisphere by the equal-area lift z = 1 − r², so every direction owns 2π/K² sr.
 
 Direction index k = row·K + col for the cell centre (u, v) = ((col + ½)/K, (row + ½)/K).

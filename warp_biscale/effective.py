@@ -123,7 +123,7 @@ class EffectiveBRDF:
         return out * np.maximum(wi[:, 2], 0.0)[None, :, None, None]
 
     def eval(self, wi, wo, method: str | None = None) -> np.ndarray:
-        """(N, 3) f̄(ωi, ωo) (cosine θi included, DESIGN §4) at arbitrary directions; 0 below the horizon.
+        """(N, 3) f̄(ωi, ωo) (cosine θi included, docs/design.md §4) at arbitrary directions; 0 below the horizon.
 
         method: "sg" (Eq. 15, the SG closure) or "sg-exact" (Eq. 10); default the bake's.
         """

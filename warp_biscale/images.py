@@ -1,7 +1,7 @@
 """Image files and image comparison: float EXR and Radiance HDR, tone-mapped PNG, error metrics.
 
 Every image here is an (H, W, 3) array of linear RGB, row 0 at the top. Radiance images written to
-disk must be finite and >= 0 (DESIGN §7: no NaN or negative radiance reaches an output file), and
+disk must be finite and >= 0 (docs/design.md §7: no NaN or negative radiance reaches an output file), and
 every write is atomic (`io.atomic_path`): a reader never sees a half-written file and a failed write
 keeps the old one.
 

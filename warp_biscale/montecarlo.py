@@ -1,4 +1,4 @@
-"""The Monte Carlo reference renderer (DESIGN §6): importance-sampled, exact visibility, exact f̄.
+"""The Monte Carlo reference renderer (docs/design.md §6): importance-sampled, exact visibility, exact f̄.
 
     result = montecarlo.render(scene, samples=256, truths={1: gt})   # or wb.render(scene, method="mc", ...)
     result.image               # (H, W, 3) float32 linear radiance, never NaN, inf or negative

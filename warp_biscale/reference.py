@@ -1,6 +1,6 @@
 """Float64 numpy reference: slow, obvious, the oracle every kernel is tested against.
 
-Nothing here is fast. Each function spells out the mathematics of DESIGN §4 the way a reader would
+Nothing here is fast. Each function spells out the mathematics of docs/design.md §4 the way a reader would
 check it by hand; the kernels in `kernels/` and `cl/` reproduce the same numbers in float32.
 """
 
@@ -95,7 +95,7 @@ def sample_facets(tile, count: int, seed: int = 0) -> dict:
 
 
 # ----------------------------------------------------------------------------------------------
-# Visibility of the infinitely tiled surface (Wu §3.3, DESIGN §4)
+# Visibility of the infinitely tiled surface (Wu §3.3, docs/design.md §4)
 # ----------------------------------------------------------------------------------------------
 
 
@@ -242,7 +242,7 @@ def brdf_cosine_weighted(kinds, params, material, n, wi, wo) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------------------------
-# a_v and the ground-truth effective BRDF (DESIGN §4)
+# a_v and the ground-truth effective BRDF (docs/design.md §4)
 # ----------------------------------------------------------------------------------------------
 
 
@@ -336,7 +336,7 @@ def vgroove_effective_brdf(depth, width, kinds, params, wi, wo, material=0, colo
 
 
 def cube_bin(n, resolution: int) -> np.ndarray:
-    """(N,) int cube-map bin of unit normals: face·R² + row·R + col (DESIGN §4).
+    """(N,) int cube-map bin of unit normals: face·R² + row·R + col (docs/design.md §4).
 
     Faces 0..5 are +x, −x, +y, −y, +z, −z, chosen by the largest |component| (ties go to the
     earlier axis); on face ±x (u, v) = (y, z)/|x|, on ±y (x, z)/|y|, on ±z (x, y)/|z|, and
@@ -424,7 +424,7 @@ def lobe_values(normal, axes, sharpness) -> np.ndarray:
 
 
 def lobe_moments(facets: dict, vis: np.ndarray, directions, weight, axes, sharpness, pair_i, pair_o) -> np.ndarray:
-    """(P, J + 1) the exact facet sums of DESIGN §5, before the division by a_v(ωo):
+    """(P, J + 1) the exact facet sums of docs/design.md §5, before the division by a_v(ωo):
 
     [Σ_s P_si P_so w_s G_j(n_s) for each lobe j,  Σ_s P_si P_so w_s],  P_sk = V_s(ω_k)(n_s·ω_k)⁺,
     w_s = `weight` (ΔA_s times a colour channel). Symmetric in (i, o). Divided by a_v(ωo) they are

@@ -1,4 +1,4 @@
-"""Spherical Gaussians: the stable closed forms of DESIGN §5, in float64 numpy.
+"""Spherical Gaussians: the stable closed forms of docs/design.md §5, in float64 numpy.
 
 G(v; ξ, η, μ) = μ·exp(η(v·ξ − 1)), η > 0 (Iwasaki Eq. 3, Wang Eq. 2). Every function broadcasts
 over leading axes: axes ξ (..., 3), sharpness η (...), amplitude μ (...). They are the formulas the
@@ -129,7 +129,7 @@ def specular_lobe(brdf, wi, wo):
 
 
 # ---------------------------------------------------------------------------------------------------
-# Lighting integrals of one SG against a half-space, tabulated for the renderer (DESIGN §5, Wang §5.3)
+# Lighting integrals of one SG against a half-space, tabulated for the renderer (docs/design.md §5, Wang §5.3)
 #
 # With c = ξ·m for the lobe axis ξ and a unit vector m:
 #   cosine_fraction(c, η)     = ∫ G(ω; ξ, η, 1)·max(ω·m, 0) dω / ∫G   (m the surface normal: the SG

@@ -2,7 +2,7 @@
 
 The shade stage (`kernels/shade.py`, `cl/shade.cl`) computes, for every pixel of the G-buffer, the
 outgoing radiance L(x, ωo) = ∫ L(ω) V(x, ω) f(ω, ωo) (n·ω)⁺ dω — for an effective BRDF f̄, whose
-tables already hold the cosine (DESIGN §4), the same integral with f̄/cos θi — with every factor an
+tables already hold the cosine (docs/design.md §4), the same integral with f̄/cos θi — with every factor an
 SG or tabulated against one:
 
 - **Lighting.** Diffuse: the environment's K SG lobes (`lighting.EnvironmentSGs`, Iwasaki §5, Wang §6)

@@ -1,4 +1,4 @@
-"""The ground-truth effective BRDF (DESIGN §4, §6): the one driver for facets → visibility → f̄.
+"""The ground-truth effective BRDF (docs/design.md §4, §6): the one driver for facets → visibility → f̄.
 
 f̄(ωi, ωo) = Σ_s c_s f_r(n_s, ωi, ωo)(n_s·ωi)⁺(n_s·ωo)⁺ V_s(ωi) V_s(ωo) ΔA_s / a_v(ωo)
 
@@ -80,7 +80,7 @@ def effective_brdf_exact(tile, materials, wi, wo, facets: int = 1 << 20, backend
     backend : a backend name (see `wb.backends()`) or object.
     seed : facet-sampling seed; the same seed gives the same result.
 
-    Returns (N, 3) float64 RGB f̄, including cos θi (DESIGN §4). Only the distinct directions of
+    Returns (N, 3) float64 RGB f̄, including cos θi (docs/design.md §4). Only the distinct directions of
     wi and wo are traced.
     """
     _, kinds, params = _prepare(tile, materials)
@@ -163,7 +163,7 @@ def ground_truth(tile, materials, facets: int = 1 << 20, directions: int = 12, b
 
 
 class GroundTruth:
-    """f̄ tabulated on the K×K grid of DESIGN §4: ``table[i, o]`` for ωi = grid[i], ωo = grid[o].
+    """f̄ tabulated on the K×K grid of docs/design.md §4: ``table[i, o]`` for ωi = grid[i], ωo = grid[o].
 
     `eval` interpolates bilinearly in the square domain of ωi and of ωo. It interpolates
     f̄ / cos θi and multiplies the query's cos θi back, so the known cosine factor is exact (a flat
