@@ -8,6 +8,7 @@ import pytest
 from hypothesis import settings
 
 import warp_biscale as wb
+import warp_biscale.reference  # noqa: F401  (the float64 oracle, wb.reference: tests and bench import it, the library never does)
 
 # Property tests draw the same examples on every run (seeded by the test's name), so CI is reproducible;
 # set HYPOTHESIS_PROFILE=explore locally to search for new counterexamples.

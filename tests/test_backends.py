@@ -11,6 +11,7 @@ from conftest import BACKEND_ENTRIES, backend_params
 
 import warp_biscale as wb
 from warp_biscale import backend as backend_mod
+from warp_biscale import device
 from warp_biscale import progress
 
 KEYS = {"name", "kind", "device", "type", "usable", "reason"}
@@ -47,10 +48,10 @@ def test_every_entry_says_its_state():
 def test_probe_kernel_against_float64(name):
     """The probe passes on a usable backend because its kernel's output matches the float64 formula, and
     the check it is judged by rejects a wrong result."""
-    assert backend_mod.probe_mismatch(backend_mod.probe_expected(backend_mod.PROBE_VALUES)) is None
-    wrong = backend_mod.probe_expected(backend_mod.PROBE_VALUES).astype(np.float32)  # float32 rounding
-    assert "wrong values" in backend_mod.probe_mismatch(wrong)
-    assert "wrong values" in backend_mod.probe_mismatch(np.zeros(3))
+    assert device.probe_mismatch(device.probe_expected(device.PROBE_VALUES)) is None
+    wrong = device.probe_expected(device.PROBE_VALUES).astype(np.float32)  # float32 rounding
+    assert "wrong values" in device.probe_mismatch(wrong)
+    assert "wrong values" in device.probe_mismatch(np.zeros(3))
 
 
 def test_opencl_platform_that_cannot_build_is_unusable_with_the_fix(monkeypatch):

@@ -21,7 +21,7 @@ import warp_biscale as wb
 from warp_biscale import directions as dirs
 from warp_biscale import lobes as lobes_mod
 from warp_biscale import reference as ref
-from warp_biscale.backend import OnDevice
+from warp_biscale.device import OnDevice
 
 bake_module = sys.modules["warp_biscale.bake"]
 
@@ -528,7 +528,7 @@ def test_moments_stay_on_device_for_the_solve(backend, heightfield):
 
 
 def test_upload_cache_reuses_by_content():
-    from warp_biscale.backend import UploadCache
+    from warp_biscale.device import UploadCache
 
     uploads = []
     cache = UploadCache(size=2)
@@ -554,12 +554,12 @@ def test_upload_cache_knows_a_frozen_array_without_hashing(monkeypatch):
     writable one, or a read-only view, is looked up by content every time."""
     import hashlib
 
-    from warp_biscale import backend as backend_mod
+    from warp_biscale import device as device_mod
 
     hashed = []
     real = hashlib.blake2b
-    monkeypatch.setattr(backend_mod.hashlib, "blake2b", lambda data, **kw: hashed.append(1) or real(data, **kw))
-    cache = backend_mod.UploadCache()
+    monkeypatch.setattr(device_mod.hashlib, "blake2b", lambda data, **kw: hashed.append(1) or real(data, **kw))
+    cache = device_mod.UploadCache()
     pi, po = dirs.unordered_pairs(5)
     assert not pi.flags.writeable and dirs.unordered_pairs(5)[0] is pi  # made once, read-only
     first = cache.get(pi, np.int32, lambda host: object())
@@ -684,8 +684,8 @@ def test_bake_fits_lobes_to_what_the_grid_sees():
     """On the woven tile the bake's lobes go where the grid directions look: lobes with downward axes
     (the threads' undersides, seen only from grazing directions if at all) hold < 5 % of the weight,
     where EM on the bare NDF gives them about half (measured: 0.014 and 0.50 at J = 16)."""
-    be = wb.get_backend("opencl") if any(b["name"].startswith("opencl") and not b.get("error")
-                                         for b in wb.backends()) else wb.get_backend("warp:cpu")
+    opencl = [b["name"] for b in wb.backends() if b["usable"] and b["kind"] == "opencl"]
+    be = wb.get_backend(opencl[0] if opencl else "warp:cpu")
     tile = wb.geometry.woven()
     mat = wb.bake(tile, [wb.BlinnPhong(1.0, 512)] * tile.n_materials, lobes=16, directions=8, facets=1 << 13,
                   backend=be)

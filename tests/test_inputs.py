@@ -13,7 +13,7 @@ import warp_biscale as wb
 from warp_biscale import ssdf
 from warp_biscale.brdf import EnergyWarning
 from warp_biscale.lobes import KERNEL_LOBES
-from warp_biscale.render import SSDF_RESOLUTIONS
+from warp_biscale.scene import SSDF_RESOLUTIONS
 from warp_biscale.scenefile import SceneError, load_scene
 
 NAN, INF = float("nan"), float("inf")

@@ -15,7 +15,7 @@ import warp_biscale as wb
 from warp_biscale import montecarlo as mc
 from warp_biscale import sg
 from warp_biscale.environment import Environment
-from warp_biscale.render import Scene
+from warp_biscale.scene import Scene
 from warp_biscale.render import render as render_driver
 from warp_biscale.scene import Camera, DirectionalLight, Mesh, PointLight, light_sg
 from warp_biscale.shading import MIN_COS_VIEW

@@ -6,7 +6,8 @@ import pytest
 
 import warp_biscale as wb
 from warp_biscale import sg
-from warp_biscale.render import Scene, pack_frame
+from warp_biscale.render import pack_frame
+from warp_biscale.scene import Scene
 
 
 def _hit_normals(frame, mesh):

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 import warp_biscale as wb
-from warp_biscale.render import Scene, pack_frame
+from warp_biscale.render import pack_frame
+from warp_biscale.scene import Scene
 from warp_biscale.environment import Environment
 from warp_biscale.scene import Camera, DirectionalLight, Mesh, PointLight
 from warp_biscale.shading import shade_reference

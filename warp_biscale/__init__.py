@@ -16,18 +16,20 @@
 
 __version__ = "0.1.0"  # before the imports: warp_biscale.cli reads it while the package is importing
 
-from . import directions, geometry, lobes, reference, sg
-from .bake import Bvndf, bake
+from . import directions, geometry, lobes, sg
 from .backend import Backend, backends, get_backend
+from .bake import bake
+from .model import Bvndf
 from .brdf import BlinnPhong, CookTorrance, EnergyWarning, Lambert, Ward
 from .effective import EffectiveBRDF, compare
 from .environment import Environment
 from .images import compare_images, read_image, write_image
-from .io import load
-from .render import Rendering, Scene, render
+from .loading import load
+from .model import Facets, Visibility
+from .render import render
+from .scene import Rendering, Scene
 from .scene import Camera, DirectionalLight, Mesh, PointLight
 from .scenefile import load_scene
-from .model import Facets, Visibility
 from .smallscale import SmallScale, TileWarning
 from .svbrdf import Textured
 from .truth import GroundTruth, effective_brdf_exact, ground_truth
@@ -38,7 +40,7 @@ __all__ = [
     "Facets", "GroundTruth", "Lambert", "Mesh", "PointLight", "Rendering", "Scene", "SmallScale", "Textured",
     "TileWarning",
     "Visibility", "Ward", "backends", "bake", "compare", "compare_images", "directions", "effective_brdf_exact",
-    "geometry", "get_backend", "ground_truth", "load", "load_scene", "lobes", "read_image", "reference", "render", "sg",
+    "geometry", "get_backend", "ground_truth", "load", "load_scene", "lobes", "read_image", "render", "sg",
     "write_image",
 ]
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 import collections
 import time
 import weakref
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -22,6 +21,7 @@ from .backend import get_backend
 from .effective import METHODS, EffectiveBRDF
 from .progress import as_progress
 from .truth import _check_count, _prepare, _Timer
+from .model import Bvndf
 
 __all__ = ["bake", "Bvndf", "ROUTES"]
 
@@ -36,58 +36,6 @@ EM_ITERATIONS = 8
 # 0.040 at 64 and 0.037 at 128, for 22.9, 25.4, 34.9 and 35.6 dB against its 2^18-facet truth).
 AUTO_LOBES = (*range(1, 17), 24, 32, 48, 64, 96, 128)
 HISTOGRAM_BYTES = 1 << 30  # the dense histogram N (pairs × non-empty bins) is refused beyond this
-
-
-@dataclass(eq=False)
-class Bvndf:
-    """The binned BVNDF of one bake (Iwasaki §5): cube-map bins at `resolution` (6×R×R).
-
-    bins (L,) the non-empty bin ids, normal (L, 3) each bin's area-weighted mean facet normal,
-    area (L,) Γ: the tile area whose normal falls in the bin (the NDF), solid_angle (L,) of each bin,
-    a_v (K²,) the visible projected area of each grid direction, and histogram (U, L) N over the
-    unordered direction pairs i ≤ o (`pair_index`) when it was computed (route "histogram" or
-    ``bake(..., bvndf=True)``), else None.
-    """
-
-    resolution: int
-    bins: np.ndarray
-    normal: np.ndarray
-    area: np.ndarray
-    a_v: np.ndarray
-    histogram: np.ndarray | None = None
-
-    @property
-    def solid_angle(self) -> np.ndarray:
-        r = self.resolution
-        rem = self.bins % (r * r)
-        row, col = rem // r, rem % r
-        edge = np.linspace(-1.0, 1.0, r + 1)
-
-        def f(u, v):
-            return np.arctan2(u * v, np.sqrt(u * u + v * v + 1.0))
-
-        u0, u1, v0, v1 = edge[col], edge[col + 1], edge[row], edge[row + 1]
-        return f(u1, v1) - f(u0, v1) - f(u1, v0) + f(u0, v0)
-
-    @property
-    def ndf(self) -> np.ndarray:
-        """Γ per steradian in each non-empty bin."""
-        return self.area / self.solid_angle
-
-    def pair_index(self, i, o):
-        """Row of `histogram` for the direction pair (i, o) (either order)."""
-        return dirs.unordered_index(i, o, len(self.a_v))
-
-    def arrays(self) -> dict:
-        out = {"bins": self.bins, "normal": self.normal, "area": self.area, "a_v": self.a_v}
-        if self.histogram is not None:
-            out["histogram"] = self.histogram
-        return out
-
-    @classmethod
-    def from_arrays(cls, resolution, arrays) -> Bvndf:
-        return cls(int(resolution), arrays["bins"], arrays["normal"], arrays["area"], arrays["a_v"],
-                   arrays.get("histogram"))
 
 
 def _channels(tile, facets):

@@ -81,8 +81,6 @@ class Brdf:
 
     def eval(self, n, wi, wo) -> np.ndarray:
         """f_r(n, ωi, ωo) in float64, (N, 3) RGB; zero where ωi or ωo is below the facet."""
-        from .reference import brdf_cosine_weighted
-
         n, wi, wo = (np.atleast_2d(np.asarray(x, np.float64)) for x in (n, wi, wo))
         kinds, params = pack_materials([self])
         fc = brdf_cosine_weighted(kinds, params, np.zeros(len(n), np.int32), n, wi, wo)
@@ -234,3 +232,44 @@ def parse_brdf(text: str) -> Brdf:
         return cls(**kwargs)
     except TypeError as exc:
         raise ValueError(f"bad parameter for {cls.__name__}: {exc}") from None
+
+
+def brdf_cosine_weighted(kinds, params, material, n, wi, wo) -> np.ndarray:
+    """(N, 3) f_r·(n·ωi)⁺(n·ωo)⁺ for facets with normals n (N,3) and material ids (N,)."""
+    n, wi, wo = (np.asarray(x, np.float64) for x in (n, wi, wo))
+    n, wi, wo = np.broadcast_arrays(n, wi, wo)
+    kind = np.asarray(kinds)[material]
+    p = np.asarray(params, np.float64)[material]
+    kd, ks, p1, p2 = p[:, 0:3], p[:, 3:6], p[:, 6], p[:, 7]
+    ci = np.einsum("ij,ij->i", n, wi)
+    co = np.einsum("ij,ij->i", n, wo)
+    ok = (ci > 0) & (co > 0)
+    ci, co = np.maximum(ci, 0.0), np.maximum(co, 0.0)
+    h = wi + wo
+    hl = np.linalg.norm(h, axis=1)
+    h = h / np.maximum(hl, 1e-300)[:, None]
+    nh = np.clip(np.einsum("ij,ij->i", n, h), -1.0, 1.0)
+    nh_pos = np.maximum(nh, 0.0)
+    hi = np.clip(np.einsum("ij,ij->i", h, wi), 0.0, 1.0)
+    spec = np.zeros(len(n))  # scalar specular factor multiplying ks, already cosine-weighted
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore", under="ignore"):
+        m = kind == BLINN_PHONG
+        spec[m] = (p1[m] + 2) / (2 * np.pi) * nh_pos[m] ** p1[m] * ci[m] * co[m]
+        m = kind == COOK_TORRANCE
+        if m.any():
+            theta_h = np.arccos(nh[m])
+            d = np.exp(-((theta_h / p1[m]) ** 2))
+            f = p2[m] + (1 - p2[m]) * (1 - hi[m]) ** 5
+            ho = np.maximum(hi[m], 1e-300)  # h·ωo = h·ωi
+            g = np.minimum(1.0, np.minimum(2 * nh_pos[m] * co[m] / ho, 2 * nh_pos[m] * ci[m] / ho))
+            spec[m] = f * g * d / np.pi
+        m = kind == WARD
+        if m.any():
+            cos2 = np.maximum(nh[m] ** 2, 1e-300)
+            tan2 = (1 - cos2) / cos2
+            a2 = p1[m] ** 2
+            spec[m] = np.where(nh[m] > 0, np.exp(-tan2 / a2), 0.0) / (4 * np.pi * a2) * np.sqrt(ci[m] * co[m])
+    # Lambert keeps its albedo in the kd slot and ks = 0, so one expression serves every model.
+    out = kd / np.pi * (ci * co)[:, None] + ks * spec[:, None]
+    out[~ok] = 0.0
+    return out

@@ -7,41 +7,26 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
 
 import numpy as np
 
-from . import __version__
-from .backend import one_line
+from . import __version__, demo
+from .backend import backends, get_backend
+from .bake import bake
+from .brdf import Lambert, parse_brdf
+from .device import one_line
+from .effective import compare
+from .geometry import BUILTIN_TILES, load_tile
 from .images import check_exposure
-from .io import check_output
-from .progress import set_quiet
-
-BUILTIN_TILES = {
-    "pyramid": ("pyramid", {}),
-    "pentagon": ("pyramid", {"sides": 5}),
-    "vgroove": ("grooves", {"profile": "v"}),
-    "ugroove": ("grooves", {"profile": "u"}),
-    "rods": ("rods", {}),
-    "woven": ("woven", {}),
-    "flat": ("flat", {}),
-}
-
-
-def load_tile(spec: str):
-    """A mesh file path, or the name of a built-in procedural tile."""
-    from . import geometry
-    from .smallscale import SmallScale
-
-    if os.path.exists(spec):
-        return SmallScale.load(spec)
-    if spec in BUILTIN_TILES:
-        fn, kwargs = BUILTIN_TILES[spec]
-        return getattr(geometry, fn)(**kwargs)
-    raise ValueError(f"tile {spec!r} is neither a mesh file nor a built-in tile ({', '.join(BUILTIN_TILES)})")
+from .io import atomic_path, check_output
+from .progress import as_progress, set_quiet
+from .scenefile import load_scene
+from .truth import ground_truth
+from .viewer import view
 
 
 def _materials(specs, tile):
-    from .brdf import Lambert, parse_brdf
 
     if not specs:
         return [Lambert(0.5)] * tile.n_materials
@@ -82,12 +67,12 @@ def _print_table(gt, thetas_i, file=sys.stdout):
 
 
 def _plot(gt, path, thetas_i):
+    # matplotlib is imported only to draw this plot: it costs a few tenths of a second at every start.
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .io import atomic_path
 
     theta_o, slices = _incidence_slices(gt, thetas_i)
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
@@ -110,14 +95,12 @@ def _plot(gt, path, thetas_i):
 
 
 def cmd_truth(args):
-    import warp_biscale as wb
-
     check_output(args.output, (".png",), "--output")
     if args.save:
         check_output(args.save, (".npz",), "--save")
     tile = load_tile(args.tile)
     mats = _materials(args.brdf, tile)
-    gt = wb.ground_truth(tile, mats, facets=args.facets, directions=args.directions, backend=args.backend,
+    gt = ground_truth(tile, mats, facets=args.facets, directions=args.directions, backend=args.backend,
                          seed=args.seed, progress=not args.quiet)
     thetas = [0, 30, 60, 75]
     if not args.quiet:
@@ -132,13 +115,11 @@ def cmd_truth(args):
 
 
 def cmd_bake(args):
-    import warp_biscale as wb
-
     check_output(args.output, (".wbm", ".npz"), "--output")
     tile = load_tile(args.tile)
     mats = _materials(args.brdf, tile)
     lobes = args.lobes if args.lobes == "auto" else _int_arg("--lobes", args.lobes)
-    mat = wb.bake(tile, mats, method=args.method, lobes=lobes, directions=args.directions, normal_res=args.normal_res,
+    mat = bake(tile, mats, method=args.method, lobes=lobes, directions=args.directions, normal_res=args.normal_res,
                   facets=args.facets, backend=args.backend, seed=args.seed, route=args.route,
                   progress=not args.quiet)
     if not args.quiet:
@@ -149,9 +130,9 @@ def cmd_bake(args):
               f"{mat.nbytes_per_material / 2**20:.2f} MiB per material")
         print("  ".join(f"{k} {v * 1e3:.1f} ms" for k, v in mat.timings.items()))
     if args.truth:
-        gt = wb.ground_truth(tile, mats, facets=args.truth, directions=args.directions, backend=args.backend,
+        gt = ground_truth(tile, mats, facets=args.truth, directions=args.directions, backend=args.backend,
                              seed=args.seed + 1, progress=not args.quiet)
-        c = wb.compare(mat, gt)
+        c = compare(mat, gt)
         _say(args, f"against the ground truth ({args.truth} facets): PSNR {c['psnr']:.1f} dB, RMSE {c['rmse']:.3g}, "
                    f"max relative error {c['max_rel_error']:.3g}")
     mat.save(args.output)
@@ -173,15 +154,13 @@ def _int_arg(name, text):
 
 
 def cmd_backends(args):
-    import warp_biscale as wb
-
-    entries = wb.backends()
+    entries = backends()
     if not args.quiet:
         for b in entries:
             state = "usable" if b["usable"] else f"unusable: {b['reason']}"
             print(f"{b['name']:<28} {b['device'] or '-':<48} {state}")
     usable = [b for b in entries if b["usable"]]
-    _say(args, f"auto picks {wb.get_backend('auto').name}" if usable else "no usable backend here")
+    _say(args, f"auto picks {get_backend('auto').name}" if usable else "no usable backend here")
     missing = [r for r in args.require or ()
                if not any(b["kind"] == r.partition(":")[0] and r.partition(":")[2] in ("", b["type"]) for b in usable)]
     for r in missing:
@@ -234,8 +213,6 @@ def _print_rendering(result, path, exposure=0.0):
 
 
 def cmd_render(args):
-    from .progress import as_progress
-    from .scenefile import load_scene
 
     _check_output(args.output)
     if args.exposure is not None:
@@ -262,10 +239,6 @@ def cmd_render(args):
 
 
 def cmd_demo(args):
-    import time
-
-    from . import demo
-    from .progress import as_progress
 
     _check_output(args.output)
     t0 = time.perf_counter()
@@ -286,8 +259,6 @@ def cmd_demo(args):
 
 
 def cmd_view(args):
-    from .progress import as_progress
-    from .viewer import view
 
     if args.screenshot:
         if not args.screenshot.lower().endswith(".png"):

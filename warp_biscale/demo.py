@@ -13,6 +13,8 @@ the same scene).
 
 from __future__ import annotations
 
+from .scenefile import loads_scene
+
 __all__ = ["scene_text", "demo_scene", "DEMO_FACETS"]
 
 DEMO_FACETS = 1 << 13
@@ -95,7 +97,6 @@ def scene_text(size: int = 512, facets: int = DEMO_FACETS, directions: int = 10,
 
 def demo_scene(size: int = 512, backend=None, progress=None, **bake):
     """Bake the demo tile and build the demo scene → `scenefile.SceneFile` (`.render()` renders it)."""
-    from .scenefile import loads_scene
 
     return loads_scene(scene_text(size, **bake), path="demo.toml", base_dir=".", backend=backend,
                        progress=progress)

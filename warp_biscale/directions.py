@@ -159,3 +159,26 @@ def cell_cosine_integrals(k: int = 12, sub: int = 4096) -> np.ndarray:
             max_sq = a * a * inside + (b1**3 - b0**3) / 3.0 - cubes
             out[row, col] = ((b1 - b0) - max_sq).mean() * (2.0 / k)
     return out.ravel() * (np.pi / 2.0)
+
+
+def cube_bin(n, resolution: int) -> np.ndarray:
+    """(N,) int cube-map bin of unit normals: face·R² + row·R + col (docs/design.md §4).
+
+    Faces 0..5 are +x, −x, +y, −y, +z, −z, chosen by the largest |component| (ties go to the
+    earlier axis); on face ±x (u, v) = (y, z)/|x|, on ±y (x, z)/|y|, on ±z (x, y)/|z|, and
+    col = ⌊(u + 1)/2·R⌋, row = ⌊(v + 1)/2·R⌋, clamped to R − 1.
+    """
+    n = np.asarray(n, np.float64)
+    a = np.abs(n)
+    on_x = (a[:, 0] >= a[:, 1]) & (a[:, 0] >= a[:, 2])
+    on_y = ~on_x & (a[:, 1] >= a[:, 2])
+    on_z = ~on_x & ~on_y
+    face = np.where(on_x, np.where(n[:, 0] >= 0, 0, 1), np.where(on_y, np.where(n[:, 1] >= 0, 2, 3),
+                                                                 np.where(n[:, 2] >= 0, 4, 5)))
+    major = np.where(on_x, a[:, 0], np.where(on_y, a[:, 1], a[:, 2]))
+    major = np.where(major > 0, major, 1.0)
+    u = np.where(on_x, n[:, 1], n[:, 0]) / major
+    v = np.where(on_z, n[:, 1], n[:, 2]) / major
+    col = np.clip(np.floor((u + 1.0) * 0.5 * resolution), 0, resolution - 1).astype(np.int64)
+    row = np.clip(np.floor((v + 1.0) * 0.5 * resolution), 0, resolution - 1).astype(np.int64)
+    return face * resolution * resolution + row * resolution + col

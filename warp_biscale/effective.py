@@ -12,6 +12,7 @@ so `with_materials` edits a material without re-baking anything.
 
 from __future__ import annotations
 
+import time
 import dataclasses
 
 import numpy as np
@@ -19,6 +20,7 @@ import numpy as np
 from . import brdf as brdf_mod
 from . import directions as dirs
 from . import sg
+from .model import Bvndf
 from .io import read_npz, save_npz
 from .lobes import LobeSet
 
@@ -100,8 +102,6 @@ class EffectiveBRDF:
 
     def with_materials(self, materials) -> EffectiveBRDF:
         """The same baked geometry with other small-scale BRDFs (a material-only edit: no re-bake)."""
-        import time
-
         t0 = time.perf_counter()
         out = EffectiveBRDF(self.lobes, self.amplitudes, materials, self.directions, self.method,
                             info=self.info, bvndf=self.bvndf, _energy=self._energy)
@@ -173,7 +173,6 @@ class EffectiveBRDF:
 
     @classmethod
     def load(cls, path) -> EffectiveBRDF:
-        from .bake import Bvndf
 
         head, arrays = read_npz(path, "effective_brdf", versions=(cls.VERSION,))
         try:

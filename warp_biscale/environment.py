@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .images import read_image, write_exr, write_hdr
+
 __all__ = ["Environment", "Softbox", "equirect_directions", "direction_to_equirect", "equirect_bilinear",
            "equirect_row_solid_angles", "sun_profile", "sun_integrals"]
 
@@ -111,7 +113,6 @@ class Environment:
         """Load an equirectangular map (.exr, .hdr/.pic, .png/.jpg as sRGB, .npy) in this module's
         convention (row 0 = zenith, column j at φ = 2π(j + ½)/W). Non-finite or negative radiance is a
         ValueError naming the file."""
-        from .images import read_image
 
         path = os.fspath(path)
         img = read_image(path)
@@ -126,7 +127,6 @@ class Environment:
 
     def save(self, path) -> None:
         """Write the radiance map as float32 EXR (.exr) or Radiance RGBE (.hdr/.pic), atomically."""
-        from .images import write_exr, write_hdr
 
         ext = os.path.splitext(os.fspath(path))[1].lower()
         if ext == ".exr":
@@ -426,3 +426,36 @@ DEFAULT_STUDIO_LIGHTS = (
     Softbox((-0.85, 0.2, 0.5), 30.0, 20.0, 0.8),                # fill: large and dim, left
     Softbox((-0.1, 0.45, -0.9), 6.0, 25.0, 8.0),                # rim: narrow and bright, behind
 )
+
+
+def environment_irradiance(radiance, normals) -> np.ndarray:
+    """(N, 3) E(n) = ∫ L(ω) max(ω·n, 0) dω of an (h, w, 3) equirect map for unit normals (N, 3),
+    by the texel-centre rule Σ_t L_t Ω_t max(ω_t·n, 0)."""
+    rad = np.asarray(radiance, np.float64)
+    h, w = rad.shape[:2]
+    weighted = (rad * equirect_row_solid_angles(h, w)[:, None, None]).reshape(-1, 3)
+    d = equirect_directions(h, w).reshape(-1, 3)
+    normals = np.asarray(normals, np.float64).reshape(-1, 3)
+    out = np.empty((len(normals), 3))
+    chunk = max(1, (1 << 22) // len(d))
+    for a in range(0, len(normals), chunk):
+        out[a:a + chunk] = np.maximum(normals[a:a + chunk] @ d.T, 0.0) @ weighted
+    return out
+
+
+NEGLIGIBLE = 1e-7  # G below this is dropped from the prefilter sums
+SUPPORT = float(-np.log(NEGLIGIBLE))  # η(1 − ω·p) beyond which G < NEGLIGIBLE (16.118)
+
+
+def equirect_tables(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """The envmap kernels' per-row and per-column tables of an equirect map, float32:
+    rows (height, 4) [cos θ, sin θ, θ, Ω] (Ω the solid angle of one texel of the row, sr) and
+    columns (width, 3) [cos φ, sin φ, φ], at the texel centres θ = π(i + ½)/H, φ = 2π(j + ½)/W."""
+    theta = np.pi * (np.arange(height) + 0.5) / height
+    omega = equirect_row_solid_angles(height, width)
+    phi = 2 * np.pi * (np.arange(width) + 0.5) / width
+    rows = np.stack([np.cos(theta), np.sin(theta), theta, omega], 1)
+    cols = np.stack([np.cos(phi), np.sin(phi), phi], 1)
+    return rows.astype(np.float32), cols.astype(np.float32)
+
+

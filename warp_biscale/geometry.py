@@ -23,6 +23,10 @@ import os
 from numbers import Integral, Real
 
 import numpy as np
+from PIL import Image
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from .smallscale import SmallScale
 
@@ -125,10 +129,6 @@ def _weld(points: np.ndarray):
     KD-tree pass also merges any within 1e-8 of the tile size, which keeps the survivors far enough
     apart that SmallScale's own 1e-9 duplicate merge (and its TileWarning) never triggers.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
-
     # Exact duplicates: sort the rows and keep the first of each run (lexsort is several times
     # faster than np.unique(axis=0) on float rows, and treats -0.0 and 0.0 as equal).
     order = np.lexsort(points.T[::-1])
@@ -948,8 +948,6 @@ def heightfield_from_image(path, *, size=1.0, scale=1.0, material=0, color=_WHIT
 
     Raises FileNotFoundError for a missing file and ValueError for one PIL cannot read.
     """
-    from PIL import Image
-
     fn = "heightfield_from_image"
     path = os.fspath(path)
     if not os.path.exists(path):
@@ -970,3 +968,25 @@ def heightfield_from_image(path, *, size=1.0, scale=1.0, material=0, color=_WHIT
     tile = heightfield(arr[::-1], size=size, scale=scale, material=material, color=color)
     tile.name = f"heightfield({os.path.basename(path)}, scale={scale:g})"
     return tile
+
+
+BUILTIN_TILES = {
+    "pyramid": ("pyramid", {}),
+    "pentagon": ("pyramid", {"sides": 5}),
+    "vgroove": ("grooves", {"profile": "v"}),
+    "ugroove": ("grooves", {"profile": "u"}),
+    "rods": ("rods", {}),
+    "woven": ("woven", {}),
+    "flat": ("flat", {}),
+}
+
+
+def load_tile(spec: str):
+    """A mesh file path, or the name of a built-in procedural tile."""
+
+    if os.path.exists(spec):
+        return SmallScale.load(spec)
+    if spec in BUILTIN_TILES:
+        fn, kwargs = BUILTIN_TILES[spec]
+        return globals()[fn](**kwargs)
+    raise ValueError(f"tile {spec!r} is neither a mesh file nor a built-in tile ({', '.join(BUILTIN_TILES)})")

@@ -18,6 +18,8 @@ import os
 import warnings
 
 import numpy as np
+import OpenEXR
+from PIL import Image, UnidentifiedImageError
 
 from .io import atomic_path
 
@@ -61,8 +63,6 @@ def _check_radiance(a: np.ndarray, what: str) -> None:
 
 def write_exr(path, image) -> None:
     """Write an (H, W, 3) linear RGB image as a float32 (not half) ZIP-compressed scanline EXR."""
-    import OpenEXR
-
     a = _as_rgb(image, f"image for {os.fspath(path)}")
     _check_radiance(a, f"image for {os.fspath(path)}")
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
@@ -73,8 +73,6 @@ def write_exr(path, image) -> None:
 
 def read_exr(path) -> np.ndarray:
     """→ (H, W, 3) float32 from an EXR with R, G, B channels (half or float; a lone Y channel is grey)."""
-    import OpenEXR
-
     path = os.fspath(path)
     if not os.path.exists(path):
         raise FileNotFoundError(f"no such file: {path}")
@@ -323,8 +321,6 @@ def tonemap(image, exposure: float = 0.0, operator: str = "aces") -> np.ndarray:
 
 def write_png(path, image, exposure: float = 0.0, operator: str = "aces") -> None:
     """Tone-map a linear (H, W, 3) image (see `tonemap`) and write it as an 8-bit sRGB PNG."""
-    from PIL import Image
-
     u8 = tonemap(image, exposure=exposure, operator=operator)
     if not u8.any() and np.asarray(image).max() > 0:
         warnings.warn(f"{os.fspath(path)}: exposure {exposure:g} stops turns the whole image black "
@@ -334,8 +330,6 @@ def write_png(path, image, exposure: float = 0.0, operator: str = "aces") -> Non
 
 
 def _read_pillow(path: str) -> np.ndarray:
-    from PIL import Image, UnidentifiedImageError
-
     try:
         with Image.open(path) as im:
             im.load()

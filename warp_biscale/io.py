@@ -15,7 +15,8 @@ import zipfile
 
 import numpy as np
 
-__all__ = ["atomic_path", "check_output", "save_npz", "read_npz", "load"]
+
+__all__ = ["atomic_path", "check_output", "save_npz", "read_npz"]
 
 
 def check_output(path, suffixes=None, what: str = "output") -> None:
@@ -105,24 +106,3 @@ def read_npz(path, kind: str | None = None, versions=(1,)) -> tuple[dict, dict]:
     return head, arrays
 
 
-def head_version(path):
-    """The version field of a file's header, so that `load` can hand a newer file to its class,
-    which then refuses it with its own versions in the message."""
-    try:
-        with np.load(os.fspath(path), allow_pickle=False) as z:
-            return json.loads(str(z["header"])).get("version", 1)
-    except Exception:
-        return 1
-
-
-def load(path):
-    """Load any saved warp_biscale object: a ground-truth table or a baked effective BRDF."""
-    from .effective import EffectiveBRDF
-    from .truth import GroundTruth
-
-    classes = {"warp_biscale.ground_truth": GroundTruth, "warp_biscale.effective_brdf": EffectiveBRDF}
-    head, _ = read_npz(path, versions=(head_version(path),))
-    fmt = head["format"]
-    if fmt in classes:
-        return classes[fmt].load(path)
-    raise ValueError(f"{path}: no loader for {fmt!r}")

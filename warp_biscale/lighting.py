@@ -22,7 +22,7 @@ Two representations of one `Environment`, built once by `prepare` and cached on 
 
 Packed for the shade kernels (the contract with the renderer): ``maps`` float32 (Σ h_l·w_l, 3), the
 levels' texels concatenated row-major, and ``levels`` float32 (n, 4) rows [log2 η_l, offset (index of
-the level's first texel), h_l, w_l]; `reference.prefiltered_lookup` is the lookup's semantics.
+the level's first texel), h_l, w_l]; `prefiltered_lookup` (below) is the lookup's semantics.
 
 Level resolution (`level_plan`). A lobe's angular scale is σ = 1/√η (G ≈ exp(−θ²/(2σ²))); level l
 has h_l = ⌈s·π·√η_l⌉ rows (row spacing σ/s, s = `TEXELS_PER_SIGMA` = 3), at least `MIN_HEIGHT` = 8,
@@ -58,9 +58,14 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.optimize import nnls
 
+from . import lobes as lobes_mod
 from . import sg
-from .environment import Environment, equirect_row_solid_angles
+from .backend import get_backend
+from .environment import Environment, environment_irradiance, equirect_bilinear
+from .model import Facets
+from .environment import equirect_tables
 
 __all__ = ["EnvironmentSGs", "PrefilteredEnvironment", "EnvironmentLighting", "fit_sgs", "prefilter", "prepare",
            "downsample", "level_plan", "equirect_tables"]
@@ -70,8 +75,8 @@ TEXELS_PER_SIGMA = 3.0  # rows per lobe σ (see the module docstring and tests/t
 STOP_TEXELS_PER_SIGMA = 0.5  # levels at the base resolution continue until σ < ½ row
 MIN_HEIGHT = 8  # the broadest levels' rows
 INPUT_FACTOR = 2  # a level's input has this many times its rows (capped at the base map's)
-NEGLIGIBLE = 1e-7  # G below this is dropped from the prefilter sums
-SUPPORT = float(-np.log(NEGLIGIBLE))  # η(1 − ω·p) beyond which G < NEGLIGIBLE (16.118)
+
+
 MAX_TEXELS = 1 << 24  # `levels` holds texel offsets in float32: exact up to 2^24
 AMBIENT_SHARPNESS = sg.SHARPNESS_MIN  # 1e−3: G varies by 0.2 % over the sphere
 FIT_HEIGHT = 128  # the SG fit works on the map area-averaged to at most this many rows
@@ -81,18 +86,6 @@ LUMINANCE = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709: the EM weights' scal
 # ----------------------------------------------------------------------------------------------
 # Equirect helpers (environment.py's convention)
 # ----------------------------------------------------------------------------------------------
-
-
-def equirect_tables(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
-    """The envmap kernels' per-row and per-column tables of an equirect map, float32:
-    rows (height, 4) [cos θ, sin θ, θ, Ω] (Ω the solid angle of one texel of the row, sr) and
-    columns (width, 3) [cos φ, sin φ, φ], at the texel centres θ = π(i + ½)/H, φ = 2π(j + ½)/W."""
-    theta = np.pi * (np.arange(height) + 0.5) / height
-    omega = equirect_row_solid_angles(height, width)
-    phi = 2 * np.pi * (np.arange(width) + 0.5) / width
-    rows = np.stack([np.cos(theta), np.sin(theta), theta, omega], 1)
-    cols = np.stack([np.cos(phi), np.sin(phi), phi], 1)
-    return rows.astype(np.float32), cols.astype(np.float32)
 
 
 def _resample_axis(values, fine_edges, coarse_edges, axis):
@@ -204,9 +197,7 @@ class PrefilteredEnvironment:
         return self.maps[off:off + h * w].reshape(h, w, 3)
 
     def lookup(self, p, eta) -> np.ndarray:
-        """(..., 3) float64 Λ(p, η) for unit p (..., 3) and η (...) (`reference.prefiltered_lookup`)."""
-        from .reference import prefiltered_lookup
-
+        """(..., 3) float64 Λ(p, η) for unit p (..., 3) and η (...) (`prefiltered_lookup`)."""
         return prefiltered_lookup(self.maps, self.levels, p, eta)
 
 
@@ -214,7 +205,6 @@ def prefilter(env: Environment, backend="auto", texels_per_sigma: float = TEXELS
               min_height: int = MIN_HEIGHT, stop_texels_per_sigma: float = STOP_TEXELS_PER_SIGMA
               ) -> PrefilteredEnvironment:
     """The prefiltered levels of `env` (`level_plan`), each computed by `backend.prefilter_level`."""
-    from .backend import get_backend
 
     be = get_backend(backend)
     plan = level_plan(env.height, env.width, texels_per_sigma, min_height, INPUT_FACTOR, stop_texels_per_sigma)
@@ -289,15 +279,12 @@ class EnvironmentSGs:
         return sg.integral(self.sharpness) @ self.amplitude
 
     def irradiance(self, normals) -> np.ndarray:
-        """(N, 3) ∫ fit(ω) max(ω·n, 0) dω for unit normals (N, 3) (`reference.sg_irradiance`)."""
-        from .reference import sg_irradiance
-
+        """(N, 3) ∫ fit(ω) max(ω·n, 0) dω for unit normals (N, 3) (`sg_irradiance`)."""
         return sg_irradiance(self.axes, self.sharpness, self.amplitude, normals)
 
 
 def _texel_facets(directions, weight):
     """Texel directions as `Facets` (unit normals with areas) for the bake's EM kernel."""
-    from .model import Facets
 
     n = len(directions)
     return Facets(np.zeros((n, 3), np.float32), directions.astype(np.float32), np.zeros(n, np.int32),
@@ -317,8 +304,6 @@ def fit_sgs(env: Environment, lobes: int = 9, backend="auto", ambient: bool = Tr
     at the map's resolution instead of η = 10⁶. `refine`: re-solve the amplitudes for irradiance
     (`_refine_amplitudes`); without it they are EM's responsibility-weighted powers over ∫G.
     """
-    from . import lobes as lobes_mod
-    from .backend import get_backend
 
     try:
         k = int(lobes)
@@ -389,9 +374,6 @@ def _refine_amplitudes(env, axes, sharp, amp):
     """Amplitudes re-solved per channel for the irradiance the diffuse term sees: non-negative least
     squares of Σ_k μ_k E_k(n) against the map's E(n) on `REFINE_NORMALS` normals, with the power
     Σ_k μ_k ∫G_k = ∫L held (a heavily weighted row, then an exact rescale)."""
-    from scipy.optimize import nnls
-
-    from .reference import environment_irradiance, sg_irradiance
 
     normals = fibonacci_directions(REFINE_NORMALS)
     target = environment_irradiance(env.radiance, normals)  # (N, 3)
@@ -432,7 +414,6 @@ def prepare(env: Environment, backend="auto", lobes: int = 9) -> EnvironmentLigh
     """`fit_sgs` + `prefilter` of `env` on `backend`, cached in env.device_cache per backend name and
     lobe count, so re-rendering under the same environment costs nothing. An Environment is treated as
     immutable: a changed map is a new Environment."""
-    from .backend import get_backend
 
     be = get_backend(backend)
     key = ("lighting", be.name, int(lobes))
@@ -446,4 +427,78 @@ def prepare(env: Environment, backend="auto", lobes: int = 9) -> EnvironmentLigh
     t2 = time.perf_counter()
     out = EnvironmentLighting(sgs, pre, {"fit": t1 - t0, "prefilter": t2 - t1})
     env.device_cache[key] = out
+    return out
+
+
+def prefiltered_lookup(maps, levels, p, eta) -> np.ndarray:
+    """(..., 3) Λ(p, η) from the packed levels (lighting.PrefilteredEnvironment): the oracle of the
+    shade kernels' lookup.
+
+    `maps` (Σ h_l·w_l, 3), `levels` (n, 4) rows [log2 η_l, offset, h_l, w_l] with log2 η_l
+    consecutive integers. t = clamp(log2 max(η, 1e−30) − log2 η_0, 0, n − 1), l = max(min(⌊t⌋, n − 2), 0),
+    f = t − l: (1 − f)·bilinear(level l) + f·bilinear(level min(l + 1, n − 1)), each level an equirect
+    map (environment.py convention: φ wraps, θ clamps). p (..., 3) unit, η (...) broadcast together.
+    (lighting.prefilter always makes n ≥ 2; n = 1 is that one level, as in the shade kernels.)
+    """
+
+    maps = np.asarray(maps, np.float64)
+    levels = np.asarray(levels, np.float64)
+    n = len(levels)
+    if n < 1:
+        raise ValueError("prefiltered_lookup needs at least one level")
+    p = np.asarray(p, np.float64)
+    eta = np.asarray(eta, np.float64)
+    shape = np.broadcast_shapes(p.shape[:-1], eta.shape)
+    p = np.broadcast_to(p, (*shape, 3)).reshape(-1, 3)
+    eta = np.broadcast_to(eta, shape).reshape(-1)
+    t = np.clip(np.log2(np.maximum(eta, 1e-30)) - levels[0, 0], 0.0, n - 1.0)
+    lev = np.maximum(np.minimum(np.floor(t), n - 2), 0).astype(np.int64)
+    f = np.clip(t - lev, 0.0, 1.0)
+    images = []
+    for off, h, w in levels[:, 1:].astype(np.int64):
+        images.append(maps[off:off + h * w].reshape(h, w, 3))
+    out = np.zeros((len(p), 3))
+    for l in np.unique(lev):
+        m = lev == l
+        out[m] = ((1 - f[m])[:, None] * equirect_bilinear(images[l], p[m])
+                  + f[m][:, None] * equirect_bilinear(images[min(l + 1, n - 1)], p[m]))
+    return out.reshape(*shape, 3)
+
+
+def _clamped_cosine_ring(u, cos_a):
+    """∫_0^{2π} max(a + b cos φ, 0) dφ with a = (1 − u)cos α, b = √(u(2 − u))·sin α: the clamped cosine
+    about a normal at angle α from the lobe axis, integrated over the ring 1 − ω·ξ = u."""
+    sin_a = np.sqrt(np.maximum(1.0 - cos_a * cos_a, 0.0))
+    a = (1.0 - u) * cos_a
+    b = np.sqrt(np.maximum(u * (2.0 - u), 0.0)) * sin_a
+    safe_b = np.where(b > 0, b, 1.0)
+    ratio = np.clip(-a / safe_b, -1.0, 1.0)
+    partial = 2.0 * (a * np.arccos(ratio) + np.sqrt(np.maximum(b * b - a * a, 0.0)))
+    return np.where(a >= b, 2.0 * np.pi * a, np.where(a <= -b, 0.0, partial))
+
+
+def sg_irradiance(axes, sharpness, amplitude, normals, nodes: int = 32) -> np.ndarray:
+    """(N, 3) E(n) = Σ_k ∫ G(ω; ξ_k, η_k, μ_k) max(ω·n, 0) dω for K lobes, axes (K, 3), sharpness (K,),
+    amplitude (K, 3), unit normals (N, 3).
+
+    With u = 1 − ω·ξ, dω = du dφ and the φ integral in closed form (`_clamped_cosine_ring`), each
+    term is ∫_0^2 e^{−ηu} ring(u) du, done by Gauss–Legendre on 32 panels of `nodes` points over
+    u ∈ [0, min(2, 50/η)] (e^{−50} is nothing). Error per lobe, measured against adaptive quadrature
+    for η = 1e−3 … 1e6: ≤ 8e−7·∫G at 32 nodes (1.3e−7 at 64; the ring has kinks at u = 1 ∓ sin α).
+    """
+    axes = np.asarray(axes, np.float64).reshape(-1, 3)
+    sharpness = np.asarray(sharpness, np.float64).reshape(-1)
+    amplitude = np.asarray(amplitude, np.float64).reshape(-1, 3)
+    normals = np.asarray(normals, np.float64).reshape(-1, 3)
+    x, wq = np.polynomial.legendre.leggauss(nodes)
+    panels = 32
+    out = np.zeros((len(normals), 3))
+    for xi, eta, mu in zip(axes, sharpness, amplitude):
+        top = min(2.0, 50.0 / eta)
+        edges = np.linspace(0.0, top, panels + 1)
+        half = 0.5 * (edges[1:] - edges[:-1])
+        u = ((edges[:-1] + half)[:, None] + half[:, None] * x[None]).reshape(-1)
+        w = (half[:, None] * wq[None]).reshape(-1) * np.exp(-eta * u)
+        cos_a = np.clip(normals @ xi, -1.0, 1.0)
+        out += (_clamped_cosine_ring(u[None, :], cos_a[:, None]) @ w)[:, None] * mu[None, :]
     return out

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import sg
+from .directions import cube_bin, unordered_index
 
 __all__ = ["LobeSet", "initial_lobes", "m_step", "converged", "fit", "from_em", "amplitude_system", "solve_amplitudes",
            "ndf_error", "MAX_LOBES", "KERNEL_LOBES"]
@@ -104,9 +105,8 @@ def initial_lobes(normal, area, count: int, resolution: int = START_RES, coarse_
     """Deterministic start for EM: the facets' normals binned on a coarse cube map, the heaviest bin
     first, then repeatedly the bin farthest (weighted by its area) from every axis chosen so far.
     Stops early when every bin sits on a chosen axis (fewer distinct normals than `count`).
-    `coarse_bins`: each normal's coarse bin (`reference.cube_bin` at `resolution`) when the caller
+    `coarse_bins`: each normal's coarse bin (`directions.cube_bin` at `resolution`) when the caller
     knows it already (the bake derives it from the normals' fine bins)."""
-    from .reference import cube_bin
 
     normal = np.asarray(normal, np.float64)
     area = np.asarray(area, np.float64)
@@ -243,7 +243,6 @@ def solve_amplitudes(moments, a_v, pair_i, pair_o, n_dirs: int, rows, integrals)
     rows = np.asarray(rows, np.float64)
     integrals = np.asarray(integrals, np.float64)
     j = len(integrals)
-    from .directions import unordered_index
 
     pi, po = np.asarray(pair_i, np.int64), np.asarray(pair_o, np.int64)
     m = moments[unordered_index(pi, po, n_dirs)]

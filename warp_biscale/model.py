@@ -7,7 +7,11 @@ read back to the host only when host code asks for it.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
+
+from . import directions as dirs
 
 __all__ = ["Facets", "Visibility", "run_ends"]
 
@@ -176,3 +180,71 @@ def run_ends(normal, weight) -> np.ndarray:
     ends = np.append(starts[1:], n)
     word_end = np.minimum((np.arange(n) // 32 + 1) * 32, n)
     return np.minimum(np.repeat(ends, ends - starts), word_end).astype(np.int32)
+
+
+def radical_inverse(s: np.ndarray) -> np.ndarray:
+    """Van der Corput φ2(s) on the top 24 bits (exact in float32), for uint32 s."""
+    s = np.asarray(s, np.uint64) & np.uint64(0xFFFFFFFF)
+    r = np.zeros_like(s)
+    for b in range(32):
+        r |= ((s >> np.uint64(b)) & np.uint64(1)) << np.uint64(31 - b)
+    return (r >> np.uint64(8)).astype(np.float64) / float(1 << 24)
+
+
+def facet_shift(seed: int) -> tuple[float, float]:
+    """The Cranley–Patterson shift (ξ1, ξ2) of a seed; shared by every backend."""
+    rng = np.random.default_rng(int(seed))
+    xi = rng.random(2)
+    return float(xi[0]), float(xi[1])
+
+
+@dataclass(eq=False)
+class Bvndf:
+    """The binned BVNDF of one bake (Iwasaki §5): cube-map bins at `resolution` (6×R×R).
+
+    bins (L,) the non-empty bin ids, normal (L, 3) each bin's area-weighted mean facet normal,
+    area (L,) Γ: the tile area whose normal falls in the bin (the NDF), solid_angle (L,) of each bin,
+    a_v (K²,) the visible projected area of each grid direction, and histogram (U, L) N over the
+    unordered direction pairs i ≤ o (`pair_index`) when it was computed (route "histogram" or
+    ``bake(..., bvndf=True)``), else None.
+    """
+
+    resolution: int
+    bins: np.ndarray
+    normal: np.ndarray
+    area: np.ndarray
+    a_v: np.ndarray
+    histogram: np.ndarray | None = None
+
+    @property
+    def solid_angle(self) -> np.ndarray:
+        r = self.resolution
+        rem = self.bins % (r * r)
+        row, col = rem // r, rem % r
+        edge = np.linspace(-1.0, 1.0, r + 1)
+
+        def f(u, v):
+            return np.arctan2(u * v, np.sqrt(u * u + v * v + 1.0))
+
+        u0, u1, v0, v1 = edge[col], edge[col + 1], edge[row], edge[row + 1]
+        return f(u1, v1) - f(u0, v1) - f(u1, v0) + f(u0, v0)
+
+    @property
+    def ndf(self) -> np.ndarray:
+        """Γ per steradian in each non-empty bin."""
+        return self.area / self.solid_angle
+
+    def pair_index(self, i, o):
+        """Row of `histogram` for the direction pair (i, o) (either order)."""
+        return dirs.unordered_index(i, o, len(self.a_v))
+
+    def arrays(self) -> dict:
+        out = {"bins": self.bins, "normal": self.normal, "area": self.area, "a_v": self.a_v}
+        if self.histogram is not None:
+            out["histogram"] = self.histogram
+        return out
+
+    @classmethod
+    def from_arrays(cls, resolution, arrays) -> Bvndf:
+        return cls(int(resolution), arrays["bins"], arrays["normal"], arrays["area"], arrays["a_v"],
+                   arrays.get("histogram"))

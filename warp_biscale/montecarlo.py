@@ -64,9 +64,10 @@ import numpy as np
 
 from . import sg
 from .backend import get_backend
-from .brdf import Brdf, Lambert
+from .brdf import Brdf, Lambert, brdf_cosine_weighted, pack_materials
 from .effective import EffectiveBRDF
 from .progress import Progress
+from .scene import Rendering, Scene
 from .scene import light_sg, vertex_tangents
 from .shading import MIN_COS_VIEW, surface_frames
 from .svbrdf import Textured
@@ -375,8 +376,6 @@ class _TexturedMaterial(_AnalyticMaterial):
         self.tex = tex
 
     def f(self, ctx, pix, w):
-        from .brdf import pack_materials
-        from .reference import brdf_cosine_weighted
 
         n, wo = ctx["n"][pix], ctx["wo"][pix]
         kinds, _ = pack_materials([self.brdf])
@@ -496,7 +495,6 @@ def render(scene, backend="auto", samples: int = 256, seed: int = 0, truths=None
     contribution was non-finite or had a zero pdf, set to 0; 0 in a correct run), width, height, hit_pixels.
     timings (s): gbuffer, sample (directions and pdfs), shade (radiance and BRDF), visibility, total.
     """
-    from .render import Rendering, Scene
 
     if not isinstance(scene, Scene):
         raise ValueError(f"scene must be a warp_biscale.render.Scene, got {type(scene).__name__}")

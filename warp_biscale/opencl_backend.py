@@ -34,13 +34,34 @@ import weakref
 
 import numpy as np
 
-from .backend import (PROBE_VALUES, SCRATCH_BYTES, DeviceFacets, DeviceLobes, DeviceStart, OnDevice, UploadCache,
-                      check_kernel_lobes, chunking, device_copy, em_result_rows, em_start_rows, equal_areas, one_line,
-                      probe_mismatch, run_em_steps, start_scale)
-from .model import Facets, Visibility
-from .lobes import START_RES
+from . import cl as cl_sources
+from . import sg
+from .device import (
+    PROBE_VALUES,
+    SCRATCH_BYTES,
+    DeviceFacets,
+    DeviceLobes,
+    DeviceStart,
+    OnDevice,
+    UploadCache,
+    check_kernel_lobes,
+    chunking,
+    device_copy,
+    em_result_rows,
+    em_start_rows,
+    equal_areas,
+    one_line,
+    probe_mismatch,
+    run_em_steps,
+    start_scale,
+)
+from .bvh import build_bvh
+from .environment import SUPPORT, equirect_tables
+from .lobes import KERNEL_LOBES, START_RES, LobeSet
+from .model import Facets, Visibility, facet_shift
 from .progress import compile_notice
-from .reference import facet_shift, ray_offset
+from .smallscale import ray_offset
+from .trace import CHUNK_RAYS, check_camera, check_gbuffer, check_lights, check_mesh, check_occlusion, offsets
 
 __all__ = ["OpenCLBackend", "list_devices"]
 
@@ -52,8 +73,11 @@ _PROBES: dict = {}  # device int_ptr → None (usable) or why not, in one line
 
 
 def _pyopencl():
+    # pyopencl is imported when OpenCL is first asked for, so that a broken or missing install shows as
+    # an unusable backend in `backends()` instead of failing `import warp_biscale`.
     try:
         import pyopencl
+        import pyopencl.cltypes  # noqa: F401  (the vector types some kernels take by value)
     except ImportError as exc:
         raise RuntimeError(
             f"the OpenCL backend needs pyopencl ({exc}); install it with `pip install \"pyopencl[pocl]\"`"
@@ -187,7 +211,6 @@ def build_failure(platform, device, log) -> str:
 
 def build_program(ctx, stem: str, options):
     """Build cl/<stem>.cl (with common.cl) in `ctx`; raises pyopencl's error with the build log."""
-    from . import cl as cl_sources
 
     cl = _pyopencl()
     with compile_notice():
@@ -364,7 +387,6 @@ class OpenCLBackend:
             }
             self._tiles[tile] = entry
         if need_bvh and "nodes" not in entry:
-            from .bvh import build_bvh
 
             local = tile.to_local(tile.vertices).astype(np.float64)
             bvh = build_bvh(local, tile.faces)
@@ -601,7 +623,6 @@ class OpenCLBackend:
             if shared.get("n") != n or shared["lobes"] < j:
                 # The facet buffers, shared by every J up to resp's room (at least KERNEL_LOBES): the
                 # programs made over the old ones go with them.
-                from .lobes import KERNEL_LOBES
 
                 self._em_programs.clear()
                 shared.clear()
@@ -631,7 +652,6 @@ class OpenCLBackend:
         return prog
 
     def ndf_em(self, facets, axes, sharpness, weight, iterations, facet_weight=None, to_host=True):
-        from .lobes import LobeSet
 
         on_device = isinstance(axes, DeviceStart)  # (em_start's rows: copied on the device)
         start = None if on_device else LobeSet(axes, sharpness, weight)
@@ -805,7 +825,6 @@ class OpenCLBackend:
     def _trace_mesh(self, mesh):
         """mesh.device_cache[self.name], holding the mesh's device arrays and its host-built BVH, built
         once per mesh; rebuilt if mesh.vertices or mesh.faces has been replaced."""
-        from .bvh import build_bvh
 
         entry = mesh.device_cache.setdefault(self.name, {})
         if (entry.get("vertices_host") is not mesh.vertices or entry.get("faces_host") is not mesh.faces
@@ -833,9 +852,7 @@ class OpenCLBackend:
         return buf
 
     def trace_primary(self, mesh, camera, to_host=True):
-        import pyopencl.cltypes as cltypes
-
-        from .trace import check_camera, check_mesh
+        cltypes = self._cl.cltypes
 
         check_mesh(mesh)
         check_camera(camera)
@@ -861,7 +878,6 @@ class OpenCLBackend:
         return g
 
     def trace_occluded(self, mesh, origins, directions, t_max, t_min=None):
-        from .trace import CHUNK_RAYS, check_occlusion
 
         o, d, t_lo, t_hi = check_occlusion(mesh, origins, directions, t_max, t_min)
         n = len(o)
@@ -879,7 +895,6 @@ class OpenCLBackend:
         return out
 
     def trace_shadows(self, mesh, gbuffer, lights_packed, to_host=True):
-        from .trace import check_gbuffer, check_lights, check_mesh, offsets
 
         check_mesh(mesh)
         lights = check_lights(lights_packed)
@@ -908,7 +923,6 @@ class OpenCLBackend:
         per_backend = static.setdefault("_device", {})
         dev = per_backend.get(self.name)
         if dev is None or dev.get("ctx") is not self._ctx:
-            from . import sg
 
             basis = np.asarray(static["ssdf_basis"], np.float32)
             coeffs = np.asarray(static["ssdf_coeffs"], np.float32)
@@ -946,8 +960,7 @@ class OpenCLBackend:
         `static`: the scene's packed inputs (`render._static_inputs`: mesh arrays, lighting, SSDF,
         materials, table). The G-buffer is the one the last `trace_primary` / `trace_shadows` left on
         the device for `mesh`, or a host dict {face, bary, light_vis} (`gbuffer`)."""
-        import pyopencl.cltypes as cltypes
-
+        cltypes = self._cl.cltypes
         dev = self._shade_static(static)
         m = self._trace_mesh(mesh)
         lights = np.asarray(lights_packed, np.float32).reshape(-1, 8)
@@ -997,7 +1010,6 @@ class OpenCLBackend:
 
     # ------------------------------------------------------------------ envmap (helper-C: prefiltered environment)
     def prefilter_level(self, radiance, sharpness, height, width):
-        from .lighting import SUPPORT, equirect_tables
 
         radiance = np.ascontiguousarray(radiance, np.float32)
         height, width, eta = int(height), int(width), float(sharpness)

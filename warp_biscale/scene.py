@@ -21,8 +21,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import trimesh
 
+from .brdf import Brdf
+from .effective import EffectiveBRDF
+from .environment import Environment
+from .images import write_image
+from .lobes import KERNEL_LOBES
 from .smallscale import _finite_array
+from .svbrdf import Textured
 
 __all__ = ["Mesh", "Camera", "PointLight", "DirectionalLight", "light_sg"]
 
@@ -173,8 +180,6 @@ class Mesh:
     @classmethod
     def load(cls, path, material: int = 0) -> Mesh:
         """Any mesh trimesh reads (OBJ, PLY, STL, GLB, ...); a scene is flattened into one mesh."""
-        import trimesh
-
         material = _integer("Mesh.load material", material, 0)
         try:
             tm = trimesh.load(str(path), force="mesh", process=False)
@@ -187,8 +192,6 @@ class Mesh:
     @classmethod
     def sphere(cls, radius=1.0, center=(0.0, 0.0, 0.0), subdivisions=4, material: int = 0) -> Mesh:
         """An icosphere with exact normals and equirectangular UVs."""
-        import trimesh
-
         radius = _positive("Mesh.sphere radius", radius)
         center = _vec3("Mesh.sphere center", center)
         subdivisions = _integer("Mesh.sphere subdivisions", subdivisions, 0)
@@ -417,3 +420,94 @@ def vertex_tangents(mesh: Mesh) -> np.ndarray:
     fallback /= np.linalg.norm(fallback, axis=1, keepdims=True)
     big = length > 1e-8 * max(length.max(initial=0.0), 1e-300)
     return np.where(big[:, None], acc / np.where(big, length, 1.0)[:, None], fallback)
+
+
+SSDF_RESOLUTIONS = (2, 128)  # the SSDF's octahedral grid, resolution² directions: at least one per quadrant
+
+
+SETTINGS_UNITS = {"env_lobes": " (the SG lighting kernels' lobe count)",
+                  "ssdf_resolution": " (SSDF directions per side)", "ssdf_terms": " (at most ssdf_resolution²)"}
+
+
+def settings_ranges(ssdf_resolution=32) -> dict:
+    """The valid (lo, hi) of Scene's env_lobes, ssdf_resolution and ssdf_terms (at most the texel count
+    ssdf_resolution², computed from the given resolution when it is an in-range integer): checked by Scene
+    and, with the file's line, by scene files' [render]."""
+
+    try:
+        s = int(ssdf_resolution)
+        s = s if s == ssdf_resolution and SSDF_RESOLUTIONS[0] <= s <= SSDF_RESOLUTIONS[1] else SSDF_RESOLUTIONS[1]
+    except (TypeError, ValueError, OverflowError):
+        s = SSDF_RESOLUTIONS[1]
+    return {"env_lobes": (1, KERNEL_LOBES), "ssdf_resolution": SSDF_RESOLUTIONS, "ssdf_terms": (1, s * s)}
+
+
+@dataclass(eq=False)
+class Scene:
+    """What to render: one mesh (merge several with `Mesh.merge`; each face's `face_material` indexes
+    `materials`), analytic `Brdf`s or baked `EffectiveBRDF`s, a camera, an environment (None: black)
+    and point/directional lights. `env_lobes` SG lobes fit the environment for the diffuse term (9 as
+    Iwasaki §5); the SSDF has `ssdf_resolution`² directions and `ssdf_terms` PCA terms."""
+
+    mesh: Mesh
+    materials: list
+    camera: Camera = field(default_factory=Camera)
+    environment: Environment | None = None
+    lights: list = field(default_factory=list)
+    env_lobes: int = 9
+    ssdf_resolution: int = 32
+    ssdf_terms: int = 16
+    cache: dict = field(default_factory=dict, repr=False)
+
+    def __post_init__(self):
+
+        if not isinstance(self.mesh, Mesh):
+            raise ValueError(f"Scene.mesh must be a Mesh, got {type(self.mesh).__name__}")
+        if isinstance(self.materials, (Brdf, EffectiveBRDF, Textured)):
+            self.materials = [self.materials]
+        self.materials = list(self.materials)
+        for i, m in enumerate(self.materials):
+            if not isinstance(m, (Brdf, EffectiveBRDF, Textured)):
+                raise ValueError(f"Scene.materials[{i}] must be a BRDF, a Textured BRDF or an EffectiveBRDF, got {m!r}")
+        used = int(self.mesh.face_material.max()) + 1
+        if used > len(self.materials):
+            raise ValueError(f"the mesh uses material ids 0..{used - 1} but the scene has {len(self.materials)} "
+                             "material(s)")
+        if self.mesh.uvs is None:  # a texture lookup needs the surface's (u, v)
+            for i in np.unique(self.mesh.face_material):
+                if isinstance(self.materials[i], Textured):
+                    raise ValueError(f"Scene.materials[{i}] ({self.materials[i]!r}) is textured but the mesh has no "
+                                     "UVs (Mesh.uvs is None): give the mesh texture coordinates")
+        if not isinstance(self.camera, Camera):
+            raise ValueError(f"Scene.camera must be a Camera, got {type(self.camera).__name__}")
+        if self.environment is not None and not isinstance(self.environment, Environment):
+            raise ValueError(f"Scene.environment must be an Environment or None, got {type(self.environment).__name__}")
+        self.lights = list(self.lights)
+        for i, light in enumerate(self.lights):
+            if not isinstance(light, (PointLight, DirectionalLight)):
+                raise ValueError(f"Scene.lights[{i}] must be a PointLight or DirectionalLight, got {light!r}")
+        for name, (lo, hi) in settings_ranges(self.ssdf_resolution).items():
+            setattr(self, name, _integer(f"Scene.{name}", getattr(self, name), lo, hi, SETTINGS_UNITS[name]))
+
+    @property
+    def lights_packed(self) -> np.ndarray:
+        return (np.stack([light.packed() for light in self.lights]) if self.lights
+                else np.zeros((0, 8), np.float32))
+
+
+@dataclass(eq=False)
+class Rendering:
+    """A rendered image: `image` (H, W, 3) float32 linear radiance, `timings` (s per stage), `info`."""
+
+    image: np.ndarray
+    timings: dict
+    info: dict
+
+    def save(self, path, exposure: float = 0.0) -> None:
+        """Write .exr / .hdr (linear float) or .png (tone-mapped), atomically."""
+
+        write_image(path, self.image, exposure=exposure)
+
+
+def _black_environment() -> Environment:
+    return Environment(np.zeros((2, 4, 3), np.float32), name="black")

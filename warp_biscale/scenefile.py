@@ -95,7 +95,22 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import brdf as brdf_mod
+from . import geometry
+from .backend import get_backend
+from .bake import bake
+from .brdf import EnergyWarning, Lambert, parse_brdf
+from .geometry import BUILTIN_TILES
+from .effective import EffectiveBRDF
+from .environment import Environment, Softbox
 from .images import check_exposure
+from .loading import load
+from .progress import as_progress
+from .render import METHODS, render
+from .scene import SETTINGS_UNITS, Scene, settings_ranges
+from .scene import Camera, DirectionalLight, Mesh, PointLight
+from .smallscale import SmallScale, TileWarning
+from .svbrdf import Textured
 
 try:  # Python >= 3.11
     import tomllib
@@ -345,8 +360,6 @@ def _located_warnings(ctx: _Ctx, table: tuple, keys, default_key=None):
 
 
 def _reissue(ctx, table, keys, default_key, caught):
-    from .brdf import EnergyWarning
-    from .smallscale import TileWarning
 
     for w in caught:
         if issubclass(w.category, (EnergyWarning, TileWarning)):
@@ -425,7 +438,6 @@ class SceneFile:
 
     def resize(self, width: int, height: int) -> None:
         """Render at another image size (the camera's view is kept; the vertical fov is what it fixes)."""
-        from .scene import Camera
 
         c = self.scene.camera
         self.scene.camera = Camera(c.eye, c.target, c.up, c.fov, width, height)
@@ -439,7 +451,6 @@ class SceneFile:
 
     def render(self, method: str | None = None, backend=None, progress=None, **options):
         """Render with the file's settings (`method`, `backend` and options override them)."""
-        from .render import render
 
         method = method or self.method
         return render(self.scene, method=method, backend=backend or self.backend, progress=progress,
@@ -499,9 +510,6 @@ def loads_scene(text: str, path: str | None = None, base_dir: str | None = None,
     lights = _lights(ctx, doc.get("light", []))
     camera = _camera(ctx, cam, meshes, sf)
 
-    from .progress import as_progress
-    from .render import Scene
-    from .scene import Mesh
 
     prog = as_progress(progress)
     for name, (kind, values) in defs.items():
@@ -525,7 +533,6 @@ def loads_scene(text: str, path: str | None = None, base_dir: str | None = None,
 
 
 def _render_settings(ctx, data, sf):
-    from .render import METHODS, SETTINGS_UNITS, Scene, settings_ranges
 
     table = ("render",)
     v = _read(ctx, table, data, RENDER_KEYS)
@@ -545,7 +552,6 @@ def _render_settings(ctx, data, sf):
     if "seed" in v and v["seed"] < 0:
         raise ctx.error(table, "seed", f"seed must be >= 0, got {v['seed']}")
     if "backend" in v:
-        from .backend import get_backend
 
         try:  # an unknown name fails here, with its line; a known one is only resolved at render time
             get_backend(v["backend"])
@@ -580,7 +586,6 @@ def _typed(ctx, table, data, types: dict, what: str):
 
 
 def _environment(ctx, data):
-    from .environment import Environment, Softbox
 
     if data is None:
         return None
@@ -629,7 +634,6 @@ def _environment(ctx, data):
 
 
 def _lights(ctx, data):
-    from .scene import DirectionalLight, PointLight
 
     if isinstance(data, dict):
         raise ctx.error(("light",), None, "must be written [[light]] (an array of tables), not [light]")
@@ -661,7 +665,6 @@ def _material_defs(ctx, data) -> dict:
 
 def _objects(ctx, data, defs):
     """→ (list of Mesh with material ids set, material names in order of first use)."""
-    from .scene import Mesh
 
     if isinstance(data, dict):
         raise ctx.error(("object",), None, "must be written [[object]] (an array of tables), not [object]")
@@ -716,7 +719,6 @@ def _rotation(deg) -> np.ndarray:
 
 
 def _place(ctx, table, mesh, place):
-    from .scene import Mesh
 
     if not place:
         return mesh
@@ -730,7 +732,6 @@ def _place(ctx, table, mesh, place):
 
 def _camera(ctx, v, meshes, sf):
     """The camera from the checked [camera] values; no eye: framed on the objects' bounding sphere."""
-    from .scene import Camera
 
     table = ("camera",)
     lo = np.min([m.vertices.min(0) for m in meshes], axis=0)
@@ -749,7 +750,6 @@ def _camera(ctx, v, meshes, sf):
 
 
 def _brdfs(ctx, table, specs):
-    from .brdf import parse_brdf
 
     out = []
     for s in specs:
@@ -762,7 +762,6 @@ def _brdfs(ctx, table, specs):
 
 
 def _material(ctx, table, kind, v, sf, name, used, prog):
-    from . import brdf as brdf_mod
 
     if kind in _BRDF_KEYS:
         cls = {"lambert": brdf_mod.Lambert, "blinnphong": brdf_mod.BlinnPhong,
@@ -772,7 +771,6 @@ def _material(ctx, table, kind, v, sf, name, used, prog):
         mat = _build(ctx, table, v, cls)
         if not maps:
             return mat
-        from .svbrdf import Textured
 
         for key, rel in maps.items():
             full = ctx.resolve(rel)
@@ -781,8 +779,6 @@ def _material(ctx, table, kind, v, sf, name, used, prog):
             maps[key] = full
         return _build(ctx, table, maps, Textured, mat)
     if kind == "file":
-        from .effective import EffectiveBRDF
-        from .io import load
 
         full = ctx.resolve(v["path"])
         if not os.path.isfile(full):
@@ -806,10 +802,6 @@ def _material(ctx, table, kind, v, sf, name, used, prog):
 
 
 def _bake(ctx, table, v, sf, name, used, prog):
-    from . import geometry
-    from .bake import bake
-    from .cli import BUILTIN_TILES
-    from .smallscale import SmallScale
 
     spec = v["tile"]
     params = v.get("tile_params", {})
@@ -832,7 +824,6 @@ def _bake(ctx, table, v, sf, name, used, prog):
         key = ("tile_params", named[0]) if named else ("tile_params" if params else "tile")
         raise ctx.error(table, key, f"tile {spec!r}: {msg}") from None
     sf.tiles[name] = tile
-    from .brdf import Lambert
 
     mats = _brdfs(ctx, table, v["brdf"]) if "brdf" in v else [Lambert(0.5)]
     if len(mats) == 1 and tile.n_materials > 1:

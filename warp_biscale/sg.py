@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .brdf import BlinnPhong, CookTorrance, Ward
+
 __all__ = ["evaluate", "integral", "inner_product", "product", "convolve", "one_minus_cos", "SHARPNESS_MAX",
            "SHARPNESS_MIN", "specular_lobe"]
 
@@ -108,7 +110,6 @@ def specular_lobe(brdf, wi, wo):
     Ward: exp(−tan²θh/α²) ≈ G(n; h, 2/α², 1) (tan²θ ≈ 2(1 − cos θ) near θ = 0) and
     M = ks/(4πα² cos θd). A Lambertian BRDF has no specular term: η_s = None, M = 0.
     """
-    from .brdf import BlinnPhong, CookTorrance, Ward
 
     wi = np.atleast_2d(np.asarray(wi, np.float64))
     wo = np.atleast_2d(np.asarray(wo, np.float64))

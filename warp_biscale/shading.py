@@ -47,8 +47,11 @@ import numpy as np
 
 from . import brdf as brdf_mod
 from . import directions as dirs
-from . import sg
+from . import sg, svbrdf
+from .effective import EffectiveBRDF
+from .lighting import prefiltered_lookup
 from .scene import light_sg
+from .ssdf import ssdf_eval
 from .svbrdf import Textured
 
 __all__ = ["pack_materials", "shade_reference", "surface_frames", "MIN_COS_VIEW"]
@@ -69,7 +72,6 @@ def _has_specular(m) -> bool:
 
 def pack_materials(materials) -> dict:
     """Pack a scene's materials (analytic `Brdf`s, `svbrdf.Textured` ones and `EffectiveBRDF`s) for the shade stage."""
-    from .effective import EffectiveBRDF
 
     info, analytic, eff_info, eff_lobes, eff_sub, eff_tables, eff_diffuse = [], [], [], [], [], [], []
     n_lobes = n_sub = n_table = n_diffuse = 0
@@ -210,7 +212,6 @@ def surface_frames(faces, positions, normals, tangents, face, bary, eye) -> dict
 
 def shade_reference(frame: dict) -> np.ndarray:
     """(N, 3) float64 radiance of every pixel of a packed frame (see `render.pack_frame` for the keys)."""
-    from . import reference, svbrdf
 
     table = frame["table"]
     face = frame["face"]
@@ -227,7 +228,7 @@ def shade_reference(frame: dict) -> np.ndarray:
         d = (cam[3:6][None] + ((2 * (x + 0.5) / w - 1))[:, None] * cam[6:9][None]
              + ((1 - 2 * (y + 0.5) / h))[:, None] * cam[9:12][None])
         d = _normalize(d)
-        out[pix] = reference.prefiltered_lookup(frame["env_maps"], frame["env_levels"], d, 1e30)
+        out[pix] = prefiltered_lookup(frame["env_maps"], frame["env_levels"], d, 1e30)
     pix = np.flatnonzero(hit)
     if len(pix) == 0:
         return out
@@ -244,7 +245,7 @@ def shade_reference(frame: dict) -> np.ndarray:
         """The fraction of a lobe's horizon-clipped integral that the SSDF leaves visible (1 without one)."""
         if not has_ssdf:
             return np.ones(len(axis))
-        theta_d = reference.ssdf_eval(frame["ssdf_basis"], coeffs[sel], int(frame["ssdf_res"]), axis)
+        theta_d = ssdf_eval(frame["ssdf_basis"], coeffs[sel], int(frame["ssdf_res"]), axis)
         c = np.sin(np.clip(theta_d, -np.pi / 2, np.pi / 2))
         vis = sg.table_lookup(table, 1, c, eta)
         horizon = sg.table_lookup(table, 1, _dot(axis, n[sel]), eta)
@@ -326,7 +327,7 @@ def shade_reference(frame: dict) -> np.ndarray:
             eta = np.minimum(eta, sg.SHARPNESS_MAX)
             e = sg.integral(eta) * sg.table_lookup(table, 0, _dot(axis, ns), eta)
             occ = occlusion(axis, eta, sel)
-            env_avg = reference.prefiltered_lookup(frame["env_maps"], frame["env_levels"], axis, eta)
+            env_avg = prefiltered_lookup(frame["env_maps"], frame["env_levels"], axis, eta)
             rad[sel] += amp * env_avg * (e * occ)[:, None]
             for li in range(light_axis.shape[1]):
                 p_axis, p_eta, p_amp = sg.product(axis, eta, 1.0, light_axis[sel, li], light_eta[sel, li], 1.0)

@@ -12,6 +12,10 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
+import trimesh
+from scipy.spatial import cKDTree
+
+from .io import atomic_path
 
 __all__ = ["SmallScale", "TileWarning"]
 
@@ -287,8 +291,6 @@ class SmallScale:
         face normals. Scenes with several meshes are concatenated, each mesh getting the next
         material id unless `material_ids` is given.
         """
-        import trimesh
-
         path = os.fspath(path)
         if not os.path.exists(path):
             raise FileNotFoundError(f"tile file not found: {path}")
@@ -322,9 +324,6 @@ class SmallScale:
 
     def save(self, path) -> None:
         """Write the tile as a mesh file (format from the extension), atomically."""
-        import trimesh
-
-        from .io import atomic_path
 
         mesh = trimesh.Trimesh(self.vertices, self.faces, process=False)
         if self.vertex_normals is not None:
@@ -340,8 +339,6 @@ def _covered(a: np.ndarray, b: np.ndarray, tol: float) -> bool:
     be tessellated differently. Where an edge crosses several separate pieces (woven tubes), the
     sorted polyline joins unrelated points, so it errs towards no warning.
     """
-    from scipy.spatial import cKDTree
-
     dist, _ = cKDTree(b).query(a)
     if np.all(dist < 10 * tol):  # the common case: the same boundary vertices on both edges
         return True
@@ -367,3 +364,13 @@ def _file_has_vertex_normals(mesh) -> bool:
         return "vertex_normals" in cache.cache and cache.cache["vertex_normals"] is not None
     except Exception:
         return False
+
+
+def ray_offset(tile) -> float:
+    """Distance a ray origin is lifted off its facet along the face normal.
+
+    1e-5 of the tile's largest dimension: far above float32 rounding of positions (~1e-7
+    relative), far below any feature a designer builds. Derived from the tile, never a user knob.
+    """
+    zlo, zhi = tile.z_range
+    return 1e-5 * max(tile.period[0], tile.period[1], zhi - zlo)

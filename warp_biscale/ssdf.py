@@ -25,7 +25,7 @@ angle from texel k to its nearest neighbouring texel direction,
 So the zero crossing sits half way between two texels of opposite class (the sampled boundary),
 and since a ≥ 2·h_k the sign of θd is always the texel's class and |θd| ≥ h_k.
 
-Evaluation (the shade kernel's contract, oracle `reference.ssdf_eval`): at a point with per-point
+Evaluation (the shade kernel's contract, `ssdf_eval` below): at a point with per-point
 coefficients c (barycentric blend of the vertices' coefficients), θd(ω) = Σ_r c_r·basis_r(ω) with
 c_0 = 1, each basis image looked up bilinearly at continuous texel coordinates
 x = u·S − ½, y = v·S − ½ clamped to [0, S−1]. The octahedral map's edge mirroring is ignored: in
@@ -41,8 +41,11 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.linalg
 
+from .backend import get_backend
 from .progress import as_progress
+from .scene import SSDF_RESOLUTIONS
 from .trace import offsets
 
 __all__ = [
@@ -95,13 +98,12 @@ def octahedral_decode(uv) -> np.ndarray:
     return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
 
-RESOLUTIONS = (2, 128)  # the octahedral grid's directions per side: at least one per hemisphere quadrant
 
 
 def _check_resolution(resolution) -> int:
     s = int(resolution)
-    if s != resolution or not RESOLUTIONS[0] <= s <= RESOLUTIONS[1]:
-        lo, hi = RESOLUTIONS
+    if s != resolution or not SSDF_RESOLUTIONS[0] <= s <= SSDF_RESOLUTIONS[1]:
+        lo, hi = SSDF_RESOLUTIONS
         raise ValueError(f"SSDF resolution must be an integer in {lo}..{hi}, got {resolution!r}")
     return s
 
@@ -213,7 +215,6 @@ def vertex_visibility(mesh, backend, resolution: int = DEFAULT_RESOLUTION, progr
     mesh, eps = trace.SHADOW_OFFSET × mesh.scale = 1e-4 × scale, the shadow rays' offset (clears
     float32 rounding of positions, far below any modelled feature).
     """
-    from .backend import get_backend
 
     backend = get_backend(backend)
     g = grid(resolution)
@@ -242,7 +243,6 @@ def distance_field(visible: np.ndarray, backend, resolution: int | None = None) 
     s = int(round(np.sqrt(visible.shape[1]))) if resolution is None else _check_resolution(resolution)
     if s * s != visible.shape[1]:
         raise ValueError(f"visible has {visible.shape[1]} columns, not S² for an S×S grid")
-    from .backend import get_backend
 
     return get_backend(backend).ssdf_distance(grid(s), visible.astype(bool))
 
@@ -275,8 +275,6 @@ def compress(theta: np.ndarray, terms=DEFAULT_TERMS, tolerance: float | None = N
     matrix and the N×N covariance: the residual of k terms is the total energy less the k largest
     eigenvalues, so no full spectrum is needed.
     """
-    import scipy.linalg
-
     x = np.asarray(theta, np.float64)
     if x.ndim != 2 or x.shape[0] < 1 or x.shape[1] < 1:
         raise ValueError(f"theta must be a non-empty (V, N) array, got shape {x.shape}")
@@ -326,7 +324,7 @@ class SsdfField:
     occluded False when no vertex ray hit geometry above its horizon (then θd = asin(ω·n) serves);
     rms_by_terms the exact float64 RMS residual keeping k = 0..rank terms; timings (s) per step.
     At a point with coefficients c (V's coeffs blended by barycentrics), θd(ω) = basis_0(ω) +
-    Σ_r c_r·basis_r(ω), each basis row looked up bilinearly (module docstring; reference.ssdf_eval).
+    Σ_r c_r·basis_r(ω), each basis row looked up bilinearly (module docstring; ssdf_eval).
     """
 
     resolution: int
@@ -347,8 +345,6 @@ class SsdfField:
 
     def eval(self, coeffs, directions) -> np.ndarray:
         """θd (rad) at directions (P, 3) or (P, K, 3) for per-point coefficients (P, NV) (float64)."""
-        from .reference import ssdf_eval
-
         return ssdf_eval(self.basis, coeffs, self.resolution, directions)
 
 
@@ -371,7 +367,6 @@ def build(mesh, backend="auto", resolution: int = DEFAULT_RESOLUTION, terms=DEFA
     timings: "trace" (rays), "distance" (distance transform), "pca", "total" — seconds, device
     synchronised.
     """
-    from .backend import get_backend
 
     s = _check_resolution(resolution)
     _check_terms(terms, s * s)
@@ -414,3 +409,32 @@ def build(mesh, backend="auto", resolution: int = DEFAULT_RESOLUTION, terms=DEFA
     result = SsdfField(s, basis32, coeffs32, rms, occluded, rms_by_terms, timings)
     mesh.device_cache[key] = result
     return result
+
+
+def ssdf_eval(field_basis, coeffs_per_point, resolution: int, dirs) -> np.ndarray:
+    """θd (rad, float64) of a PCA-compressed SSDF at directions `dirs` (P, 3) or (P, K, 3).
+
+    field_basis (R+1, S²): row 0 the mean, rows 1.. eigenvectors; coeffs_per_point (P, R);
+    θd = basis_0(ω) + Σ_r c_r·basis_r(ω), each basis image looked up bilinearly at texel
+    coordinates x = u·S − ½, y = v·S − ½ (u, v = ssdf.octahedral_encode(ω)), clamped to
+    [0, S − 1], texel (i, j) at flat index j·S + i. → (P,) or (P, K).
+    """
+    s = int(resolution)
+    basis = np.asarray(field_basis, np.float64).reshape(-1, s * s)
+    c = np.atleast_2d(np.asarray(coeffs_per_point, np.float64))
+    if c.shape[1] != basis.shape[0] - 1:
+        raise ValueError(f"coeffs_per_point has {c.shape[1]} terms for a basis of {basis.shape[0] - 1}")
+    d = np.asarray(dirs, np.float64)
+    single = d.ndim == 2
+    if single:
+        d = d[:, None, :]
+    uv = octahedral_encode(d)  # (P, K, 2)
+    x = np.clip(uv[..., 0] * s - 0.5, 0.0, s - 1.0)
+    y = np.clip(uv[..., 1] * s - 0.5, 0.0, s - 1.0)
+    i0 = np.minimum(np.floor(x), s - 2).astype(np.int64)
+    j0 = np.minimum(np.floor(y), s - 2).astype(np.int64)
+    fx, fy = x - i0, y - j0
+    images = (basis[:, j0 * s + i0] * ((1 - fx) * (1 - fy)) + basis[:, j0 * s + i0 + 1] * (fx * (1 - fy))
+              + basis[:, (j0 + 1) * s + i0] * ((1 - fx) * fy) + basis[:, (j0 + 1) * s + i0 + 1] * (fx * fy))
+    theta = images[0] + np.einsum("pr,rpk->pk", c, images[1:])
+    return theta[:, 0] if single else theta

@@ -29,6 +29,7 @@ import os
 import numpy as np
 
 from . import brdf as brdf_mod
+from .images import read_image
 
 __all__ = ["Textured", "sample"]
 
@@ -56,7 +57,6 @@ def _load_map(name, value, rgb: bool) -> np.ndarray | None:
     if value is None:
         return None
     if isinstance(value, (str, os.PathLike)):
-        from .images import read_image
 
         try:
             a = read_image(value)

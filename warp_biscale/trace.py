@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .scene import Camera, Mesh
+
 __all__ = ["T_MIN", "SHADOW_OFFSET", "CHUNK_RAYS", "offsets", "check_mesh", "check_camera", "check_rays",
            "check_lights", "check_gbuffer"]
 
@@ -30,7 +32,6 @@ def offsets(mesh) -> tuple[float, float]:
 
 
 def check_mesh(mesh):
-    from .scene import Mesh
 
     if not isinstance(mesh, Mesh):
         raise ValueError(f"mesh must be a warp_biscale.scene.Mesh, got {type(mesh).__name__}")
@@ -38,7 +39,6 @@ def check_mesh(mesh):
 
 
 def check_camera(camera):
-    from .scene import Camera
 
     if not isinstance(camera, Camera):
         raise ValueError(f"camera must be a warp_biscale.scene.Camera, got {type(camera).__name__}")

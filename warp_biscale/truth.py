@@ -18,6 +18,7 @@ from .backend import get_backend
 from .brdf import as_material_list, pack_materials
 from .io import read_npz, save_npz
 from .progress import as_progress
+from .smallscale import SmallScale, TileWarning
 
 __all__ = ["effective_brdf_exact", "ground_truth", "GroundTruth", "MAX_FACETS"]
 
@@ -39,7 +40,6 @@ def _prepare(tile, materials):
     → (list of Brdf, kinds, params). Fewer BRDFs than the tile's ids is an error; more (than one) is a
     `TileWarning`, since the extra ones are never used. Shared by `ground_truth`, `effective_brdf_exact`
     and `bake.bake`; the warning points at their caller."""
-    from .smallscale import SmallScale, TileWarning
 
     if not isinstance(tile, SmallScale):
         raise ValueError(f"tile must be a SmallScale (wb.SmallScale.load(...) or wb.geometry.*), got {tile!r}")

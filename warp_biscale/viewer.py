@@ -22,11 +22,22 @@ before VTK loads when a screenshot is asked for.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
+import sys
 import time
 
 import numpy as np
+
+from . import brdf as B
+from .effective import EffectiveBRDF
+from .images import tonemap
+from .io import atomic_path
+from .render import render
+from .scene import Scene
+from .scene import Camera, DirectionalLight, Mesh, PointLight
+from .scenefile import SceneFile, load_scene
 
 __all__ = ["Viewer", "view", "camera_from_pyvista", "camera_to_pyvista", "main_parameter", "with_main_parameter",
            "light_angles", "with_light_angles", "tile_polydata", "material_color"]
@@ -38,7 +49,6 @@ __all__ = ["Viewer", "view", "camera_from_pyvista", "camera_to_pyvista", "main_p
 def camera_from_pyvista(pv_camera, width: int, height: int):
     """Our `Camera` seeing what a pyvista / VTK camera sees in a width × height viewport: VTK's
     position, focal point, view up and (vertical) view angle are our eye, target, up and fov."""
-    from .scene import Camera
 
     if pv_camera.GetUseHorizontalViewAngle():
         t = math.tan(math.radians(pv_camera.GetViewAngle()) / 2) * height / width
@@ -69,7 +79,6 @@ def camera_to_pyvista(camera, pv_camera) -> None:
 
 def _brdf_main(b):
     """(field, label, value, slider lo, slider hi, log10 slider) of a small-scale BRDF's main parameter."""
-    from . import brdf as B
 
     if isinstance(b, B.BlinnPhong):
         return "exponent", "log10 exponent", b.exponent, 0.0, 4.0, True
@@ -85,7 +94,6 @@ def _brdf_main(b):
 def main_parameter(material):
     """The slider a material gets: (label, slider value, lo, hi), or None. A baked material's is its
     first small-scale BRDF's."""
-    from .effective import EffectiveBRDF
 
     b = material.materials[0] if isinstance(material, EffectiveBRDF) else material
     m = _brdf_main(b)
@@ -97,8 +105,6 @@ def main_parameter(material):
 
 
 def _brdf_with(b, slider_value):
-    import dataclasses
-
     field, _, _, _, _, log = _brdf_main(b)
     value = 10.0 ** slider_value if log else float(slider_value)
     if field == "albedo":
@@ -112,7 +118,6 @@ def _brdf_with(b, slider_value):
 def with_main_parameter(material, slider_value):
     """The material with its main parameter set from a slider value (see `main_parameter`); a baked
     material gets every small-scale BRDF equal to its first one changed (`with_materials`: no re-bake)."""
-    from .effective import EffectiveBRDF
 
     if isinstance(material, EffectiveBRDF):
         first = material.materials[0]
@@ -124,7 +129,6 @@ def with_main_parameter(material, slider_value):
 def light_angles(light, centre) -> tuple[float, float]:
     """(azimuth, elevation) in degrees of a light seen from `centre` (+y up; azimuth 0 along +z,
     90 along +x)."""
-    from .scene import PointLight
 
     d = (light.position - np.asarray(centre, np.float64)) if isinstance(light, PointLight) else light.direction
     d = d / max(np.linalg.norm(d), 1e-300)
@@ -134,9 +138,6 @@ def light_angles(light, centre) -> tuple[float, float]:
 def with_light_angles(light, centre, azimuth=None, elevation=None):
     """The light moved to (azimuth, elevation) degrees around `centre` (a point light keeps its
     distance; a directional one its irradiance and size)."""
-    import dataclasses
-
-    from .scene import PointLight
 
     az0, el0 = light_angles(light, centre)
     az = math.radians(az0 if azimuth is None else azimuth)
@@ -153,7 +154,6 @@ def with_light_angles(light, centre, azimuth=None, elevation=None):
 
 def material_color(b) -> np.ndarray:
     """A display colour (RGB in [0, 1]) for a small-scale BRDF: the albedo, or kd + ks."""
-    from . import brdf as B
 
     if isinstance(b, B.Lambert):
         c = np.asarray(b.albedo)
@@ -165,7 +165,7 @@ def material_color(b) -> np.ndarray:
 def tile_polydata(tile, materials, repeat: int = 3):
     """A pyvista PolyData of `repeat`² periods of a SmallScale tile (centred on the origin, z up)
     with cell data "rgb" (uint8): each face's material colour × its colour weight."""
-    import pyvista as pv
+    import pyvista as pv  # (imported only to draw: VTK takes about a second to load)
 
     mats = list(materials)
     ids = np.clip(tile.material_ids, 0, len(mats) - 1)
@@ -201,7 +201,7 @@ class Viewer:
                  render_scale: float = 1.0):
         if off_screen:
             _ensure_offscreen_gl()
-        import pyvista as pv
+        import pyvista as pv  # (imported only to draw: VTK takes about a second to load)
 
         w, h = (int(x) for x in size)
         if w < 2 or h < 1:
@@ -304,7 +304,6 @@ class Viewer:
 
     def render_left(self):
         """Render the scene with warp_biscale from the left viewport's camera and show it."""
-        from .images import tonemap
 
         w, h = self._viewport_pixels(self.left)
         self.scene.camera = camera_from_pyvista(self.left.camera, w, h)
@@ -324,7 +323,7 @@ class Viewer:
 
     @staticmethod
     def _show(renderer, u8):
-        import pyvista as pv
+        import pyvista as pv  # (imported only to draw: VTK takes about a second to load)
 
         tex = pv.Texture(np.ascontiguousarray(u8))
         tex.interpolate = True  # smooth when render_scale < 1
@@ -375,9 +374,6 @@ class Viewer:
     def _render_preview(self):
         """A unit sphere in the edited material, rendered by warp_biscale under the scene's environment
         and directional lights (its point lights are placed for the scene, not for the sphere)."""
-        from .images import tonemap
-        from .render import Scene, render
-        from .scene import Camera, DirectionalLight, Mesh
 
         w, h = self._viewport_pixels(self.right)
         cam = Camera((0.0, 0.0, 4.5), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 40.0, w, h)
@@ -400,7 +396,6 @@ class Viewer:
         img = self.plotter.screenshot(None, return_img=True)
         from PIL import Image
 
-        from .io import atomic_path
 
         with atomic_path(path) as tmp:
             Image.fromarray(np.ascontiguousarray(img[..., :3]), "RGB").save(tmp, format="PNG")
@@ -416,8 +411,6 @@ class Viewer:
 
 
 def _has_display() -> bool:
-    import sys
-
     if sys.platform != "linux":
         return True
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
@@ -426,7 +419,6 @@ def _has_display() -> bool:
 def view(scene, screenshot=None, size=(1200, 600), backend=None, progress=None, render_scale=1.0):
     """Open the viewer on a scene file path (or a loaded SceneFile); with `screenshot`, render
     offscreen, write that PNG and return its pixels instead."""
-    from .scenefile import SceneFile, load_scene
 
     if screenshot is None and not _has_display():
         raise RuntimeError("no display to open a window on (DISPLAY is not set): use --screenshot out.png to "

@@ -8,6 +8,7 @@ On CUDA a launch is one launch.
 
 from __future__ import annotations
 
+import functools
 import os
 import sys
 import tempfile
@@ -15,13 +16,44 @@ import weakref
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+import warp as wp
 
-from .backend import (SCRATCH_BYTES, DeviceFacets, DeviceLobes, DeviceStart, OnDevice, UploadCache, check_kernel_lobes,
-                      chunking, device_copy, em_result_rows, em_start_rows, equal_areas, run_em_steps, start_scale)
-from .model import Facets, Visibility
-from .lobes import START_RES
+from .device import (
+    PROBE_VALUES,
+    SCRATCH_BYTES,
+    DeviceFacets,
+    DeviceLobes,
+    DeviceStart,
+    OnDevice,
+    UploadCache,
+    check_kernel_lobes,
+    chunking,
+    device_copy,
+    em_result_rows,
+    em_start_rows,
+    equal_areas,
+    one_line,
+    probe_mismatch,
+    run_em_steps,
+    start_scale,
+)
+from .kernels import amplitudes as kamplitudes
+from .kernels import bvndf as kbvndf
+from .kernels import em as kem
+from .kernels import envmap as kenvmap
+from .kernels import facets as kfacets
+from .kernels import probe as kprobe
+from .kernels import shade as kshade
+from .kernels import ssdf as kssdf
+from .kernels import trace as ktrace
+from .kernels import truth as ktruth
+from .kernels import visibility as kvisibility
+from .environment import SUPPORT, equirect_tables
+from .lobes import KERNEL_LOBES, START_RES, LobeSet
+from .model import Facets, Visibility, facet_shift
 from .progress import compile_notice
-from .reference import facet_shift, ray_offset
+from .smallscale import ray_offset
+from .trace import CHUNK_RAYS, check_camera, check_gbuffer, check_lights, check_mesh, check_occlusion, offsets
 
 _READY = False
 _NO_CUDA_DRIVER = False  # Warp's native library found no CUDA driver (a CPU-only machine)
@@ -50,8 +82,6 @@ def _stderr_of(call) -> str:
 
 def init_warp():
     global _READY, _NO_CUDA_DRIVER
-    import warp as wp
-
     if not _READY:
         wp.config.log_level = wp.LOG_WARNING  # compile chatter would drown the progress display
         # Warp's native library warns on stderr when it finds no CUDA driver: on a CPU-only machine
@@ -71,18 +101,14 @@ def probe(device) -> str | None:
     device), else why not, in one line. Once per device and process."""
     alias = device.alias
     if alias not in _PROBES:
-        import warp as wp
-
-        from .backend import PROBE_VALUES, one_line, probe_mismatch
 
         try:
-            from .kernels import probe as kp
 
             with compile_notice():
-                wp.load_module(kp.probe.module, device=device)
+                wp.load_module(kprobe.probe.module, device=device)
             values = wp.array(PROBE_VALUES, dtype=wp.float64, device=device)
             out = wp.zeros(len(PROBE_VALUES), dtype=wp.float64, device=device)
-            wp.launch(kp.probe, dim=len(PROBE_VALUES), inputs=[values], outputs=[out], device=device)
+            wp.launch(kprobe.probe, dim=len(PROBE_VALUES), inputs=[values], outputs=[out], device=device)
             _PROBES[alias] = probe_mismatch(out.numpy())
         except Exception as exc:
             _PROBES[alias] = f"Warp cannot build or run a kernel on {device.name}: {one_line(exc)}"
@@ -138,14 +164,11 @@ class WarpBackend:
         self._em_graphs = {}  # (Ns, J, steps, weighted) → captured EM (CUDA): see _em_graph
         self._em_buffers = {}
         self._pinned = {}  # (shape, dtype) → [(pinned host array, event)] free for _read_later
-        from . import kernels  # noqa: F401  (import here so a broken Warp fails at backend creation)
 
     def __repr__(self):
         return f"WarpBackend({self._device.alias!r})"
 
     def synchronize(self):
-        import warp as wp
-
         wp.synchronize_device(self._device)
 
     def _launch(self, kernel, dim, inputs, outputs, block_dim=256, pieces=1):
@@ -156,8 +179,6 @@ class WarpBackend:
         such as the visibility rays, more pieces even out the cores). On a GPU `block_dim` threads make
         a block (Warp's default 256).
         """
-        import warp as wp
-
         dim = tuple(dim) if isinstance(dim, (tuple, list)) else (int(dim),)
         n = dim[-1]
         parts = min(self._slices * pieces, n) if self._slices > 1 else 1
@@ -178,8 +199,6 @@ class WarpBackend:
     def _load(self, kernel, block_dim=None):
         """Load `kernel`'s Warp module before its first launch: on a first run that compiles it, which
         compile_notice tells the user about when it takes a while."""
-        import warp as wp
-
         key = (id(kernel.module), block_dim)
         if key not in self._loaded:
             with compile_notice():
@@ -188,8 +207,6 @@ class WarpBackend:
 
     # ------------------------------------------------------------------ device copies
     def _tile(self, tile):
-        import warp as wp
-
         entry = self._tiles.get(tile)
         if entry is None:
             dev = self._device
@@ -222,15 +239,11 @@ class WarpBackend:
         return entry
 
     def _upload_facet_array(self, key, host):
-        import warp as wp
-
         dtype = {"normal": wp.vec3, "face": wp.int32, "area": wp.float32, "material": wp.int32, "weight": wp.vec3}[key]
         return wp.array(host, dtype=dtype, device=self._device)
 
     def _facet_positions(self, facets: Facets, tile):
         """Facet positions on the device in `tile`'s local frame (see `SmallScale.to_local`)."""
-        import warp as wp
-
         entry = self._facets(facets)
         if entry.get("position_tile") is not tile:
             entry["position"] = wp.array(tile.to_local(facets.position), dtype=wp.vec3, device=self._device)
@@ -238,8 +251,6 @@ class WarpBackend:
         return entry["position"]
 
     def _vis(self, vis: Visibility):
-        import warp as wp
-
         entry = vis.device_cache.get(self.name)
         if entry is None:
             dev = self._device
@@ -252,9 +263,6 @@ class WarpBackend:
 
     # ------------------------------------------------------------------ stages
     def sample_facets(self, tile, count, seed):
-        import warp as wp
-
-        from .kernels import facets as kf
 
         t = self._tile(tile)
         dev = self._device
@@ -263,7 +271,7 @@ class WarpBackend:
         nrm = wp.empty(count, dtype=wp.vec3, device=dev)
         face = wp.empty(count, dtype=wp.int32, device=dev)
         xi1, xi2 = facet_shift(seed)
-        self._launch(kf.sample_facets, count,
+        self._launch(kfacets.sample_facets, count,
                      [t["points"], t["faces"], t["vertex_normals"], int(tile.vertex_normals is not None),
                       t["face_normals"], t["cumulative_area"], t["face_area"], count, wp.float64(xi1), float(xi2)],
                      [pos, nrm, face])
@@ -279,9 +287,6 @@ class WarpBackend:
         return facets
 
     def visibility(self, tile, facets, directions, brute_force=False):
-        import warp as wp
-
-        from .kernels import visibility as kv
 
         t = self._tile(tile)
         position = self._facet_positions(facets, tile)
@@ -298,20 +303,17 @@ class WarpBackend:
         # soon as their rays end (H100, 2^16 facets × 144 directions, 8192-triangle height field:
         # 4.74 ms at Warp's default 256 threads a block, 3.78 at 128, 3.66 at 64, 3.55 at 32; bits
         # identical; bench/probe_visibility.py --block-dims).
-        self._launch(kv.visibility_rays, (len(directions), n),
+        self._launch(kvisibility.visibility_rays, (len(directions), n),
                      [t["mesh"].id, t["points"], t["faces"], t["face_normals"], int(bool(brute_force)),
                       position, f["face"], dirs,
                       0.0, 0.0, float(tile.period[0]), float(tile.period[1]), 0.0, z_hi - z_lo, ray_offset(tile)],
                      [visible], block_dim=32, pieces=RAY_PIECES)
-        self._launch(kv.pack_bits, (len(directions), words), [visible], [bits])
+        self._launch(kvisibility.pack_bits, (len(directions), words), [visible], [bits])
         vis = Visibility.deferred(directions, len(facets), lambda: self._trace_host(bits))
         vis.device_cache[self.name] = {"bits": bits, "directions": dirs}
         return vis
 
     def visible_area(self, facets, vis, to_host=True):
-        import warp as wp
-
-        from .kernels import truth as kt
 
         f = self._facets(facets)
         v = self._vis(vis)
@@ -319,11 +321,11 @@ class WarpBackend:
         n_dirs, n_words = len(vis.directions), vis.words
         chunks, per = chunking(n_words, n_dirs, self._threads)
         partial = self._scratch("visible_area_partial", (chunks, n_dirs), wp.float32)
-        self._launch(kt.visible_area_partial, (chunks, n_dirs),
+        self._launch(ktruth.visible_area_partial, (chunks, n_dirs),
                      [v["directions"], v["bits"], f["normal"], f["area"], per], [partial])
         a_v = wp.empty(n_dirs, dtype=wp.float32, device=dev)
-        self._load(kt.sum_chunks_area)
-        wp.launch(kt.sum_chunks_area, dim=n_dirs, device=dev, inputs=[partial], outputs=[a_v])
+        self._load(ktruth.sum_chunks_area)
+        wp.launch(ktruth.sum_chunks_area, dim=n_dirs, device=dev, inputs=[partial], outputs=[a_v])
         if not to_host:
             return OnDevice(a_v, self._read_later(a_v))  # (read at the bake's end: queued now, no wait then)
         host = self._trace_host(a_v)
@@ -333,15 +335,10 @@ class WarpBackend:
 
     def _visible_area_array(self, a_v):
         """The device copy of a_v (see backend.device_copy): an upload costs more than the solve on a GPU host."""
-        import warp as wp
-
         return device_copy(a_v, self._held_visible_area, lambda host: self._array(np.asarray(host, np.float32),
                                                                                   wp.float32))
 
     def effective_brdf(self, facets, vis, kinds, params, pair_i, pair_o, a_v):
-        import warp as wp
-
-        from .kernels import truth as kt
 
         f = self._facets(facets)
         v = self._vis(vis)
@@ -351,51 +348,41 @@ class WarpBackend:
         pi = wp.array(np.asarray(pair_i, np.int32), dtype=wp.int32, device=dev)
         po = wp.array(np.asarray(pair_o, np.int32), dtype=wp.int32, device=dev)
         partial = wp.empty((chunks, n_pairs), dtype=wp.vec3, device=dev)
-        self._launch(kt.effective_brdf_partial, (chunks, n_pairs),
+        self._launch(ktruth.effective_brdf_partial, (chunks, n_pairs),
                      [v["directions"], pi, po, v["bits"], f["normal"], f["weight"], f["material"],
                       wp.array(np.asarray(kinds, np.int32), dtype=wp.int32, device=dev),
                       wp.array(np.asarray(params, np.float32), dtype=wp.float32, device=dev), per],
                      [partial])
         out = wp.empty(n_pairs, dtype=wp.vec3, device=dev)
-        self._load(kt.sum_chunks_brdf)
-        wp.launch(kt.sum_chunks_brdf, dim=n_pairs, device=dev,
+        self._load(ktruth.sum_chunks_brdf)
+        wp.launch(ktruth.sum_chunks_brdf, dim=n_pairs, device=dev,
                   inputs=[partial, po, wp.array(np.asarray(a_v, np.float32), dtype=wp.float32, device=dev)],
                   outputs=[out])
         return out.numpy()
 
     # ------------------------------------------------------------------ SG bake stages
     def _array(self, data, dtype):
-        import warp as wp
-
         return wp.array(np.ascontiguousarray(data), dtype=dtype, device=self._device)
 
     def _recurring(self, data, np_dtype, dtype):
         """A read-only device copy of an input that recurs between calls (pair lists, the direction
         grid, equal facet areas): see UploadCache. No kernel may write into it."""
-        import warp as wp
-
         return self._uploads.get(data, np_dtype, lambda host: wp.array(host, dtype=dtype, device=self._device),
                                  tag=dtype)
 
     def normal_bins(self, facets, resolution):
-        import warp as wp
-
-        from .kernels import bvndf as kb
 
         f = self._facets(facets)
         bins = self._scratch("normal_bins", len(facets), wp.int32)
-        self._launch(kb.normal_bins, len(facets), [f["normal"], int(resolution)], [bins])
+        self._launch(kbvndf.normal_bins, len(facets), [f["normal"], int(resolution)], [bins])
         return self._trace_host(bins)
 
     def bvndf_histogram(self, facets, vis, order, bin_start, weight, pair_i, pair_o):
-        import warp as wp
-
-        from .kernels import bvndf as kb
 
         v = self._vis(vis)
         n_bins = len(bin_start) - 1
         hist = wp.empty((len(pair_i), n_bins), dtype=wp.float32, device=self._device)
-        self._launch(kb.bvndf_histogram, (len(pair_i), n_bins),
+        self._launch(kbvndf.bvndf_histogram, (len(pair_i), n_bins),
                      [self._array(np.asarray(pair_i, np.int32), wp.int32),
                       self._array(np.asarray(pair_o, np.int32), wp.int32), v["bits"],
                       self._array(np.asarray(order, np.int32), wp.int32),
@@ -405,14 +392,11 @@ class WarpBackend:
         return hist.numpy()
 
     def visible_weights(self, facets, vis, to_host=True):
-        import warp as wp
-
-        from .kernels import em as ke
 
         f = self._facets(facets)
         v = self._vis(vis)
         weight = wp.empty(len(facets), dtype=wp.float32, device=self._device)
-        self._launch(ke.visible_weights, len(facets), [v["directions"], v["bits"], f["normal"], f["area"]], [weight])
+        self._launch(kem.visible_weights, len(facets), [v["directions"], v["bits"], f["normal"], f["area"]], [weight])
         if not to_host:
             return OnDevice(weight, self._read_later(weight))
         host = self._trace_host(weight)
@@ -420,9 +404,6 @@ class WarpBackend:
         return host
 
     def em_start(self, facets, facet_weight, count):
-        import warp as wp
-
-        from .kernels import em as ke
 
         f = self._facets(facets)
         j = int(count)
@@ -435,11 +416,11 @@ class WarpBackend:
                    self._scratch("start_owner", n_bins, wp.int32), self._scratch("start_chosen", j, wp.int32)]
         rows = wp.empty((j, 6), dtype=wp.float64, device=self._device)
         # (One launch, not sliced over the CPU's cores: there Warp's atomic_add is a plain add.)
-        self._load(ke.start_bin_sums)
-        self._load(ke.start_pick, 256)
-        wp.launch(ke.start_bin_sums, dim=len(facets), inputs=[f["normal"], weight, scale, 0], outputs=[sums],
+        self._load(kem.start_bin_sums)
+        self._load(kem.start_pick, 256)
+        wp.launch(kem.start_bin_sums, dim=len(facets), inputs=[f["normal"], weight, scale, 0], outputs=[sums],
                   device=self._device)
-        wp.launch_tiled(ke.start_pick, dim=[1], inputs=[sums, scale], outputs=[*scratch, rows], block_dim=256,
+        wp.launch_tiled(kem.start_pick, dim=[1], inputs=[sums, scale], outputs=[*scratch, rows], block_dim=256,
                         device=self._device)
         return DeviceStart(rows, j, lambda: self._trace_host(rows))  # (read only if asked: the bake never does)
 
@@ -447,9 +428,6 @@ class WarpBackend:
         """The E-step's kernels as callables (recorded launches on a GPU: re-issuing one skips Python's
         argument packing) over facets `normal` (vec3) weighing `mass` (float32), with `resp` (Ns, ≥ J)
         their scratch → (steps, stats (1, J) vec4d)."""
-        import warp as wp
-
-        from .kernels import em as ke
 
         dev = self._device
         n, j = normal.shape[0], n_lobes
@@ -461,10 +439,10 @@ class WarpBackend:
         partial = wp.empty((chunks, j), dtype=wp.vec4d, device=dev)
         partial2 = wp.empty((groups, j), dtype=wp.vec4d, device=dev)
         stats = wp.empty((1, j), dtype=wp.vec4d, device=dev)
-        launches = [(ke.ndf_responsibilities, n, [normal, mass, axes, sharpness, log_weight, state], [resp]),
-                    (ke.ndf_sums_partial, (chunks, j), [normal, resp, per, state], [partial]),
-                    (ke.sum_chunks_stats, (groups, j), [partial, group, state], [partial2]),
-                    (ke.sum_chunks_stats, (1, j), [partial2, groups, state], [stats])]
+        launches = [(kem.ndf_responsibilities, n, [normal, mass, axes, sharpness, log_weight, state], [resp]),
+                    (kem.ndf_sums_partial, (chunks, j), [normal, resp, per, state], [partial]),
+                    (kem.sum_chunks_stats, (groups, j), [partial, group, state], [partial2]),
+                    (kem.sum_chunks_stats, (1, j), [partial2, groups, state], [stats])]
         steps = [self._recorded(*launch, split=k < 2) for k, launch in enumerate(launches)]
         # A recorded launch keeps its arguments only as a Warp internal: hold the scratch arrays here.
         steps.append(lambda held=(resp, partial, partial2): None)
@@ -472,8 +450,6 @@ class WarpBackend:
 
     def _resp(self, facets, n_lobes):
         """The facets' E-step scratch (Ns, J), kept with their device arrays."""
-        import warp as wp
-
         f = self._facets(facets)
         key = ("resp", n_lobes)
         if key not in f:
@@ -484,10 +460,6 @@ class WarpBackend:
         """A callable that re-issues this launch (see _launch): recorded (re-issued without Python's
         argument packing), or with `split` on the CPU sliced over the cores (a sliced launch costs
         ~200 µs there, so tiny kernels are not split)."""
-        import functools
-
-        import warp as wp
-
         if split and self._slices > 1:
             return functools.partial(self._launch, kernel, dim, inputs, outputs)
         self._load(kernel)
@@ -495,8 +467,6 @@ class WarpBackend:
                          record_cmd=True).launch
 
     def ndf_statistics(self, facets, axes, sharpness, log_weight):
-        import warp as wp
-
         f = self._facets(facets)
         state = wp.zeros(2, dtype=wp.int32, device=self._device)
         steps, stats = self._em_launches(f["normal"], f["area"], len(axes),
@@ -512,9 +482,6 @@ class WarpBackend:
         """Buffers and launches of an EM of at most `iterations` steps for J lobes over these facet
         arrays → dict: `start` and `result` (J, 6) float64 (em_start_rows / em_result_rows), `state`,
         and the launches as callables: `load`, `steps` (one EM step) and `unload`."""
-        import warp as wp
-
-        from .kernels import em as ke
 
         dev = self._device
         prog = {name: wp.zeros(j, dtype=dtype, device=dev) for name, dtype in (
@@ -526,13 +493,13 @@ class WarpBackend:
         lobes64 = [prog["axes64"], prog["sharp64"], prog["weight64"]]
         lobes32 = [prog["axes32"], prog["sharp32"], prog["logw32"]]
         steps, stats = self._em_launches(normal, mass, j, *lobes32, prog["state"], resp)
-        steps.append(self._recorded(ke.em_m_step, j, [stats, prog["state"], *lobes64], [*lobes32, prog["moved"]],
+        steps.append(self._recorded(kem.em_m_step, j, [stats, prog["state"], *lobes64], [*lobes32, prog["moved"]],
                                     split=False))
-        steps.append(self._recorded(ke.em_finish, 1, [prog["moved"], int(iterations)], [prog["state"]], split=False))
+        steps.append(self._recorded(kem.em_finish, 1, [prog["moved"], int(iterations)], [prog["state"]], split=False))
         prog["steps"] = steps
-        prog["load"] = self._recorded(ke.em_load, j, [prog["start"]], [*lobes64, *lobes32, prog["state"]],
+        prog["load"] = self._recorded(kem.em_load, j, [prog["start"]], [*lobes64, *lobes32, prog["state"]],
                                       split=False)
-        prog["unload"] = self._recorded(ke.em_result, j, [*lobes64, prog["state"]], [prog["result"]], split=False)
+        prog["unload"] = self._recorded(kem.em_result, j, [*lobes64, prog["state"]], [prog["result"]], split=False)
         return prog
 
     def _em_graph(self, n, j, iterations, weighted):
@@ -541,8 +508,6 @@ class WarpBackend:
         steps, one call at a time: ndf_em took 3.14 ms queueing 6 launches a step from Python (and
         reading the stop flag), 1.93 ms replaying the graph, of which the replay itself is 1.69 ms
         (~55 µs a step: six dependent launches). Steps after convergence return at their first line."""
-        import warp as wp
-
         key = (n, j, int(iterations), bool(weighted))
         graph = self._em_graphs.pop(key, None)
         if graph is None:
@@ -551,7 +516,6 @@ class WarpBackend:
             if shared.get("n") != n or shared["resp"].shape[1] < j:
                 # The facet buffers, shared by every J up to resp's columns (at least KERNEL_LOBES): the
                 # graphs captured over the old ones go with them.
-                from .lobes import KERNEL_LOBES
 
                 self._em_graphs.clear()
                 shared.clear()
@@ -572,9 +536,6 @@ class WarpBackend:
         return graph
 
     def ndf_em(self, facets, axes, sharpness, weight, iterations, facet_weight=None, to_host=True):
-        import warp as wp
-
-        from .lobes import LobeSet
 
         on_device = isinstance(axes, DeviceStart)  # (em_start's rows: copied on the device)
         start = None if on_device else LobeSet(axes, sharpness, weight)
@@ -624,15 +585,10 @@ class WarpBackend:
         return em_result_rows(self._trace_host(prog["result"]))
 
     def _facet_weight(self, f, facet_weight):
-        import warp as wp
-
         return device_copy(facet_weight, f.get("visible_weight"),
                                    lambda host: self._array(np.asarray(host, np.float32), wp.float32))
 
     def lobe_moments(self, facets, vis, weight, axes, sharpness, pair_i, pair_o, to_host=True):
-        import warp as wp
-
-        from .kernels import amplitudes as ka
 
         f = self._facets(facets)
         v = self._vis(vis)
@@ -646,14 +602,14 @@ class WarpBackend:
             sharpness_arr = self._array(np.asarray(sharpness, np.float32), wp.float32)
         n, n_pairs = len(facets), len(pair_i)
         check_kernel_lobes(j)
-        vec, lobe_values, lobe_moments_partial = ka.facet_kernels(j)
+        vec, lobe_values, lobe_moments_partial = kamplitudes.facet_kernels(j)
         values = self._scratch("lobe_values", n, vec)
         self._launch(lobe_values, n, [f["normal"], axes_arr, sharpness_arr], [values])
         runs = f.get("area_runs") if weight is None else None  # the area's runs depend on the facets alone
         weight = f["area"] if weight is None else self._array(np.asarray(weight, np.float32), wp.float32)
         if runs is None:
             runs = (wp.empty(vis.words, dtype=wp.uint32, device=dev), wp.empty(n, dtype=wp.int32, device=dev))
-            self._launch(ka.facet_runs, vis.words, [f["normal"], weight], list(runs))
+            self._launch(kamplitudes.facet_runs, vis.words, [f["normal"], weight], list(runs))
             if weight is f["area"]:
                 f["area_runs"] = runs
         channel_bits, run_end = runs
@@ -672,25 +628,22 @@ class WarpBackend:
             out = partial.reshape((n_pairs, j + 1))
         else:
             out = wp.empty((n_pairs, j + 1), dtype=wp.float32, device=dev)
-            self._launch(ka.sum_chunks_moments, n_pairs, [partial], [out])
+            self._launch(kamplitudes.sum_chunks_moments, n_pairs, [partial], [out])
         return self._trace_host(out) if to_host else out
 
     def histogram_moments(self, hist, bin_normal, directions, axes, sharpness, pair_i, pair_o):
-        import warp as wp
-
-        from .kernels import amplitudes as ka
 
         dev = self._device
         bin_normal = np.asarray(bin_normal, np.float32)
         j = len(axes)
         check_kernel_lobes(j)
         bn = self._array(bin_normal, wp.vec3)
-        bin_values = wp.empty(len(bin_normal), dtype=ka.vec16, device=dev)
-        self._launch(ka.lobe_values, len(bin_normal),
+        bin_values = wp.empty(len(bin_normal), dtype=kamplitudes.vec16, device=dev)
+        self._launch(kamplitudes.lobe_values, len(bin_normal),
                      [bn, self._array(np.asarray(axes, np.float32), wp.vec3),
                       self._array(np.asarray(sharpness, np.float32), wp.float32)], [bin_values])
         out = wp.empty((len(pair_i), j + 1), dtype=wp.float32, device=dev)
-        self._launch(ka.histogram_moments, len(pair_i),
+        self._launch(kamplitudes.histogram_moments, len(pair_i),
                      [self._array(np.asarray(directions, np.float32), wp.vec3),
                       self._array(np.asarray(pair_i, np.int32), wp.int32),
                       self._array(np.asarray(pair_o, np.int32), wp.int32),
@@ -698,16 +651,13 @@ class WarpBackend:
         return out.numpy()
 
     def solve_amplitudes(self, moments, a_v, rows, integrals, pair_i, pair_o, n_dirs, to_host=True):
-        import warp as wp
-
-        from .kernels import amplitudes as ka
 
         j = len(integrals)
         check_kernel_lobes(j)
         mu = wp.empty((len(pair_i), j), dtype=wp.float32, device=self._device)
         if not isinstance(moments, wp.array):  # a host array, not lobe_moments(..., to_host=False)
             moments = self._array(np.asarray(moments, np.float32), wp.float32)
-        self._launch(ka.solve_amplitudes, len(pair_i),
+        self._launch(kamplitudes.solve_amplitudes, len(pair_i),
                      [self._recurring(pair_i, np.int32, wp.int32), self._recurring(pair_o, np.int32, wp.int32),
                       int(n_dirs), self._visible_area_array(a_v), moments,
                       self._recurring(rows, np.float64, wp.float64),  # (integrals recur in amplitude_tables)
@@ -715,9 +665,6 @@ class WarpBackend:
         return self._trace_host(mu) if to_host else mu
 
     def amplitude_tables(self, channels, integrals, n_pairs):
-        import warp as wp
-
-        from .kernels import amplitudes as ka
 
         j = len(integrals)
         if n_pairs == 0 or not channels:
@@ -728,14 +675,12 @@ class WarpBackend:
         for k, (mu, rgb) in enumerate(channels):
             if not isinstance(mu, wp.array):
                 mu = self._array(np.asarray(mu, np.float32).reshape(n_pairs, j), wp.float32)
-            self._launch(ka.amplitude_tables, n_pairs,
+            self._launch(kamplitudes.amplitude_tables, n_pairs,
                          [mu, integ, wp.vec3(*(float(c) for c in rgb)), int(k > 0)], [amps, energy])
         return self._trace_host(amps), self._trace_host(energy)
 
     # ------------------------------------------------------------------ SSDF (stage `ssdf`, warp_biscale.ssdf)
     def _ssdf_grid(self, grid):
-        import warp as wp
-
         entry = grid.device_cache.get(self.name)
         if entry is None:
             entry = grid.device_cache[self.name] = {
@@ -749,9 +694,6 @@ class WarpBackend:
         return entry
 
     def ssdf_distance(self, grid, visible):
-        import warp as wp
-
-        from .kernels import ssdf as ks
 
         visible = np.asarray(visible, bool)
         n_v, n = visible.shape
@@ -761,7 +703,7 @@ class WarpBackend:
             return np.zeros((0, n), np.float32)
         g = self._ssdf_grid(grid)
         theta = wp.empty((n_v, n), dtype=wp.float32, device=self._device)
-        self._launch(ks.ssdf_distance, (n_v, n),
+        self._launch(kssdf.ssdf_distance, (n_v, n),
                      [self._array(visible.astype(np.uint8), wp.uint8), g["directions"], g["half_angle"],
                       g["members"], g["axis"], g["cos"], g["sin"], self._array(grid.block_classes(visible), wp.uint8)],
                      [theta])
@@ -776,8 +718,6 @@ class WarpBackend:
         pool once its copy is read out (into a host array of the caller's own), and one never read is left
         to Python. (A fresh pinned buffer each call took the lent H100's host 1.08 ms a bake in
         wp.empty under bench/profile_bake_lines.py, against 32.7 µs for one in a loop, bench/probe_pinned.py.)"""
-        import warp as wp
-
         if not self._device.is_cuda:
             return lambda: self._trace_host(a)
         free = self._pinned.setdefault((a.shape, a.dtype), [])
@@ -804,8 +744,6 @@ class WarpBackend:
     def _trace_mesh(self, mesh):
         """mesh.device_cache[self.name], holding the mesh's device arrays and its wp.Mesh (BVH), built
         once per mesh; rebuilt if mesh.vertices or mesh.faces has been replaced."""
-        import warp as wp
-
         entry = mesh.device_cache.setdefault(self.name, {})
         if entry.get("vertices_host") is not mesh.vertices or entry.get("faces_host") is not mesh.faces:
             if "vertices_host" in entry:
@@ -825,8 +763,6 @@ class WarpBackend:
     def _small_upload(self, entry, key, host):
         """entry's device copy of a small float32 array (camera, lights), uploaded again only when its
         values change: a frame that moves nothing allocates and copies nothing."""
-        import warp as wp
-
         host = np.ascontiguousarray(host, np.float32)
         held = entry.get(key + "_host")
         if held is None or held.shape != host.shape or not np.array_equal(held, host):
@@ -836,8 +772,6 @@ class WarpBackend:
 
     def _trace_reuse(self, entry, key, shape, dtype):
         """entry[key] if it is a device array of this shape, else a new one (frames reuse their buffers)."""
-        import warp as wp
-
         shape = tuple(shape) if isinstance(shape, (tuple, list)) else (int(shape),)
         a = entry.get(key)
         if a is None or tuple(a.shape) != shape or a.dtype != dtype:
@@ -849,8 +783,6 @@ class WarpBackend:
         reused from call to call while its shape and type match: each wp.empty cost the lent H100's
         host 0.08–0.16 ms, and a bake made a dozen. Launches on one stream, and read-backs that copy,
         keep reuse safe. Arrays over SCRATCH_BYTES are not kept."""
-        import warp as wp
-
         shape = tuple(shape) if isinstance(shape, (tuple, list)) else (int(shape),)
         if int(np.prod(shape)) * wp.types.type_size_in_bytes(dtype) > SCRATCH_BYTES:
             self._scratch_arrays.pop(role, None)
@@ -858,10 +790,6 @@ class WarpBackend:
         return self._trace_reuse(self._scratch_arrays, role, shape, dtype)
 
     def trace_primary(self, mesh, camera, to_host=True):
-        import warp as wp
-
-        from .kernels import trace as kt
-        from .trace import check_camera, check_mesh
 
         check_mesh(mesh)
         check_camera(camera)
@@ -872,7 +800,7 @@ class WarpBackend:
         position = self._trace_reuse(m, "gbuffer_position", n, wp.vec3)
         t = self._trace_reuse(m, "gbuffer_t", n, wp.float32)
         c = camera.packed()
-        self._launch(kt.trace_primary, n,
+        self._launch(ktrace.trace_primary, n,
                      [m["mesh"].id, m["points"], m["faces"], wp.vec3(*c[0:3]), wp.vec3(*c[3:6]), wp.vec3(*c[6:9]),
                       wp.vec3(*c[9:12]), camera.width, camera.height],
                      [face, bary, position, t])
@@ -887,10 +815,6 @@ class WarpBackend:
         return g
 
     def trace_occluded(self, mesh, origins, directions, t_max, t_min=None):
-        import warp as wp
-
-        from .kernels import trace as kt
-        from .trace import CHUNK_RAYS, check_occlusion
 
         o, d, t_lo, t_hi = check_occlusion(mesh, origins, directions, t_max, t_min)
         n = len(o)
@@ -901,7 +825,7 @@ class WarpBackend:
         for lo in range(0, n, CHUNK_RAYS):
             hi = min(n, lo + CHUNK_RAYS)
             occluded = wp.empty(hi - lo, dtype=wp.uint8, device=self._device)
-            self._launch(kt.trace_occluded, hi - lo,
+            self._launch(ktrace.trace_occluded, hi - lo,
                          [m["mesh"].id, self._array(o[lo:hi], wp.vec3), self._array(d[lo:hi], wp.vec3), t_lo,
                           self._array(t_hi[lo:hi], wp.float32)],
                          [occluded])
@@ -909,10 +833,6 @@ class WarpBackend:
         return out
 
     def trace_shadows(self, mesh, gbuffer, lights_packed, to_host=True):
-        import warp as wp
-
-        from .kernels import trace as kt
-        from .trace import check_gbuffer, check_lights, check_mesh, offsets
 
         check_mesh(mesh)
         lights = check_lights(lights_packed)
@@ -930,7 +850,7 @@ class WarpBackend:
             if "offsets" not in m:  # per mesh, not per frame: mesh.scale scans every vertex
                 m["offsets"] = offsets(mesh)
             eps, t_min = m["offsets"]
-            self._launch(kt.trace_shadows, (n_lights, n),
+            self._launch(ktrace.trace_shadows, (n_lights, n),
                          [m["mesh"].id, m["face_normals"], face, position, wp.vec3(*eye),
                           self._small_upload(m, "lights", lights), eps, t_min],
                          [vis])
@@ -940,8 +860,6 @@ class WarpBackend:
 
     def _shade_static(self, static):
         """Device copies of a scene's static shade inputs, made once and kept in the dict itself."""
-        import warp as wp
-
         per_backend = static.setdefault("_device", {})
         dev = per_backend.get(self.name)
         if dev is None:
@@ -977,9 +895,6 @@ class WarpBackend:
         `static`: the scene's packed inputs (`render._static_inputs`: mesh arrays, lighting, SSDF,
         materials, table). The G-buffer is the one the last `trace_primary` / `trace_shadows` left on
         the device for `mesh`, or a host dict {face, bary, light_vis} (`gbuffer`)."""
-        import warp as wp
-
-        from .kernels import shade as ks
 
         dev = self._shade_static(static)
         m = self._trace_mesh(mesh)
@@ -1005,7 +920,7 @@ class WarpBackend:
                 vis = m["no_light_vis"] = wp.zeros((1, 1), dtype=wp.uint8, device=self._device)
         light_arr = self._small_upload(m, "shade_lights", lights if n_lights else np.zeros((1, 8), np.float32))
         out = self._trace_reuse(m, "radiance", n, wp.vec3)
-        self._launch(ks.shade_pixels, n,
+        self._launch(kshade.shade_pixels, n,
                      [face, bary, vis, dev["faces"], dev["positions"], dev["normals"], dev["tangents"],
                       dev["face_material"], self._small_upload(m, "shade_camera", camera_packed),
                       n_lights, light_arr, len(static["env_sgs"]), dev["env_sgs"], dev["env_maps"], dev["env_levels"],
@@ -1020,17 +935,13 @@ class WarpBackend:
 
     # ------------------------------------------------------------------ envmap (helper-C: prefiltered environment)
     def prefilter_level(self, radiance, sharpness, height, width):
-        import warp as wp
-
-        from .kernels import envmap as ke
-        from .lighting import SUPPORT, equirect_tables
 
         radiance = np.ascontiguousarray(radiance, np.float32)
         height, width, eta = int(height), int(width), float(sharpness)
         in_rows, in_cols = equirect_tables(*radiance.shape[:2])
         out_rows, out_cols = equirect_tables(height, width)
         out = wp.empty(height * width, dtype=wp.vec3, device=self._device)
-        self._launch(ke.prefilter_level, height * width,
+        self._launch(kenvmap.prefilter_level, height * width,
                      [self._array(radiance.reshape(-1, 3), wp.vec3), self._array(in_rows, wp.vec4),
                       self._array(in_cols, wp.vec3), self._array(out_rows, wp.vec4), self._array(out_cols, wp.vec3),
                       eta, 1.0 - SUPPORT / eta],

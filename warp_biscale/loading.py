@@ -1,0 +1,36 @@
+"""Reading back any saved warp_biscale object (`wb.load`): a ground-truth table or a baked effective
+BRDF, told apart by the header every saved file carries (see `io`)."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+
+from .effective import EffectiveBRDF
+from .io import read_npz
+from .truth import GroundTruth
+
+__all__ = ["load"]
+
+
+def head_version(path):
+    """The version field of a file's header, so that `load` can hand a newer file to its class,
+    which then refuses it with its own versions in the message."""
+    try:
+        with np.load(os.fspath(path), allow_pickle=False) as z:
+            return json.loads(str(z["header"])).get("version", 1)
+    except Exception:
+        return 1
+
+
+def load(path):
+    """Load any saved warp_biscale object: a ground-truth table or a baked effective BRDF."""
+
+    classes = {"warp_biscale.ground_truth": GroundTruth, "warp_biscale.effective_brdf": EffectiveBRDF}
+    head, _ = read_npz(path, versions=(head_version(path),))
+    fmt = head["format"]
+    if fmt in classes:
+        return classes[fmt].load(path)
+    raise ValueError(f"{path}: no loader for {fmt!r}")
