@@ -16,6 +16,7 @@ import weakref
 import numpy as np
 
 from .lobes import KERNEL_LOBES, LobeSet
+from .trace import CHUNK_RAYS, check_camera, check_gbuffer, check_lights, check_mesh, check_occlusion, offsets
 
 SCRATCH_BYTES = 64 << 20  # the largest scratch array a backend keeps between calls (see their _scratch)
 
@@ -240,3 +241,175 @@ def one_line(text) -> str:
     """The first non-empty line of an error's text (a build log or a native message may span many)."""
     lines = [line.strip() for line in str(text).splitlines() if line.strip()]
     return lines[0] if lines else type(text).__name__
+
+
+# Element kinds of device arrays: numpy dtype and components per element. Warp holds a vec kind as an
+# array of wp.vec2/wp.vec3, OpenCL as a flat float buffer of stride 2/3 (no float3 in buffers).
+KINDS = {"i32": (np.int32, 1), "i64": (np.int64, 1), "u8": (np.uint8, 1), "u32": (np.uint32, 1),
+         "f32": (np.float32, 1), "f64": (np.float64, 1), "vec2": (np.float32, 2), "vec3": (np.float32, 3),
+         "vec4d": (np.float64, 4)}
+
+
+def _shape(shape) -> tuple:
+    return tuple(int(s) for s in shape) if isinstance(shape, (tuple, list)) else (int(shape),)
+
+
+class DeviceBackend:
+    """The host side of a backend, written once: checks, caches kept on data-model objects, the
+    G-buffer choice and bookkeeping of the ray-casting and shading stages. A subclass supplies the
+    device itself — `_to_device`, `_new`, `_to_host` (arrays of the element kinds in KINDS), `_context`
+    (what device arrays cached on data objects belong to) — and one `_launch_<stage>` per kernel
+    launch, which only passes arguments in its toolkit's convention."""
+
+    name: str
+    device: str
+
+    # --- device primitives (subclass) ---
+    def _to_device(self, host, kind: str):
+        """A device copy of a host array as `kind` (leading shape kept where the toolkit has one)."""
+        raise NotImplementedError
+
+    def _new(self, shape, kind: str):
+        """An uninitialised device array of `shape` elements of `kind`."""
+        raise NotImplementedError
+
+    def _to_host(self, array, shape, kind: str) -> np.ndarray:
+        """A host copy of `array`, `shape` elements of `kind` (a vec kind adds its components as a last
+        axis), once the work queued on it is done."""
+        raise NotImplementedError
+
+    def _context(self):
+        """What a device array cached on a data object belongs to (None: any array of this backend)."""
+        return None
+
+    # --- shared host logic ---
+    def _reuse(self, entry: dict, key: str, shape, kind: str):
+        """entry[key] if it is a device array of this shape and kind, else a new one: frames and calls of
+        one size reuse their buffers instead of allocating."""
+        spec = (_shape(shape), kind)
+        if entry.get(key + "/spec") != spec or key not in entry:
+            entry[key] = self._new(spec[0], kind)
+            entry[key + "/spec"] = spec
+        return entry[key]
+
+    def _host_shape(self, shape, kind):
+        width = KINDS[kind][1]
+        return _shape(shape) + ((width,) if width > 1 else ())
+
+    def _trace_mesh(self, mesh) -> dict:
+        """mesh.device_cache[self.name]: the mesh's device arrays and BVH (`_upload_trace_mesh`), built once
+        per mesh and rebuilt when mesh.vertices or mesh.faces is replaced; and the mesh's ray offsets,
+        computed once (trace.offsets scans every vertex)."""
+        entry = mesh.device_cache.setdefault(self.name, {})
+        if (entry.get("vertices_host") is not mesh.vertices or entry.get("faces_host") is not mesh.faces
+                or entry.get("context") is not self._context()):
+            entry.clear()  # the geometry (or the device) changed: everything derived from it is stale
+            entry.update(self._upload_trace_mesh(mesh), vertices_host=mesh.vertices, faces_host=mesh.faces,
+                         context=self._context(), offsets=offsets(mesh))
+        return entry
+
+    def _upload_trace_mesh(self, mesh) -> dict:
+        """The device arrays of a large-scale mesh and its BVH, as the trace and shade launches want them."""
+        raise NotImplementedError
+
+    def trace_primary(self, mesh, camera, to_host=True):
+        check_mesh(mesh)
+        check_camera(camera)
+        m = self._trace_mesh(mesh)
+        n = camera.width * camera.height
+        g = {"face": self._reuse(m, "gbuffer_face", n, "i32"), "bary": self._reuse(m, "gbuffer_bary", n, "vec2"),
+             "position": self._reuse(m, "gbuffer_position", n, "vec3"), "t": self._reuse(m, "gbuffer_t", n, "f32")}
+        self._launch_trace_primary(m, camera, g["face"], g["bary"], g["position"], g["t"])
+        eye = camera.packed()[0:3].copy()
+        m["gbuffer_eye"], m["gbuffer_size"], m["gbuffer_host"] = eye, n, None
+        if not to_host:
+            return None
+        host = {key: self._to_host(g[key], n, kind)
+                for key, kind in (("face", "i32"), ("bary", "vec2"), ("position", "vec3"), ("t", "f32"))}
+        host["eye"] = eye.copy()
+        m["gbuffer_host"] = host
+        return host
+
+    def trace_occluded(self, mesh, origins, directions, t_max, t_min=None):
+        o, d, t_lo, t_hi = check_occlusion(mesh, origins, directions, t_max, t_min)
+        out = np.zeros(len(o), bool)
+        if len(o) == 0:
+            return out
+        m = self._trace_mesh(mesh)
+        for lo in range(0, len(o), CHUNK_RAYS):
+            hi = min(len(o), lo + CHUNK_RAYS)
+            occluded = self._new(hi - lo, "u8")
+            self._launch_trace_occluded(m, self._to_device(o[lo:hi], "vec3"), self._to_device(d[lo:hi], "vec3"),
+                                        t_lo, self._to_device(t_hi[lo:hi], "f32"), hi - lo, occluded)
+            out[lo:hi] = self._to_host(occluded, hi - lo, "u8") != 0
+        return out
+
+    def trace_shadows(self, mesh, gbuffer, lights_packed, to_host=True):
+        check_mesh(mesh)
+        lights = check_lights(lights_packed)
+        m = self._trace_mesh(mesh)
+        if gbuffer is None or gbuffer is m.get("gbuffer_host"):
+            if "gbuffer_face" not in m:
+                raise ValueError("gbuffer is None, but trace_primary has not run on this mesh with this backend")
+            face, position, eye, n = m["gbuffer_face"], m["gbuffer_position"], m["gbuffer_eye"], m["gbuffer_size"]
+        else:
+            f, p, eye = check_gbuffer(gbuffer, len(mesh.faces))
+            face, position, n = self._to_device(f, "i32"), self._to_device(p, "vec3"), len(f)
+        vis = self._reuse(m, "gbuffer_light_vis", (n, len(lights)), "u8")
+        if n and len(lights):
+            eps, t_min = m["offsets"]
+            self._launch_trace_shadows(m, face, position, eye, lights, eps, t_min, n, vis)
+        return self._to_host(vis, (n, len(lights)), "u8") if to_host else None
+
+    def shade(self, mesh, static, camera_packed, lights_packed, gbuffer=None, to_host=True):
+        dev = self._shade_static(static)
+        m = self._trace_mesh(mesh)
+        lights = np.asarray(lights_packed, np.float32).reshape(-1, 8)
+        n_lights = len(lights)
+        if gbuffer is None:
+            if "gbuffer_face" not in m:
+                raise ValueError("no G-buffer on the device for this mesh: call trace_primary first")
+            face, bary, n = m["gbuffer_face"], m["gbuffer_bary"], m["gbuffer_size"]
+            vis = m.get("gbuffer_light_vis") if n_lights else None
+            if n_lights and m.get("gbuffer_light_vis/spec") != ((n, n_lights), "u8"):
+                raise ValueError("no shadow rays on the device for these lights: call trace_shadows first")
+        else:
+            f = np.asarray(gbuffer["face"], np.int32).reshape(-1)
+            n = len(f)
+            bary_h = np.asarray(gbuffer["bary"], np.float32)
+            if bary_h.shape != (n, 2):
+                raise ValueError(f"gbuffer['bary'] must have shape ({n}, 2), got {bary_h.shape}")
+            if n and int(f.max()) >= len(mesh.faces):
+                raise ValueError(f"gbuffer['face'] holds face {int(f.max())} of a mesh with {len(mesh.faces)}")
+            face, bary, vis = self._to_device(f, "i32"), self._to_device(bary_h, "vec2"), None
+            if n_lights:
+                vis_h = np.asarray(gbuffer["light_vis"], np.uint8)
+                if vis_h.shape != (n, n_lights):
+                    raise ValueError(f"gbuffer['light_vis'] must have shape ({n}, {n_lights}), got {vis_h.shape}")
+                vis = self._to_device(vis_h, "u8")
+        if vis is None:
+            vis = self._reuse(m, "no_light_vis", (1, 1), "u8")  # never read: no light
+        out = self._reuse(m, "radiance", n, "vec3")
+        if n:
+            self._launch_shade(dev, m, face, bary, vis, lights, np.asarray(camera_packed, np.float32).reshape(16),
+                               n, out)
+        return self._to_host(out, n, "vec3") if to_host else None
+
+    def _shade_static(self, static) -> dict:
+        """Device copies of a scene's static shade inputs (`_upload_shade_static`), checked and made once,
+        kept in the dict itself (static["_device"][self.name])."""
+        per_backend = static.setdefault("_device", {})
+        dev = per_backend.get(self.name)
+        if dev is None or dev.get("context") is not self._context():
+            basis = np.asarray(static["ssdf_basis"], np.float32)
+            coeffs = np.asarray(static["ssdf_coeffs"], np.float32)
+            levels = np.asarray(static["env_levels"], np.float32).reshape(-1, 4)
+            if len(levels) == 0:
+                raise ValueError("static['env_levels'] is empty: the prefiltered environment needs >= 1 level")
+            if int(static["has_ssdf"]) and (coeffs.shape[1] != basis.shape[0] - 1
+                                            or basis.shape[1] != int(static["ssdf_res"]) ** 2):
+                raise ValueError(f"static['ssdf_basis'] {basis.shape} and ['ssdf_coeffs'] {coeffs.shape} do not fit "
+                                 f"ssdf_res {static['ssdf_res']} (want (R + 1, res²) and (V, R))")
+            dev = per_backend[self.name] = {**self._upload_shade_static(static, levels, basis, coeffs),
+                                            "context": self._context()}
+        return dev

@@ -106,7 +106,7 @@ class Environment:
         return np.einsum("hw,hwc->c", self.solid_angles(), self.radiance.astype(np.float64))
 
     # -----------------------------------------------------------------------------------------
-    # Files and procedural maps (helper-B). Everything below is deterministic and needs no download.
+    # Files and procedural maps. Everything below is deterministic and needs no download.
 
     @classmethod
     def from_file(cls, path, name: str | None = None) -> Environment:

@@ -37,6 +37,8 @@ import numpy as np
 from . import cl as cl_sources
 from . import sg
 from .device import (
+    KINDS,
+    DeviceBackend,
     PROBE_VALUES,
     SCRATCH_BYTES,
     DeviceFacets,
@@ -61,7 +63,6 @@ from .lobes import KERNEL_LOBES, START_RES, LobeSet
 from .model import Facets, Visibility, facet_shift
 from .progress import compile_notice
 from .smallscale import ray_offset
-from .trace import CHUNK_RAYS, check_camera, check_gbuffer, check_lights, check_mesh, check_occlusion, offsets
 
 __all__ = ["OpenCLBackend", "list_devices"]
 
@@ -251,7 +252,7 @@ def _run_probe(platform, device) -> str | None:
     return probe_mismatch(out)
 
 
-class OpenCLBackend:
+class OpenCLBackend(DeviceBackend):
     """OpenCL on one device. `selector`: None (first device, GPUs first) or a substring of a
     platform or device name (case-insensitive), optionally ending in ``#N`` for the N-th match."""
 
@@ -820,195 +821,84 @@ class OpenCLBackend:
                      np.int32(n_v), np.int32(n_blocks), np.int32(n_members), theta)
         return self._read(theta, (n_v, n), np.float32)
 
-    # ------------------------------------------------------------------ stage trace (helper-A)
-    # Ray casting against the large-scale mesh; see Backend.trace_primary for the device-cache keys.
-    def _trace_mesh(self, mesh):
-        """mesh.device_cache[self.name], holding the mesh's device arrays and its host-built BVH, built
-        once per mesh; rebuilt if mesh.vertices or mesh.faces has been replaced."""
+    # ------------------------------------------------------------------ device primitives (DeviceBackend)
+    def _to_device(self, host, kind):
+        return self._buffer(host, KINDS[kind][0])
 
-        entry = mesh.device_cache.setdefault(self.name, {})
-        if (entry.get("vertices_host") is not mesh.vertices or entry.get("faces_host") is not mesh.faces
-                or entry.get("ctx") is not self._ctx):
-            if "vertices_host" in entry:
-                entry.clear()  # the geometry changed: everything derived from it is stale
-            bvh = build_bvh(mesh.vertices, mesh.faces)
-            entry.update(
-                ctx=self._ctx, vertices_host=mesh.vertices, faces_host=mesh.faces,
-                points=self._buffer(mesh.vertices, np.float32), faces=self._buffer(mesh.faces, np.int32),
-                normals=self._buffer(mesh.normals, np.float32),
-                face_normals=self._buffer(mesh.face_normals, np.float32),
-                bvh=bvh, nodes=self._buffer(bvh.packed(), np.float32),
-                tris=self._buffer(bvh.triangle_table(mesh.vertices, mesh.faces), np.float32),
-                tri_index=self._buffer(bvh.tri_index, np.int32),
-            )
-        return entry
+    def _new(self, shape, kind):
+        np_dtype, width = KINDS[kind]
+        return self._empty(int(np.prod(shape)) * width, np_dtype)
 
-    def _trace_reuse(self, entry, key, n_items, dtype):
-        """entry[key] if it is a buffer of this many items, else a new one (frames reuse their buffers)."""
-        size = max(1, int(n_items)) * np.dtype(dtype).itemsize
-        buf = entry.get(key)
-        if buf is None or buf.size != size:
-            buf = entry[key] = self._empty(n_items, dtype)
-        return buf
+    def _to_host(self, array, shape, kind):
+        return self._read(array, self._host_shape(shape, kind), KINDS[kind][0])
 
-    def trace_primary(self, mesh, camera, to_host=True):
+    def _context(self):
+        return self._ctx
+
+    def _upload_trace_mesh(self, mesh):
+        bvh = build_bvh(mesh.vertices, mesh.faces)
+        return {"points": self._to_device(mesh.vertices, "vec3"), "faces": self._to_device(mesh.faces, "i32"),
+                "normals": self._to_device(mesh.normals, "vec3"),
+                "face_normals": self._to_device(mesh.face_normals, "vec3"),
+                "bvh": bvh, "nodes": self._buffer(bvh.packed(), np.float32),
+                "tris": self._buffer(bvh.triangle_table(mesh.vertices, mesh.faces), np.float32),
+                "tri_index": self._buffer(bvh.tri_index, np.int32)}
+
+    # ------------------------------------------------------------------ trace and shade launches
+    def _launch_trace_primary(self, m, camera, face, bary, position, t):
         cltypes = self._cl.cltypes
-
-        check_mesh(mesh)
-        check_camera(camera)
-        m = self._trace_mesh(mesh)
-        n = camera.width * camera.height
-        face = self._trace_reuse(m, "gbuffer_face", n, np.int32)
-        bary = self._trace_reuse(m, "gbuffer_bary", 2 * n, np.float32)
-        position = self._trace_reuse(m, "gbuffer_position", 3 * n, np.float32)
-        t = self._trace_reuse(m, "gbuffer_t", n, np.float32)
         c = camera.packed()
         eye, forward, right, up = (cltypes.make_float4(*c[k:k + 3], 0.0) for k in (0, 3, 6, 9))
-        self._launch("trace", "trace_primary", (n,), m["nodes"], m["tris"], m["tri_index"], eye, forward, right, up,
-                     np.int32(camera.width), np.int32(camera.height), face, bary, position, t)
-        m["gbuffer_eye"] = c[0:3].copy()
-        m["gbuffer_size"] = n
-        m["gbuffer_host"] = None
-        if not to_host:
-            return None
-        g = {"face": self._read(face, n, np.int32), "bary": self._read(bary, (n, 2), np.float32),
-             "position": self._read(position, (n, 3), np.float32), "t": self._read(t, n, np.float32),
-             "eye": c[0:3].copy()}
-        m["gbuffer_host"] = g
-        return g
+        self._launch("trace", "trace_primary", (camera.width * camera.height,), m["nodes"], m["tris"], m["tri_index"],
+                     eye, forward, right, up, np.int32(camera.width), np.int32(camera.height), face, bary, position, t)
 
-    def trace_occluded(self, mesh, origins, directions, t_max, t_min=None):
+    def _launch_trace_occluded(self, m, origins, directions, t_min, t_max, n, occluded):
+        self._launch("trace", "trace_occluded", (n,), m["nodes"], m["tris"], origins, directions, np.float32(t_min),
+                     t_max, np.int32(n), occluded)
 
-        o, d, t_lo, t_hi = check_occlusion(mesh, origins, directions, t_max, t_min)
-        n = len(o)
-        out = np.zeros(n, bool)
-        if n == 0:
-            return out
-        m = self._trace_mesh(mesh)
-        for lo in range(0, n, CHUNK_RAYS):
-            hi = min(n, lo + CHUNK_RAYS)
-            occluded = self._empty(hi - lo, np.uint8)
-            self._launch("trace", "trace_occluded", (hi - lo,), m["nodes"], m["tris"],
-                         self._buffer(o[lo:hi], np.float32), self._buffer(d[lo:hi], np.float32), np.float32(t_lo),
-                         self._buffer(t_hi[lo:hi], np.float32), np.int32(hi - lo), occluded)
-            out[lo:hi] = self._read(occluded, hi - lo, np.uint8) != 0
-        return out
+    def _launch_trace_shadows(self, m, face, position, eye, lights, eps, t_min, n, vis):
+        self._launch("trace", "trace_shadows", (n, len(lights)), m["nodes"], m["tris"], m["face_normals"], face,
+                     position, *(np.float32(e) for e in eye), self._buffer(lights, np.float32), np.float32(eps),
+                     np.float32(t_min), np.int32(n), np.int32(len(lights)), vis)
 
-    def trace_shadows(self, mesh, gbuffer, lights_packed, to_host=True):
+    def _upload_shade_static(self, static, levels, basis, coeffs):
+        """Empty arrays become one-element dummies the kernel never reads."""
+        has_ssdf = int(static["has_ssdf"])
+        table = np.asarray(static["table"], np.float32)
+        return {
+            **{key: self._buffer(static[key], np.int32) for key in ("faces", "face_material", "mat_info",
+                                                                      "eff_info", "tex_info")},
+            **{key: self._buffer(static[key], np.float32) for key in (
+                "positions", "normals", "tangents", "env_sgs", "env_maps", "analytic", "eff_lobes", "eff_sub",
+                "eff_tables", "eff_diffuse", "uvs", "tex_data")},
+            "env_levels": self._buffer(levels, np.float32),
+            "ssdf_basis": self._buffer(basis.T, np.float32),  # texel-major (res², terms + 1)
+            "ssdf_coeffs": self._buffer(coeffs, np.float32), "table": self._buffer(table, np.float32),
+            # Counts and shapes that the kernel takes by value.
+            "n_env": np.int32(len(static["env_sgs"])), "n_levels": np.int32(len(levels)),
+            "ssdf_args": (np.int32(has_ssdf), np.int32(static["ssdf_res"]), np.int32(basis.shape[0]),
+                          np.int32(coeffs.shape[1] if has_ssdf else 0)),
+            "table_args": (np.int32(table.shape[1]), np.int32(table.shape[2]),
+                           np.float32(sg.TABLE_LOG10_ETA[0]), np.float32(sg.TABLE_LOG10_ETA[1]),
+                           np.float32(sg.SHARPNESS_MAX)),
+        }
 
-        check_mesh(mesh)
-        lights = check_lights(lights_packed)
-        m = self._trace_mesh(mesh)
-        if gbuffer is None or gbuffer is m.get("gbuffer_host"):
-            if "gbuffer_face" not in m:
-                raise ValueError("gbuffer is None, but trace_primary has not run on this mesh with this backend")
-            face, position, eye, n = m["gbuffer_face"], m["gbuffer_position"], m["gbuffer_eye"], m["gbuffer_size"]
-        else:
-            f, p, eye = check_gbuffer(gbuffer, len(mesh.faces))
-            face, position, n = self._buffer(f, np.int32), self._buffer(p, np.float32), len(f)
-        n_lights = len(lights)
-        vis = self._trace_reuse(m, "gbuffer_light_vis", n * n_lights, np.uint8)
-        if n and n_lights:
-            eps, t_min = offsets(mesh)
-            self._launch("trace", "trace_shadows", (n, n_lights), m["nodes"], m["tris"], m["face_normals"], face,
-                         position, *(np.float32(e) for e in eye), self._buffer(lights, np.float32), np.float32(eps),
-                         np.float32(t_min), np.int32(n), np.int32(n_lights), vis)
-        return self._read(vis, (n, n_lights), np.uint8) if to_host else None
-
-    # ------------------------------------------------------------------ stage shade (helper-F)
-    # Per-pixel SG shading (cl/shade.cl, twin of kernels/shade.py); see Backend.shade.
-    def _shade_static(self, static):
-        """Device copies of a scene's static shade inputs, made once and kept in the dict itself
-        (static["_device"][self.name]); empty arrays become one-element dummies the kernel never reads."""
-        per_backend = static.setdefault("_device", {})
-        dev = per_backend.get(self.name)
-        if dev is None or dev.get("ctx") is not self._ctx:
-
-            basis = np.asarray(static["ssdf_basis"], np.float32)
-            coeffs = np.asarray(static["ssdf_coeffs"], np.float32)
-            has_ssdf = int(static["has_ssdf"])
-            table = np.asarray(static["table"], np.float32)
-            levels = np.asarray(static["env_levels"], np.float32).reshape(-1, 4)
-            if len(levels) == 0:
-                raise ValueError("static['env_levels'] is empty: the prefiltered environment needs >= 1 level")
-            if has_ssdf and (coeffs.shape[1] != basis.shape[0] - 1 or basis.shape[1] != int(static["ssdf_res"]) ** 2):
-                raise ValueError(f"static['ssdf_basis'] {basis.shape} and ['ssdf_coeffs'] {coeffs.shape} do not fit "
-                                 f"ssdf_res {static['ssdf_res']} (want (R + 1, res²) and (V, R))")
-            dev = per_backend[self.name] = {
-                "ctx": self._ctx,
-                **{key: self._buffer(static[key], np.int32) for key in ("faces", "face_material", "mat_info",
-                                                                          "eff_info", "tex_info")},
-                **{key: self._buffer(static[key], np.float32) for key in (
-                    "positions", "normals", "tangents", "env_sgs", "env_maps", "analytic", "eff_lobes", "eff_sub",
-                    "eff_tables", "eff_diffuse", "uvs", "tex_data")},
-                "env_levels": self._buffer(levels, np.float32),
-                "ssdf_basis": self._buffer(basis.T, np.float32),  # texel-major (res², terms + 1)
-                "ssdf_coeffs": self._buffer(coeffs, np.float32), "table": self._buffer(table, np.float32),
-                # Counts and shapes that the kernel takes by value.
-                "n_env": np.int32(len(static["env_sgs"])), "n_levels": np.int32(len(levels)),
-                "ssdf_args": (np.int32(has_ssdf), np.int32(static["ssdf_res"]), np.int32(basis.shape[0]),
-                              np.int32(coeffs.shape[1] if has_ssdf else 0)),
-                "table_args": (np.int32(table.shape[1]), np.int32(table.shape[2]),
-                               np.float32(sg.TABLE_LOG10_ETA[0]), np.float32(sg.TABLE_LOG10_ETA[1]),
-                               np.float32(sg.SHARPNESS_MAX)),
-            }
-        return dev
-
-    def shade(self, mesh, static, camera_packed, lights_packed, gbuffer=None, to_host=True):
-        """(H·W, 3) float32 radiance by cl/shade.cl (shading.shade_reference is its oracle).
-
-        `static`: the scene's packed inputs (`render._static_inputs`: mesh arrays, lighting, SSDF,
-        materials, table). The G-buffer is the one the last `trace_primary` / `trace_shadows` left on
-        the device for `mesh`, or a host dict {face, bary, light_vis} (`gbuffer`)."""
+    def _launch_shade(self, dev, m, face, bary, vis, lights, camera, n, out):
         cltypes = self._cl.cltypes
-        dev = self._shade_static(static)
-        m = self._trace_mesh(mesh)
-        lights = np.asarray(lights_packed, np.float32).reshape(-1, 8)
-        n_lights = len(lights)
-        if gbuffer is None:
-            if "gbuffer_face" not in m:
-                raise ValueError("no G-buffer on the device for this mesh: call trace_primary first")
-            face, bary, n = m["gbuffer_face"], m["gbuffer_bary"], int(m["gbuffer_size"])
-            vis = m.get("gbuffer_light_vis") if n_lights else None
-            if n_lights and (vis is None or vis.size != max(1, n * n_lights)):
-                raise ValueError("no shadow rays on the device for these lights: call trace_shadows first")
-        else:
-            f = np.asarray(gbuffer["face"], np.int32).reshape(-1)
-            n = len(f)
-            bary_h = np.asarray(gbuffer["bary"], np.float32)
-            if bary_h.shape != (n, 2):
-                raise ValueError(f"gbuffer['bary'] must have shape ({n}, 2), got {bary_h.shape}")
-            if n and int(f.max()) >= len(mesh.faces):
-                raise ValueError(f"gbuffer['face'] holds face {int(f.max())} of a mesh with {len(mesh.faces)}")
-            face, bary = self._buffer(f, np.int32), self._buffer(bary_h, np.float32)
-            vis = None
-            if n_lights:
-                vis_h = np.asarray(gbuffer["light_vis"], np.uint8)
-                if vis_h.shape != (n, n_lights):
-                    raise ValueError(f"gbuffer['light_vis'] must have shape ({n}, {n_lights}), got {vis_h.shape}")
-                vis = self._buffer(vis_h, np.uint8)
-        if vis is None:
-            vis = self._trace_reuse(m, "shade_no_vis", 1, np.uint8)
-        light_buf = self._trace_reuse(m, "shade_lights", max(1, n_lights) * 8, np.float32)
-        if n_lights:
+        light_buf = self._reuse(m, "shade_lights", (max(1, len(lights)), 8), "f32")
+        if len(lights):
             self._cl.enqueue_copy(self._queue, light_buf, np.ascontiguousarray(lights))
-        c = np.asarray(camera_packed, np.float32).reshape(16)
-        eye, forward, right, up = (cltypes.make_float4(*c[k:k + 3], 0.0) for k in (0, 3, 6, 9))
-        out = self._trace_reuse(m, "radiance", 3 * n, np.float32)
-        if n:
-            self._launch("shade", "shade_pixels", (n,),
-                         face, bary, vis, dev["faces"], dev["positions"], dev["normals"], dev["tangents"],
-                         dev["face_material"], eye, forward, right, up, np.float32(c[12]), np.float32(c[13]),
-                         np.int32(n_lights), light_buf, dev["n_env"], dev["env_sgs"], dev["env_maps"],
-                         dev["n_levels"], dev["env_levels"], *dev["ssdf_args"], dev["ssdf_basis"],
-                         dev["ssdf_coeffs"], dev["table"], *dev["table_args"], dev["mat_info"], dev["analytic"],
-                         dev["eff_info"], dev["eff_lobes"], dev["eff_sub"], dev["eff_tables"], dev["eff_diffuse"],
-                         dev["uvs"], dev["tex_info"], dev["tex_data"], np.int32(n), out)
-        if not to_host:
-            return None
-        return self._read(out, (n, 3), np.float32)
+        eye, forward, right, up = (cltypes.make_float4(*camera[k:k + 3], 0.0) for k in (0, 3, 6, 9))
+        self._launch("shade", "shade_pixels", (n,),
+                     face, bary, vis, dev["faces"], dev["positions"], dev["normals"], dev["tangents"],
+                     dev["face_material"], eye, forward, right, up, np.float32(camera[12]), np.float32(camera[13]),
+                     np.int32(len(lights)), light_buf, dev["n_env"], dev["env_sgs"], dev["env_maps"],
+                     dev["n_levels"], dev["env_levels"], *dev["ssdf_args"], dev["ssdf_basis"],
+                     dev["ssdf_coeffs"], dev["table"], *dev["table_args"], dev["mat_info"], dev["analytic"],
+                     dev["eff_info"], dev["eff_lobes"], dev["eff_sub"], dev["eff_tables"], dev["eff_diffuse"],
+                     dev["uvs"], dev["tex_info"], dev["tex_data"], np.int32(n), out)
 
-    # ------------------------------------------------------------------ envmap (helper-C: prefiltered environment)
+    # ------------------------------------------------------------------ envmap (prefiltered environment)
     def prefilter_level(self, radiance, sharpness, height, width):
 
         radiance = np.ascontiguousarray(radiance, np.float32)

@@ -420,7 +420,7 @@ def amplitude_tables(channels, integrals):
     return amps, energy
 
 # ==============================================================================================
-# SSDF visibility of the large-scale mesh (Wang 2009 §5; warp_biscale.ssdf) — helper-D's section.
+# SSDF visibility of the large-scale mesh (Wang 2009 §5; warp_biscale.ssdf).
 #
 # θd over an octahedral S×S grid of world directions: the exact angle to the nearest texel
 # direction of the opposite class, less half the texel's nearest-neighbour angle, signed by the
@@ -603,7 +603,7 @@ def trace_shadows(vertices, faces, face, position, eye, lights_packed, eps, t_mi
 
 
 # ----------------------------------------------------------------------------------------------
-# Environment lighting (helper-C, stage `envmap`; warp_biscale/lighting.py): the prefiltered
+# Environment lighting (stage `envmap`; warp_biscale/lighting.py): the prefiltered
 # environment Λ(p, η) of Wang Eq. 34–35, its packed-level lookup, and irradiance of an equirect
 # map and of an SG mixture (the measures the diffuse SG fit is judged by).
 # ----------------------------------------------------------------------------------------------

@@ -19,6 +19,8 @@ import numpy as np
 import warp as wp
 
 from .device import (
+    KINDS,
+    DeviceBackend,
     PROBE_VALUES,
     SCRATCH_BYTES,
     DeviceFacets,
@@ -53,7 +55,6 @@ from .lobes import KERNEL_LOBES, START_RES, LobeSet
 from .model import Facets, Visibility, facet_shift
 from .progress import compile_notice
 from .smallscale import ray_offset
-from .trace import CHUNK_RAYS, check_camera, check_gbuffer, check_lights, check_mesh, check_occlusion, offsets
 
 _READY = False
 _NO_CUDA_DRIVER = False  # Warp's native library found no CUDA driver (a CPU-only machine)
@@ -131,7 +132,11 @@ def list_devices() -> list[dict]:
     return found
 
 
-class WarpBackend:
+WARP_TYPES = {"i32": wp.int32, "i64": wp.int64, "u8": wp.uint8, "u32": wp.uint32, "f32": wp.float32,
+              "f64": wp.float64, "vec2": wp.vec2, "vec3": wp.vec3, "vec4d": wp.vec4d}
+
+
+class WarpBackend(DeviceBackend):
     """Warp on one device. `device`: None (CUDA if present, else CPU), "cpu", "cuda" or "cuda:N"."""
 
     def __init__(self, device: str | None = None):
@@ -709,7 +714,7 @@ class WarpBackend:
                      [theta])
         return theta.numpy()
 
-    # ------------------------------------------------------------------ stage trace (helper-A)
+    # ------------------------------------------------------------------ stage trace
     # Ray casting against the large-scale mesh; see Backend.trace_primary for the device-cache keys.
     def _read_later(self, a):
         """→ a function returning a host copy of device array `a` as it is now. On a GPU the copy is queued
@@ -741,24 +746,26 @@ class WarpBackend:
         out = a.numpy()
         return out.copy() if self._device.is_cpu else out
 
-    def _trace_mesh(self, mesh):
-        """mesh.device_cache[self.name], holding the mesh's device arrays and its wp.Mesh (BVH), built
-        once per mesh; rebuilt if mesh.vertices or mesh.faces has been replaced."""
-        entry = mesh.device_cache.setdefault(self.name, {})
-        if entry.get("vertices_host") is not mesh.vertices or entry.get("faces_host") is not mesh.faces:
-            if "vertices_host" in entry:
-                entry.clear()  # the geometry changed: everything derived from it is stale
-            dev = self._device
-            points = wp.array(mesh.vertices.astype(np.float32), dtype=wp.vec3, device=dev)
-            faces = wp.array(mesh.faces.astype(np.int32), dtype=wp.int32, device=dev)
-            entry.update(
-                vertices_host=mesh.vertices, faces_host=mesh.faces, points=points, faces=faces,
-                # SAH with 2 triangles a leaf, as _tile: its rays ran 2× faster than Warp's default LBVH.
-                mesh=wp.Mesh(points=points, indices=faces.flatten(), bvh_constructor="sah", bvh_leaf_size=2),
-                normals=wp.array(mesh.normals.astype(np.float32), dtype=wp.vec3, device=dev),
-                face_normals=wp.array(mesh.face_normals.astype(np.float32), dtype=wp.vec3, device=dev),
-            )
-        return entry
+    # ------------------------------------------------------------------ device primitives (DeviceBackend)
+    def _to_device(self, host, kind):
+        np_dtype, width = KINDS[kind]
+        a = np.ascontiguousarray(host, np_dtype)
+        return wp.array(a.reshape(-1, width) if width > 1 else a, dtype=WARP_TYPES[kind], device=self._device)
+
+    def _new(self, shape, kind):
+        """(`kind` may also be a Warp dtype: the scratch arrays of some stages hold vectors of J floats.)"""
+        return wp.empty(shape, dtype=WARP_TYPES.get(kind, kind), device=self._device)
+
+    def _to_host(self, array, shape, kind):
+        return self._trace_host(array).reshape(self._host_shape(shape, kind))
+
+    def _upload_trace_mesh(self, mesh):
+        points = self._to_device(mesh.vertices, "vec3")
+        faces = self._to_device(mesh.faces, "i32")
+        # SAH with 2 triangles a leaf, as _tile: its rays ran 2× faster than Warp's default LBVH.
+        return {"points": points, "faces": faces, "normals": self._to_device(mesh.normals, "vec3"),
+                "face_normals": self._to_device(mesh.face_normals, "vec3"),
+                "mesh": wp.Mesh(points=points, indices=faces.flatten(), bvh_constructor="sah", bvh_leaf_size=2)}
 
     def _small_upload(self, entry, key, host):
         """entry's device copy of a small float32 array (camera, lights), uploaded again only when its
@@ -770,170 +777,73 @@ class WarpBackend:
             entry[key] = wp.array(host, dtype=wp.float32, device=self._device)
         return entry[key]
 
-    def _trace_reuse(self, entry, key, shape, dtype):
-        """entry[key] if it is a device array of this shape, else a new one (frames reuse their buffers)."""
-        shape = tuple(shape) if isinstance(shape, (tuple, list)) else (int(shape),)
-        a = entry.get(key)
-        if a is None or tuple(a.shape) != shape or a.dtype != dtype:
-            a = entry[key] = wp.empty(shape, dtype=dtype, device=self._device)
-        return a
-
     def _scratch(self, role, shape, dtype):
         """A device array that no caller keeps (a kernel's intermediate, or a table read back at once),
-        reused from call to call while its shape and type match: each wp.empty cost the lent H100's
-        host 0.08–0.16 ms, and a bake made a dozen. Launches on one stream, and read-backs that copy,
-        keep reuse safe. Arrays over SCRATCH_BYTES are not kept."""
+        reused from call to call while its shape and type match: each wp.empty costs a GPU host about
+        0.1 ms, and a bake made a dozen. Launches on one stream, and read-backs that copy, keep reuse
+        safe. Arrays over SCRATCH_BYTES are not kept."""
         shape = tuple(shape) if isinstance(shape, (tuple, list)) else (int(shape),)
         if int(np.prod(shape)) * wp.types.type_size_in_bytes(dtype) > SCRATCH_BYTES:
             self._scratch_arrays.pop(role, None)
             return wp.empty(shape, dtype=dtype, device=self._device)
-        return self._trace_reuse(self._scratch_arrays, role, shape, dtype)
+        return self._reuse(self._scratch_arrays, role, shape, dtype)
 
-    def trace_primary(self, mesh, camera, to_host=True):
-
-        check_mesh(mesh)
-        check_camera(camera)
-        m = self._trace_mesh(mesh)
-        n = camera.width * camera.height
-        face = self._trace_reuse(m, "gbuffer_face", n, wp.int32)
-        bary = self._trace_reuse(m, "gbuffer_bary", n, wp.vec2)
-        position = self._trace_reuse(m, "gbuffer_position", n, wp.vec3)
-        t = self._trace_reuse(m, "gbuffer_t", n, wp.float32)
+    # ------------------------------------------------------------------ trace and shade launches
+    def _launch_trace_primary(self, m, camera, face, bary, position, t):
         c = camera.packed()
-        self._launch(ktrace.trace_primary, n,
+        self._launch(ktrace.trace_primary, len(face),
                      [m["mesh"].id, m["points"], m["faces"], wp.vec3(*c[0:3]), wp.vec3(*c[3:6]), wp.vec3(*c[6:9]),
                       wp.vec3(*c[9:12]), camera.width, camera.height],
                      [face, bary, position, t])
-        m["gbuffer_eye"] = c[0:3].copy()
-        m["gbuffer_size"] = n
-        m["gbuffer_host"] = None
-        if not to_host:
-            return None
-        g = {"face": self._trace_host(face), "bary": self._trace_host(bary), "position": self._trace_host(position),
-             "t": self._trace_host(t), "eye": c[0:3].copy()}
-        m["gbuffer_host"] = g
-        return g
 
-    def trace_occluded(self, mesh, origins, directions, t_max, t_min=None):
+    def _launch_trace_occluded(self, m, origins, directions, t_min, t_max, n, occluded):
+        self._launch(ktrace.trace_occluded, n, [m["mesh"].id, origins, directions, t_min, t_max], [occluded])
 
-        o, d, t_lo, t_hi = check_occlusion(mesh, origins, directions, t_max, t_min)
-        n = len(o)
-        out = np.zeros(n, bool)
-        if n == 0:
-            return out
-        m = self._trace_mesh(mesh)
-        for lo in range(0, n, CHUNK_RAYS):
-            hi = min(n, lo + CHUNK_RAYS)
-            occluded = wp.empty(hi - lo, dtype=wp.uint8, device=self._device)
-            self._launch(ktrace.trace_occluded, hi - lo,
-                         [m["mesh"].id, self._array(o[lo:hi], wp.vec3), self._array(d[lo:hi], wp.vec3), t_lo,
-                          self._array(t_hi[lo:hi], wp.float32)],
-                         [occluded])
-            out[lo:hi] = occluded.numpy() != 0
-        return out
+    def _launch_trace_shadows(self, m, face, position, eye, lights, eps, t_min, n, vis):
+        self._launch(ktrace.trace_shadows, (len(lights), n),
+                     [m["mesh"].id, m["face_normals"], face, position, wp.vec3(*eye),
+                      self._small_upload(m, "lights", lights), eps, t_min],
+                     [vis])
 
-    def trace_shadows(self, mesh, gbuffer, lights_packed, to_host=True):
+    def _upload_shade_static(self, static, levels, basis, coeffs):
+        def arr(key, dtype, width=None):
+            a = np.asarray(static[key])
+            if a.size == 0:  # Warp wants no empty arrays: a one-element dummy (the kernel never reads it)
+                a = np.zeros((1, width) if width else 1, a.dtype)
+            return wp.array(np.ascontiguousarray(a), dtype=dtype, device=self._device)
 
-        check_mesh(mesh)
-        lights = check_lights(lights_packed)
-        m = self._trace_mesh(mesh)
-        if gbuffer is None or gbuffer is m.get("gbuffer_host"):
-            if "gbuffer_face" not in m:
-                raise ValueError("gbuffer is None, but trace_primary has not run on this mesh with this backend")
-            face, position, eye = m["gbuffer_face"], m["gbuffer_position"], m["gbuffer_eye"]
-        else:
-            f, p, eye = check_gbuffer(gbuffer, len(mesh.faces))
-            face, position = self._array(f, wp.int32), self._array(p, wp.vec3)
-        n, n_lights = face.shape[0], len(lights)
-        vis = self._trace_reuse(m, "gbuffer_light_vis", (n, n_lights), wp.uint8)
-        if n and n_lights:
-            if "offsets" not in m:  # per mesh, not per frame: mesh.scale scans every vertex
-                m["offsets"] = offsets(mesh)
-            eps, t_min = m["offsets"]
-            self._launch(ktrace.trace_shadows, (n_lights, n),
-                         [m["mesh"].id, m["face_normals"], face, position, wp.vec3(*eye),
-                          self._small_upload(m, "lights", lights), eps, t_min],
-                         [vis])
-        return self._trace_host(vis) if to_host else None
+        return {
+            "faces": arr("faces", wp.int32, 3),
+            "positions": arr("positions", wp.vec3), "normals": arr("normals", wp.vec3),
+            "tangents": arr("tangents", wp.vec3), "face_material": arr("face_material", wp.int32),
+            "env_sgs": arr("env_sgs", wp.float32, 7), "env_maps": arr("env_maps", wp.vec3),
+            "env_levels": wp.array(levels, dtype=wp.float32, device=self._device),
+            # texel-major (res², terms + 1): a lookup reads each corner's terms contiguously
+            "ssdf_basis": wp.array(np.ascontiguousarray(basis.T), dtype=wp.float32, device=self._device),
+            "ssdf_coeffs": wp.array(np.ascontiguousarray(coeffs), dtype=wp.float32, device=self._device),
+            "table": arr("table", wp.float32), "mat_info": arr("mat_info", wp.int32, 4),
+            "analytic": arr("analytic", wp.float32, 9), "eff_info": arr("eff_info", wp.int32, 8),
+            "eff_lobes": arr("eff_lobes", wp.float32, 4), "eff_sub": arr("eff_sub", wp.float32, 9),
+            "eff_tables": arr("eff_tables", wp.float32), "eff_diffuse": arr("eff_diffuse", wp.float32),
+            "uvs": arr("uvs", wp.vec2), "tex_info": arr("tex_info", wp.int32, 4),
+            "tex_data": wp.array(np.ascontiguousarray(np.asarray(static["tex_data"], np.float32).reshape(-1, 3)),
+                                 dtype=wp.vec3, device=self._device),
+            "n_env": len(static["env_sgs"]), "has_ssdf": int(static["has_ssdf"]), "ssdf_res": int(static["ssdf_res"]),
+        }
 
-    # ------------------------------------------------------------------ shade (rendering)
-
-    def _shade_static(self, static):
-        """Device copies of a scene's static shade inputs, made once and kept in the dict itself."""
-        per_backend = static.setdefault("_device", {})
-        dev = per_backend.get(self.name)
-        if dev is None:
-            def arr(key, dtype, width=None):
-                a = np.asarray(static[key])
-                if a.size == 0:  # Warp wants no empty arrays: a one-element dummy (the kernel never reads it)
-                    a = np.zeros((1, width) if width else 1, a.dtype)
-                return wp.array(np.ascontiguousarray(a), dtype=dtype, device=self._device)
-
-            dev = per_backend[self.name] = {
-                "faces": arr("faces", wp.int32, 3),
-                "positions": arr("positions", wp.vec3), "normals": arr("normals", wp.vec3),
-                "tangents": arr("tangents", wp.vec3), "face_material": arr("face_material", wp.int32),
-                "env_sgs": arr("env_sgs", wp.float32, 7), "env_maps": arr("env_maps", wp.vec3),
-                "env_levels": arr("env_levels", wp.float32, 4),
-                # texel-major (res², terms + 1): a lookup reads each corner's terms contiguously
-                "ssdf_basis": wp.array(np.ascontiguousarray(np.asarray(static["ssdf_basis"], np.float32).T),
-                                       dtype=wp.float32, device=self._device),
-                "ssdf_coeffs": arr("ssdf_coeffs", wp.float32, 1),
-                "table": arr("table", wp.float32), "mat_info": arr("mat_info", wp.int32, 4),
-                "analytic": arr("analytic", wp.float32, 9), "eff_info": arr("eff_info", wp.int32, 8),
-                "eff_lobes": arr("eff_lobes", wp.float32, 4), "eff_sub": arr("eff_sub", wp.float32, 9),
-                "eff_tables": arr("eff_tables", wp.float32), "eff_diffuse": arr("eff_diffuse", wp.float32),
-                "uvs": arr("uvs", wp.vec2), "tex_info": arr("tex_info", wp.int32, 4),
-                "tex_data": wp.array(np.ascontiguousarray(np.asarray(static["tex_data"], np.float32).reshape(-1, 3)),
-                                     dtype=wp.vec3, device=self._device),
-            }
-        return dev
-
-    def shade(self, mesh, static, camera_packed, lights_packed, gbuffer=None, to_host=True):
-        """(H·W, 3) float32 radiance by kernels/shade.py (shading.shade_reference is its oracle).
-
-        `static`: the scene's packed inputs (`render._static_inputs`: mesh arrays, lighting, SSDF,
-        materials, table). The G-buffer is the one the last `trace_primary` / `trace_shadows` left on
-        the device for `mesh`, or a host dict {face, bary, light_vis} (`gbuffer`)."""
-
-        dev = self._shade_static(static)
-        m = self._trace_mesh(mesh)
-        lights = np.asarray(lights_packed, np.float32).reshape(-1, 8)
-        n_lights = len(lights)
-        if gbuffer is None:
-            if "gbuffer_face" not in m:
-                raise ValueError("no G-buffer on the device for this mesh: call trace_primary first")
-            face, bary = m["gbuffer_face"], m["gbuffer_bary"]
-            n = int(face.shape[0])
-            vis = m.get("gbuffer_light_vis") if n_lights else None
-            if n_lights and (vis is None or tuple(vis.shape) != (n, n_lights)):
-                raise ValueError("no shadow rays on the device for these lights: call trace_shadows first")
-        else:
-            face = wp.array(np.asarray(gbuffer["face"], np.int32), dtype=wp.int32, device=self._device)
-            bary = wp.array(np.asarray(gbuffer["bary"], np.float32), dtype=wp.vec2, device=self._device)
-            n = int(face.shape[0])
-            vis = (wp.array(np.ascontiguousarray(gbuffer["light_vis"], np.uint8), dtype=wp.uint8, device=self._device)
-                   if n_lights else None)
-        if vis is None:
-            vis = m.get("no_light_vis")
-            if vis is None:
-                vis = m["no_light_vis"] = wp.zeros((1, 1), dtype=wp.uint8, device=self._device)
-        light_arr = self._small_upload(m, "shade_lights", lights if n_lights else np.zeros((1, 8), np.float32))
-        out = self._trace_reuse(m, "radiance", n, wp.vec3)
+    def _launch_shade(self, dev, m, face, bary, vis, lights, camera, n, out):
+        light_arr = self._small_upload(m, "shade_lights", lights if len(lights) else np.zeros((1, 8), np.float32))
         self._launch(kshade.shade_pixels, n,
                      [face, bary, vis, dev["faces"], dev["positions"], dev["normals"], dev["tangents"],
-                      dev["face_material"], self._small_upload(m, "shade_camera", camera_packed),
-                      n_lights, light_arr, len(static["env_sgs"]), dev["env_sgs"], dev["env_maps"], dev["env_levels"],
-                      int(static["has_ssdf"]), int(static["ssdf_res"]), dev["ssdf_basis"], dev["ssdf_coeffs"],
+                      dev["face_material"], self._small_upload(m, "shade_camera", camera),
+                      len(lights), light_arr, dev["n_env"], dev["env_sgs"], dev["env_maps"], dev["env_levels"],
+                      dev["has_ssdf"], dev["ssdf_res"], dev["ssdf_basis"], dev["ssdf_coeffs"],
                       dev["table"], dev["mat_info"], dev["analytic"], dev["eff_info"], dev["eff_lobes"],
                       dev["eff_sub"], dev["eff_tables"], dev["eff_diffuse"], dev["uvs"], dev["tex_info"],
                       dev["tex_data"], n],
                      [out])
-        if not to_host:
-            return None
-        return self._trace_host(out).reshape(n, 3).astype(np.float32)
 
-    # ------------------------------------------------------------------ envmap (helper-C: prefiltered environment)
+    # ------------------------------------------------------------------ envmap (prefiltered environment)
     def prefilter_level(self, radiance, sharpness, height, width):
 
         radiance = np.ascontiguousarray(radiance, np.float32)
