@@ -7,11 +7,10 @@ numpy, every triangle a ray hits must sit in a leaf whose box and all of whose a
 the ray hits, so a walk that prunes on box misses can never lose it.
 """
 
-import time
-
 import numpy as np
 import pytest
 
+import warp_biscale as wb
 from warp_biscale import reference
 from warp_biscale.bvh import LEAF_SIZE, PAD, STACK_SIZE, build_bvh
 
@@ -213,24 +212,23 @@ def test_every_hit_is_reachable(name):
     assert not lost.any(), f"{int(lost.sum())} hits in unreachable leaves"
 
 
-def test_build_time():
-    v, f = height_field(128)  # 32768 triangles
-    t0 = time.perf_counter()
+def test_large_height_field_node_count():
+    """A 128×128 height field (32 768 triangles): fewer than 2 nodes a triangle (a binary tree with leaves of
+    up to LEAF_SIZE triangles). Its build time is measured in bench/bench_precompute.py, not here."""
+    v, f = height_field(128)
     bvh = build_bvh(v, f)
-    dt = time.perf_counter() - t0
-    assert bvh.n_nodes < 2 * len(f)
-    assert dt < 1.0, f"32k triangles took {dt:.2f} s"
+    assert bvh.n_nodes < 2 * len(f), f"{bvh.n_nodes} nodes for {len(f)} triangles"
 
 
 def test_opencl_bvh_matches_brute_force():
     """The kernel's BVH walk gives the same bits as its brute force over every triangle."""
-    pytest.importorskip("pyopencl")
     from warp_biscale import SmallScale, directions
-    from warp_biscale.opencl_backend import OpenCLBackend, list_devices
 
-    if not list_devices():
-        pytest.skip("no OpenCL device")
-    be = OpenCLBackend(None)
+    opencl = [b for b in wb.backends() if b["kind"] == "opencl"]
+    if not any(b["usable"] for b in opencl):
+        why = "; ".join(f"{b['name']}: {b['reason']}" for b in opencl) or "no OpenCL device found"
+        pytest.skip(f"no usable OpenCL backend ({why})")
+    be = wb.get_backend("opencl")
     dirs = directions.grid(5)  # odd K: the zenith (0, 0, 1) is among them
     for v, f in (vgroove(), height_field(8, amp=0.4, seed=2), height_field(6, flat=True)):
         tile = SmallScale(v, f)

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 import warp_biscale as wb
-from warp_biscale.render import Scene, pack_frame
+from warp_biscale.render import pack_frame
+from warp_biscale.scene import Scene
 from warp_biscale.scene import Camera, Mesh, PointLight
 from warp_biscale.shading import shade_reference
 from warp_biscale.svbrdf import Textured, sample
@@ -52,7 +53,6 @@ def test_textured_kernel_matches_reference(backend, base):
     peak = ref.max()
     err = np.abs(out - ref)
     msg = f"max err {err.max():.3g}, peak {peak:.3g}, p99.9 {np.quantile(err, 0.999):.3g}"
-    print(msg)
     # The tolerances of tests/test_shade.py.
     assert np.quantile(err / (np.abs(ref) + 1e-3 * peak), 0.999) < 2e-3, msg
     assert err.max() < 2e-2 * peak, msg
