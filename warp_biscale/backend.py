@@ -17,7 +17,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from .device import DeviceStart, one_line
+from .device import DeviceLobes, DeviceStart, OnDevice, one_line
 from .model import Facets, Visibility
 
 __all__ = ["Backend", "get_backend", "backends"]
@@ -49,20 +49,36 @@ class Backend(Protocol):
     def ndf_statistics(self, facets: Facets, axes, sharpness, log_weight) -> np.ndarray:
         """(J, 4) float64 one E-step's sums [Σ r ΔA, Σ r ΔA n] (reference.ndf_statistics)."""
 
-    def visible_weights(self, facets: Facets, vis: Visibility, to_host: bool = True):
+    def visible_weights(self, facets: Facets, vis: Visibility, to_host: bool = True) -> np.ndarray | OnDevice:
         """(Ns,) float32 ΔA_s · mean_k V_s(ω_k)(n_s·ω_k)⁺ over vis.directions (reference.visible_weights);
         with to_host=False only queued: → OnDevice, which ndf_em takes as its `facet_weight`, its copy to
         the host queued with it (its host() then waits for the weights, not for work queued after them)."""
 
-    def em_start(self, facets: Facets, facet_weight, count: int) -> DeviceStart:
+    def normal_bins(self, facets: Facets, resolution: int) -> np.ndarray:
+        """(Ns,) int32 cube-map bin of each facet normal at `resolution` (directions.cube_bin)."""
+
+    def bvndf_histogram(self, facets: Facets, vis: Visibility, order: np.ndarray, bin_start: np.ndarray,
+                        weight: np.ndarray, pair_i: np.ndarray, pair_o: np.ndarray) -> np.ndarray:
+        """(P, L) float32 BVNDF histogram N over the unordered pairs (reference.bvndf_histogram): the facets
+        grouped by bin (`order` the facet indices sorted by bin, `bin_start` (L + 1,) each bin's first
+        place in it), each weighing `weight` (Ns,)."""
+
+    def histogram_moments(self, hist: np.ndarray, bin_normal: np.ndarray, directions: np.ndarray,
+                          axes: np.ndarray, sharpness: np.ndarray, pair_i: np.ndarray,
+                          pair_o: np.ndarray) -> np.ndarray:
+        """(P, J + 1) float32 moments of lobe_moments from the histogram instead of the facets
+        (reference.histogram_moments): each bin a facet at its mean normal."""
+
+    def em_start(self, facets: Facets, facet_weight: np.ndarray | OnDevice | None, count: int) -> DeviceStart:
         """EM's start for `count` lobes picked on the device: lobes.initial_lobes(the facets' normals,
         `facet_weight`, count, their cube-map bins at lobes.START_RES), each bin's sums in fixed point
         (start_scale). `facet_weight` None (the areas), visible_weights(..., to_host=False)'s OnDevice
         or a host array (Ns,). Only queued: → DeviceStart, which ndf_em takes as its start before the
         host has it (so that EM can be queued behind the rays)."""
 
-    def ndf_em(self, facets: Facets, axes, sharpness, weight, iterations: int, facet_weight=None,
-               to_host: bool = True):
+    def ndf_em(self, facets: Facets, axes: np.ndarray | DeviceStart, sharpness: np.ndarray | None,
+               weight: np.ndarray | None, iterations: int, facet_weight: np.ndarray | OnDevice | None = None,
+               to_host: bool = True) -> tuple | DeviceLobes:
         """Spherical EM on the device from lobes (axes (J, 3), sharpness, weight), or from em_start's
         DeviceStart as `axes` (sharpness and weight None): at most `iterations`
         steps, stopping after the first step that lobes.converged → (axes, sharpness, weight, steps),
@@ -71,7 +87,8 @@ class Backend(Protocol):
         the EM is only queued: → DeviceLobes, whose lobes lobe_moments can sum over before the host
         has them."""
 
-    def lobe_moments(self, facets: Facets, vis: Visibility, weight, axes, sharpness, pair_i, pair_o,
+    def lobe_moments(self, facets: Facets, vis: Visibility, weight: np.ndarray | None, axes: np.ndarray | DeviceLobes,
+                     sharpness: np.ndarray | None, pair_i: np.ndarray, pair_o: np.ndarray,
                      to_host: bool = True):
         """(P, J + 1) float32 facet sums of docs/design.md §5 for the unordered pairs (reference.lobe_moments),
         each facet weighing `weight` (Ns,), or its area ΔA when `weight` is None (a tile of one material

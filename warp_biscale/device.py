@@ -16,6 +16,7 @@ import weakref
 import numpy as np
 
 from .lobes import KERNEL_LOBES, LobeSet
+from .model import Facets, Visibility, facet_shift
 from .trace import CHUNK_RAYS, check_camera, check_gbuffer, check_lights, check_mesh, check_occlusion, offsets
 
 SCRATCH_BYTES = 64 << 20  # the largest scratch array a backend keeps between calls (see their _scratch)
@@ -245,6 +246,8 @@ def one_line(text) -> str:
 
 # Element kinds of device arrays: numpy dtype and components per element. Warp holds a vec kind as an
 # array of wp.vec2/wp.vec3, OpenCL as a flat float buffer of stride 2/3 (no float3 in buffers).
+# The element kind of each facet array a DeviceFacets uploads (facet_host_array's keys).
+FACET_KINDS = {"normal": "vec3", "face": "i32", "area": "f32", "material": "i32", "weight": "vec3"}
 KINDS = {"i32": (np.int32, 1), "i64": (np.int64, 1), "u8": (np.uint8, 1), "u32": (np.uint32, 1),
          "f32": (np.float32, 1), "f64": (np.float64, 1), "vec2": (np.float32, 2), "vec3": (np.float32, 3),
          "vec4d": (np.float64, 4)}
@@ -282,7 +285,136 @@ class DeviceBackend:
         """What a device array cached on a data object belongs to (None: any array of this backend)."""
         return None
 
+    def _queued_read(self, array, shape, kind: str):
+        """→ a function returning a host copy of `array` as it is now: the copy is queued at once, so the
+        function later waits for `array`'s work alone, not for what was queued after it."""
+        raise NotImplementedError
+
     # --- shared host logic ---
+    def _recurring(self, host, kind: str):
+        """A read-only device copy of an input that recurs between calls (pair lists, the direction grid,
+        equal facet areas), found again by content (UploadCache). No kernel may write into it."""
+        return self._uploads.get(host, KINDS[kind][0], lambda h: self._to_device(h, kind), tag=kind)
+
+    def _facets(self, facets: Facets) -> DeviceFacets:
+        """facets.device_cache[self.name]: the facets' device arrays, each uploaded when first asked for."""
+        entry = facets.device_cache.get(self.name)
+        if entry is None or entry.get("context") is not self._context():
+            entry = facets.device_cache[self.name] = DeviceFacets(self._upload_facet_array, facets,
+                                                                  {"context": self._context()})
+        return entry
+
+    def _upload_facet_array(self, key, host):
+        return self._to_device(host, FACET_KINDS[key])
+
+    def _facet_positions(self, facets: Facets, tile):
+        """Facet positions on the device in `tile`'s local frame (see `SmallScale.to_local`)."""
+        entry = self._facets(facets)
+        if entry.get("position_tile") is not tile:
+            entry["position"] = self._to_device(tile.to_local(facets.position), "vec3")
+            entry["position_tile"] = tile
+        return entry["position"]
+
+    def _vis(self, vis: Visibility) -> dict:
+        """vis.device_cache[self.name]: the visibility bits (D, words) and directions on the device."""
+        entry = vis.device_cache.get(self.name)
+        if entry is None or entry.get("context") is not self._context():
+            entry = vis.device_cache[self.name] = {"context": self._context(),
+                                                   "bits": self._to_device(vis.bits, "u32"),
+                                                   "directions": self._to_device(vis.directions, "vec3")}
+        return entry
+
+    def sample_facets(self, tile, count, seed):
+        count = int(count)
+        if count < 1:
+            raise ValueError(f"facet count must be >= 1, got {count}")
+        pos, nrm, face = self._new(count, "vec3"), self._new(count, "vec3"), self._new(count, "i32")
+        xi1, xi2 = facet_shift(seed)
+        self._launch_sample_facets(tile, count, xi1, xi2, pos, nrm, face)
+        area = equal_areas(count, float(np.float32(tile.area / count)))
+        # The facets stay on the device: the host reads back only what host code asks for.
+        host = {"position": lambda f: tile.from_local(self._to_host(pos, count, "vec3")),
+                "normal": lambda f: self._to_host(nrm, count, "vec3"),
+                "face": lambda f: self._to_host(face, count, "i32"),
+                "material": lambda f: tile.material_ids[f.face],
+                "color": lambda f: tile.colors[f.face].astype(np.float32)}
+        facets = Facets.deferred(count, lambda name, f: host[name](f), seed=int(seed), area=area)
+        facets.device_cache[self.name] = DeviceFacets(self._upload_facet_array, facets, {
+            "context": self._context(), "position": pos, "position_tile": tile, "normal": nrm, "face": face,
+            "area": self._recurring(area, "f32")})  # read-only: shared by bakes of this count
+        return facets
+
+    def visibility(self, tile, facets, directions, brute_force=False):
+        directions = np.asarray(directions, np.float64)
+        n, n_dirs = len(facets), len(directions)
+        words = (n + 31) // 32
+        bits = self._new((n_dirs, words), "u32")
+        dirs = self._recurring(directions, "vec3")
+        if n_dirs:
+            self._launch_visibility(tile, facets, dirs, n_dirs, words, bool(brute_force), bits)
+        vis = Visibility.deferred(directions, n, lambda: self._to_host(bits, (n_dirs, words), "u32"))
+        vis.device_cache[self.name] = {"context": self._context(), "bits": bits, "directions": dirs}
+        return vis
+
+    def visible_area(self, facets, vis, to_host=True):
+        n_dirs = len(vis.directions)
+        if n_dirs == 0:
+            none = np.zeros(0, np.float32)
+            return none if to_host else OnDevice(self._new(1, "f32"), lambda: none)
+        chunks, per = chunking(vis.words, n_dirs, self._threads)
+        a_v = self._new(n_dirs, "f32")
+        self._launch_visible_area(self._facets(facets), self._vis(vis), vis.words, n_dirs, chunks, per, a_v)
+        if not to_host:
+            return OnDevice(a_v, self._queued_read(a_v, n_dirs, "f32"))  # (queued now: no wait when read)
+        host = self._to_host(a_v, n_dirs, "f32")
+        host.flags.writeable = False  # (so that the device copy stays what it holds)
+        self._held_visible_area = (host, a_v)  # solve_amplitudes given `host` itself uses the device copy
+        return host
+
+    def _visible_area_device(self, a_v):
+        """The device copy of a_v (see device_copy): on a GPU host an upload costs more than the solve."""
+        return device_copy(a_v, self._held_visible_area, lambda host: self._to_device(host, "f32"))
+
+    def effective_brdf(self, facets, vis, kinds, params, pair_i, pair_o, a_v):
+        n_pairs = len(pair_i)
+        if n_pairs == 0:
+            return np.zeros((0, 3), np.float32)
+        chunks, per = chunking(vis.words, n_pairs, self._threads)
+        out = self._new(n_pairs, "vec3")
+        self._launch_effective_brdf(self._facets(facets), self._vis(vis), self._to_device(kinds, "i32"),
+                                    self._to_device(np.asarray(params, np.float32).reshape(-1, 8), "f32"),
+                                    self._to_device(pair_i, "i32"), self._to_device(pair_o, "i32"),
+                                    self._to_device(a_v, "f32"), vis.words, n_pairs, chunks, per, out)
+        return self._to_host(out, n_pairs, "vec3")
+
+    def normal_bins(self, facets, resolution):
+        n = len(facets)
+        bins = self._new(n, "i32")
+        if n:
+            self._launch_normal_bins(self._facets(facets), n, int(resolution), bins)
+        return self._to_host(bins, n, "i32")
+
+    def bvndf_histogram(self, facets, vis, order, bin_start, weight, pair_i, pair_o):
+        n_bins, n_pairs = max(len(bin_start) - 1, 0), len(pair_i)
+        hist = self._new((n_pairs, n_bins), "f32")
+        if n_pairs and n_bins:
+            self._launch_bvndf_histogram(self._vis(vis), vis.words, self._to_device(pair_i, "i32"),
+                                         self._to_device(pair_o, "i32"), self._to_device(order, "i32"),
+                                         self._to_device(bin_start, "i32"), self._to_device(weight, "f32"),
+                                         n_pairs, n_bins, hist)
+        return self._to_host(hist, (n_pairs, n_bins), "f32")
+
+    def visible_weights(self, facets, vis, to_host=True):
+        f = self._facets(facets)
+        n = len(facets)
+        weight = self._new(n, "f32")
+        self._launch_visible_weights(f, self._vis(vis), len(vis.directions), vis.words, n, weight)
+        if not to_host:
+            return OnDevice(weight, self._queued_read(weight, n, "f32"))
+        host = self._to_host(weight, n, "f32")
+        f["visible_weight"] = (host, weight)  # ndf_em given `host` itself uses the device copy
+        return host
+
     def _reuse(self, entry: dict, key: str, shape, kind: str):
         """entry[key] if it is a device array of this shape and kind, else a new one: frames and calls of
         one size reuse their buffers instead of allocating."""
@@ -413,3 +545,93 @@ class DeviceBackend:
             dev = per_backend[self.name] = {**self._upload_shade_static(static, levels, basis, coeffs),
                                             "context": self._context()}
         return dev
+
+    def _ssdf_grid(self, grid) -> dict:
+        """grid.device_cache[self.name]: an ssdf.SsdfGrid's directions and pruning blocks on the device."""
+        entry = grid.device_cache.get(self.name)
+        if entry is None or entry.get("context") is not self._context():
+            entry = grid.device_cache[self.name] = {
+                "context": self._context(),
+                "directions": self._to_device(grid.directions, "vec3"),
+                "half_angle": self._to_device(grid.half_angle, "f32"),
+                "members": self._to_device(grid.block_members, "i32"),
+                "axis": self._to_device(grid.block_axis, "vec3"),
+                "cos": self._to_device(np.cos(grid.block_radius), "f32"),
+                "sin": self._to_device(np.sin(grid.block_radius), "f32"),
+            }
+        return entry
+
+    def ssdf_distance(self, grid, visible):
+        visible = np.asarray(visible, bool)
+        n_v, n = visible.shape
+        if n != len(grid.directions):
+            raise ValueError(f"visible has {n} columns for a grid of {len(grid.directions)} directions")
+        if n_v == 0:
+            return np.zeros((0, n), np.float32)
+        theta = self._new((n_v, n), "f32")
+        self._launch_ssdf_distance(self._ssdf_grid(grid), grid.block_members.shape, self._to_device(visible, "u8"),
+                                   self._to_device(grid.block_classes(visible), "u8"), n_v, n, theta)
+        return self._to_host(theta, (n_v, n), "f32")
+
+    def _facet_weight(self, f, facet_weight):
+        """The device copy of a facet weight (see device_copy): visible_weights' own output when given it."""
+        return device_copy(facet_weight, f.get("visible_weight"), lambda host: self._to_device(host, "f32"))
+
+    def ndf_em(self, facets, axes, sharpness, weight, iterations, facet_weight=None, to_host=True):
+        on_device = isinstance(axes, DeviceStart)  # (em_start's rows: copied on the device)
+        start = None if on_device else LobeSet(axes, sharpness, weight)
+        j = axes.count if on_device else len(start)
+        if int(iterations) <= 0:
+            start = axes.host() if on_device else start
+            result = (start.axes, start.sharpness, start.weight, 0)
+            if to_host:
+                return result
+            return DeviceLobes((self._to_device(start.axes, "vec3"), self._to_device(start.sharpness, "f32")), j,
+                               lambda: result)
+        f = self._facets(facets)
+        mass = f["area"] if facet_weight is None else self._facet_weight(f, facet_weight)
+        prog = self._run_em(f, mass, axes.device if on_device else em_start_rows(start), len(facets), j,
+                            int(iterations), facet_weight is not None)
+        if not to_host:
+            # The result's copy is queued behind the EM: reading it back waits for the EM, not for what
+            # the caller queues after it.
+            read = self._queued_read(prog["result"], (j, 6), "f64")
+            return DeviceLobes((prog["axes32"], prog["sharp32"]), j, lambda: em_result_rows(read()))
+        return em_result_rows(self._to_host(prog["result"], (j, 6), "f64"))
+
+    def _run_em(self, f, mass, start_rows, n, j, iterations, weighted) -> dict:
+        """Queue at most `iterations` EM steps over the `n` facets (device arrays `f`, weights `mass`) from
+        `start_rows` (em_start's device rows, or em_start_rows of a LobeSet, a host array) → the EM's
+        arrays: "result" (J, 6) float64 rows (em_result_rows), "axes32" and "sharp32" (the lobes as
+        lobe_moments reads them)."""
+        raise NotImplementedError
+
+    def _lobes_on_device(self, axes, sharpness) -> tuple:
+        """→ (J, axes, sharpness) on the device: a DeviceLobes' own arrays (the lobes an EM left there: no
+        upload), or host axes (J, 3) and sharpness (J,) uploaded as float32."""
+        if isinstance(axes, DeviceLobes):
+            return (axes.count, *axes.device)
+        return len(axes), self._to_device(axes, "vec3"), self._to_device(sharpness, "f32")
+
+    @staticmethod
+    def _keep_recent(cache: dict, key, value, size: int = 32):
+        """cache[key] = value, most recent last, holding at most `size` entries (EM programs per facet
+        count, J, step count and weighting: a session that edits a few materials reuses them)."""
+        cache.pop(key, None)
+        cache[key] = value
+        while len(cache) > size:
+            cache.pop(next(iter(cache)))
+        return value
+
+    @staticmethod
+    def _step_em(prog: dict, iterations: int, stopped) -> None:
+        """Load the start, queue the EM's steps (run_em_steps: looking at the device's stop flag,
+        `stopped()`, only now and then) and unpack the result, through `prog`'s launches."""
+        prog["load"]()
+
+        def enqueue_step():
+            for launch in prog["steps"]:
+                launch()
+
+        run_em_steps(iterations, enqueue_step, stopped)
+        prog["unload"]()

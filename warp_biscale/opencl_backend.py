@@ -36,31 +36,12 @@ import numpy as np
 
 from . import cl as cl_sources
 from . import sg
-from .device import (
-    KINDS,
-    DeviceBackend,
-    PROBE_VALUES,
-    SCRATCH_BYTES,
-    DeviceFacets,
-    DeviceLobes,
-    DeviceStart,
-    OnDevice,
-    UploadCache,
-    check_kernel_lobes,
-    chunking,
-    device_copy,
-    em_result_rows,
-    em_start_rows,
-    equal_areas,
-    one_line,
-    probe_mismatch,
-    run_em_steps,
-    start_scale,
-)
+from .device import (KINDS, DeviceBackend, PROBE_VALUES, SCRATCH_BYTES, DeviceStart, UploadCache,
+                     check_kernel_lobes, chunking, one_line,
+                     probe_mismatch, start_scale)
 from .bvh import build_bvh
 from .environment import SUPPORT, equirect_tables
-from .lobes import KERNEL_LOBES, START_RES, LobeSet
-from .model import Facets, Visibility, facet_shift
+from .lobes import KERNEL_LOBES, START_RES
 from .progress import compile_notice
 from .smallscale import ray_offset
 
@@ -367,6 +348,9 @@ class OpenCLBackend(DeviceBackend):
         copied = self._cl.enqueue_copy(self._queue, out, buf, is_blocking=False) if out.size else None
         return lambda: (copied and copied.wait(), out)[1]
 
+    def _queued_read(self, array, shape, kind):
+        return self._read_later(array, self._host_shape(shape, kind), KINDS[kind][0])
+
     def _read(self, buf, shape, dtype):
         out = np.empty(shape, dtype)
         if out.size:
@@ -396,168 +380,57 @@ class OpenCLBackend(DeviceBackend):
             entry["tris"] = self._buffer(bvh.triangle_table(local, tile.faces), np.float32)
         return entry
 
-    def _facets(self, facets: Facets):
-        """facets.device_cache[self.name]: the facets' buffers, each uploaded when first asked for."""
-        entry = facets.device_cache.get(self.name)
-        if entry is None or entry.get("ctx") is not self._ctx:
-            entry = facets.device_cache[self.name] = DeviceFacets(self._upload_facet_array, facets, {"ctx": self._ctx})
-        return entry
-
-    def _upload_facet_array(self, key, host):
-        return self._buffer(host, np.int32 if key in ("face", "material") else np.float32)
-
-    def _facet_positions(self, facets: Facets, tile):
-        """Facet positions on the device in `tile`'s local frame (see `SmallScale.to_local`)."""
-        entry = self._facets(facets)
-        if entry.get("position_tile") is not tile:
-            entry["position"] = self._buffer(tile.to_local(facets.position), np.float32)
-            entry["position_tile"] = tile
-        return entry["position"]
-
-    def _vis(self, vis: Visibility):
-        entry = vis.device_cache.get(self.name)
-        if entry is None or entry.get("ctx") is not self._ctx:
-            entry = {
-                "ctx": self._ctx,
-                "bits": self._buffer(vis.bits, np.uint32),
-                "directions": self._buffer(vis.directions, np.float32),
-            }
-            vis.device_cache[self.name] = entry
-        return entry
-
     # ------------------------------------------------------------------ stages
-    def sample_facets(self, tile, count, seed):
-        count = int(count)
-        if count < 1:
-            raise ValueError(f"facet count must be >= 1, got {count}")
+    def _launch_sample_facets(self, tile, count, xi1, xi2, pos, nrm, face):
         t = self._tile(tile)
-        pos = self._empty(3 * count, np.float32)
-        nrm = self._empty(3 * count, np.float32)
-        face = self._empty(count, np.int32)
-        xi1, xi2 = facet_shift(seed)
         self._launch("facets", "sample_facets", (count,),
                      t["points"], t["faces"], t["vertex_normals"], np.int32(tile.vertex_normals is not None),
                      t["face_normals"], t["cumulative_area"], t["face_area"], np.int32(len(tile.faces)),
                      np.int32(count), np.float64(xi1), np.float32(xi2), pos, nrm, face)
-        area = equal_areas(count, float(np.float32(tile.area / count)))
-        # The facets stay on the device: the host reads back only what host code asks for.
-        host = {"position": lambda f: tile.from_local(self._read(pos, (count, 3), np.float32)),
-                "normal": lambda f: self._read(nrm, (count, 3), np.float32),
-                "face": lambda f: self._read(face, count, np.int32),
-                "material": lambda f: tile.material_ids[f.face],
-                "color": lambda f: tile.colors[f.face].astype(np.float32)}
-        facets = Facets.deferred(count, lambda name, f: host[name](f), seed=int(seed), area=area)
-        facets.device_cache[self.name] = DeviceFacets(self._upload_facet_array, facets, {
-            "ctx": self._ctx, "position": pos, "position_tile": tile, "normal": nrm, "face": face,
-            "area": self._recurring(area, np.float32)})  # read-only: shared by bakes of this count
-        return facets
 
-    def visibility(self, tile, facets, directions, brute_force=False):
+    def _launch_visibility(self, tile, facets, dirs, n_dirs, words, brute_force, bits):
         t = self._tile(tile, need_bvh=True)
         position = self._facet_positions(facets, tile)
         f = self._facets(facets)
-        directions = np.asarray(directions, np.float64)
-        n_dirs = len(directions)
         n = len(facets)
-        words = (n + 31) // 32
-        bits = self._empty(n_dirs * words, np.uint32)
-        dirs = self._buffer(directions, np.float32)
-        if n_dirs:
-            z_lo, z_hi = tile.z_range
-            visible = self._scratch("visible", n_dirs * n, np.uint8)  # (packed into bits at once)
-            # (Work-groups of 32, like the Warp twin's blocks, were no faster here: the stage took
-            # 5.2–5.6 ms on NVIDIA OpenCL with 32 and 4.9–5.3 ms with the device's 64.)
-            self._launch("visibility", "visibility_rays", (n, n_dirs),
-                         t["nodes"], t["tris"], np.int32(len(tile.faces)), t["face_normals"],
-                         np.int32(bool(brute_force)), position, f["face"], np.int32(n), dirs,
-                         np.float32(0.0), np.float32(0.0), np.float32(tile.period[0]),
-                         np.float32(tile.period[1]), np.float32(0.0), np.float32(z_hi - z_lo),
-                         np.float32(ray_offset(tile)), visible)
-            self._launch("visibility", "pack_bits", (words, n_dirs), visible, np.int32(n), np.int32(words), bits)
-        vis = Visibility.deferred(directions, n, lambda: self._read(bits, (n_dirs, words), np.uint32))
-        vis.device_cache[self.name] = {"ctx": self._ctx, "bits": bits, "directions": dirs}
-        return vis
+        z_lo, z_hi = tile.z_range
+        visible = self._scratch("visible", n_dirs * n, np.uint8)  # (packed into bits at once)
+        # (Work-groups of 32, like the Warp twin's blocks, were no faster on NVIDIA's OpenCL than the
+        # device's 64.)
+        self._launch("visibility", "visibility_rays", (n, n_dirs),
+                     t["nodes"], t["tris"], np.int32(len(tile.faces)), t["face_normals"],
+                     np.int32(brute_force), position, f["face"], np.int32(n), dirs,
+                     np.float32(0.0), np.float32(0.0), np.float32(tile.period[0]),
+                     np.float32(tile.period[1]), np.float32(0.0), np.float32(z_hi - z_lo),
+                     np.float32(ray_offset(tile)), visible)
+        self._launch("visibility", "pack_bits", (words, n_dirs), visible, np.int32(n), np.int32(words), bits)
 
-    def visible_area(self, facets, vis, to_host=True):
-        f = self._facets(facets)
-        v = self._vis(vis)
-        n_dirs, n_words = len(vis.directions), vis.words
-        if n_dirs == 0:
-            none = np.zeros(0, np.float32)
-            return none if to_host else OnDevice(self._empty(1, np.float32), lambda: none)
-        chunks, per = chunking(n_words, n_dirs, self._threads)
+    def _launch_visible_area(self, f, v, n_words, n_dirs, chunks, per, a_v):
         partial = self._scratch("visible_area_partial", chunks * n_dirs, np.float32)
         self._launch("truth", "visible_area_partial", (n_dirs, chunks),
                      v["directions"], v["bits"], np.int32(n_words), f["normal"], f["area"], np.int32(per),
                      np.int32(n_dirs), partial)
-        a_v = self._empty(n_dirs, np.float32)
         self._launch("truth", "sum_chunks_area", (n_dirs,), partial, np.int32(chunks), np.int32(n_dirs), a_v)
-        if not to_host:
-            return OnDevice(a_v, self._read_later(a_v, n_dirs, np.float32))  # (queued now: no wait when read)
-        host = self._read(a_v, n_dirs, np.float32)
-        host.flags.writeable = False  # (so that the device copy stays what it holds)
-        self._held_visible_area = (host, a_v)  # solve_amplitudes given `host` itself uses the device copy
-        return host
 
-    def _visible_area_buffer(self, a_v):
-        """The device copy of a_v (see backend.device_copy)."""
-        return device_copy(a_v, self._held_visible_area, lambda host: self._buffer(host, np.float32))
-
-    def effective_brdf(self, facets, vis, kinds, params, pair_i, pair_o, a_v):
-        f = self._facets(facets)
-        v = self._vis(vis)
-        n_pairs = len(pair_i)
-        if n_pairs == 0:
-            return np.zeros((0, 3), np.float32)
-        n_words = vis.words
-        chunks, per = chunking(n_words, n_pairs, self._threads)
-        pi = self._buffer(pair_i, np.int32)
-        po = self._buffer(pair_o, np.int32)
+    def _launch_effective_brdf(self, f, v, kinds, params, pair_i, pair_o, a_v, n_words, n_pairs, chunks, per, out):
         partial = self._empty(chunks * n_pairs * 3, np.float32)
         self._launch("truth", "effective_brdf_partial", (n_pairs, chunks),
-                     v["directions"], pi, po, v["bits"], np.int32(n_words), f["normal"], f["weight"],
-                     f["material"], self._buffer(kinds, np.int32),
-                     self._buffer(np.asarray(params, np.float32).reshape(-1, 8), np.float32),
-                     np.int32(per), np.int32(n_pairs), partial)
-        out = self._empty(n_pairs * 3, np.float32)
-        self._launch("truth", "sum_chunks_brdf", (n_pairs,),
-                     partial, np.int32(chunks), np.int32(n_pairs), po, self._buffer(a_v, np.float32), out)
-        return self._read(out, (n_pairs, 3), np.float32)
+                     v["directions"], pair_i, pair_o, v["bits"], np.int32(n_words), f["normal"], f["weight"],
+                     f["material"], kinds, params, np.int32(per), np.int32(n_pairs), partial)
+        self._launch("truth", "sum_chunks_brdf", (n_pairs,), partial, np.int32(chunks), np.int32(n_pairs), pair_o,
+                     a_v, out)
 
     # ------------------------------------------------------------------ SG bake stages
-    def normal_bins(self, facets, resolution):
-        f = self._facets(facets)
-        n = len(facets)
-        bins = self._empty(n, np.int32)
-        if n:
-            self._launch("bvndf", "normal_bins", (n,), f["normal"], np.int32(resolution), np.int32(n), bins)
-        return self._read(bins, n, np.int32)
+    def _launch_normal_bins(self, f, n, resolution, bins):
+        self._launch("bvndf", "normal_bins", (n,), f["normal"], np.int32(resolution), np.int32(n), bins)
 
-    def bvndf_histogram(self, facets, vis, order, bin_start, weight, pair_i, pair_o):
-        v = self._vis(vis)
-        n_bins, n_pairs = len(bin_start) - 1, len(pair_i)
-        hist = self._empty(n_pairs * n_bins, np.float32)
-        if n_pairs and n_bins > 0:
-            self._launch("bvndf", "bvndf_histogram", (n_bins, n_pairs),
-                         self._buffer(pair_i, np.int32), self._buffer(pair_o, np.int32), v["bits"],
-                         np.int32(vis.words), self._buffer(order, np.int32),
-                         self._buffer(bin_start, np.int32), self._buffer(weight, np.float32),
-                         np.int32(n_bins), np.int32(n_pairs), hist)
-        return self._read(hist, (n_pairs, max(n_bins, 0)), np.float32)
+    def _launch_bvndf_histogram(self, v, n_words, pair_i, pair_o, order, bin_start, weight, n_pairs, n_bins, hist):
+        self._launch("bvndf", "bvndf_histogram", (n_bins, n_pairs), pair_i, pair_o, v["bits"], np.int32(n_words),
+                     order, bin_start, weight, np.int32(n_bins), np.int32(n_pairs), hist)
 
-    def visible_weights(self, facets, vis, to_host=True):
-        f = self._facets(facets)
-        v = self._vis(vis)
-        n = len(facets)
-        n_dirs, n_words = len(vis.directions), vis.words
-        weight = self._empty(n, np.float32)
+    def _launch_visible_weights(self, f, v, n_dirs, n_words, n, weight):
         self._launch("em", "visible_weights", (n,), v["directions"], v["bits"], np.int32(n_dirs), np.int32(n_words),
                      f["normal"], f["area"], np.int32(n), weight)
-        if not to_host:
-            return OnDevice(weight, self._read_later(weight, n, np.float32))
-        host = self._read(weight, n, np.float32)
-        f["visible_weight"] = (host, weight)  # ndf_em given `host` itself uses the device copy
-        return host
 
     def em_start(self, facets, facet_weight, count):
         f = self._facets(facets)
@@ -647,72 +520,30 @@ class OpenCLBackend(DeviceBackend):
                                           prog["state"])
             prog["unload"] = self._prepared("em", "em_result", (j,), *lobes64, prog["state"], np.int32(j),
                                             prog["result"])
-        self._em_programs[key] = prog  # most recent last
-        while len(self._em_programs) > 2 * 16:
-            self._em_programs.pop(next(iter(self._em_programs)))
-        return prog
+        return self._keep_recent(self._em_programs, key, prog)
 
-    def ndf_em(self, facets, axes, sharpness, weight, iterations, facet_weight=None, to_host=True):
-
-        on_device = isinstance(axes, DeviceStart)  # (em_start's rows: copied on the device)
-        start = None if on_device else LobeSet(axes, sharpness, weight)
-        j, n = axes.count if on_device else len(start), len(facets)
-        if int(iterations) <= 0:
-            start = axes.host() if on_device else start
-            result = (start.axes, start.sharpness, start.weight, 0)
-            if to_host:
-                return result
-            return DeviceLobes((self._buffer(start.axes, np.float32), self._buffer(start.sharpness, np.float32)), j,
-                               lambda: result)
-        f = self._facets(facets)
-        mass = f["area"] if facet_weight is None else self._facet_weight(f, facet_weight)
-        prog = self._em_program(n, j, iterations, facet_weight is not None)
+    def _run_em(self, f, mass, start_rows, n, j, iterations, weighted):
+        prog = self._em_program(n, j, iterations, weighted)
         cl = self._cl
         cl.enqueue_copy(self._queue, prog["normal"], f["normal"], byte_count=12 * n)
         cl.enqueue_copy(self._queue, prog["mass"], mass, byte_count=4 * n)
-        if on_device:
-            cl.enqueue_copy(self._queue, prog["start"], axes.device, byte_count=48 * j)
+        if isinstance(start_rows, np.ndarray):
+            cl.enqueue_copy(self._queue, prog["start"], start_rows)
         else:
-            cl.enqueue_copy(self._queue, prog["start"], em_start_rows(start))
-        prog["load"]()
-
-        def enqueue_step():
-            for launch in prog["steps"]:
-                launch()
-
-        run_em_steps(iterations, enqueue_step, lambda: bool(self._read(prog["state"], 2, np.int32)[0]))
-        prog["unload"]()
-        if not to_host:
-            # The result's copy is queued behind the EM: reading it back waits for the EM, not for what
-            # the caller queues after it.
-            read = self._read_later(prog["result"], (j, 6), np.float64)
-            return DeviceLobes((prog["axes32"], prog["sharp32"]), j, lambda: em_result_rows(read()))
-        return em_result_rows(self._read(prog["result"], (j, 6), np.float64))
-
-    def _facet_weight(self, f, facet_weight):
-        return device_copy(facet_weight, f.get("visible_weight"),
-                                   lambda host: self._buffer(host, np.float32))
+            cl.enqueue_copy(self._queue, prog["start"], start_rows, byte_count=48 * j)
+        self._step_em(prog, iterations, lambda: bool(self._read(prog["state"], 2, np.int32)[0]))
+        return prog
 
     def _lobe_values(self, normal_buf, n, axes, sharpness, role="lobe_values"):
         """(n, 8⌈J/8⌉) float32 device table G_j(n_s) of unit-amplitude lobes, zero past J (read as float8);
         `axes` host axes, or a DeviceLobes (sharpness None)."""
-        if isinstance(axes, DeviceLobes):  # the lobes an EM left on the device: no upload
-            j = axes.count
-            axes_buf, sharpness_buf = axes.device
-        else:
-            j = len(axes)
-            axes_buf, sharpness_buf = self._buffer(axes, np.float32), self._buffer(sharpness, np.float32)
+        j, axes_buf, sharpness_buf = self._lobes_on_device(axes, sharpness)
         stride = -(-j // 8) * 8
         values = self._scratch(role, n * stride, np.float32)
         if n:
             self._launch("amplitudes", "lobe_values", (n,), normal_buf, axes_buf, sharpness_buf,
                          np.int32(j), np.int32(stride), np.int32(n), values)
         return values
-
-    def _recurring(self, array, dtype):
-        """A read-only device copy of an input that recurs between calls (pair lists): see UploadCache.
-        No kernel may write into it."""
-        return self._uploads.get(array, dtype, lambda host: self._buffer(host, dtype))
 
     def lobe_moments(self, facets, vis, weight, axes, sharpness, pair_i, pair_o, to_host=True):
         f = self._facets(facets)
@@ -736,7 +567,7 @@ class OpenCLBackend(DeviceBackend):
         shape = chunks * n_pairs * (j + 1)  # (with one chunk the partial sums are the result: not scratch)
         partial = self._scratch("moments_partial", shape, np.float32) if chunks > 1 else self._empty(shape, np.float32)
         self._launch("amplitudes", "lobe_moments_partial", (n_pairs, chunks),
-                     v["directions"], self._recurring(pair_i, np.int32), self._recurring(pair_o, np.int32),
+                     v["directions"], self._recurring(pair_i, "i32"), self._recurring(pair_o, "i32"),
                      v["bits"], np.int32(n_words), channel_bits, weight, f["normal"], values, run_end,
                      np.int32(j), np.int32(per),
                      np.int32(n_pairs), partial)
@@ -769,10 +600,10 @@ class OpenCLBackend(DeviceBackend):
             return np.zeros((0, j), np.float32)
         mu = self._empty(n_pairs * j, np.float32)
         self._launch("amplitudes", "solve_amplitudes", (n_pairs,),
-                     self._recurring(pair_i, np.int32), self._recurring(pair_o, np.int32), np.int32(n_dirs),
-                     self._visible_area_buffer(a_v),
+                     self._recurring(pair_i, "i32"), self._recurring(pair_o, "i32"), np.int32(n_dirs),
+                     self._visible_area_device(a_v),
                      moments if isinstance(moments, self._cl.Buffer) else self._buffer(moments, np.float32),
-                     self._recurring(rows, np.float64), self._recurring(integrals, np.float64), np.int32(j),
+                     self._recurring(rows, "f64"), self._recurring(integrals, "f64"), np.int32(j),
                      np.int32(n_pairs), mu)
         return self._read(mu, (n_pairs, j), np.float32) if to_host else mu
 
@@ -782,7 +613,7 @@ class OpenCLBackend(DeviceBackend):
             return np.zeros((n_pairs, j, 3), np.float32), np.zeros((n_pairs, 3), np.float32)
         amps = self._empty(n_pairs * j * 3, np.float32)
         energy = self._empty(n_pairs * 3, np.float32)
-        integ = self._recurring(integrals, np.float64)  # (the solve's upload, if it ran just before)
+        integ = self._recurring(integrals, "f64")  # (the solve's upload, if it ran just before)
         for k, (mu, rgb) in enumerate(channels):
             if not isinstance(mu, self._cl.Buffer):
                 mu = self._buffer(np.asarray(mu, np.float32).reshape(n_pairs, j), np.float32)
@@ -791,35 +622,11 @@ class OpenCLBackend(DeviceBackend):
         return self._read(amps, (n_pairs, j, 3), np.float32), self._read(energy, (n_pairs, 3), np.float32)
 
     # ------------------------------------------------------------------ SSDF (stage `ssdf`, warp_biscale.ssdf)
-    def _ssdf_grid(self, grid):
-        entry = grid.device_cache.get(self.name)
-        if entry is None or entry.get("ctx") is not self._ctx:
-            entry = grid.device_cache[self.name] = {
-                "ctx": self._ctx,
-                "directions": self._buffer(grid.directions, np.float32),
-                "half_angle": self._buffer(grid.half_angle, np.float32),
-                "members": self._buffer(grid.block_members, np.int32),
-                "axis": self._buffer(grid.block_axis, np.float32),
-                "cos": self._buffer(np.cos(grid.block_radius), np.float32),
-                "sin": self._buffer(np.sin(grid.block_radius), np.float32),
-            }
-        return entry
-
-    def ssdf_distance(self, grid, visible):
-        visible = np.asarray(visible, bool)
-        n_v, n = visible.shape
-        if n != len(grid.directions):
-            raise ValueError(f"visible has {n} columns for a grid of {len(grid.directions)} directions")
-        if n_v == 0:
-            return np.zeros((0, n), np.float32)
-        g = self._ssdf_grid(grid)
-        n_blocks, n_members = grid.block_members.shape
-        theta = self._empty(n_v * n, np.float32)
-        self._launch("ssdf", "ssdf_distance", (n, n_v),
-                     self._buffer(visible, np.uint8), g["directions"], g["half_angle"], g["members"], g["axis"],
-                     g["cos"], g["sin"], self._buffer(grid.block_classes(visible), np.uint8), np.int32(n),
-                     np.int32(n_v), np.int32(n_blocks), np.int32(n_members), theta)
-        return self._read(theta, (n_v, n), np.float32)
+    def _launch_ssdf_distance(self, g, blocks, visible, classes, n_v, n, theta):
+        n_blocks, n_members = blocks
+        self._launch("ssdf", "ssdf_distance", (n, n_v), visible, g["directions"], g["half_angle"], g["members"],
+                     g["axis"], g["cos"], g["sin"], classes, np.int32(n), np.int32(n_v), np.int32(n_blocks),
+                     np.int32(n_members), theta)
 
     # ------------------------------------------------------------------ device primitives (DeviceBackend)
     def _to_device(self, host, kind):

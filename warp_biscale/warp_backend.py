@@ -18,27 +18,9 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import warp as wp
 
-from .device import (
-    KINDS,
-    DeviceBackend,
-    PROBE_VALUES,
-    SCRATCH_BYTES,
-    DeviceFacets,
-    DeviceLobes,
-    DeviceStart,
-    OnDevice,
-    UploadCache,
-    check_kernel_lobes,
-    chunking,
-    device_copy,
-    em_result_rows,
-    em_start_rows,
-    equal_areas,
-    one_line,
-    probe_mismatch,
-    run_em_steps,
-    start_scale,
-)
+from .device import (KINDS, DeviceBackend, PROBE_VALUES, SCRATCH_BYTES, DeviceStart, UploadCache,
+                     check_kernel_lobes, chunking, one_line,
+                     probe_mismatch, start_scale)
 from .kernels import amplitudes as kamplitudes
 from .kernels import bvndf as kbvndf
 from .kernels import em as kem
@@ -51,8 +33,7 @@ from .kernels import trace as ktrace
 from .kernels import truth as ktruth
 from .kernels import visibility as kvisibility
 from .environment import SUPPORT, equirect_tables
-from .lobes import KERNEL_LOBES, START_RES, LobeSet
-from .model import Facets, Visibility, facet_shift
+from .lobes import KERNEL_LOBES, START_RES
 from .progress import compile_notice
 from .smallscale import ray_offset
 
@@ -236,177 +217,60 @@ class WarpBackend(DeviceBackend):
             self._tiles[tile] = entry
         return entry
 
-    def _facets(self, facets: Facets):
-        """facets.device_cache[self.name]: the facets' device arrays, each uploaded when first asked for."""
-        entry = facets.device_cache.get(self.name)
-        if entry is None:
-            entry = facets.device_cache[self.name] = DeviceFacets(self._upload_facet_array, facets)
-        return entry
-
-    def _upload_facet_array(self, key, host):
-        dtype = {"normal": wp.vec3, "face": wp.int32, "area": wp.float32, "material": wp.int32, "weight": wp.vec3}[key]
-        return wp.array(host, dtype=dtype, device=self._device)
-
-    def _facet_positions(self, facets: Facets, tile):
-        """Facet positions on the device in `tile`'s local frame (see `SmallScale.to_local`)."""
-        entry = self._facets(facets)
-        if entry.get("position_tile") is not tile:
-            entry["position"] = wp.array(tile.to_local(facets.position), dtype=wp.vec3, device=self._device)
-            entry["position_tile"] = tile
-        return entry["position"]
-
-    def _vis(self, vis: Visibility):
-        entry = vis.device_cache.get(self.name)
-        if entry is None:
-            dev = self._device
-            entry = {
-                "bits": wp.array(vis.bits, dtype=wp.uint32, device=dev),
-                "directions": wp.array(vis.directions.astype(np.float32), dtype=wp.vec3, device=dev),
-            }
-            vis.device_cache[self.name] = entry
-        return entry
-
     # ------------------------------------------------------------------ stages
-    def sample_facets(self, tile, count, seed):
-
+    def _launch_sample_facets(self, tile, count, xi1, xi2, pos, nrm, face):
         t = self._tile(tile)
-        dev = self._device
-        count = int(count)
-        pos = wp.empty(count, dtype=wp.vec3, device=dev)
-        nrm = wp.empty(count, dtype=wp.vec3, device=dev)
-        face = wp.empty(count, dtype=wp.int32, device=dev)
-        xi1, xi2 = facet_shift(seed)
         self._launch(kfacets.sample_facets, count,
                      [t["points"], t["faces"], t["vertex_normals"], int(tile.vertex_normals is not None),
                       t["face_normals"], t["cumulative_area"], t["face_area"], count, wp.float64(xi1), float(xi2)],
                      [pos, nrm, face])
-        area = equal_areas(count, float(np.float32(tile.area / count)))
-        # The facets stay on the device: the host reads back only what host code asks for.
-        host = {"position": lambda f: tile.from_local(self._trace_host(pos)), "normal": lambda f: self._trace_host(nrm),
-                "face": lambda f: self._trace_host(face), "material": lambda f: tile.material_ids[f.face],
-                "color": lambda f: tile.colors[f.face].astype(np.float32)}
-        facets = Facets.deferred(count, lambda name, f: host[name](f), seed=int(seed), area=area)
-        facets.device_cache[self.name] = DeviceFacets(self._upload_facet_array, facets, {
-            "position": pos, "position_tile": tile, "normal": nrm, "face": face,
-            "area": self._recurring(area, np.float32, wp.float32)})  # read-only: shared by bakes of this count
-        return facets
 
-    def visibility(self, tile, facets, directions, brute_force=False):
-
+    def _launch_visibility(self, tile, facets, dirs, n_dirs, words, brute_force, bits):
         t = self._tile(tile)
         position = self._facet_positions(facets, tile)
         f = self._facets(facets)
-        dev = self._device
-        directions = np.asarray(directions, np.float64)
         n = len(facets)
-        words = (n + 31) // 32
-        visible = self._scratch("visible", (len(directions), n), wp.uint8)  # (packed into bits at once)
-        bits = wp.empty((len(directions), words), dtype=wp.uint32, device=dev)
-        dirs = self._recurring(directions, np.float32, wp.vec3)
+        visible = self._scratch("visible", (n_dirs, n), wp.uint8)  # (packed into bits at once)
         z_lo, z_hi = tile.z_range
         # Blocks of one warp: a ray's BVH walk varies in length, and small blocks free their slots as
-        # soon as their rays end (H100, 2^16 facets × 144 directions, 8192-triangle height field:
-        # 4.74 ms at Warp's default 256 threads a block, 3.78 at 128, 3.66 at 64, 3.55 at 32; bits
-        # identical; bench/probe_visibility.py --block-dims).
-        self._launch(kvisibility.visibility_rays, (len(directions), n),
-                     [t["mesh"].id, t["points"], t["faces"], t["face_normals"], int(bool(brute_force)),
+        # soon as their rays end (on an H100 32 threads a block beat Warp's default 256 by a quarter).
+        self._launch(kvisibility.visibility_rays, (n_dirs, n),
+                     [t["mesh"].id, t["points"], t["faces"], t["face_normals"], int(brute_force),
                       position, f["face"], dirs,
                       0.0, 0.0, float(tile.period[0]), float(tile.period[1]), 0.0, z_hi - z_lo, ray_offset(tile)],
                      [visible], block_dim=32, pieces=RAY_PIECES)
-        self._launch(kvisibility.pack_bits, (len(directions), words), [visible], [bits])
-        vis = Visibility.deferred(directions, len(facets), lambda: self._trace_host(bits))
-        vis.device_cache[self.name] = {"bits": bits, "directions": dirs}
-        return vis
+        self._launch(kvisibility.pack_bits, (n_dirs, words), [visible], [bits])
 
-    def visible_area(self, facets, vis, to_host=True):
-
-        f = self._facets(facets)
-        v = self._vis(vis)
-        dev = self._device
-        n_dirs, n_words = len(vis.directions), vis.words
-        chunks, per = chunking(n_words, n_dirs, self._threads)
+    def _launch_visible_area(self, f, v, n_words, n_dirs, chunks, per, a_v):
         partial = self._scratch("visible_area_partial", (chunks, n_dirs), wp.float32)
         self._launch(ktruth.visible_area_partial, (chunks, n_dirs),
                      [v["directions"], v["bits"], f["normal"], f["area"], per], [partial])
-        a_v = wp.empty(n_dirs, dtype=wp.float32, device=dev)
         self._load(ktruth.sum_chunks_area)
-        wp.launch(ktruth.sum_chunks_area, dim=n_dirs, device=dev, inputs=[partial], outputs=[a_v])
-        if not to_host:
-            return OnDevice(a_v, self._read_later(a_v))  # (read at the bake's end: queued now, no wait then)
-        host = self._trace_host(a_v)
-        host.flags.writeable = False  # (so that the device copy stays what it holds)
-        self._held_visible_area = (host, a_v)  # solve_amplitudes given `host` itself uses the device copy
-        return host
+        wp.launch(ktruth.sum_chunks_area, dim=n_dirs, device=self._device, inputs=[partial], outputs=[a_v])
 
-    def _visible_area_array(self, a_v):
-        """The device copy of a_v (see backend.device_copy): an upload costs more than the solve on a GPU host."""
-        return device_copy(a_v, self._held_visible_area, lambda host: self._array(np.asarray(host, np.float32),
-                                                                                  wp.float32))
-
-    def effective_brdf(self, facets, vis, kinds, params, pair_i, pair_o, a_v):
-
-        f = self._facets(facets)
-        v = self._vis(vis)
-        dev = self._device
-        n_pairs = len(pair_i)
-        chunks, per = chunking(vis.words, n_pairs, self._threads)
-        pi = wp.array(np.asarray(pair_i, np.int32), dtype=wp.int32, device=dev)
-        po = wp.array(np.asarray(pair_o, np.int32), dtype=wp.int32, device=dev)
-        partial = wp.empty((chunks, n_pairs), dtype=wp.vec3, device=dev)
+    def _launch_effective_brdf(self, f, v, kinds, params, pair_i, pair_o, a_v, n_words, n_pairs, chunks, per, out):
+        partial = wp.empty((chunks, n_pairs), dtype=wp.vec3, device=self._device)
         self._launch(ktruth.effective_brdf_partial, (chunks, n_pairs),
-                     [v["directions"], pi, po, v["bits"], f["normal"], f["weight"], f["material"],
-                      wp.array(np.asarray(kinds, np.int32), dtype=wp.int32, device=dev),
-                      wp.array(np.asarray(params, np.float32), dtype=wp.float32, device=dev), per],
+                     [v["directions"], pair_i, pair_o, v["bits"], f["normal"], f["weight"], f["material"],
+                      kinds, params, per],
                      [partial])
-        out = wp.empty(n_pairs, dtype=wp.vec3, device=dev)
         self._load(ktruth.sum_chunks_brdf)
-        wp.launch(ktruth.sum_chunks_brdf, dim=n_pairs, device=dev,
-                  inputs=[partial, po, wp.array(np.asarray(a_v, np.float32), dtype=wp.float32, device=dev)],
+        wp.launch(ktruth.sum_chunks_brdf, dim=n_pairs, device=self._device, inputs=[partial, pair_o, a_v],
                   outputs=[out])
-        return out.numpy()
 
     # ------------------------------------------------------------------ SG bake stages
     def _array(self, data, dtype):
         return wp.array(np.ascontiguousarray(data), dtype=dtype, device=self._device)
 
-    def _recurring(self, data, np_dtype, dtype):
-        """A read-only device copy of an input that recurs between calls (pair lists, the direction
-        grid, equal facet areas): see UploadCache. No kernel may write into it."""
-        return self._uploads.get(data, np_dtype, lambda host: wp.array(host, dtype=dtype, device=self._device),
-                                 tag=dtype)
+    def _launch_normal_bins(self, f, n, resolution, bins):
+        self._launch(kbvndf.normal_bins, n, [f["normal"], resolution], [bins])
 
-    def normal_bins(self, facets, resolution):
+    def _launch_bvndf_histogram(self, v, n_words, pair_i, pair_o, order, bin_start, weight, n_pairs, n_bins, hist):
+        self._launch(kbvndf.bvndf_histogram, (n_pairs, n_bins),
+                     [pair_i, pair_o, v["bits"], order, bin_start, weight], [hist])
 
-        f = self._facets(facets)
-        bins = self._scratch("normal_bins", len(facets), wp.int32)
-        self._launch(kbvndf.normal_bins, len(facets), [f["normal"], int(resolution)], [bins])
-        return self._trace_host(bins)
-
-    def bvndf_histogram(self, facets, vis, order, bin_start, weight, pair_i, pair_o):
-
-        v = self._vis(vis)
-        n_bins = len(bin_start) - 1
-        hist = wp.empty((len(pair_i), n_bins), dtype=wp.float32, device=self._device)
-        self._launch(kbvndf.bvndf_histogram, (len(pair_i), n_bins),
-                     [self._array(np.asarray(pair_i, np.int32), wp.int32),
-                      self._array(np.asarray(pair_o, np.int32), wp.int32), v["bits"],
-                      self._array(np.asarray(order, np.int32), wp.int32),
-                      self._array(np.asarray(bin_start, np.int32), wp.int32),
-                      self._array(np.asarray(weight, np.float32), wp.float32)],
-                     [hist])
-        return hist.numpy()
-
-    def visible_weights(self, facets, vis, to_host=True):
-
-        f = self._facets(facets)
-        v = self._vis(vis)
-        weight = wp.empty(len(facets), dtype=wp.float32, device=self._device)
-        self._launch(kem.visible_weights, len(facets), [v["directions"], v["bits"], f["normal"], f["area"]], [weight])
-        if not to_host:
-            return OnDevice(weight, self._read_later(weight))
-        host = self._trace_host(weight)
-        f["visible_weight"] = (host, weight)  # ndf_em given `host` itself uses the device copy
-        return host
+    def _launch_visible_weights(self, f, v, n_dirs, n_words, n, weight):
+        self._launch(kem.visible_weights, n, [v["directions"], v["bits"], f["normal"], f["area"]], [weight])
 
     def em_start(self, facets, facet_weight, count):
 
@@ -453,12 +317,11 @@ class WarpBackend(DeviceBackend):
         steps.append(lambda held=(resp, partial, partial2): None)
         return steps, stats
 
-    def _resp(self, facets, n_lobes):
-        """The facets' E-step scratch (Ns, J), kept with their device arrays."""
-        f = self._facets(facets)
+    def _resp(self, f, n, n_lobes):
+        """The E-step scratch (Ns, J) of the facets whose device arrays are `f`, kept with them."""
         key = ("resp", n_lobes)
         if key not in f:
-            f[key] = wp.empty((len(facets), n_lobes), dtype=wp.float32, device=self._device)
+            f[key] = wp.empty((n, n_lobes), dtype=wp.float32, device=self._device)
         return f[key]
 
     def _recorded(self, kernel, dim, inputs, outputs, split=True):
@@ -478,7 +341,7 @@ class WarpBackend(DeviceBackend):
                                          self._array(np.asarray(axes, np.float32), wp.vec3),
                                          self._array(np.asarray(sharpness, np.float32), wp.float32),
                                          self._array(np.asarray(log_weight, np.float32), wp.float32), state,
-                                         self._resp(facets, len(axes)))
+                                         self._resp(f, len(facets), len(axes)))
         for step in steps:
             step()
         return stats.numpy()[0].astype(np.float64)
@@ -535,76 +398,34 @@ class WarpBackend(DeviceBackend):
                         step()
                 prog["unload"]()
             graph = {"prog": prog, "graph": capture.graph}
-        self._em_graphs[key] = graph  # most recent last
-        while len(self._em_graphs) > 2 * 16:
-            self._em_graphs.pop(next(iter(self._em_graphs)))
-        return graph
+        return self._keep_recent(self._em_graphs, key, graph)
 
-    def ndf_em(self, facets, axes, sharpness, weight, iterations, facet_weight=None, to_host=True):
-
-        on_device = isinstance(axes, DeviceStart)  # (em_start's rows: copied on the device)
-        start = None if on_device else LobeSet(axes, sharpness, weight)
-        j = axes.count if on_device else len(start)
-        if int(iterations) <= 0:
-            start = axes.host() if on_device else start
-            result = (start.axes, start.sharpness, start.weight, 0)
-            if to_host:
-                return result
-            return DeviceLobes((self._array(start.axes.astype(np.float32), wp.vec3),
-                                self._array(start.sharpness.astype(np.float32), wp.float32)), j, lambda: result)
-        f = self._facets(facets)
-        mass = f["area"] if facet_weight is None else self._facet_weight(f, facet_weight)
-
+    def _run_em(self, f, mass, start_rows, n, j, iterations, weighted):
         def load_start(rows):
-            if on_device:
-                wp.copy(rows, axes.device)
+            if isinstance(start_rows, np.ndarray):
+                rows.assign(start_rows)
             else:
-                rows.assign(em_start_rows(start))
+                wp.copy(rows, start_rows)
 
         if self._device.is_cuda:
-            graph = self._em_graph(len(facets), j, iterations, facet_weight is not None)
+            graph = self._em_graph(n, j, iterations, weighted)
             prog = graph["prog"]
             wp.copy(self._em_buffers["normal"], f["normal"])
             wp.copy(self._em_buffers["mass"], mass)
             load_start(prog["start"])
             wp.capture_launch(graph["graph"])
-            if not to_host:
-                # The result's copy is queued behind the EM: reading it back waits for the EM, not for what
-                # the caller queues after it.
-                read = self._read_later(prog["result"])
-                return DeviceLobes((prog["axes32"], prog["sharp32"]), j, lambda: em_result_rows(read()))
-        else:
-            prog = self._em_program(f["normal"], mass, j, iterations, self._resp(facets, j))
-            load_start(prog["start"])
-            prog["load"]()
-
-            def enqueue_step():
-                for step in prog["steps"]:
-                    step()
-
-            run_em_steps(iterations, enqueue_step, lambda: bool(prog["state"].numpy()[0]))
-            prog["unload"]()
-            if not to_host:
-                return DeviceLobes((prog["axes32"], prog["sharp32"]), j,
-                                   lambda: em_result_rows(self._trace_host(prog["result"])))
-        return em_result_rows(self._trace_host(prog["result"]))
-
-    def _facet_weight(self, f, facet_weight):
-        return device_copy(facet_weight, f.get("visible_weight"),
-                                   lambda host: self._array(np.asarray(host, np.float32), wp.float32))
+            return prog
+        prog = self._em_program(f["normal"], mass, j, iterations, self._resp(f, n, j))
+        load_start(prog["start"])
+        self._step_em(prog, iterations, lambda: bool(prog["state"].numpy()[0]))
+        return prog
 
     def lobe_moments(self, facets, vis, weight, axes, sharpness, pair_i, pair_o, to_host=True):
 
         f = self._facets(facets)
         v = self._vis(vis)
         dev = self._device
-        if isinstance(axes, DeviceLobes):  # the lobes an EM left on the device: no upload
-            j = axes.count
-            axes_arr, sharpness_arr = axes.device
-        else:
-            j = len(axes)
-            axes_arr = self._array(np.asarray(axes, np.float32), wp.vec3)
-            sharpness_arr = self._array(np.asarray(sharpness, np.float32), wp.float32)
+        j, axes_arr, sharpness_arr = self._lobes_on_device(axes, sharpness)
         n, n_pairs = len(facets), len(pair_i)
         check_kernel_lobes(j)
         vec, lobe_values, lobe_moments_partial = kamplitudes.facet_kernels(j)
@@ -625,8 +446,8 @@ class WarpBackend(DeviceBackend):
         else:  # the partial sums are the result: not scratch
             partial = wp.empty(shape, dtype=wp.float32, device=dev)
         self._launch(lobe_moments_partial, (chunks, n_pairs),
-                     [v["directions"], self._recurring(pair_i, np.int32, wp.int32),
-                      self._recurring(pair_o, np.int32, wp.int32), v["bits"],
+                     [v["directions"], self._recurring(pair_i, "i32"),
+                      self._recurring(pair_o, "i32"), v["bits"],
                       channel_bits, weight, f["normal"], values, run_end, j, per],
                      [partial])
         if chunks == 1:
@@ -663,10 +484,10 @@ class WarpBackend(DeviceBackend):
         if not isinstance(moments, wp.array):  # a host array, not lobe_moments(..., to_host=False)
             moments = self._array(np.asarray(moments, np.float32), wp.float32)
         self._launch(kamplitudes.solve_amplitudes, len(pair_i),
-                     [self._recurring(pair_i, np.int32, wp.int32), self._recurring(pair_o, np.int32, wp.int32),
-                      int(n_dirs), self._visible_area_array(a_v), moments,
-                      self._recurring(rows, np.float64, wp.float64),  # (integrals recur in amplitude_tables)
-                      self._recurring(integrals, np.float64, wp.float64)], [mu])
+                     [self._recurring(pair_i, "i32"), self._recurring(pair_o, "i32"),
+                      int(n_dirs), self._visible_area_device(a_v), moments,
+                      self._recurring(rows, "f64"),  # (integrals recur in amplitude_tables)
+                      self._recurring(integrals, "f64")], [mu])
         return self._trace_host(mu) if to_host else mu
 
     def amplitude_tables(self, channels, integrals, n_pairs):
@@ -676,7 +497,7 @@ class WarpBackend(DeviceBackend):
             return np.zeros((n_pairs, j, 3), np.float32), np.zeros((n_pairs, 3), np.float32)
         amps = self._scratch("amplitude_tables", (n_pairs, j, 3), wp.float32)  # (both read back below)
         energy = self._scratch("amplitude_energy", (n_pairs, 3), wp.float32)
-        integ = self._recurring(integrals, np.float64, wp.float64)  # (the solve's upload, if it ran just before)
+        integ = self._recurring(integrals, "f64")  # (the solve's upload, if it ran just before)
         for k, (mu, rgb) in enumerate(channels):
             if not isinstance(mu, wp.array):
                 mu = self._array(np.asarray(mu, np.float32).reshape(n_pairs, j), wp.float32)
@@ -685,37 +506,16 @@ class WarpBackend(DeviceBackend):
         return self._trace_host(amps), self._trace_host(energy)
 
     # ------------------------------------------------------------------ SSDF (stage `ssdf`, warp_biscale.ssdf)
-    def _ssdf_grid(self, grid):
-        entry = grid.device_cache.get(self.name)
-        if entry is None:
-            entry = grid.device_cache[self.name] = {
-                "directions": self._array(grid.directions.astype(np.float32), wp.vec3),
-                "half_angle": self._array(grid.half_angle.astype(np.float32), wp.float32),
-                "members": self._array(grid.block_members.astype(np.int32), wp.int32),
-                "axis": self._array(grid.block_axis.astype(np.float32), wp.vec3),
-                "cos": self._array(np.cos(grid.block_radius).astype(np.float32), wp.float32),
-                "sin": self._array(np.sin(grid.block_radius).astype(np.float32), wp.float32),
-            }
-        return entry
-
-    def ssdf_distance(self, grid, visible):
-
-        visible = np.asarray(visible, bool)
-        n_v, n = visible.shape
-        if n != len(grid.directions):
-            raise ValueError(f"visible has {n} columns for a grid of {len(grid.directions)} directions")
-        if n_v == 0:
-            return np.zeros((0, n), np.float32)
-        g = self._ssdf_grid(grid)
-        theta = wp.empty((n_v, n), dtype=wp.float32, device=self._device)
+    def _launch_ssdf_distance(self, g, blocks, visible, classes, n_v, n, theta):
         self._launch(kssdf.ssdf_distance, (n_v, n),
-                     [self._array(visible.astype(np.uint8), wp.uint8), g["directions"], g["half_angle"],
-                      g["members"], g["axis"], g["cos"], g["sin"], self._array(grid.block_classes(visible), wp.uint8)],
+                     [visible, g["directions"], g["half_angle"], g["members"], g["axis"], g["cos"], g["sin"], classes],
                      [theta])
-        return theta.numpy()
 
     # ------------------------------------------------------------------ stage trace
     # Ray casting against the large-scale mesh; see Backend.trace_primary for the device-cache keys.
+    def _queued_read(self, array, shape, kind):
+        return self._read_later(array)
+
     def _read_later(self, a):
         """→ a function returning a host copy of device array `a` as it is now. On a GPU the copy is queued
         at once into pinned memory with an event behind it: the function then waits for `a`'s work alone,
