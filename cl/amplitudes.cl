@@ -25,7 +25,7 @@
  *
  * Tables: one work-item per ordered pair adds a channel's amplitudes times its colour into the
  * material's (P, J, 3) table and their energy Σ_j μ_j ∫G_j into (P, 3), on the device (the same numpy
- * on the lent H100's host took ~1 ms a bake).
+ * on the host cost more than the read-back: bench/README.md).
  *
  * At most MAX_LOBES lobes (private arrays). NDRanges as in cl/truth.cl: (outputs, chunks), dimension
  * 0 varying fastest as the last dimension of Warp's (chunks, outputs) launch, rounded up to a whole

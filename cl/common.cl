@@ -53,7 +53,7 @@ CL_INLINE float3 normalize3(float3 a)
     return (float3)(0.0f, 0.0f, 0.0f);
 }
 
-/* Powers without the pow builtin, which costs about 120 ns a call in PoCL (exp + log2 cost 40):
+/* Powers without the pow builtin, which costs about three times exp + log2 in PoCL:
  * x^5 by multiplication, and x^y = 2^(y log2 x) for x >= 0 and y > 0 (0 at x = 0, as pow). They
  * differ from a libm powf by rounding only: a few ulp, or about 1e-6 relative for results above
  * 2^-20 of the peak, far inside the backends' 1e-4 tolerance. */
@@ -103,8 +103,8 @@ CL_INLINE float3 brdf_cosine_weighted(int kind, __global const float *params, in
 }
 
 /* Index of the lowest set bit of a non-zero word. OpenCL 1.2 has no ctz, and its popcount, the
- * obvious route (popcount((m & -m) - 1)), is a 6 ns library call in PoCL; the de Bruijn
- * multiply-and-look-up below gives the same index for every word in about 1 ns. */
+ * obvious route (popcount((m & -m) - 1)), is a library call in PoCL; the de Bruijn
+ * multiply-and-look-up below gives the same index for every word several times faster. */
 __constant int DE_BRUIJN_32[32] = {0,  1,  28, 2,  29, 14, 24, 3, 30, 22, 20, 15, 25, 17, 4,  8,
                                    31, 27, 13, 23, 21, 19, 16, 7, 26, 12, 18, 6,  11, 5,  10, 9};
 CL_INLINE int lowest_bit(uint m) { return DE_BRUIJN_32[((m & (0u - m)) * 0x077CB531u) >> 27]; }

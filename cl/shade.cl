@@ -20,7 +20,7 @@
 #define MIN_COS_VIEW 1.0e-4f /* = shading.MIN_COS_VIEW */
 
 /* floor(x) as an int for x >= 0 (every caller clamps x to a non-negative range first): truncation,
- * the same integer, without PoCL's ~9 ns floor call. */
+ * the same integer, without PoCL's out-of-line floor call. */
 CL_INLINE int ifloor_pos(float x) { return (int)x; }
 
 /* ∫G = 2π(1 − e^{−2η})/η, with its series below η = 1e-3 (no cancellation). */
@@ -95,7 +95,7 @@ CL_INLINE float3 equirect_bilinear(__global const float *maps, int offset, int h
 
 /* Λ(d, η): linear in log2 η between the two nearest levels (reference.prefiltered_lookup). The
  * direction's angles are computed once for both levels (Warp's equirect_bilinear computes them in
- * each, identically): atan2 alone costs ~95 ns a call in PoCL. */
+ * each, identically): atan2 is one of the costliest calls in PoCL. */
 CL_INLINE float3 prefiltered(__global const float *maps, __global const float *levels, int n, float3 d, float eta)
 {
     float t = clampf(log2(maxf(eta, 1.0e-30f)) - levels[0], 0.0f, (float)(n - 1));

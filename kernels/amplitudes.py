@@ -17,8 +17,8 @@ applies the J×J solve rows (float64: A⁻¹ of close lobes has large entries of
 negative amplitudes and rescales to the exact energy c, as the reference does.
 
 Tables: one thread per ordered pair adds a channel's amplitudes times its colour into the material's
-(P, J, 3) table and their energy Σ_j μ_j ∫G_j into (P, 3), on the device: on the lent H100's host the
-same numpy took ~1 ms a bake (strided writes into the RGB-last table), more than the read-back.
+(P, J, 3) table and their energy Σ_j μ_j ∫G_j into (P, 3), on the device: the same numpy on the host
+cost more than the read-back (strided writes into the RGB-last table; bench/README.md).
 """
 
 import warp as wp

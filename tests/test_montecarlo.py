@@ -25,9 +25,9 @@ def _hit_normals(scene, backend):
     """(hit (P,) bool, n (P, 3), position (P, 3)) of every pixel: interpolated shading normals and positions
     (float32 vertex attributes, as the renderers read them), written out here independently of the renderer."""
     g = backend.trace_primary(scene.mesh, scene.camera)
-    face = g["face"]
+    face = g.face
     hit = face >= 0
-    bary = g["bary"].astype(np.float64)
+    bary = g.bary.astype(np.float64)
     wts = np.stack([1 - bary[:, 0] - bary[:, 1], bary[:, 0], bary[:, 1]], 1)
     tri = scene.mesh.faces[np.maximum(face, 0)]
     n = np.einsum("pk,pkc->pc", wts, scene.mesh.normals.astype(np.float32)[tri].astype(np.float64))
@@ -187,9 +187,9 @@ def _frames(scene, backend):
 
     mesh = scene.mesh
     g = backend.trace_primary(mesh, scene.camera)
-    hit = np.flatnonzero(g["face"] >= 0)
-    f = g["face"][hit]
-    bary = g["bary"][hit].astype(np.float64)
+    hit = np.flatnonzero(g.face >= 0)
+    f = g.face[hit]
+    bary = g.bary[hit].astype(np.float64)
     wts = np.stack([1 - bary[:, 0] - bary[:, 1], bary[:, 0], bary[:, 1]], 1)
 
     def interp(a):
@@ -303,8 +303,8 @@ def test_shadow_of_a_sphere_on_a_plane(backend):
     scene = Scene(mesh, [wb.Lambert(0.8), wb.Lambert(0.6)], cam, None, [light])
     r = mc.render(scene, backend=backend, samples=64, seed=1)
     g = backend.trace_primary(mesh, cam)
-    on_plane = (g["face"] >= len(sphere.faces)).reshape(24, 24)
-    radial = np.hypot(g["position"][:, 0], g["position"][:, 2]).reshape(24, 24)
+    on_plane = (g.face >= len(sphere.faces)).reshape(24, 24)
+    radial = np.hypot(g.position[:, 0], g.position[:, 2]).reshape(24, 24)
     _, eta, _, _ = light_sg(scene.lights_packed, np.zeros((1, 3)))
     open_sky = 0.6 / np.pi * 3.0 * float(sg.cosine_fraction(1.0, eta[0, 0]))
     under = on_plane & (radial < 0.6)
@@ -330,7 +330,7 @@ def test_point_light_is_not_shadowed_by_geometry_behind_it(backend):
     r = mc.render(scene, backend=backend, samples=64, seed=3)
     hit, n, pos = _hit_normals(scene, backend)
     g = backend.trace_primary(mesh, cam)
-    on_plane = g["face"] >= len(sphere.faces)
+    on_plane = g.face >= len(sphere.faces)
     axis, eta, amp, _ = light_sg(scene.lights_packed, pos)
     c = np.einsum("pc,pc->p", n, axis[:, 0])
     expected = 0.5 / np.pi * (sg.integral(eta[:, 0]) * sg.cosine_fraction(c, eta[:, 0]))[:, None] * amp[:, 0]

@@ -12,9 +12,9 @@ from warp_biscale.scene import Scene
 
 def _hit_normals(frame, mesh):
     """The interpolated unit normals of the hit pixels (as the shading builds them) and the hit mask."""
-    hit = frame["face"] >= 0
-    tri = mesh.faces[frame["face"][hit]]
-    u, v = frame["bary"][hit, 0].astype(np.float64), frame["bary"][hit, 1].astype(np.float64)
+    hit = frame.gbuffer.face >= 0
+    tri = mesh.faces[frame.gbuffer.face[hit]]
+    u, v = frame.gbuffer.bary[hit, 0].astype(np.float64), frame.gbuffer.bary[hit, 1].astype(np.float64)
     n = (1 - u - v)[:, None] * mesh.normals[tri[:, 0]] + u[:, None] * mesh.normals[tri[:, 1]] \
         + v[:, None] * mesh.normals[tri[:, 2]]
     return n / np.linalg.norm(n, axis=1, keepdims=True), hit
@@ -27,7 +27,7 @@ def test_furnace_lambert_sphere_returns_its_albedo(backend):
                   wb.Camera(eye=(0, 0, 3.5), width=48, height=40), wb.Environment.constant(1.0))
     out = wb.render(scene, backend=backend)
     img = out.image.reshape(-1, 3)
-    hit = pack_frame(scene, backend)["face"] >= 0
+    hit = pack_frame(scene, backend).gbuffer.face >= 0
     assert hit.sum() > 500 and (~hit).sum() > 100
     np.testing.assert_allclose(img[hit], np.tile([0.6, 0.4, 0.2], (hit.sum(), 1)), rtol=5e-3)
     np.testing.assert_allclose(img[~hit], 1.0, rtol=1e-6)
@@ -48,7 +48,7 @@ def test_directional_light_on_lambert_sphere_closed_form(backend):
     expected = 0.5 / np.pi * np.asarray(light.irradiance)[None] * cos_part[:, None]
     # The light's shadow ray is cut where its centre is below the face's geometric horizon (trace_shadows):
     # those pixels get no light, although the shading normal may still see a sliver of the emitter.
-    lit = scene.mesh.face_normals[frame["face"][hit]] @ light.direction > 0
+    lit = scene.mesh.face_normals[frame.gbuffer.face[hit]] @ light.direction > 0
     expected[~lit] = 0.0
     np.testing.assert_allclose(out[hit], expected, atol=1e-3 * 2.0, rtol=2e-3)
     assert lit.sum() > 100 and (~lit).sum() > 100
@@ -74,7 +74,7 @@ def test_glossy_scene_sg_against_monte_carlo(backend):
     sg_img = wb.render(scene, backend=backend)
     mc = wb.render(scene, method="mc", backend=backend, samples=512, seed=3)
     assert sg_img.info["ssdf"] is True
-    mask = (pack_frame(scene, backend)["face"] >= 0).reshape(scene.camera.height, scene.camera.width)
+    mask = (pack_frame(scene, backend).gbuffer.face >= 0).reshape(scene.camera.height, scene.camera.width)
     err = wb.compare_images(sg_img.image, mc.image, mask=mask)
     peak = mc.image[mask].max()
     assert mc.info["stderr_rms"] < 0.2 * err["rmse"] + 0.01 * peak  # the reference is converged enough to judge
@@ -92,7 +92,7 @@ def test_driver_reuses_static_work_and_skips_what_is_not_needed(backend):
     assert not np.array_equal(first.image, second.image)
     lambert_only = Scene(scene.mesh, [wb.Lambert(0.5), wb.BlinnPhong(0.0, 50, kd=0.3)], scene.camera, None, [])
     frame = pack_frame(lambert_only, backend)
-    assert frame["mat_info"][:, 2].tolist() == [0, 0]  # ks = 0: no specular path
+    assert frame.inputs.mat_info[:, 2].tolist() == [0, 0]  # ks = 0: no specular path
     out = wb.render(lambert_only, backend=backend)
     assert "shadows" not in out.timings and "ssdf" not in out.timings  # no lights, no environment
 

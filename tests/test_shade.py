@@ -63,10 +63,10 @@ def test_shade_kernel_matches_reference(backend, which, effective_material, many
     else:
         scene = _scenes(effective_material)[which]
     frame = pack_frame(scene, backend)
-    assert bool(frame["has_ssdf"]) == (which != "lone")  # the lone convex sphere needs no SSDF
+    assert bool(frame.inputs.has_ssdf) == (which != "lone")  # the lone convex sphere needs no SSDF
     ref = shade_reference(frame)
-    out = backend.shade(scene.mesh, frame, frame["camera"], frame["lights"],
-                        gbuffer={"face": frame["face"], "bary": frame["bary"], "light_vis": frame["light_vis"]})
+    out = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights,
+                        gbuffer=frame.gbuffer)
     assert out.shape == ref.shape and out.dtype == np.float32
     assert np.isfinite(out).all() and (out >= 0).all()
     peak = ref.max()
@@ -83,9 +83,9 @@ def test_shade_uses_device_gbuffer(backend, effective_material):
     """The render path: G-buffer and shadows left on the device by trace_primary/trace_shadows."""
     scene = _scenes(effective_material)["occluded"]
     frame = pack_frame(scene, backend)
-    host = backend.shade(scene.mesh, frame, frame["camera"], frame["lights"],
-                         gbuffer={"face": frame["face"], "bary": frame["bary"], "light_vis": frame["light_vis"]})
+    host = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights,
+                         gbuffer=frame.gbuffer)
     backend.trace_primary(scene.mesh, scene.camera, to_host=False)
-    backend.trace_shadows(scene.mesh, None, frame["lights"], to_host=False)
-    dev = backend.shade(scene.mesh, frame, frame["camera"], frame["lights"])
+    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False)
+    dev = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights)
     np.testing.assert_array_equal(dev, host)

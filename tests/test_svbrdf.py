@@ -34,8 +34,8 @@ def _scene(materials, lights=True, size=(40, 32)):
 
 def _shade(backend, scene):
     frame = pack_frame(scene, backend)
-    out = backend.shade(scene.mesh, frame, frame["camera"], frame["lights"],
-                        gbuffer={"face": frame["face"], "bary": frame["bary"], "light_vis": frame["light_vis"]})
+    out = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights,
+                        gbuffer=frame.gbuffer)
     return frame, out
 
 
@@ -47,7 +47,7 @@ def test_textured_kernel_matches_reference(backend, base):
     sphere = Textured(wb.BlinnPhong(0.5, 150, kd=(0.5, 0.3, 0.2)), kd_map=_checker(16))
     scene = _scene([sphere, floor])
     frame, out = _shade(backend, scene)
-    assert frame["mat_info"][:, 3].tolist() == [1, 4]  # slot 0 is the shared texture of ones
+    assert frame.inputs.mat_info[:, 3].tolist() == [1, 4]  # slot 0 is the shared texture of ones
     ref = shade_reference(frame)
     assert np.isfinite(out).all() and (out >= 0).all()
     peak = ref.max()
@@ -82,12 +82,12 @@ def test_black_kd_half_removes_the_diffuse(backend):
     floor = wb.Lambert(0.6)
     frame, plain = _shade(backend, _scene([wb.Lambert(0.5), floor], lights=False))
     _, tex = _shade(backend, _scene([wb.Lambert(0.5), Textured(floor, kd_map=kd_map)], lights=False))
-    hit = frame["face"] >= 0
+    hit = frame.gbuffer.face >= 0
     on_floor = np.zeros(len(hit), bool)
-    on_floor[hit] = frame["face_material"][frame["face"][hit]] == 1
+    on_floor[hit] = frame.inputs.face_material[frame.gbuffer.face[hit]] == 1
     mesh = _scene([wb.Lambert(0.5), floor]).mesh
-    tri = mesh.faces[frame["face"][on_floor]]
-    b = frame["bary"][on_floor].astype(np.float64)
+    tri = mesh.faces[frame.gbuffer.face[on_floor]]
+    b = frame.gbuffer.bary[on_floor].astype(np.float64)
     uv = ((1 - b[:, 0] - b[:, 1])[:, None] * mesh.uvs[tri[:, 0]] + b[:, :1] * mesh.uvs[tri[:, 1]]
           + b[:, 1:] * mesh.uvs[tri[:, 2]])
     u = np.mod(uv[:, 0], 1.0)

@@ -20,6 +20,8 @@ Tolerances, and why:
   the most grazing hits here) and small enough that ambiguity stays rare.
 """
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -72,14 +74,14 @@ def _near_edge(u, v):
 def _face_mismatches(mesh, cam, g, r):
     """(unexplained, differ) masks over the pixels of kernel G-buffer g vs reference r (module notes)."""
     o, d = cam.rays()
-    hit_ref, hit = r["face"] >= 0, g["face"] >= 0
-    differ = g["face"] != r["face"]
+    hit_ref, hit = r["face"] >= 0, g.face >= 0
+    differ = g.face != r["face"]
     # Both hit, different faces: the kernel's face must be a near-tie of the reference hit.
-    ok_both = _explained(mesh, g["face"], o, d, r["t"])
+    ok_both = _explained(mesh, g.face, o, d, r["t"])
     # Reference hits, kernel misses: the reference hit grazes an edge (a silhouette).
     ok_lost = _near_edge(r["bary"][:, 0], r["bary"][:, 1])
     # Kernel hits, reference misses: the kernel's face is hit by the float64 ray inside the margin.
-    u, v, t = ref.intersect_faces(mesh.vertices, mesh.faces, np.maximum(g["face"], 0), o, d)
+    u, v, t = ref.intersect_faces(mesh.vertices, mesh.faces, np.maximum(g.face, 0), o, d)
     with np.errstate(invalid="ignore"):
         ok_gained = (u >= -BARY_TOL) & (v >= -BARY_TOL) & (u + v <= 1 + BARY_TOL) & (t > 0)
     unexplained = differ & np.where(hit & hit_ref, ~ok_both, np.where(hit_ref, ~ok_lost, ~ok_gained))
@@ -90,12 +92,12 @@ def test_primary_matches_reference(backend, showcase):
     mesh, cam, r = showcase
     g = backend.trace_primary(mesh, cam)
     n = cam.width * cam.height
-    assert g["face"].dtype == np.int32 and g["face"].shape == (n,)
-    assert g["bary"].dtype == np.float32 and g["bary"].shape == (n, 2)
-    assert g["position"].dtype == np.float32 and g["position"].shape == (n, 3)
-    assert g["t"].dtype == np.float32 and g["t"].shape == (n,)
-    np.testing.assert_allclose(g["eye"], cam.eye, rtol=1e-7)
-    hit_ref, hit = r["face"] >= 0, g["face"] >= 0
+    assert g.face.dtype == np.int32 and g.face.shape == (n,)
+    assert g.bary.dtype == np.float32 and g.bary.shape == (n, 2)
+    assert g.position.dtype == np.float32 and g.position.shape == (n, 3)
+    assert g.t.dtype == np.float32 and g.t.shape == (n,)
+    np.testing.assert_allclose(g.eye, cam.eye, rtol=1e-7)
+    hit_ref, hit = r["face"] >= 0, g.face >= 0
     assert 0.3 * n < hit_ref.sum() < n  # the scene fills part of the frame, sky the rest
 
     o, d = cam.rays()
@@ -106,32 +108,32 @@ def test_primary_matches_reference(backend, showcase):
     same = ~differ & hit
     scale = mesh.scale
     cos = _cos_incidence(mesh, r["face"], d)[same]
-    err_t = np.abs(g["t"][same].astype(np.float64) - r["t"][same])
-    err_x = np.linalg.norm(g["position"][same] - r["position"][same], axis=1)
+    err_t = np.abs(g.t[same].astype(np.float64) - r["t"][same])
+    err_x = np.linalg.norm(g.position[same] - r["position"][same], axis=1)
     for err in (err_t, err_x):
         assert (err[cos >= 0.1] <= 1e-5 * scale).all(), err[cos >= 0.1].max() / scale
         assert (err * cos <= 1e-6 * scale).all(), (err * cos).max() / scale
     # The position is on its face (the barycentric combination), at any angle.
-    tri = mesh.vertices[mesh.faces[g["face"][hit]]]
-    off_plane = np.abs(np.sum((g["position"][hit] - tri[:, 0]) * mesh.face_normals[g["face"][hit]], axis=1))
+    tri = mesh.vertices[mesh.faces[g.face[hit]]]
+    off_plane = np.abs(np.sum((g.position[hit] - tri[:, 0]) * mesh.face_normals[g.face[hit]], axis=1))
     assert off_plane.max() <= 1e-6 * scale
-    bu, bv = g["bary"][hit, 0], g["bary"][hit, 1]
+    bu, bv = g.bary[hit, 0], g.bary[hit, 1]
     assert (bu >= -1e-6).all() and (bv >= -1e-6).all() and (bu + bv <= 1 + 1e-6).all()
     pos = ((1 - bu - bv)[:, None] * tri[:, 0] + bu[:, None] * tri[:, 1] + bv[:, None] * tri[:, 2])
-    np.testing.assert_allclose(g["position"][hit], pos, atol=1e-6 * scale)
+    np.testing.assert_allclose(g.position[hit], pos, atol=1e-6 * scale)
     # Misses: face −1, t inf, zeros; never NaN anywhere.
-    assert np.isinf(g["t"][~hit]).all() and (g["t"][hit] > 0).all()
-    assert not g["bary"][~hit].any() and not g["position"][~hit].any()
-    assert np.isfinite(g["bary"]).all() and np.isfinite(g["position"]).all()
-    assert not (g["face"] == len(mesh.faces) - 1).any()  # the zero-area triangle
+    assert np.isinf(g.t[~hit]).all() and (g.t[hit] > 0).all()
+    assert not g.bary[~hit].any() and not g.position[~hit].any()
+    assert np.isfinite(g.bary).all() and np.isfinite(g.position).all()
+    assert not (g.face == len(mesh.faces) - 1).any()  # the zero-area triangle
 
 
 def test_primary_all_miss(backend):
     mesh = showcase_mesh()
     cam = Camera(eye=(0, 1, 5), target=(0, 1, 10), fov=60, width=32, height=24)  # looking away
     g = backend.trace_primary(mesh, cam)
-    assert (g["face"] == -1).all() and np.isinf(g["t"]).all()
-    assert not g["position"].any() and not g["bary"].any()
+    assert (g.face == -1).all() and np.isinf(g.t).all()
+    assert not g.position.any() and not g.bary.any()
     assert (ref.trace_primary(mesh, cam)["face"] == -1).all()
 
 
@@ -140,7 +142,7 @@ def test_primary_non_square_and_pixel_order(backend):
     mesh = Mesh.plane(4.0, 0.0, 4)
     cam = Camera(eye=(0, 1, 3), target=(0, 1, 0), fov=60, width=40, height=16)  # horizon across the middle
     g = backend.trace_primary(mesh, cam)
-    hit = (g["face"] >= 0).reshape(16, 40)
+    hit = (g.face >= 0).reshape(16, 40)
     assert not hit[:8].any() and hit[8:].any()
     # Pixel centres of this symmetric view land exactly on the floor's grid lines: ties, explained.
     unexplained, _ = _face_mismatches(mesh, cam, g, ref.trace_primary(mesh, cam))
@@ -166,8 +168,8 @@ def test_device_cache(backend):
     mesh.vertices = mesh.vertices - [0.0, 0.5, 0.0]
     g2 = backend.trace_primary(mesh, cam)
     assert mesh.device_cache[backend.name]["points"] is not points
-    assert (g2["face"] == ref.trace_primary(mesh, cam)["face"]).mean() > 0.99
-    np.testing.assert_allclose(g2["position"][g2["face"] >= 0, 1].min(), -0.5, atol=1e-5)
+    assert (g2.face == ref.trace_primary(mesh, cam)["face"]).mean() > 0.99
+    np.testing.assert_allclose(g2.position[g2.face >= 0, 1].min(), -0.5, atol=1e-5)
 
 
 def _random_rays(mesh, n, seed):
@@ -287,23 +289,23 @@ def test_shadows_match_reference(backend):
     mesh, cam, lights = _shadow_scene()
     g = backend.trace_primary(mesh, cam)
     vis = backend.trace_shadows(mesh, g, lights)
-    n = len(g["face"])
+    n = len(g.face)
     assert vis.dtype == np.uint8 and vis.shape == (n, 3) and set(np.unique(vis)) <= {0, 1}
     eps, t_min = offsets(mesh)
-    args = (mesh.vertices, mesh.faces, g["face"], g["position"], g["eye"], lights, eps, t_min)
+    args = (mesh.vertices, mesh.faces, g.face, g.position, g.eye, lights, eps, t_min)
     exact = ref.trace_shadows(*args)
     clear = ref.trace_shadows(*args, tol=BARY_TOL) == ref.trace_shadows(*args, tol=-BARY_TOL)
     bad = clear & (vis != exact)
     assert not bad.any(), f"{bad.sum()} unambiguous shadow rays disagree"
     assert (~clear).sum() <= 0.01 * vis.size
     # The sphere shadows the floor: floor pixels facing the light but occluded, for both lights above.
-    floor = g["face"] >= len(Mesh.sphere(0.5, subdivisions=3).faces)
+    floor = g.face >= len(Mesh.sphere(0.5, subdivisions=3).faces)
     for k in (0, 1):
         dark = floor & (vis[:, k] == 0)
         assert dark.sum() > 20, f"light {k}: no shadow on the floor"
         assert (floor & (vis[:, k] == 1)).sum() > dark.sum()  # most of the floor is lit
     # Misses see no light; a light from below is below the horizon of everything seen from above.
-    assert not vis[g["face"] < 0].any()
+    assert not vis[g.face < 0].any()
     assert not vis[floor, 2].any()
     # The same from the reference G-buffer: lit fractions agree closely.
     r = ref.trace_primary(mesh, cam)
@@ -317,13 +319,13 @@ def test_shadows_offset_and_orientation(backend):
     mesh = Mesh.plane(4.0, 0.0, 8)
     cam = Camera(eye=(0.0, -2.0, 0.5), target=(0, 0, 0), fov=40, width=24, height=24)
     g = backend.trace_primary(mesh, cam)
-    assert (g["face"] >= 0).all()
+    assert (g.face >= 0).all()
     elevations = np.radians([90, 30, 10, 2])
     below = np.stack([DirectionalLight((np.cos(e), -np.sin(e), 0)).packed() for e in elevations])
     above = np.stack([DirectionalLight((0, 1, 0)).packed(), PointLight((0, 2, 0)).packed()])
     assert backend.trace_shadows(mesh, g, below).all()
     assert not backend.trace_shadows(mesh, g, above).any()
-    assert backend.trace_shadows(mesh, g, np.zeros((0, 8))).shape == (len(g["face"]), 0)
+    assert backend.trace_shadows(mesh, g, np.zeros((0, 8))).shape == (len(g.face), 0)
 
 
 def test_bad_inputs(backend, mesh):
@@ -358,8 +360,8 @@ def test_bad_inputs(backend, mesh):
     with pytest.raises(ValueError, match="lights_packed"):
         backend.trace_shadows(mesh, g, np.where(np.arange(8) == 0, 2.0, good)[None])
     with pytest.raises(ValueError, match="gbuffer"):
-        backend.trace_shadows(mesh, {"face": g["face"]}, good)
+        backend.trace_shadows(mesh, {"face": g.face}, good)
     with pytest.raises(ValueError, match="gbuffer"):
-        backend.trace_shadows(mesh, dict(g, face=g["face"] + len(mesh.faces)), good)
+        backend.trace_shadows(mesh, dataclasses.replace(g, face=g.face + len(mesh.faces)), good)
     with pytest.raises(ValueError, match="gbuffer"):
         backend.trace_shadows(showcase_mesh(), None, good)  # no trace_primary on this mesh yet

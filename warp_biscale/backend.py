@@ -18,7 +18,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from .device import DeviceLobes, DeviceStart, OnDevice, one_line
-from .model import Facets, Visibility
+from .model import Facets, GBuffer, ShadeInputs, Visibility
 
 __all__ = ["Backend", "get_backend", "backends"]
 
@@ -130,12 +130,11 @@ class Backend(Protocol):
     #   "gbuffer_eye" (3,) numpy float32, "gbuffer_size" int P
     #   "gbuffer_light_vis" (P, L) wp.uint8 | P·L uint8      1 = light l visible from pixel p (row-major)
     # The G-buffer arrays are reused from frame to frame (same size): a new trace overwrites them.
-    def trace_primary(self, mesh, camera, to_host: bool = True) -> dict | None:
+    def trace_primary(self, mesh, camera, to_host: bool = True) -> GBuffer | None:
         """The G-buffer of `camera` on `mesh` (reference.trace_primary): camera rays generated in the
         kernel (Camera.packed), closest hit. Fills mesh.device_cache[self.name]["gbuffer_*"] (above)
-        and, with to_host, returns numpy {"face" (P,) int32 (−1 = miss), "bary" (P, 2) float32 (u, v),
-        "position" (P, 3) float32 (barycentric combination of the vertices, on the surface), "t" (P,)
-        float32 (inf on a miss), "eye" (3,) float32}; without, returns None (no copies to the host)."""
+        and, with to_host, returns the host GBuffer (face, bary, position — the barycentric combination of
+        the vertices, on the surface —, t, eye); without, returns None (no copies to the host)."""
 
     def trace_occluded(self, mesh, origins: np.ndarray, directions: np.ndarray, t_max,
                        t_min: float | None = None) -> np.ndarray:
@@ -144,25 +143,24 @@ class Backend(Protocol):
         origin off its surface (e.g. along the normal by trace.SHADOW_OFFSET × mesh.scale); t_min
         (default trace.T_MIN × mesh.scale) only guards against rounding. Any ray count (chunked)."""
 
-    def trace_shadows(self, mesh, gbuffer, lights_packed, to_host: bool = True) -> np.ndarray | None:
+    def trace_shadows(self, mesh, gbuffer: GBuffer | None, lights_packed, to_host: bool = True) -> np.ndarray | None:
         """(P, L) uint8, 1 = light visible (reference.trace_shadows): from each hit pixel, a ray from the
         hit point moved trace.SHADOW_OFFSET × mesh.scale along the geometric normal turned to the eye's
         side, towards each light row of `lights_packed` ((L, 8) Light.packed()); a point light's ray
         stops that offset short of it. Misses and lights below the normal's horizon get 0. `gbuffer`:
-        None or the dict trace_primary last returned (both use the device copy), or any dict with
-        face, position, eye (uploaded). Fills "gbuffer_light_vis"; returns None unless to_host."""
+        None or the GBuffer trace_primary last returned (both use the device copy), or any GBuffer with
+        face, position and eye (uploaded). Fills "gbuffer_light_vis"; returns None unless to_host."""
 
     # --- Per-pixel SG shading (stage `shade`: kernels/shade.py, cl/shade.cl; warp_biscale.shading) ---
-    def shade(self, mesh, static: dict, camera_packed: np.ndarray, lights_packed: np.ndarray, gbuffer=None,
-              to_host: bool = True) -> np.ndarray | None:
+    def shade(self, mesh, static: ShadeInputs, camera_packed: np.ndarray, lights_packed: np.ndarray,
+              gbuffer: GBuffer | None = None, to_host: bool = True) -> np.ndarray | None:
         """(P, 3) float32 outgoing radiance of every pixel (shading.shade_reference; P = W·H, row-major),
         never NaN, inf or negative; background pixels get the environment along the camera ray.
-        `static`: the scene's packed inputs (render._static_inputs: mesh arrays, SG lighting, SSDF,
-        shading.pack_materials, sg.lighting_table()), uploaded once and kept in
-        static["_device"][self.name]. camera_packed: Camera.packed() (16,); lights_packed (L, 8).
+        `static`: the scene's packed inputs (render._static_inputs), uploaded once and kept in
+        static.device[self.name]. camera_packed: Camera.packed() (16,); lights_packed (L, 8).
         The G-buffer: gbuffer None → the one the last trace_primary / trace_shadows left on the
         device for `mesh` (the render path; ValueError if absent or traced for another light count),
-        or a host dict {face (P,), bary (P, 2), light_vis (P, L)} (uploaded). The output buffer is kept
+        or a host GBuffer with face, bary and light_vis (uploaded). The output buffer is kept
         in mesh.device_cache[self.name]["radiance"] and reused; returns None unless to_host."""
 
     # --- Prefiltered environment (stage `envmap`: kernels/envmap.py, cl/envmap.cl; warp_biscale.lighting) ---

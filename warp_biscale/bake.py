@@ -30,7 +30,7 @@ ROUTES = ("facets", "histogram")
 # The cap on EM steps: well-separated lobes settle in 2–5. On a smooth NDF (height field, woven) EM
 # creeps on, and against the 2^18-facet ground truths (PoCL, 2^16 facets, J = 8 and 16, Blinn–Phong
 # n = 512 and Cook–Torrance m = 0.2) steps 9–16 moved the PSNR by −0.7 to +0.4 dB, mean +0.01 dB
-# (steps past 16: −0.3 to +0.7, mean −0.02), while each step costs ~55 µs of dependent launches on an H100.
+# (steps past 16: −0.3 to +0.7, mean −0.02), while each step costs a chain of dependent launches (bench/README.md).
 EM_ITERATIONS = 8
 # The J that lobes="auto" tries, in order: every J up to the kernels' 16, then a few steps to 128 (a
 # woven tile's NDF error at the probe sharpness of Blinn–Phong n = 512 is 0.35 at J = 16, 0.26 at 32,
@@ -154,8 +154,8 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
         small-scale lobe, on the NDF weighted by what the direction grid sees, as the lobes are fitted)
         is ≤ `tolerance`, else the J of the least error (one EM per J tried). Past 16 lobes the moment kernels
         run once per group of 16 and the amplitudes are solved on the host (float64), so the bake costs
-        up to about J/16 times the J = 16 bake (woven on an H100: 21 ms at J = 16, 140 ms at 128); a
-        tile whose NDF has sharp curved ridges (woven threads) needs ~128 lobes for 35 dB (bench/README.md).
+        up to about J/16 times the J = 16 bake; a tile whose NDF has sharp curved ridges (woven threads)
+        needs ~128 lobes for 35 dB (bench/README.md).
     directions : K, the K×K direction grid (docs/design.md §4); tables are K²×K².
     normal_res : R, the cube map of normal bins (6×R×R).
     facets : Ns; seed : facet-sampling seed.
@@ -412,7 +412,7 @@ def _amplitudes(tile, be, q: _Queued, bv, hists, lob, queued, seen_normal, seen_
     else:
         amps = np.stack([a for a, _ in tables])
         energy = np.stack([e for _, e in tables])
-    if not np.isfinite(energy).all():  # (one pass: a reduction over the last axis of 3 took ~0.3 ms)
+    if not np.isfinite(energy).all():  # (one pass: numpy's reduction over a last axis of 3 is slow)
         bad = int((~np.isfinite(energy).all(axis=-1)).sum())
         raise FloatingPointError(f"the amplitude solve gave non-finite values in {bad} direction pairs")
     bv.a_v = np.asarray(q.a_v.host(), np.float64)

@@ -11,8 +11,8 @@ range of that order, and the tree is built top-down, one level at a time with ev
 level split in one vectorised pass: a node splits at its first triangle whose code has the node's
 highest differing bit set (a spatial median split on the octree grid of the centroids: halves of
 the longest quantised axis first), or at half its count when all its codes are equal. Nothing is
-moved after the sort, so a level costs O(nodes) numpy work plus one ``searchsorted``; 1M
-triangles build in about 2 s on this machine. Leaves hold at most `LEAF_SIZE` = 4 triangles.
+moved after the sort, so a level costs O(nodes) numpy work plus one ``searchsorted`` (build
+times: bench/README.md, `bench_precompute.py`). Leaves hold at most `LEAF_SIZE` = 4 triangles.
 Below level `HALF_BELOW_LEVEL` every node splits at half its count, which bounds the depth by
 ``HALF_BELOW_LEVEL + log2(F)``, inside the kernel's traversal stack (`STACK_SIZE` = 64).
 

@@ -16,8 +16,9 @@ import weakref
 import numpy as np
 
 from .lobes import KERNEL_LOBES, LobeSet
-from .model import Facets, Visibility, facet_shift
-from .trace import CHUNK_RAYS, check_camera, check_gbuffer, check_lights, check_mesh, check_occlusion, offsets
+from .model import Facets, GBuffer, ShadeInputs, Visibility, facet_shift
+from .trace import (CHUNK_RAYS, check_camera, check_gbuffer, check_lights, check_mesh, check_occlusion,
+                    offsets)
 
 SCRATCH_BYTES = 64 << 20  # the largest scratch array a backend keeps between calls (see their _scratch)
 
@@ -456,9 +457,8 @@ class DeviceBackend:
         m["gbuffer_eye"], m["gbuffer_size"], m["gbuffer_host"] = eye, n, None
         if not to_host:
             return None
-        host = {key: self._to_host(g[key], n, kind)
-                for key, kind in (("face", "i32"), ("bary", "vec2"), ("position", "vec3"), ("t", "f32"))}
-        host["eye"] = eye.copy()
+        host = GBuffer(**{key: self._to_host(g[key], n, kind) for key, kind in (
+            ("face", "i32"), ("bary", "vec2"), ("position", "vec3"), ("t", "f32"))}, eye=eye.copy())
         m["gbuffer_host"] = host
         return host
 
@@ -506,18 +506,20 @@ class DeviceBackend:
             if n_lights and m.get("gbuffer_light_vis/spec") != ((n, n_lights), "u8"):
                 raise ValueError("no shadow rays on the device for these lights: call trace_shadows first")
         else:
-            f = np.asarray(gbuffer["face"], np.int32).reshape(-1)
+            if not isinstance(gbuffer, GBuffer):
+                raise ValueError(f"gbuffer must be a GBuffer (or None), got {type(gbuffer).__name__}")
+            f = np.asarray(gbuffer.face, np.int32).reshape(-1)
             n = len(f)
-            bary_h = np.asarray(gbuffer["bary"], np.float32)
+            bary_h = np.asarray(gbuffer.bary, np.float32)
             if bary_h.shape != (n, 2):
-                raise ValueError(f"gbuffer['bary'] must have shape ({n}, 2), got {bary_h.shape}")
+                raise ValueError(f"gbuffer.bary must have shape ({n}, 2), got {bary_h.shape}")
             if n and int(f.max()) >= len(mesh.faces):
-                raise ValueError(f"gbuffer['face'] holds face {int(f.max())} of a mesh with {len(mesh.faces)}")
+                raise ValueError(f"gbuffer.face holds face {int(f.max())} of a mesh with {len(mesh.faces)}")
             face, bary, vis = self._to_device(f, "i32"), self._to_device(bary_h, "vec2"), None
             if n_lights:
-                vis_h = np.asarray(gbuffer["light_vis"], np.uint8)
+                vis_h = np.asarray(gbuffer.light_vis, np.uint8)
                 if vis_h.shape != (n, n_lights):
-                    raise ValueError(f"gbuffer['light_vis'] must have shape ({n}, {n_lights}), got {vis_h.shape}")
+                    raise ValueError(f"gbuffer.light_vis must have shape ({n}, {n_lights}), got {vis_h.shape}")
                 vis = self._to_device(vis_h, "u8")
         if vis is None:
             vis = self._reuse(m, "no_light_vis", (1, 1), "u8")  # never read: no light
@@ -527,23 +529,21 @@ class DeviceBackend:
                                n, out)
         return self._to_host(out, n, "vec3") if to_host else None
 
-    def _shade_static(self, static) -> dict:
-        """Device copies of a scene's static shade inputs (`_upload_shade_static`), checked and made once,
-        kept in the dict itself (static["_device"][self.name])."""
-        per_backend = static.setdefault("_device", {})
-        dev = per_backend.get(self.name)
+    def _shade_static(self, static: ShadeInputs) -> dict:
+        """Device copies of a scene's shade inputs (`_upload_shade_static`), checked and made once, kept
+        with them (static.device[self.name])."""
+        dev = static.device.get(self.name)
         if dev is None or dev.get("context") is not self._context():
-            basis = np.asarray(static["ssdf_basis"], np.float32)
-            coeffs = np.asarray(static["ssdf_coeffs"], np.float32)
-            levels = np.asarray(static["env_levels"], np.float32).reshape(-1, 4)
+            basis = np.asarray(static.ssdf_basis, np.float32)
+            coeffs = np.asarray(static.ssdf_coeffs, np.float32)
+            levels = np.asarray(static.env_levels, np.float32).reshape(-1, 4)
             if len(levels) == 0:
-                raise ValueError("static['env_levels'] is empty: the prefiltered environment needs >= 1 level")
-            if int(static["has_ssdf"]) and (coeffs.shape[1] != basis.shape[0] - 1
-                                            or basis.shape[1] != int(static["ssdf_res"]) ** 2):
-                raise ValueError(f"static['ssdf_basis'] {basis.shape} and ['ssdf_coeffs'] {coeffs.shape} do not fit "
-                                 f"ssdf_res {static['ssdf_res']} (want (R + 1, res²) and (V, R))")
-            dev = per_backend[self.name] = {**self._upload_shade_static(static, levels, basis, coeffs),
-                                            "context": self._context()}
+                raise ValueError("static.env_levels is empty: the prefiltered environment needs >= 1 level")
+            if static.has_ssdf and (coeffs.shape[1] != basis.shape[0] - 1 or basis.shape[1] != static.ssdf_res ** 2):
+                raise ValueError(f"static.ssdf_basis {basis.shape} and .ssdf_coeffs {coeffs.shape} do not fit "
+                                 f"ssdf_res {static.ssdf_res} (want (R + 1, res²) and (V, R))")
+            dev = static.device[self.name] = {**self._upload_shade_static(static, levels, basis, coeffs),
+                                              "context": self._context()}
         return dev
 
     def _ssdf_grid(self, grid) -> dict:

@@ -76,7 +76,7 @@ def _frozen(*arrays):
 @functools.lru_cache(maxsize=8)
 def frozen_grid(k: int = 12) -> np.ndarray:
     """`grid(k)`, made once per K and read-only (the bake's; a backend then knows it again without
-    hashing it, `backend.UploadCache`; building it costs ~0.2 ms)."""
+    hashing it, `backend.UploadCache`; and a bake does not build it again)."""
     return _frozen(grid(k))[0]
 
 

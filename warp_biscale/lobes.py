@@ -220,10 +220,10 @@ def amplitude_system(lobes: LobeSet, bin_normal=None, bin_area=None):
         area = np.asarray(bin_area, np.float64)
         # G_j at every bin as exp(η_j(n·ξ_j − 1)) by one matrix product: 1 − n·ξ loses ~1e−16 near
         # n = ξ (sg.one_minus_cos is exact there), a relative 1e−10 at the largest η, 10⁶. Laid out (J, L),
-        # lobes along the rows: with J innermost numpy loops over rows of 8 (the line took 0.14–0.16 ms
-        # here on a height field's 6406 bins at J = 8, 0.09–0.12 ms so).
-        # (In place, one (J, L) array: fresh temporaries of this size cost page faults here, 0.45 ms
-        # against 0.09 ms for the line in a loop.)
+        # lobes along the rows: with J innermost numpy loops over rows of 8 (about 1.4× slower on a
+        # height field's bins at J = 8).
+        # (In place, one (J, L) array: fresh temporaries of this size cost page faults, several times
+        # the line's own time; bench/README.md.)
         x = ax @ np.asarray(bin_normal, np.float64).T
         x -= 1.0
         x *= eta[:, None]

@@ -7,7 +7,7 @@ read back to the host only when host code asks for it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -248,3 +248,62 @@ class Bvndf:
     def from_arrays(cls, resolution, arrays) -> Bvndf:
         return cls(int(resolution), arrays["bins"], arrays["normal"], arrays["area"], arrays["a_v"],
                    arrays.get("histogram"))
+
+
+@dataclass(eq=False)
+class GBuffer:
+    """A frame's G-buffer on the host (P = W·H pixels, row y·W + x): what `Backend.trace_primary` returns
+    and what trace_shadows and shade take instead of the device's own copy. face (P,) int32, −1 = miss;
+    bary (P, 2) float32 (u, v) weights of the face's vertices 1 and 2; position (P, 3) float32 hit point
+    (0 on a miss); t (P,) float32 ray distance (inf on a miss); eye (3,) float32; light_vis (P, L) uint8,
+    1 = light l visible from pixel p (trace_shadows' result, which shade reads)."""
+    face: np.ndarray
+    bary: np.ndarray | None = None
+    position: np.ndarray | None = None
+    t: np.ndarray | None = None
+    eye: np.ndarray | None = None
+    light_vis: np.ndarray | None = None
+
+
+@dataclass(eq=False)
+class ShadeInputs:
+    """What the shade stage reads that does not change with the camera (`render.static_inputs`), packed
+    as the kernels take it: the large-scale mesh (faces (F, 3), positions, normals, tangents (V, 3),
+    uvs (V, 2), face_material (F,)), the environment (env_sgs (K, 7) SG lobes, env_maps and env_levels
+    the prefiltered maps), the SSDF (has_ssdf, ssdf_res, ssdf_basis (R + 1, res²), ssdf_coeffs (V, R)),
+    the SG lighting table, and the packed materials (mat_info … tex_data, `shading.pack_materials`).
+    Backends keep their device copies in `device`, by backend name."""
+    faces: np.ndarray
+    positions: np.ndarray
+    normals: np.ndarray
+    tangents: np.ndarray
+    face_material: np.ndarray
+    uvs: np.ndarray
+    env_sgs: np.ndarray
+    env_maps: np.ndarray
+    env_levels: np.ndarray
+    has_ssdf: bool
+    ssdf_res: int
+    ssdf_basis: np.ndarray
+    ssdf_coeffs: np.ndarray
+    table: np.ndarray
+    mat_info: np.ndarray
+    analytic: np.ndarray
+    eff_info: np.ndarray
+    eff_lobes: np.ndarray
+    eff_sub: np.ndarray
+    eff_tables: np.ndarray
+    eff_diffuse: np.ndarray
+    tex_info: np.ndarray
+    tex_data: np.ndarray
+    device: dict = field(default_factory=dict, repr=False)
+
+
+@dataclass(eq=False)
+class Frame:
+    """One frame for the shade stage (`render.pack_frame`): its inputs, its G-buffer on the host (with
+    light_vis), the camera (Camera.packed(), (16,)) and the lights ((L, 8), Light.packed())."""
+    inputs: ShadeInputs
+    gbuffer: GBuffer
+    camera: np.ndarray
+    lights: np.ndarray

@@ -457,10 +457,10 @@ def _gbuffer_frame(scene, g):
     all (P, 3) float64; uv (P, 2) the interpolated texture coordinates (zeros without mesh UVs)."""
     mesh = scene.mesh
     eye = scene.camera.packed()[0:3].astype(np.float64)
-    face = np.asarray(g["face"])
+    face = np.asarray(g.face)
     pix = np.flatnonzero(face >= 0)
     f = face[pix]
-    bary = np.asarray(g["bary"])[pix].astype(np.float64)
+    bary = np.asarray(g.bary)[pix].astype(np.float64)
     host = mesh.device_cache.setdefault("host", {})
     if "tangents" not in host:  # the render driver's cache: the same float32 tangents the SG renderer reads
         host["tangents"] = vertex_tangents(mesh).astype(np.float32)
@@ -536,7 +536,7 @@ def render(scene, backend="auto", samples: int = 256, seed: int = 0, truths=None
     image = np.zeros((h * w, 3))
     stderr = np.zeros((h * w, 3))
     if env is not None:
-        miss = np.flatnonzero(np.asarray(g["face"]) < 0)
+        miss = np.flatnonzero(np.asarray(g.face) < 0)
         image[miss] = env.lookup(cam.rays()[1][miss])
     for i in labels:
         if i not in truth_of and np.any(frame["mat"] == i):

@@ -670,20 +670,20 @@ class OpenCLBackend(DeviceBackend):
 
     def _upload_shade_static(self, static, levels, basis, coeffs):
         """Empty arrays become one-element dummies the kernel never reads."""
-        has_ssdf = int(static["has_ssdf"])
-        table = np.asarray(static["table"], np.float32)
+        has_ssdf = int(static.has_ssdf)
+        table = np.asarray(static.table, np.float32)
         return {
-            **{key: self._buffer(static[key], np.int32) for key in ("faces", "face_material", "mat_info",
-                                                                      "eff_info", "tex_info")},
-            **{key: self._buffer(static[key], np.float32) for key in (
+            **{key: self._buffer(getattr(static, key), np.int32) for key in ("faces", "face_material", "mat_info",
+                                                                               "eff_info", "tex_info")},
+            **{key: self._buffer(getattr(static, key), np.float32) for key in (
                 "positions", "normals", "tangents", "env_sgs", "env_maps", "analytic", "eff_lobes", "eff_sub",
                 "eff_tables", "eff_diffuse", "uvs", "tex_data")},
             "env_levels": self._buffer(levels, np.float32),
             "ssdf_basis": self._buffer(basis.T, np.float32),  # texel-major (res², terms + 1)
             "ssdf_coeffs": self._buffer(coeffs, np.float32), "table": self._buffer(table, np.float32),
             # Counts and shapes that the kernel takes by value.
-            "n_env": np.int32(len(static["env_sgs"])), "n_levels": np.int32(len(levels)),
-            "ssdf_args": (np.int32(has_ssdf), np.int32(static["ssdf_res"]), np.int32(basis.shape[0]),
+            "n_env": np.int32(len(static.env_sgs)), "n_levels": np.int32(len(levels)),
+            "ssdf_args": (np.int32(has_ssdf), np.int32(static.ssdf_res), np.int32(basis.shape[0]),
                           np.int32(coeffs.shape[1] if has_ssdf else 0)),
             "table_args": (np.int32(table.shape[1]), np.int32(table.shape[2]),
                            np.float32(sg.TABLE_LOG10_ETA[0]), np.float32(sg.TABLE_LOG10_ETA[1]),

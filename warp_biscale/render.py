@@ -24,6 +24,7 @@ from . import lighting, montecarlo, sg
 from . import ssdf as ssdf_mod
 from .backend import get_backend
 from .progress import Progress
+from .model import Frame, ShadeInputs
 from .scene import vertex_tangents
 from .shading import pack_materials
 from .scene import Rendering, Scene, _black_environment
@@ -33,7 +34,7 @@ __all__ = ["Scene", "Rendering", "render", "pack_frame", "METHODS"]
 METHODS = ("sg", "mc")
 
 
-def _static_inputs(scene: Scene, backend, progress, timings) -> dict:
+def _static_inputs(scene: Scene, backend, progress, timings) -> ShadeInputs:
     """Everything that does not depend on the camera: cached on the scene per backend."""
     key = ("static", backend.name, id(scene.environment), tuple(id(m) for m in scene.materials))
     cached = scene.cache.get(key)
@@ -68,42 +69,32 @@ def _static_inputs(scene: Scene, backend, progress, timings) -> dict:
         host["tangents"] = vertex_tangents(mesh).astype(np.float32)
     packed = pack_materials(scene.materials)
     timings["materials"] = time.perf_counter() - t0
-    static = {
-        "faces": mesh.faces,
-        "positions": mesh.vertices.astype(np.float32),
-        "normals": mesh.normals.astype(np.float32),
-        "tangents": host["tangents"],
-        "face_material": mesh.face_material,
+    static = ShadeInputs(
+        faces=mesh.faces, positions=mesh.vertices.astype(np.float32), normals=mesh.normals.astype(np.float32),
+        tangents=host["tangents"], face_material=mesh.face_material,
         # texture coordinates for the textured materials' lookups (zeros when the mesh has none: no
         # textured material can then be rendered, Scene checks it)
-        "uvs": (mesh.uvs if mesh.uvs is not None else np.zeros((len(mesh.vertices), 2))).astype(np.float32),
-        "env_sgs": light.sgs.packed(),
-        "env_maps": light.prefiltered.maps,
-        "env_levels": light.prefiltered.levels,
-        "has_ssdf": int(has_ssdf),
-        "ssdf_res": int(res),
-        "ssdf_basis": np.ascontiguousarray(basis, np.float32),
-        "ssdf_coeffs": np.ascontiguousarray(coeffs, np.float32),
-        "table": sg.lighting_table(),
-        **packed,
-    }
+        uvs=(mesh.uvs if mesh.uvs is not None else np.zeros((len(mesh.vertices), 2))).astype(np.float32),
+        env_sgs=light.sgs.packed(), env_maps=light.prefiltered.maps, env_levels=light.prefiltered.levels,
+        has_ssdf=bool(has_ssdf), ssdf_res=int(res), ssdf_basis=np.ascontiguousarray(basis, np.float32),
+        ssdf_coeffs=np.ascontiguousarray(coeffs, np.float32), table=sg.lighting_table(), **packed)
     scene.cache.clear()  # one static set per scene: a changed material list or environment replaces it
     scene.cache[key] = static
     return static
 
 
-def pack_frame(scene: Scene, backend="auto", progress=None, timings=None) -> dict:
-    """The shade stage's inputs for the scene's current camera and lights (G-buffer on the host too):
-    what `shading.shade_reference` and `backend.shade` take."""
+def pack_frame(scene: Scene, backend="auto", progress=None, timings=None) -> Frame:
+    """The shade stage's inputs for the scene's current camera and lights, its G-buffer on the host
+    (light_vis included): what `shading.shade_reference` takes (and `backend.shade`, its inputs and
+    G-buffer)."""
     backend = get_backend(backend)
     timings = {} if timings is None else timings
-    frame = dict(_static_inputs(scene, backend, progress, timings))
+    static = _static_inputs(scene, backend, progress, timings)
     g = backend.trace_primary(scene.mesh, scene.camera)
     lights = scene.lights_packed
-    vis = (backend.trace_shadows(scene.mesh, g, lights) if len(lights)
-           else np.zeros((len(g["face"]), 0), np.uint8))
-    frame.update(face=g["face"], bary=g["bary"], light_vis=vis, camera=scene.camera.packed(), lights=lights)
-    return frame
+    g.light_vis = (backend.trace_shadows(scene.mesh, g, lights) if len(lights)
+                   else np.zeros((len(g.face), 0), np.uint8))
+    return Frame(static, g, scene.camera.packed(), lights)
 
 
 def render(scene: Scene, method: str = "sg", backend="auto", progress=None, **options) -> Rendering:
@@ -137,6 +128,6 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, **op
     timings["shade"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_all
     image = image.reshape(cam.height, cam.width, 3)
-    info = {"backend": backend.name, "device": backend.device, "method": "sg", "ssdf": bool(static["has_ssdf"]),
-            "env_lobes": len(static["env_sgs"]), "lights": len(lights), "width": cam.width, "height": cam.height}
+    info = {"backend": backend.name, "device": backend.device, "method": "sg", "ssdf": bool(static.has_ssdf),
+            "env_lobes": len(static.env_sgs), "lights": len(lights), "width": cam.width, "height": cam.height}
     return Rendering(image, timings, info)

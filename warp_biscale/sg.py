@@ -210,7 +210,7 @@ _TABLE = None
 
 def lighting_table() -> np.ndarray:
     """(2, TABLE_ROWS, TABLE_COLUMNS) float32: [0] cosine_fraction, [1] hemisphere_fraction on the grid
-    of `table_axes` (built once, ~0.1 s)."""
+    of `table_axes` (built on the first call and kept)."""
     global _TABLE
     if _TABLE is None:
         log_eta, c = table_axes()

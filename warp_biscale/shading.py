@@ -49,6 +49,7 @@ from . import brdf as brdf_mod
 from . import directions as dirs
 from . import sg, svbrdf
 from .effective import EffectiveBRDF
+from .model import Frame
 from .lighting import prefiltered_lookup
 from .scene import light_sg
 from .ssdf import ssdf_eval
@@ -210,14 +211,15 @@ def surface_frames(faces, positions, normals, tangents, face, bary, eye) -> dict
     return {"interp": interp, "pos": pos, "n": n, "t": t, "b": b, "wo": wo, "cos_o": cos_o, "wo_local": wo_local}
 
 
-def shade_reference(frame: dict) -> np.ndarray:
-    """(N, 3) float64 radiance of every pixel of a packed frame (see `render.pack_frame` for the keys)."""
+def shade_reference(frame: Frame) -> np.ndarray:
+    """(N, 3) float64 radiance of every pixel of a packed frame (`render.pack_frame`)."""
+    static = frame.inputs
 
-    table = frame["table"]
-    face = frame["face"]
+    table = static.table
+    face = frame.gbuffer.face
     n_pix = len(face)
     out = np.zeros((n_pix, 3))
-    cam = frame["camera"].astype(np.float64)
+    cam = frame.camera.astype(np.float64)
     eye = cam[0:3]
     hit = face >= 0
     # Background: the environment itself along the camera ray (its sharpest level).
@@ -228,61 +230,61 @@ def shade_reference(frame: dict) -> np.ndarray:
         d = (cam[3:6][None] + ((2 * (x + 0.5) / w - 1))[:, None] * cam[6:9][None]
              + ((1 - 2 * (y + 0.5) / h))[:, None] * cam[9:12][None])
         d = _normalize(d)
-        out[pix] = prefiltered_lookup(frame["env_maps"], frame["env_levels"], d, 1e30)
+        out[pix] = prefiltered_lookup(static.env_maps, static.env_levels, d, 1e30)
     pix = np.flatnonzero(hit)
     if len(pix) == 0:
         return out
     f = face[pix]
-    sf = surface_frames(frame["faces"], frame["positions"], frame["normals"], frame["tangents"], f,
-                        frame["bary"][pix], eye)
+    sf = surface_frames(static.faces, static.positions, static.normals, static.tangents, f,
+                        frame.gbuffer.bary[pix], eye)
     interp, pos, n, t, b = sf["interp"], sf["pos"], sf["n"], sf["t"], sf["b"]
     wo, cos_o, wo_local = sf["wo"], sf["cos_o"], sf["wo_local"]
 
-    has_ssdf = bool(frame["has_ssdf"])
-    coeffs = interp(frame["ssdf_coeffs"]) if has_ssdf else None
+    has_ssdf = bool(static.has_ssdf)
+    coeffs = interp(static.ssdf_coeffs) if has_ssdf else None
 
     def occlusion(axis, eta, sel):
         """The fraction of a lobe's horizon-clipped integral that the SSDF leaves visible (1 without one)."""
         if not has_ssdf:
             return np.ones(len(axis))
-        theta_d = ssdf_eval(frame["ssdf_basis"], coeffs[sel], int(frame["ssdf_res"]), axis)
+        theta_d = ssdf_eval(static.ssdf_basis, coeffs[sel], int(static.ssdf_res), axis)
         c = np.sin(np.clip(theta_d, -np.pi / 2, np.pi / 2))
         vis = sg.table_lookup(table, 1, c, eta)
         horizon = sg.table_lookup(table, 1, _dot(axis, n[sel]), eta)
         return np.clip(vis / np.maximum(horizon, 1e-6), 0.0, 1.0)
 
     rad = np.zeros((len(pix), 3))
-    env = frame["env_sgs"].astype(np.float64)
-    light_axis, light_eta, light_amp, _ = light_sg(frame["lights"], pos)
-    light_vis = frame["light_vis"][pix].astype(np.float64) if len(frame["lights"]) else np.zeros((len(pix), 0))
+    env = static.env_sgs.astype(np.float64)
+    light_axis, light_eta, light_amp, _ = light_sg(frame.lights, pos)
+    light_vis = frame.gbuffer.light_vis[pix].astype(np.float64) if len(frame.lights) else np.zeros((len(pix), 0))
 
-    for mat in np.unique(frame["face_material"][f]):
-        sel = np.flatnonzero(frame["face_material"][f] == mat)
-        kind, idx, has_spec = (int(x) for x in frame["mat_info"][mat][:3])
+    for mat in np.unique(static.face_material[f]):
+        sel = np.flatnonzero(static.face_material[f] == mat)
+        kind, idx, has_spec = (int(x) for x in static.mat_info[mat][:3])
         ns, ts_, bs = n[sel], t[sel], b[sel]
         wo_s, wol_s, cos_os = wo[sel], wo_local[sel], cos_o[sel]
         m = len(sel)
 
         if kind == 0:
             # The analytic row as per-pixel values, scaled by the material's maps at each pixel's UV.
-            row = np.tile(frame["analytic"][idx].astype(np.float64), (m, 1))
-            slot = int(frame["mat_info"][mat][3])
+            row = np.tile(static.analytic[idx].astype(np.float64), (m, 1))
+            slot = int(static.mat_info[mat][3])
             if slot >= 0:
-                uv = interp(frame["uvs"])[sel]
+                uv = interp(static.uvs)[sel]
                 for which, cols in ((0, slice(1, 4)), (1, slice(4, 7)), (2, slice(7, 8))):
-                    off, th, tw = (int(x) for x in frame["tex_info"][slot + which][:3])
-                    image = frame["tex_data"][3 * off:3 * (off + th * tw)].reshape(th, tw, 3)
+                    off, th, tw = (int(x) for x in static.tex_info[slot + which][:3])
+                    image = static.tex_data[3 * off:3 * (off + th * tw)].reshape(th, tw, 3)
                     row[:, cols] *= svbrdf.sample(image, uv)[:, :cols.stop - cols.start]
 
             def diffuse_over_cos(axis_world, row=row):
                 return row[:, 1:4] / np.pi
         else:
-            ei = frame["eff_info"][idx]
+            ei = static.eff_info[idx]
             k = int(ei[0])
 
             def diffuse_over_cos(axis_world, ei=ei, k=k, ts_=ts_, bs=bs, ns=ns, wol_s=wol_s):
                 wl = np.stack([_dot(axis_world, ts_), _dot(axis_world, bs), _dot(axis_world, ns)], 1)
-                return _table_interp(frame["eff_diffuse"], int(ei[6]), k, 1, 0, wl, wol_s)
+                return _table_interp(static.eff_diffuse, int(ei[6]), k, 1, 0, wl, wol_s)
 
         # Diffuse: environment lobes, then lights.
         for lobe in env:
@@ -307,9 +309,9 @@ def shade_reference(frame: dict) -> np.ndarray:
         else:
             j_count = int(ei[1])
             for si in range(int(ei[2])):
-                sub = frame["eff_sub"][int(ei[4]) + si].astype(np.float64)
+                sub = static.eff_sub[int(ei[4]) + si].astype(np.float64)
                 for j in range(j_count):
-                    lobe = frame["eff_lobes"][int(ei[3]) + j].astype(np.float64)
+                    lobe = static.eff_lobes[int(ei[3]) + j].astype(np.float64)
                     xi = lobe[0] * ts_ + lobe[1] * bs + lobe[2] * ns
                     c_oj = _dot(wo_s, xi)
                     scale, eta_s = specular_scale(sub, c_oj)
@@ -319,7 +321,7 @@ def shade_reference(frame: dict) -> np.ndarray:
                     axis = _normalize(2 * c_oj[:, None] * xi - wo_s)
                     wl = np.stack([_dot(axis, ts_), _dot(axis, bs), _dot(axis, ns)], 1)
                     base = int(ei[5]) + si * (k * k) ** 2 * j_count * 3
-                    mu = _table_interp(frame["eff_tables"], base, k, j_count, j, wl, wol_s)
+                    mu = _table_interp(static.eff_tables, base, k, j_count, j, wl, wol_s)
                     amp = scale * mu * (2 * np.pi / (lobe[3] + eta_s))
                     amp *= (c_oj > 0)[:, None]  # a lobe facing away from the viewer reflects nothing
                     lobes.append((axis, eta_c / (4 * np.maximum(c_oj, MIN_COS_VIEW)), amp))
@@ -327,7 +329,7 @@ def shade_reference(frame: dict) -> np.ndarray:
             eta = np.minimum(eta, sg.SHARPNESS_MAX)
             e = sg.integral(eta) * sg.table_lookup(table, 0, _dot(axis, ns), eta)
             occ = occlusion(axis, eta, sel)
-            env_avg = prefiltered_lookup(frame["env_maps"], frame["env_levels"], axis, eta)
+            env_avg = prefiltered_lookup(static.env_maps, static.env_levels, axis, eta)
             rad[sel] += amp * env_avg * (e * occ)[:, None]
             for li in range(light_axis.shape[1]):
                 p_axis, p_eta, p_amp = sg.product(axis, eta, 1.0, light_axis[sel, li], light_eta[sel, li], 1.0)

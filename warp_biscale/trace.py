@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .model import GBuffer
 from .scene import Camera, Mesh
 
 __all__ = ["T_MIN", "SHADOW_OFFSET", "CHUNK_RAYS", "offsets", "check_mesh", "check_camera", "check_rays",
@@ -111,25 +112,25 @@ def check_lights(lights) -> np.ndarray:
 
 
 def check_gbuffer(gbuffer, n_faces):
-    """→ (face int32 (N,), position float32 (N, 3), eye float32 (3,)) from a gbuffer dict (what
-    `trace_primary` returns, or one built by hand with the keys face, position and eye)."""
-    if not isinstance(gbuffer, dict):
-        raise ValueError(f"gbuffer must be the dict trace_primary returns (or None), got {type(gbuffer).__name__}")
-    for key in ("face", "position", "eye"):
-        if key not in gbuffer:
-            raise ValueError(f"gbuffer has no {key!r} (needs face, position and eye)")
-    face = _array("gbuffer['face']", gbuffer["face"], np.int64)
-    pos = _array("gbuffer['position']", gbuffer["position"])
-    eye = _array("gbuffer['eye']", gbuffer["eye"]).reshape(-1)
+    """→ (face int32 (N,), position float32 (N, 3), eye float32 (3,)) of a GBuffer for shadow rays (what
+    `trace_primary` returns, or one built by hand with face, position and eye)."""
+    if not isinstance(gbuffer, GBuffer):
+        raise ValueError(f"gbuffer must be the GBuffer trace_primary returns (or None), got {type(gbuffer).__name__}")
+    for key in ("position", "eye"):
+        if getattr(gbuffer, key) is None:
+            raise ValueError(f"gbuffer has no {key} (shadow rays need face, position and eye)")
+    face = _array("gbuffer.face", gbuffer.face, np.int64)
+    pos = _array("gbuffer.position", gbuffer.position)
+    eye = _array("gbuffer.eye", gbuffer.eye).reshape(-1)
     if face.ndim != 1:
-        raise ValueError(f"gbuffer['face'] must be (N,), got shape {face.shape}")
+        raise ValueError(f"gbuffer.face must be (N,), got shape {face.shape}")
     if pos.shape != (len(face), 3):
-        raise ValueError(f"gbuffer['position'] must be ({len(face)}, 3), got shape {pos.shape}")
+        raise ValueError(f"gbuffer.position must be ({len(face)}, 3), got shape {pos.shape}")
     if eye.shape != (3,) or not np.isfinite(eye).all():
-        raise ValueError("gbuffer['eye'] must be three finite numbers")
+        raise ValueError("gbuffer.eye must be three finite numbers")
     if len(face) and (face.min() < -1 or face.max() >= n_faces):
-        raise ValueError(f"gbuffer['face'] must hold -1 (miss) or a face index 0..{n_faces - 1}")
+        raise ValueError(f"gbuffer.face must hold -1 (miss) or a face index 0..{n_faces - 1}")
     if not np.isfinite(pos[face >= 0]).all():
-        raise ValueError("gbuffer['position'] contains NaN or inf at a hit pixel")
+        raise ValueError("gbuffer.position contains NaN or inf at a hit pixel")
     return (np.ascontiguousarray(face, np.int32), np.ascontiguousarray(pos, np.float32),
             np.ascontiguousarray(eye, np.float32))

@@ -607,7 +607,7 @@ class WarpBackend(DeviceBackend):
 
     def _upload_shade_static(self, static, levels, basis, coeffs):
         def arr(key, dtype, width=None):
-            a = np.asarray(static[key])
+            a = np.asarray(getattr(static, key))
             if a.size == 0:  # Warp wants no empty arrays: a one-element dummy (the kernel never reads it)
                 a = np.zeros((1, width) if width else 1, a.dtype)
             return wp.array(np.ascontiguousarray(a), dtype=dtype, device=self._device)
@@ -626,9 +626,9 @@ class WarpBackend(DeviceBackend):
             "eff_lobes": arr("eff_lobes", wp.float32, 4), "eff_sub": arr("eff_sub", wp.float32, 9),
             "eff_tables": arr("eff_tables", wp.float32), "eff_diffuse": arr("eff_diffuse", wp.float32),
             "uvs": arr("uvs", wp.vec2), "tex_info": arr("tex_info", wp.int32, 4),
-            "tex_data": wp.array(np.ascontiguousarray(np.asarray(static["tex_data"], np.float32).reshape(-1, 3)),
+            "tex_data": wp.array(np.ascontiguousarray(np.asarray(static.tex_data, np.float32).reshape(-1, 3)),
                                  dtype=wp.vec3, device=self._device),
-            "n_env": len(static["env_sgs"]), "has_ssdf": int(static["has_ssdf"]), "ssdf_res": int(static["ssdf_res"]),
+            "n_env": len(static.env_sgs), "has_ssdf": int(static.has_ssdf), "ssdf_res": int(static.ssdf_res),
         }
 
     def _launch_shade(self, dev, m, face, bary, vis, lights, camera, n, out):
