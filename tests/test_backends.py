@@ -172,3 +172,14 @@ def test_compile_notice_once_and_not_when_quiet(monkeypatch):
     with progress.compile_notice(quiet):
         time.sleep(0.2)
     assert quiet.getvalue() == ""
+
+
+def test_a_backend_module_that_cannot_import_is_listed_not_raised(monkeypatch):
+    """A broken toolkit install (here: the OpenCL module's import fails) is an unusable entry with its reason."""
+    import sys
+
+    monkeypatch.setitem(sys.modules, "warp_biscale.opencl_backend", None)  # makes its import raise ImportError
+    entries = backend_mod.backends()
+    (opencl,) = [b for b in entries if b["kind"] == "opencl"]
+    assert not opencl["usable"] and opencl["reason"].startswith("OpenCL support cannot start here: ")
+    assert any(b["name"] == "warp:cpu" and b["usable"] for b in entries)

@@ -14,7 +14,15 @@
     ref = wb.render(scene, method="mc", samples=1024); wb.compare_images(img.image, ref.image)
 """
 
+import os as _os
+
 __version__ = "0.1.0"  # before the imports: warp_biscale.cli reads it while the package is importing
+
+# An install puts kernels/ and cl/ inside the package (warp_biscale.kernels, warp_biscale.cl); in a source
+# checkout they sit beside it. Look there too, so that the checkout runs as it is (`python -m warp_biscale`
+# or `python -m pytest` from its root import this folder, not the install).
+if not _os.path.isdir(_os.path.join(__path__[0], "kernels")):
+    __path__.append(_os.path.dirname(_os.path.abspath(__path__[0])))
 
 from . import directions, geometry, lobes, sg
 from .backend import Backend, backends, get_backend

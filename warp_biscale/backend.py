@@ -230,7 +230,11 @@ def backends() -> list[dict]:
     except Exception as exc:
         found.append({"name": "warp:cpu", "kind": "warp", "device": None, "type": "cpu", "usable": False,
                       "reason": f"Warp cannot start here: {one_line(exc)}"})
-    from .opencl_backend import list_devices as opencl_devices
+    try:
+        from .opencl_backend import list_devices as opencl_devices
 
-    found.extend(opencl_devices())
+        found.extend(opencl_devices())
+    except Exception as exc:
+        found.append({"name": "opencl", "kind": "opencl", "device": None, "type": None, "usable": False,
+                      "reason": f"OpenCL support cannot start here: {one_line(exc)}"})
     return found
