@@ -229,19 +229,16 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     # until read), and while the device works the host bins the normals (and splits the facets into
     # channels): "visibility" times all of it, until the facet weights are back (Warp's CPU device runs
     # each call before it returns).
-    # (The weights' copy to the host is queued with them: on one lease that and making Bvndf, the pairs
-    # and the coarse bins here took Warp CUDA's bake from 8.0–8.9 to 7.1–7.7 ms; bake-h100-early-reads.)
-    # Queued here rather than after waiting for the rays, the two calls' host time overlaps the rays:
-    # on one H100 lease NVIDIA OpenCL's bake went from 8.8 to 6.7–6.9 ms; Warp CUDA's did not move, its
-    # host binning being about as long as the rays (bench/results/bake-h100-reorder).
+    # The weights' copy to the host is queued with them, and the host's own work (Bvndf, the pairs, the
+    # coarse bins) is done here, while the rays run: on a GPU that hides the host's time behind the
+    # device's (bench/README.md).
     t0 = time.perf_counter()
     vis = be.visibility(tile, fac, grid)
     a_v = be.visible_area(fac, vis, to_host=False)
     # The lobes fit the NDF as the direction grid sees it: each facet weighs its projected area
     # averaged over the grid (reference.visible_weights), so no lobe is spent on normals that no
-    # direction sees. Measured against 2^18-facet ground truths (PoCL, 2^16 facets, K = 12; also
-    # bench/study_woven.py): woven gains 2.2 / 2.8 dB at J = 16 (Blinn–Phong n = 512 / Cook–Torrance
-    # m = 0.2) and +1.4 / −0.3 dB at J = 8; the other five families move by at most 0.2 dB.
+    # direction sees: against 2^18-facet ground truths the woven tile gains 2–3 dB at J = 16, the other
+    # families move by at most 0.2 dB (bench/study_woven.py, bench/README.md).
     em_weight = be.visible_weights(fac, vis, to_host=False)  # float32 OnDevice, what EM weighs on the device
     channels = _channels(tile, fac)
     iu, ou = dirs.unordered_pairs(nd)
@@ -249,7 +246,7 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     def queue(em):
         """With the facet route and a J the kernels hold, the moment sums are queued behind the EM from
         the lobes it left on the device: the host then waits for the EM alone, and sets up the Gram
-        system while the device sums (on the lent H100 the host's work here outlasts the device's)."""
+        system while the device sums (on a GPU the host's work here outlasts the device's)."""
         if route != "facets" or em.count > lobes_mod.KERNEL_LOBES:
             return None
         return em.count, [be.lobe_moments(fac, vis, w, em, None, iu, ou, to_host=False) for _, _, w in channels]
