@@ -2,7 +2,7 @@
 
 Stages (each timed as a whole call, device-synchronised):
 - ``bvh_build`` (backend "host": numpy on the host): `bvh.build_bvh` of the timing tile, a periodic
-  128×128-cell height field of 32 768 triangles (`bench_foundation.heightfield_tile`), the BVH the
+  128×128-cell height field of 32 768 triangles (`common.heightfield_tile`), the BVH the
   OpenCL visibility kernel walks;
 - ``env_fit_sgs``: `lighting.fit_sgs` of `wb.Environment.sky()` (128×256) with 9 lobes, the diffuse term;
 - ``env_prefilter``: `lighting.prefilter` of the same sky, the specular term's levels;
@@ -15,45 +15,33 @@ Times are medians over >= --runs runs after a warm-up call (its extra time, comp
 (`results.json`: stage, backend, device, sizes, median seconds, git commit) and a markdown table
 (`table.md`, also printed) into --out.
 
-    python bench/bench_precompute.py --out bench/results/precompute-cpu-2core       # here
-    python bench/bench_precompute.py --backends warp:cuda opencl:nvidia --out $OUT  # on a GPU machine
+    python -m bench.bench_precompute --out /tmp/precompute                               # a CPU
+    python -m bench.bench_precompute --backends warp:cuda opencl:nvidia --out $OUT       # on a GPU machine
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import platform
 import sys
-import time
 
 import numpy as np
 
 import warp_biscale as wb
 from warp_biscale import bvh, lighting, ssdf
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from bench_foundation import git_commit, heightfield_tile  # noqa: E402
+if __package__ in (None, ""):  # run as a file: `bench` importable from the checkout, after site-packages
+    sys.path.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from bench import common  # noqa: E402
 
 STAGES = ("bvh_build", "env_fit_sgs", "env_prefilter", "ssdf_build")
 SG_LOBES = 9
 SSDF_RESOLUTION, SSDF_TERMS = 32, 16
 
 
-def timed(fn, runs, sync=None, make_input=None):
-    """fn(input) timed: (median s, every run's s, first-call extra s, last output). `make_input()` (outside
-    the timing) gives each call its input; `sync()` waits for the device before the clock stops."""
-    times, out = [], None
-    for _ in range(runs + 1):  # the first call is the warm-up
-        arg = make_input() if make_input else None
-        t0 = time.perf_counter()
-        out = fn(arg)
-        if sync:
-            sync()
-        times.append(time.perf_counter() - t0)
-    med = float(np.median(times[1:]))
-    return med, times[1:], max(times[0] - med, 0.0), out
+def timing(t: common.Timed) -> dict:
+    return {"median_s": t.median_s, "runs": len(t.runs_s), "runs_s": t.runs_s,
+            "first_call_extra_s": t.first_call_extra_s}
 
 
 def ssdf_scene():
@@ -62,13 +50,14 @@ def ssdf_scene():
 
 
 def bench_bvh(runs, base, log):
-    tile = heightfield_tile(128)
+    tile = common.heightfield_tile(128)
     v, f = np.asarray(tile.vertices), np.asarray(tile.faces)
-    med, all_s, extra, tree = timed(lambda _: bvh.build_bvh(v, f), runs)
-    rec = {**base, "stage": "bvh_build", "backend": "host", "device": host_device(), "tile": tile.name,
+    t = common.timed(lambda: bvh.build_bvh(v, f), runs)
+    tree = t.last
+    rec = {**base, "stage": "bvh_build", "backend": "host", "device": common.host_device(), "tile": tile.name,
            "triangles": int(len(f)), "leaf_size": bvh.LEAF_SIZE, "nodes": int(tree.n_nodes), "depth": int(tree.depth),
-           "median_s": med, "runs": len(all_s), "runs_s": all_s, "first_call_extra_s": extra}
-    log(f"{'host':<24} bvh_build      {len(f)} triangles: {med * 1e3:9.2f} ms")
+           **timing(t)}
+    log(f"{'host':<24} bvh_build      {len(f)} triangles: {t.median_s * 1e3:9.2f} ms")
     return [rec]
 
 
@@ -77,68 +66,50 @@ def bench_environment(backend, stages, runs, base, log):
     sizes = {"environment": env.name, "height": int(env.height), "width": int(env.width)}
     out = []
     if "env_fit_sgs" in stages:
-        med, all_s, extra, fit = timed(lambda _: lighting.fit_sgs(env, SG_LOBES, backend=backend), runs,
-                                       backend.synchronize)
+        t = common.timed(lambda: lighting.fit_sgs(env, SG_LOBES, backend=backend), runs, backend)
+        fit = t.last
         out.append({**base, **sizes, "stage": "env_fit_sgs", "lobes_asked": SG_LOBES, "lobes": len(fit),
-                    "em_steps": int(fit.iterations), "median_s": med, "runs": len(all_s), "runs_s": all_s,
-                    "first_call_extra_s": extra})
-        log(f"{backend.name:<24} env_fit_sgs    {env.height}x{env.width}, {len(fit)} lobes: {med * 1e3:9.2f} ms")
+                    "em_steps": int(fit.iterations), **timing(t)})
+        log(f"{backend.name:<24} env_fit_sgs    {env.height}x{env.width}, {len(fit)} lobes: "
+            f"{t.median_s * 1e3:9.2f} ms")
     if "env_prefilter" in stages:
         levels = []
 
-        def prefilter(_):
+        def prefilter():
             pre = lighting.prefilter(env, backend)
             levels.append(pre.timings)
             return pre
 
-        med, all_s, extra, pre = timed(prefilter, runs, backend.synchronize)
+        t = common.timed(prefilter, runs, backend)
+        pre = t.last
         # pre.timings: one per level made by the kernel, every level but the last (the base map itself)
         computed = pre.levels[:len(pre.timings)]
         out.append({**base, **sizes, "stage": "env_prefilter", "levels": len(pre), "texels": int(len(pre.maps)),
                     "level_eta": [float(2.0 ** lv) for lv in computed[:, 0]],
                     "level_size": [[int(h), int(w)] for h, w in computed[:, 2:4]],
-                    "level_median_s": [float(x) for x in np.median(np.asarray(levels[1:]), axis=0)],
-                    "median_s": med, "runs": len(all_s), "runs_s": all_s, "first_call_extra_s": extra})
-        log(f"{backend.name:<24} env_prefilter  {env.height}x{env.width}, {len(pre)} levels: {med * 1e3:9.2f} ms")
+                    "level_median_s": [float(x) for x in np.median(np.asarray(levels[1:]), axis=0)], **timing(t)})
+        log(f"{backend.name:<24} env_prefilter  {env.height}x{env.width}, {len(pre)} levels: "
+            f"{t.median_s * 1e3:9.2f} ms")
     return out
 
 
-def bench_ssdf(backend, runs, base, log):
+def bench_ssdf(backend, runs, base, log, resolution=SSDF_RESOLUTION, terms=SSDF_TERMS):
     field_timings = []
 
     def build(mesh):
-        field = ssdf.build(mesh, backend, resolution=SSDF_RESOLUTION, terms=SSDF_TERMS)
+        field = ssdf.build(mesh, backend, resolution=resolution, terms=terms)
         field_timings.append(field.timings)
         return field
 
-    med, all_s, extra, field = timed(build, runs, backend.synchronize, ssdf_scene)
-    mesh = ssdf_scene()
+    t = common.timed(build, runs, backend, make_input=ssdf_scene)
+    field, mesh = t.last, ssdf_scene()
     parts = {k: float(np.median([t[k] for t in field_timings[1:]])) for k in field_timings[-1]}
     rec = {**base, "stage": "ssdf_build", "vertices": int(len(mesh.vertices)), "faces": int(len(mesh.faces)),
-           "resolution": SSDF_RESOLUTION, "terms": SSDF_TERMS, "occluded": bool(field.occluded),
-           "rms_error": float(field.rms_error), "parts_median_s": parts, "median_s": med, "runs": len(all_s),
-           "runs_s": all_s, "first_call_extra_s": extra}
-    log(f"{backend.name:<24} ssdf_build     {len(mesh.vertices)} vertices, S={SSDF_RESOLUTION}: {med * 1e3:9.2f} ms")
+           "resolution": resolution, "terms": terms, "occluded": bool(field.occluded),
+           "rms_error": float(field.rms_error), "parts_median_s": parts, **timing(t)}
+    log(f"{backend.name:<24} ssdf_build     {len(mesh.vertices)} vertices, S={resolution}: "
+        f"{t.median_s * 1e3:9.2f} ms")
     return [rec]
-
-
-def host_device():
-    """The host CPU in words (its model name where /proc/cpuinfo gives one) and its CPU count."""
-    model = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as fh:
-            model = next(line.split(":", 1)[1].strip() for line in fh if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return f"{model} ({os.cpu_count()} CPUs)"
-
-
-def load_average():
-    """The 1, 5 and 15-minute load averages (None where the OS gives none)."""
-    try:
-        return [round(x, 2) for x in os.getloadavg()]
-    except (AttributeError, OSError):
-        return None
 
 
 def size_of(r):
@@ -152,18 +123,14 @@ def size_of(r):
     return f"{r['vertices']} vertices, S = {r['resolution']}, NV = {r['terms']} (ms: {parts})"
 
 
-def write_table(records, meta, path):
-    rows = [f"commit {meta['commit']}, {meta['date']}, {meta['host']} ({meta['cpu_count']} CPUs); load average "
-            f"{meta['loadavg_start']} at the start, {meta.get('loadavg_end')} at the end", "",
-            "| stage | backend | device | size | median ms | runs | first-call extra ms |",
-            "|---|---|---|---|---|---|---|"]
-    for r in records:
-        rows.append(f"| {r['stage']} | {r['backend']} | {r['device']} | {size_of(r)} | {r['median_s'] * 1e3:.2f} | "
-                    f"{r['runs']} | {r['first_call_extra_s'] * 1e3:.1f} |")
-    text = "\n".join(rows) + "\n"
-    with open(path, "w") as fh:
-        fh.write(text)
-    return text
+def table(records, meta):
+    rows = [f"{common.commit_line(meta)}; load average {meta['loadavg_start']} at the start, "
+            f"{meta.get('loadavg_end')} at the end", ""]
+    rows += common.markdown_table(
+        ["stage", "backend", "device", "size", "median ms", "runs", "first-call extra ms"],
+        [[r["stage"], r["backend"], r["device"], size_of(r), f"{r['median_s'] * 1e3:.2f}", r["runs"],
+          f"{r['first_call_extra_s'] * 1e3:.1f}"] for r in records])
+    return "\n".join(rows) + "\n"
 
 
 def main(argv=None):
@@ -171,43 +138,34 @@ def main(argv=None):
     p.add_argument("--backends", nargs="*", help="backend names (default: every usable backend here)")
     p.add_argument("--stages", nargs="*", choices=STAGES, default=list(STAGES), help="stages to time")
     p.add_argument("--runs", type=int, default=5, help="timed runs after the warm-up (median reported; >= 5)")
-    p.add_argument("--out", default="bench/out/precompute", help="output folder")
+    p.add_argument("--quick", action="store_true",
+                   help="a smoke test: one timed run each, the SSDF at S = 16 with 4 terms (not a figure)")
+    p.add_argument("--out", required=True, help="output folder")
     args = p.parse_args(argv)
-    if args.runs < 5:
+    ssdf_size = (SSDF_RESOLUTION, SSDF_TERMS)
+    if args.quick:
+        args.runs, ssdf_size = 1, (16, 4)
+    elif args.runs < 5:
         p.error("--runs must be >= 5")
 
-    os.makedirs(args.out, exist_ok=True)
-    names = args.backends or [b["name"] for b in wb.backends() if b["usable"]]
-    meta = {"commit": git_commit(), "date": time.strftime("%Y-%m-%d %H:%M"), "host": platform.node(),
-            "machine": platform.machine(), "python": sys.version.split()[0], "cpu_count": os.cpu_count(),
-            "backends": names, "stages": args.stages, "runs": args.runs, "loadavg_start": load_average()}
-    base = {"commit": meta["commit"]}
-    records = []
-
-    def log(msg):
-        print(msg, flush=True)
-
-    def save():  # after each step: keep partial work
-        with open(os.path.join(args.out, "results.json"), "w") as fh:
-            json.dump({"meta": meta, "records": records}, fh, indent=1)
-
-    log(f"backends: {', '.join(names)}; stages: {', '.join(args.stages)}; {args.runs} runs after a warm-up")
+    names = common.backend_names(args.backends)
+    out = common.Output(args.out, common.run_meta(backends=names, stages=args.stages, runs=args.runs))
+    base = {"commit": out.meta["commit"]}
+    out.log(f"backends: {', '.join(names)}; stages: {', '.join(args.stages)}; {args.runs} runs after a warm-up")
     if "bvh_build" in args.stages:
-        records += bench_bvh(args.runs, base, log)
-        save()
+        out.records += bench_bvh(args.runs, base, out.log)
+        out.save(table)
     for name in names:
         backend = wb.get_backend(name)
         here = {**base, "backend": backend.name, "device": backend.device}
-        records += bench_environment(backend, args.stages, args.runs, here, log)
+        out.records += bench_environment(backend, args.stages, args.runs, here, out.log)
         if "ssdf_build" in args.stages:
-            records += bench_ssdf(backend, args.runs, here, log)
-        save()
-    meta["loadavg_end"] = load_average()  # other work on the machine shows here
-    save()
-    table = write_table(records, meta, os.path.join(args.out, "table.md"))
-    log("")
-    log(table)
-    log(f"wrote {args.out}/results.json, table.md")
+            out.records += bench_ssdf(backend, args.runs, here, out.log, *ssdf_size)
+        out.save(table)
+    out.finish(table)
+    out.log("")
+    out.log(table(out.records, out.meta))
+    out.log(f"wrote {args.out}/results.json, table.md")
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""Rendering benchmark (issue 5): frame time against resolution, J, lights and PCA terms, per backend,
+"""Rendering benchmark: frame time against resolution, J, lights and PCA terms, per backend,
 and the SG renderer's error against the Monte Carlo reference.
 
 Parts (records go to --out/results.json; table.md and plots follow):
@@ -13,26 +13,25 @@ Parts (records go to --out/results.json; table.md and plots follow):
 Times are medians over --runs repetitions of a loop of --frames frames after a warm-up frame
 (compilation, uploads, SSDF and lighting precomputation are reported apart), device-synchronised.
 
-    python bench/bench_render.py --out bench/results/render-cpu-2core --quick
-    python bench/bench_render.py --backends warp:cuda opencl:nvidia --out $OUT
+    python -m bench.bench_render --quick --out /tmp/render                          # a CPU
+    python -m bench.bench_render --backends warp:cuda opencl:nvidia --out $OUT      # on a GPU machine
+    python -m bench.bench_render --sizes 64x48 --lobes 8 --lights 1 --terms 16 --pareto-size 32x24 \\
+        --samples 16 --runs 1 --frames 1 --out /tmp/render-smoke                     # a smoke test
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import platform
+import re
 import sys
-import time
-
-import numpy as np
 
 import warp_biscale as wb
-from warp_biscale.render import Scene, _static_inputs
+from warp_biscale.render import pack_frame
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from bench_foundation import git_commit  # noqa: E402
+if __package__ in (None, ""):  # run as a file: `bench` importable from the checkout, after site-packages
+    sys.path.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from bench import common  # noqa: E402
 
 _MATERIALS: dict = {}
 
@@ -54,17 +53,22 @@ def target_scene(width, height, lobes=8, lights=1, terms=16, backend="auto"):
     all_lights = [wb.PointLight((2.0, 3.5, 2.0), 25.0, 0.15), wb.PointLight((-2.5, 3.0, 1.0), 15.0, 0.2),
                   wb.DirectionalLight((0.3, 1.0, -0.4), 1.0, 1.0), wb.PointLight((0.0, 4.0, -2.5), 10.0, 0.3)]
     cam = wb.Camera(eye=(0.5, 2.2, 4.2), target=(0.3, 0.4, 0.0), fov=45, width=width, height=height)
-    return Scene(wb.Mesh.merge([torus, sphere, floor]), mats, cam, wb.Environment.sky(),
-                 all_lights[:lights], ssdf_terms=terms)
+    return wb.Scene(wb.Mesh.merge([torus, sphere, floor]), mats, cam, wb.Environment.sky(),
+                    all_lights[:lights], ssdf_terms=terms)
+
+
+PRECOMPUTE = ("lighting", "ssdf", "materials")  # Rendering.timings' stages of a scene's first frame only
 
 
 def time_frames(scene, backend, frames, runs):
-    """(median s per frame, precompute s, first-frame extra s, readback s)."""
+    """(median s per frame, precompute s, first-frame extra s, read-back s). A frame is the G-buffer, the
+    shadow rays and the shading, its image left on the device (what an interactive viewer draws from), so
+    the loop calls the backend's stages as `wb.render` does, without its read-back and per-stage waits;
+    the read-back is timed apart."""
     be = wb.get_backend(backend)
-    t0 = time.perf_counter()
-    static = _static_inputs(scene, be, None, {})
-    be.synchronize()
-    precompute = time.perf_counter() - t0
+    first = wb.render(scene, backend=be)  # compiles, and computes what does not depend on the camera
+    precompute = sum(first.timings.get(k, 0.0) for k in PRECOMPUTE)
+    inputs = pack_frame(scene, be).inputs  # the shade stage's inputs, cached on the scene by the render above
     lights = scene.lights_packed
     cam = scene.camera.packed()
 
@@ -72,26 +76,21 @@ def time_frames(scene, backend, frames, runs):
         be.trace_primary(scene.mesh, scene.camera, to_host=False)
         if len(lights):
             be.trace_shadows(scene.mesh, None, lights, to_host=False)
-        be.shade(scene.mesh, static, cam, lights, to_host=False)
+        be.shade(scene.mesh, inputs, cam, lights, to_host=False)
 
-    t0 = time.perf_counter()
-    frame()
-    be.synchronize()
-    first = time.perf_counter() - t0
-    per = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
+    def loop():
         for _ in range(frames):
             frame()
-        be.synchronize()
-        per.append((time.perf_counter() - t0) / frames)
-    t0 = time.perf_counter()
-    be.shade(scene.mesh, static, cam, lights, to_host=True)
-    readback = time.perf_counter() - t0 - float(np.median(per))
-    return float(np.median(per)), precompute, max(first - float(np.median(per)), 0.0), max(readback, 0.0)
+
+    t = common.timed(loop, runs, be)
+    per_frame = t.median_s / frames
+    back = common.timed(lambda: be.shade(scene.mesh, inputs, cam, lights, to_host=True), 3, be)
+    # The first render's time past its precompute and one warm frame: compilation and uploads.
+    first_extra = first.timings["total"] - precompute - per_frame
+    return per_frame, precompute, max(first_extra, 0.0), max(back.median_s - per_frame, 0.0)
 
 
-def part_frames(backends, sizes, lobe_list, light_list, term_list, frames, runs, records, log):
+def part_frames(backends, sizes, lobe_list, light_list, term_list, frames, runs, out):
     base = dict(lobes=8, lights=1, terms=16)
     sweeps = [("size", s) for s in sizes] + [("lobes", j) for j in lobe_list] + \
              [("lights", n) for n in light_list] + [("terms", t) for t in term_list]
@@ -104,71 +103,58 @@ def part_frames(backends, sizes, lobe_list, light_list, term_list, frames, runs,
                 kw[what] = value
             scene = target_scene(w, h, backend=backend, **kw)
             t, pre, first, back = time_frames(scene, be, frames, runs)
-            rec = {"part": "frames", "sweep": what, "backend": be.name, "device": be.device, "width": w, "height": h,
-                   **kw, "frame_s": t, "fps": 1.0 / t, "precompute_s": pre, "first_call_extra_s": first,
-                   "readback_s": back}
-            records.append(rec)
-            log(f"{be.name:<28} {what:<6} {w}x{h} J={kw['lobes']} lights={kw['lights']} terms={kw['terms']}: "
-                f"{t * 1e3:9.3f} ms/frame ({1 / t:8.1f} fps), precompute {pre:6.2f} s, readback {back * 1e3:7.2f} ms")
+            out.records.append({"part": "frames", "sweep": what, "backend": be.name, "device": be.device, "width": w,
+                                "height": h, **kw, "frame_s": t, "fps": 1.0 / t, "precompute_s": pre,
+                                "first_call_extra_s": first, "readback_s": back})
+            out.log(f"{be.name:<28} {what:<6} {w}x{h} J={kw['lobes']} lights={kw['lights']} terms={kw['terms']}: "
+                    f"{t * 1e3:9.3f} ms/frame ({1 / t:8.1f} fps), precompute {pre:6.2f} s, "
+                    f"readback {back * 1e3:7.2f} ms")
 
 
-def part_pareto(backends, size, lobe_list, samples, runs, records, log):
+def part_pareto(backends, size, lobe_list, samples, runs, out):
     w, h = size
     for backend in backends:
         be = wb.get_backend(backend)
+        tag = re.sub(r"[^A-Za-z0-9.-]+", "_", be.name)
         ref_scene = target_scene(w, h, lobes=8, backend=backend)
-        t0 = time.perf_counter()
         ref = wb.render(ref_scene, method="mc", backend=be, samples=samples)
-        t_mc = time.perf_counter() - t0
-        log(f"{be.name}: MC reference {w}x{h} {samples} spp in {t_mc:.1f} s, stderr rms {ref.info.get('stderr_rms')}")
+        t_mc = ref.timings["total"]
+        out.log(f"{be.name}: MC reference {w}x{h} {samples} spp in {t_mc:.1f} s, "
+                f"stderr rms {ref.info.get('stderr_rms')}")
         for j in lobe_list:
             scene = target_scene(w, h, lobes=j, backend=backend)
             t, pre, first, back = time_frames(scene, be, 3, runs)
             img = wb.render(scene, backend=be)
             # Over the object pixels only: the background is the environment itself in both images.
-            mask = (be.trace_primary(scene.mesh, scene.camera)["face"] >= 0).reshape(h, w)
+            mask = (be.trace_primary(scene.mesh, scene.camera).face >= 0).reshape(h, w)
             err = wb.compare_images(img.image, ref.image, mask=mask)
-            records.append({"part": "pareto", "backend": be.name, "device": be.device, "width": w, "height": h,
-                            "lobes": j, "frame_s": t, "psnr": err["psnr"], "rmse": err["rmse"],
-                            "mc_samples": samples, "mc_s": t_mc, "mc_stderr_rms": ref.info.get("stderr_rms")})
-            log(f"{be.name:<28} J={j:<3} {t * 1e3:8.3f} ms  PSNR {err['psnr']:6.2f} dB vs MC")
+            out.records.append({"part": "pareto", "backend": be.name, "device": be.device, "width": w, "height": h,
+                                "lobes": j, "frame_s": t, "psnr": err["psnr"], "rmse": err["rmse"],
+                                "mc_samples": samples, "mc_s": t_mc, "mc_stderr_rms": ref.info.get("stderr_rms")})
+            out.log(f"{be.name:<28} J={j:<3} {t * 1e3:8.3f} ms  PSNR {err['psnr']:6.2f} dB vs MC")
             if j == lobe_list[-1]:
-                from warp_biscale.images import write_png
-
-                tag = be.name.replace(':', '_').replace(' ', '_')
-                write_png(os.path.join(OUT_DIR[0], f"sg-J{j}-{tag}.png"), img.image)
-                write_png(os.path.join(OUT_DIR[0], f"mc-{be.name.replace(':', '_').replace(' ', '_')}.png"), ref.image)
+                img.save(out.path(f"sg-J{j}-{tag}.png"))
+                ref.save(out.path(f"mc-{tag}.png"))
 
 
-OUT_DIR = ["."]
-
-
-def write_table(records, meta, path):
-    lines = [f"# Rendering benchmark ({meta['device_kind']})", "", f"commit {meta['commit']}, {meta['date']}", "",
-             "| backend | sweep | size | J | lights | PCA terms | ms/frame | fps | precompute s | readback ms |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
-    for r in records:
-        if r["part"] == "frames":
-            lines.append(f"| {r['backend']} | {r['sweep']} | {r['width']}×{r['height']} | {r['lobes']} | "
-                         f"{r['lights']} | {r['terms']} | {r['frame_s'] * 1e3:.3f} | {r['fps']:.1f} | "
-                         f"{r['precompute_s']:.2f} | {r['readback_s'] * 1e3:.2f} |")
+def table(records, meta):
+    lines = [f"# Rendering benchmark ({meta['device_kind']})", "", common.commit_line(meta), ""]
+    lines += common.markdown_table(
+        ["backend", "sweep", "size", "J", "lights", "PCA terms", "ms/frame", "fps", "precompute s", "readback ms"],
+        [[r["backend"], r["sweep"], f"{r['width']}×{r['height']}", r["lobes"], r["lights"], r["terms"],
+          f"{r['frame_s'] * 1e3:.3f}", f"{r['fps']:.1f}", f"{r['precompute_s']:.2f}", f"{r['readback_s'] * 1e3:.2f}"]
+         for r in records if r["part"] == "frames"])
     pareto = [r for r in records if r["part"] == "pareto"]
     if pareto:
-        lines += ["", "| backend | size | J | ms/frame | PSNR vs MC (dB) | RMSE | MC spp | MC stderr rms |",
-                  "|---|---|---|---|---|---|---|---|"]
-        for r in pareto:
-            lines.append(f"| {r['backend']} | {r['width']}×{r['height']} | {r['lobes']} | {r['frame_s'] * 1e3:.3f} | "
-                         f"{r['psnr']:.2f} | {r['rmse']:.4g} | {r['mc_samples']} | {r['mc_stderr_rms']:.3g} |")
-    with open(path, "w") as f:
-        f.write("\n".join(lines) + "\n")
+        lines += [""] + common.markdown_table(
+            ["backend", "size", "J", "ms/frame", "PSNR vs MC (dB)", "RMSE", "MC spp", "MC stderr rms"],
+            [[r["backend"], f"{r['width']}×{r['height']}", r["lobes"], f"{r['frame_s'] * 1e3:.3f}",
+              f"{r['psnr']:.2f}", f"{r['rmse']:.4g}", r["mc_samples"], f"{r['mc_stderr_rms']:.3g}"] for r in pareto])
+    return "\n".join(lines) + "\n"
 
 
-def plot(records, out):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+def plot(records, folder):
+    plt = common.pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     for be in sorted({r["backend"] for r in records if r["part"] == "frames"}):
         rs = [r for r in records if r["part"] == "frames" and r["backend"] == be and r["sweep"] == "size"]
@@ -185,53 +171,52 @@ def plot(records, out):
         ax.legend(fontsize=7)
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(os.path.join(out, "render.png"), dpi=120)
+    fig.savefig(os.path.join(folder, "render.png"), dpi=120)
+    plt.close(fig)
+
+
+def wxh(text: str) -> tuple:
+    w, h = text.lower().split("x")
+    return int(w), int(h)
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--backends", nargs="+", default=None)
+    ap.add_argument("--backends", nargs="+", default=None, help="backend names (default: every usable backend here)")
     ap.add_argument("--out", required=True)
     ap.add_argument("--parts", nargs="+", default=["frames", "pareto"])
-    ap.add_argument("--quick", action="store_true", help="CPU sizes: 256², 512² and short sweeps")
+    ap.add_argument("--quick", action="store_true", help="CPU sizes: 512², 256² and a 96×72 Pareto image")
+    ap.add_argument("--sizes", nargs="+", help="frame sizes WxH, the first one that of the other sweeps (default "
+                                                "1920x1080 512x512 1024x1024 1280x720; --quick 512x512 256x256)")
+    ap.add_argument("--lobes", type=int, nargs="+", default=[1, 4, 8, 16], help="the J sweep")
+    ap.add_argument("--lights", type=int, nargs="+", default=[0, 1, 4], help="the light-count sweep")
+    ap.add_argument("--terms", type=int, nargs="+", default=[4, 16, 48], help="the SSDF PCA-term sweep")
+    ap.add_argument("--pareto-size", help="WxH of the Pareto images (default 320x240; --quick 96x72)")
     ap.add_argument("--runs", type=int, default=5)
-    ap.add_argument("--frames", type=int, default=10)
-    ap.add_argument("--samples", type=int, default=1024)
+    ap.add_argument("--frames", type=int, default=10, help="frames a timed loop (3 with --quick)")
+    ap.add_argument("--samples", type=int, default=1024, help="Monte Carlo samples a pixel of the reference")
     args = ap.parse_args(argv)
-    os.makedirs(args.out, exist_ok=True)
-    OUT_DIR[0] = args.out
-    backends = args.backends or [b["name"] for b in wb.backends() if not b.get("error") and b["device"]]
+    backends = common.backend_names(args.backends)
     if args.quick:
-        sizes, pareto_size = [(512, 512), (256, 256)], (96, 72)
-        lobes, lights, terms = [1, 4, 8, 16], [0, 1, 4], [4, 16, 48]
+        sizes, pareto_size, frames = [(512, 512), (256, 256)], (96, 72), 3
     else:
-        sizes = [(1920, 1080), (512, 512), (1024, 1024), (1280, 720)]
-        lobes, lights, terms, pareto_size = [1, 4, 8, 16], [0, 1, 4], [4, 16, 48], (320, 240)
-    records: list = []
-    log_lines: list = []
-
-    def log(msg):
-        print(msg, flush=True)
-        log_lines.append(msg)
-
-    meta = {"commit": git_commit(), "date": time.strftime("%Y-%m-%d %H:%M"), "host": platform.node(),
-            "device_kind": ", ".join(sorted({wb.get_backend(b).device for b in backends})), "argv": sys.argv[1:]}
+        sizes, pareto_size, frames = [(1920, 1080), (512, 512), (1024, 1024), (1280, 720)], (320, 240), args.frames
+    sizes = [wxh(s) for s in args.sizes] if args.sizes else sizes
+    pareto_size = wxh(args.pareto_size) if args.pareto_size else pareto_size
+    out = common.Output(args.out, common.run_meta(
+        backends=backends, device_kind=", ".join(sorted({wb.get_backend(b).device for b in backends}))))
 
     def save():
-        with open(os.path.join(args.out, "results.json"), "w") as f:
-            json.dump({"meta": meta, "records": records}, f, indent=1)
-        write_table(records, meta, os.path.join(args.out, "table.md"))
-        with open(os.path.join(args.out, "log.txt"), "w") as f:
-            f.write("\n".join(log_lines) + "\n")
+        out.save(table)
 
     if "frames" in args.parts:
-        part_frames(backends, sizes, lobes, lights, terms, args.frames if not args.quick else 3, args.runs, records,
-                    log)
+        part_frames(backends, sizes, args.lobes, args.lights, args.terms, frames, args.runs, out)
         save()
     if "pareto" in args.parts:
-        part_pareto(backends, pareto_size, lobes, args.samples, args.runs, records, log)
-        save()
-    plot(records, args.out)
+        part_pareto(backends, pareto_size, args.lobes, args.samples, args.runs, out)
+    out.finish(table)
+    plot(out.records, args.out)
+    out.log(f"wrote {args.out}/results.json, table.md, render.png")
 
 
 if __name__ == "__main__":

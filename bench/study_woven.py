@@ -1,22 +1,27 @@
 """Why the woven tile's SG bake is inaccurate: float64 oracle study (one ingredient replaced at a time).
 
-Nothing runs on the device beyond facets + visibility (PoCL); the rest is float64 numpy on the same
-2^16 facets, compared with a ground truth of 2^18 facets at K = 12 (cached under --cache).
+Nothing runs on the device beyond facets + visibility (--backend, PoCL by default); the rest is float64
+numpy on the same 2^16 facets, compared with a ground truth of 2^18 facets at K = 12 (cached under --cache).
 
-    PYTHONPATH=. python bench/study_woven.py --part floor solve weights lobes local --family woven
+    python -m bench.study_woven --part floor solve weights lobes local --family woven
+    python -m bench.study_woven --facets 4096 --gt-facets 16384 --cache /tmp/wv-smoke     # a smoke test
 
 Parts:
 - floor:   exact visibility-weighted NDF (the facets themselves) with the SG small-scale BRDF
            (Σ_s γ̃_s M G(n_s; h, η_s)): the error no lobe set can remove.
 - solve:   the bake's lobes, amplitudes by (a) the bake's calibrated solve + energy rescale,
            (b) plain least squares, (c) clamped, (d) clamped + energy rescale.
-- weights: EM on the NDF weighted by area (the bake), area × any visibility, area × Σ_k P_sk,
-           area × Σ_i P_si Σ_o P_so / a_v(o); J = 8, 16.
-- lobes:   J = 16, 32, 64, 128 isotropic lobes (numpy only: the kernels stop at 16).
+- weights: EM on the NDF weighted by area, area × any visibility, area × Σ_k P_sk (the bake's
+           visibility weighting), area × Σ_i P_si Σ_o P_so / a_v(o); J = 8, 16.
+- lobes:   J = 16, 32, 64, 128 isotropic lobes, fitted and solved in numpy.
 - local:   per-pair weighted least squares, weight W_h(n) = exp(η_w(n·h − 1)) around the pair's half
            vector (per-pair J×J Gram of SG triple products); clamp, with / without the per-lobe
            calibration of `lobes.amplitude_system`, with / without the energy rescale.
 """
+
+from __future__ import annotations
+
+import argparse
 import os
 import sys
 
@@ -28,10 +33,12 @@ from warp_biscale import lobes as L
 from warp_biscale import reference as ref
 from warp_biscale import sg
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from bench_bake import BRDFS, families  # noqa: E402
+if __package__ in (None, ""):  # run as a file: `bench` importable from the checkout, after site-packages
+    sys.path.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from bench.bench_bake import BRDFS, families  # noqa: E402
 
-def setup(tile, K, F, backend="opencl", seed=0):
+
+def setup(tile, K, F, backend, seed=0):
     grid = dirs.grid(K)
     be = wb.get_backend(backend)
     fac = be.sample_facets(tile, F, seed)
@@ -172,7 +179,7 @@ def local_solve(A, b, c, integrals, mode, ridge=1e-6):
     return np.where(tot[..., None] > 0, mu * (c / np.where(tot > 0, tot, 1))[..., None], 0)
 
 
-def ground_truths(fam, tile, k, facets, cache):
+def ground_truths(fam, tile, k, facets, cache, backend):
     os.makedirs(cache, exist_ok=True)
     out = {}
     for bn, brdf in BRDFS.items():
@@ -180,7 +187,7 @@ def ground_truths(fam, tile, k, facets, cache):
         if os.path.exists(path):
             gt = wb.load(path)
         else:
-            gt = wb.ground_truth(tile, [brdf] * tile.n_materials, facets=facets, directions=k, backend="opencl")
+            gt = wb.ground_truth(tile, [brdf] * tile.n_materials, facets=facets, directions=k, backend=backend)
             gt.save(path)
         out[bn] = gt.table[..., 0].astype(np.float64)
     return out
@@ -191,21 +198,19 @@ def scores(S, lob, mu, gts):
 
 
 def main():
-    import argparse
-
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--part", nargs="+", default=["floor", "solve", "weights", "lobes", "local"])
     ap.add_argument("--family", default="woven")
     ap.add_argument("--directions", type=int, default=12)
     ap.add_argument("--facets", type=int, default=1 << 16)
     ap.add_argument("--gt-facets", type=int, default=1 << 18)
     ap.add_argument("--eta-w", type=float, nargs="+", default=[10.0, 30.0, 50.0])
-    ap.add_argument("--cache", default="/tmp/wv/gt")
+    ap.add_argument("--cache", default="/tmp/wv/gt", help="folder of the cached ground truths")
+    ap.add_argument("--backend", default="opencl", help="backend of the facets, visibility and ground truths")
     a = ap.parse_args()
-    L.MAX_LOBES = 256  # numpy only: LobeSet checks the module constant
     tile = families()[a.family]
-    S = setup(tile, a.directions, a.facets)
-    gts = ground_truths(a.family, tile, a.directions, a.gt_facets, a.cache)
+    S = setup(tile, a.directions, a.facets, a.backend)
+    gts = ground_truths(a.family, tile, a.directions, a.gt_facets, a.cache, a.backend)
     d, P = S["d"], S["proj"]
     if "floor" in a.part:
         for bn, brdf in BRDFS.items():
@@ -213,8 +218,9 @@ def main():
     if "solve" in a.part:
         for j in (8, 16):
             mat = wb.bake(tile, [BRDFS["blinnphong512"]] * tile.n_materials, lobes=j, directions=a.directions,
-                          facets=a.facets, backend="opencl")
-            # Calibrated on the bare-area bins: the bake before its EM weighed facets by what the grid sees.
+                          facets=a.facets, backend=a.backend)
+            # Calibrated on the bins' bare areas (mat.bvndf.area), where the bake calibrates on the bins
+            # weighted by what the grid sees: the "(bake)" row is the bake's solve on the bare NDF.
             for name, mu in solve_variants(S, mat.lobes, mat.bvndf.normal, mat.bvndf.area).items():
                 print(f"solve J={j} {name:22s} {scores(S, mat.lobes, mu, gts)}", flush=True)
     if "weights" in a.part:

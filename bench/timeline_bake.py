@@ -1,30 +1,50 @@
-"""Host timeline of one warm 2^16-facet bake: when each backend call and host step starts and ends
-(no added synchronisation, ~1 µs of overhead a call), so the gaps between them are visible.
+"""Host timeline of one warm bake: when each backend call and host step starts and ends (no added
+synchronisation, ~1 µs of overhead a call), so that the gaps between them show what the critical path is.
 
-    python bench/timeline_bake.py warp:cuda [--gpu] [--facets N] [--tile pyramid] [--runs 5]
+    python -m bench.timeline_bake warp:cuda [--gpu] [--facets N] [--tile pyramid] [--runs 5]
+    python -m bench.timeline_bake warp:cpu --facets 4096 --runs 2          # a smoke test
 
 With --gpu (Warp CUDA only) each call also records a CUDA event on the device's stream before and
 after it (no synchronisation; a few µs a call): the timeline then shows, for each call, when the GPU
 reached the work queued before it and when it finished what the call queued, so the time the GPU sits
 idle waiting for the host is visible ("GPU idle before"). It then lists each kernel, copy and graph of
 one more bake with its device time (Warp's activity timing, `wp.timing_begin`).
+
+The timeline wraps what the bake calls in place (the backend's methods, the lobe functions of
+`warp_biscale.lobes`, and two names inside `warp_biscale.bake`): it instruments the library's inner
+steps on purpose, so it follows them when they are renamed; bench_bake.py's figures need none of it.
 """
 
+from __future__ import annotations
+
+import argparse
 import functools
+import importlib
+import itertools
 import os
 import sys
 import time
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-import warp_biscale as wb  # noqa: E402
-from bench_foundation import heightfield_tile  # noqa: E402
-from warp_biscale import lobes as lobes_mod  # noqa: E402
+import warp_biscale as wb
+from warp_biscale import lobes as lobes_mod
 
-bake_module = sys.modules["warp_biscale.bake"]
+if __package__ in (None, ""):  # run as a file: `bench` importable from the checkout, after site-packages
+    sys.path.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from bench import common  # noqa: E402
+
+bake_module = importlib.import_module("warp_biscale.bake")  # (`wb.bake` is the function of the same name)
 EVENTS = []
 GPU = {"device": None}  # the Warp CUDA device when GPU events are recorded
+
+# What a bake calls on its backend: each is traced where the backend has it.
+BACKEND_CALLS = ("sample_facets", "normal_bins", "visibility", "visible_area", "visible_weights", "em_start",
+                 "ndf_em", "lobe_moments", "solve_amplitudes", "amplitude_tables", "synchronize")
+# The host steps between them. `_channels` is private: it splits the facet weights per material and
+# colour, host work between the rays and the moments that the timeline must show.
+LOBE_STEPS = ("initial_lobes", "amplitude_system")
+BAKE_STEPS = ("_channels", "EffectiveBRDF")
 
 
 def _mark():
@@ -54,33 +74,41 @@ def traced(owner, name, label=None):
 def main(backend, facets=1 << 16, runs=5, gpu=False, tile="heightfield"):
     be = wb.get_backend(backend)
     if gpu:
-        GPU["device"] = be._device  # (Warp CUDA: the backend's device)
-    for name in ("sample_facets", "normal_bins", "visibility", "visible_area", "visible_weights", "ndf_em",
-                 "lobe_moments", "solve_amplitudes", "amplitude_tables", "synchronize", "em_start"):
-        if hasattr(be, name):  # (em_start: since the EM's start is picked on the device)
+        if not be.name.startswith("warp:cuda"):
+            raise SystemExit(f"--gpu needs a Warp CUDA backend, not {be.name}")
+        import warp as wp
+
+        GPU["device"] = wp.get_device(be.name.split(":", 1)[1])  # "warp:cuda:0" → Warp's "cuda:0"
+    for name in BACKEND_CALLS:
+        if hasattr(be, name):
             traced(be, name)
-    for name in ("initial_lobes", "amplitude_system"):
+    for name in LOBE_STEPS:
         traced(lobes_mod, name)
-    traced(bake_module, "_channels")
-    traced(bake_module, "EffectiveBRDF")
-    tile = heightfield_tile() if tile == "heightfield" else getattr(wb.geometry, tile)()
+    for name in BAKE_STEPS:
+        if hasattr(bake_module, name):
+            traced(bake_module, name)
+    tile = common.heightfield_tile() if tile == "heightfield" else getattr(wb.geometry, tile)()
     kw = dict(tile=tile, materials=wb.BlinnPhong(1.0, 512), lobes=8, directions=12, normal_res=128,
               facets=facets, backend=be)
-    wb.bake(**kw)
+    # A seed of its own for each bake: the bake keeps what depends on the geometry per seed, and a second
+    # bake of one seed would redo the tables alone.
+    seeds = itertools.count()
+    wb.bake(seed=next(seeds), **kw)
     rows = []
     for _ in range(runs):
-        bake_module._GEOMETRY.clear()
+        seed = next(seeds)
         EVENTS.clear()
         be.synchronize()
         start = _mark()
         t0 = time.perf_counter()
-        wb.bake(**kw)
+        wb.bake(seed=seed, **kw)
         be.synchronize()
         total = time.perf_counter() - t0
         rows.append((total, [(n, a - t0, b - t0, _gpu_ms(start, e0), _gpu_ms(start, e1))
                              for n, a, b, e0, e1 in EVENTS]))
     total, events = sorted(rows, key=lambda r: r[0])[len(rows) // 2]
-    print(f"{backend}: median whole bake {total * 1e3:.2f} ms (of {[round(r[0] * 1e3, 1) for r in rows]})")
+    print(f"{be.name}: median whole bake {total * 1e3:.2f} ms (of {[round(r[0] * 1e3, 1) for r in rows]}), "
+          f"commit {common.git_commit()}")
     last = 0.0
     gpu_last = 0.0
     for name, a, b, g0, g1 in sorted(events, key=lambda e: e[1]):
@@ -95,15 +123,14 @@ def main(backend, facets=1 << 16, runs=5, gpu=False, tile="heightfield"):
         last = max(last, b)
     print(f"  end {total * 1e3:.2f} ms (after the last call: {(total - last) * 1e3:.2f} ms)")
     if gpu:
-        _device_activities(kw)
-    return np.median([r[0] for r in rows])
+        _device_activities(dict(kw, seed=next(seeds)))
+    return float(np.median([r[0] for r in rows]))
 
 
 def _device_activities(kw):
     """Device time of each kernel, copy and graph of one warm bake."""
     import warp as wp
 
-    bake_module._GEOMETRY.clear()
     wp.timing_begin(cuda_filter=wp.TIMING_ALL)
     wb.bake(**kw)
     results = wp.timing_end()
@@ -123,9 +150,7 @@ def _gpu_ms(start, event):
 
 
 if __name__ == "__main__":
-    import argparse
-
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("backend")
     ap.add_argument("--gpu", action="store_true", help="CUDA events per call and device activities (Warp CUDA)")
     ap.add_argument("--facets", type=int, default=1 << 16)

@@ -141,8 +141,8 @@ def run_em_steps(iterations: int, enqueue_step, done) -> None:
     """Enqueue up to `iterations` EM steps (`enqueue_step()`), looking at the device's stop flag
     (`done()`, a host round trip) only after steps 2, 4, 8, 16, …: a few looks per EM instead of one
     per step, and a converged EM does not queue the rest of its steps (each would return at once,
-    but on a CPU even an empty sliced launch costs ~0.2 ms: 14 ms of 30 no-op steps measured on the
-    pyramid tile, whose EM stops after 2)."""
+    but on a CPU even an empty sliced launch costs a fraction of a millisecond, and the pyramid
+    tile's EM stops after 2)."""
     check = 2
     for step in range(1, int(iterations) + 1):
         enqueue_step()

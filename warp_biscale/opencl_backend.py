@@ -292,8 +292,8 @@ class OpenCLBackend(DeviceBackend):
 
     def _prepared(self, stem, name, shape, *args):
         """A callable that enqueues kernel `name` over `shape` (as _launch) with `args` set once: for a
-        loop that enqueues the same launch many times (NVIDIA OpenCL on an H100, 30 EM steps of 6 launches:
-        11.2 ms setting the arguments at every launch, 7.6 ms with them set once)."""
+        loop that enqueues the same launch many times (on NVIDIA's OpenCL setting the arguments at every
+        launch cost the EM about half again its time)."""
         cl = self._cl
         self._kernel(stem, name)  # builds the program once
         kernel = cl.Kernel(self._programs[stem], name)  # its own instance: its arguments stay set
@@ -328,8 +328,8 @@ class OpenCLBackend(DeviceBackend):
     def _scratch(self, role, n_items, dtype):
         """A device buffer that no caller keeps (a kernel's intermediate), reused from call to call while
         it is large enough. Why: a buffer released while queued kernels still use it made NVIDIA's
-        OpenCL wait for them (on the lent H100 the visibility call returned only when the rays were
-        done, its ray buffer released at the call's end), so intermediates outlive their call. The
+        OpenCL wait for them (the visibility call returned only when the rays were done, its ray buffer
+        released at the call's end), so intermediates outlive their call. The
         in-order queue keeps reuse safe. Buffers over SCRATCH_BYTES are not kept."""
         nbytes = max(1, int(n_items)) * np.dtype(dtype).itemsize
         held = self._scratch_buffers.get(role)
@@ -485,11 +485,10 @@ class OpenCLBackend(DeviceBackend):
 
     def _em_program(self, n, j, iterations, weighted):
         """The buffers and prepared launches of an EM of one shape (Ns, J, step cap, weighted or not),
-        made once and kept (the facets are copied into its buffers). Made at every call, they left a
-        one-step ndf_em at 1.50 ms on NVIDIA OpenCL against 0.27 ms with Warp's graph (H100, 2^16
-        facets, J = 8). → dict: `normal`, `mass`, `start` / `result` (J, 6) float64
-        (em_start_rows / em_result_rows), `state`, and the
-        launches `load`, `steps` (one EM step), `unload`."""
+        made once and kept (the facets are copied into its buffers): made at every call, they cost a
+        one-step ndf_em several times what Warp's captured graph does. → dict: `normal`, `mass`,
+        `start` / `result` (J, 6) float64 (em_start_rows / em_result_rows), `state`, and the launches
+        `load`, `steps` (one EM step), `unload`."""
         key = (n, j, int(iterations), bool(weighted))
         prog = self._em_programs.pop(key, None)
         if prog is None:

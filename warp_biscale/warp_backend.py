@@ -198,10 +198,8 @@ class WarpBackend(DeviceBackend):
             dev = self._device
             points = wp.array(tile.to_local(tile.vertices), dtype=wp.vec3, device=dev)
             faces = wp.array(tile.faces.astype(np.int32), dtype=wp.int32, device=dev)
-            # SAH with 2 triangles a leaf: built on the host for CUDA too (14 ms for 32k triangles),
-            # but its rays ran 2× faster than on Warp's default GPU LBVH with 4 a leaf (H100, 2^16
-            # facets × 144 directions: 14.6 ms LBVH, 9.5 ms SAH leaf 4, 7.4 ms SAH leaf 2;
-            # bench/probe_visibility.py).
+            # SAH with 2 triangles a leaf: built on the host for CUDA too, but its rays ran about twice
+            # as fast as on Warp's default GPU LBVH with 4 a leaf (bench/README.md).
             mesh = wp.Mesh(points=points, indices=faces.flatten(), bvh_constructor="sah", bvh_leaf_size=2)
             vn = tile.vertex_normals if tile.vertex_normals is not None else np.zeros((1, 3))
             areas = tile.face_areas
@@ -233,7 +231,7 @@ class WarpBackend(DeviceBackend):
         visible = self._scratch("visible", (n_dirs, n), wp.uint8)  # (packed into bits at once)
         z_lo, z_hi = tile.z_range
         # Blocks of one warp: a ray's BVH walk varies in length, and small blocks free their slots as
-        # soon as their rays end (on an H100 32 threads a block beat Warp's default 256 by a quarter).
+        # soon as their rays end (on a GPU 32 threads a block beat Warp's default 256 by a quarter).
         self._launch(kvisibility.visibility_rays, (n_dirs, n),
                      [t["mesh"].id, t["points"], t["faces"], t["face_normals"], int(brute_force),
                       position, f["face"], dirs,
@@ -372,10 +370,9 @@ class WarpBackend(DeviceBackend):
 
     def _em_graph(self, n, j, iterations, weighted):
         """On CUDA, the whole EM of one shape (Ns, J, step cap, weighted or not) as one captured CUDA
-        graph over buffers of its own, captured once (1.5 ms) and replayed. H100, 2^16 facets, J = 8, 30
-        steps, one call at a time: ndf_em took 3.14 ms queueing 6 launches a step from Python (and
-        reading the stop flag), 1.93 ms replaying the graph, of which the replay itself is 1.69 ms
-        (~55 µs a step: six dependent launches). Steps after convergence return at their first line."""
+        graph over buffers of its own, captured once and replayed: queueing a step's six dependent launches
+        from Python (and reading the stop flag) cost a GPU's host more than the whole replay
+        (bench/README.md). Steps after convergence return at their first line."""
         key = (n, j, int(iterations), bool(weighted))
         graph = self._em_graphs.pop(key, None)
         if graph is None:
@@ -521,8 +518,8 @@ class WarpBackend(DeviceBackend):
         at once into pinned memory with an event behind it: the function then waits for `a`'s work alone,
         not for what is queued after it. The pinned buffers are pooled per shape: a buffer goes back to the
         pool once its copy is read out (into a host array of the caller's own), and one never read is left
-        to Python. (A fresh pinned buffer each call took the lent H100's host 1.08 ms a bake in
-        wp.empty under bench/profile_bake_lines.py, against 32.7 µs for one in a loop, bench/probe_pinned.py.)"""
+        to Python. (A fresh pinned buffer each call cost a GPU's host far more inside a bake than in a
+        loop alone: bench/README.md.)"""
         if not self._device.is_cuda:
             return lambda: self._trace_host(a)
         free = self._pinned.setdefault((a.shape, a.dtype), [])
