@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import warp_biscale as wb
-from warp_biscale import scenefile
+from warp_biscale import scenefile, tomlschema
 from warp_biscale.scenefile import SceneError, load_scene, loads_scene
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
@@ -406,7 +406,7 @@ def test_locator_paths():
         \"\"\"
         after = 6
         """)
-    loc = scenefile._Locator(text)
+    loc = tomlschema._Locator(text)
     assert loc.line(("top",)) == 1
     assert loc.line(("a", "x")) == 3 and loc.line(("a", "quoted key")) == 4
     assert loc.line(("arr", 0, "y")) == 6 and loc.line(("arr", 1, "y")) == 8
