@@ -194,16 +194,7 @@ def test_extra_brdfs_still_bake(two_id_tile):
 
 # ------------------------------------------------------------------------------------------------ scene files
 
-BASE = """\
-[[object]]
-mesh = "sphere"
-subdivisions = 1
-material = "m"
-
-[material.m]
-type = "lambert"
-albedo = 0.5
-"""
+from test_scenefile import BASE  # noqa: E402  (the smallest scene file: one sphere, one Lambert material)
 
 
 def _load_error(tmp_path, text):
