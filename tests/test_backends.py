@@ -183,3 +183,27 @@ def test_a_backend_module_that_cannot_import_is_listed_not_raised(monkeypatch):
     (opencl,) = [b for b in entries if b["kind"] == "opencl"]
     assert not opencl["usable"] and opencl["reason"].startswith("OpenCL support cannot start here: ")
     assert any(b["name"] == "warp:cpu" and b["usable"] for b in entries)
+
+
+def _pytest(require, *args):
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, WARP_BISCALE_REQUIRE_BACKENDS=require)
+    return subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *args],
+                          capture_output=True, text=True, timeout=300, env=env,
+                          cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def test_required_backend_that_is_missing_fails_the_run():
+    """What CI relies on: a required backend that is not usable here stops the run with its reason."""
+    r = _pytest("metal:gpu", "tests/test_backends.py", "-k", "every_entry")
+    assert r.returncode != 0 and "required backend metal:gpu is not usable here (none found)" in r.stdout + r.stderr
+
+
+def test_required_backend_that_ran_no_test_fails_the_run():
+    r = _pytest("warp:cpu", "tests/test_backends.py", "-k", "every_entry")  # a test without the backend fixture
+    assert r.returncode == 1 and "no test ran on a required backend (warp:cpu)" in r.stdout, r.stdout[-500:]
+    r = _pytest("warp:cpu", "tests/test_backends.py::test_probe_kernel_against_float64")  # runs on warp:cpu
+    assert r.returncode == 0, r.stdout[-500:]
