@@ -1,9 +1,11 @@
-"""What the two backends share on the host: results left on the device (OnDevice, DeviceLobes,
-DeviceStart), the device-side facet and upload caches, the EM's stopping schedule, chunking of
-reductions, and the probe every backend must pass before it is offered (`backend.backends`).
+"""What the two backends share on the host: `DeviceBackend`, the base class that does every stage's
+checks, caching and bookkeeping once; results left on the device (OnDevice, DeviceLobes, DeviceStart);
+the device-side facet and upload caches; the EM's stopping schedule; chunking of reductions; and the
+probe every backend must pass before it is offered (`backend.backends`).
 
-Nothing here knows a device kind; `warp_backend` and `opencl_backend` build on it, and
-`backend` (the protocol and selection by name) on them.
+Nothing here knows a device kind: `warp_backend` and `opencl_backend` subclass DeviceBackend with
+their allocations, copies and launches, and `backend` (the protocol and selection by name) sits
+above them.
 """
 
 from __future__ import annotations
@@ -260,10 +262,14 @@ def _shape(shape) -> tuple:
 
 class DeviceBackend:
     """The host side of a backend, written once: checks, caches kept on data-model objects, the
-    G-buffer choice and bookkeeping of the ray-casting and shading stages. A subclass supplies the
-    device itself — `_to_device`, `_new`, `_to_host` (arrays of the element kinds in KINDS), `_context`
-    (what device arrays cached on data objects belong to) — and one `_launch_<stage>` per kernel
-    launch, which only passes arguments in its toolkit's convention."""
+    bookkeeping of the facet, visibility, ground-truth, BVNDF, EM, SSDF, ray-casting and shading stages
+    (G-buffer choice included). A subclass supplies the
+    device itself — `_to_device`, `_new`, `_to_host`, `_queued_read` (arrays of the element kinds in
+    KINDS), `_context` (what device arrays cached on data objects belong to) — and one
+    `_launch_<stage>` (or `_run_em`, `_upload_*`) per kernel launch, which only passes arguments in its
+    toolkit's convention. The stages whose device work differs past argument passing (em_start,
+    ndf_statistics, lobe_moments, histogram_moments, solve_amplitudes, amplitude_tables,
+    prefilter_level) stay in the subclasses."""
 
     name: str
     device: str
