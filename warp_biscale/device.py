@@ -437,14 +437,13 @@ class DeviceBackend:
 
     def _trace_mesh(self, mesh) -> dict:
         """mesh.device_cache[self.name]: the mesh's device arrays and BVH (`_upload_trace_mesh`), built once
-        per mesh and rebuilt when mesh.vertices or mesh.faces is replaced; and the mesh's ray offsets,
-        computed once (trace.offsets scans every vertex)."""
+        per mesh and rebuilt when mesh.vertices or mesh.faces is replaced."""
         entry = mesh.device_cache.setdefault(self.name, {})
         if (entry.get("vertices_host") is not mesh.vertices or entry.get("faces_host") is not mesh.faces
                 or entry.get("context") is not self._context()):
             entry.clear()  # the geometry (or the device) changed: everything derived from it is stale
             entry.update(self._upload_trace_mesh(mesh), vertices_host=mesh.vertices, faces_host=mesh.faces,
-                         context=self._context(), offsets=offsets(mesh))
+                         context=self._context())
         return entry
 
     def _upload_trace_mesh(self, mesh) -> dict:
@@ -495,6 +494,8 @@ class DeviceBackend:
             face, position, n = self._to_device(f, "i32"), self._to_device(p, "vec3"), len(f)
         vis = self._reuse(m, "gbuffer_light_vis", (n, len(lights)), "u8")
         if n and len(lights):
+            if "offsets" not in m:  # once per mesh, and only for shadow rays: trace.offsets scans every vertex
+                m["offsets"] = offsets(mesh)
             eps, t_min = m["offsets"]
             self._launch_trace_shadows(m, face, position, eye, lights, eps, t_min, n, vis)
         return self._to_host(vis, (n, len(lights)), "u8") if to_host else None
