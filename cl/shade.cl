@@ -335,6 +335,90 @@ CL_INLINE float product_integral(Table t, float3 a1, float e1, float3 a2, float 
     return exp(-gap) * cosine_integral(t, axis, d, eta_row(t, d), n);
 }
 
+/* A pixel's surface point rebuilt from the G-buffer: position, shading frame (t, b, n) and the
+ * face's vertices with their barycentric weights (for the per-vertex SSDF). */
+typedef struct {
+    float3 pos, n, t, b;
+    int i0, i1, i2;
+    float w0, w1, w2;
+} SurfacePoint;
+
+/* The direction through pixel p's centre (Camera.packed). */
+CL_INLINE float3 camera_ray(float4 forward, float4 right, float4 up, float cam_w, float cam_h, int p)
+{
+    int width = (int)cam_w;
+    float x = (float)(p % width);
+    float y = (float)(p / width);
+    return normalize3((float3)(forward.x, forward.y, forward.z)
+                      + (2.0f * (x + 0.5f) / cam_w - 1.0f) * (float3)(right.x, right.y, right.z)
+                      + (1.0f - 2.0f * (y + 0.5f) / cam_h) * (float3)(up.x, up.y, up.z));
+}
+
+/* The interpolated position and normal, and the tangent made orthogonal to the normal (any
+ * perpendicular where the mesh's tangent is parallel to it or zero). */
+CL_INLINE SurfacePoint surface_point(__global const int *faces, __global const float *positions,
+                                     __global const float *normals, __global const float *tangents, int f,
+                                     float w1, float w2)
+{
+    SurfacePoint s;
+    s.i0 = faces[3 * f];
+    s.i1 = faces[3 * f + 1];
+    s.i2 = faces[3 * f + 2];
+    s.w1 = w1;
+    s.w2 = w2;
+    s.w0 = 1.0f - w1 - w2;
+    s.pos = s.w0 * load3(positions, s.i0) + s.w1 * load3(positions, s.i1) + s.w2 * load3(positions, s.i2);
+    float3 n = normalize3(s.w0 * load3(normals, s.i0) + s.w1 * load3(normals, s.i1) + s.w2 * load3(normals, s.i2));
+    float3 t = s.w0 * load3(tangents, s.i0) + s.w1 * load3(tangents, s.i1) + s.w2 * load3(tangents, s.i2);
+    t = t - dot3(t, n) * n;
+    if (sqrt(dot3(t, t)) < 1.0e-12f) {
+        float3 ref = absf(n.x) < 0.9f ? (float3)(1.0f, 0.0f, 0.0f) : (float3)(0.0f, 0.0f, 1.0f);
+        t = ref - dot3(ref, n) * n;
+    }
+    t = normalize3(t);
+    s.n = n;
+    s.t = t;
+    s.b = cross3(n, t);
+    return s;
+}
+
+CL_INLINE float3 to_local(SurfacePoint s, float3 d) { return (float3)(dot3(d, s.t), dot3(d, s.b), dot3(d, s.n)); }
+
+/* ∫ G(ω; axis, η, 1)(n·ω)⁺ dω over the directions the SSDF leaves unoccluded. */
+CL_INLINE float environment_visible(Table tab, float3 axis, float eta, SurfacePoint s, int has_ssdf, Ssdf ssdf)
+{
+    EtaRow row = eta_row(tab, eta);
+    float amount = cosine_integral(tab, axis, eta, row, s.n);
+    if (has_ssdf != 0)
+        amount = amount * ssdf_visible(ssdf, tab, axis, row, s.n);
+    return amount;
+}
+
+/* Σ over the lights whose shadow ray reached them of ∫ G(axis, η)·light SG·(n·ω)⁺. */
+CL_INLINE float3 lobe_from_lights(Table tab, float3 axis, float eta, SurfacePoint s, int n_lights,
+                                  __global const float *lights, __global const uchar *vis)
+{
+    float3 out = (float3)(0.0f, 0.0f, 0.0f);
+    for (int l = 0; l < n_lights; ++l) {
+        if (vis[l] == 0)
+            continue;
+        __global const float *row = lights + 8 * l;
+        float3 la = light_axis(row, s.pos);
+        float le = light_sharpness(row, s.pos);
+        out = out + light_amplitude(row, s.pos, le) * product_integral(tab, axis, eta, la, le, s.n);
+    }
+    return out;
+}
+
+/* Never NaN, inf or negative (a degenerate normal, say, must not poison the image). */
+CL_INLINE float3 finite_radiance(float3 v)
+{
+    v.x = (v.x >= 0.0f && v.x < 3.0e38f) ? v.x : 0.0f;
+    v.y = (v.y >= 0.0f && v.y < 3.0e38f) ? v.y : 0.0f;
+    v.z = (v.z >= 0.0f && v.z < 3.0e38f) ? v.z : 0.0f;
+    return v;
+}
+
 __kernel void shade_pixels(
     __global const int *face,           /* (P,) G-buffer face, -1 = miss */
     __global const float *bary,         /* (P, 2) weights of vertices 1 and 2 */
@@ -368,41 +452,20 @@ __kernel void shade_pixels(
     int p = get_global_id(0);
     if (p >= n_pixels)
         return;
-    float3 eye3 = (float3)(eye.x, eye.y, eye.z);
     int f = face[p];
     if (f < 0) {
-        int width = (int)cam_w;
-        float x = (float)(p % width);
-        float y = (float)(p / width);
-        float3 d = normalize3((float3)(forward.x, forward.y, forward.z)
-                              + (2.0f * (x + 0.5f) / cam_w - 1.0f) * (float3)(right.x, right.y, right.z)
-                              + (1.0f - 2.0f * (y + 0.5f) / cam_h) * (float3)(up.x, up.y, up.z));
+        float3 d = camera_ray(forward, right, up, cam_w, cam_h, p);
         store3(radiance, p, prefiltered(env_maps, env_levels, n_levels, d, 1.0e30f));
         return;
     }
     Table tab = {table, table_rows, table_cols, log_lo, log_hi};
-    int i0 = faces[3 * f];
-    int i1 = faces[3 * f + 1];
-    int i2 = faces[3 * f + 2];
-    float w1 = bary[2 * p];
-    float w2 = bary[2 * p + 1];
-    float w0 = 1.0f - w1 - w2;
-    float3 pos = w0 * load3(positions, i0) + w1 * load3(positions, i1) + w2 * load3(positions, i2);
-    float3 n = normalize3(w0 * load3(normals, i0) + w1 * load3(normals, i1) + w2 * load3(normals, i2));
-    float3 t = w0 * load3(tangents, i0) + w1 * load3(tangents, i1) + w2 * load3(tangents, i2);
-    t = t - dot3(t, n) * n;
-    if (sqrt(dot3(t, t)) < 1.0e-12f) {
-        float3 ref = absf(n.x) < 0.9f ? (float3)(1.0f, 0.0f, 0.0f) : (float3)(0.0f, 0.0f, 1.0f);
-        t = ref - dot3(ref, n) * n;
-    }
-    t = normalize3(t);
-    float3 b = cross3(n, t);
-    float3 wo = normalize3(eye3 - pos);
-    float cos_o = maxf(dot3(wo, n), MIN_COS_VIEW);
-    float3 wo_local = normalize3((float3)(dot3(wo, t), dot3(wo, b), cos_o));
+    SurfacePoint s = surface_point(faces, positions, normals, tangents, f, bary[2 * p], bary[2 * p + 1]);
+    float3 wo = normalize3((float3)(eye.x, eye.y, eye.z) - s.pos);
+    float cos_o = maxf(dot3(wo, s.n), MIN_COS_VIEW);
+    float3 wo_local = normalize3((float3)(dot3(wo, s.t), dot3(wo, s.b), cos_o));
 
-    Ssdf ssdf = {ssdf_basis, ssdf_coeffs + i0 * n_coeffs, ssdf_coeffs + i1 * n_coeffs, ssdf_coeffs + i2 * n_coeffs,
-                 w0, w1, w2, n_basis, ssdf_res};
+    Ssdf ssdf = {ssdf_basis, ssdf_coeffs + s.i0 * n_coeffs, ssdf_coeffs + s.i1 * n_coeffs,
+                 ssdf_coeffs + s.i2 * n_coeffs, s.w0, s.w1, s.w2, n_basis, ssdf_res};
     __global const uchar *vis = light_vis + p * n_lights;
 
     int mat = face_material[f];
@@ -417,21 +480,21 @@ __kernel void shade_pixels(
     /* An analytic material's row, read once into per-pixel values: a textured one (slot >= 0) scales
      * kd, ks and p1 by its maps at the pixel's UV, and everything below uses these values only. */
     int a_kind = 0;
-    float3 a_kd = (float3)(0.0f, 0.0f, 0.0f);
     float3 a_ks = (float3)(0.0f, 0.0f, 0.0f);
     float a_p1 = 0.0f;
     float a_p2 = 0.0f;
     if (kind == 0) {
         __global const float *row = analytic + 9 * idx;
         a_kind = (int)row[0];
-        a_kd = (float3)(row[1], row[2], row[3]);
+        float3 a_kd = (float3)(row[1], row[2], row[3]);
         a_ks = (float3)(row[4], row[5], row[6]);
         a_p1 = row[7];
         a_p2 = row[8];
         int slot = mat_info[4 * mat + 3];
         if (slot >= 0) {
-            float2 uv = w0 * (float2)(uvs[2 * i0], uvs[2 * i0 + 1]) + w1 * (float2)(uvs[2 * i1], uvs[2 * i1 + 1])
-                        + w2 * (float2)(uvs[2 * i2], uvs[2 * i2 + 1]);
+            float2 uv = s.w0 * (float2)(uvs[2 * s.i0], uvs[2 * s.i0 + 1])
+                        + s.w1 * (float2)(uvs[2 * s.i1], uvs[2 * s.i1 + 1])
+                        + s.w2 * (float2)(uvs[2 * s.i2], uvs[2 * s.i2 + 1]);
             a_kd = a_kd * texture_bilinear(tex_info, tex_data, slot, uv);
             a_ks = a_ks * texture_bilinear(tex_info, tex_data, slot + 1, uv);
             a_p1 = a_p1 * texture_bilinear(tex_info, tex_data, slot + 2, uv).x;
@@ -450,30 +513,22 @@ __kernel void shade_pixels(
     for (int e = 0; e < n_env; ++e) {
         __global const float *lobe = env_sgs + 7 * e;
         float3 axis = (float3)(lobe[0], lobe[1], lobe[2]);
-        float eta = lobe[3];
-        EtaRow row = eta_row(tab, eta);
-        float amount = cosine_integral(tab, axis, eta, row, n);
-        if (has_ssdf != 0)
-            amount = amount * ssdf_visible(ssdf, tab, axis, row, n);
+        float amount = environment_visible(tab, axis, lobe[3], s, has_ssdf, ssdf);
         float3 fd = kd;
-        if (kind != 0) {
-            float3 al = (float3)(dot3(axis, t), dot3(axis, b), dot3(axis, n));
-            fd = table_rgb(eff_diffuse, diffuse_base, k2, 1, 0, al, k, oo, ow);
-        }
+        if (kind != 0)
+            fd = table_rgb(eff_diffuse, diffuse_base, k2, 1, 0, to_local(s, axis), k, oo, ow);
         out = out + fd * (float3)(lobe[4], lobe[5], lobe[6]) * amount;
     }
     for (int l = 0; l < n_lights; ++l) {
         if (vis[l] == 0)
             continue;
         __global const float *row = lights + 8 * l;
-        float3 axis = light_axis(row, pos);
-        float eta = light_sharpness(row, pos);
+        float3 axis = light_axis(row, s.pos);
+        float eta = light_sharpness(row, s.pos);
         float3 fd = kd;
-        if (kind != 0) {
-            float3 al = (float3)(dot3(axis, t), dot3(axis, b), dot3(axis, n));
-            fd = table_rgb(eff_diffuse, diffuse_base, k2, 1, 0, al, k, oo, ow);
-        }
-        out = out + fd * light_amplitude(row, pos, eta) * cosine_integral(tab, axis, eta, eta_row(tab, eta), n);
+        if (kind != 0)
+            fd = table_rgb(eff_diffuse, diffuse_base, k2, 1, 0, to_local(s, axis), k, oo, ow);
+        out = out + fd * light_amplitude(row, s.pos, eta) * cosine_integral(tab, axis, eta, eta_row(tab, eta), s.n);
     }
 
     /* Specular: each warped lobe against the prefiltered environment and each light. */
@@ -484,19 +539,19 @@ __kernel void shade_pixels(
             n_sub = ei[2];
             n_lobes = j_count;
         }
-        for (int s = 0; s < n_sub; ++s) {
+        for (int sub_i = 0; sub_i < n_sub; ++sub_i) {
             for (int j = 0; j < n_lobes; ++j) {
                 float3 axis;
                 float eta;
                 float3 amp;
                 if (kind == 0) {
                     amp = specular_scale(a_kind, a_ks, a_p1, a_p2, cos_o);
-                    axis = normalize3(2.0f * cos_o * n - wo);
+                    axis = normalize3(2.0f * cos_o * s.n - wo);
                     eta = ndf_sharpness(a_kind, a_p1) / (4.0f * cos_o);
                 } else {
-                    __global const float *sub = eff_sub + 9 * (ei[4] + s);
+                    __global const float *sub = eff_sub + 9 * (ei[4] + sub_i);
                     __global const float *lobe = eff_lobes + 4 * (ei[3] + j);
-                    float3 xi = lobe[0] * t + lobe[1] * b + lobe[2] * n;
+                    float3 xi = lobe[0] * s.t + lobe[1] * s.b + lobe[2] * s.n;
                     float c_oj = dot3(wo, xi);
                     if (c_oj <= 0.0f)
                         continue;
@@ -508,32 +563,17 @@ __kernel void shade_pixels(
                     float eta_j = lobe[3];
                     float eta_s = ndf_sharpness(s_kind, s_p1);
                     axis = normalize3(2.0f * c_oj * xi - wo);
-                    float3 al = (float3)(dot3(axis, t), dot3(axis, b), dot3(axis, n));
-                    int base = ei[5] + s * k2 * k2 * j_count * 3;
-                    float3 mu = table_rgb(eff_tables, base, k2, j_count, j, al, k, oo, ow);
+                    int base = ei[5] + sub_i * k2 * k2 * j_count * 3;
+                    float3 mu = table_rgb(eff_tables, base, k2, j_count, j, to_local(s, axis), k, oo, ow);
                     amp = scale * mu * (2.0f * SHADE_PI / (eta_j + eta_s));
                     eta = 1.0f / (1.0f / eta_j + 1.0f / eta_s) / (4.0f * maxf(c_oj, MIN_COS_VIEW));
                 }
                 eta = minf(eta, sharpness_max);
-                EtaRow er = eta_row(tab, eta);
-                float amount = cosine_integral(tab, axis, eta, er, n);
-                if (has_ssdf != 0)
-                    amount = amount * ssdf_visible(ssdf, tab, axis, er, n);
-                out = out + amp * prefiltered(env_maps, env_levels, n_levels, axis, eta) * amount;
-                for (int l = 0; l < n_lights; ++l) {
-                    if (vis[l] == 0)
-                        continue;
-                    __global const float *row = lights + 8 * l;
-                    float3 la = light_axis(row, pos);
-                    float le = light_sharpness(row, pos);
-                    out = out + amp * light_amplitude(row, pos, le) * product_integral(tab, axis, eta, la, le, n);
-                }
+                float amount = environment_visible(tab, axis, eta, s, has_ssdf, ssdf);
+                out = out + amp * (prefiltered(env_maps, env_levels, n_levels, axis, eta) * amount
+                                   + lobe_from_lights(tab, axis, eta, s, n_lights, lights, vis));
             }
         }
     }
-    /* Never NaN, inf or negative (a degenerate normal, say, must not poison the image). */
-    out.x = (out.x >= 0.0f && out.x < 3.0e38f) ? out.x : 0.0f;
-    out.y = (out.y >= 0.0f && out.y < 3.0e38f) ? out.y : 0.0f;
-    out.z = (out.z >= 0.0f && out.z < 3.0e38f) ? out.z : 0.0f;
-    store3(radiance, p, out);
+    store3(radiance, p, finite_radiance(out));
 }

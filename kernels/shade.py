@@ -291,6 +291,104 @@ def product_integral(table: wp.array3d(dtype=wp.float32), a1: wp.vec3, e1: float
     return wp.exp(-gap) * cosine_integral(table, axis, d, n)
 
 
+@wp.struct
+class SurfacePoint:
+    """A pixel's surface point rebuilt from the G-buffer: position, shading frame (t, b, n) and the
+    face's vertices with their barycentric weights (for the per-vertex SSDF)."""
+    pos: wp.vec3
+    n: wp.vec3
+    t: wp.vec3
+    b: wp.vec3
+    i0: wp.int32
+    i1: wp.int32
+    i2: wp.int32
+    w0: wp.float32
+    w1: wp.float32
+    w2: wp.float32
+
+
+@wp.func
+def camera_ray(camera: wp.array(dtype=wp.float32), p: int) -> wp.vec3:
+    """The direction through pixel p's centre (Camera.packed: eye, forward, right, up, width, height)."""
+    width = int(camera[12])
+    x = float(p % width)
+    y = float(p // width)
+    return wp.normalize(wp.vec3(camera[3], camera[4], camera[5])
+                        + (2.0 * (x + 0.5) / camera[12] - 1.0) * wp.vec3(camera[6], camera[7], camera[8])
+                        + (1.0 - 2.0 * (y + 0.5) / camera[13]) * wp.vec3(camera[9], camera[10], camera[11]))
+
+
+@wp.func
+def surface_point(faces: wp.array2d(dtype=wp.int32), positions: wp.array(dtype=wp.vec3),
+                  normals: wp.array(dtype=wp.vec3), tangents: wp.array(dtype=wp.vec3), f: int,
+                  bary: wp.vec2) -> SurfacePoint:
+    """The interpolated position and normal, and the tangent made orthogonal to the normal (any
+    perpendicular where the mesh's tangent is parallel to it or zero)."""
+    s = SurfacePoint()
+    s.i0 = faces[f, 0]
+    s.i1 = faces[f, 1]
+    s.i2 = faces[f, 2]
+    s.w1 = bary[0]
+    s.w2 = bary[1]
+    s.w0 = 1.0 - s.w1 - s.w2
+    s.pos = s.w0 * positions[s.i0] + s.w1 * positions[s.i1] + s.w2 * positions[s.i2]
+    n = wp.normalize(s.w0 * normals[s.i0] + s.w1 * normals[s.i1] + s.w2 * normals[s.i2])
+    t = s.w0 * tangents[s.i0] + s.w1 * tangents[s.i1] + s.w2 * tangents[s.i2]
+    t = t - wp.dot(t, n) * n
+    if wp.length(t) < 1.0e-12:
+        ref = wp.vec3(0.0, 0.0, 1.0)
+        if wp.abs(n[0]) < 0.9:
+            ref = wp.vec3(1.0, 0.0, 0.0)
+        t = ref - wp.dot(ref, n) * n
+    t = wp.normalize(t)
+    s.n = n
+    s.t = t
+    s.b = wp.cross(n, t)
+    return s
+
+
+@wp.func
+def to_local(s: SurfacePoint, d: wp.vec3) -> wp.vec3:
+    return wp.vec3(wp.dot(d, s.t), wp.dot(d, s.b), wp.dot(d, s.n))
+
+
+@wp.func
+def environment_visible(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: float, s: SurfacePoint,
+                        has_ssdf: int, ssdf_res: int, ssdf_basis: wp.array2d(dtype=wp.float32),
+                        ssdf_coeffs: wp.array2d(dtype=wp.float32)) -> float:
+    """∫ G(ω; axis, η, 1)(n·ω)⁺ dω over the directions the SSDF leaves unoccluded."""
+    amount = cosine_integral(table, axis, eta, s.n)
+    if has_ssdf != 0:
+        theta = ssdf_theta(ssdf_basis, ssdf_coeffs, s.i0, s.i1, s.i2, s.w0, s.w1, s.w2, ssdf_res, axis)
+        amount = amount * beyond_horizon(table, theta, axis, eta, s.n)
+    return amount
+
+
+@wp.func
+def lobe_from_lights(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: float, s: SurfacePoint,
+                     n_lights: int, lights: wp.array2d(dtype=wp.float32), light_vis: wp.array2d(dtype=wp.uint8),
+                     p: int) -> wp.vec3:
+    """Σ over the lights whose shadow ray reached them of ∫ G(axis, η)·light SG·(n·ω)⁺."""
+    out = wp.vec3(0.0)
+    for l in range(n_lights):
+        if light_vis[p, l] == wp.uint8(0):
+            continue
+        la = light_axis(lights, l, s.pos)
+        le = light_sharpness(lights, l, s.pos)
+        out = out + light_amplitude(lights, l, s.pos, le) * product_integral(table, axis, eta, la, le, s.n)
+    return out
+
+
+@wp.func
+def finite_radiance(v: wp.vec3) -> wp.vec3:
+    """Never NaN, inf or negative (a degenerate normal, say, must not poison the image)."""
+    out = v
+    for c in range(3):
+        if not (v[c] >= 0.0 and v[c] < 3.0e38):
+            out[c] = 0.0
+    return out
+
+
 @wp.kernel
 def shade_pixels(
     face: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec2), light_vis: wp.array2d(dtype=wp.uint8),
@@ -313,37 +411,14 @@ def shade_pixels(
     p = wp.tid() + offset
     if p >= n_pixels:
         return
-    eye = wp.vec3(camera[0], camera[1], camera[2])
     f = face[p]
     if f < 0:
-        width = int(camera[12])
-        x = float(p % width)
-        y = float(p // width)
-        d = wp.normalize(wp.vec3(camera[3], camera[4], camera[5])
-                         + (2.0 * (x + 0.5) / camera[12] - 1.0) * wp.vec3(camera[6], camera[7], camera[8])
-                         + (1.0 - 2.0 * (y + 0.5) / camera[13]) * wp.vec3(camera[9], camera[10], camera[11]))
-        radiance[p] = prefiltered(env_maps, env_levels, d, 1.0e30)
+        radiance[p] = prefiltered(env_maps, env_levels, camera_ray(camera, p), 1.0e30)
         return
-    i0 = faces[f, 0]
-    i1 = faces[f, 1]
-    i2 = faces[f, 2]
-    w1 = bary[p][0]
-    w2 = bary[p][1]
-    w0 = 1.0 - w1 - w2
-    pos = w0 * positions[i0] + w1 * positions[i1] + w2 * positions[i2]
-    n = wp.normalize(w0 * normals[i0] + w1 * normals[i1] + w2 * normals[i2])
-    t = w0 * tangents[i0] + w1 * tangents[i1] + w2 * tangents[i2]
-    t = t - wp.dot(t, n) * n
-    if wp.length(t) < 1.0e-12:
-        ref = wp.vec3(0.0, 0.0, 1.0)
-        if wp.abs(n[0]) < 0.9:
-            ref = wp.vec3(1.0, 0.0, 0.0)
-        t = ref - wp.dot(ref, n) * n
-    t = wp.normalize(t)
-    b = wp.cross(n, t)
-    wo = wp.normalize(eye - pos)
-    cos_o = wp.max(wp.dot(wo, n), MIN_COS_VIEW)
-    wo_local = wp.normalize(wp.vec3(wp.dot(wo, t), wp.dot(wo, b), cos_o))
+    s = surface_point(faces, positions, normals, tangents, f, bary[p])
+    wo = wp.normalize(wp.vec3(camera[0], camera[1], camera[2]) - s.pos)
+    cos_o = wp.max(wp.dot(wo, s.n), MIN_COS_VIEW)
+    wo_local = wp.normalize(wp.vec3(wp.dot(wo, s.t), wp.dot(wo, s.b), cos_o))
 
     mat = face_material[f]
     kind = mat_info[mat, 0]
@@ -358,7 +433,6 @@ def shade_pixels(
     # An analytic material's row, read once into per-pixel values: a textured one (slot >= 0) scales
     # kd, ks and p1 by its maps at the pixel's UV, and everything below uses these values only.
     a_kind = int(0)
-    a_kd = wp.vec3(0.0)
     a_ks = wp.vec3(0.0)
     a_p1 = float(0.0)
     a_p2 = float(0.0)
@@ -370,7 +444,7 @@ def shade_pixels(
         a_p2 = analytic[idx, 8]
         slot = mat_info[mat, 3]
         if slot >= 0:
-            uv = w0 * uvs[i0] + w1 * uvs[i1] + w2 * uvs[i2]
+            uv = s.w0 * uvs[s.i0] + s.w1 * uvs[s.i1] + s.w2 * uvs[s.i2]
             a_kd = wp.cw_mul(a_kd, texture_bilinear(tex_info, tex_data, slot, uv))
             a_ks = wp.cw_mul(a_ks, texture_bilinear(tex_info, tex_data, slot + 1, uv))
             a_p1 = a_p1 * texture_bilinear(tex_info, tex_data, slot + 2, uv)[0]
@@ -387,25 +461,20 @@ def shade_pixels(
     for e in range(n_env):
         axis = wp.vec3(env_sgs[e, 0], env_sgs[e, 1], env_sgs[e, 2])
         eta = env_sgs[e, 3]
-        amount = cosine_integral(table, axis, eta, n)
-        if has_ssdf != 0:
-            theta = ssdf_theta(ssdf_basis, ssdf_coeffs, i0, i1, i2, w0, w1, w2, ssdf_res, axis)
-            amount = amount * beyond_horizon(table, theta, axis, eta, n)
+        amount = environment_visible(table, axis, eta, s, has_ssdf, ssdf_res, ssdf_basis, ssdf_coeffs)
         fd = kd
         if kind != 0:
-            al = wp.vec3(wp.dot(axis, t), wp.dot(axis, b), wp.dot(axis, n))
-            fd = table_rgb(eff_diffuse, eff_info[idx, 6], k2, 1, 0, al, k, oo, ow)
+            fd = table_rgb(eff_diffuse, eff_info[idx, 6], k2, 1, 0, to_local(s, axis), k, oo, ow)
         out = out + wp.cw_mul(fd, wp.vec3(env_sgs[e, 4], env_sgs[e, 5], env_sgs[e, 6])) * amount
     for l in range(n_lights):
         if light_vis[p, l] == wp.uint8(0):
             continue
-        axis = light_axis(lights, l, pos)
-        eta = light_sharpness(lights, l, pos)
+        axis = light_axis(lights, l, s.pos)
+        eta = light_sharpness(lights, l, s.pos)
         fd = kd
         if kind != 0:
-            al = wp.vec3(wp.dot(axis, t), wp.dot(axis, b), wp.dot(axis, n))
-            fd = table_rgb(eff_diffuse, eff_info[idx, 6], k2, 1, 0, al, k, oo, ow)
-        out = out + wp.cw_mul(fd, light_amplitude(lights, l, pos, eta)) * cosine_integral(table, axis, eta, n)
+            fd = table_rgb(eff_diffuse, eff_info[idx, 6], k2, 1, 0, to_local(s, axis), k, oo, ow)
+        out = out + wp.cw_mul(fd, light_amplitude(lights, l, s.pos, eta)) * cosine_integral(table, axis, eta, s.n)
 
     # Specular: each warped lobe against the prefiltered environment and each light.
     if has_spec != 0:
@@ -414,19 +483,19 @@ def shade_pixels(
         if kind != 0:
             n_sub = eff_info[idx, 2]
             n_lobes = j_count
-        for s in range(n_sub):
+        for sub_i in range(n_sub):
             for j in range(n_lobes):
                 axis = wp.vec3(0.0)
                 eta = float(0.0)
                 amp = wp.vec3(0.0)
                 if kind == 0:
                     amp = specular_scale(a_kind, a_ks, a_p1, a_p2, cos_o)
-                    axis = wp.normalize(2.0 * cos_o * n - wo)
+                    axis = wp.normalize(2.0 * cos_o * s.n - wo)
                     eta = ndf_sharpness(a_kind, a_p1) / (4.0 * cos_o)
                 else:
-                    sub = eff_info[idx, 4] + s
+                    sub = eff_info[idx, 4] + sub_i
                     lobe = eff_info[idx, 3] + j
-                    xi = eff_lobes[lobe, 0] * t + eff_lobes[lobe, 1] * b + eff_lobes[lobe, 2] * n
+                    xi = eff_lobes[lobe, 0] * s.t + eff_lobes[lobe, 1] * s.b + eff_lobes[lobe, 2] * s.n
                     c_oj = wp.dot(wo, xi)
                     if c_oj <= 0.0:
                         continue
@@ -439,27 +508,12 @@ def shade_pixels(
                     eta_j = eff_lobes[lobe, 3]
                     eta_s = ndf_sharpness(s_kind, s_p1)
                     axis = wp.normalize(2.0 * c_oj * xi - wo)
-                    al = wp.vec3(wp.dot(axis, t), wp.dot(axis, b), wp.dot(axis, n))
-                    base = eff_info[idx, 5] + s * k2 * k2 * j_count * 3
-                    mu = table_rgb(eff_tables, base, k2, j_count, j, al, k, oo, ow)
+                    base = eff_info[idx, 5] + sub_i * k2 * k2 * j_count * 3
+                    mu = table_rgb(eff_tables, base, k2, j_count, j, to_local(s, axis), k, oo, ow)
                     amp = wp.cw_mul(scale, mu) * (2.0 * PI / (eta_j + eta_s))
                     eta = 1.0 / (1.0 / eta_j + 1.0 / eta_s) / (4.0 * wp.max(c_oj, MIN_COS_VIEW))
                 eta = wp.min(eta, SHARPNESS_MAX)
-                amount = cosine_integral(table, axis, eta, n)
-                if has_ssdf != 0:
-                    theta = ssdf_theta(ssdf_basis, ssdf_coeffs, i0, i1, i2, w0, w1, w2, ssdf_res, axis)
-                    amount = amount * beyond_horizon(table, theta, axis, eta, n)
-                out = out + wp.cw_mul(amp, prefiltered(env_maps, env_levels, axis, eta)) * amount
-                for l in range(n_lights):
-                    if light_vis[p, l] == wp.uint8(0):
-                        continue
-                    la = light_axis(lights, l, pos)
-                    le = light_sharpness(lights, l, pos)
-                    out = out + wp.cw_mul(amp, light_amplitude(lights, l, pos, le)) * product_integral(
-                        table, axis, eta, la, le, n)
-    # Never NaN, inf or negative (a degenerate normal, say, must not poison the image).
-    for c in range(3):
-        v = out[c]
-        if not (v >= 0.0 and v < 3.0e38):
-            out[c] = 0.0
-    radiance[p] = out
+                amount = environment_visible(table, axis, eta, s, has_ssdf, ssdf_res, ssdf_basis, ssdf_coeffs)
+                out = out + wp.cw_mul(amp, prefiltered(env_maps, env_levels, axis, eta) * amount
+                                      + lobe_from_lights(table, axis, eta, s, n_lights, lights, light_vis, p))
+    radiance[p] = finite_radiance(out)
