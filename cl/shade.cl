@@ -93,6 +93,15 @@ CL_INLINE float3 equirect_bilinear(__global const float *maps, int offset, int h
     return a * (1.0f - fr) + b * fr;
 }
 
+/* A bilinear lookup of one equirect map in direction d (Warp's equirect_bilinear). */
+CL_INLINE float3 equirect_bilinear_dir(__global const float *maps, int offset, int h, int w, float3 d)
+{
+    float phi = atan2(d.z, d.x);
+    if (phi < 0.0f)
+        phi = phi + 2.0f * SHADE_PI;
+    return equirect_bilinear(maps, offset, h, w, acos(clampf(d.y, -1.0f, 1.0f)), phi);
+}
+
 /* Λ(d, η): linear in log2 η between the two nearest levels (reference.prefiltered_lookup). The
  * direction's angles are computed once for both levels (Warp's equirect_bilinear computes them in
  * each, identically): atan2 is one of the costliest calls in PoCL. */
@@ -167,7 +176,8 @@ CL_INLINE float ssdf_theta(Ssdf s, float3 d)
     return theta;
 }
 
-/* The fraction of a lobe's horizon-clipped integral that the SSDF leaves visible. */
+/* The share of a lobe's horizon-clipped integral left visible by the SSDF's θd at its axis:
+ * visible_fraction(sin θd, η) / visible_fraction(axis·n, η), clamped to [0, 1]. */
 CL_INLINE float ssdf_visible(Ssdf s, Table t, float3 axis, EtaRow r, float3 n)
 {
     float theta = ssdf_theta(s, axis);
@@ -384,14 +394,27 @@ CL_INLINE SurfacePoint surface_point(__global const int *faces, __global const f
 
 CL_INLINE float3 to_local(SurfacePoint s, float3 d) { return (float3)(dot3(d, s.t), dot3(d, s.b), dot3(d, s.n)); }
 
-/* ∫ G(ω; axis, η, 1)(n·ω)⁺ dω over the directions the SSDF leaves unoccluded. */
-CL_INLINE float environment_visible(Table tab, float3 axis, float eta, SurfacePoint s, int has_ssdf, Ssdf ssdf)
+/* The share of ∫ G(ω; axis, η, 1)(n·ω)⁺ dω that the SSDF leaves unoccluded (1 without one). */
+CL_INLINE float environment_share(Table tab, float3 axis, EtaRow row, SurfacePoint s, int has_ssdf, Ssdf ssdf)
 {
-    EtaRow row = eta_row(tab, eta);
-    float amount = cosine_integral(tab, axis, eta, row, s.n);
-    if (has_ssdf != 0)
-        amount = amount * ssdf_visible(ssdf, tab, axis, row, s.n);
-    return amount;
+    if (has_ssdf == 0)
+        return 1.0f;
+    return ssdf_visible(ssdf, tab, axis, row, s.n);
+}
+
+/* Per channel, the exact irradiance E = lobes + residual over the environment lobes' own irradiance:
+ * the diffuse term keeps the lobes' shadows and takes E's magnitude. Where the lobes hold under a
+ * thousandth of E the ratio stops at 1000, so the term never passes kd·E. */
+CL_INLINE float irradiance_scale1(float lobes, float residual)
+{
+    float e = maxf(lobes + residual, 0.0f);
+    return e / maxf(maxf(lobes, 1.0e-3f * e), 1.0e-30f);
+}
+
+CL_INLINE float3 irradiance_scale(float3 lobes, float3 residual)
+{
+    return (float3)(irradiance_scale1(lobes.x, residual.x), irradiance_scale1(lobes.y, residual.y),
+                    irradiance_scale1(lobes.z, residual.z));
 }
 
 /* Σ over the lights whose shadow ray reached them of ∫ G(axis, η)·light SG·(n·ω)⁺. */
@@ -432,6 +455,7 @@ __kernel void shade_pixels(
     const float cam_w, const float cam_h,
     const int n_lights, __global const float *lights,                 /* (L, 8) */
     const int n_env, __global const float *env_sgs,                   /* (K, 7) [axis, η, rgb] */
+    __global const float *env_residual, const int residual_h, const int residual_w, /* (H, W, 3) */
     __global const float *env_maps, const int n_levels, __global const float *env_levels,
     const int has_ssdf, const int ssdf_res, const int n_basis, const int n_coeffs,
     __global const float *ssdf_basis, __global const float *ssdf_coeffs,
@@ -509,16 +533,23 @@ __kernel void shade_pixels(
     }
     float3 out = (float3)(0.0f, 0.0f, 0.0f);
 
-    /* Diffuse: environment lobes (SSDF-shadowed), then lights (shadow rays). */
+    /* Diffuse: environment lobes (SSDF-shadowed, scaled to the exact irradiance), then lights (shadow rays). */
+    float3 lobes_irradiance = (float3)(0.0f, 0.0f, 0.0f);
     for (int e = 0; e < n_env; ++e) {
         __global const float *lobe = env_sgs + 7 * e;
         float3 axis = (float3)(lobe[0], lobe[1], lobe[2]);
-        float amount = environment_visible(tab, axis, lobe[3], s, has_ssdf, ssdf);
+        float3 radiance_e = (float3)(lobe[4], lobe[5], lobe[6]);
+        EtaRow row = eta_row(tab, lobe[3]);
+        float amount = cosine_integral(tab, axis, lobe[3], row, s.n);
+        lobes_irradiance = lobes_irradiance + radiance_e * amount;
+        amount = amount * environment_share(tab, axis, row, s, has_ssdf, ssdf);
         float3 fd = kd;
         if (kind != 0)
             fd = table_rgb(eff_diffuse, diffuse_base, k2, 1, 0, to_local(s, axis), k, oo, ow);
-        out = out + fd * (float3)(lobe[4], lobe[5], lobe[6]) * amount;
+        out = out + fd * radiance_e * amount;
     }
+    out = out * irradiance_scale(lobes_irradiance,
+                                 equirect_bilinear_dir(env_residual, 0, residual_h, residual_w, s.n));
     for (int l = 0; l < n_lights; ++l) {
         if (vis[l] == 0)
             continue;
@@ -569,7 +600,8 @@ __kernel void shade_pixels(
                     eta = 1.0f / (1.0f / eta_j + 1.0f / eta_s) / (4.0f * maxf(c_oj, MIN_COS_VIEW));
                 }
                 eta = minf(eta, sharpness_max);
-                float amount = environment_visible(tab, axis, eta, s, has_ssdf, ssdf);
+                EtaRow er = eta_row(tab, eta);
+                float amount = cosine_integral(tab, axis, eta, er, s.n) * environment_share(tab, axis, er, s, has_ssdf, ssdf);
                 out = out + amp * (prefiltered(env_maps, env_levels, n_levels, axis, eta) * amount
                                    + lobe_from_lights(tab, axis, eta, s, n_lights, lights, vis));
             }

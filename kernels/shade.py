@@ -54,7 +54,8 @@ def cosine_integral(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: flo
 @wp.func
 def beyond_horizon(table: wp.array3d(dtype=wp.float32), theta: float, axis: wp.vec3, eta: float, n: wp.vec3) -> float:
     """The share of a lobe's horizon-clipped integral left visible by the SSDF's θd at its axis:
-    hemisphere_fraction(sin θd, η) / hemisphere_fraction(axis·n, η), clamped to [0, 1]."""
+    visible_fraction(sin θd, η) / visible_fraction(axis·n, η), clamped to [0, 1] (the horizon alone
+    would give θd = asin(axis·n): the cosine integral has clipped that much already)."""
     c = wp.sin(wp.clamp(theta, -0.5 * PI, 0.5 * PI))
     vis = table_lookup(table, 1, c, eta) / wp.max(table_lookup(table, 1, wp.dot(axis, n), eta), 1.0e-6)
     return wp.clamp(vis, 0.0, 1.0)
@@ -353,15 +354,26 @@ def to_local(s: SurfacePoint, d: wp.vec3) -> wp.vec3:
 
 
 @wp.func
-def environment_visible(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: float, s: SurfacePoint,
-                        has_ssdf: int, ssdf_res: int, ssdf_basis: wp.array2d(dtype=wp.float32),
-                        ssdf_coeffs: wp.array2d(dtype=wp.float32)) -> float:
-    """∫ G(ω; axis, η, 1)(n·ω)⁺ dω over the directions the SSDF leaves unoccluded."""
-    amount = cosine_integral(table, axis, eta, s.n)
-    if has_ssdf != 0:
-        theta = ssdf_theta(ssdf_basis, ssdf_coeffs, s.i0, s.i1, s.i2, s.w0, s.w1, s.w2, ssdf_res, axis)
-        amount = amount * beyond_horizon(table, theta, axis, eta, s.n)
-    return amount
+def environment_share(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: float, s: SurfacePoint,
+                      has_ssdf: int, ssdf_res: int, ssdf_basis: wp.array2d(dtype=wp.float32),
+                      ssdf_coeffs: wp.array2d(dtype=wp.float32)) -> float:
+    """The share of ∫ G(ω; axis, η, 1)(n·ω)⁺ dω that the SSDF leaves unoccluded (1 without one)."""
+    if has_ssdf == 0:
+        return 1.0
+    theta = ssdf_theta(ssdf_basis, ssdf_coeffs, s.i0, s.i1, s.i2, s.w0, s.w1, s.w2, ssdf_res, axis)
+    return beyond_horizon(table, theta, axis, eta, s.n)
+
+
+@wp.func
+def irradiance_scale(lobes: wp.vec3, residual: wp.vec3) -> wp.vec3:
+    """Per channel, the exact irradiance E = lobes + residual over the environment lobes' own
+    irradiance: the diffuse term keeps the lobes' shadows and takes E's magnitude. Where the lobes
+    hold under a thousandth of E the ratio stops at 1000, so the term never passes kd·E."""
+    out = wp.vec3(0.0)
+    for c in range(3):
+        e = wp.max(lobes[c] + residual[c], 0.0)
+        out[c] = e / wp.max(wp.max(lobes[c], 1.0e-3 * e), 1.0e-30)
+    return out
 
 
 @wp.func
@@ -397,6 +409,7 @@ def shade_pixels(
     camera: wp.array(dtype=wp.float32),
     n_lights: int, lights: wp.array2d(dtype=wp.float32),
     n_env: int, env_sgs: wp.array2d(dtype=wp.float32),
+    env_residual: wp.array(dtype=wp.vec3), residual_h: int, residual_w: int,
     env_maps: wp.array(dtype=wp.vec3), env_levels: wp.array2d(dtype=wp.float32),
     has_ssdf: int, ssdf_res: int, ssdf_basis: wp.array2d(dtype=wp.float32), ssdf_coeffs: wp.array2d(dtype=wp.float32),
     table: wp.array3d(dtype=wp.float32),
@@ -457,15 +470,21 @@ def shade_pixels(
         ow = grid_weights(wo_local, k)
     out = wp.vec3(0.0)
 
-    # Diffuse: environment lobes (SSDF-shadowed), then lights (shadow rays).
+    # Diffuse: environment lobes (SSDF-shadowed, scaled to the exact irradiance), then lights (shadow rays).
+    lobes_irradiance = wp.vec3(0.0)
     for e in range(n_env):
         axis = wp.vec3(env_sgs[e, 0], env_sgs[e, 1], env_sgs[e, 2])
         eta = env_sgs[e, 3]
-        amount = environment_visible(table, axis, eta, s, has_ssdf, ssdf_res, ssdf_basis, ssdf_coeffs)
+        radiance_e = wp.vec3(env_sgs[e, 4], env_sgs[e, 5], env_sgs[e, 6])
+        amount = cosine_integral(table, axis, eta, s.n)
+        lobes_irradiance = lobes_irradiance + radiance_e * amount
+        amount = amount * environment_share(table, axis, eta, s, has_ssdf, ssdf_res, ssdf_basis, ssdf_coeffs)
         fd = kd
         if kind != 0:
             fd = table_rgb(eff_diffuse, eff_info[idx, 6], k2, 1, 0, to_local(s, axis), k, oo, ow)
-        out = out + wp.cw_mul(fd, wp.vec3(env_sgs[e, 4], env_sgs[e, 5], env_sgs[e, 6])) * amount
+        out = out + wp.cw_mul(fd, radiance_e) * amount
+    out = wp.cw_mul(out, irradiance_scale(lobes_irradiance,
+                                          equirect_bilinear(env_residual, 0, residual_h, residual_w, s.n)))
     for l in range(n_lights):
         if light_vis[p, l] == wp.uint8(0):
             continue
@@ -513,7 +532,8 @@ def shade_pixels(
                     amp = wp.cw_mul(scale, mu) * (2.0 * PI / (eta_j + eta_s))
                     eta = 1.0 / (1.0 / eta_j + 1.0 / eta_s) / (4.0 * wp.max(c_oj, MIN_COS_VIEW))
                 eta = wp.min(eta, SHARPNESS_MAX)
-                amount = environment_visible(table, axis, eta, s, has_ssdf, ssdf_res, ssdf_basis, ssdf_coeffs)
+                amount = cosine_integral(table, axis, eta, s.n) * environment_share(
+                    table, axis, eta, s, has_ssdf, ssdf_res, ssdf_basis, ssdf_coeffs)
                 out = out + wp.cw_mul(amp, prefiltered(env_maps, env_levels, axis, eta) * amount
                                       + lobe_from_lights(table, axis, eta, s, n_lights, lights, light_vis, p))
     radiance[p] = finite_radiance(out)

@@ -546,6 +546,9 @@ class DeviceBackend:
             levels = np.asarray(static.env_levels, np.float32).reshape(-1, 4)
             if len(levels) == 0:
                 raise ValueError("static.env_levels is empty: the prefiltered environment needs >= 1 level")
+            residual_shape = np.shape(static.env_residual)
+            if len(residual_shape) != 3 or residual_shape[2] != 3 or min(residual_shape[:2]) < 1:
+                raise ValueError(f"static.env_residual must be an (H, W, 3) map, got shape {residual_shape}")
             if static.has_ssdf and (coeffs.shape[1] != basis.shape[0] - 1 or basis.shape[1] != static.ssdf_res ** 2):
                 raise ValueError(f"static.ssdf_basis {basis.shape} and .ssdf_coeffs {coeffs.shape} do not fit "
                                  f"ssdf_res {static.ssdf_res} (want (R + 1, res²) and (V, R))")

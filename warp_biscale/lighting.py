@@ -63,12 +63,14 @@ from scipy.optimize import nnls
 from . import lobes as lobes_mod
 from . import sg
 from .backend import get_backend
-from .environment import Environment, environment_irradiance, equirect_bilinear
+from .environment import (Environment, environment_irradiance, equirect_bilinear, equirect_directions,
+                          equirect_row_solid_angles)
 from .model import Facets
 from .environment import equirect_tables
 
 __all__ = ["EnvironmentSGs", "PrefilteredEnvironment", "EnvironmentLighting", "fit_sgs", "prefilter", "prepare",
-           "downsample", "level_plan", "equirect_tables"]
+           "downsample", "level_plan", "equirect_tables", "irradiance_map",
+           "irradiance_residual"]
 
 LOG2_ETA0 = -3  # the broadest level, η = 1/8: σ ≈ 160°, nearly the whole-sphere average
 TEXELS_PER_SIGMA = 3.0  # rows per lobe σ (see the module docstring and tests/test_lighting.py)
@@ -396,17 +398,88 @@ def _refine_amplitudes(env, axes, sharp, amp):
 
 
 # ----------------------------------------------------------------------------------------------
-# Both, cached per environment
+# The exact irradiance (diffuse lighting's scale)
+# ----------------------------------------------------------------------------------------------
+
+IRRADIANCE_SHAPE = (32, 64)  # E(n) is smooth: bilinear over 5.6° texels errs by ~0.1 % of E
+IRRADIANCE_COARSE = (64, 128)  # the map's smooth remainder is summed at this resolution
+IRRADIANCE_BRIGHT = 4096  # the map's most powerful texels are summed one by one, at their own place
+
+
+def irradiance_map(env: Environment, shape=IRRADIANCE_SHAPE, coarse=IRRADIANCE_COARSE,
+                   bright: int = IRRADIANCE_BRIGHT) -> np.ndarray:
+    """(H, W, 3) float32 E(n) = ∫L(ω)(ω·n)⁺dω at the texel centres of an equirect grid of normals
+    (environment.py's convention): the diffuse term's exact irradiance, which the SG lobes only
+    approximate (`shading`). The texel-centre rule of `environment_irradiance` over the whole map,
+    made cheap without moving a sun: the `bright` texels of most power are summed where they are,
+    the rest of the map area-averaged (power kept) to `coarse` first. Texels of the remainder move by
+    at most half a coarse texel, and only smooth light is left there."""
+    rad = np.asarray(env.radiance, np.float64)
+    h, w = rad.shape[:2]
+    normals = equirect_directions(*shape).reshape(-1, 3)
+    if h * w <= coarse[0] * coarse[1] + bright:
+        return environment_irradiance(rad, normals).reshape(*shape, 3).astype(np.float32)
+    flat = rad.reshape(-1, 3)
+    omega = np.repeat(equirect_row_solid_angles(h, w), w)
+    top = np.argpartition((flat @ LUMINANCE) * omega, -bright)[-bright:]
+    rest = flat.copy()
+    rest[top] = 0.0
+    out = environment_irradiance(downsample(rest.reshape(h, w, 3), *coarse), normals)
+    d = equirect_directions(h, w).reshape(-1, 3)[top]
+    out += np.maximum(normals @ d.T, 0.0) @ (flat[top] * omega[top, None])
+    return np.maximum(out, 0.0).reshape(*shape, 3).astype(np.float32)
+
+
+SHADOW_LOBE_AXES = np.array([[0, 1, 0], [0, -1, 0], [1, 0, 0], [-1, 0, 0], [0, 0, 1], [0, 0, -1]], np.float64)
+SHADOW_LOBE_SHARPNESS = 2.0  # six lobes this broad sum to within ±5 % of a constant
+
+
+def shadow_lobes(sgs: EnvironmentSGs) -> EnvironmentSGs:
+    """The lobes the shade stage shadows: `sgs` with each near-constant (ambient) lobe split into six
+    broad lobes along ±x, ±y, ±z of the same power. The SSDF shadows a lobe by the visibility around
+    its axis (Wang §5.3), so one lobe for the whole sphere would be shadowed by whatever hides its
+    axis; six see six directions. Their sum is not flat, but the shade stage scales the diffuse term
+    to the exact irradiance (`irradiance_residual`), so only their shadows count."""
+    broad = sgs.sharpness <= 10 * AMBIENT_SHARPNESS
+    if not broad.any():
+        return sgs
+    keep = ~broad
+    power = (sg.integral(sgs.sharpness[broad])[:, None] * sgs.amplitude[broad]).sum(0)
+    k = len(SHADOW_LOBE_AXES)
+    amp = np.tile(power / (k * sg.integral(SHADOW_LOBE_SHARPNESS)), (k, 1))
+    return EnvironmentSGs(np.concatenate([SHADOW_LOBE_AXES, sgs.axes[keep]]),
+                          np.concatenate([np.full(k, SHADOW_LOBE_SHARPNESS), sgs.sharpness[keep]]),
+                          np.concatenate([amp, sgs.amplitude[keep]]), iterations=sgs.iterations)
+
+
+def irradiance_residual(env: Environment, sgs: EnvironmentSGs, shape=IRRADIANCE_SHAPE) -> np.ndarray:
+    """(H, W, 3) float32 E(n) − E_sg(n) on `irradiance_map`'s grid of normals: the exact irradiance
+    less the SG lobes' (`EnvironmentSGs.irradiance`). The shade stage adds it, bilinearly, to the
+    lobes' irradiance at the pixel's normal. A residual rather than E itself because E has a kink
+    wherever a small bright source sets (n·ω = 0 at a sun), which bilinear interpolation over 5.6°
+    texels blurs by up to 3–4 % of the mean E; the sun's own lobe carries that kink analytically, and
+    what is left is smooth (tests/test_lighting.py measures both)."""
+    normals = equirect_directions(*shape).reshape(-1, 3)
+    exact = irradiance_map(env, shape).reshape(-1, 3).astype(np.float64)
+    return (exact - sgs.irradiance(normals)).reshape(*shape, 3).astype(np.float32)
+
+
+# ----------------------------------------------------------------------------------------------
+# All three, cached per environment
 # ----------------------------------------------------------------------------------------------
 
 
 @dataclass(eq=False)
 class EnvironmentLighting:
-    """What the renderer needs of an environment: `sgs` (diffuse) and `prefiltered` (specular);
-    `timings` seconds of the fit and of the prefilter."""
+    """What the renderer needs of an environment: `sgs` (the fit), `shadow_sgs` (`shadow_lobes`: the
+    diffuse term's lobes, which the SSDF shadows), `irradiance_residual` (`irradiance_residual`: what the lobes' irradiance lacks of the
+    exact one) and `prefiltered` (specular); `timings` seconds of the fit, the irradiance and the
+    prefilter."""
 
     sgs: EnvironmentSGs
+    shadow_sgs: EnvironmentSGs
     prefiltered: PrefilteredEnvironment
+    irradiance_residual: np.ndarray
     timings: dict = field(default_factory=dict)
 
 
@@ -423,9 +496,12 @@ def prepare(env: Environment, backend="auto", lobes: int = 9) -> EnvironmentLigh
     t0 = time.perf_counter()
     sgs = fit_sgs(env, lobes, be)
     t1 = time.perf_counter()
-    pre = prefilter(env, be)
+    shading = shadow_lobes(sgs)
+    irr = irradiance_residual(env, shading)
     t2 = time.perf_counter()
-    out = EnvironmentLighting(sgs, pre, {"fit": t1 - t0, "prefilter": t2 - t1})
+    pre = prefilter(env, be)
+    t3 = time.perf_counter()
+    out = EnvironmentLighting(sgs, shading, pre, irr, {"fit": t1 - t0, "irradiance": t2 - t1, "prefilter": t3 - t2})
     env.device_cache[key] = out
     return out
 

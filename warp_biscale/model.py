@@ -269,8 +269,9 @@ class GBuffer:
 class ShadeInputs:
     """What the shade stage reads that does not change with the camera (`render.static_inputs`), packed
     as the kernels take it: the large-scale mesh (faces (F, 3), positions, normals, tangents (V, 3),
-    uvs (V, 2), face_material (F,)), the environment (env_sgs (K, 7) SG lobes, env_maps and env_levels
-    the prefiltered maps), the SSDF (has_ssdf, ssdf_res, ssdf_basis (R + 1, res²), ssdf_coeffs (V, R)),
+    uvs (V, 2), face_material (F,)), the environment (env_sgs (K, 7) SG lobes, env_residual (H, W, 3) the
+    exact irradiance less the lobes' (an equirect map over normals), env_maps and env_levels the
+    prefiltered maps), the SSDF (has_ssdf, ssdf_res, ssdf_basis (R + 1, res²), ssdf_coeffs (V, R)),
     the SG lighting table, and the packed materials (mat_info … tex_data, `shading.pack_materials`).
     Backends keep their device copies in `device`, by backend name."""
     faces: np.ndarray
@@ -280,6 +281,7 @@ class ShadeInputs:
     face_material: np.ndarray
     uvs: np.ndarray
     env_sgs: np.ndarray
+    env_residual: np.ndarray
     env_maps: np.ndarray
     env_levels: np.ndarray
     has_ssdf: bool

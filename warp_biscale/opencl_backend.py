@@ -675,13 +675,15 @@ class OpenCLBackend(DeviceBackend):
             **{key: self._buffer(getattr(static, key), np.int32) for key in ("faces", "face_material", "mat_info",
                                                                                "eff_info", "tex_info")},
             **{key: self._buffer(getattr(static, key), np.float32) for key in (
-                "positions", "normals", "tangents", "env_sgs", "env_maps", "analytic", "eff_lobes", "eff_sub",
+                "positions", "normals", "tangents", "env_sgs", "env_residual", "env_maps", "analytic", "eff_lobes",
+                "eff_sub",
                 "eff_tables", "eff_diffuse", "uvs", "tex_data")},
             "env_levels": self._buffer(levels, np.float32),
             "ssdf_basis": self._buffer(basis.T, np.float32),  # texel-major (res², terms + 1)
             "ssdf_coeffs": self._buffer(coeffs, np.float32), "table": self._buffer(table, np.float32),
             # Counts and shapes that the kernel takes by value.
             "n_env": np.int32(len(static.env_sgs)), "n_levels": np.int32(len(levels)),
+            "residual_shape": tuple(np.int32(x) for x in np.shape(static.env_residual)[:2]),
             "ssdf_args": (np.int32(has_ssdf), np.int32(static.ssdf_res), np.int32(basis.shape[0]),
                           np.int32(coeffs.shape[1] if has_ssdf else 0)),
             "table_args": (np.int32(table.shape[1]), np.int32(table.shape[2]),
@@ -698,7 +700,8 @@ class OpenCLBackend(DeviceBackend):
         self._launch("shade", "shade_pixels", (n,),
                      face, bary, vis, dev["faces"], dev["positions"], dev["normals"], dev["tangents"],
                      dev["face_material"], eye, forward, right, up, np.float32(camera[12]), np.float32(camera[13]),
-                     np.int32(len(lights)), light_buf, dev["n_env"], dev["env_sgs"], dev["env_maps"],
+                     np.int32(len(lights)), light_buf, dev["n_env"], dev["env_sgs"], dev["env_residual"],
+                     *dev["residual_shape"], dev["env_maps"],
                      dev["n_levels"], dev["env_levels"], *dev["ssdf_args"], dev["ssdf_basis"],
                      dev["ssdf_coeffs"], dev["table"], *dev["table_args"], dev["mat_info"], dev["analytic"],
                      dev["eff_info"], dev["eff_lobes"], dev["eff_sub"], dev["eff_tables"], dev["eff_diffuse"],

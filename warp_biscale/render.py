@@ -75,7 +75,7 @@ def _static_inputs(scene: Scene, backend, progress, timings) -> ShadeInputs:
         # texture coordinates for the textured materials' lookups (zeros when the mesh has none: no
         # textured material can then be rendered, Scene checks it)
         uvs=(mesh.uvs if mesh.uvs is not None else np.zeros((len(mesh.vertices), 2))).astype(np.float32),
-        env_sgs=light.sgs.packed(), env_maps=light.prefiltered.maps, env_levels=light.prefiltered.levels,
+        env_sgs=light.shadow_sgs.packed(), env_residual=light.irradiance_residual, env_maps=light.prefiltered.maps, env_levels=light.prefiltered.levels,
         has_ssdf=bool(has_ssdf), ssdf_res=int(res), ssdf_basis=np.ascontiguousarray(basis, np.float32),
         ssdf_coeffs=np.ascontiguousarray(coeffs, np.float32), table=sg.lighting_table(), **packed)
     scene.cache.clear()  # one static set per scene: a changed material list or environment replaces it

@@ -117,7 +117,7 @@ def specular_lobe(brdf, wi, wo):
     norm = np.linalg.norm(s, axis=-1, keepdims=True)
     h = np.where(norm > 0, s / np.where(norm > 0, norm, 1.0), np.array([0.0, 0.0, 1.0]))
     cos_d = np.clip(np.einsum("ij,ij->i", h, wi), 1e-6, 1.0)
-    ks = np.asarray(getattr(brdf, "ks", (0.0, 0.0, 0.0)), np.float64)
+    ks = np.asarray(brdf.packed()[3:6], np.float64)  # ks as the kernels see it: BlinnPhong's normalization folded in
     if isinstance(brdf, BlinnPhong):
         n = brdf.exponent
         return n, np.tile(ks * (n + 2.0) / (2.0 * np.pi), (len(wi), 1)), h
@@ -135,9 +135,11 @@ def specular_lobe(brdf, wi, wo):
 # With c = ξ·m for the lobe axis ξ and a unit vector m:
 #   cosine_fraction(c, η)     = ∫ G(ω; ξ, η, 1)·max(ω·m, 0) dω / ∫G   (m the surface normal: the SG
 #                               times the clamped cosine, exact where Wang's one-lobe fit Eq. 40 is not)
-#   hemisphere_fraction(c, η) = ∫_{ω·m ≥ 0} G(ω; ξ, η, 1) dω / ∫G     (Wang's f_h(θd, λ)/f_h(π/2, λ),
+#   hemisphere_fraction(c, η) = ∫_{ω·m ≥ 0} G(ω; ξ, η, 1) dω / ∫G
+#   visible_fraction(c, η)    = ∫_{ω·ξ ≥ 0, ω·m ≥ 0} G dω / ∫_{ω·ξ ≥ 0} G dω   (Wang's f_h(θd, λ)/f_h(π/2, λ),
 #                               Eq. 30–31, with c = sin θd: m is the normal of the reconstructed
-#                               visibility hemisphere, at angle π/2 − θd from the lobe axis)
+#                               visibility hemisphere, at angle π/2 − θd from the lobe axis, and the
+#                               lobe is taken over its own hemisphere, as Wang integrates it)
 # Both are exact 1-D integrals over the polar angle θ about ξ of a closed-form azimuthal measure; the
 # renderer reads them from `lighting_table()` by bilinear interpolation in (log10 η, c).
 # ---------------------------------------------------------------------------------------------------
@@ -189,6 +191,44 @@ def _half_space_fractions(c, eta):
             np.clip(hemi_total / (2 * np.pi), 0.0, 1.0).reshape(shape))
 
 
+def _lune_fraction(c, eta):
+    """visible_fraction for arrays c, η of one shape: the same quadrature as `_half_space_fractions`,
+    over the lobe's own hemisphere (θ ≤ π/2 about ξ, y ≤ y(π/2)) only, divided by that hemisphere's mass."""
+    c = np.clip(np.asarray(c, np.float64), -1.0, 1.0)
+    eta = np.asarray(eta, np.float64)
+    c, eta = np.broadcast_arrays(c, eta)
+    shape = c.shape
+    c, eta = c.reshape(-1), eta.reshape(-1)
+    s = np.sqrt(np.maximum(1.0 - c * c, 0.0))
+    a = -np.expm1(-2.0 * eta)
+    y_half = -np.expm1(-eta) / a  # the own hemisphere's share of ∫G
+    td = np.abs(np.arcsin(c))
+    y_td = np.minimum(-np.expm1(-eta * (1.0 - np.cos(td))) / a, y_half)
+    cuts = np.stack([np.zeros_like(c), y_td, y_half], 1)
+    nodes, weights = np.polynomial.legendre.leggauss(_GL_NODES)
+    total = np.zeros_like(c)
+    for k in range(2):
+        lo, hi = cuts[:, k:k + 1], cuts[:, k + 1:k + 2]
+        y = lo + (hi - lo) * (nodes[None] + 1) / 2
+        w = (hi - lo) / 2 * weights[None]
+        q = np.maximum(1.0 - y, 0.0)
+        x = np.minimum(-np.log(np.maximum(np.exp(-2.0 * eta)[:, None] + a[:, None] * q, 1e-300)) / eta[:, None], 2.0)
+        big_a = c[:, None] * (1.0 - x)
+        big_b = s[:, None] * np.sqrt(np.maximum(x * (2.0 - x), 0.0))
+        ratio = np.where(big_b > 0, -big_a / np.where(big_b > 0, big_b, 1.0), np.where(big_a >= 0, -2.0, 2.0))
+        total += np.sum(w * 2.0 * np.arccos(np.clip(ratio, -1.0, 1.0)), axis=1)
+    return np.clip(total / (2 * np.pi * y_half), 0.0, 1.0).reshape(shape)
+
+
+def visible_fraction(c, eta):
+    """Wang §5.3's visibility of an SG lobe, c = sin θd: the share of the lobe's integral over its own
+    hemisphere (ω·ξ ≥ 0) that also lies on the visible side ω·m ≥ 0 of the reconstructed visibility
+    hemisphere, whose boundary passes at angle θd from the axis (f_h(θd, λ)/f_h(π/2, λ), Eq. 30–31).
+    1 at c = 1; for a sharp lobe hemisphere_fraction(c, η); for a uniform one the lune's share
+    (π/2 + θd)/π, so a broad lobe is shadowed too (the half-space alone leaves it 1/2 whatever θd)."""
+    return _lune_fraction(c, eta)
+
+
 def cosine_fraction(c, eta):
     """∫ G(ω; ξ, η, 1)·max(ω·n, 0) dω / ∫G with c = ξ·n (exact quadrature, float64)."""
     return _half_space_fractions(c, eta)[0]
@@ -209,14 +249,13 @@ _TABLE = None
 
 
 def lighting_table() -> np.ndarray:
-    """(2, TABLE_ROWS, TABLE_COLUMNS) float32: [0] cosine_fraction, [1] hemisphere_fraction on the grid
+    """(2, TABLE_ROWS, TABLE_COLUMNS) float32: [0] cosine_fraction, [1] visible_fraction on the grid
     of `table_axes` (built on the first call and kept)."""
     global _TABLE
     if _TABLE is None:
         log_eta, c = table_axes()
         cc, ee = np.meshgrid(c, 10.0**log_eta)
-        cos_f, hemi_f = _half_space_fractions(cc, ee)
-        _TABLE = np.stack([cos_f, hemi_f]).astype(np.float32)
+        _TABLE = np.stack([_half_space_fractions(cc, ee)[0], _lune_fraction(cc, ee)]).astype(np.float32)
         _TABLE.setflags(write=False)
     return _TABLE
 

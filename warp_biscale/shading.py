@@ -19,8 +19,12 @@ SG or tabulated against one:
   incidence would dominate our error budget.
 - **Visibility.** Environment lobes are shadowed through the SSDF (Wang §5): θd = SSDF(ξ') at the
   lobe axis, interpolated per pixel from PCA coefficients at the vertices, and the lobe keeps the
-  fraction hemisphere_fraction(sin θd, η)/hemisphere_fraction(ξ'·n, η) — the occlusion beyond the
-  horizon, since the cosine fraction already clips at the horizon (our SSDF includes it). Without
+  fraction visible_fraction(sin θd, η)/visible_fraction(ξ'·n, η) (Wang's lune, `sg.visible_fraction`)
+  — the occlusion beyond the horizon, since the cosine fraction already clips at the horizon (our
+  SSDF includes it).
+- **Diffuse magnitude.** The environment lobes' diffuse sum is scaled per channel by the exact
+  irradiance over the lobes' own (`irradiance_scale`; the exact one is the lobes' plus the residual
+  map `lighting.irradiance_residual` at n): the lobes shape the shadows, the map gives the magnitude. Without
   occluders (a lone convex object) the SSDF is skipped and that factor is 1. Lights are shadowed by
   one ray to the emitter's centre per pixel (`backend.trace_shadows`).
 
@@ -52,11 +56,13 @@ from .effective import EffectiveBRDF
 from .model import Frame
 from .lighting import prefiltered_lookup
 from .scene import light_sg
+from .environment import equirect_bilinear
 from .ssdf import ssdf_eval
 from .svbrdf import Textured
 
 __all__ = ["pack_materials", "shade_reference", "surface_frames", "MIN_COS_VIEW"]
 
+IRRADIANCE_RATIO_MAX = 1e3  # the diffuse term's E/E_sg stops here: it then never passes kd·E
 MIN_COS_VIEW = 1e-4  # ωo·n is clamped here: silhouette pixels whose interpolated normal faces away
 
 
@@ -211,6 +217,14 @@ def surface_frames(faces, positions, normals, tangents, face, bary, eye) -> dict
     return {"interp": interp, "pos": pos, "n": n, "t": t, "b": b, "wo": wo, "cos_o": cos_o, "wo_local": wo_local}
 
 
+def irradiance_scale(lobes, residual):
+    """(..., 3) the exact irradiance E = lobes + residual over the environment lobes' own irradiance,
+    per channel, for the diffuse term (E/lobes, at most IRRADIANCE_RATIO_MAX): the lobes give the
+    shadows' shape, E the magnitude."""
+    e = np.maximum(np.asarray(lobes) + residual, 0.0)
+    return e / np.maximum(np.maximum(lobes, e / IRRADIANCE_RATIO_MAX), 1e-30)
+
+
 def shade_reference(frame: Frame) -> np.ndarray:
     """(N, 3) float64 radiance of every pixel of a packed frame (`render.pack_frame`)."""
     static = frame.inputs
@@ -249,7 +263,7 @@ def shade_reference(frame: Frame) -> np.ndarray:
             return np.ones(len(axis))
         theta_d = ssdf_eval(static.ssdf_basis, coeffs[sel], int(static.ssdf_res), axis)
         c = np.sin(np.clip(theta_d, -np.pi / 2, np.pi / 2))
-        vis = sg.table_lookup(table, 1, c, eta)
+        vis = sg.table_lookup(table, 1, c, eta)  # visible_fraction
         horizon = sg.table_lookup(table, 1, _dot(axis, n[sel]), eta)
         return np.clip(vis / np.maximum(horizon, 1e-6), 0.0, 1.0)
 
@@ -286,13 +300,17 @@ def shade_reference(frame: Frame) -> np.ndarray:
                 wl = np.stack([_dot(axis_world, ts_), _dot(axis_world, bs), _dot(axis_world, ns)], 1)
                 return _table_interp(static.eff_diffuse, int(ei[6]), k, 1, 0, wl, wol_s)
 
-        # Diffuse: environment lobes, then lights.
+        # Diffuse: environment lobes (shadowed), scaled per channel to the exact irradiance, then lights.
+        lobes_irradiance = np.zeros((m, 3))
+        env_diffuse = np.zeros((m, 3))
         for lobe in env:
             axis = np.tile(lobe[0:3], (m, 1))
             eta = np.full(m, lobe[3])
             e = sg.integral(eta) * sg.table_lookup(table, 0, _dot(axis, ns), eta)
+            lobes_irradiance += lobe[4:7][None] * e[:, None]
             occ = occlusion(axis, eta, sel)
-            rad[sel] += diffuse_over_cos(axis) * (lobe[4:7][None] * (e * occ)[:, None])
+            env_diffuse += diffuse_over_cos(axis) * (lobe[4:7][None] * (e * occ)[:, None])
+        rad[sel] += env_diffuse * irradiance_scale(lobes_irradiance, equirect_bilinear(static.env_residual, ns))
         for li in range(light_axis.shape[1]):
             axis, eta, amp = light_axis[sel, li], light_eta[sel, li], light_amp[sel, li]
             e = sg.integral(eta) * sg.table_lookup(table, 0, _dot(axis, ns), eta)
