@@ -16,6 +16,7 @@ What is computed depends on what the scene needs, and what does not change is no
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -97,37 +98,76 @@ def pack_frame(scene: Scene, backend="auto", progress=None, timings=None) -> Fra
     return Frame(static, g, scene.camera.packed(), lights)
 
 
-def render(scene: Scene, method: str = "sg", backend="auto", progress=None, **options) -> Rendering:
-    """Render `scene` → `Rendering`. method "sg": the per-pixel SG renderer (Wang 2009 / Iwasaki 2012 §5);
-    "mc": the Monte Carlo reference (`montecarlo.render`, options `samples`, `seed`)."""
+AA_MAX = 256
+
+
+def aa_offsets(samples: int, seed: int = 0) -> np.ndarray:
+    """(samples, 2) sub-pixel offsets in [−½, ½)², multi-jittered (Chiu, Shirley and Wang 1994): one in
+    each cell of a k × k grid (k² ≥ samples, cells taken in a shuffled order when samples < k²) and,
+    within the grid, one per row and column of the fine samples × samples grid, so an edge of any
+    slope is sampled at distinct places across the pixel. (0, 0), the pixel centre, for one sample.
+    Deterministic."""
+    if samples == 1:
+        return np.zeros((1, 2))
+    rng = np.random.default_rng(seed)
+    k = int(np.ceil(np.sqrt(samples)))
+    cells = rng.permutation(k * k)[:samples] if samples < k * k else np.arange(samples)
+    cx, cy = cells % k, cells // k
+    # fine positions: within cell (cx, cy), sub-cell (cy, cx) of a k × k sub-grid (canonical n-rooks)
+    fx = (cx * k + cy + rng.random(samples)) / (k * k)
+    fy = (cy * k + cx + rng.random(samples)) / (k * k)
+    return np.stack([fx, fy], 1) - 0.5
+
+
+def _check_aa(aa) -> int:
+    try:
+        n = int(aa)
+    except (TypeError, ValueError):
+        n = None
+    if n is None or isinstance(aa, bool) or n != aa or not 1 <= n <= AA_MAX:
+        raise ValueError(f"aa must be an integer in [1, {AA_MAX}] (samples per pixel), got {aa!r}")
+    return n
+
+
+def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: int = 1, **options) -> Rendering:
+    """Render `scene` → `Rendering`. method "sg": the per-pixel SG renderer (Wang 2009 / Iwasaki 2012 §5),
+    with `aa` jittered samples per pixel (`aa_offsets`; 1: the pixel centre only) averaged with a box
+    filter; "mc": the Monte Carlo reference (`montecarlo.render`, options `samples`, `seed`)."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    n_aa = _check_aa(aa)
     if method == "mc":
-
+        if n_aa != 1:
+            raise ValueError("aa is an option of the SG renderer; the Monte Carlo reference samples pixel centres")
         return montecarlo.render(scene, backend=backend, progress=progress, **options)
     if options:
         raise ValueError(f"unknown option(s) for the SG renderer: {sorted(options)}")
     backend = get_backend(backend)
     progress = progress or Progress(None)
-    timings: dict = {}
+    timings: dict = {"gbuffer": 0.0, "shade": 0.0}
     t_all = time.perf_counter()
     static = _static_inputs(scene, backend, progress, timings)
     cam = scene.camera
-    t0 = time.perf_counter()
-    gbuffer = backend.trace_primary(scene.mesh, cam, to_host=False)
-    backend.synchronize()
-    timings["gbuffer"] = time.perf_counter() - t0
     lights = scene.lights_packed
-    t0 = time.perf_counter()
-    if len(lights):
-        backend.trace_shadows(scene.mesh, gbuffer, lights, to_host=False)
+    image = np.zeros((cam.height * cam.width, 3))
+    for jx, jy in aa_offsets(n_aa):
+        sample = dataclasses.replace(cam, jitter=(jx, jy)) if n_aa > 1 else cam
+        t0 = time.perf_counter()
+        gbuffer = backend.trace_primary(scene.mesh, sample, to_host=False)
         backend.synchronize()
-        timings["shadows"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    image = backend.shade(scene.mesh, static, cam.packed(), lights)
-    timings["shade"] = time.perf_counter() - t0
+        timings["gbuffer"] += time.perf_counter() - t0
+        t0 = time.perf_counter()
+        if len(lights):
+            backend.trace_shadows(scene.mesh, gbuffer, lights, to_host=False)
+            backend.synchronize()
+            timings["shadows"] = timings.get("shadows", 0.0) + time.perf_counter() - t0
+        t0 = time.perf_counter()
+        image += backend.shade(scene.mesh, static, sample.packed(), lights)
+        timings["shade"] += time.perf_counter() - t0
+    image = (image / n_aa).astype(np.float32)
     timings["total"] = time.perf_counter() - t_all
     image = image.reshape(cam.height, cam.width, 3)
     info = {"backend": backend.name, "device": backend.device, "method": "sg", "ssdf": bool(static.has_ssdf),
-            "env_lobes": len(static.env_sgs), "lights": len(lights), "width": cam.width, "height": cam.height}
+            "env_lobes": len(static.env_sgs), "lights": len(lights), "width": cam.width, "height": cam.height,
+            "aa": n_aa}
     return Rendering(image, timings, info)

@@ -268,8 +268,9 @@ class Mesh:
 
 @dataclass(eq=False)
 class Camera:
-    """A pinhole camera. Pixel (x, y), y down, is the ray through its centre:
-    d ∝ forward + (2(x + ½)/W − 1)·tan(fov/2)·(W/H)·right + (1 − 2(y + ½)/H)·tan(fov/2)·up."""
+    """A pinhole camera. Pixel (x, y), y down, is the ray through its centre, or through the point
+    `jitter` = (jx, jy) ∈ [−½, ½]² pixels from it (the anti-aliased renderer's sub-pixel samples):
+    d ∝ forward + (2(x + ½ + jx)/W − 1)·tan(fov/2)·(W/H)·right + (1 − 2(y + ½ + jy)/H)·tan(fov/2)·up."""
 
     eye: object = (0.0, 0.0, 4.0)
     target: object = (0.0, 0.0, 0.0)
@@ -277,6 +278,7 @@ class Camera:
     fov: float = 40.0  # vertical field of view, degrees
     width: int = 512
     height: int = 512
+    jitter: tuple = (0.0, 0.0)
 
     def __post_init__(self):
         self.eye = _vec3("Camera.eye", self.eye)
@@ -292,6 +294,10 @@ class Camera:
             setattr(self, name, _integer(f"Camera.{name}", getattr(self, name), 1, 16384))
         if abs(np.dot(self.basis()[0], self.up)) > 1 - 1e-9:
             raise ValueError("Camera.up is parallel to the viewing direction")
+        jitter = np.asarray(self.jitter, np.float64)
+        if jitter.shape != (2,) or not np.all(np.abs(jitter) <= 0.5):
+            raise ValueError(f"Camera.jitter must be two offsets in [-0.5, 0.5] pixels, got {self.jitter!r}")
+        self.jitter = (float(jitter[0]), float(jitter[1]))
 
     def basis(self):
         """(forward, right, up) unit vectors, and tan(fov/2)."""
@@ -303,16 +309,20 @@ class Camera:
         return f, r, u, float(np.tan(np.radians(self.fov) / 2))
 
     def packed(self) -> np.ndarray:
-        """(16,) float32: eye, forward, right·tan·aspect, up·tan, width, height, 0, 0 (what the kernels read)."""
+        """(16,) float32: eye, forward, right·tan·aspect, up·tan, width, height, 0, 0 (what the kernels read).
+        A jitter moves `forward` by that many pixels (kernels normalise the ray), so the kernels, which
+        aim at pixel centres, need not know of it."""
         f, r, u, t = self.basis()
         aspect = self.width / self.height
-        return np.concatenate([self.eye, f, r * t * aspect, u * t, [self.width, self.height, 0, 0]]).astype(np.float32)
+        right, up = r * t * aspect, u * t
+        f = f + (2 * self.jitter[0] / self.width) * right - (2 * self.jitter[1] / self.height) * up
+        return np.concatenate([self.eye, f, right, up, [self.width, self.height, 0, 0]]).astype(np.float32)
 
     def rays(self) -> tuple[np.ndarray, np.ndarray]:
         """(H·W, 3) origins and unit directions in float64, row-major from the top-left pixel."""
         f, r, u, t = self.basis()
-        x = (2 * (np.arange(self.width) + 0.5) / self.width - 1) * t * self.width / self.height
-        y = (1 - 2 * (np.arange(self.height) + 0.5) / self.height) * t
+        x = (2 * (np.arange(self.width) + 0.5 + self.jitter[0]) / self.width - 1) * t * self.width / self.height
+        y = (1 - 2 * (np.arange(self.height) + 0.5 + self.jitter[1]) / self.height) * t
         d = f[None, None] + x[None, :, None] * r + y[:, None, None] * u
         d = d.reshape(-1, 3)
         d /= np.linalg.norm(d, axis=1, keepdims=True)

@@ -1,0 +1,94 @@
+"""Anti-aliasing: the SG renderer's jittered supersampling against the box-filtered analytic coverage of
+an edge, and the camera's sub-pixel jitter against its own float64 rays."""
+
+import numpy as np
+import pytest
+
+import warp_biscale as wb
+from warp_biscale.render import aa_offsets
+
+
+def _edge_scene():
+    """A lit square seen from straight above with the image axes turned 20° from its edges: its edge
+    crosses the pixels at a slope, and every covered pixel has the same radiance."""
+    a = np.radians(20)
+    cam = wb.Camera(eye=(2.0, 3.0, 0.0), target=(2.0, 0.0, 0.0), up=(np.sin(a), 0, -np.cos(a)), fov=30,
+                    width=48, height=32)
+    plane = wb.Mesh.plane(4.0, 0.0, 2, material=0)
+    return wb.Scene(plane, [wb.Lambert(0.5)], cam, None, [wb.DirectionalLight((0, 1, 0), 3.0, 1.0)])
+
+
+def _coverage(cam, n=32):
+    """The share of each pixel's square that sees the square |x|, |z| ≤ 2 at y = 0, by an n × n grid of
+    exact ray–plane intersections per pixel (±1/(2n) per pixel)."""
+    f, r, u, t = cam.basis()
+    off = (np.arange(n) + 0.5) / n
+    total = np.zeros((cam.height, cam.width))
+    for ox in off:
+        for oy in off:
+            x = (2 * (np.arange(cam.width) + ox) / cam.width - 1) * t * cam.width / cam.height
+            y = (1 - 2 * (np.arange(cam.height) + oy) / cam.height) * t
+            d = f[None, None] + x[None, :, None] * r + y[:, None, None] * u
+            p = cam.eye + (-cam.eye[1] / d[..., 1])[..., None] * d
+            total += (np.abs(p[..., 0]) <= 2.0) & (np.abs(p[..., 2]) <= 2.0)
+    return total / (n * n)
+
+
+@pytest.fixture(scope="module")
+def edge():
+    scene = _edge_scene()
+    cov = _coverage(scene.camera)
+    return scene, cov, (cov > 0) & (cov < 1)
+
+
+def test_aa_matches_the_box_filtered_coverage_of_an_edge(backend, edge):
+    """16 multi-jittered samples: per edge pixel the error is a sum of a few cells' Bernoulli draws,
+    std ≈ 0.06 of the radiance (measured on Warp CPU: mean 0.053, max 0.116); one sample per pixel is
+    0.21 / 0.46. Unbiased: the signed errors cancel over the edge."""
+    scene, cov, on_edge = edge
+    assert on_edge.sum() >= 30
+    img = wb.render(scene, backend=backend, aa=16).image[..., 0]
+    radiance = img[cov == 1].mean()
+    err = (img - radiance * cov)[on_edge] / radiance
+    assert np.abs(err).mean() < 0.08 and np.abs(err).max() < 0.2
+    assert abs(err.mean()) < 0.03
+    assert np.abs(img - radiance * cov)[~on_edge].max() < 1e-4 * radiance  # inside and outside: unchanged
+    single = wb.render(scene, backend=backend).image[..., 0]
+    assert np.abs(single - radiance * cov)[on_edge].mean() / radiance > 0.15  # the test sees aliasing
+
+
+def test_aa_offsets_are_stratified():
+    for n in (2, 4, 5, 16, 64):
+        o = aa_offsets(n)
+        assert o.shape == (n, 2) and np.all(o >= -0.5) and np.all(o < 0.5)
+        k = int(np.ceil(np.sqrt(n)))
+        cells = np.floor((o + 0.5) * k).astype(int)
+        assert len({tuple(c) for c in cells}) == n  # at most one sample per coarse cell
+        for axis in range(2):  # one per fine row and column
+            assert len(np.unique(np.floor((o[:, axis] + 0.5) * k * k))) == n
+    np.testing.assert_array_equal(aa_offsets(1), [[0.0, 0.0]])
+    np.testing.assert_array_equal(aa_offsets(9), aa_offsets(9))
+
+
+def test_jittered_camera_rays_match_packed():
+    """The kernels aim at pixel centres; a jitter moves the packed `forward`: the ray through the packed
+    camera's pixel centre must be the float64 jittered ray (float32 packing: 1e-6)."""
+    cam = wb.Camera(eye=(0.3, 1.0, 4.0), target=(0, 0.5, 0), width=7, height=5, jitter=(0.3, -0.45))
+    _, d = cam.rays()
+    c = cam.packed().astype(np.float64)
+    x, y = np.meshgrid(np.arange(7), np.arange(5))
+    sx = (2 * (x + 0.5) / 7 - 1).reshape(-1, 1)
+    sy = (1 - 2 * (y + 0.5) / 5).reshape(-1, 1)
+    k = c[3:6] + sx * c[6:9] + sy * c[9:12]
+    np.testing.assert_allclose(k / np.linalg.norm(k, axis=1, keepdims=True), d, atol=1e-6)
+
+
+@pytest.mark.parametrize("bad", [0, -1, 1.5, "4", True, 257])
+def test_bad_aa_is_one_line(bad):
+    with pytest.raises(ValueError, match="aa must be an integer"):
+        wb.render(_edge_scene(), backend="warp:cpu", aa=bad)
+
+
+def test_bad_jitter_is_one_line():
+    with pytest.raises(ValueError, match="Camera.jitter"):
+        wb.Camera(jitter=(0.7, 0.0))
