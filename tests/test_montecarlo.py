@@ -343,8 +343,8 @@ def test_point_light_is_not_shadowed_by_geometry_behind_it(backend):
 
 def test_effective_flat_lambert_renders_like_lambert(backend):
     """A flat Lambertian tile's f̄ is kd/π·cos θi: with its ground truth, the effective material renders like
-    Lambert(0.5) (same strategies and seed, so the same samples: equal to rounding). Without a truth the renderer
-    warns, says so in info, and uses the SG fit (exact for this tile too)."""
+    Lambert(0.5) (same strategies and seed, so the same samples: equal to rounding). With fallback="sg" and no
+    truth the renderer warns, says so in info, and uses the SG fit (exact for this tile too)."""
     tile = flat_tile()
     mat = wb.bake(tile, wb.Lambert(0.5), lobes=1, directions=6, facets=1 << 10, backend=backend)
     gt = wb.ground_truth(tile, [wb.Lambert(0.5)], facets=1 << 10, directions=6, backend=backend)
@@ -359,7 +359,7 @@ def test_effective_flat_lambert_renders_like_lambert(backend):
     assert list(r.info["strategies"][0]) == ["environment", "cosine", "light 0"]
     np.testing.assert_allclose(r.image, ref.image, rtol=1e-5, atol=1e-7)
     with pytest.warns(UserWarning, match="no ground truth"):
-        r2 = mc.render(Scene(mesh, [mat], cam, env, lights), backend=backend, samples=48)
+        r2 = mc.render(Scene(mesh, [mat], cam, env, lights), backend=backend, samples=48, fallback="sg")
     assert "sg-exact" in r2.info["effective_brdf"][0]
     np.testing.assert_allclose(r2.image, ref.image, rtol=1e-5, atol=1e-7)
     # Background pixels: the environment along the camera ray.
@@ -369,8 +369,8 @@ def test_effective_flat_lambert_renders_like_lambert(backend):
 
 def test_glossy_effective_material_renders_finite_with_its_brdf_strategy(backend):
     """A baked V-groove with a glossy sub-material: the warped-lobe strategy is used, nothing is clamped, the
-    image is finite and >= 0, and with the ground truth it is close to the image of the SG fit (sg-exact, the
-    fallback without a truth): the two f̄ differ by the bake's error, a few per cent here."""
+    image is finite and >= 0, and with the ground truth it is close to the image of the SG fit (sg-exact,
+    fallback="sg"): the two f̄ differ by the bake's error, a few per cent here."""
     tile = vgroove_tile()
     mats = [wb.BlinnPhong(0.8, 32.0, kd=0.2)]
     mat = wb.bake(tile, mats, lobes=2, directions=6, facets=1 << 12, backend=backend)
@@ -381,7 +381,7 @@ def test_glossy_effective_material_renders_finite_with_its_brdf_strategy(backend
     assert list(r.info["strategies"][0]) == ["environment", "cosine", "brdf", "light 0"]
     assert r.info["clamped"] == 0 and np.isfinite(r.image).all() and (r.image >= 0).all()
     with pytest.warns(UserWarning):
-        r2 = mc.render(scene, backend=backend, samples=32)
+        r2 = mc.render(scene, backend=backend, samples=32, fallback="sg")
     hit = r.info["stderr"].max(-1) > 0
     assert abs(r.image[hit].mean() / r2.image[hit].mean() - 1) < 0.3
 

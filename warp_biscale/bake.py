@@ -19,7 +19,7 @@ from . import directions as dirs
 from . import lobes as lobes_mod
 from . import sg
 from .backend import get_backend
-from .effective import METHODS, EffectiveBRDF
+from .effective import METHODS, EffectiveBRDF, Provenance
 from .progress import as_progress
 from .truth import _check_count, _prepare, _Timer
 from .model import Bvndf, Facets
@@ -163,11 +163,12 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
         or "histogram" (from the binned BVNDF, each bin at its mean normal).
     bvndf : also keep the histogram N in the result (`mat.bvndf.histogram`) for inspection.
 
-    Returns an `EffectiveBRDF` with per-stage `timings` (seconds, device-synchronised; the host bins the
-    normals while the device traces the visibility rays and sums a_v and the EM's facet weights behind
-    them, and "visibility" times all of it together, until the weights are back; with a fixed J the EM's
-    start, the EM and the moment sums are queued behind the rays too, and the device time they take shows
-    in the stage that next waits for the device).
+    Returns an `EffectiveBRDF` that records its `provenance` (the tile, facets, seed: what its ground truth
+    is rebuilt from), with per-stage `timings` (seconds, device-synchronised; the host bins the normals
+    while the device traces the visibility rays and sums a_v and the EM's facet weights behind them, and
+    "visibility" times all of it together, until the weights are back; with a fixed J the EM's start, the
+    EM and the moment sums are queued behind the rays too, and the device time they take shows in the
+    stage that next waits for the device).
     """
     mats, _, _ = _prepare(tile, materials)
     if method not in METHODS:
@@ -209,9 +210,10 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
         extra = len(mats) - len(amps)
         amps = np.concatenate([amps, np.zeros((extra,) + amps.shape[1:], amps.dtype)])
         energy = np.concatenate([energy, np.zeros((extra,) + energy.shape[1:], energy.dtype)])
+    # The provenance lets the Monte Carlo reference rebuild this material's exact ground truth (truth.truth_of).
     mat = EffectiveBRDF(geo["lobes"], amps, mats, k, method,
                         info={**geo["info"], "backend": be.name, "tile": tile.name}, bvndf=geo["bvndf"],
-                        _energy=energy)
+                        provenance=Provenance(tile, int(seed), count), _energy=energy)
     timer.timings["tables"] = time.perf_counter() - t0
     mat.timings = dict(timer.timings)
     prog.done()

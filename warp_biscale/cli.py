@@ -20,6 +20,7 @@ from .effective import compare
 from .geometry import BUILTIN_TILES, load_tile
 from .images import check_exposure
 from .io import atomic_path, check_output
+from .montecarlo import missing_provenance
 from .progress import as_progress, set_quiet
 from .scenefile import load_scene
 from .truth import ground_truth
@@ -204,10 +205,14 @@ def _print_bakes(sf):
                   f"{len(mat.lobes)} lobes, K={mat.directions}, in {seconds:.2f} s")
 
 
-def _print_rendering(result, path, exposure=0.0):
+def _print_rendering(result, path, exposure=0.0, names=None):
     h, w = result.image.shape[:2]
     print("stage times: " + ", ".join(f"{k} {v * 1e3:.1f} ms" for k, v in result.timings.items()))
     info = result.info
+    for i, source in info.get("truth_source", {}).items():
+        name = repr(names[i]) if names else str(i)
+        how = {"computed": "computed", "memory": "reused", "given": "given"}.get(source, f"read from {source}")
+        print(f"ground truth of material {name}: {how} ({info['effective_brdf'][i]})")
     print(f"wrote {path} ({w}×{h} pixels, method {info.get('method')}, backend {info.get('backend')}"
           + (f", exposure {exposure:+g}" if exposure and path.lower().endswith(".png") else "") + ")")
 
@@ -223,10 +228,21 @@ def cmd_render(args):
         sf.resize(*_size(args.size, sf.width, sf.height))
     method = args.method or sf.method
     options = sf.render_options(method)
-    if args.samples is not None:
-        if method != "mc":
-            raise ValueError("--samples is for --method mc (the SG renderer takes no samples)")
-        options["samples"] = args.samples
+    for flag, key, value in (("--samples", "samples", args.samples), ("--mc-fallback", "fallback", args.mc_fallback),
+                             ("--truth-facets", "truth_facets", args.truth_facets)):
+        if value is not None:
+            if method != "mc":
+                raise ValueError(f"{flag} is for --method mc (the SG renderer has no such option)")
+            options[key] = value
+    if method == "mc" and args.mc_fallback is None:
+        # Before the render starts: a material file of format 1 records no tile to compute the truth from.
+        for i in missing_provenance(sf.scene):
+            mat = sf.scene.materials[i]
+            where = f" ({mat.path})" if mat.path else ""
+            raise ValueError(f"material {sf.material_names[i]!r}{where} does not record how it was baked (a material "
+                             "file of format 1), so the Monte Carlo reference cannot compute its ground truth: "
+                             "re-bake it (warp-biscale bake), or pass --mc-fallback sg to judge with its SG fit "
+                             "(not exact)")
     exposure = sf.exposure if args.exposure is None else args.exposure
     if not args.quiet:
         _print_bakes(sf)
@@ -234,7 +250,7 @@ def cmd_render(args):
     prog.done()
     result.save(args.output, exposure=exposure)
     if not args.quiet:
-        _print_rendering(result, args.output, exposure)
+        _print_rendering(result, args.output, exposure, sf.material_names)
     return 0
 
 
@@ -288,6 +304,13 @@ def _add_render_commands(sub):
     r.add_argument("--method", choices=["sg", "mc"], help="sg: per-pixel SG shading; mc: Monte Carlo reference "
                                                            "(default: the file's [render] method, else sg)")
     r.add_argument("--samples", type=int, help="samples per pixel for --method mc")
+    r.add_argument("--truth-facets", type=int, metavar="N",
+                   help="--method mc: facets of the ground truth computed for each baked material in view "
+                        "(default 2^18; cached beside a material file as NAME.truth.npz)")
+    r.add_argument("--mc-fallback", choices=["sg"],
+                   help="--method mc: judge every baked material with its SG fit (not exact; with a warning) "
+                        "instead of its exact ground truth, e.g. for a material file of format 1, which records "
+                        "no tile to compute the truth from")
     r.add_argument("--backend", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name> (default: the file's)")
     r.add_argument("--size", type=int, nargs="+", metavar="N", help=SIZE_HELP + " (default: the file's)")
     r.add_argument("--exposure", type=float, help="PNG exposure in stops: 0 leaves the radiance, -1 halves it, "

@@ -8,12 +8,19 @@ M_m, η_s,m the small-scale specular BRDF as an SG in the facet normal (`sg.spec
 half vector and S either the SG-convolution closure (method "sg", Iwasaki Eq. 14–15) or the exact
 SG inner product (method "sg-exact", Eq. 10). The amplitudes do not depend on the small-scale BRDFs,
 so `with_materials` edits a material without re-baking anything.
+
+A material made by `wb.bake` also records how it was made (`Provenance`: the tile and the bake's facet
+seed; the small-scale BRDFs are `materials`), so that its exact ground truth can be rebuilt from it (the
+Monte Carlo reference does, `truth.truth_of`). Material files of format 2 carry it; a format-1 file, or
+a material built by hand, has none.
 """
 
 from __future__ import annotations
 
-import time
 import dataclasses
+import os
+import time
+import warnings
 
 import numpy as np
 
@@ -23,8 +30,9 @@ from . import sg
 from .model import Bvndf
 from .io import read_npz, save_npz
 from .lobes import LobeSet
+from .smallscale import SmallScale, TileWarning
 
-__all__ = ["EffectiveBRDF", "compare", "METHODS"]
+__all__ = ["EffectiveBRDF", "Provenance", "compare", "METHODS"]
 
 METHODS = ("sg", "sg-exact")
 
@@ -40,19 +48,69 @@ def _brdf_from_dict(d: dict):
     return cls(**{k: v for k, v in d.items() if k != "type"})
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class Provenance:
+    """How a baked material was made, enough to compute its exact ground truth: the tile (its arrays are
+    kept exactly, so a tile rebuilt from a file is the same tile), the bake's facet count and seed. The
+    small-scale BRDFs are the material's own `materials` (a material-only edit changes them, not this)."""
+
+    tile: SmallScale
+    seed: int = 0
+    facets: int = 0
+
+    def __post_init__(self):
+        if not isinstance(self.tile, SmallScale):
+            raise ValueError(f"Provenance.tile must be a SmallScale, got {type(self.tile).__name__}")
+
+    def arrays(self) -> dict:
+        """The tile as the npz arrays of a material file (`tile_*`)."""
+        t = self.tile
+        out = {"tile_vertices": t.vertices, "tile_faces": t.faces, "tile_material_ids": t.material_ids,
+               "tile_colors": t.colors, "tile_period": np.asarray(t.period, np.float64), "tile_origin": t.origin}
+        if t.vertex_normals is not None:
+            out["tile_vertex_normals"] = t.vertex_normals
+        return out
+
+    def header(self) -> dict:
+        return {"tile": self.tile.name, "seed": self.seed, "facets": self.facets}
+
+    @classmethod
+    def from_file(cls, head: dict, arrays: dict) -> Provenance:
+        """Rebuild from `header()` and `arrays()`, bit for bit: the stored tile is already clean (no duplicate
+        vertex, no degenerate face), so building it again changes no vertex, face, id or colour. A TileWarning it
+        gave at bake time (seams) is not repeated on every load."""
+        normals = arrays.get("tile_vertex_normals")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", TileWarning)
+            tile = SmallScale(arrays["tile_vertices"], arrays["tile_faces"], arrays["tile_material_ids"],
+                              arrays["tile_colors"], tuple(arrays["tile_period"]), normals,
+                              str(head.get("tile", "tile")), arrays["tile_origin"])
+        if normals is not None:
+            # SmallScale normalises the normals again, which moves about a third of unit vectors by an ulp: the
+            # stored ones go back before anything sees the tile, so its truth is that of the tile baked.
+            normals = np.array(normals, np.float64)
+            normals.flags.writeable = False
+            tile.vertex_normals = normals
+        return cls(tile, int(head.get("seed", 0)), int(head.get("facets", 0)))
+
+
 class EffectiveBRDF:
     """A baked material. Build it with `wb.bake`; read it back with `wb.load`.
 
     Attributes: `lobes` (LobeSet: axes, sharpness, weight), `amplitudes` (M, K², K², J, 3) float32
     μ tables, `diffuse` (K², K², 3) the f̄d table of Eq. 9, `materials` (the small-scale BRDFs),
     `directions` K, `method`, `timings` (seconds per stage, device-synchronised), `info` (facets,
-    seed, backend, NDF fit error, Gram condition number, ...).
+    seed, backend, NDF fit error, Gram condition number, ...), `provenance` (how it was baked: a
+    `Provenance`, or None for a format-1 file or a material built by hand), `path` (the material file it
+    was read from or last saved to, absolute; None if neither: where the Monte Carlo reference caches its
+    ground truth).
     """
 
-    VERSION = 1
+    VERSION = 2  # 2: the provenance (tile arrays, bake seed and facet count); version 1 files are still read
+    VERSIONS = (1, 2)
 
     def __init__(self, lobes: LobeSet, amplitudes, materials, directions: int, method: str = "sg", timings=None,
-                 info=None, bvndf=None, _energy=None):
+                 info=None, bvndf=None, provenance: Provenance | None = None, path=None, _energy=None):
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
         self.lobes = lobes
@@ -71,6 +129,13 @@ class EffectiveBRDF:
         self.timings = dict(timings or {})
         self.info = dict(info or {})
         self.bvndf = bvndf
+        if provenance is not None and not isinstance(provenance, Provenance):
+            raise ValueError(f"provenance must be an effective.Provenance or None, got {type(provenance).__name__}")
+        if provenance is not None and provenance.tile.n_materials > len(self.materials):
+            raise ValueError(f"provenance: the tile has {provenance.tile.n_materials} material ids but the material "
+                             f"has {len(self.materials)} BRDF(s)")
+        self.provenance = provenance
+        self.path = None if path is None else os.path.abspath(os.fspath(path))
         self._integrals = sg.integral(self.lobes.sharpness)
         # Σ_j μ_mj ∫G_j = ∫γ̃ per material: independent of the BRDFs, so a material edit reuses it.
         self._energy = (np.einsum("miojc,j->mioc", self.amplitudes, self._integrals.astype(np.float32))
@@ -101,10 +166,13 @@ class EffectiveBRDF:
         return dirs.grid(self.directions)
 
     def with_materials(self, materials) -> EffectiveBRDF:
-        """The same baked geometry with other small-scale BRDFs (a material-only edit: no re-bake)."""
+        """The same baked geometry with other small-scale BRDFs (a material-only edit: no re-bake). The
+        provenance (the tile) and `path` carry over: the new BRDFs are the recorded ones, so the Monte Carlo
+        reference computes the edited material's ground truth, and caches it beside the same file."""
         t0 = time.perf_counter()
         out = EffectiveBRDF(self.lobes, self.amplitudes, materials, self.directions, self.method,
-                            info=self.info, bvndf=self.bvndf, _energy=self._energy)
+                            info=self.info, bvndf=self.bvndf, provenance=self.provenance, path=self.path,
+                            _energy=self._energy)
         out.timings = {"tables": time.perf_counter() - t0}
         return out
 
@@ -160,21 +228,25 @@ class EffectiveBRDF:
 
     # ------------------------------------------------------------------ files
     def save(self, path) -> None:
-        """Write atomically as a versioned npz (`wb.load` reads it back)."""
+        """Write atomically as a versioned npz (`wb.load` reads it back); `path` then names this file."""
         arrays = {"axes": self.lobes.axes, "sharpness": self.lobes.sharpness, "weight": self.lobes.weight,
                   "amplitudes": self.amplitudes}
         if self.bvndf is not None:
             arrays.update({f"bvndf_{k}": v for k, v in self.bvndf.arrays().items()})
+        if self.provenance is not None:
+            arrays.update(self.provenance.arrays())
         save_npz(path, "effective_brdf", self.VERSION,
                  {"directions": self.directions, "method": self.method,
                   "materials": [_brdf_to_dict(m) for m in self.materials], "info": self.info,
-                  "timings": self.timings, "bvndf_resolution": None if self.bvndf is None else self.bvndf.resolution},
+                  "timings": self.timings, "bvndf_resolution": None if self.bvndf is None else self.bvndf.resolution,
+                  "provenance": None if self.provenance is None else self.provenance.header()},
                  arrays)
+        self.path = os.path.abspath(os.fspath(path))
 
     @classmethod
     def load(cls, path) -> EffectiveBRDF:
 
-        head, arrays = read_npz(path, "effective_brdf", versions=(cls.VERSION,))
+        head, arrays = read_npz(path, "effective_brdf", versions=cls.VERSIONS)
         try:
             lobes = LobeSet(arrays["axes"], arrays["sharpness"], arrays["weight"])
             mats = [_brdf_from_dict(d) for d in head["materials"]]
@@ -182,8 +254,9 @@ class EffectiveBRDF:
             if head.get("bvndf_resolution") is not None:
                 bv = Bvndf.from_arrays(head["bvndf_resolution"], {k[6:]: v for k, v in arrays.items()
                                                                   if k.startswith("bvndf_")})
+            prov = Provenance.from_file(head["provenance"], arrays) if head.get("provenance") is not None else None
             return cls(lobes, arrays["amplitudes"], mats, head["directions"], head.get("method", "sg"),
-                       head.get("timings"), head.get("info"), bv)
+                       head.get("timings"), head.get("info"), bv, prov, path)
         except KeyError as exc:
             raise ValueError(f"{path} is missing {exc} (corrupt material file)") from None
         except (TypeError, ValueError) as exc:

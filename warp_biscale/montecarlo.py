@@ -1,6 +1,6 @@
 """The Monte Carlo reference renderer (docs/design.md §6): importance-sampled, exact visibility, exact f̄.
 
-    result = montecarlo.render(scene, samples=256, truths={1: gt})   # or wb.render(scene, method="mc", ...)
+    result = montecarlo.render(scene, samples=256)   # or wb.render(scene, method="mc", ...)
     result.image               # (H, W, 3) float32 linear radiance, never NaN, inf or negative
     result.info["stderr"]      # (H, W, 3) float32 standard error of each pixel's estimate
     result.info["stderr_rms"], result.info["stderr_max"]   # over the hit pixels' RGB values
@@ -18,9 +18,13 @@ Every hit pixel of the G-buffer gets the estimate of
   occluded only by a hit before its centre (t_max = distance − offset, as `trace_shadows`), so a
   sample that hits something is traced again, up to each point light it sees.
 - F: an analytic BRDF's f_r(n, ω, ωo)·(n·ω)⁺ (`Brdf.eval`); an effective BRDF's f̄(ω_local, ωo_local)
-  from its ground truth (`GroundTruth.eval`, cos θi already in it), in the tile frame (t, b, n).
-  Without a truth, `EffectiveBRDF.eval(method="sg-exact")` is used instead, with a warning and a note
-  in info["effective_brdf"] (that is the SG fit, not the exact f̄).
+  from its ground truth (`GroundTruth.eval`, cos θi already in it), in the tile frame (t, b, n): the one
+  passed in `truths`, else the one `truth.truth_of` computes from what the material records of how it
+  was baked (its tile and small-scale BRDFs, on its K×K grid, `truth_facets` facets), cached beside its
+  material file and in memory. A material that records nothing (a format-1 file, one built by hand) is a
+  ValueError, unless fallback="sg": then `EffectiveBRDF.eval(method="sg-exact")` is used, with a warning
+  and a note in info["effective_brdf"] (that is the SG fit, not the exact f̄, so the reference is not
+  exact for it).
 
 Position, shading normal, tangent frame and ωo are built from the G-buffer exactly as
 `shading.shade_reference` builds them (float32 vertex attributes, barycentric interpolation, the
@@ -72,13 +76,14 @@ from .scene import light_sg, vertex_tangents
 from .shading import MIN_COS_VIEW, surface_frames
 from .svbrdf import Textured
 from .trace import offsets
-from .truth import GroundTruth
+from .truth import MAX_FACETS, TRUTH_FACETS, GroundTruth, _check_count, cached_truth
 
-__all__ = ["render", "DEFAULT_BATCH", "sample_vmf", "vmf_pdf"]
+__all__ = ["render", "missing_provenance", "DEFAULT_BATCH", "FALLBACKS", "sample_vmf", "vmf_pdf"]
 
 DEFAULT_BATCH = 1 << 20  # samples (pixels × samples per pixel) a batch: ~0.4 GB of temporaries (measured)
 STRATUM = 4  # samples per stratum of a strategy's u[0] (`_strata`): 3 degrees of freedom each for the variance
 LOBE_FLOOR = 0.05  # share of an effective BRDF's lobe mixture spread evenly over its lobes (robust proposal)
+FALLBACKS = (None, "sg")  # what an effective material without a ground truth uses: none (an error) or its SG fit
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -390,16 +395,20 @@ class _TexturedMaterial(_AnalyticMaterial):
 
 class _EffectiveMaterial:
     def __init__(self, mat: EffectiveBRDF, truth: GroundTruth | None):
-        self.mat, self.truth = mat, truth
+        self.mat = mat
         speculars = [(m, _glossy_eta(s)) for m, s in enumerate(mat.materials)]
         speculars = [(m, e) for m, e in speculars if e is not None]
         self.strategy = _LobeMixtureStrategy(mat, speculars) if speculars else None
         self.albedos = tuple(np.max([_albedos(m) for m in mat.materials], 0))
+        self.use_truth(truth)
+
+    def use_truth(self, truth: GroundTruth | None):
+        self.truth = truth
         if truth is not None:
             self.label = (f"ground truth (tile {truth.tile!r}, K={truth.directions}, {truth.facets} facets, "
                           f"{truth.materials})")
         else:
-            self.label = "EffectiveBRDF.eval(method='sg-exact'): no ground truth given, the SG fit, not the exact f̄"
+            self.label = "EffectiveBRDF.eval(method='sg-exact'): fallback='sg', the SG fit, not the exact f̄"
 
     def f(self, ctx, pix, w):
         """(K, 3) f̄(ω_local, ωo_local), cos θi included, in the tile frame (t, b, n) of each pixel."""
@@ -413,6 +422,23 @@ class _EffectiveMaterial:
 # ---------------------------------------------------------------------------------------------------
 # the driver
 # ---------------------------------------------------------------------------------------------------
+
+
+class _Prefixed(Progress):
+    """`progress` with every stage name prefixed: a ground truth's stages (facets, visibility, ...) say which
+    material they are for in the middle of a render."""
+
+    def __init__(self, inner: Progress, prefix: str):
+        self.inner, self.prefix = inner, prefix
+
+    def stage(self, name: str, total: int = 1):
+        self.inner.stage(self.prefix + name, total)
+
+    def advance(self, n: int = 1):
+        self.inner.advance(n)
+
+    def done(self):
+        self.inner.done()
 
 
 def _check_int(name, value, lo):
@@ -477,23 +503,41 @@ def _gbuffer_frame(scene, g):
             "wo_local": wo_local, "ng": ng, "origin": pos + eps * ng, "uv": uv}
 
 
+def missing_provenance(scene, truths=None) -> list:
+    """Indices of the scene's effective materials, on faces of its mesh and without a truth in `truths`, that
+    do not record how they were baked (`EffectiveBRDF.provenance` None): those `render` cannot judge exactly."""
+    given = _check_truths(truths, scene.materials)
+    used = {int(i) for i in np.unique(scene.mesh.face_material)}
+    return [i for i, m in enumerate(scene.materials)
+            if isinstance(m, EffectiveBRDF) and i in used and i not in given and m.provenance is None]
+
+
 def render(scene, backend="auto", samples: int = 256, seed: int = 0, truths=None, progress=None,
-           batch: int = DEFAULT_BATCH):
+           batch: int = DEFAULT_BATCH, fallback=None, truth_facets: int = TRUTH_FACETS, truth_seed=None):
     """Render `scene` (a `render.Scene`) by Monte Carlo → `render.Rendering`.
 
     samples: samples per hit pixel, shared out over the pixel's sampling strategies (at least 2 each: a
         variance needs two; fewer is a ValueError).
     seed: the same seed (and batch) gives the same image.
     truths: {material index: GroundTruth} (or a list aligned with scene.materials): the exact f̄ of
-        effective materials.
+        effective materials, given by hand.
+    truth_facets, truth_seed: the ground truth of every other effective material in view is
+        `truth.truth_of(material, truth_facets, truth_seed)` (truth_seed None: the bake's seed + 1), computed
+        from what the material records of its bake and cached beside its material file (`<name>.truth.npz`)
+        and in memory; a material that records nothing is a ValueError naming it.
+    fallback: None, or "sg": materials without a truth given use their SG fit
+        (`EffectiveBRDF.eval(method="sg-exact")`, not exact), with a warning; nothing is computed for them.
     batch: samples (pixels × samples) per batch, bounding memory (~400 bytes a sample).
-    progress: a `progress.Progress`, or True/False/None (None: shown on a terminal).
+    progress: a `progress.Progress`, or True/False/None (None: shown on a terminal); the ground truths
+        computed report their stages there too.
 
     info: backend, device, method "mc", samples, seed, stderr (H, W, 3) float32 per-pixel standard error,
     stderr_rms / stderr_max over the hit pixels' RGB values, strategies {material: {name: samples per pixel}},
-    effective_brdf {material: what f̄ was}, rays (shadow rays traced), clamped (samples whose
-    contribution was non-finite or had a zero pdf, set to 0; 0 in a correct run), width, height, hit_pixels.
-    timings (s): gbuffer, sample (directions and pdfs), shade (radiance and BRDF), visibility, total.
+    effective_brdf {material: what f̄ was}, truth_source {material: "given", "computed", "memory" or the cache
+    file read}, rays (shadow rays traced), clamped (samples whose contribution was non-finite or had a zero
+    pdf, set to 0; 0 in a correct run), width, height, hit_pixels.
+    timings (s): gbuffer, truth (ground truths computed or read), sample (directions and pdfs), shade
+    (radiance and BRDF), visibility, total.
     """
 
     if not isinstance(scene, Scene):
@@ -502,9 +546,26 @@ def render(scene, backend="auto", samples: int = 256, seed: int = 0, truths=None
     seed = _check_int("seed", seed, 0)
     batch = _check_int("batch", batch, 1)
     truth_of = _check_truths(truths, scene.materials)
+    if not (fallback is None or (isinstance(fallback, str) and fallback in FALLBACKS[1:])):
+        raise ValueError(f"fallback must be None or 'sg', got {fallback!r}")
+    try:
+        truth_facets = _check_count(truth_facets)
+    except ValueError:
+        raise ValueError(f"truth_facets must be an integer in [1, {MAX_FACETS}], got {truth_facets!r}") from None
+    if truth_seed is not None:
+        truth_seed = _check_int("truth_seed", truth_seed, 0)
+    if fallback is None:
+        missing = missing_provenance(scene, truth_of)
+        if missing:
+            i = missing[0]
+            raise ValueError(
+                f"effective material {i} does not record how it was baked (a material file of format 1, or "
+                f"built by hand), so its ground truth cannot be computed: pass it by hand (truths={{{i}: "
+                f"wb.ground_truth(tile, materials, directions={scene.materials[i].directions})}}), re-bake it, "
+                "or pass fallback='sg' to use its SG fit (not exact)")
     backend = get_backend(backend)
     progress = progress if isinstance(progress, Progress) else Progress(progress)
-    timings = {"gbuffer": 0.0, "sample": 0.0, "shade": 0.0, "visibility": 0.0}
+    timings = {"gbuffer": 0.0, "truth": 0.0, "sample": 0.0, "shade": 0.0, "visibility": 0.0}
     t_all = time.perf_counter()
     mesh, cam = scene.mesh, scene.camera
     h, w = cam.height, cam.width
@@ -538,11 +599,24 @@ def render(scene, backend="auto", samples: int = 256, seed: int = 0, truths=None
     if env is not None:
         miss = np.flatnonzero(np.asarray(g.face) < 0)
         image[miss] = env.lookup(cam.rays()[1][miss])
+    sources = {i: "given" for i in labels if i in truth_of}
+    t0 = time.perf_counter()
     for i in labels:
-        if i not in truth_of and np.any(frame["mat"] == i):
-            warnings.warn(f"Monte Carlo: no ground truth for effective material {i}; using "
+        if i in truth_of:
+            continue
+        if not np.any(frame["mat"] == i):  # out of view: no truth is needed
+            labels[i] = "not in view: no ground truth computed" if fallback is None else labels[i]
+            continue
+        if fallback == "sg":
+            warnings.warn(f"Monte Carlo: no ground truth for effective material {i} (fallback='sg'); using "
                           "EffectiveBRDF.eval(method='sg-exact') (the SG fit), so the reference is not exact for it",
                           stacklevel=2)
+            continue
+        gt, sources[i] = cached_truth(scene.materials[i], truth_facets, truth_seed, backend,
+                                      _Prefixed(progress, f"truth of material {i}: "))
+        materials[i].use_truth(gt)
+        labels[i] = materials[i].label
+    timings["truth"] = time.perf_counter() - t0
 
     eps = offsets(mesh)[0]
     stats = {"rays": 0, "clamped": 0}
@@ -575,7 +649,7 @@ def render(scene, backend="auto", samples: int = 256, seed: int = 0, truths=None
         "stderr_rms": float(np.sqrt(np.mean(hit_err**2))) if n_hit else 0.0,
         "stderr_max": float(hit_err.max()) if n_hit else 0.0,
         "strategies": {int(i): {st.name: c for st, c in zip(*plans[i][:2])} for i in np.unique(frame["mat"])},
-        "effective_brdf": labels, "rays": stats["rays"], "clamped": stats["clamped"],
+        "effective_brdf": labels, "truth_source": sources, "rays": stats["rays"], "clamped": stats["clamped"],
         "lights": len(lights), "width": w, "height": h, "hit_pixels": n_hit,
     }
     return Rendering(image.reshape(h, w, 3).astype(np.float32), timings, info)

@@ -4,10 +4,16 @@ f̄(ωi, ωo) = Σ_s c_s f_r(n_s, ωi, ωo)(n_s·ωi)⁺(n_s·ωo)⁺ V_s(ωi) V
 
 with every small-scale BRDF evaluated exactly (no SG fit) and exact ray-cast visibility of the
 infinitely tiled surface. The driver calls backend primitives only; it never asks which backend.
+
+`truth_of(mat)` is the ground truth of a baked material, from what it records of how it was made
+(`EffectiveBRDF.provenance`), cached on disk beside its material file and in memory.
 """
 
 from __future__ import annotations
 
+import collections
+import hashlib
+import os
 import time
 import warnings
 
@@ -16,13 +22,23 @@ import numpy as np
 from . import directions as dirs
 from .backend import get_backend
 from .brdf import as_material_list, pack_materials
+from .effective import EffectiveBRDF
 from .io import read_npz, save_npz
 from .progress import as_progress
 from .smallscale import SmallScale, TileWarning
 
-__all__ = ["effective_brdf_exact", "ground_truth", "GroundTruth", "MAX_FACETS"]
+__all__ = ["effective_brdf_exact", "ground_truth", "GroundTruth", "MAX_FACETS", "TRUTH_FACETS", "truth_of",
+           "truth_key", "truth_cache_path"]
 
 MAX_FACETS = 1 << 26  # 67 M facets: 1.3 GB of facet data; beyond this, ask for fewer
+# Facets of a baked material's ground truth (`truth_of`): what the bench's ground truths use
+# (bench_bake --gt-facets), four times a bake's default.
+TRUTH_FACETS = 1 << 18
+# Part of every cache key: bump it when the ground truth's numbers change (a kernel fix), so that no
+# table cached before is used again.
+TRUTH_KEY_VERSION = 1
+TRUTH_MEMORY = 8  # ground truths `truth_of` keeps per process (a K = 12 table is 0.25 MB)
+_MEMORY = collections.OrderedDict()  # cache key → GroundTruth, most recent last
 
 
 def _check_count(facets) -> int:
@@ -173,7 +189,7 @@ class GroundTruth:
     VERSION = 1
 
     def __init__(self, table, a_v, directions, facets, seed=0, tile="tile", footprint=1.0, materials=(),
-                 backend="", timings=None):
+                 backend="", timings=None, key=""):
         self.table = np.asarray(table, np.float32)
         self.a_v = np.asarray(a_v, np.float64)
         self.directions = int(directions)
@@ -186,6 +202,7 @@ class GroundTruth:
         self.materials = list(materials)
         self.backend = backend
         self.timings = dict(timings or {})
+        self.key = str(key)  # `truth_key` of the material it was made for by `truth_of`, else ""
 
     def __repr__(self):
         return (f"GroundTruth(tile={self.tile!r}, K={self.directions}, facets={self.facets}, "
@@ -232,7 +249,7 @@ class GroundTruth:
         save_npz(path, "ground_truth", self.VERSION,
                  {"directions": self.directions, "facets": self.facets, "seed": self.seed, "tile": self.tile,
                   "footprint": self.footprint, "materials": self.materials, "backend": self.backend,
-                  "timings": self.timings},
+                  "timings": self.timings, "key": self.key},
                  {"table": self.table, "a_v": self.a_v})
 
     @classmethod
@@ -241,7 +258,108 @@ class GroundTruth:
         try:
             return cls(arrays["table"], arrays["a_v"], head["directions"], head["facets"], head.get("seed", 0),
                        head.get("tile", "tile"), head.get("footprint", 1.0), head.get("materials", ()),
-                       head.get("backend", ""), head.get("timings"))
+                       head.get("backend", ""), head.get("timings"), head.get("key", ""))
         except KeyError as exc:
             raise ValueError(f"{path} is missing {exc} (corrupt ground-truth file)") from None
 
+
+
+# ---------------------------------------------------------------------------------------------------
+# the ground truth of a baked material, cached
+# ---------------------------------------------------------------------------------------------------
+
+
+def _truth_settings(mat, facets, seed):
+    """Checked (facets, seed) of `truth_of`; seed None is the bake's seed + 1, so the truth's facets are not
+    the bake's own (as `warp-biscale bake --truth` does)."""
+    if not isinstance(mat, EffectiveBRDF):
+        raise ValueError(f"truth_of takes an EffectiveBRDF (wb.bake, wb.load), got {type(mat).__name__}")
+    if mat.provenance is None:
+        raise ValueError(f"{mat!r} does not record how it was baked (a material file of format 1, or built by "
+                         "hand): compute its ground truth with wb.ground_truth(tile, materials, "
+                         f"directions={mat.directions})")
+    count = _check_count(facets)
+    if seed is None:
+        seed = mat.provenance.seed + 1
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"truth seed must be an integer >= 0 or None, got {seed!r}")
+    return count, int(seed)
+
+
+def truth_key(mat, facets: int = TRUTH_FACETS, seed=None) -> str:
+    """The hex SHA-256 of everything `truth_of(mat, facets, seed)`'s table depends on: the tile's arrays
+    (vertices, faces, material ids, colours, vertex normals, period, origin), the small-scale BRDFs of its
+    material ids (type and packed parameters), K, the facet count and seed, and TRUTH_KEY_VERSION. Not the
+    tile's name, nor the backend: backends agree to float32 rounding (docs/design.md §3.3)."""
+    count, seed = _truth_settings(mat, facets, seed)
+    tile = mat.provenance.tile
+    h = hashlib.sha256(f"warp_biscale ground truth v{TRUTH_KEY_VERSION}; K={mat.directions}; facets={count}; "
+                       f"seed={seed}".encode())
+    parts = {"vertices": tile.vertices, "faces": tile.faces, "material_ids": tile.material_ids,
+             "colors": tile.colors, "vertex_normals": tile.vertex_normals,
+             "period": np.asarray(tile.period, np.float64), "origin": tile.origin}
+    for name, arr in parts.items():
+        h.update(f"; {name}".encode())
+        if arr is not None:  # dtype and shape too: the same bytes in another layout are another tile
+            arr = np.ascontiguousarray(arr)
+            h.update(f" {arr.dtype.str}{arr.shape}".encode())
+            h.update(arr.tobytes())
+    for m in mat.materials[:tile.n_materials]:
+        h.update(f"; {type(m).__name__}".encode())
+        h.update(np.asarray(m.packed(), np.float64).tobytes())
+    return h.hexdigest()
+
+
+def truth_cache_path(mat):
+    """Where `truth_of` caches a material's ground truth: `<name>.truth.npz` beside its material file
+    (`EffectiveBRDF.path`), or None for a material that has no file."""
+    if getattr(mat, "path", None) is None:
+        return None
+    return os.path.splitext(mat.path)[0] + ".truth.npz"
+
+
+def truth_of(mat, facets: int = TRUTH_FACETS, seed=None, backend="auto", progress=None) -> GroundTruth:
+    """The ground truth of a baked material (`wb.ground_truth` on its recorded tile and its current
+    small-scale BRDFs, on its K×K grid), with `facets` facets drawn with `seed` (None: the bake's seed + 1).
+
+    Cached by `truth_key`, so a table is never used for another tile, BRDF or setting: on disk as
+    `<name>.truth.npz` beside the material's file (`truth_cache_path`; one table a file, replaced when the key
+    differs; a folder that takes no file leaves it in memory, with a warning), and in memory (the last
+    TRUTH_MEMORY). A material without a provenance is a ValueError."""
+    return cached_truth(mat, facets, seed, backend, progress)[0]
+
+
+def cached_truth(mat, facets: int = TRUTH_FACETS, seed=None, backend="auto", progress=None):
+    """`truth_of` → (GroundTruth, where it came from: "computed", "memory" or the cache file read)."""
+    count, seed = _truth_settings(mat, facets, seed)
+    key = truth_key(mat, count, seed)
+    path = truth_cache_path(mat)
+    if path is not None and os.path.exists(path):
+        try:
+            disk = GroundTruth.load(path)
+        except (ValueError, OSError):  # unreadable: computed again and replaced below
+            disk = None
+        if disk is not None and disk.key == key:
+            _remember(key, disk)
+            return disk, path
+    gt, source = _MEMORY.get(key), "memory"
+    if gt is None:
+        tile = mat.provenance.tile
+        gt = ground_truth(tile, mat.materials[:tile.n_materials], facets=count, directions=mat.directions,
+                          backend=backend, seed=seed, progress=progress)
+        gt.key, source = key, "computed"
+    _remember(key, gt)
+    if path is not None:
+        try:
+            gt.save(path)
+        except OSError as exc:
+            warnings.warn(f"could not write the ground-truth cache {path} ({exc.strerror or exc}): "
+                          "kept in memory only", stacklevel=3)
+    return gt, source
+
+
+def _remember(key, gt):
+    _MEMORY[key] = gt
+    _MEMORY.move_to_end(key)
+    while len(_MEMORY) > TRUTH_MEMORY:
+        _MEMORY.popitem(last=False)
