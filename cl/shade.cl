@@ -428,7 +428,7 @@ CL_INLINE float3 lobe_from_lights(Table tab, float3 axis, float eta, SurfacePoin
         __global const float *row = lights + 8 * l;
         float3 la = light_axis(row, s.pos);
         float le = light_sharpness(row, s.pos);
-        out = out + light_amplitude(row, s.pos, le) * product_integral(tab, axis, eta, la, le, s.n);
+        out = out + light_amplitude(row, s.pos, le) * (product_integral(tab, axis, eta, la, le, s.n) * (float)vis[l] / 255.0f);
     }
     return out;
 }
@@ -445,7 +445,7 @@ CL_INLINE float3 finite_radiance(float3 v)
 __kernel void shade_pixels(
     __global const int *face,           /* (P,) G-buffer face, -1 = miss */
     __global const float *bary,         /* (P, 2) weights of vertices 1 and 2 */
-    __global const uchar *light_vis,    /* (P, L) 1 = light visible */
+    __global const uchar *light_vis,    /* (P, L) visible share in 255ths */
     __global const int *faces,          /* (F, 3) */
     __global const float *positions,    /* (V, 3) */
     __global const float *normals,      /* (V, 3) */
@@ -559,7 +559,7 @@ __kernel void shade_pixels(
         float3 fd = kd;
         if (kind != 0)
             fd = table_rgb(eff_diffuse, diffuse_base, k2, 1, 0, to_local(s, axis), k, oo, ow);
-        out = out + fd * light_amplitude(row, s.pos, eta) * cosine_integral(tab, axis, eta, eta_row(tab, eta), s.n);
+        out = out + fd * light_amplitude(row, s.pos, eta) * (cosine_integral(tab, axis, eta, eta_row(tab, eta), s.n) * (float)vis[l] / 255.0f);
     }
 
     /* Specular: each warped lobe against the prefiltered environment and each light. */

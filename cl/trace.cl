@@ -84,6 +84,21 @@ __kernel void trace_occluded(
  * moved eps along the geometric normal turned to the camera's side, the side the surface is
  * seen from; a light below that normal's horizon, or a missed pixel, gets 0. A point light's
  * ray stops eps short of its centre; a directional light's never stops. */
+#define GOLDEN_ANGLE 2.39996322972865f /* = trace.GOLDEN_ANGLE */
+
+/* Sample i of `samples` on the unit disc: a Vogel spiral turned by a per-pixel angle (trace.disk_sample),
+ * so that neighbouring pixels' penumbrae are noise rather than bands. The centre for one sample. */
+CL_INLINE float2 disk_sample(int i, int samples, int pixel)
+{
+    if (samples == 1)
+        return (float2)(0.0f, 0.0f);
+    uint h = (uint)pixel * 2654435761u;
+    float turn = (float)(int)(h >> 8) * (2.0f * 3.14159265358979f / 16777216.0f);
+    float r = sqrt(((float)i + 0.5f) / (float)samples);
+    float a = (float)i * GOLDEN_ANGLE + turn;
+    return (float2)(r * cos(a), r * sin(a));
+}
+
 __kernel void trace_shadows(
     __global const float *nodes,
     __global const float *tris,
@@ -92,16 +107,16 @@ __kernel void trace_shadows(
     __global const float *position,      /* (P, 3) */
     const float eye_x, const float eye_y, const float eye_z,
     __global const float *lights,        /* (L, 8) Light.packed() rows */
-    const float eps, const float t_min,
+    const float eps, const float t_min, const int samples,
     const int n_pixels, const int n_lights,
-    __global uchar *visible)             /* (P, L) */
+    __global uchar *visible)             /* (P, L) visible share in 255ths */
 {
     int p = get_global_id(0);
     int k = get_global_id(1);
     if (p >= n_pixels)
         return;
     int f = face[p];
-    uchar vis = 0;
+    int hits = 0;
     if (f >= 0) {
         float3 x = load3(position, p);
         float3 n = load3(face_normals, f);
@@ -109,15 +124,31 @@ __kernel void trace_shadows(
             n = (float3)(-n.x, -n.y, -n.z);
         float3 o = (float3)(x.x + eps * n.x, x.y + eps * n.y, x.z + eps * n.z);
         __global const float *light = lights + 8 * k;
-        float3 d = (float3)(light[1], light[2], light[3]);
-        float t_hi = INFINITY;
+        float3 c = (float3)(light[1], light[2], light[3]);
+        float3 w = normalize3(c);
+        float spread = tan(sqrt(light[7] / 3.14159265358979f)); /* directional: tan of the angular radius */
         if (light[0] != 0.0f) {
-            d = (float3)(d.x - o.x, d.y - o.y, d.z - o.z);
-            t_hi = sqrt(dot3(d, d)) - eps;
+            w = normalize3(c - o);
+            spread = light[7]; /* point: the radius */
         }
-        d = normalize3(d);
-        if (dot3(n, d) > 0.0f)
-            vis = (t_hi > t_min && bvh_any_hit(nodes, tris, o, d, t_min, t_hi)) ? 0 : 1;
+        /* a right-handed frame (a, b, w) (trace.disk_basis) */
+        float3 ref = absf(w.x) < 0.9f ? (float3)(1.0f, 0.0f, 0.0f) : (float3)(0.0f, 1.0f, 0.0f);
+        float3 a = normalize3(cross3(w, ref));
+        float3 b = cross3(w, a);
+        for (int i = 0; i < samples; ++i) {
+            float2 q = disk_sample(i, samples, p);
+            float3 on_disc = spread * (q.x * a + q.y * b);
+            float3 d = w + on_disc;
+            float t_hi = INFINITY;
+            if (light[0] != 0.0f) { /* a point light: towards a point of its disc, stopping eps short of it */
+                d = c + on_disc - o;
+                t_hi = sqrt(dot3(d, d)) - eps;
+            }
+            d = normalize3(d);
+            /* Below the geometric horizon the light is behind the surface (and a ray would enter it). */
+            if (dot3(n, d) > 0.0f && !(t_hi > t_min && bvh_any_hit(nodes, tris, o, d, t_min, t_hi)))
+                hits += 1;
+        }
     }
-    visible[(long)p * n_lights + k] = vis;
+    visible[(long)p * n_lights + k] = (uchar)((hits * 255 + samples / 2) / samples);
 }

@@ -387,7 +387,8 @@ def lobe_from_lights(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: fl
             continue
         la = light_axis(lights, l, s.pos)
         le = light_sharpness(lights, l, s.pos)
-        out = out + light_amplitude(lights, l, s.pos, le) * product_integral(table, axis, eta, la, le, s.n)
+        out = out + light_amplitude(lights, l, s.pos, le) * (
+            product_integral(table, axis, eta, la, le, s.n) * float(int(light_vis[p, l])) / 255.0)
     return out
 
 
@@ -493,7 +494,8 @@ def shade_pixels(
         fd = kd
         if kind != 0:
             fd = table_rgb(eff_diffuse, eff_info[idx, 6], k2, 1, 0, to_local(s, axis), k, oo, ow)
-        out = out + wp.cw_mul(fd, light_amplitude(lights, l, s.pos, eta)) * cosine_integral(table, axis, eta, s.n)
+        out = out + wp.cw_mul(fd, light_amplitude(lights, l, s.pos, eta)) * (
+            cosine_integral(table, axis, eta, s.n) * float(int(light_vis[p, l])) / 255.0)
 
     # Specular: each warped lobe against the prefiltered environment and each light.
     if has_spec != 0:

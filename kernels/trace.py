@@ -86,6 +86,32 @@ def trace_occluded(
     occluded[i] = hit
 
 
+GOLDEN_ANGLE = wp.constant(2.39996322972865)  # = trace.GOLDEN_ANGLE
+
+
+@wp.func
+def disk_sample(i: int, samples: int, pixel: int) -> wp.vec2:
+    """Sample i of `samples` on the unit disc: a Vogel spiral turned by a per-pixel angle (trace.disk_sample),
+    so that neighbouring pixels' penumbrae are noise rather than bands. The centre for one sample."""
+    if samples == 1:
+        return wp.vec2(0.0, 0.0)
+    h = wp.uint32(pixel) * wp.uint32(2654435761)
+    turn = float(int(h >> wp.uint32(8))) * (2.0 * 3.14159265358979 / 16777216.0)
+    r = wp.sqrt((float(i) + 0.5) / float(samples))
+    a = float(i) * GOLDEN_ANGLE + turn
+    return wp.vec2(r * wp.cos(a), r * wp.sin(a))
+
+
+@wp.func
+def disk_basis(w: wp.vec3) -> wp.mat33:
+    """Rows a, b, w: a right-handed frame whose third row is w (trace.disk_basis)."""
+    ref = wp.vec3(0.0, 1.0, 0.0)
+    if wp.abs(w[0]) < 0.9:
+        ref = wp.vec3(1.0, 0.0, 0.0)
+    a = wp.normalize(wp.cross(w, ref))
+    return wp.matrix_from_rows(a, wp.cross(w, a), w)
+
+
 @wp.kernel
 def trace_shadows(
     mesh: wp.uint64,
@@ -96,15 +122,18 @@ def trace_shadows(
     lights: wp.array2d(dtype=wp.float32),  # (L, 8) Light.packed() rows
     eps: float,
     t_min: float,
+    samples: int,
     offset: int,
     visible: wp.array2d(dtype=wp.uint8),  # (N, L)
 ):
     """One thread per (light, pixel); neighbouring threads take neighbouring pixels towards one
-    light, so their BVH walks stay coherent."""
+    light, so their BVH walks stay coherent. `samples` rays go to points spread over the light's
+    disc (a point light's sphere seen from the pixel; a directional light's cone); the result is
+    the visible share in 255ths, rounded."""
     k, p_local = wp.tid()
     p = p_local + offset
     f = face[p]
-    v = wp.uint8(0)
+    hits = int(0)
     if f >= 0:
         x = position[p]
         # The geometric normal on the camera's side: the side the surface is seen from, so the
@@ -113,18 +142,28 @@ def trace_shadows(
         if wp.dot(n, eye - x) < 0.0:
             n = -n
         o = x + eps * n
-        d = wp.vec3(lights[k, 1], lights[k, 2], lights[k, 3])
-        t_hi = float(wp.inf)
-        if lights[k, 0] != 0.0:  # a point light: towards its centre, stopping eps short of it
-            d = d - o
-            t_hi = wp.length(d) - eps
-        d = wp.normalize(d)
-        # Below the geometric horizon the light is behind the surface (and a ray would enter it).
-        if wp.dot(n, d) > 0.0:
-            reach = t_hi - t_min
-            if reach > 0.0:
-                if not wp.mesh_query_ray_anyhit(mesh, o + t_min * d, d, reach):
-                    v = wp.uint8(1)
-            else:
-                v = wp.uint8(1)
-    visible[p, k] = v
+        c = wp.vec3(lights[k, 1], lights[k, 2], lights[k, 3])
+        w = wp.normalize(c)
+        spread = wp.tan(wp.sqrt(lights[k, 7] / 3.14159265358979))  # directional: tan of the angular radius
+        if lights[k, 0] != 0.0:
+            w = wp.normalize(c - o)
+            spread = lights[k, 7]  # point: the radius
+        frame = disk_basis(w)
+        for i in range(samples):
+            q = disk_sample(i, samples, p)
+            offset_on_disc = spread * (q[0] * frame[0] + q[1] * frame[1])
+            d = w + offset_on_disc
+            t_hi = float(wp.inf)
+            if lights[k, 0] != 0.0:  # a point light: towards a point of its disc, stopping eps short of it
+                d = c + offset_on_disc - o
+                t_hi = wp.length(d) - eps
+            d = wp.normalize(d)
+            # Below the geometric horizon the light is behind the surface (and a ray would enter it).
+            if wp.dot(n, d) > 0.0:
+                reach = t_hi - t_min
+                if reach > 0.0:
+                    if not wp.mesh_query_ray_anyhit(mesh, o + t_min * d, d, reach):
+                        hits = hits + 1
+                else:
+                    hits = hits + 1
+    visible[p, k] = wp.uint8((hits * 255 + samples // 2) // samples)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import warp_biscale as wb
-from warp_biscale.render import pack_frame
+from warp_biscale.render import SHADOW_SAMPLES, pack_frame
 from warp_biscale.scene import Scene
 from warp_biscale.environment import Environment
 from warp_biscale.scene import Camera, DirectionalLight, Mesh, PointLight
@@ -86,6 +86,6 @@ def test_shade_uses_device_gbuffer(backend, effective_material):
     host = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights,
                          gbuffer=frame.gbuffer)
     backend.trace_primary(scene.mesh, scene.camera, to_host=False)
-    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False)
+    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=SHADOW_SAMPLES)  # as pack_frame
     dev = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights)
     np.testing.assert_array_equal(dev, host)

@@ -290,7 +290,7 @@ def test_shadows_match_reference(backend):
     g = backend.trace_primary(mesh, cam)
     vis = backend.trace_shadows(mesh, g, lights)
     n = len(g.face)
-    assert vis.dtype == np.uint8 and vis.shape == (n, 3) and set(np.unique(vis)) <= {0, 1}
+    assert vis.dtype == np.uint8 and vis.shape == (n, 3) and set(np.unique(vis)) <= {0, 255}
     eps, t_min = offsets(mesh)
     args = (mesh.vertices, mesh.faces, g.face, g.position, g.eye, lights, eps, t_min)
     exact = ref.trace_shadows(*args)
@@ -303,14 +303,46 @@ def test_shadows_match_reference(backend):
     for k in (0, 1):
         dark = floor & (vis[:, k] == 0)
         assert dark.sum() > 20, f"light {k}: no shadow on the floor"
-        assert (floor & (vis[:, k] == 1)).sum() > dark.sum()  # most of the floor is lit
+        assert (floor & (vis[:, k] == 255)).sum() > dark.sum()  # most of the floor is lit
     # Misses see no light; a light from below is below the horizon of everything seen from above.
     assert not vis[g.face < 0].any()
     assert not vis[floor, 2].any()
     # The same from the reference G-buffer: lit fractions agree closely.
     r = ref.trace_primary(mesh, cam)
     lit_ref = ref.trace_shadows(mesh.vertices, mesh.faces, r["face"], r["position"], r["eye"], lights, eps, t_min)
-    np.testing.assert_allclose(vis.mean(0), lit_ref.mean(0), atol=0.005)
+    np.testing.assert_allclose(vis.mean(0) / 255, lit_ref.mean(0) / 255, atol=0.005)
+
+
+def test_soft_shadows_match_reference(backend):
+    """16 rays per light over its disc (large lights, so the floor has wide penumbrae): the visible share
+    in 255ths against the float64 reference's same rays. A ray within rounding of an edge may go either
+    way, so an entry may differ by a step or two (255/16 each) at a few pixels; the means agree closely."""
+    mesh, cam, _ = _shadow_scene()
+    lights = np.stack([PointLight((0.3, 3.0, 0.2), radius=0.4).packed(),
+                       DirectionalLight((-0.5, 1.0, 0.3), angular_radius=8.0).packed()])
+    g = backend.trace_primary(mesh, cam)
+    vis = backend.trace_shadows(mesh, g, lights, samples=16).astype(np.int64)
+    eps, t_min = offsets(mesh)
+    exact = ref.trace_shadows(mesh.vertices, mesh.faces, g.face, g.position, g.eye, lights, eps, t_min,
+                              samples=16).astype(np.int64)
+    step = 255 / 16
+    assert (np.abs(vis - exact) > 2 * step).sum() == 0
+    assert (vis != exact).mean() < 0.02
+    np.testing.assert_allclose(vis.mean(0), exact.mean(0), atol=0.5)
+    floor = g.face >= len(Mesh.sphere(0.5, subdivisions=3).faces)
+    for k in range(2):  # a penumbra: floor pixels partly lit
+        assert ((vis[floor, k] > 0) & (vis[floor, k] < 255)).sum() > 30
+    # One sample is the hard shadow, ray for ray.
+    np.testing.assert_array_equal(backend.trace_shadows(mesh, g, lights, samples=1),
+                                  backend.trace_shadows(mesh, g, lights))
+
+
+@pytest.mark.parametrize("bad", [0, 1025, 2.5, "8"])
+def test_bad_shadow_samples_are_one_line(backend, bad):
+    mesh, cam, lights = _shadow_scene()
+    g = backend.trace_primary(mesh, cam)
+    with pytest.raises(ValueError, match="shadow samples must be an integer"):
+        backend.trace_shadows(mesh, g, lights, samples=bad)
 
 
 def test_shadows_offset_and_orientation(backend):

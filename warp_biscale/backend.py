@@ -128,7 +128,7 @@ class Backend(Protocol):
     #   "gbuffer_position" (P,) wp.vec3 | P·3 float32        hit point (0 on a miss)
     #   "gbuffer_t" (P,) wp.float32 | P float32              ray distance (inf on a miss)
     #   "gbuffer_eye" (3,) numpy float32, "gbuffer_size" int P
-    #   "gbuffer_light_vis" (P, L) wp.uint8 | P·L uint8      1 = light l visible from pixel p (row-major)
+    #   "gbuffer_light_vis" (P, L) wp.uint8 | P·L uint8      light l's visible share from pixel p, in 255ths
     # The G-buffer arrays are reused from frame to frame (same size): a new trace overwrites them.
     def trace_primary(self, mesh, camera, to_host: bool = True) -> GBuffer | None:
         """The G-buffer of `camera` on `mesh` (reference.trace_primary): camera rays generated in the
@@ -143,11 +143,13 @@ class Backend(Protocol):
         origin off its surface (e.g. along the normal by trace.SHADOW_OFFSET × mesh.scale); t_min
         (default trace.T_MIN × mesh.scale) only guards against rounding. Any ray count (chunked)."""
 
-    def trace_shadows(self, mesh, gbuffer: GBuffer | None, lights_packed, to_host: bool = True) -> np.ndarray | None:
-        """(P, L) uint8, 1 = light visible (reference.trace_shadows): from each hit pixel, a ray from the
-        hit point moved trace.SHADOW_OFFSET × mesh.scale along the geometric normal turned to the eye's
-        side, towards each light row of `lights_packed` ((L, 8) Light.packed()); a point light's ray
-        stops that offset short of it. Misses and lights below the normal's horizon get 0. `gbuffer`:
+    def trace_shadows(self, mesh, gbuffer: GBuffer | None, lights_packed, to_host: bool = True,
+                      samples: int = 1) -> np.ndarray | None:
+        """(P, L) uint8, the visible share of each light in 255ths (reference.trace_shadows): from each hit
+        pixel, `samples` rays from the hit point moved trace.SHADOW_OFFSET × mesh.scale along the geometric
+        normal turned to the eye's side, towards points of each light's disc (`lights_packed` (L, 8)
+        Light.packed(); one sample: its centre); a point light's rays stop that offset short of it.
+        Misses get 0, and rays below the normal's horizon count as blocked. `gbuffer`:
         None or the GBuffer trace_primary last returned (both use the device copy), or any GBuffer with
         face, position and eye (uploaded). Fills "gbuffer_light_vis"; returns None unless to_host."""
 

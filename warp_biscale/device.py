@@ -20,7 +20,7 @@ import numpy as np
 from .lobes import KERNEL_LOBES, LobeSet
 from .model import Facets, GBuffer, ShadeInputs, Visibility, facet_shift
 from .trace import (CHUNK_RAYS, check_camera, check_gbuffer, check_lights, check_mesh, check_occlusion,
-                    offsets)
+                    check_shadow_samples, offsets)
 
 SCRATCH_BYTES = 64 << 20  # the largest scratch array a backend keeps between calls (see their _scratch)
 
@@ -481,9 +481,10 @@ class DeviceBackend:
             out[lo:hi] = self._to_host(occluded, hi - lo, "u8") != 0
         return out
 
-    def trace_shadows(self, mesh, gbuffer, lights_packed, to_host=True):
+    def trace_shadows(self, mesh, gbuffer, lights_packed, to_host=True, samples=1):
         check_mesh(mesh)
         lights = check_lights(lights_packed)
+        samples = check_shadow_samples(samples)
         m = self._trace_mesh(mesh)
         if gbuffer is None or gbuffer is m.get("gbuffer_host"):
             if "gbuffer_face" not in m:
@@ -497,7 +498,7 @@ class DeviceBackend:
             if "offsets" not in m:  # once per mesh, and only for shadow rays: trace.offsets scans every vertex
                 m["offsets"] = offsets(mesh)
             eps, t_min = m["offsets"]
-            self._launch_trace_shadows(m, face, position, eye, lights, eps, t_min, n, vis)
+            self._launch_trace_shadows(m, face, position, eye, lights, eps, t_min, samples, n, vis)
         return self._to_host(vis, (n, len(lights)), "u8") if to_host else None
 
     def shade(self, mesh, static, camera_packed, lights_packed, gbuffer=None, to_host=True):

@@ -256,7 +256,7 @@ class GBuffer:
     and what trace_shadows and shade take instead of the device's own copy. face (P,) int32, −1 = miss;
     bary (P, 2) float32 (u, v) weights of the face's vertices 1 and 2; position (P, 3) float32 hit point
     (0 on a miss); t (P,) float32 ray distance (inf on a miss); eye (3,) float32; light_vis (P, L) uint8,
-    1 = light l visible from pixel p (trace_shadows' result, which shade reads)."""
+    the share of light l visible from pixel p in 255ths (trace_shadows' result, which shade reads)."""
     face: np.ndarray
     bary: np.ndarray | None = None
     position: np.ndarray | None = None

@@ -662,10 +662,10 @@ class OpenCLBackend(DeviceBackend):
         self._launch("trace", "trace_occluded", (n,), m["nodes"], m["tris"], origins, directions, np.float32(t_min),
                      t_max, np.int32(n), occluded)
 
-    def _launch_trace_shadows(self, m, face, position, eye, lights, eps, t_min, n, vis):
+    def _launch_trace_shadows(self, m, face, position, eye, lights, eps, t_min, samples, n, vis):
         self._launch("trace", "trace_shadows", (n, len(lights)), m["nodes"], m["tris"], m["face_normals"], face,
                      position, *(np.float32(e) for e in eye), self._buffer(lights, np.float32), np.float32(eps),
-                     np.float32(t_min), np.int32(n), np.int32(len(lights)), vis)
+                     np.float32(t_min), np.int32(samples), np.int32(n), np.int32(len(lights)), vis)
 
     def _upload_shade_static(self, static, levels, basis, coeffs):
         """Empty arrays become one-element dummies the kernel never reads."""

@@ -21,6 +21,7 @@ from .environment import (
 )
 from .lighting import prefiltered_lookup, sg_irradiance  # noqa: F401
 from .model import facet_shift, radical_inverse  # noqa: F401
+from .trace import disk_basis, disk_sample
 from .sg import one_minus_cos
 from .smallscale import (
     SmallScale,
@@ -560,14 +561,18 @@ def trace_primary(mesh, camera) -> dict:
     return {"face": face, "bary": np.stack([u, v], 1), "position": pos, "t": t, "eye": camera.eye.copy()}
 
 
-def trace_shadows(vertices, faces, face, position, eye, lights_packed, eps, t_min, tol=0.0) -> np.ndarray:
-    """(P, L) uint8, 1 = light k visible from hit pixel p.
+def trace_shadows(vertices, faces, face, position, eye, lights_packed, eps, t_min, tol=0.0,
+                  samples: int = 1) -> np.ndarray:
+    """(P, L) uint8, the share of light k visible from hit pixel p in 255ths (trace.VISIBLE = 255: all).
 
-    The shadow ray starts at position + eps·n, n the unit geometric normal of the hit face turned
-    to the side of `eye` (the side the surface is seen from). Directional light (row[0] = 0):
-    direction row[1:4], unbounded. Point light (row[0] = 1): towards row[1:4] from the moved
-    origin, up to eps short of it. 0 for a missed pixel (face −1) and for a light below the
-    horizon of n; otherwise 1 unless a triangle is hit with t in (t_min, t_max].
+    Each shadow ray starts at position + eps·n, n the unit geometric normal of the hit face turned
+    to the side of `eye` (the side the surface is seen from). Ray i of `samples` aims at disc point
+    q = trace.disk_sample(i, samples, p) in the frame (a, b) = trace.disk_basis(w). Directional light
+    (row[0] = 0): w = row[1:4] normalised, direction w + tan(α)(q_x a + q_y b), α = √(row[7]/π) its
+    angular radius, unbounded. Point light (row[0] = 1): w towards the centre c = row[1:4] from the
+    moved origin, ray towards c + r(q_x a + q_y b) (r = row[7]) up to eps short of it. A ray counts if
+    it is above the horizon of n and hits no triangle with t in (t_min, t_max]; the entry is
+    (count·255 + ⌊S/2⌋) // S. 0 for a missed pixel (face −1).
     """
     v = np.asarray(vertices, np.float64)
     f = np.asarray(faces, np.int64)
@@ -578,6 +583,19 @@ def trace_shadows(vertices, faces, face, position, eye, lights_packed, eps, t_mi
     hit = np.flatnonzero(face >= 0)
     if len(hit) == 0 or len(lights) == 0:
         return out
+    if samples != 1:
+        counts = np.zeros((len(hit), len(lights)), np.int64)
+        for i in range(samples):
+            counts += _shadow_rays(v, f, face, x, eye, lights, eps, t_min, tol, hit, i, samples)
+        out[hit] = ((counts * 255 + samples // 2) // samples).astype(np.uint8)
+        return out
+    out[hit] = 255 * _shadow_rays(v, f, face, x, eye, lights, eps, t_min, tol, hit, 0, 1)
+    return out
+
+
+def _shadow_rays(v, f, face, x, eye, lights, eps, t_min, tol, hit, i, samples) -> np.ndarray:
+    """(len(hit), L) bool: ray i of `samples` of trace_shadows unoccluded, per hit pixel and light."""
+    out = np.zeros((len(hit), len(lights)), bool)
     tri = v[f[face[hit]]]
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     length = np.linalg.norm(n, axis=1, keepdims=True)
@@ -585,12 +603,19 @@ def trace_shadows(vertices, faces, face, position, eye, lights_packed, eps, t_mi
     xh = x[hit]
     n = np.where((np.sum(n * (np.asarray(eye, np.float64) - xh), axis=1) < 0)[:, None], -n, n)
     o = xh + eps * n
+    q = disk_sample(i, samples, hit)
     for k, row in enumerate(lights):
         if row[0] == 0:
-            d = np.broadcast_to(row[1:4] / np.linalg.norm(row[1:4]), o.shape)
+            w = np.broadcast_to(row[1:4] / np.linalg.norm(row[1:4]), o.shape)
+            a, b = disk_basis(w)
+            d = w + np.tan(np.sqrt(row[7] / np.pi)) * (q[:, :1] * a + q[:, 1:] * b)
+            d = d / np.linalg.norm(d, axis=1, keepdims=True)
             t_max = np.full(len(o), np.inf)
         else:
-            d = row[1:4][None] - o
+            w = row[1:4][None] - o
+            w = w / np.maximum(np.linalg.norm(w, axis=1), 1e-300)[:, None]
+            a, b = disk_basis(w)
+            d = row[1:4][None] + row[7] * (q[:, :1] * a + q[:, 1:] * b) - o
             dist = np.linalg.norm(d, axis=1)
             d = d / np.maximum(dist, 1e-300)[:, None]
             t_max = dist - eps
@@ -598,7 +623,7 @@ def trace_shadows(vertices, faces, face, position, eye, lights_packed, eps, t_mi
         vis = up.copy()
         if up.any():
             vis[up] = ~trace_occluded(v, f, o[up], d[up], t_min, t_max[up], tol)
-        out[hit, k] = vis
+        out[:, k] = vis
     return out
 
 

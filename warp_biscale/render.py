@@ -28,6 +28,7 @@ from .progress import Progress
 from .model import Frame, ShadeInputs
 from .scene import vertex_tangents
 from .shading import pack_materials
+from .trace import check_shadow_samples
 from .scene import Rendering, Scene, _black_environment
 
 __all__ = ["Scene", "Rendering", "render", "pack_frame", "METHODS"]
@@ -84,16 +85,20 @@ def _static_inputs(scene: Scene, backend, progress, timings) -> ShadeInputs:
     return static
 
 
-def pack_frame(scene: Scene, backend="auto", progress=None, timings=None) -> Frame:
+SHADOW_SAMPLES = 16  # shadow rays per light and pixel: a penumbra in 16 steps, noise turned per pixel
+
+
+def pack_frame(scene: Scene, backend="auto", progress=None, timings=None,
+               shadow_samples: int = SHADOW_SAMPLES) -> Frame:
     """The shade stage's inputs for the scene's current camera and lights, its G-buffer on the host
-    (light_vis included): what `shading.shade_reference` takes (and `backend.shade`, its inputs and
-    G-buffer)."""
+    (light_vis included, `shadow_samples` rays per light): what `shading.shade_reference` takes (and
+    `backend.shade`, its inputs and G-buffer)."""
     backend = get_backend(backend)
     timings = {} if timings is None else timings
     static = _static_inputs(scene, backend, progress, timings)
     g = backend.trace_primary(scene.mesh, scene.camera)
     lights = scene.lights_packed
-    g.light_vis = (backend.trace_shadows(scene.mesh, g, lights) if len(lights)
+    g.light_vis = (backend.trace_shadows(scene.mesh, g, lights, samples=shadow_samples) if len(lights)
                    else np.zeros((len(g.face), 0), np.uint8))
     return Frame(static, g, scene.camera.packed(), lights)
 
@@ -129,13 +134,17 @@ def _check_aa(aa) -> int:
     return n
 
 
-def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: int = 1, **options) -> Rendering:
+def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: int = 1,
+           shadow_samples: int = SHADOW_SAMPLES, **options) -> Rendering:
     """Render `scene` → `Rendering`. method "sg": the per-pixel SG renderer (Wang 2009 / Iwasaki 2012 §5),
     with `aa` jittered samples per pixel (`aa_offsets`; 1: the pixel centre only) averaged with a box
-    filter; "mc": the Monte Carlo reference (`montecarlo.render`, options `samples`, `seed`)."""
+    filter, and `shadow_samples` shadow rays per light spread over its disc (soft shadows; 1: one ray
+    to its centre, a hard shadow); "mc": the Monte Carlo reference (`montecarlo.render`, options
+    `samples`, `seed`), whose lights are the same discs."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     n_aa = _check_aa(aa)
+    n_shadow = check_shadow_samples(shadow_samples)
     if method == "mc":
         if n_aa != 1:
             raise ValueError("aa is an option of the SG renderer; the Monte Carlo reference samples pixel centres")
@@ -158,7 +167,7 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
         timings["gbuffer"] += time.perf_counter() - t0
         t0 = time.perf_counter()
         if len(lights):
-            backend.trace_shadows(scene.mesh, gbuffer, lights, to_host=False)
+            backend.trace_shadows(scene.mesh, gbuffer, lights, to_host=False, samples=n_shadow)
             backend.synchronize()
             timings["shadows"] = timings.get("shadows", 0.0) + time.perf_counter() - t0
         t0 = time.perf_counter()
@@ -169,5 +178,5 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     image = image.reshape(cam.height, cam.width, 3)
     info = {"backend": backend.name, "device": backend.device, "method": "sg", "ssdf": bool(static.has_ssdf),
             "env_lobes": len(static.env_sgs), "lights": len(lights), "width": cam.width, "height": cam.height,
-            "aa": n_aa}
+            "aa": n_aa, "shadow_samples": n_shadow}
     return Rendering(image, timings, info)

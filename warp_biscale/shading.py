@@ -21,12 +21,12 @@ SG or tabulated against one:
   lobe axis, interpolated per pixel from PCA coefficients at the vertices, and the lobe keeps the
   fraction visible_fraction(sin θd, η)/visible_fraction(ξ'·n, η) (Wang's lune, `sg.visible_fraction`)
   — the occlusion beyond the horizon, since the cosine fraction already clips at the horizon (our
-  SSDF includes it).
+  SSDF includes it). Without occluders (a lone convex object) the SSDF is skipped and that factor
+  is 1. Lights are shadowed by rays to points of the emitter's disc (`backend.trace_shadows`, one
+  ray: its centre), each light scaled by its visible share (light_vis / 255).
 - **Diffuse magnitude.** The environment lobes' diffuse sum is scaled per channel by the exact
   irradiance over the lobes' own (`irradiance_scale`; the exact one is the lobes' plus the residual
-  map `lighting.irradiance_residual` at n): the lobes shape the shadows, the map gives the magnitude. Without
-  occluders (a lone convex object) the SSDF is skipped and that factor is 1. Lights are shadowed by
-  one ray to the emitter's centre per pixel (`backend.trace_shadows`).
+  map `lighting.irradiance_residual` at n): the lobes shape the shadows, the map gives the magnitude.
 
 Material packing (what the kernels read; `pack_materials`):
 ``mat_info`` (Mat, 4) int32 [type (0 analytic, 1 effective), index, has_specular, texture slot]: the slot
@@ -58,6 +58,7 @@ from .lighting import prefiltered_lookup
 from .scene import light_sg
 from .environment import equirect_bilinear
 from .ssdf import ssdf_eval
+from .trace import VISIBLE
 from .svbrdf import Textured
 
 __all__ = ["pack_materials", "shade_reference", "surface_frames", "MIN_COS_VIEW"]
@@ -270,7 +271,8 @@ def shade_reference(frame: Frame) -> np.ndarray:
     rad = np.zeros((len(pix), 3))
     env = static.env_sgs.astype(np.float64)
     light_axis, light_eta, light_amp, _ = light_sg(frame.lights, pos)
-    light_vis = frame.gbuffer.light_vis[pix].astype(np.float64) if len(frame.lights) else np.zeros((len(pix), 0))
+    light_vis = (frame.gbuffer.light_vis[pix].astype(np.float64) / VISIBLE if len(frame.lights)
+                 else np.zeros((len(pix), 0)))
 
     for mat in np.unique(static.face_material[f]):
         sel = np.flatnonzero(static.face_material[f] == mat)

@@ -10,6 +10,11 @@ Offsets, relative to `Mesh.scale` (the larger of the extent and the largest coor
 - `SHADOW_OFFSET` = 1e-4: a shadow ray starts this far (× scale) off the hit point along the
   oriented geometric normal, and a point light's ray stops this far short of the light's centre.
   Far above float32 rounding, far below any modelled feature.
+
+Soft shadows: a light's shadow rays go to `samples` points of its disc (a point light's sphere as
+seen from the pixel, a directional light's cone), `disk_sample` turned by a per-pixel angle so that a
+penumbra is fine noise rather than bands; one sample is the centre, the hard shadow. The result is the
+visible share in 255ths (`VISIBLE`), rounded: what the shade stage scales each light by.
 """
 
 from __future__ import annotations
@@ -20,11 +25,49 @@ from .model import GBuffer
 from .scene import Camera, Mesh
 
 __all__ = ["T_MIN", "SHADOW_OFFSET", "CHUNK_RAYS", "offsets", "check_mesh", "check_camera", "check_rays",
-           "check_lights", "check_gbuffer"]
+           "check_lights", "check_gbuffer", "check_shadow_samples", "disk_sample", "disk_basis", "VISIBLE",
+           "SHADOW_SAMPLES_MAX"]
 
 T_MIN = 1e-6
 SHADOW_OFFSET = 1e-4
 CHUNK_RAYS = 1 << 22  # any-hit rays per launch: bounds device memory (~100 MB a chunk) for any ray count
+VISIBLE = 255  # a light_vis entry of a fully visible light
+SHADOW_SAMPLES_MAX = 1024
+GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
+
+
+def disk_sample(i, samples: int, pixel) -> np.ndarray:
+    """(..., 2) float64 sample i of `samples` on the unit disc for pixel index `pixel` (arrays broadcast):
+    a Vogel spiral, r = √((i + ½)/S), angle i·golden angle, turned by the pixel's hash angle
+    2π·((pixel·2654435761 mod 2³²) >> 8)/2²⁴; the centre when samples = 1 (the kernels' twin)."""
+    i, pixel = np.broadcast_arrays(np.asarray(i, np.int64), np.asarray(pixel, np.int64))
+    if samples == 1:
+        return np.zeros((*i.shape, 2))
+    h = (pixel.astype(np.uint64) * np.uint64(2654435761)) & np.uint64(0xFFFFFFFF)
+    turn = (h >> np.uint64(8)).astype(np.float64) * (2 * np.pi / 16777216.0)
+    r = np.sqrt((i + 0.5) / samples)
+    a = i * GOLDEN_ANGLE + turn
+    return np.stack([r * np.cos(a), r * np.sin(a)], -1)
+
+
+def disk_basis(w) -> tuple[np.ndarray, np.ndarray]:
+    """(a, b), each (..., 3): with w (..., 3) unit, the right-handed frame (a, b, w) the kernels build
+    (a = normalize(w × x̂), or w × ŷ where |w_x| ≥ 0.9; b = w × a)."""
+    w = np.asarray(w, np.float64)
+    ref = np.where((np.abs(w[..., 0]) < 0.9)[..., None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+    a = np.cross(w, ref)
+    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
+    return a, np.cross(w, a)
+
+
+def check_shadow_samples(samples) -> int:
+    try:
+        n = int(samples)
+    except (TypeError, ValueError):
+        n = None
+    if n is None or isinstance(samples, bool) or n != samples or not 1 <= n <= SHADOW_SAMPLES_MAX:
+        raise ValueError(f"shadow samples must be an integer in [1, {SHADOW_SAMPLES_MAX}], got {samples!r}")
+    return n
 
 
 def offsets(mesh) -> tuple[float, float]:

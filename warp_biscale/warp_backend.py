@@ -596,10 +596,10 @@ class WarpBackend(DeviceBackend):
     def _launch_trace_occluded(self, m, origins, directions, t_min, t_max, n, occluded):
         self._launch(ktrace.trace_occluded, n, [m["mesh"].id, origins, directions, t_min, t_max], [occluded])
 
-    def _launch_trace_shadows(self, m, face, position, eye, lights, eps, t_min, n, vis):
+    def _launch_trace_shadows(self, m, face, position, eye, lights, eps, t_min, samples, n, vis):
         self._launch(ktrace.trace_shadows, (len(lights), n),
                      [m["mesh"].id, m["face_normals"], face, position, wp.vec3(*eye),
-                      self._small_upload(m, "lights", lights), eps, t_min],
+                      self._small_upload(m, "lights", lights), eps, t_min, samples],
                      [vis])
 
     def _upload_shade_static(self, static, levels, basis, coeffs):
