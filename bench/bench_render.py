@@ -27,7 +27,7 @@ import re
 import sys
 
 import warp_biscale as wb
-from warp_biscale.render import pack_frame
+from warp_biscale.render import SHADOW_SAMPLES, pack_frame
 
 if __package__ in (None, ""):  # run as a file: `bench` importable from the checkout, after site-packages
     sys.path.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -60,13 +60,13 @@ def target_scene(width, height, lobes=8, lights=1, terms=16, backend="auto"):
 PRECOMPUTE = ("lighting", "ssdf", "materials")  # Rendering.timings' stages of a scene's first frame only
 
 
-def time_frames(scene, backend, frames, runs):
+def time_frames(scene, backend, frames, runs, shadow_samples=SHADOW_SAMPLES):
     """(median s per frame, precompute s, first-frame extra s, read-back s). A frame is the G-buffer, the
     shadow rays and the shading, its image left on the device (what an interactive viewer draws from), so
     the loop calls the backend's stages as `wb.render` does, without its read-back and per-stage waits;
     the read-back is timed apart."""
     be = wb.get_backend(backend)
-    first = wb.render(scene, backend=be)  # compiles, and computes what does not depend on the camera
+    first = wb.render(scene, backend=be, shadow_samples=shadow_samples)  # compiles, and computes what does not depend on the camera
     precompute = sum(first.timings.get(k, 0.0) for k in PRECOMPUTE)
     inputs = pack_frame(scene, be).inputs  # the shade stage's inputs, cached on the scene by the render above
     lights = scene.lights_packed
@@ -75,7 +75,7 @@ def time_frames(scene, backend, frames, runs):
     def frame():
         be.trace_primary(scene.mesh, scene.camera, to_host=False)
         if len(lights):
-            be.trace_shadows(scene.mesh, None, lights, to_host=False)
+            be.trace_shadows(scene.mesh, None, lights, to_host=False, samples=shadow_samples)
         be.shade(scene.mesh, inputs, cam, lights, to_host=False)
 
     def loop():
@@ -90,10 +90,11 @@ def time_frames(scene, backend, frames, runs):
     return per_frame, precompute, max(first_extra, 0.0), max(back.median_s - per_frame, 0.0)
 
 
-def part_frames(backends, sizes, lobe_list, light_list, term_list, frames, runs, out):
-    base = dict(lobes=8, lights=1, terms=16)
+def part_frames(backends, sizes, lobe_list, light_list, term_list, frames, runs, out, shadow_list=()):
+    base = dict(lobes=8, lights=1, terms=16, shadows=SHADOW_SAMPLES)
     sweeps = [("size", s) for s in sizes] + [("lobes", j) for j in lobe_list] + \
-             [("lights", n) for n in light_list] + [("terms", t) for t in term_list]
+             [("lights", n) for n in light_list] + [("terms", t) for t in term_list] + \
+             [("shadows", n) for n in shadow_list]
     for backend in backends:
         be = wb.get_backend(backend)
         for what, value in sweeps:
@@ -101,12 +102,15 @@ def part_frames(backends, sizes, lobe_list, light_list, term_list, frames, runs,
             w, h = sizes[0] if what != "size" else value
             if what != "size":
                 kw[what] = value
+            shadows = kw.pop("shadows")
             scene = target_scene(w, h, backend=backend, **kw)
-            t, pre, first, back = time_frames(scene, be, frames, runs)
+            t, pre, first, back = time_frames(scene, be, frames, runs, shadows)
+            kw["shadows"] = shadows
             out.records.append({"part": "frames", "sweep": what, "backend": be.name, "device": be.device, "width": w,
                                 "height": h, **kw, "frame_s": t, "fps": 1.0 / t, "precompute_s": pre,
                                 "first_call_extra_s": first, "readback_s": back})
-            out.log(f"{be.name:<28} {what:<6} {w}x{h} J={kw['lobes']} lights={kw['lights']} terms={kw['terms']}: "
+            out.log(f"{be.name:<28} {what:<7} {w}x{h} J={kw['lobes']} lights={kw['lights']} terms={kw['terms']} "
+                    f"shadow rays={kw['shadows']}: "
                     f"{t * 1e3:9.3f} ms/frame ({1 / t:8.1f} fps), precompute {pre:6.2f} s, "
                     f"readback {back * 1e3:7.2f} ms")
 
@@ -140,8 +144,10 @@ def part_pareto(backends, size, lobe_list, samples, runs, out):
 def table(records, meta):
     lines = [f"# Rendering benchmark ({meta['device_kind']})", "", common.commit_line(meta), ""]
     lines += common.markdown_table(
-        ["backend", "sweep", "size", "J", "lights", "PCA terms", "ms/frame", "fps", "precompute s", "readback ms"],
+        ["backend", "sweep", "size", "J", "lights", "PCA terms", "shadow rays", "ms/frame", "fps", "precompute s",
+         "readback ms"],
         [[r["backend"], r["sweep"], f"{r['width']}×{r['height']}", r["lobes"], r["lights"], r["terms"],
+          r.get("shadows", 1),
           f"{r['frame_s'] * 1e3:.3f}", f"{r['fps']:.1f}", f"{r['precompute_s']:.2f}", f"{r['readback_s'] * 1e3:.2f}"]
          for r in records if r["part"] == "frames"])
     pareto = [r for r in records if r["part"] == "pareto"]
@@ -191,6 +197,8 @@ def main(argv=None):
     ap.add_argument("--lobes", type=int, nargs="+", default=[1, 4, 8, 16], help="the J sweep")
     ap.add_argument("--lights", type=int, nargs="+", default=[0, 1, 4], help="the light-count sweep")
     ap.add_argument("--terms", type=int, nargs="+", default=[4, 16, 48], help="the SSDF PCA-term sweep")
+    ap.add_argument("--shadow-samples", type=int, nargs="+", default=[1, 4, 16],
+                    help=f"the shadow-ray sweep (rays per light and pixel; the others at {SHADOW_SAMPLES})")
     ap.add_argument("--pareto-size", help="WxH of the Pareto images (default 320x240; --quick 96x72)")
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--frames", type=int, default=10, help="frames a timed loop (3 with --quick)")
@@ -210,7 +218,7 @@ def main(argv=None):
         out.save(table)
 
     if "frames" in args.parts:
-        part_frames(backends, sizes, args.lobes, args.lights, args.terms, frames, args.runs, out)
+        part_frames(backends, sizes, args.lobes, args.lights, args.terms, frames, args.runs, out, args.shadow_samples)
         save()
     if "pareto" in args.parts:
         part_pareto(backends, pareto_size, args.lobes, args.samples, args.runs, out)
