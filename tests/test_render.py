@@ -71,8 +71,10 @@ def _glossy_scene(size=48):
 
 def test_glossy_scene_sg_against_monte_carlo(backend):
     """A glossy Blinn–Phong sphere on a floor (SSDF shadows), an environment of three SG lobes + ambient, and a
-    point light: the SG image against the converged Monte Carlo reference, over the object pixels, ≥ 40 dB
-    (issue 5). The MC noise is measured too, so the PSNR is the method's error, not the reference's."""
+    point light: the SG image against the converged Monte Carlo reference, over the object pixels. Measured on
+    Warp CPU: 48.2 dB before the diffuse term took the exact irradiance, 48.7 dB after (mean relative error
+    5.0 → 4.3 %; the reference's own noise, stderr rms 0.030 against an RMSE of 0.048, is much of what is
+    left). The MC noise is checked too, so the PSNR is the method's error, not the reference's."""
     scene = _glossy_scene()
     sg_img = wb.render(scene, backend=backend)
     mc = wb.render(scene, method="mc", backend=backend, samples=512, seed=3)
@@ -81,7 +83,7 @@ def test_glossy_scene_sg_against_monte_carlo(backend):
     err = wb.compare_images(sg_img.image, mc.image, mask=mask)
     peak = mc.image[mask].max()
     assert mc.info["stderr_rms"] < 0.2 * err["rmse"] + 0.01 * peak  # the reference is converged enough to judge
-    assert err["psnr"] >= 40.0, err
+    assert err["psnr"] >= 46.0, err
     assert np.isfinite(sg_img.image).all() and (sg_img.image >= 0).all()
 
 
