@@ -44,6 +44,7 @@ _CUDA_DRIVER_WARNING = "Could not find or load the NVIDIA CUDA driver"
 
 
 RAY_PIECES = 4  # slices per core of the visibility rays on the CPU (see _launch)
+PINNED_BYTES = 1 << 20  # read-backs from a GPU at least this large go through a pinned host buffer
 
 
 def _stderr_of(call) -> str:
@@ -147,6 +148,7 @@ class WarpBackend(DeviceBackend):
         self._uploads = UploadCache()
         self._held_visible_area = None  # (host, device) of the last visible_area
         self._scratch_arrays = {}  # role → device scratch array, see _scratch
+        self._pinned = {}  # (shape, dtype) → pinned host buffer for large read-backs, see _trace_host
         self._em_graphs = {}  # (Ns, J, steps, weighted) → captured EM (CUDA): see _em_graph
         self._em_buffers = {}
         self._pinned = {}  # (shape, dtype) → [(pinned host array, event)] free for _read_later
@@ -539,9 +541,20 @@ class WarpBackend(DeviceBackend):
         return read
 
     def _trace_host(self, a):
-        """A host copy of a device array (on the CPU, .numpy() is a view that the next frame overwrites)."""
-        out = a.numpy()
-        return out.copy() if self._device.is_cpu else out
+        """A host copy of a device array (on the CPU, .numpy() is a view that the next frame overwrites).
+        From a GPU, a large array (a frame) goes through a pinned host buffer kept per shape and type: a
+        copy to pageable memory goes through the driver's staging buffer and ran several times slower."""
+        if self._device.is_cpu:
+            return a.numpy().copy()
+        if a.capacity < PINNED_BYTES:
+            return a.numpy()
+        key = (a.shape, a.dtype)
+        pinned = self._pinned.get(key)
+        if pinned is None:
+            pinned = self._pinned[key] = wp.empty(a.shape, dtype=a.dtype, device="cpu", pinned=True)
+        wp.copy(pinned, a)
+        wp.synchronize_device(self._device)
+        return pinned.numpy().copy()
 
     # ------------------------------------------------------------------ device primitives (DeviceBackend)
     def _to_device(self, host, kind):
