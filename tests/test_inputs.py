@@ -132,9 +132,10 @@ def test_physical_brdfs_do_not_warn():
     with warnings.catch_warnings():
         warnings.simplefilter("error", EnergyWarning)
         wb.Lambert(1.0)
-        wb.BlinnPhong(1.0, 100, kd=1.0)  # ks is not a reflectance on its own: not checked
+        wb.BlinnPhong(0.5, 100, kd=0.5, normalization="energy")  # specular albedo ks at most: 0.5 + 0.5
         wb.Ward(0.9, 0.2, kd=(1.0, 0.5, 0.0))
-        wb.Textured(wb.BlinnPhong(0.5, 100, kd=0.5), kd_map=np.full((2, 2, 3), 2.0))  # 0.5 × 2 = 1
+        wb.Textured(wb.BlinnPhong(0.5, 100, kd=0.5, normalization="energy"),
+                    kd_map=np.full((2, 2, 3), 2.0))  # 0.5 × 2 = 1
 
 
 def test_energy_warning_is_a_user_warning():

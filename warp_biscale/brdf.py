@@ -12,19 +12,26 @@ Packed layout shared by the reference, the Warp and the OpenCL kernels, one row 
 
 from __future__ import annotations
 
+import functools
+import math
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
 __all__ = ["Lambert", "BlinnPhong", "CookTorrance", "Ward", "Brdf", "pack_materials", "as_material_list",
-           "parse_brdf", "EnergyWarning"]
+           "parse_brdf", "EnergyWarning", "NORMALIZATIONS", "blinn_phong_normal_albedo", "cook_torrance_albedo"]
 
 LAMBERT, BLINN_PHONG, COOK_TORRANCE, WARD = 0, 1, 2, 3
 
+# BlinnPhong.normalization: "iwasaki" the paper's lobe (its specular albedo exceeds ks), "energy" the same
+# lobe scaled so that its specular albedo is ks at normal incidence and below ks everywhere else.
+NORMALIZATIONS = ("iwasaki", "energy")
+
 
 class EnergyWarning(UserWarning):
-    """A material reflects more light than it receives (a diffuse albedo above 1): allowed, but not physical."""
+    """A material reflects more light than it receives (a directional albedo above 1: kd alone, or kd plus
+    the specular lobe's albedo at some angle of view): allowed, but not physical."""
 
 
 def _rgb(name, value) -> tuple:
@@ -41,12 +48,12 @@ def _rgb(name, value) -> tuple:
     return tuple(float(x) for x in a)
 
 
-def warn_energy(name, rgb, stacklevel: int = 2) -> None:
+def warn_energy(name, rgb, stacklevel: int = 2) -> bool:
     """An `EnergyWarning` when a diffuse reflectance (an RGB triple: Lambert albedo, kd) has a channel > 1:
-    a Lambertian term reflects its albedo of what it receives, so more than 1 creates light."""
+    a Lambertian term reflects its albedo of what it receives, so more than 1 creates light. → whether it warned."""
     a = np.asarray(rgb, np.float64).reshape(-1)
     if not (a > 1).any():
-        return
+        return False
     if np.all(a == a[0]):
         shown = f"{a[0]:g} > 1"
     else:
@@ -54,6 +61,7 @@ def warn_energy(name, rgb, stacklevel: int = 2) -> None:
         shown = f"({', '.join(f'{x:g}' for x in a)}): {'rgb'[k]} = {a[k]:g} > 1"
     warnings.warn(f"{name} {shown} reflects more light than it receives (an energy gain; keep it <= 1)",
                   EnergyWarning, stacklevel=stacklevel + 1)
+    return True
 
 
 def _positive(name, value) -> float:
@@ -69,6 +77,100 @@ def _positive(name, value) -> float:
 # The stack level of a warning from a BRDF's __post_init__ that points at the line constructing it
 # (warn_energy ← __post_init__ ← the dataclass __init__ ← the caller).
 _CALLER = 3
+
+# A directional albedo is warned of above 1 + this: kd + ks = 1 must not warn because of the rounding of
+# a sum or of a scale factor folded into ks.
+_ALBEDO_SLACK = 1e-9
+
+
+def blinn_phong_normal_albedo(exponent) -> float:
+    """The specular directional albedo at normal incidence of Iwasaki's Blinn–Phong lobe with ks = 1,
+    ∫ (n+2)/(2π)(n·h)ⁿ cos θi dωi with ωo = n, in closed form: 4(n + 2^(−n/2))/(n + 4).
+
+    With ωo on the normal, ωi = 2(n·h)h − n, so cos θi = 2c² − 1 (c = n·h) and dωi = 4c dω_h; the
+    integral over c ∈ [1/√2, 1] is 4(n+2)∫c^(n+1)(2c² − 1)dc. It is the largest albedo over all angles
+    of view (measured: tests/test_energy.py) and grows from 1 (n → 0) to 4 (n → ∞)."""
+    n = float(exponent)
+    return 4.0 * (n + 2.0 ** (-n / 2.0)) / (n + 4.0)
+
+
+def _peak_text(name, total, cos_o) -> str:
+    """'BlinnPhong directional albedo 3.85 > 1 at θo = 0° (cos θo = 1)', its largest channel named when
+    the channels differ."""
+    if np.all(total == total[0]):
+        shown = f"{total[0]:.3g} > 1"
+    else:
+        k = int(np.argmax(total))
+        shown = f"({', '.join(f'{x:.3g}' for x in total)}): {'rgb'[k]} = {total[k]:.3g} > 1"
+    return f"{name} directional albedo {shown} at θo = {math.degrees(math.acos(cos_o)):.3g}° (cos θo = {cos_o:g})"
+
+
+# Cook–Torrance's directional albedo (ks = 1) is linear in f0: f0·A1 + (1 − f0)·A5, with A1 the albedo of
+# F = 1 and A5 that of F = (1 − h·ωi)⁵. Both are tabulated once, on first use, over the roughness m and
+# cos θo, by Gauss–Legendre quadrature over the half vector; a material's largest albedo is read from them.
+# Outside the table's m: below, the lobe is narrow and A ∝ m² (∫D dω_h ≈ πm²); above, D ≈ 1 (saturated).
+_CT_COS = np.array([1e-3, 0.01, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 1.0])
+_CT_ROUGHNESS = np.geomspace(0.02, 50.0, 42)  # 12 a decade: log-log interpolation within 0.015 of the albedo
+_CT_NODES = 24
+
+
+def _cook_torrance_albedos(roughness, cos_o, nodes: int = _CT_NODES):
+    """(A1, A5), each (len(roughness), len(cos_o)): Cook–Torrance's specular directional albedo for ks = 1
+    and F = 1, resp. F = (1 − h·ωi)⁵, by quadrature over the half vector h = (θh, φ) about the normal.
+
+    ωi = 2(h·ωo)h − ωo, dωi = 4(h·ωo)dω_h. ωi is above the horizon for every φ while θh < π/4 − θo/2 and
+    for |φ| < acos(−cot 2θh·cot θo) up to θh = π/4 + θo/2, so each of the two θh ranges gets its exact φ
+    range (Gauss–Legendre in θh and φ); θh stops at 7m, past which D < e^−49."""
+    x, w = np.polynomial.legendre.leggauss(nodes)
+    m = np.asarray(roughness, np.float64)[:, None, None]
+    co = np.asarray(cos_o, np.float64)[None, :, None]
+    so = np.sqrt(np.maximum(1.0 - co * co, 0.0))
+    half = np.arccos(co) / 2
+    full_end = np.minimum(np.pi / 4 - half, 7 * m)
+    part_end = np.minimum(np.pi / 4 + half, 7 * m)
+    a1 = a5 = 0.0
+    for lo, hi, whole_circle in ((0.0 * full_end, full_end, True), (full_end, part_end, False)):
+        th = lo + (hi - lo) * (x + 1) / 2
+        w_th = (hi - lo) / 2 * w
+        c, s = np.cos(th), np.sin(th)
+        if whole_circle:
+            phi_max = np.full_like(th, np.pi)
+        else:
+            phi_max = np.arccos(np.clip(-co * (2 * c * c - 1) / np.maximum(2 * s * c * so, 1e-300), -1.0, 1.0))
+        phi = phi_max[..., None] * (x + 1) / 2
+        w_phi = phi_max[..., None] / 2 * w
+        c4, s4, co4, so4 = c[..., None], s[..., None], co[..., None], so[..., None]
+        ho = s4 * np.cos(phi) * so4 + c4 * co4  # h·ωo = h·ωi
+        ci = 2 * ho * c4 - co4
+        ok = (ci > 0) & (ho > 0)
+        hos = np.where(ok, ho, 1.0)
+        g = np.minimum(1.0, np.minimum(2 * c4 * co4 / hos, 2 * c4 * ci / hos))
+        d = np.exp(-((th[..., None] / m[..., None]) ** 2))
+        # f_s·cos θi = F·G·D/(π cos θo); dωi = 4(h·ωo)·sin θh dθh dφ, φ over ±φmax (hence 2).
+        term = np.where(ok, g * d / (np.pi * co4) * 4 * ho * s4, 0.0) * (2 * w_phi * w_th[..., None])
+        a1 = a1 + term.sum((-1, -2))
+        a5 = a5 + (term * (1.0 - np.clip(ho, 0.0, 1.0)) ** 5).sum((-1, -2))
+    return a1, a5
+
+
+@functools.cache
+def _cook_torrance_table():
+    a1, a5 = _cook_torrance_albedos(_CT_ROUGHNESS, _CT_COS)
+    return np.log(a1), np.log(a5)
+
+
+def cook_torrance_albedo(roughness, f0) -> tuple:
+    """(cos θo (C,), A (C,)): Cook–Torrance's specular directional albedo for ks = 1 on a grid of cos θo
+    from 1e−3 (grazing) to 1, read from a table computed once (within 0.015 of the quadrature)."""
+    log1, log5 = _cook_torrance_table()
+    lm = np.log(_CT_ROUGHNESS)
+    m = float(roughness)
+    at = float(np.clip(np.log(m), lm[0], lm[-1]))
+    a1 = np.exp([np.interp(at, lm, log1[:, j]) for j in range(len(_CT_COS))])
+    a5 = np.exp([np.interp(at, lm, log5[:, j]) for j in range(len(_CT_COS))])
+    if m < _CT_ROUGHNESS[0]:
+        a1, a5 = (a * (m / _CT_ROUGHNESS[0]) ** 2 for a in (a1, a5))
+    return _CT_COS.copy(), f0 * a1 + (1.0 - f0) * a5
 
 
 class Brdf:
@@ -109,21 +211,71 @@ class Lambert(Brdf):
 
 @dataclass(frozen=True)
 class BlinnPhong(Brdf):
-    """Normalised Blinn–Phong as Iwasaki §4.1: f_r = kd/π + ks·(n+2)/(2π)·(n·h)^n, h the half vector."""
+    """Blinn–Phong as Iwasaki §4.1: f_r = kd/π + s·ks·(n+2)/(2π)·(n·h)^n, h the half vector, s = 1 by default.
+
+    **What it does to energy.** (n+2)/(2π) normalises the *distribution* of h (∫(n+2)/(2π)(n·h)^n (n·h) dω_h
+    = 1), not the BRDF, so the specular directional albedo A = ∫ f_s·cos θi dωi exceeds ks. Measured by
+    float64 quadrature for ks = 1 (tests/test_energy.py):
+
+        exponent n   cos θo = 1    0.9      0.5      0.1
+        1            1.366         1.320    1.118    0.873
+        10           2.866         2.441    1.147    0.403
+        100          3.846         3.130    1.019    0.106
+        1000         3.984         3.229    1.002    0.048
+        10000        3.998         3.239    1.000    0.041
+
+    It is largest at normal incidence, where it is 4(n + 2^(−n/2))/(n + 4) exactly (`blinn_phong_normal_albedo`;
+    1 as n → 0, 4 as n → ∞), and tends to 4·cos²θo for sharp lobes. Under uniform light the surface reflects
+    2(n + 2)/(n + 4) times ks of what it receives (the cosine-weighted mean of A over θo; → 2). So a
+    material with kd + A·ks > 1 creates light, and constructing one gives an `EnergyWarning`.
+
+    `normalization`: "iwasaki" (default) is the paper's lobe, s = 1. "energy" sets s = 1/A at normal
+    incidence, (n + 4)/(4(n + 2^(−n/2))), folded into the ks that `packed()` returns (the kernels are
+    unchanged): the specular albedo is then ks at normal incidence and less at every other angle (≈ ks·cos²θo
+    for sharp lobes; ks·(n + 2)/(2(n + 2^(−n/2))) ≈ ks/2 under uniform light), so kd + ks ≤ 1 never creates
+    light. A constant s cannot do better: the lobe loses light at oblique angles. Since s depends on the
+    exponent, a `Textured` parameter map (which changes the exponent per texel) is refused with "energy".
+    """
 
     ks: object = 1.0
     exponent: float = 64.0
     kd: object = 0.0
+    normalization: str = "iwasaki"
     kind = BLINN_PHONG
 
     def __post_init__(self):
         object.__setattr__(self, "ks", _rgb("BlinnPhong.ks", self.ks))
         object.__setattr__(self, "kd", _rgb("BlinnPhong.kd", self.kd))
-        warn_energy("BlinnPhong kd", self.kd, stacklevel=_CALLER)
+        kd_warned = warn_energy("BlinnPhong kd", self.kd, stacklevel=_CALLER)
         object.__setattr__(self, "exponent", _positive("BlinnPhong.exponent", self.exponent))
+        if not (isinstance(self.normalization, str) and self.normalization in NORMALIZATIONS):
+            raise ValueError(f"BlinnPhong.normalization must be one of {', '.join(map(repr, NORMALIZATIONS))}, "
+                             f"got {self.normalization!r}")
+        if not kd_warned:  # (kd alone above 1 is said already)
+            a = 1.0 if self.normalization == "energy" else blinn_phong_normal_albedo(self.exponent)
+            total = np.asarray(self.kd) + np.asarray(self.ks) * a
+            if (total > 1 + _ALBEDO_SLACK).any():
+                advice = ("keep ks + kd <= 1" if self.normalization == "energy" else
+                          'normalization="energy" makes that specular albedo ks')
+                warnings.warn(f"{_peak_text('BlinnPhong', total, 1.0)}: ks × {a:.3g} + kd (the specular albedo of "
+                              f"exponent {self.exponent:g} there, its largest) reflects more light "
+                              f"than it receives (an energy gain); {advice}", EnergyWarning, stacklevel=_CALLER)
+
+    def __repr__(self):  # the default normalization left out, so reprs (bench records) read as before
+        extra = "" if self.normalization == "iwasaki" else f", normalization={self.normalization!r}"
+        return f"BlinnPhong(ks={self.ks!r}, exponent={self.exponent!r}, kd={self.kd!r}{extra})"
+
+    @property
+    def ks_scale(self) -> float:
+        """s: the factor `packed()` folds into ks (1 for "iwasaki")."""
+        if self.normalization == "energy":
+            return 1.0 / blinn_phong_normal_albedo(self.exponent)
+        return 1.0
 
     def packed(self):
-        return np.array([*self.kd, *self.ks, self.exponent, 0], np.float64)
+        if self.normalization == "iwasaki":
+            return np.array([*self.kd, *self.ks, self.exponent, 0], np.float64)
+        return np.array([*self.kd, *(np.asarray(self.ks) * self.ks_scale), self.exponent, 0], np.float64)
 
 
 @dataclass(frozen=True)
@@ -133,6 +285,22 @@ class CookTorrance(Brdf):
     f_r = kd/π + ks·F(h·ωi)·G·D(h) / (π (n·ωi)(n·ωo)),  D = exp(−(θh/m)²),
     F = f0 + (1 − f0)(1 − h·ωi)⁵,  G = min(1, 2(n·h)(n·ωo)/(ωo·h), 2(n·h)(n·ωi)/(ωo·h)).
     `roughness` is m (radians of θh at which D falls to 1/e).
+
+    **What it does to energy.** D is not normalised, so the specular directional albedo grows with m
+    (≈ 4m²·F for a narrow lobe) and, for a rough lobe, towards grazing angles. Measured by float64
+    quadrature for ks = 1 (tests/test_energy.py):
+
+        m      f0     cos θo = 1   0.5     0.05
+        0.2    1      0.156        0.150   0.152
+        0.5    1      0.732        0.749   0.837
+        1      1      1.221        1.696   2.145
+        2      1      1.422        2.320   3.260
+        0.5    0.04   0.029        0.046   0.252
+        1      0.04   0.049        0.091   0.475
+
+    With f0 = 1 it exceeds ks from m ≈ 0.55 (at grazing angles). A material whose kd + ks·A exceeds 1 at
+    some angle gives an `EnergyWarning` (A read from a table over m and cos θo computed once,
+    `cook_torrance_albedo`).
     """
 
     ks: object = 1.0
@@ -144,7 +312,7 @@ class CookTorrance(Brdf):
     def __post_init__(self):
         object.__setattr__(self, "ks", _rgb("CookTorrance.ks", self.ks))
         object.__setattr__(self, "kd", _rgb("CookTorrance.kd", self.kd))
-        warn_energy("CookTorrance kd", self.kd, stacklevel=_CALLER)
+        kd_warned = warn_energy("CookTorrance kd", self.kd, stacklevel=_CALLER)
         object.__setattr__(self, "roughness", _positive("CookTorrance.roughness", self.roughness))
         try:
             f0 = float(self.f0)
@@ -153,6 +321,15 @@ class CookTorrance(Brdf):
         if not (0.0 <= f0 <= 1.0):
             raise ValueError(f"CookTorrance.f0 must lie in [0, 1], got {self.f0!r}")
         object.__setattr__(self, "f0", f0)
+        if not kd_warned and max(self.ks) > 0:
+            cos_o, a = cook_torrance_albedo(self.roughness, f0)
+            j = int(np.argmax(a))
+            total = np.asarray(self.kd) + np.asarray(self.ks) * a[j]
+            if (total > 1 + _ALBEDO_SLACK).any():
+                warnings.warn(f"{_peak_text('CookTorrance', total, cos_o[j])}: ks × {a[j]:.3g} + kd (the specular "
+                              f"albedo of roughness {self.roughness:g} and f0 {f0:g} there, its largest) reflects "
+                              f"more light than it receives (an energy gain); lower ks, f0 or the roughness",
+                              EnergyWarning, stacklevel=_CALLER)
 
     def packed(self):
         return np.array([*self.kd, *self.ks, self.roughness, self.f0], np.float64)
@@ -212,22 +389,34 @@ _BRDF_NAMES = {"lambert": Lambert, "blinnphong": BlinnPhong, "blinn-phong": Blin
 def parse_brdf(text: str) -> Brdf:
     """Parse a command-line BRDF: ``name[:key=value,...]``, e.g. ``blinnphong:exponent=512,ks=0.8``.
 
-    Values are numbers or RGB triples written ``r/g/b``.
+    Names: lambert (albedo), blinnphong (ks, exponent, kd, normalization), cooktorrance (ks, roughness, f0,
+    kd), ward (ks, alpha, kd). Values are numbers or RGB triples written ``r/g/b``; the word-valued key,
+    Blinn–Phong's normalization, takes ``iwasaki`` (the default: the paper's lobe, whose specular albedo
+    is up to 4·ks) or ``energy`` (specular albedo ks at normal incidence, less elsewhere), e.g.
+    ``blinnphong:exponent=128,normalization=energy``.
     """
     name, _, rest = text.partition(":")
     cls = _BRDF_NAMES.get(name.strip().lower())
     if cls is None:
         raise ValueError(f"unknown BRDF {name!r}; choose one of lambert, blinnphong, cooktorrance, ward")
+    names = [f.name for f in fields(cls)]
+    words = {f.name for f in fields(cls) if isinstance(f.default, str)}  # keys whose value is a word
     kwargs = {}
     for item in filter(None, (s.strip() for s in rest.split(","))):
         key, eq, val = item.partition("=")
         if not eq:
             raise ValueError(f"BRDF parameter {item!r} must be key=value")
+        key = key.strip()
+        if key not in names:
+            raise ValueError(f"{cls.__name__} has no parameter {key!r} (it has {', '.join(names)})")
+        if key in words:
+            kwargs[key] = val.strip()  # checked by the class, whose error names it
+            continue
         try:
             parts = [float(p) for p in val.split("/")]
         except ValueError:
             raise ValueError(f"BRDF parameter {key}={val!r} is not a number or r/g/b triple") from None
-        kwargs[key.strip()] = parts[0] if len(parts) == 1 else parts
+        kwargs[key] = parts[0] if len(parts) == 1 else parts
     try:
         return cls(**kwargs)
     except TypeError as exc:

@@ -60,8 +60,9 @@ or ``warp-biscale render scene.toml -o out.png``. Every table and key is optiona
     material = "floor"
 
     [material.floor]
-    type = "lambert"             # "lambert": albedo ; "blinnphong": ks, exponent, kd ;
-    albedo = [0.5, 0.5, 0.5]     # "cooktorrance": ks, roughness, f0, kd ; "ward": ks, alpha, kd
+    type = "lambert"             # "lambert": albedo ; "blinnphong": ks, exponent, kd, normalization
+    albedo = [0.5, 0.5, 0.5]     #   ("iwasaki" | "energy") ; "cooktorrance": ks, roughness, f0, kd ;
+                                 #   "ward": ks, alpha, kd
     kd_map = "floor.png"         # optional maps (svbrdf.Textured, images relative to this file): kd_map,
                                  #   and ks_map, parameter_map (multiplies exponent | roughness | alpha)
 
@@ -151,7 +152,7 @@ MESH_BUILTINS = {
 _MAPS = {"kd_map": STR, "ks_map": STR, "parameter_map": STR}  # svbrdf.Textured: image paths, relative to the file
 _BRDF_KEYS = {
     "lambert": {"albedo": RGB, "kd_map": STR},
-    "blinnphong": {"ks": RGB, "exponent": NUM, "kd": RGB, **_MAPS},
+    "blinnphong": {"ks": RGB, "exponent": NUM, "kd": RGB, "normalization": STR, **_MAPS},
     "cooktorrance": {"ks": RGB, "roughness": NUM, "f0": NUM, "kd": RGB, **_MAPS},
     "ward": {"ks": RGB, "alpha": NUM, "kd": RGB, **_MAPS},
 }

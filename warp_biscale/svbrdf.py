@@ -92,6 +92,11 @@ class Textured:
                              f"got {brdf!r}")
         if isinstance(brdf, brdf_mod.Lambert) and (ks_map is not None or parameter_map is not None):
             raise ValueError("Textured: a Lambert BRDF has no ks or model parameter: give only kd_map")
+        if parameter_map is not None and getattr(brdf, "normalization", "iwasaki") != "iwasaki":
+            # Its factor is a function of the exponent folded into ks; the kernels scale the exponent per texel
+            # and would keep the untextured exponent's factor, so the lobe would no longer be what it says.
+            raise ValueError(f"Textured: parameter_map cannot vary the exponent of a BlinnPhong with "
+                             f"normalization={brdf.normalization!r} (its energy factor depends on the exponent)")
         self.brdf = brdf
         self.kd_map = _load_map("kd_map", kd_map, True)
         self.ks_map = _load_map("ks_map", ks_map, True)
