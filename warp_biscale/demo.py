@@ -73,7 +73,7 @@ material = "floor"
 type = "bake"
 tile = "pyramid"
 tile_params = {{ height = 0.5, color = [1.0, 0.75, 0.3], base_color = [0.55, 0.1, 0.07] }}
-brdf = ["blinnphong:exponent=256,ks=0.8,kd=0.2"]
+brdf = ["blinnphong:exponent=256,ks=0.8,kd=0.2,normalization=energy"]
 lobes = {lobes}
 directions = {directions}
 facets = {facets}

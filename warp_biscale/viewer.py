@@ -27,6 +27,7 @@ import math
 import os
 import sys
 import time
+import warnings
 
 import numpy as np
 
@@ -112,7 +113,9 @@ def _brdf_with(b, slider_value):
         value = tuple(rgb / max(rgb.max(), 1e-12) * value) if rgb.max() > 0 else (value,) * 3
     else:
         value = max(value, 1e-6)
-    return dataclasses.replace(b, **{field: value})
+    with warnings.catch_warnings():  # the loaded material warned once already; a slider must not repeat it
+        warnings.simplefilter("ignore", B.EnergyWarning)
+        return dataclasses.replace(b, **{field: value})
 
 
 def with_main_parameter(material, slider_value):
