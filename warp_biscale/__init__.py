@@ -40,7 +40,7 @@ from .scene import Camera, DirectionalLight, Mesh, PointLight
 from .scenefile import load_scene
 from .smallscale import SmallScale, TileWarning
 from .svbrdf import Textured
-from .truth import GroundTruth, effective_brdf_exact, ground_truth
+from .truth import GroundTruth, effective_brdf_exact, ground_truth, truth_of
 
 __all__ = [
     "Backend", "BlinnPhong", "Bvndf", "Camera", "CookTorrance", "DirectionalLight", "EffectiveBRDF", "EnergyWarning",
@@ -48,7 +48,7 @@ __all__ = [
     "Facets", "GroundTruth", "Lambert", "Mesh", "PointLight", "Rendering", "Scene", "SmallScale", "Textured",
     "TileWarning",
     "Visibility", "Ward", "backends", "bake", "compare", "compare_images", "directions", "effective_brdf_exact",
-    "geometry", "get_backend", "ground_truth", "load", "load_scene", "lobes", "read_image", "render", "sg",
+    "geometry", "get_backend", "ground_truth", "truth_of", "load", "load_scene", "lobes", "read_image", "render", "sg",
     "write_image",
 ]
 

@@ -8,6 +8,7 @@ import argparse
 import os
 import sys
 import time
+import warnings
 
 import numpy as np
 
@@ -22,6 +23,8 @@ from .images import check_exposure
 from .io import atomic_path, check_output
 from .montecarlo import missing_provenance
 from .progress import as_progress, set_quiet
+from .render import SHADOW_SAMPLES, check_aa
+from .trace import check_shadow_samples
 from .scenefile import load_scene
 from .truth import ground_truth
 from .viewer import view
@@ -222,6 +225,12 @@ def cmd_render(args):
     _check_output(args.output)
     if args.exposure is not None:
         check_exposure(args.exposure)
+    if args.aa is not None:
+        check_aa(args.aa)
+    if args.shadow_samples is not None:
+        check_shadow_samples(args.shadow_samples)
+    if args.method == "mc":
+        _refuse_sg_options(args)
     prog = as_progress(not args.quiet)
     sf = load_scene(args.scene, backend=args.backend, progress=prog)
     if args.size is not None:
@@ -234,6 +243,12 @@ def cmd_render(args):
             if method != "mc":
                 raise ValueError(f"{flag} is for --method mc (the SG renderer has no such option)")
             options[key] = value
+    if method == "mc":
+        _refuse_sg_options(args)
+    else:
+        options["aa"] = FILE_AA if args.aa is None else args.aa
+        if args.shadow_samples is not None:
+            options["shadow_samples"] = args.shadow_samples
     if method == "mc" and args.mc_fallback is None:
         # Before the render starts: a material file of format 1 records no tile to compute the truth from.
         for i in missing_provenance(sf.scene):
@@ -254,9 +269,17 @@ def cmd_render(args):
     return 0
 
 
+def _refuse_sg_options(args):
+    for flag, value in (("--aa", args.aa), ("--shadow-samples", args.shadow_samples)):
+        if value is not None:
+            raise ValueError(f"{flag} is for the SG renderer (--method sg); the Monte Carlo reference samples "
+                             "pixel centres and lights as emitters")
+
+
 def cmd_demo(args):
 
     _check_output(args.output)
+    check_aa(args.aa)
     t0 = time.perf_counter()
     prog = as_progress(not args.quiet)
     sf = demo.demo_scene(backend=args.backend, progress=prog)
@@ -264,7 +287,7 @@ def cmd_demo(args):
         sf.resize(*_size(args.size, sf.width, sf.height))
     if not args.quiet:
         _print_bakes(sf)
-    result = sf.render(progress=prog)
+    result = sf.render(progress=prog, aa=args.aa)
     prog.done()
     result.save(args.output, exposure=sf.exposure)
     if not args.quiet:
@@ -292,6 +315,7 @@ def cmd_view(args):
 
 
 SIZE_HELP = "WIDTH [HEIGHT] in pixels (a width alone keeps the aspect)"
+FILE_AA = 4  # samples a pixel for an image written to a file (the interactive viewer takes 1)
 
 
 def _add_render_commands(sub):
@@ -307,6 +331,11 @@ def _add_render_commands(sub):
     r.add_argument("--truth-facets", type=int, metavar="N",
                    help="--method mc: facets of the ground truth computed for each baked material in view "
                         "(default 2^18; cached beside a material file as NAME.truth.npz)")
+    r.add_argument("--aa", type=int, metavar="N", help=f"anti-aliasing: N jittered samples a pixel for the SG renderer "
+                                                         f"(default {FILE_AA}; 1: pixel centres only)")
+    r.add_argument("--shadow-samples", type=int, metavar="N",
+                   help=f"shadow rays per light and pixel over the light's disc (default {SHADOW_SAMPLES}; 1: a hard "
+                        "shadow)")
     r.add_argument("--mc-fallback", choices=["sg"],
                    help="--method mc: judge every baked material with its SG fit (not exact; with a warning) "
                         "instead of its exact ground truth, e.g. for a material file of format 1, which records "
@@ -320,6 +349,8 @@ def _add_render_commands(sub):
     d = sub.add_parser("demo", help="bake a built-in tile and render a scene with it (a few seconds on a CPU)")
     d.add_argument("-o", "--output", default="demo.png", help="image to write (default demo.png)")
     d.add_argument("--size", type=int, nargs="+", metavar="N", help=SIZE_HELP + " (default 512 384)")
+    d.add_argument("--aa", type=int, metavar="N", default=FILE_AA,
+                   help=f"anti-aliasing: N jittered samples a pixel (default {FILE_AA}; 1: pixel centres only)")
     d.add_argument("--backend", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name> (default auto)")
     d.add_argument("-q", "--quiet", action="store_true", help="no progress, no bake summary")
     d.set_defaults(func=cmd_demo)
@@ -348,8 +379,9 @@ def main(argv=None):
                         "(default: pyramid)")
     p.add_argument("--brdf", action="append",
                    help="small-scale BRDF, once per material id, e.g. lambert:albedo=0.5, "
-                        "blinnphong:exponent=512,ks=1, cooktorrance:roughness=0.2,f0=0.04, ward:alpha=0.2; "
-                        "RGB as r/g/b (default lambert:albedo=0.5)")
+                        "blinnphong:exponent=512,ks=1 (add normalization=energy for a specular albedo of at most "
+                        "ks; the default iwasaki lobe reflects up to 4·ks), cooktorrance:roughness=0.2,f0=0.04, "
+                        "ward:alpha=0.2; RGB as r/g/b (default lambert:albedo=0.5)")
     p.add_argument("--facets", type=int, default=1 << 16,
                    help="number of facets Ns (default 2^16; raise it for a more accurate table)")
     p.add_argument("--directions", type=int, default=12, help="direction grid size K (K² directions, default 12)")
@@ -387,6 +419,8 @@ def main(argv=None):
     b.set_defaults(func=cmd_backends)
     args = parser.parse_args(argv)
     set_quiet(args.quiet)
+    # A warning reads as one line, as the errors do: what the library says, not where in it.
+    warnings.formatwarning = lambda message, category, *_, **__: f"warning: {message}\n"
     # Exit codes: 2 for a usage or input error (argparse's own too), 1 for a failure on the way.
     try:
         return args.func(args)

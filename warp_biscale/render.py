@@ -124,7 +124,7 @@ def aa_offsets(samples: int, seed: int = 0) -> np.ndarray:
     return np.stack([fx, fy], 1) - 0.5
 
 
-def _check_aa(aa) -> int:
+def check_aa(aa) -> int:
     try:
         n = int(aa)
     except (TypeError, ValueError):
@@ -140,10 +140,11 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     with `aa` jittered samples per pixel (`aa_offsets`; 1: the pixel centre only) averaged with a box
     filter, and `shadow_samples` shadow rays per light spread over its disc (soft shadows; 1: one ray
     to its centre, a hard shadow); "mc": the Monte Carlo reference (`montecarlo.render`, options
-    `samples`, `seed`), whose lights are the same discs."""
+    `samples`, `seed`, `truths`, `fallback`, `truth_facets`, `truth_seed`), whose lights are the same
+    discs and which judges a baked material by its exact ground truth (`truth.truth_of`)."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-    n_aa = _check_aa(aa)
+    n_aa = check_aa(aa)
     n_shadow = check_shadow_samples(shadow_samples)
     if method == "mc":
         if n_aa != 1:
