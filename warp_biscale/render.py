@@ -159,7 +159,7 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     static = _static_inputs(scene, backend, progress, timings)
     cam = scene.camera
     lights = scene.lights_packed
-    image = np.zeros((cam.height * cam.width, 3))
+    image = None
     for jx, jy in aa_offsets(n_aa):
         sample = dataclasses.replace(cam, jitter=(jx, jy)) if n_aa > 1 else cam
         t0 = time.perf_counter()
@@ -172,9 +172,12 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
             backend.synchronize()
             timings["shadows"] = timings.get("shadows", 0.0) + time.perf_counter() - t0
         t0 = time.perf_counter()
-        image += backend.shade(scene.mesh, static, sample.packed(), lights)
+        shaded = backend.shade(scene.mesh, static, sample.packed(), lights)
+        # One sample is the image itself; several are summed in float64 and averaged.
+        image = shaded if n_aa == 1 else shaded.astype(np.float64) if image is None else image + shaded
         timings["shade"] += time.perf_counter() - t0
-    image = (image / n_aa).astype(np.float32)
+    if n_aa > 1:
+        image = (image / n_aa).astype(np.float32)
     timings["total"] = time.perf_counter() - t_all
     image = image.reshape(cam.height, cam.width, 3)
     info = {"backend": backend.name, "device": backend.device, "method": "sg", "ssdf": bool(static.has_ssdf),
