@@ -1,0 +1,36 @@
+"""Whole `wb.render` calls, read-back included, of the render target scene (bench_render.target_scene) at
+1920×1080: aa 1 and 4 samples a pixel, hard (1) and soft (16) shadow rays; medians of 5 after 2 warm
+calls, one JSON line each.
+
+    python -m bench.render_calls warp:cuda opencl:nvidia > $OUT/render_calls.jsonl
+"""
+
+import json
+import sys
+import time
+
+import numpy as np
+
+import warp_biscale as wb
+from bench.bench_render import target_scene
+
+
+def main(backends):
+    for backend in backends:
+        be = wb.get_backend(backend)
+        scene = target_scene(1920, 1080, backend=be)
+        for aa, shadows in ((1, 1), (1, 16), (4, 1), (4, 16)):
+            for _ in range(2):
+                result = wb.render(scene, backend=be, aa=aa, shadow_samples=shadows)
+            times = []
+            for _ in range(5):
+                t0 = time.perf_counter()
+                result = wb.render(scene, backend=be, aa=aa, shadow_samples=shadows)
+                times.append(time.perf_counter() - t0)
+            print(json.dumps({"backend": be.name, "device": be.device, "aa": aa, "shadow_samples": shadows,
+                              "render_ms": 1e3 * float(np.median(times)),
+                              "timings_ms": {k: round(1e3 * v, 2) for k, v in result.timings.items()}}), flush=True)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:] or ["auto"])
