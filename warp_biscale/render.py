@@ -29,7 +29,7 @@ from .model import Frame, ShadeInputs
 from .scene import vertex_tangents
 from .shading import pack_materials
 from .trace import check_shadow_samples
-from .scene import Rendering, Scene, _black_environment
+from .scene import Rendering, Scene, _black_environment, _integer
 
 __all__ = ["Scene", "Rendering", "render", "pack_frame", "METHODS"]
 
@@ -125,13 +125,7 @@ def aa_offsets(samples: int, seed: int = 0) -> np.ndarray:
 
 
 def check_aa(aa) -> int:
-    try:
-        n = int(aa)
-    except (TypeError, ValueError):
-        n = None
-    if n is None or isinstance(aa, bool) or n != aa or not 1 <= n <= AA_MAX:
-        raise ValueError(f"aa must be an integer in [1, {AA_MAX}] (samples per pixel), got {aa!r}")
-    return n
+    return _integer("aa", aa, 1, AA_MAX, " (samples per pixel)")
 
 
 def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: int = 1,

@@ -150,42 +150,52 @@ TABLE_COLUMNS = 257  # over c in [-1, 1]; the step of a sharp lobe is smeared ov
 _GL_NODES = 48
 
 
-def _half_space_fractions(c, eta):
-    """(cosine_fraction, hemisphere_fraction) for arrays c, η of one shape, by Gauss–Legendre in
-    y = (1 − e^{−η(1−cos θ)})/(1 − e^{−2η}), which makes the SG weight uniform, on the pieces between
-    the kinks of the azimuthal measure (θ = |θd| and π − |θd|, θd = asin c)."""
+def _quadrature_setup(c, eta):
+    """c, η broadcast and flattened (float64, c clipped to [−1, 1]), their shape, s = √(1 − c²),
+    a = 1 − e^{−2η} and y(θ) = (1 − e^{−η(1−cos θ)})/a: the variable in which the SG weight is uniform."""
     c = np.clip(np.asarray(c, np.float64), -1.0, 1.0)
     eta = np.asarray(eta, np.float64)
     c, eta = np.broadcast_arrays(c, eta)
     shape = c.shape
     c, eta = c.reshape(-1), eta.reshape(-1)
-    s = np.sqrt(np.maximum(1.0 - c * c, 0.0))
-    a = -np.expm1(-2.0 * eta)  # 1 − e^{−2η}
+    a = -np.expm1(-2.0 * eta)
 
     def y_of_theta(theta):
         return -np.expm1(-eta * (1.0 - np.cos(theta))) / a
 
-    td = np.abs(np.arcsin(c))
-    cuts = np.stack([np.zeros_like(c), y_of_theta(td), y_of_theta(np.pi - td), np.ones_like(c)], 1)
-    cuts = np.sort(np.clip(cuts, 0.0, 1.0), axis=1)
+    return c, eta, shape, np.sqrt(np.maximum(1.0 - c * c, 0.0)), a, y_of_theta
+
+
+def _rings(c, eta, s, a, cuts):
+    """Gauss–Legendre in y on each piece between consecutive `cuts` (N, P): yields per piece the
+    weights w, and for each node's ring about ξ (1 − cos θ = x) the half-width φ0 of its arc with
+    ω·m ≥ 0 (ξ·m = c, ω·m = A + B cos φ), with A and B."""
     nodes, weights = np.polynomial.legendre.leggauss(_GL_NODES)
-    cos_total = np.zeros_like(c)
-    hemi_total = np.zeros_like(c)
-    for k in range(3):
+    for k in range(cuts.shape[1] - 1):
         lo, hi = cuts[:, k:k + 1], cuts[:, k + 1:k + 2]
         y = lo + (hi - lo) * (nodes[None] + 1) / 2
         w = (hi - lo) / 2 * weights[None]
         q = np.maximum(1.0 - y, 0.0)
         # 1 − cos θ = −log(1 − a·y)/η with 1 − a·y written as e^{−2η} + a·(1 − y): no log(0) for sharp lobes
         x = np.minimum(-np.log(np.maximum(np.exp(-2.0 * eta)[:, None] + a[:, None] * q, 1e-300)) / eta[:, None], 2.0)
-        cos_t = 1.0 - x
-        sin_t = np.sqrt(np.maximum(x * (2.0 - x), 0.0))
-        big_a = c[:, None] * cos_t  # ω·m = A + B cos φ
-        big_b = s[:, None] * sin_t
+        big_a = c[:, None] * (1.0 - x)
+        big_b = s[:, None] * np.sqrt(np.maximum(x * (2.0 - x), 0.0))
         ratio = np.where(big_b > 0, -big_a / np.where(big_b > 0, big_b, 1.0), np.where(big_a >= 0, -2.0, 2.0))
-        phi0 = np.arccos(np.clip(ratio, -1.0, 1.0))  # ω·m ≥ 0 for |φ| ≤ φ0
-        cos_measure = 2.0 * (big_a * phi0 + big_b * np.sin(phi0))
-        cos_total += np.sum(w * cos_measure, axis=1)
+        yield w, np.arccos(np.clip(ratio, -1.0, 1.0)), big_a, big_b
+
+
+def _half_space_fractions(c, eta):
+    """(cosine_fraction, hemisphere_fraction) for arrays c, η of one shape, by Gauss–Legendre in
+    y = (1 − e^{−η(1−cos θ)})/(1 − e^{−2η}), which makes the SG weight uniform, on the pieces between
+    the kinks of the azimuthal measure (θ = |θd| and π − |θd|, θd = asin c)."""
+    c, eta, shape, s, a, y_of_theta = _quadrature_setup(c, eta)
+    td = np.abs(np.arcsin(c))
+    cuts = np.stack([np.zeros_like(c), y_of_theta(td), y_of_theta(np.pi - td), np.ones_like(c)], 1)
+    cuts = np.sort(np.clip(cuts, 0.0, 1.0), axis=1)
+    cos_total = np.zeros_like(c)
+    hemi_total = np.zeros_like(c)
+    for w, phi0, big_a, big_b in _rings(c, eta, s, a, cuts):
+        cos_total += np.sum(w * 2.0 * (big_a * phi0 + big_b * np.sin(phi0)), axis=1)
         hemi_total += np.sum(w * 2.0 * phi0, axis=1)
     return (np.maximum(cos_total / (2 * np.pi), 0.0).reshape(shape),
             np.clip(hemi_total / (2 * np.pi), 0.0, 1.0).reshape(shape))
@@ -194,29 +204,12 @@ def _half_space_fractions(c, eta):
 def _lune_fraction(c, eta):
     """visible_fraction for arrays c, η of one shape: the same quadrature as `_half_space_fractions`,
     over the lobe's own hemisphere (θ ≤ π/2 about ξ, y ≤ y(π/2)) only, divided by that hemisphere's mass."""
-    c = np.clip(np.asarray(c, np.float64), -1.0, 1.0)
-    eta = np.asarray(eta, np.float64)
-    c, eta = np.broadcast_arrays(c, eta)
-    shape = c.shape
-    c, eta = c.reshape(-1), eta.reshape(-1)
-    s = np.sqrt(np.maximum(1.0 - c * c, 0.0))
-    a = -np.expm1(-2.0 * eta)
-    y_half = -np.expm1(-eta) / a  # the own hemisphere's share of ∫G
-    td = np.abs(np.arcsin(c))
-    y_td = np.minimum(-np.expm1(-eta * (1.0 - np.cos(td))) / a, y_half)
-    cuts = np.stack([np.zeros_like(c), y_td, y_half], 1)
-    nodes, weights = np.polynomial.legendre.leggauss(_GL_NODES)
+    c, eta, shape, s, a, y_of_theta = _quadrature_setup(c, eta)
+    y_half = y_of_theta(np.pi / 2)  # the own hemisphere's share of ∫G
+    cuts = np.stack([np.zeros_like(c), np.minimum(y_of_theta(np.abs(np.arcsin(c))), y_half), y_half], 1)
     total = np.zeros_like(c)
-    for k in range(2):
-        lo, hi = cuts[:, k:k + 1], cuts[:, k + 1:k + 2]
-        y = lo + (hi - lo) * (nodes[None] + 1) / 2
-        w = (hi - lo) / 2 * weights[None]
-        q = np.maximum(1.0 - y, 0.0)
-        x = np.minimum(-np.log(np.maximum(np.exp(-2.0 * eta)[:, None] + a[:, None] * q, 1e-300)) / eta[:, None], 2.0)
-        big_a = c[:, None] * (1.0 - x)
-        big_b = s[:, None] * np.sqrt(np.maximum(x * (2.0 - x), 0.0))
-        ratio = np.where(big_b > 0, -big_a / np.where(big_b > 0, big_b, 1.0), np.where(big_a >= 0, -2.0, 2.0))
-        total += np.sum(w * 2.0 * np.arccos(np.clip(ratio, -1.0, 1.0)), axis=1)
+    for w, phi0, _, _ in _rings(c, eta, s, a, cuts):
+        total += np.sum(w * 2.0 * phi0, axis=1)
     return np.clip(total / (2 * np.pi * y_half), 0.0, 1.0).reshape(shape)
 
 

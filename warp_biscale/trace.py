@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from .model import GBuffer
-from .scene import Camera, Mesh
+from .scene import Camera, Mesh, _integer
 
 __all__ = ["T_MIN", "SHADOW_OFFSET", "CHUNK_RAYS", "offsets", "check_mesh", "check_camera", "check_rays",
            "check_lights", "check_gbuffer", "check_shadow_samples", "disk_sample", "disk_basis", "VISIBLE",
@@ -61,13 +61,7 @@ def disk_basis(w) -> tuple[np.ndarray, np.ndarray]:
 
 
 def check_shadow_samples(samples) -> int:
-    try:
-        n = int(samples)
-    except (TypeError, ValueError):
-        n = None
-    if n is None or isinstance(samples, bool) or n != samples or not 1 <= n <= SHADOW_SAMPLES_MAX:
-        raise ValueError(f"shadow samples must be an integer in [1, {SHADOW_SAMPLES_MAX}], got {samples!r}")
-    return n
+    return _integer("shadow samples", samples, 1, SHADOW_SAMPLES_MAX, " (rays per light and pixel)")
 
 
 def offsets(mesh) -> tuple[float, float]:
