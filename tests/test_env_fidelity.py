@@ -15,8 +15,9 @@ HORIZON = np.array([0.55, 0.6, 0.65])
 @pytest.mark.parametrize("ground", [None, (0.3, 0.28, 0.25), (0.0, 0.0, 0.0), (1.5, 1.2, 0.9)])
 def test_floor_under_sky_receives_the_upper_hemispheres_irradiance(backend, ground):
     """A Lambertian floor facing up under a sunless sky receives E = π·zenith + π(horizon − zenith)/10
-    whatever the ground below it (Environment.sky's closed form). Within 1 %: the irradiance map's
-    bilinear lookup at the pole and the map's texel rule each cost ~0.1–0.2 %."""
+    whatever the ground below it (Environment.sky's closed form). Within 1 %: measured on Warp CPU 0.17 %
+    at most for the first three grounds and 0.67 % (red) under the bright one; before the exact irradiance
+    the default ground was 8.1 % high in red and the demo's 30.1 % low in blue."""
     kw = {} if ground is None else {"ground": ground}
     env = wb.Environment.sky(sun_irradiance=0, **kw)
     floor = wb.Mesh.plane(8.0, 0.0, 8, material=0)
