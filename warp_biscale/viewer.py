@@ -105,6 +105,11 @@ def main_parameter(material):
     return label, float(np.clip(v, lo, hi)), lo, hi
 
 
+# Interactive frames: 4 shadow rays a light (a grainier penumbra) and one sample a pixel, for speed; a file
+# written from the viewer's scene with `warp-biscale render` gets the full defaults.
+VIEWER_SHADOW_SAMPLES = 4
+
+
 def _brdf_with(b, slider_value):
     field, _, _, _, _, log = _brdf_main(b)
     value = 10.0 ** slider_value if log else float(slider_value)
@@ -311,7 +316,8 @@ class Viewer:
         w, h = self._viewport_pixels(self.left)
         self.scene.camera = camera_from_pyvista(self.left.camera, w, h)
         t0 = time.perf_counter()
-        result = self.sf.render(method="sg", backend=self.backend, progress=self.progress)
+        result = self.sf.render(method="sg", backend=self.backend, progress=self.progress,
+                                shadow_samples=VIEWER_SHADOW_SAMPLES)
         dt = time.perf_counter() - t0
         self.image = result.image
         self.timings = result.timings
