@@ -7,6 +7,7 @@ import pytest
 import warp_biscale as wb
 from warp_biscale import lighting
 from warp_biscale.environment import environment_irradiance, equirect_bilinear, equirect_directions
+from warp_biscale.render import pack_frame
 
 ZENITH = np.array([0.08, 0.18, 0.45])  # Environment.sky's defaults
 HORIZON = np.array([0.55, 0.6, 0.65])
@@ -56,8 +57,10 @@ def test_lobes_plus_residual_is_the_exact_irradiance(make, tmp_path):
     light = lighting.prepare(env, "warp:cpu")
     normals = lighting.fibonacci_directions(400)
     exact = environment_irradiance(env.radiance, normals)
-    got = light.shadow_sgs.irradiance(normals) + equirect_bilinear(light.irradiance_residual, normals)
-    assert np.abs(got - exact).max() / exact.mean() < 5e-3
+    for shadowed in (True, False):  # the six-way split lobes (an SSDF scene) and the fit itself (none)
+        lobes, residual = light.diffuse_lobes(shadowed)
+        got = lobes.irradiance(normals) + equirect_bilinear(residual, normals)
+        assert np.abs(got - exact).max() / exact.mean() < 5e-3, shadowed
 
 
 def test_irradiance_map_keeps_a_sun_in_place():
@@ -67,6 +70,16 @@ def test_irradiance_map_keeps_a_sun_in_place():
     exact = environment_irradiance(env.radiance, normals)
     got = lighting.irradiance_map(env).reshape(-1, 3)
     assert np.abs(got - exact).max() / exact.mean() < 2e-3
+
+
+def test_unoccluded_scene_keeps_one_ambient_lobe():
+    """A lone convex object needs no SSDF, so its diffuse term keeps the fit's lobes (no six-way split)."""
+    scene = wb.Scene(wb.Mesh.sphere(1.0, subdivisions=2), [wb.Lambert(0.5)],
+                     wb.Camera(eye=(0, 0, 3.5), width=16, height=16), wb.Environment.sky())
+    frame = pack_frame(scene, "warp:cpu")
+    light = lighting.prepare(scene.environment, "warp:cpu")
+    assert not frame.inputs.has_ssdf
+    assert len(frame.inputs.env_sgs) == len(light.sgs) < len(light.shadow_sgs)
 
 
 def test_shadow_lobes_keep_the_power():

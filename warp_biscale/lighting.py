@@ -452,15 +452,17 @@ def shadow_lobes(sgs: EnvironmentSGs) -> EnvironmentSGs:
                           np.concatenate([amp, sgs.amplitude[keep]]), iterations=sgs.iterations)
 
 
-def irradiance_residual(env: Environment, sgs: EnvironmentSGs, shape=IRRADIANCE_SHAPE) -> np.ndarray:
+def irradiance_residual(env: Environment, sgs: EnvironmentSGs, shape=IRRADIANCE_SHAPE, exact=None) -> np.ndarray:
     """(H, W, 3) float32 E(n) − E_sg(n) on `irradiance_map`'s grid of normals: the exact irradiance
     less the SG lobes' (`EnvironmentSGs.irradiance`). The shade stage adds it, bilinearly, to the
     lobes' irradiance at the pixel's normal. A residual rather than E itself because E has a kink
     wherever a small bright source sets (n·ω = 0 at a sun), which bilinear interpolation over 5.6°
     texels blurs by up to 3–4 % of the mean E; the sun's own lobe carries that kink analytically, and
-    what is left is smooth (tests/test_lighting.py measures both)."""
+    what is left is smooth (tests/test_env_fidelity.py measures it). `exact`: irradiance_map(env, shape),
+    when already computed."""
     normals = equirect_directions(*shape).reshape(-1, 3)
-    exact = irradiance_map(env, shape).reshape(-1, 3).astype(np.float64)
+    exact = irradiance_map(env, shape) if exact is None else exact
+    exact = np.asarray(exact, np.float64).reshape(-1, 3)
     return (exact - sgs.irradiance(normals)).reshape(*shape, 3).astype(np.float32)
 
 
@@ -472,15 +474,21 @@ def irradiance_residual(env: Environment, sgs: EnvironmentSGs, shape=IRRADIANCE_
 @dataclass(eq=False)
 class EnvironmentLighting:
     """What the renderer needs of an environment: `sgs` (the fit), `shadow_sgs` (`shadow_lobes`: the
-    diffuse term's lobes, which the SSDF shadows), `irradiance_residual` (`irradiance_residual`: what the lobes' irradiance lacks of the
-    exact one) and `prefiltered` (specular); `timings` seconds of the fit, the irradiance and the
-    prefilter."""
+    diffuse term's lobes where the SSDF shadows them), the residuals (`irradiance_residual`: what each
+    lobe set's irradiance lacks of the exact one) and `prefiltered` (specular); `timings` seconds of the
+    fit, the irradiance and the prefilter."""
 
     sgs: EnvironmentSGs
     shadow_sgs: EnvironmentSGs
     prefiltered: PrefilteredEnvironment
-    irradiance_residual: np.ndarray
+    irradiance_residual: np.ndarray  # for shadow_sgs
+    open_residual: np.ndarray  # for sgs
     timings: dict = field(default_factory=dict)
+
+    def diffuse_lobes(self, shadowed: bool) -> tuple:
+        """(lobes, residual) for the diffuse term: the six-way split ambient lobe only where the SSDF
+        shadows the lobes (an unshadowed scene needs one ambient lobe, and the residual makes both exact)."""
+        return (self.shadow_sgs, self.irradiance_residual) if shadowed else (self.sgs, self.open_residual)
 
 
 def prepare(env: Environment, backend="auto", lobes: int = 9) -> EnvironmentLighting:
@@ -497,11 +505,13 @@ def prepare(env: Environment, backend="auto", lobes: int = 9) -> EnvironmentLigh
     sgs = fit_sgs(env, lobes, be)
     t1 = time.perf_counter()
     shading = shadow_lobes(sgs)
-    irr = irradiance_residual(env, shading)
+    exact = irradiance_map(env)
+    residuals = [irradiance_residual(env, lobes, exact=exact) for lobes in (shading, sgs)]
     t2 = time.perf_counter()
     pre = prefilter(env, be)
     t3 = time.perf_counter()
-    out = EnvironmentLighting(sgs, shading, pre, irr, {"fit": t1 - t0, "irradiance": t2 - t1, "prefilter": t3 - t2})
+    out = EnvironmentLighting(sgs, shading, pre, *residuals,
+                              {"fit": t1 - t0, "irradiance": t2 - t1, "prefilter": t3 - t2})
     env.device_cache[key] = out
     return out
 

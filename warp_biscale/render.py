@@ -71,13 +71,15 @@ def _static_inputs(scene: Scene, backend, progress, timings) -> ShadeInputs:
         host["tangents"] = vertex_tangents(mesh).astype(np.float32)
     packed = pack_materials(scene.materials)
     timings["materials"] = time.perf_counter() - t0
+    lobes, residual = light.diffuse_lobes(has_ssdf)
     static = ShadeInputs(
         faces=mesh.faces, positions=mesh.vertices.astype(np.float32), normals=mesh.normals.astype(np.float32),
         tangents=host["tangents"], face_material=mesh.face_material,
         # texture coordinates for the textured materials' lookups (zeros when the mesh has none: no
         # textured material can then be rendered, Scene checks it)
         uvs=(mesh.uvs if mesh.uvs is not None else np.zeros((len(mesh.vertices), 2))).astype(np.float32),
-        env_sgs=light.shadow_sgs.packed(), env_residual=light.irradiance_residual, env_maps=light.prefiltered.maps, env_levels=light.prefiltered.levels,
+        env_sgs=lobes.packed(), env_residual=residual, env_maps=light.prefiltered.maps,
+        env_levels=light.prefiltered.levels,
         has_ssdf=bool(has_ssdf), ssdf_res=int(res), ssdf_basis=np.ascontiguousarray(basis, np.float32),
         ssdf_coeffs=np.ascontiguousarray(coeffs, np.float32), table=sg.lighting_table(), **packed)
     scene.cache.clear()  # one static set per scene: a changed material list or environment replaces it
