@@ -537,6 +537,40 @@ class DeviceBackend:
                                n, out)
         return self._to_host(out, n, "vec3") if to_host else None
 
+    def shade_litsphere(self, mesh, spheres, camera_packed, lights_packed, env_maps, env_levels, view_mode=0,
+                        to_host=True):
+        """(P, 3) float32 lit-sphere radiance of every pixel of the G-buffer the last trace_primary /
+        trace_shadows left on the device for `mesh` (litsphere.render_reference): `spheres` a
+        litsphere.SpherePack (its device copies kept in spheres.device[self.name]), view_mode 0 the
+        pixel's view direction, 1 the camera's axis (the paper's distant viewer); misses get the
+        environment (env_maps, env_levels: lighting.PrefilteredEnvironment) along the camera ray."""
+        m = self._trace_mesh(mesh)
+        lights = np.asarray(lights_packed, np.float32).reshape(-1, 8)
+        if "gbuffer_face" not in m:
+            raise ValueError("no G-buffer on the device for this mesh: call trace_primary first")
+        face, bary, n = m["gbuffer_face"], m["gbuffer_bary"], m["gbuffer_size"]
+        if len(lights) and m.get("gbuffer_light_vis/spec") != ((n, len(lights)), "u8"):
+            raise ValueError("no shadow rays on the device for these lights: call trace_shadows first")
+        if int(np.max(mesh.face_material, initial=0)) >= len(spheres.sphere_of_material):
+            raise ValueError(f"the mesh uses material {int(mesh.face_material.max())} of "
+                             f"{len(spheres.sphere_of_material)} lit sphere(s)")
+        if m.get("face_material_host") is not mesh.face_material:
+            m["face_material_host"], m["face_material"] = mesh.face_material, self._to_device(mesh.face_material, "i32")
+        dev = spheres.device.get(self.name)
+        if dev is None or dev.get("context") is not self._context():
+            dev = spheres.device[self.name] = {**self._upload_spheres(spheres), "context": self._context()}
+        env = (np.asarray(env_maps, np.float32).reshape(-1, 3), np.asarray(env_levels, np.float32).reshape(-1, 4))
+        if m.get("litsphere_env_host") is None or any(a.shape != b.shape or not np.array_equal(a, b)
+                                                     for a, b in zip(m["litsphere_env_host"], env)):
+            m["litsphere_env_host"] = env
+            m["litsphere_env"] = (self._to_device(env[0], "vec3"), self._to_device(env[1], "f32"))
+        vis = m.get("gbuffer_light_vis") if len(lights) else self._reuse(m, "no_light_vis", (1, 1), "u8")
+        out = self._reuse(m, "radiance", n, "vec3")
+        if n:
+            self._launch_shade_litsphere(dev, m, face, bary, vis, lights, np.asarray(camera_packed, np.float32),
+                                         int(view_mode), *m["litsphere_env"], n, out)
+        return self._to_host(out, n, "vec3") if to_host else None
+
     def _shade_static(self, static: ShadeInputs) -> dict:
         """Device copies of a scene's shade inputs (`_upload_shade_static`), checked and made once, kept
         with them (static.device[self.name])."""

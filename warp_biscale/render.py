@@ -21,7 +21,8 @@ import time
 
 import numpy as np
 
-from . import lighting, montecarlo, sg
+from . import lighting, litsphere, montecarlo, sg
+from .litsphere import LitSphere
 from . import ssdf as ssdf_mod
 from .backend import get_backend
 from .progress import Progress
@@ -33,7 +34,7 @@ from .scene import Rendering, Scene, _black_environment, _integer
 
 __all__ = ["Scene", "Rendering", "render", "pack_frame", "METHODS"]
 
-METHODS = ("sg", "mc")
+METHODS = ("sg", "mc", "litsphere")
 
 
 def _static_inputs(scene: Scene, backend, progress, timings) -> ShadeInputs:
@@ -137,7 +138,11 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     filter, and `shadow_samples` shadow rays per light spread over its disc (soft shadows; 1: one ray
     to its centre, a hard shadow); "mc": the Monte Carlo reference (`montecarlo.render`, options
     `samples`, `seed`, `truths`, `fallback`, `truth_facets`, `truth_seed`), whose lights are the same
-    discs and which judges a baked material by its exact ground truth (`truth.truth_of`)."""
+    discs and which judges a baked material by its exact ground truth (`truth.truth_of`); "litsphere":
+    the lit-sphere shader (seed 004, `warp_biscale.litsphere`), each material a `LitSphere` (any other made
+    into one, options `angles`, `resolution`), options `view` ("pixel": each pixel's own view direction;
+    "camera": the paper's distant viewer) and `env_lights` (directional lights standing for the
+    environment), with `aa` and `shadow_samples` as "sg"."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     n_aa = check_aa(aa)
@@ -145,30 +150,54 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     if method == "mc":
         if n_aa != 1:
             raise ValueError("aa is an option of the SG renderer; the Monte Carlo reference samples pixel centres")
+        check_no_litspheres(scene, method)
         return montecarlo.render(scene, backend=backend, progress=progress, **options)
+    if method == "litsphere":
+        return _render_litsphere(scene, get_backend(backend), n_aa, n_shadow, **options)
     if options:
         raise ValueError(f"unknown option(s) for the SG renderer: {sorted(options)}")
+    check_no_litspheres(scene, method)
     backend = get_backend(backend)
     progress = progress or Progress(None)
     timings: dict = {"gbuffer": 0.0, "shade": 0.0}
     t_all = time.perf_counter()
     static = _static_inputs(scene, backend, progress, timings)
-    cam = scene.camera
     lights = scene.lights_packed
+    image = _accumulate(scene, backend, n_aa, n_shadow, lights, timings,
+                        lambda cam: backend.shade(scene.mesh, static, cam.packed(), lights))
+    timings["total"] = time.perf_counter() - t_all
+    cam = scene.camera
+    info = {"backend": backend.name, "device": backend.device, "method": "sg", "ssdf": bool(static.has_ssdf),
+            "env_lobes": len(static.env_sgs), "lights": len(lights), "width": cam.width, "height": cam.height,
+            "aa": n_aa, "shadow_samples": n_shadow}
+    return Rendering(image, timings, info)
+
+
+def check_no_litspheres(scene: Scene, method: str) -> None:
+    for i, m in enumerate(scene.materials):
+        if isinstance(m, LitSphere):
+            raise ValueError(f"Scene.materials[{i}] is a LitSphere, which only method='litsphere' renders "
+                             f"(method={method!r} needs the material itself)")
+
+
+def _accumulate(scene: Scene, backend, n_aa: int, n_shadow: int, lights, timings: dict, shade):
+    """The (H, W, 3) image: per anti-aliasing sample (`aa_offsets`) the G-buffer, the shadow rays of
+    `lights`, then `shade(camera)` → (P, 3), averaged with a box filter."""
+    cam = scene.camera
     image = None
     for jx, jy in aa_offsets(n_aa):
         sample = dataclasses.replace(cam, jitter=(jx, jy)) if n_aa > 1 else cam
         t0 = time.perf_counter()
-        gbuffer = backend.trace_primary(scene.mesh, sample, to_host=False)
+        backend.trace_primary(scene.mesh, sample, to_host=False)
         backend.synchronize()
         timings["gbuffer"] += time.perf_counter() - t0
         t0 = time.perf_counter()
         if len(lights):
-            backend.trace_shadows(scene.mesh, gbuffer, lights, to_host=False, samples=n_shadow)
+            backend.trace_shadows(scene.mesh, None, lights, to_host=False, samples=n_shadow)
             backend.synchronize()
             timings["shadows"] = timings.get("shadows", 0.0) + time.perf_counter() - t0
         t0 = time.perf_counter()
-        shaded = backend.shade(scene.mesh, static, sample.packed(), lights)
+        shaded = shade(sample)
         # Summed in place (float32: at most 256 samples of a non-negative value, relative error ~1e-5)
         if image is None:
             image = shaded if n_aa == 1 else np.array(shaded, np.float32)
@@ -177,9 +206,56 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
         timings["shade"] += time.perf_counter() - t0
     if n_aa > 1:
         image *= np.float32(1.0 / n_aa)
+    return image.reshape(cam.height, cam.width, 3)
+
+
+VIEWS = {"pixel": 0, "camera": 1}
+
+
+def scene_spheres(scene: Scene, angles=litsphere.PAPER_ANGLES, resolution: int = litsphere.RESOLUTION) -> list:
+    """One LitSphere per scene material: a LitSphere as it is, any other material made into one
+    (`LitSphere.from_material` at `angles`, `resolution`), kept in scene.cache while the materials stay."""
+    key = ("litspheres", tuple(id(m) for m in scene.materials), tuple(np.asarray(angles, float)), int(resolution))
+    cached = scene.cache.get(key)
+    if cached is None:
+        cached = scene.cache[key] = [m if isinstance(m, LitSphere) else
+                                     LitSphere.from_material(m, angles, resolution) for m in scene.materials]
+    return cached
+
+
+def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str = "pixel",
+                      env_lights: int = litsphere.ENV_LIGHTS, angles=litsphere.PAPER_ANGLES,
+                      resolution: int = litsphere.RESOLUTION) -> Rendering:
+    if view not in VIEWS:
+        raise ValueError(f"view must be one of {sorted(VIEWS)}, got {view!r}")
+    timings: dict = {"gbuffer": 0.0, "shade": 0.0}
+    t_all = time.perf_counter()
+    t0 = time.perf_counter()
+    spheres = scene_spheres(scene, angles, resolution)
+    key = ("litsphere_pack", tuple(id(s) for s in spheres))
+    pack = scene.cache.get(key)
+    if pack is None:
+        pack = scene.cache[key] = litsphere.pack_spheres(spheres)
+    timings["materials"] = time.perf_counter() - t0
+    env = scene.environment if scene.environment is not None else _black_environment()
+    t0 = time.perf_counter()
+    prefiltered = lighting.prepare(env, backend, lobes=scene.env_lobes).prefiltered
+    lights = scene.lights_packed
+    if scene.environment is not None:
+        env_key = ("litsphere_lights", int(env_lights), backend.name)
+        extra = env.device_cache.get(env_key)
+        if extra is None:
+            extra = env.device_cache[env_key] = np.array(
+                [lt.packed() for lt in litsphere.env_lights(env, env_lights, backend)], np.float32).reshape(-1, 8)
+        lights = np.concatenate([np.asarray(lights, np.float32).reshape(-1, 8), extra])
+    timings["lighting"] = time.perf_counter() - t0
+    image = _accumulate(scene, backend, n_aa, n_shadow, lights, timings,
+                        lambda cam: backend.shade_litsphere(scene.mesh, pack, cam.packed(), lights, prefiltered.maps,
+                                                            prefiltered.levels, VIEWS[view]))
     timings["total"] = time.perf_counter() - t_all
-    image = image.reshape(cam.height, cam.width, 3)
-    info = {"backend": backend.name, "device": backend.device, "method": "sg", "ssdf": bool(static.has_ssdf),
-            "env_lobes": len(static.env_sgs), "lights": len(lights), "width": cam.width, "height": cam.height,
-            "aa": n_aa, "shadow_samples": n_shadow}
+    cam = scene.camera
+    info = {"backend": backend.name, "device": backend.device, "method": "litsphere", "view": view,
+            "lights": len(lights), "env_lights": len(lights) - len(scene.lights_packed), "width": cam.width,
+            "height": cam.height, "aa": n_aa, "shadow_samples": n_shadow,
+            "texture_bytes": int(sum(s.nbytes for s in {id(s): s for s in spheres}.values()))}
     return Rendering(image, timings, info)

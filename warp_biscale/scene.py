@@ -27,6 +27,7 @@ from .brdf import Brdf
 from .effective import EffectiveBRDF
 from .environment import Environment
 from .images import write_image
+from .litsphere import LitSphere
 from .lobes import KERNEL_LOBES
 from .smallscale import _finite_array
 from .svbrdf import Textured
@@ -473,12 +474,13 @@ class Scene:
 
         if not isinstance(self.mesh, Mesh):
             raise ValueError(f"Scene.mesh must be a Mesh, got {type(self.mesh).__name__}")
-        if isinstance(self.materials, (Brdf, EffectiveBRDF, Textured)):
+        if isinstance(self.materials, (Brdf, EffectiveBRDF, Textured, LitSphere)):
             self.materials = [self.materials]
         self.materials = list(self.materials)
         for i, m in enumerate(self.materials):
-            if not isinstance(m, (Brdf, EffectiveBRDF, Textured)):
-                raise ValueError(f"Scene.materials[{i}] must be a BRDF, a Textured BRDF or an EffectiveBRDF, got {m!r}")
+            if not isinstance(m, (Brdf, EffectiveBRDF, Textured, LitSphere)):
+                raise ValueError(f"Scene.materials[{i}] must be a BRDF, a Textured BRDF, an EffectiveBRDF or a "
+                                 f"LitSphere, got {m!r}")
         used = int(self.mesh.face_material.max()) + 1
         if used > len(self.materials):
             raise ValueError(f"the mesh uses material ids 0..{used - 1} but the scene has {len(self.materials)} "

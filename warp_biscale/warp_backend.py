@@ -26,6 +26,7 @@ from .kernels import bvndf as kbvndf
 from .kernels import em as kem
 from .kernels import envmap as kenvmap
 from .kernels import facets as kfacets
+from .kernels import litsphere as klitsphere
 from .kernels import probe as kprobe
 from .kernels import shade as kshade
 from .kernels import ssdf as kssdf
@@ -655,6 +656,22 @@ class WarpBackend(DeviceBackend):
                       dev["table"], dev["mat_info"], dev["analytic"], dev["eff_info"], dev["eff_lobes"],
                       dev["eff_sub"], dev["eff_tables"], dev["eff_diffuse"], dev["uvs"], dev["tex_info"],
                       dev["tex_data"], n],
+                     [out])
+
+    def _upload_spheres(self, spheres):
+        return {"of_material": self._array(spheres.sphere_of_material, wp.int32),
+                "info": wp.array(np.ascontiguousarray(spheres.sphere_info), dtype=wp.int32, device=self._device),
+                "angles": self._array(spheres.angles, wp.float32),
+                "levels": wp.array(np.ascontiguousarray(spheres.level_info), dtype=wp.int32, device=self._device),
+                "texels": self._array(spheres.texels, wp.vec3)}
+
+    def _launch_shade_litsphere(self, dev, m, face, bary, vis, lights, camera, view_mode, env_maps, env_levels, n, out):
+        light_arr = self._small_upload(m, "shade_lights", lights if len(lights) else np.zeros((1, 8), np.float32))
+        self._launch(klitsphere.shade_litsphere, n,
+                     [face, bary, vis, m["faces"], m["points"], m["normals"], m["face_material"],
+                      self._small_upload(m, "shade_camera", camera),
+                      len(lights), light_arr, view_mode, env_maps, env_levels, dev["of_material"], dev["info"],
+                      dev["angles"], dev["levels"], dev["texels"], n],
                      [out])
 
     # ------------------------------------------------------------------ envmap (prefiltered environment)

@@ -1,0 +1,191 @@
+"""Lit-sphere shading (seed 004 Eq. 1–4): the litsphere stage.
+
+Twin of ``cl/litsphere.cl``; the mathematics and the packed inputs are ``warp_biscale.litsphere``
+(``reference_shade`` is the float64 oracle of one light's lookup, ``SpherePack`` the layout). One
+thread per pixel: the surface normal from the G-buffer, a mip level from the normal's change to the
+next pixels, then per light the images' frame (z the view direction, x towards the light), the two
+images bracketing the light's polar angle, each read at the normal turned about y (trilinear), blended.
+"""
+
+import warp as wp
+
+from warp_biscale import litsphere as _ls
+
+from .shade import camera_ray, prefiltered
+
+SHRINK = wp.constant(_ls.SHRINK)
+K_OUTSIDE = wp.constant(_ls.K_OUTSIDE)
+EDGE = wp.constant(0.5)  # a neighbour whose normal differs more is across an edge: no footprint from it
+
+
+@wp.func
+def pixel_normal(faces: wp.array2d(dtype=wp.int32), normals: wp.array(dtype=wp.vec3), f: int,
+                 bary: wp.vec2) -> wp.vec3:
+    w0 = 1.0 - bary[0] - bary[1]
+    return wp.normalize(w0 * normals[faces[f, 0]] + bary[0] * normals[faces[f, 1]] + bary[1] * normals[faces[f, 2]])
+
+
+@wp.func
+def normal_step(face: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec2), faces: wp.array2d(dtype=wp.int32),
+                normals: wp.array(dtype=wp.vec3), q: int, n: wp.vec3) -> float:
+    """|n(q) − n| for the neighbouring pixel q, 0 where q misses or lies across an edge."""
+    g = face[q]
+    if g < 0:
+        return 0.0
+    d = wp.length(pixel_normal(faces, normals, g, bary[q]) - n)
+    if d > EDGE:
+        return 0.0
+    return d
+
+
+@wp.func
+def bilinear(texels: wp.array(dtype=wp.vec3), offset: int, size: int, u: float, v: float) -> wp.vec3:
+    """Bilinear lookup at (u, v) ∈ [0, 1]², v up, of a size² level stored row-major from the top; clamped."""
+    fs = float(size)
+    fx = wp.clamp(u * fs - 0.5, 0.0, fs - 1.0)
+    fy = wp.clamp((1.0 - v) * fs - 0.5, 0.0, fs - 1.0)
+    x0 = wp.min(int(wp.floor(fx)), size - 2)
+    y0 = wp.min(int(wp.floor(fy)), size - 2)
+    ax = fx - float(x0)
+    ay = fy - float(y0)
+    r0 = offset + y0 * size + x0
+    r1 = r0 + size
+    return ((1.0 - ay) * ((1.0 - ax) * texels[r0] + ax * texels[r0 + 1])
+            + ay * ((1.0 - ax) * texels[r1] + ax * texels[r1 + 1]))
+
+
+@wp.func
+def trilinear(texels: wp.array(dtype=wp.vec3), level_info: wp.array2d(dtype=wp.int32), row: int, n_levels: int,
+              u: float, v: float, lod: float) -> wp.vec3:
+    """Image `row`'s pyramid (its level 0 at level_info[row]) read at mip level `lod`."""
+    t = wp.clamp(lod, 0.0, float(n_levels - 1))
+    lo = int(wp.floor(t))
+    f = t - float(lo)
+    hi = wp.min(lo + 1, n_levels - 1)
+    a = bilinear(texels, level_info[row + lo, 0], level_info[row + lo, 1], u, v)
+    b = bilinear(texels, level_info[row + hi, 0], level_info[row + hi, 1], u, v)
+    return (1.0 - f) * a + f * b
+
+
+@wp.func
+def sphere_lookup(n: wp.vec3, view: wp.vec3, light: wp.vec3, lod: float, s: int,
+                  sphere_info: wp.array2d(dtype=wp.int32), angles: wp.array(dtype=wp.float32),
+                  level_info: wp.array2d(dtype=wp.int32), texels: wp.array(dtype=wp.vec3)) -> wp.vec3:
+    """Radiance per unit irradiance of normal n seen from `view`, lit from `light`: litsphere.reference_shade."""
+    z = view
+    x = light - wp.dot(light, z) * z
+    if wp.length(x) <= 1.0e-6:  # the light along the view axis: any x (the images are symmetric about it)
+        ref = wp.vec3(0.0, 1.0, 0.0)
+        if wp.abs(z[0]) < 0.9:
+            ref = wp.vec3(1.0, 0.0, 0.0)
+        x = ref - wp.dot(ref, z) * z
+    x = wp.normalize(x)
+    y = wp.cross(z, x)
+    phi = wp.acos(wp.clamp(wp.dot(light, z), -1.0, 1.0))
+    nx = wp.dot(n, x)
+    ny = wp.dot(n, y)
+    nz = wp.dot(n, z)
+    hx = wp.sin(0.5 * phi)
+    hz = wp.cos(0.5 * phi)
+    proj = wp.sqrt(nx * nx + nz * nz)
+    cos_ah = 0.0
+    if proj > 1.0e-12:
+        cos_ah = (hx * nx + hz * nz) / proj
+    alpha_h = wp.min(wp.acos(wp.clamp(cos_ah, -1.0, 1.0)), 0.5 * 3.14159265358979)
+    first = sphere_info[s, 0]
+    count = sphere_info[s, 1]
+    first_row = sphere_info[s, 2]
+    n_levels = sphere_info[s, 3]
+    n_parts = sphere_info[s, 4]
+    # the bracket: angles[i2 − 1] < φ ≤ angles[i2]; outside the angles, the nearest image alone
+    i2 = int(0)
+    while i2 < count and angles[first + i2] < phi:
+        i2 += 1
+    i1 = i2 - 1
+    t = float(0.0)
+    k_glossy = 0.5 + 0.5 * wp.sin(alpha_h)
+    if i2 == 0 or i2 >= count:
+        if i2 == 0:
+            i1 = 0
+        else:
+            i1 = count - 1
+        i2 = i1
+        k_glossy = K_OUTSIDE
+    else:
+        t = (phi - angles[first + i1]) / (angles[first + i2] - angles[first + i1])
+    out = wp.vec3(0.0)
+    for part in range(n_parts):
+        k = k_glossy
+        if n_parts == 2 and part == 0:
+            k = 1.0  # the diffuse share: the exact rotation
+        for which in range(2):
+            a = i1
+            w = 1.0 - t
+            if which == 1:
+                a = i2
+                w = t
+            if w > 0.0:
+                turn = k * (angles[first + a] - phi)
+                rx = nx * wp.cos(turn) + nz * wp.sin(turn)
+                u = SHRINK * rx * 0.5 + 0.5
+                v = SHRINK * ny * 0.5 + 0.5
+                row = first_row + (part * count + a) * n_levels
+                out = out + w * trilinear(texels, level_info, row, n_levels, u, v, lod)
+    return out
+
+
+@wp.kernel
+def shade_litsphere(
+    face: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec2), light_vis: wp.array2d(dtype=wp.uint8),
+    faces: wp.array2d(dtype=wp.int32), positions: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp.vec3),
+    face_material: wp.array(dtype=wp.int32), camera: wp.array(dtype=wp.float32),
+    n_lights: int, lights: wp.array2d(dtype=wp.float32), view_mode: int,
+    env_maps: wp.array(dtype=wp.vec3), env_levels: wp.array2d(dtype=wp.float32),
+    sphere_of_material: wp.array(dtype=wp.int32), sphere_info: wp.array2d(dtype=wp.int32),
+    angles: wp.array(dtype=wp.float32), level_info: wp.array2d(dtype=wp.int32), texels: wp.array(dtype=wp.vec3),
+    n_pixels: int, offset: int,
+    radiance: wp.array(dtype=wp.vec3),
+):
+    p = wp.tid() + offset
+    if p >= n_pixels:
+        return
+    f = face[p]
+    if f < 0:
+        radiance[p] = prefiltered(env_maps, env_levels, camera_ray(camera, p), 1.0e30)
+        return
+    b = bary[p]
+    n = pixel_normal(faces, normals, f, b)
+    w0 = 1.0 - b[0] - b[1]
+    pos = w0 * positions[faces[f, 0]] + b[0] * positions[faces[f, 1]] + b[1] * positions[faces[f, 2]]
+    view = wp.normalize(wp.vec3(camera[0], camera[1], camera[2]) - pos)
+    if view_mode == 1:  # the paper's distant viewer: the camera's axis
+        view = -wp.normalize(wp.vec3(camera[3], camera[4], camera[5]))
+    width = int(camera[12])
+    x = p % width
+    step = float(0.0)
+    if x + 1 < width:
+        step = normal_step(face, bary, faces, normals, p + 1, n)
+    if p + width < n_pixels:
+        step = wp.max(step, normal_step(face, bary, faces, normals, p + width, n))
+    s = sphere_of_material[face_material[f]]
+    # texels per pixel at level 0: the lookup point moves by SHRINK·|Δn|/2 of the image's width
+    rho = step * 0.5 * SHRINK * float(level_info[sphere_info[s, 2], 1])
+    lod = wp.log2(wp.max(rho, 1.0))
+    total = wp.vec3(0.0)
+    for l in range(n_lights):
+        share = float(light_vis[p, l]) / 255.0
+        if share > 0.0:
+            light = wp.vec3(lights[l, 1], lights[l, 2], lights[l, 3])
+            e = wp.vec3(lights[l, 4], lights[l, 5], lights[l, 6])
+            if lights[l, 0] != 0.0:  # a point light: its direction and the inverse-square irradiance
+                d = light - pos
+                r2 = wp.max(wp.dot(d, d), 1.0e-30)
+                light = d / wp.sqrt(r2)
+                e = e / r2
+            if wp.dot(n, light) > 0.0:
+                c = sphere_lookup(n, view, light, lod, s, sphere_info, angles, level_info, texels)
+                total = total + share * wp.cw_mul(e, c)
+    for c in range(3):
+        if not (total[c] >= 0.0 and total[c] < 3.0e38):
+            total[c] = 0.0
+    radiance[p] = total
