@@ -13,7 +13,6 @@ from warp_biscale import litsphere as _ls
 
 from .shade import camera_ray, prefiltered
 
-SHRINK = wp.constant(_ls.SHRINK)
 K_OUTSIDE = wp.constant(_ls.K_OUTSIDE)
 EDGE = wp.constant(0.5)  # a neighbour whose normal differs more is across an edge: no footprint from it
 
@@ -68,7 +67,7 @@ def trilinear(texels: wp.array(dtype=wp.vec3), level_info: wp.array2d(dtype=wp.i
 
 
 @wp.func
-def sphere_lookup(n: wp.vec3, view: wp.vec3, light: wp.vec3, lod: float, s: int,
+def sphere_lookup(n: wp.vec3, view: wp.vec3, light: wp.vec3, lod: float, shrink: float, s: int,
                   sphere_info: wp.array2d(dtype=wp.int32), angles: wp.array(dtype=wp.float32),
                   level_info: wp.array2d(dtype=wp.int32), texels: wp.array(dtype=wp.vec3)) -> wp.vec3:
     """Radiance per unit irradiance of normal n seen from `view`, lit from `light`: litsphere.reference_shade."""
@@ -127,8 +126,8 @@ def sphere_lookup(n: wp.vec3, view: wp.vec3, light: wp.vec3, lod: float, s: int,
             if w > 0.0:
                 turn = k * (angles[first + a] - phi)
                 rx = nx * wp.cos(turn) + nz * wp.sin(turn)
-                u = SHRINK * rx * 0.5 + 0.5
-                v = SHRINK * ny * 0.5 + 0.5
+                u = shrink * rx * 0.5 + 0.5
+                v = shrink * ny * 0.5 + 0.5
                 row = first_row + (part * count + a) * n_levels
                 out = out + w * trilinear(texels, level_info, row, n_levels, u, v, lod)
     return out
@@ -139,7 +138,7 @@ def shade_litsphere(
     face: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec2), light_vis: wp.array2d(dtype=wp.uint8),
     faces: wp.array2d(dtype=wp.int32), positions: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp.vec3),
     face_material: wp.array(dtype=wp.int32), camera: wp.array(dtype=wp.float32),
-    n_lights: int, lights: wp.array2d(dtype=wp.float32), view_mode: int,
+    n_lights: int, lights: wp.array2d(dtype=wp.float32), view_mode: int, shrink: float,
     env_maps: wp.array(dtype=wp.vec3), env_levels: wp.array2d(dtype=wp.float32),
     sphere_of_material: wp.array(dtype=wp.int32), sphere_info: wp.array2d(dtype=wp.int32),
     angles: wp.array(dtype=wp.float32), level_info: wp.array2d(dtype=wp.int32), texels: wp.array(dtype=wp.vec3),
@@ -168,8 +167,8 @@ def shade_litsphere(
     if p + width < n_pixels:
         step = wp.max(step, normal_step(face, bary, faces, normals, p + width, n))
     s = sphere_of_material[face_material[f]]
-    # texels per pixel at level 0: the lookup point moves by SHRINK·|Δn|/2 of the image's width
-    rho = step * 0.5 * SHRINK * float(level_info[sphere_info[s, 2], 1])
+    # texels per pixel at level 0: the lookup point moves by shrink·|Δn|/2 of the image's width
+    rho = step * 0.5 * shrink * float(level_info[sphere_info[s, 2], 1])
     lod = wp.log2(wp.max(rho, 1.0))
     total = wp.vec3(0.0)
     for l in range(n_lights):
@@ -183,7 +182,7 @@ def shade_litsphere(
                 light = d / wp.sqrt(r2)
                 e = e / r2
             if wp.dot(n, light) > 0.0:
-                c = sphere_lookup(n, view, light, lod, s, sphere_info, angles, level_info, texels)
+                c = sphere_lookup(n, view, light, lod, shrink, s, sphere_info, angles, level_info, texels)
                 total = total + share * wp.cw_mul(e, c)
     for c in range(3):
         if not (total[c] >= 0.0 and total[c] < 3.0e38):

@@ -538,11 +538,12 @@ class DeviceBackend:
         return self._to_host(out, n, "vec3") if to_host else None
 
     def shade_litsphere(self, mesh, spheres, camera_packed, lights_packed, env_maps, env_levels, view_mode=0,
-                        to_host=True):
+                        shrink=1.0, to_host=True):
         """(P, 3) float32 lit-sphere radiance of every pixel of the G-buffer the last trace_primary /
         trace_shadows left on the device for `mesh` (litsphere.render_reference): `spheres` a
         litsphere.SpherePack (its device copies kept in spheres.device[self.name]), view_mode 0 the
-        pixel's view direction, 1 the camera's axis (the paper's distant viewer); misses get the
+        pixel's view direction, 1 the camera's axis (the paper's distant viewer); `shrink` scales the
+        turned normal before the lookup (litsphere.SHRINK, the paper's 0.995, or 1); misses get the
         environment (env_maps, env_levels: lighting.PrefilteredEnvironment) along the camera ray."""
         m = self._trace_mesh(mesh)
         lights = np.asarray(lights_packed, np.float32).reshape(-1, 8)
@@ -568,7 +569,7 @@ class DeviceBackend:
         out = self._reuse(m, "radiance", n, "vec3")
         if n:
             self._launch_shade_litsphere(dev, m, face, bary, vis, lights, np.asarray(camera_packed, np.float32),
-                                         int(view_mode), *m["litsphere_env"], n, out)
+                                         int(view_mode), float(shrink), *m["litsphere_env"], n, out)
         return self._to_host(out, n, "vec3") if to_host else None
 
     def _shade_static(self, static: ShadeInputs) -> dict:

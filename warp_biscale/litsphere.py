@@ -12,8 +12,10 @@ of an R×R image is the sphere point with x = 2(col + ½)/R − 1, y = 1 − 2(r
 and holds the outgoing radiance f(n, l, v)(n·l)⁺ there. The texels are the material's own float64
 evaluation (`Brdf.eval`, `EffectiveBRDF.eval`), exact, so that what a lit-sphere render loses is the
 method's alone. Texels outside the disc hold the rim's value (the normal clamped just inside it), so a
-filtered lookup near the silhouette never blends in black — the artefact the paper's 0.995 shrink
-of the normal is for; both are kept.
+filtered lookup near the silhouette never blends in black — the artefact the paper shrinks the normal
+by 0.995 against. That shrink moves every lookup inwards (on a 256² diffuse sphere 0.5 % of the albedo
+on average and 4 % near the rim, against 0.01 % and 0.6 % without), so here the normal is used as it is
+(render option shrink=1) and the paper's SHRINK is an option.
 
 **The shader** (seed 004 Eq. 1–4, `reference_shade`, kernels/litsphere.py, cl/litsphere.cl). An isotropic
 BRDF depends on n, l and v only through their relative geometry, so each light is brought into the
@@ -24,7 +26,8 @@ paper's), x along l's part across z (the rotation by −γ about the view axis),
 frame is turned about y by k·(φi − φ) before the lookup in image i (a turn by φi − φ keeps n·l, exact for
 a diffuse surface; by half of it the half vector lands on image i's half vector, right for a highlight),
 with k = ½ + sin(αh)/2 and αh the angle between the half vector and n' projected on the XZ plane
-(Eq. 3). Past the last image (or before the first) only that image is read, with k = ¾. The lookup is
+(Eq. 3). A sphere made from a material keeps its diffuse term's share apart and turns it by k = 1, so
+a diffuse term is exact up to texture resolution (where the turned normal stays on the visible half). Past the last image (or before the first) only that image is read, with k = ¾. The lookup is
 trilinear: a mip pyramid (2×2 box averages) and a level from the normal's change to the neighbouring
 pixels. A light below the surface's horizon (n·l ≤ 0) adds nothing — a guard the paper lacks (its
 turned normal can land in the lit half of an image).
@@ -56,7 +59,7 @@ PAPER_ANGLES = (0.0, 45.0, 90.0, 135.0)  # the paper's set for plastics
 METAL_ANGLES = (0.0, 30.0, 60.0, 90.0, 120.0, 150.0)  # its set for metals and colour-shifting materials
 RESOLUTION = 512  # the paper's "suitable for general use"; it suggests 1024 for high definition
 RESOLUTION_MAX = 4096
-SHRINK = 0.995  # the paper's normal shrink against filtering across the silhouette
+SHRINK = 0.995  # the paper's normal shrink against filtering across the silhouette (render option shrink)
 RIM = 0.9995  # texels at or past this radius hold the value here (the rim, filled outward)
 K_OUTSIDE = 0.75  # the rotation coefficient past the last image (paper §3)
 ENV_LIGHTS = 64  # directional lights standing for the environment
@@ -92,14 +95,15 @@ def sphere_tangents(n: np.ndarray) -> np.ndarray:
     return np.where(length > 1e-9, t / np.maximum(length, 1e-300), np.array([1.0, 0.0, 0.0]))
 
 
-def material_response(material, n: np.ndarray, light: np.ndarray, view: np.ndarray) -> np.ndarray:
+def material_response(material, n: np.ndarray, light: np.ndarray, view: np.ndarray, tangent=None) -> np.ndarray:
     """(N, 3) float64 radiance f(n, l, v)(n·l)⁺ of `material` under unit irradiance from `light`, seen
     from `view` (unit vectors, (N, 3) each): an analytic `Brdf` by its eval, an `EffectiveBRDF` by its
-    eval in the sphere's tangent frame (its tables hold the cosine already)."""
+    eval in the frame of `tangent` (unit, ⟂ n; default the sphere's, `sphere_tangents`) — its tables hold
+    the cosine already."""
     n, light, view = (np.asarray(a, np.float64).reshape(-1, 3) for a in (n, light, view))
     cos_l = np.einsum("ij,ij->i", n, light)
     if isinstance(material, EffectiveBRDF):
-        t = sphere_tangents(n)
+        t = sphere_tangents(n) if tangent is None else np.asarray(tangent, np.float64).reshape(-1, 3)
         b = np.cross(n, t)
 
         def local(d):
@@ -454,10 +458,11 @@ def view_frame(view: np.ndarray, light: np.ndarray):
     return x, np.cross(z, x), z
 
 
-def reference_shade(sphere: LitSphere, n, view, light, lod=None) -> np.ndarray:
+def reference_shade(sphere: LitSphere, n, view, light, lod=None, shrink: float = 1.0) -> np.ndarray:
     """(N, 3) float64 radiance per unit irradiance of normals n seen from `view`, lit from `light` (unit
     (N, 3) each, world space), by seed 004's Eq. 1–4 (module docstring): what the kernels compute for
-    one light, before its irradiance and visible share. `lod` (N,) the mip level (default 0)."""
+    one light, before its irradiance and visible share. `lod` (N,) the mip level (default 0); `shrink`
+    scales the turned normal before the lookup (1, or the paper's SHRINK)."""
     n, view, light = (np.asarray(a, np.float64).reshape(-1, 3) for a in (n, view, light))
     lod = np.zeros(len(n)) if lod is None else np.asarray(lod, np.float64).reshape(-1)
     x, y, z = view_frame(view, light)
@@ -488,7 +493,7 @@ def reference_shade(sphere: LitSphere, n, view, light, lod=None) -> np.ndarray:
         for idx, phi_i, weight in ((i1, phi1, 1 - t), (i2, phi2, t)):
             turn = np.radians(k * (phi_i - phi))
             rx = nx * np.cos(turn) + nz * np.sin(turn)
-            u, v = SHRINK * rx / 2 + 0.5, SHRINK * ny / 2 + 0.5
+            u, v = shrink * rx / 2 + 0.5, shrink * ny / 2 + 0.5
             for a in np.unique(idx):
                 sel = (idx == a) & (weight > 0)
                 if sel.any():
@@ -498,7 +503,7 @@ def reference_shade(sphere: LitSphere, n, view, light, lod=None) -> np.ndarray:
 
 
 def render_reference(mesh, spheres: list, face, bary, light_vis, camera_packed, lights_packed, view_mode: int = 0,
-                     env_maps=None, env_levels=None) -> np.ndarray:
+                     env_maps=None, env_levels=None, shrink: float = 1.0) -> np.ndarray:
     """(P, 3) float64 what the litsphere kernels compute for a G-buffer (face (P,), bary (P, 2),
     light_vis (P, L) uint8 visible shares in 255ths): `spheres` one LitSphere per material; misses get the
     environment's sharpest level along the camera ray (black without maps)."""
@@ -537,7 +542,7 @@ def render_reference(mesh, spheres: list, face, bary, light_vis, camera_packed, 
         n, p = normals[sel], pos[sel]
         view = (np.broadcast_to(-cam[3:6] / np.linalg.norm(cam[3:6]), n.shape) if view_mode == 1 else
                 (cam[0:3][None] - p) / np.linalg.norm(cam[0:3][None] - p, axis=1, keepdims=True))
-        lod = np.log2(np.maximum(step[sel] * 0.5 * SHRINK * sphere.resolution, 1.0))
+        lod = np.log2(np.maximum(step[sel] * 0.5 * shrink * sphere.resolution, 1.0))
         for li, row in enumerate(lights):
             share = np.asarray(light_vis, np.float64).reshape(len(face), -1)[sel, li] / 255.0
             if row[0] == 0:
@@ -550,9 +555,43 @@ def render_reference(mesh, spheres: list, face, bary, light_vis, camera_packed, 
                 e = row[4:7][None] / r2[:, None]
             on = share > 0
             if on.any():
-                c = reference_shade(sphere, n[on], view[on], light[on], lod[on])
+                c = reference_shade(sphere, n[on], view[on], light[on], lod[on], shrink)
                 out[sel[on]] += share[on, None] * e[on] * c
     return np.maximum(np.nan_to_num(out, nan=0.0, posinf=0.0), 0.0)
+
+
+def direct_reference(scene, face, bary, light_vis, lights_packed=None) -> np.ndarray:
+    """(P, 3) float64 the exact direct lighting of `scene`'s own materials (analytic or baked; not
+    LitSpheres) for a G-buffer: Σ over lights of E·s·f(n, l, v)(n·l)⁺, each light an ideal one at its
+    disc's centre with its visible share s (light_vis / 255) — what a lit-sphere render of lights alone
+    approximates, so that the difference is the method's. Misses are 0."""
+    from .scene import vertex_tangents
+    from .shading import surface_frames
+
+    face = np.asarray(face).reshape(-1)
+    lights = np.asarray(scene.lights_packed if lights_packed is None else lights_packed, np.float64).reshape(-1, 8)
+    out = np.zeros((len(face), 3))
+    hit = np.flatnonzero(face >= 0)
+    if len(hit) == 0:
+        return out
+    mesh = scene.mesh
+    sf = surface_frames(mesh.faces, mesh.vertices, mesh.normals, vertex_tangents(mesh), face[hit],
+                        np.asarray(bary, np.float64)[hit], scene.camera.eye)
+    vis = np.asarray(light_vis, np.float64).reshape(len(face), -1)[hit] / 255.0
+    mats = mesh.face_material[face[hit]]
+    for mat in np.unique(mats):
+        sel = np.flatnonzero(mats == mat)
+        n, p, wo, t = sf["n"][sel], sf["pos"][sel], sf["wo"][sel], sf["t"][sel]
+        for li, row in enumerate(lights):
+            if row[0] == 0:
+                light, e = np.broadcast_to(row[1:4], n.shape), np.broadcast_to(row[4:7], n.shape)
+            else:
+                d = row[1:4][None] - p
+                r2 = np.maximum((d * d).sum(1), 1e-30)
+                light, e = d / np.sqrt(r2)[:, None], row[4:7][None] / r2[:, None]
+            f = material_response(scene.materials[mat], n, light, wo, tangent=t)
+            out[hit[sel]] += vis[sel, li][:, None] * e * f
+    return out
 
 
 # ---------------------------------------------------------------------------------------------

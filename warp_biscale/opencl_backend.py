@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import re
 import weakref
+from importlib import resources
 
 import numpy as np
 
@@ -191,12 +192,27 @@ def build_failure(platform, device, log) -> str:
     return f"kernels do not build: {one_line(text)}"
 
 
+# Stage files whose functions a stage calls, built into its program ahead of it (after common.cl):
+# cl/litsphere.cl calls camera_ray and prefiltered of cl/shade.cl, as kernels/litsphere.py imports them.
+USES = {"litsphere": ("shade",)}
+
+
+def program_source(stem: str) -> str:
+    """common.cl, the stage files `stem` uses (USES), then cl/<stem>.cl."""
+    if stem not in USES:
+        return cl_sources.source(stem)
+    files = resources.files(cl_sources)
+    stems = (*USES[stem][1:], stem)
+    return cl_sources.source(USES[stem][0]) + "".join("\n" + files.joinpath(f"{s}.cl").read_text() for s in stems)
+
+
 def build_program(ctx, stem: str, options):
-    """Build cl/<stem>.cl (with common.cl) in `ctx`; raises pyopencl's error with the build log."""
+    """Build cl/<stem>.cl (with common.cl and program_source's others) in `ctx`; raises pyopencl's
+    error with the build log."""
 
     cl = _pyopencl()
     with compile_notice():
-        return cl.Program(ctx, cl_sources.source(stem)).build(options=options)
+        return cl.Program(ctx, program_source(stem)).build(options=options)
 
 
 def probe(platform, device) -> str | None:
@@ -706,6 +722,24 @@ class OpenCLBackend(DeviceBackend):
                      dev["ssdf_coeffs"], dev["table"], *dev["table_args"], dev["mat_info"], dev["analytic"],
                      dev["eff_info"], dev["eff_lobes"], dev["eff_sub"], dev["eff_tables"], dev["eff_diffuse"],
                      dev["uvs"], dev["tex_info"], dev["tex_data"], np.int32(n), out)
+
+    def _upload_spheres(self, spheres):
+        return {"of_material": self._buffer(spheres.sphere_of_material, np.int32),
+                **{key: self._buffer(getattr(spheres, key), np.int32) for key in ("sphere_info", "level_info")},
+                **{key: self._buffer(getattr(spheres, key), np.float32) for key in ("angles", "texels")}}
+
+    def _launch_shade_litsphere(self, dev, m, face, bary, vis, lights, camera, view_mode, shrink, env_maps, env_levels,
+                                n, out):
+        light_buf = self._reuse(m, "shade_lights", (max(1, len(lights)), 8), "f32")
+        if len(lights):
+            self._cl.enqueue_copy(self._queue, light_buf, np.ascontiguousarray(lights))
+        eye, forward, right, up = (self._cl.cltypes.make_float4(*camera[k:k + 3], 0.0) for k in (0, 3, 6, 9))
+        self._launch("litsphere", "shade_litsphere", (n,), face, bary, vis, m["faces"], m["points"], m["normals"],
+                     m["face_material"], eye, forward, right, up, np.float32(camera[12]), np.float32(camera[13]),
+                     np.int32(len(lights)), light_buf, np.int32(view_mode), np.float32(shrink), env_maps,
+                     np.int32(env_levels.size // 16), env_levels,  # (L, 4) float32: 16 bytes a level
+                     dev["of_material"], dev["sphere_info"], dev["angles"], dev["level_info"], dev["texels"],
+                     np.int32(n), out)
 
     # ------------------------------------------------------------------ envmap (prefiltered environment)
     def prefilter_level(self, radiance, sharpness, height, width):

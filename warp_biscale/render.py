@@ -141,8 +141,9 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     discs and which judges a baked material by its exact ground truth (`truth.truth_of`); "litsphere":
     the lit-sphere shader (seed 004, `warp_biscale.litsphere`), each material a `LitSphere` (any other made
     into one, options `angles`, `resolution`), options `view` ("pixel": each pixel's own view direction;
-    "camera": the paper's distant viewer) and `env_lights` (directional lights standing for the
-    environment), with `aa` and `shadow_samples` as "sg"."""
+    "camera": the paper's distant viewer), `shrink` (the turned normal's scale before the lookup: 1, or the
+    paper's litsphere.SHRINK) and `env_lights` (directional lights standing for the environment), with
+    `aa` and `shadow_samples` as "sg"."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     n_aa = check_aa(aa)
@@ -225,9 +226,13 @@ def scene_spheres(scene: Scene, angles=litsphere.PAPER_ANGLES, resolution: int =
 
 def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str = "pixel",
                       env_lights: int = litsphere.ENV_LIGHTS, angles=litsphere.PAPER_ANGLES,
-                      resolution: int = litsphere.RESOLUTION) -> Rendering:
+                      resolution: int = litsphere.RESOLUTION, shrink: float = 1.0) -> Rendering:
     if view not in VIEWS:
         raise ValueError(f"view must be one of {sorted(VIEWS)}, got {view!r}")
+    if isinstance(shrink, bool) or not isinstance(shrink, (int, float)) or not (0.5 <= shrink <= 1):
+        raise ValueError(f"shrink must be a number in [0.5, 1] (the paper's is {litsphere.SHRINK}), got {shrink!r}")
+    if isinstance(env_lights, bool) or not isinstance(env_lights, int) or not (2 <= env_lights <= 4096):
+        raise ValueError(f"env_lights must be an integer in [2, 4096], got {env_lights!r}")
     timings: dict = {"gbuffer": 0.0, "shade": 0.0}
     t_all = time.perf_counter()
     t0 = time.perf_counter()
@@ -251,10 +256,10 @@ def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str
     timings["lighting"] = time.perf_counter() - t0
     image = _accumulate(scene, backend, n_aa, n_shadow, lights, timings,
                         lambda cam: backend.shade_litsphere(scene.mesh, pack, cam.packed(), lights, prefiltered.maps,
-                                                            prefiltered.levels, VIEWS[view]))
+                                                            prefiltered.levels, VIEWS[view], shrink))
     timings["total"] = time.perf_counter() - t_all
     cam = scene.camera
-    info = {"backend": backend.name, "device": backend.device, "method": "litsphere", "view": view,
+    info = {"backend": backend.name, "device": backend.device, "method": "litsphere", "view": view, "shrink": shrink,
             "lights": len(lights), "env_lights": len(lights) - len(scene.lights_packed), "width": cam.width,
             "height": cam.height, "aa": n_aa, "shadow_samples": n_shadow,
             "texture_bytes": int(sum(s.nbytes for s in {id(s): s for s in spheres}.values()))}

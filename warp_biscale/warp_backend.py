@@ -665,12 +665,13 @@ class WarpBackend(DeviceBackend):
                 "levels": wp.array(np.ascontiguousarray(spheres.level_info), dtype=wp.int32, device=self._device),
                 "texels": self._array(spheres.texels, wp.vec3)}
 
-    def _launch_shade_litsphere(self, dev, m, face, bary, vis, lights, camera, view_mode, env_maps, env_levels, n, out):
+    def _launch_shade_litsphere(self, dev, m, face, bary, vis, lights, camera, view_mode, shrink, env_maps, env_levels,
+                                n, out):
         light_arr = self._small_upload(m, "shade_lights", lights if len(lights) else np.zeros((1, 8), np.float32))
         self._launch(klitsphere.shade_litsphere, n,
                      [face, bary, vis, m["faces"], m["points"], m["normals"], m["face_material"],
                       self._small_upload(m, "shade_camera", camera),
-                      len(lights), light_arr, view_mode, env_maps, env_levels, dev["of_material"], dev["info"],
+                      len(lights), light_arr, view_mode, shrink, env_maps, env_levels, dev["of_material"], dev["info"],
                       dev["angles"], dev["levels"], dev["texels"], n],
                      [out])
 
