@@ -67,12 +67,29 @@ def trilinear(texels: wp.array(dtype=wp.vec3), level_info: wp.array2d(dtype=wp.i
 
 
 @wp.func
+def rim_point(rx: float, ry: float, rz: float, phi_i: float) -> wp.vec2:
+    """litsphere.rim_point: (x, y) read for the turned normal r in image i's frame."""
+    c = rx * wp.sin(phi_i) + rz * wp.cos(phi_i)
+    s = wp.sqrt(wp.max(1.0 - c * c, 0.0))
+    across = s * wp.sin(phi_i)
+    if rz >= 0.0 or across <= 1.0e-6:
+        return wp.vec2(rx, ry)
+    sin_b = wp.clamp(-c * wp.cos(phi_i) / across, -1.0, 1.0)
+    cos_b = wp.sqrt(1.0 - sin_b * sin_b)
+    if ry < 0.0:
+        cos_b = -cos_b
+    return wp.vec2(c * wp.sin(phi_i) - s * sin_b * wp.cos(phi_i), s * cos_b)
+
+
+@wp.func
 def sphere_lookup(n: wp.vec3, view: wp.vec3, light: wp.vec3, lod: float, shrink: float, s: int,
                   sphere_info: wp.array2d(dtype=wp.int32), angles: wp.array(dtype=wp.float32),
                   level_info: wp.array2d(dtype=wp.int32), texels: wp.array(dtype=wp.vec3)) -> wp.vec3:
     """Radiance per unit irradiance of normal n seen from `view`, lit from `light`: litsphere.reference_shade."""
     z = view
     x = light - wp.dot(light, z) * z
+    # (atan2 of the across and along parts: exact where l is near ±v, where acos loses float32 digits)
+    phi = wp.atan2(wp.length(x), wp.dot(light, z))
     if wp.length(x) <= 1.0e-6:  # the light along the view axis: any x (the images are symmetric about it)
         ref = wp.vec3(0.0, 1.0, 0.0)
         if wp.abs(z[0]) < 0.9:
@@ -80,7 +97,6 @@ def sphere_lookup(n: wp.vec3, view: wp.vec3, light: wp.vec3, lod: float, shrink:
         x = ref - wp.dot(ref, z) * z
     x = wp.normalize(x)
     y = wp.cross(z, x)
-    phi = wp.acos(wp.clamp(wp.dot(light, z), -1.0, 1.0))
     nx = wp.dot(n, x)
     ny = wp.dot(n, y)
     nz = wp.dot(n, z)
@@ -125,9 +141,11 @@ def sphere_lookup(n: wp.vec3, view: wp.vec3, light: wp.vec3, lod: float, shrink:
                 w = t
             if w > 0.0:
                 turn = k * (angles[first + a] - phi)
-                rx = nx * wp.cos(turn) + nz * wp.sin(turn)
-                u = shrink * rx * 0.5 + 0.5
-                v = shrink * ny * 0.5 + 0.5
+                r = wp.vec2(nx * wp.cos(turn) + nz * wp.sin(turn), ny)
+                if n_parts == 2 and part == 0:
+                    r = rim_point(r[0], ny, -nx * wp.sin(turn) + nz * wp.cos(turn), angles[first + a])
+                u = shrink * r[0] * 0.5 + 0.5
+                v = shrink * r[1] * 0.5 + 0.5
                 row = first_row + (part * count + a) * n_levels
                 out = out + w * trilinear(texels, level_info, row, n_levels, u, v, lod)
     return out
@@ -181,7 +199,7 @@ def shade_litsphere(
                 r2 = wp.max(wp.dot(d, d), 1.0e-30)
                 light = d / wp.sqrt(r2)
                 e = e / r2
-            if wp.dot(n, light) > 0.0:
+            if wp.dot(n, light) > 0.0 and wp.dot(n, view) > 0.0:
                 c = sphere_lookup(n, view, light, lod, shrink, s, sphere_info, angles, level_info, texels)
                 total = total + share * wp.cw_mul(e, c)
     for c in range(3):

@@ -34,6 +34,7 @@ from .environment import Environment
 from .images import compare_images, read_image, write_image
 from .litsphere import LitSphere
 from .loading import load
+from .measured import MeasuredBRDF
 from .model import Facets, Visibility
 from .render import render
 from .scene import Rendering, Scene
@@ -46,7 +47,8 @@ from .truth import GroundTruth, effective_brdf_exact, ground_truth, truth_of
 __all__ = [
     "Backend", "BlinnPhong", "Bvndf", "Camera", "CookTorrance", "DirectionalLight", "EffectiveBRDF", "EnergyWarning",
     "Environment",
-    "Facets", "GroundTruth", "Lambert", "LitSphere", "Mesh", "PointLight", "Rendering", "Scene", "SmallScale", "Textured",
+    "Facets", "GroundTruth", "Lambert", "LitSphere", "MeasuredBRDF",
+    "Mesh", "PointLight", "Rendering", "Scene", "SmallScale", "Textured",
     "TileWarning",
     "Visibility", "Ward", "backends", "bake", "compare", "compare_images", "directions", "effective_brdf_exact",
     "geometry", "get_backend", "ground_truth", "truth_of", "load", "load_scene", "lobes", "read_image", "render", "sg",

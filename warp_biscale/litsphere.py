@@ -27,10 +27,13 @@ frame is turned about y by k·(φi − φ) before the lookup in image i (a turn 
 a diffuse surface; by half of it the half vector lands on image i's half vector, right for a highlight),
 with k = ½ + sin(αh)/2 and αh the angle between the half vector and n' projected on the XZ plane
 (Eq. 3). A sphere made from a material keeps its diffuse term's share apart and turns it by k = 1, so
-a diffuse term is exact up to texture resolution (where the turned normal stays on the visible half). Past the last image (or before the first) only that image is read, with k = ¾. The lookup is
+a diffuse term is exact up to texture resolution; where the turned normal leaves the visible half, the
+diffuse share is read at the rim point with the same n·l (`rim_point`), exact for a Lambertian term.
+Past the last image (or before the first) only that image is read, with k = ¾. The lookup is
 trilinear: a mip pyramid (2×2 box averages) and a level from the normal's change to the neighbouring
-pixels. A light below the surface's horizon (n·l ≤ 0) adds nothing — a guard the paper lacks (its
-turned normal can land in the lit half of an image).
+pixels. A light below the surface's horizon (n·l ≤ 0), or a normal facing away from the viewer (n·v ≤ 0,
+an interpolated normal at a silhouette), adds nothing, as the BRDF itself says — guards the paper lacks
+(its turned or projected normal can land in the lit half of an image).
 
 **Lights.** Each point or directional light adds E·s·image(…) with E its irradiance at the point and s
 its visible share from the shadow rays (`backend.trace_shadows`, as the SG renderer). The environment is
@@ -458,6 +461,20 @@ def view_frame(view: np.ndarray, light: np.ndarray):
     return x, np.cross(z, x), z
 
 
+def rim_point(rx, ry, rz, phi_i):
+    """Where a diffuse share is read for a turned normal r = (rx, ry, rz) in image i's frame (its light
+    l_i = (sin φi, 0, cos φi)): r itself, or where r faces away (rz < 0, a point the image does not
+    show) the rim point of the circle {m : m·l_i = r·l_i} on r's side — a diffuse term there is the same,
+    and the rim is in the image. Arrays; → (x, y) of the point read."""
+    c = rx * np.sin(phi_i) + rz * np.cos(phi_i)
+    s = np.sqrt(np.maximum(1 - c * c, 0.0))
+    across = s * np.sin(phi_i)
+    sin_b = np.clip(-c * np.cos(phi_i) / np.where(across > 1e-6, across, 1.0), -1.0, 1.0)
+    cos_b = np.copysign(np.sqrt(1 - sin_b * sin_b), ry)
+    behind = (rz < 0) & (across > 1e-6)
+    return (np.where(behind, c * np.sin(phi_i) - s * sin_b * np.cos(phi_i), rx), np.where(behind, s * cos_b, ry))
+
+
 def reference_shade(sphere: LitSphere, n, view, light, lod=None, shrink: float = 1.0) -> np.ndarray:
     """(N, 3) float64 radiance per unit irradiance of normals n seen from `view`, lit from `light` (unit
     (N, 3) each, world space), by seed 004's Eq. 1–4 (module docstring): what the kernels compute for
@@ -466,8 +483,9 @@ def reference_shade(sphere: LitSphere, n, view, light, lod=None, shrink: float =
     n, view, light = (np.asarray(a, np.float64).reshape(-1, 3) for a in (n, view, light))
     lod = np.zeros(len(n)) if lod is None else np.asarray(lod, np.float64).reshape(-1)
     x, y, z = view_frame(view, light)
-    cos_phi = np.clip(np.einsum("ij,ij->i", light, z), -1.0, 1.0)
-    phi = np.degrees(np.arccos(cos_phi))
+    # (atan2 of the across and along parts: exact where l is near ±v, where acos loses float32 digits)
+    across = np.linalg.norm(light - np.einsum("ij,ij->i", light, z)[:, None] * z, axis=1)
+    phi = np.degrees(np.arctan2(across, np.einsum("ij,ij->i", light, z)))
     nx, ny, nz = (np.einsum("ij,ij->i", n, axis) for axis in (x, y, z))
     # half vector of l' = (sin φ, 0, cos φ) and v' = +Z: (sin φ/2, 0, cos φ/2)
     hx, hz = np.sin(np.radians(phi) / 2), np.cos(np.radians(phi) / 2)
@@ -493,12 +511,15 @@ def reference_shade(sphere: LitSphere, n, view, light, lod=None, shrink: float =
         for idx, phi_i, weight in ((i1, phi1, 1 - t), (i2, phi2, t)):
             turn = np.radians(k * (phi_i - phi))
             rx = nx * np.cos(turn) + nz * np.sin(turn)
-            u, v = shrink * rx / 2 + 0.5, shrink * ny / 2 + 0.5
+            ry = ny
+            if rule == "diffuse":
+                rx, ry = rim_point(rx, ny, -nx * np.sin(turn) + nz * np.cos(turn), np.radians(phi_i))
+            u, v = shrink * rx / 2 + 0.5, shrink * ry / 2 + 0.5
             for a in np.unique(idx):
                 sel = (idx == a) & (weight > 0)
                 if sel.any():
                     out[sel] += weight[sel, None] * _trilinear(levels[a], u[sel], v[sel], lod[sel])
-    lit = np.einsum("ij,ij->i", n, light) > 0
+    lit = (np.einsum("ij,ij->i", n, light) > 0) & (np.einsum("ij,ij->i", n, view) > 0)
     return np.where(lit[:, None], np.maximum(out, 0.0), 0.0)
 
 

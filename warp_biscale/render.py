@@ -23,6 +23,7 @@ import numpy as np
 
 from . import lighting, litsphere, montecarlo, sg
 from .litsphere import LitSphere
+from .measured import MeasuredBRDF
 from . import ssdf as ssdf_mod
 from .backend import get_backend
 from .progress import Progress
@@ -175,10 +176,15 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
 
 
 def check_no_litspheres(scene: Scene, method: str) -> None:
+    """Refuse, in one line, a material `method` cannot shade: a LitSphere (only the lit-sphere shader reads
+    one) or a MeasuredBRDF (no kernel reads its table yet; method='litsphere' renders it)."""
     for i, m in enumerate(scene.materials):
         if isinstance(m, LitSphere):
             raise ValueError(f"Scene.materials[{i}] is a LitSphere, which only method='litsphere' renders "
                              f"(method={method!r} needs the material itself)")
+        if isinstance(m, MeasuredBRDF):
+            raise ValueError(f"Scene.materials[{i}] is a MeasuredBRDF, which method={method!r} cannot shade yet "
+                             "(no kernel reads its table); method='litsphere' renders it")
 
 
 def _accumulate(scene: Scene, backend, n_aa: int, n_shadow: int, lights, timings: dict, shade):
@@ -242,11 +248,13 @@ def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str
     if pack is None:
         pack = scene.cache[key] = litsphere.pack_spheres(spheres)
     timings["materials"] = time.perf_counter() - t0
-    env = scene.environment if scene.environment is not None else _black_environment()
+    env = scene.environment
     t0 = time.perf_counter()
-    prefiltered = lighting.prepare(env, backend, lobes=scene.env_lobes).prefiltered
+    # the background: the environment's prefiltered maps, or one black texel (nothing to fit or filter)
+    maps, levels = ((lambda p: (p.maps, p.levels))(lighting.prepare(env, backend, lobes=scene.env_lobes).prefiltered)
+                    if env is not None else (np.zeros((1, 3), np.float32), np.array([[0, 0, 1, 1]], np.float32)))
     lights = scene.lights_packed
-    if scene.environment is not None:
+    if env is not None:
         env_key = ("litsphere_lights", int(env_lights), backend.name)
         extra = env.device_cache.get(env_key)
         if extra is None:
@@ -255,8 +263,8 @@ def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str
         lights = np.concatenate([np.asarray(lights, np.float32).reshape(-1, 8), extra])
     timings["lighting"] = time.perf_counter() - t0
     image = _accumulate(scene, backend, n_aa, n_shadow, lights, timings,
-                        lambda cam: backend.shade_litsphere(scene.mesh, pack, cam.packed(), lights, prefiltered.maps,
-                                                            prefiltered.levels, VIEWS[view], shrink))
+                        lambda cam: backend.shade_litsphere(scene.mesh, pack, cam.packed(), lights, maps, levels,
+                                                            VIEWS[view], shrink))
     timings["total"] = time.perf_counter() - t_all
     cam = scene.camera
     info = {"backend": backend.name, "device": backend.device, "method": "litsphere", "view": view, "shrink": shrink,

@@ -1,0 +1,228 @@
+/* Lit-sphere shading (seed 004 Eq. 1–4): the litsphere stage.
+ *
+ * Twin of kernels/litsphere.py, function for function and in the same operation order; the
+ * mathematics and the packed inputs are warp_biscale.litsphere (reference_shade is the float64
+ * oracle of one light's lookup, SpherePack the layout). One work-item per pixel along dimension 0
+ * (rounded up to a whole work-group; the surplus returns): the surface normal from the G-buffer, a
+ * mip level from the normal's change to the next pixels, then per light the images' frame (z the
+ * view direction, x towards the light), the two images bracketing the light's polar angle, each
+ * read at the normal turned about y (trilinear), blended.
+ *
+ * Built after cl/shade.cl (OpenCLBackend's program sources), whose camera_ray, prefiltered and
+ * ifloor_pos it calls, as the Warp twin imports them from kernels/shade.py.
+ *
+ * Layouts (no float3 in global memory): positions, normals, texels, env_maps and the output are
+ * float arrays of stride 3; bary stride 2; light_vis (P, L) uchar; lights (L, 8); faces (F, 3);
+ * sphere_info (S, 8) int; level_info (rows, 2) int [texel offset, size]; env_levels (n_levels, 4).
+ */
+
+#define K_OUTSIDE 0.75f  /* = litsphere.K_OUTSIDE */
+#define EDGE 0.5f        /* a neighbour whose normal differs more is across an edge: no footprint from it */
+
+CL_INLINE float3 pixel_normal(__global const int *faces, __global const float *normals, int f, float b0, float b1)
+{
+    float w0 = 1.0f - b0 - b1;
+    return normalize3(w0 * load3(normals, faces[3 * f]) + b0 * load3(normals, faces[3 * f + 1])
+                      + b1 * load3(normals, faces[3 * f + 2]));
+}
+
+/* |n(q) − n| for the neighbouring pixel q, 0 where q misses or lies across an edge. */
+CL_INLINE float normal_step(__global const int *face, __global const float *bary, __global const int *faces,
+                            __global const float *normals, int q, float3 n)
+{
+    int g = face[q];
+    if (g < 0)
+        return 0.0f;
+    float3 e = pixel_normal(faces, normals, g, bary[2 * q], bary[2 * q + 1]) - n;
+    float d = sqrt(dot3(e, e));
+    if (d > EDGE)
+        return 0.0f;
+    return d;
+}
+
+/* Bilinear lookup at (u, v) ∈ [0, 1]², v up, of a size² level stored row-major from the top; clamped. */
+CL_INLINE float3 bilinear(__global const float *texels, int offset, int size, float u, float v)
+{
+    float fs = (float)size;
+    float fx = clampf(u * fs - 0.5f, 0.0f, fs - 1.0f);
+    float fy = clampf((1.0f - v) * fs - 0.5f, 0.0f, fs - 1.0f);
+    int x0 = min(ifloor_pos(fx), size - 2);
+    int y0 = min(ifloor_pos(fy), size - 2);
+    float ax = fx - (float)x0;
+    float ay = fy - (float)y0;
+    int r0 = offset + y0 * size + x0;
+    int r1 = r0 + size;
+    return ((1.0f - ay) * ((1.0f - ax) * load3(texels, r0) + ax * load3(texels, r0 + 1))
+            + ay * ((1.0f - ax) * load3(texels, r1) + ax * load3(texels, r1 + 1)));
+}
+
+/* Image `row`'s pyramid (its level 0 at level_info[row]) read at mip level `lod`. */
+CL_INLINE float3 trilinear(__global const float *texels, __global const int *level_info, int row, int n_levels,
+                           float u, float v, float lod)
+{
+    float t = clampf(lod, 0.0f, (float)(n_levels - 1));
+    int lo = ifloor_pos(t);
+    float f = t - (float)lo;
+    int hi = min(lo + 1, n_levels - 1);
+    float3 a = bilinear(texels, level_info[2 * (row + lo)], level_info[2 * (row + lo) + 1], u, v);
+    float3 b = bilinear(texels, level_info[2 * (row + hi)], level_info[2 * (row + hi) + 1], u, v);
+    return (1.0f - f) * a + f * b;
+}
+
+/* litsphere.rim_point: (x, y) read for the turned normal r in image i's frame. */
+CL_INLINE float2 rim_point(float rx, float ry, float rz, float phi_i)
+{
+    float c = rx * sin(phi_i) + rz * cos(phi_i);
+    float s = sqrt(maxf(1.0f - c * c, 0.0f));
+    float across = s * sin(phi_i);
+    if (rz >= 0.0f || across <= 1.0e-6f)
+        return (float2)(rx, ry);
+    float sin_b = clampf(-c * cos(phi_i) / across, -1.0f, 1.0f);
+    float cos_b = sqrt(1.0f - sin_b * sin_b);
+    if (ry < 0.0f)
+        cos_b = -cos_b;
+    return (float2)(c * sin(phi_i) - s * sin_b * cos(phi_i), s * cos_b);
+}
+
+/* Radiance per unit irradiance of normal n seen from `view`, lit from `light`: litsphere.reference_shade. */
+CL_INLINE float3 sphere_lookup(float3 n, float3 view, float3 light, float lod, float shrink, int s,
+                               __global const int *sphere_info, __global const float *angles,
+                               __global const int *level_info, __global const float *texels)
+{
+    float3 z = view;
+    float3 x = light - dot3(light, z) * z;
+    /* (atan2 of the across and along parts: exact where l is near ±v, where acos loses float32 digits) */
+    float phi = atan2(sqrt(dot3(x, x)), dot3(light, z));
+    if (sqrt(dot3(x, x)) <= 1.0e-6f) { /* the light along the view axis: any x (the images are symmetric about it) */
+        float3 ref = (float3)(0.0f, 1.0f, 0.0f);
+        if (absf(z.x) < 0.9f)
+            ref = (float3)(1.0f, 0.0f, 0.0f);
+        x = ref - dot3(ref, z) * z;
+    }
+    x = normalize3(x);
+    float3 y = cross3(z, x);
+    float nx = dot3(n, x);
+    float ny = dot3(n, y);
+    float nz = dot3(n, z);
+    float hx = sin(0.5f * phi);
+    float hz = cos(0.5f * phi);
+    float proj = sqrt(nx * nx + nz * nz);
+    float cos_ah = 0.0f;
+    if (proj > 1.0e-12f)
+        cos_ah = (hx * nx + hz * nz) / proj;
+    float alpha_h = minf(acos(clampf(cos_ah, -1.0f, 1.0f)), 0.5f * 3.14159265358979f);
+    __global const int *info = sphere_info + 8 * s;
+    int first = info[0];
+    int count = info[1];
+    int first_row = info[2];
+    int n_levels = info[3];
+    int n_parts = info[4];
+    /* the bracket: angles[i2 − 1] < φ ≤ angles[i2]; outside the angles, the nearest image alone */
+    int i2 = 0;
+    while (i2 < count && angles[first + i2] < phi)
+        i2 += 1;
+    int i1 = i2 - 1;
+    float t = 0.0f;
+    float k_glossy = 0.5f + 0.5f * sin(alpha_h);
+    if (i2 == 0 || i2 >= count) {
+        i1 = i2 == 0 ? 0 : count - 1;
+        i2 = i1;
+        k_glossy = K_OUTSIDE;
+    } else {
+        t = (phi - angles[first + i1]) / (angles[first + i2] - angles[first + i1]);
+    }
+    float3 out = (float3)(0.0f, 0.0f, 0.0f);
+    for (int part = 0; part < n_parts; ++part) {
+        float k = k_glossy;
+        if (n_parts == 2 && part == 0)
+            k = 1.0f; /* the diffuse share: the exact rotation */
+        for (int which = 0; which < 2; ++which) {
+            int a = which == 1 ? i2 : i1;
+            float w = which == 1 ? t : 1.0f - t;
+            if (w > 0.0f) {
+                float turn = k * (angles[first + a] - phi);
+                float2 r = (float2)(nx * cos(turn) + nz * sin(turn), ny);
+                if (n_parts == 2 && part == 0)
+                    r = rim_point(r.x, ny, -nx * sin(turn) + nz * cos(turn), angles[first + a]);
+                float u = shrink * r.x * 0.5f + 0.5f;
+                float v = shrink * r.y * 0.5f + 0.5f;
+                int row = first_row + (part * count + a) * n_levels;
+                out = out + w * trilinear(texels, level_info, row, n_levels, u, v, lod);
+            }
+        }
+    }
+    return out;
+}
+
+__kernel void shade_litsphere(
+    __global const int *face,             /* (P,) G-buffer face, -1 = miss */
+    __global const float *bary,           /* (P, 2) weights of vertices 1 and 2 */
+    __global const uchar *light_vis,      /* (P, L) visible share in 255ths */
+    __global const int *faces,            /* (F, 3) */
+    __global const float *positions,      /* (V, 3) */
+    __global const float *normals,        /* (V, 3) */
+    __global const int *face_material,    /* (F,) */
+    const float4 eye, const float4 forward, const float4 right, const float4 up, /* Camera.packed() */
+    const float cam_w, const float cam_h,
+    const int n_lights, __global const float *lights,   /* (L, 8) */
+    const int view_mode,                  /* 0 the pixel's view direction, 1 the camera's axis */
+    const float shrink,                   /* the turned normal's scale before the lookup (1 or litsphere.SHRINK) */
+    __global const float *env_maps, const int n_levels, __global const float *env_levels,
+    __global const int *sphere_of_material, __global const int *sphere_info, /* (Mat,), (S, 8) */
+    __global const float *angles, __global const int *level_info, __global const float *texels,
+    const int n_pixels,
+    __global float *radiance)             /* (P, 3) */
+{
+    int p = get_global_id(0);
+    if (p >= n_pixels)
+        return;
+    int f = face[p];
+    if (f < 0) {
+        store3(radiance, p, prefiltered(env_maps, env_levels, n_levels,
+                                        camera_ray(forward, right, up, cam_w, cam_h, p), 1.0e30f));
+        return;
+    }
+    float b0 = bary[2 * p];
+    float b1 = bary[2 * p + 1];
+    float3 n = pixel_normal(faces, normals, f, b0, b1);
+    float w0 = 1.0f - b0 - b1;
+    float3 pos = w0 * load3(positions, faces[3 * f]) + b0 * load3(positions, faces[3 * f + 1])
+                 + b1 * load3(positions, faces[3 * f + 2]);
+    float3 view = normalize3((float3)(eye.x, eye.y, eye.z) - pos);
+    if (view_mode == 1) /* the paper's distant viewer: the camera's axis */
+        view = -normalize3((float3)(forward.x, forward.y, forward.z));
+    int width = (int)cam_w;
+    int x = p % width;
+    float step = 0.0f;
+    if (x + 1 < width)
+        step = normal_step(face, bary, faces, normals, p + 1, n);
+    if (p + width < n_pixels)
+        step = maxf(step, normal_step(face, bary, faces, normals, p + width, n));
+    int s = sphere_of_material[face_material[f]];
+    /* texels per pixel at level 0: the lookup point moves by shrink·|Δn|/2 of the image's width */
+    float rho = step * 0.5f * shrink * (float)level_info[2 * sphere_info[8 * s + 2] + 1];
+    float lod = log2(maxf(rho, 1.0f));
+    float3 total = (float3)(0.0f, 0.0f, 0.0f);
+    for (int l = 0; l < n_lights; ++l) {
+        float share = (float)light_vis[p * n_lights + l] / 255.0f;
+        if (share > 0.0f) {
+            __global const float *row = lights + 8 * l;
+            float3 light = (float3)(row[1], row[2], row[3]);
+            float3 e = (float3)(row[4], row[5], row[6]);
+            if (row[0] != 0.0f) { /* a point light: its direction and the inverse-square irradiance */
+                float3 d = light - pos;
+                float r2 = maxf(dot3(d, d), 1.0e-30f);
+                light = d / sqrt(r2);
+                e = e / r2;
+            }
+            if (dot3(n, light) > 0.0f && dot3(n, view) > 0.0f) {
+                float3 c = sphere_lookup(n, view, light, lod, shrink, s, sphere_info, angles, level_info, texels);
+                total = total + share * (e * c);
+            }
+        }
+    }
+    total.x = (total.x >= 0.0f && total.x < 3.0e38f) ? total.x : 0.0f;
+    total.y = (total.y >= 0.0f && total.y < 3.0e38f) ? total.y : 0.0f;
+    total.z = (total.z >= 0.0f && total.z < 3.0e38f) ? total.z : 0.0f;
+    store3(radiance, p, total);
+}
