@@ -1,6 +1,6 @@
 """Command line: ``warp-biscale demo`` (bake a tile and render a scene with it), ``render`` (a TOML scene
 file to PNG / EXR / HDR), ``view`` (the interactive viewer), ``bake`` (SG effective BRDF of a tile),
-``truth`` (its ground truth) and ``backends``."""
+``truth`` (its ground truth), ``ball`` (a material thumbnail) and ``backends``."""
 
 from __future__ import annotations
 
@@ -297,6 +297,20 @@ def cmd_demo(args):
     return 0
 
 
+def cmd_ball(args):
+    _check_output(args.output)
+    from .litsphere import check_angles, check_resolution, load_material, material_ball
+
+    angles = check_angles(args.angles)
+    resolution = check_resolution(args.resolution)
+    material = load_material(args.material)
+    result = material_ball(material, size=args.size, backend=args.backend, resolution=resolution, angles=angles)
+    result.save(args.output, exposure=args.exposure)
+    _say(args, f"wrote {args.output}: {material!r} as a lit-sphere ball ({result.timings['total']:.2f} s, "
+               f"{result.info['texture_bytes'] / 2**20:.1f} MiB of textures)")
+    return 0
+
+
 def cmd_view(args):
 
     if args.screenshot:
@@ -325,8 +339,9 @@ def _add_render_commands(sub):
     r.add_argument("scene", help="the scene file (.toml)")
     r.add_argument("-o", "--output", default="render.png",
                    help="image to write: .png (tone-mapped sRGB), .exr or .hdr (linear radiance); default render.png")
-    r.add_argument("--method", choices=["sg", "mc"], help="sg: per-pixel SG shading; mc: Monte Carlo reference "
-                                                           "(default: the file's [render] method, else sg)")
+    r.add_argument("--method", choices=["sg", "mc", "litsphere"],
+                   help="sg: per-pixel SG shading; mc: Monte Carlo reference; litsphere: the lit-sphere shader "
+                        "(seed 004) (default: the file's [render] method, else sg)")
     r.add_argument("--samples", type=int, help="samples per pixel for --method mc")
     r.add_argument("--truth-facets", type=int, metavar="N",
                    help="--method mc: facets of the ground truth computed for each baked material in view "
@@ -354,6 +369,20 @@ def _add_render_commands(sub):
     d.add_argument("--backend", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name> (default auto)")
     d.add_argument("-q", "--quiet", action="store_true", help="no progress, no bake summary")
     d.set_defaults(func=cmd_demo)
+    a = sub.add_parser("ball", help="a material-ball thumbnail of any material (lit-sphere shader)",
+                       description="Render a sphere of MATERIAL under a key, a fill and a rim light with the lit-sphere "
+                                   "shader (seed 004), as a material library shows its entries.")
+    a.add_argument("material", help="a --brdf spec (e.g. blinnphong:exponent=50,ks=0.5,kd=0.3), a baked material "
+                                    "(.wbm), a MERL file (.binary) or a lit-sphere folder")
+    a.add_argument("-o", "--output", default="ball.png", help="image to write: .png, .exr or .hdr (default ball.png)")
+    a.add_argument("--size", type=int, default=256, help="image width and height in pixels (default 256)")
+    a.add_argument("--resolution", type=int, default=512, help="lit-sphere image resolution (default 512)")
+    a.add_argument("--angles", type=float, nargs="+", default=[0, 45, 90, 135],
+                   help="light polar angles of the lit-sphere images, degrees (default 0 45 90 135)")
+    a.add_argument("--exposure", type=float, default=0.0, help="PNG exposure in stops (default 0)")
+    a.add_argument("--backend", default="auto", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name>")
+    a.add_argument("-q", "--quiet", action="store_true", help="no summary")
+    a.set_defaults(func=cmd_ball)
     v = sub.add_parser("view", help="interactive viewer: our rendering + the small-scale tile (pyvista)",
                        description="Left: the scene rendered by warp_biscale from the viewer's camera (re-rendered "
                                    "when you release the mouse), sliders for a light's azimuth/elevation and the "

@@ -56,7 +56,8 @@ from . import images as images_mod
 from .brdf import Brdf, Lambert
 from .effective import EffectiveBRDF
 
-__all__ = ["LitSphere", "PAPER_ANGLES", "METAL_ANGLES", "reference_shade", "env_lights", "pack_spheres"]
+__all__ = ["LitSphere", "PAPER_ANGLES", "METAL_ANGLES", "reference_shade", "env_lights", "pack_spheres", "material_ball",
+           "load_material"]
 
 PAPER_ANGLES = (0.0, 45.0, 90.0, 135.0)  # the paper's set for plastics
 METAL_ANGLES = (0.0, 30.0, 60.0, 90.0, 120.0, 150.0)  # its set for metals and colour-shifting materials
@@ -164,9 +165,9 @@ def check_angles(angles) -> np.ndarray:
     if len(a) == 0:
         raise ValueError("LitSphere angles must hold at least one light angle, got none")
     if not np.all(np.isfinite(a)) or a.min() < 0 or a.max() > 180:
-        raise ValueError(f"LitSphere angles must lie in [0, 180] degrees, got {list(np.round(a, 6))}")
+        raise ValueError(f"LitSphere angles must lie in [0, 180] degrees, got {[round(float(x), 6) for x in a]}")
     if np.any(np.diff(a) <= 0):
-        raise ValueError(f"LitSphere angles must be strictly increasing, got {list(np.round(a, 6))}")
+        raise ValueError(f"LitSphere angles must be strictly increasing, got {[round(float(x), 6) for x in a]}")
     return a
 
 
@@ -690,3 +691,46 @@ def pack_spheres(spheres: list) -> SpherePack:
     return SpherePack(np.asarray(of_material, np.int32), np.asarray(info, np.int32).reshape(-1, 8),
                       np.asarray(angles, np.float32), np.asarray(level_rows, np.int32).reshape(-1, 2),
                       np.ascontiguousarray(np.concatenate(chunks), np.float32))
+
+
+# ---------------------------------------------------------------------------------------------
+# A material ball: the thumbnail a material library shows
+
+
+BALL_LIGHTS = (((-0.55, 0.65, 0.75), 2.4), ((0.85, 0.1, 0.5), 0.6), ((0.2, 0.6, -0.9), 1.2))  # key, fill, rim
+
+
+def material_ball(material, size: int = 256, backend="auto", resolution: int = RESOLUTION, angles=PAPER_ANGLES):
+    """A sphere of `material` (any the lit sphere takes, or a LitSphere) under a key, a fill and a rim light,
+    rendered by the lit-sphere shader, size × size pixels, 4 samples a pixel → Rendering."""
+    from .render import check_aa, render
+    from .scene import Camera, DirectionalLight, Mesh, Scene, _integer
+
+    size = _integer("ball size", size, 8, 8192)
+    check_aa(4)
+    sphere = Mesh.sphere(1.0, subdivisions=5)
+    camera = Camera(eye=(0.0, 0.0, 3.6), target=(0.0, 0.0, 0.0), fov=36.0, width=size, height=size)
+    lights = [DirectionalLight(d, e, 1.0) for d, e in BALL_LIGHTS]
+    return render(Scene(sphere, [material], camera, None, lights), method="litsphere", backend=backend, aa=4,
+                  shadow_samples=1, resolution=resolution, angles=angles)
+
+
+def load_material(spec: str):
+    """A material from the command line: a lit-sphere folder, a MERL .binary file, a baked material file
+    (.wbm / .npz), or a --brdf spec such as blinnphong:exponent=50,ks=0.5,kd=0.3."""
+    from .brdf import parse_brdf
+    from .loading import load
+    from .measured import MeasuredBRDF
+
+    if os.path.isdir(spec):
+        return LitSphere.load(spec)
+    if spec.lower().endswith(".binary"):
+        return MeasuredBRDF.load(spec)
+    if os.path.splitext(spec)[1].lower() in (".wbm", ".npz"):
+        material = load(spec)
+        if not isinstance(material, EffectiveBRDF):
+            raise ValueError(f"{spec} holds a {type(material).__name__}, not a baked material")
+        return material
+    if ":" not in spec and not spec.isalpha():
+        raise ValueError(f"material {spec!r} is neither a file nor a BRDF spec (e.g. blinnphong:exponent=50)")
+    return parse_brdf(spec)

@@ -13,7 +13,7 @@ or ``warp-biscale render scene.toml -o out.png``. Every table and key is optiona
     [render]
     width = 640                  # image size in pixels (default 512 × 512)
     height = 480
-    method = "sg"                # "sg" (per-pixel SG shading) or "mc" (Monte Carlo reference)
+    method = "sg"                # "sg" (per-pixel SG shading), "mc" (Monte Carlo reference) or "litsphere"
     samples = 64                 # mc only: samples per pixel (>= 2); seed = 0 too
     exposure = 0.0               # stops, applied when writing a PNG
     env_lobes = 9                # SG lobes fitted to the environment (diffuse term), 1..16
@@ -77,6 +77,11 @@ or ``warp-biscale render scene.toml -o out.png``. Every table and key is optiona
     type = "file"                # a material file written by `warp-biscale bake` / EffectiveBRDF.save
     path = "steel.wbm"           # relative to this file; brdf = [...] optionally swaps its small-scale BRDFs
 
+    [material.paint]
+    type = "merl"                # a measured BRDF in MERL's binary format (wb.MeasuredBRDF); or type =
+    path = "paint.binary"        #   "litsphere", path = a folder LitSphere.save wrote; both render only by
+                                 #   method = "litsphere" (which makes every other material a lit sphere)
+
 Errors name the file, the line, the table and the key — ``scene.toml:12: [material.gold] exponent
 must be a number, got 'high'`` — for TOML syntax errors, unknown tables and keys (a typo never passes
 silently), wrong types, missing required keys, undefined materials, missing files and bad values (sizes
@@ -103,7 +108,10 @@ from .geometry import BUILTIN_TILES
 from .effective import EffectiveBRDF
 from .environment import Environment, Softbox
 from .images import check_exposure
+from .device import one_line
+from .litsphere import LitSphere
 from .loading import load
+from .measured import MeasuredBRDF
 from .progress import as_progress
 from .render import METHODS, render
 from .scene import SETTINGS_UNITS, Scene, settings_ranges
@@ -158,7 +166,8 @@ _BRDF_KEYS = {
 }
 BAKE_KEYS = {"tile": STR, "tile_params": TABLE, "brdf": STRLIST, "lobes": LOBES, "directions": INT, "facets": INT,
              "normal_res": INT, "method": STR, "route": STR, "seed": INT}
-MATERIAL_TYPES = {**_BRDF_KEYS, "bake": BAKE_KEYS, "file": {"path": STR, "brdf": STRLIST}}
+MATERIAL_TYPES = {**_BRDF_KEYS, "bake": BAKE_KEYS, "file": {"path": STR, "brdf": STRLIST}, "litsphere": {"path": STR},
+                  "merl": {"path": STR}}
 TOP_LEVEL = ("render", "camera", "environment", "light", "object", "material")
 
 
@@ -551,6 +560,14 @@ def _material(ctx, table, kind, v, sf, name, used, prog):
             except ValueError as exc:
                 raise ctx.error(table, "brdf", str(exc)) from None
         return mat
+    if kind in ("litsphere", "merl"):
+        full = ctx.resolve(v["path"])
+        if not os.path.exists(full):
+            raise ctx.error(table, "path", f"no such {kind} material: {v['path']} (looked for {full})")
+        try:
+            return LitSphere.load(full) if kind == "litsphere" else MeasuredBRDF.load(full)
+        except (ValueError, OSError) as exc:
+            raise ctx.error(table, "path", f"cannot read {kind} material {v['path']}: {one_line(exc)}") from None
     return _bake(ctx, table, v, sf, name, used, prog)
 
 
