@@ -31,6 +31,7 @@ from .model import Frame, ShadeInputs
 from .scene import vertex_tangents
 from .shading import pack_materials
 from .trace import check_shadow_samples
+from .images import compare_images
 from .scene import Rendering, Scene, _black_environment, _integer
 
 __all__ = ["Scene", "Rendering", "render", "pack_frame", "METHODS"]
@@ -143,8 +144,9 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     the lit-sphere shader (seed 004, `warp_biscale.litsphere`), each material a `LitSphere` (any other made
     into one, options `angles`, `resolution`), options `view` ("pixel": each pixel's own view direction;
     "camera": the paper's distant viewer), `shrink` (the turned normal's scale before the lookup: 1, or the
-    paper's litsphere.SHRINK) and `env_lights` (directional lights standing for the environment), with
-    `aa` and `shadow_samples` as "sg"."""
+    paper's litsphere.SHRINK), `env_lights` (directional lights standing for the environment) and
+    `report_error` (True, or references among "sg", "mc": info["error"] then holds `litsphere_errors`,
+    the Monte Carlo one at `samples` a pixel), with `aa` and `shadow_samples` as "sg"."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     n_aa = check_aa(aa)
@@ -230,9 +232,38 @@ def scene_spheres(scene: Scene, angles=litsphere.PAPER_ANGLES, resolution: int =
     return cached
 
 
+def litsphere_errors(scene: Scene, image, backend="auto", references=("sg", "mc"), samples: int = 64) -> dict:
+    """The error of a lit-sphere `image` of `scene` against the exact renders of the same materials, over the
+    pixels that see the object: {reference: compare_images(...)} for "sg" (our SG renderer, 1 sample a
+    pixel, hard shadows: what the lit sphere reproduces) and "mc" (the Monte Carlo reference, `samples` a
+    pixel). A LitSphere material stands for its `source`; one without (a loaded one) cannot be judged."""
+    materials = []
+    for i, m in enumerate(scene.materials):
+        if isinstance(m, LitSphere):
+            if m.source is None:
+                raise ValueError(f"Scene.materials[{i}] is a loaded LitSphere (no source material): its error "
+                                 "against an exact render cannot be measured")
+            m = m.source
+        materials.append(m)
+    exact_scene = dataclasses.replace(scene, materials=materials, cache={})
+    backend = get_backend(backend)
+    mask = backend.trace_primary(scene.mesh, scene.camera).face.reshape(scene.camera.height, scene.camera.width) >= 0
+    out = {}
+    for ref in references:
+        if ref == "sg":
+            exact = render(exact_scene, backend=backend, shadow_samples=1).image
+        elif ref == "mc":
+            exact = render(exact_scene, method="mc", backend=backend, samples=samples).image
+        else:
+            raise ValueError(f"references must be 'sg' and/or 'mc', got {ref!r}")
+        out[ref] = compare_images(np.asarray(image)[mask][None], exact[mask][None])
+    return out
+
+
 def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str = "pixel",
                       env_lights: int = litsphere.ENV_LIGHTS, angles=litsphere.PAPER_ANGLES,
-                      resolution: int = litsphere.RESOLUTION, shrink: float = 1.0) -> Rendering:
+                      resolution: int = litsphere.RESOLUTION, shrink: float = 1.0, report_error=None,
+                      samples: int = 64) -> Rendering:
     if view not in VIEWS:
         raise ValueError(f"view must be one of {sorted(VIEWS)}, got {view!r}")
     if isinstance(shrink, bool) or not isinstance(shrink, (int, float)) or not (0.5 <= shrink <= 1):
@@ -271,4 +302,7 @@ def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str
             "lights": len(lights), "env_lights": len(lights) - len(scene.lights_packed), "width": cam.width,
             "height": cam.height, "aa": n_aa, "shadow_samples": n_shadow,
             "texture_bytes": int(sum(s.nbytes for s in {id(s): s for s in spheres}.values()))}
+    if report_error:
+        refs = ("sg", "mc") if report_error is True else tuple(report_error)
+        info["error"] = litsphere_errors(scene, image, backend, refs, samples)
     return Rendering(image, timings, info)
