@@ -65,6 +65,8 @@ CL_INLINE float3 trilinear(__global const float *texels, __global const int *lev
     float f = t - (float)lo;
     int hi = min(lo + 1, n_levels - 1);
     float3 a = bilinear(texels, level_info[2 * (row + lo)], level_info[2 * (row + lo) + 1], u, v);
+    if (f <= 0.0f) /* a footprint within a texel (most pixels of a close object): one level read */
+        return a;
     float3 b = bilinear(texels, level_info[2 * (row + hi)], level_info[2 * (row + hi) + 1], u, v);
     return (1.0f - f) * a + f * b;
 }

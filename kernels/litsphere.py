@@ -62,6 +62,8 @@ def trilinear(texels: wp.array(dtype=wp.vec3), level_info: wp.array2d(dtype=wp.i
     f = t - float(lo)
     hi = wp.min(lo + 1, n_levels - 1)
     a = bilinear(texels, level_info[row + lo, 0], level_info[row + lo, 1], u, v)
+    if f <= 0.0:  # a footprint within a texel (most pixels of a close object): one level read
+        return a
     b = bilinear(texels, level_info[row + hi, 0], level_info[row + hi, 1], u, v)
     return (1.0 - f) * a + f * b
 
