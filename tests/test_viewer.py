@@ -235,3 +235,24 @@ def test_screenshot_without_a_baked_material_shows_a_sphere_preview(tmp_path):
     sf = loads_scene(ANALYTIC, path="analytic.toml")
     img = viewer.view(sf, screenshot=tmp_path / "v.png", size=(128, 64))
     _check_screenshot(img, tmp_path / "v.png")
+
+
+def test_screenshot_of_a_measured_material_by_the_lit_sphere(tmp_path):
+    """A scene file whose render method is the lit sphere, with a MERL material (written here): both
+    viewports are drawn by the lit-sphere shader (the SG renderer cannot shade a measured BRDF)."""
+    from warp_biscale.measured import paint_like
+
+    wb.MeasuredBRDF.from_brdf(paint_like()).save(tmp_path / "paint.binary")
+    text = ANALYTIC.replace('backend = "warp:cpu"', 'backend = "warp:cpu"\nmethod = "litsphere"').replace(
+        'type = "cooktorrance"\nks = 0.8\nroughness = 0.3\nkd = [0.3, 0.1, 0.05]', 'type = "merl"\npath = "paint.binary"')
+    sf = loads_scene(text, path=str(tmp_path / "measured.toml"))
+    assert isinstance(sf.scene.materials[0], wb.MeasuredBRDF)
+    v = viewer.Viewer(sf, size=(128, 64), off_screen=True)
+    try:
+        img = v.screenshot(tmp_path / "v.png")
+        left, right = _check_screenshot(img, tmp_path / "v.png")
+        assert v.method == "litsphere"
+        centre = right[24:40, 24:40]  # the preview sphere: the paint's red, not grey
+        assert centre[..., 0].mean() > 1.5 * centre[..., 2].mean()
+    finally:
+        v.close()

@@ -35,6 +35,8 @@ from . import brdf as B
 from .effective import EffectiveBRDF
 from .images import tonemap
 from .io import atomic_path
+from .litsphere import LitSphere
+from .measured import MeasuredBRDF
 from .render import render
 from .scene import Scene
 from .scene import Camera, DirectionalLight, Mesh, PointLight
@@ -219,6 +221,8 @@ class Viewer:
         self.sf = scenefile
         self.scene = scenefile.scene
         self.backend = backend or scenefile.backend
+        # the scene file's shader when it is the lit sphere (SG for "mc": the reference is not interactive)
+        self.method = "litsphere" if scenefile.method == "litsphere" else "sg"
         self.progress = progress
         self.render_scale = float(render_scale)
         self.timings: dict = {}
@@ -316,7 +320,7 @@ class Viewer:
         w, h = self._viewport_pixels(self.left)
         self.scene.camera = camera_from_pyvista(self.left.camera, w, h)
         t0 = time.perf_counter()
-        result = self.sf.render(method="sg", backend=self.backend, progress=self.progress,
+        result = self.sf.render(method=self.method, backend=self.backend, progress=self.progress,
                                 shadow_samples=VIEWER_SHADOW_SAMPLES)
         dt = time.perf_counter() - t0
         self.image = result.image
@@ -393,7 +397,10 @@ class Viewer:
                                   env_lobes=self.scene.env_lobes)
         ps = self._preview
         ps.camera, ps.materials, ps.lights = cam, [mat], lights
-        result = render(ps, backend=self.backend)
+        # a lit sphere or a measured BRDF has no other shader; under method litsphere the preview is the
+        # material ball `warp-biscale ball` draws
+        method = "litsphere" if isinstance(mat, (LitSphere, MeasuredBRDF)) else self.method
+        result = render(ps, method=method, backend=self.backend)
         self._show(self.right, tonemap(result.image, exposure=self.sf.exposure))
 
     # ---------------------------------------------------------------- output
