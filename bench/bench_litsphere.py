@@ -3,7 +3,7 @@ tolerance needs, texture memory, and frame time.
 
 Parts (records go to --out/results.json; table.md and litsphere.png follow):
 - ``accuracy``: PSNR over object pixels of a lit-sphere render against the exact direct lighting of the
-  same material (`litsphere.direct_reference`: the material's own BRDF at each pixel centre, the same
+  same material (`shading.direct_reference`: the material's own BRDF at each pixel centre, the same
   shadow rays), one directional light, per object (sphere, torus) × material × light-angle count ×
   view ("pixel": each pixel's own view direction; "camera": the paper's distant viewer), with the
   textures' memory — error against memory, the method's trade.
@@ -27,6 +27,7 @@ import numpy as np
 
 import warp_biscale as wb
 from warp_biscale import litsphere as L
+from warp_biscale import shading
 from warp_biscale.render import VIEWS, scene_spheres
 
 if __package__ in (None, ""):  # run as a file: `bench` importable from the checkout, after site-packages
@@ -64,7 +65,7 @@ def part_accuracy(backend, size, counts, resolution, out):
             scene = wb.Scene(mesh, [mat], wb.Camera(eye=(0, 1.5, 4.5), width=size[0], height=size[1]), None, light)
             g = be.trace_primary(mesh, scene.camera)
             vis = be.trace_shadows(mesh, g, scene.lights_packed)
-            exact = L.direct_reference(scene, g.face, g.bary, vis)
+            exact = shading.direct_reference(scene, g.face, g.bary, vis)
             mask = g.face >= 0
             for count in counts:
                 angles = L.even_angles(count)

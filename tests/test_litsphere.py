@@ -10,7 +10,8 @@ import pytest
 
 import warp_biscale as wb
 from warp_biscale import litsphere as L
-from warp_biscale.render import scene_spheres
+from warp_biscale import lighting, shading
+from warp_biscale.render import environment_lights, scene_spheres
 
 warnings.filterwarnings("ignore", category=wb.EnergyWarning)
 
@@ -38,8 +39,9 @@ def test_kernel_matches_the_float64_reference(backend, view):
     b = wb.get_backend(backend)
     g = b.trace_primary(scene.mesh, scene.camera)
     vis = b.trace_shadows(scene.mesh, g, scene.lights_packed)
-    ref = L.render_reference(scene.mesh, scene_spheres(scene, resolution=128), g.face, g.bary, vis,
-                             scene.camera.packed(), scene.lights_packed, view_mode={"pixel": 0, "camera": 1}[view])
+    ref = shading.litsphere_reference(scene.mesh, scene_spheres(scene, resolution=128), g.face, g.bary, vis,
+                                      scene.camera.packed(), scene.lights_packed,
+                                      view_mode={"pixel": 0, "camera": 1}[view])
     assert ref.max() > 0.5 and (vis == 0).any() and (vis == 255).any()  # lit, and shadowed somewhere
     np.testing.assert_allclose(r.image.reshape(-1, 3), ref, atol=2e-4 * ref.max())
 
@@ -54,11 +56,11 @@ def test_kernel_reads_mip_levels_and_the_environment(backend):
     assert r.info["env_lights"] > 0 and np.isfinite(r.image).all() and r.image.min() >= 0
     b = wb.get_backend(backend)
     g = b.trace_primary(mesh, scene.camera)
-    lights = np.array([lt.packed() for lt in L.env_lights(env, 16, b)], np.float32)
+    lights = np.array([lt.packed() for lt in environment_lights(env, 16, b)], np.float32)
     vis = b.trace_shadows(mesh, g, lights)
-    pre = wb.render.__globals__["lighting"].prepare(env, b).prefiltered
-    ref = L.render_reference(mesh, scene_spheres(scene, resolution=256), g.face, g.bary, vis, scene.camera.packed(),
-                             lights, env_maps=pre.maps, env_levels=pre.levels)
+    pre = lighting.prepare(env, b).prefiltered
+    ref = shading.litsphere_reference(mesh, scene_spheres(scene, resolution=256), g.face, g.bary, vis,
+                                      scene.camera.packed(), lights, env_maps=pre.maps, env_levels=pre.levels)
     hit = g.face >= 0
     normals = mesh.normals[mesh.faces[g.face[hit], 0]]
     assert np.abs(np.diff(normals, axis=0)).max() > 4 / 256  # several texels between neighbours: mip levels
@@ -128,7 +130,7 @@ def test_renders_against_the_exact_direct_lighting(shape):
             scene = wb.Scene(mesh, [material], wb.Camera(eye=(0, 1.5, 4.5), width=200, height=150), None, lights)
             g = backend.trace_primary(mesh, scene.camera)
             vis = backend.trace_shadows(mesh, g, scene.lights_packed)
-            exact = L.direct_reference(scene, g.face, g.bary, vis)
+            exact = shading.direct_reference(scene, g.face, g.bary, vis)
             mask = g.face >= 0
             got = wb.render(scene, method="litsphere", backend=backend, resolution=256, shadow_samples=1).image
             assert _psnr(got, exact, mask) >= 35, (material, len(lights))

@@ -243,8 +243,9 @@ def test_screenshot_of_a_measured_material_by_the_lit_sphere(tmp_path):
     from warp_biscale.measured import paint_like
 
     wb.MeasuredBRDF.from_brdf(paint_like()).save(tmp_path / "paint.binary")
+    analytic = 'type = "cooktorrance"\nks = 0.8\nroughness = 0.3\nkd = [0.3, 0.1, 0.05]'
     text = ANALYTIC.replace('backend = "warp:cpu"', 'backend = "warp:cpu"\nmethod = "litsphere"').replace(
-        'type = "cooktorrance"\nks = 0.8\nroughness = 0.3\nkd = [0.3, 0.1, 0.05]', 'type = "merl"\npath = "paint.binary"')
+        analytic, 'type = "merl"\npath = "paint.binary"')
     sf = loads_scene(text, path=str(tmp_path / "measured.toml"))
     assert isinstance(sf.scene.materials[0], wb.MeasuredBRDF)
     v = viewer.Viewer(sf, size=(128, 64), off_screen=True)

@@ -17,13 +17,16 @@ from .backend import backends, get_backend
 from .bake import bake
 from .brdf import Lambert, parse_brdf
 from .device import one_line
-from .effective import compare
+from .effective import EffectiveBRDF, compare
 from .geometry import BUILTIN_TILES, load_tile
 from .images import check_exposure
 from .io import atomic_path, check_output
+from .litsphere import LitSphere, check_angles, check_resolution
+from .loading import load
+from .measured import MeasuredBRDF
 from .montecarlo import missing_provenance
 from .progress import as_progress, set_quiet
-from .render import SHADOW_SAMPLES, check_aa
+from .render import SHADOW_SAMPLES, check_aa, material_ball
 from .trace import check_shadow_samples
 from .scenefile import load_scene
 from .truth import ground_truth
@@ -297,9 +300,25 @@ def cmd_demo(args):
     return 0
 
 
+def load_material(spec: str):
+    """A material from the command line: a lit-sphere folder, a MERL .binary file, a baked material file
+    (.wbm / .npz), or a --brdf spec such as blinnphong:exponent=50,ks=0.5,kd=0.3."""
+    if os.path.isdir(spec):
+        return LitSphere.load(spec)
+    if spec.lower().endswith(".binary"):
+        return MeasuredBRDF.load(spec)
+    if os.path.splitext(spec)[1].lower() in (".wbm", ".npz"):
+        material = load(spec)
+        if not isinstance(material, EffectiveBRDF):
+            raise ValueError(f"{spec} holds a {type(material).__name__}, not a baked material")
+        return material
+    if ":" not in spec and not spec.isalpha():
+        raise ValueError(f"material {spec!r} is neither a file nor a BRDF spec (e.g. blinnphong:exponent=50)")
+    return parse_brdf(spec)
+
+
 def cmd_ball(args):
     _check_output(args.output)
-    from .litsphere import check_angles, check_resolution, load_material, material_ball
 
     angles = check_angles(args.angles)
     resolution = check_resolution(args.resolution)
@@ -370,8 +389,8 @@ def _add_render_commands(sub):
     d.add_argument("-q", "--quiet", action="store_true", help="no progress, no bake summary")
     d.set_defaults(func=cmd_demo)
     a = sub.add_parser("ball", help="a material-ball thumbnail of any material (lit-sphere shader)",
-                       description="Render a sphere of MATERIAL under a key, a fill and a rim light with the lit-sphere "
-                                   "shader (seed 004), as a material library shows its entries.")
+                       description="Render a sphere of MATERIAL under a key, a fill and a rim light with the "
+                                   "lit-sphere shader (seed 004), as a material library shows its entries.")
     a.add_argument("material", help="a --brdf spec (e.g. blinnphong:exponent=50,ks=0.5,kd=0.3), a baked material "
                                     "(.wbm), a MERL file (.binary) or a lit-sphere folder")
     a.add_argument("-o", "--output", default="ball.png", help="image to write: .png, .exr or .hdr (default ball.png)")

@@ -540,7 +540,7 @@ class DeviceBackend:
     def shade_litsphere(self, mesh, spheres, camera_packed, lights_packed, env_maps, env_levels, view_mode=0,
                         shrink=1.0, to_host=True):
         """(P, 3) float32 lit-sphere radiance of every pixel of the G-buffer the last trace_primary /
-        trace_shadows left on the device for `mesh` (litsphere.render_reference): `spheres` a
+        trace_shadows left on the device for `mesh` (shading.litsphere_reference): `spheres` a
         litsphere.SpherePack (its device copies kept in spheres.device[self.name]), view_mode 0 the
         pixel's view direction, 1 the camera's axis (the paper's distant viewer); `shrink` scales the
         turned normal before the lookup (litsphere.SHRINK, the paper's 0.995, or 1); misses get the

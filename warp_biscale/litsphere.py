@@ -37,7 +37,7 @@ an interpolated normal at a silhouette), adds nothing, as the BRDF itself says �
 
 **Lights.** Each point or directional light adds E·s·image(…) with E its irradiance at the point and s
 its visible share from the shadow rays (`backend.trace_shadows`, as the SG renderer). The environment is
-`env_lights(environment, count)`: `count` directional lights over a Fibonacci sphere, each carrying the
+`render.environment_lights(environment, count)`: `count` directional lights over a Fibonacci sphere, each carrying the
 radiance of its cell (the prefiltered map at the cell's width) times the cell's solid angle, shadowed
 by rays as any light.
 """
@@ -56,8 +56,7 @@ from . import images as images_mod
 from .brdf import Brdf, Lambert
 from .effective import EffectiveBRDF
 
-__all__ = ["LitSphere", "PAPER_ANGLES", "METAL_ANGLES", "reference_shade", "env_lights", "pack_spheres", "material_ball",
-           "load_material"]
+__all__ = ["LitSphere", "PAPER_ANGLES", "METAL_ANGLES", "reference_shade", "pack_spheres"]
 
 PAPER_ANGLES = (0.0, 45.0, 90.0, 135.0)  # the paper's set for plastics
 METAL_ANGLES = (0.0, 30.0, 60.0, 90.0, 120.0, 150.0)  # its set for metals and colour-shifting materials
@@ -524,127 +523,6 @@ def reference_shade(sphere: LitSphere, n, view, light, lod=None, shrink: float =
     return np.where(lit[:, None], np.maximum(out, 0.0), 0.0)
 
 
-def render_reference(mesh, spheres: list, face, bary, light_vis, camera_packed, lights_packed, view_mode: int = 0,
-                     env_maps=None, env_levels=None, shrink: float = 1.0) -> np.ndarray:
-    """(P, 3) float64 what the litsphere kernels compute for a G-buffer (face (P,), bary (P, 2),
-    light_vis (P, L) uint8 visible shares in 255ths): `spheres` one LitSphere per material; misses get the
-    environment's sharpest level along the camera ray (black without maps)."""
-    from .lighting import prefiltered_lookup
-    from .shading import surface_frames
-
-    face = np.asarray(face).reshape(-1)
-    cam = np.asarray(camera_packed, np.float64)
-    lights = np.asarray(lights_packed, np.float64).reshape(-1, 8)
-    width = int(cam[12])
-    out = np.zeros((len(face), 3))
-    hit = face >= 0
-    if (~hit).any() and env_maps is not None:
-        pix = np.flatnonzero(~hit)
-        x, y = pix % width, pix // width
-        d = (cam[3:6][None] + (2 * (x + 0.5) / width - 1)[:, None] * cam[6:9][None]
-             + (1 - 2 * (y + 0.5) / cam[13])[:, None] * cam[9:12][None])
-        out[pix] = prefiltered_lookup(env_maps, env_levels, d / np.linalg.norm(d, axis=1, keepdims=True), 1e30)
-    normals = np.zeros((len(face), 3))
-    pos = np.zeros((len(face), 3))
-    if hit.any():
-        vertices, vertex_normals = mesh.vertices.astype(np.float32), mesh.normals.astype(np.float32)  # as the kernels
-        sf = surface_frames(mesh.faces, vertices, vertex_normals, vertex_normals, face[hit],
-                            np.asarray(bary, np.float64)[hit], cam[0:3])
-        normals[hit], pos[hit] = sf["n"], sf["pos"]
-    step = np.zeros(len(face))
-    idx = np.arange(len(face))
-    for q, ok in ((idx + 1, idx % width + 1 < width), (idx + width, idx + width < len(face))):
-        q = np.where(ok, q, idx)
-        d = np.linalg.norm(normals[q] - normals, axis=1)
-        valid = ok & hit & (face[q] >= 0) & (d <= 0.5)
-        step = np.maximum(step, np.where(valid, d, 0.0))
-    for mat in np.unique(mesh.face_material[face[hit]]):
-        sel = np.flatnonzero(hit & (mesh.face_material[np.maximum(face, 0)] == mat))
-        sphere = spheres[mat]
-        n, p = normals[sel], pos[sel]
-        view = (np.broadcast_to(-cam[3:6] / np.linalg.norm(cam[3:6]), n.shape) if view_mode == 1 else
-                (cam[0:3][None] - p) / np.linalg.norm(cam[0:3][None] - p, axis=1, keepdims=True))
-        lod = np.log2(np.maximum(step[sel] * 0.5 * shrink * sphere.resolution, 1.0))
-        for li, row in enumerate(lights):
-            share = np.asarray(light_vis, np.float64).reshape(len(face), -1)[sel, li] / 255.0
-            if row[0] == 0:
-                light = np.broadcast_to(row[1:4], n.shape)
-                e = np.broadcast_to(row[4:7], n.shape)
-            else:
-                d = row[1:4][None] - p
-                r2 = np.maximum((d * d).sum(1), 1e-30)
-                light = d / np.sqrt(r2)[:, None]
-                e = row[4:7][None] / r2[:, None]
-            on = share > 0
-            if on.any():
-                c = reference_shade(sphere, n[on], view[on], light[on], lod[on], shrink)
-                out[sel[on]] += share[on, None] * e[on] * c
-    return np.maximum(np.nan_to_num(out, nan=0.0, posinf=0.0), 0.0)
-
-
-def direct_reference(scene, face, bary, light_vis, lights_packed=None) -> np.ndarray:
-    """(P, 3) float64 the exact direct lighting of `scene`'s own materials (analytic or baked; not
-    LitSpheres) for a G-buffer: Σ over lights of E·s·f(n, l, v)(n·l)⁺, each light an ideal one at its
-    disc's centre with its visible share s (light_vis / 255) — what a lit-sphere render of lights alone
-    approximates, so that the difference is the method's. Misses are 0."""
-    from .scene import vertex_tangents
-    from .shading import surface_frames
-
-    face = np.asarray(face).reshape(-1)
-    lights = np.asarray(scene.lights_packed if lights_packed is None else lights_packed, np.float64).reshape(-1, 8)
-    out = np.zeros((len(face), 3))
-    hit = np.flatnonzero(face >= 0)
-    if len(hit) == 0:
-        return out
-    mesh = scene.mesh
-    sf = surface_frames(mesh.faces, mesh.vertices, mesh.normals, vertex_tangents(mesh), face[hit],
-                        np.asarray(bary, np.float64)[hit], scene.camera.eye)
-    vis = np.asarray(light_vis, np.float64).reshape(len(face), -1)[hit] / 255.0
-    mats = mesh.face_material[face[hit]]
-    for mat in np.unique(mats):
-        sel = np.flatnonzero(mats == mat)
-        n, p, wo, t = sf["n"][sel], sf["pos"][sel], sf["wo"][sel], sf["t"][sel]
-        for li, row in enumerate(lights):
-            if row[0] == 0:
-                light, e = np.broadcast_to(row[1:4], n.shape), np.broadcast_to(row[4:7], n.shape)
-            else:
-                d = row[1:4][None] - p
-                r2 = np.maximum((d * d).sum(1), 1e-30)
-                light, e = d / np.sqrt(r2)[:, None], row[4:7][None] / r2[:, None]
-            f = material_response(scene.materials[mat], n, light, wo, tangent=t)
-            out[hit[sel]] += vis[sel, li][:, None] * e * f
-    return out
-
-
-# ---------------------------------------------------------------------------------------------
-# Lights for the shader
-
-
-def env_lights(environment, count: int = ENV_LIGHTS, backend="auto") -> list:
-    """`count` DirectionalLights standing for `environment`: directions on a Fibonacci sphere, each
-    carrying the environment's radiance averaged over its cell (the prefiltered map at a sharpness whose
-    lobe spans the cell) times the cell's solid angle 4π/count, with the disc of that solid angle."""
-    from . import lighting
-    from .scene import DirectionalLight
-
-    count = int(count)
-    if count < 2:
-        raise ValueError(f"env_lights count must be at least 2, got {count}")
-    k = np.arange(count) + 0.5
-    zc = 1 - 2 * k / count
-    r = np.sqrt(np.maximum(1 - zc * zc, 0.0))
-    ang = np.pi * (1 + 5**0.5) * k
-    dirs = np.stack([r * np.cos(ang), zc, r * np.sin(ang)], 1)
-    omega = 4 * np.pi / count
-    # an SG of sharpness η holds most of its mass within a cap of solid angle ≈ 2π/η
-    eta = 2 * np.pi / omega
-    light = lighting.prepare(environment, backend)
-    radiance = lighting.prefiltered_lookup(light.prefiltered.maps, light.prefiltered.levels, dirs, np.full(count, eta))
-    radius = np.degrees(np.arccos(1 - omega / (2 * np.pi)))
-    return [DirectionalLight(d, np.maximum(rad, 0.0) * omega, radius) for d, rad in zip(dirs, radiance)
-            if np.max(rad) > 0]
-
-
 # ---------------------------------------------------------------------------------------------
 # Packing for the kernels
 
@@ -691,46 +569,3 @@ def pack_spheres(spheres: list) -> SpherePack:
     return SpherePack(np.asarray(of_material, np.int32), np.asarray(info, np.int32).reshape(-1, 8),
                       np.asarray(angles, np.float32), np.asarray(level_rows, np.int32).reshape(-1, 2),
                       np.ascontiguousarray(np.concatenate(chunks), np.float32))
-
-
-# ---------------------------------------------------------------------------------------------
-# A material ball: the thumbnail a material library shows
-
-
-BALL_LIGHTS = (((-0.55, 0.65, 0.75), 2.4), ((0.85, 0.1, 0.5), 0.6), ((0.2, 0.6, -0.9), 1.2))  # key, fill, rim
-
-
-def material_ball(material, size: int = 256, backend="auto", resolution: int = RESOLUTION, angles=PAPER_ANGLES):
-    """A sphere of `material` (any the lit sphere takes, or a LitSphere) under a key, a fill and a rim light,
-    rendered by the lit-sphere shader, size × size pixels, 4 samples a pixel → Rendering."""
-    from .render import check_aa, render
-    from .scene import Camera, DirectionalLight, Mesh, Scene, _integer
-
-    size = _integer("ball size", size, 8, 8192)
-    check_aa(4)
-    sphere = Mesh.sphere(1.0, subdivisions=5)
-    camera = Camera(eye=(0.0, 0.0, 3.6), target=(0.0, 0.0, 0.0), fov=36.0, width=size, height=size)
-    lights = [DirectionalLight(d, e, 1.0) for d, e in BALL_LIGHTS]
-    return render(Scene(sphere, [material], camera, None, lights), method="litsphere", backend=backend, aa=4,
-                  shadow_samples=1, resolution=resolution, angles=angles)
-
-
-def load_material(spec: str):
-    """A material from the command line: a lit-sphere folder, a MERL .binary file, a baked material file
-    (.wbm / .npz), or a --brdf spec such as blinnphong:exponent=50,ks=0.5,kd=0.3."""
-    from .brdf import parse_brdf
-    from .loading import load
-    from .measured import MeasuredBRDF
-
-    if os.path.isdir(spec):
-        return LitSphere.load(spec)
-    if spec.lower().endswith(".binary"):
-        return MeasuredBRDF.load(spec)
-    if os.path.splitext(spec)[1].lower() in (".wbm", ".npz"):
-        material = load(spec)
-        if not isinstance(material, EffectiveBRDF):
-            raise ValueError(f"{spec} holds a {type(material).__name__}, not a baked material")
-        return material
-    if ":" not in spec and not spec.isalpha():
-        raise ValueError(f"material {spec!r} is neither a file nor a BRDF spec (e.g. blinnphong:exponent=50)")
-    return parse_brdf(spec)

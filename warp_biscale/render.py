@@ -32,9 +32,10 @@ from .scene import vertex_tangents
 from .shading import pack_materials
 from .trace import check_shadow_samples
 from .images import compare_images
-from .scene import Rendering, Scene, _black_environment, _integer
+from .scene import Camera, DirectionalLight, Mesh, Rendering, Scene, _black_environment, _integer
 
-__all__ = ["Scene", "Rendering", "render", "pack_frame", "METHODS"]
+__all__ = ["Scene", "Rendering", "render", "pack_frame", "METHODS", "environment_lights", "material_ball",
+           "litsphere_errors"]
 
 METHODS = ("sg", "mc", "litsphere")
 
@@ -290,7 +291,7 @@ def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str
         extra = env.device_cache.get(env_key)
         if extra is None:
             extra = env.device_cache[env_key] = np.array(
-                [lt.packed() for lt in litsphere.env_lights(env, env_lights, backend)], np.float32).reshape(-1, 8)
+                [lt.packed() for lt in environment_lights(env, env_lights, backend)], np.float32).reshape(-1, 8)
         lights = np.concatenate([np.asarray(lights, np.float32).reshape(-1, 8), extra])
     timings["lighting"] = time.perf_counter() - t0
     image = _accumulate(scene, backend, n_aa, n_shadow, lights, timings,
@@ -306,3 +307,40 @@ def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str
         refs = ("sg", "mc") if report_error is True else tuple(report_error)
         info["error"] = litsphere_errors(scene, image, backend, refs, samples)
     return Rendering(image, timings, info)
+
+
+def environment_lights(environment, count: int = litsphere.ENV_LIGHTS, backend="auto") -> list:
+    """`count` DirectionalLights standing for `environment`: directions on a Fibonacci sphere, each
+    carrying the environment's radiance averaged over its cell (the prefiltered map at a sharpness whose
+    lobe spans the cell) times the cell's solid angle 4π/count, with the disc of that solid angle."""
+    count = int(count)
+    if count < 2:
+        raise ValueError(f"environment_lights count must be at least 2, got {count}")
+    k = np.arange(count) + 0.5
+    zc = 1 - 2 * k / count
+    r = np.sqrt(np.maximum(1 - zc * zc, 0.0))
+    ang = np.pi * (1 + 5**0.5) * k
+    dirs = np.stack([r * np.cos(ang), zc, r * np.sin(ang)], 1)
+    omega = 4 * np.pi / count
+    # an SG of sharpness η holds most of its mass within a cap of solid angle ≈ 2π/η
+    eta = 2 * np.pi / omega
+    light = lighting.prepare(environment, backend)
+    radiance = lighting.prefiltered_lookup(light.prefiltered.maps, light.prefiltered.levels, dirs, np.full(count, eta))
+    radius = np.degrees(np.arccos(1 - omega / (2 * np.pi)))
+    return [DirectionalLight(d, np.maximum(rad, 0.0) * omega, radius) for d, rad in zip(dirs, radiance)
+            if np.max(rad) > 0]
+
+
+BALL_LIGHTS = (((-0.55, 0.65, 0.75), 2.4), ((0.85, 0.1, 0.5), 0.6), ((0.2, 0.6, -0.9), 1.2))  # key, fill, rim
+
+
+def material_ball(material, size: int = 256, backend="auto", resolution: int = litsphere.RESOLUTION,
+                  angles=litsphere.PAPER_ANGLES):
+    """A sphere of `material` (any the lit sphere takes, or a LitSphere) under a key, a fill and a rim light,
+    rendered by the lit-sphere shader, size × size pixels, 4 samples a pixel → Rendering."""
+    size = _integer("ball size", size, 8, 8192)
+    sphere = Mesh.sphere(1.0, subdivisions=5)
+    camera = Camera(eye=(0.0, 0.0, 3.6), target=(0.0, 0.0, 0.0), fov=36.0, width=size, height=size)
+    lights = [DirectionalLight(d, e, 1.0) for d, e in BALL_LIGHTS]
+    return render(Scene(sphere, [material], camera, None, lights), method="litsphere", backend=backend, aa=4,
+                  shadow_samples=1, resolution=resolution, angles=angles)

@@ -51,11 +51,11 @@ import numpy as np
 
 from . import brdf as brdf_mod
 from . import directions as dirs
-from . import sg, svbrdf
+from . import litsphere, sg, svbrdf
 from .effective import EffectiveBRDF
 from .model import Frame
 from .lighting import prefiltered_lookup
-from .scene import light_sg
+from .scene import light_sg, vertex_tangents
 from .environment import equirect_bilinear
 from .ssdf import ssdf_eval
 from .trace import VISIBLE
@@ -356,4 +356,94 @@ def shade_reference(frame: Frame) -> np.ndarray:
                 e = sg.integral(p_eta) * sg.table_lookup(table, 0, _dot(p_axis, ns), p_eta)
                 rad[sel] += amp * light_amp[sel, li] * (p_amp * e * light_vis[sel, li])[:, None]
     out[pix] = np.maximum(np.nan_to_num(rad, nan=0.0, posinf=0.0), 0.0)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# The lit-sphere stage's float64 oracle, and the exact direct lighting it approximates
+
+
+def litsphere_reference(mesh, spheres: list, face, bary, light_vis, camera_packed, lights_packed, view_mode: int = 0,
+                     env_maps=None, env_levels=None, shrink: float = 1.0) -> np.ndarray:
+    """(P, 3) float64 what the litsphere kernels compute (kernels/litsphere.py) for a G-buffer (face (P,), bary (P, 2),
+    light_vis (P, L) uint8 visible shares in 255ths): `spheres` one LitSphere per material; misses get the
+    environment's sharpest level along the camera ray (black without maps)."""
+    face = np.asarray(face).reshape(-1)
+    cam = np.asarray(camera_packed, np.float64)
+    lights = np.asarray(lights_packed, np.float64).reshape(-1, 8)
+    width = int(cam[12])
+    out = np.zeros((len(face), 3))
+    hit = face >= 0
+    if (~hit).any() and env_maps is not None:
+        pix = np.flatnonzero(~hit)
+        x, y = pix % width, pix // width
+        d = (cam[3:6][None] + (2 * (x + 0.5) / width - 1)[:, None] * cam[6:9][None]
+             + (1 - 2 * (y + 0.5) / cam[13])[:, None] * cam[9:12][None])
+        out[pix] = prefiltered_lookup(env_maps, env_levels, d / np.linalg.norm(d, axis=1, keepdims=True), 1e30)
+    normals = np.zeros((len(face), 3))
+    pos = np.zeros((len(face), 3))
+    if hit.any():
+        vertices, vertex_normals = mesh.vertices.astype(np.float32), mesh.normals.astype(np.float32)  # as the kernels
+        sf = surface_frames(mesh.faces, vertices, vertex_normals, vertex_normals, face[hit],
+                            np.asarray(bary, np.float64)[hit], cam[0:3])
+        normals[hit], pos[hit] = sf["n"], sf["pos"]
+    step = np.zeros(len(face))
+    idx = np.arange(len(face))
+    for q, ok in ((idx + 1, idx % width + 1 < width), (idx + width, idx + width < len(face))):
+        q = np.where(ok, q, idx)
+        d = np.linalg.norm(normals[q] - normals, axis=1)
+        valid = ok & hit & (face[q] >= 0) & (d <= 0.5)
+        step = np.maximum(step, np.where(valid, d, 0.0))
+    for mat in np.unique(mesh.face_material[face[hit]]):
+        sel = np.flatnonzero(hit & (mesh.face_material[np.maximum(face, 0)] == mat))
+        sphere = spheres[mat]
+        n, p = normals[sel], pos[sel]
+        view = (np.broadcast_to(-cam[3:6] / np.linalg.norm(cam[3:6]), n.shape) if view_mode == 1 else
+                (cam[0:3][None] - p) / np.linalg.norm(cam[0:3][None] - p, axis=1, keepdims=True))
+        lod = np.log2(np.maximum(step[sel] * 0.5 * shrink * sphere.resolution, 1.0))
+        for li, row in enumerate(lights):
+            share = np.asarray(light_vis, np.float64).reshape(len(face), -1)[sel, li] / 255.0
+            if row[0] == 0:
+                light = np.broadcast_to(row[1:4], n.shape)
+                e = np.broadcast_to(row[4:7], n.shape)
+            else:
+                d = row[1:4][None] - p
+                r2 = np.maximum((d * d).sum(1), 1e-30)
+                light = d / np.sqrt(r2)[:, None]
+                e = row[4:7][None] / r2[:, None]
+            on = share > 0
+            if on.any():
+                c = litsphere.reference_shade(sphere, n[on], view[on], light[on], lod[on], shrink)
+                out[sel[on]] += share[on, None] * e[on] * c
+    return np.maximum(np.nan_to_num(out, nan=0.0, posinf=0.0), 0.0)
+
+
+def direct_reference(scene, face, bary, light_vis, lights_packed=None) -> np.ndarray:
+    """(P, 3) float64 the exact direct lighting of `scene`'s own materials (analytic or baked; not
+    LitSpheres) for a G-buffer: Σ over lights of E·s·f(n, l, v)(n·l)⁺, each light an ideal one at its
+    disc's centre with its visible share s (light_vis / 255) — what a lit-sphere render of lights alone
+    approximates, so that the difference is the method's. Misses are 0."""
+    face = np.asarray(face).reshape(-1)
+    lights = np.asarray(scene.lights_packed if lights_packed is None else lights_packed, np.float64).reshape(-1, 8)
+    out = np.zeros((len(face), 3))
+    hit = np.flatnonzero(face >= 0)
+    if len(hit) == 0:
+        return out
+    mesh = scene.mesh
+    sf = surface_frames(mesh.faces, mesh.vertices, mesh.normals, vertex_tangents(mesh), face[hit],
+                        np.asarray(bary, np.float64)[hit], scene.camera.eye)
+    vis = np.asarray(light_vis, np.float64).reshape(len(face), -1)[hit] / 255.0
+    mats = mesh.face_material[face[hit]]
+    for mat in np.unique(mats):
+        sel = np.flatnonzero(mats == mat)
+        n, p, wo, t = sf["n"][sel], sf["pos"][sel], sf["wo"][sel], sf["t"][sel]
+        for li, row in enumerate(lights):
+            if row[0] == 0:
+                light, e = np.broadcast_to(row[1:4], n.shape), np.broadcast_to(row[4:7], n.shape)
+            else:
+                d = row[1:4][None] - p
+                r2 = np.maximum((d * d).sum(1), 1e-30)
+                light, e = d / np.sqrt(r2)[:, None], row[4:7][None] / r2[:, None]
+            f = litsphere.material_response(scene.materials[mat], n, light, wo, tangent=t)
+            out[hit[sel]] += vis[sel, li][:, None] * e * f
     return out
