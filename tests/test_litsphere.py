@@ -153,15 +153,23 @@ def test_agrees_with_the_monte_carlo_reference():
     assert _psnr(got, mc, mask) > 30
 
 
-def test_tolerance_picks_the_fewest_angles_that_meet_it():
+def test_tolerance_picks_the_fewest_angles_then_the_smallest_resolution():
     material = wb.CookTorrance(ks=0.6, roughness=0.1, kd=0.3)
-    sphere = L.LitSphere.from_material(material, resolution=64, tolerance=0.05)
-    count = len(sphere.angles)
-    assert sphere.interpolation_error() <= 0.05
+    sphere = L.LitSphere.from_material(material, resolution=128, tolerance=0.05)
+    count, res = len(sphere.angles), sphere.resolution
+    assert sphere.chosen["resolution"] == res and sphere.interpolation_error(resolution=128) <= 0.05
     np.testing.assert_allclose(sphere.angles, L.even_angles(count))
-    fewer = L.TOLERANCE_COUNTS[L.TOLERANCE_COUNTS.index(count) - 1] if count != L.TOLERANCE_COUNTS[0] else None
-    if fewer is not None:
-        assert L.LitSphere.from_material(material, L.even_angles(fewer), 64).interpolation_error() > 0.05
+    if count != L.TOLERANCE_COUNTS[0]:  # one angle fewer misses it
+        fewer = L.TOLERANCE_COUNTS[L.TOLERANCE_COUNTS.index(count) - 1]
+        assert L.LitSphere.from_material(material, L.even_angles(fewer), 128).interpolation_error() > 0.05
+    if res >= 64:  # half the resolution misses it
+        half = L.LitSphere.from_material(material, L.even_angles(count), res // 2)
+        assert half.interpolation_error(resolution=128) > 0.05
+    # a sharp lobe needs the texels: a tighter tolerance keeps a larger resolution
+    sharp = wb.BlinnPhong(0.5, 200, kd=0.2, normalization="energy")
+    loose = L.LitSphere.from_material(sharp, resolution=128, tolerance=0.2)
+    tight = L.LitSphere.from_material(sharp, resolution=128, tolerance=0.06)
+    assert tight.resolution >= loose.resolution and len(tight.angles) >= len(loose.angles)
     with pytest.raises(ValueError, match="no light-angle count"):
         L.LitSphere.from_material(wb.BlinnPhong(0.5, 5000, normalization="energy"), resolution=32, tolerance=1e-4)
 

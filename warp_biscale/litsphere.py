@@ -264,10 +264,13 @@ class LitSphere:
     @classmethod
     def from_material(cls, material, angles=PAPER_ANGLES, resolution: int = RESOLUTION, tolerance=None,
                       name: str = "") -> LitSphere:
-        """The lit sphere of an analytic `Brdf` or a baked `EffectiveBRDF`, its texels the material's exact
-        response (module docstring). With `tolerance` (a relative RMS error, e.g. 0.02) the angle
-        count is chosen: the fewest n of TOLERANCE_COUNTS (n angles evenly over [0°, 180°)) whose
-        `interpolation_error` is at most `tolerance`, and `angles` is ignored; if none does, ValueError."""
+        """The lit sphere of an analytic `Brdf` (a `MeasuredBRDF` too) or a baked `EffectiveBRDF`, its texels the
+        material's exact response (module docstring). With `tolerance` (a relative RMS error, e.g. 0.02)
+        the angles and the resolution are chosen, `angles` ignored and `resolution` the largest allowed:
+        the fewest n of TOLERANCE_COUNTS (n angles evenly over [0°, 180°)) whose `interpolation_error` at
+        `resolution` is at most `tolerance`, then the smallest resolution (halving, down to 32) whose
+        error, measured on the `resolution` grid, still is; ValueError if no count meets it. The choice
+        is in the result's `chosen` dict (tolerance, error, resolution, what was tried)."""
         resolution = check_resolution(resolution)
         if not isinstance(material, (Brdf, EffectiveBRDF)) or isinstance(material, LitSphere):
             raise ValueError(f"LitSphere.from_material takes an analytic Brdf or an EffectiveBRDF, got {material!r}")
@@ -279,12 +282,22 @@ class LitSphere:
             for count in TOLERANCE_COUNTS:
                 sphere = cls.from_material(material, even_angles(count), resolution, name=name)
                 err = sphere.interpolation_error()
-                tried.append(f"{count}: {err:.4f}")
+                tried.append(f"{count} angles at {resolution}: {err:.4f}")
                 if err <= tol:
-                    sphere.chosen = {"tolerance": tol, "error": err, "tried": tried}
-                    return sphere
-            raise ValueError(f"no light-angle count up to {TOLERANCE_COUNTS[-1]} meets tolerance {tol} for "
-                             f"{material!r} at resolution {resolution} (count: error {', '.join(tried)})")
+                    break
+            else:
+                raise ValueError(f"no light-angle count up to {TOLERANCE_COUNTS[-1]} meets tolerance {tol} for "
+                                 f"{material!r} at resolution {resolution} ({', '.join(tried)})")
+            res = resolution // 2
+            while res >= 32:
+                smaller = cls.from_material(material, sphere.angles, res, name=name)
+                err_small = smaller.interpolation_error(resolution=resolution)
+                tried.append(f"{len(sphere.angles)} angles at {res}: {err_small:.4f}")
+                if err_small > tol:
+                    break
+                sphere, err, res = smaller, err_small, res // 2
+            sphere.chosen = {"tolerance": tol, "error": err, "resolution": sphere.resolution, "tried": tried}
+            return sphere
         angles = check_angles(angles)
         imgs = np.stack([sphere_image(material, phi, resolution) for phi in angles])
         diffuse = diffuse_part(material)
