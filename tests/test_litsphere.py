@@ -303,3 +303,18 @@ def test_a_render_reports_its_error_against_the_exact_renders():
     with pytest.raises(ValueError, match="no source material"):
         wb.render(dataclasses.replace(scene, materials=[loaded], cache={}), method="litsphere", backend="warp:cpu",
                   report_error=["sg"])
+
+
+def test_unshadowed_frame_sees_every_light_whole(backend):
+    """shadows=False (the paper's frame): no shadow rays, every light's share 255 — the reference with
+    light_vis all 255; the floor under the sphere is then lit where the shadowed render is dark."""
+    scene = _two_material_scene([wb.DirectionalLight((0.5, 1, 0.6), 2.0)], width=64, height=48)
+    open_ = wb.render(scene, method="litsphere", backend=backend, resolution=64, shadows=False)
+    shadowed = wb.render(scene, method="litsphere", backend=backend, resolution=64, shadow_samples=1)
+    g = wb.get_backend(backend).trace_primary(scene.mesh, scene.camera)
+    vis = np.full((len(g.face), 1), 255, np.uint8)
+    ref = shading.litsphere_reference(scene.mesh, scene_spheres(scene, resolution=64), g.face, g.bary, vis,
+                                      scene.camera.packed(), scene.lights_packed)
+    np.testing.assert_allclose(open_.image.reshape(-1, 3), ref, atol=2e-4 * ref.max())
+    assert "shadows" not in open_.timings and (open_.image >= shadowed.image - 1e-6).all()
+    assert (open_.image > shadowed.image + 0.05).any()

@@ -538,19 +538,20 @@ class DeviceBackend:
         return self._to_host(out, n, "vec3") if to_host else None
 
     def shade_litsphere(self, mesh, spheres, camera_packed, lights_packed, env_maps, env_levels, view_mode=0,
-                        shrink=1.0, to_host=True):
+                        shrink=1.0, shadowed=True, to_host=True):
         """(P, 3) float32 lit-sphere radiance of every pixel of the G-buffer the last trace_primary /
         trace_shadows left on the device for `mesh` (shading.litsphere_reference): `spheres` a
         litsphere.SpherePack (its device copies kept in spheres.device[self.name]), view_mode 0 the
         pixel's view direction, 1 the camera's axis (the paper's distant viewer); `shrink` scales the
         turned normal before the lookup (litsphere.SHRINK, the paper's 0.995, or 1); misses get the
-        environment (env_maps, env_levels: lighting.PrefilteredEnvironment) along the camera ray."""
+        environment (env_maps, env_levels: lighting.PrefilteredEnvironment) along the camera ray. With
+        shadowed=False every light is seen whole (no shadow rays needed: the paper's frame)."""
         m = self._trace_mesh(mesh)
         lights = np.asarray(lights_packed, np.float32).reshape(-1, 8)
         if "gbuffer_face" not in m:
             raise ValueError("no G-buffer on the device for this mesh: call trace_primary first")
         face, bary, n = m["gbuffer_face"], m["gbuffer_bary"], m["gbuffer_size"]
-        if len(lights) and m.get("gbuffer_light_vis/spec") != ((n, len(lights)), "u8"):
+        if shadowed and len(lights) and m.get("gbuffer_light_vis/spec") != ((n, len(lights)), "u8"):
             raise ValueError("no shadow rays on the device for these lights: call trace_shadows first")
         if int(np.max(mesh.face_material, initial=0)) >= len(spheres.sphere_of_material):
             raise ValueError(f"the mesh uses material {int(mesh.face_material.max())} of "
@@ -565,7 +566,15 @@ class DeviceBackend:
                                                      for a, b in zip(m["litsphere_env_host"], env)):
             m["litsphere_env_host"] = env
             m["litsphere_env"] = (self._to_device(env[0], "vec3"), self._to_device(env[1], "f32"))
-        vis = m.get("gbuffer_light_vis") if len(lights) else self._reuse(m, "no_light_vis", (1, 1), "u8")
+        if not len(lights):
+            vis = self._reuse(m, "no_light_vis", (1, 1), "u8")
+        elif shadowed:
+            vis = m["gbuffer_light_vis"]
+        else:
+            if m.get("all_visible/spec") != ((n, len(lights)), "u8"):
+                m["all_visible"] = self._to_device(np.full((n, len(lights)), 255, np.uint8), "u8")
+                m["all_visible/spec"] = ((n, len(lights)), "u8")
+            vis = m["all_visible"]
         out = self._reuse(m, "radiance", n, "vec3")
         if n:
             self._launch_shade_litsphere(dev, m, face, bary, vis, lights, np.asarray(camera_packed, np.float32),

@@ -145,7 +145,8 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     the lit-sphere shader (seed 004, `warp_biscale.litsphere`), each material a `LitSphere` (any other made
     into one, options `angles`, `resolution`), options `view` ("pixel": each pixel's own view direction;
     "camera": the paper's distant viewer), `shrink` (the turned normal's scale before the lookup: 1, or the
-    paper's litsphere.SHRINK), `env_lights` (directional lights standing for the environment) and
+    paper's litsphere.SHRINK), `env_lights` (directional lights standing for the environment), `shadows`
+    (False: every light seen whole, no shadow rays — the paper's frame) and
     `report_error` (True, or references among "sg", "mc": info["error"] then holds `litsphere_errors`,
     the Monte Carlo one at `samples` a pixel), with `aa` and `shadow_samples` as "sg"."""
     if method not in METHODS:
@@ -192,7 +193,7 @@ def check_no_litspheres(scene: Scene, method: str) -> None:
 
 def _accumulate(scene: Scene, backend, n_aa: int, n_shadow: int, lights, timings: dict, shade):
     """The (H, W, 3) image: per anti-aliasing sample (`aa_offsets`) the G-buffer, the shadow rays of
-    `lights`, then `shade(camera)` → (P, 3), averaged with a box filter."""
+    `lights` (n_shadow a light; none when 0), then `shade(camera)` → (P, 3), averaged with a box filter."""
     cam = scene.camera
     image = None
     for jx, jy in aa_offsets(n_aa):
@@ -202,7 +203,7 @@ def _accumulate(scene: Scene, backend, n_aa: int, n_shadow: int, lights, timings
         backend.synchronize()
         timings["gbuffer"] += time.perf_counter() - t0
         t0 = time.perf_counter()
-        if len(lights):
+        if len(lights) and n_shadow:
             backend.trace_shadows(scene.mesh, None, lights, to_host=False, samples=n_shadow)
             backend.synchronize()
             timings["shadows"] = timings.get("shadows", 0.0) + time.perf_counter() - t0
@@ -264,7 +265,7 @@ def litsphere_errors(scene: Scene, image, backend="auto", references=("sg", "mc"
 def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str = "pixel",
                       env_lights: int = litsphere.ENV_LIGHTS, angles=litsphere.PAPER_ANGLES,
                       resolution: int = litsphere.RESOLUTION, shrink: float = 1.0, report_error=None,
-                      samples: int = 64) -> Rendering:
+                      samples: int = 64, shadows: bool = True) -> Rendering:
     if view not in VIEWS:
         raise ValueError(f"view must be one of {sorted(VIEWS)}, got {view!r}")
     if isinstance(shrink, bool) or not isinstance(shrink, (int, float)) or not (0.5 <= shrink <= 1):
@@ -294,12 +295,15 @@ def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str
                 [lt.packed() for lt in environment_lights(env, env_lights, backend)], np.float32).reshape(-1, 8)
         lights = np.concatenate([np.asarray(lights, np.float32).reshape(-1, 8), extra])
     timings["lighting"] = time.perf_counter() - t0
-    image = _accumulate(scene, backend, n_aa, n_shadow, lights, timings,
+    if not isinstance(shadows, bool):
+        raise ValueError(f"shadows must be True or False, got {shadows!r}")
+    image = _accumulate(scene, backend, n_aa, n_shadow if shadows else 0, lights, timings,
                         lambda cam: backend.shade_litsphere(scene.mesh, pack, cam.packed(), lights, maps, levels,
-                                                            VIEWS[view], shrink))
+                                                            VIEWS[view], shrink, shadowed=shadows))
     timings["total"] = time.perf_counter() - t_all
     cam = scene.camera
     info = {"backend": backend.name, "device": backend.device, "method": "litsphere", "view": view, "shrink": shrink,
+            "shadows": shadows,
             "lights": len(lights), "env_lights": len(lights) - len(scene.lights_packed), "width": cam.width,
             "height": cam.height, "aa": n_aa, "shadow_samples": n_shadow,
             "texture_bytes": int(sum(s.nbytes for s in {id(s): s for s in spheres}.values()))}
