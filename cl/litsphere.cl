@@ -11,8 +11,8 @@
  * Built after cl/shade.cl (OpenCLBackend's program sources), whose camera_ray, prefiltered and
  * ifloor_pos it calls, as the Warp twin imports them from kernels/shade.py.
  *
- * Layouts (no float3 in global memory): positions, normals, env_maps and the output are float arrays
- * of stride 3, texels half of stride 3 (read by vload_half3: no fp16 extension needed); bary stride 2; light_vis (P, L) uchar; lights (L, 8); faces (F, 3);
+ * Layouts (no float3 in global memory): positions, normals, texels, env_maps and the output are
+ * float arrays of stride 3; bary stride 2; light_vis (P, L) uchar; lights (L, 8); faces (F, 3);
  * sphere_info (S, 8) int; level_info (rows, 2) int [texel offset, size]; env_levels (n_levels, 4).
  */
 
@@ -41,7 +41,7 @@ CL_INLINE float normal_step(__global const int *face, __global const float *bary
 }
 
 /* Bilinear lookup at (u, v) ∈ [0, 1]², v up, of a size² level stored row-major from the top; clamped. */
-CL_INLINE float3 bilinear(__global const half *texels, int offset, int size, float u, float v)
+CL_INLINE float3 bilinear(__global const float *texels, int offset, int size, float u, float v)
 {
     float fs = (float)size;
     float fx = clampf(u * fs - 0.5f, 0.0f, fs - 1.0f);
@@ -52,12 +52,12 @@ CL_INLINE float3 bilinear(__global const half *texels, int offset, int size, flo
     float ay = fy - (float)y0;
     int r0 = offset + y0 * size + x0;
     int r1 = r0 + size;
-    return ((1.0f - ay) * ((1.0f - ax) * vload_half3(r0, texels) + ax * vload_half3(r0 + 1, texels))
-            + ay * ((1.0f - ax) * vload_half3(r1, texels) + ax * vload_half3(r1 + 1, texels)));
+    return ((1.0f - ay) * ((1.0f - ax) * load3(texels, r0) + ax * load3(texels, r0 + 1))
+            + ay * ((1.0f - ax) * load3(texels, r1) + ax * load3(texels, r1 + 1)));
 }
 
 /* Image `row`'s pyramid (its level 0 at level_info[row]) read at mip level `lod`. */
-CL_INLINE float3 trilinear(__global const half *texels, __global const int *level_info, int row, int n_levels,
+CL_INLINE float3 trilinear(__global const float *texels, __global const int *level_info, int row, int n_levels,
                            float u, float v, float lod)
 {
     float t = clampf(lod, 0.0f, (float)(n_levels - 1));
@@ -89,7 +89,7 @@ CL_INLINE float2 rim_point(float rx, float ry, float rz, float phi_i)
 /* Radiance per unit irradiance of normal n seen from `view`, lit from `light`: litsphere.reference_shade. */
 CL_INLINE float3 sphere_lookup(float3 n, float3 view, float3 light, float lod, float shrink, int s,
                                __global const int *sphere_info, __global const float *angles,
-                               __global const int *level_info, __global const half *texels)
+                               __global const int *level_info, __global const float *texels)
 {
     float3 z = view;
     float3 x = light - dot3(light, z) * z;
@@ -171,7 +171,7 @@ __kernel void shade_litsphere(
     const float shrink,                   /* the turned normal's scale before the lookup (1 or litsphere.SHRINK) */
     __global const float *env_maps, const int n_levels, __global const float *env_levels,
     __global const int *sphere_of_material, __global const int *sphere_info, /* (Mat,), (S, 8) */
-    __global const float *angles, __global const int *level_info, __global const half *texels,
+    __global const float *angles, __global const int *level_info, __global const float *texels,
     const int n_pixels,
     __global float *radiance)             /* (P, 3) */
 {

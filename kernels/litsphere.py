@@ -38,9 +38,8 @@ def normal_step(face: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec2), f
 
 
 @wp.func
-def bilinear(texels: wp.array(dtype=wp.vec3h), offset: int, size: int, u: float, v: float) -> wp.vec3:
-    """Bilinear lookup at (u, v) ∈ [0, 1]², v up, of a size² level stored row-major from the top (float16
-    texels); clamped."""
+def bilinear(texels: wp.array(dtype=wp.vec3), offset: int, size: int, u: float, v: float) -> wp.vec3:
+    """Bilinear lookup at (u, v) ∈ [0, 1]², v up, of a size² level stored row-major from the top; clamped."""
     fs = float(size)
     fx = wp.clamp(u * fs - 0.5, 0.0, fs - 1.0)
     fy = wp.clamp((1.0 - v) * fs - 0.5, 0.0, fs - 1.0)
@@ -50,12 +49,12 @@ def bilinear(texels: wp.array(dtype=wp.vec3h), offset: int, size: int, u: float,
     ay = fy - float(y0)
     r0 = offset + y0 * size + x0
     r1 = r0 + size
-    return ((1.0 - ay) * ((1.0 - ax) * wp.vec3(texels[r0]) + ax * wp.vec3(texels[r0 + 1]))
-            + ay * ((1.0 - ax) * wp.vec3(texels[r1]) + ax * wp.vec3(texels[r1 + 1])))
+    return ((1.0 - ay) * ((1.0 - ax) * texels[r0] + ax * texels[r0 + 1])
+            + ay * ((1.0 - ax) * texels[r1] + ax * texels[r1 + 1]))
 
 
 @wp.func
-def trilinear(texels: wp.array(dtype=wp.vec3h), level_info: wp.array2d(dtype=wp.int32), row: int, n_levels: int,
+def trilinear(texels: wp.array(dtype=wp.vec3), level_info: wp.array2d(dtype=wp.int32), row: int, n_levels: int,
               u: float, v: float, lod: float) -> wp.vec3:
     """Image `row`'s pyramid (its level 0 at level_info[row]) read at mip level `lod`."""
     t = wp.clamp(lod, 0.0, float(n_levels - 1))
@@ -87,7 +86,7 @@ def rim_point(rx: float, ry: float, rz: float, phi_i: float) -> wp.vec2:
 @wp.func
 def sphere_lookup(n: wp.vec3, view: wp.vec3, light: wp.vec3, lod: float, shrink: float, s: int,
                   sphere_info: wp.array2d(dtype=wp.int32), angles: wp.array(dtype=wp.float32),
-                  level_info: wp.array2d(dtype=wp.int32), texels: wp.array(dtype=wp.vec3h)) -> wp.vec3:
+                  level_info: wp.array2d(dtype=wp.int32), texels: wp.array(dtype=wp.vec3)) -> wp.vec3:
     """Radiance per unit irradiance of normal n seen from `view`, lit from `light`: litsphere.reference_shade."""
     z = view
     x = light - wp.dot(light, z) * z
@@ -162,7 +161,7 @@ def shade_litsphere(
     n_lights: int, lights: wp.array2d(dtype=wp.float32), view_mode: int, shrink: float,
     env_maps: wp.array(dtype=wp.vec3), env_levels: wp.array2d(dtype=wp.float32),
     sphere_of_material: wp.array(dtype=wp.int32), sphere_info: wp.array2d(dtype=wp.int32),
-    angles: wp.array(dtype=wp.float32), level_info: wp.array2d(dtype=wp.int32), texels: wp.array(dtype=wp.vec3h),
+    angles: wp.array(dtype=wp.float32), level_info: wp.array2d(dtype=wp.int32), texels: wp.array(dtype=wp.vec3),
     n_pixels: int, offset: int,
     radiance: wp.array(dtype=wp.vec3),
 ):

@@ -178,21 +178,16 @@ def check_resolution(resolution) -> int:
     return int(resolution)
 
 
-HALF_MAX = 65504.0  # the largest float16: a texel above it (a mirror-like lobe's peak) is clamped there
-
-
 def mip_levels(image: np.ndarray) -> list:
     """[level 0 = image, then 2×2 box averages] down to MIN_LEVEL_RES (an odd size drops its last row and
-    column before averaging), each as the shader holds it: float16 (half the memory and the texel
-    traffic of float32, which bounds the shading's speed; a relative rounding of 2^−11, 66 dB below the
-    peak), values clamped to HALF_MAX."""
-    full = [np.asarray(image, np.float64)]
-    while full[-1].shape[0] // 2 >= MIN_LEVEL_RES:
-        a = full[-1]
+    column before averaging)."""
+    levels = [np.asarray(image, np.float32)]
+    while levels[-1].shape[0] // 2 >= MIN_LEVEL_RES:
+        a = levels[-1]
         h = a.shape[0] // 2 * 2
-        a = a[:h, :h]
-        full.append((a[0::2, 0::2] + a[1::2, 0::2] + a[0::2, 1::2] + a[1::2, 1::2]) / 4)
-    return [np.minimum(level, HALF_MAX).astype(np.float16) for level in full]
+        a = a[:h, :h].astype(np.float64)
+        levels.append(((a[0::2, 0::2] + a[1::2, 0::2] + a[0::2, 1::2] + a[1::2, 1::2]) / 4).astype(np.float32))
+    return levels
 
 
 # ---------------------------------------------------------------------------------------------
@@ -256,7 +251,7 @@ class LitSphere:
 
     @property
     def nbytes(self) -> int:
-        """Bytes of the textures as the shader holds them (float16 RGB, every mip level of every part)."""
+        """Bytes of the textures as the shader holds them (float32 RGB, every mip level of every part)."""
         return int(sum(level.nbytes for part in self.levels for pyramid in part for level in pyramid))
 
     @property
@@ -552,7 +547,7 @@ class SpherePack:
     count Lv, part count P (2: a diffuse part turned exactly, then the rest turned by k; 1: the images,
     turned by k), 0, 0, 0]; ``angles`` (ΣA,) float32 radians; ``level_info`` (Σ P·A·Lv, 2) int32 [texel
     offset, size], part p's image a at level l in row first level row + (p·A + a)·Lv + l; ``texels``
-    (T, 3) float16, each level row-major, row 0 at the top."""
+    (T, 3) float32, each level row-major, row 0 at the top."""
 
     sphere_of_material: np.ndarray
     sphere_info: np.ndarray
@@ -586,4 +581,4 @@ def pack_spheres(spheres: list) -> SpherePack:
                     offset += level.shape[0] * level.shape[1]
     return SpherePack(np.asarray(of_material, np.int32), np.asarray(info, np.int32).reshape(-1, 8),
                       np.asarray(angles, np.float32), np.asarray(level_rows, np.int32).reshape(-1, 2),
-                      np.ascontiguousarray(np.concatenate(chunks), np.float16))
+                      np.ascontiguousarray(np.concatenate(chunks), np.float32))

@@ -726,7 +726,7 @@ class OpenCLBackend(DeviceBackend):
     def _upload_spheres(self, spheres):
         return {"of_material": self._buffer(spheres.sphere_of_material, np.int32),
                 **{key: self._buffer(getattr(spheres, key), np.int32) for key in ("sphere_info", "level_info")},
-                "angles": self._buffer(spheres.angles, np.float32), "texels": self._buffer(spheres.texels, np.float16)}
+                **{key: self._buffer(getattr(spheres, key), np.float32) for key in ("angles", "texels")}}
 
     def _launch_shade_litsphere(self, dev, m, face, bary, vis, lights, camera, view_mode, shrink, env_maps, env_levels,
                                 n, out):

@@ -663,7 +663,7 @@ class WarpBackend(DeviceBackend):
                 "info": wp.array(np.ascontiguousarray(spheres.sphere_info), dtype=wp.int32, device=self._device),
                 "angles": self._array(spheres.angles, wp.float32),
                 "levels": wp.array(np.ascontiguousarray(spheres.level_info), dtype=wp.int32, device=self._device),
-                "texels": self._array(spheres.texels, wp.vec3h)}
+                "texels": self._array(spheres.texels, wp.vec3)}
 
     def _launch_shade_litsphere(self, dev, m, face, bary, vis, lights, camera, view_mode, shrink, env_maps, env_levels,
                                 n, out):
