@@ -13,7 +13,7 @@
  *
  * Layouts (no float3 in global memory): positions, normals, texels, env_maps and the output are
  * float arrays of stride 3; bary stride 2; light_vis (P, L) uchar; lights (L, 8); faces (F, 3);
- * sphere_info (S, 8) int; level_info (rows, 2) int [texel offset, size]; env_levels (n_levels, 4).
+ * sphere_info (S, 8) int; angles (ΣA, 3) [φ, cos φ, sin φ]; level_info (rows, 2) int [texel offset, size]; env_levels (n_levels, 4).
  */
 
 #define K_OUTSIDE 0.75f  /* = litsphere.K_OUTSIDE */
@@ -86,16 +86,20 @@ CL_INLINE float2 rim_point(float rx, float ry, float rz, float phi_i)
     return (float2)(c * sin(phi_i) - s * sin_b * cos(phi_i), s * cos_b);
 }
 
-/* Radiance per unit irradiance of normal n seen from `view`, lit from `light`: litsphere.reference_shade. */
+/* Radiance per unit irradiance of normal n seen from `view`, lit from `light`: litsphere.reference_shade.
+ * The shading is bound by its arithmetic, so the half angle, sin αh and the diffuse share's turn come from
+ * cos φ, sin φ and each image's (cos φi, sin φi) by identities instead of trigonometric calls. */
 CL_INLINE float3 sphere_lookup(float3 n, float3 view, float3 light, float lod, float shrink, int s,
                                __global const int *sphere_info, __global const float *angles,
                                __global const int *level_info, __global const float *texels)
 {
     float3 z = view;
     float3 x = light - dot3(light, z) * z;
+    float cos_phi = dot3(light, z);
+    float sin_phi = sqrt(dot3(x, x));
     /* (atan2 of the across and along parts: exact where l is near ±v, where acos loses float32 digits) */
-    float phi = atan2(sqrt(dot3(x, x)), dot3(light, z));
-    if (sqrt(dot3(x, x)) <= 1.0e-6f) { /* the light along the view axis: any x (the images are symmetric about it) */
+    float phi = atan2(sin_phi, cos_phi);
+    if (sin_phi <= 1.0e-6f) { /* the light along the view axis: any x (the images are symmetric about it) */
         float3 ref = (float3)(0.0f, 1.0f, 0.0f);
         if (absf(z.x) < 0.9f)
             ref = (float3)(1.0f, 0.0f, 0.0f);
@@ -106,13 +110,15 @@ CL_INLINE float3 sphere_lookup(float3 n, float3 view, float3 light, float lod, f
     float nx = dot3(n, x);
     float ny = dot3(n, y);
     float nz = dot3(n, z);
-    float hx = sin(0.5f * phi);
-    float hz = cos(0.5f * phi);
+    float hx = sqrt(maxf(0.5f * (1.0f - cos_phi), 0.0f)); /* sin φ/2 */
+    float hz = sqrt(maxf(0.5f * (1.0f + cos_phi), 0.0f)); /* cos φ/2 */
     float proj = sqrt(nx * nx + nz * nz);
     float cos_ah = 0.0f;
     if (proj > 1.0e-12f)
-        cos_ah = (hx * nx + hz * nz) / proj;
-    float alpha_h = minf(acos(clampf(cos_ah, -1.0f, 1.0f)), 0.5f * 3.14159265358979f);
+        cos_ah = minf((hx * nx + hz * nz) / proj, 1.0f);
+    float sin_ah = 1.0f; /* αh = min(∠, π/2): sin αh = 1 past a right angle */
+    if (cos_ah > 0.0f)
+        sin_ah = sqrt(1.0f - cos_ah * cos_ah);
     __global const int *info = sphere_info + 8 * s;
     int first = info[0];
     int count = info[1];
@@ -121,31 +127,36 @@ CL_INLINE float3 sphere_lookup(float3 n, float3 view, float3 light, float lod, f
     int n_parts = info[4];
     /* the bracket: angles[i2 − 1] < φ ≤ angles[i2]; outside the angles, the nearest image alone */
     int i2 = 0;
-    while (i2 < count && angles[first + i2] < phi)
+    while (i2 < count && angles[3 * (first + i2)] < phi)
         i2 += 1;
     int i1 = i2 - 1;
     float t = 0.0f;
-    float k_glossy = 0.5f + 0.5f * sin(alpha_h);
+    float k_glossy = 0.5f + 0.5f * sin_ah;
     if (i2 == 0 || i2 >= count) {
         i1 = i2 == 0 ? 0 : count - 1;
         i2 = i1;
         k_glossy = K_OUTSIDE;
     } else {
-        t = (phi - angles[first + i1]) / (angles[first + i2] - angles[first + i1]);
+        t = (phi - angles[3 * (first + i1)]) / (angles[3 * (first + i2)] - angles[3 * (first + i1)]);
     }
     float3 out = (float3)(0.0f, 0.0f, 0.0f);
     for (int part = 0; part < n_parts; ++part) {
-        float k = k_glossy;
-        if (n_parts == 2 && part == 0)
-            k = 1.0f; /* the diffuse share: the exact rotation */
+        int diffuse = n_parts == 2 && part == 0; /* the diffuse share: the exact rotation (k = 1) */
         for (int which = 0; which < 2; ++which) {
             int a = which == 1 ? i2 : i1;
             float w = which == 1 ? t : 1.0f - t;
             if (w > 0.0f) {
-                float turn = k * (angles[first + a] - phi);
-                float2 r = (float2)(nx * cos(turn) + nz * sin(turn), ny);
-                if (n_parts == 2 && part == 0)
-                    r = rim_point(r.x, ny, -nx * sin(turn) + nz * cos(turn), angles[first + a]);
+                __global const float *image = angles + 3 * (first + a); /* (φi, cos φi, sin φi) */
+                float cos_turn = image[1] * cos_phi + image[2] * sin_phi; /* cos(φi − φ) */
+                float sin_turn = image[2] * cos_phi - image[1] * sin_phi; /* sin(φi − φ) */
+                if (!diffuse) {
+                    float turn = k_glossy * (image[0] - phi);
+                    cos_turn = cos(turn);
+                    sin_turn = sin(turn);
+                }
+                float2 r = (float2)(nx * cos_turn + nz * sin_turn, ny);
+                if (diffuse)
+                    r = rim_point(r.x, ny, -nx * sin_turn + nz * cos_turn, image[0]);
                 float u = shrink * r.x * 0.5f + 0.5f;
                 float v = shrink * r.y * 0.5f + 0.5f;
                 int row = first_row + (part * count + a) * n_levels;

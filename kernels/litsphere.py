@@ -85,14 +85,18 @@ def rim_point(rx: float, ry: float, rz: float, phi_i: float) -> wp.vec2:
 
 @wp.func
 def sphere_lookup(n: wp.vec3, view: wp.vec3, light: wp.vec3, lod: float, shrink: float, s: int,
-                  sphere_info: wp.array2d(dtype=wp.int32), angles: wp.array(dtype=wp.float32),
+                  sphere_info: wp.array2d(dtype=wp.int32), angles: wp.array(dtype=wp.vec3),
                   level_info: wp.array2d(dtype=wp.int32), texels: wp.array(dtype=wp.vec3)) -> wp.vec3:
-    """Radiance per unit irradiance of normal n seen from `view`, lit from `light`: litsphere.reference_shade."""
+    """Radiance per unit irradiance of normal n seen from `view`, lit from `light`: litsphere.reference_shade.
+    The shading is bound by its arithmetic, so the half angle, sin αh and the diffuse share's turn come from
+    cos φ, sin φ and each image's (cos φi, sin φi) by identities instead of trigonometric calls."""
     z = view
     x = light - wp.dot(light, z) * z
+    cos_phi = wp.dot(light, z)
+    sin_phi = wp.length(x)
     # (atan2 of the across and along parts: exact where l is near ±v, where acos loses float32 digits)
-    phi = wp.atan2(wp.length(x), wp.dot(light, z))
-    if wp.length(x) <= 1.0e-6:  # the light along the view axis: any x (the images are symmetric about it)
+    phi = wp.atan2(sin_phi, cos_phi)
+    if sin_phi <= 1.0e-6:  # the light along the view axis: any x (the images are symmetric about it)
         ref = wp.vec3(0.0, 1.0, 0.0)
         if wp.abs(z[0]) < 0.9:
             ref = wp.vec3(1.0, 0.0, 0.0)
@@ -102,13 +106,15 @@ def sphere_lookup(n: wp.vec3, view: wp.vec3, light: wp.vec3, lod: float, shrink:
     nx = wp.dot(n, x)
     ny = wp.dot(n, y)
     nz = wp.dot(n, z)
-    hx = wp.sin(0.5 * phi)
-    hz = wp.cos(0.5 * phi)
+    hx = wp.sqrt(wp.max(0.5 * (1.0 - cos_phi), 0.0))  # sin φ/2
+    hz = wp.sqrt(wp.max(0.5 * (1.0 + cos_phi), 0.0))  # cos φ/2
     proj = wp.sqrt(nx * nx + nz * nz)
     cos_ah = 0.0
     if proj > 1.0e-12:
-        cos_ah = (hx * nx + hz * nz) / proj
-    alpha_h = wp.min(wp.acos(wp.clamp(cos_ah, -1.0, 1.0)), 0.5 * 3.14159265358979)
+        cos_ah = wp.min((hx * nx + hz * nz) / proj, 1.0)
+    sin_ah = 1.0  # αh = min(∠, π/2): sin αh = 1 past a right angle
+    if cos_ah > 0.0:
+        sin_ah = wp.sqrt(1.0 - cos_ah * cos_ah)
     first = sphere_info[s, 0]
     count = sphere_info[s, 1]
     first_row = sphere_info[s, 2]
@@ -116,11 +122,11 @@ def sphere_lookup(n: wp.vec3, view: wp.vec3, light: wp.vec3, lod: float, shrink:
     n_parts = sphere_info[s, 4]
     # the bracket: angles[i2 − 1] < φ ≤ angles[i2]; outside the angles, the nearest image alone
     i2 = int(0)
-    while i2 < count and angles[first + i2] < phi:
+    while i2 < count and angles[first + i2][0] < phi:
         i2 += 1
     i1 = i2 - 1
     t = float(0.0)
-    k_glossy = 0.5 + 0.5 * wp.sin(alpha_h)
+    k_glossy = 0.5 + 0.5 * sin_ah
     if i2 == 0 or i2 >= count:
         if i2 == 0:
             i1 = 0
@@ -129,12 +135,10 @@ def sphere_lookup(n: wp.vec3, view: wp.vec3, light: wp.vec3, lod: float, shrink:
         i2 = i1
         k_glossy = K_OUTSIDE
     else:
-        t = (phi - angles[first + i1]) / (angles[first + i2] - angles[first + i1])
+        t = (phi - angles[first + i1][0]) / (angles[first + i2][0] - angles[first + i1][0])
     out = wp.vec3(0.0)
     for part in range(n_parts):
-        k = k_glossy
-        if n_parts == 2 and part == 0:
-            k = 1.0  # the diffuse share: the exact rotation
+        diffuse = n_parts == 2 and part == 0  # the diffuse share: the exact rotation (k = 1)
         for which in range(2):
             a = i1
             w = 1.0 - t
@@ -142,10 +146,16 @@ def sphere_lookup(n: wp.vec3, view: wp.vec3, light: wp.vec3, lod: float, shrink:
                 a = i2
                 w = t
             if w > 0.0:
-                turn = k * (angles[first + a] - phi)
-                r = wp.vec2(nx * wp.cos(turn) + nz * wp.sin(turn), ny)
-                if n_parts == 2 and part == 0:
-                    r = rim_point(r[0], ny, -nx * wp.sin(turn) + nz * wp.cos(turn), angles[first + a])
+                image = angles[first + a]  # (φi, cos φi, sin φi)
+                cos_turn = image[1] * cos_phi + image[2] * sin_phi  # cos(φi − φ)
+                sin_turn = image[2] * cos_phi - image[1] * sin_phi  # sin(φi − φ)
+                if not diffuse:
+                    turn = k_glossy * (image[0] - phi)
+                    cos_turn = wp.cos(turn)
+                    sin_turn = wp.sin(turn)
+                r = wp.vec2(nx * cos_turn + nz * sin_turn, ny)
+                if diffuse:
+                    r = rim_point(r[0], ny, -nx * sin_turn + nz * cos_turn, image[0])
                 u = shrink * r[0] * 0.5 + 0.5
                 v = shrink * r[1] * 0.5 + 0.5
                 row = first_row + (part * count + a) * n_levels
@@ -161,7 +171,7 @@ def shade_litsphere(
     n_lights: int, lights: wp.array2d(dtype=wp.float32), view_mode: int, shrink: float,
     env_maps: wp.array(dtype=wp.vec3), env_levels: wp.array2d(dtype=wp.float32),
     sphere_of_material: wp.array(dtype=wp.int32), sphere_info: wp.array2d(dtype=wp.int32),
-    angles: wp.array(dtype=wp.float32), level_info: wp.array2d(dtype=wp.int32), texels: wp.array(dtype=wp.vec3),
+    angles: wp.array(dtype=wp.vec3), level_info: wp.array2d(dtype=wp.int32), texels: wp.array(dtype=wp.vec3),
     n_pixels: int, offset: int,
     radiance: wp.array(dtype=wp.vec3),
 ):

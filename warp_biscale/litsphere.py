@@ -545,7 +545,7 @@ class SpherePack:
     """The lit spheres of a scene as the kernels read them. ``sphere_of_material`` (Mat,) int32 the sphere
     of each material; ``sphere_info`` (S, 8) int32 [first angle, angle count A, first level row, level
     count Lv, part count P (2: a diffuse part turned exactly, then the rest turned by k; 1: the images,
-    turned by k), 0, 0, 0]; ``angles`` (ΣA,) float32 radians; ``level_info`` (Σ P·A·Lv, 2) int32 [texel
+    turned by k), 0, 0, 0]; ``angles`` (ΣA, 3) float32 [φ (radians), cos φ, sin φ]; ``level_info`` (Σ P·A·Lv, 2) int32 [texel
     offset, size], part p's image a at level l in row first level row + (p·A + a)·Lv + l; ``texels``
     (T, 3) float32, each level row-major, row 0 at the top."""
 
@@ -572,7 +572,7 @@ def pack_spheres(spheres: list) -> SpherePack:
     for s in unique:
         n_levels = len(s.levels[0][0])
         info.append([len(angles), len(s.angles), len(level_rows), n_levels, len(s.parts), 0, 0, 0])
-        angles.extend(np.radians(s.angles))
+        angles.extend(np.stack([np.radians(s.angles), np.cos(np.radians(s.angles)), np.sin(np.radians(s.angles))], 1))
         for part in s.levels:
             for pyramid in part:
                 for level in pyramid:
@@ -580,5 +580,5 @@ def pack_spheres(spheres: list) -> SpherePack:
                     chunks.append(level.reshape(-1, 3))
                     offset += level.shape[0] * level.shape[1]
     return SpherePack(np.asarray(of_material, np.int32), np.asarray(info, np.int32).reshape(-1, 8),
-                      np.asarray(angles, np.float32), np.asarray(level_rows, np.int32).reshape(-1, 2),
+                      np.asarray(angles, np.float32).reshape(-1, 3), np.asarray(level_rows, np.int32).reshape(-1, 2),
                       np.ascontiguousarray(np.concatenate(chunks), np.float32))

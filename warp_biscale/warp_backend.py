@@ -661,7 +661,7 @@ class WarpBackend(DeviceBackend):
     def _upload_spheres(self, spheres):
         return {"of_material": self._array(spheres.sphere_of_material, wp.int32),
                 "info": wp.array(np.ascontiguousarray(spheres.sphere_info), dtype=wp.int32, device=self._device),
-                "angles": self._array(spheres.angles, wp.float32),
+                "angles": self._array(spheres.angles, wp.vec3),
                 "levels": wp.array(np.ascontiguousarray(spheres.level_info), dtype=wp.int32, device=self._device),
                 "texels": self._array(spheres.texels, wp.vec3)}
 
