@@ -219,7 +219,7 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="a CPU: 256² accuracy images, a 512² frame")
     ap.add_argument("--counts", type=int, nargs="+", default=[2, 3, 4, 6, 8], help="light-angle counts")
     ap.add_argument("--resolution", type=int, default=512, help="lit-sphere image resolution")
-    ap.add_argument("--tolerances", type=float, nargs="+", default=[0.05, 0.02, 0.01])
+    ap.add_argument("--tolerances", type=float, nargs="+", default=[0.1, 0.05, 0.02])
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--frames", type=int, default=10)
     args = ap.parse_args(argv)

@@ -67,6 +67,8 @@ RIM = 0.9995  # texels at or past this radius hold the value here (the rim, fill
 K_OUTSIDE = 0.75  # the rotation coefficient past the last image (paper §3)
 ENV_LIGHTS = 64  # directional lights standing for the environment
 MIN_LEVEL_RES = 4  # the smallest mip level
+TEST_ANGLES = tuple(np.arange(5.0, 180.0, 10.0))  # the lights interpolation_error judges a sphere under
+ERROR_RESOLUTION = 256  # its default grid: texel-level error shows at any grid off the texel centres
 # Light-angle counts tried by from_material(tolerance=…): n angles spread evenly over [0°, 180°).
 TOLERANCE_COUNTS = (2, 3, 4, 6, 8, 12, 16, 24)
 FORMAT = "warp_biscale.litsphere"
@@ -269,7 +271,8 @@ class LitSphere:
         the angles and the resolution are chosen, `angles` ignored and `resolution` the largest allowed:
         the fewest n of TOLERANCE_COUNTS (n angles evenly over [0°, 180°)) whose `interpolation_error` at
         `resolution` is at most `tolerance`, then the smallest resolution (halving, down to 32) whose
-        error, measured on the `resolution` grid, still is; ValueError if no count meets it. The choice
+        error still is, each judged on the same grid (`resolution`, at most ERROR_RESOLUTION); ValueError
+        if no count meets it. The choice
         is in the result's `chosen` dict (tolerance, error, resolution, what was tried)."""
         resolution = check_resolution(resolution)
         if not isinstance(material, (Brdf, EffectiveBRDF)) or isinstance(material, LitSphere):
@@ -279,9 +282,10 @@ class LitSphere:
             if not (np.isfinite(tol) and tol > 0):
                 raise ValueError(f"tolerance must be a positive relative error, got {tolerance!r}")
             tried = []
+            grid = min(resolution, ERROR_RESOLUTION)  # every candidate judged on the same grid
             for count in TOLERANCE_COUNTS:
                 sphere = cls.from_material(material, even_angles(count), resolution, name=name)
-                err = sphere.interpolation_error()
+                err = sphere.interpolation_error(resolution=grid)
                 tried.append(f"{count} angles at {resolution}: {err:.4f}")
                 if err <= tol:
                     break
@@ -291,7 +295,7 @@ class LitSphere:
             res = resolution // 2
             while res >= 32:
                 smaller = cls.from_material(material, sphere.angles, res, name=name)
-                err_small = smaller.interpolation_error(resolution=resolution)
+                err_small = smaller.interpolation_error(resolution=grid)
                 tried.append(f"{len(sphere.angles)} angles at {res}: {err_small:.4f}")
                 if err_small > tol:
                     break
@@ -306,18 +310,16 @@ class LitSphere:
         return cls(imgs, angles, diffuse=diffuse_imgs, source=material, name=name)
 
     def interpolation_error(self, test_angles=None, resolution: int | None = None) -> float:
-        """The relative RMS error, over the disc and the test angles, of the shader's sphere against the
-        exact sphere (`sphere_image` of `source`) under lights at `test_angles` (default: midway between
-        neighbouring angles, where interpolation is worst, and 10° past the last), at the images' own
-        resolution (or `resolution`), seen along −Z from afar: the method's own error, perspective
-        aside. Needs `source`."""
+        """The relative RMS error, pooled over the disc and the test angles, of the shader's sphere against
+        the exact sphere (`sphere_image` of `source`) under lights at `test_angles` (default TEST_ANGLES: a
+        fixed set, so that spheres with different angles are judged alike — the error then falls as
+        angles are added), on the texel grid of `resolution` (default the images' own, at most
+        ERROR_RESOLUTION), seen along −Z from afar: the method's own error, perspective aside. Needs
+        `source`."""
         if self.source is None:
             raise ValueError("this LitSphere has no source material (it was loaded): its error cannot be measured")
-        a = self.angles
-        if test_angles is None:
-            mids = list((a[:-1] + a[1:]) / 2)
-            test_angles = mids + ([min(a[-1] + 10.0, 175.0)] if a[-1] < 175.0 else [])
-        res = self.resolution if resolution is None else check_resolution(resolution)
+        test_angles = TEST_ANGLES if test_angles is None else test_angles
+        res = min(self.resolution, ERROR_RESOLUTION) if resolution is None else check_resolution(resolution)
         n = texel_normals(res).reshape(-1, 3)
         inside = (np.hypot(n[:, 0], n[:, 1]) < RIM * 0.999)
         n = n[inside]
