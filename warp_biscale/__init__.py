@@ -24,7 +24,7 @@ __version__ = "0.1.0"  # before the imports: warp_biscale.cli reads it while the
 if not _os.path.isdir(_os.path.join(__path__[0], "kernels")):
     __path__.append(_os.path.dirname(_os.path.abspath(__path__[0])))
 
-from . import asg, directions, geometry, lobes, sg
+from . import asg, batch, directions, geometry, lobes, sg
 from .backend import Backend, backends, get_backend
 from .bake import bake
 from .model import Bvndf

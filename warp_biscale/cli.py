@@ -1,6 +1,7 @@
 """Command line: ``warp-biscale demo`` (bake a tile and render a scene with it), ``render`` (a TOML scene
 file to PNG / EXR / HDR), ``view`` (the interactive viewer), ``bake`` (SG effective BRDF of a tile),
-``truth`` (its ground truth), ``ball`` (a material thumbnail) and ``backends``."""
+``truth`` (its ground truth), ``ball`` (a material thumbnail), ``batch`` (a job file of bakes and
+renders, on a Dask cluster) and ``backends``."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import warnings
 
 import numpy as np
 
-from . import __version__, demo
+from . import __version__, batch, demo
 from .backend import backends, get_backend
 from .bake import bake
 from .brdf import Lambert, parse_brdf
@@ -460,6 +461,7 @@ def main(argv=None):
     k.add_argument("-o", "--output", default="material.wbm", help="material file to write (default material.wbm)")
     k.add_argument("-q", "--quiet", action="store_true", help="no summary, no progress")
     k.set_defaults(func=cmd_bake)
+    batch.add_parser(sub)
     b = sub.add_parser("backends", help="list the compute backends found here, usable or not, and why")
     b.add_argument("--require", action="append", metavar="KIND[:TYPE]",
                    help="exit 1 unless a backend of this kind is usable, e.g. opencl:cpu, warp:gpu, opencl")
