@@ -45,7 +45,8 @@ from .svbrdf import Textured
 from .truth import GroundTruth, effective_brdf_exact, ground_truth, truth_of
 
 __all__ = [
-    "Backend", "BlinnPhong", "Bvndf", "Camera", "CookTorrance", "DirectionalLight", "EffectiveBRDF", "EnergyWarning",
+    "Backend", "BlinnPhong", "asg", "batch", "Bvndf", "Camera", "CookTorrance", "DirectionalLight", "EffectiveBRDF",
+    "EnergyWarning",
     "Environment",
     "Facets", "GroundTruth", "Lambert", "LitSphere", "MeasuredBRDF",
     "Mesh", "PointLight", "Rendering", "Scene", "SmallScale", "Textured",
