@@ -8,8 +8,8 @@
  * view direction, x towards the light), the two images bracketing the light's polar angle, each
  * read at the normal turned about y (trilinear), blended.
  *
- * Built after cl/shade.cl (OpenCLBackend's program sources), whose camera_ray, prefiltered and
- * ifloor_pos it calls, as the Warp twin imports them from kernels/shade.py.
+ * Built after cl/shade.cl (OpenCLBackend's program sources), whose camera_ray, prefiltered,
+ * finite_radiance and ifloor_pos it calls, as the Warp twin imports them from kernels/shade.py.
  *
  * Layouts (no float3 in global memory): positions, normals, texels, env_maps and the output are
  * float arrays of stride 3; bary stride 2; light_vis (P, L) uchar; lights (L, 8); faces (F, 3);
@@ -234,8 +234,5 @@ __kernel void shade_litsphere(
             }
         }
     }
-    total.x = (total.x >= 0.0f && total.x < 3.0e38f) ? total.x : 0.0f;
-    total.y = (total.y >= 0.0f && total.y < 3.0e38f) ? total.y : 0.0f;
-    total.z = (total.z >= 0.0f && total.z < 3.0e38f) ? total.z : 0.0f;
-    store3(radiance, p, total);
+    store3(radiance, p, finite_radiance(total));
 }

@@ -11,7 +11,7 @@ import warp as wp
 
 from warp_biscale import litsphere as _ls
 
-from .shade import camera_ray, prefiltered
+from .shade import camera_ray, finite_radiance, prefiltered
 
 K_OUTSIDE = wp.constant(_ls.K_OUTSIDE)
 EDGE = wp.constant(0.5)  # a neighbour whose normal differs more is across an edge: no footprint from it
@@ -214,7 +214,4 @@ def shade_litsphere(
             if wp.dot(n, light) > 0.0 and wp.dot(n, view) > 0.0:
                 c = sphere_lookup(n, view, light, lod, shrink, s, sphere_info, angles, level_info, texels)
                 total = total + share * wp.cw_mul(e, c)
-    for c in range(3):
-        if not (total[c] >= 0.0 and total[c] < 3.0e38):
-            total[c] = 0.0
-    radiance[p] = total
+    radiance[p] = finite_radiance(total)
