@@ -433,13 +433,18 @@ CL_INLINE float3 lobe_from_lights(Table tab, float3 axis, float eta, SurfacePoin
     return out;
 }
 
-/* Never NaN, inf or negative (a degenerate normal, say, must not poison the image). */
+/* Never NaN, inf or negative (a degenerate normal, say, must not poison the image). By the bits, so
+   that a program built with -cl-fast-relaxed-math (which may assume finite values) keeps the guard:
+   all exponent bits set is inf or NaN; the sign bit is a negative (or -0, which 0 replaces alike). */
+CL_INLINE float finite_channel(float x)
+{
+    uint bits = as_uint(x);
+    return ((bits & 0x7f800000u) == 0x7f800000u || (bits >> 31) != 0u || x >= 3.0e38f) ? 0.0f : x;
+}
+
 CL_INLINE float3 finite_radiance(float3 v)
 {
-    v.x = (v.x >= 0.0f && v.x < 3.0e38f) ? v.x : 0.0f;
-    v.y = (v.y >= 0.0f && v.y < 3.0e38f) ? v.y : 0.0f;
-    v.z = (v.z >= 0.0f && v.z < 3.0e38f) ? v.z : 0.0f;
-    return v;
+    return (float3)(finite_channel(v.x), finite_channel(v.y), finite_channel(v.z));
 }
 
 __kernel void shade_pixels(
