@@ -17,6 +17,7 @@
  */
 
 #define K_OUTSIDE 0.75f  /* = litsphere.K_OUTSIDE */
+#define RIM 0.9995f      /* = litsphere.RIM */
 #define EDGE 0.5f        /* a neighbour whose normal differs more is across an edge: no footprint from it */
 
 CL_INLINE float3 pixel_normal(__global const int *faces, __global const float *normals, int f, float b0, float b1)
@@ -235,4 +236,107 @@ __kernel void shade_litsphere(
         }
     }
     store3(radiance, p, finite_radiance(total));
+}
+
+
+/* ------------------------------------------------------------------------------------------------
+ * The images themselves: the material's response on the texel grid (litsphere.material_response)
+ * Layouts: lights (A, 3); kinds (M,) int; params (M, 8); info [K, J, M, exact]; lobes (J, 5) [axis,
+ * sharpness, ∫G]; amplitudes (M, K², K², J, 3) μ/cos θi; texels (A·R², 3). */
+
+/* litsphere.texel_normals: texel i (row-major from the top) of a resolution² image, rim-filled. */
+CL_INLINE float3 texel_normal(int resolution, int i)
+{
+    float x = 2.0f * ((float)(i % resolution) + 0.5f) / (float)resolution - 1.0f;
+    float y = 1.0f - 2.0f * ((float)(i / resolution) + 0.5f) / (float)resolution;
+    float r = sqrt(x * x + y * y);
+    if (r > RIM) {
+        x = x * RIM / r;
+        y = y * RIM / r;
+    }
+    return (float3)(x, y, sqrt(maxf(1.0f - x * x - y * y, 0.0f)));
+}
+
+/* EffectiveBRDF.eval(ωi, ωo) in the surface's frame (its tables hold the cosine). */
+CL_INLINE float3 effective_response(__global const int *kinds, __global const float *params, __global const int *info,
+                                    __global const float *lobes, __global const float *amplitudes, float3 wi, float3 wo)
+{
+    if (wi.z <= 0.0f || wo.z <= 0.0f)
+        return (float3)(0.0f, 0.0f, 0.0f);
+    int k = info[0];
+    int j_count = info[1];
+    int k2 = k * k;
+    int oo[4];
+    float ow[4];
+    grid_bilinear(wo, k, oo, ow);
+    float3 half_sum = wi + wo;
+    float3 h = (float3)(0.0f, 0.0f, 1.0f);
+    if (dot3(half_sum, half_sum) > 0.0f)
+        h = normalize3(half_sum);
+    float3 out = (float3)(0.0f, 0.0f, 0.0f);
+    for (int m = 0; m < info[2]; ++m) {
+        int base = m * k2 * k2 * j_count * 3;
+        int kind = kinds[m];
+        __global const float *row = params + 8 * m;
+        float3 kd = (float3)(row[0], row[1], row[2]) / SHADE_PI;
+        float3 scale = specular_scale(kind, (float3)(row[3], row[4], row[5]), row[6], row[7], dot3(h, wi));
+        float eta_s = 1.0f;
+        if (kind != 0)
+            eta_s = ndf_sharpness(kind, row[6]);
+        for (int j = 0; j < j_count; ++j) {
+            float3 mu = table_rgb(amplitudes, base, k2, j_count, j, wi, k, oo, ow) * wi.z;
+            out = out + kd * mu * lobes[5 * j + 4];
+            if (kind != 0) {
+                float3 axis = (float3)(lobes[5 * j], lobes[5 * j + 1], lobes[5 * j + 2]);
+                float eta = lobes[5 * j + 3];
+                float3 d = h - axis;
+                float one_minus_cos = 0.5f * dot3(d, d); /* 1 − h·ξ without cancellation near the axis */
+                float s;
+                if (info[3] == 0) { /* Eq. 15: the convolved lobe at h (sg.convolve, sg.evaluate) */
+                    s = 2.0f * SHADE_PI / (eta + eta_s) * exp(-one_minus_cos / (1.0f / eta + 1.0f / eta_s));
+                } else { /* Eq. 10: the inner product (sg.inner_product) */
+                    float3 resultant = eta_s * h + eta * axis;
+                    float r = sqrt(dot3(resultant, resultant));
+                    float gap = 2.0f * eta * eta_s * one_minus_cos / (eta + eta_s + r);
+                    float over = 2.0f - 2.0f * r;
+                    if (r > 1.0e-12f)
+                        over = (1.0f - exp(-2.0f * r)) / r;
+                    s = 2.0f * SHADE_PI * exp(-gap) * over;
+                }
+                out = out + scale * mu * s;
+            }
+        }
+    }
+    return (float3)(maxf(out.x, 0.0f), maxf(out.y, 0.0f), maxf(out.z, 0.0f));
+}
+
+/* Texel i of image a (i + a·R² = the work-item): f(n, l, v)(n·l)⁺ of an analytic BRDF (row 0 of
+ * kinds/params) or of an effective BRDF (`effective` = 1, in the sphere's longitude frame), v = +Z. */
+__kernel void sphere_texels(const int resolution, __global const float *lights, const int effective,
+                            __global const int *kinds, __global const float *params, __global const int *info,
+                            __global const float *lobes, __global const float *amplitudes, const int n_texels,
+                            __global float *texels)
+{
+    int t = get_global_id(0);
+    if (t >= n_texels)
+        return;
+    int per_image = resolution * resolution;
+    float3 n = texel_normal(resolution, t % per_image);
+    float3 light = load3(lights, t / per_image);
+    float3 view = (float3)(0.0f, 0.0f, 1.0f);
+    float3 out;
+    if (effective == 0) {
+        out = brdf_cosine_weighted(kinds[0], params, 0, n, light, view) / maxf(n.z, 1.0e-30f);
+    } else {
+        /* litsphere.sphere_tangents: increasing longitude about +Y, +X at the poles */
+        float3 tangent = (float3)(1.0f, 0.0f, 0.0f);
+        float3 across = (float3)(n.z, 0.0f, -n.x);
+        if (dot3(across, across) > 1.0e-18f)
+            tangent = normalize3(across);
+        float3 bitangent = cross3(n, tangent);
+        float3 wi = (float3)(dot3(light, tangent), dot3(light, bitangent), dot3(light, n));
+        float3 wo = (float3)(dot3(view, tangent), dot3(view, bitangent), dot3(view, n));
+        out = effective_response(kinds, params, info, lobes, amplitudes, wi, wo);
+    }
+    store3(texels, t, finite_radiance(out));
 }

@@ -16,9 +16,12 @@ from warp_biscale import litsphere as _ls
 # is built alike (opencl_backend.FAST_MATH).
 wp.set_module_options({"fast_math": True})
 
-from .shade import camera_ray, finite_radiance, prefiltered
+from .common import brdf_cosine_weighted
+from .shade import (PI, camera_ray, finite_radiance, grid_corners, grid_weights, ndf_sharpness, prefiltered,
+                    specular_scale, table_rgb)
 
 K_OUTSIDE = wp.constant(_ls.K_OUTSIDE)
+RIM = wp.constant(_ls.RIM)
 EDGE = wp.constant(0.5)  # a neighbour whose normal differs more is across an edge: no footprint from it
 
 
@@ -220,3 +223,100 @@ def shade_litsphere(
                 c = sphere_lookup(n, view, light, lod, shrink, s, sphere_info, angles, level_info, texels)
                 total = total + share * wp.cw_mul(e, c)
     radiance[p] = finite_radiance(total)
+
+
+# ---------------------------------------------------------------------------------------------
+# The images themselves: the material's response on the texel grid (litsphere.material_response)
+
+
+@wp.func
+def texel_normal(resolution: int, i: int) -> wp.vec3:
+    """litsphere.texel_normals: texel i (row-major from the top) of a resolution² image, rim-filled."""
+    x = 2.0 * (float(i % resolution) + 0.5) / float(resolution) - 1.0
+    y = 1.0 - 2.0 * (float(i / resolution) + 0.5) / float(resolution)
+    r = wp.sqrt(x * x + y * y)
+    if r > RIM:
+        x = x * RIM / r
+        y = y * RIM / r
+    return wp.vec3(x, y, wp.sqrt(wp.max(1.0 - x * x - y * y, 0.0)))
+
+
+@wp.func
+def effective_response(kinds: wp.array(dtype=wp.int32), params: wp.array2d(dtype=wp.float32),
+                       info: wp.array(dtype=wp.int32), lobes: wp.array2d(dtype=wp.float32),
+                       amplitudes: wp.array(dtype=wp.float32), wi: wp.vec3, wo: wp.vec3) -> wp.vec3:
+    """EffectiveBRDF.eval(ωi, ωo) in the surface's frame (its tables hold the cosine): `info` [K, J, M,
+    exact], `lobes` (J, 5) the axis, sharpness and ∫G of each lobe, `amplitudes` the (M, K², K², J, 3)
+    table of μ/cos θi at the grid, `kinds`/`params` the small-scale BRDFs (brdf.pack_materials)."""
+    if wi[2] <= 0.0 or wo[2] <= 0.0:
+        return wp.vec3(0.0)
+    k = info[0]
+    j_count = info[1]
+    k2 = k * k
+    oo = grid_corners(wo, k)
+    ow = grid_weights(wo, k)
+    half = wi + wo
+    h = wp.vec3(0.0, 0.0, 1.0)
+    if wp.length(half) > 0.0:
+        h = wp.normalize(half)
+    out = wp.vec3(0.0)
+    for m in range(info[2]):
+        base = m * k2 * k2 * j_count * 3
+        kind = kinds[m]
+        kd = wp.vec3(params[m, 0], params[m, 1], params[m, 2]) / PI
+        scale = specular_scale(kind, wp.vec3(params[m, 3], params[m, 4], params[m, 5]), params[m, 6], params[m, 7],
+                               wp.dot(h, wi))
+        eta_s = float(1.0)
+        if kind != 0:
+            eta_s = ndf_sharpness(kind, params[m, 6])
+        for j in range(j_count):
+            mu = table_rgb(amplitudes, base, k2, j_count, j, wi, k, oo, ow) * wi[2]
+            out = out + wp.cw_mul(kd, mu) * lobes[j, 4]
+            if kind != 0:
+                axis = wp.vec3(lobes[j, 0], lobes[j, 1], lobes[j, 2])
+                eta = lobes[j, 3]
+                d = h - axis
+                one_minus_cos = 0.5 * wp.dot(d, d)  # 1 − h·ξ without cancellation near the axis
+                s = float(0.0)
+                if info[3] == 0:  # Eq. 15: the convolved lobe at h (sg.convolve, sg.evaluate)
+                    s = 2.0 * PI / (eta + eta_s) * wp.exp(-one_minus_cos / (1.0 / eta + 1.0 / eta_s))
+                else:  # Eq. 10: the inner product (sg.inner_product)
+                    r = wp.length(eta_s * h + eta * axis)
+                    gap = 2.0 * eta * eta_s * one_minus_cos / (eta + eta_s + r)
+                    over = 2.0 - 2.0 * r
+                    if r > 1.0e-12:
+                        over = (1.0 - wp.exp(-2.0 * r)) / r
+                    s = 2.0 * PI * wp.exp(-gap) * over
+                out = out + wp.cw_mul(scale, mu) * s
+    return wp.max(out, wp.vec3(0.0))
+
+
+@wp.kernel
+def sphere_texels(resolution: int, lights: wp.array(dtype=wp.vec3), effective: int,
+                  kinds: wp.array(dtype=wp.int32), params: wp.array2d(dtype=wp.float32),
+                  info: wp.array(dtype=wp.int32), lobes: wp.array2d(dtype=wp.float32),
+                  amplitudes: wp.array(dtype=wp.float32), n_texels: int, offset: int,
+                  texels: wp.array(dtype=wp.vec3)):
+    """Texel i of image a (i + a·R² = the thread): f(n, l, v)(n·l)⁺ of an analytic BRDF (row 0 of
+    kinds/params) or of an effective BRDF (`effective` = 1, in the sphere's longitude frame), v = +Z."""
+    t = wp.tid() + offset
+    if t >= n_texels:
+        return
+    per_image = resolution * resolution
+    n = texel_normal(resolution, t % per_image)
+    light = lights[t / per_image]
+    view = wp.vec3(0.0, 0.0, 1.0)
+    out = wp.vec3(0.0)
+    if effective == 0:
+        out = brdf_cosine_weighted(kinds[0], params, 0, n, light, view) / wp.max(n[2], 1.0e-30)
+    else:
+        # litsphere.sphere_tangents: increasing longitude about +Y, +X at the poles
+        tangent = wp.vec3(1.0, 0.0, 0.0)
+        across = wp.vec3(n[2], 0.0, -n[0])
+        if wp.length(across) > 1.0e-9:
+            tangent = wp.normalize(across)
+        bitangent = wp.cross(n, tangent)
+        wi = wp.vec3(wp.dot(light, tangent), wp.dot(light, bitangent), wp.dot(light, n))
+        wo = wp.vec3(wp.dot(view, tangent), wp.dot(view, bitangent), wp.dot(view, n))
+        out = effective_response(kinds, params, info, lobes, amplitudes, wi, wo)
+    texels[t] = finite_radiance(out)

@@ -1,6 +1,7 @@
 """Lit-sphere materials (seed 004): the representation, the Eq. 1–4 shader against its float64 reference
 on every backend, its error against exact renders, files and bad inputs."""
 
+import copy
 import dataclasses
 import os
 import warnings
@@ -182,6 +183,55 @@ def test_baked_material_makes_a_lit_sphere(tmp_path):
     assert sphere.images.max() > 0 and np.isfinite(sphere.images).all()
     assert sphere.diffuse is not None and (sphere.diffuse <= sphere.images + 1e-7).all()
     assert 0 < sphere.interpolation_error() < 0.5
+
+
+@pytest.fixture(scope="module")
+def baked_pyramid():
+    return wb.bake(wb.geometry.pyramid(height=0.4),
+                   [wb.CookTorrance(0.5, 0.2, kd=0.2), wb.BlinnPhong(0.4, 30, kd=0.3, normalization="energy")],
+                   lobes=3, facets=2048, directions=5, backend="warp:cpu")
+
+
+def _texel_materials(baked):
+    exact = copy.copy(baked)
+    exact.method = "sg-exact"
+    return {"lambert": wb.Lambert((0.8, 0.5, 0.3)), "blinnphong n=200": wb.BlinnPhong(0.5, 200, kd=0.2),
+            "cooktorrance m=0.1": wb.CookTorrance(0.6, 0.1, kd=0.3), "ward a=0.2": wb.Ward(0.5, 0.2, kd=0.1),
+            "baked sg": baked, "baked sg-exact": exact}
+
+
+def test_texel_kernels_match_the_float64_images(backend, baked_pyramid):
+    """The images made on a backend against the host's float64 ones (texel for texel, every angle of
+    the metal set, light through the rim at 175°). Tolerance: float32 with fast math (~1e-5 relative) and
+    Cook–Torrance's float32 acos near the peak (seen: 3.6e-5 of the image's largest value); 2e-4 of the
+    largest value plus 2e-4 of the texel's own value bounds both with room."""
+    angles = (*L.METAL_ANGLES, 175.0)
+    for name, material in _texel_materials(baked_pyramid).items():
+        host = L.sphere_images(material, angles, 48)
+        got = L.sphere_images(material, angles, 48, backend)
+        assert got.shape == host.shape == (len(angles), 48, 48, 3) and got.dtype == np.float32
+        assert np.isfinite(got).all() and got.min() >= 0, name
+        bound = 2e-4 * host.max() + 2e-4 * np.abs(host)
+        worst = float(np.max(np.abs(got - host) - bound))
+        assert worst <= 0, f"{name}: {worst + bound.max():.3g} off"
+        assert host.max() > 0, name
+
+
+def test_from_material_on_a_backend_is_the_host_sphere(backend, baked_pyramid):
+    """backend= changes where the texels are computed, not what the sphere is: both parts, and the
+    tolerance mode's choice."""
+    host = L.LitSphere.from_material(baked_pyramid, resolution=32)
+    got = L.LitSphere.from_material(baked_pyramid, resolution=32, backend=backend)
+    for a, b in ((host.images, got.images), (host.diffuse, got.diffuse)):
+        assert np.allclose(a, b, rtol=2e-4, atol=2e-4 * a.max())
+    chosen = L.LitSphere.from_material(GLOSSY, resolution=64, tolerance=0.05, backend=backend).chosen
+    assert chosen["resolution"] == L.LitSphere.from_material(GLOSSY, resolution=64, tolerance=0.05).chosen["resolution"]
+
+
+def test_measured_brdf_texels_are_read_on_the_host():
+    """No measured BRDF in the kernels yet: backend= reads its table on the host, the same images."""
+    measured = wb.MeasuredBRDF.from_brdf(wb.CookTorrance(0.5, 0.3, kd=0.2))
+    assert np.array_equal(L.sphere_images(measured, (30.0,), 16, "warp:cpu"), L.sphere_images(measured, (30.0,), 16))
 
 
 def test_save_load_round_trip(tmp_path):

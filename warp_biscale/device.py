@@ -581,6 +581,22 @@ class DeviceBackend:
                                          int(view_mode), float(shrink), *m["litsphere_env"], n, out)
         return self._to_host(out, n, "vec3") if to_host else None
 
+    def litsphere_texels(self, inputs: dict, lights, resolution: int) -> np.ndarray:
+        """(A, R, R, 3) float32 images of the unit sphere seen from +Z far away, lit by unit irradiance
+        from each of `lights` (A, 3) unit directions (litsphere.sphere_image): the material's response
+        f(n, l, v)(n·l)⁺ at every texel of litsphere.texel_normals(resolution). `inputs`:
+        litsphere.texel_inputs(material)."""
+        lights = np.ascontiguousarray(lights, np.float32).reshape(-1, 3)
+        resolution = int(resolution)
+        n = len(lights) * resolution * resolution
+        arrays = [self._to_device(lights, "vec3"), self._to_device(inputs["kinds"], "i32"),
+                  self._to_device(inputs["params"], "f32"), self._to_device(inputs["info"], "i32"),
+                  self._to_device(inputs["lobes"], "f32"), self._to_device(inputs["amplitudes"], "f32")]
+        out = self._new(n, "vec3")
+        if n:
+            self._launch_litsphere_texels(resolution, int(inputs["effective"]), *arrays, n, out)
+        return self._to_host(out, n, "vec3").reshape(len(lights), resolution, resolution, 3)
+
     def _shade_static(self, static: ShadeInputs) -> dict:
         """Device copies of a scene's shade inputs (`_upload_shade_static`), checked and made once, kept
         with them (static.device[self.name])."""

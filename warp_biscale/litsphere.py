@@ -53,8 +53,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import images as images_mod
-from .brdf import Brdf, Lambert
+from . import sg
+from .brdf import Brdf, Lambert, pack_materials
 from .effective import EffectiveBRDF
+from .measured import MeasuredBRDF
 
 __all__ = ["LitSphere", "PAPER_ANGLES", "METAL_ANGLES", "reference_shade", "pack_spheres"]
 
@@ -152,6 +154,35 @@ def sphere_image(material, phi_degrees: float, resolution: int) -> np.ndarray:
     light = np.broadcast_to(light_direction(phi_degrees), n.shape)
     view = np.broadcast_to(np.array([0.0, 0.0, 1.0]), n.shape)
     return material_response(material, n, light, view).reshape(resolution, resolution, 3).astype(np.float32)
+
+
+def texel_inputs(material) -> dict:
+    """What the texel kernels (kernels/litsphere.py sphere_texels) read for `material`: an analytic BRDF
+    as its packed row (brdf.pack_materials), an EffectiveBRDF as its lobes, its amplitude table divided by
+    the grid's cos θi (as EffectiveBRDF.eval interpolates it) and its small-scale BRDFs' rows."""
+    if isinstance(material, EffectiveBRDF):
+        kinds, params = pack_materials(material.materials)
+        lobes = material.lobes
+        return {"effective": 1, "kinds": kinds, "params": params.astype(np.float32),
+                "info": np.array([material.directions, len(lobes.sharpness), len(material.materials),
+                                  int(material.method == "sg-exact")], np.int32),
+                "lobes": np.column_stack([lobes.axes, lobes.sharpness, sg.integral(lobes.sharpness)]).astype(np.float32),
+                "amplitudes": (material.amplitudes / material.grid[:, 2][None, :, None, None, None]).astype(np.float32).ravel()}
+    kinds, params = pack_materials([material])
+    return {"effective": 0, "kinds": kinds, "params": params.astype(np.float32), "info": np.zeros(4, np.int32),
+            "lobes": np.zeros((1, 5), np.float32), "amplitudes": np.zeros(1, np.float32)}
+
+
+def sphere_images(material, angles, resolution: int, backend=None) -> np.ndarray:
+    """(A, R, R, 3) float32: `sphere_image` at each of `angles` (degrees); on `backend` (a name or a
+    Backend) by its texel kernels in float32, else (None) on the host in float64. A MeasuredBRDF's table
+    is read on the host either way (the kernels have no measured BRDF yet)."""
+    if backend is None or isinstance(material, MeasuredBRDF):
+        return np.stack([sphere_image(material, phi, resolution) for phi in angles])
+    # The data model reaches its stage only when asked to: a function-local import keeps the layers.
+    from .backend import get_backend
+    lights = np.stack([light_direction(phi) for phi in angles])
+    return get_backend(backend).litsphere_texels(texel_inputs(material), lights, resolution)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -265,9 +296,12 @@ class LitSphere:
 
     @classmethod
     def from_material(cls, material, angles=PAPER_ANGLES, resolution: int = RESOLUTION, tolerance=None,
-                      name: str = "") -> LitSphere:
+                      name: str = "", backend=None) -> LitSphere:
         """The lit sphere of an analytic `Brdf` (a `MeasuredBRDF` too) or a baked `EffectiveBRDF`, its texels the
-        material's exact response (module docstring). With `tolerance` (a relative RMS error, e.g. 0.02)
+        material's exact response (module docstring): computed on the host in float64 (backend None), or
+        by the texel kernels on `backend` (a name such as "warp:cuda" or "opencl", or a Backend) in float32
+        — the same values to ~1e-5 (tests/test_litsphere.py), in milliseconds on a GPU where the host takes
+        seconds for a baked material. With `tolerance` (a relative RMS error, e.g. 0.02)
         the angles and the resolution are chosen, `angles` ignored and `resolution` the largest allowed:
         the fewest n of TOLERANCE_COUNTS (n angles evenly over [0°, 180°)) whose `interpolation_error` at
         `resolution` is at most `tolerance`, then the smallest resolution (halving, down to 32) whose
@@ -284,7 +318,7 @@ class LitSphere:
             tried = []
             grid = min(resolution, ERROR_RESOLUTION)  # every candidate judged on the same grid
             for count in TOLERANCE_COUNTS:
-                sphere = cls.from_material(material, even_angles(count), resolution, name=name)
+                sphere = cls.from_material(material, even_angles(count), resolution, name=name, backend=backend)
                 err = sphere.interpolation_error(resolution=grid)
                 tried.append(f"{count} angles at {resolution}: {err:.4f}")
                 if err <= tol:
@@ -294,7 +328,7 @@ class LitSphere:
                                  f"{material!r} at resolution {resolution} ({', '.join(tried)})")
             res = resolution // 2
             while res >= 32:
-                smaller = cls.from_material(material, sphere.angles, res, name=name)
+                smaller = cls.from_material(material, sphere.angles, res, name=name, backend=backend)
                 err_small = smaller.interpolation_error(resolution=grid)
                 tried.append(f"{len(sphere.angles)} angles at {res}: {err_small:.4f}")
                 if err_small > tol:
@@ -303,10 +337,10 @@ class LitSphere:
             sphere.chosen = {"tolerance": tol, "error": err, "resolution": sphere.resolution, "tried": tried}
             return sphere
         angles = check_angles(angles)
-        imgs = np.stack([sphere_image(material, phi, resolution) for phi in angles])
+        imgs = sphere_images(material, angles, resolution, backend)
         diffuse = diffuse_part(material)
         diffuse_imgs = (None if diffuse is None else imgs if diffuse is material else
-                        np.minimum(np.stack([sphere_image(diffuse, phi, resolution) for phi in angles]), imgs))
+                        np.minimum(sphere_images(diffuse, angles, resolution, backend), imgs))
         return cls(imgs, angles, diffuse=diffuse_imgs, source=material, name=name)
 
     def interpolation_error(self, test_angles=None, resolution: int | None = None) -> float:

@@ -675,6 +675,10 @@ class WarpBackend(DeviceBackend):
                       dev["angles"], dev["levels"], dev["texels"], n],
                      [out])
 
+    def _launch_litsphere_texels(self, resolution, effective, lights, kinds, params, info, lobes, amplitudes, n, out):
+        self._launch(klitsphere.sphere_texels, n,
+                     [resolution, lights, effective, kinds, params, info, lobes, amplitudes, n], [out])
+
     # ------------------------------------------------------------------ envmap (prefiltered environment)
     def prefilter_level(self, radiance, sharpness, height, width):
 
