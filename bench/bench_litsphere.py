@@ -10,10 +10,13 @@ Parts (records go to --out/results.json; table.md and litsphere.png follow):
 - ``tolerance``: the angle count `LitSphere.from_material(..., tolerance=…)` picks, per material and
   tolerance (Cook–Torrance m = 0.1 and a baked pyramid among them).
 - ``frames``: a 1080p frame with 8 directional lights (a sphere, a torus and a floor, each a lit
-  sphere): G-buffer + one shadow ray a light + shading, device-resident; and the shading alone.
+  sphere): G-buffer + one shadow ray a light + shading, device-resident; the paper's frame (no shadow
+  rays); and the shading alone.
+- ``texels``: `LitSphere.from_material` per material, the host's float64 images against each backend's
+  texel kernels (`backend=`): time and the largest difference.
 
     python -m bench.bench_litsphere --quick --out /tmp/litsphere                       # a CPU
-    python -m bench.bench_litsphere --parts frames --backends warp:cuda opencl:nvidia --out $OUT   # a GPU
+    python -m bench.bench_litsphere --parts frames texels --backends warp:cuda opencl:nvidia --out $OUT   # a GPU
 """
 
 from __future__ import annotations
@@ -147,6 +150,26 @@ def part_frames(backends, size, resolution, frames, runs, out):
                 f"({1 / t_shade:8.1f} fps), textures {rec['texture_bytes'] / 2**20:.1f} MiB")
 
 
+def part_texels(backends, resolution, runs, out):
+    """LitSphere.from_material at the paper's 4 angles: the host's float64 images against each backend's
+    texel kernels (the call whole: inputs up, images down, mip levels not yet built), and how far apart."""
+    mats = materials(backends[0])
+    for name, material in mats.items():
+        host = wb.LitSphere.from_material(material, resolution=resolution)
+        t_host = common.timed(lambda: wb.LitSphere.from_material(material, resolution=resolution), 1).median_s
+        for backend in backends:
+            be = wb.get_backend(backend)
+            got = wb.LitSphere.from_material(material, resolution=resolution, backend=be)
+            t = common.timed(lambda: wb.LitSphere.from_material(material, resolution=resolution, backend=be),
+                             runs, be).median_s
+            diff = float(np.max(np.abs(got.images - host.images)) / host.images.max())
+            out.records.append({"part": "texels", "backend": be.name, "device": be.device, "material": name,
+                                "resolution": resolution, "angles": len(host.angles), "host_s": t_host,
+                                "device_s": t, "max_diff_rel": diff})
+            out.log(f"{be.name:<28} {name:<19} from_material {resolution}²: host {t_host * 1e3:9.1f} ms, "
+                    f"backend {t * 1e3:8.2f} ms, largest difference {diff:.1e} of the largest texel")
+
+
 def table(records, meta):
     lines = [f"# Lit-sphere benchmark ({meta['device_kind']})", "", common.commit_line(meta), ""]
     acc = [r for r in records if r["part"] == "accuracy"]
@@ -185,6 +208,15 @@ def table(records, meta):
                                          f"{r['unshadowed_s'] * 1e3:.3f} ({r['unshadowed_fps']:.0f})",
                                          f"{r['shade_s'] * 1e3:.3f} ({r['shade_fps']:.0f})",
                                          f"{r['texture_bytes'] / 2**20:.1f}"] for r in fr])
+    tx = [r for r in records if r["part"] == "texels"]
+    if tx:
+        lines += ["", f"`LitSphere.from_material` ({tx[0]['angles']} angles, {tx[0]['resolution']}², both parts): the "
+                  "host's float64 images against the backend's texel kernels (median, call whole)", ""]
+        lines += common.markdown_table(["backend", "material", "host ms", "backend ms", "speed-up",
+                                        "largest difference / largest texel"],
+                                       [[r["backend"], r["material"], f"{r['host_s'] * 1e3:.1f}",
+                                         f"{r['device_s'] * 1e3:.2f}", f"{r['host_s'] / r['device_s']:.0f}x",
+                                         f"{r['max_diff_rel']:.1e}"] for r in tx])
     return "\n".join(lines) + "\n"
 
 
@@ -215,7 +247,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--backends", nargs="+", default=None, help="backend names (default: every usable backend here)")
     ap.add_argument("--out", required=True)
-    ap.add_argument("--parts", nargs="+", default=["accuracy", "tolerance", "frames"])
+    ap.add_argument("--parts", nargs="+", default=["accuracy", "tolerance", "frames", "texels"])
     ap.add_argument("--quick", action="store_true", help="a CPU: 256² accuracy images, a 512² frame")
     ap.add_argument("--counts", type=int, nargs="+", default=[2, 3, 4, 6, 8], help="light-angle counts")
     ap.add_argument("--resolution", type=int, default=512, help="lit-sphere image resolution")
@@ -235,6 +267,9 @@ def main(argv=None):
         out.save(table)
     if "frames" in args.parts:
         part_frames(backends, frame_size, args.resolution, 3 if args.quick else args.frames, args.runs, out)
+        out.save(table)
+    if "texels" in args.parts:
+        part_texels(backends, args.resolution, args.runs, out)
     out.finish(table)
     plot(out.records, args.out)
     out.log(f"wrote {args.out}/results.json, table.md, litsphere.png")
