@@ -223,14 +223,17 @@ def _accumulate(scene: Scene, backend, n_aa: int, n_shadow: int, lights, timings
 VIEWS = {"pixel": 0, "camera": 1}
 
 
-def scene_spheres(scene: Scene, angles=litsphere.PAPER_ANGLES, resolution: int = litsphere.RESOLUTION) -> list:
+def scene_spheres(scene: Scene, angles=litsphere.PAPER_ANGLES, resolution: int = litsphere.RESOLUTION,
+                  backend=None) -> list:
     """One LitSphere per scene material: a LitSphere as it is, any other material made into one
-    (`LitSphere.from_material` at `angles`, `resolution`), kept in scene.cache while the materials stay."""
+    (`LitSphere.from_material` at `angles`, `resolution`, its texels by `backend`'s kernels, or on the
+    host for None), kept in scene.cache while the materials stay."""
     key = ("litspheres", tuple(id(m) for m in scene.materials), tuple(np.asarray(angles, float)), int(resolution))
     cached = scene.cache.get(key)
     if cached is None:
         cached = scene.cache[key] = [m if isinstance(m, LitSphere) else
-                                     LitSphere.from_material(m, angles, resolution) for m in scene.materials]
+                                     LitSphere.from_material(m, angles, resolution, backend=backend)
+                                     for m in scene.materials]
     return cached
 
 
@@ -275,7 +278,7 @@ def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str
     timings: dict = {"gbuffer": 0.0, "shade": 0.0}
     t_all = time.perf_counter()
     t0 = time.perf_counter()
-    spheres = scene_spheres(scene, angles, resolution)
+    spheres = scene_spheres(scene, angles, resolution, backend)
     key = ("litsphere_pack", tuple(id(s) for s in spheres))
     pack = scene.cache.get(key)
     if pack is None:
