@@ -24,11 +24,11 @@ from __future__ import annotations
 
 import os
 
-from .geometry_relief import flat, grooves, heightfield, heightfield_from_image, pyramid
+from .geometry_relief import flat, grooves, heightfield, heightfield_from_image, pyramid, read_height_image
 from .geometry_tubes import rods, woven
 from .smallscale import SmallScale
 
-__all__ = ["flat", "pyramid", "grooves", "rods", "woven", "heightfield", "heightfield_from_image"]
+__all__ = ["flat", "pyramid", "grooves", "rods", "woven", "heightfield", "heightfield_from_image", "read_height_image"]
 
 # Tile names accepted by the command line and scene files: generator (an attribute of this module)
 # and its keyword arguments.

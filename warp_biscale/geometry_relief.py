@@ -318,7 +318,15 @@ def heightfield_from_image(path, *, size=1.0, scale=1.0, material=0, color=WHITE
 
     Raises FileNotFoundError for a missing file and ValueError for one PIL cannot read.
     """
-    fn = "heightfield_from_image"
+    arr = read_height_image(path, "heightfield_from_image")
+    tile = heightfield(arr, size=size, scale=scale, material=material, color=color)
+    tile.name = f"heightfield({os.path.basename(path)}, scale={scale:g})"
+    return tile
+
+
+def read_height_image(path, fn="read_height_image") -> np.ndarray:
+    """(H, W) float64 heights in [0, 1] of a greyscale image, row i at y = i/H (the image's bottom row
+    first: it is seen from above), as `heightfield_from_image` reads it."""
     path = os.fspath(path)
     if not os.path.exists(path):
         raise FileNotFoundError(f"{fn}: image file not found: {path}")
@@ -335,6 +343,4 @@ def heightfield_from_image(path, *, size=1.0, scale=1.0, material=0, color=WHITE
         raise ValueError(f"{fn}: could not read {path!r} as an image: {exc}") from exc
     if arr.ndim != 2:
         raise ValueError(f"{fn}: {path!r} did not decode to a 2-D greyscale image (shape {arr.shape})")
-    tile = heightfield(arr[::-1], size=size, scale=scale, material=material, color=color)
-    tile.name = f"heightfield({os.path.basename(path)}, scale={scale:g})"
-    return tile
+    return arr[::-1].copy()

@@ -68,7 +68,8 @@ or ``warp-biscale render scene.toml -o out.png``. Every table and key is optiona
 
     [material.gold]
     type = "bake"                # baked at load time (in memory) with the SG bake (`wb.bake`)
-    tile = "pyramid"             # required: a built-in tile (as `warp-biscale bake` takes) or a mesh file
+    tile = "pyramid"             # required: a built-in tile (as `warp-biscale bake` takes), a mesh file, or
+                                 #   "heightfield" with tile_params.image (a greyscale image) and scale
     tile_params = { height = 0.4, color = [1.0, 0.8, 0.4] }   # keyword arguments of the tile's generator
     brdf = ["blinnphong:exponent=256,ks=0.9"]                 # one per tile material id (or one for all)
     lobes = 6                    # J, or "auto" ; directions (K), facets, normal_res, method, route, seed
@@ -576,7 +577,14 @@ def _bake(ctx, table, v, sf, name, used, prog):
     spec = v["tile"]
     params = v.get("tile_params", {})
     try:
-        if spec in BUILTIN_TILES:
+        if spec == "heightfield":  # a painted height field (the editor saves one): its image beside this file
+            rest = dict(params)
+            image = rest.pop("image", None)
+            if not isinstance(image, str):
+                raise ctx.error(table, "tile_params" if params else "tile",
+                                'tile "heightfield" needs tile_params.image, a greyscale image file')
+            tile = geometry.heightfield_from_image(ctx.resolve(image), **rest)
+        elif spec in BUILTIN_TILES:
             fn, kwargs = BUILTIN_TILES[spec]
             tile = getattr(geometry, fn)(**{**kwargs, **params})
         else:
@@ -588,7 +596,7 @@ def _bake(ctx, table, v, sf, name, used, prog):
             tile = SmallScale.load(full, **params)
     except SceneError:
         raise
-    except (ValueError, TypeError) as exc:  # the line of the tile parameter it names, else of tile_params
+    except (ValueError, TypeError, FileNotFoundError) as exc:  # the line of the parameter it names, else of tile_params
         msg = str(exc)
         named = [k for k in params if re.search(rf"(?<![A-Za-z0-9_]){re.escape(k)}(?![A-Za-z0-9_])", msg)]
         key = ("tile_params", named[0]) if named else ("tile_params" if params else "tile")

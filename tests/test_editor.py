@@ -1,0 +1,192 @@
+"""The bi-scale editor driven headless (wb.Editor): every control at both ends of its range bakes and
+renders finite radiance; geometry changes re-bake and change the frame, BRDF changes do not re-bake;
+painting touches the height field only under the brush; save → load gives the same frame; bad values
+leave the editor as it was; undo/redo; coarse edits and their refinement."""
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+
+import warp_biscale as wb
+from warp_biscale import editor as E
+
+warnings.filterwarnings("ignore", category=wb.EnergyWarning)
+
+SIZE = dict(width=48, height=36)
+FAST = {"quality.facets_log2": 10, "quality.directions": 4, "quality.lobes": 2}
+
+
+def _editor(target, backend="warp:cpu"):
+    ed = E.Editor(target, backend=backend, **SIZE)
+    for name, value in FAST.items():
+        ed.set(name, value)
+    return ed
+
+
+@pytest.fixture(scope="module")
+def pyramid():
+    return _editor("pyramid")
+
+
+@pytest.mark.parametrize("family", list(E.FAMILIES))
+def test_every_control_at_both_ends_bakes_and_renders(family):
+    """Every tile and material control at its low end together, then at its high end together (the
+    ends' combinations are the hard cases: a tall thin wide tile), each choice in turn: finite, >= 0."""
+    ed = _editor(family)
+    params = [p for p in ed.parameters() if p.name not in FAST and p.group != "quality"]
+    ends = {"lo": {}, "hi": {}}
+    for p in params:
+        if p.kind in ("real", "int"):
+            ends["lo"][p.name], ends["hi"][p.name] = p.lo, p.hi
+        elif p.kind == "rgb":
+            ends["lo"][p.name], ends["hi"][p.name] = (0.0, 0.0, 0.0), (1.0, 1.0, 1.0)
+    original = {p.name: p.value for p in params}
+    for end in ("lo", "hi"):
+        assert ed.set_many(ends[end]) == "bake"
+        assert all(ed.get(name) == value for name, value in ends[end].items())
+        frame = ed.frame()
+        assert np.isfinite(frame).all() and frame.min() >= 0, end
+    for p in params:
+        if p.kind == "choice":
+            for v in p.choices:
+                ed.set(p.name, v)
+                assert np.isfinite(ed.frame()).all() and ed.frame().min() >= 0, (p.name, v)
+    ed.set_many(original)
+    assert {p.name: p.value for p in ed.parameters() if p.name in original} == original
+
+
+def test_quality_ends_and_the_litsphere_renderer(pyramid):
+    ed = _editor("grooves")
+    for name in FAST:
+        p = next(q for q in ed.parameters() if q.name == name)
+        for v in (p.lo, min(p.hi, {"quality.facets_log2": 13, "quality.directions": 8, "quality.lobes": 12}[name])):
+            ed.set(name, v)
+            assert np.isfinite(ed.frame()).all()
+    ed.set("quality.method", "litsphere")
+    assert ed.timings["redone"] == "render" and np.isfinite(ed.frame()).all() and ed.frame().max() > 0
+
+
+def test_geometry_rebakes_and_materials_do_not(pyramid):
+    ed = pyramid
+    before, baked = ed.frame(), ed.effective
+    assert ed.set("tile.height", 1.2) == "bake"
+    assert ed.effective is not baked and ed.timings["redone"] == "bake" and "bake" in ed.timings
+    assert np.abs(ed.frame() - before).max() > 1e-3
+    baked, amplitudes = ed.effective, ed.effective.amplitudes.copy()
+    assert ed.set("material0.exponent", 30.0) == "materials"
+    assert ed.effective.lobes is baked.lobes and np.array_equal(ed.effective.amplitudes, amplitudes)
+    assert ed.effective.materials[0].exponent == 30.0
+    before = ed.frame()
+    assert ed.set("light.elevation", 20.0) == "render" and ed.effective is not None
+    assert np.abs(ed.frame() - before).max() > 1e-3
+    assert ed.set("light.elevation", 20.0) == "none"  # nothing changed: nothing redone
+
+
+def test_a_material_kind_brings_its_own_controls(pyramid):
+    ed = pyramid
+    ed.set("material0.kind", "cooktorrance")
+    names = {p.name for p in ed.parameters()}
+    assert {"material0.roughness", "material0.f0"} <= names and "material0.exponent" not in names
+    assert isinstance(ed.materials[0], wb.CookTorrance)
+    ed.set("material0.roughness", 0.5)
+    assert ed.effective.materials[0].roughness == 0.5
+    ed.set("material0.kind", "blinnphong")
+
+
+@pytest.mark.parametrize("bad", [("tile.height", 99.0), ("tile.height", float("nan")), ("tile.height", "tall"),
+                                 ("tile.sides", 4.5), ("material0.kd", (2, 0, 0)), ("material0.kind", "glass"),
+                                 ("quality.lobes", 0), ("light.environment", "moon"), ("tile.colour", 1.0),
+                                 ("tile.height", True)])
+def test_bad_values_leave_the_editor_as_it_was(pyramid, bad):
+    ed = pyramid
+    name, value = bad
+    before, state = ed.frame(), {p.name: p.value for p in ed.parameters()}
+    with pytest.raises(ValueError) as info:
+        ed.set(name, value)
+    message = str(info.value)
+    assert "\n" not in message and (name in message or name.split(".")[1] in message), message
+    assert np.array_equal(ed.frame(), before)
+    assert {p.name: p.value for p in ed.parameters()} == state
+
+
+def test_undo_and_redo(pyramid):
+    ed = pyramid
+    first = ed.get("tile.sides")
+    frame = ed.frame()
+    ed.set("tile.sides", 6)
+    changed = ed.frame()
+    assert ed.undo() and ed.get("tile.sides") == first
+    assert np.allclose(ed.frame(), frame, atol=1e-6)
+    assert ed.redo() and ed.get("tile.sides") == 6
+    assert np.allclose(ed.frame(), changed, atol=1e-6)
+    ed.set("tile.sides", first)
+    assert not ed.redo()
+
+
+def test_coarse_edits_then_refine(pyramid):
+    ed = pyramid
+    ed.set("quality.facets_log2", 13)
+    ed.set("tile.height", 0.7, coarse=True)
+    assert ed.effective.info["facets"] <= 1 << E.COARSE["facets_log2"]
+    assert ed.refine() and not ed.refine()
+    assert ed.effective.info["facets"] == 1 << 13
+    ed.set("quality.facets_log2", FAST["quality.facets_log2"])
+
+
+def test_painting_changes_the_field_only_under_the_brush():
+    ed = _editor("heightfield")
+    h0 = ed.heights
+    frame = ed.frame()
+    assert ed.paint(0.25, 0.75, 0.1, 0.5) == "bake"
+    d = ed.heights - h0
+    n = len(h0)
+    y, x = np.mgrid[0:n, 0:n] / n
+    dist = np.hypot(np.minimum(abs(x - 0.25), 1 - abs(x - 0.25)), np.minimum(abs(y - 0.75), 1 - abs(y - 0.75)))
+    assert np.all(d[dist >= 0.1] == 0) and d[dist < 0.05].min() > 0
+    assert abs(d.max() - 0.5) < 0.05 and np.abs(ed.frame() - frame).max() > 0
+    ed.paint(0.9, 0.05, 0.2, -0.3)  # lowers, wrapping across the tile's corner
+    assert (ed.heights - h0)[0, 0] < 0
+    before = ed.heights
+    ed.smooth(0.25, 0.75, 0.15, 1.0)
+    s = ed.heights - before
+    assert np.all(s[dist >= 0.15] == 0) and np.abs(s).max() > 0
+    assert ed.undo() and np.array_equal(ed.heights, before)
+    with pytest.raises(ValueError, match="radius"):
+        ed.paint(0.5, 0.5, 0.0, 0.1)
+    with pytest.raises(ValueError, match="only a height field"):
+        _editor("pyramid").paint(0.5, 0.5, 0.1, 0.1)
+
+
+@pytest.mark.parametrize("family", ["pyramid", "rods", "heightfield"])
+def test_save_then_load_gives_the_same_frame(tmp_path, family):
+    ed = _editor(family)
+    if family == "heightfield":
+        ed.paint(0.5, 0.5, 0.2, 0.4)
+    else:
+        ed.set("tile.color", (0.3, 0.9, 0.2))
+    ed.set("material0.kind", "ward")
+    ed.set("light.azimuth", 120.0)
+    path = tmp_path / "design.toml"
+    ed.save(path)
+    again = E.Editor.load(path, backend="warp:cpu")
+    assert again.family == family and again.get("material0.kind") == "ward"
+    assert math.isclose(again.get("light.azimuth"), 120.0, abs_tol=1e-6)
+    assert np.allclose(again.frame(), ed.frame(), rtol=1e-3, atol=1e-3 * ed.frame().max())
+    # the file is a scene `warp-biscale render` reads: the same design baked by the scene loader
+    scene = wb.load_scene(path)
+    assert isinstance(scene.scene.materials[0], wb.EffectiveBRDF)
+
+
+def test_screenshot_and_bad_targets(tmp_path, pyramid):
+    pyramid.screenshot(tmp_path / "frame.png")
+    img = wb.images.read_image(tmp_path / "frame.png")
+    assert img.shape[:2] == (SIZE["height"], SIZE["width"]) and img.max() > 0
+    assert pyramid.image8().dtype == np.uint8
+    with pytest.raises(ValueError, match="neither a tile family"):
+        E.Editor("no-such-tile", backend="warp:cpu", **SIZE)
+    with pytest.raises(ValueError, match="width"):
+        E.Editor("pyramid", backend="warp:cpu", width=0, height=10)
+    with pytest.raises(ValueError, match="no parameter"):
+        pyramid.set("tile.nope", 1.0)

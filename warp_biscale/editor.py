@@ -1,0 +1,715 @@
+"""The bi-scale editor's state, headless: a tile's parameters (or a painted height field), its small-scale
+materials, the bake's quality and the light, and the large-scale frame they give (Wu 2011 §4, Iwasaki
+2012 §6). `editor_gui` draws a window around it; scripts and tests drive it directly:
+
+    ed = wb.Editor("pyramid", backend="auto", width=640, height=480)
+    ed.parameters()                    # names, ranges, current values
+    ed.set("tile.height", 0.8)         # re-bakes the geometry, re-renders -> "bake"
+    ed.set("material0.exponent", 300)  # new small-scale BRDFs on the same bake -> "materials"
+    ed.set("light.elevation", 30)      # a new frame only -> "render"
+    ed.frame()                         # (H, W, 3) float32 radiance; ed.image8() for display
+    ed.undo(); ed.save("design.toml")  # a scene file `warp-biscale render` reads
+
+Every change is checked before anything is replaced: a bad value raises a one-line ValueError naming the
+parameter and leaves the editor as it was. A geometry change may be `coarse` (fewer facets, directions and
+lobes: what a dragged slider shows); `refine()` then bakes at full quality.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import os
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import geometry, images
+from .bake import bake
+from .brdf import BlinnPhong, CookTorrance, Lambert, Ward
+from .io import atomic_path, check_output
+from .render import render
+from .scene import Camera, DirectionalLight, Mesh, Scene
+from .environment import Environment
+from .smallscale import SmallScale
+
+__all__ = ["Editor", "Parameter", "FAMILIES"]
+
+
+@dataclass
+class Parameter:
+    """One control: `kind` "real" | "int" | "choice" | "rgb" | "bool"; `lo`/`hi` for numbers, `choices` for a
+    choice; `rebake`: changing it bakes the geometry again."""
+
+    name: str
+    group: str
+    kind: str
+    value: object
+    lo: float | None = None
+    hi: float | None = None
+    choices: tuple | None = None
+    rebake: bool = False
+    help: str = ""
+
+
+N_MATERIALS = 2  # small-scale materials a design has: every family can put either on each of its parts
+HEIGHTS = 64  # a painted height field's grid (its vertices: HEIGHTS² per period)
+
+# Each family's controls: (name, kind, lo, hi or choices, default, help). Ranges are what every value in
+# them bakes to a valid tile with (tests/test_editor.py sets each to both ends).
+_MAT = ("int", 0, N_MATERIALS - 1)
+FAMILIES = {
+    "pyramid": [
+        ("height", "real", 0.05, 2.0, 0.5, "apex height (base side 1)"),
+        ("sides", "int", 3, 8, 4, "lateral faces"),
+        ("rotation", "real", 0.0, math.pi / 2, 0.0, "base rotation about z, radians"),
+        ("base_fraction", "real", 0.2, 1.0, 1.0, "base circumradius / half the tile side"),
+        ("material", *_MAT, 0, "small-scale material of the faces"),
+        ("base_material", *_MAT, 1, "small-scale material of the ground around the base"),
+        ("color", "rgb", None, None, (1.0, 0.75, 0.3), "colour weight of the faces"),
+        ("base_color", "rgb", None, None, (0.55, 0.1, 0.07), "colour weight of the ground"),
+    ],
+    "grooves": [
+        ("depth", "real", 0.05, 2.0, 0.5, "groove depth (period 1)"),
+        ("profile", "choice", None, ("v", "u"), "v", "V walls or a half ellipse"),
+        ("flat_fraction", "real", 0.0, 0.9, 0.0, "share of the period that is flat land"),
+        ("axis", "choice", None, ("x", "y"), "x", "direction the grooves run in"),
+        ("material", *_MAT, 0, "small-scale material of the land"),
+        ("wall_material", *_MAT, 1, "small-scale material of the walls"),
+        ("color", "rgb", None, None, (1.0, 1.0, 1.0), "colour weight of the land"),
+        ("wall_color", "rgb", None, None, (0.8, 0.5, 0.3), "colour weight of the walls"),
+    ],
+    "rods": [
+        ("radius", "real", 0.02, 0.2, 0.1, "rod radius (spacing 0.5)"),
+        ("length", "real", 0.1, 1.5, 0.5, "rod length along its axis"),
+        ("count", "int", 1, 4, 2, "rods per tile side"),
+        ("lean", "real", 0.0, 1.0, 0.0, "mean axis' tilt, as a share of the largest that keeps a rod in its cell"),
+        ("azimuth", "real", 0.0, 2 * math.pi, 0.0, "mean axis' azimuth, radians"),
+        ("spread", "real", 0.0, 0.5, 0.0, "largest random deviation of an axis, radians"),
+        ("material", *_MAT, 0, "small-scale material of the rods"),
+        ("ground_material", *_MAT, 1, "small-scale material of the ground"),
+        ("color", "rgb", None, None, (0.9, 0.2, 0.25), "colour weight of the rods"),
+        ("ground_color", "rgb", None, None, (0.2, 0.05, 0.05), "colour weight of the ground"),
+    ],
+    "woven": [
+        ("warp_width", "real", 0.2, 0.95, 0.8, "warp thread width (spacing 1)"),
+        ("weft_width", "real", 0.2, 0.95, 0.8, "weft thread width"),
+        ("warp_height", "real", 0.05, 0.6, 0.2, "warp thread thickness"),
+        ("weft_height", "real", 0.05, 0.6, 0.2, "weft thread thickness"),
+        ("warp_material", *_MAT, 0, "small-scale material of the warp"),
+        ("weft_material", *_MAT, 1, "small-scale material of the weft"),
+        ("warp_color", "rgb", None, None, (0.9, 0.25, 0.2), "colour weight of the warp"),
+        ("weft_color", "rgb", None, None, (0.2, 0.35, 0.9), "colour weight of the weft"),
+    ],
+    "heightfield": [
+        ("amplitude", "real", 0.0, 0.5, 0.15, "height of the painted field's unit (tile side 1)"),
+        ("smoothing", "real", 0.0, 4.0, 0.0, "Gaussian blur of the field, in grid cells"),
+        ("material", *_MAT, 0, "small-scale material of the field"),
+        ("color", "rgb", None, None, (1.0, 1.0, 1.0), "colour weight of the field"),
+    ],
+}
+# The command line's and scene files' tile names that are a family with fixed settings.
+ALIASES = {"pentagon": ("pyramid", {"sides": 5}), "vgroove": ("grooves", {"profile": "v"}),
+           "ugroove": ("grooves", {"profile": "u"})}
+
+BRDF_KINDS = ("lambert", "blinnphong", "cooktorrance", "ward")
+# A small-scale material's controls by kind: (name, kind, lo, hi, help); kd/ks are RGB.
+BRDF_PARAMS = {
+    "lambert": [("kd", "rgb", None, None, "albedo")],
+    "blinnphong": [("kd", "rgb", None, None, "diffuse albedo"), ("ks", "rgb", None, None, "specular colour"),
+                   ("exponent", "real", 1.0, 2000.0, "Blinn-Phong exponent")],
+    "cooktorrance": [("kd", "rgb", None, None, "diffuse albedo"), ("ks", "rgb", None, None, "specular colour"),
+                     ("roughness", "real", 0.03, 1.0, "Beckmann roughness m"), ("f0", "real", 0.0, 1.0, "Fresnel F0")],
+    "ward": [("kd", "rgb", None, None, "diffuse albedo"), ("ks", "rgb", None, None, "specular colour"),
+             ("alpha", "real", 0.03, 1.0, "Ward roughness")],
+}
+DEFAULT_MATERIALS = [
+    {"kind": "blinnphong", "kd": (0.2, 0.2, 0.2), "ks": (0.8, 0.8, 0.8), "exponent": 256.0, "roughness": 0.2,
+     "f0": 0.9, "alpha": 0.2},
+    {"kind": "lambert", "kd": (0.6, 0.6, 0.6), "ks": (0.5, 0.5, 0.5), "exponent": 64.0, "roughness": 0.3,
+     "f0": 0.05, "alpha": 0.3},
+]
+QUALITY = [
+    ("lobes", "int", 1, 32, 8, True, "J: SG lobes of the normal distribution"),
+    ("facets_log2", "int", 10, 20, 16, True, "log2 of the facets sampled on the tile"),
+    ("directions", "int", 4, 16, 12, True, "K: the K x K direction grid of the tables"),
+    ("method", "choice", None, ("sg", "litsphere"), "sg", False, "large-scale renderer"),
+]
+COARSE = {"lobes": 4, "facets_log2": 12, "directions": 6}  # a dragged slider's bake: each at most this
+LITSPHERE_RESOLUTION = 256  # the lit-sphere renderer's images of the design: an editor's frame, not a print
+LIGHT = [
+    ("elevation", "real", 5.0, 90.0, 45.0, "sun elevation, degrees"),
+    ("azimuth", "real", 0.0, 360.0, 35.0, "sun azimuth, degrees"),
+    ("intensity", "real", 0.0, 10.0, 3.0, "sun irradiance"),
+    ("environment", "choice", None, ("sky", "studio", "constant", "none"), "sky", "what lights the rest"),
+]
+
+
+def _rgb(name, value):
+    try:
+        v = np.asarray(value, np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be an RGB triple of numbers, got {value!r}") from None
+    if v.size == 1:
+        v = np.repeat(v, 3)
+    if v.size != 3 or not np.all(np.isfinite(v)) or v.min() < 0 or v.max() > 1:
+        raise ValueError(f"{name} must be an RGB triple in [0, 1], got {value!r}")
+    return tuple(float(x) for x in v)
+
+
+def _checked(name, kind, lo, hi, value):
+    """`value` as the control's type, or a one-line ValueError naming the control."""
+    if kind == "rgb":
+        return _rgb(name, value)
+    if kind == "choice":
+        if value not in hi:
+            raise ValueError(f"{name} must be one of {', '.join(map(str, hi))}, got {value!r}")
+        return value
+    if kind == "bool":
+        if not isinstance(value, (bool, np.bool_)):
+            raise ValueError(f"{name} must be True or False, got {value!r}")
+        return bool(value)
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name} must be a number, got {value!r}")
+    v = float(value)
+    if not math.isfinite(v):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    if kind == "int":
+        if v != round(v):
+            raise ValueError(f"{name} must be an integer, got {value!r}")
+        v = int(round(v))
+    if not (lo <= v <= hi):
+        raise ValueError(f"{name} must lie in [{lo:g}, {hi:g}], got {value!r}")
+    return v
+
+
+ROD_SPACING = 0.5
+
+
+def rod_tilt(p: dict) -> float:
+    """The rods' mean tilt (radians) for a `lean` in [0, 1]: lean × the largest tilt whose top stays
+    clear of the cell's edge with a margin, L·sin θ + r ≤ 0.45·spacing (what geometry.rods needs, and
+    then some), at most 1.2 rad (its cap well off the ground)."""
+    room = (0.45 * ROD_SPACING - p["radius"]) / p["length"]
+    return p["lean"] * min(math.asin(min(max(room, 0.0), 1.0)), 1.2)
+
+
+def _brdf(m: dict):
+    """The Brdf a material's controls describe."""
+    if m["kind"] == "lambert":
+        return Lambert(m["kd"])
+    if m["kind"] == "blinnphong":
+        return BlinnPhong(m["ks"], m["exponent"], kd=m["kd"], normalization="energy")
+    if m["kind"] == "cooktorrance":
+        return CookTorrance(m["ks"], m["roughness"], kd=m["kd"], f0=m["f0"])
+    return Ward(m["ks"], m["alpha"], kd=m["kd"])
+
+
+def brdf_spec(m: dict) -> str:
+    """The command line's --brdf text of a material's controls (`brdf.parse_brdf` reads it back)."""
+    def rgb(v):
+        return "/".join(f"{x:.6g}" for x in v)
+    if m["kind"] == "lambert":
+        return f"lambert:albedo={rgb(m['kd'])}"
+    if m["kind"] == "blinnphong":
+        return f"blinnphong:ks={rgb(m['ks'])},exponent={m['exponent']:.6g},kd={rgb(m['kd'])},normalization=energy"
+    if m["kind"] == "cooktorrance":
+        return f"cooktorrance:ks={rgb(m['ks'])},roughness={m['roughness']:.6g},f0={m['f0']:.6g},kd={rgb(m['kd'])}"
+    return f"ward:ks={rgb(m['ks'])},alpha={m['alpha']:.6g},kd={rgb(m['kd'])}"
+
+
+def default_heights(n: int = HEIGHTS, seed: int = 0) -> np.ndarray:
+    """A gentle periodic relief to paint on: a few random low-frequency waves, in [0, 1]."""
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:n, 0:n] / n
+    h = np.zeros((n, n))
+    for _ in range(6):
+        fx, fy = rng.integers(1, 4, 2)
+        h += np.cos(2 * np.pi * (fx * x + fy * y) + rng.uniform(0, 2 * np.pi))
+    return (h - h.min()) / (h.max() - h.min())
+
+
+def _blur(h: np.ndarray, sigma: float) -> np.ndarray:
+    """Periodic Gaussian blur of a height field (sigma in grid cells), by FFT."""
+    if sigma <= 0:
+        return h
+    n, m = h.shape
+    ky = np.fft.fftfreq(n)[:, None]
+    kx = np.fft.fftfreq(m)[None, :]
+    return np.real(np.fft.ifft2(np.fft.fft2(h) * np.exp(-2 * (np.pi * sigma) ** 2 * (kx**2 + ky**2))))
+
+
+def _brush(n: int, x: float, y: float, radius: float) -> np.ndarray:
+    """(n, n) weights of a round brush at (x, y) in tile coordinates [0, 1]² (row i is y = i/n), radius in
+    tile units, wrapping across the period; (1 − (d/r)²)², exactly 0 at and past the radius."""
+    c = np.arange(n) / n
+    dx = np.abs(c[None, :] - x)
+    dy = np.abs(c[:, None] - y)
+    dx, dy = np.minimum(dx, 1 - dx), np.minimum(dy, 1 - dy)
+    q = (dx**2 + dy**2) / radius**2
+    return np.where(q < 1, (1 - q) ** 2, 0.0)
+
+
+_BALL: dict = {}
+
+
+def default_scene(width: int, height: int) -> tuple[Mesh, Camera]:
+    """A material ball: a sphere in the design (material 0) on a floor (material 1). The mesh is made once
+    a process: its sky-visibility field (SSDF) and BVH are cached on it, so a second editor starts at once."""
+    if "mesh" not in _BALL:
+        _BALL["mesh"] = Mesh.merge([Mesh.sphere(1.0, (0.0, 1.0, 0.0), subdivisions=4, material=0),
+                                    Mesh.plane(12.0, 0.0, 16, material=1)])
+    return _BALL["mesh"], Camera(eye=(0.0, 2.4, 4.6), target=(0.0, 0.9, 0.0), fov=35.0, width=width, height=height)
+
+
+class Editor:
+    """A bi-scale design and its frame (module docstring). `target`: a family of FAMILIES or an alias
+    (pentagon, vgroove, ugroove), "heightfield", a greyscale image (a height field to paint on), or a
+    mesh file (its geometry fixed: materials, quality and light only). `backend`: where bakes and
+    renders run."""
+
+    def __init__(self, target="pyramid", *, backend="auto", width: int = 640, height: int = 480):
+        from .backend import get_backend  # the editor holds one backend for its whole session
+
+        if isinstance(width, bool) or not isinstance(width, int) or not (16 <= width <= 8192):
+            raise ValueError(f"width must be an integer in [16, 8192], got {width!r}")
+        if isinstance(height, bool) or not isinstance(height, int) or not (16 <= height <= 8192):
+            raise ValueError(f"height must be an integer in [16, 8192], got {height!r}")
+        self.backend = get_backend(backend)
+        self.width, self.height = width, height
+        self.mesh_tile = None
+        state = {"family": None, "tile": {}, "heights": None,
+                 "materials": copy.deepcopy(DEFAULT_MATERIALS),
+                 "quality": {name: default for name, _, _, _, default, _, _ in QUALITY},
+                 "light": {name: default for name, _, _, _, default, _ in LIGHT}}
+        spec = os.fspath(target) if isinstance(target, os.PathLike) else target
+        if not isinstance(spec, str):
+            raise ValueError(f"Editor target must be a tile family, an image or a mesh file, got {target!r}")
+        family, fixed = ALIASES.get(spec, (spec, {}))
+        if family in FAMILIES:
+            state["family"] = family
+            state["tile"] = {name: default for name, _, _, _, default, _ in FAMILIES[family]}
+            state["tile"].update(fixed)
+            if family == "heightfield":
+                state["heights"] = default_heights()
+        elif os.path.isfile(spec) and spec.lower().endswith((".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")):
+            state["family"] = "heightfield"
+            state["tile"] = {name: default for name, _, _, _, default, _ in FAMILIES["heightfield"]}
+            state["heights"] = geometry.read_height_image(spec)  # its checks and one-line errors
+        elif os.path.isfile(spec):
+            self.mesh_tile = SmallScale.load(spec)
+            self.mesh_path = os.path.abspath(spec)
+        else:
+            raise ValueError(f"Editor target {spec!r} is neither a tile family ({', '.join([*FAMILIES, *ALIASES])}), "
+                             "an image nor an existing mesh file")
+        self._state = state
+        self._undo: list = []
+        self._redo: list = []
+        self.timings: dict = {}
+        self._coarse = False
+        self._environments: dict = {}  # one per kind: its SG fit and prefiltered maps are cached on it
+        self.tile = self.effective = self._image = self.scene = None
+        self.mesh, self.camera = default_scene(width, height)
+        self._build(state, "bake", coarse=False)
+
+    # ------------------------------------------------------------------ what can be changed
+    @property
+    def family(self):
+        return self._state["family"]
+
+    @property
+    def heights(self):
+        h = self._state["heights"]
+        return None if h is None else h.copy()
+
+    @property
+    def materials(self) -> list:
+        return [_brdf(m) for m in self._state["materials"]]
+
+    def _controls(self, state) -> dict:
+        """name → (group, kind, lo, hi-or-choices, rebake, help, getter path)."""
+        out = {}
+        if state["family"] is not None:
+            for name, kind, lo, hi, _, hlp in FAMILIES[state["family"]]:
+                out[f"tile.{name}"] = ("tile", kind, lo, hi, True, hlp, ("tile", name))
+        for i, m in enumerate(state["materials"]):
+            out[f"material{i}.kind"] = (f"material {i}", "choice", None, BRDF_KINDS, False,
+                                        "small-scale BRDF", ("materials", i, "kind"))
+            for name, kind, lo, hi, hlp in BRDF_PARAMS[m["kind"]]:
+                out[f"material{i}.{name}"] = (f"material {i}", kind, lo, hi, False, hlp, ("materials", i, name))
+        for name, kind, lo, hi, _, rebake, hlp in QUALITY:
+            out[f"quality.{name}"] = ("quality", kind, lo, hi, rebake, hlp, ("quality", name))
+        for name, kind, lo, hi, _, hlp in LIGHT:
+            out[f"light.{name}"] = ("light", kind, lo, hi, False, hlp, ("light", name))
+        return out
+
+    def parameters(self) -> list:
+        """Every control of the current design, with its range and value."""
+        out = []
+        for name, (group, kind, lo, hi, rebake, hlp, path) in self._controls(self._state).items():
+            choices = hi if kind == "choice" else None
+            number = kind in ("real", "int")
+            out.append(Parameter(name, group, kind, self._lookup(self._state, path), lo if number else None,
+                                 hi if number else None, choices, rebake, hlp))
+        return out
+
+    @staticmethod
+    def _lookup(state, path):
+        v = state
+        for p in path:
+            v = v[p]
+        return v
+
+    def get(self, name: str):
+        controls = self._controls(self._state)
+        if name not in controls:
+            raise ValueError(f"no parameter {name!r}; the design has {', '.join(controls)}")
+        return self._lookup(self._state, controls[name][-1])
+
+    # ------------------------------------------------------------------ changes
+    def set(self, name: str, value, coarse: bool = False) -> str:
+        """Set one control; → what was redone: "bake" (the geometry), "materials" (new small-scale BRDFs on
+        the same bake), "render" (the frame only) or "none". `coarse`: a geometry change bakes at COARSE
+        quality (`refine` bakes it fully). A bad name or value: ValueError, nothing changed."""
+        return self.set_many({name: value}, coarse)
+
+    def set_many(self, values: dict, coarse: bool = False) -> str:
+        """Set several controls at once (one bake and one frame), in order (a material's kind first makes
+        its controls exist); → as `set`. Every value is checked before anything changes."""
+        state = copy.deepcopy(self._state)
+        redo = "none"
+        rank = {"none": 0, "render": 1, "materials": 2, "bake": 3}
+        for name, value in values.items():
+            controls = self._controls(state)
+            if name not in controls:
+                raise ValueError(f"no parameter {name!r}; the design has {', '.join(controls)}")
+            group, kind, lo, hi, rebake, _, path = controls[name]
+            value = _checked(name, kind, lo, hi, value)
+            target = state
+            for p in path[:-1]:
+                target = target[p]
+            if target[path[-1]] == value:
+                continue
+            target[path[-1]] = value
+            this = "bake" if rebake else "materials" if group.startswith("material") else "render"
+            redo = max(redo, this, key=rank.get)
+        if redo == "none":
+            return "none"
+        return self._apply(state, redo, coarse)
+
+    def refine(self) -> bool:
+        """After coarse edits, the full-quality bake and frame; False when the bake already is."""
+        if not self._coarse:
+            return False
+        self._build(self._state, "bake", coarse=False)
+        return True
+
+    def paint(self, x: float, y: float, radius: float, strength: float, coarse: bool = False) -> str:
+        """Raise (strength > 0) or lower (< 0) the painted height field round (x, y) ∈ [0, 1]² (tile
+        coordinates, wrapping), brush `radius` in tile units (0, 0.5]; heights beyond the radius are
+        unchanged. Then re-bake."""
+        h = self._painted("paint", x, y, radius, strength, (-1.0, 1.0))
+        w = _brush(len(h), x, y, radius)
+        state = copy.deepcopy(self._state)
+        state["heights"] = h + strength * w
+        return self._apply(state, "bake", coarse)
+
+    def smooth(self, x: float, y: float, radius: float, strength: float, coarse: bool = False) -> str:
+        """Blend the height field round (x, y) towards its blur (strength ∈ [0, 1]), as `paint`."""
+        h = self._painted("smooth", x, y, radius, strength, (0.0, 1.0))
+        w = strength * _brush(len(h), x, y, radius)
+        state = copy.deepcopy(self._state)
+        state["heights"] = (1 - w) * h + w * _blur(h, max(1.0, radius * len(h) / 2))
+        return self._apply(state, "bake", coarse)
+
+    def _painted(self, what, x, y, radius, strength, strength_range):
+        if self._state["heights"] is None:
+            raise ValueError(f"{what}: only a height field can be painted; this design is "
+                             f"{self.family or 'a mesh file'}")
+        _checked(f"{what} x", "real", 0.0, 1.0, x)
+        _checked(f"{what} y", "real", 0.0, 1.0, y)
+        if _checked(f"{what} radius", "real", 0.0, 0.5, radius) <= 0:
+            raise ValueError(f"{what} radius must be > 0, got {radius!r}")
+        _checked(f"{what} strength", "real", *strength_range, strength)
+        return self._state["heights"]
+
+    def _apply(self, state, redo, coarse) -> str:
+        previous = self._state
+        self._build(state, redo, coarse)  # raises before anything is replaced
+        self._undo.append(previous)
+        self._redo.clear()
+        return redo
+
+    def undo(self) -> bool:
+        if not self._undo:
+            return False
+        state = self._undo.pop()
+        self._redo.append(self._state)
+        self._build(state, "bake", coarse=False)
+        return True
+
+    def redo(self) -> bool:
+        if not self._redo:
+            return False
+        state = self._redo.pop()
+        self._undo.append(self._state)
+        self._build(state, "bake", coarse=False)
+        return True
+
+    # ------------------------------------------------------------------ building
+    def _tile(self, state) -> SmallScale:
+        if state["family"] is None:
+            return self.mesh_tile
+        p = dict(state["tile"])
+        fam = state["family"]
+        if fam == "heightfield":
+            h = _blur(state["heights"], p["smoothing"])
+            return geometry.heightfield(h, scale=p["amplitude"], material=p["material"], color=p["color"])
+        if fam == "rods":
+            return geometry.rods(radius=p["radius"], spacing=ROD_SPACING, length=p["length"], count=p["count"],
+                                 perturbation=p["spread"], orientation=(rod_tilt(p), p["azimuth"]),
+                                 material=p["material"], ground_material=p["ground_material"], color=p["color"],
+                                 ground_color=p["ground_color"])
+        return getattr(geometry, fam)(**p)
+
+    def _quality(self, state, coarse):
+        q = dict(state["quality"])
+        if coarse:
+            q = {k: min(v, COARSE[k]) if k in COARSE else v for k, v in q.items()}
+        return q
+
+    def _light_scene(self, state, effective) -> Scene:
+        li = state["light"]
+        el, az = math.radians(li["elevation"]), math.radians(li["azimuth"])
+        direction = (math.cos(el) * math.cos(az), math.sin(el), math.cos(el) * math.sin(az))
+        lights = [DirectionalLight(direction, li["intensity"], 1.0)] if li["intensity"] > 0 else []
+        if li["environment"] not in self._environments:
+            self._environments[li["environment"]] = _environment(li["environment"])
+        env = self._environments[li["environment"]]
+        floor = Lambert(0.45)
+        return Scene(self.mesh, [effective, floor], self.camera, env, lights, ssdf_resolution=16)
+
+    def _build(self, state, redo, coarse):
+        """Make what `redo` needs from `state`, render, and only then replace the editor's state."""
+        t_all = time.perf_counter()
+        timings = {"redone": redo}
+        tile, effective = self.tile, self.effective
+        if redo == "bake" or effective is None:
+            t0 = time.perf_counter()
+            tile = self._tile(state)
+            timings["tile"] = time.perf_counter() - t0
+            q = self._quality(state, coarse)
+            t0 = time.perf_counter()
+            mats = [_brdf(m) for m in state["materials"]][:max(tile.n_materials, 1)]
+            effective = bake(tile, mats, lobes=q["lobes"], directions=q["directions"], facets=1 << q["facets_log2"],
+                             backend=self.backend)
+            timings["bake"] = time.perf_counter() - t0
+        elif redo == "materials":
+            t0 = time.perf_counter()
+            effective = effective.with_materials([_brdf(m) for m in state["materials"]][:len(effective.materials)])
+            timings["bake"] = time.perf_counter() - t0
+        scene = self._light_scene(state, effective)
+        if self.scene is not None and self.scene.materials[0] is effective:
+            scene.cache = self.scene.cache  # the same materials, mesh and environment: the static inputs stand
+        method = state["quality"]["method"]
+        t0 = time.perf_counter()
+        image = render(scene, method=method, backend=self.backend, shadow_samples=1,
+                       **({"resolution": LITSPHERE_RESOLUTION} if method == "litsphere" else {})).image
+        timings["render"] = time.perf_counter() - t0
+        timings["total"] = time.perf_counter() - t_all
+        self._state, self.tile, self.effective, self.scene, self._image = state, tile, effective, scene, image
+        if redo == "bake":
+            self._coarse = coarse
+        self.timings = timings
+
+    # ------------------------------------------------------------------ output
+    def frame(self) -> np.ndarray:
+        """(H, W, 3) float32 linear radiance of the current design on the large-scale scene."""
+        return self._image.copy()
+
+    def image8(self, exposure: float = 0.0) -> np.ndarray:
+        """The frame tone-mapped to (H, W, 3) uint8 sRGB (`images.tonemap`), as the window shows it."""
+        return images.tonemap(self._image, exposure)
+
+    def screenshot(self, path) -> None:
+        """The frame as an image file (PNG tone-mapped; EXR/HDR the radiance), written atomically."""
+        images.write_image(path, self._image)
+
+    def save(self, path) -> None:
+        """The design as a scene file (`warp-biscale render PATH`, `wb.load_scene`): the tile family and its
+        parameters (a painted height field as a 16-bit PNG beside it; a mesh file by its path), the
+        small-scale BRDFs, the bake's quality, the light and environment. Written atomically."""
+        path = os.fspath(path)
+        check_output(path)
+        stem = os.path.splitext(os.path.basename(path))[0]
+        text = _design_toml(self._state, self.width, self.height,
+                            None if self.mesh_tile is None else self.mesh_path, f"{stem}_heights.png")
+        folder = os.path.dirname(os.path.abspath(path))
+        if self._state["heights"] is not None:
+            _write_heights(os.path.join(folder, f"{stem}_heights.png"), self._state)
+        with atomic_path(path) as tmp:
+            with open(tmp, "w") as f:
+                f.write(text)
+
+    @classmethod
+    def load(cls, path, *, backend="auto") -> Editor:
+        """An editor on a design `save` wrote (or any scene file whose first bake material is a tile family
+        or a mesh file)."""
+        import tomllib
+
+        path = os.fspath(path)
+        try:
+            with open(path, "rb") as f:
+                data = tomllib.load(f)
+        except OSError as exc:
+            raise ValueError(f"cannot read design {path}: {exc.strerror or exc}") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise ValueError(f"design {path} is not valid TOML: {exc}") from None
+        mats = data.get("material", {})
+        design = next((m for m in mats.values() if isinstance(m, dict) and m.get("type") == "bake"), None)
+        if design is None:
+            raise ValueError(f"design {path} has no material of type \"bake\" to edit")
+        render_ = data.get("render", {})
+        size = {"width": int(render_.get("width", 640)), "height": int(render_.get("height", 480))}
+        folder = os.path.dirname(os.path.abspath(path))
+        tile_spec = design.get("tile", "pyramid")
+        params = dict(design.get("tile_params", {}))
+        if tile_spec == "heightfield":
+            image = os.path.join(folder, params.pop("image"))
+            ed = cls(image, backend=backend, **size)
+            ed._state["heights"] = geometry.read_height_image(image) * params.get("scale", 1.0)
+            params = {"amplitude": 1.0, "material": params.get("material", 0), "color": params.get("color", (1, 1, 1))}
+        else:
+            spec = tile_spec if tile_spec in FAMILIES or tile_spec in ALIASES else os.path.join(folder, tile_spec)
+            ed = cls(spec, backend=backend, **size)
+        state = copy.deepcopy(ed._state)
+        if state["family"] is not None:
+            if state["family"] == "rods" and "orientation" in params:
+                tilt, params["azimuth"] = params.pop("orientation")
+                params["spread"] = params.pop("perturbation", 0.0)
+                params.pop("spacing", None)
+                largest = rod_tilt({**state["tile"], **params, "lean": 1.0})
+                params["lean"] = min(tilt / largest, 1.0) if largest > 0 else 0.0
+            for k, v in params.items():
+                if k in state["tile"]:
+                    state["tile"][k] = tuple(v) if isinstance(v, list) else v
+        for i, text in enumerate(design.get("brdf", [])[:N_MATERIALS]):
+            state["materials"][i].update(_material_controls(text))
+        for key, name in (("lobes", "lobes"), ("directions", "directions")):
+            if key in design:
+                state["quality"][name] = int(design[key])
+        if "facets" in design:
+            state["quality"]["facets_log2"] = int(round(math.log2(int(design["facets"]))))
+        state["quality"]["method"] = render_.get("method", "sg")
+        env = data.get("environment")
+        state["light"]["environment"] = "none" if env is None else env.get("type", "sky")
+        if state["light"]["environment"] not in ("sky", "studio", "constant", "none"):
+            state["light"]["environment"] = "sky"
+        sun = next((li for li in data.get("light", []) if li.get("type") == "directional"), None)
+        if sun is None:
+            state["light"]["intensity"] = 0.0
+        else:
+            d = np.asarray(sun["direction"], np.float64)
+            d = d / np.linalg.norm(d)
+            state["light"]["elevation"] = float(np.clip(np.degrees(np.arcsin(d[1])), 5.0, 90.0))
+            state["light"]["azimuth"] = float(np.degrees(np.arctan2(d[2], d[0])) % 360.0)
+            state["light"]["intensity"] = float(np.clip(np.mean(np.atleast_1d(sun.get("irradiance", 1.0))), 0, 10))
+        ed._build(state, "bake", coarse=False)
+        return ed
+
+
+def _environment(kind):
+    if kind == "none":
+        return None
+    if kind == "constant":
+        return Environment.constant(0.5, 16, 32)
+    if kind == "studio":
+        return Environment.studio(height=64, width=128)
+    return Environment.sky(sun_irradiance=0.0, ground=(0.3, 0.28, 0.25), height=64, width=128)
+
+
+def _write_heights(path, state):
+    """The painted field (before smoothing) as a 16-bit greyscale PNG, its top row at y = 1, scaled to the
+    full range (the scale goes into the scene file's tile_params)."""
+    from PIL import Image
+
+    h = state["heights"]
+    lo, hi = float(h.min()), float(h.max())
+    grey = np.ascontiguousarray(np.round((h - lo) / max(hi - lo, 1e-12) * 65535).astype(np.uint16)[::-1])
+    with atomic_path(path) as tmp:
+        Image.fromarray(grey).save(tmp, format="PNG")  # uint16: a 16-bit greyscale PNG
+
+
+def _material_controls(text) -> dict:
+    from .brdf import parse_brdf
+
+    b = parse_brdf(text)
+    out = {"kind": {Lambert: "lambert", BlinnPhong: "blinnphong", CookTorrance: "cooktorrance", Ward: "ward"}[type(b)]}
+    if isinstance(b, Lambert):
+        out["kd"] = tuple(float(x) for x in b.albedo)
+        return out
+    out["kd"] = tuple(float(x) for x in b.kd)
+    out["ks"] = tuple(float(x) for x in b.ks)
+    for name in ("exponent", "roughness", "f0", "alpha"):
+        if hasattr(b, name):
+            out[name] = float(getattr(b, name))
+    return out
+
+
+def _toml_value(v):
+    if isinstance(v, str):
+        return f'"{v}"'
+    if isinstance(v, (tuple, list, np.ndarray)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, (bool, np.bool_)):
+        return "true" if v else "false"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    return repr(float(v))
+
+
+def _design_toml(state, width, height, mesh_path, heights_name) -> str:
+    q, li = state["quality"], state["light"]
+    fam = state["family"]
+    if fam is None:
+        tile, params = mesh_path, {}
+    elif fam == "heightfield":
+        h = state["heights"]
+        tile = "heightfield"
+        params = {"image": heights_name, "scale": state["tile"]["amplitude"] * float(h.max() - h.min()),
+                  "material": state["tile"]["material"], "color": state["tile"]["color"]}
+    elif fam == "rods":
+        p = state["tile"]
+        tile = "rods"
+        params = {"radius": p["radius"], "spacing": ROD_SPACING, "length": p["length"], "count": p["count"],
+                  "perturbation": p["spread"], "orientation": (rod_tilt(p), p["azimuth"]), "material": p["material"],
+                  "ground_material": p["ground_material"], "color": p["color"], "ground_color": p["ground_color"]}
+    else:
+        tile, params = fam, state["tile"]
+    el, az = math.radians(li["elevation"]), math.radians(li["azimuth"])
+    direction = (math.cos(el) * math.cos(az), math.sin(el), math.cos(el) * math.sin(az))
+    lines = ["# A bi-scale design saved by warp_biscale's editor: `warp-biscale render` draws it,",
+             "# `warp-biscale edit` opens it again.", "[render]", f"width = {width}", f"height = {height}",
+             f'method = "{q["method"]}"', "ssdf_resolution = 16", "", "[camera]", "eye = [0.0, 2.4, 4.6]",
+             "target = [0.0, 0.9, 0.0]", "fov = 35.0", ""]
+    env = li["environment"]
+    if env == "sky":
+        lines += ["[environment]", 'type = "sky"', "sun_irradiance = 0.0", "ground = [0.3, 0.28, 0.25]",
+                  "height = 64", "width = 128", ""]
+    elif env == "studio":
+        lines += ["[environment]", 'type = "studio"', "height = 64", "width = 128", ""]
+    elif env == "constant":
+        lines += ["[environment]", 'type = "constant"', "radiance = 0.5", "height = 16", "width = 32", ""]
+    if li["intensity"] > 0:
+        lines += ["[[light]]", 'type = "directional"', f"direction = {_toml_value(direction)}",
+                  f"irradiance = {_toml_value(float(li['intensity']))}", "angular_radius = 1.0", ""]
+    lines += ["[[object]]", 'mesh = "sphere"', "radius = 1.0", "center = [0.0, 1.0, 0.0]", "subdivisions = 4",
+              'material = "design"', "", "[[object]]", 'mesh = "plane"', "size = 12.0", "divisions = 16",
+              'material = "floor"', "", "[material.design]", 'type = "bake"', f"tile = {_toml_value(tile)}"]
+    if params:
+        lines.append("tile_params = { " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in params.items()) + " }")
+    lines += ["brdf = [" + ", ".join(f'"{brdf_spec(m)}"' for m in state["materials"]) + "]",
+              f"lobes = {q['lobes']}", f"directions = {q['directions']}", f"facets = {1 << q['facets_log2']}", "",
+              "[material.floor]", 'type = "lambert"', "albedo = 0.45", ""]
+    return "\n".join(lines)
