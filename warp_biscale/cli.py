@@ -1,7 +1,7 @@
 """Command line: ``warp-biscale demo`` (bake a tile and render a scene with it), ``render`` (a TOML scene
-file to PNG / EXR / HDR), ``view`` (the interactive viewer), ``bake`` (SG effective BRDF of a tile),
-``truth`` (its ground truth), ``ball`` (a material thumbnail), ``batch`` (a job file of bakes and
-renders, on a Dask cluster) and ``backends``."""
+file to PNG / EXR / HDR), ``view`` (the interactive viewer), ``edit`` (the bi-scale editor), ``bake`` (SG
+effective BRDF of a tile), ``truth`` (its ground truth), ``ball`` (a material thumbnail), ``batch`` (a job
+file of bakes and renders, on a Dask cluster), ``export`` (a baked material for Mitsuba 3) and ``backends``."""
 
 from __future__ import annotations
 
@@ -318,6 +318,17 @@ def load_material(spec: str):
     return parse_brdf(spec)
 
 
+def cmd_export(args):
+    material = load(args.material)
+    if not isinstance(material, EffectiveBRDF):
+        raise ValueError(f"{args.material} holds a {type(material).__name__}, not a baked material")
+    out = args.output or os.path.splitext(os.path.basename(args.material))[0] + "-mitsuba"
+    written = material.export_mitsuba(out)
+    _say(args, f"wrote {', '.join(written.values())}; render with: python {written['script']} "
+               "(needs Mitsuba 3: pip install mitsuba)")
+    return 0
+
+
 def cmd_ball(args):
     _check_output(args.output)
 
@@ -346,6 +357,61 @@ def cmd_view(args):
     if args.screenshot:
         _say(args, f"wrote {args.screenshot}")
     return 0
+
+
+def _frame_size(text):
+    """--size WxH of `edit` → (width, height)."""
+    w, sep, h = text.lower().partition("x")
+    try:
+        size = (int(w), int(h))
+    except ValueError:
+        size = None
+    if not sep or size is None or min(size) < 16 or max(size) > 8192:
+        raise ValueError(f"--size must be WIDTHxHEIGHT with each in 16..8192 pixels, e.g. 640x480, got {text!r}")
+    return size
+
+
+def cmd_edit(args):
+    from .editor_gui import edit  # (pyvista and VTK load only for this command)
+
+    size = _frame_size(args.size)
+    if args.screenshot:
+        if not args.screenshot.lower().endswith(".png"):
+            raise ValueError(f"--screenshot {args.screenshot!r} must be a .png")
+        check_output(args.screenshot, what="--screenshot")
+    try:
+        edit(args.target, output=args.output, backend=args.backend, size=size, screenshot=args.screenshot,
+             inside=args.inside)
+    except RuntimeError as exc:  # no display, no OpenGL: say so, no traceback
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    if args.screenshot:
+        _say(args, f"wrote {args.screenshot}")
+    return 0
+
+
+def _add_edit_command(sub):
+    e = sub.add_parser("edit", help="interactive bi-scale editor: tile, materials, brush -> the large-scale look "
+                                    "(pyvista)",
+                       description="Edit a small-scale design and see the large-scale object it makes: the frame, "
+                                   "the tile (3 x 3 periods, coloured by material), sliders for the tile family's "
+                                   "parameters, each small-scale material, the bake's quality and the light; on a "
+                                   "height field, raise/lower/smooth brushes; 'looking inside' shows the normal "
+                                   "distribution, the fitted lobes and a slice of the effective BRDF against the "
+                                   "ground truth. Keys: u undo, r redo, s save (-o), p screenshot, i inside, g next "
+                                   "tab, m brush. docs/editor.md.")
+    e.add_argument("target", help="a tile family (pyramid, pentagon, grooves, vgroove, ugroove, rods, woven, "
+                                   "heightfield), a greyscale image (a height field to paint), a mesh file, or a "
+                                   "design saved by the editor (.toml)")
+    e.add_argument("-o", "--output", metavar="TOML", help="where 's' saves the design (a scene file `render` reads)")
+    e.add_argument("--backend", default="auto", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name>")
+    e.add_argument("--size", default="640x480", metavar="WxH",
+                   help="the frame's size in pixels (default 640x480; a design file's own size wins)")
+    e.add_argument("--screenshot", metavar="PNG", help="draw the window offscreen, write this PNG and exit")
+    e.add_argument("--inside", action="store_true",
+                   help="with --screenshot: show the 'looking inside' views (waits for the ground truth)")
+    e.add_argument("-q", "--quiet", action="store_true", help="no summary")
+    e.set_defaults(func=cmd_edit)
 
 
 SIZE_HELP = "WIDTH [HEIGHT] in pixels (a width alone keeps the aspect)"
@@ -415,6 +481,7 @@ def _add_render_commands(sub):
                    help="render at S x the viewport's resolution (e.g. 0.5 for quicker frames on a CPU; default 1)")
     v.add_argument("-q", "--quiet", action="store_true", help="no progress")
     v.set_defaults(func=cmd_view)
+    _add_edit_command(sub)
 
 
 def main(argv=None):
@@ -462,6 +529,17 @@ def main(argv=None):
     k.add_argument("-q", "--quiet", action="store_true", help="no summary, no progress")
     k.set_defaults(func=cmd_bake)
     batch.add_parser(sub)
+    e = sub.add_parser("export", help="export a baked material to another renderer (Mitsuba 3)",
+                       description="Write what Mitsuba 3 needs to render a baked material in its path tracer into "
+                                   "a folder: a copy of the material, scene.xml (a sphere of it through warp_biscale's "
+                                   "BSDF plugin) and render.py, which registers the plugin and renders the scene "
+                                   "(docs/mitsuba.md).")
+    e.add_argument("material", help="the baked material file (.wbm)")
+    e.add_argument("--to", required=True, choices=["mitsuba"], help="the renderer: mitsuba (Mitsuba 3)")
+    e.add_argument("-o", "--output", help="folder to write (made if missing; default NAME-mitsuba in the current "
+                                          "directory, NAME the material file's name)")
+    e.add_argument("-q", "--quiet", action="store_true", help="no summary")
+    e.set_defaults(func=cmd_export)
     b = sub.add_parser("backends", help="list the compute backends found here, usable or not, and why")
     b.add_argument("--require", action="append", metavar="KIND[:TYPE]",
                    help="exit 1 unless a backend of this kind is usable, e.g. opencl:cpu, warp:gpu, opencl")

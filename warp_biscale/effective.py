@@ -243,6 +243,14 @@ class EffectiveBRDF:
                  arrays)
         self.path = os.path.abspath(os.fspath(path))
 
+    def export_mitsuba(self, path) -> dict:
+        """Write what Mitsuba 3 needs to render this material into folder `path`: a copy of it (material.wbm),
+        scene.xml (a sphere of it) and render.py (registers the plugin, renders the scene) → {"material",
+        "scene", "script": their paths}. docs/mitsuba.md; `warp_biscale.mitsuba_export`."""
+        from .mitsuba_export import export  # the interface layer's module; Mitsuba itself is needed only to render
+
+        return export(self, path)
+
     @classmethod
     def load(cls, path) -> EffectiveBRDF:
 
