@@ -26,6 +26,7 @@ __all__ = ["Backend", "get_backend", "backends"]
 class Backend(Protocol):
     name: str  # the selection name that reproduces this backend, e.g. "warp:cpu"
     device: str  # what it runs on, in words
+    is_gpu: bool  # a GPU (else a CPU): what a sensible default quality or resolution depends on
 
     def synchronize(self) -> None:
         """Block until all queued work has finished (for timing)."""

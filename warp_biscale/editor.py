@@ -137,6 +137,10 @@ QUALITY = [
     ("method", "choice", None, ("sg", "litsphere"), "sg", False, "large-scale renderer"),
 ]
 COARSE = {"lobes": 4, "facets_log2": 12, "directions": 6}  # a dragged slider's bake: each at most this
+COARSE_SCALE = 4  # ... and its frame: rendered at 1/4 of the width and height, shown enlarged
+# The full bake's defaults on a CPU: a 2^16-facet, K = 12 bake takes ~2.6 s on 2 cores, past an
+# interactive editor's "full quality within a couple of seconds"; 2^14 facets and K = 8 take ~0.5 s.
+CPU_QUALITY = {"facets_log2": 14, "directions": 8}
 LITSPHERE_RESOLUTION = 256  # the lit-sphere renderer's images of the design: an editor's frame, not a print
 LIGHT = [
     ("elevation", "real", 5.0, 90.0, 45.0, "sun elevation, degrees"),
@@ -303,11 +307,15 @@ class Editor:
         else:
             raise ValueError(f"Editor target {spec!r} is neither a tile family ({', '.join([*FAMILIES, *ALIASES])}), "
                              "an image nor an existing mesh file")
+        if not getattr(self.backend, "is_gpu", False):
+            state["quality"].update(CPU_QUALITY)
         self._state = state
         self._undo: list = []
         self._redo: list = []
         self.timings: dict = {}
-        self._coarse = False
+        self._coarse = False  # the bake is a coarse one (refine bakes it fully)
+        self._coarse_frame = False  # the frame was rendered at 1/COARSE_SCALE size (refine renders it fully)
+        self._floor = Lambert(0.45)
         self._environments: dict = {}  # one per kind: its SG fit and prefiltered maps are cached on it
         self.tile = self.effective = self._image = self.scene = None
         self.mesh, self.camera = default_scene(width, height)
@@ -400,9 +408,12 @@ class Editor:
 
     def refine(self) -> bool:
         """After coarse edits, the full-quality bake and frame; False when the bake already is."""
-        if not self._coarse:
+        if self._coarse:
+            self._build(self._state, "bake", coarse=False)
+        elif self._coarse_frame:
+            self._build(self._state, "render", coarse=False)
+        else:
             return False
-        self._build(self._state, "bake", coarse=False)
         return True
 
     def paint(self, x: float, y: float, radius: float, strength: float, coarse: bool = False) -> str:
@@ -479,7 +490,7 @@ class Editor:
             q = {k: min(v, COARSE[k]) if k in COARSE else v for k, v in q.items()}
         return q
 
-    def _light_scene(self, state, effective) -> Scene:
+    def _light_scene(self, state, effective, coarse=False) -> Scene:
         li = state["light"]
         el, az = math.radians(li["elevation"]), math.radians(li["azimuth"])
         direction = (math.cos(el) * math.cos(az), math.sin(el), math.cos(el) * math.sin(az))
@@ -487,8 +498,11 @@ class Editor:
         if li["environment"] not in self._environments:
             self._environments[li["environment"]] = _environment(li["environment"])
         env = self._environments[li["environment"]]
-        floor = Lambert(0.45)
-        return Scene(self.mesh, [effective, floor], self.camera, env, lights, ssdf_resolution=16)
+        camera = self.camera
+        if coarse:
+            camera = Camera(camera.eye, camera.target, camera.up, camera.fov, max(8, self.width // COARSE_SCALE),
+                            max(8, self.height // COARSE_SCALE))
+        return Scene(self.mesh, [effective, self._floor], camera, env, lights, ssdf_resolution=16)
 
     def _build(self, state, redo, coarse):
         """Make what `redo` needs from `state`, render, and only then replace the editor's state."""
@@ -509,18 +523,21 @@ class Editor:
             t0 = time.perf_counter()
             effective = effective.with_materials([_brdf(m) for m in state["materials"]][:len(effective.materials)])
             timings["bake"] = time.perf_counter() - t0
-        scene = self._light_scene(state, effective)
+        scene = self._light_scene(state, effective, coarse)
         if self.scene is not None and self.scene.materials[0] is effective:
             scene.cache = self.scene.cache  # the same materials, mesh and environment: the static inputs stand
         method = state["quality"]["method"]
         t0 = time.perf_counter()
         image = render(scene, method=method, backend=self.backend, shadow_samples=1,
                        **({"resolution": LITSPHERE_RESOLUTION} if method == "litsphere" else {})).image
+        if coarse:
+            image = _enlarged(image, self.width, self.height)
         timings["render"] = time.perf_counter() - t0
         timings["total"] = time.perf_counter() - t_all
         self._state, self.tile, self.effective, self.scene, self._image = state, tile, effective, scene, image
         if redo == "bake":
             self._coarse = coarse
+        self._coarse_frame = coarse
         self.timings = timings
 
     # ------------------------------------------------------------------ output
@@ -617,6 +634,14 @@ class Editor:
             state["light"]["intensity"] = float(np.clip(np.mean(np.atleast_1d(sun.get("irradiance", 1.0))), 0, 10))
         ed._build(state, "bake", coarse=False)
         return ed
+
+
+def _enlarged(image, width, height) -> np.ndarray:
+    """A coarse frame brought to the window's size (bilinear, per channel)."""
+    from PIL import Image
+
+    return np.stack([np.asarray(Image.fromarray(np.ascontiguousarray(image[..., c], np.float32))
+                                .resize((width, height), Image.BILINEAR)) for c in range(3)], -1).astype(np.float32)
 
 
 def _environment(kind):

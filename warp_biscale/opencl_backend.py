@@ -281,6 +281,7 @@ class OpenCLBackend(DeviceBackend):
         self.build_options = build_options(device)
         # Work-items worth launching per reduction: a few per core on a CPU, enough to fill a GPU.
         is_cpu = bool(device.type & cl.device_type.CPU)
+        self.is_gpu = bool(device.type & cl.device_type.GPU)
         self._threads = max(1, device.max_compute_units) * 4 if is_cpu else 1 << 18
         # A fixed work-group size along dimension 0 (the global size is rounded up to it): PoCL
         # compiles a kernel once per work-group size, and would otherwise recompile for every new

@@ -139,6 +139,7 @@ class WarpBackend(DeviceBackend):
             raise ValueError(f"backend 'warp:{self._device.alias}' is unusable here: {reason}")
         self.name = f"warp:{self._device.alias}"
         self.device = self._device.name
+        self.is_gpu = not self._device.is_cpu
         # Launch slices: one per core on the CPU (each slice runs on one thread), one on a GPU.
         self._slices = max(1, os.cpu_count() or 1) if self._device.is_cpu else 1
         self._pool = ThreadPoolExecutor(self._slices) if self._slices > 1 else None
