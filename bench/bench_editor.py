@@ -126,7 +126,7 @@ def main(argv=None):
     out.finish(table)
     try:
         plot(out.records, args.out)
-    except ImportError:  # a lent GPU machine may lack matplotlib: `--plot-only` draws it from results.json
+    except ImportError:  # a lent GPU machine may lack matplotlib: plot() can draw results.json elsewhere
         out.log("matplotlib is absent: no editor.png")
     out.log(f"wrote {args.out}/results.json, table.md")
 
