@@ -581,6 +581,31 @@ class DeviceBackend:
                                          int(view_mode), float(shrink), *m["litsphere_env"], n, out)
         return self._to_host(out, n, "vec3") if to_host else None
 
+    def frame_radiance(self, mesh, width: int, height: int) -> np.ndarray:
+        """(H, W, 3) float32: the radiance the last shade or shade_litsphere left on the device for `mesh`."""
+        return self._to_host(self._frame(mesh, width, height), width * height, "vec3").reshape(height, width, 3)
+
+    def frame_u8(self, mesh, width: int, height: int, exposure: float = 0.0, operator: str = "aces") -> np.ndarray:
+        """(H, W, 3) uint8 sRGB of that radiance, tone-mapped on the device (images.tonemap: `exposure` in
+        stops, `operator` one of images.TONEMAP_OPERATORS): a frame for display, read back at a quarter of
+        the float32 frame's bytes."""
+        from .images import TONEMAP_OPERATORS, check_exposure
+
+        if operator not in TONEMAP_OPERATORS:
+            raise ValueError(f"unknown tone-map operator {operator!r}; choose one of {TONEMAP_OPERATORS}")
+        scale = 2.0 ** check_exposure(exposure)
+        radiance = self._frame(mesh, width, height)
+        n = width * height
+        out = self._reuse(self._trace_mesh(mesh), "frame_u8", 3 * n, "u8")
+        self._launch_tonemap(radiance, float(scale), TONEMAP_OPERATORS.index(operator), n, out)
+        return self._to_host(out, 3 * n, "u8").reshape(height, width, 3)
+
+    def _frame(self, mesh, width, height):
+        m = self._trace_mesh(mesh)
+        if m.get("radiance/spec") != ((int(width) * int(height),), "vec3"):
+            raise ValueError(f"no {width}x{height} frame of this mesh on the device: shade one first")
+        return m["radiance"]
+
     def litsphere_texels(self, inputs: dict, lights, resolution: int) -> np.ndarray:
         """(A, R, R, 3) float32 images of the unit sphere seen from +Z far away, lit by unit irradiance
         from each of `lights` (A, 3) unit directions (litsphere.sphere_image): the material's response

@@ -755,6 +755,10 @@ class OpenCLBackend(DeviceBackend):
                      dev["of_material"], dev["sphere_info"], dev["angles"], dev["level_info"], dev["texels"],
                      np.int32(n), out)
 
+    def _launch_tonemap(self, radiance, scale, operator, n, out):
+        self._launch("tonemap", "tonemap_pixels", (n,), radiance, np.float32(scale), np.int32(operator), np.int32(n),
+                     out)
+
     def _launch_litsphere_texels(self, resolution, effective, lights, kinds, params, info, lobes, amplitudes, n, out):
         self._launch("litsphere", "sphere_texels", (n,), np.int32(resolution), lights, np.int32(effective), kinds,
                      params, info, lobes, amplitudes, np.int32(n), out)

@@ -30,6 +30,7 @@ from .kernels import litsphere as klitsphere
 from .kernels import probe as kprobe
 from .kernels import shade as kshade
 from .kernels import ssdf as kssdf
+from .kernels import tonemap as ktonemap
 from .kernels import trace as ktrace
 from .kernels import truth as ktruth
 from .kernels import visibility as kvisibility
@@ -675,6 +676,9 @@ class WarpBackend(DeviceBackend):
                       len(lights), light_arr, view_mode, shrink, env_maps, env_levels, dev["of_material"], dev["info"],
                       dev["angles"], dev["levels"], dev["texels"], n],
                      [out])
+
+    def _launch_tonemap(self, radiance, scale, operator, n, out):
+        self._launch(ktonemap.tonemap_pixels, n, [radiance, scale, operator, n], [out])
 
     def _launch_litsphere_texels(self, resolution, effective, lights, kinds, params, info, lobes, amplitudes, n, out):
         self._launch(klitsphere.sphere_texels, n,

@@ -1,0 +1,36 @@
+/* Tone mapping for display (images.tonemap on the device): the tonemap stage.
+ *
+ * Twin of kernels/tonemap.py, in the same operation order. One work-item per pixel: the radiance
+ * scaled by 2^exposure, mapped to [0, 1] by the operator (0 ACES, 1 Reinhard, 2 clamp), sRGB-encoded
+ * and rounded to 8 bits. Layouts: radiance (P, 3) float; out (P, 3) uchar.
+ */
+
+#define TONEMAP_LARGE 1.0e4f /* past it every operator is 1 to within half an 8-bit step; ACES stays finite */
+
+CL_INLINE uchar to_byte(float x, int curve)
+{
+    float v = x;
+    if (!(v >= 0.0f)) /* NaN or negative: black (radiance reaching here is already finite and >= 0) */
+        v = 0.0f;
+    v = fmin(v, TONEMAP_LARGE);
+    float y = v;
+    if (curve == 0)
+        y = v * (2.51f * v + 0.03f) / (v * (2.43f * v + 0.59f) + 0.14f);
+    else if (curve == 1)
+        y = v / (1.0f + v);
+    y = clampf(y, 0.0f, 1.0f);
+    float s = 12.92f * y;
+    if (y > 0.0031308f)
+        s = 1.055f * pow(y, 1.0f / 2.4f) - 0.055f;
+    return (uchar)(int)floor(s * 255.0f + 0.5f);
+}
+
+__kernel void tonemap_pixels(__global const float *radiance, const float scale, const int curve,
+                             const int n_pixels, __global uchar *out)
+{
+    int p = get_global_id(0);
+    if (p >= n_pixels)
+        return;
+    for (int k = 0; k < 3; ++k)
+        out[3 * p + k] = to_byte(radiance[3 * p + k] * scale, curve);
+}
