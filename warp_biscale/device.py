@@ -17,6 +17,7 @@ import weakref
 
 import numpy as np
 
+from .brdf import ANISOTROPIC_KINDS
 from .lobes import KERNEL_LOBES, LobeSet
 from .model import Facets, GBuffer, ShadeInputs, Visibility, facet_shift
 from .trace import (CHUNK_RAYS, check_camera, check_gbuffer, check_lights, check_mesh, check_occlusion,
@@ -450,16 +451,23 @@ class DeviceBackend:
         """The device arrays of a large-scale mesh and its BVH, as the trace and shade launches want them."""
         raise NotImplementedError
 
-    def trace_primary(self, mesh, camera, to_host=True):
+    def trace_primary(self, mesh, camera, to_host=True, if_changed=False):
+        """The G-buffer of `camera` on `mesh`, left on the device (and a host GBuffer with to_host). With
+        if_changed (and to_host False), nothing is traced when the device already holds this camera's
+        G-buffer of this mesh: an editor's frames that move no camera."""
         check_mesh(mesh)
         check_camera(camera)
         m = self._trace_mesh(mesh)
+        key = camera.packed().tobytes()
+        if if_changed and not to_host and m.get("gbuffer_key") == key:
+            return None
         n = camera.width * camera.height
         g = {"face": self._reuse(m, "gbuffer_face", n, "i32"), "bary": self._reuse(m, "gbuffer_bary", n, "vec2"),
              "position": self._reuse(m, "gbuffer_position", n, "vec3"), "t": self._reuse(m, "gbuffer_t", n, "f32")}
         self._launch_trace_primary(m, camera, g["face"], g["bary"], g["position"], g["t"])
         eye = camera.packed()[0:3].copy()
         m["gbuffer_eye"], m["gbuffer_size"], m["gbuffer_host"] = eye, n, None
+        m["gbuffer_key"], m["light_vis_key"] = key, None
         if not to_host:
             return None
         host = GBuffer(**{key: self._to_host(g[key], n, kind) for key, kind in (
@@ -481,12 +489,19 @@ class DeviceBackend:
             out[lo:hi] = self._to_host(occluded, hi - lo, "u8") != 0
         return out
 
-    def trace_shadows(self, mesh, gbuffer, lights_packed, to_host=True, samples=1):
+    def trace_shadows(self, mesh, gbuffer, lights_packed, to_host=True, samples=1, if_changed=False):
+        """`samples` shadow rays per light and pixel of the G-buffer (None: the one on the device), the
+        visible shares left on the device. With if_changed (and to_host False), nothing is traced when the
+        device already holds them for this G-buffer, these lights and samples."""
         check_mesh(mesh)
         lights = check_lights(lights_packed)
         samples = check_shadow_samples(samples)
         m = self._trace_mesh(mesh)
+        key = None
         if gbuffer is None or gbuffer is m.get("gbuffer_host"):
+            key = (m.get("gbuffer_key"), lights.tobytes(), samples)
+            if if_changed and not to_host and m.get("light_vis_key") == key:
+                return None
             if "gbuffer_face" not in m:
                 raise ValueError("gbuffer is None, but trace_primary has not run on this mesh with this backend")
             face, position, eye, n = m["gbuffer_face"], m["gbuffer_position"], m["gbuffer_eye"], m["gbuffer_size"]
@@ -499,6 +514,7 @@ class DeviceBackend:
                 m["offsets"] = offsets(mesh)
             eps, t_min = m["offsets"]
             self._launch_trace_shadows(m, face, position, eye, lights, eps, t_min, samples, n, vis)
+        m["light_vis_key"] = key
         return self._to_host(vis, (n, len(lights)), "u8") if to_host else None
 
     def shade(self, mesh, static, camera_packed, lights_packed, gbuffer=None, to_host=True):

@@ -29,7 +29,7 @@ from . import geometry, images
 from .bake import bake
 from .brdf import BlinnPhong, CookTorrance, Lambert, Ward
 from .io import atomic_path, check_output
-from .render import render
+from .render import render, static_inputs
 from .scene import Camera, DirectionalLight, Mesh, Scene
 from .environment import Environment
 from .smallscale import SmallScale
@@ -317,7 +317,7 @@ class Editor:
         self._coarse_frame = False  # the frame was rendered at 1/COARSE_SCALE size (refine renders it fully)
         self._floor = Lambert(0.45)
         self._environments: dict = {}  # one per kind: its SG fit and prefiltered maps are cached on it
-        self.tile = self.effective = self._image = self.scene = None
+        self.tile = self.effective = self._image = self._shown = self.scene = None
         self.mesh, self.camera = default_scene(width, height)
         self._build(state, "bake", coarse=False)
 
@@ -526,32 +526,53 @@ class Editor:
         scene = self._light_scene(state, effective, coarse)
         if self.scene is not None and self.scene.materials[0] is effective:
             scene.cache = self.scene.cache  # the same materials, mesh and environment: the static inputs stand
-        method = state["quality"]["method"]
         t0 = time.perf_counter()
-        image = render(scene, method=method, backend=self.backend, shadow_samples=1,
-                       **({"resolution": LITSPHERE_RESOLUTION} if method == "litsphere" else {})).image
+        shown, image = self._render(scene, state["quality"]["method"], timings)
         if coarse:
-            image = _enlarged(image, self.width, self.height)
+            shown = _enlarged(shown, self.width, self.height)
         timings["render"] = time.perf_counter() - t0
         timings["total"] = time.perf_counter() - t_all
-        self._state, self.tile, self.effective, self.scene, self._image = state, tile, effective, scene, image
+        self._state, self.tile, self.effective, self.scene = state, tile, effective, scene
+        self._shown, self._image = shown, image
         if redo == "bake":
             self._coarse = coarse
         self._coarse_frame = coarse
         self.timings = timings
 
+    def _render(self, scene, method, timings) -> tuple:
+        """→ (the frame for display, (H, W, 3) uint8; its radiance, float32, or None: read when asked). The
+        SG frame is shaded and tone-mapped on the device and only its bytes come back; the camera's G-buffer
+        and the shadow rays are traced again only when the camera, the lights or the mesh changed."""
+        if method == "litsphere":
+            image = render(scene, method="litsphere", backend=self.backend, shadow_samples=1,
+                           resolution=LITSPHERE_RESOLUTION).image
+            return images.tonemap(image), image
+        be, cam, lights = self.backend, scene.camera, scene.lights_packed
+        static = static_inputs(scene, be, timings)
+        be.trace_primary(scene.mesh, cam, to_host=False, if_changed=True)
+        if len(lights):
+            be.trace_shadows(scene.mesh, None, lights, to_host=False, samples=1, if_changed=True)
+        be.shade(scene.mesh, static, cam.packed(), lights, to_host=False)
+        return be.frame_u8(scene.mesh, cam.width, cam.height), None
+
     # ------------------------------------------------------------------ output
     def frame(self) -> np.ndarray:
-        """(H, W, 3) float32 linear radiance of the current design on the large-scale scene."""
+        """(H, W, 3) float32 linear radiance of the current design on the large-scale scene (what `image8`
+        shows, before tone mapping)."""
+        if self._image is None:  # rendered again: the device's frame may since belong to another editor
+            image = render(self.scene, backend=self.backend, shadow_samples=1).image
+            self._image = _enlarged(image, self.width, self.height) if self._coarse_frame else image
         return self._image.copy()
 
     def image8(self, exposure: float = 0.0) -> np.ndarray:
-        """The frame tone-mapped to (H, W, 3) uint8 sRGB (`images.tonemap`), as the window shows it."""
-        return images.tonemap(self._image, exposure)
+        """The frame as the window shows it: (H, W, 3) uint8 sRGB (`images.tonemap`, ACES, `exposure` stops)."""
+        if exposure == 0.0:
+            return self._shown.copy()
+        return images.tonemap(self.frame(), exposure)
 
     def screenshot(self, path) -> None:
         """The frame as an image file (PNG tone-mapped; EXR/HDR the radiance), written atomically."""
-        images.write_image(path, self._image)
+        images.write_image(path, self.frame())
 
     def save(self, path) -> None:
         """The design as a scene file (`warp-biscale render PATH`, `wb.load_scene`): the tile family and its
@@ -637,9 +658,11 @@ class Editor:
 
 
 def _enlarged(image, width, height) -> np.ndarray:
-    """A coarse frame brought to the window's size (bilinear, per channel)."""
+    """A coarse frame brought to the window's size (bilinear): uint8 RGB at once, float32 per channel."""
     from PIL import Image
 
+    if image.dtype == np.uint8:
+        return np.asarray(Image.fromarray(image).resize((width, height), Image.BILINEAR))
     return np.stack([np.asarray(Image.fromarray(np.ascontiguousarray(image[..., c], np.float32))
                                 .resize((width, height), Image.BILINEAR)) for c in range(3)], -1).astype(np.float32)
 

@@ -34,7 +34,7 @@ from .trace import check_shadow_samples
 from .images import compare_images
 from .scene import Camera, DirectionalLight, Mesh, Rendering, Scene, _black_environment, _integer
 
-__all__ = ["Scene", "Rendering", "render", "pack_frame", "METHODS", "environment_lights", "material_ball",
+__all__ = ["Scene", "Rendering", "render", "pack_frame", "static_inputs", "METHODS", "environment_lights", "material_ball",
            "litsphere_errors"]
 
 METHODS = ("sg", "mc", "litsphere")
@@ -89,6 +89,12 @@ def _static_inputs(scene: Scene, backend, progress, timings) -> ShadeInputs:
     scene.cache.clear()  # one static set per scene: a changed material list or environment replaces it
     scene.cache[key] = static
     return static
+
+
+def static_inputs(scene: Scene, backend, timings=None) -> ShadeInputs:
+    """The shade stage's inputs that do not depend on the camera (`_static_inputs`), made once per scene,
+    materials and environment; `timings` gets the seconds of what was made."""
+    return _static_inputs(scene, get_backend(backend), Progress(None), {} if timings is None else timings)
 
 
 SHADOW_SAMPLES = 16  # shadow rays per light and pixel: a penumbra in 16 steps, noise turned per pixel
