@@ -17,7 +17,6 @@ import weakref
 
 import numpy as np
 
-from .brdf import ANISOTROPIC_KINDS
 from .lobes import KERNEL_LOBES, LobeSet
 from .model import Facets, GBuffer, ShadeInputs, Visibility, facet_shift
 from .trace import (CHUNK_RAYS, check_camera, check_gbuffer, check_lights, check_mesh, check_occlusion,
