@@ -125,6 +125,19 @@ def test_undo_and_redo(pyramid):
     assert not ed.redo()
 
 
+def test_a_step_of_many_changes_is_one_undo(pyramid):
+    ed = pyramid
+    before = ed.get("tile.height")
+    ed.begin_step()
+    for h in (0.3, 0.35, 0.4):
+        ed.set("tile.height", h, coarse=True)
+    ed.end_step()
+    ed.refine()
+    assert ed.undo() and ed.get("tile.height") == before
+    assert ed.redo() and ed.get("tile.height") == 0.4
+    ed.set("tile.height", before)
+
+
 def test_coarse_edits_then_refine(pyramid):
     ed = pyramid
     ed.set("quality.facets_log2", 13)

@@ -40,13 +40,15 @@ from .render import render
 from .scene import Rendering, Scene
 from .scene import Camera, DirectionalLight, Mesh, PointLight
 from .scenefile import load_scene
+from . import mitsuba_export  # noqa: F401, E402 (registers EffectiveBRDF.export_mitsuba's writer)
+from .editor import Editor
 from .smallscale import SmallScale, TileWarning
 from .svbrdf import Textured
 from .truth import GroundTruth, effective_brdf_exact, ground_truth, truth_of
 
 __all__ = [
     "Backend", "BlinnPhong", "asg", "batch", "Bvndf", "Camera", "CookTorrance", "DirectionalLight", "EffectiveBRDF",
-    "EnergyWarning",
+    "Editor", "EnergyWarning",
     "Environment",
     "Facets", "GroundTruth", "Lambert", "LitSphere", "MeasuredBRDF",
     "Mesh", "PointLight", "Rendering", "Scene", "SmallScale", "Textured",

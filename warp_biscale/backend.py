@@ -17,6 +17,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from . import litsphere
 from .device import DeviceLobes, DeviceStart, OnDevice, one_line
 from .model import Facets, GBuffer, ShadeInputs, Visibility
 
@@ -241,3 +242,6 @@ def backends() -> list[dict]:
         found.append({"name": "opencl", "kind": "opencl", "device": None, "type": None, "usable": False,
                       "reason": f"OpenCL support cannot start here: {one_line(exc)}"})
     return found
+
+
+litsphere.BACKENDS["get"] = get_backend  # LitSphere.from_material(backend="warp:cuda")

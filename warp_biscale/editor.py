@@ -311,6 +311,7 @@ class Editor:
             state["quality"].update(CPU_QUALITY)
         self._state = state
         self._undo: list = []
+        self._step = None  # the undo depth where begin_step was called
         self._redo: list = []
         self.timings: dict = {}
         self._coarse = False  # the bake is a coarse one (refine bakes it fully)
@@ -451,6 +452,21 @@ class Editor:
         self._undo.append(previous)
         self._redo.clear()
         return redo
+
+    def begin_step(self) -> None:
+        """Every change until `end_step` becomes one undo step (a dragged slider's coarse edits, a brush
+        stroke's dabs). Nested calls count as the outermost."""
+        if self._step is None:
+            self._step = len(self._undo)
+
+    def end_step(self) -> None:
+        depth, self._step = self._step, None
+        if depth is not None and len(self._undo) > depth + 1:
+            del self._undo[depth + 1:]  # each change pushed the state before it; the first is the step's start
+
+    @property
+    def in_step(self) -> bool:
+        return self._step is not None
 
     def undo(self) -> bool:
         if not self._undo:

@@ -35,6 +35,10 @@ from .smallscale import SmallScale, TileWarning
 __all__ = ["EffectiveBRDF", "Provenance", "compare", "METHODS"]
 
 METHODS = ("sg", "sg-exact")
+# Writers of a baked material for other renderers, by name, each (material, path) → what it wrote. The
+# interface modules that write them fill this in when warp_biscale loads (mitsuba_export), so that this
+# data-model module imports none of them.
+EXPORTERS: dict = {}
 
 
 def _brdf_to_dict(b) -> dict:
@@ -247,9 +251,7 @@ class EffectiveBRDF:
         """Write what Mitsuba 3 needs to render this material into folder `path`: a copy of it (material.wbm),
         scene.xml (a sphere of it) and render.py (registers the plugin, renders the scene) → {"material",
         "scene", "script": their paths}. docs/mitsuba.md; `warp_biscale.mitsuba_export`."""
-        from .mitsuba_export import export  # the interface layer's module; Mitsuba itself is needed only to render
-
-        return export(self, path)
+        return EXPORTERS["mitsuba"](self, path)
 
     @classmethod
     def load(cls, path) -> EffectiveBRDF:

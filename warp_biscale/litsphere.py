@@ -73,6 +73,9 @@ TEST_ANGLES = tuple(np.arange(5.0, 180.0, 10.0))  # the lights interpolation_err
 ERROR_RESOLUTION = 256  # its default grid: texel-level error shows at any grid off the texel centres
 # Light-angle counts tried by from_material(tolerance=…): n angles spread evenly over [0°, 180°).
 TOLERANCE_COUNTS = (2, 3, 4, 6, 8, 12, 16, 24)
+# {"get": backend.get_backend}, filled in by warp_biscale.backend when it loads: a backend named in
+# from_material(backend=...) is found without this data-model module importing the stages above it.
+BACKENDS: dict = {}
 FORMAT = "warp_biscale.litsphere"
 VERSION = 1
 
@@ -179,10 +182,8 @@ def sphere_images(material, angles, resolution: int, backend=None) -> np.ndarray
     is read on the host either way (the kernels have no measured BRDF yet)."""
     if backend is None or isinstance(material, MeasuredBRDF):
         return np.stack([sphere_image(material, phi, resolution) for phi in angles])
-    # The data model reaches its stage only when asked to: a function-local import keeps the layers.
-    from .backend import get_backend
     lights = np.stack([light_direction(phi) for phi in angles])
-    return get_backend(backend).litsphere_texels(texel_inputs(material), lights, resolution)
+    return BACKENDS["get"](backend).litsphere_texels(texel_inputs(material), lights, resolution)
 
 
 # ---------------------------------------------------------------------------------------------

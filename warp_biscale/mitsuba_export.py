@@ -38,7 +38,7 @@ import numpy as np
 from . import sg
 from .brdf import BlinnPhong, CookTorrance, Lambert, Ward
 from .directions import grid
-from .effective import METHODS, EffectiveBRDF
+from .effective import EXPORTERS, METHODS, EffectiveBRDF
 from .io import atomic_path, check_output
 
 __all__ = ["export", "register", "PLUGIN", "FILES", "VARIANTS"]
@@ -437,3 +437,6 @@ def _bsdf_class(mi):
                     f"specular lobes={self.q}]")
 
     return EffectiveBSDF
+
+
+EXPORTERS["mitsuba"] = export  # EffectiveBRDF.export_mitsuba
