@@ -7,8 +7,9 @@ Edits, each timed whole (the call to `set`, medians over --edits calls that alte
 - ``coarse``: the same while a control is dragged (`coarse=True`: a COARSE bake, a 1/4-size frame enlarged);
 - ``brdf``: a small-scale BRDF parameter (Blinn–Phong exponent) — new tables from the same bake;
 - ``light``: the sun's elevation — the frame only.
-Beside each: the bake's and the render's share (`Editor.timings`), and the tone mapping for display
-(`Editor.image8`), timed apart.
+Beside each: the bake's and the render's share (`Editor.timings`; the frame is tone-mapped on the device and
+read back as 8-bit sRGB within the render's share), the bake's stages, and `Editor.image8` (the frame for
+display, already on the host) timed apart.
 
     python -m bench.bench_editor --out /tmp/editor                                         # this CPU, 640x480
     python -m bench.bench_editor --backends warp:cuda opencl:nvidia --size 1920x1080 --out $OUT   # a GPU
@@ -55,7 +56,7 @@ def part_edits(backends, size, edits, out):
                 t0 = time.perf_counter()
                 ed.set(name, values[i % 2], coarse=coarse)
                 walls.append(time.perf_counter() - t0)
-                parts.append(dict(ed.timings))
+                parts.append({**ed.timings, "bake_stages": dict(ed.effective.timings or {})})
             ed.refine()
             t_display = common.timed(ed.image8, 5).median_s
             k = int(np.argsort(walls)[len(walls) // 2])
@@ -63,11 +64,13 @@ def part_edits(backends, size, edits, out):
                    "edit": kind, "control": name, "coarse": coarse, **{f"quality_{q}": v for q, v in quality.items()},
                    "edit_s": float(np.median(walls)), "edit_min_s": float(min(walls)), "edits": edits,
                    "bake_s": parts[k].get("bake", 0.0), "render_s": parts[k].get("render", 0.0),
-                   "display_s": t_display, "open_s": t_open}
+                   "display_s": t_display, "open_s": t_open,
+                   "bake_stages_s": parts[k]["bake_stages"] if kind in ("geometry", "coarse") else {}}
             out.records.append(rec)
+            stages = ", ".join(f"{name} {t * 1e3:.2f}" for name, t in rec["bake_stages_s"].items())
             out.log(f"{be.name:<28} {kind:<9} {rec['edit_s'] * 1e3:9.2f} ms (min {rec['edit_min_s'] * 1e3:.2f}; "
                     f"bake {rec['bake_s'] * 1e3:.2f}, render {rec['render_s'] * 1e3:.2f}); "
-                    f"tone mapping for display {t_display * 1e3:.2f} ms")
+                    f"image8 {t_display * 1e3:.2f} ms" + (f"; bake stages (ms): {stages}" if stages else ""))
 
 
 def table(records, meta):
