@@ -76,14 +76,14 @@ def part_edits(backends, size, edits, out):
 def table(records, meta):
     lines = [f"# Editor benchmark ({meta['device_kind']})", "", common.commit_line(meta), "",
              "A moved control → the new frame on the host (`Editor.set`, median; its bake and render share), "
-             "and the display's tone mapping (`Editor.image8`) apart", ""]
+             "and `Editor.image8` (the frame for display, tone-mapped on the device within the render) apart", ""]
     rows = [[r["backend"], f"{r['width']}x{r['height']}", r["edit"],
              f"2^{r['quality_facets_log2']}, K={r['quality_directions']}, J={r['quality_lobes']}"
              + (" (coarse)" if r["coarse"] else ""),
              f"{r['edit_s'] * 1e3:.2f}", f"{r['bake_s'] * 1e3:.2f}", f"{r['render_s'] * 1e3:.2f}",
              f"{r['display_s'] * 1e3:.2f}"] for r in records if r["part"] == "edits"]
     lines += common.markdown_table(["backend", "frame", "edit", "bake quality", "edit → frame ms", "bake ms",
-                                    "render ms", "tone map ms"], rows)
+                                    "render ms", "image8 ms"], rows)
     return "\n".join(lines) + "\n"
 
 
