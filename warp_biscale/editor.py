@@ -317,7 +317,6 @@ class Editor:
         self._coarse = False  # the bake is a coarse one (refine bakes it fully)
         self._coarse_frame = False  # the frame was rendered at 1/COARSE_SCALE size (refine renders it fully)
         self._floor = Lambert(0.45)
-        self._environments: dict = {}  # one per kind: its SG fit and prefiltered maps are cached on it
         self.tile = self.effective = self._image = self._shown = self.scene = None
         self.mesh, self.camera = default_scene(width, height)
         self._build(state, "bake", coarse=False)
@@ -511,9 +510,7 @@ class Editor:
         el, az = math.radians(li["elevation"]), math.radians(li["azimuth"])
         direction = (math.cos(el) * math.cos(az), math.sin(el), math.cos(el) * math.sin(az))
         lights = [DirectionalLight(direction, li["intensity"], 1.0)] if li["intensity"] > 0 else []
-        if li["environment"] not in self._environments:
-            self._environments[li["environment"]] = _environment(li["environment"])
-        env = self._environments[li["environment"]]
+        env = _environment(li["environment"])
         camera = self.camera
         if coarse:
             camera = Camera(camera.eye, camera.target, camera.up, camera.fov, max(8, self.width // COARSE_SCALE),
@@ -683,7 +680,18 @@ def _enlarged(image, width, height) -> np.ndarray:
                                 .resize((width, height), Image.BILINEAR)) for c in range(3)], -1).astype(np.float32)
 
 
+_ENVIRONMENTS: dict = {}
+
+
 def _environment(kind):
+    """The light's environment of this kind, made once a process: its SG fit and prefiltered maps (seconds
+    on a CPU) are cached on it, for every editor."""
+    if kind not in _ENVIRONMENTS:
+        _ENVIRONMENTS[kind] = _make_environment(kind)
+    return _ENVIRONMENTS[kind]
+
+
+def _make_environment(kind):
     if kind == "none":
         return None
     if kind == "constant":
