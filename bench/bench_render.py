@@ -66,7 +66,8 @@ def time_frames(scene, backend, frames, runs, shadow_samples=SHADOW_SAMPLES):
     the loop calls the backend's stages as `wb.render` does, without its read-back and per-stage waits;
     the read-back is timed apart."""
     be = wb.get_backend(backend)
-    first = wb.render(scene, backend=be, shadow_samples=shadow_samples)  # compiles, and computes what does not depend on the camera
+    # compiles, and computes what does not depend on the camera
+    first = wb.render(scene, backend=be, shadow_samples=shadow_samples)
     precompute = sum(first.timings.get(k, 0.0) for k in PRECOMPUTE)
     inputs = pack_frame(scene, be).inputs  # the shade stage's inputs, cached on the scene by the render above
     lights = scene.lights_packed

@@ -35,7 +35,10 @@ CL_INLINE void store3(__global float *p, int i, float3 v)
 #define BLINN_PHONG 1
 #define COOK_TORRANCE 2
 #define WARD 3
+#define ANISOTROPIC_WARD 4
+#define ASHIKHMIN_SHIRLEY 5
 #define INV_PI M_1_PI_F
+#define TANGENT_DEGENERATE 1.0e-4f /* = warp_biscale.brdf.TANGENT_DEGENERATE */
 
 CL_INLINE float dot3(float3 a, float3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
 
@@ -100,6 +103,85 @@ CL_INLINE float3 brdf_cosine_weighted(int kind, __global const float *params, in
     }
     float s = INV_PI * ci * co;
     return (float3)(kd.x * s + ks.x * spec, kd.y * s + ks.y * spec, kd.z * s + ks.z * spec);
+}
+
+/* The facet frame's unit x axis (warp_biscale.brdf.tangent_frame): t − (t·n)n normalised, or, where that is
+ * shorter than sqrt(TANGENT_DEGENERATE) (t within 0.01 rad of ±n), Duff et al.'s basis vector built from n. */
+CL_INLINE float3 facet_tangent(float3 n, float3 t)
+{
+    float tn = dot3(t, n);
+    float3 x = (float3)(t.x - tn * n.x, t.y - tn * n.y, t.z - tn * n.z);
+    float l2 = dot3(x, x);
+    if (l2 < TANGENT_DEGENERATE) {
+        float s = n.z < 0.0f ? -1.0f : 1.0f;
+        float a = -1.0f / (s + n.z);
+        x = (float3)(1.0f + s * n.x * n.x * a, s * n.x * n.y * a, -s * n.x);
+        l2 = dot3(x, x);
+    }
+    float l = sqrt(l2);
+    return (float3)(x.x / l, x.y / l, x.z / l);
+}
+
+/* log(1 + x) for x > -1, accurate for small |x| (Goldberg's rewrite), written out as the Warp twin has it
+ * (Warp has no log1p), so the backends round alike. */
+CL_INLINE float log1p_small(float x)
+{
+    float u = 1.0f + x;
+    if (u == 1.0f)
+        return x;
+    return log(u) * x / (u - 1.0f);
+}
+
+/* brdf_cosine_weighted for the anisotropic kinds, in the facet frame of tangent t (any vector off n): the
+ * anisotropic Ward (p1, p2 = alpha_x, alpha_y) and Ashikhmin–Shirley (row [Rd, Rs, nu, nv]); any other kind
+ * is brdf_cosine_weighted itself. See warp_biscale.brdf and kernels/common.py. */
+CL_INLINE float3 brdf_cosine_weighted_tangent(int kind, __global const float *params, int m, float3 n, float3 t,
+                                              float3 wi, float3 wo)
+{
+    if (kind != ANISOTROPIC_WARD && kind != ASHIKHMIN_SHIRLEY)
+        return brdf_cosine_weighted(kind, params, m, n, wi, wo);
+    float ci = dot3(n, wi);
+    float co = dot3(n, wo);
+    if (ci <= 0.0f || co <= 0.0f)
+        return (float3)(0.0f, 0.0f, 0.0f);
+    __global const float *p = params + 8 * m;
+    float3 kd = (float3)(p[0], p[1], p[2]);
+    float3 ks = (float3)(p[3], p[4], p[5]);
+    float p1 = p[6];
+    float p2 = p[7];
+    float3 h = normalize3((float3)(wi.x + wo.x, wi.y + wo.y, wi.z + wo.z));
+    float nh = clampf(dot3(n, h), -1.0f, 1.0f);
+    float hi = clampf(dot3(h, wi), 0.0f, 1.0f);
+    float3 x = facet_tangent(n, t);
+    float3 y = cross3(n, x);
+    float hx = dot3(h, x);
+    float hy = dot3(h, y);
+    if (kind == ANISOTROPIC_WARD) {
+        float spec = 0.0f;
+        if (nh > 0.0f) {
+            float e = (hx / p1) * (hx / p1) + (hy / p2) * (hy / p2);
+            spec = exp(-e / (nh * nh)) / (4.0f * M_PI_F * p1 * p2) * sqrt(ci * co);
+        }
+        float s = INV_PI * ci * co;
+        return (float3)(kd.x * s + ks.x * spec, kd.y * s + ks.y * spec, kd.z * s + ks.z * spec);
+    }
+    /* Ashikhmin–Shirley: (n·h)^e as exp(e/2·log(1 − sin²θh)), sin²θh from the tangential components (n·h
+     * rounds to within 6e-8 of 1 in float32, which an exponent of 10^4 would make a 6e-4 error). */
+    float s2 = hx * hx + hy * hy;
+    float d = 1.0f;
+    if (s2 >= 1.0f)
+        d = 0.0f;
+    else if (s2 > 0.0f)
+        d = exp(0.5f * ((p1 * hx * hx + p2 * hy * hy) / s2) * log1p_small(-s2));
+    float hk = maxf(hi, 1.0e-30f);
+    float spec = sqrt((p1 + 1.0f) * (p2 + 1.0f)) / (8.0f * M_PI_F) * d * minf(ci, co) / hk;
+    float f5 = pow5(1.0f - hi);
+    float gi = 1.0f - pow5(1.0f - 0.5f * ci);
+    float go = 1.0f - pow5(1.0f - 0.5f * co);
+    float diffuse = 28.0f / (23.0f * M_PI_F) * gi * go * ci * co;
+    return (float3)(kd.x * (1.0f - ks.x) * diffuse + (ks.x + (1.0f - ks.x) * f5) * spec,
+                    kd.y * (1.0f - ks.y) * diffuse + (ks.y + (1.0f - ks.y) * f5) * spec,
+                    kd.z * (1.0f - ks.z) * diffuse + (ks.z + (1.0f - ks.z) * f5) * spec);
 }
 
 /* Index of the lowest set bit of a non-zero word. OpenCL 1.2 has no ctz, and its popcount, the

@@ -69,6 +69,8 @@ __kernel void effective_brdf_partial(
     __global const int *material,      /* (Ns,) */
     __global const int *kinds,         /* (M,) */
     __global const float *params,      /* (M, 8) */
+    __global const int *face,          /* (Ns,) each facet's face: read for the anisotropic kinds only */
+    __global const float *tangent,     /* (F, 3) the tile's face tangents: likewise */
     const int words_per_chunk,
     const int n_pairs,
     __global float *partial)           /* (chunks, P, 3) */
@@ -92,7 +94,11 @@ __kernel void effective_brdf_partial(
             m = m & (m - 1u);
             int s = w * 32 + b;
             int mat = material[s];
-            float3 f = brdf_cosine_weighted(kinds[mat], params, mat, load3(normal, s), wi, wo);
+            int kind = kinds[mat];
+            float3 n = load3(normal, s);
+            float3 f = kind >= ANISOTROPIC_WARD
+                           ? brdf_cosine_weighted_tangent(kind, params, mat, n, load3(tangent, face[s]), wi, wo)
+                           : brdf_cosine_weighted(kind, params, mat, n, wi, wo);
             float3 wt = load3(weight, s);
             block = (float3)(block.x + f.x * wt.x, block.y + f.y * wt.y, block.z + f.z * wt.z);
         }

@@ -9,7 +9,10 @@ LAMBERT = wp.constant(0)
 BLINN_PHONG = wp.constant(1)
 COOK_TORRANCE = wp.constant(2)
 WARD = wp.constant(3)
+ANISOTROPIC_WARD = wp.constant(4)
+ASHIKHMIN_SHIRLEY = wp.constant(5)
 INV_PI = wp.constant(0.31830988618379067)
+TANGENT_DEGENERATE = wp.constant(1.0e-4)  # = brdf.TANGENT_DEGENERATE
 
 
 @wp.func
@@ -44,6 +47,82 @@ def brdf_cosine_weighted(kind: int, params: wp.array2d(dtype=wp.float32), m: int
             a2 = p1 * p1
             spec = wp.exp(-tan2 / a2) / (4.0 * 3.14159265358979 * a2) * wp.sqrt(ci * co)
     return kd * (INV_PI * ci * co) + ks * spec
+
+
+@wp.func
+def facet_tangent(n: wp.vec3, t: wp.vec3) -> wp.vec3:
+    """The facet frame's unit x axis (brdf.tangent_frame): t − (t·n)n normalised, or, where that is shorter
+    than √TANGENT_DEGENERATE (t within 0.01 rad of ±n), Duff et al.'s basis vector built from n alone."""
+    x = t - wp.dot(t, n) * n
+    l2 = wp.dot(x, x)
+    if l2 < TANGENT_DEGENERATE:
+        s = float(1.0)
+        if n[2] < 0.0:
+            s = -1.0
+        a = -1.0 / (s + n[2])
+        x = wp.vec3(1.0 + s * n[0] * n[0] * a, s * n[0] * n[1] * a, -s * n[0])
+        l2 = wp.dot(x, x)
+    return x / wp.sqrt(l2)
+
+
+@wp.func
+def log1p_small(x: float) -> float:
+    """log(1 + x) for x > −1, accurate for small |x| in float32 (Goldberg's rewrite: u = 1 + x rounded, then
+    log(u)·x/(u − 1), whose rounding errors cancel); Warp has no log1p."""
+    u = 1.0 + x
+    if u == 1.0:
+        return x
+    return wp.log(u) * x / (u - 1.0)
+
+
+@wp.func
+def brdf_cosine_weighted_tangent(kind: int, params: wp.array2d(dtype=wp.float32), m: int,
+                                 n: wp.vec3, t: wp.vec3, wi: wp.vec3, wo: wp.vec3) -> wp.vec3:
+    """brdf_cosine_weighted for the anisotropic kinds, in the facet frame of tangent t (any vector off n):
+    the anisotropic Ward (p1, p2 = αx, αy) and Ashikhmin–Shirley (row [Rd, Rs, nu, nv]); see
+    warp_biscale.brdf. Any other kind is brdf_cosine_weighted itself."""
+    if kind != ANISOTROPIC_WARD and kind != ASHIKHMIN_SHIRLEY:
+        return brdf_cosine_weighted(kind, params, m, n, wi, wo)
+    ci = wp.dot(n, wi)
+    co = wp.dot(n, wo)
+    if ci <= 0.0 or co <= 0.0:
+        return wp.vec3(0.0)
+    kd = wp.vec3(params[m, 0], params[m, 1], params[m, 2])
+    ks = wp.vec3(params[m, 3], params[m, 4], params[m, 5])
+    p1 = params[m, 6]
+    p2 = params[m, 7]
+    h = wp.normalize(wi + wo)
+    nh = wp.clamp(wp.dot(n, h), -1.0, 1.0)
+    hi = wp.clamp(wp.dot(h, wi), 0.0, 1.0)
+    x = facet_tangent(n, t)
+    y = wp.cross(n, x)
+    hx = wp.dot(h, x)
+    hy = wp.dot(h, y)
+    if kind == ANISOTROPIC_WARD:
+        spec_w = float(0.0)
+        if nh > 0.0:
+            ew = (hx / p1) * (hx / p1) + (hy / p2) * (hy / p2)
+            spec_w = wp.exp(-ew / (nh * nh)) / (4.0 * 3.14159265358979 * p1 * p2) * wp.sqrt(ci * co)
+        return kd * (INV_PI * ci * co) + ks * spec_w
+    # Ashikhmin–Shirley: kd = Rd, ks = Rs, p1 = nu, p2 = nv. (n·h)^e as exp(e/2·log(1 − sin²θh)) with
+    # sin²θh from the tangential components: n·h rounds to within 6e-8 of 1 in float32, which an exponent
+    # of 10^4 would turn into a 6e-4 error.
+    s2 = hx * hx + hy * hy
+    d = float(1.0)
+    if s2 >= 1.0:
+        d = 0.0
+    elif s2 > 0.0:
+        e = (p1 * hx * hx + p2 * hy * hy) / s2
+        d = wp.exp(0.5 * e * log1p_small(-s2))
+    hk = wp.max(hi, 1.0e-30)
+    spec = wp.sqrt((p1 + 1.0) * (p2 + 1.0)) / (8.0 * 3.14159265358979) * d * wp.min(ci, co) / hk
+    f5 = wp.pow(1.0 - hi, 5.0)
+    gi = 1.0 - wp.pow(1.0 - 0.5 * ci, 5.0)
+    go = 1.0 - wp.pow(1.0 - 0.5 * co, 5.0)
+    diffuse = 28.0 / (23.0 * 3.14159265358979) * gi * go * ci * co
+    one = wp.vec3(1.0)
+    fresnel = ks + (one - ks) * f5
+    return wp.cw_mul(kd, one - ks) * diffuse + fresnel * spec
 
 
 @wp.func

@@ -11,14 +11,14 @@ import warp as wp
 
 from warp_biscale import litsphere as _ls
 
+from .common import brdf_cosine_weighted
+from .shade import (PI, camera_ray, finite_radiance, grid_corners, grid_weights, ndf_sharpness, prefiltered,
+                    specular_scale, table_rgb)
+
 # Fast math on CUDA (approximate division, square root and trigonometry, ~1e-5 relative against the
 # float64 oracle, far inside the tests' tolerances): this shading is bound by its arithmetic. cl/'s twin
 # is built alike (opencl_backend.FAST_MATH).
 wp.set_module_options({"fast_math": True})
-
-from .common import brdf_cosine_weighted
-from .shade import (PI, camera_ray, finite_radiance, grid_corners, grid_weights, ndf_sharpness, prefiltered,
-                    specular_scale, table_rgb)
 
 K_OUTSIDE = wp.constant(_ls.K_OUTSIDE)
 RIM = wp.constant(_ls.RIM)

@@ -14,7 +14,7 @@ is one float64 add per word of up to 32 BRDF evaluations.
 
 import warp as wp
 
-from .common import brdf_cosine_weighted, lowest_bit
+from .common import ANISOTROPIC_WARD, brdf_cosine_weighted, brdf_cosine_weighted_tangent, lowest_bit
 
 
 @wp.kernel
@@ -66,10 +66,14 @@ def effective_brdf_partial(
     material: wp.array(dtype=wp.int32),
     kinds: wp.array(dtype=wp.int32),
     params: wp.array2d(dtype=wp.float32),
+    face: wp.array(dtype=wp.int32),
+    tangent: wp.array(dtype=wp.vec3),
     words_per_chunk: int,
     offset: int,
     partial: wp.array2d(dtype=wp.vec3),
 ):
+    # face, tangent: each facet's face and the tile's per-face tangents, read only for the anisotropic kinds
+    # (kind >= ANISOTROPIC_WARD), so an isotropic material costs one comparison more per facet.
     c, p_local = wp.tid()
     p = p_local + offset
     i = pair_i[p]
@@ -88,7 +92,12 @@ def effective_brdf_partial(
             m = m & (m - wp.uint32(1))
             s = w * 32 + b
             mat = material[s]
-            f = brdf_cosine_weighted(kinds[mat], params, mat, normal[s], wi, wo)
+            kind = kinds[mat]
+            f = wp.vec3(0.0)
+            if kind >= ANISOTROPIC_WARD:
+                f = brdf_cosine_weighted_tangent(kind, params, mat, normal[s], tangent[face[s]], wi, wo)
+            else:
+                f = brdf_cosine_weighted(kind, params, mat, normal[s], wi, wo)
             block += wp.cw_mul(f, weight[s])
         acc += wp.vec3d(block)
     partial[c, p] = wp.vec3(acc)

@@ -32,7 +32,6 @@ def _loaded_map(tmp_path):
     """A map as a user loads one: smooth noise, a hot 1-texel light and a dark band, written as EXR and
     read back."""
     rng = np.random.default_rng(7)
-    h, w = 96, 192
     coarse = rng.random((6, 12, 3))
     image = np.kron(coarse, np.ones((16, 16, 1))) * 0.5 + 0.05
     image[20, 40] = [400.0, 380.0, 300.0]

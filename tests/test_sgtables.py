@@ -79,8 +79,8 @@ def test_fraction_limits_and_symmetry():
 
 def test_table_lookup_error_bound():
     """The kernels read the fractions from a (log10 η, c) table. Measured bilinear error over 20000 random
-    points: cosine fraction ≤ 5e-4 everywhere; visible fraction (the SSDF's, slot 1) ≤ 3e-3 for η ≤ 1e3, while for sharper
-    lobes its step (width ~1/√η in c) is smeared over one column (2/256 in c, 0.45°), by design."""
+    points: cosine fraction ≤ 5e-4 everywhere; visible fraction (the SSDF's, slot 1) ≤ 3e-3 for η ≤ 1e3, while
+    for sharper lobes its step (width ~1/√η in c) is smeared over one column (2/256 in c, 0.45°), by design."""
     rng = np.random.default_rng(0)
     c = rng.uniform(-1, 1, 20000)
     eta = 10 ** rng.uniform(-4, 6, 20000)

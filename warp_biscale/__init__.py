@@ -24,7 +24,7 @@ __version__ = "0.1.0"  # before the imports: warp_biscale.cli reads it while the
 if not _os.path.isdir(_os.path.join(__path__[0], "kernels")):
     __path__.append(_os.path.dirname(_os.path.abspath(__path__[0])))
 
-from . import asg, batch, directions, geometry, lobes, sg
+from . import asg, batch, directions, geometry, lobes, matrix, sg
 from .backend import Backend, backends, get_backend
 from .bake import bake
 from .model import Bvndf
@@ -33,6 +33,7 @@ from .effective import EffectiveBRDF, compare
 from .environment import Environment
 from .images import compare_images, read_image, write_image
 from .litsphere import LitSphere
+from .matrix import MatrixBRDF
 from .loading import load
 from .measured import MeasuredBRDF
 from .model import Facets, Visibility
@@ -50,11 +51,12 @@ __all__ = [
     "Backend", "BlinnPhong", "asg", "batch", "Bvndf", "Camera", "CookTorrance", "DirectionalLight", "EffectiveBRDF",
     "Editor", "EnergyWarning",
     "Environment",
-    "Facets", "GroundTruth", "Lambert", "LitSphere", "MeasuredBRDF",
+    "Facets", "GroundTruth", "Lambert", "LitSphere", "MatrixBRDF", "MeasuredBRDF",
     "Mesh", "PointLight", "Rendering", "Scene", "SmallScale", "Textured",
     "TileWarning",
     "Visibility", "Ward", "backends", "bake", "compare", "compare_images", "directions", "effective_brdf_exact",
-    "geometry", "get_backend", "ground_truth", "truth_of", "load", "load_scene", "lobes", "read_image", "render", "sg",
+    "geometry", "get_backend", "ground_truth", "truth_of", "load", "load_scene", "lobes", "matrix", "read_image",
+    "render", "sg",
     "write_image",
 ]
 

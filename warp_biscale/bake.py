@@ -17,8 +17,10 @@ import numpy as np
 
 from . import directions as dirs
 from . import lobes as lobes_mod
+from . import matrix as matrix_mod
 from . import sg
 from .backend import get_backend
+from .brdf import refuse_anisotropic
 from .effective import METHODS, EffectiveBRDF, Provenance
 from .progress import as_progress
 from .truth import _check_count, _prepare, _Timer
@@ -140,15 +142,18 @@ def _check_lobes(lobes):
 
 def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, normal_res: int = 128,
          facets: int = 1 << 16, backend="auto", seed: int = 0, route: str = "facets", tolerance: float = 0.02,
-         bvndf: bool = False, progress=None) -> EffectiveBRDF:
-    """Bake a tile and its small-scale BRDFs into an SG effective BRDF (Iwasaki 2012).
+         bvndf: bool = False, progress=None, matrix: dict | None = None) -> EffectiveBRDF:
+    """Bake a tile and its small-scale BRDFs into an SG effective BRDF (Iwasaki 2012), or with
+    method="matrix" by Wu 2011's matrix method (`matrix.MatrixBRDF`; `_bake_matrix`).
 
     Parameters
     ----------
     tile : SmallScale
     materials : Brdf or list of Brdf, indexed by the tile's material ids (more BRDFs than ids: a
         `TileWarning`; the extra ones reflect nothing).
-    method : "sg" (Eq. 15, the SG closure, for rendering) or "sg-exact" (Eq. 10) for `eval`.
+    method : "sg" (Eq. 15, the SG closure, for rendering) or "sg-exact" (Eq. 10) for `eval`; "matrix": Wu's
+        matrix method (the histogram N over `normal_res`'s bins times each material's precomputed M, both
+        factored, Eq. 12; lobes, route and tolerance are the SG method's and unused), options in `matrix`.
     lobes : J, the number of SG lobes of the NDF (1–128), or "auto": the first J of `AUTO_LOBES` (1–16,
         then 24, 32, 48, 64, 96, 128) whose NDF fit error (`lobes.ndf_error`, seen at the sharpest
         small-scale lobe, on the NDF weighted by what the direction grid sees, as the lobes are fitted)
@@ -162,6 +167,9 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
     route : how the amplitudes' right-hand sides are summed: "facets" (exact facet sums, default)
         or "histogram" (from the binned BVNDF, each bin at its mean normal).
     bvndf : also keep the histogram N in the result (`mat.bvndf.histogram`) for inspection.
+    matrix : method="matrix" only: a dict updating `matrix.FACTOR_SETTINGS` (M's octahedral normal_res,
+        "auto" by Wu's search or an odd integer; power of M and n_power of N kept; the SVD's oversample,
+        power_iterations and seed; cache_dir of M's factors; search; memory_budget).
 
     Returns an `EffectiveBRDF` that records its `provenance` (the tile, facets, seed: what its ground truth
     is rebuilt from), with per-stage `timings` (seconds, device-synchronised; the host bins the normals
@@ -170,9 +178,18 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
     EM and the moment sums are queued behind the rays too, and the device time they take shows in the
     stage that next waits for the device).
     """
+    # Refused rather than fitted as an isotropic average: one isotropic SG per specular lobe cannot hold an
+    # anisotropic one, so the result would be wrong by the anisotropy itself (issue 20: the ASG bake).
+    refuse_anisotropic(materials, "the SG bake fits each specular lobe as one isotropic SG and the matrix method's "
+                                  "bins carry no tangent, so neither can hold it: that needs the ASG bake (issue 20, "
+                                  "not built yet); wb.ground_truth evaluates it exactly")
     mats, _, _ = _prepare(tile, materials)
+    if method == "matrix":
+        return _bake_matrix(tile, mats, directions, normal_res, facets, backend, seed, bvndf, progress, matrix)
     if method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+        raise ValueError(f"method must be one of {(*METHODS, 'matrix')}, got {method!r}")
+    if matrix is not None:
+        raise ValueError(f"matrix= holds the options of method='matrix', not of method={method!r}")
     if route not in ROUTES:
         raise ValueError(f"route must be one of {ROUTES}, got {route!r}")
     count = _check_count(facets)
@@ -426,3 +443,91 @@ def _amplitudes(tile, be, q: _Queued, bv, hists, lob, queued, seen_normal, seen_
     be.synchronize()
     timer.timings["amplitudes"] = timer.timings.get("amplitudes", 0.0) + time.perf_counter() - t0
     return amps.reshape(n_mat, nd, nd, len(lob), 3), energy.reshape(n_mat, nd, nd, 3), cond
+
+
+# ---------------------------------------------------------------------------------------------------
+# method="matrix": Wu 2011 (warp_biscale.matrix)
+# ---------------------------------------------------------------------------------------------------
+
+
+def _check_grid(directions, normal_res) -> tuple[int, int]:
+    k = int(directions) if isinstance(directions, (int, np.integer)) and not isinstance(directions, bool) else None
+    if k is None or not (2 <= k <= 32):
+        raise ValueError(f"directions must be an integer grid size K in [2, 32], got {directions!r}")
+    r = int(normal_res) if isinstance(normal_res, (int, np.integer)) and not isinstance(normal_res, bool) else None
+    if r is None or not (1 <= r <= 1024):
+        raise ValueError(f"normal_res must be an integer in [1, 1024], got {normal_res!r}")
+    return k, r
+
+
+def _bake_matrix(tile, mats, directions, normal_res, facets, backend, seed, keep_hist, progress, options):
+    """Wu's matrix method through the bake's own stages: facets and their bins, visibility and a_v, the
+    histogram N per colour channel (the `bvndf` kernels), N's factors (random-projection SVD in float64,
+    N_POWER of its power); then per material M's factors (`matrix.material_factors`: cached on disk, else M
+    by the `matrix` kernels and its SVD) and f̄ by Eq. 12 (`matrix.matrix_tables`). The geometry part (up to
+    N's factors) is cached per tile as the SG bake's is, so baking the tile again with other BRDFs costs M's
+    factors (cached) and Eq. 12 alone (`timings` then holds only "m_factors" and "tables")."""
+    count = _check_count(facets)
+    k, r = _check_grid(directions, normal_res)
+    settings = matrix_mod.check_factor_settings(options)
+    be = get_backend(backend)
+    svd = (settings["n_power"], settings["oversample"], settings["power_iterations"], settings["seed"])
+    key = ("matrix", count, int(seed), k, r, svd, bool(keep_hist), be.name)
+    cache = _GEOMETRY.setdefault(tile, collections.OrderedDict())
+    geo = cache.get(key)
+    timer = _Timer(be)
+    prog = as_progress(progress)
+    if geo is None:
+        geo = _matrix_geometry(tile, be, count, int(seed), k, r, settings, keep_hist, timer, prog)
+        cache[key] = geo
+        while len(cache) > _GEOMETRY_PER_TILE:
+            cache.popitem(last=False)
+    else:
+        cache.move_to_end(key)
+    used = {m for m, _, _ in geo["channels"]}
+    prog.stage(f"M factors ({len(used)} material(s))", 1)
+    t0 = time.perf_counter()
+    factors = matrix_mod.factors_for(mats, used, k, settings, be)
+    timer.timings["m_factors"] = time.perf_counter() - t0
+    prog.stage("tables (Eq. 12)", 1)
+    t0 = time.perf_counter()
+    bv = geo["bvndf"]
+    tables = matrix_mod.matrix_tables(geo["channels"], bv.normal, factors, bv.a_v, n_materials=len(mats))
+    timer.timings["tables"] = time.perf_counter() - t0
+    prog.done()
+    info = {**geo["info"], "backend": be.name, "tile": tile.name}
+    return matrix_mod.MatrixBRDF.from_bake(tables, mats, k, bv, geo["channels"], factors, settings,
+                                           dict(timer.timings), info, Provenance(tile, int(seed), count), be)
+
+
+def _matrix_geometry(tile, be, count, seed, k, r, settings, keep_hist, timer, prog) -> dict:
+    """The part of a matrix bake that depends on the geometry alone: → {"bvndf", "channels" [(material,
+    rgb multiplier, N's MatrixFactors)], "info"}; stages "facets", "visibility", "bvndf", "n_factors"."""
+    q = _sample_facets(tile, be, count, seed, dirs.frozen_grid(k), r, timer, prog)
+    prog.stage(f"visibility ({len(q.grid)} dirs)", 1)
+    t0 = time.perf_counter()
+    q.vis = be.visibility(tile, q.fac, q.grid)
+    q.a_v = be.visible_area(q.fac, q.vis, to_host=False)
+    q.channels = _channels(tile, q.fac)  # (on the host while the device traces)
+    q.iu, q.ou = dirs.unordered_pairs(len(q.grid))
+    bv, facet_bin = _bin_normals(q, r)
+    bv.a_v = np.asarray(q.a_v.host(), np.float64)
+    timer.timings["visibility"] = timer.timings.get("visibility", 0.0) + time.perf_counter() - t0
+    nbytes = len(q.iu) * len(bv.bins) * 4 * (len(q.channels) + 1)  # (as _histograms counts it)
+    if nbytes > HISTOGRAM_BYTES:
+        raise ValueError(f"the matrix method's histogram N would take {nbytes / 2**30:.1f} GiB ({len(q.iu)} direction "
+                         f"pairs × {len(bv.bins)} non-empty normal bins): use fewer directions or a smaller normal_res")
+    hists = _histograms(be, q, bv, facet_bin, "histogram", keep_hist, timer, prog)
+    prog.stage(f"N factors ({len(hists)} channel(s))", 1)
+    t0 = time.perf_counter()
+    omega = bv.solid_angle
+    n_factors = [matrix_mod.bvndf_factors(h, omega, power=settings["n_power"], oversample=settings["oversample"],
+                                          power_iterations=settings["power_iterations"], seed=settings["seed"])
+                 for h in hists]
+    timer.timings["n_factors"] = time.perf_counter() - t0
+    channels = [(m, mult, nf) for (m, mult, _), nf in zip(q.channels, n_factors)]
+    info = {"facets": count, "seed": seed, "normal_res": r, "nonempty_bins": int(len(bv.bins)),
+            "channels": len(channels), "pairs": int(len(q.iu)),
+            "n_ranks": [nf.rank for nf in n_factors], "n_power_kept": [float(nf.power_kept) for nf in n_factors],
+            "geometry_timings": dict(timer.timings)}
+    return {"bvndf": bv, "channels": channels, "info": info}

@@ -1,13 +1,21 @@
 """Small-scale BRDFs as plain parameter objects.
 
-Every model is isotropic and is written in the facet's local frame, so it needs only the facet
-normal n, the light direction ωi and the view direction ωo. All parameters are RGB (a scalar is
-broadcast). Kernels evaluate the *cosine-weighted* value f_r·(n·ωi)⁺(n·ωo)⁺, which stays finite at
-grazing angles where f_r itself (Cook–Torrance, Ward) divides by a vanishing cosine.
+The isotropic models (Lambert, Blinn–Phong, Cook–Torrance, Ward) are written in the facet's local frame
+and need only the facet normal n, the light direction ωi and the view direction ωo. The anisotropic
+ones (AnisotropicWard, AshikhminShirley) also need a tangent t: the facet frame is (x, y, n) with
+x = t − (t·n)n normalised and y = n × x (`tangent_frame`; docs/design.md §4.7). All colour parameters
+are RGB (a scalar is broadcast). Kernels evaluate the *cosine-weighted* value f_r·(n·ωi)⁺(n·ωo)⁺, which
+stays finite at grazing angles where f_r itself (Cook–Torrance, Ward, Ashikhmin–Shirley) divides by a
+vanishing cosine.
 
 Packed layout shared by the reference, the Warp and the OpenCL kernels, one row per material:
-``kind`` (int: 0 Lambert, 1 Blinn–Phong, 2 Cook–Torrance, 3 Ward) and
-``params`` = [kd_r, kd_g, kd_b, ks_r, ks_g, ks_b, p1, p2] (float32).
+``kind`` (int: 0 Lambert, 1 Blinn–Phong, 2 Cook–Torrance, 3 Ward, 4 anisotropic Ward,
+5 Ashikhmin–Shirley) and ``params`` = [kd_r, kd_g, kd_b, ks_r, ks_g, ks_b, p1, p2] (float32); the
+anisotropic Ward's p1, p2 are αx, αy, Ashikhmin–Shirley's row is [Rd rgb, Rs rgb, nu, nv].
+
+Only the ground truth (which has each facet's tangent) evaluates the anisotropic models so far: every
+other consumer of materials (`as_material_list`, `pack_materials`: effective materials, the SG bake, the
+renderers, lit spheres) refuses them in one line unless asked with ``anisotropic=True``.
 """
 
 from __future__ import annotations
@@ -19,10 +27,18 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-__all__ = ["Lambert", "BlinnPhong", "CookTorrance", "Ward", "Brdf", "pack_materials", "as_material_list",
-           "parse_brdf", "EnergyWarning", "NORMALIZATIONS", "blinn_phong_normal_albedo", "cook_torrance_albedo"]
+__all__ = ["Lambert", "BlinnPhong", "CookTorrance", "Ward", "AnisotropicWard", "AshikhminShirley", "Brdf",
+           "pack_materials", "as_material_list", "refuse_anisotropic", "tangent_frame", "parse_brdf",
+           "EnergyWarning", "NORMALIZATIONS", "blinn_phong_normal_albedo", "cook_torrance_albedo"]
 
 LAMBERT, BLINN_PHONG, COOK_TORRANCE, WARD = 0, 1, 2, 3
+ANISOTROPIC_WARD, ASHIKHMIN_SHIRLEY = 4, 5
+ANISOTROPIC_KINDS = (ANISOTROPIC_WARD, ASHIKHMIN_SHIRLEY)  # the kinds whose packed row needs a tangent
+
+# Where the facet's tangent is (almost) parallel to its normal, |t − (t·n)n|² below this (the tangent within
+# 0.01 rad of the normal), the frame falls back on a tangent built from n alone (`tangent_frame`). The
+# kernels use the same test and fallback.
+TANGENT_DEGENERATE = 1e-4
 
 # BlinnPhong.normalization: "iwasaki" the paper's lobe (its specular albedo exceeds ks), "energy" the same
 # lobe scaled so that its specular albedo is ks at normal incidence and below ks everywhere else.
@@ -177,15 +193,24 @@ class Brdf:
     """Base of the small-scale BRDF parameter objects."""
 
     kind: int
+    anisotropic = False  # True: f_r depends on the facet's tangent too (`eval` needs it)
 
     def packed(self) -> np.ndarray:
         raise NotImplementedError
 
-    def eval(self, n, wi, wo) -> np.ndarray:
-        """f_r(n, ωi, ωo) in float64, (N, 3) RGB; zero where ωi or ωo is below the facet."""
+    def eval(self, n, wi, wo, tangent=None) -> np.ndarray:
+        """f_r(n, ωi, ωo) in float64, (N, 3) RGB; zero where ωi or ωo is below the facet. `tangent` (N, 3) or (3,):
+        the facet's tangent (any vector off the normal; only its part across n counts), which an anisotropic
+        BRDF needs and an isotropic one ignores."""
         n, wi, wo = (np.atleast_2d(np.asarray(x, np.float64)) for x in (n, wi, wo))
-        kinds, params = pack_materials([self])
-        fc = brdf_cosine_weighted(kinds, params, np.zeros(len(n), np.int32), n, wi, wo)
+        n, wi, wo = np.broadcast_arrays(n, wi, wo)
+        if self.anisotropic and tangent is None:
+            raise ValueError(f"{type(self).__name__}.eval needs the facet's tangent (eval(n, wi, wo, tangent)): an "
+                             "anisotropic BRDF depends on the direction across the normal (the renderers have no "
+                             "tangent frame for it until the ASG method of issue 20)")
+        kinds, params = pack_materials([self], anisotropic=True)
+        t = None if tangent is None else np.broadcast_to(np.asarray(tangent, np.float64), n.shape)
+        fc = brdf_cosine_weighted(kinds, params, np.zeros(len(n), np.int32), n, wi, wo, t)
         ci = np.einsum("ij,ij->i", n, wi)
         co = np.einsum("ij,ij->i", n, wo)
         ok = (ci > 0) & (co > 0)
@@ -354,25 +379,167 @@ class Ward(Brdf):
         return np.array([*self.kd, *self.ks, self.alpha, 0], np.float64)
 
 
-def as_material_list(materials) -> list:
-    """One BRDF or a sequence of them (indexed by material id) → a list of `Brdf`."""
+def _unit_interval_rgb(name, value) -> tuple:
+    rgb = _rgb(name, value)
+    if max(rgb) > 1.0:
+        raise ValueError(f"{name} must lie in [0, 1] (a reflectance at normal incidence), got {value!r}")
+    return rgb
+
+
+@dataclass(frozen=True)
+class AnisotropicWard(Brdf):
+    """Anisotropic Ward (Ward 1992 Eq. 5a; Wang 2009 §4.1), in the facet frame (x, y, n) of its tangent:
+
+    f_r = kd/π + ks·exp(−tan²θh·(cos²φh/αx² + sin²φh/αy²)) / (4π αx αy √(cosθi cosθo)),
+
+    θh, φh the half vector's polar angle and its azimuth from x; evaluated as
+    exp(−((h·x/αx)² + (h·y/αy)²)/(h·n)²), which needs no trigonometry. `alpha_x` (αx) is the rms slope of the
+    microfacets along the tangent x, `alpha_y` (αy) across it (along y = n × x): the highlight is wider along
+    the direction of the larger α. αx = αy = α is exactly the isotropic `Ward(alpha=α)`. (Xu 2013 §5.2 writes
+    the exponent as 2((h·x/αx)² + (h·y/αy)²)/(1 + h·n), which agrees with tan² to second order in θh: his
+    one-ASG fit, not this BRDF.)
+
+    **What it does to energy.** Ward's 1/(4π αx αy) normalises the lobe only for small widths and away from
+    grazing: the specular directional albedo A = ∫ f_s·cos θi dωi falls below ks for narrow lobes as θo grows
+    and, through the 1/√(cosθi cosθo), diverges as 1/√cosθo at grazing. Measured by float64 quadrature over
+    the half vector for ks = 1, kd = 0 (tests/test_anisotropic.py), at θo = 0°, 60°, 85°, 89° with ωo
+    tilted along x | along y:
+
+        αx     αy     0°      60°            85°            89°
+        0.05   0.05   0.993   0.497          0.094          0.052
+        0.2    0.2    0.895   0.459          0.182          0.242
+        0.1    0.4    0.816   0.411 | 0.455  0.102 | 0.308  0.095 | 0.508
+        0.05   0.5    0.761   0.381 | 0.447  0.073 | 0.350  0.041 | 0.605
+        0.5    0.5    0.586   0.351          0.286          0.499
+        0.3    1      0.453   0.247 | 0.337  0.147 | 0.380  0.231 | 0.721
+
+    so kd + ks ≤ 1 keeps A ≤ 1 up to θo = 89°, but not beyond: 1.48 at θo = 89.9° for αx = αy = 0.5 (4.66 at
+    89.99°), as the isotropic Ward. No EnergyWarning is given (as for `Ward`): every material has that
+    grazing divergence.
+    """
+
+    ks: object = 1.0
+    alpha_x: float = 0.1
+    alpha_y: float = 0.4
+    kd: object = 0.0
+    kind = ANISOTROPIC_WARD
+    anisotropic = True
+
+    def __post_init__(self):
+        object.__setattr__(self, "ks", _rgb("AnisotropicWard.ks", self.ks))
+        object.__setattr__(self, "kd", _rgb("AnisotropicWard.kd", self.kd))
+        warn_energy("AnisotropicWard kd", self.kd, stacklevel=_CALLER)
+        object.__setattr__(self, "alpha_x", _positive("AnisotropicWard.alpha_x", self.alpha_x))
+        object.__setattr__(self, "alpha_y", _positive("AnisotropicWard.alpha_y", self.alpha_y))
+
+    def packed(self):
+        return np.array([*self.kd, *self.ks, self.alpha_x, self.alpha_y], np.float64)
+
+
+@dataclass(frozen=True)
+class AshikhminShirley(Brdf):
+    """The anisotropic Phong BRDF of Ashikhmin & Shirley 2000 (as Xu 2013 §5.2 uses it), in the facet frame
+    (u, v, n) of its tangent (u the tangent, v = n × u), k1 = ωi, k2 = ωo, h the half vector:
+
+    f_r = ρs + ρd,
+    ρs = √((nu + 1)(nv + 1))/(8π) · (n·h)^((nu (h·u)² + nv (h·v)²)/(1 − (n·h)²)) · F(h·k) / ((h·k) max(n·k1, n·k2)),
+    F(c) = Rs + (1 − Rs)(1 − c)⁵  (Schlick),
+    ρd = 28 Rd/(23π) · (1 − Rs) · (1 − (1 − n·k1/2)⁵) · (1 − (1 − n·k2/2)⁵).
+
+    `nu`, `nv` (> 0) are the Phong exponents of half vectors tilting towards u and towards v: the lobe is
+    sharper along the direction of the larger exponent, so nu < nv stretches the highlight along u. `rs`
+    (Rs, RGB in [0, 1]) is the specular reflectance at normal incidence, `rd` (Rd, RGB) the diffuse one;
+    the diffuse term is not Lambertian: it gives way to the specular one at grazing angles, which is what
+    keeps the sum from creating light. nu = nv is the isotropic Phong-like lobe of the paper. The power is
+    evaluated as exp(e/2·log(1 − sin²θh)) with sin²θh = (h·u)² + (h·v)² — the same number for unit vectors,
+    and exact in float32 for sharp lobes, where n·h rounds to within 6e−8 of 1.
+
+    **What it does to energy.** The model is built so that rs + rd ≤ 1 (per channel) creates no light, and
+    constructing one with rs + rd > 1 gives an `EnergyWarning`. The diffuse term alone has the albedo
+    rd(1 − rs)(1 − (1 − cosθo/2)⁵) exactly (the 28/23 normalisation: 0.969·rd at normal incidence for rs = 0).
+    The specular albedo with F = 1 (rs = 1), measured by float64 quadrature over the half vector
+    (tests/test_anisotropic.py), at θo = 0°, 60°, 85°, 89° with ωo tilted along u | along v:
+
+        nu      nv      0°       60°            85°            89°
+        1       1       0.250    0.375          0.478          0.496
+        10      10      0.696    0.613          0.520          0.504
+        100     100     0.961    0.846          0.583          0.517
+        8       800     0.809    0.652 | 0.791  0.526 | 0.638  0.505 | 0.530
+        200     20000   0.990    0.898 | 0.983  0.620 | 0.930  0.525 | 0.716
+        10⁴     10⁴     0.9996   0.986          0.909          0.664
+
+    It stays below 1 and tends to 1 from below as the lobe sharpens (its 1/max(cosθi, cosθo) keeps it bounded
+    at grazing, unlike Ward's); Schlick's F ≤ 1 only lowers it. Over (rs, rd) ∈ {(1, 0), (0, 1), (0.5, 0.5),
+    (0.2, 0.8), (0.05, 0.95)}, (nu, nv) ∈ {(1, 1), (10, 100), (8, 800), (10⁴, 10⁴)} and θo up to 89° the largest
+    total albedo measured is that 0.9996.
+    """
+
+    rs: object = 1.0
+    nu: float = 10.0
+    nv: float = 100.0
+    rd: object = 0.0
+    kind = ASHIKHMIN_SHIRLEY
+    anisotropic = True
+
+    def __post_init__(self):
+        object.__setattr__(self, "rs", _unit_interval_rgb("AshikhminShirley.rs", self.rs))
+        object.__setattr__(self, "rd", _rgb("AshikhminShirley.rd", self.rd))
+        object.__setattr__(self, "nu", _positive("AshikhminShirley.nu", self.nu))
+        object.__setattr__(self, "nv", _positive("AshikhminShirley.nv", self.nv))
+        total = np.asarray(self.rs) + np.asarray(self.rd)
+        if (total > 1 + _ALBEDO_SLACK).any():
+            k = int(np.argmax(total))
+            where = "" if np.all(total == total[0]) else f" in {'rgb'[k]}"
+            warnings.warn(f"AshikhminShirley rs + rd = {total[k]:.3g} > 1{where}: its albedo is bounded by 1 only "
+                          "for rs + rd <= 1 (an energy gain)", EnergyWarning, stacklevel=_CALLER)
+
+    # Rd and Rs under the names every other BRDF gives its diffuse and specular reflectance (and the packed row's
+    # slots they fill), for code that reads those of any analytic BRDF.
+    kd = property(lambda self: self.rd)
+    ks = property(lambda self: self.rs)
+
+    def packed(self):
+        return np.array([*self.rd, *self.rs, self.nu, self.nv], np.float64)
+
+
+_ANISOTROPIC_REFUSAL = ("it needs each facet's tangent, which only the ground truth has so far (wb.ground_truth, "
+                        "wb.effective_brdf_exact); effective materials, the SG bake, the renderers and lit spheres "
+                        "need the ASG method of issue 20, not built yet")
+
+
+def refuse_anisotropic(materials, why: str = _ANISOTROPIC_REFUSAL) -> None:
+    """A one-line ValueError naming the first anisotropic BRDF of `materials` (one BRDF or a list), and why
+    the caller cannot take it."""
+    for i, m in enumerate(as_material_list(materials, anisotropic=True)):
+        if m.anisotropic:
+            raise ValueError(f"materials[{i}] ({type(m).__name__}) is anisotropic: {why}")
+
+
+def as_material_list(materials, anisotropic: bool = False) -> list:
+    """One BRDF or a sequence of them (indexed by material id) → a list of `Brdf`. An anisotropic BRDF is refused
+    (`refuse_anisotropic`) unless `anisotropic`: only a caller that supplies tangents may take one."""
     if isinstance(materials, Brdf):
-        return [materials]
-    try:
-        mats = list(materials)
-    except TypeError:
-        raise ValueError(f"materials must be a BRDF or a list of BRDFs, got {materials!r}") from None
+        mats = [materials]
+    else:
+        try:
+            mats = list(materials)
+        except TypeError:
+            raise ValueError(f"materials must be a BRDF or a list of BRDFs, got {materials!r}") from None
     if not mats:
         raise ValueError("materials is empty: give one BRDF per material id")
     for i, m in enumerate(mats):
         if not isinstance(m, Brdf):
-            raise ValueError(f"materials[{i}] is not a BRDF (Lambert, BlinnPhong, CookTorrance, Ward): {m!r}")
+            raise ValueError(f"materials[{i}] is not a BRDF (Lambert, BlinnPhong, CookTorrance, Ward, "
+                             f"AnisotropicWard, AshikhminShirley): {m!r}")
+    if not anisotropic:
+        refuse_anisotropic(mats)
     return mats
 
 
-def pack_materials(materials, n_required: int = 0):
-    """→ (kinds int32 (M,), params float64 (M, 8)). `n_required`: the tile's number of material ids."""
-    mats = as_material_list(materials)
+def pack_materials(materials, n_required: int = 0, anisotropic: bool = False):
+    """→ (kinds int32 (M,), params float64 (M, 8)). `n_required`: the tile's number of material ids.
+    `anisotropic`: accept anisotropic BRDFs (the caller then passes the facets' tangents to the kernels)."""
+    mats = as_material_list(materials, anisotropic)
     if n_required > len(mats):
         raise ValueError(
             f"the tile uses material ids 0..{n_required - 1} but only {len(mats)} material(s) were given"
@@ -383,26 +550,43 @@ def pack_materials(materials, n_required: int = 0):
 
 
 _BRDF_NAMES = {"lambert": Lambert, "blinnphong": BlinnPhong, "blinn-phong": BlinnPhong, "phong": BlinnPhong,
-               "cooktorrance": CookTorrance, "cook-torrance": CookTorrance, "ct": CookTorrance, "ward": Ward}
+               "cooktorrance": CookTorrance, "cook-torrance": CookTorrance, "ct": CookTorrance, "ward": Ward,
+               "anisotropicward": AnisotropicWard, "anisotropic-ward": AnisotropicWard,
+               "ashikhminshirley": AshikhminShirley, "ashikhmin-shirley": AshikhminShirley, "as": AshikhminShirley}
 
 
 def parse_brdf(text: str) -> Brdf:
     """Parse a command-line BRDF: ``name[:key=value,...]``, e.g. ``blinnphong:exponent=512,ks=0.8``.
 
     Names: lambert (albedo), blinnphong (ks, exponent, kd, normalization), cooktorrance (ks, roughness, f0,
-    kd), ward (ks, alpha, kd). Values are numbers or RGB triples written ``r/g/b``; the word-valued key,
-    Blinn–Phong's normalization, takes ``iwasaki`` (the default: the paper's lobe, whose specular albedo
-    is up to 4·ks) or ``energy`` (specular albedo ks at normal incidence, less elsewhere), e.g.
-    ``blinnphong:exponent=128,normalization=energy``.
+    kd), ward (ks, alpha, kd), anisotropicward (ks, alpha_x, alpha_y, kd), ashikhminshirley or as (rs, nu,
+    nv, rd). ``ward`` with alpha_x and alpha_y (both, instead of alpha) is the anisotropic Ward, e.g.
+    ``ward:alpha_x=0.1,alpha_y=0.4``: αx the rms slope along the facet's tangent, αy across it. For
+    Ashikhmin–Shirley, nu and nv are the Phong exponents towards the tangent and across it, rs the
+    specular reflectance at normal incidence (in [0, 1]) and rd the diffuse one, e.g.
+    ``as:nu=10,nv=1000,rs=0.8,rd=0.2``. Values are numbers or RGB triples written ``r/g/b``; the
+    word-valued key, Blinn–Phong's normalization, takes ``iwasaki`` (the default: the paper's lobe, whose
+    specular albedo is up to 4·ks) or ``energy`` (specular albedo ks at normal incidence, less elsewhere),
+    e.g. ``blinnphong:exponent=128,normalization=energy``.
     """
     name, _, rest = text.partition(":")
     cls = _BRDF_NAMES.get(name.strip().lower())
     if cls is None:
-        raise ValueError(f"unknown BRDF {name!r}; choose one of lambert, blinnphong, cooktorrance, ward")
+        raise ValueError(f"unknown BRDF {name!r}; choose one of lambert, blinnphong, cooktorrance, ward, "
+                         "anisotropicward, ashikhminshirley")
+    items = [s for s in (s.strip() for s in rest.split(",")) if s]
+    if cls is Ward:
+        keys = {item.partition("=")[0].strip() for item in items}
+        if keys & {"alpha_x", "alpha_y"}:  # "ward" with αx, αy is the anisotropic Ward
+            if "alpha" in keys:
+                raise ValueError("ward takes alpha (isotropic) or alpha_x and alpha_y (anisotropic), not both")
+            if not {"alpha_x", "alpha_y"} <= keys:
+                raise ValueError("the anisotropic ward needs both alpha_x and alpha_y (alpha: the isotropic one)")
+            cls = AnisotropicWard
     names = [f.name for f in fields(cls)]
     words = {f.name for f in fields(cls) if isinstance(f.default, str)}  # keys whose value is a word
     kwargs = {}
-    for item in filter(None, (s.strip() for s in rest.split(","))):
+    for item in items:
         key, eq, val = item.partition("=")
         if not eq:
             raise ValueError(f"BRDF parameter {item!r} must be key=value")
@@ -423,11 +607,38 @@ def parse_brdf(text: str) -> Brdf:
         raise ValueError(f"bad parameter for {cls.__name__}: {exc}") from None
 
 
-def brdf_cosine_weighted(kinds, params, material, n, wi, wo) -> np.ndarray:
-    """(N, 3) f_r·(n·ωi)⁺(n·ωo)⁺ for facets with normals n (N,3) and material ids (N,)."""
+def tangent_frame(n, t):
+    """(x, y), each (N, 3): the facet frame's unit tangent x = t − (t·n)n normalised, and y = n × x, for unit
+    normals n and tangents t (N, 3). Where t is within 0.01 rad of ±n (|t − (t·n)n|² < TANGENT_DEGENERATE)
+    x is instead built from n alone (Duff et al. 2017's branchless basis: for s = sign(n_z) (+1 at 0),
+    a = −1/(s + n_z), x = (1 + s·n_x²·a, s·n_x·n_y·a, −s·n_x)), so the frame is defined for any input.
+    Ward's and Ashikhmin–Shirley's lobes are even in x and in y, so the tangent's sign never matters."""
+    n = np.asarray(n, np.float64)
+    t = np.asarray(t, np.float64)
+    x = t - np.einsum("ij,ij->i", t, n)[:, None] * n
+    l2 = np.einsum("ij,ij->i", x, x)
+    bad = l2 < TANGENT_DEGENERATE
+    if bad.any():
+        nb = n[bad]
+        s = np.where(nb[:, 2] >= 0, 1.0, -1.0)
+        a = -1.0 / (s + nb[:, 2])
+        x[bad] = np.stack([1 + s * nb[:, 0] ** 2 * a, s * nb[:, 0] * nb[:, 1] * a, -s * nb[:, 0]], 1)
+        l2[bad] = np.einsum("ij,ij->i", x[bad], x[bad])
+    x = x / np.sqrt(l2)[:, None]
+    return x, np.cross(n, x)
+
+
+def brdf_cosine_weighted(kinds, params, material, n, wi, wo, tangent=None) -> np.ndarray:
+    """(N, 3) f_r·(n·ωi)⁺(n·ωo)⁺ for facets with normals n (N,3) and material ids (N,). `tangent` (N, 3): the
+    facets' tangents (`tangent_frame`), needed by the anisotropic kinds only (an error if one is present
+    without it)."""
     n, wi, wo = (np.asarray(x, np.float64) for x in (n, wi, wo))
     n, wi, wo = np.broadcast_arrays(n, wi, wo)
     kind = np.asarray(kinds)[material]
+    if np.isin(kind, ANISOTROPIC_KINDS).any():
+        if tangent is None:
+            raise ValueError("an anisotropic BRDF needs the facets' tangents (brdf_cosine_weighted(..., tangent))")
+        tangent = np.broadcast_to(np.asarray(tangent, np.float64), n.shape)
     p = np.asarray(params, np.float64)[material]
     kd, ks, p1, p2 = p[:, 0:3], p[:, 3:6], p[:, 6], p[:, 7]
     ci = np.einsum("ij,ij->i", n, wi)
@@ -458,7 +669,34 @@ def brdf_cosine_weighted(kinds, params, material, n, wi, wo) -> np.ndarray:
             tan2 = (1 - cos2) / cos2
             a2 = p1[m] ** 2
             spec[m] = np.where(nh[m] > 0, np.exp(-tan2 / a2), 0.0) / (4 * np.pi * a2) * np.sqrt(ci[m] * co[m])
+        m = kind == ANISOTROPIC_WARD
+        if m.any():
+            x, y = tangent_frame(n[m], tangent[m])
+            hx, hy = np.einsum("ij,ij->i", h[m], x), np.einsum("ij,ij->i", h[m], y)
+            e = (hx / p1[m]) ** 2 + (hy / p2[m]) ** 2  # tan²θh(cos²φh/αx² + sin²φh/αy²)·cos²θh
+            spec[m] = (np.where(nh[m] > 0, np.exp(-e / np.maximum(nh[m] ** 2, 1e-300)), 0.0)
+                       / (4 * np.pi * p1[m] * p2[m]) * np.sqrt(ci[m] * co[m]))
     # Lambert keeps its albedo in the kd slot and ks = 0, so one expression serves every model.
     out = kd / np.pi * (ci * co)[:, None] + ks * spec[:, None]
+    m = (kind == ASHIKHMIN_SHIRLEY) & ok
+    if m.any():
+        out[m] = _ashikhmin_shirley(p[m], n[m], tangent[m], h[m], ci[m], co[m], hi[m])
     out[~ok] = 0.0
     return out
+
+
+def _ashikhmin_shirley(p, n, tangent, h, ci, co, hk) -> np.ndarray:
+    """(N, 3) Ashikhmin–Shirley's f_r·cosθi·cosθo (both cosines > 0) for packed rows p = [Rd, Rs, nu, nv]."""
+    rd, rs, nu, nv = p[:, 0:3], p[:, 3:6], p[:, 6], p[:, 7]
+    u, v = tangent_frame(n, tangent)
+    hu, hv = np.einsum("ij,ij->i", h, u), np.einsum("ij,ij->i", h, v)
+    s2 = hu * hu + hv * hv  # sin²θh: 1 − (n·h)² without its cancellation near h = n
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e = np.where(s2 > 0, (nu * hu * hu + nv * hv * hv) / np.where(s2 > 0, s2, 1.0), 0.0)
+        # (n·h)^e = exp(e/2·log(1 − sin²θh)); D = 1 at h = n (s2 = 0), 0 for h in the tangent plane
+        d = np.where(s2 < 1, np.exp(0.5 * e * np.log1p(-np.minimum(s2, 1.0))), 0.0)
+    fresnel = rs + (1 - rs) * ((1 - hk) ** 5)[:, None]
+    # ρs·cosθi·cosθo: the 1/((h·k)·max(cosθi, cosθo)) of ρs times both cosines is min(cosθi, cosθo)/(h·k).
+    spec = np.sqrt((nu + 1) * (nv + 1)) / (8 * np.pi) * d * np.minimum(ci, co) / np.maximum(hk, 1e-300)
+    diffuse = (28 / (23 * np.pi)) * (1 - (1 - ci / 2) ** 5) * (1 - (1 - co / 2) ** 5) * ci * co
+    return rd * (1 - rs) * diffuse[:, None] + fresnel * spec[:, None]

@@ -17,6 +17,7 @@ import weakref
 
 import numpy as np
 
+from .brdf import ANISOTROPIC_KINDS
 from .lobes import KERNEL_LOBES, LobeSet
 from .model import Facets, GBuffer, ShadeInputs, Visibility, facet_shift
 from .trace import (CHUNK_RAYS, check_camera, check_gbuffer, check_lights, check_mesh, check_occlusion,
@@ -256,6 +257,12 @@ KINDS = {"i32": (np.int32, 1), "i64": (np.int64, 1), "u8": (np.uint8, 1), "u32":
          "vec4d": (np.float64, 4)}
 
 
+_NO_FACE = np.zeros(1, np.int32)  # effective_brdf's face and tangent arguments when no material is anisotropic
+_NO_TANGENT = np.zeros((1, 3), np.float32)
+for _a in (_NO_FACE, _NO_TANGENT):
+    _a.flags.writeable = False
+
+
 def _shape(shape) -> tuple:
     return tuple(int(s) for s in shape) if isinstance(shape, (tuple, list)) else (int(shape),)
 
@@ -382,16 +389,31 @@ class DeviceBackend:
         """The device copy of a_v (see device_copy): on a GPU host an upload costs more than the solve."""
         return device_copy(a_v, self._held_visible_area, lambda host: self._to_device(host, "f32"))
 
-    def effective_brdf(self, facets, vis, kinds, params, pair_i, pair_o, a_v):
+    def effective_brdf(self, facets, vis, kinds, params, pair_i, pair_o, a_v, tangents=None):
+        """`tangents`: (F, 3) the per-face tangents of the tile the facets were sampled from
+        (`SmallScale.face_tangents`, indexed by the facets' face), needed when a kind is anisotropic."""
         n_pairs = len(pair_i)
         if n_pairs == 0:
             return np.zeros((0, 3), np.float32)
+        f = self._facets(facets)
+        if tangents is None:
+            if np.isin(np.asarray(kinds), ANISOTROPIC_KINDS).any():
+                raise ValueError("an anisotropic material needs the tile's face tangents: "
+                                 "effective_brdf(..., tangents=tile.face_tangents)")
+            # Never read by the kernels without an anisotropic kind: one-element stand-ins, uploaded once.
+            face, tangent = self._recurring(_NO_FACE, "i32"), self._recurring(_NO_TANGENT, "vec3")
+        else:
+            tangents = np.asarray(tangents)
+            if tangents.ndim != 2 or tangents.shape[1] != 3 or len(tangents) == 0:
+                raise ValueError(f"tangents must have shape (F, 3), got {tangents.shape}")
+            face, tangent = f["face"], self._recurring(tangents, "vec3")
         chunks, per = chunking(vis.words, n_pairs, self._threads)
         out = self._new(n_pairs, "vec3")
-        self._launch_effective_brdf(self._facets(facets), self._vis(vis), self._to_device(kinds, "i32"),
+        self._launch_effective_brdf(f, self._vis(vis), self._to_device(kinds, "i32"),
                                     self._to_device(np.asarray(params, np.float32).reshape(-1, 8), "f32"),
                                     self._to_device(pair_i, "i32"), self._to_device(pair_o, "i32"),
-                                    self._to_device(a_v, "f32"), vis.words, n_pairs, chunks, per, out)
+                                    self._to_device(a_v, "f32"), face, tangent, vis.words, n_pairs, chunks, per,
+                                    out)
         return self._to_host(out, n_pairs, "vec3")
 
     def normal_bins(self, facets, resolution):
@@ -746,3 +768,32 @@ class DeviceBackend:
 
         run_em_steps(iterations, enqueue_step, stopped)
         prog["unload"]()
+
+    # --- the matrix method's M (stage `matrix`, Wu 2011 §3.5; oracle matrix.brdf_matrix) ---
+    def brdf_matrix(self, kinds, params, material: int, normals, wi, wo, color) -> np.ndarray:
+        """(L, P) float32 M[l, k] = color·f_r(n_l, ωi_k, ωo_k)(n_l·ωi_k)⁺(n_l·ωo_k)⁺ for material row `material`
+        of the packed table (kinds (M,), params (M, 8): brdf.pack_materials), normals (L, 3), direction pairs
+        wi, wo (P, 3 each) and a colour direction (3,) (Wu §3.7). The oracle is `matrix.brdf_matrix` (float64).
+        The pairs recur from block to block of one M (UploadCache), the normals are a new block each call."""
+        normals = np.asarray(normals, np.float32).reshape(-1, 3)
+        wi = np.asarray(wi, np.float32).reshape(-1, 3)
+        wo = np.asarray(wo, np.float32).reshape(-1, 3)
+        if wi.shape != wo.shape:
+            raise ValueError(f"wi and wo must have the same shape, got {wi.shape} and {wo.shape}")
+        kinds = np.asarray(kinds, np.int32).reshape(-1)
+        params = np.asarray(params, np.float32).reshape(-1, 8)
+        m = int(material)
+        if not (0 <= m < len(kinds) == len(params)):
+            raise ValueError(f"material {material} is not a row of the packed table ({len(kinds)} kinds, "
+                             f"{len(params)} parameter rows)")
+        color = np.asarray(color, np.float64).reshape(3)
+        n_rows, n_pairs = len(normals), len(wi)
+        out = self._new((n_rows, n_pairs), "f32")
+        if n_rows and n_pairs:
+            self._launch_brdf_matrix(self._to_device(normals, "vec3"), self._recurring(wi, "vec3"),
+                                     self._recurring(wo, "vec3"), self._to_device(kinds, "i32"),
+                                     self._to_device(params, "f32"), m, color, n_rows, n_pairs, out)
+        return self._to_host(out, (n_rows, n_pairs), "f32")
+
+    def _launch_brdf_matrix(self, normals, wi, wo, kinds, params, m, color, n_rows, n_pairs, out):
+        raise NotImplementedError

@@ -14,24 +14,31 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from .smallscale import SmallScale
+from .smallscale import SmallScale, default_face_tangents
 
 __all__ = ["TriangleSoup", "weld", "check_faces", "lift", "triangulate_ground"]
 
 
 class TriangleSoup:
-    """Triangles collected as corner coordinates, each group with a material id and a colour."""
+    """Triangles collected as corner coordinates, each group with a material id, a colour and optionally
+    a tangent direction (the facet frame's x axis of anisotropic BRDFs, `SmallScale.face_tangents`)."""
 
     def __init__(self):
-        self.tris, self.mats, self.cols = [], [], []
+        self.tris, self.mats, self.cols, self.tangents = [], [], [], []
 
-    def add(self, tris, material, color):
-        """Append triangles (anything reshaping to (T, 3, 3)) with one material id and colour."""
+    def add(self, tris, material, color, tangents=None):
+        """Append triangles (anything reshaping to (T, 3, 3)) with one material id and colour. `tangents`: one
+        direction (3,) or one per triangle (T, 3), in the triangles' planes or not (SmallScale projects
+        them); None: the default of `SmallScale.face_tangents`."""
         tris = np.asarray(tris, np.float64).reshape(-1, 3, 3)
         if len(tris):
             self.tris.append(tris)
             self.mats.append(np.full(len(tris), material, np.int32))
             self.cols.append(np.broadcast_to(color, (len(tris), 3)))
+            if tangents is None:  # the default rule, on the triangles' own normals
+                normals = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+                tangents = default_face_tangents(normals / np.linalg.norm(normals, axis=1, keepdims=True))
+            self.tangents.append(np.broadcast_to(np.asarray(tangents, np.float64), (len(tris), 3)))
 
     def build(self, fn, period, name, params) -> SmallScale:
         """The welded tile; `fn` and `params` name the call in the error for sliver triangles."""
@@ -41,7 +48,8 @@ class TriangleSoup:
         # Every generated tile occupies [0, Px] × [0, Py], whether or not its geometry reaches
         # the boundary (rods without ground do not).
         return SmallScale(vertices, faces, material_ids=np.concatenate(self.mats),
-                          colors=np.concatenate(self.cols), period=period, name=name, origin=(0.0, 0.0))
+                          colors=np.concatenate(self.cols), period=period, name=name, origin=(0.0, 0.0),
+                          face_tangents=np.concatenate(self.tangents))
 
 
 def weld(points: np.ndarray):

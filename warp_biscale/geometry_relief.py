@@ -150,7 +150,8 @@ def grooves(
     color=WHITE,
     wall_color=None,
 ) -> SmallScale:
-    """Parallel grooves, one per period, running along `axis` (Wu Fig. 4, the grooved cup).
+    """Parallel grooves, one per period, running along `axis` (Wu Fig. 4, the grooved cup). Every face's
+    tangent (`SmallScale.face_tangents`) runs along the grooves.
 
     The tile is width × width. Across the groove (the other axis) the profile is: flat land at
     z = depth for flat_fraction·width/2, the groove down to z = 0 and back, and land again for
@@ -223,10 +224,13 @@ def grooves(
             tris = tris[:, ::-1][..., [1, 0, 2]]
         return tris
 
+    # Face tangents along the grooves (every face holds that direction): an anisotropic BRDF's x axis
+    # then follows the grooves, as a brushed or turned finish would.
+    along = (1.0, 0.0, 0.0) if axis == "x" else (0.0, 1.0, 0.0)
     soup = TriangleSoup()
     for segs in lands:
-        soup.add(extrude(segs), material, color)
-    soup.add(extrude(walls), wall_material, wall_color)
+        soup.add(extrude(segs), material, color, tangents=along)
+    soup.add(extrude(walls), wall_material, wall_color, tangents=along)
     params = format_params(depth=depth, width=width, profile=profile, flat_fraction=flat_fraction, segments=segments)
     name = (
         f"grooves({profile}, depth={depth:g}, width={width:g}, flat_fraction={flat_fraction:g}, axis={axis})"

@@ -304,7 +304,8 @@ def woven(
     height, sampling included. Wide threads (width near spacing) need a large A: the threads' round
     flanks must pass each other (A ≈ 0.57·height for widths 0.8·spacing, ≈ 20·height at
     0.9998·spacing).
-    Threads leave the tile as open tubes whose cross-sections match on opposite tile edges.
+    Threads leave the tile as open tubes whose cross-sections match on opposite tile edges. Every face's
+    tangent (`SmallScale.face_tangents`) runs along its thread.
 
     Parameters
     ----------
@@ -356,14 +357,18 @@ def woven(
     alpha = 2 * np.pi * np.arange(segments) / segments
     soup = TriangleSoup()
     # Warp j rises over weft j and dips under the other; weft i does the opposite at its crossings.
+    # Face tangents along each thread (its centre line's chord over the face), the direction the fibres of
+    # a yarn run: an anisotropic BRDF's x axis then follows the thread.
     for j, sign in ((0, 1.0), (1, -1.0)):
         soup.add(
-            _tube_along_x(t, (j + 0.5) * spacing, sign * amp * wave, aw, bw, alpha), warp_material, warp_color
+            _tube_along_x(t, (j + 0.5) * spacing, sign * amp * wave, aw, bw, alpha), warp_material, warp_color,
+            tangents=_tube_tangents(t, sign * amp * wave, segments),
         )
     for i, sign in ((0, -1.0), (1, 1.0)):
         tube = _tube_along_x(t, (i + 0.5) * spacing, sign * amp * wave, af, bf, alpha)
         soup.add(
-            tube[:, ::-1][..., [1, 0, 2]], weft_material, weft_color
+            tube[:, ::-1][..., [1, 0, 2]], weft_material, weft_color,
+            tangents=_tube_tangents(t, sign * amp * wave, segments)[:, [1, 0, 2]],
         )  # swap x, y: mirror, so flip winding
     params = format_params(
         warp_width=2 * aw,
@@ -391,6 +396,16 @@ def _tube_along_x(x, y0, zc, a, b, alpha) -> np.ndarray:
     return np.concatenate([np.stack([p00, p01, p11], axis=2), np.stack([p00, p11, p10], axis=2)]).reshape(
         -1, 3, 3
     )
+
+
+def _tube_tangents(x, zc, m) -> np.ndarray:
+    """(T, 3) the tangents of `_tube_along_x(x, ..., zc, ...)`'s triangles, in its order (two triangles per ring
+    segment k and side, all of segment k's first triangles, then all the second ones): the centre line's
+    chord (x[k+1] − x[k], 0, zc[k+1] − zc[k]) normalised, which both triangles of a side's quad contain (the
+    quad is a parallelogram: neighbouring rings are translates)."""
+    chord = np.stack([np.diff(x), np.zeros(len(x) - 1), np.diff(zc)], 1)
+    chord /= np.linalg.norm(chord, axis=1, keepdims=True)
+    return np.tile(np.repeat(chord, m, axis=0), (2, 1))
 
 
 def _weave_amplitude(aw, bw, af, bf, s, n_along) -> float:

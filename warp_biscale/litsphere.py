@@ -169,8 +169,10 @@ def texel_inputs(material) -> dict:
         return {"effective": 1, "kinds": kinds, "params": params.astype(np.float32),
                 "info": np.array([material.directions, len(lobes.sharpness), len(material.materials),
                                   int(material.method == "sg-exact")], np.int32),
-                "lobes": np.column_stack([lobes.axes, lobes.sharpness, sg.integral(lobes.sharpness)]).astype(np.float32),
-                "amplitudes": (material.amplitudes / material.grid[:, 2][None, :, None, None, None]).astype(np.float32).ravel()}
+                "lobes": np.column_stack([lobes.axes, lobes.sharpness,
+                                          sg.integral(lobes.sharpness)]).astype(np.float32),
+                "amplitudes": (material.amplitudes
+                               / material.grid[:, 2][None, :, None, None, None]).astype(np.float32).ravel()}
     kinds, params = pack_materials([material])
     return {"effective": 0, "kinds": kinds, "params": params.astype(np.float32), "info": np.zeros(4, np.int32),
             "lobes": np.zeros((1, 5), np.float32), "amplitudes": np.zeros(1, np.float32)}
@@ -179,8 +181,9 @@ def texel_inputs(material) -> dict:
 def sphere_images(material, angles, resolution: int, backend=None) -> np.ndarray:
     """(A, R, R, 3) float32: `sphere_image` at each of `angles` (degrees); on `backend` (a name or a
     Backend) by its texel kernels in float32, else (None) on the host in float64. A MeasuredBRDF's table
-    is read on the host either way (the kernels have no measured BRDF yet)."""
-    if backend is None or isinstance(material, MeasuredBRDF):
+    is read on the host either way (the kernels have no measured BRDF yet), and so is a material whose
+    tables no texel kernel reads (`host_texels`: a matrix-method MatrixBRDF)."""
+    if backend is None or isinstance(material, MeasuredBRDF) or getattr(material, "host_texels", False):
         return np.stack([sphere_image(material, phi, resolution) for phi in angles])
     lights = np.stack([light_direction(phi) for phi in angles])
     return BACKENDS["get"](backend).litsphere_texels(texel_inputs(material), lights, resolution)
@@ -582,9 +585,9 @@ class SpherePack:
     """The lit spheres of a scene as the kernels read them. ``sphere_of_material`` (Mat,) int32 the sphere
     of each material; ``sphere_info`` (S, 8) int32 [first angle, angle count A, first level row, level
     count Lv, part count P (2: a diffuse part turned exactly, then the rest turned by k; 1: the images,
-    turned by k), 0, 0, 0]; ``angles`` (ΣA, 3) float32 [φ (radians), cos φ, sin φ]; ``level_info`` (Σ P·A·Lv, 2) int32 [texel
-    offset, size], part p's image a at level l in row first level row + (p·A + a)·Lv + l; ``texels``
-    (T, 3) float32, each level row-major, row 0 at the top."""
+    turned by k), 0, 0, 0]; ``angles`` (ΣA, 3) float32 [φ (radians), cos φ, sin φ]; ``level_info``
+    (Σ P·A·Lv, 2) int32 [texel offset, size], part p's image a at level l in row first level row
+    + (p·A + a)·Lv + l; ``texels`` (T, 3) float32, each level row-major, row 0 at the top."""
 
     sphere_of_material: np.ndarray
     sphere_info: np.ndarray

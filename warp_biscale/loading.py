@@ -1,5 +1,5 @@
-"""Reading back any saved warp_biscale object (`wb.load`): a ground-truth table or a baked effective
-BRDF, told apart by the header every saved file carries (see `io`)."""
+"""Reading back any saved warp_biscale object (`wb.load`): a ground-truth table, a baked effective
+BRDF (SG or matrix method), told apart by the header every saved file carries (see `io`)."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ import numpy as np
 
 from .effective import EffectiveBRDF
 from .io import read_npz
+from .matrix import MatrixBRDF
 from .truth import GroundTruth
 
 __all__ = ["load"]
@@ -26,9 +27,11 @@ def head_version(path):
 
 
 def load(path):
-    """Load any saved warp_biscale object: a ground-truth table or a baked effective BRDF."""
+    """Load any saved warp_biscale object: a ground-truth table or a baked effective BRDF (an
+    `EffectiveBRDF`, or a `MatrixBRDF` of bake(..., method="matrix"))."""
 
-    classes = {"warp_biscale.ground_truth": GroundTruth, "warp_biscale.effective_brdf": EffectiveBRDF}
+    classes = {"warp_biscale.ground_truth": GroundTruth, "warp_biscale.effective_brdf": EffectiveBRDF,
+               f"warp_biscale.{MatrixBRDF.FORMAT}": MatrixBRDF}
     head, _ = read_npz(path, versions=(head_version(path),))
     fmt = head["format"]
     if fmt in classes:

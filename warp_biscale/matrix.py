@@ -59,8 +59,10 @@ import warnings
 import numpy as np
 
 from . import directions as dirs
-from .brdf import BLINN_PHONG, COOK_TORRANCE, LAMBERT, WARD
+from .brdf import BLINN_PHONG, COOK_TORRANCE, LAMBERT, WARD, as_material_list
+from .effective import EffectiveBRDF, Provenance, _brdf_from_dict, _brdf_to_dict
 from .io import read_npz, save_npz
+from .model import Bvndf
 
 __all__ = [
     "N_POWER", "M_POWER", "NORMAL_THRESHOLD", "DIRECTION_THRESHOLD", "MatrixFactors", "MaterialFactors",
@@ -68,7 +70,7 @@ __all__ = [
     "direct_pair_sums", "effective_table", "effective_from_factors", "binary_search_rate", "normal_domain_error",
     "direction_domain_error", "sampling_rates", "material_factors", "factors_key", "factors_cache_dir",
     "bvndf_factors", "matrix_tables", "octahedral_encode", "octahedral_decode", "octahedral_normals",
-    "octahedral_solid_angles", "octahedral_corners",
+    "octahedral_solid_angles", "octahedral_corners", "MatrixBRDF", "FACTOR_SETTINGS",
 ]
 
 N_POWER = 0.995  # power of N kept (Wu §6: "at least 99.5 % of the power of N")
@@ -81,6 +83,9 @@ FACTORS_VERSION = 1  # the cache file's format
 FACTORS_KEY_VERSION = 1  # part of every cache key: bump when the factors' numbers change
 MEMORY_BUDGET = 1 << 29  # M is built in memory up to this many bytes (float64), else streamed in row blocks
 BLOCK_ENTRIES = 1 << 20  # entries of M per generated block (each temporary is 8 MiB)
+# Entries per block made by the kernels (64 MiB float32 on the device, 128 MiB as float64 on the host): a
+# GPU wants large launches, and each block is one upload of normals and one read-back.
+KERNEL_BLOCK_ENTRIES = 1 << 24
 _MEMORY = collections.OrderedDict()  # cache key → MaterialFactors, most recent last
 _MEMORY_ENTRIES = 8
 
@@ -259,11 +264,13 @@ def brdf_matrix(brdf, bin_normals, directions, pairs=None, color=None) -> np.nda
     return out if s is None else out + float(c @ ks) * s
 
 
-def color_direction(brdf, normals, directions, pairs=None, rows_per_block=None) -> tuple[np.ndarray, float]:
+def color_direction(brdf, normals, directions, pairs=None, rows_per_block=None,
+                    backend=None) -> tuple[np.ndarray, float]:
     """Wu §3.7's colour direction: (d (3,), residual). d is the first principal direction of the BRDF's RGB
     tabulated over M's entries (the top eigenvector of Σ f fᵀ over every (normal, pair)), made ≥ 0; residual
     = 1 − λ1/trace, the fraction of the RGB power the projection loses (0 when the colour is one direction:
-    kd ∥ ks, or either zero — then d is found without tabulating)."""
+    kd ∥ ks, or either zero — then d is found without tabulating). backend: a Backend whose `brdf_matrix`
+    kernels tabulate an analytic BRDF's diffuse and specular parts (`_check_backend`), else None (numpy)."""
     an = _analytic(brdf)
     if an is not None:
         _, kd, ks, _, _ = an
@@ -276,10 +283,16 @@ def color_direction(brdf, normals, directions, pairs=None, rows_per_block=None) 
     sums = np.zeros(3)  # ΣD², ΣDS, ΣS² for an analytic BRDF
     normals = np.asarray(normals, np.float64)
     wi, wo = _pair_dirs(directions, pairs)
-    step = rows_per_block or max(1, BLOCK_ENTRIES // max(len(wi), 1))
+    backend = _check_backend(backend)
+    kernels = backend is not None and an is not None  # D and S by the kernels: M's own rows, two passes
+    step = rows_per_block or max(1, (KERNEL_BLOCK_ENTRIES if kernels else BLOCK_ENTRIES) // max(len(wi), 1))
     for a in range(0, len(normals), step):
         nb = normals[a:a + step]
-        if an is None:
+        if kernels:
+            d, s = (np.asarray(backend.brdf_matrix(*row, 0, nb, wi, wo, (1.0, 0.0, 0.0)), np.float64)
+                    for row in _kernel_parts(an))
+            sums += [np.vdot(d, d), np.vdot(d, s), np.vdot(s, s)]
+        elif an is None:
             f = _generic_rgb(brdf, nb, wi, wo).reshape(-1, 3)
             gram += f.T @ f
         else:
@@ -314,16 +327,53 @@ class _Rows:
         return out
 
 
-def brdf_rows(brdf, normals, directions, pairs=None, color=None, rows_per_block=None) -> _Rows:
+def brdf_rows(brdf, normals, directions, pairs=None, color=None, rows_per_block=None, backend=None) -> _Rows:
     """`brdf_matrix(brdf, normals, directions, pairs, color)` (scalar: `color` is required, default Wu's
-    `color_direction`) as row blocks generated on demand, for `randomized_svd` of an M too large to hold."""
+    `color_direction`) as row blocks generated on demand, for `randomized_svd` of an M too large to hold.
+    backend: a Backend (`_check_backend`) whose `brdf_matrix` kernels (kernels/matrix.py, cl/matrix.cl) make
+    the blocks of an analytic BRDF in float32 (then widened to float64 for the SVD); None, or a BRDF the
+    kernels do not know (measured), → numpy in float64."""
     normals = np.asarray(normals, np.float64)
+    backend = _check_backend(backend)
     if color is None:
-        color = color_direction(brdf, normals, directions, pairs)[0]
+        color = color_direction(brdf, normals, directions, pairs, backend=backend)[0]
     wi, wo = _pair_dirs(directions, pairs)
-    step = rows_per_block or max(1, BLOCK_ENTRIES // max(len(wi), 1))
+    an = _analytic(brdf)
+    if backend is None or an is None:
+        step = rows_per_block or max(1, BLOCK_ENTRIES // max(len(wi), 1))
+        return _Rows((len(normals), len(wi)),
+                     lambda a, b: brdf_matrix(brdf, normals[a:b], directions, pairs, color), step)
+    kinds, params = _packed_row(an)
+    color = np.asarray(color, np.float64)
+    step = rows_per_block or max(1, KERNEL_BLOCK_ENTRIES // max(len(wi), 1))
     return _Rows((len(normals), len(wi)),
-                 lambda a, b: brdf_matrix(brdf, normals[a:b], directions, pairs, color), step)
+                 lambda a, b: np.asarray(backend.brdf_matrix(kinds, params, 0, normals[a:b], wi, wo, color),
+                                         np.float64), step)
+
+
+def _check_backend(backend):
+    """A Backend object with the `brdf_matrix` stage, or None (numpy). The mathematics layer takes the
+    object, not a name: resolving a name is the stages layer's (`wb.get_backend`; `bake` does it)."""
+    if backend is None:
+        return None
+    if isinstance(backend, str) or not callable(getattr(backend, "brdf_matrix", None)):
+        raise ValueError(f"backend must be a Backend object (wb.get_backend({backend!r})) or None for numpy, "
+                         f"got {backend!r}")
+    return backend
+
+
+def _packed_row(an):
+    """(kinds (1,), params (1, 8)) of `_analytic`'s (kind, kd, ks, p1, p2): the kernels' packed layout."""
+    kind, kd, ks, p1, p2 = an
+    return np.array([kind], np.int32), np.concatenate([kd, ks, [p1, p2]])[None, :]
+
+
+def _kernel_parts(an):
+    """The packed rows of an analytic BRDF's diffuse part (kd = 1, ks = 0) and specular part (kd = 0, ks = 1),
+    whose kernel tabulations (colour (1, 0, 0)) are `_parts`' D and S."""
+    kind, _, _, p1, p2 = an
+    one, zero = np.ones(3), np.zeros(3)
+    return [_packed_row((kind, one, zero, p1, p2)), _packed_row((kind, zero, one, p1, p2))]
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -855,7 +905,7 @@ def factors_cache_dir():
 
 def material_factors(brdf, directions: int = 12, normal_res="auto", power: float = M_POWER, oversample: int = 10,
                      power_iterations: int = 2, seed: int = 0, dtype=np.float32, cache_dir=None,
-                     memory_budget: int = MEMORY_BUDGET, search: dict | None = None) -> MaterialFactors:
+                     memory_budget: int = MEMORY_BUDGET, search: dict | None = None, backend=None) -> MaterialFactors:
     """The factors of M for one small-scale BRDF on the K×K grid (K = `directions`): precomputed once, then
     read from the cache (Wu §3.5: "precompute once, edit forever").
 
@@ -867,7 +917,12 @@ def material_factors(brdf, directions: int = 12, normal_res="auto", power: float
     cache_dir: a folder (default `factors_cache_dir()`), or False for no disk cache. The last few results are
     also kept in memory. An unreadable cache file is computed again and replaced; an unwritable folder gives a
     warning and the result stays in memory.
+    backend: a Backend object whose kernels tabulate M (stage `matrix`, float32; info["m_source"] names it),
+    or None for numpy (float64). The cache key leaves it out, as `truth.truth_key` leaves out the backend:
+    the kernels agree with numpy to ~2e-5 of M's peak (tests/test_matrix_bake.py), far below the 2 % of M's
+    power the truncation drops, and the factors are stored in float32 either way.
     """
+    backend = _check_backend(backend)
     k = int(directions)
     if k != directions or not (2 <= k <= 64):
         raise ValueError(f"directions must be an integer grid size K in [2, 64], got {directions!r}")
@@ -895,7 +950,8 @@ def material_factors(brdf, directions: int = 12, normal_res="auto", power: float
             if got is not None and got.key == key:
                 _remember(key, got)
                 return got
-    out = _compute_factors(brdf, k, normal_res, power, oversample, power_iterations, seed, dtype, memory_budget, search)
+    out = _compute_factors(brdf, k, normal_res, power, oversample, power_iterations, seed, dtype, memory_budget, search,
+                           backend)
     out.key = key
     _remember(key, out)
     if path is not None:
@@ -914,7 +970,8 @@ def _remember(key, value):
         _MEMORY.popitem(last=False)
 
 
-def _compute_factors(brdf, k, normal_res, power, oversample, power_iterations, seed, dtype, budget, search):
+def _compute_factors(brdf, k, normal_res, power, oversample, power_iterations, seed, dtype, budget, search,
+                     backend=None):
     timings = {}
     t0 = time.perf_counter()
     rates = None
@@ -928,11 +985,12 @@ def _compute_factors(brdf, k, normal_res, power, oversample, power_iterations, s
     grid = dirs.grid(k)
     pairs = dirs.unordered_pairs(len(grid))
     t1 = time.perf_counter()
-    d, residual = color_direction(brdf, normals, grid, pairs)
+    d, residual = color_direction(brdf, normals, grid, pairs, backend=backend)
     timings["color"] = time.perf_counter() - t1
     t1 = time.perf_counter()
     shape = (len(normals), len(pairs[0]))
-    m = brdf_rows(brdf, normals, grid, pairs, d)  # (made a block of rows at a time: bounded temporaries)
+    # (made a block of rows at a time: bounded temporaries; by the kernels for an analytic BRDF)
+    m = brdf_rows(brdf, normals, grid, pairs, d, backend=backend)
     if shape[0] * shape[1] * 8 <= budget:
         m = m.dense()
         timings["matrix"] = time.perf_counter() - t1
@@ -942,7 +1000,8 @@ def _compute_factors(brdf, k, normal_res, power, oversample, power_iterations, s
     timings["svd"] = time.perf_counter() - t1
     info = {"rows": shape[0], "columns": shape[1], "matrix_bytes": shape[0] * shape[1] * 8, "rank": f.rank,
             "power_kept": f.power_kept, "power_target": float(power), "streamed": not isinstance(m, np.ndarray),
-            "timings": timings}
+            "timings": timings,
+            "m_source": backend.name if backend is not None and _analytic(brdf) is not None else "numpy"}
     if rates is not None:
         info["directions_advised"] = rates.directions
     return MaterialFactors(brdf, k, r, d.astype(np.float64), residual, f, rates, info)
@@ -987,3 +1046,304 @@ def matrix_tables(channels, bin_normals, material_factors_list, a_v, n_materials
         table = effective_from_factors(nf, rows[m], a_v)
         out[m] += table[..., None] * (np.asarray(mult, np.float64) * mf.color)[None, None, :]
     return np.maximum(out, 0.0)
+
+
+# ---------------------------------------------------------------------------------------------------
+# The baked material (wb.bake(..., method="matrix"))
+# ---------------------------------------------------------------------------------------------------
+
+# What `material_factors` is called with for every material of a matrix bake (bake's `matrix=` options):
+# M's octahedral resolution ("auto": Wu's search) and power, the SVD's settings (shared by N and M), N's
+# power, the cache folder (None: `factors_cache_dir()`; False: none), the search's keyword arguments and
+# the in-memory budget of M.
+FACTOR_SETTINGS = {"normal_res": "auto", "power": M_POWER, "n_power": N_POWER, "oversample": 10,
+                   "power_iterations": 2, "seed": 0, "cache_dir": None, "search": None,
+                   "memory_budget": MEMORY_BUDGET}
+_RUNTIME_SETTINGS = ("cache_dir", "memory_budget")  # where and how, not what: not written to a material file
+
+# One line for whatever reads SG lobes off a material (the SG renderer's packing, the Monte Carlo reference's
+# BRDF sampling, the SG texel kernels, the Mitsuba export): a matrix-method material has none.
+NO_LOBES = ("a material baked by the matrix method (Wu 2011) holds f-bar tables from N's and M's factors, not "
+            "the SG lobes and amplitudes that the SG renderer, the Monte Carlo reference's sampling and the "
+            "Mitsuba export read: render it with method='litsphere', or bake the tile with method='sg'")
+
+
+def check_factor_settings(options) -> dict:
+    """`FACTOR_SETTINGS` updated by `options` (a dict or None), checked; one-line errors name the key."""
+    if options is None:
+        options = {}
+    if not isinstance(options, dict):
+        raise ValueError(f"matrix options must be a dict (keys {sorted(FACTOR_SETTINGS)}), got {options!r}")
+    unknown = sorted(set(options) - set(FACTOR_SETTINGS))
+    if unknown:
+        raise ValueError(f"unknown matrix option(s) {unknown}; known: {sorted(FACTOR_SETTINGS)}")
+    out = {**FACTOR_SETTINGS, **options}
+    r = out["normal_res"]
+    if not (isinstance(r, str) and r == "auto"):
+        if isinstance(r, bool) or not isinstance(r, (int, np.integer)) or r < 1 or r % 2 == 0:
+            raise ValueError(f"matrix normal_res must be 'auto' or an odd integer >= 1 (M's octahedral map, the "
+                             f"pole +z on a texel centre), got {r!r}")
+        out["normal_res"] = int(r)
+    for name in ("power", "n_power"):
+        v = out[name]
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.floating)) or not (0 < float(v) <= 1):
+            raise ValueError(f"matrix {name} must be a fraction of the power in (0, 1], got {v!r}")
+        out[name] = float(v)
+    for name, lo in (("oversample", 0), ("power_iterations", 0), ("seed", 0), ("memory_budget", 0)):
+        v = out[name]
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+            raise ValueError(f"matrix {name} must be an integer >= {lo}, got {v!r}")
+        out[name] = int(v)
+    if out["search"] is not None and not isinstance(out["search"], dict):
+        raise ValueError(f"matrix search must be a dict of sampling_rates' keyword arguments, got {out['search']!r}")
+    if out["cache_dir"] not in (None, False) and not isinstance(out["cache_dir"], (str, os.PathLike)):
+        raise ValueError(f"matrix cache_dir must be a folder, None (the default) or False, got {out['cache_dir']!r}")
+    return out
+
+
+def factors_for(materials, used, directions: int, settings: dict, backend=None) -> list:
+    """[MaterialFactors or None] per material: `material_factors` (cached) for the material ids in `used`,
+    None for the others (ids the tile does not hold reflect nothing)."""
+    out = [None] * len(materials)
+    for m in sorted(used):
+        out[m] = material_factors(materials[m], directions=directions, normal_res=settings["normal_res"],
+                                  power=settings["power"], oversample=settings["oversample"],
+                                  power_iterations=settings["power_iterations"], seed=settings["seed"],
+                                  cache_dir=settings["cache_dir"], memory_budget=settings["memory_budget"],
+                                  search=settings["search"], backend=backend)
+    return out
+
+
+def _factor_info(mf) -> dict:
+    """What a bake reports of one material's M factors (Wu Table 3's columns, ours)."""
+    return {"normal_res": mf.normal_res, "rows": mf.factors.shape[0], "columns": mf.factors.shape[1],
+            "rank": mf.rank, "power_kept": mf.factors.power_kept, "bytes": mf.nbytes,
+            "matrix_bytes": mf.factors.shape[0] * mf.factors.shape[1] * 8, "color": [float(c) for c in mf.color],
+            "color_residual": mf.color_residual, "source": "computed" if mf.source == "computed" else "cache",
+            "m_source": mf.info.get("m_source", "numpy"), "directions_advised": mf.info.get("directions_advised"),
+            "precompute_s": float(sum(mf.info.get("timings", {}).values())) if mf.source == "computed" else 0.0,
+            "key": mf.key}
+
+
+class MatrixBRDF(EffectiveBRDF):
+    """A material baked by Wu's matrix method (`wb.bake(tile, materials, method="matrix")`): f̄ on the K×K
+    grid from the factors of the bake's BVNDF histogram N (per colour channel) and of each small-scale
+    BRDF's pre-rotated, cosine-weighted matrix M (precomputed once per material and cached on disk), by
+    Eq. 12, colour as Wu §3.7 (`matrix_tables`).
+
+    The interface of `EffectiveBRDF`: `eval(wi, wo)` (cosine θi included, bilinear in f̄/cos θi as §4.4),
+    `table()`, `wb.compare`, `save` / `wb.load` (format "matrix_brdf"), `with_materials` (new small-scale
+    BRDFs: their M factors, from the cache or computed, and Eq. 12 — N is not re-baked), `provenance`,
+    `path`, `timings`, `info`. Attributes: `tables` (M, K², K², 3) float32 f̄ per material, `bvndf` (the
+    bins' mean normals, where M's rows are interpolated, their areas, a_v; the histogram itself only with
+    `bake(..., bvndf=True)`), `channels` [(material id, rgb multiplier, N's MatrixFactors)], `factors`
+    [MaterialFactors or None per material] (None after `load` until an edit fetches them), `settings`
+    (FACTOR_SETTINGS), `factor_bytes` (the memory of the factors). It has no SG lobes: the SG renderer and
+    the Monte Carlo reference's sampling refuse it in one line (`NO_LOBES`); the lit-sphere renderer
+    evaluates it on the host (`host_texels`)."""
+
+    VERSION = 1
+    VERSIONS = (1,)
+    FORMAT = "matrix_brdf"
+    host_texels = True  # no texel kernel reads these tables: a lit sphere of it is made by `eval` on the host
+
+    def __init__(self, tables, materials, directions: int, bvndf: Bvndf, channels, factors=None, settings=None,
+                 timings=None, info=None, provenance: Provenance | None = None, path=None, backend=None):
+        self.directions = int(directions)
+        nd = self.directions**2
+        self.tables = np.asarray(tables, np.float32)
+        if self.tables.ndim != 4 or self.tables.shape[1:] != (nd, nd, 3):
+            raise ValueError(f"tables must have shape (M, {nd}, {nd}, 3), got {self.tables.shape}")
+        if not np.all(np.isfinite(self.tables)) or (self.tables < 0).any():
+            raise ValueError("tables must be finite and >= 0")
+        self.materials = as_material_list(materials)
+        if len(self.materials) != len(self.tables):
+            raise ValueError(f"{len(self.tables)} table(s) but {len(self.materials)} material(s)")
+        if not isinstance(bvndf, Bvndf) or np.shape(bvndf.a_v) != (nd,):
+            raise ValueError(f"bvndf must be a Bvndf with a_v of {nd} directions")
+        self.bvndf = bvndf
+        self.channels = [(int(m), np.asarray(mult, np.float64).reshape(3), f) for m, mult, f in channels]
+        for m, _, f in self.channels:
+            if not (0 <= m < len(self.materials)) or not isinstance(f, MatrixFactors):
+                raise ValueError(f"channel of material {m}: want a material id below {len(self.materials)} and "
+                                 "N's MatrixFactors")
+            if f.shape != (nd * (nd + 1) // 2, len(bvndf.normal)):
+                raise ValueError(f"N's factors are {f.shape}, want (pairs, bins) = "
+                                 f"({nd * (nd + 1) // 2}, {len(bvndf.normal)})")
+        self.factors = list(factors) if factors is not None else [None] * len(self.materials)
+        if len(self.factors) != len(self.materials):
+            raise ValueError(f"{len(self.factors)} factor set(s) for {len(self.materials)} material(s)")
+        self.settings = check_factor_settings({k: v for k, v in (settings or {}).items() if k in FACTOR_SETTINGS})
+        self.method = "matrix"
+        self.timings = dict(timings or {})
+        self.info = dict(info or {})
+        if provenance is not None and not isinstance(provenance, Provenance):
+            raise ValueError(f"provenance must be an effective.Provenance or None, got {type(provenance).__name__}")
+        if provenance is not None and provenance.tile.n_materials > len(self.materials):
+            raise ValueError(f"provenance: the tile has {provenance.tile.n_materials} material ids but the material "
+                             f"has {len(self.materials)} BRDF(s)")
+        self.provenance = provenance
+        self.path = None if path is None else os.path.abspath(os.fspath(path))
+        self._backend = backend  # what computes M for an edit's new materials (None: numpy)
+        self._table = self.tables.sum(axis=0, dtype=np.float64)
+
+    def __getstate__(self):
+        """Pickled (a batch task's result) without the backend an edit would use: it holds device state."""
+        return {**self.__dict__, "_backend": None}
+
+    def __repr__(self):
+        ranks = [f.rank for f in self.factors if f is not None]
+        n_ranks = [f.rank for *_, f in self.channels]
+        return (f"MatrixBRDF(K={self.directions}, materials={self.materials}, N ranks={n_ranks}, "
+                f"M ranks={ranks or 'not loaded'})")
+
+    # ------------------------------------------------------------------ what the SG form has and this has not
+    @property
+    def lobes(self):
+        raise ValueError(NO_LOBES)
+
+    @property
+    def amplitudes(self):
+        raise ValueError(NO_LOBES)
+
+    @property
+    def diffuse(self):
+        raise ValueError(NO_LOBES)
+
+    def _interpolated_amplitudes(self, wi, wo):
+        raise ValueError(NO_LOBES)
+
+    def export_mitsuba(self, path) -> dict:
+        """Refused before anything is written: the Mitsuba plugin evaluates and samples SG lobes."""
+        raise ValueError(NO_LOBES)
+
+    # ------------------------------------------------------------------ tables and memory
+    @property
+    def nbytes_per_material(self) -> int:
+        """Bytes of one material's f̄ table (what a renderer would upload per material)."""
+        return int(self.tables[0].nbytes)
+
+    @property
+    def factor_bytes(self) -> dict:
+        """The memory of the factors (Wu Table 3's "final size"): {"n": N's factors over every channel,
+        "m": {material id: its M factors}} in bytes; M's from `info` for a loaded material."""
+        m = {i: f.nbytes for i, f in enumerate(self.factors) if f is not None}
+        if not m:
+            m = {int(i): int(v["bytes"]) for i, v in (self.info.get("m_factors") or {}).items()}
+        return {"n": int(sum(f.nbytes for *_, f in self.channels)), "m": m}
+
+    def table(self, method: str | None = None) -> np.ndarray:
+        """(K², K², 3) f̄ on the bake's own grid (every material summed): table[i, o] at ωi = grid[i], ωo = grid[o]."""
+        self._check_method(method)
+        return self._table.copy()
+
+    @staticmethod
+    def _check_method(method):
+        if method not in (None, "matrix"):
+            raise ValueError(f"a matrix-method material evaluates its own tables (method 'matrix' or None), not "
+                             f"{method!r}")
+
+    def eval(self, wi, wo, method: str | None = None) -> np.ndarray:
+        """(N, 3) f̄(ωi, ωo) (cosine θi included, docs/design.md §4) at arbitrary directions; 0 below the
+        horizon. f̄/cos θi is interpolated bilinearly in the square domain of each direction (§4.4), so a
+        flat Lambertian tile gives (kd/π)cos θi everywhere."""
+        self._check_method(method)
+        wi = dirs.check_directions("wi", wi)
+        wo = dirs.check_directions("wo", wo)
+        if len(wi) != len(wo):
+            raise ValueError(f"wi and wo must have the same length, got {len(wi)} and {len(wo)}")
+        k = self.directions
+        per_cos = self._table / dirs.grid(k)[:, 2][:, None, None]
+        ii, wi_w = dirs.bilinear_corners(wi, k)
+        oo, wo_w = dirs.bilinear_corners(wo, k)
+        out = np.zeros((len(wi), 3))
+        for a in range(4):
+            for b in range(4):
+                out += (wi_w[:, a] * wo_w[:, b])[:, None] * per_cos[ii[:, a], oo[:, b]]
+        out *= np.maximum(wi[:, 2], 0.0)[:, None]
+        out[(wi[:, 2] <= 0) | (wo[:, 2] <= 0)] = 0.0
+        return np.maximum(out, 0.0)
+
+    # ------------------------------------------------------------------ edits
+    def with_materials(self, materials, backend=None, cache_dir=None) -> MatrixBRDF:
+        """The same N with other small-scale BRDFs (a material-only edit, Wu §3.6): each new material's M
+        factors (`material_factors` with this bake's `settings`: from the cache when precomputed, else
+        computed — by `backend`'s kernels, default the bake's, or numpy after `load`), then Eq. 12. Nothing
+        of the geometry is recomputed. `timings`: "m_factors" and "tables". Provenance and `path` carry over,
+        as EffectiveBRDF.with_materials."""
+        mats = as_material_list(materials)
+        used = {m for m, _, _ in self.channels}
+        if used and len(mats) <= max(used):
+            raise ValueError(f"the bake's N holds material ids up to {max(used)}, but {len(mats)} BRDF(s) were "
+                             "given")
+        be = _check_backend(backend) if backend is not None else self._backend
+        settings = dict(self.settings)
+        if cache_dir is not None:
+            settings["cache_dir"] = cache_dir
+        t0 = time.perf_counter()
+        factors = factors_for(mats, used, self.directions, settings, be)
+        t1 = time.perf_counter()
+        tables = matrix_tables(self.channels, self.bvndf.normal, factors, self.bvndf.a_v, n_materials=len(mats))
+        t2 = time.perf_counter()
+        info = {**self.info, "m_factors": {str(i): _factor_info(f) for i, f in enumerate(factors) if f is not None}}
+        out = MatrixBRDF(tables, mats, self.directions, self.bvndf, self.channels, factors, settings,
+                         {"m_factors": t1 - t0, "tables": t2 - t1}, info, self.provenance, self.path, be)
+        out.info["factor_bytes"] = out._factor_bytes_json()
+        return out
+
+    def _factor_bytes_json(self) -> dict:
+        """`factor_bytes` as `info` holds it (material ids as strings, as a material file's JSON header has them)."""
+        fb = self.factor_bytes
+        return {"n": fb["n"], "m": {str(i): v for i, v in fb["m"].items()}}
+
+    # ------------------------------------------------------------------ files
+    def save(self, path) -> None:
+        """Write atomically as a versioned npz (format "matrix_brdf", `wb.load` reads it back): the f̄
+        tables, N's factors per channel, the bins and a_v, the materials, settings, provenance, info and
+        timings. M's factors are not in the file: they are the materials' own, in the factor cache (an edit
+        after `load` fetches them there, or computes them)."""
+        arrays = {"tables": self.tables, **{f"bvndf_{k}": v for k, v in self.bvndf.arrays().items()},
+                  "channel_material": np.array([m for m, _, _ in self.channels], np.int32),
+                  "channel_mult": np.array([mult for _, mult, _ in self.channels], np.float64).reshape(-1, 3)}
+        for c, (_, _, f) in enumerate(self.channels):
+            arrays.update(f.arrays(f"n{c}_"))
+        if self.provenance is not None:
+            arrays.update(self.provenance.arrays())
+        settings = {k: v for k, v in self.settings.items() if k not in _RUNTIME_SETTINGS}
+        save_npz(path, self.FORMAT, self.VERSION,
+                 {"directions": self.directions, "method": "matrix",
+                  "materials": [_brdf_to_dict(m) for m in self.materials], "settings": settings,
+                  "channels": [f.header() for *_, f in self.channels], "info": self.info, "timings": self.timings,
+                  "bvndf_resolution": self.bvndf.resolution,
+                  "provenance": None if self.provenance is None else self.provenance.header()},
+                 arrays)
+        self.path = os.path.abspath(os.fspath(path))
+
+    @classmethod
+    def load(cls, path) -> MatrixBRDF:
+        head, arrays = read_npz(path, cls.FORMAT, versions=cls.VERSIONS)
+        try:
+            mats = [_brdf_from_dict(d) for d in head["materials"]]
+            bv = Bvndf.from_arrays(head["bvndf_resolution"], {k[6:]: v for k, v in arrays.items()
+                                                              if k.startswith("bvndf_")})
+            channels = [(int(m), mult, MatrixFactors.from_arrays(arrays, h, f"n{c}_"))
+                        for c, (m, mult, h) in enumerate(zip(arrays["channel_material"], arrays["channel_mult"],
+                                                             head["channels"]))]
+            prov = Provenance.from_file(head["provenance"], arrays) if head.get("provenance") is not None else None
+            return cls(arrays["tables"], mats, head["directions"], bv, channels, None, head.get("settings"),
+                       head.get("timings"), head.get("info"), prov, path)
+        except KeyError as exc:
+            raise ValueError(f"{path} is missing {exc} (corrupt matrix-method material file)") from None
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{path} is not a valid matrix-method material file: {exc}") from None
+
+    @classmethod
+    def from_bake(cls, tables, materials, directions, bvndf, channels, factors, settings, timings, info,
+                  provenance, backend) -> MatrixBRDF:
+        """The bake's result, with every material's M factors reported in `info` ("m_factors", and
+        "factor_bytes": the memory of N's and M's factors)."""
+        info = {**info, "m_factors": {str(i): _factor_info(f) for i, f in enumerate(factors) if f is not None}}
+        out = cls(tables, materials, directions, bvndf, channels, factors, settings, timings, info, provenance,
+                  None, backend)
+        out.info["factor_bytes"] = out._factor_bytes_json()
+        return out

@@ -73,7 +73,7 @@ from .effective import EffectiveBRDF
 from .progress import Progress
 from .scene import Rendering, Scene
 from .scene import light_sg, vertex_tangents
-from .shading import MIN_COS_VIEW, surface_frames
+from .shading import surface_frames
 from .montecarlo_sampling import (_basis, _CosineStrategy, _dot, _EnvironmentStrategy, _GlossyStrategy,  # noqa: F401
                                   _LightStrategy, _LobeMixtureStrategy, sample_vmf, vmf_pdf)
 from .svbrdf import Textured

@@ -442,11 +442,12 @@ class OpenCLBackend(DeviceBackend):
                      np.int32(n_dirs), partial)
         self._launch("truth", "sum_chunks_area", (n_dirs,), partial, np.int32(chunks), np.int32(n_dirs), a_v)
 
-    def _launch_effective_brdf(self, f, v, kinds, params, pair_i, pair_o, a_v, n_words, n_pairs, chunks, per, out):
+    def _launch_effective_brdf(self, f, v, kinds, params, pair_i, pair_o, a_v, face, tangent, n_words, n_pairs,
+                               chunks, per, out):
         partial = self._empty(chunks * n_pairs * 3, np.float32)
         self._launch("truth", "effective_brdf_partial", (n_pairs, chunks),
                      v["directions"], pair_i, pair_o, v["bits"], np.int32(n_words), f["normal"], f["weight"],
-                     f["material"], kinds, params, np.int32(per), np.int32(n_pairs), partial)
+                     f["material"], kinds, params, face, tangent, np.int32(per), np.int32(n_pairs), partial)
         self._launch("truth", "sum_chunks_brdf", (n_pairs,), partial, np.int32(chunks), np.int32(n_pairs), pair_o,
                      a_v, out)
 
@@ -780,3 +781,7 @@ class OpenCLBackend(DeviceBackend):
                      np.float32(1.0 - SUPPORT / eta), np.int32(n), out)
         return self._read(out, (height, width, 3), np.float32)
 
+    # ------------------------------------------------------------------ matrix (Wu's M, warp_biscale.matrix)
+    def _launch_brdf_matrix(self, normals, wi, wo, kinds, params, m, color, n_rows, n_pairs, out):
+        self._launch("matrix", "brdf_matrix", (n_pairs, n_rows), normals, wi, wo, kinds, params, np.int32(m),
+                     *(np.float32(c) for c in color), np.int32(n_rows), np.int32(n_pairs), out)

@@ -12,7 +12,8 @@ from . import lobes
 
 # The float64 conventions and helpers that production code needs too live there; they are named
 # here as well, so that a test reads every oracle from one module.
-from .brdf import BLINN_PHONG, COOK_TORRANCE, WARD, brdf_cosine_weighted  # noqa: F401
+from .brdf import (ANISOTROPIC_WARD, ASHIKHMIN_SHIRLEY, BLINN_PHONG, COOK_TORRANCE, WARD,  # noqa: F401
+                   brdf_cosine_weighted, tangent_frame)
 from .directions import cube_bin  # noqa: F401
 from .environment import (
     environment_irradiance,  # noqa: F401
@@ -25,6 +26,7 @@ from .trace import disk_basis, disk_sample
 from .sg import one_minus_cos
 from .smallscale import (
     SmallScale,
+    default_face_tangents,
     ray_offset,  # noqa: F401
 )
 from .ssdf import ssdf_eval  # noqa: F401
@@ -204,22 +206,27 @@ def visible_area(facets: dict, vis: np.ndarray, directions: np.ndarray) -> np.nd
     return (vis * cos) @ facets["area"]
 
 
-def effective_brdf(facets: dict, vis: np.ndarray, directions, kinds, params, pair_i, pair_o) -> np.ndarray:
+def effective_brdf(facets: dict, vis: np.ndarray, directions, kinds, params, pair_i, pair_o,
+                   tangents=None) -> np.ndarray:
     """(P, 3) f̄(ωi, ωo) = Σ_s c_s f_r(n_s,ωi,ωo)(n_s·ωi)⁺(n_s·ωo)⁺ V_s(ωi)V_s(ωo)ΔA_s / a_v(ωo).
 
     ωi = directions[pair_i], ωo = directions[pair_o]; c_s the facet's RGB colour weight. Zero
-    where a_v(ωo) = 0 (nothing of the tile is visible from ωo).
+    where a_v(ωo) = 0 (nothing of the tile is visible from ωo). `tangents` (F, 3): the tile's face
+    tangents (`SmallScale.face_tangents`); facet s takes its face's, made perpendicular to n_s
+    (`brdf.tangent_frame`). Needed only for the anisotropic BRDFs.
     """
     directions = np.asarray(directions, np.float64)
     a_v = visible_area(facets, vis, directions)
     out = np.zeros((len(pair_i), 3))
     n = facets["normal"]
+    t = None if tangents is None else np.asarray(tangents, np.float64)[facets["face"]]
     w = facets["area"][:, None] * facets["color"]
     for p, (i, o) in enumerate(zip(pair_i, pair_o)):
         both = vis[i] & vis[o]
         if not both.any() or a_v[o] <= 0:
             continue
-        fc = brdf_cosine_weighted(kinds, params, facets["material"][both], n[both], directions[i], directions[o])
+        fc = brdf_cosine_weighted(kinds, params, facets["material"][both], n[both], directions[i], directions[o],
+                                  None if t is None else t[both])
         out[p] = (fc * w[both]).sum(axis=0) / a_v[o]
     return out
 
@@ -239,7 +246,7 @@ def vgroove_tile(depth=0.5, width=1.0):
     return SmallScale(v, f, name="vgroove")
 
 
-def vgroove_effective_brdf(depth, width, kinds, params, wi, wo, material=0, color=(1.0, 1.0, 1.0)):
+def vgroove_effective_brdf(depth, width, kinds, params, wi, wo, material=0, color=(1.0, 1.0, 1.0), tangents=None):
     """(N, 3) exact f̄ of a V-groove running along y: walls from z = 0 at x = 0 and x = w down to
     z = −depth at x = w/2, tiled with period w in x (any period in y).
 
@@ -253,6 +260,8 @@ def vgroove_effective_brdf(depth, width, kinds, params, wi, wo, material=0, colo
     Each wall is planar with one material, so f_r(n)(n·ωi)(n·ωo) is constant on it:
     f̄ = Σ_walls f_r·(n·ωi)⁺(n·ωo)⁺·A·min(v(ωi), v(ωo)) / Σ_walls (n·ωo)⁺·A·v(ωo),
     and the denominator equals w·ℓ·cos θo (a height field's projected area), which the tests check.
+    `tangents`: the walls' tangents (left wall, right wall) for the anisotropic BRDFs; default the tile's
+    default (`smallscale.default_face_tangents`: +x projected onto each wall, across the groove).
     """
     wi, wo = np.atleast_2d(np.asarray(wi, np.float64)), np.atleast_2d(np.asarray(wo, np.float64))
     d, w = float(depth), float(width)
@@ -267,12 +276,15 @@ def vgroove_effective_brdf(depth, width, kinds, params, wi, wo, material=0, colo
             v = np.minimum(1.0, w / (half + sign * d * t))
         return np.where((om @ n > 0) & (om[:, 2] > 0), v, 0.0)
 
+    if tangents is None:
+        tangents = default_face_tangents(np.array(normals))
     num = np.zeros((len(wi), 3))
     den = np.zeros(len(wi))
     mat = np.full(len(wi), material, np.int32)
-    for n, sign in zip(normals, signs):
+    for n, sign, t in zip(normals, signs, tangents):
         vi, vo = frac(n, sign, wi), frac(n, sign, wo)
-        fc = brdf_cosine_weighted(kinds, params, mat, np.broadcast_to(n, wi.shape), wi, wo)
+        fc = brdf_cosine_weighted(kinds, params, mat, np.broadcast_to(n, wi.shape), wi, wo,
+                                  np.broadcast_to(np.asarray(t, np.float64), wi.shape))
         num += fc * np.asarray(color) * np.minimum(vi, vo)[:, None] * length
         den += np.maximum(wo @ n, 0.0) * vo * length
     out = np.zeros_like(num)

@@ -34,8 +34,8 @@ from .trace import check_shadow_samples
 from .images import compare_images
 from .scene import Camera, DirectionalLight, Mesh, Rendering, Scene, _black_environment, _integer
 
-__all__ = ["Scene", "Rendering", "render", "pack_frame", "static_inputs", "METHODS", "environment_lights", "material_ball",
-           "litsphere_errors"]
+__all__ = ["Scene", "Rendering", "render", "pack_frame", "static_inputs", "METHODS", "environment_lights",
+           "material_ball", "litsphere_errors"]
 
 METHODS = ("sg", "mc", "litsphere")
 

@@ -65,6 +65,16 @@ class SmallScale:
         face normal.
     name : str
         A label used in messages and plots.
+    face_tangents : (F, 3) float, optional
+        Per-face tangent direction, the x axis of the facet frame of anisotropic small-scale BRDFs
+        (`brdf.AnisotropicWard`, `brdf.AshikhminShirley`; isotropic ones ignore it). Each row is
+        projected onto its face's plane and normalised; a row (nearly) parallel to its face normal is
+        an error. Default (`default_face_tangents`): the tile's +x axis projected onto each face's
+        plane, or, where a face's normal lies within 0.01 rad of ±x (a wall facing x, whose plane
+        holds no direction near x), +y projected instead. The procedural tiles set their own:
+        along the grooves (`geometry.grooves`), along each thread (`geometry.woven`). Only the
+        tangent's line matters (the BRDFs are even in it), not its sign. A facet's frame is this
+        tangent made perpendicular to the facet's (possibly interpolated) normal (`brdf.tangent_frame`).
     """
 
     vertices: np.ndarray
@@ -75,6 +85,7 @@ class SmallScale:
     vertex_normals: np.ndarray | None = None
     name: str = "tile"
     origin: np.ndarray | None = None
+    face_tangents: np.ndarray | None = None
 
     def __post_init__(self):
         v = _finite_array("vertices", self.vertices, (3,), np.float64)
@@ -117,6 +128,12 @@ class SmallScale:
                 raise ValueError(f"vertex_normals has a zero-length normal at vertex {int(np.argmin(ln))}")
             vn = vn / ln[:, None]
 
+        tan = None
+        if self.face_tangents is not None:
+            tan = _finite_array("face_tangents", self.face_tangents, (3,), np.float64)
+            if len(tan) != nf:
+                raise ValueError(f"face_tangents must have one row per face ({nf}), got {len(tan)}")
+
         v, f, vn = self._merge_duplicates(v, f, vn)
         keep = self._nondegenerate(v, f)
         if not keep.all():
@@ -126,6 +143,7 @@ class SmallScale:
                 stacklevel=3,
             )
             f, mat, col = f[keep], mat[keep], col[keep]
+            tan = tan[keep] if tan is not None else None
             if len(f) == 0:
                 raise ValueError(f"tile {self.name!r} has no faces with non-zero area")
         # Drop vertices no face uses, so bounds describe the surface.
@@ -173,8 +191,12 @@ class SmallScale:
         norm = np.linalg.norm(cross, axis=1)
         self._face_areas = 0.5 * norm
         self._face_normals = cross / norm[:, None]
+        if tan is None:
+            self.face_tangents = default_face_tangents(self._face_normals)
+        else:
+            self.face_tangents = _tangents_in_planes(tan, self._face_normals, np.flatnonzero(keep))
         for arr in (self.vertices, self.faces, self.material_ids, self.colors, self.vertex_normals, self.origin,
-                    self._face_areas, self._face_normals):
+                    self._face_areas, self._face_normals, self.face_tangents):
             if arr is not None:
                 arr.flags.writeable = False
 
@@ -288,8 +310,10 @@ class SmallScale:
         """Load a triangle mesh (OBJ, PLY, STL, GLB, ...) through trimesh as one tile period.
 
         Vertex normals stored in the file are used (interpolated across faces); otherwise facets use
-        face normals. Scenes with several meshes are concatenated, each mesh getting the next
-        material id unless `material_ids` is given.
+        face normals. Face tangents stored in a PLY file as the face properties tangent_x, tangent_y,
+        tangent_z (what `save` writes) are used; otherwise the default (`default_face_tangents`). Scenes
+        with several meshes are concatenated, each mesh getting the next material id unless
+        `material_ids` is given.
         """
         path = os.fspath(path)
         if not os.path.exists(path):
@@ -305,6 +329,7 @@ class SmallScale:
         verts, faces, mats, normals = [], [], [], []
         offset = 0
         has_normals = all(_file_has_vertex_normals(m) for m in meshes)
+        tangents = [_file_face_tangents(m) for m in meshes]
         for k, m in enumerate(meshes):
             verts.append(np.asarray(m.vertices, np.float64))
             faces.append(np.asarray(m.faces, np.int64) + offset)
@@ -320,16 +345,56 @@ class SmallScale:
             period=period,
             vertex_normals=np.concatenate(normals) if has_normals else None,
             name=name or os.path.splitext(os.path.basename(path))[0],
+            face_tangents=np.concatenate(tangents) if all(t is not None for t in tangents) else None,
         )
 
     def save(self, path) -> None:
-        """Write the tile as a mesh file (format from the extension), atomically."""
+        """Write the tile as a mesh file (format from the extension), atomically. A .ply file also keeps the
+        face tangents (face properties tangent_x, tangent_y, tangent_z, which `load` reads back); other
+        formats have no place for them, and the tile reloads with the default tangents."""
 
         mesh = trimesh.Trimesh(self.vertices, self.faces, process=False)
         if self.vertex_normals is not None:
             mesh.vertex_normals = self.vertex_normals
+        for axis, name in enumerate(_TANGENT_PROPERTIES):
+            mesh.face_attributes[name] = np.ascontiguousarray(self.face_tangents[:, axis])
         with atomic_path(path) as tmp:
             mesh.export(tmp, file_type=os.path.splitext(os.fspath(path))[1].lstrip(".").lower())
+
+
+# A tangent whose part in its face's plane has squared length below this (relative: it lies within 0.01 rad of
+# the normal) names no direction in the face; the same bound as brdf.TANGENT_DEGENERATE for a facet's frame.
+TANGENT_DEGENERATE = 1e-4
+
+
+def default_face_tangents(face_normals) -> np.ndarray:
+    """(F, 3) unit tangents: the tile's +x axis projected onto each face's plane, or +y projected where the face
+    normal lies within 0.01 rad of ±x (|x − (x·n)n|² < TANGENT_DEGENERATE: a wall facing ±x, whose plane holds
+    no direction near x; +y then lies in it to within 0.01 rad). Well defined for every unit normal, and
+    continuous except across that small cone about ±x."""
+    n = np.asarray(face_normals, np.float64)
+    t = np.zeros_like(n)
+    t[:, 0] = 1.0
+    t -= n[:, 0:1] * n
+    bad = np.einsum("ij,ij->i", t, t) < TANGENT_DEGENERATE
+    if bad.any():
+        y = np.zeros((int(bad.sum()), 3))
+        y[:, 1] = 1.0
+        t[bad] = y - n[bad, 1:2] * n[bad]
+    return t / np.linalg.norm(t, axis=1, keepdims=True)
+
+
+def _tangents_in_planes(tangents, face_normals, rows) -> np.ndarray:
+    """Given tangents projected onto their faces' planes and normalised; `rows` maps each face back to the row
+    of the caller's array (for the error)."""
+    t = tangents - np.einsum("ij,ij->i", tangents, face_normals)[:, None] * face_normals
+    l2 = np.einsum("ij,ij->i", t, t)
+    bad = l2 <= TANGENT_DEGENERATE * np.einsum("ij,ij->i", tangents, tangents)  # (a zero row too)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise ValueError(f"face_tangents row {int(rows[i])} {tangents[i].tolist()} is (nearly) parallel to its face's "
+                         f"normal {face_normals[i].round(6).tolist()}: a tangent must lie across the normal")
+    return t / np.sqrt(l2)[:, None]
 
 
 def _covered(a: np.ndarray, b: np.ndarray, tol: float) -> bool:
@@ -355,6 +420,21 @@ def _covered(a: np.ndarray, b: np.ndarray, tol: float) -> bool:
         if not np.all(np.sqrt(((ac[:, None, :] - near) ** 2).sum(-1)).min(axis=1) < 10 * tol):
             return False
     return True
+
+
+_TANGENT_PROPERTIES = ("tangent_x", "tangent_y", "tangent_z")  # the PLY face properties of the face tangents
+
+
+def _file_face_tangents(mesh):
+    """(F, 3) face tangents a PLY file carried as face properties tangent_x/y/z, else None. trimesh hands a
+    PLY file's extra properties back only in metadata["_ply_raw"] (its raw elements)."""
+    try:
+        data = mesh.metadata["_ply_raw"]["face"]["data"]
+        if len(data) != len(mesh.faces):
+            return None
+        return np.stack([np.asarray(data[name], np.float64).reshape(-1) for name in _TANGENT_PROPERTIES], 1)
+    except (KeyError, TypeError, ValueError, IndexError):
+        return None
 
 
 def _file_has_vertex_normals(mesh) -> bool:

@@ -51,16 +51,17 @@ def _check_count(facets) -> int:
     return n
 
 
-def _prepare(tile, materials):
+def _prepare(tile, materials, anisotropic: bool = False):
     """The tile checked and its materials normalised (one BRDF or a list, indexed by the tile's material ids):
     → (list of Brdf, kinds, params). Fewer BRDFs than the tile's ids is an error; more (than one) is a
     `TileWarning`, since the extra ones are never used. Shared by `ground_truth`, `effective_brdf_exact`
-    and `bake.bake`; the warning points at their caller."""
+    and `bake.bake`; the warning points at their caller. `anisotropic`: accept anisotropic BRDFs (the
+    ground truth, which passes the tile's face tangents to the kernels)."""
 
     if not isinstance(tile, SmallScale):
         raise ValueError(f"tile must be a SmallScale (wb.SmallScale.load(...) or wb.geometry.*), got {tile!r}")
-    mats = as_material_list(materials)
-    kinds, params = pack_materials(mats, tile.n_materials)
+    mats = as_material_list(materials, anisotropic)
+    kinds, params = pack_materials(mats, tile.n_materials, anisotropic)
     n = tile.n_materials
     if len(mats) > n:
         unused = f"BRDF {n} is" if len(mats) == n + 1 else f"BRDFs {n}..{len(mats) - 1} are"
@@ -89,7 +90,8 @@ def effective_brdf_exact(tile, materials, wi, wo, facets: int = 1 << 20, backend
     Parameters
     ----------
     tile : SmallScale
-    materials : Brdf or list of Brdf, indexed by the tile's material ids.
+    materials : Brdf or list of Brdf, indexed by the tile's material ids. Anisotropic BRDFs
+        (AnisotropicWard, AshikhminShirley) use the tile's face tangents (`SmallScale.face_tangents`).
     wi, wo : (N, 3) directions in the tile frame (z up); normalised here. Pairs with either
         direction at or below the horizon give 0.
     facets : number of facets Ns (the estimator's error falls faster than 1/√Ns).
@@ -99,7 +101,8 @@ def effective_brdf_exact(tile, materials, wi, wo, facets: int = 1 << 20, backend
     Returns (N, 3) float64 RGB f̄, including cos θi (docs/design.md §4). Only the distinct directions of
     wi and wo are traced.
     """
-    _, kinds, params = _prepare(tile, materials)
+    mats, kinds, params = _prepare(tile, materials, anisotropic=True)
+    tangents = _tangents(tile, mats)
     wi = dirs.check_directions("wi", wi)
     wo = dirs.check_directions("wo", wo)
     if len(wi) != len(wo):
@@ -116,9 +119,14 @@ def effective_brdf_exact(tile, materials, wi, wo, facets: int = 1 << 20, backend
     vis = be.visibility(tile, fac, unique)
     prog.stage("effective BRDF", 1)
     a_v = be.visible_area(fac, vis)
-    f = be.effective_brdf(fac, vis, kinds, params, pair_i, pair_o, a_v)
+    f = be.effective_brdf(fac, vis, kinds, params, pair_i, pair_o, a_v, tangents=tangents)
     prog.done()
     return _sanitise(f).astype(np.float64)
+
+
+def _tangents(tile, mats):
+    """The tile's face tangents where a material is anisotropic, else None (the kernels then read none)."""
+    return tile.face_tangents if any(m.anisotropic for m in mats) else None
 
 
 def _sanitise(f: np.ndarray) -> np.ndarray:
@@ -131,12 +139,15 @@ def _sanitise(f: np.ndarray) -> np.ndarray:
 
 def ground_truth(tile, materials, facets: int = 1 << 20, directions: int = 12, backend="auto", seed: int = 0,
                  progress=None) -> GroundTruth:
-    """Ground-truth f̄ on the K×K direction grid (K = `directions`): all K²×K² pairs.
+    """Ground-truth f̄ on the K×K direction grid (K = `directions`): all K²×K² pairs. Every small-scale BRDF is
+    exact, the anisotropic ones (AnisotropicWard, AshikhminShirley) in the frame of the tile's face tangents
+    (`SmallScale.face_tangents`, made perpendicular to each facet's normal).
 
     Returns a `GroundTruth` table with `eval(wi, wo)`, `save(path)`, and per-stage `timings`
     (seconds, device-synchronised).
     """
-    mats, kinds, params = _prepare(tile, materials)
+    mats, kinds, params = _prepare(tile, materials, anisotropic=True)
+    tangents = _tangents(tile, mats)
     count = _check_count(facets)
     k = int(directions)
     if k != directions or not (2 <= k <= 64):
@@ -160,7 +171,8 @@ def ground_truth(tile, materials, facets: int = 1 << 20, directions: int = 12, b
     for start in range(0, nd, rows):
         stop = min(nd, start + rows)
         batch = slice(start * nd, stop * nd)
-        f = timer("effective_brdf", be.effective_brdf, fac, vis, kinds, params, pair_i[batch], pair_o[batch], a_v)
+        f = timer("effective_brdf", be.effective_brdf, fac, vis, kinds, params, pair_i[batch], pair_o[batch], a_v,
+                  tangents=tangents)
         table[start:stop] = f.reshape(stop - start, nd, 3)
         prog.advance(stop - start)
     prog.done()
@@ -288,9 +300,10 @@ def _truth_settings(mat, facets, seed):
 
 def truth_key(mat, facets: int = TRUTH_FACETS, seed=None) -> str:
     """The hex SHA-256 of everything `truth_of(mat, facets, seed)`'s table depends on: the tile's arrays
-    (vertices, faces, material ids, colours, vertex normals, period, origin), the small-scale BRDFs of its
-    material ids (type and packed parameters), K, the facet count and seed, and TRUTH_KEY_VERSION. Not the
-    tile's name, nor the backend: backends agree to float32 rounding (docs/design.md §3.3)."""
+    (vertices, faces, material ids, colours, vertex normals, period, origin; the face tangents where a BRDF is
+    anisotropic), the small-scale BRDFs of its material ids (type and packed parameters), K, the facet count
+    and seed, and TRUTH_KEY_VERSION. Not the tile's name, nor the backend: backends agree to float32 rounding
+    (docs/design.md §3.3)."""
     count, seed = _truth_settings(mat, facets, seed)
     tile = mat.provenance.tile
     h = hashlib.sha256(f"warp_biscale ground truth v{TRUTH_KEY_VERSION}; K={mat.directions}; facets={count}; "
@@ -298,6 +311,9 @@ def truth_key(mat, facets: int = TRUTH_FACETS, seed=None) -> str:
     parts = {"vertices": tile.vertices, "faces": tile.faces, "material_ids": tile.material_ids,
              "colors": tile.colors, "vertex_normals": tile.vertex_normals,
              "period": np.asarray(tile.period, np.float64), "origin": tile.origin}
+    if any(m.anisotropic for m in mat.materials[:tile.n_materials]):
+        # (only then: the tangents change nothing else, and older keys stay valid)
+        parts["face_tangents"] = tile.face_tangents
     for name, arr in parts.items():
         h.update(f"; {name}".encode())
         if arr is not None:  # dtype and shape too: the same bytes in another layout are another tile

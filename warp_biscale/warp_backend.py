@@ -27,6 +27,7 @@ from .kernels import em as kem
 from .kernels import envmap as kenvmap
 from .kernels import facets as kfacets
 from .kernels import litsphere as klitsphere
+from .kernels import matrix as kmatrix
 from .kernels import probe as kprobe
 from .kernels import shade as kshade
 from .kernels import ssdf as kssdf
@@ -251,11 +252,12 @@ class WarpBackend(DeviceBackend):
         self._load(ktruth.sum_chunks_area)
         wp.launch(ktruth.sum_chunks_area, dim=n_dirs, device=self._device, inputs=[partial], outputs=[a_v])
 
-    def _launch_effective_brdf(self, f, v, kinds, params, pair_i, pair_o, a_v, n_words, n_pairs, chunks, per, out):
+    def _launch_effective_brdf(self, f, v, kinds, params, pair_i, pair_o, a_v, face, tangent, n_words, n_pairs,
+                               chunks, per, out):
         partial = wp.empty((chunks, n_pairs), dtype=wp.vec3, device=self._device)
         self._launch(ktruth.effective_brdf_partial, (chunks, n_pairs),
                      [v["directions"], pair_i, pair_o, v["bits"], f["normal"], f["weight"], f["material"],
-                      kinds, params, per],
+                      kinds, params, face, tangent, per],
                      [partial])
         self._load(ktruth.sum_chunks_brdf)
         wp.launch(ktruth.sum_chunks_brdf, dim=n_pairs, device=self._device, inputs=[partial, pair_o, a_v],
@@ -699,3 +701,7 @@ class WarpBackend(DeviceBackend):
                      [out])
         return out.numpy().reshape(height, width, 3)
 
+    # ------------------------------------------------------------------ matrix (Wu's M, warp_biscale.matrix)
+    def _launch_brdf_matrix(self, normals, wi, wo, kinds, params, m, color, n_rows, n_pairs, out):
+        self._launch(kmatrix.brdf_matrix, (n_rows, n_pairs),
+                     [normals, wi, wo, kinds, params, int(m), wp.vec3(*(float(c) for c in color))], [out])
