@@ -134,7 +134,9 @@ QUALITY = [
     ("lobes", "int", 1, 32, 8, True, "J: SG lobes of the normal distribution"),
     ("facets_log2", "int", 10, 20, 16, True, "log2 of the facets sampled on the tile"),
     ("directions", "int", 4, 16, 12, True, "K: the K x K direction grid of the tables"),
-    ("method", "choice", None, ("sg", "litsphere"), "sg", False, "large-scale renderer"),
+    ("bake", "choice", None, ("sg", "matrix"), "sg", True,
+     "bake method: SG lobes (Iwasaki) or the matrix method (Wu; drawn by the lit-sphere renderer)"),
+    ("method", "choice", None, ("sg", "litsphere"), "sg", False, "large-scale renderer of an SG bake"),
 ]
 COARSE = {"lobes": 4, "facets_log2": 12, "directions": 6}  # a dragged slider's bake: each at most this
 COARSE_SCALE = 4  # ... and its frame: rendered at 1/4 of the width and height, shown enlarged
@@ -529,8 +531,8 @@ class Editor:
             q = self._quality(state, coarse)
             t0 = time.perf_counter()
             mats = [_brdf(m) for m in state["materials"]][:max(tile.n_materials, 1)]
-            effective = bake(tile, mats, lobes=q["lobes"], directions=q["directions"], facets=1 << q["facets_log2"],
-                             backend=self.backend)
+            effective = bake(tile, mats, method=q["bake"], lobes=q["lobes"], directions=q["directions"],
+                             facets=1 << q["facets_log2"], backend=self.backend)
             timings["bake"] = time.perf_counter() - t0
         elif redo == "materials":
             t0 = time.perf_counter()
@@ -540,7 +542,7 @@ class Editor:
         if self.scene is not None and self.scene.materials[0] is effective:
             scene.cache = self.scene.cache  # the same materials, mesh and environment: the static inputs stand
         t0 = time.perf_counter()
-        shown, image = self._render(scene, state["quality"]["method"], timings)
+        shown, image = self._render(scene, _renderer(state), timings)
         if coarse:
             shown = _enlarged(shown, self.width, self.height)
         timings["render"] = time.perf_counter() - t0
@@ -652,7 +654,8 @@ class Editor:
                 state["quality"][name] = int(design[key])
         if "facets" in design:
             state["quality"]["facets_log2"] = int(round(math.log2(int(design["facets"]))))
-        state["quality"]["method"] = render_.get("method", "sg")
+        state["quality"]["bake"] = "matrix" if design.get("method") == "matrix" else "sg"
+        state["quality"]["method"] = render_.get("method", "sg") if state["quality"]["bake"] == "sg" else "sg"
         env = data.get("environment")
         state["light"]["environment"] = "none" if env is None else env.get("type", "sky")
         if state["light"]["environment"] not in ("sky", "studio", "constant", "none"):
@@ -668,6 +671,11 @@ class Editor:
             state["light"]["intensity"] = float(np.clip(np.mean(np.atleast_1d(sun.get("irradiance", 1.0))), 0, 10))
         ed._build(state, "bake", coarse=False)
         return ed
+
+
+def _renderer(state) -> str:
+    """The large-scale renderer of a design: a matrix-method bake has no SG lobes for the SG renderer."""
+    return "litsphere" if state["quality"]["bake"] == "matrix" else state["quality"]["method"]
 
 
 def _enlarged(image, width, height) -> np.ndarray:
@@ -763,7 +771,7 @@ def _design_toml(state, width, height, mesh_path, heights_name) -> str:
     direction = (math.cos(el) * math.cos(az), math.sin(el), math.cos(el) * math.sin(az))
     lines = ["# A bi-scale design saved by warp_biscale's editor: `warp-biscale render` draws it,",
              "# `warp-biscale edit` opens it again.", "[render]", f"width = {width}", f"height = {height}",
-             f'method = "{q["method"]}"', "ssdf_resolution = 16", "", "[camera]", "eye = [0.0, 2.4, 4.6]",
+             f'method = "{_renderer(state)}"', "ssdf_resolution = 16", "", "[camera]", "eye = [0.0, 2.4, 4.6]",
              "target = [0.0, 0.9, 0.0]", "fov = 35.0", ""]
     env = li["environment"]
     if env == "sky":
@@ -782,6 +790,7 @@ def _design_toml(state, width, height, mesh_path, heights_name) -> str:
     if params:
         lines.append("tile_params = { " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in params.items()) + " }")
     lines += ["brdf = [" + ", ".join(f'"{brdf_spec(m)}"' for m in state["materials"]) + "]",
-              f"lobes = {q['lobes']}", f"directions = {q['directions']}", f"facets = {1 << q['facets_log2']}", "",
+              f"lobes = {q['lobes']}", f"directions = {q['directions']}", f"facets = {1 << q['facets_log2']}",
+              *([f'method = "{q["bake"]}"'] if q["bake"] != "sg" else []), "",
               "[material.floor]", 'type = "lambert"', "albedo = 0.45", ""]
     return "\n".join(lines)
