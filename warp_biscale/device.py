@@ -17,6 +17,7 @@ import weakref
 
 import numpy as np
 
+from .asg import ASG
 from .brdf import ANISOTROPIC_KINDS
 from .lobes import KERNEL_LOBES, LobeSet
 from .model import Facets, GBuffer, ShadeInputs, Visibility, facet_shift
@@ -796,4 +797,113 @@ class DeviceBackend:
         return self._to_host(out, (n_rows, n_pairs), "f32")
 
     def _launch_brdf_matrix(self, normals, wi, wo, kinds, params, m, color, n_rows, n_pairs, out):
+        raise NotImplementedError
+
+    # --- ASG operators (stage `asg`, Xu 2013; oracle warp_biscale.asg, docs/design.md §9) ---
+    # Each runs one device function of kernels/asg.py / cl/asg.cl over a batch, one thread a row: the
+    # functions the ASG bake and shading will call, exercised here against their float64 oracle. ASGs travel
+    # as (N, 12) float32 rows [x, y, z, λ, μ, c]; results come back as asg.ASG (float64 copies of the rows).
+    ASG_INTEGRAL_METHODS = ("exact", "eq10", "eq11")  # asg_integral_values' method codes 0, 1, 2
+
+    @staticmethod
+    def _asg_rows(g: ASG, shape) -> np.ndarray:
+        """(N, 12) float32 rows of ASG batch `g` broadcast to `shape` (N = its size)."""
+        parts = [np.broadcast_to(getattr(g, k), shape + (3,)).reshape(-1, 3) for k in ("x", "y", "z")]
+        parts += [np.broadcast_to(getattr(g, k), shape).reshape(-1, 1) for k in ("lam", "mu", "amplitude")]
+        return np.ascontiguousarray(np.concatenate(parts, axis=1), np.float32)
+
+    @staticmethod
+    def _asg_of_rows(rows, shape) -> ASG:
+        rows = np.asarray(rows, np.float64).reshape(shape + (12,))
+        return ASG(rows[..., 0:3], rows[..., 3:6], rows[..., 6:9], rows[..., 9], rows[..., 10], rows[..., 11])
+
+    def _asg_scalars(self, name, n, inputs) -> np.ndarray:
+        out = self._new(n, "f32")
+        if n:
+            self._launch_asg(name, n, inputs, out)
+        return self._to_host(out, n, "f32")
+
+    def _asg_batch(self, name, shape, inputs) -> ASG:
+        n = int(np.prod(shape, dtype=np.int64))
+        out = self._new((n, 12), "f32")
+        if n:
+            self._launch_asg(name, n, inputs, out)
+        return self._asg_of_rows(self._to_host(out, (n, 12), "f32"), shape)
+
+    def bessel_i0e(self, x) -> np.ndarray:
+        """float32 e^{−|x|}I0(x) (oracle scipy.special.i0e) of the kernels' Cephes expansions, at any shape."""
+        x = np.asarray(x, np.float32)
+        if not np.all(np.isfinite(x)):
+            raise ValueError("bessel_i0e: x must be finite")
+        return self._asg_scalars("bessel_i0e_values", x.size, [self._to_device(x.reshape(-1), "f32")]).reshape(
+            x.shape)
+
+    def asg_evaluate(self, g: ASG, v) -> np.ndarray:
+        """float32 G(v) (oracle asg.evaluate); directions v (..., 3) broadcast with the batch."""
+        v = np.asarray(v, np.float32)
+        if v.ndim == 0 or v.shape[-1] != 3 or not np.all(np.isfinite(v)):
+            raise ValueError(f"asg_evaluate: v must be finite directions (..., 3), got shape {v.shape}")
+        shape = np.broadcast_shapes(g.shape, v.shape[:-1])
+        v = np.broadcast_to(v, shape + (3,)).reshape(-1, 3)
+        return self._asg_scalars("asg_evaluate_rows", len(v), [self._to_device(self._asg_rows(g, shape), "f32"),
+                                                               self._to_device(v, "vec3")]).reshape(shape)
+
+    def asg_unit_integral(self, lam, mu, method: str = "exact") -> np.ndarray:
+        """float32 ∫ max(v·z, 0)·exp(−λ(v·x)² − μ(v·y)²) dv (oracle asg.unit_integral): "exact" (the 1-D form
+        by a 56-node rule, float32-exact for λ, μ ≤ 1e6), "eq10" (Xu Eq. 10) or "eq11" (π/√(λμ))."""
+        if method not in self.ASG_INTEGRAL_METHODS:
+            raise ValueError(f"asg_unit_integral: method must be one of {self.ASG_INTEGRAL_METHODS} (got {method!r})")
+        lam, mu = np.broadcast_arrays(np.asarray(lam, np.float32), np.asarray(mu, np.float32))
+        if np.any(~np.isfinite(lam) | ~np.isfinite(mu) | (lam < 0) | (mu < 0)):
+            raise ValueError("asg_unit_integral: bandwidths must be finite and >= 0")
+        inputs = [self._to_device(lam.reshape(-1), "f32"), self._to_device(mu.reshape(-1), "f32"),
+                  self.ASG_INTEGRAL_METHODS.index(method)]
+        return self._asg_scalars("asg_integral_values", lam.size, inputs).reshape(lam.shape)
+
+    def asg_convolve_sg(self, g: ASG, sharpness, amplitude=1.0) -> ASG:
+        """Xu Eq. 18 with our SG a·exp(η(v·p − 1)), ν = η/2 (oracle asg.convolve_sg)."""
+        eta = np.asarray(sharpness, np.float32)
+        if np.any(~(eta >= 0)) or not np.all(np.isfinite(eta)):
+            raise ValueError("asg_convolve_sg: sharpness must be finite and >= 0")
+        shape = np.broadcast_shapes(g.shape, eta.shape, np.shape(amplitude))
+        flat = lambda a: self._to_device(np.broadcast_to(np.asarray(a, np.float32), shape).reshape(-1), "f32")  # noqa: E731
+        return self._asg_batch("asg_convolve_rows", shape,
+                               [self._to_device(self._asg_rows(g, shape), "f32"), flat(eta), flat(amplitude)])
+
+    def asg_product(self, g1: ASG, g2: ASG) -> ASG:
+        """Xu Eq. 13, G1·G2 as one ASG (oracle asg.product; float64 on the device)."""
+        shape = np.broadcast_shapes(g1.shape, g2.shape)
+        return self._asg_batch("asg_product_rows", shape, [self._to_device(self._asg_rows(g1, shape), "f32"),
+                                                           self._to_device(self._asg_rows(g2, shape), "f32")])
+
+    def asg_warp(self, g: ASG, wo) -> ASG:
+        """Xu Eq. 23–26: the NDF lobe g as an ASG in the light direction for views wo (..., 3), broadcast
+        with the batch (oracle asg.warp)."""
+        wo = np.asarray(wo, np.float32)
+        if wo.ndim == 0 or wo.shape[-1] != 3 or not np.all(np.isfinite(wo)):
+            raise ValueError(f"asg_warp: wo must be finite directions (..., 3), got shape {wo.shape}")
+        shape = np.broadcast_shapes(g.shape, wo.shape[:-1])
+        wo = np.broadcast_to(wo, shape + (3,)).reshape(-1, 3)
+        return self._asg_batch("asg_warp_rows", shape, [self._to_device(self._asg_rows(g, shape), "f32"),
+                                                        self._to_device(wo, "vec3")])
+
+    def asg_from_sg(self, axis, sharpness, amplitude=1.0) -> ASG:
+        """Xu Eq. 3: our SG a·exp(η(v·ξ − 1)) as the isotropic ASG λ = μ = η/2 (oracle asg.from_sg)."""
+        axis = np.asarray(axis, np.float32)
+        eta = np.asarray(sharpness, np.float32)
+        if axis.ndim == 0 or axis.shape[-1] != 3 or np.any(~(eta >= 0)) or not np.all(np.isfinite(eta)):
+            raise ValueError("asg_from_sg: axis must be (..., 3) and sharpness finite and >= 0")
+        shape = np.broadcast_shapes(axis.shape[:-1], eta.shape, np.shape(amplitude))
+        flat = lambda a: self._to_device(np.broadcast_to(np.asarray(a, np.float32), shape).reshape(-1), "f32")  # noqa: E731
+        return self._asg_batch("asg_from_sg_rows", shape,
+                               [self._to_device(np.broadcast_to(axis, shape + (3,)).reshape(-1, 3), "vec3"),
+                                flat(eta), flat(amplitude)])
+
+    def asg_effective_sharpness(self, g: ASG) -> np.ndarray:
+        """float32 2√(λμ), the SSDF visibility's SG sharpness for an ASG (oracle asg.effective_sharpness)."""
+        return self._asg_scalars("asg_sharpness_rows", int(np.prod(g.shape, dtype=np.int64)),
+                                 [self._to_device(self._asg_rows(g, g.shape), "f32")]).reshape(g.shape)
+
+    def _launch_asg(self, kernel: str, n: int, inputs: list, out):
+        """Kernel `kernel` of the asg stage over n rows: `inputs` device arrays and Python ints, then `out`."""
         raise NotImplementedError

@@ -785,3 +785,8 @@ class OpenCLBackend(DeviceBackend):
     def _launch_brdf_matrix(self, normals, wi, wo, kinds, params, m, color, n_rows, n_pairs, out):
         self._launch("matrix", "brdf_matrix", (n_pairs, n_rows), normals, wi, wo, kinds, params, np.int32(m),
                      *(np.float32(c) for c in color), np.int32(n_rows), np.int32(n_pairs), out)
+
+    # ------------------------------------------------------------------ asg (Xu 2013's operators, warp_biscale.asg)
+    def _launch_asg(self, kernel, n, inputs, out):
+        args = (np.int32(a) if isinstance(a, int) else a for a in inputs)
+        self._launch("asg", kernel, (n,), *args, np.int32(n), out)

@@ -22,6 +22,7 @@ from .device import (KINDS, DeviceBackend, PROBE_VALUES, SCRATCH_BYTES, DeviceSt
                      check_kernel_lobes, chunking, one_line,
                      probe_mismatch, start_scale)
 from .kernels import amplitudes as kamplitudes
+from .kernels import asg as kasg
 from .kernels import bvndf as kbvndf
 from .kernels import em as kem
 from .kernels import envmap as kenvmap
@@ -705,3 +706,7 @@ class WarpBackend(DeviceBackend):
     def _launch_brdf_matrix(self, normals, wi, wo, kinds, params, m, color, n_rows, n_pairs, out):
         self._launch(kmatrix.brdf_matrix, (n_rows, n_pairs),
                      [normals, wi, wo, kinds, params, int(m), wp.vec3(*(float(c) for c in color))], [out])
+
+    # ------------------------------------------------------------------ asg (Xu 2013's operators, warp_biscale.asg)
+    def _launch_asg(self, kernel, n, inputs, out):
+        self._launch(getattr(kasg, kernel), n, inputs, [out])
