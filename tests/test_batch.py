@@ -410,6 +410,28 @@ def test_cluster_run_writes_every_output(cluster_run):
         assert fh.read() == textwrap.dedent(JOB)
 
 
+def test_gpu_cluster_gives_each_worker_its_own_gpu(job_dir, tmp_path):
+    """gpus=2: one worker process per GPU, worker i seeing GPU i alone (CUDA_VISIBLE_DEVICES). On this CPU
+    machine the tasks run on the job's CPU backend, and each records the GPU its worker was given."""
+    if distributed is None:
+        pytest.skip("Dask (distributed) is not installed")
+    jobs = load_jobs(os.path.join(job_dir, "jobs.toml"))
+    starts = str(tmp_path / "starts")
+
+    def hook(task, starts=starts):
+        with open(starts, "a") as fh:
+            fh.write(f"{os.getpid()} {os.environ.get('CUDA_VISIBLE_DEVICES')}\n")
+
+    res = batch.run(jobs, str(tmp_path / "results"), gpus=2, hook=hook, progress=False, dashboard=False)
+    assert (res.done, res.failed) == (len(jobs.tasks), 0)
+    with open(starts) as fh:
+        seen = dict(line.split() for line in fh.read().splitlines())
+    assert set(seen.values()) == {"0", "1"} and len(set(seen)) == 2  # both GPUs, a process each
+    assert {r["worker"]["gpus"] for r in res.records.values()} <= {"0", "1"}
+    with pytest.raises(ValueError, match="one of workers"):
+        batch.run(jobs, str(tmp_path / "other"), gpus=2, workers=2)
+
+
 def test_cluster_run_records_a_failing_task_after_one_retry(cluster_run):
     res, failing, marks = cluster_run["res"], cluster_run["failing"], cluster_run["marks"]
     rec = res.records[failing.hash]

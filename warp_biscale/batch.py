@@ -21,6 +21,8 @@ settings, scenes with the material's slot named, what to compute). What a run wr
 
 **Where tasks run.** ``workers=N`` (``--workers N``) starts a Dask LocalCluster of N processes with one
 Dask thread each (``pin=True``, ``--pin``: each kept on its own share of the cores, `pin_cores`);
+``gpus=N`` (``--gpus N``) starts one worker process per GPU, each seeing only its own
+(``CUDA_VISIBLE_DEVICES``: its backend's "cuda" or NVIDIA OpenCL device is that GPU; `gpu_cluster`);
 ``scheduler="tcp://host:8786"``
 submits to a running cluster (its workers need warp_biscale and read the job's input files, tile meshes,
 images and scene files, at the same paths; what they make comes back to this process, which writes it).
@@ -277,7 +279,8 @@ def execute(task: dict, hook=None, pin: int = 0) -> dict:
         "memory": {**_memory(), "wbm_bytes": len(files["material.wbm"]),
                    "table_bytes": int(mat.amplitudes.nbytes)},
         "worker": {"address": _worker_name(), "host": socket.gethostname(), "pid": os.getpid(),
-                   "task_index": _STATE["tasks"], "cores": _STATE.get("pinned")},
+                   "task_index": _STATE["tasks"], "cores": _STATE.get("pinned"),
+                   "gpus": os.environ.get("CUDA_VISIBLE_DEVICES"), "backend": mat.info.get("backend")},
         "warnings": sorted({f"{w.category.__name__}: {w.message}" for w in caught}),
     }
     return {"record": record, "files": files}
@@ -378,11 +381,12 @@ def _have(module) -> bool:
 
 
 def run(jobs, output=None, *, workers: int = 0, scheduler: str | None = None, resume: bool = True, progress=None,
-        hook=None, dashboard: bool = True, pin: bool | int = False, stream=None) -> BatchResult:
+        hook=None, dashboard: bool = True, pin: bool | int = False, stream=None, gpus: int = 0) -> BatchResult:
     """Run a job (a job file's path, `Jobs` from `load_jobs` / `loads_jobs`, or a dict as `jobs_from_dict`
     takes) into the folder `output` (default
     the file's `output`, else "results") → BatchResult. `workers`: a Dask LocalCluster of that many
-    processes (0: here, one task at a time); `scheduler`: the address of a running Dask scheduler instead.
+    processes (0: here, one task at a time); `gpus`: a local cluster of one worker per GPU instead
+    (`gpu_cluster`); `scheduler`: the address of a running Dask scheduler instead.
     `resume`: skip tasks finished before with the same inputs. `progress`: a line on stderr (None: when it
     is a terminal). `pin`: keep each worker of the local cluster on its own share of the cores (`pin_cores`;
     off by default: on a machine that other work shares, a pinned worker cannot move off a busy core); an
@@ -395,12 +399,13 @@ def run(jobs, output=None, *, workers: int = 0, scheduler: str | None = None, re
         jobs = load_jobs(jobs)
     output = os.path.abspath(os.fspath(output or jobs.output or "results"))
     check_output_folder(output)
-    workers = int(workers or 0)
-    if workers < 0:
-        raise ValueError(f"workers must be >= 0, got {workers}")
-    if scheduler and workers:
-        raise ValueError("give workers (a local cluster) or scheduler (a running one), not both")
-    use_dask = bool(scheduler) or workers > 0
+    workers, gpus = int(workers or 0), int(gpus or 0)
+    if workers < 0 or gpus < 0:
+        raise ValueError(f"workers and gpus must be >= 0, got {workers} and {gpus}")
+    if sum(map(bool, (scheduler, workers, gpus))) > 1:
+        raise ValueError("give one of workers (a local cluster), gpus (one worker per GPU) or scheduler "
+                         "(a running one)")
+    use_dask = bool(scheduler) or workers > 0 or gpus > 0
     if use_dask and not _have("distributed"):
         if scheduler:
             raise ValueError("scheduler needs Dask: pip install 'dask[distributed]'")
@@ -440,7 +445,7 @@ def run(jobs, output=None, *, workers: int = 0, scheduler: str | None = None, re
             pass
         elif use_dask:
             n_pin = pin if not isinstance(pin, bool) else workers if pin and not scheduler else 0
-            _run_dask(todo, workers, scheduler, hook, dashboard, int(n_pin), done, failed, line, res)
+            _run_dask(todo, workers, scheduler, hook, dashboard, int(n_pin), done, failed, line, res, gpus)
         else:
             _run_here(todo, hook, done, failed)
     except KeyboardInterrupt:
@@ -467,7 +472,29 @@ def _run_here(todo, hook, done, failed):
             break
 
 
-def _run_dask(todo, workers, scheduler, hook, dashboard, pin, done, failed, line, res):
+def gpu_cluster(gpus: int, dashboard: bool = False):
+    """A local Dask cluster of one worker process per GPU, worker i seeing GPU i alone
+    (CUDA_VISIBLE_DEVICES=i, one thread): dask-cuda's LocalCUDACluster where it is installed, else the same
+    made of distributed's own parts (a SpecCluster of nannies, each given its worker's environment)."""
+    import logging
+
+    try:
+        from dask_cuda import LocalCUDACluster
+    except ImportError:
+        LocalCUDACluster = None
+    address = ":8787" if dashboard else None
+    if LocalCUDACluster is not None:
+        return LocalCUDACluster(CUDA_VISIBLE_DEVICES=list(range(gpus)), threads_per_worker=1,
+                                dashboard_address=address, silence_logs=logging.CRITICAL)
+    from distributed import Nanny, Scheduler, SpecCluster
+
+    scheduler = {"cls": Scheduler, "options": {"dashboard": bool(dashboard), "dashboard_address": address or ":0"}}
+    workers = {i: {"cls": Nanny, "options": {"nthreads": 1, "name": i, "env": {"CUDA_VISIBLE_DEVICES": str(i)},
+                                             "silence_logs": logging.CRITICAL}} for i in range(gpus)}
+    return SpecCluster(workers=workers, scheduler=scheduler, silence_logs=logging.CRITICAL)
+
+
+def _run_dask(todo, workers, scheduler, hook, dashboard, pin, done, failed, line, res, gpus=0):
     import logging
 
     from distributed import Client, LocalCluster, as_completed
@@ -478,8 +505,9 @@ def _run_dask(todo, workers, scheduler, hook, dashboard, pin, done, failed, line
     else:
         dashboard = dashboard and _have("bokeh")  # (Dask's dashboard needs bokeh)
         # Dask's own log lines stay quiet: a failed task is on the progress line and in its error.json
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=":8787" if dashboard else None, silence_logs=logging.CRITICAL)
+        cluster = (gpu_cluster(gpus, dashboard) if gpus else
+                   LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                dashboard_address=":8787" if dashboard else None, silence_logs=logging.CRITICAL))
         client = Client(cluster)
     futures = {}
     try:
@@ -535,6 +563,8 @@ def add_parser(subparsers):
     p.add_argument("--workers", type=int, metavar="N",
                    help="run on a local Dask cluster of N worker processes, one thread each (default 0: in this "
                         "process, one task at a time)")
+    p.add_argument("--gpus", type=int, metavar="N",
+                   help="run on a local Dask cluster of one worker per GPU (GPUs 0 .. N-1, each worker seeing its own)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="submit to a running Dask scheduler, e.g. tcp://host:8786")
     p.add_argument("--no-resume", action="store_true", help="run every task again, even those done before")
     p.add_argument("--no-dashboard", action="store_true", help="start the local cluster without its web dashboard")
@@ -551,8 +581,11 @@ def cmd_batch(args):
     (raised as ValueError, which cli.main reports in one line)."""
     if args.workers is not None and args.workers < 0:
         raise ValueError(f"--workers must be >= 0, got {args.workers}")
-    if args.scheduler and args.workers:
-        raise ValueError("give --workers N (a local cluster) or --scheduler ADDRESS (a running one), not both")
+    if args.gpus is not None and args.gpus < 0:
+        raise ValueError(f"--gpus must be >= 0, got {args.gpus}")
+    if sum(map(bool, (args.scheduler, args.workers, args.gpus))) > 1:
+        raise ValueError("give one of --workers N (a local cluster), --gpus N (one worker per GPU) or "
+                         "--scheduler ADDRESS (a running one)")
     if args.output:
         check_output_folder(os.path.abspath(args.output), lambda msg: ValueError(f"-o: {msg}"))
     jobs = load_jobs(args.jobs)
@@ -562,7 +595,7 @@ def cmd_batch(args):
         print(f"{len(jobs.tasks)} task(s)")
         return 0
     res = run(jobs, args.output, workers=args.workers or 0, scheduler=args.scheduler, resume=not args.no_resume,
-              progress=not args.quiet, dashboard=not args.no_dashboard, pin=args.pin)
+              progress=not args.quiet, dashboard=not args.no_dashboard, pin=args.pin, gpus=args.gpus or 0)
     if not args.quiet:
         print(f"wrote {res.csv} and {res.html}")
     if res.failed:
