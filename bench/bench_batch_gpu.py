@@ -2,8 +2,10 @@
 tasks (2^16 facets, K = 12, J = 8, one 512x512 render each) on a local Dask cluster of one worker per GPU,
 for each N of --gpus, and on --cpu-workers CPU worker processes (fewer tasks: a CPU bake is ~100x slower).
 
-Each setting runs the whole job cold, as `warp-biscale batch --gpus N` does (the cluster's start, each
-worker's first task included) after one warm-up job has filled the kernel caches on disk. Reported: tasks/s
+Each GPU setting runs the whole job cold, as `warp-biscale batch --gpus N` does (the cluster's start, each
+worker's first task included) after one warm-up job has filled the kernel caches on disk; and warm: submitted
+(`scheduler=`) to a `batch.gpu_cluster(N)` whose workers have run the warm-up job (what a standing cluster
+gives). Reported: tasks/s
 (tasks over the wall time), the median task's own time (its record's total, in the worker), and the
 scheduler's overhead per task: (wall x workers - the tasks' own times) / tasks, as a share of the mean task
 time (it holds the cluster's start and each worker's first-task imports, spread over the tasks).
@@ -133,14 +135,19 @@ def main(argv=None):
     warm = write_job(os.path.join(work, "warm"), [0.33, 0.66], [50.0], args.backend)
     out.log(f"{len(jobs.tasks)} tasks; warm-up job of {len(warm.tasks)} tasks (fills the kernel caches)")
     timed_run(warm, os.path.join(work, "warm-out"), gpus=max(args.gpus))
-    settings = [("gpus", n, jobs) for n in args.gpus]
+    settings = [("gpus", n, jobs) for n in args.gpus] + [("warm-gpus", n, jobs) for n in args.gpus]
     if args.cpu_workers:
         n_c = max(1, args.cpu_tasks // 4)
         cpu_jobs = write_job(os.path.join(work, "cpu"), [round(float(h), 4) for h in np.linspace(0.1, 1.0, n_c)],
                              [16.0, 64.0, 256.0, 1024.0], "warp:cpu")
         settings += [("workers", n, cpu_jobs) for n in args.cpu_workers]
     for kind, n, jb in settings:
-        res, wall, own = timed_run(jb, os.path.join(work, f"{kind}-{n}"), **{kind: n})
+        if kind == "warm-gpus":
+            with batch.gpu_cluster(n) as cluster:
+                timed_run(warm, os.path.join(work, f"warm-{n}"), scheduler=cluster.scheduler_address)
+                res, wall, own = timed_run(jb, os.path.join(work, f"{kind}-{n}"), scheduler=cluster.scheduler_address)
+        else:
+            res, wall, own = timed_run(jb, os.path.join(work, f"{kind}-{n}"), **{kind: n})
         mean = statistics.fmean(own) if own else float("nan")
         overhead = (wall * n - sum(own)) / max(len(own), 1)
         rec = {"part": "throughput", "kind": kind, "workers": n, "tasks": len(jb.tasks), "done": res.done,
@@ -156,20 +163,22 @@ def main(argv=None):
                 f"task {rec['median_task_s']:.3f} s (median); overhead {overhead * 1e3:.1f} ms a task "
                 f"({100 * rec['overhead_share']:.1f} % of the mean task); backends {rec['backends']}, "
                 f"GPUs {rec['gpus_seen']}")
-    base = next((r for r in out.records if r["kind"] == "gpus" and r["workers"] == 1), None)
-    for r in out.records:
-        if base and r["kind"] == "gpus":
-            r["speedup_vs_1_gpu"] = r["tasks_per_s"] / base["tasks_per_s"]
+    for kind in ("gpus", "warm-gpus"):
+        base = next((r for r in out.records if r["kind"] == kind and r["workers"] == 1), None)
+        for r in out.records:
+            if base and r["kind"] == kind:
+                r["speedup_vs_1_gpu"] = r["tasks_per_s"] / base["tasks_per_s"]
     out.finish(table)
     shutil.rmtree(work, ignore_errors=True)
 
 
 def table(records, meta):
     lines = ["# Batch throughput on GPUs", "", common.commit_line(meta), "",
-             "One job, cold (`batch.run(..., gpus=N)` / `workers=N`, the cluster's start included); tasks: bake "
-             "(2^16 facets, K = 12, J = 8) + one 512x512 render each", ""]
+             "One job, cold (`batch.run(..., gpus=N)` / `workers=N`, the cluster's start included) or warm (submitted "
+             "to a standing `batch.gpu_cluster(N)`); tasks: bake (2^16 facets, K = 12, J = 8) + one 512x512 render "
+             "each", ""]
     rows = [[r["kind"], r["workers"], r["tasks"], r["done"], f"{r['wall_s']:.1f}", f"{r['tasks_per_s']:.2f}",
-             f"{r.get('speedup_vs_1_gpu', float('nan')):.2f}" if r["kind"] == "gpus" else "",
+             f"{r.get('speedup_vs_1_gpu', float('nan')):.2f}" if "gpus" in r["kind"] else "",
              f"{r['median_task_s'] * 1e3:.0f}", f"{r['overhead_per_task_s'] * 1e3:.1f}",
              f"{100 * r['overhead_share']:.1f}", ", ".join(r["backends"]), ", ".join(r["gpus_seen"])]
             for r in records]
