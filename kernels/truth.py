@@ -119,3 +119,190 @@ def sum_chunks_brdf(
         out[p] = wp.vec3(acc / wp.float64(area))
     else:
         out[p] = wp.vec3(0.0)
+
+
+# ---------------------------------------------------------------------------------------------------
+# Small-scale interreflection (docs/design.md §4.6): the bounces 2..B of wb.ground_truth(bounces=B).
+# Mathematics and estimator: warp_biscale.reference.interreflection (float64, the same random numbers).
+# ---------------------------------------------------------------------------------------------------
+
+PI = wp.constant(3.14159265358979)
+ESCAPED = wp.constant(-1)  # trace_periodic_closest: the ray left above the tile
+LOST = wp.constant(-2)  # ... below it, or ran out of cells (absorbed: the estimator only loses energy)
+MAX_CELLS = wp.constant(64)  # tile cells one ray may cross (reference.INTERREFLECTION_MAX_CELLS)
+
+
+PCG_INCREMENT = wp.constant(wp.uint32(2891336453))
+
+
+@wp.func
+def pcg_hash(v: wp.uint32) -> wp.uint32:
+    """PCG-RXS-M-XS (Jarzynski & Olano 2020), in uint32 (reference.pcg_hash)."""
+    state = v * wp.uint32(747796405) + PCG_INCREMENT
+    word = ((state >> ((state >> wp.uint32(28)) + wp.uint32(4))) ^ state) * wp.uint32(277803737)
+    return (word >> wp.uint32(22)) ^ word
+
+
+@wp.func
+def path_uniform(seed: int, path: int, o: int, dim: int) -> float:
+    """A uniform number in [0, 1) with 24 bits, a hash of (seed, path, ωo, dimension): exact in float32,
+    the same in cl/truth.cl and reference.path_uniform."""
+    h = pcg_hash(wp.uint32(seed))
+    h = pcg_hash(h + wp.uint32(path))
+    h = pcg_hash(h + wp.uint32(o))
+    h = pcg_hash(h + wp.uint32(dim))
+    return float(int(h >> wp.uint32(8))) * (1.0 / 16777216.0)
+
+
+@wp.func
+def cosine_direction(n: wp.vec3, u1: float, u2: float) -> wp.vec3:
+    """A cosine-distributed direction about unit n (frame of reference.cosine_direction)."""
+    ref = wp.vec3(0.0, 1.0, 0.0)
+    if wp.abs(n[0]) < 0.9:
+        ref = wp.vec3(1.0, 0.0, 0.0)
+    a = wp.normalize(wp.cross(n, ref))
+    b = wp.cross(n, a)
+    r = wp.sqrt(u1)
+    phi = 2.0 * PI * u2
+    return wp.normalize(r * wp.cos(phi) * a + r * wp.sin(phi) * b + wp.sqrt(wp.max(1.0 - u1, 0.0)) * n)
+
+
+@wp.func
+def trace_periodic_closest(mesh: wp.uint64, start: wp.vec3, d: wp.vec3,
+                           x0: float, y0: float, px: float, py: float, z_lo: float, z_hi: float,
+                           eps: float) -> wp.vec4:
+    """The first hit of the ray through the infinitely tiled surface: (x, y, z, face) with the position in
+    the tile's base cell, or face ESCAPED / LOST. Cell by cell as trace_periodic (kernels/visibility.py),
+    also downward; each cell's segment is tested over (-back, t_exit + eps]."""
+    o = start
+    back = float(0.0)
+    for _step in range(MAX_CELLS):
+        t_z = float(1.0e30)
+        if d[2] > 0.0:
+            t_z = (z_hi + eps - o[2]) / d[2]
+        elif d[2] < 0.0:
+            t_z = (z_lo - eps - o[2]) / d[2]
+        t_x = float(1.0e30)
+        if d[0] > 0.0:
+            t_x = wp.max((x0 + px - o[0]) / d[0], 0.0)
+        elif d[0] < 0.0:
+            t_x = wp.max((x0 - o[0]) / d[0], 0.0)
+        t_y = float(1.0e30)
+        if d[1] > 0.0:
+            t_y = wp.max((y0 + py - o[1]) / d[1], 0.0)
+        elif d[1] < 0.0:
+            t_y = wp.max((y0 - o[1]) / d[1], 0.0)
+        t_side = wp.min(t_x, t_y)
+        t_exit = wp.min(t_z, t_side)
+        q = wp.mesh_query_ray(mesh, o - back * d, d, t_exit + eps + back)
+        if q.result:
+            p = o + (q.t - back) * d
+            return wp.vec4(p[0], p[1], p[2], float(q.face))
+        if t_z <= t_side:
+            if d[2] > 0.0:
+                return wp.vec4(0.0, 0.0, 0.0, float(ESCAPED))
+            return wp.vec4(0.0, 0.0, 0.0, float(LOST))
+        o = o + t_exit * d
+        if t_x <= t_exit:
+            o = wp.vec3(o[0] - wp.sign(d[0]) * px, o[1], o[2])
+        if t_y <= t_exit:
+            o = wp.vec3(o[0], o[1] - wp.sign(d[1]) * py, o[2])
+        back = eps
+    return wp.vec4(0.0, 0.0, 0.0, float(LOST))
+
+
+@wp.func
+def facet_brdf(kind: int, params: wp.array2d(dtype=wp.float32), m: int, n: wp.vec3, t: wp.vec3,
+               wi: wp.vec3, wo: wp.vec3) -> wp.vec3:
+    if kind >= ANISOTROPIC_WARD:
+        return brdf_cosine_weighted_tangent(kind, params, m, n, t, wi, wo)
+    return brdf_cosine_weighted(kind, params, m, n, wi, wo)
+
+
+@wp.kernel
+def interreflection_partial(
+    mesh: wp.uint64,
+    face_normals: wp.array(dtype=wp.vec3),
+    face_material: wp.array(dtype=wp.int32),
+    face_color: wp.array(dtype=wp.vec3),
+    directions: wp.array(dtype=wp.vec3),
+    pair_i: wp.array(dtype=wp.int32),
+    pair_o: wp.array(dtype=wp.int32),
+    bits: wp.array2d(dtype=wp.uint32),
+    position: wp.array(dtype=wp.vec3),
+    normal: wp.array(dtype=wp.vec3),
+    weight: wp.array(dtype=wp.vec3),
+    material: wp.array(dtype=wp.int32),
+    face: wp.array(dtype=wp.int32),
+    kinds: wp.array(dtype=wp.int32),
+    params: wp.array2d(dtype=wp.float32),
+    tangent: wp.array(dtype=wp.vec3),
+    anisotropic: int,
+    n_facets: int,
+    paths: int,
+    paths_per_chunk: int,
+    bounces: int,
+    seed: int,
+    x0: float, y0: float, px: float, py: float, z_lo: float, z_hi: float, eps: float,
+    offset: int,
+    partial: wp.array2d(dtype=wp.vec3),
+):
+    """Σ over the chunk's paths j of the bounces 2..`bounces` reaching facet s(j) = ⌊(j + ½)Ns/paths⌋ from ωi
+    and leaving it towards ωo (reference.interreflection), unnormalised (sum_chunks_brdf divides by a_v and
+    the driver by paths/Ns). `tangent` is per face, read only where `anisotropic`."""
+    c, p_local = wp.tid()
+    p = p_local + offset
+    i = pair_i[p]
+    o = pair_o[p]
+    wi = directions[i]
+    wo = directions[o]
+    acc = wp.vec3d(0.0)
+    j_start = c * paths_per_chunk
+    j_end = wp.min(j_start + paths_per_chunk, paths)
+    for j in range(j_start, j_end):
+        s = int((float(j) + 0.5) * float(n_facets) / float(paths))
+        s = wp.min(s, n_facets - 1)
+        if ((bits[o, s >> 5] >> wp.uint32(s & 31)) & wp.uint32(1)) != wp.uint32(0):
+            x = position[s]
+            f_s = face[s]
+            n = normal[s]
+            ng = face_normals[f_s]
+            m = material[s]
+            tg = wp.vec3(1.0, 0.0, 0.0)
+            if anisotropic != 0:
+                tg = tangent[f_s]
+            w_out = wo
+            thr = weight[s] * wp.max(wp.dot(n, wo), 0.0)
+            block = wp.vec3(0.0)
+            for b in range(bounces - 1):
+                d = cosine_direction(n, path_uniform(seed, j, o, 2 * b), path_uniform(seed, j, o, 2 * b + 1))
+                cd = wp.dot(n, d)
+                cw = wp.dot(n, w_out)
+                if wp.dot(ng, d) <= 0.0 or cd <= 0.0 or cw <= 0.0:
+                    break
+                # cosine sampling: f(x, d, w_out)(n·d)/pdf = π f, and f = brdf_cosine_weighted/((n·d)(n·w_out))
+                thr = wp.cw_mul(thr, facet_brdf(kinds[m], params, m, n, tg, d, w_out)) * (PI / (cd * cw))
+                hit = trace_periodic_closest(mesh, x + eps * ng, d, x0, y0, px, py, z_lo, z_hi, eps)
+                fh = int(hit[3])
+                if fh < 0:
+                    break
+                ny = face_normals[fh]
+                if wp.dot(ny, d) >= 0.0:
+                    break  # a face's back: black, as in the single-bounce truth
+                x = wp.vec3(hit[0], hit[1], hit[2])
+                n = ny
+                ng = ny
+                m = face_material[fh]
+                if anisotropic != 0:
+                    tg = tangent[fh]
+                w_out = -d
+                thr = wp.cw_mul(thr, face_color[fh])
+                # next-event estimation towards the (directional) light ωi
+                ci = wp.dot(n, wi)
+                if ci > 0.0:
+                    light = trace_periodic_closest(mesh, x + eps * n, wi, x0, y0, px, py, z_lo, z_hi, eps)
+                    if int(light[3]) == ESCAPED:
+                        fo = facet_brdf(kinds[m], params, m, n, tg, wi, w_out)
+                        block += wp.cw_mul(thr, fo) / wp.max(wp.dot(n, w_out), 1.0e-30)
+            acc += wp.vec3d(block)
+    partial[c, p] = wp.vec3(acc)

@@ -417,6 +417,31 @@ class DeviceBackend:
                                     out)
         return self._to_host(out, n_pairs, "vec3")
 
+    # --- small-scale interreflection (ground_truth(bounces=B), docs/design.md §4.6): one block ---
+    def interreflection(self, tile, facets, vis, kinds, params, pair_i, pair_o, a_v, bounces, paths, seed,
+                        tangents=None):
+        """(P, 3) float32: the bounces 2..`bounces` of f̄ at the pairs, by `paths` cosine-sampled paths per
+        pair from the facets seen from ωo, with next-event estimation towards ωi at every hit
+        (reference.interreflection, the same random numbers). `facets` and `vis` as effective_brdf's, from
+        `tile`; `tangents` (F, 3) where a kind is anisotropic."""
+        n_pairs, bounces, paths = len(pair_i), int(bounces), int(paths)
+        if n_pairs == 0 or bounces <= 1:
+            return np.zeros((n_pairs, 3), np.float32)
+        f = self._facets(facets)
+        aniso = tangents is not None
+        tangent = self._recurring(np.asarray(tangents, np.float32) if aniso else _NO_TANGENT, "vec3")
+        chunks, per = chunking(paths, n_pairs, self._threads)
+        out = self._new(n_pairs, "vec3")
+        self._launch_interreflection(
+            tile, f, self._facet_positions(facets, tile), self._vis(vis), self._to_device(kinds, "i32"),
+            self._to_device(np.asarray(params, np.float32).reshape(-1, 8), "f32"), self._to_device(pair_i, "i32"),
+            self._to_device(pair_o, "i32"), self._to_device(a_v, "f32"),
+            self._recurring(np.ascontiguousarray(tile.material_ids, np.int32), "i32"),
+            self._recurring(np.ascontiguousarray(tile.colors, np.float32), "vec3"), tangent, aniso, len(facets),
+            vis.words, paths, chunks, per, bounces, int(seed) % (1 << 31), n_pairs, out)
+        # each path stands for Ns/paths facets of area ΔA (the facets' weight)
+        return (self._to_host(out, n_pairs, "vec3") * (len(facets) / paths)).astype(np.float32)
+
     def normal_bins(self, facets, resolution):
         n = len(facets)
         bins = self._new(n, "i32")

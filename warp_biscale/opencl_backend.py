@@ -451,6 +451,26 @@ class OpenCLBackend(DeviceBackend):
         self._launch("truth", "sum_chunks_brdf", (n_pairs,), partial, np.int32(chunks), np.int32(n_pairs), pair_o,
                      a_v, out)
 
+    # --- small-scale interreflection (DeviceBackend.interreflection): one block ---
+    def _launch_interreflection(self, tile, f, position, v, kinds, params, pair_i, pair_o, a_v, face_material,
+                                face_color, tangent, aniso, n_facets, n_words, paths, chunks, per, bounces, seed,
+                                n_pairs, out):
+        t = self._tile(tile, need_bvh=True)
+        if "tri_index" not in t:
+            t["tri_index"] = self._buffer(t["bvh"].tri_index, np.int32)
+        z_lo, z_hi = tile.z_range
+        partial = self._empty(chunks * n_pairs * 3, np.float32)
+        self._launch("truth", "interreflection_partial", (n_pairs, chunks),
+                     t["nodes"], t["tris"], t["tri_index"], t["face_normals"], face_material, face_color,
+                     v["directions"], pair_i, pair_o, v["bits"], np.int32(n_words), position, f["normal"],
+                     f["weight"], f["material"], f["face"], kinds, params, tangent, np.int32(aniso),
+                     np.int32(n_facets), np.int32(paths), np.int32(per), np.int32(bounces), np.int32(seed),
+                     np.float32(0.0), np.float32(0.0), np.float32(tile.period[0]), np.float32(tile.period[1]),
+                     np.float32(0.0), np.float32(z_hi - z_lo), np.float32(ray_offset(tile)), np.int32(n_pairs),
+                     partial)
+        self._launch("truth", "sum_chunks_brdf", (n_pairs,), partial, np.int32(chunks), np.int32(n_pairs), pair_o,
+                     a_v, out)
+
     # ------------------------------------------------------------------ SG bake stages
     def _launch_normal_bins(self, f, n, resolution, bins):
         self._launch("bvndf", "normal_bins", (n,), f["normal"], np.int32(resolution), np.int32(n), bins)

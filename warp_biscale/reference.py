@@ -40,6 +40,8 @@ __all__ = [
     "brdf_cosine_weighted",
     "visible_area",
     "effective_brdf",
+    "interreflection",
+    "trace_periodic_closest",
     "vgroove_tile",
     "vgroove_effective_brdf",
     "cube_bin",
@@ -228,6 +230,192 @@ def effective_brdf(facets: dict, vis: np.ndarray, directions, kinds, params, pai
         fc = brdf_cosine_weighted(kinds, params, facets["material"][both], n[both], directions[i], directions[o],
                                   None if t is None else t[both])
         out[p] = (fc * w[both]).sum(axis=0) / a_v[o]
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# Small-scale interreflection (docs/design.md §4.6): the bounces 2..B of ground_truth(bounces=B)
+# ----------------------------------------------------------------------------------------------
+
+INTERREFLECTION_MAX_CELLS = 64  # tile cells one ray may cross before it counts as absorbed
+_U32 = np.uint64(0xFFFFFFFF)
+
+
+def pcg_hash(v) -> np.ndarray:
+    """PCG-RXS-M-XS (Jarzynski & Olano 2020) of uint32 values, computed in uint64 and wrapped."""
+    st = (np.asarray(v, np.uint64) * np.uint64(747796405) + np.uint64(2891336453)) & _U32
+    word = (((st >> ((st >> np.uint64(28)) + np.uint64(4))) ^ st) * np.uint64(277803737)) & _U32
+    return ((word >> np.uint64(22)) ^ word) & _U32
+
+
+def path_uniform(seed, path, o, dim) -> np.ndarray:
+    """The kernels' random number of (seed, path j, ωo index, dimension): 24 hash bits / 2²⁴ (exact)."""
+    h = pcg_hash(np.uint64(int(seed) & 0xFFFFFFFF))
+    for k in (path, o, dim):
+        h = pcg_hash((h + np.asarray(k, np.uint64)) & _U32)
+    return (h >> np.uint64(8)).astype(np.float64) / 16777216.0
+
+
+def cosine_direction(n, u1, u2) -> np.ndarray:
+    """(R, 3) cosine-distributed about unit n (R, 3): frame a = normalize(n × x̂) (n × ŷ where |n_x| ≥ 0.9),
+    b = n × a; d = √u1 cos(2πu2) a + √u1 sin(2πu2) b + √(1 − u1) n."""
+    a, b = disk_basis(n)
+    r, phi = np.sqrt(u1)[:, None], 2 * np.pi * np.asarray(u2)[:, None]
+    d = r * np.cos(phi) * a + r * np.sin(phi) * b + np.sqrt(np.maximum(1 - u1, 0.0))[:, None] * n
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def _closest_in(o, d, t_lo, t_hi, tri):
+    """(R,) nearest face hit with t in (t_lo, t_hi] (−1: none) and its t; double-sided Möller–Trumbore."""
+    a, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    p = np.cross(d[:, None, :], e2[None])
+    det = np.einsum("rfk,fk->rf", p, e1)
+    ok = np.abs(det) > 1e-300
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    tv = o[:, None, :] - a[None]
+    u = np.einsum("rfk,rfk->rf", tv, p) * inv
+    q = np.cross(tv, e1[None])
+    v = np.einsum("rk,rfk->rf", d, q) * inv
+    t = np.einsum("fk,rfk->rf", e2, q) * inv
+    hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > t_lo[:, None]) & (t <= t_hi[:, None])
+    t = np.where(hit, t, np.inf)
+    face = np.argmin(t, axis=1)
+    best = t[np.arange(len(o)), face]
+    return np.where(np.isfinite(best), face, -1), best
+
+
+def trace_periodic_closest(tile, origins, directions):
+    """(face (R,), position (R, 3)): the first hit of each ray through the infinitely tiled surface (any
+    direction), the position wrapped into the tile's base cell; face −1 where the ray leaves above the
+    tile, −2 where it leaves below or crosses more than INTERREFLECTION_MAX_CELLS cells. Cell by cell as
+    `trace_periodic`, each cell's segment tested over (−back, t_exit + eps]."""
+    o = np.array(origins, np.float64)
+    d = np.asarray(directions, np.float64)
+    r = len(o)
+    eps = ray_offset(tile)
+    x0, y0 = tile.origin
+    px, py = tile.period
+    zlo, zhi = tile.z_range
+    tri = tile.triangles
+    face = np.full(r, -2)
+    pos = np.zeros((r, 3))
+    back = np.zeros(r)
+    active = np.ones(r, bool)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for _ in range(INTERREFLECTION_MAX_CELLS):
+            idx = np.nonzero(active)[0]
+            if len(idx) == 0:
+                break
+            oa, da = o[idx], d[idx]
+            t_z = np.where(da[:, 2] > 0, (zhi + eps - oa[:, 2]) / da[:, 2],
+                           np.where(da[:, 2] < 0, (zlo - eps - oa[:, 2]) / da[:, 2], np.inf))
+            t_x = np.where(da[:, 0] > 0, (x0 + px - oa[:, 0]) / da[:, 0],
+                           np.where(da[:, 0] < 0, (x0 - oa[:, 0]) / da[:, 0], np.inf))
+            t_y = np.where(da[:, 1] > 0, (y0 + py - oa[:, 1]) / da[:, 1],
+                           np.where(da[:, 1] < 0, (y0 - oa[:, 1]) / da[:, 1], np.inf))
+            t_x, t_y = np.maximum(t_x, 0.0), np.maximum(t_y, 0.0)
+            t_side = np.minimum(t_x, t_y)
+            t_exit = np.minimum(t_z, t_side)
+            f, t = _closest_in(oa, da, -back[idx], t_exit + eps, tri)
+            hit = f >= 0
+            face[idx[hit]] = f[hit]
+            pos[idx[hit]] = oa[hit] + t[hit, None] * da[hit]
+            out = ~hit & (t_z <= t_side)
+            face[idx[out]] = np.where(da[out, 2] > 0, -1, -2)
+            active[idx[hit | out]] = False
+            go = ~(hit | out)
+            g = idx[go]
+            te = t_exit[go]
+            o[g] = oa[go] + te[:, None] * da[go]
+            wx, wy = t_x[go] <= te, t_y[go] <= te
+            o[g[wx], 0] -= np.sign(da[go][wx, 0]) * px
+            o[g[wy], 1] -= np.sign(da[go][wy, 1]) * py
+            back[g] = eps
+    return face, pos
+
+
+def interreflection_facets(n_facets: int, paths: int) -> np.ndarray:
+    """(paths,) the facet of each path: ⌊(j + ½)·Ns/paths⌋ in float32, as the kernels compute it."""
+    j = np.arange(paths, dtype=np.float32)
+    s = ((j + np.float32(0.5)) * np.float32(n_facets)) / np.float32(paths)
+    return np.minimum(s.astype(np.int64), n_facets - 1)
+
+
+def interreflection(tile, facets: dict, vis: np.ndarray, directions, kinds, params, pair_i, pair_o, bounces: int,
+                    paths: int, seed: int = 0, tangents=None) -> np.ndarray:
+    """(P, 3) the bounces 2..B of f̄(ωi, ωo), the estimator of ground_truth(bounces=B) in float64.
+
+    f̄_B = f̄_1 + (1/a_v(ωo)) Σ_s c_s ΔA_s (n_s·ωo)⁺ V_s(ωo) L_s, with L_s the radiance leaving facet s towards
+    ωo after 1..B−1 reflections of unit irradiance from ωi inside the tiled surface. Path j starts at facet
+    s(j) = ⌊(j + ½)Ns/P⌋ (if seen from ωo), stands for Ns/P facets, and at bounce b draws a cosine-distributed
+    direction about its normal (random numbers path_uniform(seed, j, o, 2b), (…, 2b + 1)), multiplying its
+    throughput by π f_r(x, d, ω_out); the ray is traced to its first hit y through the tiled surface
+    (escaping: the light is a delta, nothing more to collect; a face's back, leaving below, or crossing more
+    than INTERREFLECTION_MAX_CELLS cells: absorbed); at y the throughput takes y's colour, and next-event
+    estimation adds throughput · f_r(y, ωi, −d)(n_y·ωi) where y sees ωi (`trace_periodic_closest` escapes).
+    Hit points use their face's geometric normal and the face's material, colour and tangent. Unbiased for the
+    B-bounce radiance (up to the absorbed cases); the same random numbers as the kernels."""
+    directions = np.asarray(directions, np.float64)
+    pair_i, pair_o = np.asarray(pair_i), np.asarray(pair_o)
+    a_v = visible_area(facets, vis, directions)
+    n_facets = len(facets["normal"])
+    out = np.zeros((len(pair_i), 3))
+    if bounces <= 1 or len(pair_i) == 0:
+        return out
+    eps = ray_offset(tile)
+    face_t = None if tangents is None else np.asarray(tangents, np.float64)
+    jj = np.arange(paths)
+    s_of = interreflection_facets(n_facets, paths)
+    pp, jv = np.repeat(np.arange(len(pair_i)), paths), np.tile(jj, len(pair_i))
+    s = s_of[jv]
+    o_idx = pair_o[pp]
+    keep = vis[o_idx, s]
+    pp, jv, s, o_idx = pp[keep], jv[keep], s[keep], o_idx[keep]
+    wi, wo = directions[pair_i[pp]], directions[o_idx]
+    x = facets["position"][s].copy()
+    n = facets["normal"][s].copy()
+    ng = tile.face_normals[facets["face"][s]].copy()
+    m = facets["material"][s].copy()
+    tg = None if face_t is None else face_t[facets["face"][s]].copy()
+    w_out = wo.copy()
+    thr = (facets["area"][s, None] * facets["color"][s]) * np.maximum(np.einsum("ij,ij->i", n, wo), 0.0)[:, None]
+    acc = np.zeros((len(pp), 3))
+    alive = np.ones(len(pp), bool)
+    for b in range(bounces - 1):
+        a = np.nonzero(alive)[0]
+        if len(a) == 0:
+            break
+        d = cosine_direction(n[a], path_uniform(seed, jv[a], o_idx[a], 2 * b), path_uniform(seed, jv[a], o_idx[a],
+                                                                                             2 * b + 1))
+        cd, cw = np.einsum("ij,ij->i", n[a], d), np.einsum("ij,ij->i", n[a], w_out[a])
+        ok = (np.einsum("ij,ij->i", ng[a], d) > 0) & (cd > 0) & (cw > 0)
+        alive[a[~ok]] = False
+        a, d, cd, cw = a[ok], d[ok], cd[ok], cw[ok]
+        fc = brdf_cosine_weighted(kinds, params, m[a], n[a], d, w_out[a], None if tg is None else tg[a])
+        thr[a] *= fc * (np.pi / (cd * cw))[:, None]
+        fh, y = trace_periodic_closest(tile, x[a] + eps * ng[a], d)
+        ok = fh >= 0
+        ny = tile.face_normals[np.maximum(fh, 0)]
+        ok &= np.einsum("ij,ij->i", ny, d) < 0
+        alive[a[~ok]] = False
+        a, d, fh, y, ny = a[ok], d[ok], fh[ok], y[ok], ny[ok]
+        x[a], n[a], ng[a], m[a], w_out[a] = y, ny, ny, tile.material_ids[fh], -d
+        if tg is not None:
+            tg[a] = face_t[fh]
+        thr[a] *= tile.colors[fh]
+        ci = np.einsum("ij,ij->i", ny, wi[a])
+        lit = ci > 0
+        if lit.any():
+            c = a[lit]
+            lf, _ = trace_periodic_closest(tile, x[c] + eps * n[c], wi[c])
+            c = c[lf == -1]
+            if len(c):
+                fo = brdf_cosine_weighted(kinds, params, m[c], n[c], wi[c], w_out[c], None if tg is None else tg[c])
+                acc[c] += thr[c] * fo / np.maximum(np.einsum("ij,ij->i", n[c], w_out[c]), 1e-300)[:, None]
+    np.add.at(out, pp, acc)
+    ok = a_v[pair_o] > 0
+    out[ok] *= (n_facets / paths) / a_v[pair_o][ok, None]
+    out[~ok] = 0.0
     return out
 
 

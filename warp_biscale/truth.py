@@ -37,6 +37,9 @@ TRUTH_FACETS = 1 << 18
 # Part of every cache key: bump it when the ground truth's numbers change (a kernel fix), so that no
 # table cached before is used again.
 TRUTH_KEY_VERSION = 1
+MAX_BOUNCES = 16  # ground_truth(bounces=B): B in [1, MAX_BOUNCES]
+BOUNCE_PATHS = 4096  # ground_truth's default paths per direction pair for the bounces 2..B
+MAX_PATHS = 1 << 20
 TRUTH_MEMORY = 8  # ground truths `truth_of` keeps per process (a K = 12 table is 0.25 MB)
 _MEMORY = collections.OrderedDict()  # cache key → GroundTruth, most recent last
 
@@ -137,11 +140,29 @@ def _sanitise(f: np.ndarray) -> np.ndarray:
     return np.maximum(f, 0.0)
 
 
+def _check_bounces(bounces, paths) -> tuple[int, int]:
+    if isinstance(bounces, bool) or not isinstance(bounces, (int, np.integer)) or not 1 <= bounces <= MAX_BOUNCES:
+        raise ValueError(f"bounces must be an integer in [1, {MAX_BOUNCES}], got {bounces!r}")
+    if isinstance(paths, bool) or not isinstance(paths, (int, np.integer)) or not 1 <= paths <= MAX_PATHS:
+        raise ValueError(f"paths must be an integer in [1, {MAX_PATHS}], got {paths!r}")
+    return int(bounces), int(paths)
+
+
 def ground_truth(tile, materials, facets: int = 1 << 20, directions: int = 12, backend="auto", seed: int = 0,
-                 progress=None) -> GroundTruth:
+                 progress=None, bounces: int = 1, paths: int = BOUNCE_PATHS) -> GroundTruth:
     """Ground-truth f̄ on the K×K direction grid (K = `directions`): all K²×K² pairs. Every small-scale BRDF is
     exact, the anisotropic ones (AnisotropicWard, AshikhminShirley) in the frame of the tile's face tangents
     (`SmallScale.face_tangents`, made perpendicular to each facet's normal).
+
+    bounces : B in [1, 16]. 1 (the default) is the single-bounce truth above, unchanged. B > 1 adds the
+        light that reaches a facet after 1..B−1 reflections inside the infinitely tiled surface (docs/design.md
+        §4.6): a Monte Carlo estimate with `paths` paths per direction pair, each from a facet seen from ωo
+        (facet ⌊(j + ½)·facets/paths⌋ for path j), continued by cosine-sampled directions traced through the
+        periodic tile (closest hit), with next-event estimation towards ωi at every hit; its random numbers
+        are a hash of (seed, path, ωo, dimension), so the same arguments give the same table. Faces' backs,
+        rays leaving below the tile and rays crossing more than 64 cells are absorbed, so the estimate only
+        loses energy. Hit points use their face's geometric normal. Cost ∝ K⁴ · paths · (B − 1) · 2 rays.
+    paths : paths per direction pair for the bounces 2..B (ignored for B = 1).
 
     Returns a `GroundTruth` table with `eval(wi, wo)`, `save(path)`, and per-stage `timings`
     (seconds, device-synchronised).
@@ -149,6 +170,7 @@ def ground_truth(tile, materials, facets: int = 1 << 20, directions: int = 12, b
     mats, kinds, params = _prepare(tile, materials, anisotropic=True)
     tangents = _tangents(tile, mats)
     count = _check_count(facets)
+    bounces, paths = _check_bounces(bounces, paths)
     k = int(directions)
     if k != directions or not (2 <= k <= 64):
         raise ValueError(f"directions must be an integer grid size K in [2, 64], got {directions!r}")
@@ -175,6 +197,16 @@ def ground_truth(tile, materials, facets: int = 1 << 20, directions: int = 12, b
                   tangents=tangents)
         table[start:stop] = f.reshape(stop - start, nd, 3)
         prog.advance(stop - start)
+    if bounces > 1:  # the bounces 2..B, added to the single-bounce table above
+        rows = max(1, min(nd, (1 << 24) // (nd * paths * (bounces - 1))))
+        prog.stage(f"interreflection ({bounces} bounces, {paths} paths)", nd)
+        for start in range(0, nd, rows):
+            stop = min(nd, start + rows)
+            batch = slice(start * nd, stop * nd)
+            f = timer("interreflection", be.interreflection, tile, fac, vis, kinds, params, pair_i[batch],
+                      pair_o[batch], a_v, bounces, paths, seed, tangents=tangents)
+            table[start:stop] += _sanitise(f).reshape(stop - start, nd, 3)
+            prog.advance(stop - start)
     prog.done()
     return GroundTruth(
         table=_sanitise(table),
@@ -187,6 +219,8 @@ def ground_truth(tile, materials, facets: int = 1 << 20, directions: int = 12, b
         materials=[repr(m) for m in mats],
         backend=be.name,
         timings=timer.timings,
+        bounces=bounces,
+        paths=paths if bounces > 1 else 0,
     )
 
 
@@ -201,7 +235,7 @@ class GroundTruth:
     VERSION = 1
 
     def __init__(self, table, a_v, directions, facets, seed=0, tile="tile", footprint=1.0, materials=(),
-                 backend="", timings=None, key=""):
+                 backend="", timings=None, key="", bounces=1, paths=0):
         self.table = np.asarray(table, np.float32)
         self.a_v = np.asarray(a_v, np.float64)
         self.directions = int(directions)
@@ -215,10 +249,12 @@ class GroundTruth:
         self.backend = backend
         self.timings = dict(timings or {})
         self.key = str(key)  # `truth_key` of the material it was made for by `truth_of`, else ""
+        self.bounces, self.paths = int(bounces), int(paths)  # ground_truth(bounces=, paths=); 1, 0: single bounce
 
     def __repr__(self):
+        bounces = f", bounces={self.bounces}, paths={self.paths}" if self.bounces > 1 else ""
         return (f"GroundTruth(tile={self.tile!r}, K={self.directions}, facets={self.facets}, "
-                f"materials={self.materials}, backend={self.backend!r})")
+                f"materials={self.materials}, backend={self.backend!r}{bounces})")
 
     @property
     def grid(self) -> np.ndarray:
@@ -261,7 +297,7 @@ class GroundTruth:
         save_npz(path, "ground_truth", self.VERSION,
                  {"directions": self.directions, "facets": self.facets, "seed": self.seed, "tile": self.tile,
                   "footprint": self.footprint, "materials": self.materials, "backend": self.backend,
-                  "timings": self.timings, "key": self.key},
+                  "timings": self.timings, "key": self.key, "bounces": self.bounces, "paths": self.paths},
                  {"table": self.table, "a_v": self.a_v})
 
     @classmethod
@@ -270,7 +306,8 @@ class GroundTruth:
         try:
             return cls(arrays["table"], arrays["a_v"], head["directions"], head["facets"], head.get("seed", 0),
                        head.get("tile", "tile"), head.get("footprint", 1.0), head.get("materials", ()),
-                       head.get("backend", ""), head.get("timings"), head.get("key", ""))
+                       head.get("backend", ""), head.get("timings"), head.get("key", ""), head.get("bounces", 1),
+                       head.get("paths", 0))
         except KeyError as exc:
             raise ValueError(f"{path} is missing {exc} (corrupt ground-truth file)") from None
 

@@ -264,6 +264,23 @@ class WarpBackend(DeviceBackend):
         wp.launch(ktruth.sum_chunks_brdf, dim=n_pairs, device=self._device, inputs=[partial, pair_o, a_v],
                   outputs=[out])
 
+    # --- small-scale interreflection (DeviceBackend.interreflection): one block ---
+    def _launch_interreflection(self, tile, f, position, v, kinds, params, pair_i, pair_o, a_v, face_material,
+                                face_color, tangent, aniso, n_facets, n_words, paths, chunks, per, bounces, seed,
+                                n_pairs, out):
+        t = self._tile(tile)
+        z_lo, z_hi = tile.z_range
+        partial = wp.empty((chunks, n_pairs), dtype=wp.vec3, device=self._device)
+        self._launch(ktruth.interreflection_partial, (chunks, n_pairs),
+                     [t["mesh"].id, t["face_normals"], face_material, face_color, v["directions"], pair_i, pair_o,
+                      v["bits"], position, f["normal"], f["weight"], f["material"], f["face"], kinds, params,
+                      tangent, int(aniso), n_facets, paths, per, bounces, seed, 0.0, 0.0, float(tile.period[0]),
+                      float(tile.period[1]), 0.0, z_hi - z_lo, ray_offset(tile)],
+                     [partial], block_dim=32, pieces=RAY_PIECES)
+        self._load(ktruth.sum_chunks_brdf)
+        wp.launch(ktruth.sum_chunks_brdf, dim=n_pairs, device=self._device, inputs=[partial, pair_o, a_v],
+                  outputs=[out])
+
     # ------------------------------------------------------------------ SG bake stages
     def _array(self, data, dtype):
         return wp.array(np.ascontiguousarray(data), dtype=dtype, device=self._device)
