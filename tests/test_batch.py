@@ -534,6 +534,7 @@ def test_command_line(job_dir, tmp_path, capsys):
     captured = capsys.readouterr()
     assert "results.csv" in captured.out and "[6/6] 6 done, 0 failed" in captured.err
     assert len(read_csv(os.path.join(out, "results.csv"))) == 6
-    with pytest.raises(ValueError, match="not both"):
-        args = _parser().parse_args(["batch", job, "--workers", "2", "--scheduler", "tcp://localhost:1"])
-        args.func(args)
+    for clash in (["--workers", "2", "--scheduler", "tcp://localhost:1"], ["--gpus", "2", "--workers", "2"]):
+        with pytest.raises(ValueError, match="give one of --workers"):
+            args = _parser().parse_args(["batch", job, *clash])
+            args.func(args)
