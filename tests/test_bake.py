@@ -490,7 +490,7 @@ def test_compare_metrics():
 @pytest.mark.parametrize("kwargs, match", [
     ({"lobes": 0}, "lobes must be"), ({"lobes": 129}, "lobes must be"), ({"lobes": "many"}, "lobes must be"),
     ({"lobes": 2.5}, "lobes must be"), ({"directions": 1}, "directions must be"), ({"normal_res": 0}, "normal_res"),
-    ({"route": "magic"}, "route must be"), ({"method": "asg"}, "method must be"), ({"facets": 0}, "facets must be"),
+    ({"route": "magic"}, "route must be"), ({"method": "bogus"}, "method must be"), ({"facets": 0}, "facets must be"),
     ({"tolerance": float("nan")}, "tolerance"),
 ])
 def test_bad_arguments_are_named(kwargs, match):

@@ -34,6 +34,7 @@ from .environment import Environment
 from .images import compare_images, read_image, write_image
 from .litsphere import LitSphere
 from .matrix import MatrixBRDF
+from .asg_bake import ASGBRDF
 from .loading import load
 from .measured import MeasuredBRDF
 from .model import Facets, Visibility
@@ -48,7 +49,8 @@ from .svbrdf import Textured
 from .truth import GroundTruth, effective_brdf_exact, ground_truth, truth_of
 
 __all__ = [
-    "Backend", "BlinnPhong", "asg", "batch", "Bvndf", "Camera", "CookTorrance", "DirectionalLight", "EffectiveBRDF",
+    "ASGBRDF", "Backend", "BlinnPhong", "asg", "batch", "Bvndf", "Camera", "CookTorrance", "DirectionalLight",
+    "EffectiveBRDF",
     "Editor", "EnergyWarning",
     "Environment",
     "Facets", "GroundTruth", "Lambert", "LitSphere", "MatrixBRDF", "MeasuredBRDF",

@@ -39,6 +39,10 @@ EM_ITERATIONS = 8
 # 0.040 at 64 and 0.037 at 128, for 22.9, 25.4, 34.9 and 35.6 dB against its 2^18-facet truth).
 AUTO_LOBES = (*range(1, 17), 24, 32, 48, 64, 96, 128)
 HISTOGRAM_BYTES = 1 << 30  # the dense histogram N (pairs × non-empty bins) is refused beyond this
+# Bakes of other methods by name, each (tile, materials, lobes, directions, normal_res, facets, backend, seed,
+# bvndf, progress) → material: their modules register them when warp_biscale loads ("asg": asg_bake), so that
+# this driver imports none of them.
+METHOD_BAKES: dict = {}
 
 
 def _channels(tile, facets):
@@ -153,7 +157,8 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
         `TileWarning`; the extra ones reflect nothing).
     method : "sg" (Eq. 15, the SG closure, for rendering) or "sg-exact" (Eq. 10) for `eval`; "matrix": Wu's
         matrix method (the histogram N over `normal_res`'s bins times each material's precomputed M, both
-        factored, Eq. 12; lobes, route and tolerance are the SG method's and unused), options in `matrix`.
+        factored, Eq. 12; lobes, route and tolerance are the SG method's and unused), options in `matrix`;
+        "asg": J anisotropic spherical Gaussians (Xu 2013) fitted from the SG EM's lobes (`asg_bake.ASGBRDF`).
     lobes : J, the number of SG lobes of the NDF (1–128), or "auto": the first J of `AUTO_LOBES` (1–16,
         then 24, 32, 48, 64, 96, 128) whose NDF fit error (`lobes.ndf_error`, seen at the sharpest
         small-scale lobe, on the NDF weighted by what the direction grid sees, as the lobes are fitted)
@@ -180,14 +185,19 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
     """
     # Refused rather than fitted as an isotropic average: one isotropic SG per specular lobe cannot hold an
     # anisotropic one, so the result would be wrong by the anisotropy itself (issue 20: the ASG bake).
-    refuse_anisotropic(materials, "the SG bake fits each specular lobe as one isotropic SG and the matrix method's "
-                                  "bins carry no tangent, so neither can hold it: that needs the ASG bake (issue 20, "
-                                  "not built yet); wb.ground_truth evaluates it exactly")
+    refuse_anisotropic(materials, "the SG bake fits each specular lobe as one isotropic SG, the matrix method's "
+                                  "bins carry no tangent, and the ASG bake convolves with the small-scale BRDF's "
+                                  "isotropic SG, so none can hold it yet (issue 20: ASG x ASG); wb.ground_truth "
+                                  "evaluates it exactly")
     mats, _, _ = _prepare(tile, materials)
     if method == "matrix":
         return _bake_matrix(tile, mats, directions, normal_res, facets, backend, seed, bvndf, progress, matrix)
+    if method in METHOD_BAKES:  # "asg": asg_bake.bake_asg (Xu 2013; its lobes fitted from the SG EM's)
+        if matrix is not None or route != "facets":
+            raise ValueError(f"method={method!r} sums its amplitudes over the facets and takes no matrix= options")
+        return METHOD_BAKES[method](tile, mats, lobes, directions, normal_res, facets, backend, seed, bvndf, progress)
     if method not in METHODS:
-        raise ValueError(f"method must be one of {(*METHODS, 'matrix')}, got {method!r}")
+        raise ValueError(f"method must be one of {(*METHODS, 'matrix', *METHOD_BAKES)}, got {method!r}")
     if matrix is not None:
         raise ValueError(f"matrix= holds the options of method='matrix', not of method={method!r}")
     if route not in ROUTES:

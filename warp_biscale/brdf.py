@@ -503,8 +503,8 @@ class AshikhminShirley(Brdf):
 
 
 _ANISOTROPIC_REFUSAL = ("it needs each facet's tangent, which only the ground truth has so far (wb.ground_truth, "
-                        "wb.effective_brdf_exact); effective materials, the SG bake, the renderers and lit spheres "
-                        "need the ASG method of issue 20, not built yet")
+                        "wb.effective_brdf_exact); effective materials, the bakes, the renderers and lit spheres "
+                        "need the ASG method of issue 20 to take anisotropic BRDFs, not built yet")
 
 
 def refuse_anisotropic(materials, why: str = _ANISOTROPIC_REFUSAL) -> None:

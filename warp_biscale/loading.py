@@ -1,5 +1,5 @@
 """Reading back any saved warp_biscale object (`wb.load`): a ground-truth table, a baked effective
-BRDF (SG or matrix method), told apart by the header every saved file carries (see `io`)."""
+BRDF (SG, matrix or ASG method), told apart by the header every saved file carries (see `io`)."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ import os
 
 import numpy as np
 
+from .asg_bake import ASGBRDF
 from .effective import EffectiveBRDF
 from .io import read_npz
 from .matrix import MatrixBRDF
@@ -28,10 +29,10 @@ def head_version(path):
 
 def load(path):
     """Load any saved warp_biscale object: a ground-truth table or a baked effective BRDF (an
-    `EffectiveBRDF`, or a `MatrixBRDF` of bake(..., method="matrix"))."""
+    `EffectiveBRDF`, a `MatrixBRDF` of bake(..., method="matrix") or an `ASGBRDF` of method="asg")."""
 
     classes = {"warp_biscale.ground_truth": GroundTruth, "warp_biscale.effective_brdf": EffectiveBRDF,
-               f"warp_biscale.{MatrixBRDF.FORMAT}": MatrixBRDF}
+               f"warp_biscale.{MatrixBRDF.FORMAT}": MatrixBRDF, f"warp_biscale.{ASGBRDF.FORMAT}": ASGBRDF}
     head, _ = read_npz(path, versions=(head_version(path),))
     fmt = head["format"]
     if fmt in classes:

@@ -1,0 +1,526 @@
+"""The ASG bi-scale bake (issue 20 item 3; Xu 2013 §4–5 on Iwasaki 2012's pipeline): `wb.bake(tile, materials,
+method="asg", lobes=J)` → `ASGBRDF`.
+
+What it does, stage by stage (the geometry stages are the SG bake's own, `bake._sample_facets` …
+`bake._fit_ndf`: facets, visibility, the visible weights, the SG EM on the device):
+
+1. **The fit** (`fit_asg`, host float64): J anisotropic spherical Gaussians fitted to the facet normals,
+   each facet weighing its visible weight (as the SG EM: the NDF as the direction grid sees it). The start
+   is deterministic: the SG EM's lobes as isotropic ASGs (Xu's ν = η/2, `asg.from_sg`). Then EM steps on
+   the mixture of normalised ASGs p_j(n) = G_j(n)/∫G_j: E-step responsibilities; M-step axis z = the
+   responsibility-weighted mean normal, and in the tangent plane of z the weighted second moments of the
+   disk coordinates (a, b) = (n·x, n·y): their eigenvectors give the frame, and λ, μ are the exact maximum
+   likelihood of the truncated Gaussian on the unit disk for that frame (an ASG *is* that Gaussian in (a, b),
+   asg.py's module notes; its sufficient statistics are a², b², so ML = matching E[a²], E[b²], solved by
+   Newton in log λ, log μ with the moments by Gauss–Legendre over the disk). A facet whose normal lies
+   below a lobe's horizon takes no responsibility from it.
+2. **Amplitudes by the Gram route** (`amplitude_system`): A_ij = ∫G_iG_j by Xu's product (Eq. 13) and the
+   exact integral, regularised on its unit diagonal as the SG route (`lobes.RIDGE`) and calibrated per lobe
+   by the fitted NDF (`lobes.amplitude_system`'s calibration: the amplitude of lobe j on the fitted NDF is
+   A·α_j/∫G_j). b by the exact facet sums Σ_s P_si P_so w_s G_j(n_s) (`reference.lobe_moments`' sums,
+   here on the host by matrix products: P diag(w G_j) Pᵀ per lobe), solved by `lobes.solve_amplitudes`
+   (negative amplitudes 0, Σ_j μ_j ∫G_j = ∫γ̃ exactly, so the diffuse part is exact).
+3. **f̄** (`ASGBRDF.eval`, float64): diffuse Σ_j μ_j kd/π ∫G_j; specular M(ωi, ωo)·Σ_j μ_j (G_j ⊛ SG_s)(h) with
+   the small-scale BRDF's SG (`sg.specular_lobe`) and Xu's Eq. 18 (`asg.convolve_sg`): its bandwidths and
+   amplitude, with a shape that is exact for a delta NDF lobe too (`convolve_sg_at`; method "asg-eq18" is
+   Eq. 18's own shape).
+
+Everything after the SG EM is host numpy (float64); no kernel does the ASG fit, moments or shading yet.
+The SG renderer, the Monte Carlo reference's sampling and the Mitsuba export read SG lobes and refuse an
+`ASGBRDF` in one line (`NO_SG_LOBES`); the lit-sphere renderer evaluates it on the host (`host_texels`).
+"""
+
+from __future__ import annotations
+
+import collections
+import os
+import time
+
+import numpy as np
+
+from . import asg as asg_mod
+from . import bake as bake_mod
+from . import directions as dirs
+from . import lobes as lobes_mod
+from . import sg
+from .brdf import Lambert, as_material_list
+from .effective import EffectiveBRDF, Provenance, _brdf_from_dict, _brdf_to_dict
+from .io import read_npz, save_npz
+from .model import Bvndf
+from .progress import as_progress
+from .truth import _check_count, _Timer
+
+__all__ = ["ASGBRDF", "bake_asg", "fit_asg", "bandwidths_from_moments", "amplitude_system", "asg_moments",
+           "convolve_sg_at", "NO_SG_LOBES", "EM_ITERATIONS", "EVAL_METHODS"]
+
+EM_ITERATIONS = 8  # ASG EM steps after the SG start (0: the SG lobes as isotropic ASGs, λ = μ = η/2)
+BANDWIDTH_MAX = sg.SHARPNESS_MAX / 2.0  # a delta direction (flat facets): the SG cap, in Xu's ν = η/2 units
+BANDWIDTH_MIN = 1e-6
+_CONVERGED = 1e-6  # relative change of the bandwidths and axis movement (rad²/2) that stops the EM
+_GL_X, _GL_W = np.polynomial.legendre.leggauss(48)
+
+NO_SG_LOBES = ("a material baked by the ASG method (Xu 2013) holds anisotropic spherical Gaussians, not the SG "
+               "lobes that the SG renderer, the Monte Carlo reference's sampling and the Mitsuba export read: "
+               "render it with method='litsphere', or bake the tile with method='sg'")
+
+
+# ---------------------------------------------------------------------------------------------------
+# The fit
+# ---------------------------------------------------------------------------------------------------
+
+def _disk_moments(lam, mu):
+    """For the density ∝ exp(−λa² − μb²) on the unit disk, per lobe: (E[a²], E[b²], E[a⁴], E[b⁴], E[a²b²]).
+    Gauss–Legendre 48 × 48 on a ∈ [−A, A], b ∈ [−B(a), B(a)], A = min(1, 6/√(2λ)), B = min(√(1 − a²),
+    6/√(2μ)): the Gaussian is below e^{−18} of its peak past those limits, so sharp lobes get their nodes
+    where their mass is (bandwidths from 1e−6 to 5e5)."""
+    lam, mu = np.asarray(lam, np.float64), np.asarray(mu, np.float64)
+    amax = np.minimum(1.0, 6.0 / np.sqrt(2.0 * lam))[..., None]
+    a = amax * _GL_X
+    wa = amax * _GL_W
+    bmax = np.minimum(np.sqrt(np.maximum(1.0 - a * a, 0.0)), 6.0 / np.sqrt(2.0 * mu)[..., None])
+    b = bmax[..., None] * _GL_X  # (J, na, nb)
+    w = (wa * bmax)[..., None] * _GL_W
+    a2, b2 = (a * a)[..., None], b * b
+    w = w * np.exp(-lam[..., None, None] * a2 - mu[..., None, None] * b2)
+    z = w.sum((-2, -1))
+    m = [np.sum(w * f, (-2, -1)) / z for f in (a2 + 0 * b2, b2, a2 * a2 + 0 * b2, b2 * b2, a2 * b2)]
+    return tuple(m)
+
+
+def bandwidths_from_moments(ma, mb, iterations: int = 60):
+    """(λ, μ) whose truncated-disk Gaussian exp(−λa² − μb²) has E[a²] = ma, E[b²] = mb (the ML of an ASG for
+    its frame): Newton in (log λ, log μ), started at the untruncated 1/(2m); bandwidths clipped to
+    [BANDWIDTH_MIN, BANDWIDTH_MAX] (a second moment at or above the disk's own leaves the bandwidth at its
+    floor: an ASG cannot be broader than uniform in that direction)."""
+    ma, mb = np.asarray(ma, np.float64), np.asarray(mb, np.float64)
+    lo, hi = np.log(BANDWIDTH_MIN), np.log(BANDWIDTH_MAX)
+    th = np.stack([np.log(np.clip(0.5 / np.maximum(ma, 1e-300), BANDWIDTH_MIN, BANDWIDTH_MAX)),
+                   np.log(np.clip(0.5 / np.maximum(mb, 1e-300), BANDWIDTH_MIN, BANDWIDTH_MAX))], -1)
+    target = np.stack([ma, mb], -1)
+    for _ in range(iterations):
+        lam, mu = np.exp(th[..., 0]), np.exp(th[..., 1])
+        ea, eb, ea4, eb4, eab = _disk_moments(lam, mu)
+        f = np.stack([ea, eb], -1) - target
+        # d E[a²]/d log λ = −λ Var(a²), d E[a²]/d log μ = −μ Cov(a², b²), and likewise for b².
+        jac = np.empty(f.shape + (2,))
+        jac[..., 0, 0] = -lam * (ea4 - ea * ea)
+        jac[..., 0, 1] = -mu * (eab - ea * eb)
+        jac[..., 1, 0] = -lam * (eab - ea * eb)
+        jac[..., 1, 1] = -mu * (eb4 - eb * eb)
+        det = jac[..., 0, 0] * jac[..., 1, 1] - jac[..., 0, 1] * jac[..., 1, 0]
+        ok = np.abs(det) > 1e-300
+        sdet = np.where(ok, det, 1.0)
+        step = np.stack([(jac[..., 1, 1] * f[..., 0] - jac[..., 0, 1] * f[..., 1]) / sdet,
+                         (jac[..., 0, 0] * f[..., 1] - jac[..., 1, 0] * f[..., 0]) / sdet], -1)
+        step = np.where(ok[..., None], np.clip(step, -2.0, 2.0), 0.0)  # (damped: at most e² a step)
+        new = np.clip(th - step, lo, hi)
+        done = np.all(np.abs(new - th) < 1e-10)
+        th = new
+        if done:
+            break
+    return np.exp(th[..., 0]), np.exp(th[..., 1])
+
+
+def _log_pdf(asgs: asg_mod.ASG, log_norm, normal):
+    """(Ns, J) log of the normalised ASG densities G_j(n)/∫G_j; −inf below each lobe's horizon."""
+    a, b, t = normal @ asgs.x.T, normal @ asgs.y.T, normal @ asgs.z.T
+    with np.errstate(divide="ignore"):
+        return np.log(np.maximum(t, 0.0)) - asgs.lam * a * a - asgs.mu * b * b - log_norm
+
+
+def _m_step(normal, weight, resp, previous: asg_mod.ASG):
+    """Axes, frames and bandwidths from responsibilities `resp` (Ns, J) → (ASG, mass (J,))."""
+    rw = resp * weight[:, None]
+    mass = rw.sum(0)
+    mean = rw.T @ normal  # (J, 3)
+    norm = np.linalg.norm(mean, axis=1)
+    live = (mass > lobes_mod.DEAD_MASS * mass.sum()) & (norm > 0)
+    z = np.where(live[:, None], mean / np.where(norm > 0, norm, 1.0)[:, None], previous.z)
+    x0, y0 = asg_mod.tangent_frame(z)
+    a, b = normal @ x0.T, normal @ y0.T
+    above = (normal @ z.T) > 0
+    rw = np.where(above, rw, 0.0)
+    m = np.maximum(rw.sum(0), 1e-300)
+    caa, cbb, cab = (rw * a * a).sum(0) / m, (rw * b * b).sum(0) / m, (rw * a * b).sum(0) / m
+    cov = np.stack([np.stack([caa, cab], -1), np.stack([cab, cbb], -1)], -2)
+    evals, evecs = np.linalg.eigh(cov)  # ascending: column 0 the narrower direction → x, the larger λ
+    ex, ey = evecs[..., :, 0], evecs[..., :, 1]
+    x = ex[:, :1] * x0 + ex[:, 1:] * y0
+    y = ey[:, :1] * x0 + ey[:, 1:] * y0
+    lam, mu = bandwidths_from_moments(np.maximum(evals[:, 0], 0.0), np.maximum(evals[:, 1], 0.0))
+    keep = live & (m > 1e-300)
+    x = np.where(keep[:, None], x, previous.x)
+    y = np.where(keep[:, None], y, previous.y)
+    z = np.where(keep[:, None], z, previous.z)
+    lam = np.where(keep, lam, previous.lam)
+    mu = np.where(keep, mu, previous.mu)
+    y = np.cross(z, x)  # (a right-handed frame; the density does not depend on y's sign)
+    return asg_mod.ASG(x, y, z, lam, mu, 1.0), np.where(keep, mass, 0.0)
+
+
+def fit_asg(normal, weight, start: lobes_mod.LobeSet, iterations: int = EM_ITERATIONS):
+    """EM for a mixture of J normalised ASGs on unit normals (Ns, 3) with weights (Ns,), from the SG lobes
+    `start` (each as the isotropic ASG of Xu's Eq. 3, λ = μ = η/2, capped at BANDWIDTH_MAX).
+    → (ASG batch (J',) of unit amplitude, weight α (J',) summing to 1, steps taken); dead lobes dropped."""
+    normal = np.asarray(normal, np.float64)
+    normal = normal / np.linalg.norm(normal, axis=1, keepdims=True)
+    weight = np.asarray(weight, np.float64)
+    eta = np.clip(start.sharpness, 2 * BANDWIDTH_MIN, 2 * BANDWIDTH_MAX)
+    g = asg_mod.from_sg(start.axes, eta)
+    alpha = np.asarray(start.weight, np.float64)
+    alpha = alpha / alpha.sum()
+    steps = 0
+    for _ in range(int(iterations)):
+        log_norm = np.log(asg_mod.unit_integral(g.lam, g.mu))
+        with np.errstate(divide="ignore"):
+            lp = _log_pdf(g, log_norm, normal) + np.log(np.where(alpha > 0, alpha, 0.0))
+        top = lp.max(1, keepdims=True)
+        seen = np.isfinite(top[:, 0])  # a normal below every lobe's horizon takes no part
+        resp = np.where(seen[:, None], np.exp(lp - np.where(seen[:, None], top, 0.0)), 0.0)
+        resp /= np.where(seen, resp.sum(1), 1.0)[:, None]
+        new, mass = _m_step(normal, weight, resp, g)
+        steps += 1
+        total = mass.sum()
+        if not total > 0:
+            break
+        new_alpha = mass / total
+        moved = (np.max(sg.one_minus_cos(new.z, g.z)) < _CONVERGED
+                 and np.max(np.abs(np.log(new.lam / g.lam))) < _CONVERGED
+                 and np.max(np.abs(np.log(new.mu / g.mu))) < _CONVERGED
+                 and np.max(np.abs(new_alpha - alpha)) < _CONVERGED)
+        g, alpha = new, new_alpha
+        if moved:
+            break
+    live = alpha > 0
+    return g[live], alpha[live] / alpha[live].sum(), steps
+
+
+# ---------------------------------------------------------------------------------------------------
+# Amplitudes
+# ---------------------------------------------------------------------------------------------------
+
+def _values(asgs: asg_mod.ASG, normal):
+    """(Ns, J) G_j(n_s), unit amplitude."""
+    normal = np.asarray(normal, np.float64)
+    a, b, t = normal @ asgs.x.T, normal @ asgs.y.T, normal @ asgs.z.T
+    return np.maximum(t, 0.0) * np.exp(-asgs.lam * a * a - asgs.mu * b * b)
+
+
+def gram(asgs: asg_mod.ASG):
+    """(J, J) A_ij = ∫G_iG_j by Xu's product (Eq. 13) and the exact integral."""
+    p = asg_mod.product(asgs[:, None], asgs[None, :])
+    a = asg_mod.integral(p)
+    return 0.5 * (a + a.T)
+
+
+def amplitude_system(asgs: asg_mod.ASG, alpha, normal=None, weight=None):
+    """→ (solve rows (J, J), integrals (J,), gram (J, J), condition number): `lobes.amplitude_system` for ASGs.
+    With the fitted NDF (normals, weights) each row is calibrated so that the NDF's own least-squares
+    amplitudes are the fitted ones, total·α_j/∫G_j."""
+    a = gram(asgs)
+    integrals = asg_mod.unit_integral(asgs.lam, asgs.mu)
+    d = np.sqrt(np.maximum(np.diag(a), 1e-300))
+    unit = a / np.outer(d, d) + lobes_mod.RIDGE * np.eye(len(d))
+    inv = np.linalg.inv(unit) / np.outer(d, d)
+    if normal is not None:
+        w = np.asarray(weight, np.float64)
+        lsq = inv @ (_values(asgs, normal).T @ w)
+        target = w.sum() * np.asarray(alpha, np.float64) / integrals
+        scale = np.where(lsq > 1e-12 * target.max(), target / np.where(lsq > 0, lsq, 1.0), 1.0)
+        inv = inv * scale[:, None]
+    return inv, integrals, a, float(np.linalg.cond(unit))
+
+
+def asg_moments(proj, values, weight, pair_i, pair_o):
+    """(U, J + 1) [Σ_s P_si P_so w_s G_j(n_s), Σ_s P_si P_so w_s] for the unordered pairs (`reference.lobe_moments`'
+    sums): proj (D, Ns) P_sk = V_s(ω_k)(n_s·ω_k)⁺, values (Ns, J) G_j(n_s), weight (Ns,) w_s. By one
+    (D, Ns)·(Ns, D) product per lobe, float64."""
+    g = np.concatenate([values * weight[:, None], weight[:, None]], axis=1)
+    out = np.empty((len(pair_i), g.shape[1]))
+    for j in range(g.shape[1]):
+        out[:, j] = ((proj * g[:, j]) @ proj.T)[pair_i, pair_o]
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------
+# The bake
+# ---------------------------------------------------------------------------------------------------
+
+def bake_asg(tile, mats, lobes, directions, normal_res, facets, backend, seed, keep_hist, progress) -> ASGBRDF:
+    """`wb.bake(..., method="asg")` (bake.py dispatches here): see the module notes. The geometry part (up to
+    the amplitude tables) is cached per tile beside the SG bake's, so baking the tile again with other BRDFs
+    costs the tables alone."""
+    count = _check_count(facets)
+    if isinstance(lobes, str):
+        raise ValueError("method='asg' takes lobes=J, an integer in [1, 128]; lobes='auto' is not built for it yet")
+    j_req = bake_mod._check_lobes(lobes)
+    k, r = bake_mod._check_grid(directions, normal_res)
+    be = bake_mod.get_backend(backend)
+    key = ("asg", count, int(seed), k, r, j_req, int(EM_ITERATIONS), bool(keep_hist), be.name)
+    cache = bake_mod._GEOMETRY.setdefault(tile, collections.OrderedDict())
+    geo = cache.get(key)
+    timer = _Timer(be)
+    prog = as_progress(progress)
+    if geo is None:
+        geo = _asg_geometry(tile, be, count, int(seed), k, r, j_req, keep_hist, timer, prog)
+        cache[key] = geo
+        while len(cache) > bake_mod._GEOMETRY_PER_TILE:
+            cache.popitem(last=False)
+    else:
+        cache.move_to_end(key)
+    prog.stage("tables", 1)
+    t0 = time.perf_counter()
+    amps = geo["amplitudes"]
+    if len(mats) > len(amps):  # materials beyond the tile's ids reflect nothing
+        amps = np.concatenate([amps, np.zeros((len(mats) - len(amps),) + amps.shape[1:], amps.dtype)])
+    mat = ASGBRDF(geo["asgs"], geo["alpha"], amps, mats, k, info={**geo["info"], "backend": be.name,
+                                                                  "tile": tile.name},
+                  bvndf=geo["bvndf"], provenance=Provenance(tile, int(seed), count))
+    timer.timings["tables"] = time.perf_counter() - t0
+    mat.timings = dict(timer.timings)
+    prog.done()
+    return mat
+
+
+def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog) -> dict:
+    """Facets, visibility, weights and the SG EM by the SG bake's stages; then the ASG EM, the moments and the
+    solve on the host. → {"asgs", "alpha", "amplitudes" (M, K², K², J, 3), "bvndf", "info"}."""
+    q = bake_mod._sample_facets(tile, be, count, seed, dirs.frozen_grid(k), r, timer, prog)
+    t0 = time.perf_counter()
+    bake_mod._queue_visibility(tile, be, q, prog)
+    bv, facet_bin = bake_mod._bin_normals(q, r)
+    bake_mod._queue_fixed_j_em(be, q, bv, r, j_req, "histogram")  # ("histogram": no SG moment sums queued)
+    weight_host = np.asarray(q.em_weight.host(), np.float64)
+    timer.timings["visibility"] = timer.timings.get("visibility", 0.0) + time.perf_counter() - t0
+    hists = bake_mod._histograms(be, q, bv, facet_bin, "facets", keep_hist, timer, prog)
+    del hists  # (only bv.histogram, with keep_hist)
+    lob, _, _, _, _ = bake_mod._fit_ndf(be, q, bv, facet_bin, weight_host, r, j_req, "histogram", 0.02, None,
+                                        timer, prog)
+    prog.stage(f"ASG fit ({len(lob)} lobes)", 1)
+    t0 = time.perf_counter()
+    normal = np.asarray(q.fac.normal, np.float64)
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    area = np.asarray(q.fac.area, np.float64)
+    em_w = weight_host if weight_host.any() else area  # (no grid direction sees the tile: the bare NDF)
+    asgs, alpha, steps = fit_asg(normal, em_w, lob, EM_ITERATIONS)
+    timer.timings["asg_fit"] = time.perf_counter() - t0
+    prog.stage(f"amplitudes ({len(alpha)} ASG lobes, {len(q.channels)} channel(s))", 1)
+    t0 = time.perf_counter()
+    rows, integrals, _, cond = amplitude_system(asgs, alpha, normal, em_w)
+    grid = q.grid
+    vis = q.vis.as_bool()
+    proj = vis * np.maximum(grid @ normal.T, 0.0)  # (D, Ns)
+    values = _values(asgs, normal)
+    a_v = np.asarray(q.a_v.host(), np.float64)
+    nd = len(grid)
+    pi, po = dirs.all_pairs(nd)
+    amps = np.zeros((tile.n_materials, nd * nd, len(alpha), 3))
+    for m, mult, w in q.channels:
+        mom = asg_moments(proj, values, area if w is None else np.asarray(w, np.float64), q.iu, q.ou)
+        mu = lobes_mod.solve_amplitudes(mom, a_v, pi, po, nd, rows, integrals)
+        amps[m] += np.asarray(mu, np.float64)[..., None] * mult
+    if not np.isfinite(amps).all():
+        raise FloatingPointError("the ASG amplitude solve gave non-finite values")
+    bv.a_v = a_v
+    timer.timings["amplitudes"] = time.perf_counter() - t0
+    info = {"facets": count, "seed": seed, "normal_res": r, "route": "facets", "lobes": int(len(alpha)),
+            "lobes_requested": j_req, "sg_em_iterations": lob.iterations, "asg_em_iterations": steps,
+            "gram_condition": cond, "nonempty_bins": int(len(bv.bins)), "channels": len(q.channels)}
+    return {"asgs": asgs, "alpha": alpha, "amplitudes": amps.reshape(tile.n_materials, nd, nd, len(alpha), 3),
+            "bvndf": bv, "info": info}
+
+
+# ---------------------------------------------------------------------------------------------------
+# The result
+# ---------------------------------------------------------------------------------------------------
+
+EVAL_METHODS = ("asg", "asg-eq18")
+
+
+def convolve_sg_at(asgs: asg_mod.ASG, sharpness, p):
+    """(N, J) (G_j ⊛ SG)(p) for unit-amplitude ASGs G_j and the SG exp(η(v·p − 1)), at p (N, 3).
+
+    Xu's Eq. 18 gives the bandwidths λ' = λν/(λ + ν), μ' = μν/(μ + ν) and the amplitude π/√((λ + ν)(μ + ν))
+    (ν = η/2), with the ASG's shape t·exp(−λ'a² − μ'b²) ((a, b, t) = p's coordinates in the lobe's frame).
+    That shape is right where the SG is the sharper (ν ≫ λ, μ: the result is G itself), but for a sharp NDF lobe
+    (λ, μ ≫ ν; a delta in the limit) the result is the SG kernel, exp(2ν(t − 1)) = exp(−2ν(a² + b²)/(1 + t)),
+    which Eq. 18's shape misses by from_sg's difference (√2/(8ν) relative L2: 0.2–0.5 dB on the V-grooves'
+    delta lobes). Here (beyond Xu) each axis has its own s: s_x = λ'/λ, s_y = μ'/μ ∈ [0, 1] (ν/(λ + ν), ν/(μ + ν))
+    and the shape is t^w·exp(−λ'a²k^{1−s_x} − μ'b²k^{1−s_y}) with k = 2/(1 + t) and w = (s_x a² + s_y b²)/(a² + b²):
+    Eq. 18's shape where s = 1, the SG kernel exactly where s = 0 (a delta lobe), and in between the same peak
+    value and axes as Eq. 18, its curvature at the peak raised by (1 − s)/2 along each axis."""
+    c = asg_mod.convolve_sg(asgs, sharpness)
+    p = np.asarray(p, np.float64)
+    a, b, t = p @ c.x.T, p @ c.y.T, p @ c.z.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sx = np.clip(np.where(asgs.lam > 0, c.lam / asgs.lam, 1.0), 0.0, 1.0)
+        sy = np.clip(np.where(asgs.mu > 0, c.mu / asgs.mu, 1.0), 0.0, 1.0)
+        r2 = a * a + b * b
+        s = np.where(r2 > 0, (sx * a * a + sy * b * b) / np.where(r2 > 0, r2, 1.0), 0.5 * (sx + sy))
+        smooth = np.where(t > 0, np.maximum(t, 1e-300) ** s, 0.0)
+        k = 2.0 / (1.0 + np.clip(t, 0.0, 1.0))
+        expo = c.lam * a * a * k ** (1.0 - sx) + c.mu * b * b * k ** (1.0 - sy)
+    return c.amplitude * smooth * np.exp(-expo)
+
+class ASGBRDF(EffectiveBRDF):
+    """A material baked by the ASG method (`wb.bake(tile, materials, method="asg", lobes=J)`).
+
+    The interface of `EffectiveBRDF`: `eval(wi, wo)` (cosine θi included; μ/cos θi bilinear on the grid as the
+    SG form), `table()`, `wb.compare`, `save` / `wb.load` (format "asg_brdf", versioned), `with_materials`
+    (new small-scale BRDFs, nothing re-baked), `provenance`, `path`, `timings`, `info`. Attributes: `asgs`
+    (asg.ASG batch (J,), unit amplitude), `weight` (J,) α_j, `amplitudes` (M, K², K², J, 3) float32 μ tables
+    (of the ASGs), `integrals` (J,) ∫G_j. It has no SG lobes: `lobes`, `diffuse` and the Mitsuba export
+    raise `NO_SG_LOBES` (so the SG renderer refuses it); the lit-sphere renderer evaluates it on the host."""
+
+    VERSION = 1
+    VERSIONS = (1,)
+    FORMAT = "asg_brdf"
+    host_texels = True  # no texel kernel reads ASG tables: a lit sphere of it is made by `eval` on the host
+
+    def __init__(self, asgs: asg_mod.ASG, weight, amplitudes, materials, directions: int, timings=None, info=None,
+                 bvndf=None, provenance: Provenance | None = None, path=None):
+        if not isinstance(asgs, asg_mod.ASG) or asgs.lam.ndim != 1 or not (1 <= len(asgs.lam) <= lobes_mod.MAX_LOBES):
+            raise ValueError(f"asgs must be an asg.ASG batch of 1..{lobes_mod.MAX_LOBES} lobes")
+        self.asgs = asg_mod.ASG(asgs.x, asgs.y, asgs.z, asgs.lam, asgs.mu, 1.0)
+        j = len(self.asgs.lam)
+        self.weight = np.asarray(weight, np.float64).reshape(-1)
+        if self.weight.shape != (j,):
+            raise ValueError(f"weight must have {j} entries, got {self.weight.shape}")
+        self.directions = int(directions)
+        if not (2 <= self.directions <= 32):
+            raise ValueError(f"directions must be in [2, 32], got {directions!r}")
+        nd = self.directions**2
+        self.amplitudes = np.asarray(amplitudes, np.float32)
+        if self.amplitudes.ndim != 5 or self.amplitudes.shape[1:] != (nd, nd, j, 3):
+            raise ValueError(f"amplitudes must have shape (M, {nd}, {nd}, {j}, 3), got {self.amplitudes.shape}")
+        if not np.all(np.isfinite(self.amplitudes)) or (self.amplitudes < 0).any():
+            raise ValueError("amplitudes must be finite and >= 0")
+        self.materials = as_material_list(materials)
+        if len(self.materials) != len(self.amplitudes):
+            raise ValueError(f"{len(self.amplitudes)} amplitude table(s) but {len(self.materials)} material(s)")
+        self.method = "asg"
+        self.timings = dict(timings or {})
+        self.info = dict(info or {})
+        self.bvndf = bvndf
+        if provenance is not None and not isinstance(provenance, Provenance):
+            raise ValueError(f"provenance must be an effective.Provenance or None, got {type(provenance).__name__}")
+        if provenance is not None and provenance.tile.n_materials > len(self.materials):
+            raise ValueError(f"provenance: the tile has {provenance.tile.n_materials} material ids but the material "
+                             f"has {len(self.materials)} BRDF(s)")
+        self.provenance = provenance
+        self.path = None if path is None else os.path.abspath(os.fspath(path))
+        self.integrals = asg_mod.unit_integral(self.asgs.lam, self.asgs.mu)
+
+    def __repr__(self):
+        return f"ASGBRDF(K={self.directions}, lobes={len(self.weight)}, materials={self.materials})"
+
+    # ------------------------------------------------------------------ what the SG form has and this has not
+    @property
+    def lobes(self):
+        raise ValueError(NO_SG_LOBES)
+
+    @property
+    def diffuse(self):
+        raise ValueError(NO_SG_LOBES)
+
+    def _interpolated_amplitudes(self, wi, wo):
+        raise ValueError(NO_SG_LOBES)
+
+    def export_mitsuba(self, path) -> dict:
+        """Refused before anything is written: the Mitsuba plugin evaluates and samples SG lobes."""
+        raise ValueError(NO_SG_LOBES)
+
+    # ------------------------------------------------------------------ edits
+    def with_materials(self, materials) -> ASGBRDF:
+        """The same baked ASGs and amplitudes with other small-scale BRDFs (a material-only edit: no re-bake);
+        provenance and `path` carry over, as EffectiveBRDF.with_materials."""
+        t0 = time.perf_counter()
+        out = ASGBRDF(self.asgs, self.weight, self.amplitudes, materials, self.directions, info=self.info,
+                      bvndf=self.bvndf, provenance=self.provenance, path=self.path)
+        out.timings = {"tables": time.perf_counter() - t0}
+        return out
+
+    # ------------------------------------------------------------------ evaluation
+    @staticmethod
+    def _check_method(method):
+        if method not in (None, *EVAL_METHODS):
+            raise ValueError(f"an ASG-method material evaluates its own lobes (method one of {EVAL_METHODS} or None), "
+                             f"not {method!r}")
+
+    def _mu(self, wi, wo) -> np.ndarray:
+        """(M, N, J, 3) μ at (ωi, ωo): μ/cos θi bilinear in the square domain of each direction (as the SG form)."""
+        k = self.directions
+        ii, wi_w = dirs.bilinear_corners(wi, k)
+        oo, wo_w = dirs.bilinear_corners(wo, k)
+        per_cos = self.amplitudes / self.grid[:, 2][None, :, None, None, None]
+        out = np.zeros((len(self.amplitudes), len(wi), len(self.weight), 3))
+        for a in range(4):
+            for b in range(4):
+                out += (wi_w[:, a] * wo_w[:, b])[None, :, None, None] * per_cos[:, ii[:, a], oo[:, b]]
+        return out * np.maximum(wi[:, 2], 0.0)[None, :, None, None]
+
+    def eval(self, wi, wo, method: str | None = None) -> np.ndarray:
+        """(N, 3) f̄(ωi, ωo) (cosine θi included, docs/design.md §4); 0 below the horizon. Diffuse
+        Σ_j μ_j kd/π ∫G_j, specular M·Σ_j μ_j (G_j ⊛ SG_s)(h), float64. method "asg" (default): the convolution
+        by `convolve_sg_at` (Xu's Eq. 18 bandwidths and amplitude, a shape exact in both limits); "asg-eq18":
+        Xu's Eq. 18 literally (`asg.convolve_sg`)."""
+        self._check_method(method)
+        literal = method == "asg-eq18"
+        wi = dirs.check_directions("wi", wi)
+        wo = dirs.check_directions("wo", wo)
+        if len(wi) != len(wo):
+            raise ValueError(f"wi and wo must have the same length, got {len(wi)} and {len(wo)}")
+        mu = self._mu(wi, wo)
+        out = np.zeros((len(wi), 3))
+        for m, mat in enumerate(self.materials):
+            kd = np.asarray(mat.albedo if isinstance(mat, Lambert) else mat.kd, np.float64) / np.pi
+            out += np.einsum("njc,j->nc", mu[m], self.integrals) * kd
+            eta_s, scale, h = sg.specular_lobe(mat, wi, wo)
+            if eta_s is None or not scale.any():
+                continue
+            if literal:
+                s = asg_mod.evaluate(asg_mod.convolve_sg(self.asgs, eta_s), h[:, None, :])  # (N, J)
+            else:
+                s = convolve_sg_at(self.asgs, eta_s, h)
+            out += scale * np.einsum("njc,nj->nc", mu[m], s)
+        out[(wi[:, 2] <= 0) | (wo[:, 2] <= 0)] = 0.0
+        return np.maximum(out, 0.0)
+
+    # ------------------------------------------------------------------ files
+    def save(self, path) -> None:
+        """Write atomically as a versioned npz (format "asg_brdf"; `wb.load` reads it back)."""
+        g = self.asgs
+        arrays = {"asg_x": g.x, "asg_y": g.y, "asg_z": g.z, "asg_lam": g.lam, "asg_mu": g.mu, "weight": self.weight,
+                  "amplitudes": self.amplitudes}
+        if self.bvndf is not None:
+            arrays.update({f"bvndf_{k}": v for k, v in self.bvndf.arrays().items()})
+        if self.provenance is not None:
+            arrays.update(self.provenance.arrays())
+        save_npz(path, self.FORMAT, self.VERSION,
+                 {"directions": self.directions, "method": "asg",
+                  "materials": [_brdf_to_dict(m) for m in self.materials], "info": self.info,
+                  "timings": self.timings, "bvndf_resolution": None if self.bvndf is None else self.bvndf.resolution,
+                  "provenance": None if self.provenance is None else self.provenance.header()},
+                 arrays)
+        self.path = os.path.abspath(os.fspath(path))
+
+    @classmethod
+    def load(cls, path) -> ASGBRDF:
+        head, arrays = read_npz(path, cls.FORMAT, versions=cls.VERSIONS)
+        try:
+            g = asg_mod.ASG(arrays["asg_x"], arrays["asg_y"], arrays["asg_z"], arrays["asg_lam"], arrays["asg_mu"])
+            mats = [_brdf_from_dict(d) for d in head["materials"]]
+            bv = None
+            if head.get("bvndf_resolution") is not None:
+                bv = Bvndf.from_arrays(head["bvndf_resolution"], {k[6:]: v for k, v in arrays.items()
+                                                                  if k.startswith("bvndf_")})
+            prov = Provenance.from_file(head["provenance"], arrays) if head.get("provenance") is not None else None
+            return cls(g, arrays["weight"], arrays["amplitudes"], mats, head["directions"], head.get("timings"),
+                       head.get("info"), bv, prov, path)
+        except KeyError as exc:
+            raise ValueError(f"{path} is missing {exc} (corrupt material file)") from None
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{path} is not a valid material file: {exc}") from None
+
+
+bake_mod.METHOD_BAKES["asg"] = bake_asg
