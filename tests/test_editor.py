@@ -67,9 +67,10 @@ def test_quality_ends_and_the_litsphere_renderer(pyramid):
     ed.set("quality.method", "litsphere")
     assert ed.timings["redone"] == "render" and np.isfinite(ed.frame()).all() and ed.frame().max() > 0
     # the matrix method's bake, drawn by the lit-sphere renderer whatever quality.method says
-    ed.set_many({"quality.method": "sg", "quality.bake": "matrix"})
-    assert isinstance(ed.effective, wb.MatrixBRDF) and ed.timings["redone"] == "bake"
-    assert np.isfinite(ed.frame()).all() and ed.frame().max() > 0
+    for method, kind in (("matrix", wb.MatrixBRDF), ("asg", wb.ASGBRDF)):
+        ed.set_many({"quality.method": "sg", "quality.bake": method})
+        assert isinstance(ed.effective, kind) and ed.timings["redone"] == "bake"
+        assert np.isfinite(ed.frame()).all() and ed.frame().max() > 0
 
 
 def test_geometry_rebakes_and_materials_do_not(pyramid):

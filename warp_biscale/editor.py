@@ -134,8 +134,9 @@ QUALITY = [
     ("lobes", "int", 1, 32, 8, True, "J: SG lobes of the normal distribution"),
     ("facets_log2", "int", 10, 20, 16, True, "log2 of the facets sampled on the tile"),
     ("directions", "int", 4, 16, 12, True, "K: the K x K direction grid of the tables"),
-    ("bake", "choice", None, ("sg", "matrix"), "sg", True,
-     "bake method: SG lobes (Iwasaki) or the matrix method (Wu; drawn by the lit-sphere renderer)"),
+    ("bake", "choice", None, ("sg", "asg", "matrix"), "sg", True,
+     "bake method: SG lobes (Iwasaki), ASG lobes (Xu) or the matrix method (Wu); the last two drawn by the "
+     "lit-sphere renderer"),
     ("method", "choice", None, ("sg", "litsphere"), "sg", False, "large-scale renderer of an SG bake"),
 ]
 COARSE = {"lobes": 4, "facets_log2": 12, "directions": 6}  # a dragged slider's bake: each at most this
@@ -654,7 +655,7 @@ class Editor:
                 state["quality"][name] = int(design[key])
         if "facets" in design:
             state["quality"]["facets_log2"] = int(round(math.log2(int(design["facets"]))))
-        state["quality"]["bake"] = "matrix" if design.get("method") == "matrix" else "sg"
+        state["quality"]["bake"] = design.get("method") if design.get("method") in ("asg", "matrix") else "sg"
         state["quality"]["method"] = render_.get("method", "sg") if state["quality"]["bake"] == "sg" else "sg"
         env = data.get("environment")
         state["light"]["environment"] = "none" if env is None else env.get("type", "sky")
@@ -674,8 +675,8 @@ class Editor:
 
 
 def _renderer(state) -> str:
-    """The large-scale renderer of a design: a matrix-method bake has no SG lobes for the SG renderer."""
-    return "litsphere" if state["quality"]["bake"] == "matrix" else state["quality"]["method"]
+    """The large-scale renderer of a design: only an SG bake has what the SG renderer reads."""
+    return "litsphere" if state["quality"]["bake"] != "sg" else state["quality"]["method"]
 
 
 def _enlarged(image, width, height) -> np.ndarray:
