@@ -44,7 +44,7 @@ from . import directions as dirs
 from . import lobes as lobes_mod
 from . import sg
 from .brdf import Lambert, as_material_list
-from .effective import EffectiveBRDF, Provenance, _brdf_from_dict, _brdf_to_dict
+from .effective import EffectiveBRDF, Provenance, _brdf_from_dict, _brdf_to_dict, interpolated_amplitudes
 from .io import read_npz, save_npz
 from .model import Bvndf
 from .progress import as_progress
@@ -448,16 +448,8 @@ class ASGBRDF(EffectiveBRDF):
                              f"not {method!r}")
 
     def _mu(self, wi, wo) -> np.ndarray:
-        """(M, N, J, 3) μ at (ωi, ωo): μ/cos θi bilinear in the square domain of each direction (as the SG form)."""
-        k = self.directions
-        ii, wi_w = dirs.bilinear_corners(wi, k)
-        oo, wo_w = dirs.bilinear_corners(wo, k)
-        per_cos = self.amplitudes / self.grid[:, 2][None, :, None, None, None]
-        out = np.zeros((len(self.amplitudes), len(wi), len(self.weight), 3))
-        for a in range(4):
-            for b in range(4):
-                out += (wi_w[:, a] * wo_w[:, b])[None, :, None, None] * per_cos[:, ii[:, a], oo[:, b]]
-        return out * np.maximum(wi[:, 2], 0.0)[None, :, None, None]
+        """(M, N, J, 3) μ at (ωi, ωo), interpolated as the SG form's (`effective.interpolated_amplitudes`)."""
+        return interpolated_amplitudes(self.amplitudes, self.grid, self.directions, wi, wo)
 
     def eval(self, wi, wo, method: str | None = None) -> np.ndarray:
         """(N, 3) f̄(ωi, ωo) (cosine θi included, docs/design.md §4); 0 below the horizon. Diffuse

@@ -98,6 +98,20 @@ class Provenance:
         return cls(tile, int(head.get("seed", 0)), int(head.get("facets", 0)))
 
 
+def interpolated_amplitudes(amplitudes, grid, directions: int, wi, wo) -> np.ndarray:
+    """(M, N, J, 3) μ at (ωi, ωo) from a bake's (M, K², K², J, 3) table on its K×K `grid`, bilinear in the
+    square domain of each direction; μ/cos θi is what is interpolated (the cos θi of γ̃ then comes out exact,
+    as in `GroundTruth.eval`). Any lobe kind's amplitudes (SG, ASG) are interpolated alike."""
+    ii, wi_w = dirs.bilinear_corners(wi, directions)
+    oo, wo_w = dirs.bilinear_corners(wo, directions)
+    per_cos = amplitudes / grid[:, 2][None, :, None, None, None]
+    out = np.zeros((len(amplitudes), len(wi), amplitudes.shape[3], 3))
+    for a in range(4):
+        for b in range(4):
+            out += (wi_w[:, a] * wo_w[:, b])[None, :, None, None] * per_cos[:, ii[:, a], oo[:, b]]
+    return out * np.maximum(wi[:, 2], 0.0)[None, :, None, None]
+
+
 class EffectiveBRDF:
     """A baked material. Build it with `wb.bake`; read it back with `wb.load`.
 
@@ -182,17 +196,8 @@ class EffectiveBRDF:
 
     # ------------------------------------------------------------------ evaluation
     def _interpolated_amplitudes(self, wi, wo) -> np.ndarray:
-        """(M, N, J, 3) μ at (ωi, ωo), bilinear in the square domain of each; μ/cos θi is what is
-        interpolated (the cos θi of γ̃ then comes out exact, as in `GroundTruth.eval`)."""
-        k = self.directions
-        ii, wi_w = dirs.bilinear_corners(wi, k)
-        oo, wo_w = dirs.bilinear_corners(wo, k)
-        per_cos = self.amplitudes / self.grid[:, 2][None, :, None, None, None]
-        out = np.zeros((len(self.amplitudes), len(wi), len(self.lobes), 3))
-        for a in range(4):
-            for b in range(4):
-                out += (wi_w[:, a] * wo_w[:, b])[None, :, None, None] * per_cos[:, ii[:, a], oo[:, b]]
-        return out * np.maximum(wi[:, 2], 0.0)[None, :, None, None]
+        """(M, N, J, 3) μ at (ωi, ωo): `interpolated_amplitudes` of this bake's tables."""
+        return interpolated_amplitudes(self.amplitudes, self.grid, self.directions, wi, wo)
 
     def eval(self, wi, wo, method: str | None = None) -> np.ndarray:
         """(N, 3) f̄(ωi, ωo) (cosine θi included, docs/design.md §4) at arbitrary directions; 0 below the horizon.
