@@ -47,6 +47,34 @@ CL_INLINE float3 cross3(float3 a, float3 b)
     return (float3)(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x);
 }
 
+/* (t_x, t_y): where the ray o + t·d leaves the tile's cell [x0, x0 + px] × [y0, y0 + py] across its x
+ * and its y sides (1e30 when it runs parallel to them), for the periodic traces of the tile. */
+CL_INLINE float2 cell_exits(float3 o, float3 d, float x0, float y0, float px, float py)
+{
+    float t_x = 1.0e30f;
+    if (d.x > 0.0f)
+        t_x = maxf((x0 + px - o.x) / d.x, 0.0f);
+    else if (d.x < 0.0f)
+        t_x = maxf((x0 - o.x) / d.x, 0.0f);
+    float t_y = 1.0e30f;
+    if (d.y > 0.0f)
+        t_y = maxf((y0 + py - o.y) / d.y, 0.0f);
+    else if (d.y < 0.0f)
+        t_y = maxf((y0 - o.y) / d.y, 0.0f);
+    return (float2)(t_x, t_y);
+}
+
+/* The ray's point at t_exit, brought back into the cell across the side(s) it left by (cell_exits). */
+CL_INLINE float3 next_cell(float3 o, float3 d, float t_exit, float2 exits, float px, float py)
+{
+    float3 q = (float3)(o.x + t_exit * d.x, o.y + t_exit * d.y, o.z + t_exit * d.z);
+    if (exits.x <= t_exit)
+        q.x = q.x - (d.x < 0.0f ? -1.0f : 1.0f) * px;
+    if (exits.y <= t_exit)
+        q.y = q.y - (d.y < 0.0f ? -1.0f : 1.0f) * py;
+    return q;
+}
+
 /* Warp's normalize: v / |v|, or zero for a zero vector. */
 CL_INLINE float3 normalize3(float3 a)
 {

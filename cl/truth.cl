@@ -188,17 +188,8 @@ CL_INLINE int trace_periodic_closest(__global const float *nodes, __global const
             t_z = (z_hi + eps - o.z) / d.z;
         else if (d.z < 0.0f)
             t_z = (z_lo - eps - o.z) / d.z;
-        float t_x = 1.0e30f;
-        if (d.x > 0.0f)
-            t_x = maxf((x0 + px - o.x) / d.x, 0.0f);
-        else if (d.x < 0.0f)
-            t_x = maxf((x0 - o.x) / d.x, 0.0f);
-        float t_y = 1.0e30f;
-        if (d.y > 0.0f)
-            t_y = maxf((y0 + py - o.y) / d.y, 0.0f);
-        else if (d.y < 0.0f)
-            t_y = maxf((y0 - o.y) / d.y, 0.0f);
-        float t_side = minf(t_x, t_y);
+        float2 exits = cell_exits(o, d, x0, y0, px, py);
+        float t_side = minf(exits.x, exits.y);
         float t_exit = minf(t_z, t_side);
         float t, u, v;
         int slot = bvh_closest_hit(nodes, tris, o, d, -back, t_exit + eps, &t, &u, &v);
@@ -208,11 +199,7 @@ CL_INLINE int trace_periodic_closest(__global const float *nodes, __global const
         }
         if (t_z <= t_side)
             return d.z > 0.0f ? IR_ESCAPED : IR_LOST;
-        o = (float3)(o.x + t_exit * d.x, o.y + t_exit * d.y, o.z + t_exit * d.z);
-        if (t_x <= t_exit)
-            o.x = o.x - (d.x < 0.0f ? -1.0f : 1.0f) * px;
-        if (t_y <= t_exit)
-            o.y = o.y - (d.y < 0.0f ? -1.0f : 1.0f) * py;
+        o = next_cell(o, d, t_exit, exits, px, py);
         back = eps;
     }
     return IR_LOST;

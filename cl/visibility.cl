@@ -34,17 +34,8 @@ CL_INLINE int trace_periodic(__global const float *nodes, __global const float *
     int steps = 4 + (int)ceil((z_hi - z_lo + 2.0f * eps) / d.z * (absf(d.x) / px + absf(d.y) / py));
     for (int step = 0; step < steps + 1; ++step) {
         float t_top = (z_top - o.z) / d.z;
-        float t_x = 1.0e30f;
-        if (d.x > 0.0f)
-            t_x = maxf((x0 + px - o.x) / d.x, 0.0f);
-        else if (d.x < 0.0f)
-            t_x = maxf((x0 - o.x) / d.x, 0.0f);
-        float t_y = 1.0e30f;
-        if (d.y > 0.0f)
-            t_y = maxf((y0 + py - o.y) / d.y, 0.0f);
-        else if (d.y < 0.0f)
-            t_y = maxf((y0 - o.y) / d.y, 0.0f);
-        float t_side = minf(t_x, t_y);
+        float2 exits = cell_exits(o, d, x0, y0, px, py);
+        float t_side = minf(exits.x, exits.y);
         float t_exit = minf(t_top, t_side);
         int hit;
         if (brute_force != 0)
@@ -55,11 +46,7 @@ CL_INLINE int trace_periodic(__global const float *nodes, __global const float *
             return 0;
         if (t_top <= t_side)
             return 1;
-        o = (float3)(o.x + t_exit * d.x, o.y + t_exit * d.y, o.z + t_exit * d.z);
-        if (t_x <= t_exit)
-            o.x = o.x - (d.x < 0.0f ? -1.0f : 1.0f) * px;
-        if (t_y <= t_exit)
-            o.y = o.y - (d.y < 0.0f ? -1.0f : 1.0f) * py;
+        o = next_cell(o, d, t_exit, exits, px, py);
         back = eps;
     }
     return 1;

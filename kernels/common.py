@@ -162,3 +162,31 @@ def cube_bin(n: wp.vec3, resolution: int) -> int:
     col = wp.clamp(int(wp.floor((u / major + 1.0) * 0.5 * r)), 0, resolution - 1)
     row = wp.clamp(int(wp.floor((v / major + 1.0) * 0.5 * r)), 0, resolution - 1)
     return face * resolution * resolution + row * resolution + col
+
+
+@wp.func
+def cell_exits(o: wp.vec3, d: wp.vec3, x0: float, y0: float, px: float, py: float) -> wp.vec2:
+    """(t_x, t_y): where the ray o + t·d leaves the tile's cell [x0, x0 + px] × [y0, y0 + py] across its
+    x and its y sides (1e30 when it runs parallel to them), for the periodic traces of the tile."""
+    t_x = float(1.0e30)
+    if d[0] > 0.0:
+        t_x = wp.max((x0 + px - o[0]) / d[0], 0.0)
+    elif d[0] < 0.0:
+        t_x = wp.max((x0 - o[0]) / d[0], 0.0)
+    t_y = float(1.0e30)
+    if d[1] > 0.0:
+        t_y = wp.max((y0 + py - o[1]) / d[1], 0.0)
+    elif d[1] < 0.0:
+        t_y = wp.max((y0 - o[1]) / d[1], 0.0)
+    return wp.vec2(t_x, t_y)
+
+
+@wp.func
+def next_cell(o: wp.vec3, d: wp.vec3, t_exit: float, exits: wp.vec2, px: float, py: float) -> wp.vec3:
+    """The ray's point at t_exit, brought back into the cell across the side(s) it left by (cell_exits)."""
+    q = o + t_exit * d
+    if exits[0] <= t_exit:
+        q = wp.vec3(q[0] - wp.sign(d[0]) * px, q[1], q[2])
+    if exits[1] <= t_exit:
+        q = wp.vec3(q[0], q[1] - wp.sign(d[1]) * py, q[2])
+    return q

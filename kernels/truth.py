@@ -14,7 +14,8 @@ is one float64 add per word of up to 32 BRDF evaluations.
 
 import warp as wp
 
-from .common import ANISOTROPIC_WARD, brdf_cosine_weighted, brdf_cosine_weighted_tangent, lowest_bit
+from .common import (ANISOTROPIC_WARD, brdf_cosine_weighted, brdf_cosine_weighted_tangent, cell_exits, lowest_bit,
+                     next_cell)
 
 
 @wp.kernel
@@ -182,17 +183,8 @@ def trace_periodic_closest(mesh: wp.uint64, start: wp.vec3, d: wp.vec3,
             t_z = (z_hi + eps - o[2]) / d[2]
         elif d[2] < 0.0:
             t_z = (z_lo - eps - o[2]) / d[2]
-        t_x = float(1.0e30)
-        if d[0] > 0.0:
-            t_x = wp.max((x0 + px - o[0]) / d[0], 0.0)
-        elif d[0] < 0.0:
-            t_x = wp.max((x0 - o[0]) / d[0], 0.0)
-        t_y = float(1.0e30)
-        if d[1] > 0.0:
-            t_y = wp.max((y0 + py - o[1]) / d[1], 0.0)
-        elif d[1] < 0.0:
-            t_y = wp.max((y0 - o[1]) / d[1], 0.0)
-        t_side = wp.min(t_x, t_y)
+        exits = cell_exits(o, d, x0, y0, px, py)
+        t_side = wp.min(exits[0], exits[1])
         t_exit = wp.min(t_z, t_side)
         q = wp.mesh_query_ray(mesh, o - back * d, d, t_exit + eps + back)
         if q.result:
@@ -202,11 +194,7 @@ def trace_periodic_closest(mesh: wp.uint64, start: wp.vec3, d: wp.vec3,
             if d[2] > 0.0:
                 return wp.vec4(0.0, 0.0, 0.0, float(ESCAPED))
             return wp.vec4(0.0, 0.0, 0.0, float(LOST))
-        o = o + t_exit * d
-        if t_x <= t_exit:
-            o = wp.vec3(o[0] - wp.sign(d[0]) * px, o[1], o[2])
-        if t_y <= t_exit:
-            o = wp.vec3(o[0], o[1] - wp.sign(d[1]) * py, o[2])
+        o = next_cell(o, d, t_exit, exits, px, py)
         back = eps
     return wp.vec4(0.0, 0.0, 0.0, float(LOST))
 

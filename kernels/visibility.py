@@ -12,6 +12,8 @@ opposite side until it passes above the tile's highest point.
 
 import warp as wp
 
+from .common import cell_exits, next_cell
+
 
 @wp.func
 def hit_any_triangle(vertices: wp.array(dtype=wp.vec3), faces: wp.array2d(dtype=wp.int32),
@@ -48,17 +50,8 @@ def trace_periodic(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3), faces: wp
     steps = 4 + int(wp.ceil((z_hi - z_lo + 2.0 * eps) / d[2] * (wp.abs(d[0]) / px + wp.abs(d[1]) / py)))
     for _step in range(steps + 1):
         t_top = (z_top - o[2]) / d[2]
-        t_x = float(1.0e30)
-        if d[0] > 0.0:
-            t_x = wp.max((x0 + px - o[0]) / d[0], 0.0)
-        elif d[0] < 0.0:
-            t_x = wp.max((x0 - o[0]) / d[0], 0.0)
-        t_y = float(1.0e30)
-        if d[1] > 0.0:
-            t_y = wp.max((y0 + py - o[1]) / d[1], 0.0)
-        elif d[1] < 0.0:
-            t_y = wp.max((y0 - o[1]) / d[1], 0.0)
-        t_side = wp.min(t_x, t_y)
+        exits = cell_exits(o, d, x0, y0, px, py)
+        t_side = wp.min(exits[0], exits[1])
         t_exit = wp.min(t_top, t_side)
         hit = int(0)
         if brute_force != 0:
@@ -69,11 +62,7 @@ def trace_periodic(mesh: wp.uint64, vertices: wp.array(dtype=wp.vec3), faces: wp
             return 0
         if t_top <= t_side:
             return 1
-        o = o + t_exit * d
-        if t_x <= t_exit:
-            o = wp.vec3(o[0] - wp.sign(d[0]) * px, o[1], o[2])
-        if t_y <= t_exit:
-            o = wp.vec3(o[0], o[1] - wp.sign(d[1]) * py, o[2])
+        o = next_cell(o, d, t_exit, exits, px, py)
         back = eps
     return 1
 
