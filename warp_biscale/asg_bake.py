@@ -44,7 +44,8 @@ from . import directions as dirs
 from . import lobes as lobes_mod
 from . import sg
 from .brdf import Lambert, as_material_list
-from .effective import EffectiveBRDF, Provenance, _brdf_from_dict, _brdf_to_dict, interpolated_amplitudes
+from .effective import (HostOnlyBRDF, Provenance, _brdf_from_dict, _brdf_to_dict,
+                        interpolated_amplitudes)
 from .io import read_npz, save_npz
 from .model import Bvndf
 from .progress import as_progress
@@ -362,7 +363,7 @@ def convolve_sg_at(asgs: asg_mod.ASG, sharpness, p):
         expo = c.lam * a * a * k ** (1.0 - sx) + c.mu * b * b * k ** (1.0 - sy)
     return c.amplitude * smooth * np.exp(-expo)
 
-class ASGBRDF(EffectiveBRDF):
+class ASGBRDF(HostOnlyBRDF):
     """A material baked by the ASG method (`wb.bake(tile, materials, method="asg", lobes=J)`).
 
     The interface of `EffectiveBRDF`: `eval(wi, wo)` (cosine θi included; μ/cos θi bilinear on the grid as the
@@ -375,7 +376,7 @@ class ASGBRDF(EffectiveBRDF):
     VERSION = 1
     VERSIONS = (1,)
     FORMAT = "asg_brdf"
-    host_texels = True  # no texel kernel reads ASG tables: a lit sphere of it is made by `eval` on the host
+    no_sg_lobes = NO_SG_LOBES
 
     def __init__(self, asgs: asg_mod.ASG, weight, amplitudes, materials, directions: int, timings=None, info=None,
                  bvndf=None, provenance: Provenance | None = None, path=None):
@@ -413,22 +414,6 @@ class ASGBRDF(EffectiveBRDF):
 
     def __repr__(self):
         return f"ASGBRDF(K={self.directions}, lobes={len(self.weight)}, materials={self.materials})"
-
-    # ------------------------------------------------------------------ what the SG form has and this has not
-    @property
-    def lobes(self):
-        raise ValueError(NO_SG_LOBES)
-
-    @property
-    def diffuse(self):
-        raise ValueError(NO_SG_LOBES)
-
-    def _interpolated_amplitudes(self, wi, wo):
-        raise ValueError(NO_SG_LOBES)
-
-    def export_mitsuba(self, path) -> dict:
-        """Refused before anything is written: the Mitsuba plugin evaluates and samples SG lobes."""
-        raise ValueError(NO_SG_LOBES)
 
     # ------------------------------------------------------------------ edits
     def with_materials(self, materials) -> ASGBRDF:

@@ -304,3 +304,28 @@ def compare(mat, gt, method: str | None = None) -> dict:
     rel = float(np.max(np.abs(diff[big]) / ref[big])) if big.any() else 0.0
     psnr = float("inf") if rmse == 0 else float(20 * np.log10(peak / rmse)) if peak > 0 else float("-inf")
     return {"rmse": rmse, "psnr": psnr, "max_rel_error": rel, "peak": peak}
+
+
+class HostOnlyBRDF(EffectiveBRDF):
+    """An effective BRDF with no SG lobes (the ASG and matrix methods' materials): what reads SG lobes — the
+    SG renderer, the Monte Carlo reference's sampling, the Mitsuba export — gets `no_sg_lobes` as a one-line
+    ValueError, and the lit-sphere renderer evaluates it on the host (`host_texels`: no texel kernel reads
+    its tables). A subclass sets `no_sg_lobes` and its own eval, files and tables."""
+
+    host_texels = True
+    no_sg_lobes = "this material has no SG lobes"
+
+    @property
+    def lobes(self):
+        raise ValueError(self.no_sg_lobes)
+
+    @property
+    def diffuse(self):
+        raise ValueError(self.no_sg_lobes)
+
+    def _interpolated_amplitudes(self, wi, wo):
+        raise ValueError(self.no_sg_lobes)
+
+    def export_mitsuba(self, path) -> dict:
+        """Refused before anything is written: the Mitsuba plugin evaluates and samples SG lobes."""
+        raise ValueError(self.no_sg_lobes)

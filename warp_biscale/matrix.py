@@ -60,7 +60,7 @@ import numpy as np
 
 from . import directions as dirs
 from .brdf import BLINN_PHONG, COOK_TORRANCE, LAMBERT, WARD, as_material_list
-from .effective import EffectiveBRDF, Provenance, _brdf_from_dict, _brdf_to_dict
+from .effective import HostOnlyBRDF, Provenance, _brdf_from_dict, _brdf_to_dict
 from .io import read_npz, save_npz
 from .model import Bvndf
 
@@ -1125,7 +1125,7 @@ def _factor_info(mf) -> dict:
             "key": mf.key}
 
 
-class MatrixBRDF(EffectiveBRDF):
+class MatrixBRDF(HostOnlyBRDF):
     """A material baked by Wu's matrix method (`wb.bake(tile, materials, method="matrix")`): f̄ on the K×K
     grid from the factors of the bake's BVNDF histogram N (per colour channel) and of each small-scale
     BRDF's pre-rotated, cosine-weighted matrix M (precomputed once per material and cached on disk), by
@@ -1145,7 +1145,7 @@ class MatrixBRDF(EffectiveBRDF):
     VERSION = 1
     VERSIONS = (1,)
     FORMAT = "matrix_brdf"
-    host_texels = True  # no texel kernel reads these tables: a lit sphere of it is made by `eval` on the host
+    no_sg_lobes = NO_LOBES
 
     def __init__(self, tables, materials, directions: int, bvndf: Bvndf, channels, factors=None, settings=None,
                  timings=None, info=None, provenance: Provenance | None = None, path=None, backend=None):
@@ -1199,22 +1199,7 @@ class MatrixBRDF(EffectiveBRDF):
 
     # ------------------------------------------------------------------ what the SG form has and this has not
     @property
-    def lobes(self):
-        raise ValueError(NO_LOBES)
-
-    @property
-    def amplitudes(self):
-        raise ValueError(NO_LOBES)
-
-    @property
-    def diffuse(self):
-        raise ValueError(NO_LOBES)
-
-    def _interpolated_amplitudes(self, wi, wo):
-        raise ValueError(NO_LOBES)
-
-    def export_mitsuba(self, path) -> dict:
-        """Refused before anything is written: the Mitsuba plugin evaluates and samples SG lobes."""
+    def amplitudes(self):  # (HostOnlyBRDF refuses the lobes, the diffuse table and the Mitsuba export)
         raise ValueError(NO_LOBES)
 
     # ------------------------------------------------------------------ tables and memory
