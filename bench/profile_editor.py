@@ -16,11 +16,51 @@ import warnings
 
 import warp_biscale as wb
 from warp_biscale.editor import Editor
+from warp_biscale.scene import Scene
 
 warnings.filterwarnings("ignore", category=wb.EnergyWarning)
 
 EDITS = {"geometry": ("tile.height", (0.45, 0.55)), "brdf": ("material0.exponent", (200.0, 300.0)),
          "light": ("light.elevation", (40.0, 50.0))}
+
+
+def edit_parts(ed, runs=20):
+    """Device-synchronised times (ms, medians) of the pieces of an edit on the editor's current design: the
+    frame's shade, its tone map and read-back, the static inputs of a material edit, and the bake's stages
+    for the current tile (its visibility rays alone, the whole bake)."""
+    from warp_biscale import directions as dirs
+    from warp_biscale.render import static_inputs
+
+    be, scene = ed.backend, ed.scene
+    cam, lights = scene.camera, scene.lights_packed
+
+    def timed(f):
+        out = []
+        for _ in range(runs):
+            be.synchronize()
+            t0 = time.perf_counter()
+            f()
+            be.synchronize()
+            out.append(time.perf_counter() - t0)
+        return round(sorted(out)[len(out) // 2] * 1e3, 3)
+
+    static = static_inputs(scene, be)
+    res = {"shade": timed(lambda: be.shade(scene.mesh, static, cam.packed(), lights, to_host=False)),
+           "frame_u8": timed(lambda: be.frame_u8(scene.mesh, cam.width, cam.height)),
+           "shadows": timed(lambda: be.trace_shadows(scene.mesh, None, lights, to_host=False, samples=1))}
+    mat = ed.effective
+
+    def material_edit():
+        s = Scene(scene.mesh, [mat.with_materials(list(mat.materials)), *scene.materials[1:]], cam,
+                  scene.environment, scene.lights, ssdf_resolution=scene.ssdf_resolution)
+        static_inputs(s, be)
+    res["static (material edit)"] = timed(material_edit)
+    tile = ed.tile
+    fac = be.sample_facets(tile, 1 << 16, 0)
+    grid = dirs.frozen_grid(12)
+    res["visibility rays"] = timed(lambda: be.visibility(tile, fac, grid))
+    res["pyramid tile build"] = timed(lambda: ed._tile(ed._state))
+    return res
 
 
 def main(argv=None):
@@ -30,11 +70,16 @@ def main(argv=None):
     ap.add_argument("--edits", type=int, default=10)
     ap.add_argument("--kinds", nargs="+", default=list(EDITS))
     ap.add_argument("--top", type=int, default=25)
+    ap.add_argument("--sort", default="tottime", help="pstats order: tottime (own time) or cumulative")
+    ap.add_argument("--parts", action="store_true", help="time the edit's pieces instead (device-synchronised)")
     a = ap.parse_args(argv)
     w, h = (int(x) for x in a.size.split("x"))
     for backend in a.backends:
         be = wb.get_backend(backend)
         ed = Editor("pyramid", backend=be, width=w, height=h)
+        if a.parts:
+            print(f"== {be.name} parts (ms): {edit_parts(ed)}")
+            continue
         for kind in a.kinds:
             name, values = EDITS[kind]
             for v in (values[1], values[0], values[1]):  # warm
@@ -48,12 +93,12 @@ def main(argv=None):
                 prof.disable()
                 walls.append(time.perf_counter() - t0)
             walls.sort()
-            parts = {k: round(v * 1e3, 2) for k, v in ed.timings.items() if isinstance(v, float)}
+            last = {k: round(v * 1e3, 2) for k, v in ed.timings.items() if isinstance(v, float)}
             stages = {k: round(v * 1e3, 2) for k, v in (ed.effective.timings or {}).items()}
-            print(f"== {be.name} {kind}: median {walls[len(walls) // 2] * 1e3:.2f} ms; last {parts}; "
+            print(f"== {be.name} {kind}: median {walls[len(walls) // 2] * 1e3:.2f} ms; last {last}; "
                   f"bake stages {stages}")
             s = io.StringIO()
-            pstats.Stats(prof, stream=s).sort_stats("tottime").print_stats(a.top)
+            pstats.Stats(prof, stream=s).sort_stats(a.sort).print_stats(a.top)
             print("\n".join(line for line in s.getvalue().splitlines()[6:] if line.strip()))
 
 

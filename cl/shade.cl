@@ -235,7 +235,18 @@ CL_INLINE void grid_bilinear(float3 w, int k, int *idx, float *wgt)
     wgt[3] = tx * ty;
 }
 
-/* Bilinear (ωi) × bilinear (ωo) lookup of a (K², K², J, 3) table at lobe j; oo, ow: ωo's corners. */
+/* cos θ of direction i of the K×K grid (directions.grid: 1 − r², r the cell centre's concentric radius). */
+CL_INLINE float grid_cos(int i, int k)
+{
+    float a = fabs(2.0f * ((float)(i % k) + 0.5f) / (float)k - 1.0f);
+    float b = fabs(2.0f * ((float)(i / k) + 0.5f) / (float)k - 1.0f);
+    float r = fmax(a, b);
+    return 1.0f - r * r;
+}
+
+/* Bilinear (ωi) × bilinear (ωo) lookup of value/cos θi in a (K², K², J, 3) table of values at lobe j; oo,
+ * ow: ωo's corners. The division by each ωi corner's cos θi is done here, so that a bake's tables are read
+ * as they are (no host copy per edit). */
 CL_INLINE float3 table_rgb(__global const float *table, int base, int k2, int j_count, int j, float3 wi_local, int k,
                            const int *oo, const float *ow)
 {
@@ -244,9 +255,10 @@ CL_INLINE float3 table_rgb(__global const float *table, int base, int k2, int j_
     grid_bilinear(wi_local, k, ii, iw);
     float3 out = (float3)(0.0f, 0.0f, 0.0f);
     for (int a = 0; a < 4; ++a) {
+        float wa = iw[a] / grid_cos(ii[a], k);
         for (int b = 0; b < 4; ++b) {
             int i = base + ((ii[a] * k2 + oo[b]) * j_count + j) * 3;
-            float wgt = iw[a] * ow[b];
+            float wgt = wa * ow[b];
             out = out + wgt * (float3)(table[i], table[i + 1], table[i + 2]);
         }
     }
@@ -475,13 +487,16 @@ __kernel void shade_pixels(
     __global const float *uvs,          /* (V, 2) */
     __global const int *tex_info,       /* (T, 4) [texel offset, H, W, 0] */
     __global const float *tex_data,     /* (Σ H·W, 3) */
-    const int n_pixels,
+    const int n_pixels, const int only_material,
     __global float *radiance)           /* (P, 3) */
 {
     int p = get_global_id(0);
     if (p >= n_pixels)
         return;
     int f = face[p];
+    /* only that material's pixels: the others keep the radiance they have */
+    if (only_material >= 0 && (f < 0 || face_material[f] != only_material))
+        return;
     if (f < 0) {
         float3 d = camera_ray(forward, right, up, cam_w, cam_h, p);
         store3(radiance, p, prefiltered(env_maps, env_levels, n_levels, d, 1.0e30f));

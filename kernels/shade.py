@@ -11,6 +11,11 @@ import warp as wp
 
 from warp_biscale import sg as _sg
 
+# Fast math on CUDA (approximate division, square root, exp and trigonometry): this shading is bound by its
+# arithmetic, and its float32 results are read against the float64 oracle with tolerances far above fast
+# math's error. cl/'s twin is built alike (opencl_backend.FAST_MATH).
+wp.set_module_options({"fast_math": True})
+
 PI = wp.constant(3.14159265358979)
 LOG_LO = wp.constant(_sg.TABLE_LOG10_ETA[0])
 LOG_HI = wp.constant(_sg.TABLE_LOG10_ETA[1])
@@ -190,16 +195,28 @@ def grid_weights(w: wp.vec3, k: int) -> wp.vec4:
 
 
 @wp.func
+def grid_cos(i: int, k: int) -> float:
+    """cos θ of direction i of the K×K grid (directions.grid: 1 − r², r the cell centre's concentric radius)."""
+    a = wp.abs(2.0 * (float(i % k) + 0.5) / float(k) - 1.0)
+    b = wp.abs(2.0 * (float(i / k) + 0.5) / float(k) - 1.0)
+    r = wp.max(a, b)
+    return 1.0 - r * r
+
+
+@wp.func
 def table_rgb(table: wp.array(dtype=wp.float32), base: int, k2: int, j_count: int, j: int, wi_local: wp.vec3, k: int,
               oo: vec4i, ow: wp.vec4) -> wp.vec3:
-    """Bilinear (ωi) × bilinear (ωo) lookup of a (K², K², J, 3) table at lobe j."""
+    """Bilinear (ωi) × bilinear (ωo) lookup of value/cos θi in a (K², K², J, 3) table of values at lobe j:
+    the division by each ωi corner's cos θi is done here, so that a bake's tables are read as they are
+    (no host copy per edit)."""
     ii = grid_corners(wi_local, k)
     iw = grid_weights(wi_local, k)
     out = wp.vec3(0.0)
     for a in range(4):
+        wa = iw[a] / grid_cos(ii[a], k)
         for b in range(4):
             idx = base + ((ii[a] * k2 + oo[b]) * j_count + j) * 3
-            wgt = iw[a] * ow[b]
+            wgt = wa * ow[b]
             out = out + wgt * wp.vec3(table[idx], table[idx + 1], table[idx + 2])
     return out
 
@@ -419,13 +436,18 @@ def shade_pixels(
     eff_sub: wp.array2d(dtype=wp.float32), eff_tables: wp.array(dtype=wp.float32),
     eff_diffuse: wp.array(dtype=wp.float32),
     uvs: wp.array(dtype=wp.vec2), tex_info: wp.array2d(dtype=wp.int32), tex_data: wp.array(dtype=wp.vec3),
-    n_pixels: int, offset: int,
+    n_pixels: int, only_material: int, offset: int,
     radiance: wp.array(dtype=wp.vec3),
 ):
     p = wp.tid() + offset
     if p >= n_pixels:
         return
     f = face[p]
+    if only_material >= 0:  # only that material's pixels: the others keep the radiance they have
+        if f < 0:
+            return
+        if face_material[f] != only_material:
+            return
     if f < 0:
         radiance[p] = prefiltered(env_maps, env_levels, camera_ray(camera, p), 1.0e30)
         return

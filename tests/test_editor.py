@@ -89,6 +89,20 @@ def test_geometry_rebakes_and_materials_do_not(pyramid):
     assert ed.set("light.elevation", 20.0) == "none"  # nothing changed: nothing redone
 
 
+def test_design_edits_shade_only_the_design_and_give_the_whole_frame(backend):
+    """A geometry or material edit with the light unchanged shades only the design's pixels over the frame on
+    the device; what is shown is the whole frame's tone map (host and device tone maps agree within one
+    8-bit step, tests/test_tonemap.py). A light edit shades the whole frame."""
+    ed = E.Editor("pyramid", backend=backend, **SIZE)
+    for name, value in FAST.items():
+        ed.set(name, value)
+    for name, value in (("material0.exponent", 40.0), ("tile.height", 0.9), ("light.elevation", 35.0)):
+        ed.set(name, value)
+        assert ed.timings["shaded"] == ("frame" if name.startswith("light") else "design")
+        shown, whole = ed.image8().astype(int), wb.images.tonemap(ed.frame()).astype(int)
+        assert np.abs(shown - whole).max() <= 1, name
+
+
 def test_a_material_kind_brings_its_own_controls(pyramid):
     ed = pyramid
     ed.set("material0.kind", "cooktorrance")

@@ -113,6 +113,34 @@ def test_driver_reuses_static_work_and_skips_what_is_not_needed(backend):
     assert "shadows" not in out.timings and "ssdf" not in out.timings  # no lights, no environment
 
 
+def test_material_edit_uploads_only_what_changed(backend):
+    """A material edit (EffectiveBRDF.with_materials: a new ShadeInputs with the same mesh, environment and
+    μ tables) keeps the device copies of what it did not change, and its frame is the one a backend that
+    uploads everything afresh renders, bit for bit; a new bake's tables are uploaded again."""
+    tile = wb.geometry.pyramid(height=0.5)
+    baked = wb.bake(tile, [wb.BlinnPhong(0.5, 60, kd=0.2)], lobes=2, directions=4, facets=1 << 11, backend=backend)
+    scene = _glossy_scene(24)
+    first = Scene(scene.mesh, [baked, wb.Lambert(0.5)], scene.camera, scene.environment, scene.lights)
+    wb.render(first, backend=backend)
+    edited = baked.with_materials([wb.BlinnPhong(0.3, 200, kd=(0.5, 0.2, 0.1))])
+    second = Scene(scene.mesh, [edited, wb.Lambert(0.5)], scene.camera, scene.environment, scene.lights)
+    image = wb.render(second, backend=backend).image
+    dev1, dev2 = ([v for k, v in s.cache.items() if k[0] == "static"][0].device[backend.name] for s in (first, second))
+    assert dev2["eff_tables"] is dev1["eff_tables"] and dev2["positions"] is dev1["positions"]
+    assert dev2["env_maps"] is dev1["env_maps"] and dev2["ssdf_coeffs"] is dev1["ssdf_coeffs"]
+    assert dev2["eff_sub"] is not dev1["eff_sub"]  # the new small-scale BRDF's row
+    backend._shade_inputs_held.clear()  # what a backend that never saw the first scene holds
+    cold = Scene(scene.mesh, [edited, wb.Lambert(0.5)], scene.camera, scene.environment, scene.lights)
+    np.testing.assert_array_equal(wb.render(cold, backend=backend).image, image)
+    dev_cold = [v for k, v in cold.cache.items() if k[0] == "static"][0].device[backend.name]
+    rebaked = wb.bake(wb.geometry.pyramid(height=0.3), [wb.BlinnPhong(0.5, 60, kd=0.2)], lobes=2, directions=4,
+                      facets=1 << 11, backend=backend)
+    third = Scene(scene.mesh, [rebaked, wb.Lambert(0.5)], scene.camera, scene.environment, scene.lights)
+    wb.render(third, backend=backend)
+    dev3 = [v for k, v in third.cache.items() if k[0] == "static"][0].device[backend.name]
+    assert dev3["eff_tables"] is not dev_cold["eff_tables"] and dev3["positions"] is dev_cold["positions"]
+
+
 def test_degenerate_mesh_never_yields_nan(backend):
     """A zero-area face and opposite vertex normals that cancel on a face: finite, non-negative radiance."""
     v = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0], [0, 0, 0]], float)

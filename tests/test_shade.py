@@ -89,3 +89,33 @@ def test_shade_uses_device_gbuffer(backend, effective_material):
     backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=SHADOW_SAMPLES)  # as pack_frame
     dev = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights)
     np.testing.assert_array_equal(dev, host)
+
+
+def test_shade_only_one_material_over_the_last_frame(backend, effective_material):
+    """only_material m: the pixels of material m shaded again, the rest kept from the last frame (bit for bit
+    each as a whole shade of its own inputs gives them: here materials 0 and 1 changed, only 1 is shaded);
+    misused, a one-line error."""
+    scene = _scenes(effective_material)["occluded"]
+    frame = pack_frame(scene, backend)
+    backend.trace_primary(scene.mesh, scene.camera, to_host=False)
+    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=SHADOW_SAMPLES)
+    before = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights)
+    edited = Scene(scene.mesh, [wb.Lambert(0.9), wb.Ward(0.2, 0.3, kd=(0.6, 0.1, 0.1)), scene.materials[2]],
+                   scene.camera, scene.environment, scene.lights, ssdf_resolution=16, ssdf_terms=8)
+    inputs = pack_frame(edited, backend).inputs
+    backend.trace_primary(scene.mesh, scene.camera, to_host=False)
+    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=SHADOW_SAMPLES)
+    backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights, to_host=False)
+    masked = backend.shade(scene.mesh, inputs, frame.camera, frame.lights, only_material=1)
+    whole = backend.shade(scene.mesh, inputs, frame.camera, frame.lights)
+    face = frame.gbuffer.face
+    torus = (face >= 0) & (scene.mesh.face_material[np.maximum(face, 0)] == 1)
+    sphere = (face >= 0) & (scene.mesh.face_material[np.maximum(face, 0)] == 0)
+    assert torus.sum() > 20 and sphere.sum() > 20  # both edited materials are in view
+    assert not np.array_equal(whole[sphere], before[sphere]) and not np.array_equal(whole[torus], before[torus])
+    np.testing.assert_array_equal(masked[torus], whole[torus])
+    np.testing.assert_array_equal(masked[~torus], before[~torus])
+    with pytest.raises(ValueError, match="gbuffer=None"):
+        backend.shade(scene.mesh, inputs, frame.camera, frame.lights, gbuffer=frame.gbuffer, only_material=1)
+    with pytest.raises(ValueError, match="material index"):
+        backend.shade(scene.mesh, inputs, frame.camera, frame.lights, only_material=3)

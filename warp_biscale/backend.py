@@ -157,7 +157,8 @@ class Backend(Protocol):
 
     # --- Per-pixel SG shading (stage `shade`: kernels/shade.py, cl/shade.cl; warp_biscale.shading) ---
     def shade(self, mesh, static: ShadeInputs, camera_packed: np.ndarray, lights_packed: np.ndarray,
-              gbuffer: GBuffer | None = None, to_host: bool = True) -> np.ndarray | None:
+              gbuffer: GBuffer | None = None, to_host: bool = True,
+              only_material: int | None = None) -> np.ndarray | None:
         """(P, 3) float32 outgoing radiance of every pixel (shading.shade_reference; P = W·H, row-major),
         never NaN, inf or negative; background pixels get the environment along the camera ray.
         `static`: the scene's packed inputs (render._static_inputs), uploaded once and kept in
@@ -165,7 +166,12 @@ class Backend(Protocol):
         The G-buffer: gbuffer None → the one the last trace_primary / trace_shadows left on the
         device for `mesh` (the render path; ValueError if absent or traced for another light count),
         or a host GBuffer with face, bary and light_vis (uploaded). The output buffer is kept
-        in mesh.device_cache[self.name]["radiance"] and reused; returns None unless to_host."""
+        in mesh.device_cache[self.name]["radiance"] and reused; returns None unless to_host.
+        only_material m: shade only the pixels of faces of material m, and leave every other pixel as
+        the last shade of this mesh's device G-buffer left it (gbuffer None only; ValueError if the
+        kept radiance is for another frame size): after an edit of one material, with the camera,
+        lights and environment unchanged, the same frame as a whole shade, for that material's share
+        of the work."""
 
     # --- Prefiltered environment (stage `envmap`: kernels/envmap.py, cl/envmap.cl; warp_biscale.lighting) ---
     def prefilter_level(self, radiance: np.ndarray, sharpness: float, height: int, width: int) -> np.ndarray:

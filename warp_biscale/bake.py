@@ -45,6 +45,12 @@ HISTOGRAM_BYTES = 1 << 30  # the dense histogram N (pairs × non-empty bins) is 
 METHOD_BAKES: dict = {}
 
 
+def _one_channel(tile) -> bool:
+    """Whether all the tile's faces have one material and one colour (see `_channels`)."""
+    ids, colors = tile.material_ids, tile.colors
+    return bool(len(ids) and (ids == ids[0]).all() and (colors == colors[0]).all())
+
+
 def _channels(tile, facets):
     """Split the facets' weights into scalar channels: → list of (material, rgb multiplier, weight).
 
@@ -54,9 +60,8 @@ def _channels(tile, facets):
     colour applied afterwards (one sum instead of three); a material with several colours gets three
     channels, weights ΔA·c_s for R, G and B.
     """
-    ids, colors = tile.material_ids, tile.colors
-    if len(ids) and (ids == ids[0]).all() and (colors == colors[0]).all():
-        return [(int(ids[0]), colors[0].astype(np.float64), None)]
+    if _one_channel(tile):
+        return [(int(tile.material_ids[0]), tile.colors[0].astype(np.float64), None)]
     area = facets.area.astype(np.float64)
     out = []
     for m in range(tile.n_materials):
@@ -296,10 +301,14 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
 
 
 def _sample_facets(tile, be, count, seed, grid, r, timer, prog) -> _Queued:
-    """Facets, and each one's normal bin; the normals are read back now, before the rays queue behind them."""
+    """Facets, and each one's normal bin; the normals (and, for a tile of several materials or colours, the
+    facets' faces that `_channels` splits them by) are read back now, before the rays queue behind them:
+    read later, they would wait for the rays, and the host's work would not overlap them."""
     prog.stage(f"facets ({count})", 1)
     fac = timer("facets", be.sample_facets, tile, count, seed)
     bins = timer("bvndf", be.normal_bins, fac, r)
+    if not _one_channel(tile):
+        fac.face  # noqa: B018 (the read-back itself is wanted here)
     return _Queued(fac, bins, fac.normal, grid)
 
 

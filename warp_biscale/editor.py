@@ -259,6 +259,10 @@ def _brush(n: int, x: float, y: float, radius: float) -> np.ndarray:
 
 
 _BALL: dict = {}
+# (backend name, id of the mesh) → the frame key (Editor._frame_key) of the editor that last shaded that
+# mesh's device frame: an editor shades only its design's pixels over a frame that is its own and still
+# current (the ball mesh is shared by every editor of the process).
+_SHADED: dict = {}
 
 
 def default_scene(width: int, height: int) -> tuple[Mesh, Camera]:
@@ -543,7 +547,14 @@ class Editor:
         if self.scene is not None and self.scene.materials[0] is effective:
             scene.cache = self.scene.cache  # the same materials, mesh and environment: the static inputs stand
         t0 = time.perf_counter()
-        shown, image = self._render(scene, _renderer(state), timings)
+        # A geometry or material edit changes the design's pixels only: with the same camera, light and
+        # environment as the frame on the device, only those are shaded again.
+        key = (_renderer(state), coarse, self.width, self.height, tuple(sorted(state["light"].items())))
+        shaded = (self.backend.name, id(scene.mesh))
+        only = 0 if redo in ("bake", "materials") and _SHADED.pop(shaded, None) == key else None
+        timings["shaded"] = "design" if only is not None else "frame"
+        shown, image = self._render(scene, _renderer(state), timings, only)
+        _SHADED[shaded] = key  # (only once the frame is whole: a failed render leaves no key)
         if coarse:
             shown = _enlarged(shown, self.width, self.height)
         timings["render"] = time.perf_counter() - t0
@@ -555,7 +566,7 @@ class Editor:
         self._coarse_frame = coarse
         self.timings = timings
 
-    def _render(self, scene, method, timings) -> tuple:
+    def _render(self, scene, method, timings, only_material=None) -> tuple:
         """→ (the frame for display, (H, W, 3) uint8; its radiance, float32, or None: read when asked). The
         SG frame is shaded and tone-mapped on the device and only its bytes come back; the camera's G-buffer
         and the shadow rays are traced again only when the camera, the lights or the mesh changed."""
@@ -568,7 +579,7 @@ class Editor:
         be.trace_primary(scene.mesh, cam, to_host=False, if_changed=True)
         if len(lights):
             be.trace_shadows(scene.mesh, None, lights, to_host=False, samples=1, if_changed=True)
-        be.shade(scene.mesh, static, cam.packed(), lights, to_host=False)
+        be.shade(scene.mesh, static, cam.packed(), lights, to_host=False, only_material=only_material)
         return be.frame_u8(scene.mesh, cam.width, cam.height), None
 
     # ------------------------------------------------------------------ output

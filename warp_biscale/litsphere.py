@@ -161,8 +161,8 @@ def sphere_image(material, phi_degrees: float, resolution: int) -> np.ndarray:
 
 def texel_inputs(material) -> dict:
     """What the texel kernels (kernels/litsphere.py sphere_texels) read for `material`: an analytic BRDF
-    as its packed row (brdf.pack_materials), an EffectiveBRDF as its lobes, its amplitude table divided by
-    the grid's cos θi (as EffectiveBRDF.eval interpolates it) and its small-scale BRDFs' rows."""
+    as its packed row (brdf.pack_materials), an EffectiveBRDF as its lobes, its amplitude table (the lookup
+    divides by the grid's cos θi, as EffectiveBRDF.eval interpolates μ/cos θi) and its small-scale BRDFs' rows."""
     if isinstance(material, EffectiveBRDF):
         kinds, params = pack_materials(material.materials)
         lobes = material.lobes
@@ -171,8 +171,7 @@ def texel_inputs(material) -> dict:
                                   int(material.method == "sg-exact")], np.int32),
                 "lobes": np.column_stack([lobes.axes, lobes.sharpness,
                                           sg.integral(lobes.sharpness)]).astype(np.float32),
-                "amplitudes": (material.amplitudes
-                               / material.grid[:, 2][None, :, None, None, None]).astype(np.float32).ravel()}
+                "amplitudes": material.amplitudes.ravel()}
     kinds, params = pack_materials([material])
     return {"effective": 0, "kinds": kinds, "params": params.astype(np.float32), "info": np.zeros(4, np.int32),
             "lobes": np.zeros((1, 5), np.float32), "amplitudes": np.zeros(1, np.float32)}

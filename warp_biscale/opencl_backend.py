@@ -182,7 +182,7 @@ def build_options(device) -> list[str]:
 # Stages built with fast math, as their Warp modules are (wp.set_module_options fast_math): shading
 # bound by its arithmetic, whose float32 results are read against a float64 oracle with tolerances far
 # above fast math's ~1e-5 relative error. (It assumes finite values: their output guard tests bits.)
-FAST_MATH = {"litsphere"}
+FAST_MATH = {"litsphere", "shade"}
 
 
 def stage_options(options: list[str], stem: str) -> list[str]:
@@ -722,16 +722,19 @@ class OpenCLBackend(DeviceBackend):
         """Empty arrays become one-element dummies the kernel never reads."""
         has_ssdf = int(static.has_ssdf)
         table = np.asarray(static.table, np.float32)
+
+        def buf(key, dtype, host=None):
+            return self._shade_input(key, getattr(static, key) if host is None else host,
+                                     lambda a: self._buffer(a, dtype))
+
         return {
-            **{key: self._buffer(getattr(static, key), np.int32) for key in ("faces", "face_material", "mat_info",
-                                                                               "eff_info", "tex_info")},
-            **{key: self._buffer(getattr(static, key), np.float32) for key in (
+            **{key: buf(key, np.int32) for key in ("faces", "face_material", "mat_info", "eff_info", "tex_info")},
+            **{key: buf(key, np.float32) for key in (
                 "positions", "normals", "tangents", "env_sgs", "env_residual", "env_maps", "analytic", "eff_lobes",
-                "eff_sub",
-                "eff_tables", "eff_diffuse", "uvs", "tex_data")},
-            "env_levels": self._buffer(levels, np.float32),
-            "ssdf_basis": self._buffer(basis.T, np.float32),  # texel-major (res², terms + 1)
-            "ssdf_coeffs": self._buffer(coeffs, np.float32), "table": self._buffer(table, np.float32),
+                "eff_sub", "eff_tables", "eff_diffuse", "uvs", "tex_data")},
+            "env_levels": buf("env_levels", np.float32, levels),
+            "ssdf_basis": buf("ssdf_basis", np.float32, basis.T),  # texel-major (res², terms + 1)
+            "ssdf_coeffs": buf("ssdf_coeffs", np.float32, coeffs), "table": buf("table", np.float32, table),
             # Counts and shapes that the kernel takes by value.
             "n_env": np.int32(len(static.env_sgs)), "n_levels": np.int32(len(levels)),
             "residual_shape": tuple(np.int32(x) for x in np.shape(static.env_residual)[:2]),
@@ -742,7 +745,7 @@ class OpenCLBackend(DeviceBackend):
                            np.float32(sg.SHARPNESS_MAX)),
         }
 
-    def _launch_shade(self, dev, m, face, bary, vis, lights, camera, n, out):
+    def _launch_shade(self, dev, m, face, bary, vis, lights, camera, n, only_material, out):
         cltypes = self._cl.cltypes
         light_buf = self._reuse(m, "shade_lights", (max(1, len(lights)), 8), "f32")
         if len(lights):
@@ -756,7 +759,7 @@ class OpenCLBackend(DeviceBackend):
                      dev["n_levels"], dev["env_levels"], *dev["ssdf_args"], dev["ssdf_basis"],
                      dev["ssdf_coeffs"], dev["table"], *dev["table_args"], dev["mat_info"], dev["analytic"],
                      dev["eff_info"], dev["eff_lobes"], dev["eff_sub"], dev["eff_tables"], dev["eff_diffuse"],
-                     dev["uvs"], dev["tex_info"], dev["tex_data"], np.int32(n), out)
+                     dev["uvs"], dev["tex_info"], dev["tex_data"], np.int32(n), np.int32(only_material), out)
 
     def _upload_spheres(self, spheres):
         return {"of_material": self._buffer(spheres.sphere_of_material, np.int32),

@@ -70,18 +70,23 @@ def _static_inputs(scene: Scene, backend, progress, timings) -> ShadeInputs:
                 coeffs = np.zeros((len(mesh.vertices), 1), np.float32)
                 basis = np.concatenate([basis, np.zeros((1, basis.shape[1]), np.float32)])
     t0 = time.perf_counter()
+    # The mesh's arrays as the kernels read them, made once per mesh: the same arrays in every ShadeInputs
+    # of the mesh, so that a material edit's new ShadeInputs uploads none of them again (Backend._shade_input).
     host = mesh.device_cache.setdefault("host", {})
     if "tangents" not in host:
         host["tangents"] = vertex_tangents(mesh).astype(np.float32)
+    if "positions" not in host:
+        host["positions"] = mesh.vertices.astype(np.float32)
+        host["normals"] = mesh.normals.astype(np.float32)
+        # texture coordinates for the textured materials' lookups (zeros when the mesh has none: no
+        # textured material can then be rendered, Scene checks it)
+        host["uvs"] = (mesh.uvs if mesh.uvs is not None else np.zeros((len(mesh.vertices), 2))).astype(np.float32)
     packed = pack_materials(scene.materials)
     timings["materials"] = time.perf_counter() - t0
     lobes, residual = light.diffuse_lobes(has_ssdf)
     static = ShadeInputs(
-        faces=mesh.faces, positions=mesh.vertices.astype(np.float32), normals=mesh.normals.astype(np.float32),
-        tangents=host["tangents"], face_material=mesh.face_material,
-        # texture coordinates for the textured materials' lookups (zeros when the mesh has none: no
-        # textured material can then be rendered, Scene checks it)
-        uvs=(mesh.uvs if mesh.uvs is not None else np.zeros((len(mesh.vertices), 2))).astype(np.float32),
+        faces=mesh.faces, positions=host["positions"], normals=host["normals"],
+        tangents=host["tangents"], face_material=mesh.face_material, uvs=host["uvs"],
         env_sgs=lobes.packed(), env_residual=residual, env_maps=light.prefiltered.maps,
         env_levels=light.prefiltered.levels,
         has_ssdf=bool(has_ssdf), ssdf_res=int(res), ssdf_basis=np.ascontiguousarray(basis, np.float32),

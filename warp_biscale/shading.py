@@ -40,8 +40,10 @@ bilinear, repeat: `svbrdf.sample`) and use only those values afterwards;
 ``eff_info`` (E, 8) int32 [K, J, n_sub, lobe_offset, sub_offset, table_offset, diffuse_offset, 0];
 ``eff_lobes`` (ΣJ, 4) float32 [axis in the tile frame, η]; ``eff_sub`` (Σn_sub, 9) like ``analytic``;
 ``eff_tables`` float32, per effective material and small-scale material m the (K², K², J, 3) table of
-μ/cos θi (index table_offset + (((m·K² + i)·K² + o)·J + j)·3 + c); ``eff_diffuse`` float32 (K², K², 3)
-f̄d/cos θi per effective material. An effective material's tile frame is (tangent, bitangent, normal)
+μ (index table_offset + (((m·K² + i)·K² + o)·J + j)·3 + c), the bake's own array (a view, no copy: a
+material edit keeps it, and the backends then keep its device copy); ``eff_diffuse`` float32 (K², K², 3)
+f̄d per effective material. The lookups divide each ωi corner by its cos θi (μ/cos θi is what is
+interpolated, as `EffectiveBRDF.eval` does). An effective material's tile frame is (tangent, bitangent, normal)
 with the tangent along the mesh's u direction (`scene.vertex_tangents`).
 """
 
@@ -105,13 +107,12 @@ def pack_materials(materials) -> dict:
             k2 = m.directions**2
             j = len(m.lobes)
             subs = m.materials
-            cos_i = m.grid[:, 2]
             info.append([1, len(eff_info), int(any(_has_specular(s) for s in subs)), -1])
             eff_info.append([m.directions, j, len(subs), n_lobes, n_sub, n_table, n_diffuse, 0])
             eff_lobes.append(np.concatenate([m.lobes.axes, m.lobes.sharpness[:, None]], 1).astype(np.float32))
             eff_sub.extend(_analytic_row(s) for s in subs)
-            table = (m.amplitudes / cos_i[None, :, None, None, None]).astype(np.float32)
-            diffuse = (m.diffuse / cos_i[:, None, None]).astype(np.float32)
+            table = m.amplitudes  # float32, contiguous: ravel() is a view
+            diffuse = np.asarray(m.diffuse, np.float32)
             eff_tables.append(table.ravel())
             eff_diffuse.append(diffuse.ravel())
             n_lobes += j
@@ -131,7 +132,8 @@ def pack_materials(materials) -> dict:
         "eff_info": stack(eff_info, 8, np.int32),
         "eff_lobes": np.concatenate(eff_lobes) if eff_lobes else np.zeros((0, 4), np.float32),
         "eff_sub": stack(eff_sub, 9, np.float32),
-        "eff_tables": np.concatenate(eff_tables) if eff_tables else np.zeros(0, np.float32),
+        "eff_tables": (eff_tables[0] if len(eff_tables) == 1 else
+                       np.concatenate(eff_tables) if eff_tables else np.zeros(0, np.float32)),
         "eff_diffuse": np.concatenate(eff_diffuse) if eff_diffuse else np.zeros(0, np.float32),
         "tex_info": np.asarray(tex_info, np.int32).reshape(-1, 4),
         "tex_data": np.concatenate(tex_data).astype(np.float32),
@@ -173,9 +175,10 @@ def specular_scale(row, cos_d):
 
 
 def _table_interp(table_flat, base, k, j_count, j, wi_local, wo_local):
-    """Bilinear (in ωi) × bilinear (in ωo) lookup of a (K², K², J, 3) μ/cos table → (N, 3)."""
+    """Bilinear (in ωi) × bilinear (in ωo) lookup of value/cos θi in a (K², K², J, 3) table → (N, 3)."""
     ii, iw = dirs.bilinear_corners(wi_local, k)
     oo, ow = dirs.bilinear_corners(wo_local, k)
+    iw = iw / dirs.grid(k)[:, 2][ii]
     k2 = k * k
     out = np.zeros((len(wi_local), 3))
     for a in range(4):

@@ -639,35 +639,39 @@ class WarpBackend(DeviceBackend):
                      [vis])
 
     def _upload_shade_static(self, static, levels, basis, coeffs):
-        def arr(key, dtype, width=None):
-            a = np.asarray(getattr(static, key))
-            if a.size == 0:  # Warp wants no empty arrays: a one-element dummy (the kernel never reads it)
-                a = np.zeros((1, width) if width else 1, a.dtype)
-            return wp.array(np.ascontiguousarray(a), dtype=dtype, device=self._device)
+        def upload(dtype, width=None, shape=None):
+            def make(a):
+                if a.size == 0:  # Warp wants no empty arrays: a one-element dummy (the kernel never reads it)
+                    a = np.zeros((1, width) if width else 1, a.dtype)
+                a = np.ascontiguousarray(a)
+                return wp.array(a if shape is None else a.reshape(shape), dtype=dtype, device=self._device)
+            return make
+
+        def arr(key, dtype, width=None, host=None, shape=None):
+            return self._shade_input(key, getattr(static, key) if host is None else host, upload(dtype, width, shape))
 
         return {
             "faces": arr("faces", wp.int32, 3),
             "positions": arr("positions", wp.vec3), "normals": arr("normals", wp.vec3),
             "tangents": arr("tangents", wp.vec3), "face_material": arr("face_material", wp.int32),
             "env_sgs": arr("env_sgs", wp.float32, 7), "env_maps": arr("env_maps", wp.vec3),
-            "env_residual": wp.array(np.ascontiguousarray(static.env_residual, np.float32).reshape(-1, 3),
-                                     dtype=wp.vec3, device=self._device),
+            "env_residual": arr("env_residual", wp.vec3, host=np.asarray(static.env_residual, np.float32),
+                                shape=(-1, 3)),
             "residual_shape": tuple(int(x) for x in np.shape(static.env_residual)[:2]),
-            "env_levels": wp.array(levels, dtype=wp.float32, device=self._device),
+            "env_levels": arr("env_levels", wp.float32, host=levels),
             # texel-major (res², terms + 1): a lookup reads each corner's terms contiguously
-            "ssdf_basis": wp.array(np.ascontiguousarray(basis.T), dtype=wp.float32, device=self._device),
-            "ssdf_coeffs": wp.array(np.ascontiguousarray(coeffs), dtype=wp.float32, device=self._device),
+            "ssdf_basis": arr("ssdf_basis", wp.float32, host=basis.T),
+            "ssdf_coeffs": arr("ssdf_coeffs", wp.float32, host=coeffs),
             "table": arr("table", wp.float32), "mat_info": arr("mat_info", wp.int32, 4),
             "analytic": arr("analytic", wp.float32, 9), "eff_info": arr("eff_info", wp.int32, 8),
             "eff_lobes": arr("eff_lobes", wp.float32, 4), "eff_sub": arr("eff_sub", wp.float32, 9),
             "eff_tables": arr("eff_tables", wp.float32), "eff_diffuse": arr("eff_diffuse", wp.float32),
             "uvs": arr("uvs", wp.vec2), "tex_info": arr("tex_info", wp.int32, 4),
-            "tex_data": wp.array(np.ascontiguousarray(np.asarray(static.tex_data, np.float32).reshape(-1, 3)),
-                                 dtype=wp.vec3, device=self._device),
+            "tex_data": arr("tex_data", wp.vec3, host=np.asarray(static.tex_data, np.float32), shape=(-1, 3)),
             "n_env": len(static.env_sgs), "has_ssdf": int(static.has_ssdf), "ssdf_res": int(static.ssdf_res),
         }
 
-    def _launch_shade(self, dev, m, face, bary, vis, lights, camera, n, out):
+    def _launch_shade(self, dev, m, face, bary, vis, lights, camera, n, only_material, out):
         light_arr = self._small_upload(m, "shade_lights", lights if len(lights) else np.zeros((1, 8), np.float32))
         self._launch(kshade.shade_pixels, n,
                      [face, bary, vis, dev["faces"], dev["positions"], dev["normals"], dev["tangents"],
@@ -677,7 +681,7 @@ class WarpBackend(DeviceBackend):
                       dev["has_ssdf"], dev["ssdf_res"], dev["ssdf_basis"], dev["ssdf_coeffs"],
                       dev["table"], dev["mat_info"], dev["analytic"], dev["eff_info"], dev["eff_lobes"],
                       dev["eff_sub"], dev["eff_tables"], dev["eff_diffuse"], dev["uvs"], dev["tex_info"],
-                      dev["tex_data"], n],
+                      dev["tex_data"], n, only_material],
                      [out])
 
     def _upload_spheres(self, spheres):
