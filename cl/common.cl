@@ -37,6 +37,7 @@ CL_INLINE void store3(__global float *p, int i, float3 v)
 #define WARD 3
 #define ANISOTROPIC_WARD 4
 #define ASHIKHMIN_SHIRLEY 5
+#define MEASURED 6
 #define INV_PI M_1_PI_F
 #define TANGENT_DEGENERATE 1.0e-4f /* = warp_biscale.brdf.TANGENT_DEGENERATE */
 
@@ -210,6 +211,119 @@ CL_INLINE float3 brdf_cosine_weighted_tangent(int kind, __global const float *pa
     return (float3)(kd.x * (1.0f - ks.x) * diffuse + (ks.x + (1.0f - ks.x) * f5) * spec,
                     kd.y * (1.0f - ks.y) * diffuse + (ks.y + (1.0f - ks.y) * f5) * spec,
                     kd.z * (1.0f - ks.z) * diffuse + (ks.z + (1.0f - ks.z) * f5) * spec);
+}
+
+/* ---- Measured (MERL) BRDFs: twin of kernels/common.py's measured_cosine_weighted; the mathematics is
+ * warp_biscale.measured.MeasuredBRDF.eval. A table (MeasuredBRDF.kernel_table) is 90 θh × 90 θd × 180 φd
+ * samples of 3 floats (f_r RGB, channel scales applied), one table a slot of `tables`. */
+#define MERL_RES_TH 90
+#define MERL_RES_TD 90
+#define MERL_RES_PD 180
+#define MERL_TABLE_FLOATS 4374000 /* 3·90·90·180 */
+
+CL_INLINE float3 merl_sample(__global const float *tables, int base, int i, int j, int k)
+{
+    int s = base + ((i * MERL_RES_TD + j) * MERL_RES_PD + k) * 3;
+    return (float3)(tables[s], tables[s + 1], tables[s + 2]);
+}
+
+/* The lower node around continuous index c on an axis of `res` bin centres at i + ½, and (in *w) the weight
+ * of the next, clamped at the ends (measured._clamped_nodes of c − ½). */
+CL_INLINE int merl_nodes(float c, int res, float *w)
+{
+    float u = clampf(c - 0.5f, 0.0f, (float)(res - 1));
+    int i0 = (int)floor(u);
+    i0 = i0 < res - 2 ? i0 : res - 2;
+    *w = u - (float)i0;
+    return i0;
+}
+
+/* f_r(n, wi, wo)·(n·wi)⁺(n·wo)⁺ of the measured BRDF of row m ([slot, mode, ...]): Duff et al.'s tangent frame
+ * about n, Rusinkiewicz's angles by atan2 of a sine and a cosine (acos loses the digits of θh next to the
+ * specular peak), φd folded into [0, π) by reciprocity, BRDFRead.cpp's index axes (θh's a square root), then
+ * the nearest bin (mode 1) or trilinear interpolation between bin centres (mode 0; periodic in φd, clamped
+ * in θh and θd). */
+CL_INLINE float3 measured_cosine_weighted(__global const float *params, int m, float3 n, float3 wi, float3 wo,
+                                          __global const float *tables)
+{
+    float ci = dot3(n, wi);
+    float co = dot3(n, wo);
+    if (ci <= 0.0f || co <= 0.0f)
+        return (float3)(0.0f, 0.0f, 0.0f);
+    float sg = n.z < 0.0f ? -1.0f : 1.0f;
+    float a = -1.0f / (sg + n.z);
+    float b = n.x * n.y * a;
+    float3 t = (float3)(1.0f + sg * n.x * n.x * a, sg * b, -sg * n.x);
+    float3 bt = (float3)(b, sg + n.y * n.y * a, -n.y);
+    float x = dot3(wi, t);
+    float y = dot3(wi, bt);
+    float z = ci;
+    float3 h = normalize3((float3)(x + dot3(wo, t), y + dot3(wo, bt), z + co));
+    float s = sqrt(h.x * h.x + h.y * h.y); /* sin θh */
+    float theta_h = atan2(s, h.z);
+    float cos_phi = 1.0f, sin_phi = 0.0f;
+    if (s > 0.0f) {
+        cos_phi = h.x / s;
+        sin_phi = h.y / s;
+    }
+    float dx = h.z * (x * cos_phi + y * sin_phi) - s * z;
+    float dy = y * cos_phi - x * sin_phi;
+    float dz = x * h.x + y * h.y + z * h.z;
+    float theta_d = atan2(sqrt(dx * dx + dy * dy), dz);
+    float phi_d = atan2(dy, dx);
+    if (phi_d < 0.0f)
+        phi_d = phi_d + M_PI_F;
+    float ch = sqrt(maxf(theta_h, 0.0f) / M_PI_2_F) * (float)MERL_RES_TH;
+    float cd = theta_d / M_PI_2_F * (float)MERL_RES_TD;
+    float cp = phi_d / M_PI_F * (float)MERL_RES_PD;
+    __global const float *p = params + 8 * m;
+    int base = (int)p[0] * MERL_TABLE_FLOATS;
+    float3 f = (float3)(0.0f, 0.0f, 0.0f);
+    if (p[1] != 0.0f) { /* nearest: the bin holding the query (BRDFRead.cpp) */
+        int i = clamp((int)floor(ch), 0, MERL_RES_TH - 1);
+        int j = clamp((int)floor(cd), 0, MERL_RES_TD - 1);
+        int k = clamp((int)floor(cp), 0, MERL_RES_PD - 1);
+        f = merl_sample(tables, base, i, j, k);
+    } else {
+        float wh, wd;
+        int i0 = merl_nodes(ch, MERL_RES_TH, &wh);
+        int j0 = merl_nodes(cd, MERL_RES_TD, &wd);
+        float u = cp - 0.5f;
+        float kf = floor(u);
+        float wpd = u - kf;
+        int k0 = (int)kf;
+        if (k0 < 0)
+            k0 += MERL_RES_PD;
+        if (k0 >= MERL_RES_PD)
+            k0 -= MERL_RES_PD;
+        int k1 = k0 + 1 < MERL_RES_PD ? k0 + 1 : 0;
+        for (int di = 0; di < 2; ++di) {
+            float fi = di ? wh : 1.0f - wh;
+            for (int dj = 0; dj < 2; ++dj) {
+                float fij = fi * (dj ? wd : 1.0f - wd);
+                float3 lo = merl_sample(tables, base, i0 + di, j0 + dj, k0);
+                float3 hi = merl_sample(tables, base, i0 + di, j0 + dj, k1);
+                float wl = 1.0f - wpd;
+                f = (float3)(f.x + fij * (wl * lo.x + wpd * hi.x), f.y + fij * (wl * lo.y + wpd * hi.y),
+                             f.z + fij * (wl * lo.z + wpd * hi.z));
+            }
+        }
+    }
+    float cc = ci * co;
+    return (float3)(f.x * cc, f.y * cc, f.z * cc);
+}
+
+/* f_r·(n·wi)⁺(n·wo)⁺ of material row m, any kind: the measured lookup, the anisotropic kinds in the frame of
+ * tangent t (read by those only), the isotropic ones. The dispatcher of the stages that take measured BRDFs
+ * (the ground truth, its interreflection, the matrix method's M). */
+CL_INLINE float3 material_cosine_weighted(int kind, __global const float *params, int m, float3 n, float3 t,
+                                          float3 wi, float3 wo, __global const float *tables)
+{
+    if (kind == MEASURED)
+        return measured_cosine_weighted(params, m, n, wi, wo, tables);
+    if (kind == ANISOTROPIC_WARD || kind == ASHIKHMIN_SHIRLEY)
+        return brdf_cosine_weighted_tangent(kind, params, m, n, t, wi, wo);
+    return brdf_cosine_weighted(kind, params, m, n, wi, wo);
 }
 
 /* Index of the lowest set bit of a non-zero word. OpenCL 1.2 has no ctz, and its popcount, the

@@ -71,6 +71,7 @@ __kernel void effective_brdf_partial(
     __global const float *params,      /* (M, 8) */
     __global const int *face,          /* (Ns,) each facet's face: read for the anisotropic kinds only */
     __global const float *tangent,     /* (F, 3) the tile's face tangents: likewise */
+    __global const float *tables,      /* the measured BRDFs' tables: read for the measured kind only */
     const int words_per_chunk,
     const int n_pairs,
     __global float *partial)           /* (chunks, P, 3) */
@@ -96,9 +97,9 @@ __kernel void effective_brdf_partial(
             int mat = material[s];
             int kind = kinds[mat];
             float3 n = load3(normal, s);
-            float3 f = kind >= ANISOTROPIC_WARD
-                           ? brdf_cosine_weighted_tangent(kind, params, mat, n, load3(tangent, face[s]), wi, wo)
-                           : brdf_cosine_weighted(kind, params, mat, n, wi, wo);
+            float3 tg = (kind == ANISOTROPIC_WARD || kind == ASHIKHMIN_SHIRLEY) ? load3(tangent, face[s])
+                                                                                : (float3)(1.0f, 0.0f, 0.0f);
+            float3 f = material_cosine_weighted(kind, params, mat, n, tg, wi, wo, tables);
             float3 wt = load3(weight, s);
             block = (float3)(block.x + f.x * wt.x, block.y + f.y * wt.y, block.z + f.z * wt.z);
         }
@@ -205,12 +206,6 @@ CL_INLINE int trace_periodic_closest(__global const float *nodes, __global const
     return IR_LOST;
 }
 
-CL_INLINE float3 facet_brdf(int kind, __global const float *params, int m, float3 n, float3 t, float3 wi, float3 wo)
-{
-    return kind >= ANISOTROPIC_WARD ? brdf_cosine_weighted_tangent(kind, params, m, n, t, wi, wo)
-                                    : brdf_cosine_weighted(kind, params, m, n, wi, wo);
-}
-
 CL_INLINE float3 mul3(float3 a, float3 b) { return (float3)(a.x * b.x, a.y * b.y, a.z * b.z); }
 
 __kernel void interreflection_partial(
@@ -233,6 +228,7 @@ __kernel void interreflection_partial(
     __global const int *kinds,           /* (M,) */
     __global const float *params,        /* (M, 8) */
     __global const float *tangent,       /* (F, 3), read where anisotropic */
+    __global const float *tables,        /* the measured BRDFs' tables, read for the measured kind */
     const int anisotropic,
     const int n_facets,
     const int paths,
@@ -275,7 +271,7 @@ __kernel void interreflection_partial(
             float cw = dot3(n, w_out);
             if (dot3(ng, d) <= 0.0f || cd <= 0.0f || cw <= 0.0f)
                 break;
-            thr = mul3(thr, facet_brdf(kinds[m], params, m, n, tg, d, w_out)) * (M_PI_F / (cd * cw));
+            thr = mul3(thr, material_cosine_weighted(kinds[m], params, m, n, tg, d, w_out, tables)) * (M_PI_F / (cd * cw));
             float3 y;
             int fh = trace_periodic_closest(nodes, tris, tri_index, (float3)(x.x + eps * ng.x, x.y + eps * ng.y,
                                             x.z + eps * ng.z), d, x0, y0, px, py, z_lo, z_hi, eps, &y);
@@ -299,7 +295,7 @@ __kernel void interreflection_partial(
                                                    x.y + eps * n.y, x.z + eps * n.z), wi, x0, y0, px, py, z_lo,
                                                    z_hi, eps, &unused);
                 if (light == IR_ESCAPED) {
-                    float3 fo = facet_brdf(kinds[m], params, m, n, tg, wi, w_out);
+                    float3 fo = material_cosine_weighted(kinds[m], params, m, n, tg, wi, w_out, tables);
                     block += mul3(thr, fo) / maxf(dot3(n, w_out), 1.0e-30f);
                 }
             }

@@ -1,6 +1,7 @@
 """Warp functions shared by several stages: the small-scale BRDFs (cosine-weighted) and bit tricks.
 
-Mirrors ``cl/common.cl`` and ``warp_biscale.reference.brdf_cosine_weighted``.
+Mirrors ``cl/common.cl`` and ``warp_biscale.reference.brdf_cosine_weighted``; the measured (MERL) lookup
+mirrors ``warp_biscale.measured.MeasuredBRDF.eval``.
 """
 
 import warp as wp
@@ -11,6 +12,7 @@ COOK_TORRANCE = wp.constant(2)
 WARD = wp.constant(3)
 ANISOTROPIC_WARD = wp.constant(4)
 ASHIKHMIN_SHIRLEY = wp.constant(5)
+MEASURED = wp.constant(6)
 INV_PI = wp.constant(0.31830988618379067)
 TANGENT_DEGENERATE = wp.constant(1.0e-4)  # = brdf.TANGENT_DEGENERATE
 
@@ -123,6 +125,123 @@ def brdf_cosine_weighted_tangent(kind: int, params: wp.array2d(dtype=wp.float32)
     one = wp.vec3(1.0)
     fresnel = ks + (one - ks) * f5
     return wp.cw_mul(kd, one - ks) * diffuse + fresnel * spec
+
+
+# The MERL grid (warp_biscale.measured): 90 θh × 90 θd × 180 φd samples of 3 floats, one table a slot.
+MERL_RES_TH = wp.constant(90)
+MERL_RES_TD = wp.constant(90)
+MERL_RES_PD = wp.constant(180)
+MERL_TABLE_FLOATS = wp.constant(4374000)  # 3·90·90·180
+HALF_PI = wp.constant(1.5707963267948966)
+PI_F = wp.constant(3.141592653589793)
+
+
+@wp.func
+def merl_sample(tables: wp.array(dtype=wp.float32), base: int, i: int, j: int, k: int) -> wp.vec3:
+    """f_r (RGB, scaled) of sample (i, j, k) of the table at `base` (MeasuredBRDF.kernel_table's layout)."""
+    s = base + ((i * MERL_RES_TD + j) * MERL_RES_PD + k) * 3
+    return wp.vec3(tables[s], tables[s + 1], tables[s + 2])
+
+
+@wp.func
+def merl_nodes(c: float, res: int) -> wp.vec2:
+    """(i0, w): the lower node around continuous index c on an axis of `res` bin centres at i + ½, and the
+    weight of i0 + 1, clamped at the ends (measured._clamped_nodes of c − ½)."""
+    u = wp.clamp(c - 0.5, 0.0, float(res - 1))
+    i0 = wp.min(int(wp.floor(u)), res - 2)
+    return wp.vec2(float(i0), u - float(i0))
+
+
+@wp.func
+def measured_cosine_weighted(params: wp.array2d(dtype=wp.float32), m: int, n: wp.vec3, wi: wp.vec3,
+                             wo: wp.vec3, tables: wp.array(dtype=wp.float32)) -> wp.vec3:
+    """f_r(n, ωi, ωo)·(n·ωi)⁺(n·ωo)⁺ of the measured BRDF of row m ([slot, mode, ...]), as MeasuredBRDF.eval:
+    Duff et al.'s tangent frame about n, Rusinkiewicz's angles by atan2 of a sine and a cosine (acos loses
+    the digits of θh next to the specular peak), φd folded into [0, π) by reciprocity, BRDFRead.cpp's index
+    axes (θh's a square root), then the nearest bin (mode 1) or trilinear interpolation between bin centres
+    (mode 0; periodic in φd, clamped in θh and θd) of `tables` (MeasuredBRDF.kernel_table)."""
+    ci = wp.dot(n, wi)
+    co = wp.dot(n, wo)
+    if ci <= 0.0 or co <= 0.0:
+        return wp.vec3(0.0)
+    sg = float(1.0)
+    if n[2] < 0.0:
+        sg = -1.0
+    a = -1.0 / (sg + n[2])
+    b = n[0] * n[1] * a
+    t = wp.vec3(1.0 + sg * n[0] * n[0] * a, sg * b, -sg * n[0])
+    bt = wp.vec3(b, sg + n[1] * n[1] * a, -n[1])
+    x = wp.dot(wi, t)
+    y = wp.dot(wi, bt)
+    z = ci
+    h = wp.normalize(wp.vec3(x + wp.dot(wo, t), y + wp.dot(wo, bt), z + co))
+    s = wp.sqrt(h[0] * h[0] + h[1] * h[1])  # sin θh
+    theta_h = wp.atan2(s, h[2])
+    cos_phi = float(1.0)
+    sin_phi = float(0.0)
+    if s > 0.0:
+        cos_phi = h[0] / s
+        sin_phi = h[1] / s
+    dx = h[2] * (x * cos_phi + y * sin_phi) - s * z
+    dy = y * cos_phi - x * sin_phi
+    dz = x * h[0] + y * h[1] + z * h[2]
+    theta_d = wp.atan2(wp.sqrt(dx * dx + dy * dy), dz)
+    phi_d = wp.atan2(dy, dx)
+    if phi_d < 0.0:
+        phi_d = phi_d + PI_F
+    ch = wp.sqrt(wp.max(theta_h, 0.0) / HALF_PI) * float(MERL_RES_TH)
+    cd = theta_d / HALF_PI * float(MERL_RES_TD)
+    cp = phi_d / PI_F * float(MERL_RES_PD)
+    base = int(params[m, 0]) * MERL_TABLE_FLOATS
+    f = wp.vec3(0.0)
+    if params[m, 1] != 0.0:  # nearest: the bin holding the query (BRDFRead.cpp)
+        i = wp.clamp(int(wp.floor(ch)), 0, MERL_RES_TH - 1)
+        j = wp.clamp(int(wp.floor(cd)), 0, MERL_RES_TD - 1)
+        k = wp.clamp(int(wp.floor(cp)), 0, MERL_RES_PD - 1)
+        f = merl_sample(tables, base, i, j, k)
+    else:
+        nh = merl_nodes(ch, MERL_RES_TH)
+        nd = merl_nodes(cd, MERL_RES_TD)
+        i0 = int(nh[0])
+        j0 = int(nd[0])
+        wh = nh[1]
+        wd = nd[1]
+        u = cp - 0.5
+        kf = wp.floor(u)
+        wpd = u - kf
+        k0 = int(kf)
+        if k0 < 0:
+            k0 = k0 + MERL_RES_PD
+        if k0 >= MERL_RES_PD:
+            k0 = k0 - MERL_RES_PD
+        k1 = k0 + 1
+        if k1 >= MERL_RES_PD:
+            k1 = 0
+        for di in range(2):
+            fi = 1.0 - wh
+            if di == 1:
+                fi = wh
+            for dj in range(2):
+                fj = 1.0 - wd
+                if dj == 1:
+                    fj = wd
+                lo = merl_sample(tables, base, i0 + di, j0 + dj, k0)
+                hi = merl_sample(tables, base, i0 + di, j0 + dj, k1)
+                f = f + (fi * fj) * ((1.0 - wpd) * lo + wpd * hi)
+    return f * (ci * co)
+
+
+@wp.func
+def material_cosine_weighted(kind: int, params: wp.array2d(dtype=wp.float32), m: int, n: wp.vec3, t: wp.vec3,
+                             wi: wp.vec3, wo: wp.vec3, tables: wp.array(dtype=wp.float32)) -> wp.vec3:
+    """f_r·(n·ωi)⁺(n·ωo)⁺ of material row m, any kind: the measured lookup, the anisotropic kinds in the
+    frame of tangent t (read by those only), the isotropic ones (brdf_cosine_weighted). The dispatcher of
+    the stages that take measured BRDFs (the ground truth, its interreflection, the matrix method's M)."""
+    if kind == MEASURED:
+        return measured_cosine_weighted(params, m, n, wi, wo, tables)
+    if kind == ANISOTROPIC_WARD or kind == ASHIKHMIN_SHIRLEY:
+        return brdf_cosine_weighted_tangent(kind, params, m, n, t, wi, wo)
+    return brdf_cosine_weighted(kind, params, m, n, wi, wo)
 
 
 @wp.func

@@ -3,14 +3,15 @@
 Twin of ``cl/matrix.cl``; the mathematics is ``warp_biscale.matrix.brdf_matrix`` (float64). One thread per
 entry M[l, k] = d·f_r(n_l, ωi_k, ωo_k)(n_l·ωi_k)⁺(n_l·ωo_k)⁺: rows over normals (the octahedral texels of
 the material's precomputed M, or any block of them), columns over direction pairs, d Wu §3.7's colour
-direction. The BRDF is the ground truth's own `brdf_cosine_weighted` (kernels/common.py), so M weighs a
-normal exactly as the truth weighs a facet. The launch is (rows, pairs), pairs last: neighbouring threads
-write neighbouring entries of a row, and the CPU backend slices the pairs over its cores.
+direction. The BRDF is the ground truth's own dispatcher `material_cosine_weighted` (kernels/common.py: the
+analytic kinds and the measured lookup of `tables`), so M weighs a normal exactly as the truth weighs a
+facet. The launch is (rows, pairs), pairs last: neighbouring threads write neighbouring entries of a row,
+and the CPU backend slices the pairs over its cores.
 """
 
 import warp as wp
 
-from .common import brdf_cosine_weighted
+from .common import material_cosine_weighted
 
 
 @wp.kernel
@@ -20,6 +21,7 @@ def brdf_matrix(
     wo: wp.array(dtype=wp.vec3),
     kinds: wp.array(dtype=wp.int32),
     params: wp.array2d(dtype=wp.float32),
+    tables: wp.array(dtype=wp.float32),
     m: int,
     color: wp.vec3,
     offset: int,
@@ -27,5 +29,6 @@ def brdf_matrix(
 ):
     l, p_local = wp.tid()
     p = p_local + offset
-    f = brdf_cosine_weighted(kinds[m], params, m, normal[l], wi[p], wo[p])
+    # (no anisotropic kind reaches M: its rows carry no tangent, and as_material_list refuses one)
+    f = material_cosine_weighted(kinds[m], params, m, normal[l], wp.vec3(1.0, 0.0, 0.0), wi[p], wo[p], tables)
     out[l, p] = color[0] * f[0] + color[1] * f[1] + color[2] * f[2]

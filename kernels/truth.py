@@ -14,8 +14,7 @@ is one float64 add per word of up to 32 BRDF evaluations.
 
 import warp as wp
 
-from .common import (ANISOTROPIC_WARD, brdf_cosine_weighted, brdf_cosine_weighted_tangent, cell_exits, lowest_bit,
-                     next_cell)
+from .common import ANISOTROPIC_WARD, ASHIKHMIN_SHIRLEY, cell_exits, lowest_bit, material_cosine_weighted, next_cell
 
 
 @wp.kernel
@@ -69,12 +68,14 @@ def effective_brdf_partial(
     params: wp.array2d(dtype=wp.float32),
     face: wp.array(dtype=wp.int32),
     tangent: wp.array(dtype=wp.vec3),
+    tables: wp.array(dtype=wp.float32),
     words_per_chunk: int,
     offset: int,
     partial: wp.array2d(dtype=wp.vec3),
 ):
-    # face, tangent: each facet's face and the tile's per-face tangents, read only for the anisotropic kinds
-    # (kind >= ANISOTROPIC_WARD), so an isotropic material costs one comparison more per facet.
+    # face, tangent: each facet's face and the tile's per-face tangents, read only for the anisotropic kinds,
+    # so an isotropic material costs two comparisons more per facet. tables: the measured BRDFs' tables
+    # (MeasuredBRDF.kernel_table, one a slot), read only for the measured kind.
     c, p_local = wp.tid()
     p = p_local + offset
     i = pair_i[p]
@@ -94,11 +95,10 @@ def effective_brdf_partial(
             s = w * 32 + b
             mat = material[s]
             kind = kinds[mat]
-            f = wp.vec3(0.0)
-            if kind >= ANISOTROPIC_WARD:
-                f = brdf_cosine_weighted_tangent(kind, params, mat, normal[s], tangent[face[s]], wi, wo)
-            else:
-                f = brdf_cosine_weighted(kind, params, mat, normal[s], wi, wo)
+            tg = wp.vec3(1.0, 0.0, 0.0)
+            if kind == ANISOTROPIC_WARD or kind == ASHIKHMIN_SHIRLEY:
+                tg = tangent[face[s]]
+            f = material_cosine_weighted(kind, params, mat, normal[s], tg, wi, wo, tables)
             block += wp.cw_mul(f, weight[s])
         acc += wp.vec3d(block)
     partial[c, p] = wp.vec3(acc)
@@ -199,14 +199,6 @@ def trace_periodic_closest(mesh: wp.uint64, start: wp.vec3, d: wp.vec3,
     return wp.vec4(0.0, 0.0, 0.0, float(LOST))
 
 
-@wp.func
-def facet_brdf(kind: int, params: wp.array2d(dtype=wp.float32), m: int, n: wp.vec3, t: wp.vec3,
-               wi: wp.vec3, wo: wp.vec3) -> wp.vec3:
-    if kind >= ANISOTROPIC_WARD:
-        return brdf_cosine_weighted_tangent(kind, params, m, n, t, wi, wo)
-    return brdf_cosine_weighted(kind, params, m, n, wi, wo)
-
-
 @wp.kernel
 def interreflection_partial(
     mesh: wp.uint64,
@@ -225,6 +217,7 @@ def interreflection_partial(
     kinds: wp.array(dtype=wp.int32),
     params: wp.array2d(dtype=wp.float32),
     tangent: wp.array(dtype=wp.vec3),
+    tables: wp.array(dtype=wp.float32),
     anisotropic: int,
     n_facets: int,
     paths: int,
@@ -237,7 +230,8 @@ def interreflection_partial(
 ):
     """Σ over the chunk's paths j of the bounces 2..`bounces` reaching facet s(j) = ⌊(j + ½)Ns/paths⌋ from ωi
     and leaving it towards ωo (reference.interreflection), unnormalised (sum_chunks_brdf divides by a_v and
-    the driver by paths/Ns). `tangent` is per face, read only where `anisotropic`."""
+    the driver by paths/Ns). `tangent` is per face, read only where `anisotropic`; `tables` the measured
+    BRDFs' tables, read only for the measured kind."""
     c, p_local = wp.tid()
     p = p_local + offset
     i = pair_i[p]
@@ -269,7 +263,8 @@ def interreflection_partial(
                 if wp.dot(ng, d) <= 0.0 or cd <= 0.0 or cw <= 0.0:
                     break
                 # cosine sampling: f(x, d, w_out)(n·d)/pdf = π f, and f = brdf_cosine_weighted/((n·d)(n·w_out))
-                thr = wp.cw_mul(thr, facet_brdf(kinds[m], params, m, n, tg, d, w_out)) * (PI / (cd * cw))
+                f_d = material_cosine_weighted(kinds[m], params, m, n, tg, d, w_out, tables)
+                thr = wp.cw_mul(thr, f_d) * (PI / (cd * cw))
                 hit = trace_periodic_closest(mesh, x + eps * ng, d, x0, y0, px, py, z_lo, z_hi, eps)
                 fh = int(hit[3])
                 if fh < 0:
@@ -290,7 +285,7 @@ def interreflection_partial(
                 if ci > 0.0:
                     light = trace_periodic_closest(mesh, x + eps * n, wi, x0, y0, px, py, z_lo, z_hi, eps)
                     if int(light[3]) == ESCAPED:
-                        fo = facet_brdf(kinds[m], params, m, n, tg, wi, w_out)
+                        fo = material_cosine_weighted(kinds[m], params, m, n, tg, wi, w_out, tables)
                         block += wp.cw_mul(thr, fo) / wp.max(wp.dot(n, w_out), 1.0e-30)
             acc += wp.vec3d(block)
     partial[c, p] = wp.vec3(acc)

@@ -194,7 +194,9 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
                                   "bins carry no tangent, and the ASG bake convolves with the small-scale BRDF's "
                                   "isotropic SG, so none can hold it yet (issue 20: ASG x ASG); wb.ground_truth "
                                   "evaluates it exactly")
-    mats, _, _ = _prepare(tile, materials)
+    # Only the matrix method's M takes a measured BRDF (its kernels look the table up); the SG and ASG bakes
+    # fit lobes to an analytic BRDF's parameters, so `packed` refuses one in one line there.
+    mats, _, _ = _prepare(tile, materials, measured=method == "matrix")
     if method == "matrix":
         return _bake_matrix(tile, mats, directions, normal_res, facets, backend, seed, bvndf, progress, matrix)
     if method in METHOD_BAKES:  # "asg": asg_bake.bake_asg (Xu 2013; its lobes fitted from the SG EM's)

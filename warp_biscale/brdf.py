@@ -10,12 +10,16 @@ vanishing cosine.
 
 Packed layout shared by the reference, the Warp and the OpenCL kernels, one row per material:
 ``kind`` (int: 0 Lambert, 1 Blinn–Phong, 2 Cook–Torrance, 3 Ward, 4 anisotropic Ward,
-5 Ashikhmin–Shirley) and ``params`` = [kd_r, kd_g, kd_b, ks_r, ks_g, ks_b, p1, p2] (float32); the
-anisotropic Ward's p1, p2 are αx, αy, Ashikhmin–Shirley's row is [Rd rgb, Rs rgb, nu, nv].
+5 Ashikhmin–Shirley, 6 measured) and ``params`` = [kd_r, kd_g, kd_b, ks_r, ks_g, ks_b, p1, p2] (float32); the
+anisotropic Ward's p1, p2 are αx, αy, Ashikhmin–Shirley's row is [Rd rgb, Rs rgb, nu, nv]. A measured BRDF's
+row is [slot, mode, 0, …]: its table is slot `slot` of a table array the kernel takes beside `params`
+(`measured_tables`), and mode 0 is trilinear interpolation, 1 nearest (`measured.MeasuredBRDF`).
 
 Only the ground truth (which has each facet's tangent) evaluates the anisotropic models so far: every
 other consumer of materials (`as_material_list`, `pack_materials`: effective materials, the SG bake, the
-renderers, lit spheres) refuses them in one line unless asked with ``anisotropic=True``.
+renderers, lit spheres) refuses them in one line unless asked with ``anisotropic=True``. Likewise only the
+ground truth and the matrix method's M pack measured BRDFs (``measured=True``); every other packing refuses
+them in one line (`MeasuredBRDF.packed`).
 """
 
 from __future__ import annotations
@@ -28,12 +32,13 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 __all__ = ["Lambert", "BlinnPhong", "CookTorrance", "Ward", "AnisotropicWard", "AshikhminShirley", "Brdf",
-           "pack_materials", "as_material_list", "refuse_anisotropic", "tangent_frame", "parse_brdf",
+           "pack_materials", "measured_tables", "as_material_list", "refuse_anisotropic", "tangent_frame", "parse_brdf",
            "EnergyWarning", "NORMALIZATIONS", "blinn_phong_normal_albedo", "cook_torrance_albedo"]
 
 LAMBERT, BLINN_PHONG, COOK_TORRANCE, WARD = 0, 1, 2, 3
 ANISOTROPIC_WARD, ASHIKHMIN_SHIRLEY = 4, 5
 ANISOTROPIC_KINDS = (ANISOTROPIC_WARD, ASHIKHMIN_SHIRLEY)  # the kinds whose packed row needs a tangent
+MEASURED = 6  # a MERL table (measured.MeasuredBRDF): its packed row names a slot of the kernels' table array
 
 # Where the facet's tangent is (almost) parallel to its normal, |t − (t·n)n|² below this (the tangent within
 # 0.01 rad of the normal), the frame falls back on a tangent built from n alone (`tangent_frame`). The
@@ -536,17 +541,36 @@ def as_material_list(materials, anisotropic: bool = False) -> list:
     return mats
 
 
-def pack_materials(materials, n_required: int = 0, anisotropic: bool = False):
+def pack_materials(materials, n_required: int = 0, anisotropic: bool = False, measured: bool = False):
     """→ (kinds int32 (M,), params float64 (M, 8)). `n_required`: the tile's number of material ids.
-    `anisotropic`: accept anisotropic BRDFs (the caller then passes the facets' tangents to the kernels)."""
+    `anisotropic`: accept anisotropic BRDFs (the caller then passes the facets' tangents to the kernels).
+    `measured`: accept measured BRDFs (the caller then passes `measured_tables(materials)` to the kernels);
+    otherwise `MeasuredBRDF.packed` refuses one in one line."""
     mats = as_material_list(materials, anisotropic)
     if n_required > len(mats):
         raise ValueError(
             f"the tile uses material ids 0..{n_required - 1} but only {len(mats)} material(s) were given"
         )
     kinds = np.array([m.kind for m in mats], np.int32)
-    params = np.stack([m.packed() for m in mats]).astype(np.float64)
-    return kinds, params
+    if measured:
+        slots = {id(t.data): s for s, t in enumerate(measured_tables(mats))}
+        params = np.stack([m.kernel_row(slots[id(m.data)]) if m.kind == MEASURED else m.packed() for m in mats])
+    else:
+        params = np.stack([m.packed() for m in mats])
+    return kinds, params.astype(np.float64)
+
+
+def measured_tables(materials) -> list:
+    """The measured BRDFs of `materials` (a list of `Brdf`) whose tables the kernels need, one per distinct
+    table (two objects sharing one table, e.g. `with_interpolation`, share a slot), in order of first use:
+    slot s of `pack_materials(..., measured=True)`'s rows is entry s, whose `kernel_table()` the backends
+    upload (and cache by the table's identity)."""
+    out, seen = [], set()
+    for m in materials:
+        if getattr(m, "kind", None) == MEASURED and id(m.data) not in seen:
+            seen.add(id(m.data))
+            out.append(m)
+    return out
 
 
 _BRDF_NAMES = {"lambert": Lambert, "blinnphong": BlinnPhong, "blinn-phong": BlinnPhong, "phong": BlinnPhong,

@@ -18,7 +18,7 @@ import weakref
 import numpy as np
 
 from .asg import ASG
-from .brdf import ANISOTROPIC_KINDS
+from .brdf import ANISOTROPIC_KINDS, MEASURED
 from .lobes import KERNEL_LOBES, LobeSet
 from .model import Facets, GBuffer, ShadeInputs, Visibility, facet_shift
 from .trace import (CHUNK_RAYS, check_camera, check_gbuffer, check_lights, check_mesh, check_occlusion,
@@ -263,8 +263,10 @@ KINDS = {"i32": (np.int32, 1), "i64": (np.int64, 1), "u8": (np.uint8, 1), "u32":
 
 _NO_FACE = np.zeros(1, np.int32)  # effective_brdf's face and tangent arguments when no material is anisotropic
 _NO_TANGENT = np.zeros((1, 3), np.float32)
-for _a in (_NO_FACE, _NO_TANGENT):
+_NO_TABLE = np.zeros(1, np.float32)  # the measured-table argument when no material is measured
+for _a in (_NO_FACE, _NO_TANGENT, _NO_TABLE):
     _a.flags.writeable = False
+MEASURED_TABLE_SETS = 2  # sets of measured tables a backend keeps on its device (17.5 MB a table)
 
 
 def _shape(shape) -> tuple:
@@ -393,9 +395,32 @@ class DeviceBackend:
         """The device copy of a_v (see device_copy): on a GPU host an upload costs more than the solve."""
         return device_copy(a_v, self._held_visible_area, lambda host: self._to_device(host, "f32"))
 
-    def effective_brdf(self, facets, vis, kinds, params, pair_i, pair_o, a_v, tangents=None):
+    def _measured_tables(self, kinds, measured):
+        """The kernels' measured-table argument: the `kernel_table()`s of `measured` (the MeasuredBRDFs in slot
+        order, `brdf.measured_tables`) concatenated, uploaded once per set of table objects and kept by
+        their identity (the last MEASURED_TABLE_SETS sets); a one-float stand-in where no kind is measured."""
+        if not np.isin(np.asarray(kinds), MEASURED).any():
+            return self._recurring(_NO_TABLE, "f32")
+        measured = list(measured or ())
+        if not measured:
+            raise ValueError("a measured material needs its table: pass measured=brdf.measured_tables(materials)")
+        cache = self.__dict__.setdefault("_measured_uploads", {})
+        key = tuple(id(m.data) for m in measured)
+        hit = cache.get(key)
+        if hit is not None and hit["context"] is self._context() and all(
+                a is m.data for a, m in zip(hit["data"], measured)):
+            return self._keep_recent(cache, key, hit, MEASURED_TABLE_SETS)["array"]
+        host = np.concatenate([m.kernel_table() for m in measured])
+        if host.size >= 1 << 31:
+            raise ValueError(f"{len(measured)} measured tables exceed the kernels' int32 indexing: give fewer")
+        entry = {"context": self._context(), "data": [m.data for m in measured], "array": self._to_device(host, "f32")}
+        return self._keep_recent(cache, key, entry, MEASURED_TABLE_SETS)["array"]
+
+    def effective_brdf(self, facets, vis, kinds, params, pair_i, pair_o, a_v, tangents=None, measured=None):
         """`tangents`: (F, 3) the per-face tangents of the tile the facets were sampled from
-        (`SmallScale.face_tangents`, indexed by the facets' face), needed when a kind is anisotropic."""
+        (`SmallScale.face_tangents`, indexed by the facets' face), needed when a kind is anisotropic.
+        `measured`: the MeasuredBRDFs whose tables the packed rows' slots name (`brdf.measured_tables`),
+        needed when a kind is measured."""
         n_pairs = len(pair_i)
         if n_pairs == 0:
             return np.zeros((0, 3), np.float32)
@@ -411,28 +436,30 @@ class DeviceBackend:
             if tangents.ndim != 2 or tangents.shape[1] != 3 or len(tangents) == 0:
                 raise ValueError(f"tangents must have shape (F, 3), got {tangents.shape}")
             face, tangent = f["face"], self._recurring(tangents, "vec3")
+        tables = self._measured_tables(kinds, measured)
         chunks, per = chunking(vis.words, n_pairs, self._threads)
         out = self._new(n_pairs, "vec3")
         self._launch_effective_brdf(f, self._vis(vis), self._to_device(kinds, "i32"),
                                     self._to_device(np.asarray(params, np.float32).reshape(-1, 8), "f32"),
                                     self._to_device(pair_i, "i32"), self._to_device(pair_o, "i32"),
-                                    self._to_device(a_v, "f32"), face, tangent, vis.words, n_pairs, chunks, per,
-                                    out)
+                                    self._to_device(a_v, "f32"), face, tangent, tables, vis.words, n_pairs, chunks,
+                                    per, out)
         return self._to_host(out, n_pairs, "vec3")
 
     # --- small-scale interreflection (ground_truth(bounces=B), docs/design.md §4.6): one block ---
     def interreflection(self, tile, facets, vis, kinds, params, pair_i, pair_o, a_v, bounces, paths, seed,
-                        tangents=None):
+                        tangents=None, measured=None):
         """(P, 3) float32: the bounces 2..`bounces` of f̄ at the pairs, by `paths` cosine-sampled paths per
         pair from the facets seen from ωo, with next-event estimation towards ωi at every hit
         (reference.interreflection, the same random numbers). `facets` and `vis` as effective_brdf's, from
-        `tile`; `tangents` (F, 3) where a kind is anisotropic."""
+        `tile`; `tangents` (F, 3) where a kind is anisotropic; `measured` (effective_brdf's) where one is measured."""
         n_pairs, bounces, paths = len(pair_i), int(bounces), int(paths)
         if n_pairs == 0 or bounces <= 1:
             return np.zeros((n_pairs, 3), np.float32)
         f = self._facets(facets)
         aniso = tangents is not None
         tangent = self._recurring(np.asarray(tangents, np.float32) if aniso else _NO_TANGENT, "vec3")
+        tables = self._measured_tables(kinds, measured)
         chunks, per = chunking(paths, n_pairs, self._threads)
         out = self._new(n_pairs, "vec3")
         self._launch_interreflection(
@@ -440,7 +467,7 @@ class DeviceBackend:
             self._to_device(np.asarray(params, np.float32).reshape(-1, 8), "f32"), self._to_device(pair_i, "i32"),
             self._to_device(pair_o, "i32"), self._to_device(a_v, "f32"),
             self._recurring(np.ascontiguousarray(tile.material_ids, np.int32), "i32"),
-            self._recurring(np.ascontiguousarray(tile.colors, np.float32), "vec3"), tangent, aniso, len(facets),
+            self._recurring(np.ascontiguousarray(tile.colors, np.float32), "vec3"), tangent, tables, aniso, len(facets),
             vis.words, paths, chunks, per, bounces, int(seed) % (1 << 31), n_pairs, out)
         # each path stands for Ns/paths facets of area ΔA (the facets' weight)
         return (self._to_host(out, n_pairs, "vec3") * (len(facets) / paths)).astype(np.float32)
@@ -829,10 +856,11 @@ class DeviceBackend:
         prog["unload"]()
 
     # --- the matrix method's M (stage `matrix`, Wu 2011 §3.5; oracle matrix.brdf_matrix) ---
-    def brdf_matrix(self, kinds, params, material: int, normals, wi, wo, color) -> np.ndarray:
+    def brdf_matrix(self, kinds, params, material: int, normals, wi, wo, color, measured=None) -> np.ndarray:
         """(L, P) float32 M[l, k] = color·f_r(n_l, ωi_k, ωo_k)(n_l·ωi_k)⁺(n_l·ωo_k)⁺ for material row `material`
         of the packed table (kinds (M,), params (M, 8): brdf.pack_materials), normals (L, 3), direction pairs
-        wi, wo (P, 3 each) and a colour direction (3,) (Wu §3.7). The oracle is `matrix.brdf_matrix` (float64).
+        wi, wo (P, 3 each) and a colour direction (3,) (Wu §3.7); `measured` as effective_brdf's. The oracle is
+        `matrix.brdf_matrix` (float64).
         The pairs recur from block to block of one M (UploadCache), the normals are a new block each call."""
         normals = np.asarray(normals, np.float32).reshape(-1, 3)
         wi = np.asarray(wi, np.float32).reshape(-1, 3)
@@ -851,10 +879,11 @@ class DeviceBackend:
         if n_rows and n_pairs:
             self._launch_brdf_matrix(self._to_device(normals, "vec3"), self._recurring(wi, "vec3"),
                                      self._recurring(wo, "vec3"), self._to_device(kinds, "i32"),
-                                     self._to_device(params, "f32"), m, color, n_rows, n_pairs, out)
+                                     self._to_device(params, "f32"), self._measured_tables(kinds[m:m + 1], measured),
+                                     m, color, n_rows, n_pairs, out)
         return self._to_host(out, (n_rows, n_pairs), "f32")
 
-    def _launch_brdf_matrix(self, normals, wi, wo, kinds, params, m, color, n_rows, n_pairs, out):
+    def _launch_brdf_matrix(self, normals, wi, wo, kinds, params, tables, m, color, n_rows, n_pairs, out):
         raise NotImplementedError
 
     # --- ASG operators (stage `asg`, Xu 2013; oracle warp_biscale.asg, docs/design.md §9) ---

@@ -180,7 +180,7 @@ def texel_inputs(material) -> dict:
 def sphere_images(material, angles, resolution: int, backend=None) -> np.ndarray:
     """(A, R, R, 3) float32: `sphere_image` at each of `angles` (degrees); on `backend` (a name or a
     Backend) by its texel kernels in float32, else (None) on the host in float64. A MeasuredBRDF's table
-    is read on the host either way (the kernels have no measured BRDF yet), and so is a material whose
+    is read on the host either way (the texel kernels have no measured lookup yet), and so is a material whose
     tables no texel kernel reads (`host_texels`: a matrix-method MatrixBRDF)."""
     if backend is None or isinstance(material, MeasuredBRDF) or getattr(material, "host_texels", False):
         return np.stack([sphere_image(material, phi, resolution) for phi in angles])

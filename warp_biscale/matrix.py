@@ -59,7 +59,7 @@ import warnings
 import numpy as np
 
 from . import directions as dirs
-from .brdf import BLINN_PHONG, COOK_TORRANCE, LAMBERT, WARD, as_material_list
+from .brdf import BLINN_PHONG, COOK_TORRANCE, LAMBERT, MEASURED, WARD, as_material_list, pack_materials
 from .effective import HostOnlyBRDF, Provenance, _brdf_from_dict, _brdf_to_dict
 from .io import read_npz, save_npz
 from .model import Bvndf
@@ -190,6 +190,16 @@ def _analytic(brdf):
     return int(kind), p[0:3], p[3:6], float(p[6]), float(p[7])
 
 
+def _kernel_measured(brdf, backend):
+    """(kinds (1,), params (1, 8), [brdf]): the packed row and table list of a measured BRDF whose M the
+    backend's kernels tabulate (their lookup is MeasuredBRDF.eval's in float32), else None (no backend, or
+    not a measured BRDF)."""
+    if backend is None or getattr(brdf, "kind", None) != MEASURED:
+        return None
+    kinds, params = pack_materials([brdf], measured=True)
+    return kinds, params, [brdf]
+
+
 def _parts(kind, p1, p2, normals, wi, wo):
     """(D, S), each (L, P): M's diffuse part for kd = 1 and its specular part for ks = 1 at normals (L, 3)
     and direction pairs wi, wo (P, 3), so that M_rgb = kd ⊗ D + ks ⊗ S. Formula for formula
@@ -270,7 +280,8 @@ def color_direction(brdf, normals, directions, pairs=None, rows_per_block=None,
     tabulated over M's entries (the top eigenvector of Σ f fᵀ over every (normal, pair)), made ≥ 0; residual
     = 1 − λ1/trace, the fraction of the RGB power the projection loses (0 when the colour is one direction:
     kd ∥ ks, or either zero — then d is found without tabulating). backend: a Backend whose `brdf_matrix`
-    kernels tabulate an analytic BRDF's diffuse and specular parts (`_check_backend`), else None (numpy)."""
+    kernels tabulate an analytic BRDF's diffuse and specular parts, or a measured BRDF's three channels
+    (`_check_backend`), else None (numpy)."""
     an = _analytic(brdf)
     if an is not None:
         _, kd, ks, _, _ = an
@@ -285,10 +296,17 @@ def color_direction(brdf, normals, directions, pairs=None, rows_per_block=None,
     wi, wo = _pair_dirs(directions, pairs)
     backend = _check_backend(backend)
     kernels = backend is not None and an is not None  # D and S by the kernels: M's own rows, two passes
-    step = rows_per_block or max(1, (KERNEL_BLOCK_ENTRIES if kernels else BLOCK_ENTRIES) // max(len(wi), 1))
+    measured = _kernel_measured(brdf, backend)  # a measured BRDF's R, G, B by the kernels: three passes
+    step = rows_per_block or max(1, (KERNEL_BLOCK_ENTRIES if kernels or measured else BLOCK_ENTRIES)
+                                 // max(len(wi), 1))
     for a in range(0, len(normals), step):
         nb = normals[a:a + step]
-        if kernels:
+        if measured is not None:
+            kinds, params, tables = measured
+            f = np.stack([np.asarray(backend.brdf_matrix(kinds, params, 0, nb, wi, wo, e, measured=tables),
+                                     np.float64).reshape(-1) for e in np.eye(3)], axis=1)
+            gram += f.T @ f
+        elif kernels:
             d, s = (np.asarray(backend.brdf_matrix(*row, 0, nb, wi, wo, (1.0, 0.0, 0.0)), np.float64)
                     for row in _kernel_parts(an))
             sums += [np.vdot(d, d), np.vdot(d, s), np.vdot(s, s)]
@@ -331,21 +349,27 @@ def brdf_rows(brdf, normals, directions, pairs=None, color=None, rows_per_block=
     """`brdf_matrix(brdf, normals, directions, pairs, color)` (scalar: `color` is required, default Wu's
     `color_direction`) as row blocks generated on demand, for `randomized_svd` of an M too large to hold.
     backend: a Backend (`_check_backend`) whose `brdf_matrix` kernels (kernels/matrix.py, cl/matrix.cl) make
-    the blocks of an analytic BRDF in float32 (then widened to float64 for the SVD); None, or a BRDF the
-    kernels do not know (measured), → numpy in float64."""
+    the blocks of an analytic or a measured BRDF in float32 (then widened to float64 for the SVD); None, or a
+    BRDF the kernels do not know, → numpy in float64."""
     normals = np.asarray(normals, np.float64)
     backend = _check_backend(backend)
     if color is None:
         color = color_direction(brdf, normals, directions, pairs, backend=backend)[0]
     wi, wo = _pair_dirs(directions, pairs)
     an = _analytic(brdf)
-    if backend is None or an is None:
+    measured = _kernel_measured(brdf, backend)
+    if backend is None or (an is None and measured is None):
         step = rows_per_block or max(1, BLOCK_ENTRIES // max(len(wi), 1))
         return _Rows((len(normals), len(wi)),
                      lambda a, b: brdf_matrix(brdf, normals[a:b], directions, pairs, color), step)
-    kinds, params = _packed_row(an)
     color = np.asarray(color, np.float64)
     step = rows_per_block or max(1, KERNEL_BLOCK_ENTRIES // max(len(wi), 1))
+    if measured is not None:
+        kinds, params, tables = measured
+        return _Rows((len(normals), len(wi)),
+                     lambda a, b: np.asarray(backend.brdf_matrix(kinds, params, 0, normals[a:b], wi, wo, color,
+                                                                 measured=tables), np.float64), step)
+    kinds, params = _packed_row(an)
     return _Rows((len(normals), len(wi)),
                  lambda a, b: np.asarray(backend.brdf_matrix(kinds, params, 0, normals[a:b], wi, wo, color),
                                          np.float64), step)
@@ -1001,7 +1025,9 @@ def _compute_factors(brdf, k, normal_res, power, oversample, power_iterations, s
     info = {"rows": shape[0], "columns": shape[1], "matrix_bytes": shape[0] * shape[1] * 8, "rank": f.rank,
             "power_kept": f.power_kept, "power_target": float(power), "streamed": not isinstance(m, np.ndarray),
             "timings": timings,
-            "m_source": backend.name if backend is not None and _analytic(brdf) is not None else "numpy"}
+            "m_source": (backend.name if backend is not None and (_analytic(brdf) is not None
+                                                                   or _kernel_measured(brdf, backend) is not None)
+                         else "numpy")}
     if rates is not None:
         info["directions_advised"] = rates.directions
     return MaterialFactors(brdf, k, r, d.astype(np.float64), residual, f, rates, info)

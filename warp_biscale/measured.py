@@ -24,8 +24,17 @@ each clamped into the table. Sample (i, j, k) is taken to stand for its bin's ce
 axis (so MERL's floor lookup returns the nearest centre); `from_brdf` tabulates there, and trilinear
 interpolation puts its nodes there.
 
-Measured BRDFs are evaluated on the CPU in float64 only: the kernels do not shade them yet (`packed`
-refuses, in one line).
+**On the device**, the ground truth (`wb.ground_truth`, `wb.effective_brdf_exact`, its interreflection
+bounces too) and the matrix method's M (`wb.bake(method="matrix")`, `matrix.brdf_rows` with a backend) look
+a MeasuredBRDF up in float32 exactly as `eval` does (kernels/common.py's `measured_cosine_weighted`, its twin
+in cl/common.cl): the same tangent frame, angles by atan2, φd fold, index axes, clamping and interpolation,
+on `kernel_table()` — the filled table times the channel scales, in float32 — which a backend uploads once
+per table (17.5 MB) and keeps by identity. The packed row (`brdf.pack_materials(..., measured=True)`, kind
+`brdf.MEASURED`) holds the table's slot among the call's tables (`brdf.measured_tables`) and the
+interpolation. Measured (tests/test_measured_kernels.py): within 3.1e-5 of the peak of `eval` (trilinear;
+1e-6 nearest). Every other packing — the SG and ASG bakes, the SG renderer's shade, the Monte Carlo
+reference, the lit-sphere texel kernels (lit spheres read the table on the host instead), the Mitsuba export —
+refuses one in one line (`packed`).
 """
 
 from __future__ import annotations
@@ -34,7 +43,7 @@ import os
 
 import numpy as np
 
-from .brdf import Brdf, CookTorrance, Lambert
+from .brdf import MEASURED, Brdf, CookTorrance, Lambert
 from .io import atomic_path, check_output
 
 __all__ = ["MeasuredBRDF", "paint_like", "half_diff_angles", "merl_indices",
@@ -48,7 +57,7 @@ FILE_BYTES = HEADER_BYTES + 3 * SAMPLES * 8  # 34 992 012
 SCALES = np.array([1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0])  # stored × scale = f_r (red, green, blue)
 INTERPOLATIONS = ("trilinear", "nearest")
 INVALID = -1.0  # what `from_brdf` stores where a bin's centre is below the horizon (any negative marks it)
-KIND_NONE = -1  # no kernel kind: `packed` refuses before a kernel could see it
+KERNEL_MODES = {"trilinear": 0, "nearest": 1}  # the interpolation's code in the kernels' packed row
 
 _HALF_PI = np.pi / 2
 
@@ -195,7 +204,7 @@ class MeasuredBRDF(Brdf):
     would return the negative marker there (and print "Below horizon.").
     """
 
-    kind = KIND_NONE
+    kind = MEASURED
 
     def __init__(self, data, *, interpolation: str = "trilinear", source: str | None = None):
         a = np.array(data, dtype=np.float64)  # a copy: the object owns its table
@@ -378,8 +387,25 @@ class MeasuredBRDF(Brdf):
         return out
 
     def packed(self):
-        raise ValueError("a MeasuredBRDF cannot be shaded in the kernels yet (they know Lambert, BlinnPhong, "
-                         "CookTorrance and Ward only); evaluate it on the CPU with .eval(n, wi, wo)")
+        raise ValueError("a MeasuredBRDF cannot be shaded in the kernels yet but by the ground truth and the matrix "
+                         "method (wb.ground_truth, wb.effective_brdf_exact, wb.bake(method='matrix')): the SG and "
+                         "ASG bakes, the renderers' shading, the Monte Carlo reference, the lit-sphere texel kernels "
+                         "and the Mitsuba export know Lambert, BlinnPhong, CookTorrance and Ward only; evaluate it "
+                         "on the CPU with .eval(n, wi, wo)")
+
+    def kernel_row(self, slot: int) -> np.ndarray:
+        """The packed row (8,) the ground-truth and matrix kernels read (`brdf.pack_materials(...,
+        measured=True)`): [slot of its table in the kernels' table array, interpolation code
+        (`KERNEL_MODES`), 0, …]."""
+        return np.array([int(slot), KERNEL_MODES[self.interpolation], 0, 0, 0, 0, 0, 0], np.float64)
+
+    def kernel_table(self) -> np.ndarray:
+        """(90·90·180·3,) float32: the table the kernels look up, `_table()` (invalid samples filled) times
+        the channel scales, i.e. f_r in sr⁻¹, interleaved by sample: channel c of sample (i, j, k) at
+        ``((i·90 + j)·180 + k)·3 + c``, so that one lookup reads three neighbouring floats rather than
+        three 5.8 MB apart. Scaling before the interpolation rather than after is the same linear map
+        (float32 rounding apart). Made on demand (17.5 MB): a backend uploads it once per table."""
+        return np.ascontiguousarray((self._table() * SCALES[:, None]).T, np.float32).reshape(-1)
 
     def __repr__(self):
         src = f"{self.source!r}" if self.source is not None else "<table>"

@@ -442,19 +442,19 @@ class OpenCLBackend(DeviceBackend):
                      np.int32(n_dirs), partial)
         self._launch("truth", "sum_chunks_area", (n_dirs,), partial, np.int32(chunks), np.int32(n_dirs), a_v)
 
-    def _launch_effective_brdf(self, f, v, kinds, params, pair_i, pair_o, a_v, face, tangent, n_words, n_pairs,
-                               chunks, per, out):
+    def _launch_effective_brdf(self, f, v, kinds, params, pair_i, pair_o, a_v, face, tangent, tables, n_words,
+                               n_pairs, chunks, per, out):
         partial = self._empty(chunks * n_pairs * 3, np.float32)
         self._launch("truth", "effective_brdf_partial", (n_pairs, chunks),
                      v["directions"], pair_i, pair_o, v["bits"], np.int32(n_words), f["normal"], f["weight"],
-                     f["material"], kinds, params, face, tangent, np.int32(per), np.int32(n_pairs), partial)
+                     f["material"], kinds, params, face, tangent, tables, np.int32(per), np.int32(n_pairs), partial)
         self._launch("truth", "sum_chunks_brdf", (n_pairs,), partial, np.int32(chunks), np.int32(n_pairs), pair_o,
                      a_v, out)
 
     # --- small-scale interreflection (DeviceBackend.interreflection): one block ---
     def _launch_interreflection(self, tile, f, position, v, kinds, params, pair_i, pair_o, a_v, face_material,
-                                face_color, tangent, aniso, n_facets, n_words, paths, chunks, per, bounces, seed,
-                                n_pairs, out):
+                                face_color, tangent, tables, aniso, n_facets, n_words, paths, chunks, per, bounces,
+                                seed, n_pairs, out):
         t = self._tile(tile, need_bvh=True)
         if "tri_index" not in t:
             t["tri_index"] = self._buffer(t["bvh"].tri_index, np.int32)
@@ -463,7 +463,7 @@ class OpenCLBackend(DeviceBackend):
         self._launch("truth", "interreflection_partial", (n_pairs, chunks),
                      t["nodes"], t["tris"], t["tri_index"], t["face_normals"], face_material, face_color,
                      v["directions"], pair_i, pair_o, v["bits"], np.int32(n_words), position, f["normal"],
-                     f["weight"], f["material"], f["face"], kinds, params, tangent, np.int32(aniso),
+                     f["weight"], f["material"], f["face"], kinds, params, tangent, tables, np.int32(aniso),
                      np.int32(n_facets), np.int32(paths), np.int32(per), np.int32(bounces), np.int32(seed),
                      np.float32(0.0), np.float32(0.0), np.float32(tile.period[0]), np.float32(tile.period[1]),
                      np.float32(0.0), np.float32(z_hi - z_lo), np.float32(ray_offset(tile)), np.int32(n_pairs),
@@ -805,8 +805,8 @@ class OpenCLBackend(DeviceBackend):
         return self._read(out, (height, width, 3), np.float32)
 
     # ------------------------------------------------------------------ matrix (Wu's M, warp_biscale.matrix)
-    def _launch_brdf_matrix(self, normals, wi, wo, kinds, params, m, color, n_rows, n_pairs, out):
-        self._launch("matrix", "brdf_matrix", (n_pairs, n_rows), normals, wi, wo, kinds, params, np.int32(m),
+    def _launch_brdf_matrix(self, normals, wi, wo, kinds, params, tables, m, color, n_rows, n_pairs, out):
+        self._launch("matrix", "brdf_matrix", (n_pairs, n_rows), normals, wi, wo, kinds, params, tables, np.int32(m),
                      *(np.float32(c) for c in color), np.int32(n_rows), np.int32(n_pairs), out)
 
     # ------------------------------------------------------------------ asg (Xu 2013's operators, warp_biscale.asg)

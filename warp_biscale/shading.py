@@ -77,6 +77,8 @@ def _analytic_row(m) -> np.ndarray:
 def _has_specular(m) -> bool:
     if isinstance(m, Textured):  # the maps only scale ks: no specular term appears where ks = 0
         m = m.brdf
+    if m.kind == brdf_mod.MEASURED:  # a table: any part of it may be specular
+        return True
     return not isinstance(m, brdf_mod.Lambert) and float(np.max(m.ks)) > 0
 
 
@@ -101,6 +103,10 @@ def pack_materials(materials) -> dict:
                 tex_data.append(np.ascontiguousarray(tex, np.float32).ravel())
                 n_texels += tex.shape[0] * tex.shape[1]
         elif isinstance(m, brdf_mod.Brdf):
+            if m.kind == brdf_mod.MEASURED:
+                raise ValueError(f"materials[{idx}] is a MeasuredBRDF: the shade kernels (render's method='sg') cannot "
+                                 "look its table up yet (only the ground truth and the matrix method's kernels do); "
+                                 "render it with method='litsphere'")
             info.append([0, len(analytic), int(_has_specular(m)), -1])
             analytic.append(_analytic_row(m))
         elif isinstance(m, EffectiveBRDF):

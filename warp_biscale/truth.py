@@ -21,7 +21,7 @@ import numpy as np
 
 from . import directions as dirs
 from .backend import get_backend
-from .brdf import as_material_list, pack_materials
+from .brdf import MEASURED, as_material_list, measured_tables, pack_materials
 from .effective import EffectiveBRDF
 from .io import read_npz, save_npz
 from .progress import as_progress
@@ -54,17 +54,18 @@ def _check_count(facets) -> int:
     return n
 
 
-def _prepare(tile, materials, anisotropic: bool = False):
+def _prepare(tile, materials, anisotropic: bool = False, measured: bool = False):
     """The tile checked and its materials normalised (one BRDF or a list, indexed by the tile's material ids):
     → (list of Brdf, kinds, params). Fewer BRDFs than the tile's ids is an error; more (than one) is a
     `TileWarning`, since the extra ones are never used. Shared by `ground_truth`, `effective_brdf_exact`
     and `bake.bake`; the warning points at their caller. `anisotropic`: accept anisotropic BRDFs (the
-    ground truth, which passes the tile's face tangents to the kernels)."""
+    ground truth, which passes the tile's face tangents to the kernels); `measured`: accept measured ones
+    (the ground truth and the matrix bake, whose kernels take their tables: `brdf.measured_tables`)."""
 
     if not isinstance(tile, SmallScale):
         raise ValueError(f"tile must be a SmallScale (wb.SmallScale.load(...) or wb.geometry.*), got {tile!r}")
     mats = as_material_list(materials, anisotropic)
-    kinds, params = pack_materials(mats, tile.n_materials, anisotropic)
+    kinds, params = pack_materials(mats, tile.n_materials, anisotropic, measured)
     n = tile.n_materials
     if len(mats) > n:
         unused = f"BRDF {n} is" if len(mats) == n + 1 else f"BRDFs {n}..{len(mats) - 1} are"
@@ -104,7 +105,7 @@ def effective_brdf_exact(tile, materials, wi, wo, facets: int = 1 << 20, backend
     Returns (N, 3) float64 RGB f̄, including cos θi (docs/design.md §4). Only the distinct directions of
     wi and wo are traced.
     """
-    mats, kinds, params = _prepare(tile, materials, anisotropic=True)
+    mats, kinds, params = _prepare(tile, materials, anisotropic=True, measured=True)
     tangents = _tangents(tile, mats)
     wi = dirs.check_directions("wi", wi)
     wo = dirs.check_directions("wo", wo)
@@ -122,7 +123,8 @@ def effective_brdf_exact(tile, materials, wi, wo, facets: int = 1 << 20, backend
     vis = be.visibility(tile, fac, unique)
     prog.stage("effective BRDF", 1)
     a_v = be.visible_area(fac, vis)
-    f = be.effective_brdf(fac, vis, kinds, params, pair_i, pair_o, a_v, tangents=tangents)
+    f = be.effective_brdf(fac, vis, kinds, params, pair_i, pair_o, a_v, tangents=tangents,
+                          measured=measured_tables(mats))
     prog.done()
     return _sanitise(f).astype(np.float64)
 
@@ -152,7 +154,8 @@ def ground_truth(tile, materials, facets: int = 1 << 20, directions: int = 12, b
                  progress=None, bounces: int = 1, paths: int = BOUNCE_PATHS) -> GroundTruth:
     """Ground-truth f̄ on the K×K direction grid (K = `directions`): all K²×K² pairs. Every small-scale BRDF is
     exact, the anisotropic ones (AnisotropicWard, AshikhminShirley) in the frame of the tile's face tangents
-    (`SmallScale.face_tangents`, made perpendicular to each facet's normal).
+    (`SmallScale.face_tangents`, made perpendicular to each facet's normal), a MeasuredBRDF by its table's
+    lookup in float32, as its `eval` (the kernels' `measured_cosine_weighted`).
 
     bounces : B in [1, 16]. 1 (the default) is the single-bounce truth above, unchanged. B > 1 adds the
         light that reaches a facet after 1..B−1 reflections inside the infinitely tiled surface (docs/design.md
@@ -167,8 +170,9 @@ def ground_truth(tile, materials, facets: int = 1 << 20, directions: int = 12, b
     Returns a `GroundTruth` table with `eval(wi, wo)`, `save(path)`, and per-stage `timings`
     (seconds, device-synchronised).
     """
-    mats, kinds, params = _prepare(tile, materials, anisotropic=True)
+    mats, kinds, params = _prepare(tile, materials, anisotropic=True, measured=True)
     tangents = _tangents(tile, mats)
+    measured = measured_tables(mats)  # (their tables go to the device once, kept there by identity)
     count = _check_count(facets)
     bounces, paths = _check_bounces(bounces, paths)
     k = int(directions)
@@ -194,7 +198,7 @@ def ground_truth(tile, materials, facets: int = 1 << 20, directions: int = 12, b
         stop = min(nd, start + rows)
         batch = slice(start * nd, stop * nd)
         f = timer("effective_brdf", be.effective_brdf, fac, vis, kinds, params, pair_i[batch], pair_o[batch], a_v,
-                  tangents=tangents)
+                  tangents=tangents, measured=measured)
         table[start:stop] = f.reshape(stop - start, nd, 3)
         prog.advance(stop - start)
     if bounces > 1:  # the bounces 2..B, added to the single-bounce table above
@@ -204,7 +208,7 @@ def ground_truth(tile, materials, facets: int = 1 << 20, directions: int = 12, b
             stop = min(nd, start + rows)
             batch = slice(start * nd, stop * nd)
             f = timer("interreflection", be.interreflection, tile, fac, vis, kinds, params, pair_i[batch],
-                      pair_o[batch], a_v, bounces, paths, seed, tangents=tangents)
+                      pair_o[batch], a_v, bounces, paths, seed, tangents=tangents, measured=measured)
             table[start:stop] += _sanitise(f).reshape(stop - start, nd, 3)
             prog.advance(stop - start)
     prog.done()
@@ -338,9 +342,9 @@ def _truth_settings(mat, facets, seed):
 def truth_key(mat, facets: int = TRUTH_FACETS, seed=None) -> str:
     """The hex SHA-256 of everything `truth_of(mat, facets, seed)`'s table depends on: the tile's arrays
     (vertices, faces, material ids, colours, vertex normals, period, origin; the face tangents where a BRDF is
-    anisotropic), the small-scale BRDFs of its material ids (type and packed parameters), K, the facet count
-    and seed, and TRUTH_KEY_VERSION. Not the tile's name, nor the backend: backends agree to float32 rounding
-    (docs/design.md §3.3)."""
+    anisotropic), the small-scale BRDFs of its material ids (type and packed parameters; a measured one's
+    table and interpolation), K, the facet count and seed, and TRUTH_KEY_VERSION. Not the tile's name, nor the
+    backend: backends agree to float32 rounding (docs/design.md §3.3)."""
     count, seed = _truth_settings(mat, facets, seed)
     tile = mat.provenance.tile
     h = hashlib.sha256(f"warp_biscale ground truth v{TRUTH_KEY_VERSION}; K={mat.directions}; facets={count}; "
@@ -359,7 +363,10 @@ def truth_key(mat, facets: int = TRUTH_FACETS, seed=None) -> str:
             h.update(arr.tobytes())
     for m in mat.materials[:tile.n_materials]:
         h.update(f"; {type(m).__name__}".encode())
-        h.update(np.asarray(m.packed(), np.float64).tobytes())
+        if m.kind == MEASURED:  # its table and interpolation (its packed row is only a slot)
+            h.update(f"{m.interpolation};".encode() + hashlib.sha256(np.ascontiguousarray(m.data).tobytes()).digest())
+        else:
+            h.update(np.asarray(m.packed(), np.float64).tobytes())
     return h.hexdigest()
 
 

@@ -253,12 +253,12 @@ class WarpBackend(DeviceBackend):
         self._load(ktruth.sum_chunks_area)
         wp.launch(ktruth.sum_chunks_area, dim=n_dirs, device=self._device, inputs=[partial], outputs=[a_v])
 
-    def _launch_effective_brdf(self, f, v, kinds, params, pair_i, pair_o, a_v, face, tangent, n_words, n_pairs,
-                               chunks, per, out):
+    def _launch_effective_brdf(self, f, v, kinds, params, pair_i, pair_o, a_v, face, tangent, tables, n_words,
+                               n_pairs, chunks, per, out):
         partial = wp.empty((chunks, n_pairs), dtype=wp.vec3, device=self._device)
         self._launch(ktruth.effective_brdf_partial, (chunks, n_pairs),
                      [v["directions"], pair_i, pair_o, v["bits"], f["normal"], f["weight"], f["material"],
-                      kinds, params, face, tangent, per],
+                      kinds, params, face, tangent, tables, per],
                      [partial])
         self._load(ktruth.sum_chunks_brdf)
         wp.launch(ktruth.sum_chunks_brdf, dim=n_pairs, device=self._device, inputs=[partial, pair_o, a_v],
@@ -266,15 +266,15 @@ class WarpBackend(DeviceBackend):
 
     # --- small-scale interreflection (DeviceBackend.interreflection): one block ---
     def _launch_interreflection(self, tile, f, position, v, kinds, params, pair_i, pair_o, a_v, face_material,
-                                face_color, tangent, aniso, n_facets, n_words, paths, chunks, per, bounces, seed,
-                                n_pairs, out):
+                                face_color, tangent, tables, aniso, n_facets, n_words, paths, chunks, per, bounces,
+                                seed, n_pairs, out):
         t = self._tile(tile)
         z_lo, z_hi = tile.z_range
         partial = wp.empty((chunks, n_pairs), dtype=wp.vec3, device=self._device)
         self._launch(ktruth.interreflection_partial, (chunks, n_pairs),
                      [t["mesh"].id, t["face_normals"], face_material, face_color, v["directions"], pair_i, pair_o,
                       v["bits"], position, f["normal"], f["weight"], f["material"], f["face"], kinds, params,
-                      tangent, int(aniso), n_facets, paths, per, bounces, seed, 0.0, 0.0, float(tile.period[0]),
+                      tangent, tables, int(aniso), n_facets, paths, per, bounces, seed, 0.0, 0.0, float(tile.period[0]),
                       float(tile.period[1]), 0.0, z_hi - z_lo, ray_offset(tile)],
                      [partial], block_dim=32, pieces=RAY_PIECES)
         self._load(ktruth.sum_chunks_brdf)
@@ -724,9 +724,9 @@ class WarpBackend(DeviceBackend):
         return out.numpy().reshape(height, width, 3)
 
     # ------------------------------------------------------------------ matrix (Wu's M, warp_biscale.matrix)
-    def _launch_brdf_matrix(self, normals, wi, wo, kinds, params, m, color, n_rows, n_pairs, out):
+    def _launch_brdf_matrix(self, normals, wi, wo, kinds, params, tables, m, color, n_rows, n_pairs, out):
         self._launch(kmatrix.brdf_matrix, (n_rows, n_pairs),
-                     [normals, wi, wo, kinds, params, int(m), wp.vec3(*(float(c) for c in color))], [out])
+                     [normals, wi, wo, kinds, params, tables, int(m), wp.vec3(*(float(c) for c in color))], [out])
 
     # ------------------------------------------------------------------ asg (Xu 2013's operators, warp_biscale.asg)
     def _launch_asg(self, kernel, n, inputs, out):
