@@ -140,7 +140,8 @@ QUALITY = [
     ("method", "choice", None, ("sg", "litsphere"), "sg", False, "large-scale renderer of an SG bake"),
 ]
 COARSE = {"lobes": 4, "facets_log2": 12, "directions": 6}  # a dragged slider's bake: each at most this
-COARSE_SCALE = 4  # ... and its frame: rendered at 1/4 of the width and height, shown enlarged
+COARSE_SCALE = 4  # ... and, on a CPU, its frame: rendered at 1/4 of the width and height, shown enlarged (on a
+# GPU the whole frame costs less than a G-buffer traced anew at another size: a coarse edit keeps it)
 # The full bake's defaults on a CPU: a 2^16-facet, K = 12 bake takes ~2.6 s on 2 cores, past an
 # interactive editor's "full quality within a couple of seconds"; 2^14 facets and K = 8 take ~0.5 s.
 CPU_QUALITY = {"facets_log2": 14, "directions": 8}
@@ -519,7 +520,7 @@ class Editor:
         lights = [DirectionalLight(direction, li["intensity"], 1.0)] if li["intensity"] > 0 else []
         env = _environment(li["environment"])
         camera = self.camera
-        if coarse:
+        if self._coarse_frames(coarse):
             camera = Camera(camera.eye, camera.target, camera.up, camera.fov, max(8, self.width // COARSE_SCALE),
                             max(8, self.height // COARSE_SCALE))
         return Scene(self.mesh, [effective, self._floor], camera, env, lights, ssdf_resolution=16)
@@ -555,7 +556,7 @@ class Editor:
         timings["shaded"] = "design" if only is not None else "frame"
         shown, image = self._render(scene, _renderer(state), timings, only)
         _SHADED[shaded] = key  # (only once the frame is whole: a failed render leaves no key)
-        if coarse:
+        if self._coarse_frames(coarse):
             shown = _enlarged(shown, self.width, self.height)
         timings["render"] = time.perf_counter() - t0
         timings["total"] = time.perf_counter() - t_all
@@ -563,8 +564,12 @@ class Editor:
         self._shown, self._image = shown, image
         if redo == "bake":
             self._coarse = coarse
-        self._coarse_frame = coarse
+        self._coarse_frame = self._coarse_frames(coarse)
         self.timings = timings
+
+    def _coarse_frames(self, coarse) -> bool:
+        """Whether a coarse edit renders a 1/COARSE_SCALE frame: on a CPU only."""
+        return bool(coarse) and not self.backend.is_gpu
 
     def _render(self, scene, method, timings, only_material=None) -> tuple:
         """→ (the frame for display, (H, W, 3) uint8; its radiance, float32, or None: read when asked). The
