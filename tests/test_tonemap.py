@@ -33,6 +33,9 @@ def test_frame_u8_matches_the_host_tone_mapping(backend, scene, operator):
         assert got.shape == want.shape == (cam.height, cam.width, 3) and got.dtype == np.uint8
         diff = np.abs(got.astype(int) - want.astype(int))
         assert diff.max() <= 1 and (diff == 0).mean() > 0.99, (exposure, diff.max(), (diff == 0).mean())
+        out = np.full((cam.height, cam.width, 3), 7, np.uint8)  # read back into a buffer of the caller's
+        assert be.frame_u8(scene.mesh, cam.width, cam.height, exposure, operator, out=out) is out
+        np.testing.assert_array_equal(out, got)
 
 
 def test_frame_u8_bad_inputs(scene):
@@ -44,3 +47,6 @@ def test_frame_u8_bad_inputs(scene):
         be.frame_u8(scene.mesh, 40, 30, float("nan"))
     with pytest.raises(ValueError, match="no 41x30 frame"):
         be.frame_u8(scene.mesh, 41, 30)
+    for out in (np.zeros((30, 40, 3), np.float32), np.zeros((40, 30, 3), np.uint8), np.zeros((30, 40, 4), np.uint8)):
+        with pytest.raises(ValueError, match="out must be"):
+            be.frame_u8(scene.mesh, 40, 30, out=out)

@@ -26,7 +26,7 @@ from .trace import (CHUNK_RAYS, check_camera, check_gbuffer, check_lights, check
 
 # Shade inputs up to this size are compared by value to the last upload of their role (`_shade_input`),
 # larger ones by their memory.
-SHADE_INPUT_COMPARE_BYTES = 1 << 16
+SHADE_INPUT_COMPARE_BYTES = 1 << 20
 SCRATCH_BYTES = 64 << 20  # the largest scratch array a backend keeps between calls (see their _scratch)
 
 
@@ -296,9 +296,10 @@ class DeviceBackend:
         """An uninitialised device array of `shape` elements of `kind`."""
         raise NotImplementedError
 
-    def _to_host(self, array, shape, kind: str) -> np.ndarray:
+    def _to_host(self, array, shape, kind: str, out=None) -> np.ndarray:
         """A host copy of `array`, `shape` elements of `kind` (a vec kind adds its components as a last
-        axis), once the work queued on it is done."""
+        axis), once the work queued on it is done; in `out` (a C-contiguous host array of that size and
+        type) if given."""
         raise NotImplementedError
 
     def _context(self):
@@ -687,20 +688,26 @@ class DeviceBackend:
         """(H, W, 3) float32: the radiance the last shade or shade_litsphere left on the device for `mesh`."""
         return self._to_host(self._frame(mesh, width, height), width * height, "vec3").reshape(height, width, 3)
 
-    def frame_u8(self, mesh, width: int, height: int, exposure: float = 0.0, operator: str = "aces") -> np.ndarray:
+    def frame_u8(self, mesh, width: int, height: int, exposure: float = 0.0, operator: str = "aces",
+                 out: np.ndarray | None = None) -> np.ndarray:
         """(H, W, 3) uint8 sRGB of that radiance, tone-mapped on the device (images.tonemap: `exposure` in
         stops, `operator` one of images.TONEMAP_OPERATORS): a frame for display, read back at a quarter of
-        the float32 frame's bytes."""
+        the float32 frame's bytes; into `out`, an (H, W, 3) C-contiguous uint8 host array, if given (a display
+        loop that reuses its buffers: a new 6 MB array costs the host its page faults every frame)."""
         from .images import TONEMAP_OPERATORS, check_exposure
 
         if operator not in TONEMAP_OPERATORS:
             raise ValueError(f"unknown tone-map operator {operator!r}; choose one of {TONEMAP_OPERATORS}")
+        if out is not None and not (isinstance(out, np.ndarray) and out.shape == (height, width, 3)
+                                    and out.dtype == np.uint8 and out.flags.c_contiguous and out.flags.writeable):
+            raise ValueError(f"out must be a writeable C-contiguous ({height}, {width}, 3) uint8 array")
         scale = 2.0 ** check_exposure(exposure)
         radiance = self._frame(mesh, width, height)
         n = width * height
-        out = self._reuse(self._trace_mesh(mesh), "frame_u8", 3 * n, "u8")
-        self._launch_tonemap(radiance, float(scale), TONEMAP_OPERATORS.index(operator), n, out)
-        return self._to_host(out, 3 * n, "u8").reshape(height, width, 3)
+        frame = self._reuse(self._trace_mesh(mesh), "frame_u8", 3 * n, "u8")
+        self._launch_tonemap(radiance, float(scale), TONEMAP_OPERATORS.index(operator), n, frame)
+        host = self._to_host(frame, 3 * n, "u8", out)
+        return out if out is not None else host.reshape(height, width, 3)
 
     def _frame(self, mesh, width, height):
         m = self._trace_mesh(mesh)

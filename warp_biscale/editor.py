@@ -324,6 +324,7 @@ class Editor:
         self.timings: dict = {}
         self._coarse = False  # the bake is a coarse one (refine bakes it fully)
         self._coarse_frame = False  # the frame was rendered at 1/COARSE_SCALE size (refine renders it fully)
+        self._frame_buffers = {}  # (height, width) → the host frames read back into, in turn
         self._floor = Lambert(0.45)
         self.tile = self.effective = self._image = self._shown = self.scene = None
         self.mesh, self.camera = default_scene(width, height)
@@ -585,7 +586,12 @@ class Editor:
         if len(lights):
             be.trace_shadows(scene.mesh, None, lights, to_host=False, samples=1, if_changed=True)
         be.shade(scene.mesh, static, cam.packed(), lights, to_host=False, only_material=only_material)
-        return be.frame_u8(scene.mesh, cam.width, cam.height), None
+        # Two host frames in turn: the one shown stays whole while the next is read back into the other.
+        pair = self._frame_buffers.setdefault((cam.height, cam.width), [])
+        if len(pair) < 2:
+            pair.append(np.empty((cam.height, cam.width, 3), np.uint8))
+        buffer = pair[1] if pair[0] is self._shown else pair[0]
+        return be.frame_u8(scene.mesh, cam.width, cam.height, out=buffer), None
 
     # ------------------------------------------------------------------ output
     def frame(self) -> np.ndarray:

@@ -167,12 +167,9 @@ class EffectiveBRDF:
     # ------------------------------------------------------------------ tables
     def _diffuse_table(self) -> np.ndarray:
         """f̄d on the grid (Eq. 9): Σ_m kd_m/π Σ_j μ_mj ∫G_j."""
-        out = np.zeros(self.amplitudes.shape[1:3] + (3,), np.float32)
-        for m, mat in enumerate(self.materials):
-            kd = np.asarray(mat.albedo if isinstance(mat, brdf_mod.Lambert) else mat.kd, np.float32) / np.float32(np.pi)
-            if kd.any():
-                out += self._energy[m] * kd
-        return out
+        kd = np.stack([np.asarray(mat.albedo if isinstance(mat, brdf_mod.Lambert) else mat.kd, np.float32)
+                       for mat in self.materials]) / np.float32(np.pi)
+        return np.einsum("mioc,mc->ioc", self._energy, kd).astype(np.float32, copy=False)  # (one pass: an edit's cost)
 
     @property
     def nbytes_per_material(self) -> int:

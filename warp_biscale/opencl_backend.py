@@ -381,8 +381,8 @@ class OpenCLBackend(DeviceBackend):
     def _queued_read(self, array, shape, kind):
         return self._read_later(array, self._host_shape(shape, kind), KINDS[kind][0])
 
-    def _read(self, buf, shape, dtype):
-        out = np.empty(shape, dtype)
+    def _read(self, buf, shape, dtype, out=None):
+        out = np.empty(shape, dtype) if out is None else out.reshape(shape)
         if out.size:
             self._cl.enqueue_copy(self._queue, out, buf)
         return out
@@ -686,8 +686,8 @@ class OpenCLBackend(DeviceBackend):
         np_dtype, width = KINDS[kind]
         return self._empty(int(np.prod(shape)) * width, np_dtype)
 
-    def _to_host(self, array, shape, kind):
-        return self._read(array, self._host_shape(shape, kind), KINDS[kind][0])
+    def _to_host(self, array, shape, kind, out=None):
+        return self._read(array, self._host_shape(shape, kind), KINDS[kind][0], out)
 
     def _context(self):
         return self._ctx
