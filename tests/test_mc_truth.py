@@ -357,3 +357,102 @@ def test_cli_render_mc_of_an_old_material_file(tmp_path):
     assert "fallback='sg'" in r.stderr and out.exists()
     r = run_cli("render", str(scene), "--mc-fallback", "sg", "-o", str(out))  # the file's method: sg
     assert r.returncode == 2 and "--mc-fallback is for --method mc" in r.stderr
+
+
+# ---------------------------------------------------------------------------------------------------
+# interreflection inside the tile (bounces > 1) in a baked material's truth
+# ---------------------------------------------------------------------------------------------------
+
+PATHS = 16  # paths per direction pair: what is checked is which table is used, not its convergence
+
+
+def test_truth_of_with_bounces_is_the_ground_truth_with_bounces_and_cached_under_its_own_key(tmp_path, counting):
+    """truth_of(bounces=B, paths=P) is wb.ground_truth(..., bounces=B, paths=P) on the recorded tile, bit for bit
+    (deterministic kernels, hashed random numbers); B and P are in its cache key, B = 1's key is the one it
+    always was (paths ignored there), and the table read back from beside the file says B and P."""
+    tile = vgroove_tile()
+    mat = _bake(tile=tile)
+    mat.save(tmp_path / "g.wbm")
+    loaded = wb.load(tmp_path / "g.wbm")
+    key1 = truth_mod.truth_key(loaded, TRUTH_FACETS)
+    assert truth_mod.truth_key(loaded, TRUTH_FACETS, bounces=1, paths=7) == key1
+    key2 = truth_mod.truth_key(loaded, TRUTH_FACETS, bounces=2, paths=PATHS)
+    assert len({key1, key2, truth_mod.truth_key(loaded, TRUTH_FACETS, bounces=3, paths=PATHS),
+                truth_mod.truth_key(loaded, TRUTH_FACETS, bounces=2, paths=PATHS + 1)}) == 4
+    gt2 = truth_mod.truth_of(loaded, TRUTH_FACETS, bounces=2, paths=PATHS)
+    assert (gt2.bounces, gt2.paths, gt2.key) == (2, PATHS, key2) and counting.calls == 1
+    by_hand = wb.ground_truth(tile, GLOSSY, facets=TRUTH_FACETS, directions=K, backend="warp:cpu", seed=1,
+                              bounces=2, paths=PATHS)
+    np.testing.assert_array_equal(gt2.table, by_hand.table)
+    # Interreflection only adds light: the B = 2 table is the single-bounce one plus a non-negative term.
+    gt1 = truth_mod.truth_of(loaded, TRUTH_FACETS)
+    assert counting.calls == 2 and gt1.bounces == 1 and gt1.key == key1
+    assert (gt2.table >= gt1.table).all() and gt2.table.sum() > gt1.table.sum()
+    # One table a file: the last one computed (B = 1) is on disk; B = 2 comes back from memory, then from
+    # the file once it is written again and the memory forgotten.
+    assert wb.load(tmp_path / "g.truth.npz").key == key1
+    truth_mod._MEMORY.pop(key1)
+    counting.refuse = True
+    with pytest.raises(AssertionError, match="computed again"):
+        truth_mod.truth_of(loaded, TRUTH_FACETS, bounces=2, paths=PATHS + 1)
+    assert truth_mod.cached_truth(loaded, TRUTH_FACETS, bounces=2, paths=PATHS)[1] == "memory"
+    truth_mod._MEMORY.clear()
+    again, source = truth_mod.cached_truth(loaded, TRUTH_FACETS, bounces=2, paths=PATHS)
+    assert source == str(tmp_path / "g.truth.npz") and (again.bounces, again.paths) == (2, PATHS)
+    np.testing.assert_array_equal(again.table, gt2.table)
+    for bad in ({"bounces": 0}, {"bounces": 17}, {"bounces": 2.0}, {"bounces": 2, "paths": 0}):
+        with pytest.raises(ValueError, match="bounces|paths"):
+            truth_mod.truth_of(loaded, TRUTH_FACETS, **bad)
+
+
+def test_mc_uses_the_truth_with_bounces():
+    """montecarlo.render(truth_bounces=, truth_paths=) renders with the B-bounce truth: the very image of that
+    truth passed by hand, said so in info; bad values are named before any work."""
+    mat = _bake()
+    scene = _scene(mat, wb.Lambert(0.5))
+    auto = _mc(scene, truth_bounces=2, truth_paths=PATHS)
+    gt = wb.ground_truth(vgroove_tile(), GLOSSY, facets=TRUTH_FACETS, directions=K, backend="warp:cpu", seed=1,
+                         bounces=2, paths=PATHS)
+    np.testing.assert_array_equal(auto.image, _mc(scene, truths={0: gt}).image)
+    assert f"2 bounces ({PATHS} paths)" in auto.info["effective_brdf"][0]
+    assert not np.array_equal(auto.image, _mc(scene).image)  # the single-bounce truth is another f̄
+    for bad, name in (({"truth_bounces": 0}, "truth_bounces"),
+                      ({"truth_bounces": 2, "truth_paths": -1}, "truth_paths")):
+        with pytest.raises(ValueError, match=f"^{name} must be an integer"):
+            _mc(scene, **bad)
+
+
+def test_cli_truth_and_render_take_bounces_and_paths(tmp_path):
+    """`truth --bounces B --paths P` saves the B-bounce table (equal to the library's); `render --method mc
+    --truth-bounces B --truth-paths P` judges a baked material with it; bad values are one-line errors naming
+    the flag, before any work."""
+    npz = tmp_path / "gt.npz"
+    r = run_cli("truth", "vgroove", "--facets", "1024", "--directions", "4", "--backend", "warp:cpu",
+                "--bounces", "2", "--paths", str(PATHS), "--save", str(npz), "-o", str(tmp_path / "p.png"))
+    assert r.returncode == 0, r.stderr
+    assert f"2 bounces ({PATHS} paths)" in r.stdout
+    gt = wb.load(npz)
+    assert (gt.bounces, gt.paths) == (2, PATHS)
+    ref = wb.ground_truth(wb.geometry.load_tile("vgroove"), [wb.Lambert(0.5)], facets=1024, directions=4,
+                          backend="warp:cpu", bounces=2, paths=PATHS)
+    np.testing.assert_array_equal(gt.table, ref.table)
+
+    _bake().save(tmp_path / "groove.wbm")
+    scene = _file_scene(tmp_path, "groove.wbm")
+    r = run_cli("render", str(scene), "--method", "mc", "--samples", "8", "--size", "8", "6", "--truth-facets",
+                "256", "--truth-bounces", "2", "--truth-paths", str(PATHS), "-o", str(tmp_path / "a.exr"))
+    assert r.returncode == 0, r.stderr
+    assert f"256 facets, 2 bounces ({PATHS} paths)" in r.stdout
+    assert wb.load(tmp_path / "groove.truth.npz").bounces == 2
+
+    for args, message in ((["truth", "flat", "--bounces", "0"], "--bounces must be an integer in [1, 16], got 0"),
+                          (["truth", "flat", "--bounces", "2", "--paths", "0"], "--paths must be an integer in [1, "),
+                          (["bake", "flat", "--truth-bounces", "2"], "--truth-bounces is for the ground truth of "
+                                                                     "--truth FACETS"),
+                          (["render", str(scene), "--method", "mc", "--truth-bounces", "17"],
+                           "--truth-bounces must be an integer in [1, 16], got 17")):
+        out = tmp_path / ("x.wbm" if args[0] == "bake" else "x.png")
+        r = run_cli(*args, "-o", str(out))
+        errors = [line for line in r.stderr.splitlines() if line.startswith("error:")]
+        assert r.returncode == 2 and len(errors) == 1 and message in errors[0], r.stderr
+        assert not out.exists()

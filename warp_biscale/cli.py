@@ -30,7 +30,7 @@ from .progress import as_progress, set_quiet
 from .render import SHADOW_SAMPLES, check_aa, material_ball
 from .trace import check_shadow_samples
 from .scenefile import load_scene
-from .truth import ground_truth
+from .truth import BOUNCE_PATHS, MAX_BOUNCES, MAX_PATHS, _check_bounces, ground_truth
 from .viewer import view
 
 
@@ -57,8 +57,9 @@ def _incidence_slices(gt, thetas_i, n_out=61):
 
 def _print_table(gt, thetas_i, file=sys.stdout):
     cols = [-60, -30, 0, 30, 60]
+    bounces = f", {gt.bounces} bounces ({gt.paths} paths)" if gt.bounces > 1 else ""
     print(f"\nf̄(ωi, ωo) (mean of RGB, cos θi included) in the plane of incidence, tile {gt.tile!r}, "
-          f"{gt.facets} facets, K={gt.directions}, backend {gt.backend}", file=file)
+          f"{gt.facets} facets, K={gt.directions}{bounces}, backend {gt.backend}", file=file)
     print("θi \\ θo " + "".join(f"{c:>10d}°" for c in cols), file=file)
     for ti in thetas_i:
         t = np.radians(ti)
@@ -102,14 +103,24 @@ def _plot(gt, path, thetas_i):
     plt.close(fig)
 
 
+def _bounce_args(bounces, paths, prefix=""):
+    """(B, P) of --{prefix}bounces and --{prefix}paths (None: the library's defaults), checked as
+    wb.ground_truth checks them before any work, the error naming the flag."""
+    try:
+        return _check_bounces(1 if bounces is None else bounces, BOUNCE_PATHS if paths is None else paths)
+    except ValueError as exc:
+        raise ValueError(f"--{prefix}{exc}") from None
+
+
 def cmd_truth(args):
     check_output(args.output, (".png",), "--output")
     if args.save:
         check_output(args.save, (".npz",), "--save")
+    bounces, paths = _bounce_args(args.bounces, args.paths)
     tile = load_tile(args.tile)
     mats = _materials(args.brdf, tile)
     gt = ground_truth(tile, mats, facets=args.facets, directions=args.directions, backend=args.backend,
-                         seed=args.seed, progress=not args.quiet)
+                         seed=args.seed, progress=not args.quiet, bounces=bounces, paths=paths)
     thetas = [0, 30, 60, 75]
     if not args.quiet:
         _print_table(gt, thetas)
@@ -124,6 +135,10 @@ def cmd_truth(args):
 
 def cmd_bake(args):
     check_output(args.output, (".wbm", ".npz"), "--output")
+    for flag, value in (("--truth-bounces", args.truth_bounces), ("--truth-paths", args.truth_paths)):
+        if value is not None and not args.truth:
+            raise ValueError(f"{flag} is for the ground truth of --truth FACETS")
+    bounces, paths = _bounce_args(args.truth_bounces, args.truth_paths, "truth-")
     tile = load_tile(args.tile)
     mats = _materials(args.brdf, tile)
     lobes = args.lobes if args.lobes == "auto" else _int_arg("--lobes", args.lobes)
@@ -139,9 +154,10 @@ def cmd_bake(args):
         print("  ".join(f"{k} {v * 1e3:.1f} ms" for k, v in mat.timings.items()))
     if args.truth:
         gt = ground_truth(tile, mats, facets=args.truth, directions=args.directions, backend=args.backend,
-                             seed=args.seed + 1, progress=not args.quiet)
+                             seed=args.seed + 1, progress=not args.quiet, bounces=bounces, paths=paths)
         c = compare(mat, gt)
-        _say(args, f"against the ground truth ({args.truth} facets): PSNR {c['psnr']:.1f} dB, RMSE {c['rmse']:.3g}, "
+        what = f"{args.truth} facets" + (f", {bounces} bounces ({paths} paths)" if bounces > 1 else "")
+        _say(args, f"against the ground truth ({what}): PSNR {c['psnr']:.1f} dB, RMSE {c['rmse']:.3g}, "
                    f"max relative error {c['max_rel_error']:.3g}")
     mat.save(args.output)
     _say(args, f"wrote {args.output}")
@@ -235,6 +251,8 @@ def cmd_render(args):
         check_shadow_samples(args.shadow_samples)
     if args.method == "mc":
         _refuse_sg_options(args)
+    if args.truth_bounces is not None or args.truth_paths is not None:
+        _bounce_args(args.truth_bounces, args.truth_paths, "truth-")  # before the scene's bakes
     prog = as_progress(not args.quiet)
     sf = load_scene(args.scene, backend=args.backend, progress=prog)
     if args.size is not None:
@@ -242,7 +260,9 @@ def cmd_render(args):
     method = args.method or sf.method
     options = sf.render_options(method)
     for flag, key, value in (("--samples", "samples", args.samples), ("--mc-fallback", "fallback", args.mc_fallback),
-                             ("--truth-facets", "truth_facets", args.truth_facets)):
+                             ("--truth-facets", "truth_facets", args.truth_facets),
+                             ("--truth-bounces", "truth_bounces", args.truth_bounces),
+                             ("--truth-paths", "truth_paths", args.truth_paths)):
         if value is not None:
             if method != "mc":
                 raise ValueError(f"{flag} is for --method mc (the SG renderer has no such option)")
@@ -432,6 +452,12 @@ def _add_render_commands(sub):
     r.add_argument("--truth-facets", type=int, metavar="N",
                    help="--method mc: facets of the ground truth computed for each baked material in view "
                         "(default 2^18; cached beside a material file as NAME.truth.npz)")
+    r.add_argument("--truth-bounces", type=int, metavar="B",
+                   help=f"--method mc: bounces of light inside the tile in those ground truths, 1..{MAX_BOUNCES} "
+                        "(default 1, single bounce; B > 1 adds B-1 interreflection bounces, as `truth --bounces`)")
+    r.add_argument("--truth-paths", type=int, metavar="P",
+                   help=f"--method mc: paths per direction pair for those truths' bounces 2..B, 1..{MAX_PATHS} "
+                        f"(default {BOUNCE_PATHS})")
     r.add_argument("--aa", type=int, metavar="N", help=f"anti-aliasing: N jittered samples a pixel for the SG renderer "
                                                          f"(default {FILE_AA}; 1: pixel centres only)")
     r.add_argument("--shadow-samples", type=int, metavar="N",
@@ -503,6 +529,12 @@ def main(argv=None):
     p.add_argument("--directions", type=int, default=12, help="direction grid size K (K² directions, default 12)")
     p.add_argument("--backend", default="auto", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name>")
     p.add_argument("--seed", type=int, default=0, help="facet-sampling seed (default 0)")
+    p.add_argument("--bounces", type=int, default=1, metavar="B",
+                   help=f"bounces of light inside the infinitely tiled surface, 1..{MAX_BOUNCES} (default 1: the "
+                        "single-bounce truth; B > 1 adds B-1 bounces of interreflection by Monte Carlo)")
+    p.add_argument("--paths", type=int, default=BOUNCE_PATHS, metavar="P",
+                   help=f"paths per direction pair for the bounces 2..B, 1..{MAX_PATHS} (default {BOUNCE_PATHS}; "
+                        "cost ∝ K⁴·P·(B-1))")
     p.add_argument("-o", "--output", default="truth.png", help="PNG plot of BRDF slices (default truth.png)")
     p.add_argument("--save", help="also save the table as .npz (read back with wb.load)")
     p.add_argument("-q", "--quiet", action="store_true", help="no table, no progress")
@@ -525,6 +557,11 @@ def main(argv=None):
     k.add_argument("--seed", type=int, default=0, help="facet-sampling seed (default 0)")
     k.add_argument("--truth", type=int, metavar="FACETS",
                    help="also compute the ground truth with this many facets and print the error against it")
+    k.add_argument("--truth-bounces", type=int, metavar="B",
+                   help=f"with --truth: bounces of light inside the tile in that truth, 1..{MAX_BOUNCES} (default 1; "
+                        "as `truth --bounces`: what the single-bounce bake misses shows in the error)")
+    k.add_argument("--truth-paths", type=int, metavar="P",
+                   help=f"with --truth: paths per direction pair for its bounces 2..B (default {BOUNCE_PATHS})")
     k.add_argument("-o", "--output", default="material.wbm", help="material file to write (default material.wbm)")
     k.add_argument("-q", "--quiet", action="store_true", help="no summary, no progress")
     k.set_defaults(func=cmd_bake)

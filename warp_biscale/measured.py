@@ -32,9 +32,9 @@ on `kernel_table()` — the filled table times the channel scales, in float32 �
 per table (17.5 MB) and keeps by identity. The packed row (`brdf.pack_materials(..., measured=True)`, kind
 `brdf.MEASURED`) holds the table's slot among the call's tables (`brdf.measured_tables`) and the
 interpolation. Measured (tests/test_measured_kernels.py): within 3.1e-5 of the peak of `eval` (trilinear;
-1e-6 nearest). Every other packing — the SG and ASG bakes, the SG renderer's shade, the Monte Carlo
-reference, the lit-sphere texel kernels (lit spheres read the table on the host instead), the Mitsuba export —
-refuses one in one line (`packed`).
+1e-6 nearest). Every other packing — the SG and ASG bakes, the SG renderer's shade, the lit-sphere texel
+kernels (lit spheres read the table on the host instead), the Mitsuba export — refuses one in one line
+(`packed`). The Monte Carlo reference (`montecarlo.render`) calls `eval` on the host, in float64.
 """
 
 from __future__ import annotations
@@ -389,8 +389,8 @@ class MeasuredBRDF(Brdf):
     def packed(self):
         raise ValueError("a MeasuredBRDF cannot be shaded in the kernels yet but by the ground truth and the matrix "
                          "method (wb.ground_truth, wb.effective_brdf_exact, wb.bake(method='matrix')): the SG and "
-                         "ASG bakes, the renderers' shading, the Monte Carlo reference, the lit-sphere texel kernels "
-                         "and the Mitsuba export know Lambert, BlinnPhong, CookTorrance and Ward only; evaluate it "
+                         "ASG bakes, the SG renderer's shading, the lit-sphere texel kernels and the Mitsuba export "
+                         "know Lambert, BlinnPhong, CookTorrance and Ward only; evaluate it "
                          "on the CPU with .eval(n, wi, wo)")
 
     def kernel_row(self, slot: int) -> np.ndarray:

@@ -17,14 +17,15 @@ Every hit pixel of the G-buffer gets the estimate of
   light there). Environment and directional lights are unbounded rays; a point light's term is
   occluded only by a hit before its centre (t_max = distance − offset, as `trace_shadows`), so a
   sample that hits something is traced again, up to each point light it sees.
-- F: an analytic BRDF's f_r(n, ω, ωo)·(n·ω)⁺ (`Brdf.eval`); an effective BRDF's f̄(ω_local, ωo_local)
-  from its ground truth (`GroundTruth.eval`, cos θi already in it), in the tile frame (t, b, n): the one
-  passed in `truths`, else the one `truth.truth_of` computes from what the material records of how it
-  was baked (its tile and small-scale BRDFs, on its K×K grid, `truth_facets` facets), cached beside its
-  material file and in memory. A material that records nothing (a format-1 file, one built by hand) is a
-  ValueError, unless fallback="sg": then `EffectiveBRDF.eval(method="sg-exact")` is used, with a warning
-  and a note in info["effective_brdf"] (that is the SG fit, not the exact f̄, so the reference is not
-  exact for it).
+- F: an analytic BRDF's f_r(n, ω, ωo)·(n·ω)⁺ (`Brdf.eval`), a `MeasuredBRDF`'s alike (its float64
+  `eval`, the table lookup on the host); an effective BRDF's f̄(ω_local, ωo_local) from its ground truth
+  (`GroundTruth.eval`, cos θi already in it), in the tile frame (t, b, n): the one passed in `truths`,
+  else the one `truth.truth_of` computes from what the material records of how it was baked (its tile
+  and small-scale BRDFs, on its K×K grid, `truth_facets` facets, `truth_bounces` bounces inside the
+  tile), cached beside its material file and in memory. A material that records nothing (a format-1
+  file, one built by hand) is a ValueError, unless fallback="sg": then
+  `EffectiveBRDF.eval(method="sg-exact")` is used, with a warning and a note in info["effective_brdf"]
+  (that is the SG fit, not the exact f̄, so the reference is not exact for it).
 
 Position, shading normal, tangent frame and ωo are built from the G-buffer exactly as
 `shading.shade_reference` builds them (float32 vertex attributes, barycentric interpolation, the
@@ -34,18 +35,19 @@ interpolated normal faces away keeps its diffuse term, as in the SG renderer. Ba
 `Environment.lookup` along the camera ray.
 
 Sampling: multiple importance sampling with the balance heuristic (Veach 1997 §9.2), per term of the
-integrand. Strategies: (1) the environment, following its bilinear lookup (a cell between texel centres
-∝ its corners' mean × solid angle, then bilinear inside it: L/p is nearly constant); (2) the cosine lobe
+integrand. Strategies: (1) the environment, following its bilinear lookup (a cell between texel centres ∝
+its corners' mean × solid angle, then bilinear inside it: L/p is nearly constant); (2) the cosine lobe
 about n; (3) the BRDF: an analytic glossy BRDF's half vector from a von Mises–Fisher lobe about n of its
-NDF's SG sharpness (`sg.specular_lobe`), reflected about ωo; an effective BRDF's warped NDF lobes (Wang
-Eq. 18–21) as a vMF mixture; (4) each light's vMF emitter. The environment term L_env·V·F is estimated
-from the samples of (1), (2), (3); light l's term from those of (4, l) and (3); each sample is weighted
-by 1/Σ_k n_k·p_k(ω) over the term's strategies k, every pdf evaluated exactly. Cosine samples are kept
-off the lights' terms: an emitter is sampled exactly by its own vMF, and a cosine sample hitting a small
-light is a rare event that skews the estimate and makes its sample variance understate the error.
-Every term is covered wherever it is non-zero (the environment strategy wherever the bilinear radiance
-is positive, a vMF everywhere), so the estimate is unbiased. Strategies with nothing to contribute are
-left out (no environment: no environment or cosine sampling; Lambert: no BRDF sampling).
+NDF's SG sharpness (`sg.specular_lobe`), reflected about ωo (a measured BRDF's: the sharpness fitted to
+its table, `_measured_lobe`); an effective BRDF's warped NDF lobes (Wang Eq. 18–21) as a vMF mixture; (4)
+each light's vMF emitter. The environment term L_env·V·F is estimated from the samples of (1), (2), (3);
+light l's term from those of (4, l) and (3); each sample is weighted by 1/Σ_k n_k·p_k(ω) over the term's
+strategies k, every pdf evaluated exactly. Cosine samples are kept off the lights' terms: an emitter is
+sampled exactly by its own vMF, and a cosine sample hitting a small light is a rare event that skews the
+estimate and makes its sample variance understate the error. Every term is covered wherever it is non-zero
+(the environment strategy wherever the bilinear radiance is positive, a vMF everywhere), so the estimate
+is unbiased. Strategies with nothing to contribute are left out (no environment: no environment or cosine
+sampling; Lambert or a table without a lobe: no BRDF sampling).
 
 The N samples of a pixel are shared out over its strategies (n_s each, at least 2) by weights that only
 move variance, never the mean (`_plan`). Each strategy's main random choice u[0] (the environment cell,
@@ -70,6 +72,7 @@ from . import sg
 from .backend import get_backend
 from .brdf import Brdf, Lambert, brdf_cosine_weighted, pack_materials
 from .effective import EffectiveBRDF
+from .measured import MeasuredBRDF, bin_centres
 from .progress import Progress
 from .scene import Rendering, Scene
 from .scene import light_sg, vertex_tangents
@@ -78,7 +81,7 @@ from .montecarlo_sampling import (_basis, _CosineStrategy, _dot, _EnvironmentStr
                                   _LightStrategy, _LobeMixtureStrategy, sample_vmf, vmf_pdf)
 from .svbrdf import Textured
 from .trace import offsets
-from .truth import MAX_FACETS, TRUTH_FACETS, GroundTruth, _check_count, cached_truth
+from .truth import BOUNCE_PATHS, MAX_FACETS, TRUTH_FACETS, GroundTruth, _check_bounces, _check_count, cached_truth
 
 __all__ = ["render", "missing_provenance", "DEFAULT_BATCH", "FALLBACKS", "sample_vmf", "vmf_pdf"]
 
@@ -96,18 +99,64 @@ def _albedos(brdf: Brdf):
     """(diffuse, specular) mean reflectance proxies, mean kd and mean ks: they only share out the samples."""
     if isinstance(brdf, Lambert):
         return float(np.mean(brdf.albedo)), 0.0
+    if isinstance(brdf, MeasuredBRDF):
+        return _measured_lobe(brdf)[:2]
     return float(np.mean(brdf.kd)), float(np.mean(brdf.packed()[3:6]))  # ks as packed: a normalisation included
 
 
 def _glossy_eta(brdf: Brdf):
-    """The NDF's SG sharpness of an analytic BRDF with a specular term, else None (Lambert, ks = 0)."""
+    """The NDF's SG sharpness of an analytic BRDF with a specular term, else None (Lambert, ks = 0); a measured
+    BRDF's fitted to its table (`_measured_lobe`)."""
+    if isinstance(brdf, MeasuredBRDF):
+        return _measured_lobe(brdf)[2]
     if isinstance(brdf, Lambert) or float(np.max(brdf.ks)) <= 0:
         return None
     z = np.array([[0.0, 0.0, 1.0]])
     return sg.specular_lobe(brdf, z, z)[0]
 
 
+MEASURED_GLOSS = 1e-3  # a measured θh profile varying less than this share of its peak has no lobe to sample
+MEASURED_ETA = (1.0, 1e5)  # the range of a measured BRDF's fitted half-vector sharpness
+
+
+def _measured_lobe(brdf: MeasuredBRDF):
+    """(kd, ks, η or None): a measured BRDF's diffuse and specular shares and its half-vector vMF sharpness,
+    read off its table's θh profile next to the mirror configuration — f_r at the bin centres of θh, θd's
+    first bin (0.5°), averaged over φd and RGB. Its minimum is the diffuse floor (kd = π·floor); the rest,
+    s(θh), is the specular peak. η is the SG sharpness that falls to 1/e where s does (1 − cos θh = 1/η at
+    s = s_max/e, linear between bins), as `sg.specular_lobe` matches an analytic NDF near its peak (a
+    tabulated Cook–Torrance m = 0.2 gets 48.1 here, its analytic lobe 50), in MEASURED_ETA; None where s is
+    under MEASURED_GLOSS of the peak (a tabulated Lambert: no BRDF strategy, as for Lambert). ks is s's albedo
+    at normal view, ∫ s(θh) cos θi dωi with dωi = 4 cos θh dω_h, reading the profile as if it held there.
+    These only choose a proposal and share out the samples: any value keeps the estimator unbiased."""
+    th, td, pd = bin_centres()
+    f = brdf.lookup(np.repeat(th, len(pd)), np.full(len(th) * len(pd), td[0]), np.tile(pd, len(th)))
+    profile = f.mean(1).reshape(len(th), len(pd)).mean(1)
+    floor = max(float(profile.min()), 0.0)
+    spec = profile - floor
+    peak = float(spec.max())
+    if not np.isfinite(peak) or peak <= MEASURED_GLOSS * max(float(profile.max()), 1e-300):
+        return np.pi * floor, 0.0, None
+    top = int(np.argmax(spec))
+    x = 1.0 - np.cos(th)  # 1 − cos θh, exact enough at these angles (θh ≥ 4.8e-5 rad: no cancellation below 1e-9)
+    below = np.flatnonzero(spec[top:] <= peak / np.e)
+    if len(below) == 0:  # never falls to 1/e: as broad as it gets
+        eta = MEASURED_ETA[0]
+    else:
+        j = top + int(below[0])
+        a, b = spec[j - 1], spec[j]
+        xe = x[j - 1] + (x[j] - x[j - 1]) * (a - peak / np.e) / (a - b) if a > b else x[j]
+        eta = 1.0 / max(xe - x[top], 1e-300)
+    eta = float(np.clip(eta, *MEASURED_ETA))
+    d_theta = (np.arange(len(th)) + 0.5) * np.pi / len(th) ** 2  # the bins' widths on MERL's square-root θh axis
+    ks = float(np.sum(spec * 4 * np.cos(th) * np.maximum(np.cos(2 * th), 0.0) * np.sin(th) * d_theta) * 2 * np.pi)
+    return np.pi * floor, ks, eta
+
+
 class _AnalyticMaterial:
+    """An analytic BRDF — or a `MeasuredBRDF`, whose `eval` (float64, on the host) is f_r as an analytic one's
+    and whose BRDF strategy is the same half-vector vMF, fitted to its table (`_measured_lobe`)."""
+
     def __init__(self, brdf: Brdf):
         self.brdf = brdf
         eta = _glossy_eta(brdf)
@@ -155,8 +204,9 @@ class _EffectiveMaterial:
     def use_truth(self, truth: GroundTruth | None):
         self.truth = truth
         if truth is not None:
+            bounces = f"{truth.bounces} bounces ({truth.paths} paths), " if truth.bounces > 1 else ""
             self.label = (f"ground truth (tile {truth.tile!r}, K={truth.directions}, {truth.facets} facets, "
-                          f"{truth.materials})")
+                          f"{bounces}{truth.materials})")
         else:
             self.label = "EffectiveBRDF.eval(method='sg-exact'): fallback='sg', the SG fit, not the exact f̄"
 
@@ -263,7 +313,8 @@ def missing_provenance(scene, truths=None) -> list:
 
 
 def render(scene, backend="auto", samples: int = 256, seed: int = 0, truths=None, progress=None,
-           batch: int = DEFAULT_BATCH, fallback=None, truth_facets: int = TRUTH_FACETS, truth_seed=None):
+           batch: int = DEFAULT_BATCH, fallback=None, truth_facets: int = TRUTH_FACETS, truth_seed=None,
+           truth_bounces: int = 1, truth_paths: int = BOUNCE_PATHS):
     """Render `scene` (a `render.Scene`) by Monte Carlo → `render.Rendering`.
 
     samples: samples per hit pixel, shared out over the pixel's sampling strategies (at least 2 each: a
@@ -275,6 +326,10 @@ def render(scene, backend="auto", samples: int = 256, seed: int = 0, truths=None
         `truth.truth_of(material, truth_facets, truth_seed)` (truth_seed None: the bake's seed + 1), computed
         from what the material records of its bake and cached beside its material file (`<name>.truth.npz`)
         and in memory; a material that records nothing is a ValueError naming it.
+    truth_bounces, truth_paths: `bounces` and `paths` of those ground truths (`wb.ground_truth`'s: B in [1, 16],
+        1 the single-bounce truth; B > 1 adds B − 1 bounces of light inside the tiled surface, estimated with
+        `truth_paths` paths per direction pair); part of the cache key when B > 1. A truth given in `truths`
+        is used as it is.
     fallback: None, or "sg": materials without a truth given use their SG fit
         (`EffectiveBRDF.eval(method="sg-exact")`, not exact), with a warning; nothing is computed for them.
     batch: samples (pixels × samples) per batch, bounding memory (~400 bytes a sample).
@@ -304,6 +359,10 @@ def render(scene, backend="auto", samples: int = 256, seed: int = 0, truths=None
         raise ValueError(f"truth_facets must be an integer in [1, {MAX_FACETS}], got {truth_facets!r}") from None
     if truth_seed is not None:
         truth_seed = _check_int("truth_seed", truth_seed, 0)
+    try:
+        truth_bounces, truth_paths = _check_bounces(truth_bounces, truth_paths)
+    except ValueError as exc:  # the library's message, with this function's argument names
+        raise ValueError(f"truth_{exc}") from None
     if fallback is None:
         missing = missing_provenance(scene, truth_of)
         if missing:
@@ -363,7 +422,7 @@ def render(scene, backend="auto", samples: int = 256, seed: int = 0, truths=None
                           stacklevel=2)
             continue
         gt, sources[i] = cached_truth(scene.materials[i], truth_facets, truth_seed, backend,
-                                      _Prefixed(progress, f"truth of material {i}: "))
+                                      _Prefixed(progress, f"truth of material {i}: "), truth_bounces, truth_paths)
         materials[i].use_truth(gt)
         labels[i] = materials[i].label
     timings["truth"] = time.perf_counter() - t0

@@ -202,12 +202,13 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
 
 def check_no_litspheres(scene: Scene, method: str) -> None:
     """Refuse, in one line, a material `method` cannot shade: a LitSphere (only the lit-sphere shader reads
-    one) or a MeasuredBRDF (no kernel reads its table yet; method='litsphere' renders it)."""
+    one) or, for the SG renderer, a MeasuredBRDF (the shade kernels do not read its table; the Monte Carlo
+    reference evaluates it on the host, method='litsphere' renders it)."""
     for i, m in enumerate(scene.materials):
         if isinstance(m, LitSphere):
             raise ValueError(f"Scene.materials[{i}] is a LitSphere, which only method='litsphere' renders "
                              f"(method={method!r} needs the material itself)")
-        if isinstance(m, MeasuredBRDF):
+        if isinstance(m, MeasuredBRDF) and method != "mc":
             raise ValueError(f"Scene.materials[{i}] is a MeasuredBRDF, which method={method!r} cannot shade yet "
                              "(no kernel reads its table); method='litsphere' renders it")
 

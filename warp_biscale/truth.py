@@ -322,9 +322,9 @@ class GroundTruth:
 # ---------------------------------------------------------------------------------------------------
 
 
-def _truth_settings(mat, facets, seed):
-    """Checked (facets, seed) of `truth_of`; seed None is the bake's seed + 1, so the truth's facets are not
-    the bake's own (as `warp-biscale bake --truth` does)."""
+def _truth_settings(mat, facets, seed, bounces=1, paths=BOUNCE_PATHS):
+    """Checked (facets, seed, bounces, paths) of `truth_of`; seed None is the bake's seed + 1, so the truth's
+    facets are not the bake's own (as `warp-biscale bake --truth` does)."""
     if not isinstance(mat, EffectiveBRDF):
         raise ValueError(f"truth_of takes an EffectiveBRDF (wb.bake, wb.load), got {type(mat).__name__}")
     if mat.provenance is None:
@@ -336,19 +336,24 @@ def _truth_settings(mat, facets, seed):
         seed = mat.provenance.seed + 1
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"truth seed must be an integer >= 0 or None, got {seed!r}")
-    return count, int(seed)
+    bounces, paths = _check_bounces(bounces, paths)
+    return count, int(seed), bounces, paths
 
 
-def truth_key(mat, facets: int = TRUTH_FACETS, seed=None) -> str:
-    """The hex SHA-256 of everything `truth_of(mat, facets, seed)`'s table depends on: the tile's arrays
-    (vertices, faces, material ids, colours, vertex normals, period, origin; the face tangents where a BRDF is
-    anisotropic), the small-scale BRDFs of its material ids (type and packed parameters; a measured one's
-    table and interpolation), K, the facet count and seed, and TRUTH_KEY_VERSION. Not the tile's name, nor the
-    backend: backends agree to float32 rounding (docs/design.md §3.3)."""
-    count, seed = _truth_settings(mat, facets, seed)
+def truth_key(mat, facets: int = TRUTH_FACETS, seed=None, bounces: int = 1, paths: int = BOUNCE_PATHS) -> str:
+    """The hex SHA-256 of everything `truth_of(mat, facets, seed, bounces=, paths=)`'s table depends on: the
+    tile's arrays (vertices, faces, material ids, colours, vertex normals, period, origin; the face tangents
+    where a BRDF is anisotropic), the small-scale BRDFs of its material ids (type and packed parameters; a
+    measured one's table and interpolation), K, the facet count and seed, the bounces and paths when B > 1,
+    and TRUTH_KEY_VERSION. Not the tile's name, nor the backend: backends agree to float32 rounding
+    (docs/design.md §3.3)."""
+    count, seed, bounces, paths = _truth_settings(mat, facets, seed, bounces, paths)
     tile = mat.provenance.tile
+    # B = 1 adds nothing to the key (ground_truth ignores paths there), so the single-bounce tables cached
+    # before bounces existed stay valid.
+    multi = f"; bounces={bounces}; paths={paths}" if bounces > 1 else ""
     h = hashlib.sha256(f"warp_biscale ground truth v{TRUTH_KEY_VERSION}; K={mat.directions}; facets={count}; "
-                       f"seed={seed}".encode())
+                       f"seed={seed}{multi}".encode())
     parts = {"vertices": tile.vertices, "faces": tile.faces, "material_ids": tile.material_ids,
              "colors": tile.colors, "vertex_normals": tile.vertex_normals,
              "period": np.asarray(tile.period, np.float64), "origin": tile.origin}
@@ -378,21 +383,25 @@ def truth_cache_path(mat):
     return os.path.splitext(mat.path)[0] + ".truth.npz"
 
 
-def truth_of(mat, facets: int = TRUTH_FACETS, seed=None, backend="auto", progress=None) -> GroundTruth:
+def truth_of(mat, facets: int = TRUTH_FACETS, seed=None, backend="auto", progress=None, bounces: int = 1,
+             paths: int = BOUNCE_PATHS) -> GroundTruth:
     """The ground truth of a baked material (`wb.ground_truth` on its recorded tile and its current
-    small-scale BRDFs, on its K×K grid), with `facets` facets drawn with `seed` (None: the bake's seed + 1).
+    small-scale BRDFs, on its K×K grid), with `facets` facets drawn with `seed` (None: the bake's seed + 1)
+    and `bounces` B of light inside the tiled surface (`ground_truth`'s; B > 1 adds the interreflection
+    estimated with `paths` paths per direction pair, which B = 1 ignores).
 
     Cached by `truth_key`, so a table is never used for another tile, BRDF or setting: on disk as
     `<name>.truth.npz` beside the material's file (`truth_cache_path`; one table a file, replaced when the key
     differs; a folder that takes no file leaves it in memory, with a warning), and in memory (the last
     TRUTH_MEMORY). A material without a provenance is a ValueError."""
-    return cached_truth(mat, facets, seed, backend, progress)[0]
+    return cached_truth(mat, facets, seed, backend, progress, bounces, paths)[0]
 
 
-def cached_truth(mat, facets: int = TRUTH_FACETS, seed=None, backend="auto", progress=None):
+def cached_truth(mat, facets: int = TRUTH_FACETS, seed=None, backend="auto", progress=None, bounces: int = 1,
+                 paths: int = BOUNCE_PATHS):
     """`truth_of` → (GroundTruth, where it came from: "computed", "memory" or the cache file read)."""
-    count, seed = _truth_settings(mat, facets, seed)
-    key = truth_key(mat, count, seed)
+    count, seed, bounces, paths = _truth_settings(mat, facets, seed, bounces, paths)
+    key = truth_key(mat, count, seed, bounces, paths)
     path = truth_cache_path(mat)
     if path is not None and os.path.exists(path):
         try:
@@ -406,7 +415,7 @@ def cached_truth(mat, facets: int = TRUTH_FACETS, seed=None, backend="auto", pro
     if gt is None:
         tile = mat.provenance.tile
         gt = ground_truth(tile, mat.materials[:tile.n_materials], facets=count, directions=mat.directions,
-                          backend=backend, seed=seed, progress=progress)
+                          backend=backend, seed=seed, progress=progress, bounces=bounces, paths=paths)
         gt.key, source = key, "computed"
     _remember(key, gt)
     if path is not None:
