@@ -684,6 +684,11 @@ class DeviceBackend:
                                          int(view_mode), float(shrink), *m["litsphere_env"], n, out)
         return self._to_host(out, n, "vec3") if to_host else None
 
+    def frame_buffer(self, width: int, height: int) -> np.ndarray:
+        """A new (H, W, 3) uint8 host array for `frame_u8(..., out=)` in the memory this backend reads back
+        into fastest (a display loop keeps a few and reuses them): plain memory here."""
+        return np.empty((int(height), int(width), 3), np.uint8)
+
     def frame_radiance(self, mesh, width: int, height: int) -> np.ndarray:
         """(H, W, 3) float32: the radiance the last shade or shade_litsphere left on the device for `mesh`."""
         return self._to_host(self._frame(mesh, width, height), width * height, "vec3").reshape(height, width, 3)

@@ -589,7 +589,7 @@ class Editor:
         # Two host frames in turn: the one shown stays whole while the next is read back into the other.
         pair = self._frame_buffers.setdefault((cam.height, cam.width), [])
         if len(pair) < 2:
-            pair.append(np.empty((cam.height, cam.width, 3), np.uint8))
+            pair.append(be.frame_buffer(cam.width, cam.height))
         buffer = pair[1] if pair[0] is self._shown else pair[0]
         return be.frame_u8(scene.mesh, cam.width, cam.height, out=buffer), None
 

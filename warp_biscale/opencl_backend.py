@@ -686,6 +686,19 @@ class OpenCLBackend(DeviceBackend):
         np_dtype, width = KINDS[kind]
         return self._empty(int(np.prod(shape)) * width, np_dtype)
 
+    def frame_buffer(self, width: int, height: int) -> np.ndarray:
+        """On a GPU, a host array mapped from a buffer the driver allocates in pinned host memory
+        (ALLOC_HOST_PTR, mapped once and left mapped: no kernel reads it): a read-back into it needs no
+        staging copy."""
+        if not self.is_gpu:
+            return super().frame_buffer(width, height)
+        cl = self._cl
+        shape = (int(height), int(width), 3)
+        buf = cl.Buffer(self._ctx, cl.mem_flags.READ_WRITE | cl.mem_flags.ALLOC_HOST_PTR, int(np.prod(shape)))
+        mapped, _ = cl.enqueue_map_buffer(self._queue, buf, cl.map_flags.READ | cl.map_flags.WRITE, 0, shape,
+                                          np.uint8, is_blocking=True)
+        return mapped  # (its base holds the mapping, and the mapping the buffer)
+
     def _to_host(self, array, shape, kind, out=None):
         return self._read(array, self._host_shape(shape, kind), KINDS[kind][0], out)
 

@@ -157,6 +157,7 @@ class WarpBackend(DeviceBackend):
         self._em_graphs = {}  # (Ns, J, steps, weighted) → captured EM (CUDA): see _em_graph
         self._em_buffers = {}
         self._pinned = {}  # (shape, dtype) → [(pinned host array, event)] free for _read_later
+        self._frame_buffers = {}  # id of a frame_buffer view → (its pinned Warp array, the view)
 
     def __repr__(self):
         return f"WarpBackend({self._device.alias!r})"
@@ -568,6 +569,11 @@ class WarpBackend(DeviceBackend):
         in `out` (a host array of its size) if given. From a GPU, a large array (a frame) goes through a
         pinned host buffer kept per shape and type: a copy to pageable memory goes through the driver's
         staging buffer and ran several times slower."""
+        held = self._frame_buffers.get(id(out)) if out is not None else None
+        if held is not None and held[1]() is out and held[0].size == a.size and held[0].dtype == a.dtype:
+            wp.copy(held[0], a)  # straight into the caller's pinned buffer (frame_buffer): no host copy
+            wp.synchronize_device(self._device)
+            return out
         if self._device.is_cpu or a.capacity < PINNED_BYTES:
             host = a.numpy()
         else:
@@ -592,6 +598,19 @@ class WarpBackend(DeviceBackend):
     def _new(self, shape, kind):
         """(`kind` may also be a Warp dtype: the scratch arrays of some stages hold vectors of J floats.)"""
         return wp.empty(shape, dtype=WARP_TYPES.get(kind, kind), device=self._device)
+
+    def frame_buffer(self, width: int, height: int) -> np.ndarray:
+        """On a GPU, pinned host memory: a frame is then copied into it from the device and nowhere else."""
+        if self._device.is_cpu:
+            return super().frame_buffer(width, height)
+        n = int(width) * int(height) * 3
+        pinned = wp.empty(n, dtype=wp.uint8, device="cpu", pinned=True)
+        view = pinned.numpy().reshape(int(height), int(width), 3)
+        # Known by the view's id and a weak reference to it (a recycled id cannot match); the pinned memory
+        # goes when its view does.
+        self._frame_buffers = {k: v for k, v in self._frame_buffers.items() if v[1]() is not None}
+        self._frame_buffers[id(view)] = (pinned, weakref.ref(view))
+        return view
 
     def _to_host(self, array, shape, kind, out=None):
         return self._trace_host(array, out).reshape(self._host_shape(shape, kind))
