@@ -91,6 +91,8 @@ def _static_inputs(scene: Scene, backend, progress, timings) -> ShadeInputs:
         # texture coordinates for the textured materials' lookups (zeros when the mesh has none: no
         # textured material can then be rendered, Scene checks it)
         host["uvs"] = (mesh.uvs if mesh.uvs is not None else np.zeros((len(mesh.vertices), 2))).astype(np.float32)
+        for name in ("tangents", "positions", "normals", "uvs"):  # ours alone: frozen, known by identity
+            host[name].flags.writeable = False
     packed = pack_materials(scene.materials)
     timings["materials"] = time.perf_counter() - t0
     lobes, residual = light.diffuse_lobes(has_ssdf)
