@@ -96,13 +96,16 @@ def _static_inputs(scene: Scene, backend, progress, timings) -> ShadeInputs:
     packed = pack_materials(scene.materials)
     timings["materials"] = time.perf_counter() - t0
     lobes, residual = light.diffuse_lobes(has_ssdf)
+    # The cached environment, SSDF and SG table arrays are frozen: a backend then knows them by identity.
+    basis, coeffs = np.ascontiguousarray(basis, np.float32), np.ascontiguousarray(coeffs, np.float32)
+    for a in (light.prefiltered.maps, light.prefiltered.levels, basis, coeffs, sg.lighting_table()):
+        a.flags.writeable = False
     static = ShadeInputs(
         faces=mesh.faces, positions=host["positions"], normals=host["normals"],
         tangents=host["tangents"], face_material=mesh.face_material, uvs=host["uvs"],
         env_sgs=lobes.packed(), env_residual=residual, env_maps=light.prefiltered.maps,
-        env_levels=light.prefiltered.levels,
-        has_ssdf=bool(has_ssdf), ssdf_res=int(res), ssdf_basis=np.ascontiguousarray(basis, np.float32),
-        ssdf_coeffs=np.ascontiguousarray(coeffs, np.float32), table=sg.lighting_table(), **packed)
+        env_levels=light.prefiltered.levels, has_ssdf=bool(has_ssdf), ssdf_res=int(res), ssdf_basis=basis,
+        ssdf_coeffs=coeffs, table=sg.lighting_table(), **packed)
     scene.cache.clear()  # one static set per scene: a changed material list or environment replaces it
     scene.cache[key] = static
     return static
