@@ -260,9 +260,9 @@ def _brush(n: int, x: float, y: float, radius: float) -> np.ndarray:
 
 
 _BALL: dict = {}
-# (backend name, id of the mesh) → the frame key (Editor._frame_key) of the editor that last shaded that
-# mesh's device frame: an editor shades only its design's pixels over a frame that is its own and still
-# current (the ball mesh is shared by every editor of the process).
+# (backend name, id of the mesh) → the key (renderer, frame size, light) of the last frame shaded on that mesh's
+# device copy. An editor shades only its design's pixels over a frame of the same key: every other pixel is
+# then what it would shade itself (the ball mesh, its floor and camera are shared by every editor).
 _SHADED: dict = {}
 
 
@@ -551,7 +551,8 @@ class Editor:
         t0 = time.perf_counter()
         # A geometry or material edit changes the design's pixels only: with the same camera, light and
         # environment as the frame on the device, only those are shaded again.
-        key = (_renderer(state), coarse, self.width, self.height, tuple(sorted(state["light"].items())))
+        key = (_renderer(state), self._coarse_frames(coarse), self.width, self.height,
+               tuple(sorted(state["light"].items())))
         shaded = (self.backend.name, id(scene.mesh))
         only = 0 if redo in ("bake", "materials") and _SHADED.pop(shaded, None) == key else None
         timings["shaded"] = "design" if only is not None else "frame"
