@@ -323,7 +323,7 @@ def test_measured_brdf_makes_a_lit_sphere_and_renders():
     """A MERL table (here a tabulated Blinn–Phong, written and read back) becomes a lit sphere like the
     analytic material: its images agree to the table's own interpolation error (measured 0.05 % of the
     peak for Blinn–Phong n = 64 in tests/test_measured.py; 1 % allowed for the grazing texels), and a scene
-    with it renders by method='litsphere' while the SG renderer refuses it in one line."""
+    with it renders by method='litsphere' (the SG renderer shades its SG fit: tests/test_measured_sg.py)."""
     analytic = wb.BlinnPhong(0.5, 64, kd=0.3, normalization="energy")
     measured = wb.MeasuredBRDF.from_brdf(analytic)
     a = L.LitSphere.from_material(analytic, resolution=64)
@@ -333,8 +333,6 @@ def test_measured_brdf_makes_a_lit_sphere_and_renders():
     scene = wb.Scene(wb.Mesh.sphere(1.0), [measured], wb.Camera(width=32, height=24), None, [wb.DirectionalLight()])
     image = wb.render(scene, method="litsphere", backend="warp:cpu", resolution=64).image
     assert image.max() > 0 and np.isfinite(image).all()
-    with pytest.raises(ValueError, match="MeasuredBRDF, which method='sg' cannot shade"):
-        wb.render(scene, backend="warp:cpu")
 
 
 def test_a_render_reports_its_error_against_the_exact_renders():

@@ -291,7 +291,7 @@ def test_nbytes(random_table, lambert):
 
 def test_packed_refuses_in_one_line(paint):
     for call in (paint.packed, lambda: pack_materials([wb.Lambert(0.5), paint])):
-        with pytest.raises(ValueError, match="cannot be shaded in the kernels yet") as info:
+        with pytest.raises(ValueError, match="ground-truth and matrix kernels only") as info:
             call()
         assert "\n" not in str(info.value)
 

@@ -43,9 +43,8 @@ from . import bake as bake_mod
 from . import directions as dirs
 from . import lobes as lobes_mod
 from . import sg
-from .brdf import Lambert, as_material_list
-from .effective import (HostOnlyBRDF, Provenance, _brdf_from_dict, _brdf_to_dict,
-                        interpolated_amplitudes)
+from .brdf import as_material_list, diffuse_albedo
+from .effective import HostOnlyBRDF, Provenance, interpolated_amplitudes, materials_from_file, materials_to_file
 from .io import read_npz, save_npz
 from .model import Bvndf
 from .progress import as_progress
@@ -450,7 +449,7 @@ class ASGBRDF(HostOnlyBRDF):
         mu = self._mu(wi, wo)
         out = np.zeros((len(wi), 3))
         for m, mat in enumerate(self.materials):
-            kd = np.asarray(mat.albedo if isinstance(mat, Lambert) else mat.kd, np.float64) / np.pi
+            kd = diffuse_albedo(mat) / np.pi
             out += np.einsum("njc,j->nc", mu[m], self.integrals) * kd
             eta_s, scale, h = sg.specular_lobe(mat, wi, wo)
             if eta_s is None or not scale.any():
@@ -473,9 +472,11 @@ class ASGBRDF(HostOnlyBRDF):
             arrays.update({f"bvndf_{k}": v for k, v in self.bvndf.arrays().items()})
         if self.provenance is not None:
             arrays.update(self.provenance.arrays())
+        materials, tables = materials_to_file(self.materials)
+        arrays.update(tables)
         save_npz(path, self.FORMAT, self.VERSION,
                  {"directions": self.directions, "method": "asg",
-                  "materials": [_brdf_to_dict(m) for m in self.materials], "info": self.info,
+                  "materials": materials, "info": self.info,
                   "timings": self.timings, "bvndf_resolution": None if self.bvndf is None else self.bvndf.resolution,
                   "provenance": None if self.provenance is None else self.provenance.header()},
                  arrays)
@@ -486,7 +487,7 @@ class ASGBRDF(HostOnlyBRDF):
         head, arrays = read_npz(path, cls.FORMAT, versions=cls.VERSIONS)
         try:
             g = asg_mod.ASG(arrays["asg_x"], arrays["asg_y"], arrays["asg_z"], arrays["asg_lam"], arrays["asg_mu"])
-            mats = [_brdf_from_dict(d) for d in head["materials"]]
+            mats = materials_from_file(head["materials"], arrays)
             bv = None
             if head.get("bvndf_resolution") is not None:
                 bv = Bvndf.from_arrays(head["bvndf_resolution"], {k[6:]: v for k, v in arrays.items()

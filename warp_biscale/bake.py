@@ -20,7 +20,7 @@ from . import lobes as lobes_mod
 from . import matrix as matrix_mod
 from . import sg
 from .backend import get_backend
-from .brdf import refuse_anisotropic
+from .brdf import MEASURED, refuse_anisotropic
 from .effective import METHODS, EffectiveBRDF, Provenance
 from .progress import as_progress
 from .truth import _check_count, _prepare, _Timer
@@ -200,15 +200,17 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
                                   "bins carry no tangent, and the ASG bake convolves with the small-scale BRDF's "
                                   "isotropic SG, so none can hold it yet (issue 20: ASG x ASG); wb.ground_truth "
                                   "evaluates it exactly")
-    # Only the matrix method's M takes a measured BRDF (its kernels look the table up); the SG and ASG bakes
-    # fit lobes to an analytic BRDF's parameters, so `packed` refuses one in one line there.
-    mats, _, _ = _prepare(tile, materials, measured=method == "matrix")
+    # A measured BRDF: the matrix method's M looks its table up; the SG and ASG bakes convolve with its SG
+    # fit (`brdf.sg_form`), fitted here so that its time and error are the bake's (`_fit_measured`).
+    mats, _, _ = _prepare(tile, materials, measured=True)
     if method == "matrix":
         return _bake_matrix(tile, mats, directions, normal_res, facets, backend, seed, bvndf, progress, matrix)
     if method in METHOD_BAKES:  # "asg": asg_bake.bake_asg (Xu 2013; its lobes fitted from the SG EM's)
         if matrix is not None or route != "facets":
             raise ValueError(f"method={method!r} sums its amplitudes over the facets and takes no matrix= options")
-        return METHOD_BAKES[method](tile, mats, lobes, directions, normal_res, facets, backend, seed, bvndf, progress)
+        fits = _fit_measured(mats)
+        mat = METHOD_BAKES[method](tile, mats, lobes, directions, normal_res, facets, backend, seed, bvndf, progress)
+        return _record_fits(mat, fits)
     if method not in METHODS:
         raise ValueError(f"method must be one of {(*METHODS, 'matrix', *METHOD_BAKES)}, got {method!r}")
     if matrix is not None:
@@ -226,6 +228,7 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
     if not (np.isfinite(tolerance) and tolerance > 0):
         raise ValueError(f"tolerance must be a number > 0, got {tolerance!r}")
     be = get_backend(backend)
+    fits = _fit_measured(mats)
     probe = None  # the sharpest small-scale lobe: what lobes="auto" fits the NDF for
     if j_req == "auto":
         spec = [sg.specular_lobe(m, [[0, 0, 1.0]], [[0, 0, 1.0]])[0] for m in mats]
@@ -257,6 +260,25 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
     timer.timings["tables"] = time.perf_counter() - t0
     mat.timings = dict(timer.timings)
     prog.done()
+    return _record_fits(mat, fits)
+
+
+def _fit_measured(mats) -> tuple[dict, float]:
+    """The SG fits of the measured BRDFs among `mats` (`MeasuredBRDF.sg_fit`, kept by each table), by material
+    index, and the seconds this call spent fitting (0 where every table had its fit already)."""
+    t0 = time.perf_counter()
+    fits = {i: m.sg_fit() for i, m in enumerate(mats) if m.kind == MEASURED}
+    return fits, time.perf_counter() - t0
+
+
+def _record_fits(mat, fitted: tuple[dict, float]):
+    """The bake's result with its measured materials' SG fits in `info["sg_fit"]` (per material index: the
+    fit's relative L2 error and its parameters) and the time the bake spent fitting in `timings["sg_fit"]`."""
+    fits, seconds = fitted
+    if fits:
+        mat.info["sg_fit"] = {str(i): {"error": f.error, "roughness": f.brdf.roughness, "f0": f.brdf.f0,
+                                       "kd": list(f.brdf.kd), "ks": list(f.brdf.ks)} for i, f in fits.items()}
+        mat.timings["sg_fit"] = seconds
     return mat
 
 

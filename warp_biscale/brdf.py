@@ -33,7 +33,8 @@ import numpy as np
 
 __all__ = ["Lambert", "BlinnPhong", "CookTorrance", "Ward", "AnisotropicWard", "AshikhminShirley", "Brdf",
            "pack_materials", "measured_tables", "as_material_list", "refuse_anisotropic", "tangent_frame", "parse_brdf",
-           "EnergyWarning", "NORMALIZATIONS", "blinn_phong_normal_albedo", "cook_torrance_albedo"]
+           "EnergyWarning", "NORMALIZATIONS", "sg_form", "diffuse_albedo", "blinn_phong_normal_albedo",
+           "cook_torrance_albedo"]
 
 LAMBERT, BLINN_PHONG, COOK_TORRANCE, WARD = 0, 1, 2, 3
 ANISOTROPIC_WARD, ASHIKHMIN_SHIRLEY = 4, 5
@@ -558,6 +559,20 @@ def pack_materials(materials, n_required: int = 0, anisotropic: bool = False, me
     else:
         params = np.stack([m.packed() for m in mats])
     return kinds, params.astype(np.float64)
+
+
+def sg_form(brdf) -> Brdf:
+    """The analytic BRDF that stands for `brdf` wherever its specular lobe is an SG (the SG and ASG bakes'
+    f̄, the SG renderer's shading, the Mitsuba export): the BRDF itself, or for a measured one its SG fit
+    (`MeasuredBRDF.sg_fit`, a Cook–Torrance whose NDF is read as one SG). The ground truth, the matrix
+    method and the Monte Carlo reference evaluate the measured table itself."""
+    return brdf.sg_fit().brdf if brdf.kind == MEASURED else brdf
+
+
+def diffuse_albedo(brdf) -> np.ndarray:
+    """(3,) float64: the Lambertian albedo of `brdf`'s SG form (Lambert's albedo, any other model's kd)."""
+    b = sg_form(brdf)
+    return np.asarray(b.albedo if isinstance(b, Lambert) else b.kd, np.float64)
 
 
 def measured_tables(materials) -> list:

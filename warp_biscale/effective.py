@@ -30,6 +30,7 @@ from . import sg
 from .model import Bvndf
 from .io import read_npz, save_npz
 from .lobes import LobeSet
+from .measured import MeasuredBRDF
 from .smallscale import SmallScale, TileWarning
 
 __all__ = ["EffectiveBRDF", "Provenance", "compare", "METHODS"]
@@ -43,6 +44,26 @@ EXPORTERS: dict = {}
 
 def _brdf_to_dict(b) -> dict:
     return {"type": type(b).__name__, **{f.name: getattr(b, f.name) for f in dataclasses.fields(b)}}
+
+
+def materials_to_file(materials) -> tuple[list, dict]:
+    """The small-scale BRDFs as a material file holds them: (JSON dicts for its header, arrays): an analytic
+    BRDF's parameters, a measured one's table as array "measured_<i>" (`MeasuredBRDF.to_file`)."""
+    dicts, arrays = [], {}
+    for i, b in enumerate(materials):
+        if b.kind == brdf_mod.MEASURED:
+            head, table = b.to_file(f"measured_{i}")
+            dicts.append(head)
+            arrays.update(table)
+        else:
+            dicts.append(_brdf_to_dict(b))
+    return dicts, arrays
+
+
+def materials_from_file(dicts, arrays) -> list:
+    """The BRDFs `materials_to_file` wrote."""
+    return [MeasuredBRDF.from_file(d, arrays) if d.get("type") == "MeasuredBRDF" else _brdf_from_dict(d)
+            for d in dicts]
 
 
 def _brdf_from_dict(d: dict):
@@ -167,8 +188,7 @@ class EffectiveBRDF:
     # ------------------------------------------------------------------ tables
     def _diffuse_table(self) -> np.ndarray:
         """f̄d on the grid (Eq. 9): Σ_m kd_m/π Σ_j μ_mj ∫G_j."""
-        kd = np.stack([np.asarray(mat.albedo if isinstance(mat, brdf_mod.Lambert) else mat.kd, np.float32)
-                       for mat in self.materials]) / np.float32(np.pi)
+        kd = np.stack([brdf_mod.diffuse_albedo(mat).astype(np.float32) for mat in self.materials]) / np.float32(np.pi)
         return np.einsum("mioc,mc->ioc", self._energy, kd).astype(np.float32, copy=False)  # (one pass: an edit's cost)
 
     @property
@@ -212,7 +232,7 @@ class EffectiveBRDF:
         ax, eta = self.lobes.axes, self.lobes.sharpness
         out = np.zeros((len(wi), 3))
         for m, mat in enumerate(self.materials):
-            kd = np.asarray(mat.albedo if isinstance(mat, brdf_mod.Lambert) else mat.kd, np.float64) / np.pi
+            kd = brdf_mod.diffuse_albedo(mat) / np.pi
             out += np.einsum("njc,j->nc", mu[m], self._integrals) * kd
             eta_s, scale, h = sg.specular_lobe(mat, wi, wo)
             if eta_s is None or not scale.any():
@@ -241,9 +261,11 @@ class EffectiveBRDF:
             arrays.update({f"bvndf_{k}": v for k, v in self.bvndf.arrays().items()})
         if self.provenance is not None:
             arrays.update(self.provenance.arrays())
+        materials, tables = materials_to_file(self.materials)
+        arrays.update(tables)
         save_npz(path, "effective_brdf", self.VERSION,
                  {"directions": self.directions, "method": self.method,
-                  "materials": [_brdf_to_dict(m) for m in self.materials], "info": self.info,
+                  "materials": materials, "info": self.info,
                   "timings": self.timings, "bvndf_resolution": None if self.bvndf is None else self.bvndf.resolution,
                   "provenance": None if self.provenance is None else self.provenance.header()},
                  arrays)
@@ -261,7 +283,7 @@ class EffectiveBRDF:
         head, arrays = read_npz(path, "effective_brdf", versions=cls.VERSIONS)
         try:
             lobes = LobeSet(arrays["axes"], arrays["sharpness"], arrays["weight"])
-            mats = [_brdf_from_dict(d) for d in head["materials"]]
+            mats = materials_from_file(head["materials"], arrays)
             bv = None
             if head.get("bvndf_resolution") is not None:
                 bv = Bvndf.from_arrays(head["bvndf_resolution"], {k[6:]: v for k, v in arrays.items()

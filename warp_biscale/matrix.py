@@ -60,7 +60,7 @@ import numpy as np
 
 from . import directions as dirs
 from .brdf import BLINN_PHONG, COOK_TORRANCE, LAMBERT, MEASURED, WARD, as_material_list, pack_materials
-from .effective import HostOnlyBRDF, Provenance, _brdf_from_dict, _brdf_to_dict
+from .effective import HostOnlyBRDF, Provenance, materials_from_file, materials_to_file
 from .io import read_npz, save_npz
 from .model import Bvndf
 
@@ -1320,10 +1320,12 @@ class MatrixBRDF(HostOnlyBRDF):
             arrays.update(f.arrays(f"n{c}_"))
         if self.provenance is not None:
             arrays.update(self.provenance.arrays())
+        materials, tables = materials_to_file(self.materials)
+        arrays.update(tables)
         settings = {k: v for k, v in self.settings.items() if k not in _RUNTIME_SETTINGS}
         save_npz(path, self.FORMAT, self.VERSION,
                  {"directions": self.directions, "method": "matrix",
-                  "materials": [_brdf_to_dict(m) for m in self.materials], "settings": settings,
+                  "materials": materials, "settings": settings,
                   "channels": [f.header() for *_, f in self.channels], "info": self.info, "timings": self.timings,
                   "bvndf_resolution": self.bvndf.resolution,
                   "provenance": None if self.provenance is None else self.provenance.header()},
@@ -1334,7 +1336,7 @@ class MatrixBRDF(HostOnlyBRDF):
     def load(cls, path) -> MatrixBRDF:
         head, arrays = read_npz(path, cls.FORMAT, versions=cls.VERSIONS)
         try:
-            mats = [_brdf_from_dict(d) for d in head["materials"]]
+            mats = materials_from_file(head["materials"], arrays)
             bv = Bvndf.from_arrays(head["bvndf_resolution"], {k[6:]: v for k, v in arrays.items()
                                                               if k.startswith("bvndf_")})
             channels = [(int(m), mult, MatrixFactors.from_arrays(arrays, h, f"n{c}_"))

@@ -32,9 +32,10 @@ on `kernel_table()` — the filled table times the channel scales, in float32 �
 per table (17.5 MB) and keeps by identity. The packed row (`brdf.pack_materials(..., measured=True)`, kind
 `brdf.MEASURED`) holds the table's slot among the call's tables (`brdf.measured_tables`) and the
 interpolation. Measured (tests/test_measured_kernels.py): within 3.1e-5 of the peak of `eval` (trilinear;
-1e-6 nearest). Every other packing — the SG and ASG bakes, the SG renderer's shade, the lit-sphere texel
-kernels (lit spheres read the table on the host instead), the Mitsuba export — refuses one in one line
-(`packed`). The Monte Carlo reference (`montecarlo.render`) calls `eval` on the host, in float64.
+1e-6 nearest). The SG and ASG bakes and the SG renderer use the table's SG fit instead (`sg_fit`, `fit_sg`:
+one microfacet lobe whose NDF is an SG, Wang §4.1–4.2; `brdf.sg_form`). The lit-sphere texel kernels (lit
+spheres read the table on the host instead) and the Mitsuba export refuse one in one line (`packed`). The
+Monte Carlo reference (`montecarlo.render`) calls `eval` on the host, in float64.
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ import numpy as np
 from .brdf import MEASURED, Brdf, CookTorrance, Lambert
 from .io import atomic_path, check_output
 
-__all__ = ["MeasuredBRDF", "paint_like", "half_diff_angles", "merl_indices",
+__all__ = ["MeasuredBRDF", "SGFit", "fit_sg", "paint_like", "half_diff_angles", "merl_indices",
            "RES_THETA_H", "RES_THETA_D", "RES_PHI_D", "SCALES", "INTERPOLATIONS"]
 
 RES_THETA_H, RES_THETA_D, RES_PHI_D = 90, 90, 180  # the header: φd over [0, π) (BRDFRead.cpp's 360/2)
@@ -215,6 +216,7 @@ class MeasuredBRDF(Brdf):
         a.setflags(write=False)
         self._data = a
         self._lut = None  # the filled table, made on the first eval
+        self._sg_fit = None  # the SG form, fitted on first use (`sg_fit`)
         self.source = source
         self.interpolation = _check_interpolation(interpolation)
 
@@ -387,11 +389,37 @@ class MeasuredBRDF(Brdf):
         return out
 
     def packed(self):
-        raise ValueError("a MeasuredBRDF cannot be shaded in the kernels yet but by the ground truth and the matrix "
-                         "method (wb.ground_truth, wb.effective_brdf_exact, wb.bake(method='matrix')): the SG and "
-                         "ASG bakes, the SG renderer's shading, the lit-sphere texel kernels and the Mitsuba export "
-                         "know Lambert, BlinnPhong, CookTorrance and Ward only; evaluate it "
-                         "on the CPU with .eval(n, wi, wo)")
+        raise ValueError("a MeasuredBRDF's table is read by the ground-truth and matrix kernels only (wb.ground_truth, "
+                         "wb.bake(method='matrix')), and the SG and ASG bakes and the SG renderer use its SG fit "
+                         "(.sg_fit()); the lit-sphere texel kernels and the Mitsuba export know Lambert, BlinnPhong, "
+                         "CookTorrance and Ward only; evaluate it on the CPU with .eval(n, wi, wo)")
+
+    def to_file(self, key: str) -> tuple[dict, dict]:
+        """(header dict, arrays) as a material file holds this BRDF: the table as array `key`, the
+        interpolation, source and SG fit in the header (`from_file` reads them back; the fit is made here
+        if it was not yet, so that a loaded material is not fitted again)."""
+        return ({"type": "MeasuredBRDF", "table": key, "interpolation": self.interpolation, "source": self.source,
+                 "sg_fit": self.sg_fit().to_dict()}, {key: self._data})
+
+    @classmethod
+    def from_file(cls, head: dict, arrays: dict) -> MeasuredBRDF:
+        """The BRDF `to_file` wrote: a one-line error if its table is missing or malformed."""
+        key = head.get("table")
+        if key not in arrays:
+            raise ValueError(f"the measured BRDF's table {key!r} is missing from the material file")
+        out = cls(arrays[key], interpolation=head.get("interpolation", "trilinear"), source=head.get("source"))
+        if head.get("sg_fit") is not None:
+            out._sg_fit = SGFit.from_dict(head["sg_fit"])
+        return out
+
+    def sg_fit(self) -> SGFit:
+        """The SG form of this table (`fit_sg`: one microfacet lobe with an SG NDF, Wang §4.1–4.2), fitted on
+        the first call and kept (a `with_interpolation` copy made after it shares it). `sg_fit().brdf` is what
+        the SG and ASG bakes and the SG renderer use for this material (`brdf.sg_form`); the ground truth, the
+        matrix method and the Monte Carlo reference use the table itself."""
+        if self._sg_fit is None:
+            self._sg_fit = fit_sg(self)
+        return self._sg_fit
 
     def kernel_row(self, slot: int) -> np.ndarray:
         """The packed row (8,) the ground-truth and matrix kernels read (`brdf.pack_materials(...,
@@ -435,3 +463,126 @@ def paint_like(base=(0.55, 0.08, 0.05), sheen=(0.12, 0.05, 0.04), coat=0.06, *, 
              CookTorrance(ks=sheen, roughness=sheen_roughness, f0=f0),
              CookTorrance(ks=coat, roughness=coat_roughness, f0=f0)]
     return MeasuredBRDF.from_brdf(lobes, interpolation=interpolation)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# The SG fit (Wang 2009 §4.1–4.2): what stands for a measured BRDF wherever SG lobes are convolved
+# ---------------------------------------------------------------------------------------------------------
+
+# The fit's samples: every θh bin (MERL's square-root axis is dense at the specular peak, where a sharp
+# lobe's width is decided), every FIT_STEP_TD-th θd bin and every FIT_STEP_PD-th φd bin: 90·45·45 bin centres.
+FIT_STEP_TD, FIT_STEP_PD = 2, 4
+FIT_ROUGHNESS = np.geomspace(0.005, 2.0, 24)  # the start's grid of m (SG sharpness η = 2/m², 0.5 to 8e4)
+FIT_F0 = (0.02, 0.1, 0.5, 1.0)  # the start's grid of Schlick's f0
+
+
+class SGFit:
+    """A measured BRDF's SG form (`MeasuredBRDF.sg_fit`): `brdf`, a `CookTorrance` (kd, ks RGB, m, f0) whose
+    NDF is read as the single SG lobe G(h; n, 2/m², 1) (Wang Eq. 12) — the form the SG and ASG bakes and the
+    SG renderer convolve; `error`, the relative L2 error of the fitted model's cosine-weighted values
+    f·cosθi·cosθo against the table's over all direction pairs (the four-dimensional integral, by the
+    fit's bin-centre quadrature); `seconds`, the fit's time."""
+
+    def __init__(self, brdf, error: float, seconds: float, samples: int):
+        self.brdf = brdf
+        self.error = float(error)
+        self.seconds = float(seconds)
+        self.samples = int(samples)
+
+    def to_dict(self) -> dict:
+        """The fit as a material file's JSON header holds it (`from_dict` reads it back)."""
+        b = self.brdf
+        return {"kd": list(b.kd), "ks": list(b.ks), "roughness": b.roughness, "f0": b.f0, "error": self.error,
+                "seconds": self.seconds, "samples": self.samples}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> SGFit:
+        import warnings
+
+        from .brdf import EnergyWarning
+        with warnings.catch_warnings():  # as `fit_sg`: the fit reflects what the table does
+            warnings.simplefilter("ignore", EnergyWarning)
+            brdf = CookTorrance(ks=d["ks"], roughness=d["roughness"], f0=d["f0"], kd=d["kd"])
+        return cls(brdf, d["error"], d["seconds"], d["samples"])
+
+    def __repr__(self):
+        b = self.brdf
+        return (f"SGFit(kd={tuple(round(x, 4) for x in b.kd)}, ks={tuple(round(x, 4) for x in b.ks)}, "
+                f"roughness={b.roughness:.4g}, f0={b.f0:.3g}, error={self.error:.3g})")
+
+
+def _fit_samples(table):
+    """The fit's bin centres with both directions above the horizon: (cosθi·cosθo, θh, h·ωi, the
+    shadowing-masking G, quadrature weights, values (N, 3) of f·cosθi·cosθo). The weight of a bin is its
+    measure dωi dωo = 4 cosθd sinθh sinθd dθh dθd dφd dφh (Rusinkiewicz's half/difference Jacobian; dθh is the
+    square-root axis' bin width), φh and the constant factors dropped."""
+    th, td, pd = bin_centres()
+    sel_td, sel_pd = np.arange(0, RES_THETA_D, FIT_STEP_TD), np.arange(0, RES_PHI_D, FIT_STEP_PD)
+    d_th = (2 * np.arange(RES_THETA_H) + 1) / RES_THETA_H**2 * _HALF_PI
+    wi, wo = directions_of(th[:, None, None], td[sel_td][None, :, None], pd[sel_pd][None, None, :])
+    ci, co = wi[..., 2], wo[..., 2]
+    weight = np.broadcast_to((d_th * np.sin(th))[:, None, None] * (np.cos(td) * np.sin(td))[sel_td][None, :, None],
+                             ci.shape)
+    ok = (ci > 0) & (co > 0)
+    vals = table.reshape(SHAPE)[:, :, sel_td][:, :, :, sel_pd] * SCALES[:, None, None, None]
+    ci, co = ci[ok], co[ok]
+    theta_h = np.broadcast_to(th[:, None, None], ok.shape)[ok]
+    cos_d = np.broadcast_to(np.cos(td[sel_td])[None, :, None], ok.shape)[ok]  # h·ωi
+    nh = np.cos(theta_h)
+    g = np.minimum(1.0, np.minimum(2 * nh * co / cos_d, 2 * nh * ci / cos_d))
+    return ci * co, theta_h, cos_d, g, weight[ok], vals[:, ok].T * (ci * co)[:, None]
+
+
+def _nonnegative_fit(basis, target, sqrt_w):
+    """Per channel, the non-negative coefficients (2,) of two basis columns (N, 2) that fit target (N, 3) in
+    the weighted least squares; → (coefficients (3, 2), weighted squared residual summed over channels)."""
+    from scipy.optimize import nnls
+
+    q, r = np.linalg.qr(basis * sqrt_w[:, None])
+    wt = target * sqrt_w[:, None]
+    proj = q.T @ wt  # (2, 3)
+    rest = float(np.sum(wt * wt) - np.sum(proj * proj))  # what no combination of the columns reaches
+    coef, total = np.zeros((3, 2)), rest
+    for c in range(3):
+        x, res = nnls(r, proj[:, c])
+        coef[c] = x
+        total += res * res
+    return coef, total
+
+
+def fit_sg(measured: MeasuredBRDF) -> SGFit:
+    """The SG fit of a measured BRDF, Wang §4.1–4.2 reduced to one lobe: kd/π + ks·F(h·ωi)·G·D(h)/(π cosθi cosθo)
+    with D = exp((2/m²)(n·h − 1)) the NDF's SG, Schlick's F(f0) and Cook–Torrance's V-cavity G (as
+    `CookTorrance`), in the weighted least squares of f·cosθi·cosθo over the table's bin centres (`_fit_samples`).
+    kd and ks enter linearly, so for each (m, f0) they are solved exactly (non-negative, per channel); (m, f0)
+    start at the best of a grid and are refined by Nelder–Mead in (log m, f0). Deterministic; about a second."""
+    import time
+
+    from scipy.optimize import minimize
+
+    t0 = time.perf_counter()
+    diffuse, theta_h, cos_d, g, weight, target = _fit_samples(measured._table())
+    sqrt_w = np.sqrt(weight)
+    f5 = (1.0 - cos_d) ** 5
+    nh = np.cos(theta_h)
+
+    def solve(log_m, f0):
+        m, f0 = float(np.exp(log_m)), float(np.clip(f0, 0.0, 1.0))
+        spec = (f0 + (1 - f0) * f5) * g * np.exp((2.0 / (m * m)) * (nh - 1.0)) / np.pi
+        return _nonnegative_fit(np.stack([diffuse / np.pi, spec], 1), target, sqrt_w)
+
+    start = min(((np.log(m), f0) for m in FIT_ROUGHNESS for f0 in FIT_F0), key=lambda p: solve(*p)[1])
+    best = minimize(lambda p: solve(p[0], p[1])[1] + (1e30 if not 0 <= p[1] <= 1 else 0.0), np.array(start),
+                    method="Nelder-Mead", options={"xatol": 1e-4, "fatol": 1e-12, "maxiter": 400})
+    log_m, f0 = (best.x if best.fun <= solve(*start)[1] else np.array(start))
+    coef, residual = solve(log_m, f0)
+    norm = float(np.sum(weight[:, None] * target * target))
+    error = float(np.sqrt(residual / norm)) if norm > 0 else 0.0
+    import warnings
+
+    from .brdf import EnergyWarning
+    with warnings.catch_warnings():  # a table that reflects more than it receives is the table's own business
+        warnings.simplefilter("ignore", EnergyWarning)
+        brdf = CookTorrance(ks=tuple(coef[:, 1]), roughness=float(np.exp(log_m)), f0=float(np.clip(f0, 0, 1)),
+                            kd=tuple(coef[:, 0]))
+    return SGFit(brdf, error, time.perf_counter() - t0, len(weight))

@@ -23,7 +23,6 @@ import numpy as np
 
 from . import lighting, litsphere, montecarlo, sg
 from .litsphere import LitSphere
-from .measured import MeasuredBRDF
 from . import ssdf as ssdf_mod
 from .backend import get_backend
 from .progress import Progress
@@ -207,15 +206,12 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
 
 def check_no_litspheres(scene: Scene, method: str) -> None:
     """Refuse, in one line, a material `method` cannot shade: a LitSphere (only the lit-sphere shader reads
-    one) or, for the SG renderer, a MeasuredBRDF (the shade kernels do not read its table; the Monte Carlo
-    reference evaluates it on the host, method='litsphere' renders it)."""
+    one). A MeasuredBRDF the SG renderer shades by its SG fit (`brdf.sg_form`), the Monte Carlo reference
+    and the lit-sphere shader by its table."""
     for i, m in enumerate(scene.materials):
         if isinstance(m, LitSphere):
             raise ValueError(f"Scene.materials[{i}] is a LitSphere, which only method='litsphere' renders "
                              f"(method={method!r} needs the material itself)")
-        if isinstance(m, MeasuredBRDF) and method != "mc":
-            raise ValueError(f"Scene.materials[{i}] is a MeasuredBRDF, which method={method!r} cannot shade yet "
-                             "(no kernel reads its table); method='litsphere' renders it")
 
 
 def _accumulate(scene: Scene, backend, n_aa: int, n_shadow: int, lights, timings: dict, shade):

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .brdf import BlinnPhong, CookTorrance, Ward
+from .brdf import BlinnPhong, CookTorrance, Ward, sg_form
 
 __all__ = ["evaluate", "integral", "inner_product", "product", "convolve", "one_minus_cos", "SHARPNESS_MAX",
            "SHARPNESS_MIN", "specular_lobe"]
@@ -108,8 +108,10 @@ def specular_lobe(brdf, wi, wo):
     Cook–Torrance (Wang §4): D = exp(−θh²/m²) ≈ G(n; h, 2/m², 1); the rest, F·G/(π(n·ωi)(n·ωo)), is
     taken at n = h, where G = 1 and n·ωi = n·ωo = h·ωi = cos θd: M = ks·F(cos θd)/(π cos²θd).
     Ward: exp(−tan²θh/α²) ≈ G(n; h, 2/α², 1) (tan²θ ≈ 2(1 − cos θ) near θ = 0) and
-    M = ks/(4πα² cos θd). A Lambertian BRDF has no specular term: η_s = None, M = 0.
+    M = ks/(4πα² cos θd). A Lambertian BRDF has no specular term: η_s = None, M = 0. A measured BRDF's is
+    its SG fit's (`brdf.sg_form`).
     """
+    brdf = sg_form(brdf)
 
     wi = np.atleast_2d(np.asarray(wi, np.float64))
     wo = np.atleast_2d(np.asarray(wo, np.float64))

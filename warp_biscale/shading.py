@@ -70,15 +70,15 @@ MIN_COS_VIEW = 1e-4  # ωo·n is clamped here: silhouette pixels whose interpola
 
 
 def _analytic_row(m) -> np.ndarray:
-    kinds, params = brdf_mod.pack_materials([m])
+    """The shade kernels' row of an analytic BRDF: its SG form's (a measured one's SG fit, `brdf.sg_form`)."""
+    kinds, params = brdf_mod.pack_materials([brdf_mod.sg_form(m)])
     return np.concatenate([[kinds[0]], params[0]]).astype(np.float32)
 
 
 def _has_specular(m) -> bool:
     if isinstance(m, Textured):  # the maps only scale ks: no specular term appears where ks = 0
         m = m.brdf
-    if m.kind == brdf_mod.MEASURED:  # a table: any part of it may be specular
-        return True
+    m = brdf_mod.sg_form(m)
     return not isinstance(m, brdf_mod.Lambert) and float(np.max(m.ks)) > 0
 
 
@@ -103,10 +103,6 @@ def pack_materials(materials) -> dict:
                 tex_data.append(np.ascontiguousarray(tex, np.float32).ravel())
                 n_texels += tex.shape[0] * tex.shape[1]
         elif isinstance(m, brdf_mod.Brdf):
-            if m.kind == brdf_mod.MEASURED:
-                raise ValueError(f"materials[{idx}] is a MeasuredBRDF: the shade kernels (render's method='sg') cannot "
-                                 "look its table up yet (only the ground truth and the matrix method's kernels do); "
-                                 "render it with method='litsphere'")
             info.append([0, len(analytic), int(_has_specular(m)), -1])
             analytic.append(_analytic_row(m))
         elif isinstance(m, EffectiveBRDF):
