@@ -4,9 +4,12 @@
  * kernels/asg.py's docstring gives the numerics (Cephes i0f for i0e, the 56-node integral, the product in
  * double, the warp's closed-form 2x2 eigenpairs). G(v) = c·max(v·z, 0)·exp(−λ(v·x)² − μ(v·y)²) (Xu Eq. 1);
  * our SG of sharpness η is Xu's ν = η/2. Layouts: ASG rows (N, 12) float [x, y, z, λ, μ, c]; 3-vectors
- * (N, 3) float; scalars (N,) float. The product needs cl_khr_fp64.
+ * (N, 3) float; scalars (N,) float. The product needs cl_khr_fp64: it is built only where the device has it,
+ * so that the shade stage, which takes this file's other functions (opencl_backend.USES), builds everywhere.
  */
+#ifdef cl_khr_fp64
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
+#endif
 
 #define ASG_PI 3.14159265358979f
 #define ASG_FLOAT_MAX 3.4028234e38f
@@ -232,6 +235,7 @@ CL_INLINE Asg asg_convolve_sg(Asg g, float eta, float amplitude)
 CL_INLINE float asg_effective_sharpness(Asg g) { return 2.0f * sqrt(g.lam * g.mu); }
 
 /* ------------------------------------------------------------------ product (Xu Eq. 13), in double */
+#ifdef cl_khr_fp64
 
 /* a + w·uuᵀ (row-major 3×3 doubles). */
 CL_INLINE void add_form(double *a, float w, float3 u)
@@ -372,6 +376,7 @@ CL_INLINE Asg asg_product(Asg g1, Asg g2)
     r.c = (float)((double)g1.c * (double)g2.c * smooth * exp(-fmax(w0, 0.0)));
     return r;
 }
+#endif
 
 /* ------------------------------------------------------------------ spherical warp (Xu Eq. 23–26) */
 
@@ -485,6 +490,7 @@ __kernel void asg_convolve_rows(__global const float *rows, __global const float
     asg_store(out, i, asg_convolve_sg(asg_load(rows, i), sharpness[i], amplitude[i]));
 }
 
+#ifdef cl_khr_fp64
 __kernel void asg_product_rows(__global const float *rows1, __global const float *rows2, const int n,
                                __global float *out)
 {
@@ -493,6 +499,7 @@ __kernel void asg_product_rows(__global const float *rows1, __global const float
         return;
     asg_store(out, i, asg_product(asg_load(rows1, i), asg_load(rows2, i)));
 }
+#endif
 
 __kernel void asg_warp_rows(__global const float *rows, __global const float *wo, const int n, __global float *out)
 {

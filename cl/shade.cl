@@ -18,6 +18,9 @@
 
 #define SHADE_PI 3.14159265358979f
 #define MIN_COS_VIEW 1.0e-4f /* = shading.MIN_COS_VIEW */
+#define ASG_LOBES 1 /* = effective.ASG_LOBES: eff_info[7] of a material with ASG lobes */
+#define ASG_EQ10_MIN 5.0f /* = asg.EQ10_MIN_BANDWIDTH */
+#define EFF_LOBE_WIDTH 9 /* eff_lobes' row: [axis or z (3), η, x (3), λ, μ] */
 
 /* floor(x) as an int for x >= 0 (every caller clamps x to a non-negative range first): truncation,
  * the same integer, without PoCL's out-of-line floor call. */
@@ -445,6 +448,75 @@ CL_INLINE float3 lobe_from_lights(Table tab, float3 axis, float eta, SurfacePoin
     return out;
 }
 
+/* ASG lobe row `lobe` of an effective material ([z, 0, x, λ, μ] in the tile frame) in the world, unit amplitude. */
+CL_INLINE Asg lobe_asg(__global const float *lobe, SurfacePoint s)
+{
+    Asg g;
+    g.z = lobe[0] * s.t + lobe[1] * s.b + lobe[2] * s.n;
+    g.x = lobe[4] * s.t + lobe[5] * s.b + lobe[6] * s.n;
+    g.y = cross3(g.z, g.x);
+    g.lam = lobe[7];
+    g.mu = lobe[8];
+    g.c = 1.0f;
+    return g;
+}
+
+/* (G ⊛ SG_η)(h) of a unit-amplitude ASG (asg.convolve_sg_local: Xu Eq. 18's bandwidths and amplitude, a
+ * shape exact for a delta lobe too). */
+CL_INLINE float asg_convolved_at(Asg g, float eta, float3 h)
+{
+    float nu = 0.5f * eta;
+    float lam_c = harmonic(g.lam, nu);
+    float mu_c = harmonic(g.mu, nu);
+    float a = dot3(h, g.x);
+    float b = dot3(h, g.y);
+    float t = dot3(h, g.z);
+    if (t <= 0.0f)
+        return 0.0f;
+    float sx = g.lam > 0.0f ? clamp(lam_c / g.lam, 0.0f, 1.0f) : 1.0f;
+    float sy = g.mu > 0.0f ? clamp(mu_c / g.mu, 0.0f, 1.0f) : 1.0f;
+    float r2 = a * a + b * b;
+    float w = r2 > 0.0f ? (sx * a * a + sy * b * b) / r2 : 0.5f * (sx + sy);
+    float k = 2.0f / (1.0f + minf(t, 1.0f));
+    float expo = lam_c * a * a * pow(k, 1.0f - sx) + mu_c * b * b * pow(k, 1.0f - sy);
+    return SHADE_PI / sqrt((g.lam + nu) * (g.mu + nu)) * pow(t, w) * exp(-expo);
+}
+
+/* ∫ of a unit ASG: Xu's Eq. 10 where both bandwidths pass ASG_EQ10_MIN, else the exact quadrature
+ * (asg.shade_integral). */
+CL_INLINE float asg_shade_integral(float lam, float mu)
+{
+    if (minf(lam, mu) > ASG_EQ10_MIN)
+        return asg_integral_eq10(lam, mu);
+    return asg_unit_integral(lam, mu);
+}
+
+/* An ASG lobe's specular radiance from the lights: the material's own f̄ at each light's direction
+ * (M(h·l)·μ_j(l, ωo)/cos θi·(G_j ⊛ SG_s)(h)) times the light's irradiance, cosine and visible share. */
+CL_INLINE float3 asg_from_lights(Asg g, float eta_s, int kind, float3 ks, float p1, float p2,
+                                 __global const float *eff_tables, int base, int k2, int j_count, int j, int k,
+                                 const int *oo, const float *ow, SurfacePoint s, float3 wo, Table tab, int n_lights,
+                                 __global const float *lights, __global const uchar *vis)
+{
+    float3 out = (float3)(0.0f, 0.0f, 0.0f);
+    for (int l = 0; l < n_lights; ++l) {
+        if (vis[l] == 0)
+            continue;
+        __global const float *row = lights + 8 * l;
+        float3 la = light_axis(row, s.pos);
+        float le = light_sharpness(row, s.pos);
+        float3 h = normalize3(la + wo);
+        float shape = asg_convolved_at(g, eta_s, h);
+        if (shape <= 0.0f)
+            continue;
+        float3 scale = specular_scale(kind, ks, p1, p2, dot3(h, la));
+        float3 mu = table_rgb(eff_tables, base, k2, j_count, j, to_local(s, la), k, oo, ow);
+        float3 e = light_amplitude(row, s.pos, le) * (cosine_integral(tab, la, le, eta_row(tab, le), s.n) * (float)vis[l] / 255.0f);
+        out = out + scale * mu * e * shape;
+    }
+    return out;
+}
+
 /* Never NaN, inf or negative (a degenerate normal, say, must not poison the image). By the bits, so
    that a program built with -cl-fast-relaxed-math (which may assume finite values) keeps the guard:
    all exponent bits set is inf or NaN; the sign bit is a negative (or -0, which 0 replaces alike). */
@@ -481,7 +553,7 @@ __kernel void shade_pixels(
     __global const int *mat_info,       /* (Mat, 4) */
     __global const float *analytic,     /* (A, 9) */
     __global const int *eff_info,       /* (E, 8) */
-    __global const float *eff_lobes,    /* (ΣJ, 4) */
+    __global const float *eff_lobes,    /* (ΣJ, EFF_LOBE_WIDTH) */
     __global const float *eff_sub,      /* (Σn_sub, 9) */
     __global const float *eff_tables, __global const float *eff_diffuse,
     __global const float *uvs,          /* (V, 2) */
@@ -595,35 +667,61 @@ __kernel void shade_pixels(
                 float3 axis;
                 float eta;
                 float3 amp;
+                int with_lights = 1;
                 if (kind == 0) {
                     amp = specular_scale(a_kind, a_ks, a_p1, a_p2, cos_o);
                     axis = normalize3(2.0f * cos_o * s.n - wo);
                     eta = ndf_sharpness(a_kind, a_p1) / (4.0f * cos_o);
                 } else {
                     __global const float *sub = eff_sub + 9 * (ei[4] + sub_i);
-                    __global const float *lobe = eff_lobes + 4 * (ei[3] + j);
+                    __global const float *lobe = eff_lobes + EFF_LOBE_WIDTH * (ei[3] + j);
                     float3 xi = lobe[0] * s.t + lobe[1] * s.b + lobe[2] * s.n;
                     float c_oj = dot3(wo, xi);
-                    if (c_oj <= 0.0f)
-                        continue;
                     int s_kind = (int)sub[0];
                     float s_p1 = sub[7];
-                    float3 scale = specular_scale(s_kind, (float3)(sub[4], sub[5], sub[6]), s_p1, sub[8], c_oj);
+                    float3 s_ks = (float3)(sub[4], sub[5], sub[6]);
+                    float eta_s = ndf_sharpness(s_kind, s_p1);
+                    int base = ei[5] + sub_i * k2 * k2 * j_count * 3;
+                    int asg_lobes = ei[7] == ASG_LOBES;
+                    Asg g;
+                    if (asg_lobes) {
+                        /* Xu 2013: the lights by the material's own f̄ at their directions, whichever way the
+                         * lobe faces; the environment below through the warped lobe's equal-integral SG. */
+                        g = lobe_asg(lobe, s);
+                        out = out + asg_from_lights(g, eta_s, s_kind, s_ks, s_p1, sub[8], eff_tables, base, k2,
+                                                    j_count, j, k, oo, ow, s, wo, tab, n_lights, lights, vis);
+                    }
+                    if (c_oj <= 0.0f)
+                        continue;
+                    float3 scale = specular_scale(s_kind, s_ks, s_p1, sub[8], c_oj);
                     if (scale.x + scale.y + scale.z <= 0.0f)
                         continue;
-                    float eta_j = lobe[3];
-                    float eta_s = ndf_sharpness(s_kind, s_p1);
-                    axis = normalize3(2.0f * c_oj * xi - wo);
-                    int base = ei[5] + sub_i * k2 * k2 * j_count * 3;
-                    float3 mu = table_rgb(eff_tables, base, k2, j_count, j, to_local(s, axis), k, oo, ow);
-                    amp = scale * mu * (2.0f * SHADE_PI / (eta_j + eta_s));
-                    eta = 1.0f / (1.0f / eta_j + 1.0f / eta_s) / (4.0f * maxf(c_oj, MIN_COS_VIEW));
+                    if (asg_lobes) {
+                        Asg c = asg_convolve_sg(g, eta_s, 1.0f);
+                        Asg w = asg_warp(c, wo);
+                        float lam = maxf(w.lam, 1.0e-6f);
+                        float mu_w = maxf(w.mu, 1.0e-6f);
+                        eta = 2.0f * sqrt(lam * mu_w);
+                        axis = w.z;
+                        float3 mu = table_rgb(eff_tables, base, k2, j_count, j, to_local(s, axis), k, oo, ow);
+                        eta = minf(eta, sharpness_max);
+                        amp = scale * mu * (c.c * asg_shade_integral(lam, mu_w) / sg_integral(eta));
+                        with_lights = 0;
+                    } else {
+                        float eta_j = lobe[3];
+                        axis = normalize3(2.0f * c_oj * xi - wo);
+                        float3 mu = table_rgb(eff_tables, base, k2, j_count, j, to_local(s, axis), k, oo, ow);
+                        amp = scale * mu * (2.0f * SHADE_PI / (eta_j + eta_s));
+                        eta = 1.0f / (1.0f / eta_j + 1.0f / eta_s) / (4.0f * maxf(c_oj, MIN_COS_VIEW));
+                    }
                 }
                 eta = minf(eta, sharpness_max);
                 EtaRow er = eta_row(tab, eta);
                 float amount = cosine_integral(tab, axis, eta, er, s.n) * environment_share(tab, axis, er, s, has_ssdf, ssdf);
-                out = out + amp * (prefiltered(env_maps, env_levels, n_levels, axis, eta) * amount
-                                   + lobe_from_lights(tab, axis, eta, s, n_lights, lights, vis));
+                float3 light_part = (float3)(0.0f, 0.0f, 0.0f);
+                if (with_lights != 0)
+                    light_part = lobe_from_lights(tab, axis, eta, s, n_lights, lights, vis);
+                out = out + amp * (prefiltered(env_maps, env_levels, n_levels, axis, eta) * amount + light_part);
             }
         }
     }

@@ -9,7 +9,11 @@ environment and the lights, each lobe shadowed by the SSDF (environment) or the 
 
 import warp as wp
 
+from warp_biscale import asg as _asg
+from warp_biscale import effective as _effective
 from warp_biscale import sg as _sg
+
+from .asg import Asg, asg_convolve_sg, asg_integral_eq10, asg_unit_integral, asg_warp, harmonic
 
 # Fast math on CUDA (approximate division, square root, exp and trigonometry): this shading is bound by its
 # arithmetic, and its float32 results are read against the float64 oracle with tolerances far above fast
@@ -21,6 +25,8 @@ LOG_LO = wp.constant(_sg.TABLE_LOG10_ETA[0])
 LOG_HI = wp.constant(_sg.TABLE_LOG10_ETA[1])
 SHARPNESS_MAX = wp.constant(_sg.SHARPNESS_MAX)
 MIN_COS_VIEW = wp.constant(1.0e-4)  # = shading.MIN_COS_VIEW
+ASG_LOBES = wp.constant(_effective.ASG_LOBES)  # eff_info[:, 7] of a material with ASG lobes
+ASG_EQ10_MIN = wp.constant(_asg.EQ10_MIN_BANDWIDTH)
 
 vec4i = wp.vec4i
 
@@ -410,6 +416,81 @@ def lobe_from_lights(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: fl
 
 
 @wp.func
+def lobe_asg(eff_lobes: wp.array2d(dtype=wp.float32), lobe: int, s: SurfacePoint) -> Asg:
+    """ASG lobe `lobe` of an effective material ([z, 0, x, λ, μ] in the tile frame) in the world, unit amplitude."""
+    g = Asg()
+    g.z = eff_lobes[lobe, 0] * s.t + eff_lobes[lobe, 1] * s.b + eff_lobes[lobe, 2] * s.n
+    g.x = eff_lobes[lobe, 4] * s.t + eff_lobes[lobe, 5] * s.b + eff_lobes[lobe, 6] * s.n
+    g.y = wp.cross(g.z, g.x)
+    g.lam = eff_lobes[lobe, 7]
+    g.mu = eff_lobes[lobe, 8]
+    g.c = 1.0
+    return g
+
+
+@wp.func
+def asg_convolved_at(g: Asg, eta: float, h: wp.vec3) -> float:
+    """(G ⊛ SG_η)(h) of a unit-amplitude ASG (asg.convolve_sg_local: Xu Eq. 18's bandwidths and amplitude, a
+    shape exact for a delta lobe too)."""
+    nu = 0.5 * eta
+    lam_c = harmonic(g.lam, nu)
+    mu_c = harmonic(g.mu, nu)
+    a = wp.dot(h, g.x)
+    b = wp.dot(h, g.y)
+    t = wp.dot(h, g.z)
+    if t <= 0.0:
+        return 0.0
+    sx = float(1.0)
+    if g.lam > 0.0:
+        sx = wp.clamp(lam_c / g.lam, 0.0, 1.0)
+    sy = float(1.0)
+    if g.mu > 0.0:
+        sy = wp.clamp(mu_c / g.mu, 0.0, 1.0)
+    r2 = a * a + b * b
+    w = 0.5 * (sx + sy)
+    if r2 > 0.0:
+        w = (sx * a * a + sy * b * b) / r2
+    k = 2.0 / (1.0 + wp.min(t, 1.0))
+    expo = lam_c * a * a * wp.pow(k, 1.0 - sx) + mu_c * b * b * wp.pow(k, 1.0 - sy)
+    return PI / wp.sqrt((g.lam + nu) * (g.mu + nu)) * wp.pow(t, w) * wp.exp(-expo)
+
+
+@wp.func
+def asg_shade_integral(lam: float, mu: float) -> float:
+    """∫ of a unit ASG: Xu's Eq. 10 where both bandwidths pass ASG_EQ10_MIN, else the exact quadrature
+    (asg.shade_integral)."""
+    if wp.min(lam, mu) > ASG_EQ10_MIN:
+        return asg_integral_eq10(lam, mu)
+    return asg_unit_integral(lam, mu)
+
+
+@wp.func
+def asg_from_lights(g: Asg, eta_s: float, kind: int, ks: wp.vec3, p1: float, p2: float,
+                    eff_tables: wp.array(dtype=wp.float32), base: int, k2: int, j_count: int, j: int, k: int,
+                    oo: vec4i, ow: wp.vec4, s: SurfacePoint, wo: wp.vec3, table: wp.array3d(dtype=wp.float32),
+                    n_lights: int, lights: wp.array2d(dtype=wp.float32), light_vis: wp.array2d(dtype=wp.uint8),
+                    p: int) -> wp.vec3:
+    """An ASG lobe's specular radiance from the lights: the material's own f̄ at each light's direction
+    (M(h·l)·μ_j(l, ωo)/cos θi·(G_j ⊛ SG_s)(h)) times the light's irradiance, cosine and visible share."""
+    out = wp.vec3(0.0)
+    for l in range(n_lights):
+        if light_vis[p, l] == wp.uint8(0):
+            continue
+        la = light_axis(lights, l, s.pos)
+        le = light_sharpness(lights, l, s.pos)
+        h = wp.normalize(la + wo)
+        shape = asg_convolved_at(g, eta_s, h)
+        if shape <= 0.0:
+            continue
+        scale = specular_scale(kind, ks, p1, p2, wp.dot(h, la))
+        mu = table_rgb(eff_tables, base, k2, j_count, j, to_local(s, la), k, oo, ow)
+        e = light_amplitude(lights, l, s.pos, le) * (
+            cosine_integral(table, la, le, s.n) * float(int(light_vis[p, l])) / 255.0)
+        out = out + wp.cw_mul(wp.cw_mul(scale, mu), e) * shape
+    return out
+
+
+@wp.func
 def finite_radiance(v: wp.vec3) -> wp.vec3:
     """Never NaN, inf or negative (a degenerate normal, say, must not poison the image)."""
     out = v
@@ -531,6 +612,7 @@ def shade_pixels(
                 axis = wp.vec3(0.0)
                 eta = float(0.0)
                 amp = wp.vec3(0.0)
+                with_lights = int(1)
                 if kind == 0:
                     amp = specular_scale(a_kind, a_ks, a_p1, a_p2, cos_o)
                     axis = wp.normalize(2.0 * cos_o * s.n - wo)
@@ -540,24 +622,47 @@ def shade_pixels(
                     lobe = eff_info[idx, 3] + j
                     xi = eff_lobes[lobe, 0] * s.t + eff_lobes[lobe, 1] * s.b + eff_lobes[lobe, 2] * s.n
                     c_oj = wp.dot(wo, xi)
-                    if c_oj <= 0.0:
-                        continue
                     s_kind = int(eff_sub[sub, 0])
                     s_p1 = eff_sub[sub, 7]
-                    scale = specular_scale(s_kind, wp.vec3(eff_sub[sub, 4], eff_sub[sub, 5], eff_sub[sub, 6]), s_p1,
-                                           eff_sub[sub, 8], c_oj)
+                    s_ks = wp.vec3(eff_sub[sub, 4], eff_sub[sub, 5], eff_sub[sub, 6])
+                    eta_s = ndf_sharpness(s_kind, s_p1)
+                    base = eff_info[idx, 5] + sub_i * k2 * k2 * j_count * 3
+                    asg_lobes = eff_info[idx, 7] == ASG_LOBES
+                    g = Asg()
+                    if asg_lobes:
+                        # Xu 2013: the lights by the material's own f̄ at their directions, whichever way the
+                        # lobe faces; the environment below through the warped lobe's equal-integral SG.
+                        g = lobe_asg(eff_lobes, lobe, s)
+                        out = out + asg_from_lights(g, eta_s, s_kind, s_ks, s_p1, eff_sub[sub, 8], eff_tables, base,
+                                                    k2, j_count, j, k, oo, ow, s, wo, table, n_lights, lights,
+                                                    light_vis, p)
+                    if c_oj <= 0.0:
+                        continue
+                    scale = specular_scale(s_kind, s_ks, s_p1, eff_sub[sub, 8], c_oj)
                     if scale[0] + scale[1] + scale[2] <= 0.0:
                         continue
-                    eta_j = eff_lobes[lobe, 3]
-                    eta_s = ndf_sharpness(s_kind, s_p1)
-                    axis = wp.normalize(2.0 * c_oj * xi - wo)
-                    base = eff_info[idx, 5] + sub_i * k2 * k2 * j_count * 3
-                    mu = table_rgb(eff_tables, base, k2, j_count, j, to_local(s, axis), k, oo, ow)
-                    amp = wp.cw_mul(scale, mu) * (2.0 * PI / (eta_j + eta_s))
-                    eta = 1.0 / (1.0 / eta_j + 1.0 / eta_s) / (4.0 * wp.max(c_oj, MIN_COS_VIEW))
+                    if asg_lobes:
+                        c = asg_convolve_sg(g, eta_s, 1.0)
+                        w = asg_warp(c, wo)
+                        lam = wp.max(w.lam, 1.0e-6)
+                        mu_w = wp.max(w.mu, 1.0e-6)
+                        eta = 2.0 * wp.sqrt(lam * mu_w)
+                        axis = w.z
+                        mu = table_rgb(eff_tables, base, k2, j_count, j, to_local(s, axis), k, oo, ow)
+                        eta = wp.min(eta, SHARPNESS_MAX)
+                        amp = wp.cw_mul(scale, mu) * (c.c * asg_shade_integral(lam, mu_w) / sg_integral(eta))
+                        with_lights = 0
+                    else:
+                        eta_j = eff_lobes[lobe, 3]
+                        axis = wp.normalize(2.0 * c_oj * xi - wo)
+                        mu = table_rgb(eff_tables, base, k2, j_count, j, to_local(s, axis), k, oo, ow)
+                        amp = wp.cw_mul(scale, mu) * (2.0 * PI / (eta_j + eta_s))
+                        eta = 1.0 / (1.0 / eta_j + 1.0 / eta_s) / (4.0 * wp.max(c_oj, MIN_COS_VIEW))
                 eta = wp.min(eta, SHARPNESS_MAX)
                 amount = cosine_integral(table, axis, eta, s.n) * environment_share(
                     table, axis, eta, s, has_ssdf, ssdf_res, ssdf_basis, ssdf_coeffs)
-                out = out + wp.cw_mul(amp, prefiltered(env_maps, env_levels, axis, eta) * amount
-                                      + lobe_from_lights(table, axis, eta, s, n_lights, lights, light_vis, p))
+                light_part = wp.vec3(0.0)
+                if with_lights != 0:
+                    light_part = lobe_from_lights(table, axis, eta, s, n_lights, lights, light_vis, p)
+                out = out + wp.cw_mul(amp, prefiltered(env_maps, env_levels, axis, eta) * amount + light_part)
     radiance[p] = finite_radiance(out)

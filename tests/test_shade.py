@@ -55,11 +55,22 @@ def many_lobe_material():
                    facets=2**12, backend="warp:cpu")
 
 
-@pytest.mark.parametrize("which", ["lone", "occluded", "occluded-24-lobes"])
-def test_shade_kernel_matches_reference(backend, which, effective_material, many_lobe_material):
+@pytest.fixture(scope="module")
+def asg_material():
+    """ASG lobes (Xu 2013) on U-grooves, whose NDF spreads along a great circle: anisotropic lobes."""
+    tile = wb.geometry.grooves(profile="u")
+    return wb.bake(tile, [wb.CookTorrance(0.7, 0.15, kd=0.2)] * tile.n_materials, method="asg", lobes=4,
+                   directions=8, facets=2**12, backend="warp:cpu")
+
+
+@pytest.mark.parametrize("which", ["lone", "occluded", "occluded-24-lobes", "occluded-asg"])
+def test_shade_kernel_matches_reference(backend, which, effective_material, many_lobe_material, asg_material):
     if which == "occluded-24-lobes":
         assert len(many_lobe_material.lobes) > 16
         scene = _scenes(many_lobe_material)["occluded"]
+    elif which == "occluded-asg":
+        assert (asg_material.asgs.lam / asg_material.asgs.mu).max() > 2  # anisotropic lobes
+        scene = _scenes(asg_material)["occluded"]
     else:
         scene = _scenes(effective_material)[which]
     frame = pack_frame(scene, backend)

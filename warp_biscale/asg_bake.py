@@ -25,9 +25,11 @@ What it does, stage by stage (the geometry stages are the SG bake's own, `bake._
    amplitude, with a shape that is exact for a delta NDF lobe too (`convolve_sg_at`; method "asg-eq18" is
    Eq. 18's own shape).
 
-Everything after the SG EM is host numpy (float64); no kernel does the ASG fit, moments or shading yet.
-The SG renderer, the Monte Carlo reference's sampling and the Mitsuba export read SG lobes and refuse an
-`ASGBRDF` in one line (`NO_SG_LOBES`); the lit-sphere renderer evaluates it on the host (`host_texels`).
+Everything after the SG EM is host numpy (float64); no kernel does the ASG fit or moments yet. The SG
+renderer shades an `ASGBRDF` in its kernels (`shade_lobes`, `diffuse`; docs/design.md §9 "ASG rendering"),
+the lit-sphere renderer evaluates it on the host (`host_texels`), the Monte Carlo reference samples it by
+isotropic stand-ins of its lobes (`sampling_lobes`) and evaluates its exact ground truth; the Mitsuba export
+reads SG lobes and refuses it in one line (`NO_SG_LOBES`).
 """
 
 from __future__ import annotations
@@ -44,14 +46,15 @@ from . import directions as dirs
 from . import lobes as lobes_mod
 from . import sg
 from .brdf import as_material_list, diffuse_albedo
-from .effective import HostOnlyBRDF, Provenance, interpolated_amplitudes, materials_from_file, materials_to_file
+from .effective import (ASG_LOBES, HostOnlyBRDF, Provenance, interpolated_amplitudes, materials_from_file,
+                        materials_to_file)
 from .io import read_npz, save_npz
 from .model import Bvndf
 from .progress import as_progress
 from .truth import _check_count, _Timer
 
 __all__ = ["ASGBRDF", "bake_asg", "fit_asg", "bandwidths_from_moments", "amplitude_system", "asg_moments",
-           "convolve_sg_at", "NO_SG_LOBES", "EM_ITERATIONS", "EVAL_METHODS"]
+           "NO_SG_LOBES", "EM_ITERATIONS", "EVAL_METHODS"]
 
 EM_ITERATIONS = 8  # ASG EM steps after the SG start (0: the SG lobes as isotropic ASGs, λ = μ = η/2)
 BANDWIDTH_MAX = sg.SHARPNESS_MAX / 2.0  # a delta direction (flat facets): the SG cap, in Xu's ν = η/2 units
@@ -60,8 +63,7 @@ _CONVERGED = 1e-6  # relative change of the bandwidths and axis movement (rad²/
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(48)
 
 NO_SG_LOBES = ("a material baked by the ASG method (Xu 2013) holds anisotropic spherical Gaussians, not the SG "
-               "lobes that the SG renderer, the Monte Carlo reference's sampling and the Mitsuba export read: "
-               "render it with method='litsphere', or bake the tile with method='sg'")
+               "lobes that the Mitsuba export reads: bake the tile with method='sg' to export it")
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -337,31 +339,6 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog) ->
 EVAL_METHODS = ("asg", "asg-eq18")
 
 
-def convolve_sg_at(asgs: asg_mod.ASG, sharpness, p):
-    """(N, J) (G_j ⊛ SG)(p) for unit-amplitude ASGs G_j and the SG exp(η(v·p − 1)), at p (N, 3).
-
-    Xu's Eq. 18 gives the bandwidths λ' = λν/(λ + ν), μ' = μν/(μ + ν) and the amplitude π/√((λ + ν)(μ + ν))
-    (ν = η/2), with the ASG's shape t·exp(−λ'a² − μ'b²) ((a, b, t) = p's coordinates in the lobe's frame).
-    That shape is right where the SG is the sharper (ν ≫ λ, μ: the result is G itself), but for a sharp NDF lobe
-    (λ, μ ≫ ν; a delta in the limit) the result is the SG kernel, exp(2ν(t − 1)) = exp(−2ν(a² + b²)/(1 + t)),
-    which Eq. 18's shape misses by from_sg's difference (√2/(8ν) relative L2: 0.2–0.5 dB on the V-grooves'
-    delta lobes). Here (beyond Xu) each axis has its own s: s_x = λ'/λ, s_y = μ'/μ ∈ [0, 1] (ν/(λ + ν), ν/(μ + ν))
-    and the shape is t^w·exp(−λ'a²k^{1−s_x} − μ'b²k^{1−s_y}) with k = 2/(1 + t) and w = (s_x a² + s_y b²)/(a² + b²):
-    Eq. 18's shape where s = 1, the SG kernel exactly where s = 0 (a delta lobe), and in between the same peak
-    value and axes as Eq. 18, its curvature at the peak raised by (1 − s)/2 along each axis."""
-    c = asg_mod.convolve_sg(asgs, sharpness)
-    p = np.asarray(p, np.float64)
-    a, b, t = p @ c.x.T, p @ c.y.T, p @ c.z.T
-    with np.errstate(divide="ignore", invalid="ignore"):
-        sx = np.clip(np.where(asgs.lam > 0, c.lam / asgs.lam, 1.0), 0.0, 1.0)
-        sy = np.clip(np.where(asgs.mu > 0, c.mu / asgs.mu, 1.0), 0.0, 1.0)
-        r2 = a * a + b * b
-        s = np.where(r2 > 0, (sx * a * a + sy * b * b) / np.where(r2 > 0, r2, 1.0), 0.5 * (sx + sy))
-        smooth = np.where(t > 0, np.maximum(t, 1e-300) ** s, 0.0)
-        k = 2.0 / (1.0 + np.clip(t, 0.0, 1.0))
-        expo = c.lam * a * a * k ** (1.0 - sx) + c.mu * b * b * k ** (1.0 - sy)
-    return c.amplitude * smooth * np.exp(-expo)
-
 class ASGBRDF(HostOnlyBRDF):
     """A material baked by the ASG method (`wb.bake(tile, materials, method="asg", lobes=J)`).
 
@@ -369,8 +346,10 @@ class ASGBRDF(HostOnlyBRDF):
     SG form), `table()`, `wb.compare`, `save` / `wb.load` (format "asg_brdf", versioned), `with_materials`
     (new small-scale BRDFs, nothing re-baked), `provenance`, `path`, `timings`, `info`. Attributes: `asgs`
     (asg.ASG batch (J,), unit amplitude), `weight` (J,) α_j, `amplitudes` (M, K², K², J, 3) float32 μ tables
-    (of the ASGs), `integrals` (J,) ∫G_j. It has no SG lobes: `lobes`, `diffuse` and the Mitsuba export
-    raise `NO_SG_LOBES` (so the SG renderer refuses it); the lit-sphere renderer evaluates it on the host."""
+    (of the ASGs), `integrals` (J,) ∫G_j, `diffuse` the f̄d table. It has no SG lobes: `lobes` and the
+    Mitsuba export raise `NO_SG_LOBES`; the SG renderer reads its ASG lobes (`shade_lobes`), the Monte Carlo
+    reference samples their isotropic stand-ins (`sampling_lobes`), the lit-sphere renderer evaluates it on
+    the host."""
 
     VERSION = 1
     VERSIONS = (1,)
@@ -410,6 +389,33 @@ class ASGBRDF(HostOnlyBRDF):
         self.provenance = provenance
         self.path = None if path is None else os.path.abspath(os.fspath(path))
         self.integrals = asg_mod.unit_integral(self.asgs.lam, self.asgs.mu)
+        self._diffuse = None  # made on first use (`diffuse`)
+
+    def shade_lobes(self) -> tuple[int, np.ndarray]:
+        """The SG renderer's lobe rows (`shading.pack_materials`): ASG_LOBES and (J, 9) float32
+        [z (3), 0, x (3), λ, μ] in the tile frame (y = z × x: an ASG is even in x and y)."""
+        g = self.asgs
+        rows = np.zeros((len(self.weight), 9), np.float32)
+        rows[:, 0:3], rows[:, 4:7], rows[:, 7], rows[:, 8] = g.z, g.x, g.lam, g.mu
+        return ASG_LOBES, rows
+
+    def sampling_lobes(self) -> tuple[np.ndarray, np.ndarray]:
+        """The Monte Carlo reference's BRDF sampling (`EffectiveBRDF.sampling_lobes`): each ASG's axis with the SG
+        sharpness of its equal-area circle, 2√(λμ) (`asg.effective_sharpness`). Any lobes sample without bias
+        (the estimator divides by their exact density); these are the isotropic stand-ins of the ASGs."""
+        return self.asgs.z, asg_mod.effective_sharpness(self.asgs)
+
+    def _interpolated_amplitudes(self, wi, wo):
+        return self._mu(wi, wo)
+
+    @property
+    def diffuse(self) -> np.ndarray:
+        """(K², K², 3) float32 f̄d on the grid, Σ_m kd_m/π Σ_j μ_mj ∫G_j (as `eval`'s diffuse part)."""
+        if self._diffuse is None:
+            kd = np.stack([diffuse_albedo(m) for m in self.materials]) / np.pi
+            self._diffuse = np.einsum("miojc,j,mc->ioc", self.amplitudes, self.integrals, kd,
+                                      optimize=True).astype(np.float32)
+        return self._diffuse
 
     def __repr__(self):
         return f"ASGBRDF(K={self.directions}, lobes={len(self.weight)}, materials={self.materials})"
@@ -457,7 +463,7 @@ class ASGBRDF(HostOnlyBRDF):
             if literal:
                 s = asg_mod.evaluate(asg_mod.convolve_sg(self.asgs, eta_s), h[:, None, :])  # (N, J)
             else:
-                s = convolve_sg_at(self.asgs, eta_s, h)
+                s = asg_mod.convolve_sg_at(self.asgs, eta_s, h)
             out += scale * np.einsum("njc,nj->nc", mu[m], s)
         out[(wi[:, 2] <= 0) | (wo[:, 2] <= 0)] = 0.0
         return np.maximum(out, 0.0)

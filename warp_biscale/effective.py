@@ -36,6 +36,9 @@ from .smallscale import SmallScale, TileWarning
 __all__ = ["EffectiveBRDF", "Provenance", "compare", "METHODS"]
 
 METHODS = ("sg", "sg-exact")
+# The lobe types of `shade_lobes` (the shade stage's eff_info[:, 7]): SG lobes [axis, η] (Iwasaki), or ASG
+# lobes [z, 0, x, λ, μ] (Xu 2013, `asg_bake.ASGBRDF`).
+SG_LOBES, ASG_LOBES = 0, 1
 # Writers of a baked material for other renderers, by name, each (material, path) → what it wrote. The
 # interface modules that write them fill this in when warp_biscale loads (mitsuba_export), so that this
 # data-model module imports none of them.
@@ -191,6 +194,18 @@ class EffectiveBRDF:
         kd = np.stack([brdf_mod.diffuse_albedo(mat).astype(np.float32) for mat in self.materials]) / np.float32(np.pi)
         return np.einsum("mioc,mc->ioc", self._energy, kd).astype(np.float32, copy=False)  # (one pass: an edit's cost)
 
+    def shade_lobes(self) -> tuple[int, np.ndarray]:
+        """What the SG renderer's shade stage reads of the lobes (`shading.pack_materials`): the lobe type
+        (SG_LOBES) and rows (J, 9) float32 [axis (3), η, 0 …] in the tile frame."""
+        rows = np.zeros((len(self.lobes), 9), np.float32)
+        rows[:, 0:3], rows[:, 3] = self.lobes.axes, self.lobes.sharpness
+        return SG_LOBES, rows
+
+    def sampling_lobes(self) -> tuple[np.ndarray, np.ndarray]:
+        """(axes (J, 3), sharpness (J,)) in the tile frame: the lobes the Monte Carlo reference's BRDF sampling
+        warps (`montecarlo_sampling._LobeMixtureStrategy`)."""
+        return self.lobes.axes, self.lobes.sharpness
+
     @property
     def nbytes_per_material(self) -> int:
         """Bytes of the μ table of one material (what a renderer uploads per material)."""
@@ -336,6 +351,12 @@ class HostOnlyBRDF(EffectiveBRDF):
 
     @property
     def lobes(self):
+        raise ValueError(self.no_sg_lobes)
+
+    def shade_lobes(self):
+        raise ValueError(self.no_sg_lobes)
+
+    def sampling_lobes(self):
         raise ValueError(self.no_sg_lobes)
 
     @property

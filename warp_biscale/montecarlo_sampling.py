@@ -221,7 +221,7 @@ class _LobeMixtureStrategy:
         mat = self.mat
         t, b, n, wo, wo_local = ctx["t"], ctx["b"], ctx["n"], ctx["wo"], ctx["wo_local"]
         npix = len(n)
-        ax, eta = mat.lobes.axes, mat.lobes.sharpness
+        ax, eta = mat.sampling_lobes()
         nj = len(eta)
         xi = ax[None, :, 0:1] * t[:, None] + ax[None, :, 1:2] * b[:, None] + ax[None, :, 2:3] * n[:, None]  # (B, J, 3)
         c = _dot(xi, wo[:, None])  # (B, J)

@@ -205,9 +205,10 @@ def build_failure(platform, device, log) -> str:
     return f"kernels do not build: {one_line(text)}"
 
 
-# Stage files whose functions a stage calls, built into its program ahead of it (after common.cl):
-# cl/litsphere.cl calls camera_ray and prefiltered of cl/shade.cl, as kernels/litsphere.py imports them.
-USES = {"litsphere": ("shade",)}
+# Stage files whose functions a stage calls, built into its program ahead of it (after common.cl), in order:
+# cl/shade.cl calls cl/asg.cl's convolution, warp and integrals (ASG materials), and cl/litsphere.cl calls
+# camera_ray and prefiltered of cl/shade.cl, as the kernels/ twins import them.
+USES = {"shade": ("asg",), "litsphere": ("asg", "shade")}
 
 
 def program_source(stem: str) -> str:

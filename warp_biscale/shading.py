@@ -37,8 +37,10 @@ RGB texels (a parameter map is stored in all three channels; the kernels read ch
 the analytic row once into per-pixel values, scale them by the maps at the pixel's UV (``uvs`` (V, 2),
 bilinear, repeat: `svbrdf.sample`) and use only those values afterwards;
 ``analytic`` (A, 9) float32 [brdf kind, kd rgb, ks rgb, p1, p2] (brdf.pack_materials' row with the kind first);
-``eff_info`` (E, 8) int32 [K, J, n_sub, lobe_offset, sub_offset, table_offset, diffuse_offset, 0];
-``eff_lobes`` (ΣJ, 4) float32 [axis in the tile frame, η]; ``eff_sub`` (Σn_sub, 9) like ``analytic``;
+``eff_info`` (E, 8) int32 [K, J, n_sub, lobe_offset, sub_offset, table_offset, diffuse_offset, lobe type
+(`effective.SG_LOBES` 0, `effective.ASG_LOBES` 1)];
+``eff_lobes`` (ΣJ, 9) float32 in the tile frame (`EffectiveBRDF.shade_lobes`): an SG lobe [axis, η, 0 …], an
+ASG lobe [z, 0, x, λ, μ] (y = z × x); ``eff_sub`` (Σn_sub, 9) like ``analytic``;
 ``eff_tables`` float32, per effective material and small-scale material m the (K², K², J, 3) table of
 μ (index table_offset + (((m·K² + i)·K² + o)·J + j)·3 + c), the bake's own array (a view, no copy: a
 material edit keeps it, and the backends then keep its device copy); ``eff_diffuse`` float32 (K², K², 3)
@@ -53,8 +55,9 @@ import numpy as np
 
 from . import brdf as brdf_mod
 from . import directions as dirs
+from . import asg as asg_mod
 from . import litsphere, sg, svbrdf
-from .effective import EffectiveBRDF
+from .effective import ASG_LOBES, EffectiveBRDF
 from .model import Frame
 from .lighting import prefiltered_lookup
 from .scene import light_sg, vertex_tangents
@@ -107,11 +110,12 @@ def pack_materials(materials) -> dict:
             analytic.append(_analytic_row(m))
         elif isinstance(m, EffectiveBRDF):
             k2 = m.directions**2
-            j = len(m.lobes)
+            lobe_type, rows = m.shade_lobes()  # a matrix-method material has none: a one-line refusal
+            j = len(rows)
             subs = m.materials
             info.append([1, len(eff_info), int(any(_has_specular(s) for s in subs)), -1])
-            eff_info.append([m.directions, j, len(subs), n_lobes, n_sub, n_table, n_diffuse, 0])
-            eff_lobes.append(np.concatenate([m.lobes.axes, m.lobes.sharpness[:, None]], 1).astype(np.float32))
+            eff_info.append([m.directions, j, len(subs), n_lobes, n_sub, n_table, n_diffuse, lobe_type])
+            eff_lobes.append(rows)
             eff_sub.extend(_analytic_row(s) for s in subs)
             table = m.amplitudes  # float32, contiguous: ravel() is a view
             diffuse = np.asarray(m.diffuse, np.float32)
@@ -132,7 +136,7 @@ def pack_materials(materials) -> dict:
         "mat_info": stack(info, 4, np.int32),
         "analytic": stack(analytic, 9, np.float32),
         "eff_info": stack(eff_info, 8, np.int32),
-        "eff_lobes": np.concatenate(eff_lobes) if eff_lobes else np.zeros((0, 4), np.float32),
+        "eff_lobes": np.concatenate(eff_lobes) if eff_lobes else np.zeros((0, 9), np.float32),
         "eff_sub": stack(eff_sub, 9, np.float32),
         "eff_tables": (eff_tables[0] if len(eff_tables) == 1 else
                        np.concatenate(eff_tables) if eff_tables else np.zeros(0, np.float32)),
@@ -188,6 +192,42 @@ def _table_interp(table_flat, base, k, j_count, j, wi_local, wo_local):
             idx = base + ((ii[:, a] * k2 + oo[:, b]) * j_count + j) * 3
             vals = np.stack([table_flat[idx + c] for c in range(3)], 1).astype(np.float64)
             out += (iw[:, a] * ow[:, b])[:, None] * vals
+    return out
+
+
+def _asg_environment_lobe(g, eta_s, scale, wo, c_oj, t, b, n, wo_local, tables, base, k, j_count, j):
+    """An ASG lobe of an effective material (Xu 2013) against the environment, as the SG lobes are: the lobe
+    G_j (world frame, unit amplitude) convolved with the small-scale SG of sharpness η_s (Xu Eq. 18),
+    warped to the light directions (Eq. 23–26), then replaced by the SG of the same axis, of Xu's effective
+    bandwidth (η = 2√(λ_i μ_i), §5.3) and of the same integral — so the prefiltered maps, the cosine and the
+    SSDF take it as an SG lobe. → (axis, η, amplitude (m, 3) that multiplies the SG's ∫G·cos·visibility·L̄)."""
+    c = asg_mod.convolve_sg(g, eta_s)
+    w = asg_mod.warp(c, wo)
+    lam, mu = np.maximum(w.lam, 1e-6), np.maximum(w.mu, 1e-6)
+    eta = np.minimum(2.0 * np.sqrt(lam * mu), sg.SHARPNESS_MAX)
+    integral = asg_mod.shade_integral(lam, mu)
+    axis = w.z
+    wl = np.stack([_dot(axis, t), _dot(axis, b), _dot(axis, n)], 1)
+    mu_tab = _table_interp(tables, base, k, j_count, j, wl, wo_local)
+    amp = scale * mu_tab * (c.amplitude * np.where(c_oj > 0, integral / sg.integral(eta), 0.0))[:, None]
+    return axis, eta, amp, False
+
+
+def _asg_lights(g, sub, eta_s, wo, t, b, n, wo_local, tables, base, k, j_count, j, table, l_axis, l_eta, l_amp,
+                l_vis):
+    """(m, 3) an ASG lobe's specular radiance from the lights: the material's own f̄ at each light's
+    direction (`ASGBRDF.eval`'s specular term: M(h·l)·μ_j(l, ωo)/cos θi·(G_j ⊛ SG_s)(h), `asg.convolve_sg_at`)
+    times the light's irradiance with its cosine and visible share, as the diffuse term takes it."""
+    out = np.zeros((len(wo), 3))
+    for li in range(l_axis.shape[1]):
+        light = l_axis[:, li]
+        h = _normalize(light + wo)
+        shape = asg_mod.convolve_sg_local(g.lam, g.mu, eta_s, _dot(h, g.x), _dot(h, g.y), _dot(h, g.z))
+        scale, _ = specular_scale(sub, _dot(h, light))
+        wl = np.stack([_dot(light, t), _dot(light, b), _dot(light, n)], 1)
+        mu_tab = _table_interp(tables, base, k, j_count, j, wl, wo_local)
+        e = sg.integral(l_eta[:, li]) * sg.table_lookup(table, 0, _dot(light, n), l_eta[:, li])
+        out += scale * mu_tab * l_amp[:, li] * (shape * e * l_vis[:, li])[:, None]
     return out
 
 
@@ -325,16 +365,18 @@ def shade_reference(frame: Frame) -> np.ndarray:
 
         if not has_spec:
             continue
-        # Specular lobes: (axis ξ', sharpness η', amplitude A (m, 3)) after the warp.
+        # Specular lobes: (axis ξ', sharpness η', amplitude A (m, 3)) after the warp; an ASG material's lobes
+        # meet the environment here and the lights in `asg_lights`.
         lobes = []
         if kind == 0:
             scale, eta_s = specular_scale(row, cos_os)
             axis = 2 * cos_os[:, None] * ns - wo_s
-            lobes.append((_normalize(axis), eta_s / (4 * cos_os), scale))
+            lobes.append((_normalize(axis), eta_s / (4 * cos_os), scale, True))
         else:
             j_count = int(ei[1])
             for si in range(int(ei[2])):
                 sub = static.eff_sub[int(ei[4]) + si].astype(np.float64)
+                base = int(ei[5]) + si * (k * k) ** 2 * j_count * 3
                 for j in range(j_count):
                     lobe = static.eff_lobes[int(ei[3]) + j].astype(np.float64)
                     xi = lobe[0] * ts_ + lobe[1] * bs + lobe[2] * ns
@@ -342,21 +384,29 @@ def shade_reference(frame: Frame) -> np.ndarray:
                     scale, eta_s = specular_scale(sub, c_oj)
                     if not scale.any():
                         continue
+                    if int(ei[7]) == ASG_LOBES:
+                        x_w = lobe[4] * ts_ + lobe[5] * bs + lobe[6] * ns
+                        g = asg_mod.ASG(x_w, np.cross(xi, x_w), xi, lobe[7], lobe[8])
+                        lobes.append(_asg_environment_lobe(g, eta_s, scale, wo_s, c_oj, ts_, bs, ns, wol_s,
+                                                           static.eff_tables, base, k, j_count, j))
+                        rad[sel] += _asg_lights(g, sub, eta_s, wo_s, ts_, bs, ns, wol_s, static.eff_tables, base, k,
+                                                j_count, j, table, light_axis[sel], light_eta[sel], light_amp[sel],
+                                                light_vis[sel])
+                        continue
                     eta_c = 1.0 / (1.0 / lobe[3] + 1.0 / eta_s)
                     axis = _normalize(2 * c_oj[:, None] * xi - wo_s)
                     wl = np.stack([_dot(axis, ts_), _dot(axis, bs), _dot(axis, ns)], 1)
-                    base = int(ei[5]) + si * (k * k) ** 2 * j_count * 3
                     mu = _table_interp(static.eff_tables, base, k, j_count, j, wl, wol_s)
                     amp = scale * mu * (2 * np.pi / (lobe[3] + eta_s))
                     amp *= (c_oj > 0)[:, None]  # a lobe facing away from the viewer reflects nothing
-                    lobes.append((axis, eta_c / (4 * np.maximum(c_oj, MIN_COS_VIEW)), amp))
-        for axis, eta, amp in lobes:
+                    lobes.append((axis, eta_c / (4 * np.maximum(c_oj, MIN_COS_VIEW)), amp, True))
+        for axis, eta, amp, with_lights in lobes:
             eta = np.minimum(eta, sg.SHARPNESS_MAX)
             e = sg.integral(eta) * sg.table_lookup(table, 0, _dot(axis, ns), eta)
             occ = occlusion(axis, eta, sel)
             env_avg = prefiltered_lookup(static.env_maps, static.env_levels, axis, eta)
             rad[sel] += amp * env_avg * (e * occ)[:, None]
-            for li in range(light_axis.shape[1]):
+            for li in range(light_axis.shape[1] if with_lights else 0):
                 p_axis, p_eta, p_amp = sg.product(axis, eta, 1.0, light_axis[sel, li], light_eta[sel, li], 1.0)
                 e = sg.integral(p_eta) * sg.table_lookup(table, 0, _dot(p_axis, ns), p_eta)
                 rad[sel] += amp * light_amp[sel, li] * (p_amp * e * light_vis[sel, li])[:, None]

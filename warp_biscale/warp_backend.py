@@ -687,7 +687,7 @@ class WarpBackend(DeviceBackend):
             "ssdf_coeffs": arr("ssdf_coeffs", wp.float32, host=coeffs),
             "table": arr("table", wp.float32), "mat_info": arr("mat_info", wp.int32, 4),
             "analytic": arr("analytic", wp.float32, 9), "eff_info": arr("eff_info", wp.int32, 8),
-            "eff_lobes": arr("eff_lobes", wp.float32, 4), "eff_sub": arr("eff_sub", wp.float32, 9),
+            "eff_lobes": arr("eff_lobes", wp.float32, 9), "eff_sub": arr("eff_sub", wp.float32, 9),
             "eff_tables": arr("eff_tables", wp.float32), "eff_diffuse": arr("eff_diffuse", wp.float32),
             "uvs": arr("uvs", wp.vec2), "tex_info": arr("tex_info", wp.int32, 4),
             "tex_data": arr("tex_data", wp.vec3, host=np.asarray(static.tex_data, np.float32), shape=(-1, 3)),
