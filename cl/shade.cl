@@ -21,6 +21,9 @@
 #define ASG_LOBES 1 /* = effective.ASG_LOBES: eff_info[7] of a material with ASG lobes */
 #define ASG_EQ10_MIN 5.0f /* = asg.EQ10_MIN_BANDWIDTH */
 #define EFF_LOBE_WIDTH 9 /* eff_lobes' row: [axis or z (3), η, x (3), λ, μ] */
+#define DIFFUSE_LEVELS 5 /* = len(effective.DIFFUSE_LEVEL_ETAS): f̄d and its prefiltered levels */
+#define DIFFUSE_LEVEL_SHARP 64.0f /* = effective.DIFFUSE_LEVEL_SHARP */
+#define DIFFUSE_LEVEL_STEP 8.0f /* = effective.DIFFUSE_LEVEL_STEP */
 
 /* floor(x) as an int for x >= 0 (every caller clamps x to a non-negative range first): truncation,
  * the same integer, without PoCL's out-of-line floor call. */
@@ -266,6 +269,24 @@ CL_INLINE float3 table_rgb(__global const float *table, int base, int k2, int j_
         }
     }
     return out;
+}
+
+/* f̄d/cos θ of an effective material as a lobe of sharpness η sees it: its levels (EffectiveBRDF.diffuse_levels,
+ * each (K², K², 3) from `base`) at u = log8(64/η) in [0, L − 1], the two around u blended linearly. */
+CL_INLINE float3 diffuse_rgb(__global const float *table, int base, int k2, float eta, float3 wi_local, int k,
+                             const int *oo, const float *ow)
+{
+    float u = clamp(log(DIFFUSE_LEVEL_SHARP / maxf(eta, 1.0e-30f)) / log(DIFFUSE_LEVEL_STEP), 0.0f,
+                    (float)(DIFFUSE_LEVELS - 1));
+    int low = min((int)u, DIFFUSE_LEVELS - 2);
+    float frac = u - (float)low;
+    int size = k2 * k2 * 3;
+    if (frac <= 0.0f)
+        return table_rgb(table, base + low * size, k2, 1, 0, wi_local, k, oo, ow);
+    if (frac >= 1.0f)
+        return table_rgb(table, base + (low + 1) * size, k2, 1, 0, wi_local, k, oo, ow);
+    return (1.0f - frac) * table_rgb(table, base + low * size, k2, 1, 0, wi_local, k, oo, ow)
+           + frac * table_rgb(table, base + (low + 1) * size, k2, 1, 0, wi_local, k, oo, ow);
 }
 
 /* M of an analytic BRDF's values at cos θd (shading.specular_scale). Values, not a row pointer: a
@@ -637,7 +658,7 @@ __kernel void shade_pixels(
         amount = amount * environment_share(tab, axis, row, s, has_ssdf, ssdf);
         float3 fd = kd;
         if (kind != 0)
-            fd = table_rgb(eff_diffuse, diffuse_base, k2, 1, 0, to_local(s, axis), k, oo, ow);
+            fd = diffuse_rgb(eff_diffuse, diffuse_base, k2, lobe[3], to_local(s, axis), k, oo, ow);
         out = out + fd * radiance_e * amount;
     }
     out = out * irradiance_scale(lobes_irradiance,
@@ -650,7 +671,7 @@ __kernel void shade_pixels(
         float eta = light_sharpness(row, s.pos);
         float3 fd = kd;
         if (kind != 0)
-            fd = table_rgb(eff_diffuse, diffuse_base, k2, 1, 0, to_local(s, axis), k, oo, ow);
+            fd = diffuse_rgb(eff_diffuse, diffuse_base, k2, eta, to_local(s, axis), k, oo, ow);
         out = out + fd * light_amplitude(row, s.pos, eta) * (cosine_integral(tab, axis, eta, eta_row(tab, eta), s.n) * (float)vis[l] / 255.0f);
     }
 

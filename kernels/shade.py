@@ -27,6 +27,9 @@ SHARPNESS_MAX = wp.constant(_sg.SHARPNESS_MAX)
 MIN_COS_VIEW = wp.constant(1.0e-4)  # = shading.MIN_COS_VIEW
 ASG_LOBES = wp.constant(_effective.ASG_LOBES)  # eff_info[:, 7] of a material with ASG lobes
 ASG_EQ10_MIN = wp.constant(_asg.EQ10_MIN_BANDWIDTH)
+DIFFUSE_LEVELS = wp.constant(len(_effective.DIFFUSE_LEVEL_ETAS))  # f̄d and its prefiltered levels
+DIFFUSE_LEVEL_SHARP = wp.constant(_effective.DIFFUSE_LEVEL_SHARP)
+DIFFUSE_LEVEL_STEP = wp.constant(_effective.DIFFUSE_LEVEL_STEP)
 
 vec4i = wp.vec4i
 
@@ -225,6 +228,24 @@ def table_rgb(table: wp.array(dtype=wp.float32), base: int, k2: int, j_count: in
             wgt = wa * ow[b]
             out = out + wgt * wp.vec3(table[idx], table[idx + 1], table[idx + 2])
     return out
+
+
+@wp.func
+def diffuse_rgb(table: wp.array(dtype=wp.float32), base: int, k2: int, eta: float, wi_local: wp.vec3, k: int,
+                oo: vec4i, ow: wp.vec4) -> wp.vec3:
+    """f̄d/cos θ of an effective material as a lobe of sharpness η sees it: its levels (EffectiveBRDF.diffuse_levels,
+    each (K², K², 3) from `base`) at u = log8(64/η) in [0, L − 1], the two around u blended linearly."""
+    u = wp.clamp(wp.log(DIFFUSE_LEVEL_SHARP / wp.max(eta, 1.0e-30)) / wp.log(DIFFUSE_LEVEL_STEP), 0.0,
+                 float(DIFFUSE_LEVELS - 1))
+    low = wp.min(int(u), DIFFUSE_LEVELS - 2)
+    frac = u - float(low)
+    size = k2 * k2 * 3
+    if frac <= 0.0:
+        return table_rgb(table, base + low * size, k2, 1, 0, wi_local, k, oo, ow)
+    if frac >= 1.0:
+        return table_rgb(table, base + (low + 1) * size, k2, 1, 0, wi_local, k, oo, ow)
+    return (1.0 - frac) * table_rgb(table, base + low * size, k2, 1, 0, wi_local, k, oo, ow) + frac * table_rgb(
+        table, base + (low + 1) * size, k2, 1, 0, wi_local, k, oo, ow)
 
 
 @wp.func
@@ -585,7 +606,7 @@ def shade_pixels(
         amount = amount * environment_share(table, axis, eta, s, has_ssdf, ssdf_res, ssdf_basis, ssdf_coeffs)
         fd = kd
         if kind != 0:
-            fd = table_rgb(eff_diffuse, eff_info[idx, 6], k2, 1, 0, to_local(s, axis), k, oo, ow)
+            fd = diffuse_rgb(eff_diffuse, eff_info[idx, 6], k2, eta, to_local(s, axis), k, oo, ow)
         out = out + wp.cw_mul(fd, radiance_e) * amount
     out = wp.cw_mul(out, irradiance_scale(lobes_irradiance,
                                           equirect_bilinear(env_residual, 0, residual_h, residual_w, s.n)))
@@ -596,7 +617,7 @@ def shade_pixels(
         eta = light_sharpness(lights, l, s.pos)
         fd = kd
         if kind != 0:
-            fd = table_rgb(eff_diffuse, eff_info[idx, 6], k2, 1, 0, to_local(s, axis), k, oo, ow)
+            fd = diffuse_rgb(eff_diffuse, eff_info[idx, 6], k2, eta, to_local(s, axis), k, oo, ow)
         out = out + wp.cw_mul(fd, light_amplitude(lights, l, s.pos, eta)) * (
             cosine_integral(table, axis, eta, s.n) * float(int(light_vis[p, l])) / 255.0)
 

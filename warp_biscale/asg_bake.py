@@ -389,6 +389,10 @@ class ASGBRDF(HostOnlyBRDF):
         self.provenance = provenance
         self.path = None if path is None else os.path.abspath(os.fspath(path))
         self.integrals = asg_mod.unit_integral(self.asgs.lam, self.asgs.mu)
+        # Σ_j μ_mj ∫G_j per material, independent of the BRDFs (EffectiveBRDF's; its `diffuse_levels` read it)
+        self._energy = np.einsum("miojc,j->mioc", self.amplitudes, self.integrals.astype(np.float32))
+        self._energy_levels = None
+        self._diffuse_levels = None
         self._diffuse = None  # made on first use (`diffuse`)
 
     def shade_lobes(self) -> tuple[int, np.ndarray]:
@@ -412,9 +416,8 @@ class ASGBRDF(HostOnlyBRDF):
     def diffuse(self) -> np.ndarray:
         """(K², K², 3) float32 f̄d on the grid, Σ_m kd_m/π Σ_j μ_mj ∫G_j (as `eval`'s diffuse part)."""
         if self._diffuse is None:
-            kd = np.stack([diffuse_albedo(m) for m in self.materials]) / np.pi
-            self._diffuse = np.einsum("miojc,j,mc->ioc", self.amplitudes, self.integrals, kd,
-                                      optimize=True).astype(np.float32)
+            kd = np.stack([diffuse_albedo(m) for m in self.materials]).astype(np.float32) / np.float32(np.pi)
+            self._diffuse = np.einsum("mioc,mc->ioc", self._energy, kd).astype(np.float32, copy=False)
         return self._diffuse
 
     def __repr__(self):
@@ -427,6 +430,7 @@ class ASGBRDF(HostOnlyBRDF):
         t0 = time.perf_counter()
         out = ASGBRDF(self.asgs, self.weight, self.amplitudes, materials, self.directions, info=self.info,
                       bvndf=self.bvndf, provenance=self.provenance, path=self.path)
+        out._energy_levels = self._energy_levels
         out.timings = {"tables": time.perf_counter() - t0}
         return out
 

@@ -18,6 +18,7 @@ a material built by hand, has none.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 import time
 import warnings
@@ -43,6 +44,45 @@ SG_LOBES, ASG_LOBES = 0, 1
 # interface modules that write them fill this in when warp_biscale loads (mitsuba_export), so that this
 # data-model module imports none of them.
 EXPORTERS: dict = {}
+
+# The environment's diffuse term reads f̄d prefiltered over ωi by its lobe (`diffuse_levels`): level 0 is f̄d
+# itself (a sharp lobe: its axis), level l ≥ 1 the mean of f̄d/cos θ under a lobe of sharpness
+# DIFFUSE_LEVEL_ETAS[l] (the shade stage's level coordinate u = log8(64/η), clamped to [0, 4]: a lobe of
+# η ≥ 64 reads its axis, one of η ≤ 1/64 the broadest level, between them two neighbouring levels blended).
+DIFFUSE_LEVEL_ETAS = (np.inf, 8.0, 1.0, 0.125, 0.015625)
+DIFFUSE_LEVEL_SHARP = 64.0  # η at level coordinate 0: the sharpest lobe that reads f̄d at its axis
+DIFFUSE_LEVEL_STEP = 8.0  # the ratio of neighbouring levels' η
+
+
+def diffuse_level_coordinate(eta):
+    """The shade stage's continuous level u(η) = log_STEP(DIFFUSE_LEVEL_SHARP/η) in [0, len(DIFFUSE_LEVEL_ETAS) − 1]
+    (η = DIFFUSE_LEVEL_ETAS[l] at u = l)."""
+    eta = np.maximum(np.asarray(eta, np.float64), 1e-30)
+    return np.clip(np.log(DIFFUSE_LEVEL_SHARP / eta) / np.log(DIFFUSE_LEVEL_STEP), 0.0, len(DIFFUSE_LEVEL_ETAS) - 1.0)
+
+
+@functools.lru_cache(maxsize=8)
+def _level_weights(k: int) -> np.ndarray:
+    """((L − 1)·K², K²) float32: row (l, ξ) holds G(ω_g; ξ, η_l)·cos θξ / Σ_g G(ω_g; ξ, η_l)·cos θ_g over ω_g."""
+    g = dirs.grid(k)
+    cos = g[:, 2]
+    w = np.stack([np.exp(eta * (g @ g.T - 1.0)) for eta in DIFFUSE_LEVEL_ETAS[1:]])  # (L − 1, ξ, ω)
+    w *= (cos / (w @ cos))[..., None]
+    return w.reshape(-1, len(g)).astype(np.float32)
+
+
+def broad_levels(table, k: int) -> np.ndarray:
+    """(L − 1, M, K², K², 3) float32 of (M, K², K², 3) tables of f̄ values (cosine θi included) on the K×K
+    grid: per level l ≥ 1 (η = DIFFUSE_LEVEL_ETAS[l]) P(ξ, ωo)·cos θξ, where P(ξ, ωo) =
+    Σ_g G(ω_g; ξ, η)·f̄(ω_g, ωo) / Σ_g G(ω_g; ξ, η)·cos θ_g over the grid's equal-area cells: the mean of f̄/cos θ
+    under the lobe, which times ∫G(n·ω)⁺ is ∫G·f̄ — what an environment lobe of that width sees, where the
+    value at its axis is what a sharp one sees. (Stored times cos θξ so the shade stage's lookup, which divides
+    by the grid's cos θ, reads P.) Linear in the table: a bake prefilters its energy once, an edit only
+    re-weighs it."""
+    t = np.asarray(table, np.float32)
+    m, k2 = t.shape[0], k * k
+    out = _level_weights(k) @ t.reshape(m, k2, -1)  # (M, (L − 1)·K², K²·3)
+    return out.reshape(m, len(DIFFUSE_LEVEL_ETAS) - 1, k2, k2, 3).transpose(1, 0, 2, 3, 4)
 
 
 def _brdf_to_dict(b) -> dict:
@@ -182,6 +222,8 @@ class EffectiveBRDF:
         # Σ_j μ_mj ∫G_j = ∫γ̃ per material: independent of the BRDFs, so a material edit reuses it.
         self._energy = (np.einsum("miojc,j->mioc", self.amplitudes, self._integrals.astype(np.float32))
                         if _energy is None else _energy)
+        self._energy_levels = None  # `broad_levels` of _energy, made on first use and kept by material edits
+        self._diffuse_levels = None
         self.diffuse = self._diffuse_table()
 
     def __repr__(self):
@@ -207,6 +249,20 @@ class EffectiveBRDF:
         return self.lobes.axes, self.lobes.sharpness
 
     @property
+    def diffuse_levels(self) -> np.ndarray:
+        """(L, K², K², 3) float32, what the SG renderer's environment reads of f̄d: level 0 the `diffuse` table,
+        levels 1 … its `broad_levels` (prefiltered by the environment lobes' widths, DIFFUSE_LEVEL_ETAS). Made
+        from the energy's levels (kept across `with_materials`) and this material's kd."""
+        if self._diffuse_levels is None:
+            if self._energy_levels is None:
+                self._energy_levels = broad_levels(self._energy, self.directions)
+            kd = np.stack([brdf_mod.diffuse_albedo(m).astype(np.float32) for m in self.materials]) / np.float32(np.pi)
+            broad = np.einsum("lmioc,mc->lioc", self._energy_levels, kd)
+            self._diffuse_levels = np.concatenate([np.asarray(self.diffuse, np.float32)[None], broad]).astype(
+                np.float32, copy=False)
+        return self._diffuse_levels
+
+    @property
     def nbytes_per_material(self) -> int:
         """Bytes of the μ table of one material (what a renderer uploads per material)."""
         return int(self.amplitudes[0].nbytes)
@@ -223,6 +279,7 @@ class EffectiveBRDF:
         out = EffectiveBRDF(self.lobes, self.amplitudes, materials, self.directions, self.method,
                             info=self.info, bvndf=self.bvndf, provenance=self.provenance, path=self.path,
                             _energy=self._energy)
+        out._energy_levels = self._energy_levels
         out.timings = {"tables": time.perf_counter() - t0}
         return out
 

@@ -43,9 +43,11 @@ bilinear, repeat: `svbrdf.sample`) and use only those values afterwards;
 ASG lobe [z, 0, x, λ, μ] (y = z × x); ``eff_sub`` (Σn_sub, 9) like ``analytic``;
 ``eff_tables`` float32, per effective material and small-scale material m the (K², K², J, 3) table of
 μ (index table_offset + (((m·K² + i)·K² + o)·J + j)·3 + c), the bake's own array (a view, no copy: a
-material edit keeps it, and the backends then keep its device copy); ``eff_diffuse`` float32 (K², K², 3)
-f̄d per effective material. The lookups divide each ωi corner by its cos θi (μ/cos θi is what is
-interpolated, as `EffectiveBRDF.eval` does). An effective material's tile frame is (tangent, bitangent, normal)
+material edit keeps it, and the backends then keep its device copy); ``eff_diffuse`` float32 (L, K², K², 3)
+per effective material: f̄d and its levels prefiltered for broad environment lobes
+(`EffectiveBRDF.diffuse_levels`; a lobe of sharpness η reads levels ⌊u⌋ and ⌊u⌋ + 1 at
+u = `effective.diffuse_level_coordinate(η)`). The lookups divide each ωi corner by its cos θi (μ/cos θi is
+what is interpolated, as `EffectiveBRDF.eval` does). An effective material's tile frame is (tangent, bitangent, normal)
 with the tangent along the mesh's u direction (`scene.vertex_tangents`).
 """
 
@@ -57,7 +59,7 @@ from . import brdf as brdf_mod
 from . import directions as dirs
 from . import asg as asg_mod
 from . import litsphere, sg, svbrdf
-from .effective import ASG_LOBES, EffectiveBRDF
+from .effective import ASG_LOBES, DIFFUSE_LEVEL_ETAS, EffectiveBRDF, diffuse_level_coordinate
 from .model import Frame
 from .lighting import prefiltered_lookup
 from .scene import light_sg, vertex_tangents
@@ -118,7 +120,7 @@ def pack_materials(materials) -> dict:
             eff_lobes.append(rows)
             eff_sub.extend(_analytic_row(s) for s in subs)
             table = m.amplitudes  # float32, contiguous: ravel() is a view
-            diffuse = np.asarray(m.diffuse, np.float32)
+            diffuse = m.diffuse_levels
             eff_tables.append(table.ravel())
             eff_diffuse.append(diffuse.ravel())
             n_lobes += j
@@ -337,15 +339,26 @@ def shade_reference(frame: Frame) -> np.ndarray:
                     image = static.tex_data[3 * off:3 * (off + th * tw)].reshape(th, tw, 3)
                     row[:, cols] *= svbrdf.sample(image, uv)[:, :cols.stop - cols.start]
 
-            def diffuse_over_cos(axis_world, row=row):
+            def diffuse_over_cos(axis_world, eta, row=row):
                 return row[:, 1:4] / np.pi
         else:
             ei = static.eff_info[idx]
             k = int(ei[0])
 
-            def diffuse_over_cos(axis_world, ei=ei, k=k, ts_=ts_, bs=bs, ns=ns, wol_s=wol_s):
+            def diffuse_over_cos(axis_world, eta, ei=ei, k=k, ts_=ts_, bs=bs, ns=ns, wol_s=wol_s):
+                """f̄d/cos θ as a lobe of sharpness η sees it: the levels of `EffectiveBRDF.diffuse_levels` at
+                u(η) (`effective.diffuse_level_coordinate`), the two around it blended linearly."""
                 wl = np.stack([_dot(axis_world, ts_), _dot(axis_world, bs), _dot(axis_world, ns)], 1)
-                return _table_interp(static.eff_diffuse, int(ei[6]), k, 1, 0, wl, wol_s)
+                u = diffuse_level_coordinate(eta)
+                low = np.minimum(np.floor(u).astype(int), len(DIFFUSE_LEVEL_ETAS) - 2)
+                frac = u - low
+                out = np.zeros((len(wl), 3))
+                for level in range(len(DIFFUSE_LEVEL_ETAS)):
+                    w = np.where(low == level, 1.0 - frac, 0.0) + np.where(low + 1 == level, frac, 0.0)
+                    if w.any():
+                        base = int(ei[6]) + level * k**4 * 3
+                        out += w[:, None] * _table_interp(static.eff_diffuse, base, k, 1, 0, wl, wol_s)
+                return out
 
         # Diffuse: environment lobes (shadowed), scaled per channel to the exact irradiance, then lights.
         lobes_irradiance = np.zeros((m, 3))
@@ -356,12 +369,12 @@ def shade_reference(frame: Frame) -> np.ndarray:
             e = sg.integral(eta) * sg.table_lookup(table, 0, _dot(axis, ns), eta)
             lobes_irradiance += lobe[4:7][None] * e[:, None]
             occ = occlusion(axis, eta, sel)
-            env_diffuse += diffuse_over_cos(axis) * (lobe[4:7][None] * (e * occ)[:, None])
+            env_diffuse += diffuse_over_cos(axis, eta) * (lobe[4:7][None] * (e * occ)[:, None])
         rad[sel] += env_diffuse * irradiance_scale(lobes_irradiance, equirect_bilinear(static.env_residual, ns))
         for li in range(light_axis.shape[1]):
             axis, eta, amp = light_axis[sel, li], light_eta[sel, li], light_amp[sel, li]
             e = sg.integral(eta) * sg.table_lookup(table, 0, _dot(axis, ns), eta)
-            rad[sel] += diffuse_over_cos(axis) * amp * (e * light_vis[sel, li])[:, None]
+            rad[sel] += diffuse_over_cos(axis, eta) * amp * (e * light_vis[sel, li])[:, None]
 
         if not has_spec:
             continue

@@ -1,0 +1,142 @@
+"""Measured BRDFs in the SG bake (issue 21 item 2): the SG fit's time and error per table, then the SG bake of
+each table on every tile family, its time against its error.
+
+Tables (`MeasuredBRDF.from_brdf`, written by the benchmark itself: nothing is downloaded): a tabulated coloured
+Cook–Torrance (m = 0.2), the synthetic paint (`measured.paint_like`: Lambertian base, broad sheen, sharp coat)
+and a tabulated Blinn–Phong n = 128 (energy normalisation; not a microfacet BRDF, so one microfacet lobe holds
+it badly). Per table: `fit_sg`'s seconds (one fit; deterministic) and its relative L2 error.
+
+Per table × family (bench_bake.families) × backend: `wb.bake(tile, table, lobes=J, directions=K,
+facets=2^f)` — the fit is made once, before, so the bake's time is the bake's — and its PSNR (`wb.compare`,
+Wu's metric) against the table's own ground truth (`wb.ground_truth` of the table: the truth kernels look
+it up; 2^g facets); beside it the PSNR of the same bake against the ground truth of the fitted Cook–Torrance,
+i.e. the bake's own error without the fit's, so that the difference is what the fit costs.
+
+    python -m bench.bench_measured_sg --out bench/results/measured-sg-cpu-2core
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import os
+import sys
+import time
+import warnings
+
+import warp_biscale as wb
+from warp_biscale import measured as ms
+
+if __package__ in (None, ""):  # run as a file: `bench` importable from the checkout, after site-packages
+    sys.path.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from bench import common  # noqa: E402
+from bench.bench_bake import families  # noqa: E402
+
+
+def tables():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", wb.EnergyWarning)
+        cook = wb.CookTorrance((0.6, 0.5, 0.4), 0.2, kd=(0.2, 0.1, 0.05))
+        return {"cooktorrance0.2": wb.MeasuredBRDF.from_brdf(cook),
+                "paint": ms.paint_like(),
+                "blinnphong128": wb.MeasuredBRDF.from_brdf(wb.BlinnPhong(0.6, 128, kd=0.2, normalization="energy"))}
+
+
+def fits(out, named):
+    for name, table in named.items():
+        fit = table.sg_fit()
+        b = fit.brdf
+        out.records.append({"kind": "fit", "table": name, "seconds": fit.seconds, "error": fit.error,
+                            "samples": fit.samples, "roughness": b.roughness, "f0": b.f0, "kd": list(b.kd),
+                            "ks": list(b.ks)})
+        out.log(f"fit {name:>16}: {fit.seconds:.2f} s, relative L2 error {fit.error:.3g} ({fit!r})")
+
+
+def bakes(out, named, backends, lobes, k, facets, truth_facets):
+    # A bake keeps its tile's geometry per facet seed: every timed bake gets a seed of its own, so that it
+    # makes the geometry again rather than only the tables of a material edit.
+    seeds = itertools.count(1)
+    for be_name in backends:
+        be = wb.get_backend(be_name)
+        for tile_name, tile in families().items():
+            for name, table in named.items():
+                mats = [table] * tile.n_materials
+                fitted = [table.sg_fit().brdf] * tile.n_materials
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    wb.bake(tile, mats, lobes=lobes, directions=k, facets=facets, backend=be, seed=next(seeds))
+                    t0 = time.perf_counter()  # (after a warm-up bake: compiled kernels, uploaded buffers)
+                    mat = wb.bake(tile, mats, lobes=lobes, directions=k, facets=facets, backend=be, seed=next(seeds))
+                    bake_s = time.perf_counter() - t0
+                    truth = wb.ground_truth(tile, mats, directions=k, facets=truth_facets, backend=be)
+                    truth_fit = wb.ground_truth(tile, fitted, directions=k, facets=truth_facets, backend=be)
+                psnr = wb.compare(mat, truth)["psnr"]
+                psnr_fit = wb.compare(mat, truth_fit)["psnr"]
+                out.records.append({"kind": "bake", "backend": be_name, "tile": tile_name, "table": name,
+                                    "bake_s": bake_s, "psnr_table_db": psnr, "psnr_fit_db": psnr_fit,
+                                    "J": lobes, "K": k, "facets": facets, "truth_facets": truth_facets})
+                out.log(f"{be_name:>24} {tile_name:>12} {name:>16}: bake {bake_s * 1e3:7.1f} ms, PSNR against the "
+                        f"table's truth {psnr:5.1f} dB, against the fit's {psnr_fit:5.1f} dB")
+                out.save(table_md)
+
+
+def table_md(records, meta) -> str:
+    lines = [common.commit_line(meta), "",
+             f"SG fits of tabulated BRDFs (one fit each), then SG bakes (J = {meta['J']}, K = {meta['K']}, "
+             f"{meta['facets']} facets, the bake's own time after a warm-up bake of another seed) judged against "
+             f"the table's ground truth and the fitted BRDF's ({meta['truth_facets']} facets).", ""]
+    fit_rows = [[r["table"], f"{r['seconds']:.2f}", f"{r['error']:.3g}", f"{r['roughness']:.4g}", f"{r['f0']:.3g}",
+                 "/".join(f"{x:.3g}" for x in r["kd"]), "/".join(f"{x:.3g}" for x in r["ks"])]
+                for r in records if r["kind"] == "fit"]
+    lines += common.markdown_table(["table", "fit (s)", "relative L2 error", "m", "f0", "kd", "ks"], fit_rows) + [""]
+    bake_rows = [[r["backend"], r["tile"], r["table"], f"{r['bake_s'] * 1e3:.1f}", f"{r['psnr_table_db']:.1f}",
+                  f"{r['psnr_fit_db']:.1f}"] for r in records if r["kind"] == "bake"]
+    lines += common.markdown_table(["backend", "tile", "table", "bake (ms)", "PSNR vs table truth (dB)",
+                                    "PSNR vs fit truth (dB)"], bake_rows)
+    return "\n".join(lines) + "\n"
+
+
+def plot(records, folder):
+    """Bake time against PSNR (vs the table's truth), one marker per table, one point per family and backend."""
+    plt = common.pyplot()
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    bakes_ = [r for r in records if r["kind"] == "bake"]
+    for name, marker in zip(sorted({r["table"] for r in bakes_}), "os^v"):
+        rs = [r for r in bakes_ if r["table"] == name]
+        ax.scatter([r["bake_s"] * 1e3 for r in rs], [r["psnr_table_db"] for r in rs], marker=marker, label=name)
+        for r in rs:
+            ax.annotate(r["tile"], (r["bake_s"] * 1e3, r["psnr_table_db"]), fontsize=6)
+    ax.set_xlabel("bake (ms)")
+    ax.set_ylabel("PSNR against the table's ground truth (dB)")
+    ax.set_title("Measured BRDFs through their SG fit: SG bake time against error")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(os.path.join(folder, "measured_sg.png"), dpi=110)
+    plt.close(fig)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--backends", nargs="*", help="default: every usable backend")
+    ap.add_argument("--lobes", type=int, default=8)
+    ap.add_argument("--directions", type=int, default=8)
+    ap.add_argument("--facets", type=int, default=1 << 14)
+    ap.add_argument("--truth-facets", type=int, default=1 << 16)
+    ap.add_argument("--out", default=os.path.join(common.HERE, "results", "measured-sg"))
+    args = ap.parse_args(argv)
+    backends = common.backend_names(args.backends)
+    meta = common.run_meta(J=args.lobes, K=args.directions, facets=args.facets, truth_facets=args.truth_facets,
+                           backends=backends)
+    out = common.Output(args.out, meta)
+    out.log(common.commit_line(meta))
+    named = tables()
+    fits(out, named)
+    out.save(table_md)
+    bakes(out, named, backends, args.lobes, args.directions, args.facets, args.truth_facets)
+    out.finish(table_md)
+    plot(out.records, args.out)
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
