@@ -66,7 +66,8 @@ def test_quality_ends_and_the_litsphere_renderer(pyramid):
             assert np.isfinite(ed.frame()).all()
     ed.set("quality.method", "litsphere")
     assert ed.timings["redone"] == "render" and np.isfinite(ed.frame()).all() and ed.frame().max() > 0
-    # the matrix method's bake, drawn by the lit-sphere renderer whatever quality.method says
+    # the matrix method's bake, drawn by the lit-sphere renderer whatever quality.method says; the ASG bake by
+    # the SG renderer
     for method, kind in (("matrix", wb.MatrixBRDF), ("asg", wb.ASGBRDF)):
         ed.set_many({"quality.method": "sg", "quality.bake": method})
         assert isinstance(ed.effective, kind) and ed.timings["redone"] == "bake"

@@ -135,9 +135,9 @@ QUALITY = [
     ("facets_log2", "int", 10, 20, 16, True, "log2 of the facets sampled on the tile"),
     ("directions", "int", 4, 16, 12, True, "K: the K x K direction grid of the tables"),
     ("bake", "choice", None, ("sg", "asg", "matrix"), "sg", True,
-     "bake method: SG lobes (Iwasaki), ASG lobes (Xu) or the matrix method (Wu); the last two drawn by the "
+     "bake method: SG lobes (Iwasaki), ASG lobes (Xu) or the matrix method (Wu); the last drawn by the "
      "lit-sphere renderer"),
-    ("method", "choice", None, ("sg", "litsphere"), "sg", False, "large-scale renderer of an SG bake"),
+    ("method", "choice", None, ("sg", "litsphere"), "sg", False, "large-scale renderer of an SG or ASG bake"),
 ]
 COARSE = {"lobes": 4, "facets_log2": 12, "directions": 6}  # a dragged slider's bake: each at most this
 COARSE_SCALE = 4  # ... and, on a CPU, its frame: rendered at 1/4 of the width and height, shown enlarged (on a
@@ -698,8 +698,8 @@ class Editor:
 
 
 def _renderer(state) -> str:
-    """The large-scale renderer of a design: only an SG bake has what the SG renderer reads."""
-    return "litsphere" if state["quality"]["bake"] != "sg" else state["quality"]["method"]
+    """The large-scale renderer of a design: the SG renderer reads SG and ASG bakes, not the matrix method's."""
+    return "litsphere" if state["quality"]["bake"] == "matrix" else state["quality"]["method"]
 
 
 def _enlarged(image, width, height) -> np.ndarray:
