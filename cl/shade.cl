@@ -271,22 +271,52 @@ CL_INLINE float3 table_rgb(__global const float *table, int base, int k2, int j_
     return out;
 }
 
-/* f̄d/cos θ of an effective material as a lobe of sharpness η sees it: its levels (EffectiveBRDF.diffuse_levels,
- * each (K², K², 3) from `base`) at u = log8(64/η) in [0, L − 1], the two around u blended linearly. */
-CL_INLINE float3 diffuse_rgb(__global const float *table, int base, int k2, float eta, float3 wi_local, int k,
-                             const int *oo, const float *ow)
+/* A small-scale material's energy/cos θ (its f̄d for kd = π) as a lobe of sharpness η sees it: its levels
+ * (EffectiveBRDF.energy_levels, each (K², K², 3) from `base`) at u = log8(64/η) in [0, L − 1], the two
+ * around u blended linearly — read in one pass over the grid corners. */
+CL_INLINE float3 energy_rgb(__global const float *table, int base, int k2, float eta, float3 wi_local, int k,
+                            const int *oo, const float *ow)
 {
     float u = clamp(log(DIFFUSE_LEVEL_SHARP / maxf(eta, 1.0e-30f)) / log(DIFFUSE_LEVEL_STEP), 0.0f,
                     (float)(DIFFUSE_LEVELS - 1));
     int low = min((int)u, DIFFUSE_LEVELS - 2);
     float frac = u - (float)low;
     int size = k2 * k2 * 3;
-    if (frac <= 0.0f)
-        return table_rgb(table, base + low * size, k2, 1, 0, wi_local, k, oo, ow);
-    if (frac >= 1.0f)
-        return table_rgb(table, base + (low + 1) * size, k2, 1, 0, wi_local, k, oo, ow);
-    return (1.0f - frac) * table_rgb(table, base + low * size, k2, 1, 0, wi_local, k, oo, ow)
-           + frac * table_rgb(table, base + (low + 1) * size, k2, 1, 0, wi_local, k, oo, ow);
+    int first = base + low * size;
+    if (frac >= 1.0f) {
+        first += size;
+        frac = 0.0f;
+    }
+    int ii[4];
+    float iw[4];
+    grid_bilinear(wi_local, k, ii, iw);
+    float3 out = (float3)(0.0f, 0.0f, 0.0f);
+    for (int a = 0; a < 4; ++a) {
+        float wa = iw[a] / grid_cos(ii[a], k);
+        for (int b = 0; b < 4; ++b) {
+            int idx = first + (ii[a] * k2 + oo[b]) * 3;
+            float3 v = (float3)(table[idx], table[idx + 1], table[idx + 2]);
+            if (frac > 0.0f)
+                v = (1.0f - frac) * v + frac * (float3)(table[idx + size], table[idx + size + 1], table[idx + size + 2]);
+            out = out + (wa * ow[b]) * v;
+        }
+    }
+    return out;
+}
+
+/* An effective material's f̄d/cos θ as a lobe of sharpness η sees it: Σ_m kd_m/π ⊙ material m's energy levels. */
+CL_INLINE float3 effective_diffuse(__global const int *ei, __global const float *eff_sub,
+                                   __global const float *eff_diffuse, int k2, float eta, float3 wi_local, int k,
+                                   const int *oo, const float *ow)
+{
+    float3 out = (float3)(0.0f, 0.0f, 0.0f);
+    for (int sub_i = 0; sub_i < ei[2]; ++sub_i) {
+        __global const float *sub = eff_sub + 9 * (ei[4] + sub_i);
+        float3 kd = (float3)(sub[1], sub[2], sub[3]) / SHADE_PI;
+        int base = ei[6] + sub_i * DIFFUSE_LEVELS * k2 * k2 * 3;
+        out = out + kd * energy_rgb(eff_diffuse, base, k2, eta, wi_local, k, oo, ow);
+    }
+    return out;
 }
 
 /* M of an analytic BRDF's values at cos θd (shading.specular_scale). Values, not a row pointer: a
@@ -609,7 +639,7 @@ __kernel void shade_pixels(
     int kind = mat_info[4 * mat];
     int idx = mat_info[4 * mat + 1];
     int has_spec = mat_info[4 * mat + 2];
-    int k = 0, k2 = 0, j_count = 0, diffuse_base = 0;
+    int k = 0, k2 = 0, j_count = 0;
     int oo[4] = {0, 0, 0, 0};
     float ow[4] = {0.0f, 0.0f, 0.0f, 0.0f};
     float3 kd = (float3)(0.0f, 0.0f, 0.0f);
@@ -641,7 +671,6 @@ __kernel void shade_pixels(
         k = ei[0];
         k2 = k * k;
         j_count = ei[1];
-        diffuse_base = ei[6];
         grid_bilinear(wo_local, k, oo, ow);
     }
     float3 out = (float3)(0.0f, 0.0f, 0.0f);
@@ -658,7 +687,7 @@ __kernel void shade_pixels(
         amount = amount * environment_share(tab, axis, row, s, has_ssdf, ssdf);
         float3 fd = kd;
         if (kind != 0)
-            fd = diffuse_rgb(eff_diffuse, diffuse_base, k2, lobe[3], to_local(s, axis), k, oo, ow);
+            fd = effective_diffuse(ei, eff_sub, eff_diffuse, k2, lobe[3], to_local(s, axis), k, oo, ow);
         out = out + fd * radiance_e * amount;
     }
     out = out * irradiance_scale(lobes_irradiance,
@@ -671,7 +700,7 @@ __kernel void shade_pixels(
         float eta = light_sharpness(row, s.pos);
         float3 fd = kd;
         if (kind != 0)
-            fd = diffuse_rgb(eff_diffuse, diffuse_base, k2, eta, to_local(s, axis), k, oo, ow);
+            fd = effective_diffuse(ei, eff_sub, eff_diffuse, k2, eta, to_local(s, axis), k, oo, ow);
         out = out + fd * light_amplitude(row, s.pos, eta) * (cosine_integral(tab, axis, eta, eta_row(tab, eta), s.n) * (float)vis[l] / 255.0f);
     }
 

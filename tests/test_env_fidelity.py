@@ -129,7 +129,7 @@ def test_effective_material_under_a_constant_environment_reflects_its_albedo(bac
     """A baked material (Lambertian facets: its diffuse term alone) on a lone sphere under a constant
     environment of radiance 1 reflects its directional albedo ∫f̄ dωi at each pixel's view. U-grooves, whose
     f̄d changes most with ωi. The environment's single ambient lobe reads f̄d prefiltered to its width
-    (`EffectiveBRDF.diffuse_levels`); read at the lobe's axis, as before, pixels were 0.13–4.8× the albedo.
+    (`EffectiveBRDF.energy_levels`); read at the lobe's axis, as before, pixels were 0.13–4.8× the albedo.
     Measured (K = 8, 2^12 facets, 31 pixels): −0.53 % … +0.80 % on Warp CPU and PoCL, SG and ASG alike.
     Bound 2 %."""
     from warp_biscale.scene import vertex_tangents

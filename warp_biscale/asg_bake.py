@@ -46,8 +46,8 @@ from . import directions as dirs
 from . import lobes as lobes_mod
 from . import sg
 from .brdf import as_material_list, diffuse_albedo
-from .effective import (ASG_LOBES, HostOnlyBRDF, Provenance, interpolated_amplitudes, materials_from_file,
-                        materials_to_file)
+from .effective import (ASG_LOBES, EffectiveBRDF, HostOnlyBRDF, Provenance, interpolated_amplitudes,
+                        materials_from_file, materials_to_file)
 from .io import read_npz, save_npz
 from .model import Bvndf
 from .progress import as_progress
@@ -389,10 +389,9 @@ class ASGBRDF(HostOnlyBRDF):
         self.provenance = provenance
         self.path = None if path is None else os.path.abspath(os.fspath(path))
         self.integrals = asg_mod.unit_integral(self.asgs.lam, self.asgs.mu)
-        # Σ_j μ_mj ∫G_j per material, independent of the BRDFs (EffectiveBRDF's; its `diffuse_levels` read it)
+        # Σ_j μ_mj ∫G_j per material, independent of the BRDFs (EffectiveBRDF's; `energy_levels` reads it)
         self._energy = np.einsum("miojc,j->mioc", self.amplitudes, self.integrals.astype(np.float32))
         self._energy_levels = None
-        self._diffuse_levels = None
         self._diffuse = None  # made on first use (`diffuse`)
 
     def shade_lobes(self) -> tuple[int, np.ndarray]:
@@ -412,13 +411,8 @@ class ASGBRDF(HostOnlyBRDF):
     def _interpolated_amplitudes(self, wi, wo):
         return self._mu(wi, wo)
 
-    @property
-    def diffuse(self) -> np.ndarray:
-        """(K², K², 3) float32 f̄d on the grid, Σ_m kd_m/π Σ_j μ_mj ∫G_j (as `eval`'s diffuse part)."""
-        if self._diffuse is None:
-            kd = np.stack([diffuse_albedo(m) for m in self.materials]).astype(np.float32) / np.float32(np.pi)
-            self._diffuse = np.einsum("mioc,mc->ioc", self._energy, kd).astype(np.float32, copy=False)
-        return self._diffuse
+    # f̄d on the grid from this bake's energy, as an SG bake's (HostOnlyBRDF refuses it for the matrix method)
+    diffuse = EffectiveBRDF.diffuse
 
     def __repr__(self):
         return f"ASGBRDF(K={self.directions}, lobes={len(self.weight)}, materials={self.materials})"

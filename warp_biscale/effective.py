@@ -45,10 +45,11 @@ SG_LOBES, ASG_LOBES = 0, 1
 # data-model module imports none of them.
 EXPORTERS: dict = {}
 
-# The environment's diffuse term reads f̄d prefiltered over ωi by its lobe (`diffuse_levels`): level 0 is f̄d
-# itself (a sharp lobe: its axis), level l ≥ 1 the mean of f̄d/cos θ under a lobe of sharpness
-# DIFFUSE_LEVEL_ETAS[l] (the shade stage's level coordinate u = log8(64/η), clamped to [0, 4]: a lobe of
-# η ≥ 64 reads its axis, one of η ≤ 1/64 the broadest level, between them two neighbouring levels blended).
+# The environment's diffuse term reads f̄d prefiltered over ωi by its lobe (`energy_levels`, weighed by each
+# small-scale material's kd/π in the shade stage): level 0 is f̄d itself (a sharp lobe: its axis), level
+# l ≥ 1 the mean of f̄d/cos θ under a lobe of sharpness DIFFUSE_LEVEL_ETAS[l] (the shade stage's level
+# coordinate u = log8(64/η), clamped to [0, 4]: a lobe of η ≥ 64 reads its axis, one of η ≤ 1/64 the
+# broadest level, between them two neighbouring levels blended).
 DIFFUSE_LEVEL_ETAS = (np.inf, 8.0, 1.0, 0.125, 0.015625)
 DIFFUSE_LEVEL_SHARP = 64.0  # η at level coordinate 0: the sharpest lobe that reads f̄d at its axis
 DIFFUSE_LEVEL_STEP = 8.0  # the ratio of neighbouring levels' η
@@ -222,17 +223,22 @@ class EffectiveBRDF:
         # Σ_j μ_mj ∫G_j = ∫γ̃ per material: independent of the BRDFs, so a material edit reuses it.
         self._energy = (np.einsum("miojc,j->mioc", self.amplitudes, self._integrals.astype(np.float32))
                         if _energy is None else _energy)
-        self._energy_levels = None  # `broad_levels` of _energy, made on first use and kept by material edits
-        self._diffuse_levels = None
-        self.diffuse = self._diffuse_table()
+        self._energy_levels = None  # `energy_levels`, made on first use and kept by material edits
+        self._diffuse = None  # `diffuse`, made on first use (the renderer reads `energy_levels` instead)
 
     def __repr__(self):
         return (f"EffectiveBRDF(K={self.directions}, lobes={len(self.lobes)}, materials={self.materials}, "
                 f"method={self.method!r})")
 
     # ------------------------------------------------------------------ tables
+    @property
+    def diffuse(self) -> np.ndarray:
+        """(K², K², 3) float32 f̄d on the grid (Eq. 9): Σ_m kd_m/π Σ_j μ_mj ∫G_j."""
+        if self._diffuse is None:
+            self._diffuse = self._diffuse_table()
+        return self._diffuse
+
     def _diffuse_table(self) -> np.ndarray:
-        """f̄d on the grid (Eq. 9): Σ_m kd_m/π Σ_j μ_mj ∫G_j."""
         kd = np.stack([brdf_mod.diffuse_albedo(mat).astype(np.float32) for mat in self.materials]) / np.float32(np.pi)
         return np.einsum("mioc,mc->ioc", self._energy, kd).astype(np.float32, copy=False)  # (one pass: an edit's cost)
 
@@ -249,18 +255,19 @@ class EffectiveBRDF:
         return self.lobes.axes, self.lobes.sharpness
 
     @property
-    def diffuse_levels(self) -> np.ndarray:
-        """(L, K², K², 3) float32, what the SG renderer's environment reads of f̄d: level 0 the `diffuse` table,
-        levels 1 … its `broad_levels` (prefiltered by the environment lobes' widths, DIFFUSE_LEVEL_ETAS). Made
-        from the energy's levels (kept across `with_materials`) and this material's kd."""
-        if self._diffuse_levels is None:
-            if self._energy_levels is None:
-                self._energy_levels = broad_levels(self._energy, self.directions)
-            kd = np.stack([brdf_mod.diffuse_albedo(m).astype(np.float32) for m in self.materials]) / np.float32(np.pi)
-            broad = np.einsum("lmioc,mc->lioc", self._energy_levels, kd)
-            self._diffuse_levels = np.concatenate([np.asarray(self.diffuse, np.float32)[None], broad]).astype(
-                np.float32, copy=False)
-        return self._diffuse_levels
+    def energy_levels(self) -> np.ndarray:
+        """(M, L, K², K², 3) float32, read-only: per small-scale material m its energy Σ_j μ_mj∫G_j on the grid
+        (level 0) and its `broad_levels` (levels 1 …, prefiltered by DIFFUSE_LEVEL_ETAS): what the SG renderer's
+        diffuse term reads, weighing level lookups by each material's kd/π (so f̄d = Σ_m kd_m/π·level 0). It does
+        not depend on the small-scale BRDFs: made once per bake, kept by `with_materials`, so a material edit
+        uploads nothing new for it."""
+        if self._energy_levels is None:
+            broad = broad_levels(self._energy, self.directions)  # (L − 1, M, K², K², 3)
+            levels = np.ascontiguousarray(np.concatenate([np.asarray(self._energy, np.float32)[None], broad])
+                                          .transpose(1, 0, 2, 3, 4))
+            levels.setflags(write=False)
+            self._energy_levels = levels
+        return self._energy_levels
 
     @property
     def nbytes_per_material(self) -> int:

@@ -43,10 +43,11 @@ bilinear, repeat: `svbrdf.sample`) and use only those values afterwards;
 ASG lobe [z, 0, x, λ, μ] (y = z × x); ``eff_sub`` (Σn_sub, 9) like ``analytic``;
 ``eff_tables`` float32, per effective material and small-scale material m the (K², K², J, 3) table of
 μ (index table_offset + (((m·K² + i)·K² + o)·J + j)·3 + c), the bake's own array (a view, no copy: a
-material edit keeps it, and the backends then keep its device copy); ``eff_diffuse`` float32 (L, K², K², 3)
-per effective material: f̄d and its levels prefiltered for broad environment lobes
-(`EffectiveBRDF.diffuse_levels`; a lobe of sharpness η reads levels ⌊u⌋ and ⌊u⌋ + 1 at
-u = `effective.diffuse_level_coordinate(η)`). The lookups divide each ωi corner by its cos θi (μ/cos θi is
+material edit keeps it, and the backends then keep its device copy); ``eff_diffuse`` float32
+(n_sub, L, K², K², 3) per effective material: each small-scale material's energy Σ_j μ_mj∫G_j and its levels
+prefiltered for broad environment lobes (`EffectiveBRDF.energy_levels`, also kept by a material edit); the
+diffuse term is Σ_m kd_m/π times its levels as a lobe of sharpness η reads them (levels ⌊u⌋ and ⌊u⌋ + 1 at
+u = `effective.diffuse_level_coordinate(η)`, blended). The lookups divide each ωi corner by its cos θi (μ/cos θi is
 what is interpolated, as `EffectiveBRDF.eval` does). An effective material's tile frame is (tangent, bitangent, normal)
 with the tangent along the mesh's u direction (`scene.vertex_tangents`).
 """
@@ -120,7 +121,7 @@ def pack_materials(materials) -> dict:
             eff_lobes.append(rows)
             eff_sub.extend(_analytic_row(s) for s in subs)
             table = m.amplitudes  # float32, contiguous: ravel() is a view
-            diffuse = m.diffuse_levels
+            diffuse = m.energy_levels  # frozen, kept by material edits: ravel() is a view of the same memory
             eff_tables.append(table.ravel())
             eff_diffuse.append(diffuse.ravel())
             n_lobes += j
@@ -346,18 +347,22 @@ def shade_reference(frame: Frame) -> np.ndarray:
             k = int(ei[0])
 
             def diffuse_over_cos(axis_world, eta, ei=ei, k=k, ts_=ts_, bs=bs, ns=ns, wol_s=wol_s):
-                """f̄d/cos θ as a lobe of sharpness η sees it: the levels of `EffectiveBRDF.diffuse_levels` at
-                u(η) (`effective.diffuse_level_coordinate`), the two around it blended linearly."""
+                """f̄d/cos θ as a lobe of sharpness η sees it: Σ_m kd_m/π times material m's energy levels
+                (`EffectiveBRDF.energy_levels`) at u(η) (`effective.diffuse_level_coordinate`), the two
+                levels around u blended linearly."""
                 wl = np.stack([_dot(axis_world, ts_), _dot(axis_world, bs), _dot(axis_world, ns)], 1)
                 u = diffuse_level_coordinate(eta)
-                low = np.minimum(np.floor(u).astype(int), len(DIFFUSE_LEVEL_ETAS) - 2)
+                n_levels = len(DIFFUSE_LEVEL_ETAS)
+                low = np.minimum(np.floor(u).astype(int), n_levels - 2)
                 frac = u - low
                 out = np.zeros((len(wl), 3))
-                for level in range(len(DIFFUSE_LEVEL_ETAS)):
-                    w = np.where(low == level, 1.0 - frac, 0.0) + np.where(low + 1 == level, frac, 0.0)
-                    if w.any():
-                        base = int(ei[6]) + level * k**4 * 3
-                        out += w[:, None] * _table_interp(static.eff_diffuse, base, k, 1, 0, wl, wol_s)
+                for si in range(int(ei[2])):
+                    kd = static.eff_sub[int(ei[4]) + si, 1:4].astype(np.float64) / np.pi
+                    for level in range(n_levels):
+                        w = np.where(low == level, 1.0 - frac, 0.0) + np.where(low + 1 == level, frac, 0.0)
+                        if w.any():
+                            base = int(ei[6]) + (si * n_levels + level) * k**4 * 3
+                            out += (w[:, None] * kd) * _table_interp(static.eff_diffuse, base, k, 1, 0, wl, wol_s)
                 return out
 
         # Diffuse: environment lobes (shadowed), scaled per channel to the exact irradiance, then lights.
