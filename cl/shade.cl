@@ -271,50 +271,28 @@ CL_INLINE float3 table_rgb(__global const float *table, int base, int k2, int j_
     return out;
 }
 
-/* A small-scale material's energy/cos θ (its f̄d for kd = π) as a lobe of sharpness η sees it: its levels
- * (EffectiveBRDF.energy_levels, each (K², K², 3) from `base`) at u = log8(64/η) in [0, L − 1], the two
- * around u blended linearly — read in one pass over the grid corners. */
-CL_INLINE float3 energy_rgb(__global const float *table, int base, int k2, float eta, float3 wi_local, int k,
-                            const int *oo, const float *ow)
+/* The level of an effective material's energy that a lobe of sharpness η reads: the nearest in log η,
+ * round(log8(64/η)) in [0, L − 1] (effective.diffuse_level). */
+CL_INLINE int diffuse_level(float eta)
 {
     float u = clamp(log(DIFFUSE_LEVEL_SHARP / maxf(eta, 1.0e-30f)) / log(DIFFUSE_LEVEL_STEP), 0.0f,
                     (float)(DIFFUSE_LEVELS - 1));
-    int low = min((int)u, DIFFUSE_LEVELS - 2);
-    float frac = u - (float)low;
-    int size = k2 * k2 * 3;
-    int first = base + low * size;
-    if (frac >= 1.0f) {
-        first += size;
-        frac = 0.0f;
-    }
-    int ii[4];
-    float iw[4];
-    grid_bilinear(wi_local, k, ii, iw);
-    float3 out = (float3)(0.0f, 0.0f, 0.0f);
-    for (int a = 0; a < 4; ++a) {
-        float wa = iw[a] / grid_cos(ii[a], k);
-        for (int b = 0; b < 4; ++b) {
-            int idx = first + (ii[a] * k2 + oo[b]) * 3;
-            float3 v = (float3)(table[idx], table[idx + 1], table[idx + 2]);
-            if (frac > 0.0f)
-                v = (1.0f - frac) * v + frac * (float3)(table[idx + size], table[idx + size + 1], table[idx + size + 2]);
-            out = out + (wa * ow[b]) * v;
-        }
-    }
-    return out;
+    return (int)(u + 0.5f);
 }
 
-/* An effective material's f̄d/cos θ as a lobe of sharpness η sees it: Σ_m kd_m/π ⊙ material m's energy levels. */
+/* An effective material's f̄d/cos θ as a lobe of sharpness η sees it: Σ_m kd_m/π ⊙ material m's energy at the
+ * lobe's level (diffuse_level). */
 CL_INLINE float3 effective_diffuse(__global const int *ei, __global const float *eff_sub,
                                    __global const float *eff_diffuse, int k2, float eta, float3 wi_local, int k,
                                    const int *oo, const float *ow)
 {
     float3 out = (float3)(0.0f, 0.0f, 0.0f);
+    int level = diffuse_level(eta);
     for (int sub_i = 0; sub_i < ei[2]; ++sub_i) {
         __global const float *sub = eff_sub + 9 * (ei[4] + sub_i);
         float3 kd = (float3)(sub[1], sub[2], sub[3]) / SHADE_PI;
-        int base = ei[6] + sub_i * DIFFUSE_LEVELS * k2 * k2 * 3;
-        out = out + kd * energy_rgb(eff_diffuse, base, k2, eta, wi_local, k, oo, ow);
+        int base = ei[6] + (sub_i * DIFFUSE_LEVELS + level) * k2 * k2 * 3;
+        out = out + kd * table_rgb(eff_diffuse, base, k2, 1, 0, wi_local, k, oo, ow);
     }
     return out;
 }

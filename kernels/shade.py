@@ -231,45 +231,27 @@ def table_rgb(table: wp.array(dtype=wp.float32), base: int, k2: int, j_count: in
 
 
 @wp.func
-def energy_rgb(table: wp.array(dtype=wp.float32), base: int, k2: int, eta: float, wi_local: wp.vec3, k: int,
-               oo: vec4i, ow: wp.vec4) -> wp.vec3:
-    """A small-scale material's energy/cos θ (its f̄d for kd = π) as a lobe of sharpness η sees it: its levels
-    (EffectiveBRDF.energy_levels, each (K², K², 3) from `base`) at u = log8(64/η) in [0, L − 1], the two
-    around u blended linearly — read in one pass over the grid corners."""
+def diffuse_level(eta: float) -> int:
+    """The level of an effective material's energy that a lobe of sharpness η reads: the nearest in log η,
+    round(log8(64/η)) in [0, L − 1] (effective.diffuse_level)."""
     u = wp.clamp(wp.log(DIFFUSE_LEVEL_SHARP / wp.max(eta, 1.0e-30)) / wp.log(DIFFUSE_LEVEL_STEP), 0.0,
                  float(DIFFUSE_LEVELS - 1))
-    low = wp.min(int(u), DIFFUSE_LEVELS - 2)
-    frac = u - float(low)
-    size = k2 * k2 * 3
-    first = base + low * size
-    if frac >= 1.0:
-        first = first + size
-        frac = 0.0
-    ii = grid_corners(wi_local, k)
-    iw = grid_weights(wi_local, k)
-    out = wp.vec3(0.0)
-    for a in range(4):
-        wa = iw[a] / grid_cos(ii[a], k)
-        for b in range(4):
-            idx = first + (ii[a] * k2 + oo[b]) * 3
-            v = wp.vec3(table[idx], table[idx + 1], table[idx + 2])
-            if frac > 0.0:
-                v = (1.0 - frac) * v + frac * wp.vec3(table[idx + size], table[idx + size + 1], table[idx + size + 2])
-            out = out + (wa * ow[b]) * v
-    return out
+    return int(u + 0.5)
 
 
 @wp.func
 def effective_diffuse(eff_info: wp.array2d(dtype=wp.int32), eff_sub: wp.array2d(dtype=wp.float32),
                       eff_diffuse: wp.array(dtype=wp.float32), idx: int, k2: int, eta: float, wi_local: wp.vec3, k: int,
                       oo: vec4i, ow: wp.vec4) -> wp.vec3:
-    """An effective material's f̄d/cos θ as a lobe of sharpness η sees it: Σ_m kd_m/π ⊙ material m's energy levels."""
+    """An effective material's f̄d/cos θ as a lobe of sharpness η sees it: Σ_m kd_m/π ⊙ material m's energy at
+    the lobe's level (diffuse_level)."""
     out = wp.vec3(0.0)
+    level = diffuse_level(eta)
     for sub_i in range(eff_info[idx, 2]):
         sub = eff_info[idx, 4] + sub_i
         kd = wp.vec3(eff_sub[sub, 1], eff_sub[sub, 2], eff_sub[sub, 3]) / PI
-        base = eff_info[idx, 6] + sub_i * DIFFUSE_LEVELS * k2 * k2 * 3
-        out = out + wp.cw_mul(kd, energy_rgb(eff_diffuse, base, k2, eta, wi_local, k, oo, ow))
+        base = eff_info[idx, 6] + (sub_i * DIFFUSE_LEVELS + level) * k2 * k2 * 3
+        out = out + wp.cw_mul(kd, table_rgb(eff_diffuse, base, k2, 1, 0, wi_local, k, oo, ow))
     return out
 
 

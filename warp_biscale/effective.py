@@ -47,19 +47,21 @@ EXPORTERS: dict = {}
 
 # The environment's diffuse term reads f̄d prefiltered over ωi by its lobe (`energy_levels`, weighed by each
 # small-scale material's kd/π in the shade stage): level 0 is f̄d itself (a sharp lobe: its axis), level
-# l ≥ 1 the mean of f̄d/cos θ under a lobe of sharpness DIFFUSE_LEVEL_ETAS[l] (the shade stage's level
-# coordinate u = log8(64/η), clamped to [0, 4]: a lobe of η ≥ 64 reads its axis, one of η ≤ 1/64 the
-# broadest level, between them two neighbouring levels blended).
+# l ≥ 1 the mean of f̄d/cos θ under a lobe of sharpness DIFFUSE_LEVEL_ETAS[l] (a lobe reads the level nearest
+# its η in log, `diffuse_level`: a lobe of η ≥ 64/√8 ≈ 23 its axis, one of η ≤ 1/(8√8) ≈ 0.044 the broadest).
 DIFFUSE_LEVEL_ETAS = (np.inf, 8.0, 1.0, 0.125, 0.015625)
 DIFFUSE_LEVEL_SHARP = 64.0  # η at level coordinate 0: the sharpest lobe that reads f̄d at its axis
 DIFFUSE_LEVEL_STEP = 8.0  # the ratio of neighbouring levels' η
 
 
-def diffuse_level_coordinate(eta):
-    """The shade stage's continuous level u(η) = log_STEP(DIFFUSE_LEVEL_SHARP/η) in [0, len(DIFFUSE_LEVEL_ETAS) − 1]
-    (η = DIFFUSE_LEVEL_ETAS[l] at u = l)."""
+def diffuse_level(eta):
+    """The level a lobe of sharpness η reads in the shade stage: the nearest in log η, round(u) of
+    u = log_STEP(DIFFUSE_LEVEL_SHARP/η) clamped to [0, len(DIFFUSE_LEVEL_ETAS) − 1] (η = DIFFUSE_LEVEL_ETAS[l] at
+    u = l). One level, not two blended: an environment lobe's η is the same at every pixel, so the choice
+    makes no seam, and one table lookup a lobe keeps the diffuse term's cost what it was."""
     eta = np.maximum(np.asarray(eta, np.float64), 1e-30)
-    return np.clip(np.log(DIFFUSE_LEVEL_SHARP / eta) / np.log(DIFFUSE_LEVEL_STEP), 0.0, len(DIFFUSE_LEVEL_ETAS) - 1.0)
+    u = np.clip(np.log(DIFFUSE_LEVEL_SHARP / eta) / np.log(DIFFUSE_LEVEL_STEP), 0.0, len(DIFFUSE_LEVEL_ETAS) - 1.0)
+    return np.floor(u + 0.5).astype(int)
 
 
 @functools.lru_cache(maxsize=8)

@@ -46,9 +46,9 @@ ASG lobe [z, 0, x, λ, μ] (y = z × x); ``eff_sub`` (Σn_sub, 9) like ``analyti
 material edit keeps it, and the backends then keep its device copy); ``eff_diffuse`` float32
 (n_sub, L, K², K², 3) per effective material: each small-scale material's energy Σ_j μ_mj∫G_j and its levels
 prefiltered for broad environment lobes (`EffectiveBRDF.energy_levels`, also kept by a material edit); the
-diffuse term is Σ_m kd_m/π times its levels as a lobe of sharpness η reads them (levels ⌊u⌋ and ⌊u⌋ + 1 at
-u = `effective.diffuse_level_coordinate(η)`, blended). The lookups divide each ωi corner by its cos θi (μ/cos θi is
-what is interpolated, as `EffectiveBRDF.eval` does). An effective material's tile frame is (tangent, bitangent, normal)
+diffuse term is Σ_m kd_m/π times the level a lobe of sharpness η reads (`effective.diffuse_level(η)`). The
+lookups divide each ωi corner by its cos θi (μ/cos θi is what is interpolated, as `EffectiveBRDF.eval` does).
+An effective material's tile frame is (tangent, bitangent, normal)
 with the tangent along the mesh's u direction (`scene.vertex_tangents`).
 """
 
@@ -60,7 +60,7 @@ from . import brdf as brdf_mod
 from . import directions as dirs
 from . import asg as asg_mod
 from . import litsphere, sg, svbrdf
-from .effective import ASG_LOBES, DIFFUSE_LEVEL_ETAS, EffectiveBRDF, diffuse_level_coordinate
+from .effective import ASG_LOBES, DIFFUSE_LEVEL_ETAS, EffectiveBRDF, diffuse_level
 from .model import Frame
 from .lighting import prefiltered_lookup
 from .scene import light_sg, vertex_tangents
@@ -347,22 +347,18 @@ def shade_reference(frame: Frame) -> np.ndarray:
             k = int(ei[0])
 
             def diffuse_over_cos(axis_world, eta, ei=ei, k=k, ts_=ts_, bs=bs, ns=ns, wol_s=wol_s):
-                """f̄d/cos θ as a lobe of sharpness η sees it: Σ_m kd_m/π times material m's energy levels
-                (`EffectiveBRDF.energy_levels`) at u(η) (`effective.diffuse_level_coordinate`), the two
-                levels around u blended linearly."""
+                """f̄d/cos θ as a lobe of sharpness η sees it: Σ_m kd_m/π times material m's energy
+                (`EffectiveBRDF.energy_levels`) at the lobe's level (`effective.diffuse_level`)."""
                 wl = np.stack([_dot(axis_world, ts_), _dot(axis_world, bs), _dot(axis_world, ns)], 1)
-                u = diffuse_level_coordinate(eta)
+                level = diffuse_level(eta)
                 n_levels = len(DIFFUSE_LEVEL_ETAS)
-                low = np.minimum(np.floor(u).astype(int), n_levels - 2)
-                frac = u - low
                 out = np.zeros((len(wl), 3))
                 for si in range(int(ei[2])):
                     kd = static.eff_sub[int(ei[4]) + si, 1:4].astype(np.float64) / np.pi
-                    for level in range(n_levels):
-                        w = np.where(low == level, 1.0 - frac, 0.0) + np.where(low + 1 == level, frac, 0.0)
-                        if w.any():
-                            base = int(ei[6]) + (si * n_levels + level) * k**4 * 3
-                            out += (w[:, None] * kd) * _table_interp(static.eff_diffuse, base, k, 1, 0, wl, wol_s)
+                    for lv in np.unique(level):
+                        on = level == lv
+                        base = int(ei[6]) + (si * n_levels + int(lv)) * k**4 * 3
+                        out[on] += kd * _table_interp(static.eff_diffuse, base, k, 1, 0, wl[on], wol_s[on])
                 return out
 
         # Diffuse: environment lobes (shadowed), scaled per channel to the exact irradiance, then lights.
