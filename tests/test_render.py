@@ -127,6 +127,7 @@ def test_material_edit_uploads_only_what_changed(backend):
     image = wb.render(second, backend=backend).image
     dev1, dev2 = ([v for k, v in s.cache.items() if k[0] == "static"][0].device[backend.name] for s in (first, second))
     assert dev2["eff_tables"] is dev1["eff_tables"] and dev2["positions"] is dev1["positions"]
+    assert dev2["eff_diffuse"] is dev1["eff_diffuse"]  # the energy levels: kd is weighed in the kernel
     assert dev2["env_maps"] is dev1["env_maps"] and dev2["ssdf_coeffs"] is dev1["ssdf_coeffs"]
     assert dev2["eff_sub"] is not dev1["eff_sub"]  # the new small-scale BRDF's row
     backend._shade_inputs_held.clear()  # what a backend that never saw the first scene holds
@@ -139,6 +140,7 @@ def test_material_edit_uploads_only_what_changed(backend):
     wb.render(third, backend=backend)
     dev3 = [v for k, v in third.cache.items() if k[0] == "static"][0].device[backend.name]
     assert dev3["eff_tables"] is not dev_cold["eff_tables"] and dev3["positions"] is dev_cold["positions"]
+    assert dev3["eff_diffuse"] is not dev_cold["eff_diffuse"]
 
 
 def test_degenerate_mesh_never_yields_nan(backend):

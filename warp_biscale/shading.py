@@ -143,7 +143,8 @@ def pack_materials(materials) -> dict:
         "eff_sub": stack(eff_sub, 9, np.float32),
         "eff_tables": (eff_tables[0] if len(eff_tables) == 1 else
                        np.concatenate(eff_tables) if eff_tables else np.zeros(0, np.float32)),
-        "eff_diffuse": np.concatenate(eff_diffuse) if eff_diffuse else np.zeros(0, np.float32),
+        "eff_diffuse": (eff_diffuse[0] if len(eff_diffuse) == 1 else  # one material's levels as they are (kept)
+                        np.concatenate(eff_diffuse) if eff_diffuse else np.zeros(0, np.float32)),
         "tex_info": np.asarray(tex_info, np.int32).reshape(-1, 4),
         "tex_data": np.concatenate(tex_data).astype(np.float32),
     }
