@@ -25,13 +25,44 @@ LOG_LO = wp.constant(_sg.TABLE_LOG10_ETA[0])
 LOG_HI = wp.constant(_sg.TABLE_LOG10_ETA[1])
 SHARPNESS_MAX = wp.constant(_sg.SHARPNESS_MAX)
 MIN_COS_VIEW = wp.constant(1.0e-4)  # = shading.MIN_COS_VIEW
-ASG_LOBES = wp.constant(_effective.ASG_LOBES)  # eff_info[:, 7] of a material with ASG lobes
+ASG_LOBES = wp.constant(_effective.ASG_LOBES)  # i32_at2(eff_info, :, 7) of a material with ASG lobes
 ASG_EQ10_MIN = wp.constant(_asg.EQ10_MIN_BANDWIDTH)
 DIFFUSE_LEVELS = wp.constant(len(_effective.DIFFUSE_LEVEL_ETAS))  # f̄d and its prefiltered levels
 DIFFUSE_LEVEL_SHARP = wp.constant(_effective.DIFFUSE_LEVEL_SHARP)
 DIFFUSE_LEVEL_STEP = wp.constant(_effective.DIFFUSE_LEVEL_STEP)
 
 vec4i = wp.vec4i
+
+
+# Array reads with 32-bit index arithmetic, as cl/shade.cl's int indices: Warp's own indexing multiplies each
+# index by its byte stride in size_t (64-bit), and this kernel gathers thousands of values a pixel; that address
+# arithmetic, with work cl/ shares and Warp did not (one log per η's table row, prefiltered's angles once, one
+# concentric map per grid cell: shared below too), made Warp's shade register-bound where cl/'s is not
+# (bench/results/shade-h100). Same byte offsets (same strides, any layout) in int: every array here is far
+# below 2 GiB.
+@wp.func_native("return *(const float*)((const char*)a.data + i * a.strides[0]);")
+def f32_at(a: wp.array(dtype=wp.float32), i: int) -> float: ...
+
+
+@wp.func_native("return *(const float*)((const char*)a.data + (i * a.strides[0] + j * a.strides[1]));")
+def f32_at2(a: wp.array2d(dtype=wp.float32), i: int, j: int) -> float: ...
+
+
+@wp.func_native("return *(const float*)((const char*)a.data\n"
+                "                        + (i * a.strides[0] + j * a.strides[1] + k * a.strides[2]));")
+def f32_at3(a: wp.array3d(dtype=wp.float32), i: int, j: int, k: int) -> float: ...
+
+
+@wp.func_native("return *(const wp::vec3*)((const char*)a.data + i * a.strides[0]);")
+def vec3_at(a: wp.array(dtype=wp.vec3), i: int) -> wp.vec3: ...
+
+
+@wp.func_native("return *(const int*)((const char*)a.data + (i * a.strides[0] + j * a.strides[1]));")
+def i32_at2(a: wp.array2d(dtype=wp.int32), i: int, j: int) -> int: ...
+
+
+@wp.func_native("return *(const unsigned char*)((const char*)a.data + (i * a.strides[0] + j * a.strides[1]));")
+def u8_at2(a: wp.array2d(dtype=wp.uint8), i: int, j: int) -> wp.uint8: ...
 
 
 @wp.func
@@ -43,45 +74,59 @@ def sg_integral(eta: float) -> float:
 
 
 @wp.func
-def table_lookup(table: wp.array3d(dtype=wp.float32), which: int, c: float, eta: float) -> float:
-    """Bilinear in (log10 η, c): sg.table_lookup."""
+def eta_row(table: wp.array3d(dtype=wp.float32), eta: float) -> float:
+    """The table's fractional row at η (sg.table_lookup's first half): the lookups of one η (a lobe's cosine
+    integral and its SSDF fractions) share its log, as cl/shade.cl's eta_row."""
+    le = wp.clamp(wp.log(wp.max(eta, 1.0e-30)) * 0.4342944819, LOG_LO, LOG_HI)
+    return (le - LOG_LO) / (LOG_HI - LOG_LO) * float(table.shape[1] - 1)
+
+
+@wp.func
+def table_lookup(table: wp.array3d(dtype=wp.float32), which: int, c: float, tr: float) -> float:
+    """Bilinear in (log10 η, c), η's row tr from eta_row: sg.table_lookup."""
     rows = table.shape[1]
     cols = table.shape[2]
-    le = wp.clamp(wp.log(wp.max(eta, 1.0e-30)) * 0.4342944819, LOG_LO, LOG_HI)
-    tr = (le - LOG_LO) / (LOG_HI - LOG_LO) * float(rows - 1)
     tc = (wp.clamp(c, -1.0, 1.0) + 1.0) * 0.5 * float(cols - 1)
     r0 = wp.min(int(wp.floor(tr)), rows - 2)
     c0 = wp.min(int(wp.floor(tc)), cols - 2)
     fr = tr - float(r0)
     fc = tc - float(c0)
-    top = (1.0 - fc) * table[which, r0, c0] + fc * table[which, r0, c0 + 1]
-    bottom = (1.0 - fc) * table[which, r0 + 1, c0] + fc * table[which, r0 + 1, c0 + 1]
+    top = (1.0 - fc) * f32_at3(table, which, r0, c0) + fc * f32_at3(table, which, r0, c0 + 1)
+    bottom = (1.0 - fc) * f32_at3(table, which, r0 + 1, c0) + fc * f32_at3(table, which, r0 + 1, c0 + 1)
     return (1.0 - fr) * top + fr * bottom
 
 
 @wp.func
-def cosine_integral(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: float, n: wp.vec3) -> float:
-    """∫ G(ω; axis, η, 1)(n·ω)⁺ dω."""
-    return sg_integral(eta) * table_lookup(table, 0, wp.dot(axis, n), eta)
+def cosine_integral(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: float, tr: float,
+                    n: wp.vec3) -> float:
+    """∫ G(ω; axis, η, 1)(n·ω)⁺ dω, η's table row tr from eta_row."""
+    return sg_integral(eta) * table_lookup(table, 0, wp.dot(axis, n), tr)
 
 
 @wp.func
-def beyond_horizon(table: wp.array3d(dtype=wp.float32), theta: float, axis: wp.vec3, eta: float, n: wp.vec3) -> float:
+def beyond_horizon(table: wp.array3d(dtype=wp.float32), theta: float, axis: wp.vec3, tr: float, n: wp.vec3) -> float:
     """The share of a lobe's horizon-clipped integral left visible by the SSDF's θd at its axis:
     visible_fraction(sin θd, η) / visible_fraction(axis·n, η), clamped to [0, 1] (the horizon alone
-    would give θd = asin(axis·n): the cosine integral has clipped that much already)."""
+    would give θd = asin(axis·n): the cosine integral has clipped that much already). tr: η's table row."""
     c = wp.sin(wp.clamp(theta, -0.5 * PI, 0.5 * PI))
-    vis = table_lookup(table, 1, c, eta) / wp.max(table_lookup(table, 1, wp.dot(axis, n), eta), 1.0e-6)
+    vis = table_lookup(table, 1, c, tr) / wp.max(table_lookup(table, 1, wp.dot(axis, n), tr), 1.0e-6)
     return wp.clamp(vis, 0.0, 1.0)
 
 
 @wp.func
-def equirect_bilinear(maps: wp.array(dtype=wp.vec3), offset: int, h: int, w: int, d: wp.vec3) -> wp.vec3:
-    """Bilinear lookup of one equirect level (environment.py's convention: wrap φ, clamp θ)."""
+def direction_angles(d: wp.vec3) -> wp.vec2:
+    """(θ, φ) of d, φ in [0, 2π) (environment.py's convention): prefiltered takes them once for both levels."""
     theta = wp.acos(wp.clamp(d[1], -1.0, 1.0))
     phi = wp.atan2(d[2], d[0])
     if phi < 0.0:
         phi = phi + 2.0 * PI
+    return wp.vec2(theta, phi)
+
+
+@wp.func
+def equirect_bilinear(maps: wp.array(dtype=wp.vec3), offset: int, h: int, w: int, theta: float, phi: float) -> wp.vec3:
+    """Bilinear lookup of one equirect level at polar angle θ and azimuth φ in [0, 2π) (environment.py's
+    convention: wrap φ, clamp θ)."""
     row = theta * float(h) / PI - 0.5
     col = phi * float(w) / (2.0 * PI) - 0.5
     r0f = wp.floor(row)
@@ -92,21 +137,31 @@ def equirect_bilinear(maps: wp.array(dtype=wp.vec3), offset: int, h: int, w: int
     r1 = wp.clamp(int(r0f) + 1, 0, h - 1)
     c0 = ((int(c0f) % w) + w) % w
     c1 = (c0 + 1) % w
-    a = maps[offset + r0 * w + c0] * (1.0 - fc) + maps[offset + r0 * w + c1] * fc
-    b = maps[offset + r1 * w + c0] * (1.0 - fc) + maps[offset + r1 * w + c1] * fc
+    a = vec3_at(maps, offset + r0 * w + c0) * (1.0 - fc) + vec3_at(maps, offset + r0 * w + c1) * fc
+    b = vec3_at(maps, offset + r1 * w + c0) * (1.0 - fc) + vec3_at(maps, offset + r1 * w + c1) * fc
     return a * (1.0 - fr) + b * fr
+
+
+@wp.func
+def equirect_bilinear_dir(maps: wp.array(dtype=wp.vec3), offset: int, h: int, w: int, d: wp.vec3) -> wp.vec3:
+    """Bilinear lookup of one equirect level in direction d."""
+    tp = direction_angles(d)
+    return equirect_bilinear(maps, offset, h, w, tp[0], tp[1])
 
 
 @wp.func
 def prefiltered(maps: wp.array(dtype=wp.vec3), levels: wp.array2d(dtype=wp.float32), d: wp.vec3, eta: float) -> wp.vec3:
     """Λ(d, η): linear in log2 η between the two nearest levels (reference.prefiltered_lookup)."""
     n = levels.shape[0]
-    t = wp.clamp(wp.log2(wp.max(eta, 1.0e-30)) - levels[0, 0], 0.0, float(n - 1))
+    t = wp.clamp(wp.log2(wp.max(eta, 1.0e-30)) - f32_at2(levels, 0, 0), 0.0, float(n - 1))
     l0 = wp.max(wp.min(int(wp.floor(t)), n - 2), 0)
     l1 = wp.min(l0 + 1, n - 1)
     f = wp.clamp(t - float(l0), 0.0, 1.0)
-    a = equirect_bilinear(maps, int(levels[l0, 1]), int(levels[l0, 2]), int(levels[l0, 3]), d)
-    b = equirect_bilinear(maps, int(levels[l1, 1]), int(levels[l1, 2]), int(levels[l1, 3]), d)
+    tp = direction_angles(d)
+    a = equirect_bilinear(maps, int(f32_at2(levels, l0, 1)), int(f32_at2(levels, l0, 2)), int(f32_at2(levels, l0, 3)),
+                          tp[0], tp[1])
+    b = equirect_bilinear(maps, int(f32_at2(levels, l1, 1)), int(f32_at2(levels, l1, 2)), int(f32_at2(levels, l1, 3)),
+                          tp[0], tp[1])
     return a * (1.0 - f) + b * f
 
 
@@ -149,8 +204,9 @@ def ssdf_theta(basis: wp.array2d(dtype=wp.float32), coeffs: wp.array2d(dtype=wp.
     for r in range(basis.shape[1]):  # basis is texel-major (res², terms + 1): contiguous per corner
         c = float(1.0)
         if r > 0:
-            c = w0 * coeffs[i0, r - 1] + w1 * coeffs[i1, r - 1] + w2 * coeffs[i2, r - 1]
-        theta = theta + c * (w00 * basis[k00, r] + w10 * basis[k10, r] + w01 * basis[k01, r] + w11 * basis[k11, r])
+            c = w0 * f32_at2(coeffs, i0, r - 1) + w1 * f32_at2(coeffs, i1, r - 1) + w2 * f32_at2(coeffs, i2, r - 1)
+        theta = theta + c * (w00 * f32_at2(basis, k00, r) + w10 * f32_at2(basis, k10, r)
+                             + w01 * f32_at2(basis, k01, r) + w11 * f32_at2(basis, k11, r))
     return theta
 
 
@@ -203,6 +259,31 @@ def grid_weights(w: wp.vec3, k: int) -> wp.vec4:
     return wp.vec4((1.0 - tx) * (1.0 - ty), tx * (1.0 - ty), (1.0 - tx) * ty, tx * ty)
 
 
+@wp.struct
+class GridCell:
+    """The four K×K grid indices around a direction and their bilinear weights."""
+    idx: vec4i
+    wgt: wp.vec4
+
+
+@wp.func
+def grid_bilinear(w: wp.vec3, k: int) -> GridCell:
+    """grid_corners and grid_weights from one concentric map (cl/shade.cl's grid_bilinear)."""
+    uv = concentric_uv(w)
+    x = wp.clamp(uv[0] * float(k) - 0.5, 0.0, float(k - 1))
+    y = wp.clamp(uv[1] * float(k) - 0.5, 0.0, float(k - 1))
+    x0 = wp.min(int(wp.floor(x)), k - 1)
+    y0 = wp.min(int(wp.floor(y)), k - 1)
+    x1 = wp.min(x0 + 1, k - 1)
+    y1 = wp.min(y0 + 1, k - 1)
+    tx = x - float(x0)
+    ty = y - float(y0)
+    g = GridCell()
+    g.idx = vec4i(y0 * k + x0, y0 * k + x1, y1 * k + x0, y1 * k + x1)
+    g.wgt = wp.vec4((1.0 - tx) * (1.0 - ty), tx * (1.0 - ty), (1.0 - tx) * ty, tx * ty)
+    return g
+
+
 @wp.func
 def grid_cos(i: int, k: int) -> float:
     """cos θ of direction i of the K×K grid (directions.grid: 1 − r², r the cell centre's concentric radius)."""
@@ -218,15 +299,16 @@ def table_rgb(table: wp.array(dtype=wp.float32), base: int, k2: int, j_count: in
     """Bilinear (ωi) × bilinear (ωo) lookup of value/cos θi in a (K², K², J, 3) table of values at lobe j:
     the division by each ωi corner's cos θi is done here, so that a bake's tables are read as they are
     (no host copy per edit)."""
-    ii = grid_corners(wi_local, k)
-    iw = grid_weights(wi_local, k)
+    g = grid_bilinear(wi_local, k)
+    ii = g.idx
+    iw = g.wgt
     out = wp.vec3(0.0)
     for a in range(4):
         wa = iw[a] / grid_cos(ii[a], k)
         for b in range(4):
             idx = base + ((ii[a] * k2 + oo[b]) * j_count + j) * 3
             wgt = wa * ow[b]
-            out = out + wgt * wp.vec3(table[idx], table[idx + 1], table[idx + 2])
+            out = out + wgt * wp.vec3(f32_at(table, idx), f32_at(table, idx + 1), f32_at(table, idx + 2))
     return out
 
 
@@ -247,10 +329,10 @@ def effective_diffuse(eff_info: wp.array2d(dtype=wp.int32), eff_sub: wp.array2d(
     the lobe's level (diffuse_level)."""
     out = wp.vec3(0.0)
     level = diffuse_level(eta)
-    for sub_i in range(eff_info[idx, 2]):
-        sub = eff_info[idx, 4] + sub_i
-        kd = wp.vec3(eff_sub[sub, 1], eff_sub[sub, 2], eff_sub[sub, 3]) / PI
-        base = eff_info[idx, 6] + (sub_i * DIFFUSE_LEVELS + level) * k2 * k2 * 3
+    for sub_i in range(i32_at2(eff_info, idx, 2)):
+        sub = i32_at2(eff_info, idx, 4) + sub_i
+        kd = wp.vec3(f32_at2(eff_sub, sub, 1), f32_at2(eff_sub, sub, 2), f32_at2(eff_sub, sub, 3)) / PI
+        base = i32_at2(eff_info, idx, 6) + (sub_i * DIFFUSE_LEVELS + level) * k2 * k2 * 3
         out = out + wp.cw_mul(kd, table_rgb(eff_diffuse, base, k2, 1, 0, wi_local, k, oo, ow))
     return out
 
@@ -303,27 +385,27 @@ def texture_bilinear(tex_info: wp.array2d(dtype=wp.int32), tex_data: wp.array(dt
 
 @wp.func
 def light_axis(lights: wp.array2d(dtype=wp.float32), l: int, pos: wp.vec3) -> wp.vec3:
-    if lights[l, 0] == 0.0:
-        return wp.vec3(lights[l, 1], lights[l, 2], lights[l, 3])
-    return wp.normalize(wp.vec3(lights[l, 1], lights[l, 2], lights[l, 3]) - pos)
+    if f32_at2(lights, l, 0) == 0.0:
+        return wp.vec3(f32_at2(lights, l, 1), f32_at2(lights, l, 2), f32_at2(lights, l, 3))
+    return wp.normalize(wp.vec3(f32_at2(lights, l, 1), f32_at2(lights, l, 2), f32_at2(lights, l, 3)) - pos)
 
 
 @wp.func
 def light_sharpness(lights: wp.array2d(dtype=wp.float32), l: int, pos: wp.vec3) -> float:
     """η = 2π/Ω (scene.light_sg)."""
-    omega = lights[l, 7]
-    if lights[l, 0] != 0.0:
-        d = wp.length(wp.vec3(lights[l, 1], lights[l, 2], lights[l, 3]) - pos)
-        omega = PI * lights[l, 7] * lights[l, 7] / wp.max(d * d, 1.0e-30)
+    omega = f32_at2(lights, l, 7)
+    if f32_at2(lights, l, 0) != 0.0:
+        d = wp.length(wp.vec3(f32_at2(lights, l, 1), f32_at2(lights, l, 2), f32_at2(lights, l, 3)) - pos)
+        omega = PI * f32_at2(lights, l, 7) * f32_at2(lights, l, 7) / wp.max(d * d, 1.0e-30)
     return 2.0 * PI / wp.max(omega, 1.0e-6)
 
 
 @wp.func
 def light_amplitude(lights: wp.array2d(dtype=wp.float32), l: int, pos: wp.vec3, eta: float) -> wp.vec3:
     """μ with ∫G = the irradiance at normal incidence."""
-    power = wp.vec3(lights[l, 4], lights[l, 5], lights[l, 6])
-    if lights[l, 0] != 0.0:
-        d = wp.length(wp.vec3(lights[l, 1], lights[l, 2], lights[l, 3]) - pos)
+    power = wp.vec3(f32_at2(lights, l, 4), f32_at2(lights, l, 5), f32_at2(lights, l, 6))
+    if f32_at2(lights, l, 0) != 0.0:
+        d = wp.length(wp.vec3(f32_at2(lights, l, 1), f32_at2(lights, l, 2), f32_at2(lights, l, 3)) - pos)
         power = power / wp.max(d * d, 1.0e-30)
     return power / sg_integral(eta)
 
@@ -340,7 +422,7 @@ def product_integral(table: wp.array3d(dtype=wp.float32), a1: wp.vec3, e1: float
     axis = wp.vec3(0.0, 0.0, 1.0)
     if wp.length(v) > 0.0:
         axis = wp.normalize(v)
-    return wp.exp(-gap) * cosine_integral(table, axis, d, n)
+    return wp.exp(-gap) * cosine_integral(table, axis, d, eta_row(table, d), n)
 
 
 @wp.struct
@@ -405,14 +487,15 @@ def to_local(s: SurfacePoint, d: wp.vec3) -> wp.vec3:
 
 
 @wp.func
-def environment_share(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: float, s: SurfacePoint,
+def environment_share(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, tr: float, s: SurfacePoint,
                       has_ssdf: int, ssdf_res: int, ssdf_basis: wp.array2d(dtype=wp.float32),
                       ssdf_coeffs: wp.array2d(dtype=wp.float32)) -> float:
-    """The share of ∫ G(ω; axis, η, 1)(n·ω)⁺ dω that the SSDF leaves unoccluded (1 without one)."""
+    """The share of ∫ G(ω; axis, η, 1)(n·ω)⁺ dω that the SSDF leaves unoccluded (1 without one); tr: η's
+    table row."""
     if has_ssdf == 0:
         return 1.0
     theta = ssdf_theta(ssdf_basis, ssdf_coeffs, s.i0, s.i1, s.i2, s.w0, s.w1, s.w2, ssdf_res, axis)
-    return beyond_horizon(table, theta, axis, eta, s.n)
+    return beyond_horizon(table, theta, axis, tr, s.n)
 
 
 @wp.func
@@ -434,12 +517,12 @@ def lobe_from_lights(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: fl
     """Σ over the lights whose shadow ray reached them of ∫ G(axis, η)·light SG·(n·ω)⁺."""
     out = wp.vec3(0.0)
     for l in range(n_lights):
-        if light_vis[p, l] == wp.uint8(0):
+        if u8_at2(light_vis, p, l) == wp.uint8(0):
             continue
         la = light_axis(lights, l, s.pos)
         le = light_sharpness(lights, l, s.pos)
         out = out + light_amplitude(lights, l, s.pos, le) * (
-            product_integral(table, axis, eta, la, le, s.n) * float(int(light_vis[p, l])) / 255.0)
+            product_integral(table, axis, eta, la, le, s.n) * float(int(u8_at2(light_vis, p, l))) / 255.0)
     return out
 
 
@@ -447,11 +530,11 @@ def lobe_from_lights(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: fl
 def lobe_asg(eff_lobes: wp.array2d(dtype=wp.float32), lobe: int, s: SurfacePoint) -> Asg:
     """ASG lobe `lobe` of an effective material ([z, 0, x, λ, μ] in the tile frame) in the world, unit amplitude."""
     g = Asg()
-    g.z = eff_lobes[lobe, 0] * s.t + eff_lobes[lobe, 1] * s.b + eff_lobes[lobe, 2] * s.n
-    g.x = eff_lobes[lobe, 4] * s.t + eff_lobes[lobe, 5] * s.b + eff_lobes[lobe, 6] * s.n
+    g.z = f32_at2(eff_lobes, lobe, 0) * s.t + f32_at2(eff_lobes, lobe, 1) * s.b + f32_at2(eff_lobes, lobe, 2) * s.n
+    g.x = f32_at2(eff_lobes, lobe, 4) * s.t + f32_at2(eff_lobes, lobe, 5) * s.b + f32_at2(eff_lobes, lobe, 6) * s.n
     g.y = wp.cross(g.z, g.x)
-    g.lam = eff_lobes[lobe, 7]
-    g.mu = eff_lobes[lobe, 8]
+    g.lam = f32_at2(eff_lobes, lobe, 7)
+    g.mu = f32_at2(eff_lobes, lobe, 8)
     g.c = 1.0
     return g
 
@@ -502,7 +585,7 @@ def asg_from_lights(g: Asg, eta_s: float, kind: int, ks: wp.vec3, p1: float, p2:
     (M(h·l)·μ_j(l, ωo)/cos θi·(G_j ⊛ SG_s)(h)) times the light's irradiance, cosine and visible share."""
     out = wp.vec3(0.0)
     for l in range(n_lights):
-        if light_vis[p, l] == wp.uint8(0):
+        if u8_at2(light_vis, p, l) == wp.uint8(0):
             continue
         la = light_axis(lights, l, s.pos)
         le = light_sharpness(lights, l, s.pos)
@@ -513,7 +596,7 @@ def asg_from_lights(g: Asg, eta_s: float, kind: int, ks: wp.vec3, p1: float, p2:
         scale = specular_scale(kind, ks, p1, p2, wp.dot(h, la))
         mu = table_rgb(eff_tables, base, k2, j_count, j, to_local(s, la), k, oo, ow)
         e = light_amplitude(lights, l, s.pos, le) * (
-            cosine_integral(table, la, le, s.n) * float(int(light_vis[p, l])) / 255.0)
+            cosine_integral(table, la, le, eta_row(table, le), s.n) * float(int(u8_at2(light_vis, p, l))) / 255.0)
         out = out + wp.cw_mul(wp.cw_mul(scale, mu), e) * shape
     return out
 
@@ -528,7 +611,10 @@ def finite_radiance(v: wp.vec3) -> wp.vec3:
     return out
 
 
-@wp.kernel
+# A register cap (ptxas spills the rest to local memory, cached): more resident warps hide the gathers' latency
+# better than registers save spills, and the rarely taken ASG path would otherwise set the whole kernel's count.
+# The cap was chosen by timing caps on an H100 (bench/results/shade-h100).
+@wp.kernel(cuda_max_registers=96)
 def shade_pixels(
     face: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec2), light_vis: wp.array2d(dtype=wp.uint8),
     faces: wp.array2d(dtype=wp.int32), positions: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp.vec3),
@@ -566,9 +652,9 @@ def shade_pixels(
     wo_local = wp.normalize(wp.vec3(wp.dot(wo, s.t), wp.dot(wo, s.b), cos_o))
 
     mat = face_material[f]
-    kind = mat_info[mat, 0]
-    idx = mat_info[mat, 1]
-    has_spec = mat_info[mat, 2]
+    kind = i32_at2(mat_info, mat, 0)
+    idx = i32_at2(mat_info, mat, 1)
+    has_spec = i32_at2(mat_info, mat, 2)
     k = int(0)
     k2 = int(0)
     j_count = int(0)
@@ -587,7 +673,7 @@ def shade_pixels(
         a_ks = wp.vec3(analytic[idx, 4], analytic[idx, 5], analytic[idx, 6])
         a_p1 = analytic[idx, 7]
         a_p2 = analytic[idx, 8]
-        slot = mat_info[mat, 3]
+        slot = i32_at2(mat_info, mat, 3)
         if slot >= 0:
             uv = s.w0 * uvs[s.i0] + s.w1 * uvs[s.i1] + s.w2 * uvs[s.i2]
             a_kd = wp.cw_mul(a_kd, texture_bilinear(tex_info, tex_data, slot, uv))
@@ -595,30 +681,32 @@ def shade_pixels(
             a_p1 = a_p1 * texture_bilinear(tex_info, tex_data, slot + 2, uv)[0]
         kd = a_kd / PI
     else:
-        k = eff_info[idx, 0]
+        k = i32_at2(eff_info, idx, 0)
         k2 = k * k
-        j_count = eff_info[idx, 1]
-        oo = grid_corners(wo_local, k)
-        ow = grid_weights(wo_local, k)
+        j_count = i32_at2(eff_info, idx, 1)
+        go = grid_bilinear(wo_local, k)
+        oo = go.idx
+        ow = go.wgt
     out = wp.vec3(0.0)
 
     # Diffuse: environment lobes (SSDF-shadowed, scaled to the exact irradiance), then lights (shadow rays).
     lobes_irradiance = wp.vec3(0.0)
     for e in range(n_env):
-        axis = wp.vec3(env_sgs[e, 0], env_sgs[e, 1], env_sgs[e, 2])
-        eta = env_sgs[e, 3]
-        radiance_e = wp.vec3(env_sgs[e, 4], env_sgs[e, 5], env_sgs[e, 6])
-        amount = cosine_integral(table, axis, eta, s.n)
+        axis = wp.vec3(f32_at2(env_sgs, e, 0), f32_at2(env_sgs, e, 1), f32_at2(env_sgs, e, 2))
+        eta = f32_at2(env_sgs, e, 3)
+        radiance_e = wp.vec3(f32_at2(env_sgs, e, 4), f32_at2(env_sgs, e, 5), f32_at2(env_sgs, e, 6))
+        tr = eta_row(table, eta)
+        amount = cosine_integral(table, axis, eta, tr, s.n)
         lobes_irradiance = lobes_irradiance + radiance_e * amount
-        amount = amount * environment_share(table, axis, eta, s, has_ssdf, ssdf_res, ssdf_basis, ssdf_coeffs)
+        amount = amount * environment_share(table, axis, tr, s, has_ssdf, ssdf_res, ssdf_basis, ssdf_coeffs)
         fd = kd
         if kind != 0:
             fd = effective_diffuse(eff_info, eff_sub, eff_diffuse, idx, k2, eta, to_local(s, axis), k, oo, ow)
         out = out + wp.cw_mul(fd, radiance_e) * amount
     out = wp.cw_mul(out, irradiance_scale(lobes_irradiance,
-                                          equirect_bilinear(env_residual, 0, residual_h, residual_w, s.n)))
+                                          equirect_bilinear_dir(env_residual, 0, residual_h, residual_w, s.n)))
     for l in range(n_lights):
-        if light_vis[p, l] == wp.uint8(0):
+        if u8_at2(light_vis, p, l) == wp.uint8(0):
             continue
         axis = light_axis(lights, l, s.pos)
         eta = light_sharpness(lights, l, s.pos)
@@ -626,14 +714,14 @@ def shade_pixels(
         if kind != 0:
             fd = effective_diffuse(eff_info, eff_sub, eff_diffuse, idx, k2, eta, to_local(s, axis), k, oo, ow)
         out = out + wp.cw_mul(fd, light_amplitude(lights, l, s.pos, eta)) * (
-            cosine_integral(table, axis, eta, s.n) * float(int(light_vis[p, l])) / 255.0)
+            cosine_integral(table, axis, eta, eta_row(table, eta), s.n) * float(int(u8_at2(light_vis, p, l))) / 255.0)
 
     # Specular: each warped lobe against the prefiltered environment and each light.
     if has_spec != 0:
         n_sub = 1
         n_lobes = 1
         if kind != 0:
-            n_sub = eff_info[idx, 2]
+            n_sub = i32_at2(eff_info, idx, 2)
             n_lobes = j_count
         for sub_i in range(n_sub):
             for j in range(n_lobes):
@@ -646,27 +734,28 @@ def shade_pixels(
                     axis = wp.normalize(2.0 * cos_o * s.n - wo)
                     eta = ndf_sharpness(a_kind, a_p1) / (4.0 * cos_o)
                 else:
-                    sub = eff_info[idx, 4] + sub_i
-                    lobe = eff_info[idx, 3] + j
-                    xi = eff_lobes[lobe, 0] * s.t + eff_lobes[lobe, 1] * s.b + eff_lobes[lobe, 2] * s.n
+                    sub = i32_at2(eff_info, idx, 4) + sub_i
+                    lobe = i32_at2(eff_info, idx, 3) + j
+                    xi = (f32_at2(eff_lobes, lobe, 0) * s.t + f32_at2(eff_lobes, lobe, 1) * s.b
+                          + f32_at2(eff_lobes, lobe, 2) * s.n)
                     c_oj = wp.dot(wo, xi)
-                    s_kind = int(eff_sub[sub, 0])
-                    s_p1 = eff_sub[sub, 7]
-                    s_ks = wp.vec3(eff_sub[sub, 4], eff_sub[sub, 5], eff_sub[sub, 6])
+                    s_kind = int(f32_at2(eff_sub, sub, 0))
+                    s_p1 = f32_at2(eff_sub, sub, 7)
+                    s_ks = wp.vec3(f32_at2(eff_sub, sub, 4), f32_at2(eff_sub, sub, 5), f32_at2(eff_sub, sub, 6))
                     eta_s = ndf_sharpness(s_kind, s_p1)
-                    base = eff_info[idx, 5] + sub_i * k2 * k2 * j_count * 3
-                    asg_lobes = eff_info[idx, 7] == ASG_LOBES
+                    base = i32_at2(eff_info, idx, 5) + sub_i * k2 * k2 * j_count * 3
+                    asg_lobes = i32_at2(eff_info, idx, 7) == ASG_LOBES
                     g = Asg()
                     if asg_lobes:
                         # Xu 2013: the lights by the material's own f̄ at their directions, whichever way the
                         # lobe faces; the environment below through the warped lobe's equal-integral SG.
                         g = lobe_asg(eff_lobes, lobe, s)
-                        out = out + asg_from_lights(g, eta_s, s_kind, s_ks, s_p1, eff_sub[sub, 8], eff_tables, base,
-                                                    k2, j_count, j, k, oo, ow, s, wo, table, n_lights, lights,
+                        out = out + asg_from_lights(g, eta_s, s_kind, s_ks, s_p1, f32_at2(eff_sub, sub, 8), eff_tables,
+                                                    base, k2, j_count, j, k, oo, ow, s, wo, table, n_lights, lights,
                                                     light_vis, p)
                     if c_oj <= 0.0:
                         continue
-                    scale = specular_scale(s_kind, s_ks, s_p1, eff_sub[sub, 8], c_oj)
+                    scale = specular_scale(s_kind, s_ks, s_p1, f32_at2(eff_sub, sub, 8), c_oj)
                     if scale[0] + scale[1] + scale[2] <= 0.0:
                         continue
                     if asg_lobes:
@@ -681,14 +770,15 @@ def shade_pixels(
                         amp = wp.cw_mul(scale, mu) * (c.c * asg_shade_integral(lam, mu_w) / sg_integral(eta))
                         with_lights = 0
                     else:
-                        eta_j = eff_lobes[lobe, 3]
+                        eta_j = f32_at2(eff_lobes, lobe, 3)
                         axis = wp.normalize(2.0 * c_oj * xi - wo)
                         mu = table_rgb(eff_tables, base, k2, j_count, j, to_local(s, axis), k, oo, ow)
                         amp = wp.cw_mul(scale, mu) * (2.0 * PI / (eta_j + eta_s))
                         eta = 1.0 / (1.0 / eta_j + 1.0 / eta_s) / (4.0 * wp.max(c_oj, MIN_COS_VIEW))
                 eta = wp.min(eta, SHARPNESS_MAX)
-                amount = cosine_integral(table, axis, eta, s.n) * environment_share(
-                    table, axis, eta, s, has_ssdf, ssdf_res, ssdf_basis, ssdf_coeffs)
+                tr = eta_row(table, eta)
+                amount = cosine_integral(table, axis, eta, tr, s.n) * environment_share(
+                    table, axis, tr, s, has_ssdf, ssdf_res, ssdf_basis, ssdf_coeffs)
                 light_part = wp.vec3(0.0)
                 if with_lights != 0:
                     light_part = lobe_from_lights(table, axis, eta, s, n_lights, lights, light_vis, p)
