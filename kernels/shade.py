@@ -236,29 +236,6 @@ def concentric_uv(w: wp.vec3) -> wp.vec2:
     return wp.vec2((a + 1.0) * 0.5, (b + 1.0) * 0.5)
 
 
-@wp.func
-def grid_corners(w: wp.vec3, k: int) -> vec4i:
-    """The four K×K grid indices around w (directions.bilinear_corners' order)."""
-    uv = concentric_uv(w)
-    x = wp.clamp(uv[0] * float(k) - 0.5, 0.0, float(k - 1))
-    y = wp.clamp(uv[1] * float(k) - 0.5, 0.0, float(k - 1))
-    x0 = wp.min(int(wp.floor(x)), k - 1)
-    y0 = wp.min(int(wp.floor(y)), k - 1)
-    x1 = wp.min(x0 + 1, k - 1)
-    y1 = wp.min(y0 + 1, k - 1)
-    return vec4i(y0 * k + x0, y0 * k + x1, y1 * k + x0, y1 * k + x1)
-
-
-@wp.func
-def grid_weights(w: wp.vec3, k: int) -> wp.vec4:
-    uv = concentric_uv(w)
-    x = wp.clamp(uv[0] * float(k) - 0.5, 0.0, float(k - 1))
-    y = wp.clamp(uv[1] * float(k) - 0.5, 0.0, float(k - 1))
-    tx = x - float(wp.min(int(wp.floor(x)), k - 1))
-    ty = y - float(wp.min(int(wp.floor(y)), k - 1))
-    return wp.vec4((1.0 - tx) * (1.0 - ty), tx * (1.0 - ty), (1.0 - tx) * ty, tx * ty)
-
-
 @wp.struct
 class GridCell:
     """The four K×K grid indices around a direction and their bilinear weights."""
@@ -282,6 +259,17 @@ def grid_bilinear(w: wp.vec3, k: int) -> GridCell:
     g.idx = vec4i(y0 * k + x0, y0 * k + x1, y1 * k + x0, y1 * k + x1)
     g.wgt = wp.vec4((1.0 - tx) * (1.0 - ty), tx * (1.0 - ty), (1.0 - tx) * ty, tx * ty)
     return g
+
+
+@wp.func
+def grid_corners(w: wp.vec3, k: int) -> vec4i:
+    """The four K×K grid indices around w (directions.bilinear_corners' order)."""
+    return grid_bilinear(w, k).idx
+
+
+@wp.func
+def grid_weights(w: wp.vec3, k: int) -> wp.vec4:
+    return grid_bilinear(w, k).wgt
 
 
 @wp.func
