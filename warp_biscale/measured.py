@@ -41,10 +41,12 @@ Monte Carlo reference (`montecarlo.render`) calls `eval` on the host, in float64
 from __future__ import annotations
 
 import os
+import time
+import warnings
 
 import numpy as np
 
-from .brdf import MEASURED, Brdf, CookTorrance, Lambert
+from .brdf import MEASURED, Brdf, CookTorrance, EnergyWarning, Lambert
 from .io import atomic_path, check_output
 
 __all__ = ["MeasuredBRDF", "SGFit", "fit_sg", "paint_like", "half_diff_angles", "merl_indices",
@@ -497,18 +499,20 @@ class SGFit:
 
     @classmethod
     def from_dict(cls, d: dict) -> SGFit:
-        import warnings
-
-        from .brdf import EnergyWarning
-        with warnings.catch_warnings():  # as `fit_sg`: the fit reflects what the table does
-            warnings.simplefilter("ignore", EnergyWarning)
-            brdf = CookTorrance(ks=d["ks"], roughness=d["roughness"], f0=d["f0"], kd=d["kd"])
-        return cls(brdf, d["error"], d["seconds"], d["samples"])
+        return cls(_fitted_brdf(d["kd"], d["ks"], d["roughness"], d["f0"]), d["error"], d["seconds"], d["samples"])
 
     def __repr__(self):
         b = self.brdf
         return (f"SGFit(kd={tuple(round(x, 4) for x in b.kd)}, ks={tuple(round(x, 4) for x in b.ks)}, "
                 f"roughness={b.roughness:.4g}, f0={b.f0:.3g}, error={self.error:.3g})")
+
+
+def _fitted_brdf(kd, ks, roughness, f0) -> CookTorrance:
+    """The fit's Cook–Torrance, without an EnergyWarning: a table that reflects more than it receives is the
+    table's own doing, and its fit says what the table does."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", EnergyWarning)
+        return CookTorrance(ks=tuple(ks), roughness=float(roughness), f0=float(f0), kd=tuple(kd))
 
 
 def _fit_samples(table):
@@ -556,9 +560,7 @@ def fit_sg(measured: MeasuredBRDF) -> SGFit:
     `CookTorrance`), in the weighted least squares of f·cosθi·cosθo over the table's bin centres (`_fit_samples`).
     kd and ks enter linearly, so for each (m, f0) they are solved exactly (non-negative, per channel); (m, f0)
     start at the best of a grid and are refined by Nelder–Mead in (log m, f0). Deterministic; about a second."""
-    import time
-
-    from scipy.optimize import minimize
+    from scipy.optimize import minimize  # (scipy on first use: importing it costs more than the fit's setup)
 
     t0 = time.perf_counter()
     diffuse, theta_h, cos_d, g, weight, target = _fit_samples(measured._table())
@@ -578,11 +580,5 @@ def fit_sg(measured: MeasuredBRDF) -> SGFit:
     coef, residual = solve(log_m, f0)
     norm = float(np.sum(weight[:, None] * target * target))
     error = float(np.sqrt(residual / norm)) if norm > 0 else 0.0
-    import warnings
-
-    from .brdf import EnergyWarning
-    with warnings.catch_warnings():  # a table that reflects more than it receives is the table's own business
-        warnings.simplefilter("ignore", EnergyWarning)
-        brdf = CookTorrance(ks=tuple(coef[:, 1]), roughness=float(np.exp(log_m)), f0=float(np.clip(f0, 0, 1)),
-                            kd=tuple(coef[:, 0]))
+    brdf = _fitted_brdf(coef[:, 0], coef[:, 1], np.exp(log_m), np.clip(f0, 0, 1))
     return SGFit(brdf, error, time.perf_counter() - t0, len(weight))
