@@ -66,7 +66,7 @@ def test_with_an_environment_and_occluders(backend, grooves_asg):
     finite, non-negative, and darker where the sphere occludes the floor's sky."""
     mesh = wb.Mesh.merge([wb.Mesh.sphere(0.6, (0, 0.6, 0), material=0), wb.Mesh.plane(4.0, 0.0, 12, material=1)])
     cam = wb.Camera(eye=(0.0, 2.2, 3.5), target=(0.0, 0.3, 0.0), width=40, height=30, fov=50)
-    scene = wb.Scene(mesh, [wb.Lambert(0.5), grooves_asg], cam, wb.Environment.sky(),
+    scene = wb.Scene(mesh, [wb.Lambert(0.5), grooves_asg], cam, wb.Environment.sky(height=32, width=64),
                      [wb.PointLight((1.5, 3.0, 1.0), 10.0, 0.2)])
     img = wb.render(scene, backend=backend, aa=1).image
     assert np.isfinite(img).all() and img.min() >= 0
