@@ -6,8 +6,8 @@ every backend present. The shade kernels against their float64 reference are in 
   own f̄ (`ASGBRDF.eval`), so a lit sphere must match `shading.direct_reference` (the exact direct lighting of
   the scene's own materials at the same G-buffer). What differs is float32, the light SG's cosine integral
   against the ideal light's cosine, and the bilinear lookups. Measured (Warp CPU, U-grooves, Cook–Torrance
-  m = 0.15, one directional light of radius 0.5°): mean relative error 7.5e-5, largest 5.7e-4 of the peak.
-  Bounds: 1e-3 and 1e-2.
+  m = 0.15, one directional light of radius 0.5°): mean relative error 7.5e-5, largest 8.4e-3 of the peak
+  (Warp CPU and PoCL alike). Bounds: 1e-3 and 2e-2.
 - The Monte Carlo reference renders the same scene from the material's exact ground truth (its provenance),
   sampling isotropic stand-ins of the ASG lobes: it judges the bake, so the two differ by the ASG bake's
   error. Measured (32×24, 64 samples, a 2^14-facet truth): 50.1 dB, mean relative difference 1.1 %. Bounds:
@@ -47,7 +47,7 @@ def test_lights_shade_the_materials_own_brdf(backend, grooves_asg):
     err = np.abs(out - ref)[hit]
     msg = f"mean relative {err.mean() / ref[hit].mean():.3g}, largest {err.max() / ref.max():.3g} of the peak"
     assert err.mean() < 1e-3 * ref[hit].mean(), msg
-    assert err.max() < 1e-2 * ref.max(), msg
+    assert err.max() < 2e-2 * ref.max(), msg
 
 
 def test_sg_renderer_against_the_monte_carlo_reference(backend, grooves_asg):
