@@ -80,14 +80,15 @@ class Backend(Protocol):
 
     def ndf_em(self, facets: Facets, axes: np.ndarray | DeviceStart, sharpness: np.ndarray | None,
                weight: np.ndarray | None, iterations: int, facet_weight: np.ndarray | OnDevice | None = None,
-               to_host: bool = True) -> tuple | DeviceLobes:
+               to_host: bool = True, meanwhile=None) -> tuple | DeviceLobes:
         """Spherical EM on the device from lobes (axes (J, 3), sharpness, weight), or from em_start's
         DeviceStart as `axes` (sharpness and weight None): at most `iterations`
         steps, stopping after the first step that lobes.converged → (axes, sharpness, weight, steps),
         float64, dead lobes with weight 0 (reference.ndf_em). Facets weigh their area, or
         `facet_weight` (Ns,), or visible_weights(..., to_host=False)'s OnDevice. With to_host=False
         the EM is only queued: → DeviceLobes, whose lobes lobe_moments can sum over before the host
-        has them."""
+        has them. `meanwhile()`, if given, runs on the host before ndf_em first waits on the device (it may
+        never wait: a caller with host work to hide runs it afterwards too, wrapped in `device.once`)."""
 
     def lobe_moments(self, facets: Facets, vis: Visibility, weight: np.ndarray | None, axes: np.ndarray | DeviceLobes,
                      sharpness: np.ndarray | None, pair_i: np.ndarray, pair_o: np.ndarray,

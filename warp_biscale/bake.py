@@ -20,6 +20,7 @@ from . import lobes as lobes_mod
 from . import matrix as matrix_mod
 from . import sg
 from .backend import get_backend
+from .device import once
 from .brdf import MEASURED, refuse_anisotropic
 from .effective import METHODS, EffectiveBRDF, Provenance
 from .progress import as_progress
@@ -113,6 +114,13 @@ def _fit_lobes(be, fac, facet_weight, bin_normal, bin_weight, count, tolerance, 
     return best
 
 
+def probe_sharpness(mats) -> float:
+    """The sharpest small-scale lobe's SG sharpness (64 with no specular lobe): what lobes="auto" fits the NDF
+    for (`lobes.ndf_error`)."""
+    spec = [sg.specular_lobe(m, [[0, 0, 1.0]], [[0, 0, 1.0]])[0] for m in mats]
+    return max([s for s in spec if s is not None], default=64.0)
+
+
 def _coarse_bins(fine, resolution, coarse=16):
     """The bins of `lobes.initial_lobes` (cube map at `coarse`) holding the fine cube-map bins `fine`
     (at `resolution`), by integer arithmetic when `coarse` divides `resolution` (a fine bin's mean
@@ -173,7 +181,8 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
     lobes : J, the number of SG lobes of the NDF (1–128), or "auto": the first J of `AUTO_LOBES` (1–16,
         then 24, 32, 48, 64, 96, 128) whose NDF fit error (`lobes.ndf_error`, seen at the sharpest
         small-scale lobe, on the NDF weighted by what the direction grid sees, as the lobes are fitted)
-        is ≤ `tolerance`, else the J of the least error (one EM per J tried). Past 16 lobes the moment kernels
+        is ≤ `tolerance`, else the J of the least error (one EM per J tried); for method="asg" the same
+        with the ASG mixture's error (`asg_bake.ndf_error`), one SG EM and ASG fit per J tried. Past 16 lobes the moment kernels
         run once per group of 16 and the amplitudes are solved on the host (float64), so the bake costs
         up to about J/16 times the J = 16 bake; a tile whose NDF has sharp curved ridges (woven threads)
         needs ~128 lobes for 35 dB (bench/README.md).
@@ -209,7 +218,8 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
         if matrix is not None or route != "facets":
             raise ValueError(f"method={method!r} sums its amplitudes over the facets and takes no matrix= options")
         fits = _fit_measured(mats)
-        mat = METHOD_BAKES[method](tile, mats, lobes, directions, normal_res, facets, backend, seed, bvndf, progress)
+        mat = METHOD_BAKES[method](tile, mats, lobes, directions, normal_res, facets, backend, seed, bvndf, progress,
+                                   tolerance=tolerance)
         return _record_fits(mat, fits)
     if method not in METHODS:
         raise ValueError(f"method must be one of {(*METHODS, 'matrix', *METHOD_BAKES)}, got {method!r}")
@@ -229,10 +239,7 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
         raise ValueError(f"tolerance must be a number > 0, got {tolerance!r}")
     be = get_backend(backend)
     fits = _fit_measured(mats)
-    probe = None  # the sharpest small-scale lobe: what lobes="auto" fits the NDF for
-    if j_req == "auto":
-        spec = [sg.specular_lobe(m, [[0, 0, 1.0]], [[0, 0, 1.0]])[0] for m in mats]
-        probe = max([s for s in spec if s is not None], default=64.0)
+    probe = probe_sharpness(mats) if j_req == "auto" else None
     key = (count, int(seed), k, r, j_req, route, float(tolerance) if j_req == "auto" else None, probe, bool(bvndf),
            be.name)
     cache = _GEOMETRY.setdefault(tile, collections.OrderedDict())
@@ -313,9 +320,7 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     q = _sample_facets(tile, be, count, seed, dirs.frozen_grid(k), r, timer, prog)
     t0 = time.perf_counter()
     _queue_visibility(tile, be, q, prog)
-    bv, facet_bin = _bin_normals(q, r)
-    if j_req != "auto":
-        _queue_fixed_j_em(be, q, bv, r, j_req, route)
+    bv, facet_bin = _queue_em_and_bin(be, q, r, j_req, route)
     weight_host = q.em_weight.host()  # (waits for the rays and the weights, not for what is queued behind them)
     timer.timings["visibility"] = timer.timings.get("visibility", 0.0) + time.perf_counter() - t0
     hists = _histograms(be, q, bv, facet_bin, route, keep_hist, timer, prog)
@@ -382,18 +387,31 @@ def _queue_moments(be, q: _Queued, em, route):
     return em.count, [be.lobe_moments(q.fac, q.vis, w, em, None, q.iu, q.ou, to_host=False) for _, _, w in q.channels]
 
 
-def _queue_fixed_j_em(be, q: _Queued, bv, r, j_req, route) -> None:
+def _queue_em_and_bin(be, q: _Queued, r, j_req, route) -> tuple:
+    """`_bin_normals`, and with a fixed J the EM and its moment sums queued behind the rays first
+    (`_queue_fixed_j_em`), the binning done while the device works through them. → _bin_normals'."""
+    if j_req == "auto":
+        return _bin_normals(q, r)
+    binned = []
+    _queue_fixed_j_em(be, q, r, j_req, route, meanwhile=lambda: binned.append(_bin_normals(q, r)))
+    return binned[0]
+
+
+def _queue_fixed_j_em(be, q: _Queued, r, j_req, route, meanwhile=None) -> None:
     """With a fixed J the EM's start (lobes.initial_lobes over the facets, in their coarse bins) is picked on
     the device, so the EM and the moment sums are queued behind the rays before the host has read anything:
-    the device goes from the rays to the EM without waiting for the host. (Queued after the binning: an EM
-    that looks at its stop flag waits for the rays.) No more lobes than the facets' coarse bins (the
-    pyramid's 5 at J = 8): a slot the start leaves dead would cost EM its E-step and the moments a second
-    sum for the live lobes. Sets q.em_start, q.em (the EM's DeviceLobes) and q.queued (the moments)."""
-    coarse = _coarse_bins(bv.bins, r)
+    the device goes from the rays to the EM without waiting for the host. `meanwhile()` (host work: the
+    binning) runs before the host first waits on the device (an EM that looks at its stop flag waits for
+    the rays), else once the moments are queued. No more lobes than the facets' coarse bins (the pyramid's 5 at
+    J = 8): a slot the start leaves dead would cost EM its E-step and the moments a second sum for the live
+    lobes. Sets q.em_start, q.em (the EM's DeviceLobes) and q.queued (the moments)."""
+    coarse = _coarse_bins(q.bins, r)
     j_dev = j_req if coarse is None else min(j_req, int(np.count_nonzero(np.bincount(coarse))))
     q.em_start = be.em_start(q.fac, q.em_weight, j_dev)
-    q.em = be.ndf_em(q.fac, q.em_start, None, None, EM_ITERATIONS, q.em_weight, to_host=False)
+    meanwhile = once(meanwhile or (lambda: None))
+    q.em = be.ndf_em(q.fac, q.em_start, None, None, EM_ITERATIONS, q.em_weight, to_host=False, meanwhile=meanwhile)
     q.queued = _queue_moments(be, q, q.em, route)
+    meanwhile()
 
 
 def _histograms(be, q: _Queued, bv, facet_bin, route, keep_hist, timer, prog):

@@ -144,16 +144,20 @@ class UploadCache:
         return device
 
 
-def run_em_steps(iterations: int, enqueue_step, done) -> None:
+def run_em_steps(iterations: int, enqueue_step, done, meanwhile=None) -> None:
     """Enqueue up to `iterations` EM steps (`enqueue_step()`), looking at the device's stop flag
     (`done()`, a host round trip) only after steps 2, 4, 8, 16, …: a few looks per EM instead of one
     per step, and a converged EM does not queue the rest of its steps (each would return at once,
     but on a CPU even an empty sliced launch costs a fraction of a millisecond, and the pyramid
-    tile's EM stops after 2)."""
+    tile's EM stops after 2). `meanwhile()`, if given, is called once before the first look: host work
+    that then runs while the device works through what is queued."""
     check = 2
     for step in range(1, int(iterations) + 1):
         enqueue_step()
         if step == check and step < iterations:
+            if meanwhile is not None:
+                meanwhile()
+                meanwhile = None
             if done():
                 return
             check *= 2
@@ -192,6 +196,16 @@ def equal_areas(count: int, value: float) -> np.ndarray:
     area = np.full(int(count), value, np.float32)
     area.flags.writeable = False
     return area
+
+
+def once(f):
+    """`f` as a function that runs it on its first call only."""
+    pending = [f]
+
+    def call():
+        if pending:
+            pending.pop()()
+    return call
 
 
 def em_start_rows(start) -> np.ndarray:
@@ -811,7 +825,7 @@ class DeviceBackend:
         """The device copy of a facet weight (see device_copy): visible_weights' own output when given it."""
         return device_copy(facet_weight, f.get("visible_weight"), lambda host: self._to_device(host, "f32"))
 
-    def ndf_em(self, facets, axes, sharpness, weight, iterations, facet_weight=None, to_host=True):
+    def ndf_em(self, facets, axes, sharpness, weight, iterations, facet_weight=None, to_host=True, meanwhile=None):
         on_device = isinstance(axes, DeviceStart)  # (em_start's rows: copied on the device)
         start = None if on_device else LobeSet(axes, sharpness, weight)
         j = axes.count if on_device else len(start)
@@ -825,7 +839,7 @@ class DeviceBackend:
         f = self._facets(facets)
         mass = f["area"] if facet_weight is None else self._facet_weight(f, facet_weight)
         prog = self._run_em(f, mass, axes.device if on_device else em_start_rows(start), len(facets), j,
-                            int(iterations), facet_weight is not None)
+                            int(iterations), facet_weight is not None, meanwhile)
         if not to_host:
             # The result's copy is queued behind the EM: reading it back waits for the EM, not for what
             # the caller queues after it.
@@ -833,9 +847,10 @@ class DeviceBackend:
             return DeviceLobes((prog["axes32"], prog["sharp32"]), j, lambda: em_result_rows(read()))
         return em_result_rows(self._to_host(prog["result"], (j, 6), "f64"))
 
-    def _run_em(self, f, mass, start_rows, n, j, iterations, weighted) -> dict:
+    def _run_em(self, f, mass, start_rows, n, j, iterations, weighted, meanwhile=None) -> dict:
         """Queue at most `iterations` EM steps over the `n` facets (device arrays `f`, weights `mass`) from
-        `start_rows` (em_start's device rows, or em_start_rows of a LobeSet, a host array) → the EM's
+        `start_rows` (em_start's device rows, or em_start_rows of a LobeSet, a host array), calling
+        `meanwhile` (ndf_em's) before the host first waits on the device (`_step_em`) → the EM's
         arrays: "result" (J, 6) float64 rows (em_result_rows), "axes32" and "sharp32" (the lobes as
         lobe_moments reads them)."""
         raise NotImplementedError
@@ -858,7 +873,7 @@ class DeviceBackend:
         return value
 
     @staticmethod
-    def _step_em(prog: dict, iterations: int, stopped) -> None:
+    def _step_em(prog: dict, iterations: int, stopped, meanwhile=None) -> None:
         """Load the start, queue the EM's steps (run_em_steps: looking at the device's stop flag,
         `stopped()`, only now and then) and unpack the result, through `prog`'s launches."""
         prog["load"]()
@@ -867,7 +882,7 @@ class DeviceBackend:
             for launch in prog["steps"]:
                 launch()
 
-        run_em_steps(iterations, enqueue_step, stopped)
+        run_em_steps(iterations, enqueue_step, stopped, meanwhile)
         prog["unload"]()
 
     # --- the matrix method's M (stage `matrix`, Wu 2011 §3.5; oracle matrix.brdf_matrix) ---

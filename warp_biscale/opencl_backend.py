@@ -573,7 +573,7 @@ class OpenCLBackend(DeviceBackend):
                                             prog["result"])
         return self._keep_recent(self._em_programs, key, prog)
 
-    def _run_em(self, f, mass, start_rows, n, j, iterations, weighted):
+    def _run_em(self, f, mass, start_rows, n, j, iterations, weighted, meanwhile=None):
         prog = self._em_program(n, j, iterations, weighted)
         cl = self._cl
         cl.enqueue_copy(self._queue, prog["normal"], f["normal"], byte_count=12 * n)
@@ -582,7 +582,7 @@ class OpenCLBackend(DeviceBackend):
             cl.enqueue_copy(self._queue, prog["start"], start_rows)
         else:
             cl.enqueue_copy(self._queue, prog["start"], start_rows, byte_count=48 * j)
-        self._step_em(prog, iterations, lambda: bool(self._read(prog["state"], 2, np.int32)[0]))
+        self._step_em(prog, iterations, lambda: bool(self._read(prog["state"], 2, np.int32)[0]), meanwhile)
         return prog
 
     def _lobe_values(self, normal_buf, n, axes, sharpness, role="lobe_values"):

@@ -423,7 +423,7 @@ class WarpBackend(DeviceBackend):
             graph = {"prog": prog, "graph": capture.graph}
         return self._keep_recent(self._em_graphs, key, graph)
 
-    def _run_em(self, f, mass, start_rows, n, j, iterations, weighted):
+    def _run_em(self, f, mass, start_rows, n, j, iterations, weighted, meanwhile=None):
         def load_start(rows):
             if isinstance(start_rows, np.ndarray):
                 rows.assign(start_rows)
@@ -440,7 +440,7 @@ class WarpBackend(DeviceBackend):
             return prog
         prog = self._em_program(f["normal"], mass, j, iterations, self._resp(f, n, j))
         load_start(prog["start"])
-        self._step_em(prog, iterations, lambda: bool(prog["state"].numpy()[0]))
+        self._step_em(prog, iterations, lambda: bool(prog["state"].numpy()[0]), meanwhile)
         return prog
 
     def lobe_moments(self, facets, vis, weight, axes, sharpness, pair_i, pair_o, to_host=True):
