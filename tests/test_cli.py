@@ -98,11 +98,25 @@ def test_bake_writes_a_material_file_that_loads(tmp_path):
     assert mat.materials == [wb.CookTorrance(0.9, 0.2, kd=0.1)]
 
 
+@pytest.mark.parametrize("method", ["asg", "matrix"])
+def test_bake_other_methods(tmp_path, method):
+    """`bake --method asg` (with --lobes auto) and `--method matrix` write material files of their kind."""
+    out = tmp_path / "m.wbm"
+    lobes = ["--lobes", "auto"] if method == "asg" else []
+    r = run_cli("bake", "vgroove", "--facets", "2048", "--directions", "4", "--backend", "warp:cpu",
+                "--method", method, *lobes, "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    assert ("2 ASG lobes (NDF fit error" in r.stdout) == (method == "asg") and "MiB per material" in r.stdout
+    assert isinstance(wb.load(out), {"asg": wb.ASGBRDF, "matrix": wb.MatrixBRDF}[method])
+
+
 def test_bake_bad_input_is_named(tmp_path):
     r = run_cli("bake", "pyramid", "--lobes", "lots", "-o", str(tmp_path / "m.wbm"))
     assert r.returncode == 2 and "--lobes must be an integer or 'auto'" in r.stderr
     r = run_cli("bake", "pyramid", "--brdf", "phong:exponent=-1", "-o", str(tmp_path / "m.wbm"))
     assert r.returncode == 2 and "exponent" in r.stderr
+    r = run_cli("bake", "pyramid", "--method", "matrix", "--lobes", "4", "-o", str(tmp_path / "m.wbm"))
+    assert r.returncode == 2 and "--method matrix takes no --lobes" in r.stderr
     assert not (tmp_path / "m.wbm").exists()
 
 

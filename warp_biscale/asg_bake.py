@@ -197,6 +197,21 @@ def fit_asg(normal, weight, start: lobes_mod.LobeSet, iterations: int = EM_ITERA
     return g[live], alpha[live] / alpha[live].sum(), steps
 
 
+def ndf_error(asgs: asg_mod.ASG, alpha, bin_normal, bin_weight, probe_sharpness: float) -> float:
+    """`lobes.ndf_error` for an ASG mixture: the relative RMS error of the fitted NDF Σ_j W·α_j G_j/∫G_j (W the
+    bins' total weight) seen through probe SGs of sharpness `probe_sharpness` on the heaviest 2048 non-empty
+    normal bins: the data give Σ_l w_l G_q(n_l), the mixture Σ_j W α_j (G_j ⊛ SG_q)(q)/∫G_j
+    (`asg.convolve_sg_at`, the convolution `ASGBRDF.eval` uses for the specular term). What lobes="auto"
+    compares with its tolerance, as the SG bake compares `lobes.ndf_error`."""
+    bn = np.asarray(bin_normal, np.float64)
+    bw = np.asarray(bin_weight, np.float64)
+    probes = bn[np.argsort(-bw)[:2048]] if len(bn) > 2048 else bn
+    data = sg.evaluate(bn[None, :, :], probes[:, None, :], probe_sharpness) @ bw
+    scale = bw.sum() * np.asarray(alpha, np.float64) / asg_mod.unit_integral(asgs.lam, asgs.mu)
+    model = asg_mod.convolve_sg_at(asgs, probe_sharpness, probes) @ scale
+    return float(np.sqrt(np.sum((data - model) ** 2) / max(np.sum(data**2), 1e-300)))
+
+
 # ---------------------------------------------------------------------------------------------------
 # Amplitudes
 # ---------------------------------------------------------------------------------------------------
@@ -248,23 +263,28 @@ def asg_moments(proj, values, weight, pair_i, pair_o):
 # The bake
 # ---------------------------------------------------------------------------------------------------
 
-def bake_asg(tile, mats, lobes, directions, normal_res, facets, backend, seed, keep_hist, progress) -> ASGBRDF:
-    """`wb.bake(..., method="asg")` (bake.py dispatches here): see the module notes. The geometry part (up to
-    the amplitude tables) is cached per tile beside the SG bake's, so baking the tile again with other BRDFs
-    costs the tables alone."""
+def bake_asg(tile, mats, lobes, directions, normal_res, facets, backend, seed, keep_hist, progress,
+             tolerance: float = 0.02) -> ASGBRDF:
+    """`wb.bake(..., method="asg")` (bake.py dispatches here): see the module notes. lobes="auto": the first J of
+    `bake.AUTO_LOBES` whose ASG mixture's `ndf_error` at the sharpest small-scale lobe is ≤ `tolerance` (else
+    the J of the least error), one SG EM and ASG fit per J tried. The geometry part (up to the amplitude
+    tables) is cached per tile beside the SG bake's, so baking the tile again with other BRDFs costs the
+    tables alone."""
     count = _check_count(facets)
-    if isinstance(lobes, str):
-        raise ValueError("method='asg' takes lobes=J, an integer in [1, 128]; lobes='auto' is not built for it yet")
     j_req = bake_mod._check_lobes(lobes)
     k, r = bake_mod._check_grid(directions, normal_res)
+    if not (np.isfinite(tolerance) and tolerance > 0):
+        raise ValueError(f"tolerance must be a number > 0, got {tolerance!r}")
     be = bake_mod.get_backend(backend)
-    key = ("asg", count, int(seed), k, r, j_req, int(EM_ITERATIONS), bool(keep_hist), be.name)
+    probe = bake_mod.probe_sharpness(mats) if j_req == "auto" else None
+    key = ("asg", count, int(seed), k, r, j_req, int(EM_ITERATIONS), bool(keep_hist), be.name,
+           (float(tolerance), probe) if j_req == "auto" else None)
     cache = bake_mod._GEOMETRY.setdefault(tile, collections.OrderedDict())
     geo = cache.get(key)
     timer = _Timer(be)
     prog = as_progress(progress)
     if geo is None:
-        geo = _asg_geometry(tile, be, count, int(seed), k, r, j_req, keep_hist, timer, prog)
+        geo = _asg_geometry(tile, be, count, int(seed), k, r, j_req, keep_hist, timer, prog, tolerance, probe)
         cache[key] = geo
         while len(cache) > bake_mod._GEOMETRY_PER_TILE:
             cache.popitem(last=False)
@@ -284,28 +304,41 @@ def bake_asg(tile, mats, lobes, directions, normal_res, facets, backend, seed, k
     return mat
 
 
-def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog) -> dict:
-    """Facets, visibility, weights and the SG EM by the SG bake's stages; then the ASG EM, the moments and the
-    solve on the host. → {"asgs", "alpha", "amplitudes" (M, K², K², J, 3), "bvndf", "info"}."""
+def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, tolerance=0.02, probe=None) -> dict:
+    """Facets, visibility, weights and the SG EM by the SG bake's stages; then the ASG EM (per J tried, for
+    "auto"), the moments and the solve on the host. → {"asgs", "alpha", "amplitudes" (M, K², K², J, 3), "bvndf",
+    "info"}."""
     q = bake_mod._sample_facets(tile, be, count, seed, dirs.frozen_grid(k), r, timer, prog)
     t0 = time.perf_counter()
     bake_mod._queue_visibility(tile, be, q, prog)
-    bv, facet_bin = bake_mod._bin_normals(q, r)
-    bake_mod._queue_fixed_j_em(be, q, bv, r, j_req, "histogram")  # ("histogram": no SG moment sums queued)
+    bv, facet_bin = bake_mod._queue_em_and_bin(be, q, r, j_req, "histogram")  # ("histogram": no SG moment sums)
     weight_host = np.asarray(q.em_weight.host(), np.float64)
     timer.timings["visibility"] = timer.timings.get("visibility", 0.0) + time.perf_counter() - t0
     hists = bake_mod._histograms(be, q, bv, facet_bin, "facets", keep_hist, timer, prog)
     del hists  # (only bv.histogram, with keep_hist)
-    lob, _, _, _, _ = bake_mod._fit_ndf(be, q, bv, facet_bin, weight_host, r, j_req, "histogram", 0.02, None,
-                                        timer, prog)
-    prog.stage(f"ASG fit ({len(lob)} lobes)", 1)
-    t0 = time.perf_counter()
     normal = np.asarray(q.fac.normal, np.float64)
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
     area = np.asarray(q.fac.area, np.float64)
     em_w = weight_host if weight_host.any() else area  # (no grid direction sees the tile: the bare NDF)
-    asgs, alpha, steps = fit_asg(normal, em_w, lob, EM_ITERATIONS)
-    timer.timings["asg_fit"] = time.perf_counter() - t0
+    ndf_err = None
+    for j in (bake_mod.AUTO_LOBES if j_req == "auto" else (j_req,)):
+        # (With a fixed J the SG EM was queued behind the rays; "auto" runs one per J tried.)
+        lob, _, _, seen_normal, seen_weight = bake_mod._fit_ndf(be, q, bv, facet_bin, weight_host, r, j,
+                                                                "histogram", tolerance, None, timer, prog)
+        prog.stage(f"ASG fit ({len(lob)} lobes)", 1)
+        t0 = time.perf_counter()
+        fitted = fit_asg(normal, em_w, lob, EM_ITERATIONS)
+        timer.timings["asg_fit"] = timer.timings.get("asg_fit", 0.0) + time.perf_counter() - t0
+        if j_req != "auto":
+            break
+        err = ndf_error(fitted[0], fitted[1], seen_normal, seen_weight, probe)
+        if ndf_err is None or err < ndf_err:
+            best, ndf_err = (lob, fitted), err
+        if err <= tolerance or len(lob) < j:  # met, or fewer distinct normals than lobes asked for
+            break
+    if j_req == "auto":
+        lob, fitted = best
+    asgs, alpha, steps = fitted
     prog.stage(f"amplitudes ({len(alpha)} ASG lobes, {len(q.channels)} channel(s))", 1)
     t0 = time.perf_counter()
     rows, integrals, _, cond = amplitude_system(asgs, alpha, normal, em_w)
@@ -326,7 +359,8 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog) ->
     bv.a_v = a_v
     timer.timings["amplitudes"] = time.perf_counter() - t0
     info = {"facets": count, "seed": seed, "normal_res": r, "route": "facets", "lobes": int(len(alpha)),
-            "lobes_requested": j_req, "sg_em_iterations": lob.iterations, "asg_em_iterations": steps,
+            "lobes_requested": j_req, "ndf_error": ndf_err, "ndf_probe_sharpness": probe,
+            "sg_em_iterations": lob.iterations, "asg_em_iterations": steps,
             "gram_condition": cond, "nonempty_bins": int(len(bv.bins)), "channels": len(q.channels)}
     return {"asgs": asgs, "alpha": alpha, "amplitudes": amps.reshape(tile.n_materials, nd, nd, len(alpha), 3),
             "bvndf": bv, "info": info}

@@ -142,14 +142,17 @@ def cmd_bake(args):
     tile = load_tile(args.tile)
     mats = _materials(args.brdf, tile)
     lobes = args.lobes if args.lobes == "auto" else _int_arg("--lobes", args.lobes)
+    if args.method == "matrix" and (args.lobes != "8" or args.route != "facets"):
+        raise ValueError("--method matrix takes no --lobes or --route (Wu's factors keep ranks by power)")
     mat = bake(tile, mats, method=args.method, lobes=lobes, directions=args.directions, normal_res=args.normal_res,
                   facets=args.facets, backend=args.backend, seed=args.seed, route=args.route,
                   progress=not args.quiet)
     if not args.quiet:
         info = mat.info
         fit = (f" (NDF fit error {info['ndf_error']:.2%} at sharpness {info['ndf_probe_sharpness']:g})"
-               if info["ndf_error"] is not None else "")
-        print(f"{tile.name}: {info['lobes']} lobes{fit}, {info['nonempty_bins']} non-empty normal bins, "
+               if info.get("ndf_error") is not None else "")
+        lobes_said = f"{info['lobes']} {'ASG ' if args.method == 'asg' else ''}lobes{fit}, " if "lobes" in info else ""
+        print(f"{tile.name}: {lobes_said}{info['nonempty_bins']} non-empty normal bins, "
               f"{mat.nbytes_per_material / 2**20:.2f} MiB per material")
         print("  ".join(f"{k} {v * 1e3:.1f} ms" for k, v in mat.timings.items()))
     if args.truth:
@@ -549,8 +552,10 @@ def main(argv=None):
     k.add_argument("--facets", type=int, default=1 << 16, help="number of facets Ns (default 2^16)")
     k.add_argument("--directions", type=int, default=12, help="direction grid size K (default 12)")
     k.add_argument("--normal-res", type=int, default=128, help="normal cube-map resolution R (default 128)")
-    k.add_argument("--method", default="sg", choices=["sg", "sg-exact"],
-                   help="specular term: sg = SG closure, Eq. 15 (default); sg-exact = Eq. 10")
+    k.add_argument("--method", default="sg", choices=["sg", "sg-exact", "asg", "matrix"],
+                   help="sg = SG lobes, the specular term by the SG closure, Eq. 15 (default); sg-exact = Eq. 10; "
+                        "asg = anisotropic SG lobes (Xu 2013); matrix = Wu 2011's factored matrices (--lobes "
+                        "and --route unused)")
     k.add_argument("--route", default="facets", choices=["facets", "histogram"],
                    help="amplitude right-hand sides from exact facet sums (default) or the BVNDF histogram")
     k.add_argument("--backend", default="auto", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name>")
