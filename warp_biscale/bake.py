@@ -363,12 +363,20 @@ def _queue_visibility(tile, be, q: _Queued, prog) -> None:
     q.iu, q.ou = dirs.unordered_pairs(len(q.grid))
 
 
-def _bin_normals(q: _Queued, r) -> tuple:
+def _occupied_bins(q: _Queued, r) -> tuple:
+    """(the facets' area per fine normal bin (6R²,), the non-empty bins): what the EM's start needs to know
+    before it is queued, the cheap part of `_bin_normals`."""
+    mass = np.bincount(q.bins, weights=q.fac.area.astype(np.float64), minlength=6 * r * r)
+    return mass, np.flatnonzero(mass > 0)
+
+
+def _bin_normals(q: _Queued, r, mass=None, occupied=None) -> tuple:
     """→ (the Bvndf's non-empty bins with their area Γ and area-weighted mean normal, each facet's slot
-    among them). By counting, no sort; what the host needs after the rays that does not depend on them."""
+    among them), from `_occupied_bins` (given, or made here). By counting, no sort; what the host needs
+    after the rays that does not depend on them."""
+    if mass is None:
+        mass, occupied = _occupied_bins(q, r)
     area = q.fac.area.astype(np.float64)
-    mass = np.bincount(q.bins, weights=area, minlength=6 * r * r)
-    occupied = np.flatnonzero(mass > 0)
     slot = np.full(6 * r * r, -1, np.int64)
     slot[occupied] = np.arange(len(occupied))
     facet_bin = slot[q.bins]
@@ -392,20 +400,23 @@ def _queue_em_and_bin(be, q: _Queued, r, j_req, route) -> tuple:
     (`_queue_fixed_j_em`), the binning done while the device works through them. → _bin_normals'."""
     if j_req == "auto":
         return _bin_normals(q, r)
+    mass, occupied = _occupied_bins(q, r)
     binned = []
-    _queue_fixed_j_em(be, q, r, j_req, route, meanwhile=lambda: binned.append(_bin_normals(q, r)))
+    _queue_fixed_j_em(be, q, occupied, r, j_req, route,
+                      meanwhile=lambda: binned.append(_bin_normals(q, r, mass, occupied)))
     return binned[0]
 
 
-def _queue_fixed_j_em(be, q: _Queued, r, j_req, route, meanwhile=None) -> None:
+def _queue_fixed_j_em(be, q: _Queued, occupied, r, j_req, route, meanwhile=None) -> None:
     """With a fixed J the EM's start (lobes.initial_lobes over the facets, in their coarse bins) is picked on
     the device, so the EM and the moment sums are queued behind the rays before the host has read anything:
     the device goes from the rays to the EM without waiting for the host. `meanwhile()` (host work: the
     binning) runs before the host first waits on the device (an EM that looks at its stop flag waits for
     the rays), else once the moments are queued. No more lobes than the facets' coarse bins (the pyramid's 5 at
     J = 8): a slot the start leaves dead would cost EM its E-step and the moments a second sum for the live
-    lobes. Sets q.em_start, q.em (the EM's DeviceLobes) and q.queued (the moments)."""
-    coarse = _coarse_bins(q.bins, r)
+    lobes (`occupied`: the non-empty fine bins). Sets q.em_start, q.em (the EM's DeviceLobes) and q.queued
+    (the moments)."""
+    coarse = _coarse_bins(occupied, r)
     j_dev = j_req if coarse is None else min(j_req, int(np.count_nonzero(np.bincount(coarse))))
     q.em_start = be.em_start(q.fac, q.em_weight, j_dev)
     meanwhile = once(meanwhile or (lambda: None))

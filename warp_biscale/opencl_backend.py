@@ -29,6 +29,7 @@ only to tell apart devices of the same name.
 
 from __future__ import annotations
 
+import functools
 import re
 import weakref
 from importlib import resources
@@ -53,6 +54,13 @@ __all__ = ["OpenCLBackend", "list_devices"]
 # buffers cached on data-model objects under the backend's name stay valid for all of them.
 _DEVICE_STATE: dict = {}
 _PROBES: dict = {}  # device int_ptr → None (usable) or why not, in one line
+
+
+def _flushed(queue, work):
+    """Submit what `queue` holds, then run `work` on the host (OpenCL may keep enqueued commands back until a
+    flush or a wait)."""
+    queue.flush()
+    work()
 
 
 def _pyopencl():
@@ -582,6 +590,8 @@ class OpenCLBackend(DeviceBackend):
             cl.enqueue_copy(self._queue, prog["start"], start_rows)
         else:
             cl.enqueue_copy(self._queue, prog["start"], start_rows, byte_count=48 * j)
+        if meanwhile is not None:  # (the host's work overlaps the device's only once the queue is submitted)
+            meanwhile = functools.partial(_flushed, self._queue, meanwhile)
         self._step_em(prog, iterations, lambda: bool(self._read(prog["state"], 2, np.int32)[0]), meanwhile)
         return prog
 
