@@ -29,7 +29,6 @@ only to tell apart devices of the same name.
 
 from __future__ import annotations
 
-import functools
 import re
 import weakref
 from importlib import resources
@@ -54,13 +53,6 @@ __all__ = ["OpenCLBackend", "list_devices"]
 # buffers cached on data-model objects under the backend's name stay valid for all of them.
 _DEVICE_STATE: dict = {}
 _PROBES: dict = {}  # device int_ptr → None (usable) or why not, in one line
-
-
-def _flushed(queue, work):
-    """Submit what `queue` holds, then run `work` on the host (OpenCL may keep enqueued commands back until a
-    flush or a wait)."""
-    queue.flush()
-    work()
 
 
 def _pyopencl():
@@ -590,9 +582,11 @@ class OpenCLBackend(DeviceBackend):
             cl.enqueue_copy(self._queue, prog["start"], start_rows)
         else:
             cl.enqueue_copy(self._queue, prog["start"], start_rows, byte_count=48 * j)
-        if meanwhile is not None:  # (the host's work overlaps the device's only once the queue is submitted)
-            meanwhile = functools.partial(_flushed, self._queue, meanwhile)
-        self._step_em(prog, iterations, lambda: bool(self._read(prog["state"], 2, np.int32)[0]), meanwhile)
+        if meanwhile is not None:
+            # Here, behind the rays and the EM's start: NVIDIA's OpenCL bake was slower with the host's work
+            # between the EM's steps and its first look, flushed or not (bench/results/bake-h100).
+            meanwhile()
+        self._step_em(prog, iterations, lambda: bool(self._read(prog["state"], 2, np.int32)[0]))
         return prog
 
     def _lobe_values(self, normal_buf, n, axes, sharpness, role="lobe_values"):
