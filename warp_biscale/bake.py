@@ -217,7 +217,7 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
     if method in METHOD_BAKES:  # "asg": asg_bake.bake_asg (Xu 2013; its lobes fitted from the SG EM's)
         if matrix is not None or route != "facets":
             raise ValueError(f"method={method!r} sums its amplitudes over the facets and takes no matrix= options")
-        fits = _fit_measured(mats)
+        fits = _fit_measured(mats, get_backend(backend))
         mat = METHOD_BAKES[method](tile, mats, lobes, directions, normal_res, facets, backend, seed, bvndf, progress,
                                    tolerance=tolerance)
         return _record_fits(mat, fits)
@@ -238,7 +238,7 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
     if not (np.isfinite(tolerance) and tolerance > 0):
         raise ValueError(f"tolerance must be a number > 0, got {tolerance!r}")
     be = get_backend(backend)
-    fits = _fit_measured(mats)
+    fits = _fit_measured(mats, be)
     probe = probe_sharpness(mats) if j_req == "auto" else None
     key = (count, int(seed), k, r, j_req, route, float(tolerance) if j_req == "auto" else None, probe, bool(bvndf),
            be.name)
@@ -270,11 +270,12 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
     return _record_fits(mat, fits)
 
 
-def _fit_measured(mats) -> tuple[dict, float]:
-    """The SG fits of the measured BRDFs among `mats` (`MeasuredBRDF.sg_fit`, kept by each table), by material
-    index, and the seconds this call spent fitting (0 where every table had its fit already)."""
+def _fit_measured(mats, backend) -> tuple[dict, float]:
+    """The SG fits of the measured BRDFs among `mats` (`MeasuredBRDF.sg_fit` in `backend`'s kernels, kept by each
+    table), by material index, and the seconds this call spent fitting (0 where every table had its fit
+    already)."""
     t0 = time.perf_counter()
-    fits = {i: m.sg_fit() for i, m in enumerate(mats) if m.kind == MEASURED}
+    fits = {i: m.sg_fit(backend) for i, m in enumerate(mats) if m.kind == MEASURED}
     return fits, time.perf_counter() - t0
 
 
@@ -284,7 +285,8 @@ def _record_fits(mat, fitted: tuple[dict, float]):
     fits, seconds = fitted
     if fits:
         mat.info["sg_fit"] = {str(i): {"error": f.error, "roughness": f.brdf.roughness, "f0": f.brdf.f0,
-                                       "kd": list(f.brdf.kd), "ks": list(f.brdf.ks)} for i, f in fits.items()}
+                                       "kd": list(f.brdf.kd), "ks": list(f.brdf.ks), "backend": f.backend}
+                              for i, f in fits.items()}
         mat.timings["sg_fit"] = seconds
     return mat
 

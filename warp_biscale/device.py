@@ -916,6 +916,46 @@ class DeviceBackend:
     def _launch_brdf_matrix(self, normals, wi, wo, kinds, params, tables, m, color, n_rows, n_pairs, out):
         raise NotImplementedError
 
+    # --- the SG fit of a measured BRDF (stage `sgfit`, Wang 2009 §4.1–4.2; oracle measured.fit_sums) ---
+    SGFIT_CHUNK = 1024  # samples a thread sums in float32 (its partial sums are added on the host in float64)
+
+    def sg_fit_data(self, basis, target, weight) -> dict:
+        """The fit's samples (`measured.fit_samples`: basis (N, 4), target (N, 3), weight (N,)) on the device,
+        uploaded once for all of a fit's `sg_fit_sums` calls."""
+        basis = np.asarray(basis, np.float32).reshape(-1, 4)
+        target = np.asarray(target, np.float32).reshape(-1, 3)
+        weight = np.asarray(weight, np.float32).reshape(-1)
+        if not (len(basis) == len(target) == len(weight)):
+            raise ValueError(f"sg_fit_data: {len(basis)} basis rows, {len(target)} targets, {len(weight)} weights")
+        return {"basis": self._to_device(basis, "f32"), "target": self._to_device(target, "f32"),
+                "weight": self._to_device(weight, "f32"), "n": len(basis), "context": self._context()}
+
+    def sg_fit_sums(self, data: dict, candidates, coef=None) -> np.ndarray:
+        """For candidate lobes (C, 2) [η, f0] over `sg_fit_data`'s samples: without `coef`, the (C, 9) normal-
+        equation sums [Σwd², Σwdb, Σwb², Σwd·t (3), Σwb·t (3)]; with `coef` (C, 6) [kd RGB, ks RGB], the (C,)
+        weighted squared residuals (kernels/sgfit.py says what they are). float64, each the sum of float32
+        partial sums over SGFIT_CHUNK samples."""
+        cand = np.ascontiguousarray(candidates, np.float32).reshape(-1, 2)
+        c, n = len(cand), int(data["n"])
+        chunks = max(1, -(-n // self.SGFIT_CHUNK))
+        args = (data, self._to_device(cand, "f32"), n, self.SGFIT_CHUNK, c, chunks)
+        if coef is None:
+            out = self._new((c, chunks, 9), "f32")
+            if c and n:
+                self._launch_sgfit_gram(*args, out)
+            return self._to_host(out, (c, chunks, 9), "f32").astype(np.float64).sum(1)
+        coef = np.ascontiguousarray(coef, np.float32).reshape(c, 6)
+        out = self._new((c, chunks), "f32")
+        if c and n:
+            self._launch_sgfit_residual(*args, self._to_device(coef, "f32"), out)
+        return self._to_host(out, (c, chunks), "f32").astype(np.float64).sum(1)
+
+    def _launch_sgfit_gram(self, data, candidates, n, chunk, n_candidates, n_chunks, out):
+        raise NotImplementedError
+
+    def _launch_sgfit_residual(self, data, candidates, n, chunk, n_candidates, n_chunks, coef, out):
+        raise NotImplementedError
+
     # --- ASG operators (stage `asg`, Xu 2013; oracle warp_biscale.asg, docs/design.md §9) ---
     # Each runs one device function of kernels/asg.py / cl/asg.cl over a batch, one thread a row: the
     # functions the ASG bake and shading will call, exercised here against their float64 oracle. ASGs travel

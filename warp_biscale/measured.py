@@ -33,7 +33,7 @@ per table (17.5 MB) and keeps by identity. The packed row (`brdf.pack_materials(
 `brdf.MEASURED`) holds the table's slot among the call's tables (`brdf.measured_tables`) and the
 interpolation. Measured (tests/test_measured_kernels.py): within 3.1e-5 of the peak of `eval` (trilinear;
 1e-6 nearest). The SG and ASG bakes and the SG renderer use the table's SG fit instead (`sg_fit`, `fit_sg`:
-one microfacet lobe whose NDF is an SG, Wang §4.1–4.2; `brdf.sg_form`). The lit-sphere texel kernels (lit
+one microfacet lobe whose NDF is an SG, Wang §4.1–4.2; `brdf.sg_form`; its sums in the `sgfit` kernels). The lit-sphere texel kernels (lit
 spheres read the table on the host instead) and the Mitsuba export refuse one in one line (`packed`). The
 Monte Carlo reference (`montecarlo.render`) calls `eval` on the host, in float64.
 """
@@ -414,13 +414,14 @@ class MeasuredBRDF(Brdf):
             out._sg_fit = SGFit.from_dict(head["sg_fit"])
         return out
 
-    def sg_fit(self) -> SGFit:
+    def sg_fit(self, backend=None) -> SGFit:
         """The SG form of this table (`fit_sg`: one microfacet lobe with an SG NDF, Wang §4.1–4.2), fitted on
-        the first call and kept (a `with_interpolation` copy made after it shares it). `sg_fit().brdf` is what
-        the SG and ASG bakes and the SG renderer use for this material (`brdf.sg_form`); the ground truth, the
-        matrix method and the Monte Carlo reference use the table itself."""
+        the first call (its sums in `backend`'s kernels, or on the host in float64 without one: the bakes pass
+        theirs) and kept (a `with_interpolation` copy made after it shares it). `sg_fit().brdf` is what the SG
+        and ASG bakes and the SG renderer use for this material (`brdf.sg_form`); the ground truth, the matrix
+        method and the Monte Carlo reference use the table itself."""
         if self._sg_fit is None:
-            self._sg_fit = fit_sg(self)
+            self._sg_fit = fit_sg(self, backend)
         return self._sg_fit
 
     def kernel_row(self, slot: int) -> np.ndarray:
@@ -483,23 +484,25 @@ class SGFit:
     NDF is read as the single SG lobe G(h; n, 2/m², 1) (Wang Eq. 12) — the form the SG and ASG bakes and the
     SG renderer convolve; `error`, the relative L2 error of the fitted model's cosine-weighted values
     f·cosθi·cosθo against the table's over all direction pairs (the four-dimensional integral, by the
-    fit's bin-centre quadrature); `seconds`, the fit's time."""
+    fit's bin-centre quadrature); `seconds`, the fit's time; `backend`, where its sums ran ("host": float64)."""
 
-    def __init__(self, brdf, error: float, seconds: float, samples: int):
+    def __init__(self, brdf, error: float, seconds: float, samples: int, backend: str = "host"):
         self.brdf = brdf
         self.error = float(error)
         self.seconds = float(seconds)
         self.samples = int(samples)
+        self.backend = str(backend)
 
     def to_dict(self) -> dict:
         """The fit as a material file's JSON header holds it (`from_dict` reads it back)."""
         b = self.brdf
         return {"kd": list(b.kd), "ks": list(b.ks), "roughness": b.roughness, "f0": b.f0, "error": self.error,
-                "seconds": self.seconds, "samples": self.samples}
+                "seconds": self.seconds, "samples": self.samples, "backend": self.backend}
 
     @classmethod
     def from_dict(cls, d: dict) -> SGFit:
-        return cls(_fitted_brdf(d["kd"], d["ks"], d["roughness"], d["f0"]), d["error"], d["seconds"], d["samples"])
+        return cls(_fitted_brdf(d["kd"], d["ks"], d["roughness"], d["f0"]), d["error"], d["seconds"], d["samples"],
+                   d.get("backend", "host"))
 
     def __repr__(self):
         b = self.brdf
@@ -515,11 +518,12 @@ def _fitted_brdf(kd, ks, roughness, f0) -> CookTorrance:
         return CookTorrance(ks=tuple(ks), roughness=float(roughness), f0=float(f0), kd=tuple(kd))
 
 
-def _fit_samples(table):
-    """The fit's bin centres with both directions above the horizon: (cosθi·cosθo, θh, h·ωi, the
-    shadowing-masking G, quadrature weights, values (N, 3) of f·cosθi·cosθo). The weight of a bin is its
-    measure dωi dωo = 4 cosθd sinθh sinθd dθh dθd dφd dφh (Rusinkiewicz's half/difference Jacobian; dθh is the
-    square-root axis' bin width), φh and the constant factors dropped."""
+def fit_samples(table):
+    """The fit's bin centres with both directions above the horizon, as the `sgfit` kernels read them: (basis
+    (N, 4) [d = cosθi·cosθo/π, 1 − cos θh, (1 − h·ωi)^5, G/π] with G Cook–Torrance's shadowing-masking, target
+    (N, 3) f·cosθi·cosθo, weight (N,)), float64. The weight of a bin is its measure dωi dωo = 4 cosθd sinθh sinθd
+    dθh dθd dφd dφh (Rusinkiewicz's half/difference Jacobian; dθh is the square-root axis' bin width), φh and
+    the constant factors dropped."""
     th, td, pd = bin_centres()
     sel_td, sel_pd = np.arange(0, RES_THETA_D, FIT_STEP_TD), np.arange(0, RES_PHI_D, FIT_STEP_PD)
     d_th = (2 * np.arange(RES_THETA_H) + 1) / RES_THETA_H**2 * _HALF_PI
@@ -534,51 +538,96 @@ def _fit_samples(table):
     cos_d = np.broadcast_to(np.cos(td[sel_td])[None, :, None], ok.shape)[ok]  # h·ωi
     nh = np.cos(theta_h)
     g = np.minimum(1.0, np.minimum(2 * nh * co / cos_d, 2 * nh * ci / cos_d))
-    return ci * co, theta_h, cos_d, g, weight[ok], vals[:, ok].T * (ci * co)[:, None]
+    basis = np.stack([ci * co / np.pi, 2.0 * np.sin(theta_h / 2) ** 2, (1.0 - cos_d) ** 5, g / np.pi], 1)
+    return basis, vals[:, ok].T * (ci * co)[:, None], np.ascontiguousarray(weight[ok])
 
 
-def _nonnegative_fit(basis, target, sqrt_w):
-    """Per channel, the non-negative coefficients (2,) of two basis columns (N, 2) that fit target (N, 3) in
-    the weighted least squares; → (coefficients (3, 2), weighted squared residual summed over channels)."""
-    from scipy.optimize import nnls
+def fit_sums(basis, target, weight, candidates, coef=None) -> np.ndarray:
+    """The float64 reference of the `sgfit` kernels (kernels/sgfit.py): for candidates (C, 2) [η, f0], the (C, 9)
+    normal-equation sums [Σwd², Σwdb, Σwb², Σwd·t (3), Σwb·t (3)], or with coef (C, 6) [kd RGB, ks RGB] the (C,)
+    weighted squared residuals Σ w Σ_c (t_c − kd_c d − ks_c b)², b = (f0 + (1 − f0)(1 − h·ωi)^5)(G/π)e^{−η(1 − cos θh)}."""
+    basis, target, weight = (np.asarray(x, np.float64) for x in (basis, target, weight))
+    cand = np.asarray(candidates, np.float64).reshape(-1, 2)
+    out = []
+    for i, (eta, f0) in enumerate(cand):
+        d = basis[:, 0]
+        b = (f0 + (1.0 - f0) * basis[:, 2]) * basis[:, 3] * np.exp(-eta * basis[:, 1])
+        if coef is None:
+            wd, wb = weight * d, weight * b
+            out.append(np.concatenate([[wd @ d, wd @ b, wb @ b], wd @ target, wb @ target]))
+        else:
+            c = np.asarray(coef, np.float64).reshape(-1, 6)[i]
+            r = target - d[:, None] * c[None, :3] - b[:, None] * c[None, 3:]
+            out.append(weight @ np.einsum("nc,nc->n", r, r))
+    return np.array(out, np.float64).reshape(len(cand), 9) if coef is None else np.array(out, np.float64)
 
-    q, r = np.linalg.qr(basis * sqrt_w[:, None])
-    wt = target * sqrt_w[:, None]
-    proj = q.T @ wt  # (2, 3)
-    rest = float(np.sum(wt * wt) - np.sum(proj * proj))  # what no combination of the columns reaches
-    coef, total = np.zeros((3, 2)), rest
-    for c in range(3):
-        x, res = nnls(r, proj[:, c])
-        coef[c] = x
-        total += res * res
-    return coef, total
+
+def _nonnegative_coefficients(sums) -> np.ndarray:
+    """(C, 6) [kd RGB, ks RGB] ≥ 0 minimising Σ w (t − kd·d − ks·b)² per channel, from `fit_sums`' (C, 9) normal-
+    equation sums: the unconstrained solution where both are ≥ 0, else the better of the one-coefficient fits
+    (the minimum of a convex quadratic over the quadrant lies on its boundary when not inside)."""
+    s = np.asarray(sums, np.float64)
+    g0, g1, g2 = s[:, 0:1], s[:, 1:2], s[:, 2:3]  # (C, 1) each
+    r0, r1 = s[:, 3:6], s[:, 6:9]  # (C, 3)
+
+    def cost(x0, x1):
+        return g0 * x0 * x0 + 2 * g1 * x0 * x1 + g2 * x1 * x1 - 2 * (r0 * x0 + r1 * x1)
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        det = g0 * g2 - g1 * g1
+        ok = det > 1e-12 * np.maximum(g0 * g2, 1e-300)
+        u0 = np.where(ok, (g2 * r0 - g1 * r1) / np.where(ok, det, 1.0), -1.0)
+        u1 = np.where(ok, (g0 * r1 - g1 * r0) / np.where(ok, det, 1.0), -1.0)
+        a0 = np.where(g0 > 0, np.maximum(r0 / np.where(g0 > 0, g0, 1.0), 0.0), 0.0)  # kd alone
+        b1 = np.where(g2 > 0, np.maximum(r1 / np.where(g2 > 0, g2, 1.0), 0.0), 0.0)  # ks alone
+    inside = (u0 >= 0) & (u1 >= 0)
+    edge_kd = cost(a0, 0.0) <= cost(0.0, b1)
+    kd = np.where(inside, u0, np.where(edge_kd, a0, 0.0))
+    ks = np.where(inside, u1, np.where(edge_kd, 0.0, b1))
+    return np.concatenate([kd, ks], 1)
 
 
-def fit_sg(measured: MeasuredBRDF) -> SGFit:
+def fit_sg(measured: MeasuredBRDF, backend=None) -> SGFit:
     """The SG fit of a measured BRDF, Wang §4.1–4.2 reduced to one lobe: kd/π + ks·F(h·ωi)·G·D(h)/(π cosθi cosθo)
     with D = exp((2/m²)(n·h − 1)) the NDF's SG, Schlick's F(f0) and Cook–Torrance's V-cavity G (as
-    `CookTorrance`), in the weighted least squares of f·cosθi·cosθo over the table's bin centres (`_fit_samples`).
-    kd and ks enter linearly, so for each (m, f0) they are solved exactly (non-negative, per channel); (m, f0)
-    start at the best of a grid and are refined by Nelder–Mead in (log m, f0). Deterministic; about a second."""
+    `CookTorrance`), in the weighted least squares of f·cosθi·cosθo over the table's bin centres (`fit_samples`).
+    kd and ks enter linearly, so for each (m, f0) they are solved exactly (non-negative, per channel, from the
+    normal equations) and the objective is the residual itself; (m, f0) start at the best of a grid (one batch)
+    and are refined by Nelder–Mead in (log m, f0). With a `backend` the sums run in its `sgfit` kernels (float32
+    partial sums added in float64), else on the host in float64 (`fit_sums`, their reference). Deterministic;
+    about a second."""
     from scipy.optimize import minimize  # (scipy on first use: importing it costs more than the fit's setup)
 
     t0 = time.perf_counter()
-    diffuse, theta_h, cos_d, g, weight, target = _fit_samples(measured._table())
-    sqrt_w = np.sqrt(weight)
-    f5 = (1.0 - cos_d) ** 5
-    nh = np.cos(theta_h)
+    basis, target, weight = fit_samples(measured._table())
+    if backend is None:
+        def sums(cand, coef=None):
+            return fit_sums(basis, target, weight, cand, coef)
+        where = "host"
+    else:
+        from .backend import get_backend  # (the backends import this module)
 
-    def solve(log_m, f0):
-        m, f0 = float(np.exp(log_m)), float(np.clip(f0, 0.0, 1.0))
-        spec = (f0 + (1 - f0) * f5) * g * np.exp((2.0 / (m * m)) * (nh - 1.0)) / np.pi
-        return _nonnegative_fit(np.stack([diffuse / np.pi, spec], 1), target, sqrt_w)
+        be = get_backend(backend)
+        data = be.sg_fit_data(basis, target, weight)
 
-    start = min(((np.log(m), f0) for m in FIT_ROUGHNESS for f0 in FIT_F0), key=lambda p: solve(*p)[1])
-    best = minimize(lambda p: solve(p[0], p[1])[1] + (1e30 if not 0 <= p[1] <= 1 else 0.0), np.array(start),
+        def sums(cand, coef=None):
+            return be.sg_fit_sums(data, cand, coef)
+        where = be.name
+
+    def solve(params):
+        """params (C, 2) [log m, f0] → (coefficients (C, 6), residuals (C,))."""
+        p = np.atleast_2d(np.asarray(params, np.float64))
+        cand = np.stack([2.0 / np.exp(2 * p[:, 0]), np.clip(p[:, 1], 0.0, 1.0)], 1)
+        coef = _nonnegative_coefficients(sums(cand))
+        return coef, sums(cand, coef)
+
+    grid = np.array([(np.log(m), f0) for m in FIT_ROUGHNESS for f0 in FIT_F0])
+    start = grid[int(np.argmin(solve(grid)[1]))]
+    best = minimize(lambda p: solve(p)[1][0] + (1e30 if not 0 <= p[1] <= 1 else 0.0), start,
                     method="Nelder-Mead", options={"xatol": 1e-4, "fatol": 1e-12, "maxiter": 400})
-    log_m, f0 = (best.x if best.fun <= solve(*start)[1] else np.array(start))
-    coef, residual = solve(log_m, f0)
-    norm = float(np.sum(weight[:, None] * target * target))
-    error = float(np.sqrt(residual / norm)) if norm > 0 else 0.0
-    brdf = _fitted_brdf(coef[:, 0], coef[:, 1], np.exp(log_m), np.clip(f0, 0, 1))
-    return SGFit(brdf, error, time.perf_counter() - t0, len(weight))
+    params = best.x if best.fun <= solve(start)[1][0] else start
+    coef, residual = solve(params)
+    norm = float(weight @ np.einsum("nc,nc->n", target, target))
+    error = float(np.sqrt(max(residual[0], 0.0) / norm)) if norm > 0 else 0.0
+    brdf = _fitted_brdf(coef[0, :3], coef[0, 3:], np.exp(params[0]), np.clip(params[1], 0, 1))
+    return SGFit(brdf, error, time.perf_counter() - t0, len(weight), where)

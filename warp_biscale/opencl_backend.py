@@ -827,6 +827,16 @@ class OpenCLBackend(DeviceBackend):
         self._launch("matrix", "brdf_matrix", (n_pairs, n_rows), normals, wi, wo, kinds, params, tables, np.int32(m),
                      *(np.float32(c) for c in color), np.int32(n_rows), np.int32(n_pairs), out)
 
+    # ------------------------------------------------------------------ sgfit (a measured BRDF's SG fit)
+    def _launch_sgfit_gram(self, data, candidates, n, chunk, n_candidates, n_chunks, out):
+        self._launch("sgfit", "fit_gram", (n_chunks, n_candidates), data["basis"], data["target"], data["weight"],
+                     candidates, np.int32(n), np.int32(chunk), np.int32(n_chunks), np.int32(n_candidates), out)
+
+    def _launch_sgfit_residual(self, data, candidates, n, chunk, n_candidates, n_chunks, coef, out):
+        self._launch("sgfit", "fit_residual", (n_chunks, n_candidates), data["basis"], data["target"],
+                     data["weight"], candidates, coef, np.int32(n), np.int32(chunk), np.int32(n_chunks),
+                     np.int32(n_candidates), out)
+
     # ------------------------------------------------------------------ asg (Xu 2013's operators, warp_biscale.asg)
     def _launch_asg(self, kernel, n, inputs, out):
         args = (np.int32(a) if isinstance(a, int) else a for a in inputs)

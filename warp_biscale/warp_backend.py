@@ -30,6 +30,7 @@ from .kernels import facets as kfacets
 from .kernels import litsphere as klitsphere
 from .kernels import matrix as kmatrix
 from .kernels import probe as kprobe
+from .kernels import sgfit as ksgfit
 from .kernels import shade as kshade
 from .kernels import ssdf as kssdf
 from .kernels import tonemap as ktonemap
@@ -752,6 +753,15 @@ class WarpBackend(DeviceBackend):
     def _launch_brdf_matrix(self, normals, wi, wo, kinds, params, tables, m, color, n_rows, n_pairs, out):
         self._launch(kmatrix.brdf_matrix, (n_rows, n_pairs),
                      [normals, wi, wo, kinds, params, tables, int(m), wp.vec3(*(float(c) for c in color))], [out])
+
+    # ------------------------------------------------------------------ sgfit (a measured BRDF's SG fit)
+    def _launch_sgfit_gram(self, data, candidates, n, chunk, n_candidates, n_chunks, out):
+        self._launch(ksgfit.fit_gram, (n_candidates, n_chunks),
+                     [data["basis"], data["target"], data["weight"], candidates, n, chunk], [out])
+
+    def _launch_sgfit_residual(self, data, candidates, n, chunk, n_candidates, n_chunks, coef, out):
+        self._launch(ksgfit.fit_residual, (n_candidates, n_chunks),
+                     [data["basis"], data["target"], data["weight"], candidates, coef, n, chunk], [out])
 
     # ------------------------------------------------------------------ asg (Xu 2013's operators, warp_biscale.asg)
     def _launch_asg(self, kernel, n, inputs, out):
