@@ -4,7 +4,8 @@ each table on every tile family, its time against its error.
 Tables (`MeasuredBRDF.from_brdf`, written by the benchmark itself: nothing is downloaded): a tabulated coloured
 Cook–Torrance (m = 0.2), the synthetic paint (`measured.paint_like`: Lambertian base, broad sheen, sharp coat)
 and a tabulated Blinn–Phong n = 128 (energy normalisation; not a microfacet BRDF, so one microfacet lobe holds
-it badly). Per table: `fit_sg`'s seconds (one fit; deterministic) and its relative L2 error.
+it badly). Per table: `fit_sg`'s seconds (one fit; deterministic) and its relative L2 error, with its sums on the
+host (float64) and in each backend's `sgfit` kernels (`--fits-only`: these alone).
 
 Per table × family (bench_bake.families) × backend: `wb.bake(tile, table, lobes=J, directions=K,
 facets=2^f)` — the fit is made once, before, so the bake's time is the bake's — and its PSNR (`wb.compare`,
@@ -42,14 +43,23 @@ def tables():
                 "blinnphong128": wb.MeasuredBRDF.from_brdf(wb.BlinnPhong(0.6, 128, kd=0.2, normalization="energy"))}
 
 
-def fits(out, named):
-    for name, table in named.items():
-        fit = table.sg_fit()
-        b = fit.brdf
-        out.records.append({"kind": "fit", "table": name, "seconds": fit.seconds, "error": fit.error,
-                            "samples": fit.samples, "roughness": b.roughness, "f0": b.f0, "kd": list(b.kd),
-                            "ks": list(b.ks)})
-        out.log(f"fit {name:>16}: {fit.seconds:.2f} s, relative L2 error {fit.error:.3g} ({fit!r})")
+def fits(out, named, backends):
+    """Each table's fit on the host (float64 sums) and with its sums in each backend's `sgfit` kernels (after an
+    untimed fit that compiles and loads them); the host's fit is the one the bakes then use."""
+    for where in [None, *backends]:
+        be = None if where is None else wb.get_backend(where)
+        if be is not None:
+            ms.fit_sg(next(iter(named.values())), be)  # (warm-up: kernels compiled and loaded)
+        for name, table in named.items():
+            fit = ms.fit_sg(table, be)
+            if be is None:
+                table._sg_fit = fit
+            b = fit.brdf
+            out.records.append({"kind": "fit", "table": name, "where": fit.backend, "seconds": fit.seconds,
+                                "error": fit.error, "samples": fit.samples, "roughness": b.roughness, "f0": b.f0,
+                                "kd": list(b.kd), "ks": list(b.ks)})
+            out.log(f"fit {name:>16} ({fit.backend}): {fit.seconds:.2f} s, relative L2 error {fit.error:.3g} "
+                    f"({fit!r})")
 
 
 def bakes(out, named, backends, lobes, k, facets, truth_facets):
@@ -85,10 +95,11 @@ def table_md(records, meta) -> str:
              f"SG fits of tabulated BRDFs (one fit each), then SG bakes (J = {meta['J']}, K = {meta['K']}, "
              f"{meta['facets']} facets, the bake's own time after a warm-up bake of another seed) judged against "
              f"the table's ground truth and the fitted BRDF's ({meta['truth_facets']} facets).", ""]
-    fit_rows = [[r["table"], f"{r['seconds']:.2f}", f"{r['error']:.3g}", f"{r['roughness']:.4g}", f"{r['f0']:.3g}",
-                 "/".join(f"{x:.3g}" for x in r["kd"]), "/".join(f"{x:.3g}" for x in r["ks"])]
-                for r in records if r["kind"] == "fit"]
-    lines += common.markdown_table(["table", "fit (s)", "relative L2 error", "m", "f0", "kd", "ks"], fit_rows) + [""]
+    fit_rows = [[r["table"], r.get("where", "host"), f"{r['seconds']:.2f}", f"{r['error']:.3g}",
+                 f"{r['roughness']:.4g}", f"{r['f0']:.3g}", "/".join(f"{x:.3g}" for x in r["kd"]),
+                 "/".join(f"{x:.3g}" for x in r["ks"])] for r in records if r["kind"] == "fit"]
+    lines += common.markdown_table(["table", "sums on", "fit (s)", "relative L2 error", "m", "f0", "kd", "ks"],
+                                   fit_rows) + [""]
     bake_rows = [[r["backend"], r["tile"], r["table"], f"{r['bake_s'] * 1e3:.1f}", f"{r['psnr_table_db']:.1f}",
                   f"{r['psnr_fit_db']:.1f}"] for r in records if r["kind"] == "bake"]
     lines += common.markdown_table(["backend", "tile", "table", "bake (ms)", "PSNR vs table truth (dB)",
@@ -123,6 +134,7 @@ def main(argv=None):
     ap.add_argument("--facets", type=int, default=1 << 14)
     ap.add_argument("--truth-facets", type=int, default=1 << 16)
     ap.add_argument("--out", default=os.path.join(common.HERE, "results", "measured-sg"))
+    ap.add_argument("--fits-only", action="store_true", help="the fits alone, no bakes")
     args = ap.parse_args(argv)
     backends = common.backend_names(args.backends)
     meta = common.run_meta(J=args.lobes, K=args.directions, facets=args.facets, truth_facets=args.truth_facets,
@@ -130,11 +142,13 @@ def main(argv=None):
     out = common.Output(args.out, meta)
     out.log(common.commit_line(meta))
     named = tables()
-    fits(out, named)
+    fits(out, named, backends)
     out.save(table_md)
-    bakes(out, named, backends, args.lobes, args.directions, args.facets, args.truth_facets)
+    if not args.fits_only:
+        bakes(out, named, backends, args.lobes, args.directions, args.facets, args.truth_facets)
     out.finish(table_md)
-    plot(out.records, args.out)
+    if not args.fits_only:
+        plot(out.records, args.out)
     print(f"wrote {args.out}")
 
 
