@@ -1,8 +1,10 @@
-/* Tone mapping for display (images.tonemap on the device): the tonemap stage.
+/* A shaded frame's last steps on the device: the tonemap stage.
  *
- * Twin of kernels/tonemap.py, in the same operation order. One work-item per pixel: the radiance
- * scaled by 2^exposure, mapped to [0, 1] by the operator (0 ACES, 1 Reinhard, 2 clamp), sRGB-encoded
- * and rounded to 8 bits. Layouts: radiance (P, 3) float; out (P, 3) uchar.
+ * Twin of kernels/tonemap.py, in the same operation order. tonemap_pixels (images.tonemap on the device):
+ * one work-item per pixel, the radiance scaled by 2^exposure, mapped to [0, 1] by the operator (0 ACES,
+ * 1 Reinhard, 2 clamp), sRGB-encoded and rounded to 8 bits. accumulate_frame: an anti-aliasing sample's
+ * radiance times its weight added to the frame's sum (the first sample sets it). Layouts: radiance and
+ * total (P, 3) float; out (P, 3) uchar.
  */
 
 #define TONEMAP_LARGE 1.0e4f /* past it every operator is 1 to within half an 8-bit step; ACES stays finite */
@@ -33,4 +35,14 @@ __kernel void tonemap_pixels(__global const float *radiance, const float scale, 
         return;
     for (int k = 0; k < 3; ++k)
         out[3 * p + k] = to_byte(radiance[3 * p + k] * scale, curve);
+}
+
+__kernel void accumulate_frame(__global const float *radiance, const float weight, const int first,
+                               const int n_pixels, __global float *total)
+{
+    int p = get_global_id(0);
+    if (p >= n_pixels)
+        return;
+    for (int k = 0; k < 3; ++k)
+        total[3 * p + k] = (first ? 0.0f : total[3 * p + k]) + weight * radiance[3 * p + k];
 }

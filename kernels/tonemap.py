@@ -1,9 +1,10 @@
-"""Tone mapping for display (`images.tonemap` on the device): the tonemap stage.
+"""A shaded frame's last steps on the device: the tonemap stage.
 
-Twin of ``cl/tonemap.cl``; the float64 reference is ``warp_biscale.images.tonemap``. One thread per
-pixel: the radiance scaled by 2^exposure, mapped to [0, 1] by the operator (`curve`: 0 ACES, 1 Reinhard,
-2 clamp, the order of images.TONEMAP_OPERATORS), sRGB-encoded and rounded to 8 bits — so a frame
-crosses to the host as a quarter of its float32 bytes.
+Twin of ``cl/tonemap.cl``. `tonemap_pixels` (the float64 reference is ``warp_biscale.images.tonemap``): one
+thread per pixel, the radiance scaled by 2^exposure, mapped to [0, 1] by the operator (`curve`: 0 ACES,
+1 Reinhard, 2 clamp, the order of images.TONEMAP_OPERATORS), sRGB-encoded and rounded to 8 bits — so a frame
+crosses to the host as a quarter of its float32 bytes. `accumulate_frame`: an anti-aliasing sample's radiance
+times its weight added to the frame's sum (the first sample sets it), so that only the average is read back.
 """
 
 import warp as wp
@@ -40,3 +41,15 @@ def tonemap_pixels(radiance: wp.array(dtype=wp.vec3), scale: float, curve: int, 
     c = radiance[p]
     for k in range(3):
         out[3 * p + k] = to_byte(c[k] * scale, curve)
+
+
+@wp.kernel
+def accumulate_frame(radiance: wp.array(dtype=wp.vec3), weight: float, first: int, n_pixels: int, offset: int,
+                     total: wp.array(dtype=wp.vec3)):
+    p = wp.tid() + offset
+    if p >= n_pixels:
+        return
+    if first != 0:
+        total[p] = weight * radiance[p]
+    else:
+        total[p] = total[p] + weight * radiance[p]

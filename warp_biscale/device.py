@@ -728,6 +728,28 @@ class DeviceBackend:
         host = self._to_host(frame, 3 * n, "u8", out)
         return out if out is not None else host.reshape(height, width, 3)
 
+    def accumulate_frame(self, mesh, width: int, height: int, weight: float, first: bool) -> None:
+        """Add `weight` times the frame last shaded (`shade(..., to_host=False)`) to the mesh's frame sum on the
+        device (`first`: the sum starts here): anti-aliasing samples averaged where they are made."""
+        radiance = self._frame(mesh, width, height)
+        n = int(width) * int(height)
+        total = self._reuse(self._trace_mesh(mesh), "radiance_sum", n, "vec3")
+        self._launch_accumulate(radiance, float(weight), bool(first), n, total)
+
+    def accumulated_frame(self, mesh, width: int, height: int, to_host: bool = True):
+        """The frame sum of `accumulate_frame` becomes the mesh's frame (what `frame_u8` tone-maps); → its (P, 3)
+        float32 host copy, or None with to_host=False."""
+        m = self._trace_mesh(mesh)
+        n = int(width) * int(height)
+        self._frame(mesh, width, height)  # (checks that a frame of that size is there)
+        if m.get("radiance_sum/spec") != m.get("radiance/spec"):
+            raise ValueError(f"no {width}x{height} frame sum of this mesh on the device: accumulate_frame first")
+        m["radiance"], m["radiance_sum"] = m["radiance_sum"], m["radiance"]
+        return self._to_host(m["radiance"], n, "vec3") if to_host else None
+
+    def _launch_accumulate(self, radiance, weight, first, n, total):
+        raise NotImplementedError
+
     def _frame(self, mesh, width, height):
         m = self._trace_mesh(mesh)
         if m.get("radiance/spec") != ((int(width) * int(height),), "vec3"):

@@ -801,6 +801,10 @@ class OpenCLBackend(DeviceBackend):
         self._launch("tonemap", "tonemap_pixels", (n,), radiance, np.float32(scale), np.int32(operator), np.int32(n),
                      out)
 
+    def _launch_accumulate(self, radiance, weight, first, n, total):
+        self._launch("tonemap", "accumulate_frame", (n,), radiance, np.float32(weight), np.int32(bool(first)),
+                     np.int32(n), total)
+
     def _launch_litsphere_texels(self, resolution, effective, lights, kinds, params, info, lobes, amplitudes, n, out):
         self._launch("litsphere", "sphere_texels", (n,), np.int32(resolution), lights, np.int32(effective), kinds,
                      params, info, lobes, amplitudes, np.int32(n), out)

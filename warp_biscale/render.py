@@ -195,7 +195,7 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     static = _static_inputs(scene, backend, progress, timings)
     lights = scene.lights_packed
     image = _accumulate(scene, backend, n_aa, n_shadow, lights, timings,
-                        lambda cam: backend.shade(scene.mesh, static, cam.packed(), lights))
+                        lambda cam, to_host: backend.shade(scene.mesh, static, cam.packed(), lights, to_host=to_host))
     timings["total"] = time.perf_counter() - t_all
     cam = scene.camera
     info = {"backend": backend.name, "device": backend.device, "method": "sg", "ssdf": bool(static.has_ssdf),
@@ -216,10 +216,11 @@ def check_no_litspheres(scene: Scene, method: str) -> None:
 
 def _accumulate(scene: Scene, backend, n_aa: int, n_shadow: int, lights, timings: dict, shade):
     """The (H, W, 3) image: per anti-aliasing sample (`aa_offsets`) the G-buffer, the shadow rays of
-    `lights` (n_shadow a light; none when 0), then `shade(camera)` → (P, 3), averaged with a box filter."""
+    `lights` (n_shadow a light; none when 0), then `shade(camera, to_host)` (→ (P, 3) with to_host), averaged
+    with a box filter on the device (`accumulate_frame`: one read-back, of the average)."""
     cam = scene.camera
     image = None
-    for jx, jy in aa_offsets(n_aa):
+    for i, (jx, jy) in enumerate(aa_offsets(n_aa)):
         sample = dataclasses.replace(cam, jitter=(jx, jy)) if n_aa > 1 else cam
         t0 = time.perf_counter()
         backend.trace_primary(scene.mesh, sample, to_host=False)
@@ -231,15 +232,16 @@ def _accumulate(scene: Scene, backend, n_aa: int, n_shadow: int, lights, timings
             backend.synchronize()
             timings["shadows"] = timings.get("shadows", 0.0) + time.perf_counter() - t0
         t0 = time.perf_counter()
-        shaded = shade(sample)
-        # Summed in place (float32: at most 256 samples of a non-negative value, relative error ~1e-5)
-        if image is None:
-            image = shaded if n_aa == 1 else np.array(shaded, np.float32)
-        else:
-            image += shaded
+        if n_aa == 1:
+            image = shade(sample, True)
+        else:  # (summed in float32: at most 256 samples of a non-negative value, relative error ~1e-5)
+            shade(sample, False)
+            backend.accumulate_frame(scene.mesh, cam.width, cam.height, 1.0 / n_aa, first=i == 0)
         timings["shade"] += time.perf_counter() - t0
     if n_aa > 1:
-        image *= np.float32(1.0 / n_aa)
+        t0 = time.perf_counter()
+        image = backend.accumulated_frame(scene.mesh, cam.width, cam.height)
+        timings["shade"] += time.perf_counter() - t0
     return image.reshape(cam.height, cam.width, 3)
 
 
@@ -324,8 +326,9 @@ def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str
     if not isinstance(shadows, bool):
         raise ValueError(f"shadows must be True or False, got {shadows!r}")
     image = _accumulate(scene, backend, n_aa, n_shadow if shadows else 0, lights, timings,
-                        lambda cam: backend.shade_litsphere(scene.mesh, pack, cam.packed(), lights, maps, levels,
-                                                            VIEWS[view], shrink, shadowed=shadows))
+                        lambda cam, to_host: backend.shade_litsphere(scene.mesh, pack, cam.packed(), lights, maps,
+                                                                     levels, VIEWS[view], shrink, shadowed=shadows,
+                                                                     to_host=to_host))
     timings["total"] = time.perf_counter() - t_all
     cam = scene.camera
     info = {"backend": backend.name, "device": backend.device, "method": "litsphere", "view": view, "shrink": shrink,

@@ -730,6 +730,9 @@ class WarpBackend(DeviceBackend):
     def _launch_tonemap(self, radiance, scale, operator, n, out):
         self._launch(ktonemap.tonemap_pixels, n, [radiance, scale, operator, n], [out])
 
+    def _launch_accumulate(self, radiance, weight, first, n, total):
+        self._launch(ktonemap.accumulate_frame, n, [radiance, weight, int(first), n], [total])
+
     def _launch_litsphere_texels(self, resolution, effective, lights, kinds, params, info, lobes, amplitudes, n, out):
         self._launch(klitsphere.sphere_texels, n,
                      [resolution, lights, effective, kinds, params, info, lobes, amplitudes, n], [out])
