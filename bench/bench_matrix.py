@@ -8,10 +8,10 @@ Parts (records go to --out/results.json; table.md and matrix.png follow):
   size in float64 (as Wu's "size of M"), the factors' bytes (his "final size"), the rank kept for 98 % of the
   power, and the time per step (search, colour direction, M, SVD).
 - ``families``: per tile family, Cook–Torrance m = 0.2: a ground truth (`--gt-facets`), then per backend the
-  SG bake (J = 8) and the matrix bake (M's factors already precomputed: cached, as after one `precompute`)
+  SG bake (J = 8), the ASG bake (J = 8; its fit and moments on the host) and the matrix bake (M's factors already precomputed: cached, as after one `precompute`)
   timed whole (median over `--runs`, a new facet seed each run so that the geometry is made again), their
-  PSNR against the truth (Wu Table 4's metric, `wb.compare`), their memory (SG: the amplitude table of the
-  material; matrix: N's factors and M's factors), and a material-only edit (`with_materials`, the new
+  PSNR against the truth (Wu Table 4's metric, `wb.compare`), their memory (SG and ASG: the amplitude table of
+  the material; matrix: N's factors and M's factors), and a material-only edit (`with_materials`, the new
   material's factors cached: Eq. 12 alone for the matrix method).
 
     python -m bench.bench_matrix --quick --out bench/results/matrix-cpu-2core          # a CPU
@@ -98,7 +98,7 @@ def part_families(backends, fams, k, facets, gt_facets, runs, out, save):
             # M's factors once (precompute once, edit forever): the timed matrix bakes read them from the cache.
             for b in (CT02, EDIT_BRDF):
                 mx.material_factors(b, directions=k, backend=be)
-            for method in ("sg", "matrix"):
+            for method in ("sg", "asg", "matrix"):
                 t = timed_bake(be, runs, tile=tile, materials=mats, method=method, directions=k, facets=facets)
                 mat = t.first
                 c = wb.compare(mat, gt)
@@ -109,8 +109,8 @@ def part_families(backends, fams, k, facets, gt_facets, runs, out, save):
                               "bytes": fb["n"] + int(sum(fb["m"].values())),
                               "table_bytes": int(mat.tables.nbytes), "n_ranks": mat.info["n_ranks"],
                               "m_rank": mat.factors[0].rank, "bins": mat.info["nonempty_bins"]}
-                else:
-                    memory = {"bytes": int(mat.amplitudes.nbytes), "lobes": len(mat.lobes)}
+                else:  # (SG and ASG: the material's amplitude table, J lobes)
+                    memory = {"bytes": int(mat.amplitudes.nbytes), "lobes": int(mat.info["lobes"])}
                 rec = {"part": "families", "tile": tname, "brdf": "cooktorrance0.2", "method": method,
                        "backend": be.name, "device": be.device, "K": k, "facets": facets, "gt_facets": gt_facets,
                        "time_s": t.median_s, "runs_s": t.runs_s, "first_call_extra_s": t.first_call_extra_s,
@@ -147,23 +147,28 @@ def table(records, meta):
         lines += ["", f"Cook–Torrance m = 0.2, K = {r0['K']}, {r0['facets']} facets, against a {r0['gt_facets']}-facet "
                   "ground truth (PSNR of the cosine-weighted f̄ over every pair, Wu Table 4's metric; his: 17.4–22.7 "
                   "dB). Bake: median of whole bakes, a new facet seed each (the matrix bake with M's factors "
-                  "precomputed); memory: SG the material's amplitude table, matrix N's + M's factors; edit: "
+                  "precomputed; ASG: J = 8 ASG lobes, fitted on the host); memory: SG and ASG the material's amplitude table, matrix N's + M's factors; edit: "
                   "`with_materials` to Ward α = 0.3 (factors cached)", ""]
         rows = []
         for tile in dict.fromkeys(r["tile"] for r in fam):
             for backend in dict.fromkeys(r["backend"] for r in fam):
                 by = {r["method"]: r for r in fam if r["tile"] == tile and r["backend"] == backend}
-                if len(by) < 2:
+                if "sg" not in by or "matrix" not in by:
                     continue
-                s, m = by["sg"], by["matrix"]
-                rows.append([tile, backend, f"{s['psnr']:.1f}", f"{m['psnr']:.1f}", f"{s['time_s'] * 1e3:.0f}",
-                             f"{m['time_s'] * 1e3:.0f}", f"{s['bytes'] / 2**10:.0f}",
+                s, m, a = by["sg"], by["matrix"], by.get("asg")
+
+                def of_asg(fmt, key, scale=1.0):
+                    return "—" if a is None else fmt.format(a[key] * scale)
+                rows.append([tile, backend, f"{s['psnr']:.1f}", of_asg("{:.1f}", "psnr"), f"{m['psnr']:.1f}",
+                             f"{s['time_s'] * 1e3:.0f}", of_asg("{:.0f}", "time_s", 1e3), f"{m['time_s'] * 1e3:.0f}",
+                             f"{s['bytes'] / 2**10:.0f}", of_asg("{:.0f}", "bytes", 2**-10),
                              f"{m['n_factor_bytes'] / 2**10:.0f} + {m['m_factor_bytes'] / 2**10:.0f}",
                              f"{m['bins']} / {m['n_ranks']} / {m['m_rank']}",
-                             f"{s['edit_s'] * 1e3:.2f}", f"{m['edit_s'] * 1e3:.2f}"])
-        lines += common.markdown_table(["tile", "backend", "SG dB", "matrix dB", "SG bake ms", "matrix bake ms",
-                                        "SG KiB", "matrix KiB (N + M)", "bins / N ranks / M rank", "SG edit ms",
-                                        "matrix edit ms"], rows)
+                             f"{s['edit_s'] * 1e3:.2f}", of_asg("{:.2f}", "edit_s", 1e3), f"{m['edit_s'] * 1e3:.2f}"])
+        lines += common.markdown_table(["tile", "backend", "SG dB", "ASG dB", "matrix dB", "SG bake ms",
+                                        "ASG bake ms", "matrix bake ms", "SG KiB", "ASG KiB", "matrix KiB (N + M)",
+                                        "bins / N ranks / M rank", "SG edit ms", "ASG edit ms", "matrix edit ms"],
+                                       rows)
     return "\n".join(lines) + "\n"
 
 
@@ -173,7 +178,7 @@ def plot(records, folder):
         return
     plt = common.pyplot()
     fig, ax = plt.subplots(figsize=(7, 4.5))
-    for method, marker in (("sg", "o"), ("matrix", "s")):
+    for method, marker in (("sg", "o"), ("asg", "^"), ("matrix", "s")):
         rs = [r for r in fam if r["method"] == method]
         ax.scatter([r["time_s"] * 1e3 for r in rs], [r["psnr"] for r in rs], marker=marker, label=method)
         for r in rs:
@@ -182,7 +187,7 @@ def plot(records, folder):
     ax.set_xscale("log")
     ax.set_xlabel("bake time (ms, median)")
     ax.set_ylabel("PSNR against the ground truth (dB)")
-    ax.set_title("Matrix method vs SG bake, Cook–Torrance m = 0.2")
+    ax.set_title("Matrix method vs SG and ASG bakes, Cook–Torrance m = 0.2")
     ax.legend(fontsize=7)
     ax.grid(alpha=0.3)
     fig.tight_layout()
