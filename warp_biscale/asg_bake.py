@@ -17,15 +17,17 @@ What it does, stage by stage (the geometry stages are the SG bake's own, `bake._
 2. **Amplitudes by the Gram route** (`amplitude_system`): A_ij = ∫G_iG_j by Xu's product (Eq. 13) and the
    exact integral, regularised on its unit diagonal as the SG route (`lobes.RIDGE`) and calibrated per lobe
    by the fitted NDF (`lobes.amplitude_system`'s calibration: the amplitude of lobe j on the fitted NDF is
-   A·α_j/∫G_j). b by the exact facet sums Σ_s P_si P_so w_s G_j(n_s) (`reference.lobe_moments`' sums,
-   here on the host by matrix products: P diag(w G_j) Pᵀ per lobe), solved by `lobes.solve_amplitudes`
-   (negative amplitudes 0, Σ_j μ_j ∫G_j = ∫γ̃ exactly, so the diffuse part is exact).
+   A·α_j/∫G_j). b by the exact facet sums Σ_s P_si P_so w_s G_j(n_s) (`reference.lobe_moments`' sums), solved
+   as `lobes.solve_amplitudes` (negative amplitudes 0, Σ_j μ_j ∫G_j = ∫γ̃ exactly, so the diffuse part is
+   exact): for J ≤ lobes.KERNEL_LOBES by the SG bake's moment, solve and table kernels fed the ASGs' values at
+   the facets (`Backend.lobe_moments(..., lobe_values=)`), past that on the host in float64 (P diag(w G_j) Pᵀ
+   per lobe, `asg_moments`).
 3. **f̄** (`ASGBRDF.eval`, float64): diffuse Σ_j μ_j kd/π ∫G_j; specular M(ωi, ωo)·Σ_j μ_j (G_j ⊛ SG_s)(h) with
    the small-scale BRDF's SG (`sg.specular_lobe`) and Xu's Eq. 18 (`asg.convolve_sg`): its bandwidths and
    amplitude, with a shape that is exact for a delta NDF lobe too (`convolve_sg_at`; method "asg-eq18" is
    Eq. 18's own shape).
 
-Everything after the SG EM is host numpy (float64); no kernel does the ASG fit or moments yet. The SG
+The ASG fit (EM) is host numpy (float64); the moments and the solve run in the SG bake's kernels. The SG
 renderer shades an `ASGBRDF` in its kernels (`shade_lobes`, `diffuse`; docs/design.md §9 "ASG rendering"),
 the lit-sphere renderer evaluates it on the host (`host_texels`), the Monte Carlo reference samples it by
 isotropic stand-ins of its lobes (`sampling_lobes`) and evaluates its exact ground truth; the Mitsuba export
@@ -342,21 +344,31 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
     prog.stage(f"amplitudes ({len(alpha)} ASG lobes, {len(q.channels)} channel(s))", 1)
     t0 = time.perf_counter()
     rows, integrals, _, cond = amplitude_system(asgs, alpha, normal, em_w)
-    grid = q.grid
-    vis = q.vis.as_bool()
-    proj = vis * np.maximum(grid @ normal.T, 0.0)  # (D, Ns)
     values = _values(asgs, normal)
-    a_v = np.asarray(q.a_v.host(), np.float64)
-    nd = len(grid)
+    nd = len(q.grid)
     pi, po = dirs.all_pairs(nd)
-    amps = np.zeros((tile.n_materials, nd * nd, len(alpha), 3))
-    for m, mult, w in q.channels:
-        mom = asg_moments(proj, values, area if w is None else np.asarray(w, np.float64), q.iu, q.ou)
-        mu = lobes_mod.solve_amplitudes(mom, a_v, pi, po, nd, rows, integrals)
-        amps[m] += np.asarray(mu, np.float64)[..., None] * mult
+    if len(alpha) <= lobes_mod.KERNEL_LOBES:
+        # The SG bake's moment, solve and table kernels, with the ASGs' values at the facets in place of the SG
+        # lobes' (uploaded: (Ns, J) floats): exact facet sums, float32, as the SG route.
+        solved = [(m, mult, be.solve_amplitudes(
+            be.lobe_moments(q.fac, q.vis, w, None, None, q.iu, q.ou, to_host=False, lobe_values=values),
+            q.a_v, rows, integrals, pi, po, nd, to_host=False)) for m, mult, w in q.channels]
+        amps = np.zeros((tile.n_materials, nd * nd, len(alpha), 3), np.float32)
+        for m in range(tile.n_materials):
+            mine = [(mu, mult) for mm, mult, mu in solved if mm == m]
+            if mine:
+                amps[m] = be.amplitude_tables(mine, integrals, nd * nd)[0]
+    else:  # past the kernels' lobes: float64 on the host (P diag(w G_j) Pᵀ per lobe)
+        proj = q.vis.as_bool() * np.maximum(q.grid @ normal.T, 0.0)  # (D, Ns)
+        a_v = np.asarray(q.a_v.host(), np.float64)
+        amps = np.zeros((tile.n_materials, nd * nd, len(alpha), 3))
+        for m, mult, w in q.channels:
+            mom = asg_moments(proj, values, area if w is None else np.asarray(w, np.float64), q.iu, q.ou)
+            mu = lobes_mod.solve_amplitudes(mom, a_v, pi, po, nd, rows, integrals)
+            amps[m] += np.asarray(mu, np.float64)[..., None] * mult
     if not np.isfinite(amps).all():
         raise FloatingPointError("the ASG amplitude solve gave non-finite values")
-    bv.a_v = a_v
+    bv.a_v = np.asarray(q.a_v.host(), np.float64)
     timer.timings["amplitudes"] = time.perf_counter() - t0
     info = {"facets": count, "seed": seed, "normal_res": r, "route": "facets", "lobes": int(len(alpha)),
             "lobes_requested": j_req, "ndf_error": ndf_err, "ndf_probe_sharpness": probe,

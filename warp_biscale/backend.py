@@ -92,12 +92,14 @@ class Backend(Protocol):
 
     def lobe_moments(self, facets: Facets, vis: Visibility, weight: np.ndarray | None, axes: np.ndarray | DeviceLobes,
                      sharpness: np.ndarray | None, pair_i: np.ndarray, pair_o: np.ndarray,
-                     to_host: bool = True):
+                     to_host: bool = True, lobe_values: np.ndarray | None = None):
         """(P, J + 1) float32 facet sums of docs/design.md §5 for the unordered pairs (reference.lobe_moments),
         each facet weighing `weight` (Ns,), or its area ΔA when `weight` is None (a tile of one material
         and one colour: nothing uploaded); with to_host=False a device array for solve_amplitudes (no
         round trip through the host). `axes` may be the DeviceLobes of this backend's last ndf_em
-        (`sharpness` None): its J lobes, dead ones included, as the device holds them (float32)."""
+        (`sharpness` None): its J lobes, dead ones included, as the device holds them (float32). With
+        `lobe_values` (Ns, J), the facets' values of other lobes (the ASG bake's ASGs) stand for the SG lobes'
+        (axes and sharpness unused)."""
 
     def solve_amplitudes(self, moments, a_v, rows, integrals, pair_i, pair_o, n_dirs: int, to_host: bool = True):
         """(P, J) float32 μ ≥ 0 for the ordered pairs (reference.solve_amplitudes); `moments` a host

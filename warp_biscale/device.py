@@ -198,6 +198,15 @@ def equal_areas(count: int, value: float) -> np.ndarray:
     return area
 
 
+def padded_lobe_values(values, width: int) -> np.ndarray:
+    """(Ns, width) float32 of (Ns, J) lobe values G_j(n_s), zero past J: the table the moment kernels read
+    (`lobe_moments(..., lobe_values=)`)."""
+    values = np.asarray(values, np.float32)
+    out = np.zeros((len(values), int(width)), np.float32)
+    out[:, :values.shape[1]] = values
+    return out
+
+
 def once(f):
     """`f` as a function that runs it on its first call only."""
     pending = [f]

@@ -38,7 +38,7 @@ import numpy as np
 from . import cl as cl_sources
 from . import sg
 from .device import (KINDS, DeviceBackend, PROBE_VALUES, SCRATCH_BYTES, DeviceStart, UploadCache,
-                     check_kernel_lobes, chunking, one_line,
+                     check_kernel_lobes, chunking, one_line, padded_lobe_values,
                      probe_mismatch, start_scale)
 from .bvh import build_bvh
 from .environment import SUPPORT, equirect_tables
@@ -600,14 +600,18 @@ class OpenCLBackend(DeviceBackend):
                          np.int32(j), np.int32(stride), np.int32(n), values)
         return values
 
-    def lobe_moments(self, facets, vis, weight, axes, sharpness, pair_i, pair_o, to_host=True):
+    def lobe_moments(self, facets, vis, weight, axes, sharpness, pair_i, pair_o, to_host=True, lobe_values=None):
         f = self._facets(facets)
         v = self._vis(vis)
-        n, j, n_pairs = len(facets), len(axes), len(pair_i)  # (len of a DeviceLobes: its count)
+        n, n_pairs = len(facets), len(pair_i)
+        j = len(axes) if lobe_values is None else lobe_values.shape[1]  # (len of a DeviceLobes: its count)
         check_kernel_lobes(j)  # (private per-lobe arrays of cl/amplitudes.cl)
         if n_pairs == 0:
             return np.zeros((0, j + 1), np.float32)
-        values = self._lobe_values(f["normal"], n, axes, sharpness)
+        if lobe_values is None:
+            values = self._lobe_values(f["normal"], n, axes, sharpness)
+        else:
+            values = self._buffer(padded_lobe_values(lobe_values, -(-j // 8) * 8), np.float32)
         runs = f.get("area_runs") if weight is None else None  # the area's runs depend on the facets alone
         weight = f["area"] if weight is None else self._buffer(np.asarray(weight, np.float32), np.float32)
         n_words = vis.words

@@ -19,7 +19,7 @@ import numpy as np
 import warp as wp
 
 from .device import (KINDS, DeviceBackend, PROBE_VALUES, SCRATCH_BYTES, DeviceStart, UploadCache,
-                     check_kernel_lobes, chunking, one_line,
+                     check_kernel_lobes, chunking, one_line, padded_lobe_values,
                      probe_mismatch, start_scale)
 from .kernels import amplitudes as kamplitudes
 from .kernels import asg as kasg
@@ -444,17 +444,23 @@ class WarpBackend(DeviceBackend):
         self._step_em(prog, iterations, lambda: bool(prog["state"].numpy()[0]), meanwhile)
         return prog
 
-    def lobe_moments(self, facets, vis, weight, axes, sharpness, pair_i, pair_o, to_host=True):
+    def lobe_moments(self, facets, vis, weight, axes, sharpness, pair_i, pair_o, to_host=True, lobe_values=None):
 
         f = self._facets(facets)
         v = self._vis(vis)
         dev = self._device
-        j, axes_arr, sharpness_arr = self._lobes_on_device(axes, sharpness)
         n, n_pairs = len(facets), len(pair_i)
+        if lobe_values is None:
+            j, axes_arr, sharpness_arr = self._lobes_on_device(axes, sharpness)
+        else:
+            j = lobe_values.shape[1]
         check_kernel_lobes(j)
-        vec, lobe_values, lobe_moments_partial = kamplitudes.facet_kernels(j)
-        values = self._scratch("lobe_values", n, vec)
-        self._launch(lobe_values, n, [f["normal"], axes_arr, sharpness_arr], [values])
+        vec, lobe_values_kernel, lobe_moments_partial = kamplitudes.facet_kernels(j)
+        if lobe_values is None:
+            values = self._scratch("lobe_values", n, vec)
+            self._launch(lobe_values_kernel, n, [f["normal"], axes_arr, sharpness_arr], [values])
+        else:
+            values = wp.array(padded_lobe_values(lobe_values, vec._length_), dtype=vec, device=dev)
         runs = f.get("area_runs") if weight is None else None  # the area's runs depend on the facets alone
         weight = f["area"] if weight is None else self._array(np.asarray(weight, np.float32), wp.float32)
         if runs is None:
