@@ -4,8 +4,11 @@ method="asg", lobes=J)` → `ASGBRDF`.
 What it does, stage by stage (the geometry stages are the SG bake's own, `bake._sample_facets` …
 `bake._fit_ndf`: facets, visibility, the visible weights, the SG EM on the device):
 
-1. **The fit** (`fit_asg`, host float64): J anisotropic spherical Gaussians fitted to the facet normals,
-   each facet weighing its visible weight (as the SG EM: the NDF as the direction grid sees it). The start
+1. **The fit** (`fit_asg`, host float64): J anisotropic spherical Gaussians fitted to the NDF's non-empty
+   normal bins (the cube map of `normal_res`, each bin at its facets' area-weighted mean normal, weighing their
+   visible weights summed: the NDF as the direction grid sees it, as the SG EM fits it; a bin's own spread,
+   under a degree at R = 128, is what binning loses, and the facets would cost the fit their number per
+   step: docs/design.md §9 has the comparison). The start
    is deterministic: the SG EM's lobes as isotropic ASGs (Xu's ν = η/2, `asg.from_sg`). Then EM steps on
    the mixture of normalised ASGs p_j(n) = G_j(n)/∫G_j: E-step responsibilities; M-step axis z = the
    responsibility-weighted mean normal, and in the tangent plane of z the weighted second moments of the
@@ -329,7 +332,7 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
                                                                 "histogram", tolerance, None, timer, prog)
         prog.stage(f"ASG fit ({len(lob)} lobes)", 1)
         t0 = time.perf_counter()
-        fitted = fit_asg(normal, em_w, lob, EM_ITERATIONS)
+        fitted = fit_asg(seen_normal, seen_weight, lob, EM_ITERATIONS)
         timer.timings["asg_fit"] = timer.timings.get("asg_fit", 0.0) + time.perf_counter() - t0
         if j_req != "auto":
             break
