@@ -235,10 +235,11 @@ def gram(asgs: asg_mod.ASG):
     return 0.5 * (a + a.T)
 
 
-def amplitude_system(asgs: asg_mod.ASG, alpha, normal=None, weight=None):
+def amplitude_system(asgs: asg_mod.ASG, alpha, normal=None, weight=None, values=None):
     """→ (solve rows (J, J), integrals (J,), gram (J, J), condition number): `lobes.amplitude_system` for ASGs.
     With the fitted NDF (normals, weights) each row is calibrated so that the NDF's own least-squares
-    amplitudes are the fitted ones, total·α_j/∫G_j."""
+    amplitudes are the fitted ones, total·α_j/∫G_j (`values`: the lobes' values at the normals, `_values`,
+    if the caller has them)."""
     a = gram(asgs)
     integrals = asg_mod.unit_integral(asgs.lam, asgs.mu)
     d = np.sqrt(np.maximum(np.diag(a), 1e-300))
@@ -246,7 +247,7 @@ def amplitude_system(asgs: asg_mod.ASG, alpha, normal=None, weight=None):
     inv = np.linalg.inv(unit) / np.outer(d, d)
     if normal is not None:
         w = np.asarray(weight, np.float64)
-        lsq = inv @ (_values(asgs, normal).T @ w)
+        lsq = inv @ ((_values(asgs, normal) if values is None else values).T @ w)
         target = w.sum() * np.asarray(alpha, np.float64) / integrals
         scale = np.where(lsq > 1e-12 * target.max(), target / np.where(lsq > 0, lsq, 1.0), 1.0)
         inv = inv * scale[:, None]
@@ -346,8 +347,8 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
     asgs, alpha, steps = fitted
     prog.stage(f"amplitudes ({len(alpha)} ASG lobes, {len(q.channels)} channel(s))", 1)
     t0 = time.perf_counter()
-    rows, integrals, _, cond = amplitude_system(asgs, alpha, normal, em_w)
     values = _values(asgs, normal)
+    rows, integrals, _, cond = amplitude_system(asgs, alpha, normal, em_w, values)
     nd = len(q.grid)
     pi, po = dirs.all_pairs(nd)
     if len(alpha) <= lobes_mod.KERNEL_LOBES:
