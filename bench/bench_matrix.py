@@ -8,11 +8,11 @@ Parts (records go to --out/results.json; table.md and matrix.png follow):
   size in float64 (as Wu's "size of M"), the factors' bytes (his "final size"), the rank kept for 98 % of the
   power, and the time per step (search, colour direction, M, SVD).
 - ``families``: per tile family, Cook–Torrance m = 0.2: a ground truth (`--gt-facets`), then per backend the
-  SG bake (J = 8), the ASG bake (J = 8; its fit and moments on the host) and the matrix bake (M's factors already precomputed: cached, as after one `precompute`)
-  timed whole (median over `--runs`, a new facet seed each run so that the geometry is made again), their
-  PSNR against the truth (Wu Table 4's metric, `wb.compare`), their memory (SG and ASG: the amplitude table of
-  the material; matrix: N's factors and M's factors), and a material-only edit (`with_materials`, the new
-  material's factors cached: Eq. 12 alone for the matrix method).
+  SG bake (J = 8), the ASG bake (J = 8; its fit on the host) and the matrix bake (M's factors already
+  precomputed: cached, as after one `precompute`) timed whole (median over `--runs`, a new facet seed each run
+  so that the geometry is made again), their PSNR against the truth (Wu Table 4's metric, `wb.compare`), their
+  memory (SG and ASG: the amplitude table of the material; matrix: N's factors and M's factors), and a
+  material-only edit (`with_materials`, the new material's factors cached: Eq. 12 alone for the matrix method).
 
     python -m bench.bench_matrix --quick --out bench/results/matrix-cpu-2core          # a CPU
     python -m bench.bench_matrix --backends warp:cuda opencl:nvidia --out $OUT           # a GPU
@@ -147,7 +147,8 @@ def table(records, meta):
         lines += ["", f"Cook–Torrance m = 0.2, K = {r0['K']}, {r0['facets']} facets, against a {r0['gt_facets']}-facet "
                   "ground truth (PSNR of the cosine-weighted f̄ over every pair, Wu Table 4's metric; his: 17.4–22.7 "
                   "dB). Bake: median of whole bakes, a new facet seed each (the matrix bake with M's factors "
-                  "precomputed; ASG: J = 8 ASG lobes, fitted on the host); memory: SG and ASG the material's amplitude table, matrix N's + M's factors; edit: "
+                  "precomputed; ASG: J = 8 ASG lobes, fitted on the host); memory: SG and ASG the material's "
+                  "amplitude table, matrix N's + M's factors; edit: "
                   "`with_materials` to Ward α = 0.3 (factors cached)", ""]
         rows = []
         for tile in dict.fromkeys(r["tile"] for r in fam):

@@ -182,10 +182,10 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
         then 24, 32, 48, 64, 96, 128) whose NDF fit error (`lobes.ndf_error`, seen at the sharpest
         small-scale lobe, on the NDF weighted by what the direction grid sees, as the lobes are fitted)
         is ≤ `tolerance`, else the J of the least error (one EM per J tried); for method="asg" the same
-        with the ASG mixture's error (`asg_bake.ndf_error`), one SG EM and ASG fit per J tried. Past 16 lobes the moment kernels
-        run once per group of 16 and the amplitudes are solved on the host (float64), so the bake costs
-        up to about J/16 times the J = 16 bake; a tile whose NDF has sharp curved ridges (woven threads)
-        needs ~128 lobes for 35 dB (bench/README.md).
+        with the ASG mixture's error (`asg_bake.ndf_error`), one SG EM and ASG fit per J tried. Past 16
+        lobes the moment kernels run once per group of 16 and the amplitudes are solved on the host
+        (float64), so the bake costs up to about J/16 times the J = 16 bake; a tile whose NDF has sharp
+        curved ridges (woven threads) needs ~128 lobes for 35 dB (bench/README.md).
     directions : K, the K×K direction grid (docs/design.md §4); tables are K²×K².
     normal_res : R, the cube map of normal bins (6×R×R).
     facets : Ns; seed : facet-sampling seed.

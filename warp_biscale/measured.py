@@ -33,9 +33,9 @@ per table (17.5 MB) and keeps by identity. The packed row (`brdf.pack_materials(
 `brdf.MEASURED`) holds the table's slot among the call's tables (`brdf.measured_tables`) and the
 interpolation. Measured (tests/test_measured_kernels.py): within 3.1e-5 of the peak of `eval` (trilinear;
 1e-6 nearest). The SG and ASG bakes and the SG renderer use the table's SG fit instead (`sg_fit`, `fit_sg`:
-one microfacet lobe whose NDF is an SG, Wang §4.1–4.2; `brdf.sg_form`; its sums in the `sgfit` kernels). The lit-sphere texel kernels (lit
-spheres read the table on the host instead) and the Mitsuba export refuse one in one line (`packed`). The
-Monte Carlo reference (`montecarlo.render`) calls `eval` on the host, in float64.
+one microfacet lobe whose NDF is an SG, Wang §4.1–4.2; `brdf.sg_form`; its sums in the `sgfit` kernels). The
+lit-sphere texel kernels (lit spheres read the table on the host instead) and the Mitsuba export refuse one in
+one line (`packed`). The Monte Carlo reference (`montecarlo.render`) calls `eval` on the host, in float64.
 """
 
 from __future__ import annotations
@@ -545,7 +545,8 @@ def fit_samples(table):
 def fit_sums(basis, target, weight, candidates, coef=None) -> np.ndarray:
     """The float64 reference of the `sgfit` kernels (kernels/sgfit.py): for candidates (C, 2) [η, f0], the (C, 9)
     normal-equation sums [Σwd², Σwdb, Σwb², Σwd·t (3), Σwb·t (3)], or with coef (C, 6) [kd RGB, ks RGB] the (C,)
-    weighted squared residuals Σ w Σ_c (t_c − kd_c d − ks_c b)², b = (f0 + (1 − f0)(1 − h·ωi)^5)(G/π)e^{−η(1 − cos θh)}."""
+    weighted squared residuals Σ w Σ_c (t_c − kd_c d − ks_c b)², with
+    b = (f0 + (1 − f0)(1 − h·ωi)^5)(G/π)e^{−η(1 − cos θh)}."""
     basis, target, weight = (np.asarray(x, np.float64) for x in (basis, target, weight))
     cand = np.asarray(candidates, np.float64).reshape(-1, 2)
     out = []
