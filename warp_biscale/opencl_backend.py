@@ -183,6 +183,7 @@ def build_options(device) -> list[str]:
 # bound by its arithmetic, whose float32 results are read against a float64 oracle with tolerances far
 # above fast math's ~1e-5 relative error. (It assumes finite values: their output guard tests bits.)
 FAST_MATH = {"litsphere", "shade"}
+QUEUED_UPLOAD_BYTES = 1 << 20  # shade inputs this large are copied to a GPU without blocking (_shade_buffer)
 
 
 def stage_options(options: list[str], stem: str) -> list[str]:
@@ -292,6 +293,7 @@ class OpenCLBackend(DeviceBackend):
         self._uploads = UploadCache()
         self._held_visible_area = None  # (host, device) of the last visible_area
         self._scratch_buffers = {}  # role → device buffer, see _scratch
+        self._queued_uploads = {}  # role → the event of its last queued upload, see _shade_buffer
         self._em_programs = {}  # (Ns, J, steps, weighted) → an EM's buffers and launches: see _em_program
         self._em_buffers = {}
 
@@ -351,6 +353,18 @@ class OpenCLBackend(DeviceBackend):
         if host.size == 0:
             host = np.zeros(1, dtype)
         return cl.Buffer(self._ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=host)
+
+    def _shade_buffer(self, role, array, dtype):
+        """A read-only device copy of shade input `role`: on a GPU, for a large array, a buffer whose copy is
+        queued without blocking (faster than a COPY_HOST_PTR buffer on NVIDIA's OpenCL: bench/README.md), its
+        event kept until the role's next upload, so that the host array the event holds stays alive until
+        copied; else `_buffer`'s."""
+        host = np.ascontiguousarray(array, dtype=dtype)
+        if not self.is_gpu or host.nbytes < QUEUED_UPLOAD_BYTES:
+            return self._buffer(host, dtype)
+        buf = self._cl.Buffer(self._ctx, self._cl.mem_flags.READ_ONLY, size=host.nbytes)
+        self._queued_uploads[role] = self._cl.enqueue_copy(self._queue, buf, host, is_blocking=False)
+        return buf
 
     def _empty(self, n_items, dtype):
         return self._cl.Buffer(self._ctx, self._cl.mem_flags.READ_WRITE,
@@ -747,7 +761,7 @@ class OpenCLBackend(DeviceBackend):
 
         def buf(key, dtype, host=None):
             return self._shade_input(key, getattr(static, key) if host is None else host,
-                                     lambda a: self._buffer(a, dtype))
+                                     lambda a: self._shade_buffer(key, a, dtype))
 
         return {
             **{key: buf(key, np.int32) for key in ("faces", "face_material", "mat_info", "eff_info", "tex_info")},
