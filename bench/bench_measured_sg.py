@@ -91,10 +91,12 @@ def bakes(out, named, backends, lobes, k, facets, truth_facets):
 
 
 def table_md(records, meta) -> str:
+    bakes_run = any(r["kind"] == "bake" for r in records)
     lines = [common.commit_line(meta), "",
-             f"SG fits of tabulated BRDFs (one fit each), then SG bakes (J = {meta['J']}, K = {meta['K']}, "
-             f"{meta['facets']} facets, the bake's own time after a warm-up bake of another seed) judged against "
-             f"the table's ground truth and the fitted BRDF's ({meta['truth_facets']} facets).", ""]
+             "SG fits of tabulated BRDFs (one fit each, its sums on the host in float64 or in a backend's kernels)"
+             + (f", then SG bakes (J = {meta['J']}, K = {meta['K']}, {meta['facets']} facets, the bake's own time "
+                f"after a warm-up bake of another seed) judged against the table's ground truth and the fitted "
+                f"BRDF's ({meta['truth_facets']} facets)." if bakes_run else "."), ""]
     fit_rows = [[r["table"], r.get("where", "host"), f"{r['seconds']:.2f}", f"{r['error']:.3g}",
                  f"{r['roughness']:.4g}", f"{r['f0']:.3g}", "/".join(f"{x:.3g}" for x in r["kd"]),
                  "/".join(f"{x:.3g}" for x in r["ks"])] for r in records if r["kind"] == "fit"]
@@ -102,8 +104,9 @@ def table_md(records, meta) -> str:
                                    fit_rows) + [""]
     bake_rows = [[r["backend"], r["tile"], r["table"], f"{r['bake_s'] * 1e3:.1f}", f"{r['psnr_table_db']:.1f}",
                   f"{r['psnr_fit_db']:.1f}"] for r in records if r["kind"] == "bake"]
-    lines += common.markdown_table(["backend", "tile", "table", "bake (ms)", "PSNR vs table truth (dB)",
-                                    "PSNR vs fit truth (dB)"], bake_rows)
+    if bake_rows:
+        lines += common.markdown_table(["backend", "tile", "table", "bake (ms)", "PSNR vs table truth (dB)",
+                                        "PSNR vs fit truth (dB)"], bake_rows)
     return "\n".join(lines) + "\n"
 
 
