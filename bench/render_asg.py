@@ -25,8 +25,9 @@ def main(backends):
             scene.materials[0] = wb.bake(tile, brdf, method=method, lobes=8, directions=12, facets=2**14, backend=be)
             for shadows in (1, 16):
                 per_frame, _, _, _ = time_frames(scene, be, frames=10, runs=5, shadow_samples=shadows)
-                print(json.dumps({"backend": be.name, "device": be.device, "material": method, "shadow_samples": shadows,
-                                  "frame_ms": 1e3 * per_frame, "fps": 1.0 / per_frame}), flush=True)
+                print(json.dumps({"backend": be.name, "device": be.device, "material": method,
+                                  "shadow_samples": shadows, "frame_ms": 1e3 * per_frame, "fps": 1.0 / per_frame}),
+                      flush=True)
 
 
 if __name__ == "__main__":
