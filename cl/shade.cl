@@ -622,27 +622,21 @@ __kernel void shade_pixels(
     float ow[4] = {0.0f, 0.0f, 0.0f, 0.0f};
     float3 kd = (float3)(0.0f, 0.0f, 0.0f);
     __global const int *ei = eff_info + 8 * idx;
-    /* An analytic material's row, read once into per-pixel values: a textured one (slot >= 0) scales
-     * kd, ks and p1 by its maps at the pixel's UV, and everything below uses these values only. */
-    int a_kind = 0;
-    float3 a_ks = (float3)(0.0f, 0.0f, 0.0f);
-    float a_p1 = 0.0f;
-    float a_p2 = 0.0f;
+    /* An analytic material's rows (one per SG lobe of its SG form; the first carries kd): a textured one
+     * (slot >= 0) scales kd, ks and p1 by its maps at the pixel's UV, read once here into per-pixel factors. */
+    float3 t_ks = (float3)(1.0f, 1.0f, 1.0f);
+    float t_p1 = 1.0f;
     if (kind == 0) {
         __global const float *row = analytic + 9 * idx;
-        a_kind = (int)row[0];
         float3 a_kd = (float3)(row[1], row[2], row[3]);
-        a_ks = (float3)(row[4], row[5], row[6]);
-        a_p1 = row[7];
-        a_p2 = row[8];
         int slot = mat_info[4 * mat + 3];
         if (slot >= 0) {
             float2 uv = s.w0 * (float2)(uvs[2 * s.i0], uvs[2 * s.i0 + 1])
                         + s.w1 * (float2)(uvs[2 * s.i1], uvs[2 * s.i1 + 1])
                         + s.w2 * (float2)(uvs[2 * s.i2], uvs[2 * s.i2 + 1]);
             a_kd = a_kd * texture_bilinear(tex_info, tex_data, slot, uv);
-            a_ks = a_ks * texture_bilinear(tex_info, tex_data, slot + 1, uv);
-            a_p1 = a_p1 * texture_bilinear(tex_info, tex_data, slot + 2, uv).x;
+            t_ks = texture_bilinear(tex_info, tex_data, slot + 1, uv);
+            t_p1 = texture_bilinear(tex_info, tex_data, slot + 2, uv).x;
         }
         kd = a_kd / SHADE_PI;
     } else {
@@ -685,7 +679,7 @@ __kernel void shade_pixels(
     /* Specular: each warped lobe against the prefiltered environment and each light. */
     if (has_spec != 0) {
         int n_sub = 1;
-        int n_lobes = 1;
+        int n_lobes = has_spec;  /* an analytic material's lobe rows */
         if (kind != 0) {
             n_sub = ei[2];
             n_lobes = j_count;
@@ -697,7 +691,11 @@ __kernel void shade_pixels(
                 float3 amp;
                 int with_lights = 1;
                 if (kind == 0) {
-                    amp = specular_scale(a_kind, a_ks, a_p1, a_p2, cos_o);
+                    __global const float *row = analytic + 9 * (idx + j);
+                    int a_kind = (int)row[0];
+                    float3 a_ks = (float3)(row[4], row[5], row[6]) * t_ks;
+                    float a_p1 = row[7] * t_p1;
+                    amp = specular_scale(a_kind, a_ks, a_p1, row[8], cos_o);
                     axis = normalize3(2.0f * cos_o * s.n - wo);
                     eta = ndf_sharpness(a_kind, a_p1) / (4.0f * cos_o);
                 } else {

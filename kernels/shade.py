@@ -649,24 +649,18 @@ def shade_pixels(
     oo = vec4i(0, 0, 0, 0)
     ow = wp.vec4(0.0)
     kd = wp.vec3(0.0)
-    # An analytic material's row, read once into per-pixel values: a textured one (slot >= 0) scales
-    # kd, ks and p1 by its maps at the pixel's UV, and everything below uses these values only.
-    a_kind = int(0)
-    a_ks = wp.vec3(0.0)
-    a_p1 = float(0.0)
-    a_p2 = float(0.0)
+    # An analytic material's rows (one per SG lobe of its SG form; the first carries kd): a textured one
+    # (slot >= 0) scales kd, ks and p1 by its maps at the pixel's UV, read once here into per-pixel factors.
+    t_ks = wp.vec3(1.0)
+    t_p1 = float(1.0)
     if kind == 0:
-        a_kind = int(analytic[idx, 0])
         a_kd = wp.vec3(analytic[idx, 1], analytic[idx, 2], analytic[idx, 3])
-        a_ks = wp.vec3(analytic[idx, 4], analytic[idx, 5], analytic[idx, 6])
-        a_p1 = analytic[idx, 7]
-        a_p2 = analytic[idx, 8]
         slot = i32_at2(mat_info, mat, 3)
         if slot >= 0:
             uv = s.w0 * uvs[s.i0] + s.w1 * uvs[s.i1] + s.w2 * uvs[s.i2]
             a_kd = wp.cw_mul(a_kd, texture_bilinear(tex_info, tex_data, slot, uv))
-            a_ks = wp.cw_mul(a_ks, texture_bilinear(tex_info, tex_data, slot + 1, uv))
-            a_p1 = a_p1 * texture_bilinear(tex_info, tex_data, slot + 2, uv)[0]
+            t_ks = texture_bilinear(tex_info, tex_data, slot + 1, uv)
+            t_p1 = texture_bilinear(tex_info, tex_data, slot + 2, uv)[0]
         kd = a_kd / PI
     else:
         k = i32_at2(eff_info, idx, 0)
@@ -707,7 +701,7 @@ def shade_pixels(
     # Specular: each warped lobe against the prefiltered environment and each light.
     if has_spec != 0:
         n_sub = 1
-        n_lobes = 1
+        n_lobes = has_spec  # an analytic material's lobe rows
         if kind != 0:
             n_sub = i32_at2(eff_info, idx, 2)
             n_lobes = j_count
@@ -718,7 +712,11 @@ def shade_pixels(
                 amp = wp.vec3(0.0)
                 with_lights = int(1)
                 if kind == 0:
-                    amp = specular_scale(a_kind, a_ks, a_p1, a_p2, cos_o)
+                    row = idx + j
+                    a_kind = int(analytic[row, 0])
+                    a_ks = wp.cw_mul(wp.vec3(analytic[row, 4], analytic[row, 5], analytic[row, 6]), t_ks)
+                    a_p1 = analytic[row, 7] * t_p1
+                    amp = specular_scale(a_kind, a_ks, a_p1, analytic[row, 8], cos_o)
                     axis = wp.normalize(2.0 * cos_o * s.n - wo)
                     eta = ndf_sharpness(a_kind, a_p1) / (4.0 * cos_o)
                 else:

@@ -505,14 +505,14 @@ class ASGBRDF(HostOnlyBRDF):
         for m, mat in enumerate(self.materials):
             kd = diffuse_albedo(mat) / np.pi
             out += np.einsum("njc,j->nc", mu[m], self.integrals) * kd
-            eta_s, scale, h = sg.specular_lobe(mat, wi, wo)
-            if eta_s is None or not scale.any():
-                continue
-            if literal:
-                s = asg_mod.evaluate(asg_mod.convolve_sg(self.asgs, eta_s), h[:, None, :])  # (N, J)
-            else:
-                s = asg_mod.convolve_sg_at(self.asgs, eta_s, h)
-            out += scale * np.einsum("njc,nj->nc", mu[m], s)
+            for eta_s, scale, h in sg.specular_lobes(mat, wi, wo):
+                if eta_s is None or not scale.any():
+                    continue
+                if literal:
+                    s = asg_mod.evaluate(asg_mod.convolve_sg(self.asgs, eta_s), h[:, None, :])  # (N, J)
+                else:
+                    s = asg_mod.convolve_sg_at(self.asgs, eta_s, h)
+                out += scale * np.einsum("njc,nj->nc", mu[m], s)
         out[(wi[:, 2] <= 0) | (wo[:, 2] <= 0)] = 0.0
         return np.maximum(out, 0.0)
 

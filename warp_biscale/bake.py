@@ -117,7 +117,7 @@ def _fit_lobes(be, fac, facet_weight, bin_normal, bin_weight, count, tolerance, 
 def probe_sharpness(mats) -> float:
     """The sharpest small-scale lobe's SG sharpness (64 with no specular lobe): what lobes="auto" fits the NDF
     for (`lobes.ndf_error`)."""
-    spec = [sg.specular_lobe(m, [[0, 0, 1.0]], [[0, 0, 1.0]])[0] for m in mats]
+    spec = [lobe[0] for m in mats for lobe in sg.specular_lobes(m, [[0, 0, 1.0]], [[0, 0, 1.0]])]
     return max([s for s in spec if s is not None], default=64.0)
 
 
@@ -210,7 +210,7 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
                                   "isotropic SG, so none can hold it yet (issue 20: ASG x ASG); wb.ground_truth "
                                   "evaluates it exactly")
     # A measured BRDF: the matrix method's M looks its table up; the SG and ASG bakes convolve with its SG
-    # fit (`brdf.sg_form`), fitted here so that its time and error are the bake's (`_fit_measured`).
+    # fit (`brdf.sg_lobes`), fitted here so that its time and error are the bake's (`_fit_measured`).
     mats, _, _ = _prepare(tile, materials, measured=True)
     if method == "matrix":
         return _bake_matrix(tile, mats, directions, normal_res, facets, backend, seed, bvndf, progress, matrix)
@@ -281,12 +281,11 @@ def _fit_measured(mats, backend) -> tuple[dict, float]:
 
 def _record_fits(mat, fitted: tuple[dict, float]):
     """The bake's result with its measured materials' SG fits in `info["sg_fit"]` (per material index: the
-    fit's relative L2 error and its parameters) and the time the bake spent fitting in `timings["sg_fit"]`."""
+    fit's relative L2 error and its lobes' parameters, `SGFit.to_dict`) and the time the bake spent fitting in
+    `timings["sg_fit"]`."""
     fits, seconds = fitted
     if fits:
-        mat.info["sg_fit"] = {str(i): {"error": f.error, "roughness": f.brdf.roughness, "f0": f.brdf.f0,
-                                       "kd": list(f.brdf.kd), "ks": list(f.brdf.ks), "backend": f.backend}
-                              for i, f in fits.items()}
+        mat.info["sg_fit"] = {str(i): f.to_dict() for i, f in fits.items()}
         mat.timings["sg_fit"] = seconds
     return mat
 

@@ -33,7 +33,7 @@ import numpy as np
 
 __all__ = ["Lambert", "BlinnPhong", "CookTorrance", "Ward", "AnisotropicWard", "AshikhminShirley", "Brdf",
            "pack_materials", "measured_tables", "as_material_list", "refuse_anisotropic", "tangent_frame", "parse_brdf",
-           "EnergyWarning", "NORMALIZATIONS", "sg_form", "diffuse_albedo", "blinn_phong_normal_albedo",
+           "EnergyWarning", "NORMALIZATIONS", "sg_lobes", "diffuse_albedo", "blinn_phong_normal_albedo",
            "cook_torrance_albedo"]
 
 LAMBERT, BLINN_PHONG, COOK_TORRANCE, WARD = 0, 1, 2, 3
@@ -561,18 +561,19 @@ def pack_materials(materials, n_required: int = 0, anisotropic: bool = False, me
     return kinds, params.astype(np.float64)
 
 
-def sg_form(brdf) -> Brdf:
-    """The analytic BRDF that stands for `brdf` wherever its specular lobe is an SG (the SG and ASG bakes'
-    f̄, the SG renderer's shading, the Mitsuba export): the BRDF itself, or for a measured one its SG fit
-    (`MeasuredBRDF.sg_fit`, a Cook–Torrance whose NDF is read as one SG). The ground truth, the matrix
-    method and the Monte Carlo reference evaluate the measured table itself."""
-    return brdf.sg_fit().brdf if brdf.kind == MEASURED else brdf
+def sg_lobes(brdf) -> tuple:
+    """The analytic single-lobe BRDFs whose sum stands for `brdf` wherever its specular lobe is an SG (the SG
+    and ASG bakes' f̄, the SG renderer's shading): (brdf,) itself, or for a measured one its SG fit's lobes
+    (`MeasuredBRDF.sg_fit`: one or two Cook–Torrance lobes whose NDFs are read as SGs, the first carrying the
+    fit's kd, the others kd = 0). The ground truth, the matrix method and the Monte Carlo reference evaluate
+    the measured table itself."""
+    return brdf.sg_fit().lobes if brdf.kind == MEASURED else (brdf,)
 
 
 def diffuse_albedo(brdf) -> np.ndarray:
-    """(3,) float64: the Lambertian albedo of `brdf`'s SG form (Lambert's albedo, any other model's kd)."""
-    b = sg_form(brdf)
-    return np.asarray(b.albedo if isinstance(b, Lambert) else b.kd, np.float64)
+    """(3,) float64: the Lambertian albedo of `brdf`'s SG form (Lambert's albedo, any other model's kd; a
+    measured one's fitted kd)."""
+    return sum(np.asarray(b.albedo if isinstance(b, Lambert) else b.kd, np.float64) for b in sg_lobes(brdf))
 
 
 def measured_tables(materials) -> list:

@@ -962,20 +962,21 @@ class DeviceBackend:
                 "weight": self._to_device(weight, "f32"), "n": len(basis), "context": self._context()}
 
     def sg_fit_sums(self, data: dict, candidates, coef=None) -> np.ndarray:
-        """For candidate lobes (C, 2) [η, f0] over `sg_fit_data`'s samples: without `coef`, the (C, 9) normal-
-        equation sums [Σwd², Σwdb, Σwb², Σwd·t (3), Σwb·t (3)]; with `coef` (C, 6) [kd RGB, ks RGB], the (C,)
-        weighted squared residuals (kernels/sgfit.py says what they are). float64, each the sum of float32
-        partial sums over SGFIT_CHUNK samples."""
-        cand = np.ascontiguousarray(candidates, np.float32).reshape(-1, 2)
+        """For candidates (C, 4) [η1, f0_1, η2, f0_2] (one lobe: η2 = 0) over `sg_fit_data`'s samples: without
+        `coef`, the (C, 15) normal-equation sums [Σwd², Σwdb1, Σwdb2, Σwb1², Σwb1b2, Σwb2², Σwd·t (3), Σwb1·t (3),
+        Σwb2·t (3)]; with `coef` (C, 9) [kd RGB, ks1 RGB, ks2 RGB], the (C,) weighted squared residuals
+        (kernels/sgfit.py says what they are). float64, each the sum of float32 partial sums over SGFIT_CHUNK
+        samples."""
+        cand = np.ascontiguousarray(candidates, np.float32).reshape(-1, 4)
         c, n = len(cand), int(data["n"])
         chunks = max(1, -(-n // self.SGFIT_CHUNK))
         args = (data, self._to_device(cand, "f32"), n, self.SGFIT_CHUNK, c, chunks)
         if coef is None:
-            out = self._new((c, chunks, 9), "f32")
+            out = self._new((c, chunks, 15), "f32")
             if c and n:
                 self._launch_sgfit_gram(*args, out)
-            return self._to_host(out, (c, chunks, 9), "f32").astype(np.float64).sum(1)
-        coef = np.ascontiguousarray(coef, np.float32).reshape(c, 6)
+            return self._to_host(out, (c, chunks, 15), "f32").astype(np.float64).sum(1)
+        coef = np.ascontiguousarray(coef, np.float32).reshape(c, 9)
         out = self._new((c, chunks), "f32")
         if c and n:
             self._launch_sgfit_residual(*args, self._to_device(coef, "f32"), out)

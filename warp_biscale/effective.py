@@ -4,7 +4,8 @@ f̄(ωi, ωo) = Σ_m [ kd_m/π · Σ_j μ_mj(ωi, ωo)·∫G_j                  
               + M_m(ωi, ωo) · Σ_j μ_mj(ωi, ωo)·S(h; ξ_j, η_j, η_s,m) ]                (Eq. 15 / Eq. 10)
 
 with μ_mj (RGB) the amplitudes of lobe j for material m, tabulated on the K×K × K×K direction grid,
-M_m, η_s,m the small-scale specular BRDF as an SG in the facet normal (`sg.specular_lobe`), h the
+M_m, η_s,m the small-scale specular BRDF as an SG in the facet normal (`sg.specular_lobe`; a measured BRDF's
+SG fit of two lobes is the sum of two such terms, `sg.specular_lobes`), h the
 half vector and S either the SG-convolution closure (method "sg", Iwasaki Eq. 14–15) or the exact
 SG inner product (method "sg-exact", Eq. 10). The amplitudes do not depend on the small-scale BRDFs,
 so `with_materials` edits a material without re-baking anything.
@@ -315,15 +316,15 @@ class EffectiveBRDF:
         for m, mat in enumerate(self.materials):
             kd = brdf_mod.diffuse_albedo(mat) / np.pi
             out += np.einsum("njc,j->nc", mu[m], self._integrals) * kd
-            eta_s, scale, h = sg.specular_lobe(mat, wi, wo)
-            if eta_s is None or not scale.any():
-                continue  # no specular path for a Lambertian or ks = 0 material
-            if method == "sg":
-                eta_c, amp_c = sg.convolve(eta, 1.0, eta_s, 1.0)
-                s = sg.evaluate(h[:, None, :], ax[None], eta_c[None], amp_c[None])  # (N, J)
-            else:
-                s = sg.inner_product(h[:, None, :], eta_s, 1.0, ax[None], eta[None], 1.0)
-            out += scale * np.einsum("njc,nj->nc", mu[m], s)
+            for eta_s, scale, h in sg.specular_lobes(mat, wi, wo):  # one, or a measured BRDF's fit's two
+                if eta_s is None or not scale.any():
+                    continue  # no specular path for a Lambertian or ks = 0 material
+                if method == "sg":
+                    eta_c, amp_c = sg.convolve(eta, 1.0, eta_s, 1.0)
+                    s = sg.evaluate(h[:, None, :], ax[None], eta_c[None], amp_c[None])  # (N, J)
+                else:
+                    s = sg.inner_product(h[:, None, :], eta_s, 1.0, ax[None], eta[None], 1.0)
+                out += scale * np.einsum("njc,nj->nc", mu[m], s)
         out[(wi[:, 2] <= 0) | (wo[:, 2] <= 0)] = 0.0
         return np.maximum(out, 0.0)
 

@@ -33,7 +33,7 @@ per table (17.5 MB) and keeps by identity. The packed row (`brdf.pack_materials(
 `brdf.MEASURED`) holds the table's slot among the call's tables (`brdf.measured_tables`) and the
 interpolation. Measured (tests/test_measured_kernels.py): within 3.1e-5 of the peak of `eval` (trilinear;
 1e-6 nearest). The SG and ASG bakes and the SG renderer use the table's SG fit instead (`sg_fit`, `fit_sg`:
-one microfacet lobe whose NDF is an SG, Wang §4.1–4.2; `brdf.sg_form`; its sums in the `sgfit` kernels). The
+one or two microfacet lobes whose NDFs are SGs, Wang §4.1–4.2; `brdf.sg_lobes`; its sums in the `sgfit` kernels). The
 lit-sphere texel kernels (lit spheres read the table on the host instead) and the Mitsuba export refuse one in
 one line (`packed`). The Monte Carlo reference (`montecarlo.render`) calls `eval` on the host, in float64.
 """
@@ -219,6 +219,7 @@ class MeasuredBRDF(Brdf):
         self._data = a
         self._lut = None  # the filled table, made on the first eval
         self._sg_fit = None  # the SG form, fitted on first use (`sg_fit`)
+        self._sg_fit_lobes = None  # the `lobes` it was fitted with
         self.source = source
         self.interpolation = _check_interpolation(interpolation)
 
@@ -401,7 +402,7 @@ class MeasuredBRDF(Brdf):
         interpolation, source and SG fit in the header (`from_file` reads them back; the fit is made here
         if it was not yet, so that a loaded material is not fitted again)."""
         return ({"type": "MeasuredBRDF", "table": key, "interpolation": self.interpolation, "source": self.source,
-                 "sg_fit": self.sg_fit().to_dict()}, {key: self._data})
+                 "sg_fit": self.sg_fit().to_dict(), "sg_fit_lobes": self._sg_fit_lobes}, {key: self._data})
 
     @classmethod
     def from_file(cls, head: dict, arrays: dict) -> MeasuredBRDF:
@@ -412,16 +413,21 @@ class MeasuredBRDF(Brdf):
         out = cls(arrays[key], interpolation=head.get("interpolation", "trilinear"), source=head.get("source"))
         if head.get("sg_fit") is not None:
             out._sg_fit = SGFit.from_dict(head["sg_fit"])
+            out._sg_fit_lobes = head.get("sg_fit_lobes", 1)  # a file from before two-lobe fits: fitted with one
         return out
 
-    def sg_fit(self, backend=None) -> SGFit:
-        """The SG form of this table (`fit_sg`: one microfacet lobe with an SG NDF, Wang §4.1–4.2), fitted on
-        the first call (its sums in `backend`'s kernels, or on the host in float64 without one: the bakes pass
-        theirs) and kept (a `with_interpolation` copy made after it shares it). `sg_fit().brdf` is what the SG
-        and ASG bakes and the SG renderer use for this material (`brdf.sg_form`); the ground truth, the matrix
-        method and the Monte Carlo reference use the table itself."""
-        if self._sg_fit is None:
-            self._sg_fit = fit_sg(self, backend)
+    def sg_fit(self, backend=None, lobes=None) -> SGFit:
+        """The SG form of this table (`fit_sg`: one or two microfacet lobes with SG NDFs, Wang §4.1–4.2), fitted
+        on the first call (its sums in `backend`'s kernels, or on the host in float64 without one: the bakes pass
+        theirs) and kept (a `with_interpolation` copy made after it shares it). `lobes` (1, 2, "auto"): fit
+        again with that choice, and keep that fit, unless the kept one was made with it; None (what the bakes
+        and renderers pass): the kept fit, or "auto" for the first. `sg_fit().lobes` is what the SG and ASG
+        bakes and the SG renderer use for this material (`brdf.sg_lobes`); the ground truth, the matrix method
+        and the Monte Carlo reference use the table itself."""
+        if self._sg_fit is None or (lobes is not None and lobes != self._sg_fit_lobes):
+            lobes = "auto" if lobes is None else lobes
+            self._sg_fit = fit_sg(self, backend, lobes)
+            self._sg_fit_lobes = lobes
         return self._sg_fit
 
     def kernel_row(self, slot: int) -> np.ndarray:
@@ -477,37 +483,52 @@ def paint_like(base=(0.55, 0.08, 0.05), sheen=(0.12, 0.05, 0.04), coat=0.06, *, 
 FIT_STEP_TD, FIT_STEP_PD = 2, 4
 FIT_ROUGHNESS = np.geomspace(0.005, 2.0, 24)  # the start's grid of m (SG sharpness η = 2/m², 0.5 to 8e4)
 FIT_F0 = (0.02, 0.1, 0.5, 1.0)  # the start's grid of Schlick's f0
+TWO_LOBE_GAIN = 0.75  # lobes="auto" keeps a second lobe that brings the relative error to this share or less
 
 
 class SGFit:
-    """A measured BRDF's SG form (`MeasuredBRDF.sg_fit`): `brdf`, a `CookTorrance` (kd, ks RGB, m, f0) whose
-    NDF is read as the single SG lobe G(h; n, 2/m², 1) (Wang Eq. 12) — the form the SG and ASG bakes and the
-    SG renderer convolve; `error`, the relative L2 error of the fitted model's cosine-weighted values
-    f·cosθi·cosθo against the table's over all direction pairs (the four-dimensional integral, by the
-    fit's bin-centre quadrature); `seconds`, the fit's time; `backend`, where its sums ran ("host": float64)."""
+    """A measured BRDF's SG form (`MeasuredBRDF.sg_fit`): `lobes`, one or two `CookTorrance` lobes (ks RGB, m,
+    f0; the first carries the fit's kd, the others kd = 0) whose NDFs are read as SG lobes G(h; n, 2/m², 1)
+    (Wang Eq. 12) and whose sum is the form the SG and ASG bakes and the SG renderer convolve (`brdf.sg_lobes`);
+    `error`, the relative L2 error of the fitted model's cosine-weighted values f·cosθi·cosθo against the
+    table's over all direction pairs (the four-dimensional integral, by the fit's bin-centre quadrature);
+    `one_lobe_error`, that of the best one-lobe fit (the same as `error` when one lobe was kept); `seconds`, the
+    fit's time; `backend`, where its sums ran ("host": float64)."""
 
-    def __init__(self, brdf, error: float, seconds: float, samples: int, backend: str = "host"):
-        self.brdf = brdf
+    def __init__(self, lobes, error: float, seconds: float, samples: int, backend: str = "host",
+                 one_lobe_error: float | None = None):
+        self.lobes = tuple(lobes)
         self.error = float(error)
+        self.one_lobe_error = float(error if one_lobe_error is None else one_lobe_error)
         self.seconds = float(seconds)
         self.samples = int(samples)
         self.backend = str(backend)
 
+    @property
+    def brdf(self) -> CookTorrance:
+        """The fitted BRDF of a one-lobe fit (a two-lobe fit is the sum of `lobes`; this refuses it in one line)."""
+        if len(self.lobes) != 1:
+            raise ValueError(f"this SG fit has {len(self.lobes)} lobes: its BRDF is the sum of SGFit.lobes")
+        return self.lobes[0]
+
     def to_dict(self) -> dict:
         """The fit as a material file's JSON header holds it (`from_dict` reads it back)."""
-        b = self.brdf
-        return {"kd": list(b.kd), "ks": list(b.ks), "roughness": b.roughness, "f0": b.f0, "error": self.error,
-                "seconds": self.seconds, "samples": self.samples, "backend": self.backend}
+        return {"lobes": [{"kd": list(b.kd), "ks": list(b.ks), "roughness": b.roughness, "f0": b.f0}
+                          for b in self.lobes],
+                "error": self.error, "one_lobe_error": self.one_lobe_error, "seconds": self.seconds,
+                "samples": self.samples, "backend": self.backend}
 
     @classmethod
     def from_dict(cls, d: dict) -> SGFit:
-        return cls(_fitted_brdf(d["kd"], d["ks"], d["roughness"], d["f0"]), d["error"], d["seconds"], d["samples"],
-                   d.get("backend", "host"))
+        lobes = d.get("lobes", [d])  # a one-lobe fit written before two-lobe fits held its lobe's fields itself
+        return cls([_fitted_brdf(x["kd"], x["ks"], x["roughness"], x["f0"]) for x in lobes], d["error"],
+                   d["seconds"], d["samples"], d.get("backend", "host"), d.get("one_lobe_error"))
 
     def __repr__(self):
-        b = self.brdf
-        return (f"SGFit(kd={tuple(round(x, 4) for x in b.kd)}, ks={tuple(round(x, 4) for x in b.ks)}, "
-                f"roughness={b.roughness:.4g}, f0={b.f0:.3g}, error={self.error:.3g})")
+        kd = tuple(round(x, 4) for x in self.lobes[0].kd)
+        parts = ", ".join(f"(ks={tuple(round(x, 4) for x in b.ks)}, roughness={b.roughness:.4g}, f0={b.f0:.3g})"
+                          for b in self.lobes)
+        return f"SGFit(kd={kd}, lobes=[{parts}], error={self.error:.3g})"
 
 
 def _fitted_brdf(kd, ks, roughness, f0) -> CookTorrance:
@@ -542,63 +563,89 @@ def fit_samples(table):
     return basis, vals[:, ok].T * (ci * co)[:, None], np.ascontiguousarray(weight[ok])
 
 
+def _lobe_basis(basis, eta, f0) -> np.ndarray:
+    """The specular basis b = (f0 + (1 − f0)(1 − h·ωi)^5)(G/π)e^{−η(1 − cos θh)} of one lobe; 0 where η ≤ 0 (absent)."""
+    if eta <= 0:
+        return np.zeros(len(basis))
+    return (f0 + (1.0 - f0) * basis[:, 2]) * basis[:, 3] * np.exp(-eta * basis[:, 1])
+
+
 def fit_sums(basis, target, weight, candidates, coef=None) -> np.ndarray:
-    """The float64 reference of the `sgfit` kernels (kernels/sgfit.py): for candidates (C, 2) [η, f0], the (C, 9)
-    normal-equation sums [Σwd², Σwdb, Σwb², Σwd·t (3), Σwb·t (3)], or with coef (C, 6) [kd RGB, ks RGB] the (C,)
-    weighted squared residuals Σ w Σ_c (t_c − kd_c d − ks_c b)², with
-    b = (f0 + (1 − f0)(1 − h·ωi)^5)(G/π)e^{−η(1 − cos θh)}."""
+    """The float64 reference of the `sgfit` kernels (kernels/sgfit.py): for candidates (C, 4) [η1, f0_1, η2, f0_2]
+    (a second lobe absent where η2 ≤ 0), the (C, 15) normal-equation sums [Σwd², Σwdb1, Σwdb2, Σwb1², Σwb1b2,
+    Σwb2², Σwd·t (3), Σwb1·t (3), Σwb2·t (3)], or with coef (C, 9) [kd RGB, ks1 RGB, ks2 RGB] the (C,) weighted
+    squared residuals Σ w Σ_c (t_c − kd_c d − ks1_c b1 − ks2_c b2)², each b the lobe's `_lobe_basis`."""
     basis, target, weight = (np.asarray(x, np.float64) for x in (basis, target, weight))
-    cand = np.asarray(candidates, np.float64).reshape(-1, 2)
+    cand = np.asarray(candidates, np.float64).reshape(-1, 4)
+    d = basis[:, 0]
     out = []
-    for i, (eta, f0) in enumerate(cand):
-        d = basis[:, 0]
-        b = (f0 + (1.0 - f0) * basis[:, 2]) * basis[:, 3] * np.exp(-eta * basis[:, 1])
+    for i, (eta1, f01, eta2, f02) in enumerate(cand):
+        b1, b2 = _lobe_basis(basis, eta1, f01), _lobe_basis(basis, eta2, f02)
         if coef is None:
-            wd, wb = weight * d, weight * b
-            out.append(np.concatenate([[wd @ d, wd @ b, wb @ b], wd @ target, wb @ target]))
+            wd, w1, w2 = weight * d, weight * b1, weight * b2
+            out.append(np.concatenate([[wd @ d, wd @ b1, wd @ b2, w1 @ b1, w1 @ b2, w2 @ b2],
+                                       wd @ target, w1 @ target, w2 @ target]))
         else:
-            c = np.asarray(coef, np.float64).reshape(-1, 6)[i]
-            r = target - d[:, None] * c[None, :3] - b[:, None] * c[None, 3:]
+            c = np.asarray(coef, np.float64).reshape(-1, 9)[i]
+            r = target - d[:, None] * c[None, :3] - b1[:, None] * c[None, 3:6] - b2[:, None] * c[None, 6:]
             out.append(weight @ np.einsum("nc,nc->n", r, r))
-    return np.array(out, np.float64).reshape(len(cand), 9) if coef is None else np.array(out, np.float64)
+    return np.array(out, np.float64).reshape(len(cand), 15) if coef is None else np.array(out, np.float64)
+
+
+# The supports of the non-negative solve's three coefficients (kd, ks1, ks2): every non-empty subset.
+_SUPPORTS = ((0,), (1,), (2,), (0, 1), (0, 2), (1, 2), (0, 1, 2))
 
 
 def _nonnegative_coefficients(sums) -> np.ndarray:
-    """(C, 6) [kd RGB, ks RGB] ≥ 0 minimising Σ w (t − kd·d − ks·b)² per channel, from `fit_sums`' (C, 9) normal-
-    equation sums: the unconstrained solution where both are ≥ 0, else the better of the one-coefficient fits
-    (the minimum of a convex quadratic over the quadrant lies on its boundary when not inside)."""
-    s = np.asarray(sums, np.float64)
-    g0, g1, g2 = s[:, 0:1], s[:, 1:2], s[:, 2:3]  # (C, 1) each
-    r0, r1 = s[:, 3:6], s[:, 6:9]  # (C, 3)
+    """(C, 9) [kd RGB, ks1 RGB, ks2 RGB] ≥ 0 minimising Σ w (t − kd·d − ks1·b1 − ks2·b2)² per channel, from
+    `fit_sums`' (C, 15) normal-equation sums. The minimum of a convex quadratic over the non-negative octant is
+    the unconstrained minimum on the face of its support, so it is the cheapest of the feasible unconstrained
+    solutions over the seven supports (zero if none is feasible); a support whose Gram matrix is singular (an
+    absent lobe, b ≡ 0) is skipped."""
+    s = np.asarray(sums, np.float64).reshape(-1, 15)
+    c = len(s)
+    gram = np.empty((c, 3, 3))
+    for (i, j), col in zip(((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)), range(6)):
+        gram[:, i, j] = gram[:, j, i] = s[:, col]
+    rhs = s[:, 6:15].reshape(c, 3, 3)  # (C, basis, channel)
+    best = np.zeros((c, 3, 3))  # (C, basis, channel)
+    best_cost = np.zeros((c, 3))
+    for sup in _SUPPORTS:
+        idx = np.array(sup)
+        g = gram[:, idx[:, None], idx[None, :]]  # (C, k, k)
+        r = rhs[:, idx, :]  # (C, k, 3)
+        det = np.linalg.det(g)
+        scale = np.prod(np.diagonal(g, axis1=1, axis2=2), axis=1)
+        ok = det > 1e-12 * np.maximum(scale, 1e-300)
+        x = np.zeros_like(r)
+        if ok.any():
+            x[ok] = np.linalg.solve(g[ok], r[ok])
+        cost = -np.einsum("ckh,ckh->ch", x, r)  # at the support's minimum x'Gx − 2r'x = −r'x
+        take = ok[:, None] & (x >= 0).all(1) & (cost < best_cost)
+        full = np.zeros((c, 3, 3))
+        full[:, idx, :] = x
+        best = np.where(take[:, None, :], full, best)
+        best_cost = np.where(take, cost, best_cost)
+    return best.reshape(c, 9)
 
-    def cost(x0, x1):
-        return g0 * x0 * x0 + 2 * g1 * x0 * x1 + g2 * x1 * x1 - 2 * (r0 * x0 + r1 * x1)
 
-    with np.errstate(divide="ignore", invalid="ignore"):
-        det = g0 * g2 - g1 * g1
-        ok = det > 1e-12 * np.maximum(g0 * g2, 1e-300)
-        u0 = np.where(ok, (g2 * r0 - g1 * r1) / np.where(ok, det, 1.0), -1.0)
-        u1 = np.where(ok, (g0 * r1 - g1 * r0) / np.where(ok, det, 1.0), -1.0)
-        a0 = np.where(g0 > 0, np.maximum(r0 / np.where(g0 > 0, g0, 1.0), 0.0), 0.0)  # kd alone
-        b1 = np.where(g2 > 0, np.maximum(r1 / np.where(g2 > 0, g2, 1.0), 0.0), 0.0)  # ks alone
-    inside = (u0 >= 0) & (u1 >= 0)
-    edge_kd = cost(a0, 0.0) <= cost(0.0, b1)
-    kd = np.where(inside, u0, np.where(edge_kd, a0, 0.0))
-    ks = np.where(inside, u1, np.where(edge_kd, 0.0, b1))
-    return np.concatenate([kd, ks], 1)
+def fit_sg(measured: MeasuredBRDF, backend=None, lobes="auto") -> SGFit:
+    """The SG fit of a measured BRDF, Wang §4.1–4.2: kd/π + Σ_l ks_l·F_l(h·ωi)·G·D_l(h)/(π cosθi cosθo) over one
+    or two lobes l, with D_l = exp((2/m_l²)(n·h − 1)) the NDF's SG, Schlick's F(f0_l) and Cook–Torrance's
+    V-cavity G (as `CookTorrance`), in the weighted least squares of f·cosθi·cosθo over the table's bin centres
+    (`fit_samples`). kd and the ks_l enter linearly, so for each (m_l, f0_l) they are solved exactly (non-
+    negative, per channel, from the normal equations) and the objective is the residual itself. One lobe: (m,
+    f0) start at the best of a grid (one batch) and are refined by Nelder–Mead in (log m, f0). Two lobes: the
+    second starts at the best of the same grid beside the one-lobe fit, then all four are refined together.
 
-
-def fit_sg(measured: MeasuredBRDF, backend=None) -> SGFit:
-    """The SG fit of a measured BRDF, Wang §4.1–4.2 reduced to one lobe: kd/π + ks·F(h·ωi)·G·D(h)/(π cosθi cosθo)
-    with D = exp((2/m²)(n·h − 1)) the NDF's SG, Schlick's F(f0) and Cook–Torrance's V-cavity G (as
-    `CookTorrance`), in the weighted least squares of f·cosθi·cosθo over the table's bin centres (`fit_samples`).
-    kd and ks enter linearly, so for each (m, f0) they are solved exactly (non-negative, per channel, from the
-    normal equations) and the objective is the residual itself; (m, f0) start at the best of a grid (one batch)
-    and are refined by Nelder–Mead in (log m, f0). With a `backend` the sums run in its `sgfit` kernels (float32
-    partial sums added in float64), else on the host in float64 (`fit_sums`, their reference). Deterministic;
-    about a second."""
+    `lobes`: 1, 2 or "auto" — two where they lower the relative error to TWO_LOBE_GAIN of one lobe's or less
+    (a second lobe doubles the specular work of every consumer), else one. With a `backend` the sums run in its
+    `sgfit` kernels (float32 partial sums added in float64), else on the host in float64 (`fit_sums`, their
+    reference). Deterministic; seconds."""
     from scipy.optimize import minimize  # (scipy on first use: importing it costs more than the fit's setup)
 
+    if lobes not in (1, 2, "auto"):
+        raise ValueError(f"lobes must be 1, 2 or 'auto', got {lobes!r}")
     t0 = time.perf_counter()
     basis, target, weight = fit_samples(measured._table())
     if backend is None:
@@ -616,19 +663,49 @@ def fit_sg(measured: MeasuredBRDF, backend=None) -> SGFit:
         where = be.name
 
     def solve(params):
-        """params (C, 2) [log m, f0] → (coefficients (C, 6), residuals (C,))."""
+        """params (C, 2) [log m, f0] or (C, 4) [log m1, f0_1, log m2, f0_2] → (coefficients (C, 9), residuals (C,))."""
         p = np.atleast_2d(np.asarray(params, np.float64))
-        cand = np.stack([2.0 / np.exp(2 * p[:, 0]), np.clip(p[:, 1], 0.0, 1.0)], 1)
+        cand = np.zeros((len(p), 4))  # a one-lobe candidate's second lobe: η2 = 0, absent
+        cand[:, 0] = 2.0 / np.exp(2 * p[:, 0])
+        cand[:, 1] = np.clip(p[:, 1], 0.0, 1.0)
+        if p.shape[1] == 4:
+            cand[:, 2] = 2.0 / np.exp(2 * p[:, 2])
+            cand[:, 3] = np.clip(p[:, 3], 0.0, 1.0)
         coef = _nonnegative_coefficients(sums(cand))
         return coef, sums(cand, coef)
 
-    grid = np.array([(np.log(m), f0) for m in FIT_ROUGHNESS for f0 in FIT_F0])
-    start = grid[int(np.argmin(solve(grid)[1]))]
-    best = minimize(lambda p: solve(p)[1][0] + (1e30 if not 0 <= p[1] <= 1 else 0.0), start,
-                    method="Nelder-Mead", options={"xatol": 1e-4, "fatol": 1e-12, "maxiter": 400})
-    params = best.x if best.fun <= solve(start)[1][0] else start
-    coef, residual = solve(params)
+    def refine(start, maxiter):
+        """Nelder–Mead from `start`, f0s held in [0, 1]; the start itself where it stays better."""
+        def objective(p):
+            return solve(p)[1][0] + (1e30 if not all(0 <= f <= 1 for f in p[1::2]) else 0.0)
+        best = minimize(objective, start, method="Nelder-Mead",
+                        options={"xatol": 1e-4, "fatol": 1e-12, "maxiter": maxiter})
+        return best.x if best.fun <= solve(start)[1][0] else start
+
     norm = float(weight @ np.einsum("nc,nc->n", target, target))
-    error = float(np.sqrt(max(residual[0], 0.0) / norm)) if norm > 0 else 0.0
-    brdf = _fitted_brdf(coef[0, :3], coef[0, 3:], np.exp(params[0]), np.clip(params[1], 0, 1))
-    return SGFit(brdf, error, time.perf_counter() - t0, len(weight), where)
+
+    def relative_error(residual):
+        return float(np.sqrt(max(residual, 0.0) / norm)) if norm > 0 else 0.0
+
+    grid = np.array([(np.log(m), f0) for m in FIT_ROUGHNESS for f0 in FIT_F0])
+    one = refine(grid[int(np.argmin(solve(grid)[1]))], 400)
+    coef, residual = solve(one)
+    params, one_error = one, relative_error(residual[0])
+    error = one_error
+    if lobes != 1:
+        pairs = np.concatenate([np.broadcast_to(one, grid.shape), grid], 1)
+        two = refine(pairs[int(np.argmin(solve(pairs)[1]))], 800)
+        coef2, residual2 = solve(two)
+        error2 = relative_error(residual2[0])
+        if lobes == 2 or error2 <= TWO_LOBE_GAIN * one_error:
+            params, coef, error = two, coef2, error2
+    fitted = []
+    for lobe in range(len(params) // 2):
+        kd = coef[0, :3] if lobe == 0 else np.zeros(3)
+        fitted.append(_fitted_brdf(kd, coef[0, 3 * lobe + 3:3 * lobe + 6], np.exp(params[2 * lobe]),
+                                   np.clip(params[2 * lobe + 1], 0, 1)))
+    fitted = [fitted[0]] + [b for b in fitted[1:] if max(b.ks) > 0]  # a lobe the solve gave nothing
+    if len(fitted) == 2 and fitted[1].roughness > fitted[0].roughness:  # the broader lobe first, carrying kd
+        fitted = [_fitted_brdf(fitted[0].kd, fitted[1].ks, fitted[1].roughness, fitted[1].f0),
+                  _fitted_brdf((0, 0, 0), fitted[0].ks, fitted[0].roughness, fitted[0].f0)]
+    return SGFit(fitted, error, time.perf_counter() - t0, len(weight), where, one_error)

@@ -235,7 +235,8 @@ class _LobeMixtureStrategy:
         for m, eta_s in self.speculars:
             eta_c = 1.0 / (1.0 / eta + 1.0 / eta_s)
             eta_w = np.minimum(eta_c[None] / (4.0 * np.maximum(c, MIN_COS_VIEW)), sg.SHARPNESS_MAX)
-            scale = sg.specular_lobe(mat.materials[m], axis.reshape(-1, 3), np.repeat(wo, nj, axis=0))[1]
+            scale = sum(lobe[1] for lobe in sg.specular_lobes(mat.materials[m], axis.reshape(-1, 3),
+                                                              np.repeat(wo, nj, axis=0)))
             energy = scale.mean(-1).reshape(npix, nj) * mu[m] * (2 * np.pi / (eta + eta_s))[None] * sg.integral(eta_w)
             axes.append(axis)
             sharp.append(eta_w)

@@ -206,7 +206,7 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
 
 def check_no_litspheres(scene: Scene, method: str) -> None:
     """Refuse, in one line, a material `method` cannot shade: a LitSphere (only the lit-sphere shader reads
-    one). A MeasuredBRDF the SG renderer shades by its SG fit (`brdf.sg_form`), the Monte Carlo reference
+    one). A MeasuredBRDF the SG renderer shades by its SG fit (`brdf.sg_lobes`), the Monte Carlo reference
     and the lit-sphere shader by its table."""
     for i, m in enumerate(scene.materials):
         if isinstance(m, LitSphere):

@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .brdf import BlinnPhong, CookTorrance, Ward, sg_form
+from .brdf import BlinnPhong, CookTorrance, Ward, sg_lobes
 
 __all__ = ["evaluate", "integral", "inner_product", "product", "convolve", "one_minus_cos", "SHARPNESS_MAX",
-           "SHARPNESS_MIN", "specular_lobe"]
+           "SHARPNESS_MIN", "specular_lobe", "specular_lobes"]
 
 SHARPNESS_MAX = 1.0e6  # a delta NDF (a flat facet) is capped here; see `convolve` for why that is harmless
 SHARPNESS_MIN = 1.0e-3
@@ -109,9 +109,12 @@ def specular_lobe(brdf, wi, wo):
     taken at n = h, where G = 1 and n·ωi = n·ωo = h·ωi = cos θd: M = ks·F(cos θd)/(π cos²θd).
     Ward: exp(−tan²θh/α²) ≈ G(n; h, 2/α², 1) (tan²θ ≈ 2(1 − cos θ) near θ = 0) and
     M = ks/(4πα² cos θd). A Lambertian BRDF has no specular term: η_s = None, M = 0. A measured BRDF's is
-    its SG fit's (`brdf.sg_form`).
+    its SG fit's lobe; one whose fit has two lobes is refused in one line (`specular_lobes` takes it).
     """
-    brdf = sg_form(brdf)
+    lobes = sg_lobes(brdf)
+    if len(lobes) != 1:
+        raise ValueError(f"{brdf!r} has {len(lobes)} SG lobes (its SG fit's): take them by sg.specular_lobes")
+    brdf = lobes[0]
 
     wi = np.atleast_2d(np.asarray(wi, np.float64))
     wo = np.atleast_2d(np.asarray(wo, np.float64))
@@ -129,6 +132,12 @@ def specular_lobe(brdf, wi, wo):
     if isinstance(brdf, Ward):
         return 2.0 / brdf.alpha**2, ks[None, :] / (4.0 * np.pi * brdf.alpha**2 * cos_d)[:, None], h
     return None, np.zeros((len(wi), 3)), h
+
+
+def specular_lobes(brdf, wi, wo) -> list:
+    """`specular_lobe` of each of `brdf`'s SG lobes (`brdf.sg_lobes`: the BRDF itself, or a measured one's SG
+    fit of one or two lobes) → [(η_s, M (N, 3), h (N, 3)), …]; a small-scale BRDF's specular term is their sum."""
+    return [specular_lobe(b, wi, wo) for b in sg_lobes(brdf)]
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -29,24 +29,29 @@ SG or tabulated against one:
   map `lighting.irradiance_residual` at n): the lobes shape the shadows, the map gives the magnitude.
 
 Material packing (what the kernels read; `pack_materials`):
-``mat_info`` (Mat, 4) int32 [type (0 analytic, 1 effective), index, has_specular, texture slot]: the slot
+``mat_info`` (Mat, 4) int32 [type (0 analytic, 1 effective), index, specular, texture slot]: an analytic
+material's rows are ``analytic[index : index + R]``, one per SG lobe of its SG form (`brdf.sg_lobes`: R = 2 for
+a measured BRDF's two-lobe fit, whose second row has kd = 0), and specular is R, or 0 where no row has a
+specular term (an effective material's: 1 or 0); the slot
 is −1, or for a `svbrdf.Textured` analytic material the first of its three ``tex_info`` rows (kd, ks,
 parameter map; an absent map is a shared 1×1 texture of ones);
 ``tex_info`` (T, 4) int32 [texel offset into tex_data, H, W, 0]; ``tex_data`` float32 (Σ H·W·3), row-major
 RGB texels (a parameter map is stored in all three channels; the kernels read channel 0). The kernels read
-the analytic row once into per-pixel values, scale them by the maps at the pixel's UV (``uvs`` (V, 2),
+each analytic row into per-pixel values, scale them by the maps at the pixel's UV (``uvs`` (V, 2),
 bilinear, repeat: `svbrdf.sample`) and use only those values afterwards;
 ``analytic`` (A, 9) float32 [brdf kind, kd rgb, ks rgb, p1, p2] (brdf.pack_materials' row with the kind first);
 ``eff_info`` (E, 8) int32 [K, J, n_sub, lobe_offset, sub_offset, table_offset, diffuse_offset, lobe type
 (`effective.SG_LOBES` 0, `effective.ASG_LOBES` 1)];
 ``eff_lobes`` (ΣJ, 9) float32 in the tile frame (`EffectiveBRDF.shade_lobes`): an SG lobe [axis, η, 0 …], an
-ASG lobe [z, 0, x, λ, μ] (y = z × x); ``eff_sub`` (Σn_sub, 9) like ``analytic``;
-``eff_tables`` float32, per effective material and small-scale material m the (K², K², J, 3) table of
-μ (index table_offset + (((m·K² + i)·K² + o)·J + j)·3 + c), the bake's own array (a view, no copy: a
-material edit keeps it, and the backends then keep its device copy); ``eff_diffuse`` float32
-(n_sub, L, K², K², 3) per effective material: each small-scale material's energy Σ_j μ_mj∫G_j and its levels
-prefiltered for broad environment lobes (`EffectiveBRDF.energy_levels`, also kept by a material edit); the
-diffuse term is Σ_m kd_m/π times the level a lobe of sharpness η reads (`effective.diffuse_level(η)`). The
+ASG lobe [z, 0, x, λ, μ] (y = z × x); ``eff_sub`` (Σn_sub, 9) like ``analytic``, n_sub rows per effective
+material: one per SG lobe of each small-scale material, each row with its material's tables below;
+``eff_tables`` float32, per effective material and sub-row m the (K², K², J, 3) table of
+μ (index table_offset + (((m·K² + i)·K² + o)·J + j)·3 + c), the bake's own array where every small-scale
+material has one row (a view, no copy: a material edit keeps it, and the backends then keep its device copy);
+``eff_diffuse`` float32 (n_sub, L, K², K², 3) per effective material: each sub-row's small-scale material's
+energy Σ_j μ_mj∫G_j and its levels prefiltered for broad environment lobes (`EffectiveBRDF.energy_levels`,
+also kept by a material edit); the diffuse term is Σ_m kd_m/π times the level a lobe of sharpness η reads
+(`effective.diffuse_level(η)`). The
 lookups divide each ωi corner by its cos θi (μ/cos θi is what is interpolated, as `EffectiveBRDF.eval` does).
 An effective material's tile frame is (tangent, bitangent, normal)
 with the tangent along the mesh's u direction (`scene.vertex_tangents`).
@@ -75,17 +80,21 @@ IRRADIANCE_RATIO_MAX = 1e3  # the diffuse term's E/E_sg stops here: it then neve
 MIN_COS_VIEW = 1e-4  # ωo·n is clamped here: silhouette pixels whose interpolated normal faces away
 
 
-def _analytic_row(m) -> np.ndarray:
-    """The shade kernels' row of an analytic BRDF: its SG form's (a measured one's SG fit, `brdf.sg_form`)."""
-    kinds, params = brdf_mod.pack_materials([brdf_mod.sg_form(m)])
-    return np.concatenate([[kinds[0]], params[0]]).astype(np.float32)
+def _analytic_rows(m) -> np.ndarray:
+    """(R, 9) float32: the shade kernels' rows of a BRDF, one per SG lobe of its SG form (`brdf.sg_lobes`: the
+    BRDF itself, or a measured one's SG fit of one or two lobes, the first carrying kd)."""
+    kinds, params = brdf_mod.pack_materials(list(brdf_mod.sg_lobes(m)))
+    return np.concatenate([kinds[:, None], params], 1).astype(np.float32)
 
 
-def _has_specular(m) -> bool:
+def _specular_rows(m) -> int:
+    """How many of `_analytic_rows(m)` the specular loop reads: all of them, or 0 where none has a specular
+    term (Lambert, ks = 0)."""
     if isinstance(m, Textured):  # the maps only scale ks: no specular term appears where ks = 0
         m = m.brdf
-    m = brdf_mod.sg_form(m)
-    return not isinstance(m, brdf_mod.Lambert) and float(np.max(m.ks)) > 0
+    lobes = brdf_mod.sg_lobes(m)
+    spec = any(not isinstance(b, brdf_mod.Lambert) and float(np.max(b.ks)) > 0 for b in lobes)
+    return len(lobes) if spec else 0
 
 
 def pack_materials(materials) -> dict:
@@ -97,8 +106,8 @@ def pack_materials(materials) -> dict:
     tex_info, tex_data, n_texels = [[0, 1, 1, 0]], [np.ones(3, np.float32)], 1
     for idx, m in enumerate(materials):
         if isinstance(m, Textured):
-            info.append([0, len(analytic), int(_has_specular(m)), len(tex_info)])
-            analytic.append(_analytic_row(m.brdf))
+            info.append([0, len(analytic), _specular_rows(m), len(tex_info)])
+            analytic.extend(_analytic_rows(m.brdf))
             for tex in m.maps:
                 if tex is None:
                     tex_info.append([0, 1, 1, 0])
@@ -109,19 +118,25 @@ def pack_materials(materials) -> dict:
                 tex_data.append(np.ascontiguousarray(tex, np.float32).ravel())
                 n_texels += tex.shape[0] * tex.shape[1]
         elif isinstance(m, brdf_mod.Brdf):
-            info.append([0, len(analytic), int(_has_specular(m)), -1])
-            analytic.append(_analytic_row(m))
+            info.append([0, len(analytic), _specular_rows(m), -1])
+            analytic.extend(_analytic_rows(m))
         elif isinstance(m, EffectiveBRDF):
             k2 = m.directions**2
             lobe_type, rows = m.shade_lobes()  # a matrix-method material has none: a one-line refusal
             j = len(rows)
-            subs = m.materials
-            info.append([1, len(eff_info), int(any(_has_specular(s) for s in subs)), -1])
+            # One sub-row per SG lobe of each small-scale material (two for a measured BRDF's two-lobe fit), each
+            # with its material's tables: the amplitudes do not depend on the BRDF, so its lobes share them.
+            sub_rows = [_analytic_rows(s) for s in m.materials]
+            owner = np.repeat(np.arange(len(sub_rows)), [len(r) for r in sub_rows])
+            subs = np.concatenate(sub_rows)
+            info.append([1, len(eff_info), int(any(_specular_rows(s) for s in m.materials)), -1])
             eff_info.append([m.directions, j, len(subs), n_lobes, n_sub, n_table, n_diffuse, lobe_type])
             eff_lobes.append(rows)
-            eff_sub.extend(_analytic_row(s) for s in subs)
+            eff_sub.extend(subs)
             table = m.amplitudes  # float32, contiguous: ravel() is a view
             diffuse = m.energy_levels  # frozen, kept by material edits: ravel() is a view of the same memory
+            if len(subs) != len(m.materials):  # a material of several lobes: its tables once per lobe (copies)
+                table, diffuse = table[owner], diffuse[owner]
             eff_tables.append(table.ravel())
             eff_diffuse.append(diffuse.ravel())
             n_lobes += j
@@ -325,23 +340,26 @@ def shade_reference(frame: Frame) -> np.ndarray:
 
     for mat in np.unique(static.face_material[f]):
         sel = np.flatnonzero(static.face_material[f] == mat)
-        kind, idx, has_spec = (int(x) for x in static.mat_info[mat][:3])
+        kind, idx, has_spec = (int(x) for x in static.mat_info[mat][:3])  # has_spec: an analytic one's lobe rows
         ns, ts_, bs = n[sel], t[sel], b[sel]
         wo_s, wol_s, cos_os = wo[sel], wo_local[sel], cos_o[sel]
         m = len(sel)
 
         if kind == 0:
-            # The analytic row as per-pixel values, scaled by the material's maps at each pixel's UV.
-            row = np.tile(static.analytic[idx].astype(np.float64), (m, 1))
+            # The analytic rows (one per SG lobe) as per-pixel values, scaled by the material's maps at each
+            # pixel's UV; the first row carries kd.
+            rows = [np.tile(static.analytic[idx + r].astype(np.float64), (m, 1)) for r in range(max(has_spec, 1))]
             slot = int(static.mat_info[mat][3])
             if slot >= 0:
                 uv = interp(static.uvs)[sel]
                 for which, cols in ((0, slice(1, 4)), (1, slice(4, 7)), (2, slice(7, 8))):
                     off, th, tw = (int(x) for x in static.tex_info[slot + which][:3])
                     image = static.tex_data[3 * off:3 * (off + th * tw)].reshape(th, tw, 3)
-                    row[:, cols] *= svbrdf.sample(image, uv)[:, :cols.stop - cols.start]
+                    factor = svbrdf.sample(image, uv)[:, :cols.stop - cols.start]
+                    for row in rows:
+                        row[:, cols] *= factor
 
-            def diffuse_over_cos(axis_world, eta, row=row):
+            def diffuse_over_cos(axis_world, eta, row=rows[0]):
                 return row[:, 1:4] / np.pi
         else:
             ei = static.eff_info[idx]
@@ -384,9 +402,10 @@ def shade_reference(frame: Frame) -> np.ndarray:
         # meet the environment here and the lights in `asg_lights`.
         lobes = []
         if kind == 0:
-            scale, eta_s = specular_scale(row, cos_os)
-            axis = 2 * cos_os[:, None] * ns - wo_s
-            lobes.append((_normalize(axis), eta_s / (4 * cos_os), scale, True))
+            for row in rows:
+                scale, eta_s = specular_scale(row, cos_os)
+                axis = 2 * cos_os[:, None] * ns - wo_s
+                lobes.append((_normalize(axis), eta_s / (4 * cos_os), scale, True))
         else:
             j_count = int(ei[1])
             for si in range(int(ei[2])):
