@@ -23,9 +23,17 @@ FIT_TOL = 5e-3  # the fit's relative L2 error on such a table
 GLOSSY = wb.CookTorrance(ks=(0.5, 0.4, 0.3), roughness=0.15, f0=0.2, kd=(0.3, 0.2, 0.1))
 
 
+# The fits of one-lobe tables run their sums in the Warp CPU kernels (seconds; lobes="auto" also tries a second
+# lobe, which on the host in float64 takes several times longer): the host fit is the paint's, and the glossy
+# table's with one lobe in test_fit_in_the_kernels_matches_the_host_fit.
+FIT_BACKEND = "warp:cpu"
+
+
 @pytest.fixture(scope="module")
 def glossy():
-    return MeasuredBRDF.from_brdf(GLOSSY)
+    table = MeasuredBRDF.from_brdf(GLOSSY)
+    table.sg_fit(FIT_BACKEND)
+    return table
 
 
 @pytest.fixture(scope="module")
@@ -35,7 +43,8 @@ def paint():
 
 @pytest.mark.parametrize("brdf", [GLOSSY, wb.CookTorrance(1.0, 0.2)], ids=["coloured-m0.15", "ks1-m0.2"])
 def test_fit_recovers_the_cook_torrance_that_made_the_table(brdf):
-    fit = MeasuredBRDF.from_brdf(brdf).sg_fit()
+    """lobes="auto" keeps one lobe for a table of one Cook–Torrance lobe, and gives its parameters back."""
+    fit = MeasuredBRDF.from_brdf(brdf).sg_fit(FIT_BACKEND)
     got = fit.brdf
     assert got.roughness == pytest.approx(brdf.roughness, rel=PARAM_TOL)
     assert got.f0 == pytest.approx(brdf.f0, rel=PARAM_TOL)
@@ -70,11 +79,11 @@ def test_two_lobe_fit_of_a_paint_gives_back_its_sheen_and_coat(paint):
 
 def test_one_lobe_fit_of_a_paint_reports_what_it_misses(paint):
     """lobes=1 merges the sheen and the coat into one lobe between them, and its error says what that costs
-    (measured 2.7e-3); the table keeps the fit asked for last."""
-    table = MeasuredBRDF(paint.data)
-    one = table.sg_fit(lobes=1)
+    (measured 2.7e-3); `with_sg_fit` makes a copy that keeps it, sharing the table, and leaves the paint's."""
+    table = paint.with_sg_fit(1)
+    one = table.sg_fit()
     assert len(one.lobes) == 1 and 0.06 < one.brdf.roughness < 0.35 and 1e-3 < one.error < 0.02
-    assert table.sg_fit() is one and table.sg_fit(lobes=1) is one
+    assert table.data is paint.data and len(paint.sg_fit().lobes) == 2
     with pytest.raises(ValueError, match="lobes must be"):
         ms.fit_sg(table, lobes=3)
 
@@ -83,7 +92,7 @@ def test_fit_error_shows_what_microfacet_lobes_cannot_hold():
     """A tabulated Blinn–Phong is not a microfacet BRDF (no F·G/(cosθi cosθo)): the fit's error says so
     (measured 0.48) rather than passing it off as a match, and a second lobe does not help (lobes="auto" keeps
     one)."""
-    fit = MeasuredBRDF.from_brdf(wb.BlinnPhong(0.5, 128, kd=0.3, normalization="energy")).sg_fit()
+    fit = MeasuredBRDF.from_brdf(wb.BlinnPhong(0.5, 128, kd=0.3, normalization="energy")).sg_fit(FIT_BACKEND)
     assert fit.error > 0.1 and len(fit.lobes) == 1
 
 
@@ -138,12 +147,13 @@ def host_fits():
 
 @pytest.mark.parametrize("table", ["glossy", "paint"])
 def test_fit_in_the_kernels_matches_the_host_fit(backend, table, request, host_fits):
-    """`fit_sg(table, backend)` (the sums in the kernels) against the float64 host fit: the same lobes (one for
-    the glossy table, two for the paint). Tolerances: Nelder–Mead stops at another point of the float32
-    objective's flat minimum; the measured differences are printed."""
+    """`fit_sg(table, backend)` (the sums in the kernels) against the float64 host fit: the same lobes (the
+    glossy table with lobes=1, the paint with "auto": two). Tolerances: Nelder–Mead stops at another point of
+    the float32 objective's flat minimum; the fits are printed."""
     m = request.getfixturevalue(table)
-    host = host_fits[table] = host_fits.get(table) or m.sg_fit()
-    dev = ms.fit_sg(m, backend)
+    lobes = {"glossy": 1, "paint": "auto"}[table]
+    host = host_fits[table] = host_fits.get(table) or (ms.fit_sg(m, lobes=1) if lobes == 1 else m.sg_fit())
+    dev = ms.fit_sg(m, backend, lobes)
     print(f"{backend.name} {table}: host {host}, device {dev}")
     assert dev.backend == backend.name and host.backend == "host"
     assert len(dev.lobes) == len(host.lobes) == {"glossy": 1, "paint": 2}[table]
@@ -171,16 +181,26 @@ def test_sg_bake_of_a_table_is_the_bake_of_its_fit_and_judged_by_the_table(backe
     assert psnr > wb.compare(wb.bake(tile, GLOSSY, **kw), truth_analytic)["psnr"] - 2.0 and psnr > 40
 
 
-def test_asg_bake_takes_a_table(backend, paint):
+def test_asg_bake_takes_a_table(backend, paint, paint_baked):
+    """The ASG and SG bakes of the paint evaluate its two-lobe fit as the sum of its lobes: f̄ is linear in the
+    small-scale BRDF, so the material equals the sum of its copies with each lobe alone (the first carries kd),
+    to float64 rounding."""
     tile = wb.geometry.grooves()
     mat = wb.bake(tile, paint, method="asg", lobes=4, directions=5, facets=1 << 12, backend=backend)
     f = mat.table()
     assert np.isfinite(f).all() and f.min() >= 0 and f.max() > 0 and "sg_fit" in mat.info
+    lobes = paint.sg_fit().lobes
+    assert len(lobes) == 2
+    for baked in (mat, paint_baked):
+        n = len(baked.materials)
+        split = sum(baked.with_materials([lobe] * n).table() for lobe in lobes)
+        np.testing.assert_allclose(baked.table(), split, rtol=1e-12, atol=1e-14 * f.max())
 
 
 def test_sg_renderer_shades_a_table_by_its_fit(backend, glossy):
     """A measured material on a large-scale object, and a baked one, render as their fits do, pixel for
-    pixel, with no NaN or negative radiance (a lone sphere under a sky and a light: no SSDF to build)."""
+    pixel, with no NaN or negative radiance (a lone sphere under a sky and a light: no SSDF to build); a table
+    not fitted yet is fitted by the render in its backend's kernels."""
     mesh = wb.Mesh.sphere(1.0)
     cam = wb.Camera(eye=(0, 0.5, 3.5), width=48, height=36)
     lights = [wb.DirectionalLight()]
@@ -191,6 +211,9 @@ def test_sg_renderer_shades_a_table_by_its_fit(backend, glossy):
 
     got = image(glossy)
     np.testing.assert_array_equal(got, image(glossy.sg_fit().brdf))
+    fresh = MeasuredBRDF(glossy.data)
+    image(fresh)
+    assert fresh.sg_fit().backend == backend.name
     assert np.isfinite(got).all() and got.min() >= 0 and got.max() > 0
     baked = wb.bake(wb.geometry.pyramid(), glossy, lobes=4, directions=4, facets=1 << 10, backend=backend)
     np.testing.assert_array_equal(image(baked), image(baked.with_materials([glossy.sg_fit().brdf])))
@@ -211,6 +234,28 @@ def test_material_files_carry_the_table_and_its_fit(tmp_path, glossy):
         np.testing.assert_array_equal(back.table(), mat.table())
 
 
+def test_material_files_carry_a_two_lobe_fit(tmp_path, paint_baked):
+    """A bake of the paint keeps both lobes of its fit through a file; a fit written before two-lobe fits (its
+    lobe's fields at the top level of the header) reads back as one lobe."""
+    path = os.path.join(tmp_path, "paint.wbm")
+    paint_baked.save(path)
+    back = wb.load(path)
+    assert back.materials[0].sg_fit().to_dict()["lobes"] == paint_baked.materials[0].sg_fit().to_dict()["lobes"]
+    np.testing.assert_array_equal(back.table(), paint_baked.table())
+    old = {"kd": [0.2, 0.1, 0.0], "ks": [0.5, 0.5, 0.5], "roughness": 0.2, "f0": 0.04, "error": 1e-3, "seconds": 1.0,
+           "samples": 10}
+    fit = ms.SGFit.from_dict(old)
+    assert len(fit.lobes) == 1 and fit.brdf.roughness == 0.2 and fit.one_lobe_error == fit.error
+
+
+@pytest.fixture(scope="module")
+def paint_asg(paint):
+    """The paint baked by the ASG method on U-grooves: two sub-rows of ASG lobes in the shade stage."""
+    tile = wb.geometry.grooves(profile="u")
+    return wb.bake(tile, [paint] * tile.n_materials, method="asg", lobes=4, directions=6, facets=1 << 12,
+                   backend="warp:cpu")
+
+
 @pytest.fixture(scope="module")
 def paint_baked(paint):
     """The paint (its two-lobe fit) baked on U-grooves: two sub-rows of one material in the shade stage."""
@@ -218,27 +263,32 @@ def paint_baked(paint):
     return wb.bake(tile, [paint] * tile.n_materials, lobes=4, directions=6, facets=1 << 12, backend="warp:cpu")
 
 
-def test_shade_kernels_take_a_two_lobe_fit(backend, paint, paint_baked):
+def test_shade_kernels_take_a_two_lobe_fit(backend, paint, paint_baked, paint_asg):
     """The shade kernels against their float64 reference (`shading.shade_reference`) on a scene whose
-    materials have two-lobe SG forms: the paint on a sphere (two analytic rows), baked on the floor (two
-    sub-rows sharing one table), beside a one-lobe Cook–Torrance; environment lobes through the SSDF, a point
-    light with shadows. Tolerances as tests/test_shade.py's (float32 kernels against float64, the same
+    materials have two-lobe SG forms: the paint on a sphere (two analytic rows), baked by the ASG method on a
+    torus and by the SG method on the floor (two sub-rows sharing one table each); environment lobes through
+    the SSDF, a point light with shadows. Tolerances as tests/test_shade.py's (float32 kernels against float64, the same
     formulas). And the kernels' sum over the rows is the sum of the lobes: the sphere shaded with the paint
     equals it shaded with each lobe alone, added (less the other materials' pixels, counted twice), to float32
     rounding."""
     from warp_biscale.render import pack_frame
     from warp_biscale.shading import pack_materials, shade_reference
 
-    packed = pack_materials([paint, wb.CookTorrance(0.6, 0.25, kd=0.3), paint_baked])
-    assert packed["mat_info"][:, 2].tolist() == [2, 1, 1] and len(packed["analytic"]) == 3
-    assert len(packed["eff_sub"]) == 2 * paint_baked.amplitudes.shape[0]
+    packed = pack_materials([paint, paint_asg, paint_baked])
+    assert packed["mat_info"][:, 2].tolist() == [2, 1, 1] and len(packed["analytic"]) == 2
+    assert len(packed["eff_sub"]) == 2 * (len(paint_asg.materials) + len(paint_baked.materials))
+    # The per-row tables are made once, then kept: a second pack gives the same memory (the backends then keep
+    # its device copy).
+    first, again = pack_materials([paint_baked]), pack_materials([paint_baked])
+    for role in ("eff_tables", "eff_diffuse"):
+        assert first[role].__array_interface__ == again[role].__array_interface__
     mesh = wb.Mesh.merge([wb.Mesh.sphere(0.6, (0.0, 0.6, 0.0), subdivisions=3, material=0),
                           wb.Mesh.torus(0.5, 0.18, center=(1.1, 0.2, 0.0), segments=(32, 16), material=1),
                           wb.Mesh.plane(4.0, 0.0, 12, material=2)])
     sky = wb.Environment.sky(height=32, width=64)
 
     def shade(first, reference=False):
-        scene = wb.Scene(mesh, [first, wb.CookTorrance(0.6, 0.25, kd=0.3), paint_baked],
+        scene = wb.Scene(mesh, [first, paint_asg, paint_baked],
                          wb.Camera(eye=(0.0, 2.2, 3.5), target=(0.2, 0.3, 0.0), width=40, height=32, fov=50),
                          sky, [wb.PointLight((1.5, 3.0, 1.0), 10.0, 0.2)], ssdf_resolution=16, ssdf_terms=8)
         frame = pack_frame(scene, backend)
@@ -266,9 +316,7 @@ def test_two_lobe_fit_brings_the_sg_bake_closer_to_the_table(paint):
     see the message; the two-lobe bake must be the closer."""
     tile = wb.geometry.pyramid(height=0.5)
     two = wb.bake(tile, paint, lobes=8, directions=6, facets=1 << 12, backend="warp:cpu")
-    one_table = MeasuredBRDF(paint.data)
-    one_table.sg_fit(lobes=1)
-    one = two.with_materials([one_table])
+    one = two.with_materials([paint.with_sg_fit(1, "warp:cpu")])
     assert len(two.info["sg_fit"]["0"]["lobes"]) == 2
     truth = wb.ground_truth(tile, paint, directions=6, facets=1 << 14, backend="warp:cpu")
     psnr_two, psnr_one = wb.compare(two, truth)["psnr"], wb.compare(one, truth)["psnr"]

@@ -26,7 +26,8 @@ What it does, stage by stage (the geometry stages are the SG bake's own, `bake._
    the facets (`Backend.lobe_moments(..., lobe_values=)`), past that on the host in float64 (P diag(w G_j) Pᵀ
    per lobe, `asg_moments`).
 3. **f̄** (`ASGBRDF.eval`, float64): diffuse Σ_j μ_j kd/π ∫G_j; specular M(ωi, ωo)·Σ_j μ_j (G_j ⊛ SG_s)(h) with
-   the small-scale BRDF's SG (`sg.specular_lobe`) and Xu's Eq. 18 (`asg.convolve_sg`): its bandwidths and
+   the small-scale BRDF's SG (`sg.specular_lobe`; a measured BRDF's fit of two lobes is two such terms,
+   `sg.specular_lobes`) and Xu's Eq. 18 (`asg.convolve_sg`): its bandwidths and
    amplitude, with a shape that is exact for a delta NDF lobe too (`convolve_sg_at`; method "asg-eq18" is
    Eq. 18's own shape).
 

@@ -275,7 +275,7 @@ def _fit_measured(mats, backend) -> tuple[dict, float]:
     table), by material index, and the seconds this call spent fitting (0 where every table had its fit
     already)."""
     t0 = time.perf_counter()
-    fits = {i: m.sg_fit(backend) for i, m in enumerate(mats) if m.kind == MEASURED}
+    fits = {i: m.sg_fit(backend) for i, m in enumerate(mats) if getattr(m, "kind", None) == MEASURED}
     return fits, time.perf_counter() - t0
 
 

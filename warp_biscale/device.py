@@ -967,7 +967,9 @@ class DeviceBackend:
         Σwb2·t (3)]; with `coef` (C, 9) [kd RGB, ks1 RGB, ks2 RGB], the (C,) weighted squared residuals
         (kernels/sgfit.py says what they are). float64, each the sum of float32 partial sums over SGFIT_CHUNK
         samples."""
-        cand = np.ascontiguousarray(candidates, np.float32).reshape(-1, 4)
+        cand = np.ascontiguousarray(candidates, np.float32)
+        if cand.ndim != 2 or cand.shape[1] != 4:
+            raise ValueError(f"sg_fit_sums: candidates must be (C, 4) [η1, f0_1, η2, f0_2], got shape {cand.shape}")
         c, n = len(cand), int(data["n"])
         chunks = max(1, -(-n // self.SGFIT_CHUNK))
         args = (data, self._to_device(cand, "f32"), n, self.SGFIT_CHUNK, c, chunks)
@@ -976,7 +978,9 @@ class DeviceBackend:
             if c and n:
                 self._launch_sgfit_gram(*args, out)
             return self._to_host(out, (c, chunks, 15), "f32").astype(np.float64).sum(1)
-        coef = np.ascontiguousarray(coef, np.float32).reshape(c, 9)
+        coef = np.ascontiguousarray(coef, np.float32)
+        if coef.shape != (c, 9):
+            raise ValueError(f"sg_fit_sums: coef must be ({c}, 9) [kd, ks1, ks2 RGB], got shape {coef.shape}")
         out = self._new((c, chunks), "f32")
         if c and n:
             self._launch_sgfit_residual(*args, self._to_device(coef, "f32"), out)

@@ -219,7 +219,7 @@ class MeasuredBRDF(Brdf):
         self._data = a
         self._lut = None  # the filled table, made on the first eval
         self._sg_fit = None  # the SG form, fitted on first use (`sg_fit`)
-        self._sg_fit_lobes = None  # the `lobes` it was fitted with
+        self._sg_fit_lobes = None  # the `lobes` it was fitted with (`fit_sg`; what a material file records)
         self.source = source
         self.interpolation = _check_interpolation(interpolation)
 
@@ -416,19 +416,26 @@ class MeasuredBRDF(Brdf):
             out._sg_fit_lobes = head.get("sg_fit_lobes", 1)  # a file from before two-lobe fits: fitted with one
         return out
 
-    def sg_fit(self, backend=None, lobes=None) -> SGFit:
-        """The SG form of this table (`fit_sg`: one or two microfacet lobes with SG NDFs, Wang §4.1–4.2), fitted
-        on the first call (its sums in `backend`'s kernels, or on the host in float64 without one: the bakes pass
-        theirs) and kept (a `with_interpolation` copy made after it shares it). `lobes` (1, 2, "auto"): fit
-        again with that choice, and keep that fit, unless the kept one was made with it; None (what the bakes
-        and renderers pass): the kept fit, or "auto" for the first. `sg_fit().lobes` is what the SG and ASG
-        bakes and the SG renderer use for this material (`brdf.sg_lobes`); the ground truth, the matrix method
-        and the Monte Carlo reference use the table itself."""
-        if self._sg_fit is None or (lobes is not None and lobes != self._sg_fit_lobes):
-            lobes = "auto" if lobes is None else lobes
-            self._sg_fit = fit_sg(self, backend, lobes)
-            self._sg_fit_lobes = lobes
+    def sg_fit(self, backend=None) -> SGFit:
+        """The SG form of this table (`fit_sg` with lobes="auto": one or two microfacet lobes with SG NDFs, Wang
+        §4.1–4.2), fitted on the first call (its sums in `backend`'s kernels, or on the host in float64 without
+        one: the bakes and the SG renderer pass theirs) and kept (a `with_interpolation` copy made after it
+        shares it; `with_sg_fit` makes a copy with another). `sg_fit().lobes` is what the SG and ASG bakes and
+        the SG renderer use for this material (`brdf.sg_lobes`); the ground truth, the matrix method and the
+        Monte Carlo reference use the table itself."""
+        if self._sg_fit is None:
+            self._sg_fit = fit_sg(self, backend)
+            self._sg_fit_lobes = "auto"
         return self._sg_fit
+
+    def with_sg_fit(self, lobes, backend=None) -> MeasuredBRDF:
+        """The same table (shared, not copied) with its SG form fitted with `lobes` (1, 2 or "auto", `fit_sg`):
+        e.g. `with_sg_fit(1)` shades and bakes with one lobe where "auto" kept two. A new object, so that what
+        was packed or baked with this one keeps its fit."""
+        other = self.with_interpolation(self.interpolation)
+        other._sg_fit = fit_sg(self, backend, lobes)
+        other._sg_fit_lobes = lobes
+        return other
 
     def kernel_row(self, slot: int) -> np.ndarray:
         """The packed row (8,) the ground-truth and matrix kernels read (`brdf.pack_materials(...,
@@ -576,7 +583,9 @@ def fit_sums(basis, target, weight, candidates, coef=None) -> np.ndarray:
     Σwb2², Σwd·t (3), Σwb1·t (3), Σwb2·t (3)], or with coef (C, 9) [kd RGB, ks1 RGB, ks2 RGB] the (C,) weighted
     squared residuals Σ w Σ_c (t_c − kd_c d − ks1_c b1 − ks2_c b2)², each b the lobe's `_lobe_basis`."""
     basis, target, weight = (np.asarray(x, np.float64) for x in (basis, target, weight))
-    cand = np.asarray(candidates, np.float64).reshape(-1, 4)
+    cand = np.asarray(candidates, np.float64)
+    if cand.ndim != 2 or cand.shape[1] != 4:
+        raise ValueError(f"fit_sums: candidates must be (C, 4) [η1, f0_1, η2, f0_2], got shape {cand.shape}")
     d = basis[:, 0]
     out = []
     for i, (eta1, f01, eta2, f02) in enumerate(cand):
@@ -699,13 +708,11 @@ def fit_sg(measured: MeasuredBRDF, backend=None, lobes="auto") -> SGFit:
         error2 = relative_error(residual2[0])
         if lobes == 2 or error2 <= TWO_LOBE_GAIN * one_error:
             params, coef, error = two, coef2, error2
-    fitted = []
-    for lobe in range(len(params) // 2):
-        kd = coef[0, :3] if lobe == 0 else np.zeros(3)
-        fitted.append(_fitted_brdf(kd, coef[0, 3 * lobe + 3:3 * lobe + 6], np.exp(params[2 * lobe]),
-                                   np.clip(params[2 * lobe + 1], 0, 1)))
-    fitted = [fitted[0]] + [b for b in fitted[1:] if max(b.ks) > 0]  # a lobe the solve gave nothing
-    if len(fitted) == 2 and fitted[1].roughness > fitted[0].roughness:  # the broader lobe first, carrying kd
-        fitted = [_fitted_brdf(fitted[0].kd, fitted[1].ks, fitted[1].roughness, fitted[1].f0),
-                  _fitted_brdf((0, 0, 0), fitted[0].ks, fitted[0].roughness, fitted[0].f0)]
+    # (ks, m, f0) per lobe; a lobe the solve gave nothing is dropped (one is kept: a Lambertian table's); the
+    # broader lobe comes first and carries kd.
+    found = [(coef[0, 3 * lobe + 3:3 * lobe + 6], np.exp(params[2 * lobe]), np.clip(params[2 * lobe + 1], 0, 1))
+             for lobe in range(len(params) // 2)]
+    found = [x for x in found if x[0].max() > 0] or found[:1]
+    found.sort(key=lambda x: -x[1])
+    fitted = [_fitted_brdf(coef[0, :3] if i == 0 else np.zeros(3), *x) for i, x in enumerate(found)]
     return SGFit(fitted, error, time.perf_counter() - t0, len(weight), where, one_error)

@@ -25,6 +25,7 @@ from . import lighting, litsphere, montecarlo, sg
 from .litsphere import LitSphere
 from . import ssdf as ssdf_mod
 from .backend import get_backend
+from .bake import _fit_measured
 from .progress import Progress
 from .model import Frame, ShadeInputs
 from .scene import vertex_tangents
@@ -92,6 +93,12 @@ def _static_inputs(scene: Scene, backend, progress, timings) -> ShadeInputs:
         host["uvs"] = (mesh.uvs if mesh.uvs is not None else np.zeros((len(mesh.vertices), 2))).astype(np.float32)
         for name in ("tangents", "positions", "normals", "uvs"):  # ours alone: frozen, known by identity
             host[name].flags.writeable = False
+    # A measured BRDF is shaded by its SG fit: fitted here (once per table) with its sums in this backend's
+    # kernels rather than on the host, as a bake does.
+    small = [s for m in scene.materials for s in getattr(m, "materials", [getattr(m, "brdf", m)])]
+    fits, seconds = _fit_measured(small, backend)
+    if fits:
+        timings["sg_fit"] = seconds
     packed = pack_materials(scene.materials)
     timings["materials"] = time.perf_counter() - t0
     lobes, residual = light.diffuse_lobes(has_ssdf)

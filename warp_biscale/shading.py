@@ -10,7 +10,8 @@ SG or tabulated against one:
   Λ(p, η) (the SG-weighted average radiance, `lighting.PrefilteredEnvironment`, Wang Eq. 35) at
   the warped BRDF lobe, and the SG product with each light's emitter.
 - **BRDF lobes.** An analytic BRDF's NDF is one SG about n (`sg.specular_lobe`: Blinn–Phong
-  η = exponent, Cook–Torrance and Ward η = 2/m²); an effective BRDF's specular part is Iwasaki's
+  η = exponent, Cook–Torrance and Ward η = 2/m²; a measured BRDF's SG fit is one or two such lobes, each
+  shaded as one, `brdf.sg_lobes`); an effective BRDF's specular part is Iwasaki's
   Eq. 15: per NDF lobe j and small-scale material m an SG in h of sharpness ηjηs/(ηj + ηs) and
   amplitude 2π·M·μj/(ηj + ηs). Both are warped to ωi (Wang Eq. 18–21): axis ξ' = 2(ωo·ξ)ξ − ωo,
   sharpness η/(4 ωo·ξ); the smooth factors (M, μj) are taken at the warped axis (Wang Eq. 22).
@@ -47,7 +48,8 @@ ASG lobe [z, 0, x, λ, μ] (y = z × x); ``eff_sub`` (Σn_sub, 9) like ``analyti
 material: one per SG lobe of each small-scale material, each row with its material's tables below;
 ``eff_tables`` float32, per effective material and sub-row m the (K², K², J, 3) table of
 μ (index table_offset + (((m·K² + i)·K² + o)·J + j)·3 + c), the bake's own array where every small-scale
-material has one row (a view, no copy: a material edit keeps it, and the backends then keep its device copy);
+material has one row (a view, no copy: a material edit keeps it, and the backends then keep its device copy),
+else its rows per sub-row, made once and kept (`_tables_per_row`: the same arrays again at the next pack);
 ``eff_diffuse`` float32 (n_sub, L, K², K², 3) per effective material: each sub-row's small-scale material's
 energy Σ_j μ_mj∫G_j and its levels prefiltered for broad environment lobes (`EffectiveBRDF.energy_levels`,
 also kept by a material edit); the diffuse term is Σ_m kd_m/π times the level a lobe of sharpness η reads
@@ -97,6 +99,27 @@ def _specular_rows(m) -> int:
     return len(lobes) if spec else 0
 
 
+_PER_ROW: dict = {}  # (id(table), id(levels), owner) → (table, levels, their rows per sub-row): `_tables_per_row`
+_PER_ROW_KEPT = 8
+
+
+def _tables_per_row(table, levels, owner):
+    """A bake's amplitude table and energy levels (M, …) once per sub-row (`owner` (R,): each row's small-scale
+    material), made once per bake's arrays and kept (frozen), so that packing the same material again gives the
+    same arrays, whose device copies the backends keep by identity. The entry holds the source arrays too, so
+    their ids stay theirs while it is kept."""
+    key = (id(table), id(levels), owner.tobytes())
+    hit = _PER_ROW.get(key)
+    if hit is None:
+        if len(_PER_ROW) >= _PER_ROW_KEPT:
+            _PER_ROW.pop(next(iter(_PER_ROW)))
+        rows = np.ascontiguousarray(table[owner]), np.ascontiguousarray(levels[owner])
+        for a in rows:
+            a.setflags(write=False)
+        hit = _PER_ROW[key] = (table, levels, *rows)
+    return hit[2], hit[3]
+
+
 def pack_materials(materials) -> dict:
     """Pack a scene's materials (analytic `Brdf`s, `svbrdf.Textured` ones and `EffectiveBRDF`s) for the shade stage."""
 
@@ -135,8 +158,8 @@ def pack_materials(materials) -> dict:
             eff_sub.extend(subs)
             table = m.amplitudes  # float32, contiguous: ravel() is a view
             diffuse = m.energy_levels  # frozen, kept by material edits: ravel() is a view of the same memory
-            if len(subs) != len(m.materials):  # a material of several lobes: its tables once per lobe (copies)
-                table, diffuse = table[owner], diffuse[owner]
+            if len(subs) != len(m.materials):  # a material of several lobes: its tables once per lobe
+                table, diffuse = _tables_per_row(table, diffuse, owner)
             eff_tables.append(table.ravel())
             eff_diffuse.append(diffuse.ravel())
             n_lobes += j
@@ -223,7 +246,7 @@ def _asg_environment_lobe(g, eta_s, scale, wo, c_oj, t, b, n, wo_local, tables, 
     c = asg_mod.convolve_sg(g, eta_s)
     w = asg_mod.warp(c, wo)
     lam, mu = np.maximum(w.lam, 1e-6), np.maximum(w.mu, 1e-6)
-    eta = np.minimum(2.0 * np.sqrt(lam * mu), sg.SHARPNESS_MAX)
+    eta = np.minimum(2.0 * np.sqrt(lam) * np.sqrt(mu), sg.SHARPNESS_MAX)  # (λμ itself can overflow)
     integral = asg_mod.shade_integral(lam, mu)
     axis = w.z
     wl = np.stack([_dot(axis, t), _dot(axis, b), _dot(axis, n)], 1)
