@@ -110,6 +110,22 @@ def test_bake_other_methods(tmp_path, method):
     assert isinstance(wb.load(out), {"asg": wb.ASGBRDF, "matrix": wb.MatrixBRDF}[method])
 
 
+def test_bake_takes_a_merl_file(tmp_path):
+    """`--brdf` takes a MERL table file as a small-scale BRDF (fitted by the bake, the fit recorded); a missing
+    one is named in one line before any work."""
+    table = tmp_path / "ct.binary"
+    wb.MeasuredBRDF.from_brdf(wb.CookTorrance(0.6, 0.2, kd=0.2)).save(table)
+    out = tmp_path / "m.wbm"
+    r = run_cli("bake", "pyramid", "--facets", "1024", "--directions", "4", "--lobes", "2", "--backend", "warp:cpu",
+                "--brdf", str(table), "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    mat = wb.load(out)
+    assert isinstance(mat.materials[0], wb.MeasuredBRDF) and "sg_fit" in mat.info
+    r = run_cli("bake", "pyramid", "--brdf", str(tmp_path / "none.binary"), "-o", str(tmp_path / "n.wbm"))
+    assert r.returncode == 2 and "no such MERL BRDF file" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "n.wbm").exists()
+
+
 def test_bake_bad_input_is_named(tmp_path):
     r = run_cli("bake", "pyramid", "--lobes", "lots", "-o", str(tmp_path / "m.wbm"))
     assert r.returncode == 2 and "--lobes must be an integer or 'auto'" in r.stderr

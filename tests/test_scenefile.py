@@ -276,6 +276,19 @@ def test_bake_material_is_baked_at_load_with_its_tile(tmp_path):
     assert sf.materials["m"] is not None  # the unused lambert is still built
 
 
+def test_bake_material_takes_a_merl_file(tmp_path):
+    """A bake material's brdf entry may be a MERL table file, relative to the scene file; a missing one is an
+    error naming the key."""
+    wb.MeasuredBRDF.from_brdf(wb.CookTorrance(0.6, 0.2, kd=0.2)).save(tmp_path / "ct.binary")
+    text = BASE.replace('material = "m"', 'material = "b"') + (
+        '\n[material.b]\ntype = "bake"\ntile = "pyramid"\nbrdf = ["ct.binary"]\n'
+        'lobes = 2\ndirections = 4\nfacets = 512\n')
+    sf = load_scene(write(tmp_path, text), backend="warp:cpu")
+    assert isinstance(sf.scene.materials[0].materials[0], wb.MeasuredBRDF)
+    with pytest.raises(SceneError, match=r"brdf 'gone.binary': no such MERL BRDF file"):
+        load_scene(write(tmp_path, text.replace("ct.binary", "gone.binary")), backend="warp:cpu")
+
+
 def test_unused_bake_material_is_checked_not_baked(tmp_path, monkeypatch):
     def no_bake(*a, **k):
         raise AssertionError("baked a material nothing uses")

@@ -24,7 +24,7 @@ from .images import check_exposure
 from .io import atomic_path, check_output
 from .litsphere import LitSphere, check_angles, check_resolution
 from .loading import load
-from .measured import MeasuredBRDF
+from .measured import MeasuredBRDF, small_scale_brdf
 from .montecarlo import missing_provenance
 from .progress import as_progress, set_quiet
 from .render import SHADOW_SAMPLES, check_aa, material_ball
@@ -38,7 +38,7 @@ def _materials(specs, tile):
 
     if not specs:
         return [Lambert(0.5)] * tile.n_materials
-    mats = [parse_brdf(s) for s in specs]
+    mats = [small_scale_brdf(s) for s in specs]
     if len(mats) == 1 and tile.n_materials > 1:
         mats = mats * tile.n_materials  # one BRDF for every material id
     return mats
@@ -526,7 +526,7 @@ def main(argv=None):
                    help="small-scale BRDF, once per material id, e.g. lambert:albedo=0.5, "
                         "blinnphong:exponent=512,ks=1 (add normalization=energy for a specular albedo of at most "
                         "ks; the default iwasaki lobe reflects up to 4·ks), cooktorrance:roughness=0.2,f0=0.04, "
-                        "ward:alpha=0.2; RGB as r/g/b (default lambert:albedo=0.5)")
+                        "ward:alpha=0.2; RGB as r/g/b; or a MERL table file (.binary) (default lambert:albedo=0.5)")
     p.add_argument("--facets", type=int, default=1 << 16,
                    help="number of facets Ns (default 2^16; raise it for a more accurate table)")
     p.add_argument("--directions", type=int, default=12, help="direction grid size K (K² directions, default 12)")

@@ -46,10 +46,10 @@ import warnings
 
 import numpy as np
 
-from .brdf import MEASURED, Brdf, CookTorrance, EnergyWarning, Lambert
+from .brdf import MEASURED, Brdf, CookTorrance, EnergyWarning, Lambert, parse_brdf
 from .io import atomic_path, check_output
 
-__all__ = ["MeasuredBRDF", "SGFit", "fit_sg", "paint_like", "half_diff_angles", "merl_indices",
+__all__ = ["MeasuredBRDF", "SGFit", "fit_sg", "paint_like", "small_scale_brdf", "half_diff_angles", "merl_indices",
            "RES_THETA_H", "RES_THETA_D", "RES_PHI_D", "SCALES", "INTERPOLATIONS"]
 
 RES_THETA_H, RES_THETA_D, RES_PHI_D = 90, 90, 180  # the header: φd over [0, π) (BRDFRead.cpp's 360/2)
@@ -468,6 +468,16 @@ def _clamped_nodes(u, res):
     u = np.clip(u, 0.0, res - 1.0)
     i0 = np.minimum(np.floor(u), res - 2).astype(np.int64)
     return i0, i0 + 1, u - i0
+
+
+def small_scale_brdf(spec: str, base: str | None = None) -> Brdf:
+    """A small-scale BRDF from text (a `--brdf` argument, a scene file's brdf entry): a MERL table, a path ending
+    in .binary (relative to folder `base` if given: a scene file's own), or a `brdf.parse_brdf` spec such as
+    cooktorrance:roughness=0.2. One-line errors name a missing or unreadable file."""
+    if str(spec).lower().endswith(".binary"):
+        path = os.path.join(base, spec) if base is not None and not os.path.isabs(spec) else spec
+        return MeasuredBRDF.load(path)
+    return parse_brdf(spec)
 
 
 def paint_like(base=(0.55, 0.08, 0.05), sheen=(0.12, 0.05, 0.04), coat=0.06, *, sheen_roughness=0.35,

@@ -71,7 +71,8 @@ or ``warp-biscale render scene.toml -o out.png``. Every table and key is optiona
     tile = "pyramid"             # required: a built-in tile (as `warp-biscale bake` takes), a mesh file, or
                                  #   "heightfield" with tile_params.image (a greyscale image) and scale
     tile_params = { height = 0.4, color = [1.0, 0.8, 0.4] }   # keyword arguments of the tile's generator
-    brdf = ["blinnphong:exponent=256,ks=0.9"]                 # one per tile material id (or one for all)
+    brdf = ["blinnphong:exponent=256,ks=0.9"]                 # one per tile material id (or one for all);
+                                                              #   a MERL file ("paint.binary") is one too
     lobes = 6                    # J, or "auto" ; directions (K), facets, normal_res, method, route, seed
 
     [material.steel]
@@ -79,9 +80,10 @@ or ``warp-biscale render scene.toml -o out.png``. Every table and key is optiona
     path = "steel.wbm"           # relative to this file; brdf = [...] optionally swaps its small-scale BRDFs
 
     [material.paint]
-    type = "merl"                # a measured BRDF in MERL's binary format (wb.MeasuredBRDF); or type =
-    path = "paint.binary"        #   "litsphere", path = a folder LitSphere.save wrote; both render only by
-                                 #   method = "litsphere" (which makes every other material a lit sphere)
+    type = "merl"                # a measured BRDF in MERL's binary format (wb.MeasuredBRDF: the SG renderer
+    path = "paint.binary"        #   shades it by its SG fit); or type = "litsphere", path = a folder
+                                 #   LitSphere.save wrote, which renders only by method = "litsphere" (which
+                                 #   makes every other material a lit sphere)
 
 Errors name the file, the line, the table and the key — ``scene.toml:12: [material.gold] exponent
 must be a number, got 'high'`` — for TOML syntax errors, unknown tables and keys (a typo never passes
@@ -104,7 +106,7 @@ from . import brdf as brdf_mod
 from . import geometry
 from .backend import get_backend
 from .bake import bake
-from .brdf import Lambert, parse_brdf
+from .brdf import Lambert
 from .geometry import BUILTIN_TILES
 from .effective import EffectiveBRDF
 from .environment import Environment, Softbox
@@ -112,7 +114,7 @@ from .images import check_exposure
 from .device import one_line
 from .litsphere import LitSphere
 from .loading import load
-from .measured import MeasuredBRDF
+from .measured import MeasuredBRDF, small_scale_brdf
 from .progress import as_progress
 from .render import METHODS, render
 from .scene import SETTINGS_UNITS, Scene, settings_ranges
@@ -518,9 +520,9 @@ def _brdfs(ctx, table, specs):
     for s in specs:
         try:
             with _located_warnings(ctx, table, (), "brdf"):
-                out.append(parse_brdf(s))
-        except ValueError as exc:
-            raise ctx.error(table, "brdf", f"brdf {s!r}: {exc}") from None
+                out.append(small_scale_brdf(s, ctx.base_dir))
+        except (ValueError, OSError) as exc:
+            raise ctx.error(table, "brdf", f"brdf {s!r}: {one_line(exc)}") from None
     return out
 
 
