@@ -501,6 +501,10 @@ FIT_STEP_TD, FIT_STEP_PD = 2, 4
 FIT_ROUGHNESS = np.geomspace(0.005, 2.0, 24)  # the start's grid of m (SG sharpness η = 2/m², 0.5 to 8e4)
 FIT_F0 = (0.02, 0.1, 0.5, 1.0)  # the start's grid of Schlick's f0
 TWO_LOBE_GAIN = 0.75  # lobes="auto" keeps a second lobe that brings the relative error to this share or less
+# lobes="auto" refines no second lobe whose best start on the grid leaves more than this share of one lobe's error:
+# a table of one microfacet lobe (or of none) gives the grid nothing to use (its best start keeps the error to
+# 3 digits), a table of two lobes at least a few percent.
+TWO_LOBE_START = 0.99
 
 
 class SGFit:
@@ -657,10 +661,11 @@ def fit_sg(measured: MeasuredBRDF, backend=None, lobes="auto") -> SGFit:
     f0) start at the best of a grid (one batch) and are refined by Nelder–Mead in (log m, f0). Two lobes: the
     second starts at the best of the same grid beside the one-lobe fit, then all four are refined together.
 
-    `lobes`: 1, 2 or "auto" — two where they lower the relative error to TWO_LOBE_GAIN of one lobe's or less
-    (a second lobe doubles the specular work of every consumer), else one. With a `backend` the sums run in its
-    `sgfit` kernels (float32 partial sums added in float64), else on the host in float64 (`fit_sums`, their
-    reference). Deterministic; seconds."""
+    `lobes`: 1, 2 or "auto" — two where they lower the relative error to TWO_LOBE_GAIN of one lobe's or
+    less (a second lobe doubles the specular work of every consumer), else one; "auto" does not refine a
+    second lobe whose best grid start leaves more than TWO_LOBE_START of one lobe's error (nothing for it to
+    hold). With a `backend` the sums run in its `sgfit` kernels (float32 partial sums added in float64), else
+    on the host in float64 (`fit_sums`, their reference). Deterministic; seconds."""
     from scipy.optimize import minimize  # (scipy on first use: importing it costs more than the fit's setup)
 
     if lobes not in (1, 2, "auto"):
@@ -713,11 +718,14 @@ def fit_sg(measured: MeasuredBRDF, backend=None, lobes="auto") -> SGFit:
     error = one_error
     if lobes != 1:
         pairs = np.concatenate([np.broadcast_to(one, grid.shape), grid], 1)
-        two = refine(pairs[int(np.argmin(solve(pairs)[1]))], 800)
-        coef2, residual2 = solve(two)
-        error2 = relative_error(residual2[0])
-        if lobes == 2 or error2 <= TWO_LOBE_GAIN * one_error:
-            params, coef, error = two, coef2, error2
+        starts = solve(pairs)[1]
+        best = int(np.argmin(starts))
+        if lobes == 2 or relative_error(starts[best]) <= TWO_LOBE_START * one_error:
+            two = refine(pairs[best], 800)
+            coef2, residual2 = solve(two)
+            error2 = relative_error(residual2[0])
+            if lobes == 2 or error2 <= TWO_LOBE_GAIN * one_error:
+                params, coef, error = two, coef2, error2
     # (ks, m, f0) per lobe; a lobe the solve gave nothing is dropped (one is kept: a Lambertian table's); the
     # broader lobe comes first and carries kd.
     found = [(coef[0, 3 * lobe + 3:3 * lobe + 6], np.exp(params[2 * lobe]), np.clip(params[2 * lobe + 1], 0, 1))
