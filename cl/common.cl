@@ -85,6 +85,40 @@ CL_INLINE float3 normalize3(float3 a)
     return (float3)(0.0f, 0.0f, 0.0f);
 }
 
+#define GOLDEN_ANGLE 2.39996322972865f /* = trace.GOLDEN_ANGLE: the disc samples of shadow and occlusion rays */
+
+/* Sample i of `samples` on the unit disc: a Vogel spiral turned by a per-pixel angle (trace.disk_sample),
+ * so that neighbouring pixels' penumbrae are noise rather than bands. The centre for one sample. */
+CL_INLINE float2 disk_sample(int i, int samples, int pixel)
+{
+    if (samples == 1)
+        return (float2)(0.0f, 0.0f);
+    uint h = (uint)pixel * 2654435761u;
+    float turn = (float)(int)(h >> 8) * (2.0f * 3.14159265358979f / 16777216.0f);
+    float r = sqrt(((float)i + 0.5f) / (float)samples);
+    float a = (float)i * GOLDEN_ANGLE + turn;
+    return (float2)(r * cos(a), r * sin(a));
+}
+
+/* a right-handed frame (a, b, w) (trace.disk_basis) */
+CL_INLINE void disk_basis(float3 w, float3 *a, float3 *b)
+{
+    float3 ref = absf(w.x) < 0.9f ? (float3)(1.0f, 0.0f, 0.0f) : (float3)(0.0f, 1.0f, 0.0f);
+    *a = normalize3(cross3(w, ref));
+    *b = cross3(w, *a);
+}
+
+/* Environment-occlusion ray i of `samples` (trace.occlusion_directions): disc sample i lifted to the
+ * hemisphere of n, in the frame (a, b, n), cosine-distributed. */
+CL_INLINE float3 occlusion_direction(float3 a, float3 b, float3 n, int i, int samples, int pixel)
+{
+    float2 q = disk_sample(i, samples, pixel);
+    float lift = sqrt(maxf(1.0f - q.x * q.x - q.y * q.y, 0.0f));
+    return (float3)(q.x * a.x + q.y * b.x + lift * n.x, q.x * a.y + q.y * b.y + lift * n.y,
+                    q.x * a.z + q.y * b.z + lift * n.z);
+}
+
+
 /* Powers without the pow builtin, which costs about three times exp + log2 in PoCL:
  * x^5 by multiplication, and x^y = 2^(y log2 x) for x >= 0 and y > 0 (0 at x = 0, as pow). They
  * differ from a libm powf by rounding only: a few ulp, or about 1e-6 relative for results above

@@ -21,6 +21,8 @@
 #define ASG_LOBES 1 /* = effective.ASG_LOBES: eff_info[7] of a material with ASG lobes */
 #define ASG_EQ10_MIN 5.0f /* = asg.EQ10_MIN_BANDWIDTH */
 #define EFF_LOBE_WIDTH 9 /* eff_lobes' row: [axis or z (3), η, x (3), λ, μ] */
+#define RAYS_ONLY 0.125f /* = shading.RAYS_ONLY */
+#define SSDF_ONLY 0.5f /* = shading.SSDF_ONLY */
 #define DIFFUSE_LEVELS 5 /* = len(effective.DIFFUSE_LEVEL_ETAS): f̄d and its prefiltered levels */
 #define DIFFUSE_LEVEL_SHARP 64.0f /* = effective.DIFFUSE_LEVEL_SHARP */
 #define DIFFUSE_LEVEL_STEP 8.0f /* = effective.DIFFUSE_LEVEL_STEP */
@@ -438,12 +440,54 @@ CL_INLINE SurfacePoint surface_point(__global const int *faces, __global const f
 
 CL_INLINE float3 to_local(SurfacePoint s, float3 d) { return (float3)(dot3(d, s.t), dot3(d, s.b), dot3(d, s.n)); }
 
-/* The share of ∫ G(ω; axis, η, 1)(n·ω)⁺ dω that the SSDF leaves unoccluded (1 without one). */
-CL_INLINE float environment_share(Table tab, float3 axis, EtaRow row, SurfacePoint s, int has_ssdf, Ssdf ssdf)
+/* A pixel's occlusion rays: their mask (bit i: ray i blocked), count, and the frame (a, b, n) about the
+ * geometric normal on the camera's side that they were traced in. */
+typedef struct {
+    uint mask;
+    int samples;
+    float3 a, b, n;
+    int pixel;
+} Occlusion;
+
+/* The occlusion rays' weight against the SSDF's for a lobe of sharpness η (shading.ray_weight). */
+CL_INLINE float ray_weight(float eta, int samples)
+{
+    if (samples == 0)
+        return 0.0f;
+    float lo = RAYS_ONLY * (float)samples;
+    float hi = SSDF_ONLY * (float)samples;
+    return clampf(log(hi / maxf(eta, 1.0e-30f)) / log(hi / lo), 0.0f, 1.0f);
+}
+
+/* The lobe's share that the pixel's occlusion rays see unblocked (shading.ray_share): the rays' directions
+ * made again, each weighted by G(ω)(n·ω)⁺/(ng·ω). */
+CL_INLINE float ray_share(float3 axis, float eta, float3 n, Occlusion occ)
+{
+    float total = 0.0f, seen = 0.0f;
+    for (int i = 0; i < occ.samples; ++i) {
+        float3 d = occlusion_direction(occ.a, occ.b, occ.n, i, occ.samples, occ.pixel);
+        float w = exp(eta * (dot3(d, axis) - 1.0f)) * maxf(dot3(d, n), 0.0f) / maxf(dot3(d, occ.n), 1.0e-6f);
+        total = total + w;
+        if (((occ.mask >> i) & 1u) == 0u)
+            seen = seen + w;
+    }
+    return total > 1.0e-30f ? seen / total : 1.0f;
+}
+
+/* The share of ∫ G(ω; axis, η, 1)(n·ω)⁺ dω left unoccluded (1 without an SSDF): the SSDF's, blended for
+ * broad lobes with the occlusion rays' (ray_weight; a mask with no bit set sees it all). */
+CL_INLINE float environment_share(Table tab, float3 axis, float eta, EtaRow row, SurfacePoint s, int has_ssdf,
+                                  Ssdf ssdf, Occlusion occ)
 {
     if (has_ssdf == 0)
         return 1.0f;
-    return ssdf_visible(ssdf, tab, axis, row, s.n);
+    float share = ssdf_visible(ssdf, tab, axis, row, s.n);
+    float weight = ray_weight(eta, occ.samples);
+    if (weight > 0.0f) {
+        float rays = occ.mask != 0u ? ray_share(axis, eta, s.n, occ) : 1.0f;
+        share = weight * rays + (1.0f - weight) * share;
+    }
+    return share;
 }
 
 /* Per channel, the exact irradiance E = lobes + residual over the environment lobes' own irradiance:
@@ -564,6 +608,8 @@ __kernel void shade_pixels(
     __global const int *face,           /* (P,) G-buffer face, -1 = miss */
     __global const float *bary,         /* (P, 2) weights of vertices 1 and 2 */
     __global const uchar *light_vis,    /* (P, L) visible share in 255ths */
+    __global const uint *occlusion,     /* (P,) occlusion-ray masks */
+    const int occlusion_samples,
     __global const int *faces,          /* (F, 3) */
     __global const float *positions,    /* (V, 3) */
     __global const float *normals,      /* (V, 3) */
@@ -608,6 +654,18 @@ __kernel void shade_pixels(
     float3 wo = normalize3((float3)(eye.x, eye.y, eye.z) - s.pos);
     float cos_o = maxf(dot3(wo, s.n), MIN_COS_VIEW);
     float3 wo_local = normalize3((float3)(dot3(wo, s.t), dot3(wo, s.b), cos_o));
+    /* The occlusion rays' mask and frame (about the geometric normal on the camera's side, as traced). */
+    Occlusion occ = {0u, occlusion_samples, (float3)(1.0f, 0.0f, 0.0f), (float3)(0.0f, 1.0f, 0.0f),
+                     (float3)(0.0f, 0.0f, 1.0f), p};
+    if (occlusion_samples > 0) {
+        occ.mask = occlusion[p];
+        float3 p0 = load3(positions, s.i0);
+        float3 ng = normalize3(cross3(load3(positions, s.i1) - p0, load3(positions, s.i2) - p0));
+        if (dot3(ng, wo) < 0.0f)
+            ng = -ng;
+        occ.n = ng;
+        disk_basis(ng, &occ.a, &occ.b);
+    }
 
     Ssdf ssdf = {ssdf_basis, ssdf_coeffs + s.i0 * n_coeffs, ssdf_coeffs + s.i1 * n_coeffs,
                  ssdf_coeffs + s.i2 * n_coeffs, s.w0, s.w1, s.w2, n_basis, ssdf_res};
@@ -656,7 +714,7 @@ __kernel void shade_pixels(
         EtaRow row = eta_row(tab, lobe[3]);
         float amount = cosine_integral(tab, axis, lobe[3], row, s.n);
         lobes_irradiance = lobes_irradiance + radiance_e * amount;
-        amount = amount * environment_share(tab, axis, row, s, has_ssdf, ssdf);
+        amount = amount * environment_share(tab, axis, lobe[3], row, s, has_ssdf, ssdf, occ);
         float3 fd = kd;
         if (kind != 0)
             fd = effective_diffuse(ei, eff_sub, eff_diffuse, k2, lobe[3], to_local(s, axis), k, oo, ow);
@@ -743,7 +801,8 @@ __kernel void shade_pixels(
                 }
                 eta = minf(eta, sharpness_max);
                 EtaRow er = eta_row(tab, eta);
-                float amount = cosine_integral(tab, axis, eta, er, s.n) * environment_share(tab, axis, er, s, has_ssdf, ssdf);
+                float amount = cosine_integral(tab, axis, eta, er, s.n)
+                               * environment_share(tab, axis, eta, er, s, has_ssdf, ssdf, occ);
                 float3 light_part = (float3)(0.0f, 0.0f, 0.0f);
                 if (with_lights != 0)
                     light_part = lobe_from_lights(tab, axis, eta, s, n_lights, lights, vis);

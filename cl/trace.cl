@@ -84,21 +84,6 @@ __kernel void trace_occluded(
  * moved eps along the geometric normal turned to the camera's side, the side the surface is
  * seen from; a light below that normal's horizon, or a missed pixel, gets 0. A point light's
  * ray stops eps short of its centre; a directional light's never stops. */
-#define GOLDEN_ANGLE 2.39996322972865f /* = trace.GOLDEN_ANGLE */
-
-/* Sample i of `samples` on the unit disc: a Vogel spiral turned by a per-pixel angle (trace.disk_sample),
- * so that neighbouring pixels' penumbrae are noise rather than bands. The centre for one sample. */
-CL_INLINE float2 disk_sample(int i, int samples, int pixel)
-{
-    if (samples == 1)
-        return (float2)(0.0f, 0.0f);
-    uint h = (uint)pixel * 2654435761u;
-    float turn = (float)(int)(h >> 8) * (2.0f * 3.14159265358979f / 16777216.0f);
-    float r = sqrt(((float)i + 0.5f) / (float)samples);
-    float a = (float)i * GOLDEN_ANGLE + turn;
-    return (float2)(r * cos(a), r * sin(a));
-}
-
 __kernel void trace_shadows(
     __global const float *nodes,
     __global const float *tris,
@@ -131,10 +116,8 @@ __kernel void trace_shadows(
             w = normalize3(c - o);
             spread = light[7]; /* point: the radius */
         }
-        /* a right-handed frame (a, b, w) (trace.disk_basis) */
-        float3 ref = absf(w.x) < 0.9f ? (float3)(1.0f, 0.0f, 0.0f) : (float3)(0.0f, 1.0f, 0.0f);
-        float3 a = normalize3(cross3(w, ref));
-        float3 b = cross3(w, a);
+        float3 a, b;
+        disk_basis(w, &a, &b);
         for (int i = 0; i < samples; ++i) {
             float2 q = disk_sample(i, samples, p);
             float3 on_disc = spread * (q.x * a + q.y * b);
@@ -151,4 +134,40 @@ __kernel void trace_shadows(
         }
     }
     visible[(long)p * n_lights + k] = (uchar)((hits * 255 + samples / 2) / samples);
+}
+
+/* One work-item per pixel: `samples` unbounded any-hit rays, cosine-distributed over the hemisphere of
+ * the geometric normal on the camera's side (occlusion_direction); bit i of the pixel's mask is set
+ * where ray i is blocked (trace.occlusion_directions, reference.trace_occlusion). */
+__kernel void trace_occlusion(
+    __global const float *nodes,
+    __global const float *tris,
+    __global const float *face_normals,  /* (F, 3) unit, original face order */
+    __global const int *face,            /* (P,) */
+    __global const float *position,      /* (P, 3) */
+    const float eye_x, const float eye_y, const float eye_z,
+    const float eps, const float t_min, const int samples,
+    const int n_pixels,
+    __global uint *mask)                 /* (P,) */
+{
+    int p = get_global_id(0);
+    if (p >= n_pixels)
+        return;
+    int f = face[p];
+    uint bits = 0u;
+    if (f >= 0) {
+        float3 x = load3(position, p);
+        float3 n = load3(face_normals, f);
+        if (dot3(n, (float3)(eye_x - x.x, eye_y - x.y, eye_z - x.z)) < 0.0f)
+            n = (float3)(-n.x, -n.y, -n.z);
+        float3 o = (float3)(x.x + eps * n.x, x.y + eps * n.y, x.z + eps * n.z);
+        float3 a, b;
+        disk_basis(n, &a, &b);
+        for (int i = 0; i < samples; ++i) {
+            float3 d = occlusion_direction(a, b, n, i, samples, p);
+            if (bvh_any_hit(nodes, tris, o, d, t_min, INFINITY))
+                bits |= 1u << i;
+        }
+    }
+    mask[p] = bits;
 }

@@ -309,3 +309,38 @@ def next_cell(o: wp.vec3, d: wp.vec3, t_exit: float, exits: wp.vec2, px: float, 
     if exits[1] <= t_exit:
         q = wp.vec3(q[0], q[1] - wp.sign(d[1]) * py, q[2])
     return q
+
+
+GOLDEN_ANGLE = wp.constant(2.39996322972865)  # = trace.GOLDEN_ANGLE: the disc samples of shadow and occlusion rays
+
+
+@wp.func
+def disk_sample(i: int, samples: int, pixel: int) -> wp.vec2:
+    """Sample i of `samples` on the unit disc: a Vogel spiral turned by a per-pixel angle (trace.disk_sample),
+    so that neighbouring pixels' penumbrae are noise rather than bands. The centre for one sample."""
+    if samples == 1:
+        return wp.vec2(0.0, 0.0)
+    h = wp.uint32(pixel) * wp.uint32(2654435761)
+    turn = float(int(h >> wp.uint32(8))) * (2.0 * 3.14159265358979 / 16777216.0)
+    r = wp.sqrt((float(i) + 0.5) / float(samples))
+    a = float(i) * GOLDEN_ANGLE + turn
+    return wp.vec2(r * wp.cos(a), r * wp.sin(a))
+
+
+@wp.func
+def disk_basis(w: wp.vec3) -> wp.mat33:
+    """Rows a, b, w: a right-handed frame whose third row is w (trace.disk_basis)."""
+    ref = wp.vec3(0.0, 1.0, 0.0)
+    if wp.abs(w[0]) < 0.9:
+        ref = wp.vec3(1.0, 0.0, 0.0)
+    a = wp.normalize(wp.cross(w, ref))
+    return wp.matrix_from_rows(a, wp.cross(w, a), w)
+
+
+@wp.func
+def occlusion_direction(frame: wp.mat33, i: int, samples: int, pixel: int) -> wp.vec3:
+    """Environment-occlusion ray i of `samples` (trace.occlusion_directions): disc sample i lifted to the
+    hemisphere of frame's third row, cosine-distributed."""
+    q = disk_sample(i, samples, pixel)
+    lift = wp.sqrt(wp.max(1.0 - q[0] * q[0] - q[1] * q[1], 0.0))
+    return q[0] * frame[0] + q[1] * frame[1] + lift * frame[2]

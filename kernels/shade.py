@@ -13,7 +13,10 @@ from warp_biscale import asg as _asg
 from warp_biscale import effective as _effective
 from warp_biscale import sg as _sg
 
+from warp_biscale import shading as _shading
+
 from .asg import Asg, asg_convolve_sg, asg_integral_eq10, asg_unit_integral, asg_warp, harmonic
+from .common import disk_basis, occlusion_direction
 
 # Fast math on CUDA (approximate division, square root, exp and trigonometry): this shading is bound by its
 # arithmetic, and its float32 results are read against the float64 oracle with tolerances far above fast
@@ -27,6 +30,8 @@ SHARPNESS_MAX = wp.constant(_sg.SHARPNESS_MAX)
 MIN_COS_VIEW = wp.constant(1.0e-4)  # = shading.MIN_COS_VIEW
 ASG_LOBES = wp.constant(_effective.ASG_LOBES)  # i32_at2(eff_info, :, 7) of a material with ASG lobes
 ASG_EQ10_MIN = wp.constant(_asg.EQ10_MIN_BANDWIDTH)
+RAYS_ONLY = wp.constant(_shading.RAYS_ONLY)
+SSDF_ONLY = wp.constant(_shading.SSDF_ONLY)
 DIFFUSE_LEVELS = wp.constant(len(_effective.DIFFUSE_LEVEL_ETAS))  # f̄d and its prefiltered levels
 DIFFUSE_LEVEL_SHARP = wp.constant(_effective.DIFFUSE_LEVEL_SHARP)
 DIFFUSE_LEVEL_STEP = wp.constant(_effective.DIFFUSE_LEVEL_STEP)
@@ -475,15 +480,53 @@ def to_local(s: SurfacePoint, d: wp.vec3) -> wp.vec3:
 
 
 @wp.func
-def environment_share(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, tr: float, s: SurfacePoint,
+def ray_weight(eta: float, samples: int) -> float:
+    """The occlusion rays' weight against the SSDF's for a lobe of sharpness η (shading.ray_weight)."""
+    if samples == 0:
+        return 0.0
+    lo = RAYS_ONLY * float(samples)
+    hi = SSDF_ONLY * float(samples)
+    return wp.clamp(wp.log(hi / wp.max(eta, 1.0e-30)) / wp.log(hi / lo), 0.0, 1.0)
+
+
+@wp.func
+def ray_share(axis: wp.vec3, eta: float, n: wp.vec3, frame: wp.mat33, mask: wp.uint32, samples: int,
+              pixel: int) -> float:
+    """The lobe's share that the pixel's occlusion rays see unblocked (shading.ray_share): the rays'
+    directions made again (occlusion_direction about frame's third row, the geometric normal), each
+    weighted by G(ω)(n·ω)⁺/(ng·ω)."""
+    total = float(0.0)
+    seen = float(0.0)
+    for i in range(samples):
+        d = occlusion_direction(frame, i, samples, pixel)
+        w = wp.exp(eta * (wp.dot(d, axis) - 1.0)) * wp.max(wp.dot(d, n), 0.0) / wp.max(wp.dot(d, frame[2]), 1.0e-6)
+        total = total + w
+        if ((mask >> wp.uint32(i)) & wp.uint32(1)) == wp.uint32(0):
+            seen = seen + w
+    if total > 1.0e-30:
+        return seen / total
+    return 1.0
+
+
+@wp.func
+def environment_share(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: float, tr: float, s: SurfacePoint,
                       has_ssdf: int, ssdf_res: int, ssdf_basis: wp.array2d(dtype=wp.float32),
-                      ssdf_coeffs: wp.array2d(dtype=wp.float32)) -> float:
-    """The share of ∫ G(ω; axis, η, 1)(n·ω)⁺ dω that the SSDF leaves unoccluded (1 without one); tr: η's
+                      ssdf_coeffs: wp.array2d(dtype=wp.float32), mask: wp.uint32, samples: int, frame: wp.mat33,
+                      pixel: int) -> float:
+    """The share of ∫ G(ω; axis, η, 1)(n·ω)⁺ dω left unoccluded (1 without an SSDF): the SSDF's, blended
+    for broad lobes with the occlusion rays' (ray_weight; a mask with no bit set sees it all); tr: η's
     table row."""
     if has_ssdf == 0:
         return 1.0
     theta = ssdf_theta(ssdf_basis, ssdf_coeffs, s.i0, s.i1, s.i2, s.w0, s.w1, s.w2, ssdf_res, axis)
-    return beyond_horizon(table, theta, axis, tr, s.n)
+    share = beyond_horizon(table, theta, axis, tr, s.n)
+    weight = ray_weight(eta, samples)
+    if weight > 0.0:
+        rays = float(1.0)
+        if mask != wp.uint32(0):
+            rays = ray_share(axis, eta, s.n, frame, mask, samples, pixel)
+        share = weight * rays + (1.0 - weight) * share
+    return share
 
 
 @wp.func
@@ -605,6 +648,7 @@ def finite_radiance(v: wp.vec3) -> wp.vec3:
 @wp.kernel(cuda_max_registers=96)
 def shade_pixels(
     face: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec2), light_vis: wp.array2d(dtype=wp.uint8),
+    occlusion: wp.array(dtype=wp.uint32), occlusion_samples: int,
     faces: wp.array2d(dtype=wp.int32), positions: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp.vec3),
     tangents: wp.array(dtype=wp.vec3), face_material: wp.array(dtype=wp.int32),
     camera: wp.array(dtype=wp.float32),
@@ -638,6 +682,15 @@ def shade_pixels(
     wo = wp.normalize(wp.vec3(camera[0], camera[1], camera[2]) - s.pos)
     cos_o = wp.max(wp.dot(wo, s.n), MIN_COS_VIEW)
     wo_local = wp.normalize(wp.vec3(wp.dot(wo, s.t), wp.dot(wo, s.b), cos_o))
+    # The occlusion rays' mask and frame (about the geometric normal on the camera's side, as traced).
+    mask = wp.uint32(0)
+    frame = wp.identity(3, dtype=float)
+    if occlusion_samples > 0:
+        mask = occlusion[p]
+        ng = wp.normalize(wp.cross(positions[s.i1] - positions[s.i0], positions[s.i2] - positions[s.i0]))
+        if wp.dot(ng, wo) < 0.0:
+            ng = -ng
+        frame = disk_basis(ng)
 
     mat = face_material[f]
     kind = i32_at2(mat_info, mat, 0)
@@ -680,7 +733,8 @@ def shade_pixels(
         tr = eta_row(table, eta)
         amount = cosine_integral(table, axis, eta, tr, s.n)
         lobes_irradiance = lobes_irradiance + radiance_e * amount
-        amount = amount * environment_share(table, axis, tr, s, has_ssdf, ssdf_res, ssdf_basis, ssdf_coeffs)
+        amount = amount * environment_share(table, axis, eta, tr, s, has_ssdf, ssdf_res, ssdf_basis, ssdf_coeffs,
+                                            mask, occlusion_samples, frame, p)
         fd = kd
         if kind != 0:
             fd = effective_diffuse(eff_info, eff_sub, eff_diffuse, idx, k2, eta, to_local(s, axis), k, oo, ow)
@@ -764,7 +818,8 @@ def shade_pixels(
                 eta = wp.min(eta, SHARPNESS_MAX)
                 tr = eta_row(table, eta)
                 amount = cosine_integral(table, axis, eta, tr, s.n) * environment_share(
-                    table, axis, tr, s, has_ssdf, ssdf_res, ssdf_basis, ssdf_coeffs)
+                    table, axis, eta, tr, s, has_ssdf, ssdf_res, ssdf_basis, ssdf_coeffs, mask, occlusion_samples,
+                    frame, p)
                 light_part = wp.vec3(0.0)
                 if with_lights != 0:
                     light_part = lobe_from_lights(table, axis, eta, s, n_lights, lights, light_vis, p)

@@ -17,6 +17,8 @@ Conventions shared with the OpenCL twin and the reference:
 
 import warp as wp
 
+from .common import disk_basis, disk_sample, occlusion_direction
+
 
 @wp.func
 def surface_point(points: wp.array(dtype=wp.vec3), faces: wp.array2d(dtype=wp.int32), f: int,
@@ -86,32 +88,6 @@ def trace_occluded(
     occluded[i] = hit
 
 
-GOLDEN_ANGLE = wp.constant(2.39996322972865)  # = trace.GOLDEN_ANGLE
-
-
-@wp.func
-def disk_sample(i: int, samples: int, pixel: int) -> wp.vec2:
-    """Sample i of `samples` on the unit disc: a Vogel spiral turned by a per-pixel angle (trace.disk_sample),
-    so that neighbouring pixels' penumbrae are noise rather than bands. The centre for one sample."""
-    if samples == 1:
-        return wp.vec2(0.0, 0.0)
-    h = wp.uint32(pixel) * wp.uint32(2654435761)
-    turn = float(int(h >> wp.uint32(8))) * (2.0 * 3.14159265358979 / 16777216.0)
-    r = wp.sqrt((float(i) + 0.5) / float(samples))
-    a = float(i) * GOLDEN_ANGLE + turn
-    return wp.vec2(r * wp.cos(a), r * wp.sin(a))
-
-
-@wp.func
-def disk_basis(w: wp.vec3) -> wp.mat33:
-    """Rows a, b, w: a right-handed frame whose third row is w (trace.disk_basis)."""
-    ref = wp.vec3(0.0, 1.0, 0.0)
-    if wp.abs(w[0]) < 0.9:
-        ref = wp.vec3(1.0, 0.0, 0.0)
-    a = wp.normalize(wp.cross(w, ref))
-    return wp.matrix_from_rows(a, wp.cross(w, a), w)
-
-
 @wp.kernel
 def trace_shadows(
     mesh: wp.uint64,
@@ -167,3 +143,36 @@ def trace_shadows(
                 else:
                     hits = hits + 1
     visible[p, k] = wp.uint8((hits * 255 + samples // 2) // samples)
+
+
+@wp.kernel
+def trace_occlusion(
+    mesh: wp.uint64,
+    face_normals: wp.array(dtype=wp.vec3),
+    face: wp.array(dtype=wp.int32),
+    position: wp.array(dtype=wp.vec3),
+    eye: wp.vec3,
+    eps: float,
+    t_min: float,
+    samples: int,
+    offset: int,
+    mask: wp.array(dtype=wp.uint32),
+):
+    """One thread per pixel: `samples` unbounded any-hit rays, cosine-distributed over the hemisphere of
+    the geometric normal on the camera's side (occlusion_direction); bit i of the pixel's mask is set
+    where ray i is blocked."""
+    p = wp.tid() + offset
+    f = face[p]
+    bits = wp.uint32(0)
+    if f >= 0:
+        x = position[p]
+        n = face_normals[f]
+        if wp.dot(n, eye - x) < 0.0:
+            n = -n
+        o = x + eps * n
+        frame = disk_basis(n)
+        for i in range(samples):
+            d = occlusion_direction(frame, i, samples, p)
+            if wp.mesh_query_ray_anyhit(mesh, o + t_min * d, d, wp.inf):
+                bits = bits | (wp.uint32(1) << wp.uint32(i))
+    mask[p] = bits

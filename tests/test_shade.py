@@ -1,13 +1,14 @@
 """The shade stage (kernels/shade.py, cl/shade.cl) against its float64 reference `shading.shade_reference`,
 on every backend present, over frames that exercise every path: analytic diffuse + glossy materials of
-each kind, an effective (bi-scale) material, environment lobes with and without the SSDF, point and
+each kind, an effective (bi-scale) material, environment lobes with and without the SSDF (and its
+per-pixel occlusion rays), point and
 directional lights with shadows, background pixels, and silhouettes (normals facing away)."""
 
 import numpy as np
 import pytest
 
 import warp_biscale as wb
-from warp_biscale.render import SHADOW_SAMPLES, pack_frame
+from warp_biscale.render import OCCLUSION_SAMPLES, SHADOW_SAMPLES, pack_frame
 from warp_biscale.scene import Scene
 from warp_biscale.environment import Environment
 from warp_biscale.scene import Camera, DirectionalLight, Mesh, PointLight
@@ -75,6 +76,9 @@ def test_shade_kernel_matches_reference(backend, which, effective_material, many
         scene = _scenes(effective_material)[which]
     frame = pack_frame(scene, backend)
     assert bool(frame.inputs.has_ssdf) == (which != "lone")  # the lone convex sphere needs no SSDF
+    # ... nor occlusion rays; the occluded scene's broad lobes are shadowed through them, some rays blocked
+    assert frame.gbuffer.occlusion_samples == (0 if which == "lone" else OCCLUSION_SAMPLES)
+    assert which == "lone" or frame.gbuffer.occlusion.any()
     ref = shade_reference(frame)
     out = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights,
                         gbuffer=frame.gbuffer)
@@ -91,13 +95,15 @@ def test_shade_kernel_matches_reference(backend, which, effective_material, many
 
 
 def test_shade_uses_device_gbuffer(backend, effective_material):
-    """The render path: G-buffer and shadows left on the device by trace_primary/trace_shadows."""
+    """The render path: G-buffer, shadows and occlusion masks left on the device by trace_primary,
+    trace_shadows and trace_occlusion."""
     scene = _scenes(effective_material)["occluded"]
     frame = pack_frame(scene, backend)
     host = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights,
                          gbuffer=frame.gbuffer)
     backend.trace_primary(scene.mesh, scene.camera, to_host=False)
     backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=SHADOW_SAMPLES)  # as pack_frame
+    backend.trace_occlusion(scene.mesh, None, OCCLUSION_SAMPLES, to_host=False)
     dev = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights)
     np.testing.assert_array_equal(dev, host)
 
@@ -110,12 +116,14 @@ def test_shade_only_one_material_over_the_last_frame(backend, effective_material
     frame = pack_frame(scene, backend)
     backend.trace_primary(scene.mesh, scene.camera, to_host=False)
     backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=SHADOW_SAMPLES)
+    backend.trace_occlusion(scene.mesh, None, OCCLUSION_SAMPLES, to_host=False)
     before = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights)
     edited = Scene(scene.mesh, [wb.Lambert(0.9), wb.Ward(0.2, 0.3, kd=(0.6, 0.1, 0.1)), scene.materials[2]],
                    scene.camera, scene.environment, scene.lights, ssdf_resolution=16, ssdf_terms=8)
     inputs = pack_frame(edited, backend).inputs
     backend.trace_primary(scene.mesh, scene.camera, to_host=False)
     backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=SHADOW_SAMPLES)
+    backend.trace_occlusion(scene.mesh, None, OCCLUSION_SAMPLES, to_host=False)
     backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights, to_host=False)
     masked = backend.shade(scene.mesh, inputs, frame.camera, frame.lights, only_material=1)
     whole = backend.shade(scene.mesh, inputs, frame.camera, frame.lights)

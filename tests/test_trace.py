@@ -1,5 +1,6 @@
 """Ray casting against the large-scale mesh (stage `trace`), on every backend present, against the
-float64 brute-force reference (`reference.trace_closest`, `trace_occluded`, `trace_shadows`).
+float64 brute-force reference (`reference.trace_closest`, `trace_occluded`, `trace_shadows`,
+`trace_occlusion`).
 
 Tolerances, and why:
 - The kernels trace float32 rays against float32 vertices; the reference traces float64 camera
@@ -13,7 +14,7 @@ Tolerances, and why:
   margin of BARY_TOL in barycentric units at a t within 1e-5 relative of the reference t (or, for
   a hit/miss disagreement, passes within BARY_TOL of the hit face's edge). Unexplained mismatches:
   none allowed; explained ones: at most 0.5 % of the pixels (measured: 0 on this scene).
-- Any-hit and shadow rays: the reference is evaluated with triangles grown and shrunk by BARY_TOL
+- Any-hit, shadow and occlusion rays: the reference is evaluated with triangles grown and shrunk by BARY_TOL
   (`tol` = ±BARY_TOL); where the two agree a ray is unambiguous and the kernels must agree with
   it exactly; the ambiguous rays (grazing an edge within rounding) may go either way, and must be
   fewer than 1 %. BARY_TOL = 1e-3 is large next to float32 rounding of the barycentrics (~1e-4 at
@@ -343,6 +344,46 @@ def test_bad_shadow_samples_are_one_line(backend, bad):
     g = backend.trace_primary(mesh, cam)
     with pytest.raises(ValueError, match="shadow samples must be an integer"):
         backend.trace_shadows(mesh, g, lights, samples=bad)
+
+
+def test_occlusion_matches_reference(backend):
+    """16 environment-occlusion rays a pixel (unbounded, cosine-distributed about the oriented geometric
+    normal) against the float64 reference's same rays, bit for bit where a ray is unambiguous; ambiguous
+    rays (grazing an edge within rounding) fewer than 1 %. Floor pixels by the sphere are partly blocked,
+    the open floor's rays escape, and a miss has no bits."""
+    mesh, cam, _ = _shadow_scene()
+    g = backend.trace_primary(mesh, cam)
+    mask = backend.trace_occlusion(mesh, g, 16)
+    assert mask.dtype == np.uint32 and mask.shape == g.face.shape
+    eps, t_min = offsets(mesh)
+    args = (mesh.vertices, mesh.faces, g.face, g.position, g.eye, eps, t_min, 16)
+    exact = ref.trace_occlusion(*args)
+
+    def bits(m):
+        return ((m[:, None].astype(np.uint64) >> np.arange(16, dtype=np.uint64)) & np.uint64(1)).astype(bool)
+
+    grown, shrunk = bits(ref.trace_occlusion(*args, tol=BARY_TOL)), bits(ref.trace_occlusion(*args, tol=-BARY_TOL))
+    clear = grown == shrunk
+    got = bits(mask)
+    assert not (clear & (got != bits(exact))).any(), f"{(clear & (got != bits(exact))).sum()} clear rays disagree"
+    assert (~clear).mean() < 0.01
+    assert not mask[g.face < 0].any()
+    floor = g.face >= len(Mesh.sphere(0.5, subdivisions=3).faces)
+    blocked = got.sum(1)
+    assert ((blocked > 0) & (blocked < 16) & floor).sum() > 30  # partly occluded floor by the sphere
+    assert (floor & (blocked == 0)).sum() > floor.sum() / 3  # the far floor sees the whole sky
+    # From the device's own G-buffer, and 0 samples: no rays, no bits.
+    backend.trace_occlusion(mesh, None, 16, to_host=False)
+    np.testing.assert_array_equal(backend.trace_occlusion(mesh, None, 16), mask)
+    assert not backend.trace_occlusion(mesh, g, 0).any()
+
+
+@pytest.mark.parametrize("bad", [-1, 33, 2.5, "8"])
+def test_bad_occlusion_samples_are_one_line(backend, bad):
+    mesh, cam, _ = _shadow_scene()
+    g = backend.trace_primary(mesh, cam)
+    with pytest.raises(ValueError, match="occlusion samples must be an integer"):
+        backend.trace_occlusion(mesh, g, bad)
 
 
 def test_shadows_offset_and_orientation(backend):

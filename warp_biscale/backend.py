@@ -134,6 +134,8 @@ class Backend(Protocol):
     #   "gbuffer_t" (P,) wp.float32 | P float32              ray distance (inf on a miss)
     #   "gbuffer_eye" (3,) numpy float32, "gbuffer_size" int P
     #   "gbuffer_light_vis" (P, L) wp.uint8 | P·L uint8      light l's visible share from pixel p, in 255ths
+    #   "gbuffer_occlusion" (P,) wp.uint32 | P uint32        environment-occlusion masks (bit i: ray i blocked),
+    #   "occlusion_samples" int                              of this many rays (0: none since trace_primary)
     # The G-buffer arrays are reused from frame to frame (same size): a new trace overwrites them.
     def trace_primary(self, mesh, camera, to_host: bool = True) -> GBuffer | None:
         """The G-buffer of `camera` on `mesh` (reference.trace_primary): camera rays generated in the
@@ -158,6 +160,13 @@ class Backend(Protocol):
         None or the GBuffer trace_primary last returned (both use the device copy), or any GBuffer with
         face, position and eye (uploaded). Fills "gbuffer_light_vis"; returns None unless to_host."""
 
+    def trace_occlusion(self, mesh, gbuffer: GBuffer | None, samples: int, to_host: bool = True) -> np.ndarray | None:
+        """(P,) uint32 environment-occlusion masks (reference.trace_occlusion): from each hit pixel, `samples`
+        (≤ trace.OCCLUSION_SAMPLES_MAX) unbounded rays from the hit point moved as shadow rays are, along
+        trace.occlusion_directions (cosine-distributed over the geometric normal's hemisphere); bit i set
+        where ray i is blocked, 0 for a miss. `gbuffer` as trace_shadows. Fills "gbuffer_occlusion" and
+        "occlusion_samples", which shade reads; returns None unless to_host."""
+
     # --- Per-pixel SG shading (stage `shade`: kernels/shade.py, cl/shade.cl; warp_biscale.shading) ---
     def shade(self, mesh, static: ShadeInputs, camera_packed: np.ndarray, lights_packed: np.ndarray,
               gbuffer: GBuffer | None = None, to_host: bool = True,
@@ -166,9 +175,9 @@ class Backend(Protocol):
         never NaN, inf or negative; background pixels get the environment along the camera ray.
         `static`: the scene's packed inputs (render._static_inputs), uploaded once and kept in
         static.device[self.name]. camera_packed: Camera.packed() (16,); lights_packed (L, 8).
-        The G-buffer: gbuffer None → the one the last trace_primary / trace_shadows left on the
-        device for `mesh` (the render path; ValueError if absent or traced for another light count),
-        or a host GBuffer with face, bary and light_vis (uploaded). The output buffer is kept
+        The G-buffer: gbuffer None → the one the last trace_primary / trace_shadows / trace_occlusion
+        left on the device for `mesh` (the render path; ValueError if absent or traced for another light
+        count), or a host GBuffer with face, bary, light_vis and occlusion (uploaded). The output buffer is kept
         in mesh.device_cache[self.name]["radiance"] and reused; returns None unless to_host.
         only_material m: shade only the pixels of faces of material m, and leave every other pixel as
         the last shade of this mesh's device G-buffer left it (gbuffer None only; ValueError if the

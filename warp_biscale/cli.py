@@ -27,8 +27,8 @@ from .loading import load
 from .measured import MeasuredBRDF, small_scale_brdf
 from .montecarlo import missing_provenance
 from .progress import as_progress, set_quiet
-from .render import SHADOW_SAMPLES, check_aa, material_ball
-from .trace import check_shadow_samples
+from .render import OCCLUSION_SAMPLES, SHADOW_SAMPLES, check_aa, material_ball
+from .trace import OCCLUSION_SAMPLES_MAX, check_occlusion_samples, check_shadow_samples
 from .scenefile import load_scene
 from .truth import BOUNCE_PATHS, MAX_BOUNCES, MAX_PATHS, _check_bounces, ground_truth
 from .viewer import view
@@ -252,6 +252,8 @@ def cmd_render(args):
         check_aa(args.aa)
     if args.shadow_samples is not None:
         check_shadow_samples(args.shadow_samples)
+    if args.occlusion_samples is not None:
+        check_occlusion_samples(args.occlusion_samples)
     if args.method == "mc":
         _refuse_sg_options(args)
     if args.truth_bounces is not None or args.truth_paths is not None:
@@ -276,6 +278,8 @@ def cmd_render(args):
         options["aa"] = FILE_AA if args.aa is None else args.aa
         if args.shadow_samples is not None:
             options["shadow_samples"] = args.shadow_samples
+        if args.occlusion_samples is not None:
+            options["occlusion_samples"] = args.occlusion_samples
     if method == "mc" and args.mc_fallback is None:
         # Before the render starts: a material file of format 1 records no tile to compute the truth from.
         for i in missing_provenance(sf.scene):
@@ -297,7 +301,8 @@ def cmd_render(args):
 
 
 def _refuse_sg_options(args):
-    for flag, value in (("--aa", args.aa), ("--shadow-samples", args.shadow_samples)):
+    for flag, value in (("--aa", args.aa), ("--shadow-samples", args.shadow_samples),
+                        ("--occlusion-samples", args.occlusion_samples)):
         if value is not None:
             raise ValueError(f"{flag} is for the SG renderer (--method sg); the Monte Carlo reference samples "
                              "pixel centres and lights as emitters")
@@ -466,6 +471,10 @@ def _add_render_commands(sub):
     r.add_argument("--shadow-samples", type=int, metavar="N",
                    help=f"shadow rays per light and pixel over the light's disc (default {SHADOW_SAMPLES}; 1: a hard "
                         "shadow)")
+    r.add_argument("--occlusion-samples", type=int, metavar="N",
+                   help=f"environment-occlusion rays a pixel, 0..{OCCLUSION_SAMPLES_MAX}, that shadow the broad "
+                        f"environment lobes where the scene occludes itself (default {OCCLUSION_SAMPLES}; 0: the "
+                        "SSDF alone)")
     r.add_argument("--mc-fallback", choices=["sg"],
                    help="--method mc: judge every baked material with its SG fit (not exact; with a warning) "
                         "instead of its exact ground truth, e.g. for a material file of format 1, which records "

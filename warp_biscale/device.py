@@ -22,7 +22,7 @@ from .brdf import ANISOTROPIC_KINDS, MEASURED
 from .lobes import KERNEL_LOBES, LobeSet
 from .model import Facets, GBuffer, ShadeInputs, Visibility, facet_shift
 from .trace import (CHUNK_RAYS, check_camera, check_gbuffer, check_lights, check_mesh, check_occlusion,
-                    check_shadow_samples, offsets)
+                    check_occlusion_samples, check_shadow_samples, offsets)
 
 # Shade inputs up to this size are compared by value to the last upload of their role (`_shade_input`),
 # larger ones by their memory.
@@ -568,7 +568,7 @@ class DeviceBackend:
         self._launch_trace_primary(m, camera, g["face"], g["bary"], g["position"], g["t"])
         eye = camera.packed()[0:3].copy()
         m["gbuffer_eye"], m["gbuffer_size"], m["gbuffer_host"] = eye, n, None
-        m["gbuffer_key"], m["light_vis_key"] = key, None
+        m["gbuffer_key"], m["light_vis_key"], m["occlusion_key"], m["occlusion_samples"] = key, None, None, 0
         if not to_host:
             return None
         host = GBuffer(**{key: self._to_host(g[key], n, kind) for key, kind in (
@@ -618,6 +618,36 @@ class DeviceBackend:
         m["light_vis_key"] = key
         return self._to_host(vis, (n, len(lights)), "u8") if to_host else None
 
+    def trace_occlusion(self, mesh, gbuffer, samples, to_host=True, if_changed=False):
+        """`samples` environment-occlusion rays per pixel of the G-buffer (None: the one on the device), their
+        (P,) uint32 masks left on the device for shade (reference.trace_occlusion); 0 samples: none, and shade
+        shadows the environment by the SSDF alone. With if_changed (and to_host False), nothing is traced
+        when the device already holds them for this G-buffer and samples."""
+        check_mesh(mesh)
+        samples = check_occlusion_samples(samples)
+        m = self._trace_mesh(mesh)
+        key = None
+        if gbuffer is None or gbuffer is m.get("gbuffer_host"):
+            key = (m.get("gbuffer_key"), samples)
+            if if_changed and not to_host and m.get("occlusion_key") == key:
+                return None
+            if "gbuffer_face" not in m:
+                raise ValueError("gbuffer is None, but trace_primary has not run on this mesh with this backend")
+            face, position, eye, n = m["gbuffer_face"], m["gbuffer_position"], m["gbuffer_eye"], m["gbuffer_size"]
+        else:
+            f, p, eye = check_gbuffer(gbuffer, len(mesh.faces))
+            face, position, n = self._to_device(f, "i32"), self._to_device(p, "vec3"), len(f)
+        mask = self._reuse(m, "gbuffer_occlusion", n, "u32")
+        if n and samples:
+            if "offsets" not in m:
+                m["offsets"] = offsets(mesh)
+            eps, t_min = m["offsets"]
+            self._launch_trace_occlusion(m, face, position, eye, eps, t_min, samples, n, mask)
+        m["occlusion_key"], m["occlusion_samples"] = key, samples
+        if not to_host:
+            return None
+        return self._to_host(mask, n, "u32") if samples else np.zeros(n, np.uint32)
+
     def shade(self, mesh, static, camera_packed, lights_packed, gbuffer=None, to_host=True, only_material=None):
         dev = self._shade_static(static)
         m = self._trace_mesh(mesh)
@@ -639,6 +669,8 @@ class DeviceBackend:
             vis = m.get("gbuffer_light_vis") if n_lights else None
             if n_lights and m.get("gbuffer_light_vis/spec") != ((n, n_lights), "u8"):
                 raise ValueError("no shadow rays on the device for these lights: call trace_shadows first")
+            occ_samples = m.get("occlusion_samples", 0)
+            occ = m["gbuffer_occlusion"] if occ_samples else None
         else:
             if not isinstance(gbuffer, GBuffer):
                 raise ValueError(f"gbuffer must be a GBuffer (or None), got {type(gbuffer).__name__}")
@@ -655,12 +687,22 @@ class DeviceBackend:
                 if vis_h.shape != (n, n_lights):
                     raise ValueError(f"gbuffer.light_vis must have shape ({n}, {n_lights}), got {vis_h.shape}")
                 vis = self._to_device(vis_h, "u8")
+            occ_samples, occ = check_occlusion_samples(gbuffer.occlusion_samples), None
+            if occ_samples:
+                occ_h = np.asarray(gbuffer.occlusion, np.uint32) if gbuffer.occlusion is not None else None
+                if occ_h is None or occ_h.shape != (n,):
+                    raise ValueError(f"gbuffer.occlusion must have shape ({n},) with occlusion_samples "
+                                     f"{occ_samples}, got {None if occ_h is None else occ_h.shape}")
+                occ = self._to_device(occ_h, "u32")
         if vis is None:
             vis = self._reuse(m, "no_light_vis", (1, 1), "u8")  # never read: no light
+        if occ is None:
+            occ = self._reuse(m, "no_occlusion", 1, "u32")  # never read: no occlusion rays
         out = self._reuse(m, "radiance", n, "vec3")
         if n:
-            self._launch_shade(dev, m, face, bary, vis, lights, np.asarray(camera_packed, np.float32).reshape(16),
-                               n, -1 if only_material is None else int(only_material), out)
+            self._launch_shade(dev, m, face, bary, vis, occ, occ_samples, lights,
+                               np.asarray(camera_packed, np.float32).reshape(16), n,
+                               -1 if only_material is None else int(only_material), out)
         return self._to_host(out, n, "vec3") if to_host else None
 
     def shade_litsphere(self, mesh, spheres, camera_packed, lights_packed, env_maps, env_levels, view_mode=0,

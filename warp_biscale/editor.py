@@ -29,7 +29,7 @@ from . import geometry, images
 from .bake import bake
 from .brdf import BlinnPhong, CookTorrance, Lambert, Ward
 from .io import atomic_path, check_output
-from .render import render, static_inputs
+from .render import OCCLUSION_SAMPLES, render, static_inputs
 from .scene import Camera, DirectionalLight, Mesh, Scene
 from .environment import Environment
 from .smallscale import SmallScale
@@ -586,6 +586,8 @@ class Editor:
         be.trace_primary(scene.mesh, cam, to_host=False, if_changed=True)
         if len(lights):
             be.trace_shadows(scene.mesh, None, lights, to_host=False, samples=1, if_changed=True)
+        if static.has_ssdf:  # traced again only when the camera or the mesh moved, as the G-buffer
+            be.trace_occlusion(scene.mesh, None, OCCLUSION_SAMPLES, to_host=False, if_changed=True)
         be.shade(scene.mesh, static, cam.packed(), lights, to_host=False, only_material=only_material)
         # Two host frames in turn: the one shown stays whole while the next is read back into the other.
         pair = self._frame_buffers.setdefault((cam.height, cam.width), [])

@@ -256,13 +256,17 @@ class GBuffer:
     and what trace_shadows and shade take instead of the device's own copy. face (P,) int32, −1 = miss;
     bary (P, 2) float32 (u, v) weights of the face's vertices 1 and 2; position (P, 3) float32 hit point
     (0 on a miss); t (P,) float32 ray distance (inf on a miss); eye (3,) float32; light_vis (P, L) uint8,
-    the share of light l visible from pixel p in 255ths (trace_shadows' result, which shade reads)."""
+    the share of light l visible from pixel p in 255ths (trace_shadows' result, which shade reads);
+    occlusion (P,) uint32, bit i set where environment-occlusion ray i of occlusion_samples is blocked
+    (trace_occlusion's result; occlusion_samples 0: none traced, the SSDF alone shadows the environment)."""
     face: np.ndarray
     bary: np.ndarray | None = None
     position: np.ndarray | None = None
     t: np.ndarray | None = None
     eye: np.ndarray | None = None
     light_vis: np.ndarray | None = None
+    occlusion: np.ndarray | None = None
+    occlusion_samples: int = 0
 
 
 @dataclass(eq=False)

@@ -22,7 +22,7 @@ from .environment import (
 )
 from .lighting import prefiltered_lookup, sg_irradiance  # noqa: F401
 from .model import facet_shift, radical_inverse  # noqa: F401
-from .trace import disk_basis, disk_sample
+from .trace import disk_basis, disk_sample, occlusion_directions, oriented_face_normals
 from .sg import one_minus_cos
 from .smallscale import (
     SmallScale,
@@ -658,7 +658,8 @@ def ssdf_distance(visible, directions, half_angle) -> np.ndarray:
 # the pair ±tol to tell rays that graze an edge within float32 rounding from clear hits and misses.
 # ==============================================================================================
 
-__all__ += ["intersect_faces", "trace_closest", "trace_occluded", "trace_shadows", "trace_primary"]
+__all__ += ["intersect_faces", "trace_closest", "trace_occluded", "trace_shadows", "trace_primary",
+            "trace_occlusion"]
 
 _TRACE_BLOCK = 1 << 18  # rays × triangles per chunk (2^18: fastest here, the blocks stay in cache)
 
@@ -793,15 +794,29 @@ def trace_shadows(vertices, faces, face, position, eye, lights_packed, eps, t_mi
     return out
 
 
+def trace_occlusion(vertices, faces, face, position, eye, eps, t_min, samples: int, tol=0.0) -> np.ndarray:
+    """(P,) uint32 environment-occlusion masks: bit i set where ray i of `samples` from hit pixel p hits a
+    triangle with t in (t_min, inf). The rays start at position + eps·n (n: `oriented_face_normals`) along
+    trace.occlusion_directions(n, samples, p). 0 for a missed pixel (face −1) and for samples = 0."""
+    face = np.asarray(face, np.int64)
+    out = np.zeros(len(face), np.uint32)
+    hit = np.flatnonzero(face >= 0)
+    if len(hit) == 0 or samples == 0:
+        return out
+    x = np.asarray(position, np.float64).reshape(-1, 3)[hit]
+    n = oriented_face_normals(vertices, faces, face[hit], x, eye)
+    d = occlusion_directions(n, samples, hit)  # (H, S, 3)
+    o = np.repeat(x + eps * n, samples, axis=0)
+    blocked = trace_occluded(vertices, faces, o, d.reshape(-1, 3), t_min, np.inf, tol).reshape(len(hit), samples)
+    out[hit] = (blocked.astype(np.uint64) << np.arange(samples, dtype=np.uint64)).sum(1).astype(np.uint32)
+    return out
+
+
 def _shadow_rays(v, f, face, x, eye, lights, eps, t_min, tol, hit, i, samples) -> np.ndarray:
     """(len(hit), L) bool: ray i of `samples` of trace_shadows unoccluded, per hit pixel and light."""
     out = np.zeros((len(hit), len(lights)), bool)
-    tri = v[f[face[hit]]]
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    n = np.where(length > 0, n / np.where(length > 0, length, 1.0), 0.0)
     xh = x[hit]
-    n = np.where((np.sum(n * (np.asarray(eye, np.float64) - xh), axis=1) < 0)[:, None], -n, n)
+    n = oriented_face_normals(v, f, face[hit], xh, eye)
     o = xh + eps * n
     q = disk_sample(i, samples, hit)
     for k, row in enumerate(lights):

@@ -30,7 +30,7 @@ from .progress import Progress
 from .model import Frame, ShadeInputs
 from .scene import vertex_tangents
 from .shading import pack_materials
-from .trace import check_shadow_samples
+from .trace import check_occlusion_samples, check_shadow_samples
 from .images import compare_images
 from .scene import Camera, DirectionalLight, Mesh, Rendering, Scene, _black_environment, _integer
 
@@ -124,20 +124,28 @@ def static_inputs(scene: Scene, backend, timings=None) -> ShadeInputs:
 
 
 SHADOW_SAMPLES = 16  # shadow rays per light and pixel: a penumbra in 16 steps, noise turned per pixel
+# environment-occlusion rays per pixel where an SSDF shadows the environment: lobes up to η = 2 by the rays
+# alone (shading.RAYS_ONLY), so a constant map's six shadow lobes (lighting.shadow_lobes) are seen whole
+OCCLUSION_SAMPLES = 16
 
 
 def pack_frame(scene: Scene, backend="auto", progress=None, timings=None,
-               shadow_samples: int = SHADOW_SAMPLES) -> Frame:
+               shadow_samples: int = SHADOW_SAMPLES, occlusion_samples: int = OCCLUSION_SAMPLES) -> Frame:
     """The shade stage's inputs for the scene's current camera and lights, its G-buffer on the host
-    (light_vis included, `shadow_samples` rays per light): what `shading.shade_reference` takes (and
-    `backend.shade`, its inputs and G-buffer)."""
+    (light_vis included, `shadow_samples` rays per light; and the occlusion masks of `occlusion_samples`
+    rays per pixel where the scene has an SSDF): what `shading.shade_reference` takes (and `backend.shade`,
+    its inputs and G-buffer)."""
     backend = get_backend(backend)
     timings = {} if timings is None else timings
+    n_occlusion = check_occlusion_samples(occlusion_samples)
     static = _static_inputs(scene, backend, progress, timings)
     g = backend.trace_primary(scene.mesh, scene.camera)
     lights = scene.lights_packed
     g.light_vis = (backend.trace_shadows(scene.mesh, g, lights, samples=shadow_samples) if len(lights)
                    else np.zeros((len(g.face), 0), np.uint8))
+    if static.has_ssdf and n_occlusion:
+        g.occlusion = backend.trace_occlusion(scene.mesh, g, n_occlusion)
+        g.occlusion_samples = n_occlusion
     return Frame(static, g, scene.camera.packed(), lights)
 
 
@@ -167,11 +175,13 @@ def check_aa(aa) -> int:
 
 
 def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: int = 1,
-           shadow_samples: int = SHADOW_SAMPLES, **options) -> Rendering:
+           shadow_samples: int = SHADOW_SAMPLES, occlusion_samples: int = OCCLUSION_SAMPLES, **options) -> Rendering:
     """Render `scene` → `Rendering`. method "sg": the per-pixel SG renderer (Wang 2009 / Iwasaki 2012 §5),
     with `aa` jittered samples per pixel (`aa_offsets`; 1: the pixel centre only) averaged with a box
-    filter, and `shadow_samples` shadow rays per light spread over its disc (soft shadows; 1: one ray
-    to its centre, a hard shadow); "mc": the Monte Carlo reference (`montecarlo.render`, options
+    filter, `shadow_samples` shadow rays per light spread over its disc (soft shadows; 1: one ray
+    to its centre, a hard shadow), and, where the mesh occludes itself under an environment,
+    `occlusion_samples` environment-occlusion rays per pixel that shadow the broad lobes (shading's
+    "Broad lobes' visibility per pixel"; 0: the SSDF alone); "mc": the Monte Carlo reference (`montecarlo.render`, options
     `samples`, `seed`, `truths`, `fallback`, `truth_facets`, `truth_seed`), whose lights are the same
     discs and which judges a baked material by its exact ground truth (`truth.truth_of`); "litsphere":
     the lit-sphere shader (seed 004, `warp_biscale.litsphere`), each material a `LitSphere` (any other made
@@ -185,6 +195,7 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     n_aa = check_aa(aa)
     n_shadow = check_shadow_samples(shadow_samples)
+    n_occlusion = check_occlusion_samples(occlusion_samples)
     if method == "mc":
         if n_aa != 1:
             raise ValueError("aa is an option of the SG renderer; the Monte Carlo reference samples pixel centres")
@@ -201,13 +212,14 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     t_all = time.perf_counter()
     static = _static_inputs(scene, backend, progress, timings)
     lights = scene.lights_packed
-    image = _accumulate(scene, backend, n_aa, n_shadow, lights, timings,
+    n_occlusion = n_occlusion if static.has_ssdf else 0  # nothing occludes: the rays would all escape
+    image = _accumulate(scene, backend, n_aa, n_shadow, n_occlusion, lights, timings,
                         lambda cam, to_host: backend.shade(scene.mesh, static, cam.packed(), lights, to_host=to_host))
     timings["total"] = time.perf_counter() - t_all
     cam = scene.camera
     info = {"backend": backend.name, "device": backend.device, "method": "sg", "ssdf": bool(static.has_ssdf),
             "env_lobes": len(static.env_sgs), "lights": len(lights), "width": cam.width, "height": cam.height,
-            "aa": n_aa, "shadow_samples": n_shadow}
+            "aa": n_aa, "shadow_samples": n_shadow, "occlusion_samples": n_occlusion}
     return Rendering(image, timings, info)
 
 
@@ -221,9 +233,9 @@ def check_no_litspheres(scene: Scene, method: str) -> None:
                              f"(method={method!r} needs the material itself)")
 
 
-def _accumulate(scene: Scene, backend, n_aa: int, n_shadow: int, lights, timings: dict, shade):
+def _accumulate(scene: Scene, backend, n_aa: int, n_shadow: int, n_occlusion: int, lights, timings: dict, shade):
     """The (H, W, 3) image: per anti-aliasing sample (`aa_offsets`) the G-buffer, the shadow rays of
-    `lights` (n_shadow a light; none when 0), then `shade(camera, to_host)` (→ (P, 3) with to_host), averaged
+    `lights` (n_shadow a light; none when 0), the environment-occlusion rays (n_occlusion a pixel), then `shade(camera, to_host)` (→ (P, 3) with to_host), averaged
     with a box filter on the device (`accumulate_frame`: one read-back, of the average)."""
     cam = scene.camera
     image = None
@@ -238,6 +250,11 @@ def _accumulate(scene: Scene, backend, n_aa: int, n_shadow: int, lights, timings
             backend.trace_shadows(scene.mesh, None, lights, to_host=False, samples=n_shadow)
             backend.synchronize()
             timings["shadows"] = timings.get("shadows", 0.0) + time.perf_counter() - t0
+        if n_occlusion:
+            t0 = time.perf_counter()
+            backend.trace_occlusion(scene.mesh, None, n_occlusion, to_host=False)
+            backend.synchronize()
+            timings["occlusion"] = timings.get("occlusion", 0.0) + time.perf_counter() - t0
         t0 = time.perf_counter()
         if n_aa == 1:
             image = shade(sample, True)
@@ -332,7 +349,7 @@ def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str
     timings["lighting"] = time.perf_counter() - t0
     if not isinstance(shadows, bool):
         raise ValueError(f"shadows must be True or False, got {shadows!r}")
-    image = _accumulate(scene, backend, n_aa, n_shadow if shadows else 0, lights, timings,
+    image = _accumulate(scene, backend, n_aa, n_shadow if shadows else 0, 0, lights, timings,
                         lambda cam, to_host: backend.shade_litsphere(scene.mesh, pack, cam.packed(), lights, maps,
                                                                      levels, VIEWS[view], shrink, shadowed=shadows,
                                                                      to_host=to_host))

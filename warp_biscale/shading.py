@@ -25,6 +25,14 @@ SG or tabulated against one:
   SSDF includes it). Without occluders (a lone convex object) the SSDF is skipped and that factor
   is 1. Lights are shadowed by rays to points of the emitter's disc (`backend.trace_shadows`, one
   ray: its centre), each light scaled by its visible share (light_vis / 255).
+- **Broad lobes' visibility per pixel.** The SSDF is a per-vertex summary: for a broad lobe (the
+  ambient of a constant map, a sky's wide lobes, a rough material's) it sees too little of the
+  visibility near a contact, and its vertex interpolation blurs over a coarse receiver. With S
+  occlusion rays per pixel (`backend.trace_occlusion`: cosine-distributed over the geometric normal's
+  hemisphere, one bit each) a lobe of sharpness η keeps, instead, the ratio estimate
+  Σ G(ωi)(n·ωi)⁺/(ng·ωi)·Vi / Σ G(ωi)(n·ωi)⁺/(ng·ωi) (`ray_share`): exactly 1 on an unoccluded surface,
+  and for a uniform lobe the pixel's ambient occlusion. Rays alone shadow η ≤ S/8; the SSDF alone
+  η ≥ S/2, which the rays sample too sparsely; between, the two blend in log η (`ray_weight`).
 - **Diffuse magnitude.** The environment lobes' diffuse sum is scaled per channel by the exact
   irradiance over the lobes' own (`irradiance_scale`; the exact one is the lobes' plus the residual
   map `lighting.irradiance_residual` at n): the lobes shape the shadows, the map gives the magnitude.
@@ -73,10 +81,37 @@ from .lighting import prefiltered_lookup
 from .scene import light_sg, vertex_tangents
 from .environment import equirect_bilinear
 from .ssdf import ssdf_eval
-from .trace import VISIBLE
+from .trace import VISIBLE, occlusion_directions, oriented_face_normals
 from .svbrdf import Textured
 
-__all__ = ["pack_materials", "shade_reference", "surface_frames", "MIN_COS_VIEW"]
+__all__ = ["pack_materials", "shade_reference", "surface_frames", "MIN_COS_VIEW", "ray_share", "ray_weight",
+           "RAYS_ONLY", "SSDF_ONLY"]
+
+RAYS_ONLY = 1 / 8  # × occlusion samples: lobes this broad or broader are shadowed by the rays alone
+SSDF_ONLY = 1 / 2  # × occlusion samples: lobes this sharp or sharper by the SSDF alone
+
+
+def ray_weight(eta, samples: int):
+    """The occlusion rays' weight against the SSDF's for a lobe of sharpness `eta` (1: rays alone): 1 at
+    η ≤ RAYS_ONLY·S, 0 at η ≥ SSDF_ONLY·S, linear in log η between; 0 without rays (S = 0)."""
+    eta = np.asarray(eta, np.float64)
+    if samples == 0:
+        return np.zeros_like(eta)
+    lo, hi = RAYS_ONLY * samples, SSDF_ONLY * samples
+    return np.clip(np.log(hi / np.maximum(eta, 1e-30)) / np.log(hi / lo), 0.0, 1.0)
+
+
+def ray_share(axis, eta, n, n_geo, directions, blocked):
+    """(R,) the share of a lobe's ∫ G(ω; axis, η)(n·ω)⁺ dω that the occlusion rays see unblocked: per pixel
+    (R rows) the ratio Σ wi·(1 − blocked_i) / Σ wi over its S rays `directions` (R, S, 3) (cosine-distributed
+    about n_geo), wi = G(ωi)·(n·ωi)⁺/(n_geo·ωi); 1 where every weight is below 1e-30."""
+    c = np.einsum("rsk,rk->rs", directions, axis)
+    w = (np.exp(np.asarray(eta, np.float64)[:, None] * (c - 1.0))
+         * np.maximum(np.einsum("rsk,rk->rs", directions, n), 0.0)
+         / np.maximum(np.einsum("rsk,rk->rs", directions, n_geo), 1e-6))
+    total = w.sum(1)
+    seen = (w * ~blocked).sum(1)
+    return np.where(total > 1e-30, seen / np.maximum(total, 1e-300), 1.0)
 
 IRRADIANCE_RATIO_MAX = 1e3  # the diffuse term's E/E_sg stops here: it then never passes kd·E
 MIN_COS_VIEW = 1e-4  # ωo·n is clamped here: silhouette pixels whose interpolated normal faces away
@@ -345,15 +380,28 @@ def shade_reference(frame: Frame) -> np.ndarray:
     has_ssdf = bool(static.has_ssdf)
     coeffs = interp(static.ssdf_coeffs) if has_ssdf else None
 
+    samples = int(frame.gbuffer.occlusion_samples) if has_ssdf else 0
+    if samples:
+        n_geo = oriented_face_normals(static.positions, static.faces, f, pos, eye)
+        ray_dirs = occlusion_directions(n_geo, samples, pix)
+        mask = np.asarray(frame.gbuffer.occlusion, np.uint32)[pix].astype(np.uint64)
+        blocked = ((mask[:, None] >> np.arange(samples, dtype=np.uint64)[None]) & np.uint64(1)).astype(bool)
+
     def occlusion(axis, eta, sel):
-        """The fraction of a lobe's horizon-clipped integral that the SSDF leaves visible (1 without one)."""
+        """The fraction of a lobe's horizon-clipped integral left visible: by the SSDF, blended with the
+        occlusion rays' estimate for broad lobes (`ray_weight`); 1 without an SSDF."""
         if not has_ssdf:
             return np.ones(len(axis))
         theta_d = ssdf_eval(static.ssdf_basis, coeffs[sel], int(static.ssdf_res), axis)
         c = np.sin(np.clip(theta_d, -np.pi / 2, np.pi / 2))
         vis = sg.table_lookup(table, 1, c, eta)  # visible_fraction
         horizon = sg.table_lookup(table, 1, _dot(axis, n[sel]), eta)
-        return np.clip(vis / np.maximum(horizon, 1e-6), 0.0, 1.0)
+        share = np.clip(vis / np.maximum(horizon, 1e-6), 0.0, 1.0)
+        weight = ray_weight(eta, samples)
+        if not weight.any():
+            return share
+        rays = ray_share(axis, eta, n[sel], n_geo[sel], ray_dirs[sel], blocked[sel])
+        return weight * rays + (1 - weight) * share
 
     rad = np.zeros((len(pix), 3))
     env = static.env_sgs.astype(np.float64)

@@ -15,6 +15,12 @@ Soft shadows: a light's shadow rays go to `samples` points of its disc (a point 
 seen from the pixel, a directional light's cone), `disk_sample` turned by a per-pixel angle so that a
 penumbra is fine noise rather than bands; one sample is the centre, the hard shadow. The result is the
 visible share in 255ths (`VISIBLE`), rounded: what the shade stage scales each light by.
+
+Environment occlusion: `samples` rays (at most `OCCLUSION_SAMPLES_MAX`, one bit each) leave each hit
+pixel over the hemisphere of its oriented geometric normal, cosine-distributed and stratified: the
+same turned Vogel spiral lifted to the hemisphere (Malley's method, `occlusion_directions`). Bit i of
+the pixel's mask is set where ray i hits the mesh (unbounded: the environment is at infinity); the
+shade stage weighs the bits per lobe (`shading.ray_share`).
 """
 
 from __future__ import annotations
@@ -26,13 +32,14 @@ from .scene import Camera, Mesh, _integer
 
 __all__ = ["T_MIN", "SHADOW_OFFSET", "CHUNK_RAYS", "offsets", "check_mesh", "check_camera", "check_rays",
            "check_lights", "check_gbuffer", "check_shadow_samples", "disk_sample", "disk_basis", "VISIBLE",
-           "SHADOW_SAMPLES_MAX"]
+           "SHADOW_SAMPLES_MAX", "OCCLUSION_SAMPLES_MAX", "check_occlusion_samples", "occlusion_directions", "oriented_face_normals"]
 
 T_MIN = 1e-6
 SHADOW_OFFSET = 1e-4
 CHUNK_RAYS = 1 << 22  # any-hit rays per launch: bounds device memory (~100 MB a chunk) for any ray count
 VISIBLE = 255  # a light_vis entry of a fully visible light
 SHADOW_SAMPLES_MAX = 1024
+OCCLUSION_SAMPLES_MAX = 32  # one bit each of a pixel's uint32 mask
 GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
 
 
@@ -58,6 +65,34 @@ def disk_basis(w) -> tuple[np.ndarray, np.ndarray]:
     a = np.cross(w, ref)
     a = a / np.linalg.norm(a, axis=-1, keepdims=True)
     return a, np.cross(w, a)
+
+
+def occlusion_directions(normal, samples: int, pixel) -> np.ndarray:
+    """(..., samples, 3) float64: the environment-occlusion ray directions of pixels `pixel` (...,) whose
+    oriented geometric normals are `normal` (..., 3): disc sample q_i = disk_sample(i, samples, pixel)
+    lifted to q_x·a + q_y·b + √(1 − |q|²)·n in disk_basis(n), cosine-distributed over n's hemisphere
+    (the kernels' twin)."""
+    n = np.asarray(normal, np.float64)
+    a, b = disk_basis(n)
+    q = disk_sample(np.arange(samples)[None], samples, np.asarray(pixel)[..., None])  # (..., S, 2)
+    lift = np.sqrt(np.maximum(1.0 - np.sum(q * q, -1), 0.0))
+    return q[..., :1] * a[..., None, :] + q[..., 1:] * b[..., None, :] + lift[..., None] * n[..., None, :]
+
+
+def oriented_face_normals(vertices, faces, face, position, eye) -> np.ndarray:
+    """(R, 3) float64 unit geometric normals of faces `face` (R,), each turned to the side of `eye` seen
+    from its point `position` (R, 3): the normal shadow and occlusion rays leave along."""
+    tri = np.asarray(vertices, np.float64)[np.asarray(faces, np.int64)[np.asarray(face, np.int64)]]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    n = np.where(length > 0, n / np.where(length > 0, length, 1.0), 0.0)
+    x = np.asarray(position, np.float64).reshape(-1, 3)
+    return np.where((np.sum(n * (np.asarray(eye, np.float64) - x), axis=1) < 0)[:, None], -n, n)
+
+
+def check_occlusion_samples(samples) -> int:
+    return _integer("occlusion samples", samples, 0, OCCLUSION_SAMPLES_MAX,
+                    " (environment-occlusion rays per pixel; 0: the SSDF alone)")
 
 
 def check_shadow_samples(samples) -> int:
