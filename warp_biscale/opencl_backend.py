@@ -793,7 +793,8 @@ class OpenCLBackend(DeviceBackend):
             self._cl.enqueue_copy(self._queue, light_buf, np.ascontiguousarray(lights))
         eye, forward, right, up = (cltypes.make_float4(*camera[k:k + 3], 0.0) for k in (0, 3, 6, 9))
         self._launch("shade", "shade_pixels", (n,),
-                     face, bary, vis, occ, np.int32(occ_samples), dev["faces"], dev["positions"], dev["normals"], dev["tangents"],
+                     face, bary, vis, occ, np.int32(occ_samples), dev["faces"], dev["positions"], dev["normals"],
+                     dev["tangents"],
                      dev["face_material"], eye, forward, right, up, np.float32(camera[12]), np.float32(camera[13]),
                      np.int32(len(lights)), light_buf, dev["n_env"], dev["env_sgs"], dev["env_residual"],
                      *dev["residual_shape"], dev["env_maps"],

@@ -32,7 +32,8 @@ from .scene import Camera, Mesh, _integer
 
 __all__ = ["T_MIN", "SHADOW_OFFSET", "CHUNK_RAYS", "offsets", "check_mesh", "check_camera", "check_rays",
            "check_lights", "check_gbuffer", "check_shadow_samples", "disk_sample", "disk_basis", "VISIBLE",
-           "SHADOW_SAMPLES_MAX", "OCCLUSION_SAMPLES_MAX", "check_occlusion_samples", "occlusion_directions", "oriented_face_normals"]
+           "SHADOW_SAMPLES_MAX", "OCCLUSION_SAMPLES_MAX", "check_occlusion_samples", "occlusion_directions",
+           "oriented_face_normals"]
 
 T_MIN = 1e-6
 SHADOW_OFFSET = 1e-4

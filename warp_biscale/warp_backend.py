@@ -710,7 +710,8 @@ class WarpBackend(DeviceBackend):
         # Blocks of 128: a frame's pixels differ in cost (the design's against the floor's and the sky's),
         # and smaller blocks free their slots sooner (bench/results/editor-h100: 128 beat Warp's 256).
         self._launch(kshade.shade_pixels, n,
-                     [face, bary, vis, occ, int(occ_samples), dev["faces"], dev["positions"], dev["normals"], dev["tangents"],
+                     [face, bary, vis, occ, int(occ_samples), dev["faces"], dev["positions"], dev["normals"],
+                      dev["tangents"],
                       dev["face_material"], self._small_upload(m, "shade_camera", camera),
                       len(lights), light_arr, dev["n_env"], dev["env_sgs"], dev["env_residual"],
                       *dev["residual_shape"], dev["env_maps"], dev["env_levels"],
