@@ -182,8 +182,8 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     to its centre, a hard shadow), and, where the mesh occludes itself under an environment,
     `occlusion_samples` environment-occlusion rays per pixel that shadow the broad lobes (shading's
     "Broad lobes' visibility per pixel"; 0: the SSDF alone); "mc": the Monte Carlo reference
-    (`montecarlo.render`, options `samples`, `seed`, `truths`, `fallback`, `truth_facets`, `truth_seed`), whose lights are the same
-    discs and which judges a baked material by its exact ground truth (`truth.truth_of`); "litsphere":
+    (`montecarlo.render`, options `samples`, `seed`, `truths`, `fallback`, `truth_facets`, `truth_seed`),
+    whose lights are the same discs and which judges a baked material by its exact ground truth (`truth.truth_of`); "litsphere":
     the lit-sphere shader (seed 004, `warp_biscale.litsphere`), each material a `LitSphere` (any other made
     into one, options `angles`, `resolution`), options `view` ("pixel": each pixel's own view direction;
     "camera": the paper's distant viewer), `shrink` (the turned normal's scale before the lookup: 1, or the
@@ -236,7 +236,8 @@ def check_no_litspheres(scene: Scene, method: str) -> None:
 def _accumulate(scene: Scene, backend, n_aa: int, n_shadow: int, n_occlusion: int, lights, timings: dict, shade):
     """The (H, W, 3) image: per anti-aliasing sample (`aa_offsets`) the G-buffer, the shadow rays of
     `lights` (n_shadow a light; none when 0), the environment-occlusion rays (n_occlusion a pixel; none
-    when 0), then `shade(camera, to_host)` (→ (P, 3) with to_host), averaged with a box filter on the device (`accumulate_frame`: one read-back, of the average)."""
+    when 0), then `shade(camera, to_host)` (→ (P, 3) with to_host), averaged with a box filter on the
+    device (`accumulate_frame`: one read-back, of the average)."""
     cam = scene.camera
     image = None
     for i, (jx, jy) in enumerate(aa_offsets(n_aa)):
