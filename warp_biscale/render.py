@@ -184,8 +184,8 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     "Broad lobes' visibility per pixel"; 0: the SSDF alone); "mc": the Monte Carlo reference
     (`montecarlo.render`, options `samples`, `seed`, `truths`, `fallback`, `truth_facets`, `truth_seed`),
     whose lights are the same discs and which judges a baked material by its exact ground truth
-    (`truth.truth_of`); "litsphere": the lit-sphere shader (seed 004, `warp_biscale.litsphere`), each material a `LitSphere` (any other made
-    into one, options `angles`, `resolution`), options `view` ("pixel": each pixel's own view direction;
+    (`truth.truth_of`); "litsphere": the lit-sphere shader (seed 004, `warp_biscale.litsphere`), each
+    material a `LitSphere` (any other made into one, options `angles`, `resolution`), options `view` ("pixel": each pixel's own view direction;
     "camera": the paper's distant viewer), `shrink` (the turned normal's scale before the lookup: 1, or the
     paper's litsphere.SHRINK), `env_lights` (directional lights standing for the environment), `shadows`
     (False: every light seen whole, no shadow rays — the paper's frame) and
