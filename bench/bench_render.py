@@ -4,11 +4,13 @@ and the SG renderer's error against the Monte Carlo reference.
 Parts (records go to --out/results.json; table.md and plots follow):
 - ``frames``: the target scene — a torus with a baked effective BRDF (pyramid tile, K = 12, J = 8),
   a sphere and a floor with analytic glossy BRDFs, the sky environment (9 SG lobes + prefiltered
-  maps), SSDF shadows (16 PCA terms) and one point light with shadow rays — one frame = G-buffer +
-  shadow rays + shading, device-resident (no host copy; the read-back is timed apart). Swept over
-  resolution (512² … 1920×1080), J, number of lights and PCA terms.
+  maps), SSDF shadows (16 PCA terms) with 16 environment-occlusion rays a pixel, and one point light with
+  shadow rays — one frame = G-buffer + shadow rays + occlusion rays + shading, device-resident (no host
+  copy; the read-back is timed apart). Swept over resolution (512² … 1920×1080), J, number of lights, PCA
+  terms, shadow rays and occlusion rays.
 - ``pareto``: at a small resolution, the SG image against a Monte Carlo reference (PSNR, RMSE over the
-  object pixels; the background is the environment in both) for J, against its frame time.
+  object pixels; the background is the environment in both) for J, against its frame time; and at the
+  largest J without occlusion rays (the SSDF alone).
 
 Times are medians over --runs repetitions of a loop of --frames frames after a warm-up frame
 (compilation, uploads, SSDF and lighting precomputation are reported apart), device-synchronised.
@@ -27,7 +29,7 @@ import re
 import sys
 
 import warp_biscale as wb
-from warp_biscale.render import SHADOW_SAMPLES, pack_frame
+from warp_biscale.render import OCCLUSION_SAMPLES, SHADOW_SAMPLES, pack_frame
 
 if __package__ in (None, ""):  # run as a file: `bench` importable from the checkout, after site-packages
     sys.path.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -60,14 +62,14 @@ def target_scene(width, height, lobes=8, lights=1, terms=16, backend="auto"):
 PRECOMPUTE = ("lighting", "ssdf", "materials")  # Rendering.timings' stages of a scene's first frame only
 
 
-def time_frames(scene, backend, frames, runs, shadow_samples=SHADOW_SAMPLES):
+def time_frames(scene, backend, frames, runs, shadow_samples=SHADOW_SAMPLES, occlusion_samples=OCCLUSION_SAMPLES):
     """(median s per frame, precompute s, first-frame extra s, read-back s). A frame is the G-buffer, the
     shadow rays and the shading, its image left on the device (what an interactive viewer draws from), so
     the loop calls the backend's stages as `wb.render` does, without its read-back and per-stage waits;
     the read-back is timed apart."""
     be = wb.get_backend(backend)
     # compiles, and computes what does not depend on the camera
-    first = wb.render(scene, backend=be, shadow_samples=shadow_samples)
+    first = wb.render(scene, backend=be, shadow_samples=shadow_samples, occlusion_samples=occlusion_samples)
     precompute = sum(first.timings.get(k, 0.0) for k in PRECOMPUTE)
     inputs = pack_frame(scene, be).inputs  # the shade stage's inputs, cached on the scene by the render above
     lights = scene.lights_packed
@@ -77,6 +79,8 @@ def time_frames(scene, backend, frames, runs, shadow_samples=SHADOW_SAMPLES):
         be.trace_primary(scene.mesh, scene.camera, to_host=False)
         if len(lights):
             be.trace_shadows(scene.mesh, None, lights, to_host=False, samples=shadow_samples)
+        if inputs.has_ssdf and occlusion_samples:
+            be.trace_occlusion(scene.mesh, None, occlusion_samples, to_host=False)
         be.shade(scene.mesh, inputs, cam, lights, to_host=False)
 
     def loop():
@@ -91,11 +95,12 @@ def time_frames(scene, backend, frames, runs, shadow_samples=SHADOW_SAMPLES):
     return per_frame, precompute, max(first_extra, 0.0), max(back.median_s - per_frame, 0.0)
 
 
-def part_frames(backends, sizes, lobe_list, light_list, term_list, frames, runs, out, shadow_list=()):
-    base = dict(lobes=8, lights=1, terms=16, shadows=SHADOW_SAMPLES)
+def part_frames(backends, sizes, lobe_list, light_list, term_list, frames, runs, out, shadow_list=(),
+                occlusion_list=()):
+    base = dict(lobes=8, lights=1, terms=16, shadows=SHADOW_SAMPLES, occlusion=OCCLUSION_SAMPLES)
     sweeps = [("size", s) for s in sizes] + [("lobes", j) for j in lobe_list] + \
              [("lights", n) for n in light_list] + [("terms", t) for t in term_list] + \
-             [("shadows", n) for n in shadow_list]
+             [("shadows", n) for n in shadow_list] + [("occlusion", n) for n in occlusion_list]
     for backend in backends:
         be = wb.get_backend(backend)
         for what, value in sweeps:
@@ -103,15 +108,15 @@ def part_frames(backends, sizes, lobe_list, light_list, term_list, frames, runs,
             w, h = sizes[0] if what != "size" else value
             if what != "size":
                 kw[what] = value
-            shadows = kw.pop("shadows")
+            shadows, occlusion = kw.pop("shadows"), kw.pop("occlusion")
             scene = target_scene(w, h, backend=backend, **kw)
-            t, pre, first, back = time_frames(scene, be, frames, runs, shadows)
-            kw["shadows"] = shadows
+            t, pre, first, back = time_frames(scene, be, frames, runs, shadows, occlusion)
+            kw["shadows"], kw["occlusion"] = shadows, occlusion
             out.records.append({"part": "frames", "sweep": what, "backend": be.name, "device": be.device, "width": w,
                                 "height": h, **kw, "frame_s": t, "fps": 1.0 / t, "precompute_s": pre,
                                 "first_call_extra_s": first, "readback_s": back})
             out.log(f"{be.name:<28} {what:<7} {w}x{h} J={kw['lobes']} lights={kw['lights']} terms={kw['terms']} "
-                    f"shadow rays={kw['shadows']}: "
+                    f"shadow rays={kw['shadows']} occlusion rays={kw['occlusion']}: "
                     f"{t * 1e3:9.3f} ms/frame ({1 / t:8.1f} fps), precompute {pre:6.2f} s, "
                     f"readback {back * 1e3:7.2f} ms")
 
@@ -126,18 +131,20 @@ def part_pareto(backends, size, lobe_list, samples, runs, out):
         t_mc = ref.timings["total"]
         out.log(f"{be.name}: MC reference {w}x{h} {samples} spp in {t_mc:.1f} s, "
                 f"stderr rms {ref.info.get('stderr_rms')}")
-        for j in lobe_list:
+        for j, occlusion in [(j, OCCLUSION_SAMPLES) for j in lobe_list] + [(lobe_list[-1], 0)]:
             scene = target_scene(w, h, lobes=j, backend=backend)
-            t, pre, first, back = time_frames(scene, be, 3, runs)
-            img = wb.render(scene, backend=be)
+            t, pre, first, back = time_frames(scene, be, 3, runs, occlusion_samples=occlusion)
+            img = wb.render(scene, backend=be, occlusion_samples=occlusion)
             # Over the object pixels only: the background is the environment itself in both images.
             mask = (be.trace_primary(scene.mesh, scene.camera).face >= 0).reshape(h, w)
             err = wb.compare_images(img.image, ref.image, mask=mask)
             out.records.append({"part": "pareto", "backend": be.name, "device": be.device, "width": w, "height": h,
-                                "lobes": j, "frame_s": t, "psnr": err["psnr"], "rmse": err["rmse"],
+                                "lobes": j, "occlusion": occlusion, "frame_s": t, "psnr": err["psnr"],
+                                "rmse": err["rmse"],
                                 "mc_samples": samples, "mc_s": t_mc, "mc_stderr_rms": ref.info.get("stderr_rms")})
-            out.log(f"{be.name:<28} J={j:<3} {t * 1e3:8.3f} ms  PSNR {err['psnr']:6.2f} dB vs MC")
-            if j == lobe_list[-1]:
+            out.log(f"{be.name:<28} J={j:<3} occlusion rays={occlusion:<3} {t * 1e3:8.3f} ms  "
+                    f"PSNR {err['psnr']:6.2f} dB vs MC")
+            if j == lobe_list[-1] and occlusion:
                 img.save(out.path(f"sg-J{j}-{tag}.png"))
                 ref.save(out.path(f"mc-{tag}.png"))
 
@@ -145,18 +152,19 @@ def part_pareto(backends, size, lobe_list, samples, runs, out):
 def table(records, meta):
     lines = [f"# Rendering benchmark ({meta['device_kind']})", "", common.commit_line(meta), ""]
     lines += common.markdown_table(
-        ["backend", "sweep", "size", "J", "lights", "PCA terms", "shadow rays", "ms/frame", "fps", "precompute s",
-         "readback ms"],
+        ["backend", "sweep", "size", "J", "lights", "PCA terms", "shadow rays", "occlusion rays", "ms/frame", "fps",
+         "precompute s", "readback ms"],
         [[r["backend"], r["sweep"], f"{r['width']}×{r['height']}", r["lobes"], r["lights"], r["terms"],
-          r.get("shadows", 1),
+          r.get("shadows", 1), r.get("occlusion", 0),
           f"{r['frame_s'] * 1e3:.3f}", f"{r['fps']:.1f}", f"{r['precompute_s']:.2f}", f"{r['readback_s'] * 1e3:.2f}"]
          for r in records if r["part"] == "frames"])
     pareto = [r for r in records if r["part"] == "pareto"]
     if pareto:
         lines += [""] + common.markdown_table(
-            ["backend", "size", "J", "ms/frame", "PSNR vs MC (dB)", "RMSE", "MC spp", "MC stderr rms"],
-            [[r["backend"], f"{r['width']}×{r['height']}", r["lobes"], f"{r['frame_s'] * 1e3:.3f}",
-              f"{r['psnr']:.2f}", f"{r['rmse']:.4g}", r["mc_samples"], f"{r['mc_stderr_rms']:.3g}"] for r in pareto])
+            ["backend", "size", "J", "occlusion rays", "ms/frame", "PSNR vs MC (dB)", "RMSE", "MC spp",
+             "MC stderr rms"],
+            [[r["backend"], f"{r['width']}×{r['height']}", r["lobes"], r.get("occlusion", 0),
+              f"{r['frame_s'] * 1e3:.3f}", f"{r['psnr']:.2f}", f"{r['rmse']:.4g}", r["mc_samples"], f"{r['mc_stderr_rms']:.3g}"] for r in pareto])
     return "\n".join(lines) + "\n"
 
 
@@ -200,6 +208,8 @@ def main(argv=None):
     ap.add_argument("--terms", type=int, nargs="+", default=[4, 16, 48], help="the SSDF PCA-term sweep")
     ap.add_argument("--shadow-samples", type=int, nargs="+", default=[1, 4, 16],
                     help=f"the shadow-ray sweep (rays per light and pixel; the others at {SHADOW_SAMPLES})")
+    ap.add_argument("--occlusion-samples", type=int, nargs="+", default=[0, 8, 16, 32],
+                    help=f"the occlusion-ray sweep (rays per pixel; the others at {OCCLUSION_SAMPLES})")
     ap.add_argument("--pareto-size", help="WxH of the Pareto images (default 320x240; --quick 96x72)")
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--frames", type=int, default=10, help="frames a timed loop (3 with --quick)")
@@ -219,7 +229,8 @@ def main(argv=None):
         out.save(table)
 
     if "frames" in args.parts:
-        part_frames(backends, sizes, args.lobes, args.lights, args.terms, frames, args.runs, out, args.shadow_samples)
+        part_frames(backends, sizes, args.lobes, args.lights, args.terms, frames, args.runs, out, args.shadow_samples,
+                    args.occlusion_samples)
         save()
     if "pareto" in args.parts:
         part_pareto(backends, pareto_size, args.lobes, args.samples, args.runs, out)
