@@ -86,6 +86,15 @@ CL_INLINE float3 normalize3(float3 a)
 }
 
 #define GOLDEN_ANGLE 2.39996322972865f /* = trace.GOLDEN_ANGLE: the disc samples of shadow and occlusion rays */
+#define GOLDEN_COS -0.7373688780783197f /* cos and sin of GOLDEN_ANGLE */
+#define GOLDEN_SIN 0.6754902942615238f
+
+/* The pixel's hash angle that turns its disc samples (trace.disk_sample). */
+CL_INLINE float disk_turn(int pixel)
+{
+    uint h = (uint)pixel * 2654435761u; /* Knuth's multiplicative hash */
+    return (float)(int)(h >> 8) * (2.0f * 3.14159265358979f / 16777216.0f);
+}
 
 /* Sample i of `samples` on the unit disc: a Vogel spiral turned by a per-pixel angle (trace.disk_sample),
  * so that neighbouring pixels' penumbrae are noise rather than bands. The centre for one sample. */
@@ -93,8 +102,7 @@ CL_INLINE float2 disk_sample(int i, int samples, int pixel)
 {
     if (samples == 1)
         return (float2)(0.0f, 0.0f);
-    uint h = (uint)pixel * 2654435761u;
-    float turn = (float)(int)(h >> 8) * (2.0f * 3.14159265358979f / 16777216.0f);
+    float turn = disk_turn(pixel);
     float r = sqrt(((float)i + 0.5f) / (float)samples);
     float a = (float)i * GOLDEN_ANGLE + turn;
     return (float2)(r * cos(a), r * sin(a));

@@ -460,16 +460,29 @@ CL_INLINE float ray_weight(float eta, int samples)
 }
 
 /* The lobe's share that the pixel's occlusion rays see unblocked (shading.ray_share): the rays' directions
- * made again, each weighted by G(ω)(n·ω)⁺/(ng·ω). */
+ * made again, each weighted by G(ω)(n·ω)⁺/(ng·ω). The spiral's angle steps by the golden angle, so its
+ * cosine and sine are turned by a fixed rotation from one ray to the next rather than computed per ray. */
 CL_INLINE float ray_share(float3 axis, float eta, float3 n, Occlusion occ)
 {
     float total = 0.0f, seen = 0.0f;
+    float turn = disk_turn(occ.pixel);
+    float c = cos(turn), s = sin(turn);
+    /* the axis and the shading normal in the rays' frame */
+    float ax = dot3(occ.a, axis), ay = dot3(occ.b, axis), az = dot3(occ.n, axis);
+    float nx = dot3(occ.a, n), ny = dot3(occ.b, n), nz = dot3(occ.n, n);
     for (int i = 0; i < occ.samples; ++i) {
-        float3 d = occlusion_direction(occ.a, occ.b, occ.n, i, occ.samples, occ.pixel);
-        float w = exp(eta * (dot3(d, axis) - 1.0f)) * maxf(dot3(d, n), 0.0f) / maxf(dot3(d, occ.n), 1.0e-6f);
+        float r2 = occ.samples == 1 ? 0.0f : ((float)i + 0.5f) / (float)occ.samples;
+        float r = sqrt(r2);
+        float lift = sqrt(maxf(1.0f - r2, 0.0f));
+        float x = r * c, y = r * s;
+        float w = exp(eta * (x * ax + y * ay + lift * az - 1.0f)) * maxf(x * nx + y * ny + lift * nz, 0.0f)
+                  / maxf(lift, 1.0e-6f);
         total = total + w;
         if (((occ.mask >> i) & 1u) == 0u)
             seen = seen + w;
+        float c_next = c * GOLDEN_COS - s * GOLDEN_SIN;
+        s = s * GOLDEN_COS + c * GOLDEN_SIN;
+        c = c_next;
     }
     return total > 1.0e-30f ? seen / total : 1.0f;
 }

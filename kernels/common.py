@@ -312,6 +312,14 @@ def next_cell(o: wp.vec3, d: wp.vec3, t_exit: float, exits: wp.vec2, px: float, 
 
 
 GOLDEN_ANGLE = wp.constant(2.39996322972865)  # = trace.GOLDEN_ANGLE: the disc samples of shadow and occlusion rays
+HASH_MULTIPLIER = wp.constant(wp.uint32(2654435761))  # Knuth's multiplicative hash of the pixel index
+
+
+@wp.func
+def disk_turn(pixel: int) -> float:
+    """The pixel's hash angle that turns its disc samples (trace.disk_sample)."""
+    h = wp.uint32(pixel) * HASH_MULTIPLIER
+    return float(int(h >> wp.uint32(8))) * (2.0 * 3.14159265358979 / 16777216.0)
 
 
 @wp.func
@@ -320,8 +328,7 @@ def disk_sample(i: int, samples: int, pixel: int) -> wp.vec2:
     so that neighbouring pixels' penumbrae are noise rather than bands. The centre for one sample."""
     if samples == 1:
         return wp.vec2(0.0, 0.0)
-    h = wp.uint32(pixel) * wp.uint32(2654435761)
-    turn = float(int(h >> wp.uint32(8))) * (2.0 * 3.14159265358979 / 16777216.0)
+    turn = disk_turn(pixel)
     r = wp.sqrt((float(i) + 0.5) / float(samples))
     a = float(i) * GOLDEN_ANGLE + turn
     return wp.vec2(r * wp.cos(a), r * wp.sin(a))

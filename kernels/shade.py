@@ -7,6 +7,8 @@ emitter against the diffuse part, then the warped specular lobes against the pre
 environment and the lights, each lobe shadowed by the SSDF (environment) or the light's shadow ray.
 """
 
+import math
+
 import warp as wp
 
 from warp_biscale import asg as _asg
@@ -16,7 +18,7 @@ from warp_biscale import sg as _sg
 from warp_biscale import shading as _shading
 
 from .asg import Asg, asg_convolve_sg, asg_integral_eq10, asg_unit_integral, asg_warp, harmonic
-from .common import disk_basis, occlusion_direction
+from .common import GOLDEN_ANGLE, disk_basis, disk_turn
 
 # Fast math on CUDA (approximate division, square root, exp and trigonometry): this shading is bound by its
 # arithmetic, and its float32 results are read against the float64 oracle with tolerances far above fast
@@ -30,6 +32,8 @@ SHARPNESS_MAX = wp.constant(_sg.SHARPNESS_MAX)
 MIN_COS_VIEW = wp.constant(1.0e-4)  # = shading.MIN_COS_VIEW
 ASG_LOBES = wp.constant(_effective.ASG_LOBES)  # i32_at2(eff_info, :, 7) of a material with ASG lobes
 ASG_EQ10_MIN = wp.constant(_asg.EQ10_MIN_BANDWIDTH)
+GOLDEN_COS = wp.constant(math.cos(GOLDEN_ANGLE))
+GOLDEN_SIN = wp.constant(math.sin(GOLDEN_ANGLE))
 RAYS_ONLY = wp.constant(_shading.RAYS_ONLY)
 SSDF_ONLY = wp.constant(_shading.SSDF_ONLY)
 DIFFUSE_LEVELS = wp.constant(len(_effective.DIFFUSE_LEVEL_ETAS))  # f̄d and its prefiltered levels
@@ -494,15 +498,35 @@ def ray_share(axis: wp.vec3, eta: float, n: wp.vec3, frame: wp.mat33, mask: wp.u
               pixel: int) -> float:
     """The lobe's share that the pixel's occlusion rays see unblocked (shading.ray_share): the rays'
     directions made again (occlusion_direction about frame's third row, the geometric normal), each
-    weighted by G(ω)(n·ω)⁺/(ng·ω)."""
+    weighted by G(ω)(n·ω)⁺/(ng·ω). The spiral's angle steps by the golden angle, so its cosine and sine
+    are turned by a fixed rotation from one ray to the next rather than computed per ray."""
     total = float(0.0)
     seen = float(0.0)
+    turn = disk_turn(pixel)
+    c = wp.cos(turn)
+    s = wp.sin(turn)
+    ax = wp.dot(frame[0], axis)  # the axis and the shading normal in the rays' frame
+    ay = wp.dot(frame[1], axis)
+    az = wp.dot(frame[2], axis)
+    nx = wp.dot(frame[0], n)
+    ny = wp.dot(frame[1], n)
+    nz = wp.dot(frame[2], n)
     for i in range(samples):
-        d = occlusion_direction(frame, i, samples, pixel)
-        w = wp.exp(eta * (wp.dot(d, axis) - 1.0)) * wp.max(wp.dot(d, n), 0.0) / wp.max(wp.dot(d, frame[2]), 1.0e-6)
+        r2 = (float(i) + 0.5) / float(samples)
+        if samples == 1:
+            r2 = 0.0
+        r = wp.sqrt(r2)
+        lift = wp.sqrt(wp.max(1.0 - r2, 0.0))
+        x = r * c
+        y = r * s
+        w = wp.exp(eta * (x * ax + y * ay + lift * az - 1.0)) * wp.max(x * nx + y * ny + lift * nz, 0.0) / wp.max(
+            lift, 1.0e-6)
         total = total + w
         if ((mask >> wp.uint32(i)) & wp.uint32(1)) == wp.uint32(0):
             seen = seen + w
+        c_next = c * GOLDEN_COS - s * GOLDEN_SIN
+        s = s * GOLDEN_COS + c * GOLDEN_SIN
+        c = c_next
     if total > 1.0e-30:
         return seen / total
     return 1.0
