@@ -164,7 +164,8 @@ def table(records, meta):
             ["backend", "size", "J", "occlusion rays", "ms/frame", "PSNR vs MC (dB)", "RMSE", "MC spp",
              "MC stderr rms"],
             [[r["backend"], f"{r['width']}×{r['height']}", r["lobes"], r.get("occlusion", 0),
-              f"{r['frame_s'] * 1e3:.3f}", f"{r['psnr']:.2f}", f"{r['rmse']:.4g}", r["mc_samples"], f"{r['mc_stderr_rms']:.3g}"] for r in pareto])
+              f"{r['frame_s'] * 1e3:.3f}", f"{r['psnr']:.2f}", f"{r['rmse']:.4g}", r["mc_samples"],
+              f"{r['mc_stderr_rms']:.3g}"] for r in pareto])
     return "\n".join(lines) + "\n"
 
 
