@@ -110,6 +110,7 @@ def main_parameter(material):
 # Interactive frames: 4 shadow rays a light (a grainier penumbra) and one sample a pixel, for speed; a file
 # written from the viewer's scene with `warp-biscale render` gets the full defaults.
 VIEWER_SHADOW_SAMPLES = 4
+VIEWER_OCCLUSION_SAMPLES = 8  # and half the default occlusion rays (broad lobes half through the SSDF)
 
 
 def _brdf_with(b, slider_value):
@@ -321,7 +322,7 @@ class Viewer:
         self.scene.camera = camera_from_pyvista(self.left.camera, w, h)
         t0 = time.perf_counter()
         result = self.sf.render(method=self.method, backend=self.backend, progress=self.progress,
-                                shadow_samples=VIEWER_SHADOW_SAMPLES)
+                                shadow_samples=VIEWER_SHADOW_SAMPLES, occlusion_samples=VIEWER_OCCLUSION_SAMPLES)
         dt = time.perf_counter() - t0
         self.image = result.image
         self.timings = result.timings
