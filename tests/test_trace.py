@@ -28,6 +28,7 @@ import pytest
 
 import warp_biscale.trace as trace_module
 from warp_biscale import reference as ref
+from warp_biscale.model import GBuffer
 from warp_biscale.scene import Camera, DirectionalLight, Mesh, PointLight
 from warp_biscale.trace import SHADOW_OFFSET, T_MIN, offsets
 
@@ -346,36 +347,55 @@ def test_bad_shadow_samples_are_one_line(backend, bad):
         backend.trace_shadows(mesh, g, lights, samples=bad)
 
 
-def test_occlusion_matches_reference(backend):
-    """16 environment-occlusion rays a pixel (unbounded, cosine-distributed about the oriented geometric
-    normal) against the float64 reference's same rays, bit for bit where a ray is unambiguous; ambiguous
-    rays (grazing an edge within rounding) fewer than 1 %. Floor pixels by the sphere are partly blocked,
-    the open floor's rays escape, and a miss has no bits."""
+@pytest.fixture(scope="module")
+def occlusion_reference():
+    """The shadow scene's float64 G-buffer, every second hit pixel of it (a GBuffer by hand: its own pixel
+    indices), and the reference's 16-ray masks there: exact, and with triangles grown and shrunk by
+    BARY_TOL. Made once for every backend."""
     mesh, cam, _ = _shadow_scene()
-    g = backend.trace_primary(mesh, cam)
-    mask = backend.trace_occlusion(mesh, g, 16)
-    assert mask.dtype == np.uint32 and mask.shape == g.face.shape
+    r = ref.trace_primary(mesh, cam)
+    pick = np.flatnonzero(r["face"] >= 0)[::2]
+    g = GBuffer(face=r["face"][pick].astype(np.int32), position=r["position"][pick], eye=r["eye"])
     eps, t_min = offsets(mesh)
     args = (mesh.vertices, mesh.faces, g.face, g.position, g.eye, eps, t_min, 16)
-    exact = ref.trace_occlusion(*args)
+    masks = [ref.trace_occlusion(*args, tol=tol) for tol in (0.0, BARY_TOL, -BARY_TOL)]
+    return mesh, g, masks
 
-    def bits(m):
-        return ((m[:, None].astype(np.uint64) >> np.arange(16, dtype=np.uint64)) & np.uint64(1)).astype(bool)
 
-    grown, shrunk = bits(ref.trace_occlusion(*args, tol=BARY_TOL)), bits(ref.trace_occlusion(*args, tol=-BARY_TOL))
-    clear = grown == shrunk
-    got = bits(mask)
-    assert not (clear & (got != bits(exact))).any(), f"{(clear & (got != bits(exact))).sum()} clear rays disagree"
+def _bits(mask, samples=16):
+    return ((np.asarray(mask)[:, None].astype(np.uint64) >> np.arange(samples, dtype=np.uint64))
+            & np.uint64(1)).astype(bool)
+
+
+def test_occlusion_matches_reference(backend, occlusion_reference):
+    """16 environment-occlusion rays a pixel (unbounded, cosine-distributed about the oriented geometric
+    normal) against the float64 reference's same rays from the same points, bit for bit where a ray is
+    unambiguous; ambiguous rays (grazing an edge within rounding) fewer than 1 %. Floor pixels by the
+    sphere are partly blocked and the far floor's rays escape."""
+    mesh, g, (exact, grown, shrunk) = occlusion_reference
+    mask = backend.trace_occlusion(mesh, g, 16)
+    assert mask.dtype == np.uint32 and mask.shape == g.face.shape
+    clear = _bits(grown) == _bits(shrunk)
+    got = _bits(mask)
+    bad = clear & (got != _bits(exact))
+    assert not bad.any(), f"{bad.sum()} clear rays disagree"
     assert (~clear).mean() < 0.01
-    assert not mask[g.face < 0].any()
     floor = g.face >= len(Mesh.sphere(0.5, subdivisions=3).faces)
     blocked = got.sum(1)
-    assert ((blocked > 0) & (blocked < 16) & floor).sum() > 30  # partly occluded floor by the sphere
+    assert ((blocked > 0) & (blocked < 16) & floor).sum() > 15  # partly occluded floor by the sphere
     assert (floor & (blocked == 0)).sum() > floor.sum() / 3  # the far floor sees the whole sky
-    # From the device's own G-buffer, and 0 samples: no rays, no bits.
-    backend.trace_occlusion(mesh, None, 16, to_host=False)
-    np.testing.assert_array_equal(backend.trace_occlusion(mesh, None, 16), mask)
-    assert not backend.trace_occlusion(mesh, g, 0).any()
+    assert not backend.trace_occlusion(mesh, g, 0).any()  # no rays, no bits
+
+
+def test_occlusion_from_the_device_gbuffer(backend):
+    """The render path: the masks of the G-buffer trace_primary left on the device equal those of its host
+    copy; a miss has no bits."""
+    mesh, cam, _ = _shadow_scene()
+    g = backend.trace_primary(mesh, cam)
+    host = backend.trace_occlusion(mesh, g, 8)
+    backend.trace_occlusion(mesh, None, 8, to_host=False)
+    np.testing.assert_array_equal(backend.trace_occlusion(mesh, None, 8), host)
+    assert host[g.face >= 0].any() and not host[g.face < 0].any()
 
 
 @pytest.mark.parametrize("bad", [-1, 33, 2.5, "8"])
