@@ -141,7 +141,9 @@ def test_cli_render_anti_aliases_by_default(tmp_path, capsys):
     assert np.abs(aa4 - aa1).max() > 0.01  # silhouettes changed
     # (the refusals in-process, `cli.main`: the console script itself ran above)
     for bad, what in ((["--aa", "0"], "aa must be"), (["--shadow-samples", "0"], "shadow samples must be"),
-                      (["--method", "mc", "--aa", "4"], "--aa is for the SG renderer")):
+                      (["--occlusion-samples", "33"], "occlusion samples must be"),
+                      (["--method", "mc", "--aa", "4"], "--aa is for the SG renderer"),
+                      (["--method", "mc", "--occlusion-samples", "8"], "--occlusion-samples is for the SG renderer")):
         assert cli.main(["render", str(scene), "-o", str(tmp_path / "bad.png"), *bad]) == 2
         err = [line for line in capsys.readouterr().err.splitlines() if not line.startswith("warning:")]
         assert len(err) == 1 and what in err[0], err  # (the tiny scene's EnergyWarning aside)
