@@ -127,6 +127,20 @@ CL_INLINE float3 occlusion_direction(float3 a, float3 b, float3 n, int i, int sa
 }
 
 
+#define LOBE_RAYS 8 /* = trace.LOBE_RAYS */
+#define LOBE_COS_MIN 0.0872f /* = trace.LOBE_COS_MIN */
+
+/* Ray i towards a sharp lobe (trace.lobe_ray_directions): disc sample i on the tangent plane at the lobe's
+ * axis w (frame (a, b, w)), radius tan θ with 1 − cos θ = 2/η, normalised. */
+CL_INLINE float3 lobe_ray_direction(float3 a, float3 b, float3 w, float eta, int i, int pixel)
+{
+    float c = maxf(1.0f - 2.0f / maxf(eta, 1.0e-30f), LOBE_COS_MIN);
+    float spread = sqrt(1.0f - c * c) / c;
+    float2 q = disk_sample(i, LOBE_RAYS, pixel);
+    return normalize3((float3)(w.x + spread * (q.x * a.x + q.y * b.x), w.y + spread * (q.x * a.y + q.y * b.y),
+                               w.z + spread * (q.x * a.z + q.y * b.z)));
+}
+
 /* Powers without the pow builtin, which costs about three times exp + log2 in PoCL:
  * x^5 by multiplication, and x^y = 2^(y log2 x) for x >= 0 and y > 0 (0 at x = 0, as pow). They
  * differ from a libm powf by rounding only: a few ulp, or about 1e-6 relative for results above

@@ -23,6 +23,7 @@
 #define EFF_LOBE_WIDTH 9 /* eff_lobes' row: [axis or z (3), η, x (3), λ, μ] */
 #define RAYS_ONLY 0.125f /* = shading.RAYS_ONLY */
 #define SSDF_ONLY 0.5f /* = shading.SSDF_ONLY */
+#define SHARP_LOBE_ETA 8.0f /* = shading.SHARP_LOBE_ETA */
 #define DIFFUSE_LEVELS 5 /* = len(effective.DIFFUSE_LEVEL_ETAS): f̄d and its prefiltered levels */
 #define DIFFUSE_LEVEL_SHARP 64.0f /* = effective.DIFFUSE_LEVEL_SHARP */
 #define DIFFUSE_LEVEL_STEP 8.0f /* = effective.DIFFUSE_LEVEL_STEP */
@@ -487,6 +488,50 @@ CL_INLINE float ray_share(float3 axis, float eta, float3 n, Occlusion occ)
     return total > 1.0e-30f ? seen / total : 1.0f;
 }
 
+/* The share of a lobe (axis, η) that sharp lobe k's rays (about ray_axis, ray_eta) see unblocked
+ * (shading.lobe_ray_share): the rays made again (lobe_ray_direction), each weighted by G(ω)(n·ω)⁺ and its
+ * solid-angle weight cos³ (its cosine to ray_axis, cubed); a ray below the geometric horizon, not traced, has
+ * its bit clear. */
+CL_INLINE float lobe_ray_share(float3 ray_axis, float ray_eta, float3 axis, float eta, float3 n, uint mask, int k,
+                               int pixel)
+{
+    float3 a, b;
+    disk_basis(ray_axis, &a, &b);
+    float total = 0.0f, seen = 0.0f;
+    for (int i = 0; i < LOBE_RAYS; ++i) {
+        float3 d = lobe_ray_direction(a, b, ray_axis, ray_eta, i, pixel);
+        float c = dot3(d, ray_axis);
+        float w = exp(eta * (dot3(d, axis) - 1.0f)) * maxf(dot3(d, n), 0.0f) * c * c * c;
+        total = total + w;
+        if (((mask >> (k * LOBE_RAYS + i)) & 1u) == 0u)
+            seen = seen + w;
+    }
+    return total > 1.0e-30f ? seen / total : 1.0f;
+}
+
+/* The ray lobe environment lobe e is shadowed through (shading.nearest_ray_lobe): itself if it is one
+ * (e < n_sharp), else, for a lobe of η ≥ SHARP_LOBE_ETA, the ray lobe nearest its axis if the axis lies in that
+ * lobe's cap; -1: none (the SSDF then). */
+CL_INLINE int nearest_ray_lobe(__global const float *env_sgs, int n_sharp, int e, float3 axis, float eta)
+{
+    if (e < n_sharp)
+        return e;
+    int best = -1;
+    if (eta >= SHARP_LOBE_ETA) {
+        float best_c = -2.0f;
+        for (int k = 0; k < n_sharp; ++k) {
+            float c = env_sgs[7 * k] * axis.x + env_sgs[7 * k + 1] * axis.y + env_sgs[7 * k + 2] * axis.z;
+            if (c > best_c) {
+                best_c = c;
+                best = k;
+            }
+        }
+        if (best >= 0 && best_c < maxf(1.0f - 2.0f / env_sgs[7 * best + 3], LOBE_COS_MIN))
+            best = -1;
+    }
+    return best;
+}
+
 /* The share of ∫ G(ω; axis, η, 1)(n·ω)⁺ dω left unoccluded (1 without an SSDF): the SSDF's, blended for
  * broad lobes with the occlusion rays' (ray_weight; a mask with no bit set sees it all). */
 CL_INLINE float environment_share(Table tab, float3 axis, float eta, EtaRow row, SurfacePoint s, int has_ssdf,
@@ -623,6 +668,8 @@ __kernel void shade_pixels(
     __global const uchar *light_vis,    /* (P, L) visible share in 255ths */
     __global const uint *occlusion,     /* (P,) occlusion-ray masks */
     const int occlusion_samples,
+    __global const uint *lobe_occlusion, /* (P,) sharp lobes' ray masks */
+    const int n_sharp,
     __global const int *faces,          /* (F, 3) */
     __global const float *positions,    /* (V, 3) */
     __global const float *normals,      /* (V, 3) */
@@ -727,7 +774,13 @@ __kernel void shade_pixels(
         EtaRow row = eta_row(tab, lobe[3]);
         float amount = cosine_integral(tab, axis, lobe[3], row, s.n);
         lobes_irradiance = lobes_irradiance + radiance_e * amount;
-        amount = amount * environment_share(tab, axis, lobe[3], row, s, has_ssdf, ssdf, occ);
+        int ray_lobe = nearest_ray_lobe(env_sgs, n_sharp, e, axis, lobe[3]);
+        if (ray_lobe >= 0) { /* a sharp lobe: through its own rays, or those of the ray lobe whose cap holds its axis */
+            __global const float *r = env_sgs + 7 * ray_lobe;
+            amount = amount * lobe_ray_share((float3)(r[0], r[1], r[2]), r[3], axis, lobe[3], s.n, lobe_occlusion[p],
+                                             ray_lobe, p);
+        } else
+            amount = amount * environment_share(tab, axis, lobe[3], row, s, has_ssdf, ssdf, occ);
         float3 fd = kd;
         if (kind != 0)
             fd = effective_diffuse(ei, eff_sub, eff_diffuse, k2, lobe[3], to_local(s, axis), k, oo, ow);

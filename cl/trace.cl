@@ -171,3 +171,43 @@ __kernel void trace_occlusion(
     }
     mask[p] = bits;
 }
+
+/* One work-item per pixel: LOBE_RAYS unbounded any-hit rays over each sharp lobe's cap (lobe_ray_direction);
+ * bit k·LOBE_RAYS + i set where ray i of lobe k is blocked; a ray below the geometric horizon is not traced
+ * (reference.trace_lobe_rays). */
+__kernel void trace_lobe_rays(
+    __global const float *nodes,
+    __global const float *tris,
+    __global const float *face_normals,  /* (F, 3) unit, original face order */
+    __global const int *face,            /* (P,) */
+    __global const float *position,      /* (P, 3) */
+    const float eye_x, const float eye_y, const float eye_z,
+    __global const float *lobes,         /* (M, 4) [axis, η] */
+    const int n_lobes, const float eps, const float t_min,
+    const int n_pixels,
+    __global uint *mask)                 /* (P,) */
+{
+    int p = get_global_id(0);
+    if (p >= n_pixels)
+        return;
+    int f = face[p];
+    uint bits = 0u;
+    if (f >= 0) {
+        float3 x = load3(position, p);
+        float3 n = load3(face_normals, f);
+        if (dot3(n, (float3)(eye_x - x.x, eye_y - x.y, eye_z - x.z)) < 0.0f)
+            n = (float3)(-n.x, -n.y, -n.z);
+        float3 o = (float3)(x.x + eps * n.x, x.y + eps * n.y, x.z + eps * n.z);
+        for (int k = 0; k < n_lobes; ++k) {
+            float3 w = (float3)(lobes[4 * k], lobes[4 * k + 1], lobes[4 * k + 2]);
+            float3 a, b;
+            disk_basis(w, &a, &b);
+            for (int i = 0; i < LOBE_RAYS; ++i) {
+                float3 d = lobe_ray_direction(a, b, w, lobes[4 * k + 3], i, p);
+                if (dot3(n, d) > 0.0f && bvh_any_hit(nodes, tris, o, d, t_min, INFINITY))
+                    bits |= 1u << (k * LOBE_RAYS + i);
+            }
+        }
+    }
+    mask[p] = bits;
+}

@@ -6,6 +6,8 @@ mirrors ``warp_biscale.measured.MeasuredBRDF.eval``.
 
 import warp as wp
 
+from warp_biscale import trace as _trace
+
 LAMBERT = wp.constant(0)
 BLINN_PHONG = wp.constant(1)
 COOK_TORRANCE = wp.constant(2)
@@ -351,3 +353,17 @@ def occlusion_direction(frame: wp.mat33, i: int, samples: int, pixel: int) -> wp
     q = disk_sample(i, samples, pixel)
     lift = wp.sqrt(wp.max(1.0 - q[0] * q[0] - q[1] * q[1], 0.0))
     return q[0] * frame[0] + q[1] * frame[1] + lift * frame[2]
+
+
+LOBE_COS_MIN = wp.constant(_trace.LOBE_COS_MIN)
+LOBE_RAYS = wp.constant(_trace.LOBE_RAYS)
+
+
+@wp.func
+def lobe_ray_direction(frame: wp.mat33, eta: float, i: int, pixel: int) -> wp.vec3:
+    """Ray i towards a sharp lobe (trace.lobe_ray_directions): disc sample i on the tangent plane at the
+    lobe's axis (frame's third row), radius tan θ with 1 − cos θ = 2/η, normalised."""
+    c = wp.max(1.0 - 2.0 / wp.max(eta, 1.0e-30), LOBE_COS_MIN)
+    spread = wp.sqrt(1.0 - c * c) / c
+    q = disk_sample(i, LOBE_RAYS, pixel)
+    return wp.normalize(frame[2] + spread * (q[0] * frame[0] + q[1] * frame[1]))

@@ -18,7 +18,7 @@ from warp_biscale import sg as _sg
 from warp_biscale import shading as _shading
 
 from .asg import Asg, asg_convolve_sg, asg_integral_eq10, asg_unit_integral, asg_warp, harmonic
-from .common import GOLDEN_ANGLE, disk_basis, disk_turn
+from .common import GOLDEN_ANGLE, LOBE_COS_MIN, LOBE_RAYS, disk_basis, disk_turn, lobe_ray_direction
 
 # Fast math on CUDA (approximate division, square root, exp and trigonometry): this shading is bound by its
 # arithmetic, and its float32 results are read against the float64 oracle with tolerances far above fast
@@ -35,6 +35,7 @@ ASG_EQ10_MIN = wp.constant(_asg.EQ10_MIN_BANDWIDTH)
 GOLDEN_COS = wp.constant(math.cos(GOLDEN_ANGLE))
 GOLDEN_SIN = wp.constant(math.sin(GOLDEN_ANGLE))
 RAYS_ONLY = wp.constant(_shading.RAYS_ONLY)
+SHARP_LOBE_ETA = wp.constant(_shading.SHARP_LOBE_ETA)
 SSDF_ONLY = wp.constant(_shading.SSDF_ONLY)
 DIFFUSE_LEVELS = wp.constant(len(_effective.DIFFUSE_LEVEL_ETAS))  # f̄d and its prefiltered levels
 DIFFUSE_LEVEL_SHARP = wp.constant(_effective.DIFFUSE_LEVEL_SHARP)
@@ -533,6 +534,49 @@ def ray_share(axis: wp.vec3, eta: float, n: wp.vec3, frame: wp.mat33, mask: wp.u
 
 
 @wp.func
+def lobe_ray_share(ray_axis: wp.vec3, ray_eta: float, axis: wp.vec3, eta: float, n: wp.vec3, mask: wp.uint32,
+                   k: int, pixel: int) -> float:
+    """The share of a lobe (axis, η) that sharp lobe k's rays (about ray_axis, ray_eta) see unblocked
+    (shading.lobe_ray_share): the rays made again (lobe_ray_direction), each weighted by G(ω)(n·ω)⁺ and its
+    solid-angle weight cos³ (its cosine to ray_axis, cubed); a ray below the geometric horizon, not traced,
+    has its bit clear."""
+    frame = disk_basis(ray_axis)
+    total = float(0.0)
+    seen = float(0.0)
+    for i in range(LOBE_RAYS):
+        d = lobe_ray_direction(frame, ray_eta, i, pixel)
+        c = wp.dot(d, ray_axis)
+        w = wp.exp(eta * (wp.dot(d, axis) - 1.0)) * wp.max(wp.dot(d, n), 0.0) * c * c * c
+        total = total + w
+        if ((mask >> wp.uint32(k * LOBE_RAYS + i)) & wp.uint32(1)) == wp.uint32(0):
+            seen = seen + w
+    if total > 1.0e-30:
+        return seen / total
+    return 1.0
+
+
+@wp.func
+def nearest_ray_lobe(env_sgs: wp.array2d(dtype=wp.float32), n_sharp: int, e: int, axis: wp.vec3, eta: float) -> int:
+    """The ray lobe environment lobe e is shadowed through (shading.nearest_ray_lobe): itself if it is one (e <
+    n_sharp), else, for a lobe of η ≥ SHARP_LOBE_ETA, the ray lobe nearest its axis if the axis lies in that
+    lobe's cap; −1: none (the SSDF then)."""
+    if e < n_sharp:
+        return e
+    best = int(-1)
+    if eta >= SHARP_LOBE_ETA:
+        best_c = float(-2.0)
+        for k in range(n_sharp):
+            c = f32_at2(env_sgs, k, 0) * axis[0] + f32_at2(env_sgs, k, 1) * axis[1] + f32_at2(env_sgs, k, 2) * axis[2]
+            if c > best_c:
+                best_c = c
+                best = k
+        if best >= 0:
+            if best_c < wp.max(1.0 - 2.0 / f32_at2(env_sgs, best, 3), LOBE_COS_MIN):
+                best = -1
+    return best
+
+
+@wp.func
 def environment_share(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: float, tr: float, s: SurfacePoint,
                       has_ssdf: int, ssdf_res: int, ssdf_basis: wp.array2d(dtype=wp.float32),
                       ssdf_coeffs: wp.array2d(dtype=wp.float32), mask: wp.uint32, samples: int, frame: wp.mat33,
@@ -672,7 +716,8 @@ def finite_radiance(v: wp.vec3) -> wp.vec3:
 @wp.kernel(cuda_max_registers=96)
 def shade_pixels(
     face: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec2), light_vis: wp.array2d(dtype=wp.uint8),
-    occlusion: wp.array(dtype=wp.uint32), occlusion_samples: int,
+    occlusion: wp.array(dtype=wp.uint32), occlusion_samples: int, lobe_occlusion: wp.array(dtype=wp.uint32),
+    n_sharp: int,
     faces: wp.array2d(dtype=wp.int32), positions: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp.vec3),
     tangents: wp.array(dtype=wp.vec3), face_material: wp.array(dtype=wp.int32),
     camera: wp.array(dtype=wp.float32),
@@ -757,8 +802,15 @@ def shade_pixels(
         tr = eta_row(table, eta)
         amount = cosine_integral(table, axis, eta, tr, s.n)
         lobes_irradiance = lobes_irradiance + radiance_e * amount
-        amount = amount * environment_share(table, axis, eta, tr, s, has_ssdf, ssdf_res, ssdf_basis, ssdf_coeffs,
-                                            mask, occlusion_samples, frame, p)
+        ray_lobe = nearest_ray_lobe(env_sgs, n_sharp, e, axis, eta)
+        if ray_lobe >= 0:  # a sharp lobe: through its own rays, or those of the ray lobe whose cap holds its axis
+            ray_axis = wp.vec3(f32_at2(env_sgs, ray_lobe, 0), f32_at2(env_sgs, ray_lobe, 1),
+                               f32_at2(env_sgs, ray_lobe, 2))
+            amount = amount * lobe_ray_share(ray_axis, f32_at2(env_sgs, ray_lobe, 3), axis, eta, s.n,
+                                             lobe_occlusion[p], ray_lobe, p)
+        else:
+            amount = amount * environment_share(table, axis, eta, tr, s, has_ssdf, ssdf_res, ssdf_basis,
+                                                ssdf_coeffs, mask, occlusion_samples, frame, p)
         fd = kd
         if kind != 0:
             fd = effective_diffuse(eff_info, eff_sub, eff_diffuse, idx, k2, eta, to_local(s, axis), k, oo, ow)

@@ -17,7 +17,7 @@ Conventions shared with the OpenCL twin and the reference:
 
 import warp as wp
 
-from .common import disk_basis, disk_sample, occlusion_direction
+from .common import LOBE_RAYS, disk_basis, disk_sample, lobe_ray_direction, occlusion_direction
 
 
 @wp.func
@@ -175,4 +175,40 @@ def trace_occlusion(
             d = occlusion_direction(frame, i, samples, p)
             if wp.mesh_query_ray_anyhit(mesh, o + t_min * d, d, wp.inf):
                 bits = bits | (wp.uint32(1) << wp.uint32(i))
+    mask[p] = bits
+
+
+@wp.kernel
+def trace_lobe_rays(
+    mesh: wp.uint64,
+    face_normals: wp.array(dtype=wp.vec3),
+    face: wp.array(dtype=wp.int32),
+    position: wp.array(dtype=wp.vec3),
+    eye: wp.vec3,
+    lobes: wp.array2d(dtype=wp.float32),  # (M, 4) [axis, η]
+    n_lobes: int,
+    eps: float,
+    t_min: float,
+    offset: int,
+    mask: wp.array(dtype=wp.uint32),
+):
+    """One thread per pixel: LOBE_RAYS unbounded any-hit rays over each sharp lobe's cap (lobe_ray_direction);
+    bit k·LOBE_RAYS + i set where ray i of lobe k is blocked. A ray below the geometric horizon is not traced."""
+    p = wp.tid() + offset
+    f = face[p]
+    bits = wp.uint32(0)
+    if f >= 0:
+        x = position[p]
+        n = face_normals[f]
+        if wp.dot(n, eye - x) < 0.0:
+            n = -n
+        o = x + eps * n
+        for k in range(n_lobes):
+            axis = wp.vec3(lobes[k, 0], lobes[k, 1], lobes[k, 2])
+            frame = disk_basis(axis)
+            for i in range(LOBE_RAYS):
+                d = lobe_ray_direction(frame, lobes[k, 3], i, p)
+                if wp.dot(n, d) > 0.0:
+                    if wp.mesh_query_ray_anyhit(mesh, o + t_min * d, d, wp.inf):
+                        bits = bits | (wp.uint32(1) << wp.uint32(k * LOBE_RAYS + i))
     mask[p] = bits

@@ -79,6 +79,9 @@ def test_shade_kernel_matches_reference(backend, which, effective_material, many
     # ... nor occlusion rays; the occluded scene's broad lobes are shadowed through them, some rays blocked
     assert frame.gbuffer.occlusion_samples == (0 if which == "lone" else OCCLUSION_SAMPLES)
     assert which == "lone" or frame.gbuffer.occlusion.any()
+    # ... and its sharp lobe (the sky's sun) gets rays of its own, some blocked
+    assert (frame.inputs.n_sharp_lobes == 0) == (which == "lone")
+    assert which == "lone" or frame.gbuffer.lobe_occlusion.any()
     ref = shade_reference(frame)
     out = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights,
                         gbuffer=frame.gbuffer)
@@ -104,6 +107,7 @@ def test_shade_uses_device_gbuffer(backend, effective_material):
     backend.trace_primary(scene.mesh, scene.camera, to_host=False)
     backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=SHADOW_SAMPLES)  # as pack_frame
     backend.trace_occlusion(scene.mesh, None, OCCLUSION_SAMPLES, to_host=False)
+    backend.trace_lobe_rays(scene.mesh, None, frame.inputs.sharp_lobes(), to_host=False)
     dev = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights)
     np.testing.assert_array_equal(dev, host)
 
@@ -117,6 +121,7 @@ def test_shade_only_one_material_over_the_last_frame(backend, effective_material
     backend.trace_primary(scene.mesh, scene.camera, to_host=False)
     backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=SHADOW_SAMPLES)
     backend.trace_occlusion(scene.mesh, None, OCCLUSION_SAMPLES, to_host=False)
+    backend.trace_lobe_rays(scene.mesh, None, frame.inputs.sharp_lobes(), to_host=False)
     before = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights)
     edited = Scene(scene.mesh, [wb.Lambert(0.9), wb.Ward(0.2, 0.3, kd=(0.6, 0.1, 0.1)), scene.materials[2]],
                    scene.camera, scene.environment, scene.lights, ssdf_resolution=16, ssdf_terms=8)
@@ -124,6 +129,7 @@ def test_shade_only_one_material_over_the_last_frame(backend, effective_material
     backend.trace_primary(scene.mesh, scene.camera, to_host=False)
     backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=SHADOW_SAMPLES)
     backend.trace_occlusion(scene.mesh, None, OCCLUSION_SAMPLES, to_host=False)
+    backend.trace_lobe_rays(scene.mesh, None, frame.inputs.sharp_lobes(), to_host=False)
     backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights, to_host=False)
     masked = backend.shade(scene.mesh, inputs, frame.camera, frame.lights, only_material=1)
     whole = backend.shade(scene.mesh, inputs, frame.camera, frame.lights)

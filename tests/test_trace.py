@@ -387,6 +387,33 @@ def test_occlusion_matches_reference(backend, occlusion_reference):
     assert not backend.trace_occlusion(mesh, g, 0).any()  # no rays, no bits
 
 
+LOBES = np.array([[0.6, 0.64, 0.48, 40.0], [-0.48, 0.8, 0.36, 400.0]], np.float32)  # a wide and a narrow sun
+
+
+def test_lobe_rays_match_reference(backend, occlusion_reference):
+    """8 rays over each of two sharp lobes' caps against the float64 reference's same rays, bit for bit where
+    a ray is unambiguous; the sphere's shadow on the floor blocks some, not all; a lobe from below is behind
+    the floor seen from above (nothing traced, no bits)."""
+    mesh, g, _ = occlusion_reference
+    eps, t_min = offsets(mesh)
+    args = (mesh.vertices, mesh.faces, g.face, g.position, g.eye, eps, t_min, LOBES)
+    exact, grown, shrunk = (_bits(ref.trace_lobe_rays(*args, tol=tol), 32) for tol in (0.0, BARY_TOL, -BARY_TOL))
+    got = _bits(backend.trace_lobe_rays(mesh, g, LOBES), 32)
+    clear = grown == shrunk
+    assert not (clear & (got != exact)).any(), f"{(clear & (got != exact)).sum()} clear rays disagree"
+    assert (~clear).mean() < 0.01
+    assert not got[:, 16:].any()  # bits past two lobes' 16
+    floor = g.face >= len(Mesh.sphere(0.5, subdivisions=3).faces)
+    for k in range(2):
+        blocked = got[floor, 8 * k:8 * (k + 1)].sum(1)
+        assert (blocked > 0).sum() > 10 and (blocked == 0).sum() > floor.sum() / 2, k  # a shadow on the floor
+    below = LOBES.copy()
+    below[:, 1] *= -1
+    assert not backend.trace_lobe_rays(mesh, g, below)[floor].any()
+    with pytest.raises(ValueError, match="at most 4 lobes"):
+        backend.trace_lobe_rays(mesh, g, np.tile(LOBES, (3, 1)))
+
+
 def test_occlusion_from_the_device_gbuffer(backend):
     """The render path: the masks of the G-buffer trace_primary left on the device equal those of its host
     copy; a miss has no bits."""

@@ -136,6 +136,7 @@ class Backend(Protocol):
     #   "gbuffer_light_vis" (P, L) wp.uint8 | P·L uint8      light l's visible share from pixel p, in 255ths
     #   "gbuffer_occlusion" (P,) wp.uint32 | P uint32        environment-occlusion masks (bit i: ray i blocked),
     #   "occlusion_samples" int                              of this many rays (0: none since trace_primary)
+    #   "gbuffer_lobe_occlusion" (P,) wp.uint32 | P uint32   the sharp environment lobes' ray masks
     # The G-buffer arrays are reused from frame to frame (same size): a new trace overwrites them.
     def trace_primary(self, mesh, camera, to_host: bool = True) -> GBuffer | None:
         """The G-buffer of `camera` on `mesh` (reference.trace_primary): camera rays generated in the
@@ -166,6 +167,13 @@ class Backend(Protocol):
         trace.occlusion_directions (cosine-distributed over the geometric normal's hemisphere); bit i set
         where ray i is blocked, 0 for a miss. `gbuffer` as trace_shadows. Fills "gbuffer_occlusion" and
         "occlusion_samples", which shade reads; returns None unless to_host."""
+
+    def trace_lobe_rays(self, mesh, gbuffer: GBuffer | None, lobes, to_host: bool = True) -> np.ndarray | None:
+        """(P,) uint32 masks of the sharp environment lobes' rays (reference.trace_lobe_rays): from each hit
+        pixel, trace.LOBE_RAYS unbounded rays over the cap of each of `lobes` ((M, 4) [axis, η], M ≤
+        trace.LOBE_RAY_LOBES: the shade inputs' `ShadeInputs.sharp_lobes()`), started as trace_occlusion's; bit
+        k·LOBE_RAYS + i set where ray i of lobe k is blocked. Fills "gbuffer_lobe_occlusion", which shade
+        reads for inputs with sharp lobes wherever occlusion rays were traced; returns None unless to_host."""
 
     # --- Per-pixel SG shading (stage `shade`: kernels/shade.py, cl/shade.cl; warp_biscale.shading) ---
     def shade(self, mesh, static: ShadeInputs, camera_packed: np.ndarray, lights_packed: np.ndarray,

@@ -22,7 +22,7 @@ from .brdf import ANISOTROPIC_KINDS, MEASURED
 from .lobes import KERNEL_LOBES, LobeSet
 from .model import Facets, GBuffer, ShadeInputs, Visibility, facet_shift
 from .trace import (CHUNK_RAYS, check_camera, check_gbuffer, check_lights, check_mesh, check_occlusion,
-                    check_occlusion_samples, check_shadow_samples, offsets)
+                    check_lobes, check_occlusion_samples, check_shadow_samples, offsets)
 
 # Shade inputs up to this size are compared by value to the last upload of their role (`_shade_input`),
 # larger ones by their memory.
@@ -569,6 +569,7 @@ class DeviceBackend:
         eye = camera.packed()[0:3].copy()
         m["gbuffer_eye"], m["gbuffer_size"], m["gbuffer_host"] = eye, n, None
         m["gbuffer_key"], m["light_vis_key"], m["occlusion_key"], m["occlusion_samples"] = key, None, None, 0
+        m["lobe_rays_key"], m["lobe_rays"] = None, None
         if not to_host:
             return None
         host = GBuffer(**{key: self._to_host(g[key], n, kind) for key, kind in (
@@ -648,6 +649,36 @@ class DeviceBackend:
             return None
         return self._to_host(mask, n, "u32") if samples else np.zeros(n, np.uint32)
 
+    def trace_lobe_rays(self, mesh, gbuffer, lobes, to_host=True, if_changed=False):
+        """trace.LOBE_RAYS rays per pixel of the G-buffer (None: the one on the device) towards each sharp
+        environment lobe of `lobes` (M ≤ trace.LOBE_RAY_LOBES rows [axis, η]), their (P,) uint32 masks left on
+        the device for shade (reference.trace_lobe_rays). With if_changed (and to_host False), nothing is
+        traced when the device already holds them for this G-buffer and lobes."""
+        check_mesh(mesh)
+        lobes = check_lobes(lobes)
+        m = self._trace_mesh(mesh)
+        key = None
+        if gbuffer is None or gbuffer is m.get("gbuffer_host"):
+            key = (m.get("gbuffer_key"), lobes.tobytes())
+            if if_changed and not to_host and m.get("lobe_rays_key") == key:
+                return None
+            if "gbuffer_face" not in m:
+                raise ValueError("gbuffer is None, but trace_primary has not run on this mesh with this backend")
+            face, position, eye, n = m["gbuffer_face"], m["gbuffer_position"], m["gbuffer_eye"], m["gbuffer_size"]
+        else:
+            f, p, eye = check_gbuffer(gbuffer, len(mesh.faces))
+            face, position, n = self._to_device(f, "i32"), self._to_device(p, "vec3"), len(f)
+        mask = self._reuse(m, "gbuffer_lobe_occlusion", n, "u32")
+        if n and len(lobes):
+            if "offsets" not in m:
+                m["offsets"] = offsets(mesh)
+            eps, t_min = m["offsets"]
+            self._launch_trace_lobe_rays(m, face, position, eye, lobes, eps, t_min, n, mask)
+        m["lobe_rays_key"], m["lobe_rays"] = key, lobes.tobytes()
+        if not to_host:
+            return None
+        return self._to_host(mask, n, "u32") if len(lobes) else np.zeros(n, np.uint32)
+
     def shade(self, mesh, static, camera_packed, lights_packed, gbuffer=None, to_host=True, only_material=None):
         dev = self._shade_static(static)
         m = self._trace_mesh(mesh)
@@ -671,6 +702,12 @@ class DeviceBackend:
                 raise ValueError("no shadow rays on the device for these lights: call trace_shadows first")
             occ_samples = m.get("occlusion_samples", 0)
             occ = m["gbuffer_occlusion"] if occ_samples else None
+            lobe_occ = None
+            if occ_samples and static.n_sharp_lobes:
+                if m.get("lobe_rays") != static.sharp_lobes().tobytes():
+                    raise ValueError("no lobe rays on the device for this environment's sharp lobes: call "
+                                     "trace_lobe_rays after trace_occlusion")
+                lobe_occ = m["gbuffer_lobe_occlusion"]
         else:
             if not isinstance(gbuffer, GBuffer):
                 raise ValueError(f"gbuffer must be a GBuffer (or None), got {type(gbuffer).__name__}")
@@ -694,13 +731,23 @@ class DeviceBackend:
                     raise ValueError(f"gbuffer.occlusion must have shape ({n},) with occlusion_samples "
                                      f"{occ_samples}, got {None if occ_h is None else occ_h.shape}")
                 occ = self._to_device(occ_h, "u32")
+            lobe_occ = None
+            if occ_samples and static.n_sharp_lobes:
+                lobe_h = np.asarray(gbuffer.lobe_occlusion, np.uint32) if gbuffer.lobe_occlusion is not None else None
+                if lobe_h is None or lobe_h.shape != (n,):
+                    raise ValueError(f"gbuffer.lobe_occlusion must have shape ({n},) where the inputs have sharp "
+                                     f"lobes and occlusion_samples > 0, got {None if lobe_h is None else lobe_h.shape}")
+                lobe_occ = self._to_device(lobe_h, "u32")
         if vis is None:
             vis = self._reuse(m, "no_light_vis", (1, 1), "u8")  # never read: no light
         if occ is None:
             occ = self._reuse(m, "no_occlusion", 1, "u32")  # never read: no occlusion rays
+        n_sharp = int(static.n_sharp_lobes) if lobe_occ is not None else 0
+        if lobe_occ is None:
+            lobe_occ = occ  # never read: no lobe rays
         out = self._reuse(m, "radiance", n, "vec3")
         if n:
-            self._launch_shade(dev, m, face, bary, vis, occ, occ_samples, lights,
+            self._launch_shade(dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, lights,
                                np.asarray(camera_packed, np.float32).reshape(16), n,
                                -1 if only_material is None else int(only_material), out)
         return self._to_host(out, n, "vec3") if to_host else None

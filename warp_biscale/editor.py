@@ -588,6 +588,7 @@ class Editor:
             be.trace_shadows(scene.mesh, None, lights, to_host=False, samples=1, if_changed=True)
         if static.has_ssdf:  # traced again only when the camera or the mesh moved, as the G-buffer
             be.trace_occlusion(scene.mesh, None, OCCLUSION_SAMPLES, to_host=False, if_changed=True)
+            be.trace_lobe_rays(scene.mesh, None, static.sharp_lobes(), to_host=False, if_changed=True)
         be.shade(scene.mesh, static, cam.packed(), lights, to_host=False, only_material=only_material)
         # Two host frames in turn: the one shown stays whole while the next is read back into the other.
         pair = self._frame_buffers.setdefault((cam.height, cam.width), [])

@@ -258,7 +258,9 @@ class GBuffer:
     (0 on a miss); t (P,) float32 ray distance (inf on a miss); eye (3,) float32; light_vis (P, L) uint8,
     the share of light l visible from pixel p in 255ths (trace_shadows' result, which shade reads);
     occlusion (P,) uint32, bit i set where environment-occlusion ray i of occlusion_samples is blocked
-    (trace_occlusion's result; occlusion_samples 0: none traced, the SSDF alone shadows the environment)."""
+    (trace_occlusion's result; occlusion_samples 0: none traced, the SSDF alone shadows the environment);
+    lobe_occlusion (P,) uint32, bit k·trace.LOBE_RAYS + i set where ray i towards the inputs' sharp
+    environment lobe k is blocked (trace_lobe_rays' result, read where occlusion_samples > 0)."""
     face: np.ndarray
     bary: np.ndarray | None = None
     position: np.ndarray | None = None
@@ -267,6 +269,7 @@ class GBuffer:
     light_vis: np.ndarray | None = None
     occlusion: np.ndarray | None = None
     occlusion_samples: int = 0
+    lobe_occlusion: np.ndarray | None = None
 
 
 @dataclass(eq=False)
@@ -275,7 +278,8 @@ class ShadeInputs:
     as the kernels take it: the large-scale mesh (faces (F, 3), positions, normals, tangents (V, 3),
     uvs (V, 2), face_material (F,)), the environment (env_sgs (K, 7) SG lobes, env_residual (H, W, 3) the
     exact irradiance less the lobes' (an equirect map over normals), env_maps and env_levels the
-    prefiltered maps), the SSDF (has_ssdf, ssdf_res, ssdf_basis (R + 1, res²), ssdf_coeffs (V, R)),
+    prefiltered maps, n_sharp_lobes: how many of env_sgs' first rows get lobe rays,
+    `shading.sharp_lobes_first`), the SSDF (has_ssdf, ssdf_res, ssdf_basis (R + 1, res²), ssdf_coeffs (V, R)),
     the SG lighting table, and the packed materials (mat_info … tex_data, `shading.pack_materials`).
     Backends keep their device copies in `device`, by backend name."""
     faces: np.ndarray
@@ -302,7 +306,13 @@ class ShadeInputs:
     eff_diffuse: np.ndarray
     tex_info: np.ndarray
     tex_data: np.ndarray
+    n_sharp_lobes: int = 0
     device: dict = field(default_factory=dict, repr=False)
+
+    def sharp_lobes(self) -> np.ndarray:
+        """(M, 4) float32 [axis, η] of the sharp environment lobes (env_sgs' first n_sharp_lobes rows): what
+        `backend.trace_lobe_rays` takes."""
+        return np.ascontiguousarray(np.asarray(self.env_sgs, np.float32)[:int(self.n_sharp_lobes), :4])
 
 
 @dataclass(eq=False)

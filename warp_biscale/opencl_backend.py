@@ -786,15 +786,21 @@ class OpenCLBackend(DeviceBackend):
                      *(np.float32(e) for e in eye), np.float32(eps), np.float32(t_min), np.int32(samples), np.int32(n),
                      mask)
 
-    def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lights, camera, n, only_material, out):
+    def _launch_trace_lobe_rays(self, m, face, position, eye, lobes, eps, t_min, n, mask):
+        self._launch("trace", "trace_lobe_rays", (n,), m["nodes"], m["tris"], m["face_normals"], face, position,
+                     *(np.float32(e) for e in eye), self._buffer(lobes, np.float32),
+                     np.int32(len(lobes)), np.float32(eps), np.float32(t_min), np.int32(n), mask)
+
+    def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, lights, camera, n,
+                      only_material, out):
         cltypes = self._cl.cltypes
         light_buf = self._reuse(m, "shade_lights", (max(1, len(lights)), 8), "f32")
         if len(lights):
             self._cl.enqueue_copy(self._queue, light_buf, np.ascontiguousarray(lights))
         eye, forward, right, up = (cltypes.make_float4(*camera[k:k + 3], 0.0) for k in (0, 3, 6, 9))
         self._launch("shade", "shade_pixels", (n,),
-                     face, bary, vis, occ, np.int32(occ_samples), dev["faces"], dev["positions"], dev["normals"],
-                     dev["tangents"],
+                     face, bary, vis, occ, np.int32(occ_samples), lobe_occ, np.int32(n_sharp), dev["faces"],
+                     dev["positions"], dev["normals"], dev["tangents"],
                      dev["face_material"], eye, forward, right, up, np.float32(camera[12]), np.float32(camera[13]),
                      np.int32(len(lights)), light_buf, dev["n_env"], dev["env_sgs"], dev["env_residual"],
                      *dev["residual_shape"], dev["env_maps"],

@@ -22,7 +22,7 @@ from .environment import (
 )
 from .lighting import prefiltered_lookup, sg_irradiance  # noqa: F401
 from .model import facet_shift, radical_inverse  # noqa: F401
-from .trace import disk_basis, disk_sample, occlusion_directions, oriented_face_normals
+from .trace import LOBE_RAYS, disk_basis, disk_sample, lobe_ray_directions, occlusion_directions, oriented_face_normals
 from .sg import one_minus_cos
 from .smallscale import (
     SmallScale,
@@ -659,7 +659,7 @@ def ssdf_distance(visible, directions, half_angle) -> np.ndarray:
 # ==============================================================================================
 
 __all__ += ["intersect_faces", "trace_closest", "trace_occluded", "trace_shadows", "trace_primary",
-            "trace_occlusion"]
+            "trace_occlusion", "trace_lobe_rays"]
 
 _TRACE_BLOCK = 1 << 18  # rays × triangles per chunk (2^18: fastest here, the blocks stay in cache)
 
@@ -809,6 +809,33 @@ def trace_occlusion(vertices, faces, face, position, eye, eps, t_min, samples: i
     o = np.repeat(x + eps * n, samples, axis=0)
     blocked = trace_occluded(vertices, faces, o, d.reshape(-1, 3), t_min, np.inf, tol).reshape(len(hit), samples)
     out[hit] = (blocked.astype(np.uint64) << np.arange(samples, dtype=np.uint64)).sum(1).astype(np.uint32)
+    return out
+
+
+def trace_lobe_rays(vertices, faces, face, position, eye, eps, t_min, lobes, tol=0.0) -> np.ndarray:
+    """(P,) uint32 lobe masks: bit k·LOBE_RAYS + i set where ray i towards sharp lobe k of `lobes` (M, 4)
+    [axis, η] (trace.lobe_ray_directions) from hit pixel p hits a triangle with t in (t_min, inf). The rays
+    start as trace_occlusion's; one below the oriented geometric normal's horizon is not traced (bit clear).
+    0 for a missed pixel and for no lobes."""
+    face = np.asarray(face, np.int64)
+    out = np.zeros(len(face), np.uint32)
+    lobes = np.asarray(lobes, np.float64).reshape(-1, 4)
+    hit = np.flatnonzero(face >= 0)
+    if len(hit) == 0 or len(lobes) == 0:
+        return out
+    x = np.asarray(position, np.float64).reshape(-1, 3)[hit]
+    n = oriented_face_normals(vertices, faces, face[hit], x, eye)
+    o = x + eps * n
+    bits = np.zeros(len(hit), np.uint64)
+    for k, lobe in enumerate(lobes):
+        d, _ = lobe_ray_directions(np.broadcast_to(lobe[:3], (len(hit), 3)), np.full(len(hit), lobe[3]), hit)
+        up = np.einsum("prk,pk->pr", d, n) > 0
+        blocked = np.zeros(up.shape, bool)
+        rows, cols = np.nonzero(up)
+        blocked[rows, cols] = trace_occluded(vertices, faces, o[rows], d[rows, cols], t_min, np.inf, tol)
+        shift = np.arange(k * LOBE_RAYS, (k + 1) * LOBE_RAYS, dtype=np.uint64)
+        bits |= (blocked.astype(np.uint64) << shift).sum(1).astype(np.uint64)
+    out[hit] = bits.astype(np.uint32)
     return out
 
 

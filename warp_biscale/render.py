@@ -29,7 +29,7 @@ from .bake import _fit_measured
 from .progress import Progress
 from .model import Frame, ShadeInputs
 from .scene import vertex_tangents
-from .shading import pack_materials
+from .shading import pack_materials, sharp_lobes_first
 from .trace import check_occlusion_samples, check_shadow_samples
 from .images import compare_images
 from .scene import Camera, DirectionalLight, Mesh, Rendering, Scene, _black_environment, _integer
@@ -102,6 +102,8 @@ def _static_inputs(scene: Scene, backend, progress, timings) -> ShadeInputs:
     packed = pack_materials(scene.materials)
     timings["materials"] = time.perf_counter() - t0
     lobes, residual = light.diffuse_lobes(has_ssdf)
+    # Where an SSDF shadows the lobes, the sharpest, most powerful ones come first: they get their own rays.
+    env_sgs, n_sharp = sharp_lobes_first(lobes.packed()) if has_ssdf else (lobes.packed(), 0)
     # The cached environment, SSDF and SG table arrays are frozen: a backend then knows them by identity.
     basis, coeffs = np.ascontiguousarray(basis, np.float32), np.ascontiguousarray(coeffs, np.float32)
     for a in (light.prefiltered.maps, light.prefiltered.levels, basis, coeffs, sg.lighting_table()):
@@ -109,7 +111,7 @@ def _static_inputs(scene: Scene, backend, progress, timings) -> ShadeInputs:
     static = ShadeInputs(
         faces=mesh.faces, positions=host["positions"], normals=host["normals"],
         tangents=host["tangents"], face_material=mesh.face_material, uvs=host["uvs"],
-        env_sgs=lobes.packed(), env_residual=residual, env_maps=light.prefiltered.maps,
+        env_sgs=env_sgs, n_sharp_lobes=n_sharp, env_residual=residual, env_maps=light.prefiltered.maps,
         env_levels=light.prefiltered.levels, has_ssdf=bool(has_ssdf), ssdf_res=int(res), ssdf_basis=basis,
         ssdf_coeffs=coeffs, table=sg.lighting_table(), **packed)
     scene.cache.clear()  # one static set per scene: a changed material list or environment replaces it
@@ -146,6 +148,7 @@ def pack_frame(scene: Scene, backend="auto", progress=None, timings=None,
     if static.has_ssdf and n_occlusion:
         g.occlusion = backend.trace_occlusion(scene.mesh, g, n_occlusion)
         g.occlusion_samples = n_occlusion
+        g.lobe_occlusion = backend.trace_lobe_rays(scene.mesh, g, static.sharp_lobes())
     return Frame(static, g, scene.camera.packed(), lights)
 
 
@@ -213,7 +216,8 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     lights = scene.lights_packed
     n_occlusion = n_occlusion if static.has_ssdf else 0  # nothing occludes: the rays would all escape
     image = _accumulate(scene, backend, n_aa, n_shadow, n_occlusion, lights, timings,
-                        lambda cam, to_host: backend.shade(scene.mesh, static, cam.packed(), lights, to_host=to_host))
+                        lambda cam, to_host: backend.shade(scene.mesh, static, cam.packed(), lights, to_host=to_host),
+                        static.sharp_lobes())
     timings["total"] = time.perf_counter() - t_all
     cam = scene.camera
     info = {"backend": backend.name, "device": backend.device, "method": "sg", "ssdf": bool(static.has_ssdf),
@@ -232,11 +236,13 @@ def check_no_litspheres(scene: Scene, method: str) -> None:
                              f"(method={method!r} needs the material itself)")
 
 
-def _accumulate(scene: Scene, backend, n_aa: int, n_shadow: int, n_occlusion: int, lights, timings: dict, shade):
+def _accumulate(scene: Scene, backend, n_aa: int, n_shadow: int, n_occlusion: int, lights, timings: dict, shade,
+                lobes=None):
     """The (H, W, 3) image: per anti-aliasing sample (`aa_offsets`) the G-buffer, the shadow rays of
     `lights` (n_shadow a light; none when 0), the environment-occlusion rays (n_occlusion a pixel; none
-    when 0), then `shade(camera, to_host)` (→ (P, 3) with to_host), averaged with a box filter on the
-    device (`accumulate_frame`: one read-back, of the average)."""
+    when 0) and with them the rays of the sharp environment lobes `lobes` (`ShadeInputs.sharp_lobes`), then
+    `shade(camera, to_host)` (→ (P, 3) with to_host), averaged with a box filter on the device
+    (`accumulate_frame`: one read-back, of the average)."""
     cam = scene.camera
     image = None
     for i, (jx, jy) in enumerate(aa_offsets(n_aa)):
@@ -253,6 +259,8 @@ def _accumulate(scene: Scene, backend, n_aa: int, n_shadow: int, n_occlusion: in
         if n_occlusion:
             t0 = time.perf_counter()
             backend.trace_occlusion(scene.mesh, None, n_occlusion, to_host=False)
+            if lobes is not None and len(lobes):
+                backend.trace_lobe_rays(scene.mesh, None, lobes, to_host=False)
             backend.synchronize()
             timings["occlusion"] = timings.get("occlusion", 0.0) + time.perf_counter() - t0
         t0 = time.perf_counter()

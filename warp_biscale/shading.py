@@ -33,6 +33,13 @@ SG or tabulated against one:
   Σ G(ωi)(n·ωi)⁺/(ng·ωi)·Vi / Σ G(ωi)(n·ωi)⁺/(ng·ωi) (`ray_share`): exactly 1 on an unoccluded surface,
   and for a uniform lobe the pixel's ambient occlusion. Rays alone shadow η ≤ S/8; the SSDF alone
   η ≥ S/2, which the rays sample too sparsely; between, the two blend in log η (`ray_weight`).
+- **Sharp environment lobes' visibility per pixel.** Up to trace.LOBE_RAY_LOBES of the sharpest, most
+  powerful environment lobes (a sun, a softbox: η ≥ SHARP_LOBE_ETA, `sharp_lobes_first`) get, in the
+  diffuse term, trace.LOBE_RAYS rays each over their own cap (`backend.trace_lobe_rays` of
+  `ShadeInputs.sharp_lobes()`), weighed as the occlusion rays are but with the cap's solid-angle weight
+  (`lobe_ray_share`): a penumbra per pixel, not interpolated from the receiver's vertices. Another lobe of
+  η ≥ SHARP_LOBE_ETA whose axis lies in a ray lobe's cap (the fit often splits a sun into several lobes)
+  is weighed through that lobe's rays (`nearest_ray_lobe`). Traced with the occlusion rays (none when S = 0).
 - **Diffuse magnitude.** The environment lobes' diffuse sum is scaled per channel by the exact
   irradiance over the lobes' own (`irradiance_scale`; the exact one is the lobes' plus the residual
   map `lighting.irradiance_residual` at n): the lobes shape the shadows, the map gives the magnitude.
@@ -81,12 +88,14 @@ from .lighting import prefiltered_lookup
 from .scene import light_sg, vertex_tangents
 from .environment import equirect_bilinear
 from .ssdf import ssdf_eval
-from .trace import VISIBLE, occlusion_directions, oriented_face_normals
+from .trace import (LOBE_COS_MIN, LOBE_RAY_LOBES, LOBE_RAYS, VISIBLE, lobe_ray_directions, occlusion_directions,
+                    oriented_face_normals)
 from .svbrdf import Textured
 
 __all__ = ["pack_materials", "shade_reference", "surface_frames", "MIN_COS_VIEW", "ray_share", "ray_weight",
-           "RAYS_ONLY", "SSDF_ONLY"]
+           "RAYS_ONLY", "SSDF_ONLY", "SHARP_LOBE_ETA", "sharp_lobes_first", "nearest_ray_lobe", "lobe_ray_share"]
 
+SHARP_LOBE_ETA = 8.0  # environment lobes at least this sharp may get lobe rays (SSDF_ONLY × the default 16 rays)
 RAYS_ONLY = 1 / 8  # × occlusion samples: lobes this broad or broader are shadowed by the rays alone
 SSDF_ONLY = 1 / 2  # × occlusion samples: lobes this sharp or sharper by the SSDF alone
 
@@ -99,6 +108,48 @@ def ray_weight(eta, samples: int):
         return np.zeros_like(eta)
     lo, hi = RAYS_ONLY * samples, SSDF_ONLY * samples
     return np.clip(np.log(hi / np.maximum(eta, 1e-30)) / np.log(hi / lo), 0.0, 1.0)
+
+
+def sharp_lobes_first(env_sgs) -> tuple[np.ndarray, int]:
+    """(env_sgs reordered, M): the (K, 7) [axis, η, rgb] lobes with, first, the M ≤ trace.LOBE_RAY_LOBES of
+    η ≥ SHARP_LOBE_ETA with the most power (mean radiance × ∫G), most powerful first, then the rest in their
+    order. Those M get lobe rays."""
+    env_sgs = np.asarray(env_sgs)
+    if len(env_sgs) == 0:
+        return env_sgs, 0
+    eta = env_sgs[:, 3].astype(np.float64)
+    power = env_sgs[:, 4:7].astype(np.float64).mean(1) * sg.integral(eta)
+    sharp = np.flatnonzero((eta >= SHARP_LOBE_ETA) & (power > 0))
+    first = sharp[np.argsort(-power[sharp], kind="stable")][:LOBE_RAY_LOBES]
+    rest = np.setdiff1d(np.arange(len(env_sgs)), first)
+    return np.ascontiguousarray(env_sgs[np.concatenate([first, rest])]), len(first)
+
+
+def nearest_ray_lobe(env_sgs, n_sharp: int, index: int) -> int:
+    """The ray lobe (one of env_sgs' first n_sharp rows) that environment lobe `index` is shadowed through:
+    itself if it is one; else, for a lobe of η ≥ SHARP_LOBE_ETA (a sun the fit split into several lobes, say),
+    the ray lobe nearest its axis if the axis lies in that lobe's cap (1 − cos θ = 2/η); −1: none (the SSDF)."""
+    if index < n_sharp:
+        return index
+    lobe = np.asarray(env_sgs[index], np.float64)
+    if n_sharp == 0 or lobe[3] < SHARP_LOBE_ETA:
+        return -1
+    rays = np.asarray(env_sgs[:n_sharp], np.float64)
+    c = rays[:, :3] @ lobe[:3]
+    best = int(np.argmax(c))
+    return best if c[best] >= max(1.0 - 2.0 / rays[best, 3], LOBE_COS_MIN) else -1
+
+
+def lobe_ray_share(axis, eta, n, directions, solid, blocked):
+    """(R,) the share of a lobe's ∫ G(ω; axis, η)(n·ω)⁺ dω that its lobe rays `directions` (R, L, 3)
+    (solid-angle weights `solid` (R, L)) see unblocked: Σ wi·(1 − blocked_i) / Σ wi, wi = G(ωi)(n·ωi)⁺·solid_i
+    (a ray below the geometric horizon was not traced: its bit is clear); 1 where every weight is below
+    1e-30."""
+    c = np.einsum("rlk,rk->rl", directions, axis)
+    w = np.exp(np.asarray(eta, np.float64)[:, None] * (c - 1.0)) * np.maximum(
+        np.einsum("rlk,rk->rl", directions, n), 0.0) * solid
+    total = w.sum(1)
+    return np.where(total > 1e-30, (w * ~blocked).sum(1) / np.maximum(total, 1e-300), 1.0)
 
 
 def ray_share(axis, eta, n, n_geo, directions, blocked):
@@ -386,6 +437,10 @@ def shade_reference(frame: Frame) -> np.ndarray:
         ray_dirs = occlusion_directions(n_geo, samples, pix)
         mask = np.asarray(frame.gbuffer.occlusion, np.uint32)[pix].astype(np.uint64)
         blocked = ((mask[:, None] >> np.arange(samples, dtype=np.uint64)[None]) & np.uint64(1)).astype(bool)
+    n_sharp = int(static.n_sharp_lobes) if samples else 0
+    if n_sharp:
+        lobe_mask = np.asarray(frame.gbuffer.lobe_occlusion, np.uint32)[pix].astype(np.uint64)
+        lobe_bits = ((lobe_mask[:, None] >> np.arange(32, dtype=np.uint64)[None]) & np.uint64(1)).astype(bool)
 
     def occlusion(axis, eta, sel):
         """The fraction of a lobe's horizon-clipped integral left visible: by the SSDF, blended with the
@@ -402,6 +457,13 @@ def shade_reference(frame: Frame) -> np.ndarray:
             return share
         rays = ray_share(axis, eta, n[sel], n_geo[sel], ray_dirs[sel], blocked[sel])
         return weight * rays + (1 - weight) * share
+
+    def lobe_occlusion(ray_lobe, axis, eta, sel):
+        """A lobe's visible share through the rays of sharp lobe `ray_lobe` (`nearest_ray_lobe`)."""
+        row = env[ray_lobe]
+        d, solid = lobe_ray_directions(np.tile(row[0:3], (len(sel), 1)), np.full(len(sel), row[3]), pix[sel])
+        bits = lobe_bits[sel][:, ray_lobe * LOBE_RAYS:(ray_lobe + 1) * LOBE_RAYS]
+        return lobe_ray_share(axis, eta, n[sel], d, solid, bits)
 
     rad = np.zeros((len(pix), 3))
     env = static.env_sgs.astype(np.float64)
@@ -454,12 +516,13 @@ def shade_reference(frame: Frame) -> np.ndarray:
         # Diffuse: environment lobes (shadowed), scaled per channel to the exact irradiance, then lights.
         lobes_irradiance = np.zeros((m, 3))
         env_diffuse = np.zeros((m, 3))
-        for lobe in env:
+        for index, lobe in enumerate(env):
             axis = np.tile(lobe[0:3], (m, 1))
             eta = np.full(m, lobe[3])
             e = sg.integral(eta) * sg.table_lookup(table, 0, _dot(axis, ns), eta)
             lobes_irradiance += lobe[4:7][None] * e[:, None]
-            occ = occlusion(axis, eta, sel)
+            ray_lobe = nearest_ray_lobe(env, n_sharp, index)
+            occ = lobe_occlusion(ray_lobe, axis, eta, sel) if ray_lobe >= 0 else occlusion(axis, eta, sel)
             env_diffuse += diffuse_over_cos(axis, eta) * (lobe[4:7][None] * (e * occ)[:, None])
         rad[sel] += env_diffuse * irradiance_scale(lobes_irradiance, equirect_bilinear(static.env_residual, ns))
         for li in range(light_axis.shape[1]):

@@ -21,6 +21,12 @@ pixel over the hemisphere of its oriented geometric normal, cosine-distributed a
 same turned Vogel spiral lifted to the hemisphere (Malley's method, `occlusion_directions`). Bit i of
 the pixel's mask is set where ray i hits the mesh (unbounded: the environment is at infinity); the
 shade stage weighs the bits per lobe (`shading.ray_share`).
+
+Sharp environment lobes' rays: for each of up to `LOBE_RAY_LOBES` sharp lobes (axis ξ, sharpness η) the
+first of a frame's environment lobes (`shading.sharp_lobes_first`), `LOBE_RAYS` rays towards points of
+the disc of tangent radius tan θ about ξ, 1 − cos θ = 2/η (`lobe_ray_directions`: the same turned
+spiral); bit k·LOBE_RAYS + i of the pixel's lobe mask is set where ray i of lobe k is blocked. A ray
+below the geometric horizon is not traced (its bit stays clear: the shading normal decides).
 """
 
 from __future__ import annotations
@@ -33,7 +39,7 @@ from .scene import Camera, Mesh, _integer
 __all__ = ["T_MIN", "SHADOW_OFFSET", "CHUNK_RAYS", "offsets", "check_mesh", "check_camera", "check_rays",
            "check_lights", "check_gbuffer", "check_shadow_samples", "disk_sample", "disk_basis", "VISIBLE",
            "SHADOW_SAMPLES_MAX", "OCCLUSION_SAMPLES_MAX", "check_occlusion_samples", "occlusion_directions",
-           "oriented_face_normals"]
+           "oriented_face_normals", "LOBE_RAYS", "LOBE_RAY_LOBES", "lobe_ray_directions", "check_lobes"]
 
 T_MIN = 1e-6
 SHADOW_OFFSET = 1e-4
@@ -41,6 +47,9 @@ CHUNK_RAYS = 1 << 22  # any-hit rays per launch: bounds device memory (~100 MB a
 VISIBLE = 255  # a light_vis entry of a fully visible light
 SHADOW_SAMPLES_MAX = 1024
 OCCLUSION_SAMPLES_MAX = 32  # one bit each of a pixel's uint32 mask
+LOBE_RAYS = 8  # rays a sharp environment lobe and pixel ...
+LOBE_RAY_LOBES = 4  # ... for at most this many lobes: one bit each of a uint32 mask
+LOBE_COS_MIN = 0.0872  # cos 85°: the widest disc a lobe's rays spread over (the tangent grows without bound)
 GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
 
 
@@ -89,6 +98,35 @@ def oriented_face_normals(vertices, faces, face, position, eye) -> np.ndarray:
     n = np.where(length > 0, n / np.where(length > 0, length, 1.0), 0.0)
     x = np.asarray(position, np.float64).reshape(-1, 3)
     return np.where((np.sum(n * (np.asarray(eye, np.float64) - x), axis=1) < 0)[:, None], -n, n)
+
+
+def lobe_ray_directions(axis, eta, pixel) -> tuple[np.ndarray, np.ndarray]:
+    """(directions (..., LOBE_RAYS, 3), solid-angle weights (..., LOBE_RAYS)) float64 of the rays of pixels
+    `pixel` (...,) towards a lobe of unit axis `axis` (..., 3) and sharpness `eta` (...,): disc sample q_i =
+    disk_sample(i, LOBE_RAYS, pixel) on the tangent plane at the axis, radius tan θ (1 − cos θ = 2/η, θ at
+    most 85°), direction normalize(ξ + tan θ·(q_x a + q_y b)) in disk_basis(ξ); the weight cos³ of its angle
+    from the axis undoes the plane's crowding of directions towards the rim (the kernels' twin)."""
+    axis = np.asarray(axis, np.float64)
+    c = np.maximum(1.0 - 2.0 / np.maximum(np.asarray(eta, np.float64), 1e-30), LOBE_COS_MIN)
+    spread = np.sqrt(1.0 - c * c) / c
+    a, b = disk_basis(axis)
+    q = disk_sample(np.arange(LOBE_RAYS)[None], LOBE_RAYS, np.asarray(pixel)[..., None])  # (..., R, 2)
+    off = spread[..., None, None] * (q[..., :1] * a[..., None, :] + q[..., 1:] * b[..., None, :])
+    d = axis[..., None, :] + off
+    length = np.linalg.norm(d, axis=-1)
+    return d / length[..., None], length ** -3.0
+
+
+def check_lobes(lobes) -> np.ndarray:
+    """→ (M, 4) float32 [unit axis, η] rows of sharp environment lobes for lobe rays, M ≤ LOBE_RAY_LOBES."""
+    a = _array("lobes", lobes).reshape(-1, 4) if np.size(lobes) else np.zeros((0, 4))
+    if len(a) > LOBE_RAY_LOBES:
+        raise ValueError(f"lobes: at most {LOBE_RAY_LOBES} lobes get lobe rays, got {len(a)}")
+    if not np.isfinite(a).all() or (a[:, 3] <= 0).any():
+        raise ValueError("lobes must be finite [axis, sharpness > 0] rows")
+    if len(a) and np.abs(np.linalg.norm(a[:, :3], axis=1) - 1).max() > 1e-3:
+        raise ValueError("lobes' axes must be unit vectors")
+    return np.ascontiguousarray(a, np.float32)
 
 
 def check_occlusion_samples(samples) -> int:

@@ -705,13 +705,19 @@ class WarpBackend(DeviceBackend):
         self._launch(ktrace.trace_occlusion, n, [m["mesh"].id, m["face_normals"], face, position, wp.vec3(*eye), eps,
                                                  t_min, samples], [mask])
 
-    def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lights, camera, n, only_material, out):
+    def _launch_trace_lobe_rays(self, m, face, position, eye, lobes, eps, t_min, n, mask):
+        self._launch(ktrace.trace_lobe_rays, n,
+                     [m["mesh"].id, m["face_normals"], face, position, wp.vec3(*eye),
+                      self._small_upload(m, "lobe_ray_lobes", lobes), len(lobes), eps, t_min], [mask])
+
+    def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, lights, camera, n,
+                      only_material, out):
         light_arr = self._small_upload(m, "shade_lights", lights if len(lights) else np.zeros((1, 8), np.float32))
         # Blocks of 128: a frame's pixels differ in cost (the design's against the floor's and the sky's),
         # and smaller blocks free their slots sooner (bench/results/editor-h100: 128 beat Warp's 256).
         self._launch(kshade.shade_pixels, n,
-                     [face, bary, vis, occ, int(occ_samples), dev["faces"], dev["positions"], dev["normals"],
-                      dev["tangents"],
+                     [face, bary, vis, occ, int(occ_samples), lobe_occ, int(n_sharp), dev["faces"], dev["positions"],
+                      dev["normals"], dev["tangents"],
                       dev["face_material"], self._small_upload(m, "shade_camera", camera),
                       len(lights), light_arr, dev["n_env"], dev["env_sgs"], dev["env_residual"],
                       *dev["residual_shape"], dev["env_maps"], dev["env_levels"],
