@@ -410,7 +410,7 @@ def test_lobe_rays_match_reference(backend, occlusion_reference):
     below = LOBES.copy()
     below[:, 1] *= -1
     assert not backend.trace_lobe_rays(mesh, g, below)[floor].any()
-    with pytest.raises(ValueError, match="at most 4 lobes"):
+    with pytest.raises(ValueError, match="lobes: at most"):
         backend.trace_lobe_rays(mesh, g, np.tile(LOBES, (3, 1)))
 
 

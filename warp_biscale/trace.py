@@ -48,7 +48,7 @@ VISIBLE = 255  # a light_vis entry of a fully visible light
 SHADOW_SAMPLES_MAX = 1024
 OCCLUSION_SAMPLES_MAX = 32  # one bit each of a pixel's uint32 mask
 LOBE_RAYS = 8  # rays a sharp environment lobe and pixel ...
-LOBE_RAY_LOBES = 4  # ... for at most this many lobes: one bit each of a uint32 mask
+LOBE_RAY_LOBES = 2  # ... for at most this many lobes (LOBE_RAYS × this ≤ 32: one bit each of a uint32 mask)
 LOBE_COS_MIN = 0.0872  # cos 85°: the widest disc a lobe's rays spread over (the tangent grows without bound)
 GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
 
