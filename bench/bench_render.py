@@ -4,7 +4,8 @@ and the SG renderer's error against the Monte Carlo reference.
 Parts (records go to --out/results.json; table.md and plots follow):
 - ``frames``: the target scene — a torus with a baked effective BRDF (pyramid tile, K = 12, J = 8),
   a sphere and a floor with analytic glossy BRDFs, the sky environment (9 SG lobes + prefiltered
-  maps), SSDF shadows (16 PCA terms) with 16 environment-occlusion rays a pixel, and one point light with
+  maps), SSDF shadows (16 PCA terms) with 16 environment-occlusion rays a pixel (and 8 a sharp lobe for the
+  sun's lobes), and one point light with
   shadow rays — one frame = G-buffer + shadow rays + occlusion rays + shading, device-resident (no host
   copy; the read-back is timed apart). Swept over resolution (512² … 1920×1080), J, number of lights, PCA
   terms, shadow rays and occlusion rays.
@@ -81,6 +82,8 @@ def time_frames(scene, backend, frames, runs, shadow_samples=SHADOW_SAMPLES, occ
             be.trace_shadows(scene.mesh, None, lights, to_host=False, samples=shadow_samples)
         if inputs.has_ssdf and occlusion_samples:
             be.trace_occlusion(scene.mesh, None, occlusion_samples, to_host=False)
+            if inputs.n_sharp_lobes:
+                be.trace_lobe_rays(scene.mesh, None, inputs.sharp_lobes(), to_host=False)
         be.shade(scene.mesh, inputs, cam, lights, to_host=False)
 
     def loop():
