@@ -33,8 +33,9 @@ SG or tabulated against one:
   Σ G(ωi)(n·ωi)⁺/(ng·ωi)·Vi / Σ G(ωi)(n·ωi)⁺/(ng·ωi) (`ray_share`): exactly 1 on an unoccluded surface,
   and for a uniform lobe the pixel's ambient occlusion. Rays alone shadow η ≤ S/8; the SSDF alone
   η ≥ S/2, which the rays sample too sparsely; between, the two blend in log η (`ray_weight`).
-- **Sharp environment lobes' visibility per pixel.** Up to trace.LOBE_RAY_LOBES of the sharpest, most
-  powerful environment lobes (a sun, a softbox: η ≥ SHARP_LOBE_ETA, `sharp_lobes_first`) get, in the
+- **Sharp environment lobes' visibility per pixel.** Up to trace.LOBE_RAY_LOBES of the sharp, powerful
+  environment lobes (a sun, a softbox: η ≥ SHARP_LOBE_ETA and SHARP_LOBE_SHARE of the power or more,
+  `sharp_lobes_first`) get, in the
   diffuse term, trace.LOBE_RAYS rays each over their own cap (`backend.trace_lobe_rays` of
   `ShadeInputs.sharp_lobes()`), weighed as the occlusion rays are but with the cap's solid-angle weight
   (`lobe_ray_share`): a penumbra per pixel, not interpolated from the receiver's vertices. Another lobe of
@@ -96,6 +97,7 @@ __all__ = ["pack_materials", "shade_reference", "surface_frames", "MIN_COS_VIEW"
            "RAYS_ONLY", "SSDF_ONLY", "SHARP_LOBE_ETA", "sharp_lobes_first", "nearest_ray_lobe", "lobe_ray_share"]
 
 SHARP_LOBE_ETA = 8.0  # environment lobes at least this sharp may get lobe rays (SSDF_ONLY × the default 16 rays)
+SHARP_LOBE_SHARE = 0.1  # ... if they carry at least this share of the environment's power (a sun, not a sky's gradient)
 RAYS_ONLY = 1 / 8  # × occlusion samples: lobes this broad or broader are shadowed by the rays alone
 SSDF_ONLY = 1 / 2  # × occlusion samples: lobes this sharp or sharper by the SSDF alone
 
@@ -112,14 +114,14 @@ def ray_weight(eta, samples: int):
 
 def sharp_lobes_first(env_sgs) -> tuple[np.ndarray, int]:
     """(env_sgs reordered, M): the (K, 7) [axis, η, rgb] lobes with, first, the M ≤ trace.LOBE_RAY_LOBES of
-    η ≥ SHARP_LOBE_ETA with the most power (mean radiance × ∫G), most powerful first, then the rest in their
-    order. Those M get lobe rays."""
+    η ≥ SHARP_LOBE_ETA and at least SHARP_LOBE_SHARE of all the lobes' power (mean radiance × ∫G) with the most
+    power, most powerful first, then the rest in their order. Those M get lobe rays."""
     env_sgs = np.asarray(env_sgs)
     if len(env_sgs) == 0:
         return env_sgs, 0
     eta = env_sgs[:, 3].astype(np.float64)
     power = env_sgs[:, 4:7].astype(np.float64).mean(1) * sg.integral(eta)
-    sharp = np.flatnonzero((eta >= SHARP_LOBE_ETA) & (power > 0))
+    sharp = np.flatnonzero((eta >= SHARP_LOBE_ETA) & (power > 0) & (power >= SHARP_LOBE_SHARE * power.sum()))
     first = sharp[np.argsort(-power[sharp], kind="stable")][:LOBE_RAY_LOBES]
     rest = np.setdiff1d(np.arange(len(env_sgs)), first)
     return np.ascontiguousarray(env_sgs[np.concatenate([first, rest])]), len(first)
