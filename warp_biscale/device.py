@@ -591,6 +591,30 @@ class DeviceBackend:
             out[lo:hi] = self._to_host(occluded, hi - lo, "u8") != 0
         return out
 
+    @staticmethod
+    def _rays_key(m, gbuffer, *what):
+        """The key of rays traced from the device's own G-buffer (gbuffer None, or the host copy trace_primary
+        returned) for `what`; None for rays from another GBuffer (never reused)."""
+        return (m.get("gbuffer_key"), *what) if gbuffer is None or gbuffer is m.get("gbuffer_host") else None
+
+    def _ray_starts(self, mesh, m, gbuffer):
+        """(face, position, eye, P) that shadow, occlusion and lobe rays leave from: the device's own G-buffer
+        (gbuffer None or the host copy trace_primary returned), or a host GBuffer uploaded."""
+        if gbuffer is None or gbuffer is m.get("gbuffer_host"):
+            if "gbuffer_face" not in m:
+                raise ValueError("gbuffer is None, but trace_primary has not run on this mesh with this backend")
+            return m["gbuffer_face"], m["gbuffer_position"], m["gbuffer_eye"], m["gbuffer_size"]
+        f, p, eye = check_gbuffer(gbuffer, len(mesh.faces))
+        return self._to_device(f, "i32"), self._to_device(p, "vec3"), eye, len(f)
+
+    @staticmethod
+    def _offsets(mesh, m):
+        """(eps, t_min) of the mesh (trace.offsets), once per mesh and only for rays that need them: it scans
+        every vertex."""
+        if "offsets" not in m:
+            m["offsets"] = offsets(mesh)
+        return m["offsets"]
+
     def trace_shadows(self, mesh, gbuffer, lights_packed, to_host=True, samples=1, if_changed=False):
         """`samples` shadow rays per light and pixel of the G-buffer (None: the one on the device), the
         visible shares left on the device. With if_changed (and to_host False), nothing is traced when the
@@ -599,23 +623,13 @@ class DeviceBackend:
         lights = check_lights(lights_packed)
         samples = check_shadow_samples(samples)
         m = self._trace_mesh(mesh)
-        key = None
-        if gbuffer is None or gbuffer is m.get("gbuffer_host"):
-            key = (m.get("gbuffer_key"), lights.tobytes(), samples)
-            if if_changed and not to_host and m.get("light_vis_key") == key:
-                return None
-            if "gbuffer_face" not in m:
-                raise ValueError("gbuffer is None, but trace_primary has not run on this mesh with this backend")
-            face, position, eye, n = m["gbuffer_face"], m["gbuffer_position"], m["gbuffer_eye"], m["gbuffer_size"]
-        else:
-            f, p, eye = check_gbuffer(gbuffer, len(mesh.faces))
-            face, position, n = self._to_device(f, "i32"), self._to_device(p, "vec3"), len(f)
+        key = self._rays_key(m, gbuffer, lights.tobytes(), samples)
+        if if_changed and not to_host and key is not None and m.get("light_vis_key") == key:
+            return None
+        face, position, eye, n = self._ray_starts(mesh, m, gbuffer)
         vis = self._reuse(m, "gbuffer_light_vis", (n, len(lights)), "u8")
         if n and len(lights):
-            if "offsets" not in m:  # once per mesh, and only for shadow rays: trace.offsets scans every vertex
-                m["offsets"] = offsets(mesh)
-            eps, t_min = m["offsets"]
-            self._launch_trace_shadows(m, face, position, eye, lights, eps, t_min, samples, n, vis)
+            self._launch_trace_shadows(m, face, position, eye, lights, *self._offsets(mesh, m), samples, n, vis)
         m["light_vis_key"] = key
         return self._to_host(vis, (n, len(lights)), "u8") if to_host else None
 
@@ -627,23 +641,13 @@ class DeviceBackend:
         check_mesh(mesh)
         samples = check_occlusion_samples(samples)
         m = self._trace_mesh(mesh)
-        key = None
-        if gbuffer is None or gbuffer is m.get("gbuffer_host"):
-            key = (m.get("gbuffer_key"), samples)
-            if if_changed and not to_host and m.get("occlusion_key") == key:
-                return None
-            if "gbuffer_face" not in m:
-                raise ValueError("gbuffer is None, but trace_primary has not run on this mesh with this backend")
-            face, position, eye, n = m["gbuffer_face"], m["gbuffer_position"], m["gbuffer_eye"], m["gbuffer_size"]
-        else:
-            f, p, eye = check_gbuffer(gbuffer, len(mesh.faces))
-            face, position, n = self._to_device(f, "i32"), self._to_device(p, "vec3"), len(f)
+        key = self._rays_key(m, gbuffer, samples)
+        if if_changed and not to_host and key is not None and m.get("occlusion_key") == key:
+            return None
+        face, position, eye, n = self._ray_starts(mesh, m, gbuffer)
         mask = self._reuse(m, "gbuffer_occlusion", n, "u32")
         if n and samples:
-            if "offsets" not in m:
-                m["offsets"] = offsets(mesh)
-            eps, t_min = m["offsets"]
-            self._launch_trace_occlusion(m, face, position, eye, eps, t_min, samples, n, mask)
+            self._launch_trace_occlusion(m, face, position, eye, *self._offsets(mesh, m), samples, n, mask)
         m["occlusion_key"], m["occlusion_samples"] = key, samples
         if not to_host:
             return None
@@ -657,23 +661,13 @@ class DeviceBackend:
         check_mesh(mesh)
         lobes = check_lobes(lobes)
         m = self._trace_mesh(mesh)
-        key = None
-        if gbuffer is None or gbuffer is m.get("gbuffer_host"):
-            key = (m.get("gbuffer_key"), lobes.tobytes())
-            if if_changed and not to_host and m.get("lobe_rays_key") == key:
-                return None
-            if "gbuffer_face" not in m:
-                raise ValueError("gbuffer is None, but trace_primary has not run on this mesh with this backend")
-            face, position, eye, n = m["gbuffer_face"], m["gbuffer_position"], m["gbuffer_eye"], m["gbuffer_size"]
-        else:
-            f, p, eye = check_gbuffer(gbuffer, len(mesh.faces))
-            face, position, n = self._to_device(f, "i32"), self._to_device(p, "vec3"), len(f)
+        key = self._rays_key(m, gbuffer, lobes.tobytes())
+        if if_changed and not to_host and key is not None and m.get("lobe_rays_key") == key:
+            return None
+        face, position, eye, n = self._ray_starts(mesh, m, gbuffer)
         mask = self._reuse(m, "gbuffer_lobe_occlusion", n, "u32")
         if n and len(lobes):
-            if "offsets" not in m:
-                m["offsets"] = offsets(mesh)
-            eps, t_min = m["offsets"]
-            self._launch_trace_lobe_rays(m, face, position, eye, lobes, eps, t_min, n, mask)
+            self._launch_trace_lobe_rays(m, face, position, eye, lobes, *self._offsets(mesh, m), n, mask)
         m["lobe_rays_key"], m["lobe_rays"] = key, lobes.tobytes()
         if not to_host:
             return None
