@@ -23,6 +23,15 @@ CL_INLINE float3 camera_ray(float4 forward, float4 right, float4 up, int i, int 
     return normalize3(d);
 }
 
+/* The geometric normal n of a hit at x turned to the side the eye sees: shadow, occlusion and lobe rays
+ * leave along it, so the moved origin lies in front of the face whichever way it is wound. */
+CL_INLINE float3 seen_side(float3 n, float3 x, float3 eye)
+{
+    if (dot3(n, (float3)(eye.x - x.x, eye.y - x.y, eye.z - x.z)) < 0.0f)
+        return (float3)(-n.x, -n.y, -n.z);
+    return n;
+}
+
 __kernel void trace_primary(
     __global const float *nodes,     /* (N, 8) BVH records */
     __global const float *tris,      /* (F, 9) [a, b - a, c - a], BVH slot order */
@@ -104,9 +113,7 @@ __kernel void trace_shadows(
     int hits = 0;
     if (f >= 0) {
         float3 x = load3(position, p);
-        float3 n = load3(face_normals, f);
-        if (dot3(n, (float3)(eye_x - x.x, eye_y - x.y, eye_z - x.z)) < 0.0f)
-            n = (float3)(-n.x, -n.y, -n.z);
+        float3 n = seen_side(load3(face_normals, f), x, (float3)(eye_x, eye_y, eye_z));
         float3 o = (float3)(x.x + eps * n.x, x.y + eps * n.y, x.z + eps * n.z);
         __global const float *light = lights + 8 * k;
         float3 c = (float3)(light[1], light[2], light[3]);
@@ -157,9 +164,7 @@ __kernel void trace_occlusion(
     uint bits = 0u;
     if (f >= 0) {
         float3 x = load3(position, p);
-        float3 n = load3(face_normals, f);
-        if (dot3(n, (float3)(eye_x - x.x, eye_y - x.y, eye_z - x.z)) < 0.0f)
-            n = (float3)(-n.x, -n.y, -n.z);
+        float3 n = seen_side(load3(face_normals, f), x, (float3)(eye_x, eye_y, eye_z));
         float3 o = (float3)(x.x + eps * n.x, x.y + eps * n.y, x.z + eps * n.z);
         float3 a, b;
         disk_basis(n, &a, &b);
@@ -194,9 +199,7 @@ __kernel void trace_lobe_rays(
     uint bits = 0u;
     if (f >= 0) {
         float3 x = load3(position, p);
-        float3 n = load3(face_normals, f);
-        if (dot3(n, (float3)(eye_x - x.x, eye_y - x.y, eye_z - x.z)) < 0.0f)
-            n = (float3)(-n.x, -n.y, -n.z);
+        float3 n = seen_side(load3(face_normals, f), x, (float3)(eye_x, eye_y, eye_z));
         float3 o = (float3)(x.x + eps * n.x, x.y + eps * n.y, x.z + eps * n.z);
         for (int k = 0; k < n_lobes; ++k) {
             float3 w = (float3)(lobes[4 * k], lobes[4 * k + 1], lobes[4 * k + 2]);

@@ -29,6 +29,15 @@ def surface_point(points: wp.array(dtype=wp.vec3), faces: wp.array2d(dtype=wp.in
     return a + u * (points[faces[f, 1]] - a) + v * (points[faces[f, 2]] - a)
 
 
+@wp.func
+def seen_side(n: wp.vec3, x: wp.vec3, eye: wp.vec3) -> wp.vec3:
+    """The geometric normal n of a hit at x turned to the side the eye sees: shadow, occlusion and lobe rays
+    leave along it, so the moved origin lies in front of the face whichever way it is wound."""
+    if wp.dot(n, eye - x) < 0.0:
+        return -n
+    return n
+
+
 @wp.kernel
 def trace_primary(
     mesh: wp.uint64,
@@ -112,11 +121,7 @@ def trace_shadows(
     hits = int(0)
     if f >= 0:
         x = position[p]
-        # The geometric normal on the camera's side: the side the surface is seen from, so the
-        # offset origin lies in front of it whichever way the face is wound.
-        n = face_normals[f]
-        if wp.dot(n, eye - x) < 0.0:
-            n = -n
+        n = seen_side(face_normals[f], x, eye)
         o = x + eps * n
         c = wp.vec3(lights[k, 1], lights[k, 2], lights[k, 3])
         w = wp.normalize(c)
@@ -166,9 +171,7 @@ def trace_occlusion(
     bits = wp.uint32(0)
     if f >= 0:
         x = position[p]
-        n = face_normals[f]
-        if wp.dot(n, eye - x) < 0.0:
-            n = -n
+        n = seen_side(face_normals[f], x, eye)
         o = x + eps * n
         frame = disk_basis(n)
         for i in range(samples):
@@ -199,9 +202,7 @@ def trace_lobe_rays(
     bits = wp.uint32(0)
     if f >= 0:
         x = position[p]
-        n = face_normals[f]
-        if wp.dot(n, eye - x) < 0.0:
-            n = -n
+        n = seen_side(face_normals[f], x, eye)
         o = x + eps * n
         for k in range(n_lobes):
             axis = wp.vec3(lobes[k, 0], lobes[k, 1], lobes[k, 2])
