@@ -1,7 +1,9 @@
 """The SG renderer against the Monte Carlo reference on the two example scenes (examples/glossy.toml,
 examples/bi-scale.toml), speed against error: PSNR and relative RMSE over the object pixels (the
 background is the environment itself in both), with and without the environment-occlusion rays, and the
-whole `wb.render` time beside each. One anti-aliasing sample (the reference samples pixel centres too);
+whole `wb.render` time beside each. `--truth-directions`: the K of the reference's ground truths for baked
+materials (a finer grid than the bake's keeps sharp highlights sharp in the reference; docs/design.md §3.4).
+One anti-aliasing sample (the reference samples pixel centres too);
 the scene files' own settings otherwise. One JSON line a render.
 
     python -m bench.fidelity_examples --backends warp:cuda opencl:nvidia --size 512x384 --samples 4096 > out.jsonl
@@ -28,6 +30,10 @@ def main(argv=None):
     ap.add_argument("--size", default="256x192", help="WxH (the scene files' own: 512x384)")
     ap.add_argument("--samples", type=int, default=1024, help="Monte Carlo samples a pixel")
     ap.add_argument("--occlusion-samples", type=int, nargs="+", default=[0, 16, 32])
+    ap.add_argument("--truth-directions", type=int, nargs="+", default=[None],
+                    help="K of the reference's ground truths (default: each material's own K); several: one "
+                         "reference each, the SG renders judged against every one")
+    ap.add_argument("--truth-facets", type=int, default=1 << 18)
     args = ap.parse_args(argv)
     w, h = (int(x) for x in args.size.lower().split("x"))
     warnings.simplefilter("ignore", wb.EnergyWarning)
@@ -37,19 +43,23 @@ def main(argv=None):
             sf = wb.load_scene(os.path.join(EXAMPLES, f"{name}.toml"), backend=be)
             sf.resize(w, h)
             mask = (be.trace_primary(sf.scene.mesh, sf.scene.camera).face >= 0).reshape(h, w)
-            ref = sf.render(method="mc", backend=be, samples=args.samples)
+            refs = {k: sf.render(method="mc", backend=be, samples=args.samples, truth_directions=k,
+                                 truth_facets=args.truth_facets) for k in args.truth_directions}
             for occlusion in args.occlusion_samples:
                 sf.render(method="sg", backend=be, occlusion_samples=occlusion)  # compiles, precomputes
                 runs = [sf.render(method="sg", backend=be, occlusion_samples=occlusion) for _ in range(3)]
                 image = runs[-1].image
-                err = wb.compare_images(image, ref.image, mask=mask)
-                rel = float(np.sqrt(np.mean((image[mask] - ref.image[mask]) ** 2)) / np.mean(ref.image[mask]))
-                print(json.dumps({"scene": name, "backend": be.name, "device": be.device, "width": w, "height": h,
-                                  "occlusion_samples": occlusion, "ssdf": runs[-1].info["ssdf"],
-                                  "psnr": err["psnr"], "relative_rmse": rel, "mc_samples": args.samples,
-                                  "mc_stderr_rms": ref.info.get("stderr_rms"),
-                                  "render_ms": 1e3 * float(np.median([r.timings["total"] for r in runs]))}),
-                      flush=True)
+                for k, ref in refs.items():
+                    err = wb.compare_images(image, ref.image, mask=mask)
+                    rel = float(np.sqrt(np.mean((image[mask] - ref.image[mask]) ** 2)) / np.mean(ref.image[mask]))
+                    print(json.dumps({"scene": name, "backend": be.name, "device": be.device, "width": w,
+                                      "height": h, "occlusion_samples": occlusion, "ssdf": runs[-1].info["ssdf"],
+                                      "psnr": err["psnr"], "relative_rmse": rel, "mc_samples": args.samples,
+                                      "mc_stderr_rms": ref.info.get("stderr_rms"), "truth_directions": k,
+                                      "truth_facets": args.truth_facets, "mc_truths": ref.info["effective_brdf"],
+                                      "mc_truth_s": ref.timings["truth"],
+                                      "render_ms": 1e3 * float(np.median([r.timings["total"] for r in runs]))}),
+                          flush=True)
 
 
 if __name__ == "__main__":

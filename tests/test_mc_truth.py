@@ -121,6 +121,41 @@ def test_render_driver_forwards_the_truth_options():
     assert r.info["effective_brdf"][0].startswith("ground truth (tile 'vgroove', K=4, 256 facets")
     gt = wb.ground_truth(vgroove_tile(), GLOSSY, facets=256, directions=K, backend="warp:cpu", seed=3)
     np.testing.assert_array_equal(truth_mod.truth_of(mat, 256, 3).table, gt.table)
+    # A finer grid than the bake's: the truth on that grid, under its own cache key.
+    fine = wb.render(scene, method="mc", backend="warp:cpu", samples=SAMPLES, truth_facets=256, truth_seed=3,
+                     truth_directions=6)
+    assert fine.info["effective_brdf"][0].startswith("ground truth (tile 'vgroove', K=6, 256 facets")
+    gt6 = wb.ground_truth(vgroove_tile(), GLOSSY, facets=256, directions=6, backend="warp:cpu", seed=3)
+    np.testing.assert_array_equal(truth_mod.truth_of(mat, 256, 3, directions=6).table, gt6.table)
+    assert truth_mod.truth_key(mat, 256, 3, directions=6) != truth_mod.truth_key(mat, 256, 3)
+    assert truth_mod.truth_key(mat, 256, 3, directions=K) == truth_mod.truth_key(mat, 256, 3)  # None: its own K
+    for bad in (1, 65, 6.0, True, "fine"):
+        with pytest.raises(ValueError, match=r"^truth_directions must be an integer grid size K in \[2, 64\]"):
+            mc.render(scene, truth_directions=bad)
+        with pytest.raises(ValueError, match=r"^truth directions must be an integer grid size K in \[2, 64\]"):
+            truth_mod.truth_of(mat, 256, directions=bad)
+
+
+def test_a_finer_truth_grid_keeps_a_highlight_the_materials_grid_blurs():
+    """The reference reads f̄ from its table by interpolation, so a highlight narrower than the grid's spacing is
+    blurred there (docs/design.md §3.4): between the nodes of the material's K = 4 grid, truths on finer grids
+    come closer to the exact f̄ (`effective_brdf_exact` at the very pairs, the same facets). A flat Blinn–Phong
+    n = 64 tile: its f̄ is the BRDF itself, a lobe about 10° wide against the K = 4 grid's ~30° spacing."""
+    tile = wb.geometry.load_tile("flat")
+    brdf = [wb.BlinnPhong(0.5, 64.0, kd=0.1, normalization="energy")]
+    mat = wb.bake(tile, brdf, lobes=1, directions=K, facets=256, normal_res=16, backend="warp:cpu")
+    rng = np.random.default_rng(7)
+    theta_o, phi_o = rng.uniform(0.1, 1.1, 64), rng.uniform(0, 2 * np.pi, 64)
+    wo = np.stack([np.sin(theta_o) * np.cos(phi_o), np.sin(theta_o) * np.sin(phi_o), np.cos(theta_o)], 1)
+    wi = wo * [-1, -1, 1] + rng.normal(0, 0.05, (64, 3))  # near the mirror direction: on the highlight
+    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    exact = truth_mod.effective_brdf_exact(tile, brdf, wi, wo, facets=256, backend="warp:cpu", seed=1)
+    err = {k: np.sqrt(np.mean((truth_mod.truth_of(mat, 256, directions=k).eval(wi, wo) - exact) ** 2))
+           for k in (K, 16, 32)}
+    scale = np.sqrt(np.mean(exact ** 2))
+    # Bilinear interpolation's error falls as the spacing squared once the grid resolves the lobe: a doubled K
+    # should cut it by about 4; the bounds ask for 2, and for the K = 4 grid to be far off (a third of f̄).
+    assert err[K] > 0.3 * scale and err[16] < 0.5 * err[K] and err[32] < 0.5 * err[16] and err[32] < 0.08 * scale
 
 
 def test_the_cache_beside_a_saved_material_is_reused_and_never_stale(tmp_path, counting):
@@ -323,7 +358,7 @@ def _file_scene(tmp_path, material_file):
     return p
 
 
-def test_cli_render_mc_uses_and_caches_the_ground_truth(tmp_path):
+def test_cli_render_mc_uses_and_caches_the_ground_truth(tmp_path, capsys):
     _bake().save(tmp_path / "groove.wbm")
     scene = _file_scene(tmp_path, "groove.wbm")
     args = ["render", str(scene), "--method", "mc", "--samples", "8", "--size", "8", "6", "--truth-facets", "256"]
@@ -338,6 +373,18 @@ def test_cli_render_mc_uses_and_caches_the_ground_truth(tmp_path):
     from warp_biscale.images import read_exr
 
     np.testing.assert_array_equal(read_exr(tmp_path / "a.exr"), read_exr(tmp_path / "b.exr"))
+    # --truth-directions: a truth on a finer grid than the bake's, cached in place of the K = 4 one.
+    from warp_biscale import cli
+
+    assert cli.main([*args, "--truth-directions", "6", "-o", str(tmp_path / "c.exr")]) == 0
+    assert "ground truth of material 'shiny': computed (ground truth (tile 'vgroove', K=6, 256 facets" in \
+        capsys.readouterr().out
+    assert wb.load(cache).directions == 6
+    for bad in ("1", "65"):
+        assert cli.main([*args, "--truth-directions", bad, "-o", str(tmp_path / "d.exr")]) == 2
+        errors = [line for line in capsys.readouterr().err.splitlines() if not line.startswith("warning:")]
+        assert errors == [f"error: --truth-directions must be a grid size K in [2, 64], got {bad}"]
+    assert not (tmp_path / "d.exr").exists()
 
 
 def test_cli_render_mc_of_an_old_material_file(tmp_path):

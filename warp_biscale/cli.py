@@ -30,7 +30,7 @@ from .progress import as_progress, set_quiet
 from .render import OCCLUSION_SAMPLES, SHADOW_SAMPLES, check_aa, material_ball
 from .trace import OCCLUSION_SAMPLES_MAX, check_occlusion_samples, check_shadow_samples
 from .scenefile import load_scene
-from .truth import BOUNCE_PATHS, MAX_BOUNCES, MAX_PATHS, _check_bounces, ground_truth
+from .truth import BOUNCE_PATHS, MAX_BOUNCES, MAX_PATHS, MAX_TRUTH_DIRECTIONS, _check_bounces, ground_truth
 from .viewer import view
 
 
@@ -258,6 +258,9 @@ def cmd_render(args):
         _refuse_sg_options(args)
     if args.truth_bounces is not None or args.truth_paths is not None:
         _bounce_args(args.truth_bounces, args.truth_paths, "truth-")  # before the scene's bakes
+    if args.truth_directions is not None and not 2 <= args.truth_directions <= MAX_TRUTH_DIRECTIONS:
+        raise ValueError(f"--truth-directions must be a grid size K in [2, {MAX_TRUTH_DIRECTIONS}], "
+                         f"got {args.truth_directions}")
     prog = as_progress(not args.quiet)
     sf = load_scene(args.scene, backend=args.backend, progress=prog)
     if args.size is not None:
@@ -266,6 +269,7 @@ def cmd_render(args):
     options = sf.render_options(method)
     for flag, key, value in (("--samples", "samples", args.samples), ("--mc-fallback", "fallback", args.mc_fallback),
                              ("--truth-facets", "truth_facets", args.truth_facets),
+                             ("--truth-directions", "truth_directions", args.truth_directions),
                              ("--truth-bounces", "truth_bounces", args.truth_bounces),
                              ("--truth-paths", "truth_paths", args.truth_paths)):
         if value is not None:
@@ -460,6 +464,10 @@ def _add_render_commands(sub):
     r.add_argument("--truth-facets", type=int, metavar="N",
                    help="--method mc: facets of the ground truth computed for each baked material in view "
                         "(default 2^18; cached beside a material file as NAME.truth.npz)")
+    r.add_argument("--truth-directions", type=int, metavar="K",
+                   help="--method mc: the K of those ground truths' KxK direction grids, 2..64 (default: each "
+                        "material's own K). A finer grid than the bake's keeps sharp highlights sharp in the "
+                        "reference; the cost grows as K^4 x facets")
     r.add_argument("--truth-bounces", type=int, metavar="B",
                    help=f"--method mc: bounces of light inside the tile in those ground truths, 1..{MAX_BOUNCES} "
                         "(default 1, single bounce; B > 1 adds B-1 interreflection bounces, as `truth --bounces`)")

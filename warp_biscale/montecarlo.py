@@ -21,9 +21,9 @@ Every hit pixel of the G-buffer gets the estimate of
   `eval`, the table lookup on the host); an effective BRDF's f̄(ω_local, ωo_local) from its ground truth
   (`GroundTruth.eval`, cos θi already in it), in the tile frame (t, b, n): the one passed in `truths`,
   else the one `truth.truth_of` computes from what the material records of how it was baked (its tile
-  and small-scale BRDFs, on its K×K grid, `truth_facets` facets, `truth_bounces` bounces inside the
-  tile), cached beside its material file and in memory. A material that records nothing (a format-1
-  file, one built by hand) is a ValueError, unless fallback="sg": then
+  and small-scale BRDFs, on a K×K grid (`truth_directions`, the material's own K by default), `truth_facets`
+  facets, `truth_bounces` bounces inside the tile), cached beside its material file and in memory. A
+  material that records nothing (a format-1 file, one built by hand) is a ValueError, unless fallback="sg": then
   `EffectiveBRDF.eval(method="sg-exact")` is used, with a warning and a note in info["effective_brdf"]
   (that is the SG fit, not the exact f̄, so the reference is not exact for it).
 
@@ -81,7 +81,8 @@ from .montecarlo_sampling import (_basis, _CosineStrategy, _dot, _EnvironmentStr
                                   _LightStrategy, _LobeMixtureStrategy, sample_vmf, vmf_pdf)
 from .svbrdf import Textured
 from .trace import offsets
-from .truth import BOUNCE_PATHS, MAX_FACETS, TRUTH_FACETS, GroundTruth, _check_bounces, _check_count, cached_truth
+from .truth import (BOUNCE_PATHS, MAX_FACETS, MAX_TRUTH_DIRECTIONS, TRUTH_FACETS, GroundTruth, _check_bounces,
+                    _check_count, cached_truth)
 
 __all__ = ["render", "missing_provenance", "DEFAULT_BATCH", "FALLBACKS", "sample_vmf", "vmf_pdf"]
 
@@ -314,7 +315,7 @@ def missing_provenance(scene, truths=None) -> list:
 
 def render(scene, backend="auto", samples: int = 256, seed: int = 0, truths=None, progress=None,
            batch: int = DEFAULT_BATCH, fallback=None, truth_facets: int = TRUTH_FACETS, truth_seed=None,
-           truth_bounces: int = 1, truth_paths: int = BOUNCE_PATHS):
+           truth_bounces: int = 1, truth_paths: int = BOUNCE_PATHS, truth_directions=None):
     """Render `scene` (a `render.Scene`) by Monte Carlo → `render.Rendering`.
 
     samples: samples per hit pixel, shared out over the pixel's sampling strategies (at least 2 each: a
@@ -330,6 +331,10 @@ def render(scene, backend="auto", samples: int = 256, seed: int = 0, truths=None
         1 the single-bounce truth; B > 1 adds B − 1 bounces of light inside the tiled surface, estimated with
         `truth_paths` paths per direction pair); part of the cache key when B > 1. A truth given in `truths`
         is used as it is.
+    truth_directions: the K of those ground truths' K×K direction grids (None: each material's own K; up to
+        64). The table is interpolated between its nodes, so a highlight narrower than the grid's spacing is
+        blurred in the reference itself: for sharp small-scale BRDFs ask for a finer grid than the bake's
+        (docs/design.md §3.4). The truth's cost grows as K⁴ × truth_facets.
     fallback: None, or "sg": materials without a truth given use their SG fit
         (`EffectiveBRDF.eval(method="sg-exact")`, not exact), with a warning; nothing is computed for them.
     batch: samples (pixels × samples) per batch, bounding memory (~400 bytes a sample).
@@ -363,6 +368,10 @@ def render(scene, backend="auto", samples: int = 256, seed: int = 0, truths=None
         truth_bounces, truth_paths = _check_bounces(truth_bounces, truth_paths)
     except ValueError as exc:  # the library's message, with this function's argument names
         raise ValueError(f"truth_{exc}") from None
+    if truth_directions is not None and (isinstance(truth_directions, bool) or not isinstance(
+            truth_directions, (int, np.integer)) or not 2 <= truth_directions <= MAX_TRUTH_DIRECTIONS):
+        raise ValueError(f"truth_directions must be an integer grid size K in [2, {MAX_TRUTH_DIRECTIONS}] or None "
+                         f"(each material's own K), got {truth_directions!r}")
     if fallback is None:
         missing = missing_provenance(scene, truth_of)
         if missing:
@@ -422,7 +431,8 @@ def render(scene, backend="auto", samples: int = 256, seed: int = 0, truths=None
                           stacklevel=2)
             continue
         gt, sources[i] = cached_truth(scene.materials[i], truth_facets, truth_seed, backend,
-                                      _Prefixed(progress, f"truth of material {i}: "), truth_bounces, truth_paths)
+                                      _Prefixed(progress, f"truth of material {i}: "), truth_bounces, truth_paths,
+                                      truth_directions)
         materials[i].use_truth(gt)
         labels[i] = materials[i].label
     timings["truth"] = time.perf_counter() - t0

@@ -186,14 +186,14 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     shadow the broad lobes, and with them rays towards a sun's or a softbox's sharp lobes (shading's "Broad lobes'
     visibility per pixel" and "Sharp environment lobes' visibility per pixel"; 0: the SSDF alone); "mc": the Monte
     Carlo reference (`montecarlo.render`, options `samples`, `seed`, `truths`, `fallback`, `truth_facets`,
-    `truth_seed`), whose lights are the same discs and which judges a baked material by its exact ground truth
-    (`truth.truth_of`); "litsphere": the lit-sphere shader (seed 004, `warp_biscale.litsphere`), each material a
-    `LitSphere` (any other made into one, options `angles`, `resolution`), options `view` ("pixel": each pixel's own
-    view direction; "camera": the paper's distant viewer), `shrink` (the turned normal's scale before the lookup: 1,
-    or the paper's litsphere.SHRINK), `env_lights` (directional lights standing for the environment), `shadows`
-    (False: every light seen whole, no shadow rays — the paper's frame) and `report_error` (True, or references
-    among "sg", "mc": info["error"] then holds `litsphere_errors`, the Monte Carlo one at `samples` a pixel), with
-    `aa` and `shadow_samples` as "sg"."""
+    `truth_seed`, `truth_directions`), whose lights are the same discs and which judges a baked material by its
+    exact ground truth (`truth.truth_of`); "litsphere": the lit-sphere shader (seed 004, `warp_biscale.litsphere`),
+    each material a `LitSphere` (any other made into one, options `angles`, `resolution`), options `view` ("pixel":
+    each pixel's own view direction; "camera": the paper's distant viewer), `shrink` (the turned normal's scale
+    before the lookup: 1, or the paper's litsphere.SHRINK), `env_lights` (directional lights standing for the
+    environment), `shadows` (False: every light seen whole, no shadow rays — the paper's frame) and `report_error`
+    (True, or references among "sg", "mc": info["error"] then holds `litsphere_errors`, the Monte Carlo one at
+    `samples` a pixel), with `aa` and `shadow_samples` as "sg"."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     n_aa = check_aa(aa)

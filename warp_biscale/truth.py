@@ -37,6 +37,7 @@ TRUTH_FACETS = 1 << 18
 # Part of every cache key: bump it when the ground truth's numbers change (a kernel fix), so that no
 # table cached before is used again.
 TRUTH_KEY_VERSION = 1
+MAX_TRUTH_DIRECTIONS = 64  # ground_truth's largest K: a 4096² × 3 float32 table, 200 MB
 MAX_BOUNCES = 16  # ground_truth(bounces=B): B in [1, MAX_BOUNCES]
 BOUNCE_PATHS = 4096  # ground_truth's default paths per direction pair for the bounces 2..B
 MAX_PATHS = 1 << 20
@@ -176,8 +177,9 @@ def ground_truth(tile, materials, facets: int = 1 << 20, directions: int = 12, b
     count = _check_count(facets)
     bounces, paths = _check_bounces(bounces, paths)
     k = int(directions)
-    if k != directions or not (2 <= k <= 64):
-        raise ValueError(f"directions must be an integer grid size K in [2, 64], got {directions!r}")
+    if k != directions or not (2 <= k <= MAX_TRUTH_DIRECTIONS):
+        raise ValueError(f"directions must be an integer grid size K in [2, {MAX_TRUTH_DIRECTIONS}], "
+                         f"got {directions!r}")
     be = get_backend(backend)
     prog = as_progress(progress)
     timer = _Timer(be)
@@ -322,9 +324,9 @@ class GroundTruth:
 # ---------------------------------------------------------------------------------------------------
 
 
-def _truth_settings(mat, facets, seed, bounces=1, paths=BOUNCE_PATHS):
-    """Checked (facets, seed, bounces, paths) of `truth_of`; seed None is the bake's seed + 1, so the truth's
-    facets are not the bake's own (as `warp-biscale bake --truth` does)."""
+def _truth_settings(mat, facets, seed, bounces=1, paths=BOUNCE_PATHS, directions=None):
+    """Checked (facets, seed, bounces, paths, K) of `truth_of`; seed None is the bake's seed + 1, so the truth's
+    facets are not the bake's own (as `warp-biscale bake --truth` does); directions None is the material's K."""
     if not isinstance(mat, EffectiveBRDF):
         raise ValueError(f"truth_of takes an EffectiveBRDF (wb.bake, wb.load), got {type(mat).__name__}")
     if mat.provenance is None:
@@ -337,22 +339,30 @@ def _truth_settings(mat, facets, seed, bounces=1, paths=BOUNCE_PATHS):
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"truth seed must be an integer >= 0 or None, got {seed!r}")
     bounces, paths = _check_bounces(bounces, paths)
-    return count, int(seed), bounces, paths
+    if directions is None:
+        directions = mat.directions
+    elif (isinstance(directions, bool) or not isinstance(directions, (int, np.integer))
+          or not 2 <= directions <= MAX_TRUTH_DIRECTIONS):
+        raise ValueError(f"truth directions must be an integer grid size K in [2, {MAX_TRUTH_DIRECTIONS}] or None "
+                         f"(the material's K = {mat.directions}), got {directions!r}")
+    return count, int(seed), bounces, paths, int(directions)
 
 
-def truth_key(mat, facets: int = TRUTH_FACETS, seed=None, bounces: int = 1, paths: int = BOUNCE_PATHS) -> str:
-    """The hex SHA-256 of everything `truth_of(mat, facets, seed, bounces=, paths=)`'s table depends on: the
+def truth_key(mat, facets: int = TRUTH_FACETS, seed=None, bounces: int = 1, paths: int = BOUNCE_PATHS,
+              directions=None) -> str:
+    """The hex SHA-256 of everything `truth_of(mat, facets, seed, bounces=, paths=, directions=)`'s table
+    depends on: the
     tile's arrays (vertices, faces, material ids, colours, vertex normals, period, origin; the face tangents
     where a BRDF is anisotropic), the small-scale BRDFs of its material ids (type and packed parameters; a
     measured one's table and interpolation), K, the facet count and seed, the bounces and paths when B > 1,
     and TRUTH_KEY_VERSION. Not the tile's name, nor the backend: backends agree to float32 rounding
     (docs/design.md §3.3)."""
-    count, seed, bounces, paths = _truth_settings(mat, facets, seed, bounces, paths)
+    count, seed, bounces, paths, k = _truth_settings(mat, facets, seed, bounces, paths, directions)
     tile = mat.provenance.tile
     # B = 1 adds nothing to the key (ground_truth ignores paths there), so the single-bounce tables cached
     # before bounces existed stay valid.
     multi = f"; bounces={bounces}; paths={paths}" if bounces > 1 else ""
-    h = hashlib.sha256(f"warp_biscale ground truth v{TRUTH_KEY_VERSION}; K={mat.directions}; facets={count}; "
+    h = hashlib.sha256(f"warp_biscale ground truth v{TRUTH_KEY_VERSION}; K={k}; facets={count}; "
                        f"seed={seed}{multi}".encode())
     parts = {"vertices": tile.vertices, "faces": tile.faces, "material_ids": tile.material_ids,
              "colors": tile.colors, "vertex_normals": tile.vertex_normals,
@@ -384,24 +394,29 @@ def truth_cache_path(mat):
 
 
 def truth_of(mat, facets: int = TRUTH_FACETS, seed=None, backend="auto", progress=None, bounces: int = 1,
-             paths: int = BOUNCE_PATHS) -> GroundTruth:
+             paths: int = BOUNCE_PATHS, directions=None) -> GroundTruth:
     """The ground truth of a baked material (`wb.ground_truth` on its recorded tile and its current
-    small-scale BRDFs, on its K×K grid), with `facets` facets drawn with `seed` (None: the bake's seed + 1)
-    and `bounces` B of light inside the tiled surface (`ground_truth`'s; B > 1 adds the interreflection
-    estimated with `paths` paths per direction pair, which B = 1 ignores).
+    small-scale BRDFs), with `facets` facets drawn with `seed` (None: the bake's seed + 1) and `bounces` B of
+    light inside the tiled surface (`ground_truth`'s; B > 1 adds the interreflection estimated with `paths`
+    paths per direction pair, which B = 1 ignores), on a K×K grid of `directions` (None: the material's own K;
+    at most MAX_TRUTH_DIRECTIONS).
+
+    Between its nodes the table is interpolated (`GroundTruth.eval`), so a highlight narrower than the grid's
+    spacing is blurred in it: a finer grid than the bake's makes a closer reference (docs/design.md §3.4).
+    The cost grows as K⁴ × facets.
 
     Cached by `truth_key`, so a table is never used for another tile, BRDF or setting: on disk as
     `<name>.truth.npz` beside the material's file (`truth_cache_path`; one table a file, replaced when the key
     differs; a folder that takes no file leaves it in memory, with a warning), and in memory (the last
     TRUTH_MEMORY). A material without a provenance is a ValueError."""
-    return cached_truth(mat, facets, seed, backend, progress, bounces, paths)[0]
+    return cached_truth(mat, facets, seed, backend, progress, bounces, paths, directions)[0]
 
 
 def cached_truth(mat, facets: int = TRUTH_FACETS, seed=None, backend="auto", progress=None, bounces: int = 1,
-                 paths: int = BOUNCE_PATHS):
+                 paths: int = BOUNCE_PATHS, directions=None):
     """`truth_of` → (GroundTruth, where it came from: "computed", "memory" or the cache file read)."""
-    count, seed, bounces, paths = _truth_settings(mat, facets, seed, bounces, paths)
-    key = truth_key(mat, count, seed, bounces, paths)
+    count, seed, bounces, paths, k = _truth_settings(mat, facets, seed, bounces, paths, directions)
+    key = truth_key(mat, count, seed, bounces, paths, k)
     path = truth_cache_path(mat)
     if path is not None and os.path.exists(path):
         try:
@@ -414,7 +429,7 @@ def cached_truth(mat, facets: int = TRUTH_FACETS, seed=None, backend="auto", pro
     gt, source = _MEMORY.get(key), "memory"
     if gt is None:
         tile = mat.provenance.tile
-        gt = ground_truth(tile, mat.materials[:tile.n_materials], facets=count, directions=mat.directions,
+        gt = ground_truth(tile, mat.materials[:tile.n_materials], facets=count, directions=k,
                           backend=backend, seed=seed, progress=progress, bounces=bounces, paths=paths)
         gt.key, source = key, "computed"
     _remember(key, gt)
