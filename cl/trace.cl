@@ -32,6 +32,35 @@ CL_INLINE float3 seen_side(float3 n, float3 x, float3 eye)
     return n;
 }
 
+/* Where the rays of hit x on face f leave from (kernels/trace.py's ray_start; trace.ray_starts, float64):
+ * *ng the face's normal turned to the eye (seen_side), *ns the interpolated vertex normal turned with it,
+ * and the origin x lifted onto the curved surface of the vertex normals (Hanika's shadow-terminator offset),
+ * then eps along ng: so a light the shading normal sees past the face's own plane is reached over the
+ * neighbouring faces. */
+CL_INLINE float3 ray_start(__global const float *points, __global const float *normals, __global const int *faces,
+                           __global const float *face_normals, int f, __global const float *bary, int p,
+                           __global const float *position, float3 eye, float eps, float3 *ng, float3 *ns)
+{
+    float3 x = load3(position, p);
+    float3 fn = load3(face_normals, f);
+    float3 g = seen_side(fn, x, eye);
+    float side = dot3(g, fn) < 0.0f ? -1.0f : 1.0f;
+    float w1 = bary[2 * p], w2 = bary[2 * p + 1];
+    float w[3] = {1.0f - w1 - w2, w1, w2};
+    float3 lift = (float3)(0.0f, 0.0f, 0.0f), sum = (float3)(0.0f, 0.0f, 0.0f);
+    for (int k = 0; k < 3; ++k) {
+        int i = faces[3 * f + k];
+        float3 n = side * load3(normals, i);
+        float3 pk = load3(points, i);
+        float d = fmin(dot3((float3)(x.x - pk.x, x.y - pk.y, x.z - pk.z), n), 0.0f);
+        lift += (w[k] * d) * n;
+        sum += w[k] * n;
+    }
+    *ng = g;
+    *ns = normalize3(sum);
+    return (float3)(x.x - lift.x + eps * g.x, x.y - lift.y + eps * g.y, x.z - lift.z + eps * g.z);
+}
+
 __kernel void trace_primary(
     __global const float *nodes,     /* (N, 8) BVH records */
     __global const float *tris,      /* (F, 9) [a, b - a, c - a], BVH slot order */
@@ -96,8 +125,12 @@ __kernel void trace_occluded(
 __kernel void trace_shadows(
     __global const float *nodes,
     __global const float *tris,
+    __global const float *points,        /* (V, 3) */
+    __global const float *normals,       /* (V, 3) unit vertex normals */
+    __global const int *faces,           /* (F, 3), original face order */
     __global const float *face_normals,  /* (F, 3) unit, original face order */
     __global const int *face,            /* (P,) */
+    __global const float *bary,          /* (P, 2) */
     __global const float *position,      /* (P, 3) */
     const float eye_x, const float eye_y, const float eye_z,
     __global const float *lights,        /* (L, 8) Light.packed() rows */
@@ -112,9 +145,9 @@ __kernel void trace_shadows(
     int f = face[p];
     int hits = 0;
     if (f >= 0) {
-        float3 x = load3(position, p);
-        float3 n = seen_side(load3(face_normals, f), x, (float3)(eye_x, eye_y, eye_z));
-        float3 o = (float3)(x.x + eps * n.x, x.y + eps * n.y, x.z + eps * n.z);
+        float3 ng, n;
+        float3 o = ray_start(points, normals, faces, face_normals, f, bary, p, position,
+                             (float3)(eye_x, eye_y, eye_z), eps, &ng, &n);
         __global const float *light = lights + 8 * k;
         float3 c = (float3)(light[1], light[2], light[3]);
         float3 w = normalize3(c);
@@ -135,7 +168,8 @@ __kernel void trace_shadows(
                 t_hi = sqrt(dot3(d, d)) - eps;
             }
             d = normalize3(d);
-            /* Below the geometric horizon the light is behind the surface (and a ray would enter it). */
+            /* Below the shading normal's horizon the light adds nothing; above it, a ray that dips below the
+             * face's plane is traced from the lifted origin (it may still hit the face itself). */
             if (dot3(n, d) > 0.0f && !(t_hi > t_min && bvh_any_hit(nodes, tris, o, d, t_min, t_hi)))
                 hits += 1;
         }
@@ -149,8 +183,12 @@ __kernel void trace_shadows(
 __kernel void trace_occlusion(
     __global const float *nodes,
     __global const float *tris,
+    __global const float *points,        /* (V, 3) */
+    __global const float *normals,       /* (V, 3) unit vertex normals */
+    __global const int *faces,           /* (F, 3), original face order */
     __global const float *face_normals,  /* (F, 3) unit, original face order */
     __global const int *face,            /* (P,) */
+    __global const float *bary,          /* (P, 2) */
     __global const float *position,      /* (P, 3) */
     const float eye_x, const float eye_y, const float eye_z,
     const float eps, const float t_min, const int samples,
@@ -163,9 +201,9 @@ __kernel void trace_occlusion(
     int f = face[p];
     uint bits = 0u;
     if (f >= 0) {
-        float3 x = load3(position, p);
-        float3 n = seen_side(load3(face_normals, f), x, (float3)(eye_x, eye_y, eye_z));
-        float3 o = (float3)(x.x + eps * n.x, x.y + eps * n.y, x.z + eps * n.z);
+        float3 n, ns;
+        float3 o = ray_start(points, normals, faces, face_normals, f, bary, p, position,
+                             (float3)(eye_x, eye_y, eye_z), eps, &n, &ns);
         float3 a, b;
         disk_basis(n, &a, &b);
         for (int i = 0; i < samples; ++i) {
@@ -178,13 +216,17 @@ __kernel void trace_occlusion(
 }
 
 /* One work-item per pixel: LOBE_RAYS unbounded any-hit rays over each sharp lobe's cap (lobe_ray_direction);
- * bit k·LOBE_RAYS + i set where ray i of lobe k is blocked; a ray below the geometric horizon is not traced
- * (reference.trace_lobe_rays). */
+ * bit k·LOBE_RAYS + i set where ray i of lobe k is blocked; a ray below the shading normal's horizon is not
+ * traced (reference.trace_lobe_rays). */
 __kernel void trace_lobe_rays(
     __global const float *nodes,
     __global const float *tris,
+    __global const float *points,        /* (V, 3) */
+    __global const float *normals,       /* (V, 3) unit vertex normals */
+    __global const int *faces,           /* (F, 3), original face order */
     __global const float *face_normals,  /* (F, 3) unit, original face order */
     __global const int *face,            /* (P,) */
+    __global const float *bary,          /* (P, 2) */
     __global const float *position,      /* (P, 3) */
     const float eye_x, const float eye_y, const float eye_z,
     __global const float *lobes,         /* (M, 4) [axis, η] */
@@ -198,9 +240,9 @@ __kernel void trace_lobe_rays(
     int f = face[p];
     uint bits = 0u;
     if (f >= 0) {
-        float3 x = load3(position, p);
-        float3 n = seen_side(load3(face_normals, f), x, (float3)(eye_x, eye_y, eye_z));
-        float3 o = (float3)(x.x + eps * n.x, x.y + eps * n.y, x.z + eps * n.z);
+        float3 ng, n;
+        float3 o = ray_start(points, normals, faces, face_normals, f, bary, p, position,
+                             (float3)(eye_x, eye_y, eye_z), eps, &ng, &n);
         for (int k = 0; k < n_lobes; ++k) {
             float3 w = (float3)(lobes[4 * k], lobes[4 * k + 1], lobes[4 * k + 2]);
             float3 a, b;

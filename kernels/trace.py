@@ -38,6 +38,32 @@ def seen_side(n: wp.vec3, x: wp.vec3, eye: wp.vec3) -> wp.vec3:
     return n
 
 
+@wp.func
+def ray_start(points: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp.vec3), faces: wp.array2d(dtype=wp.int32),
+              face_normal: wp.vec3, f: int, bary: wp.vec2, x: wp.vec3, eye: wp.vec3, eps: float):
+    """(origin, ng, ns) of the rays leaving hit x of face f (trace.ray_starts, the float64 twin): ng the face's
+    normal turned to the eye (seen_side), ns the interpolated vertex normal turned with it, and the origin x
+    lifted onto the curved surface of the vertex normals (Hanika's shadow-terminator offset), then eps along
+    ng: so a light the shading normal sees past the face's own plane is reached over the neighbouring faces."""
+    ng = seen_side(face_normal, x, eye)
+    side = wp.where(wp.dot(ng, face_normal) < 0.0, -1.0, 1.0)
+    w1 = bary[0]
+    w2 = bary[1]
+    w0 = 1.0 - w1 - w2
+    i0 = faces[f, 0]
+    i1 = faces[f, 1]
+    i2 = faces[f, 2]
+    n0 = side * normals[i0]
+    n1 = side * normals[i1]
+    n2 = side * normals[i2]
+    d0 = wp.min(wp.dot(x - points[i0], n0), 0.0)
+    d1 = wp.min(wp.dot(x - points[i1], n1), 0.0)
+    d2 = wp.min(wp.dot(x - points[i2], n2), 0.0)
+    lifted = x - (w0 * d0 * n0 + w1 * d1 * n1 + w2 * d2 * n2)
+    ns = wp.normalize(w0 * n0 + w1 * n1 + w2 * n2)
+    return lifted + eps * ng, ng, ns
+
+
 @wp.kernel
 def trace_primary(
     mesh: wp.uint64,
@@ -100,8 +126,12 @@ def trace_occluded(
 @wp.kernel
 def trace_shadows(
     mesh: wp.uint64,
+    points: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    faces: wp.array2d(dtype=wp.int32),
     face_normals: wp.array(dtype=wp.vec3),
     face: wp.array(dtype=wp.int32),
+    bary: wp.array(dtype=wp.vec2),
     position: wp.array(dtype=wp.vec3),
     eye: wp.vec3,
     lights: wp.array2d(dtype=wp.float32),  # (L, 8) Light.packed() rows
@@ -120,9 +150,7 @@ def trace_shadows(
     f = face[p]
     hits = int(0)
     if f >= 0:
-        x = position[p]
-        n = seen_side(face_normals[f], x, eye)
-        o = x + eps * n
+        o, ng, n = ray_start(points, normals, faces, face_normals[f], f, bary[p], position[p], eye, eps)
         c = wp.vec3(lights[k, 1], lights[k, 2], lights[k, 3])
         w = wp.normalize(c)
         spread = wp.tan(wp.sqrt(lights[k, 7] / 3.14159265358979))  # directional: tan of the angular radius
@@ -139,7 +167,8 @@ def trace_shadows(
                 d = c + offset_on_disc - o
                 t_hi = wp.length(d) - eps
             d = wp.normalize(d)
-            # Below the geometric horizon the light is behind the surface (and a ray would enter it).
+            # Below the shading normal's horizon the light adds nothing; above it, a ray that dips below the
+            # face's plane is traced from the lifted origin (it may still hit the face itself).
             if wp.dot(n, d) > 0.0:
                 reach = t_hi - t_min
                 if reach > 0.0:
@@ -153,8 +182,12 @@ def trace_shadows(
 @wp.kernel
 def trace_occlusion(
     mesh: wp.uint64,
+    points: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    faces: wp.array2d(dtype=wp.int32),
     face_normals: wp.array(dtype=wp.vec3),
     face: wp.array(dtype=wp.int32),
+    bary: wp.array(dtype=wp.vec2),
     position: wp.array(dtype=wp.vec3),
     eye: wp.vec3,
     eps: float,
@@ -170,9 +203,7 @@ def trace_occlusion(
     f = face[p]
     bits = wp.uint32(0)
     if f >= 0:
-        x = position[p]
-        n = seen_side(face_normals[f], x, eye)
-        o = x + eps * n
+        o, n, ns = ray_start(points, normals, faces, face_normals[f], f, bary[p], position[p], eye, eps)
         frame = disk_basis(n)
         for i in range(samples):
             d = occlusion_direction(frame, i, samples, p)
@@ -184,8 +215,12 @@ def trace_occlusion(
 @wp.kernel
 def trace_lobe_rays(
     mesh: wp.uint64,
+    points: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    faces: wp.array2d(dtype=wp.int32),
     face_normals: wp.array(dtype=wp.vec3),
     face: wp.array(dtype=wp.int32),
+    bary: wp.array(dtype=wp.vec2),
     position: wp.array(dtype=wp.vec3),
     eye: wp.vec3,
     lobes: wp.array2d(dtype=wp.float32),  # (M, 4) [axis, η]
@@ -196,14 +231,13 @@ def trace_lobe_rays(
     mask: wp.array(dtype=wp.uint32),
 ):
     """One thread per pixel: LOBE_RAYS unbounded any-hit rays over each sharp lobe's cap (lobe_ray_direction);
-    bit k·LOBE_RAYS + i set where ray i of lobe k is blocked. A ray below the geometric horizon is not traced."""
+    bit k·LOBE_RAYS + i set where ray i of lobe k is blocked. A ray below the shading normal's horizon is not
+    traced."""
     p = wp.tid() + offset
     f = face[p]
     bits = wp.uint32(0)
     if f >= 0:
-        x = position[p]
-        n = seen_side(face_normals[f], x, eye)
-        o = x + eps * n
+        o, ng, n = ray_start(points, normals, faces, face_normals[f], f, bary[p], position[p], eye, eps)
         for k in range(n_lobes):
             axis = wp.vec3(lobes[k, 0], lobes[k, 1], lobes[k, 2])
             frame = disk_basis(axis)

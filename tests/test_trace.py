@@ -294,7 +294,7 @@ def test_shadows_match_reference(backend):
     n = len(g.face)
     assert vis.dtype == np.uint8 and vis.shape == (n, 3) and set(np.unique(vis)) <= {0, 255}
     eps, t_min = offsets(mesh)
-    args = (mesh.vertices, mesh.faces, g.face, g.position, g.eye, lights, eps, t_min)
+    args = (mesh.vertices, mesh.normals, mesh.faces, g.face, g.bary, g.position, g.eye, lights, eps, t_min)
     exact = ref.trace_shadows(*args)
     clear = ref.trace_shadows(*args, tol=BARY_TOL) == ref.trace_shadows(*args, tol=-BARY_TOL)
     bad = clear & (vis != exact)
@@ -311,7 +311,8 @@ def test_shadows_match_reference(backend):
     assert not vis[floor, 2].any()
     # The same from the reference G-buffer: lit fractions agree closely.
     r = ref.trace_primary(mesh, cam)
-    lit_ref = ref.trace_shadows(mesh.vertices, mesh.faces, r["face"], r["position"], r["eye"], lights, eps, t_min)
+    lit_ref = ref.trace_shadows(mesh.vertices, mesh.normals, mesh.faces, r["face"], r["bary"], r["position"], r["eye"],
+                                lights, eps, t_min)
     np.testing.assert_allclose(vis.mean(0) / 255, lit_ref.mean(0) / 255, atol=0.005)
 
 
@@ -325,8 +326,8 @@ def test_soft_shadows_match_reference(backend):
     g = backend.trace_primary(mesh, cam)
     vis = backend.trace_shadows(mesh, g, lights, samples=16).astype(np.int64)
     eps, t_min = offsets(mesh)
-    exact = ref.trace_shadows(mesh.vertices, mesh.faces, g.face, g.position, g.eye, lights, eps, t_min,
-                              samples=16).astype(np.int64)
+    exact = ref.trace_shadows(mesh.vertices, mesh.normals, mesh.faces, g.face, g.bary, g.position, g.eye, lights,
+                              eps, t_min, samples=16).astype(np.int64)
     step = 255 / 16
     assert (np.abs(vis - exact) > 2 * step).sum() == 0
     assert (vis != exact).mean() < 0.02
@@ -355,9 +356,10 @@ def occlusion_reference():
     mesh, cam, _ = _shadow_scene()
     r = ref.trace_primary(mesh, cam)
     pick = np.flatnonzero(r["face"] >= 0)[::2]
-    g = GBuffer(face=r["face"][pick].astype(np.int32), position=r["position"][pick], eye=r["eye"])
+    g = GBuffer(face=r["face"][pick].astype(np.int32), bary=r["bary"][pick], position=r["position"][pick],
+                eye=r["eye"])
     eps, t_min = offsets(mesh)
-    args = (mesh.vertices, mesh.faces, g.face, g.position, g.eye, eps, t_min, 16)
+    args = (mesh.vertices, mesh.normals, mesh.faces, g.face, g.bary, g.position, g.eye, eps, t_min, 16)
     masks = [ref.trace_occlusion(*args, tol=tol) for tol in (0.0, BARY_TOL, -BARY_TOL)]
     return mesh, g, masks
 
@@ -396,7 +398,7 @@ def test_lobe_rays_match_reference(backend, occlusion_reference):
     the floor seen from above (nothing traced, no bits)."""
     mesh, g, _ = occlusion_reference
     eps, t_min = offsets(mesh)
-    args = (mesh.vertices, mesh.faces, g.face, g.position, g.eye, eps, t_min, LOBES)
+    args = (mesh.vertices, mesh.normals, mesh.faces, g.face, g.bary, g.position, g.eye, eps, t_min, LOBES)
     exact, grown, shrunk = (_bits(ref.trace_lobe_rays(*args, tol=tol), 32) for tol in (0.0, BARY_TOL, -BARY_TOL))
     got = _bits(backend.trace_lobe_rays(mesh, g, LOBES), 32)
     clear = grown == shrunk

@@ -598,14 +598,20 @@ class DeviceBackend:
         return (m.get("gbuffer_key"), *what) if gbuffer is None or gbuffer is m.get("gbuffer_host") else None
 
     def _ray_starts(self, mesh, m, gbuffer):
-        """(face, position, eye, P) that shadow, occlusion and lobe rays leave from: the device's own G-buffer
-        (gbuffer None or the host copy trace_primary returned), or a host GBuffer uploaded."""
+        """(face, bary, position, eye, P) that shadow, occlusion and lobe rays leave from: the device's own
+        G-buffer (gbuffer None or the host copy trace_primary returned), or a host GBuffer uploaded."""
         if gbuffer is None or gbuffer is m.get("gbuffer_host"):
             if "gbuffer_face" not in m:
                 raise ValueError("gbuffer is None, but trace_primary has not run on this mesh with this backend")
-            return m["gbuffer_face"], m["gbuffer_position"], m["gbuffer_eye"], m["gbuffer_size"]
-        f, p, eye = check_gbuffer(gbuffer, len(mesh.faces))
-        return self._to_device(f, "i32"), self._to_device(p, "vec3"), eye, len(f)
+            return m["gbuffer_face"], m["gbuffer_bary"], m["gbuffer_position"], m["gbuffer_eye"], m["gbuffer_size"]
+        f, b, p, eye = check_gbuffer(gbuffer, len(mesh.faces))
+        return self._to_device(f, "i32"), self._to_device(b, "vec2"), self._to_device(p, "vec3"), eye, len(f)
+
+    @staticmethod
+    def _ray_mesh(m):
+        """The mesh arrays the shadow, occlusion and lobe rays' starts read (the trace kernels' ray_start), in
+        their launch order; `_upload_trace_mesh` puts them in the mesh's device cache."""
+        return m["points"], m["normals"], m["faces"], m["face_normals"]
 
     @staticmethod
     def _offsets(mesh, m):
@@ -626,10 +632,10 @@ class DeviceBackend:
         key = self._rays_key(m, gbuffer, lights.tobytes(), samples)
         if if_changed and not to_host and key is not None and m.get("light_vis_key") == key:
             return None
-        face, position, eye, n = self._ray_starts(mesh, m, gbuffer)
+        face, bary, position, eye, n = self._ray_starts(mesh, m, gbuffer)
         vis = self._reuse(m, "gbuffer_light_vis", (n, len(lights)), "u8")
         if n and len(lights):
-            self._launch_trace_shadows(m, face, position, eye, lights, *self._offsets(mesh, m), samples, n, vis)
+            self._launch_trace_shadows(m, face, bary, position, eye, lights, *self._offsets(mesh, m), samples, n, vis)
         m["light_vis_key"] = key
         return self._to_host(vis, (n, len(lights)), "u8") if to_host else None
 
@@ -644,10 +650,10 @@ class DeviceBackend:
         key = self._rays_key(m, gbuffer, samples)
         if if_changed and not to_host and key is not None and m.get("occlusion_key") == key:
             return None
-        face, position, eye, n = self._ray_starts(mesh, m, gbuffer)
+        face, bary, position, eye, n = self._ray_starts(mesh, m, gbuffer)
         mask = self._reuse(m, "gbuffer_occlusion", n, "u32")
         if n and samples:
-            self._launch_trace_occlusion(m, face, position, eye, *self._offsets(mesh, m), samples, n, mask)
+            self._launch_trace_occlusion(m, face, bary, position, eye, *self._offsets(mesh, m), samples, n, mask)
         m["occlusion_key"], m["occlusion_samples"] = key, samples
         if not to_host:
             return None
@@ -664,10 +670,10 @@ class DeviceBackend:
         key = self._rays_key(m, gbuffer, lobes.tobytes())
         if if_changed and not to_host and key is not None and m.get("lobe_rays_key") == key:
             return None
-        face, position, eye, n = self._ray_starts(mesh, m, gbuffer)
+        face, bary, position, eye, n = self._ray_starts(mesh, m, gbuffer)
         mask = self._reuse(m, "gbuffer_lobe_occlusion", n, "u32")
         if n and len(lobes):
-            self._launch_trace_lobe_rays(m, face, position, eye, lobes, *self._offsets(mesh, m), n, mask)
+            self._launch_trace_lobe_rays(m, face, bary, position, eye, lobes, *self._offsets(mesh, m), n, mask)
         m["lobe_rays_key"], m["lobe_rays"] = key, lobes.tobytes()
         if not to_host:
             return None

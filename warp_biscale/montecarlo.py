@@ -11,10 +11,12 @@ Every hit pixel of the G-buffer gets the estimate of
 
 - L_env(ω) = `Environment.lookup(ω)` (bilinear; black without an environment); L_l the light's SG
   emitter (`scene.light_sg`), the light model the SG renderer uses too.
-- V exact: one `backend.trace_occluded` ray per sample, from the hit point moved
-  `trace.SHADOW_OFFSET × mesh.scale` along the geometric normal turned to the viewer (as
-  `trace_shadows`); a direction below that normal's horizon is occluded (as `trace_shadows` treats a
-  light there). Environment and directional lights are unbounded rays; a point light's term is
+- V exact: one `backend.trace_occluded` ray per sample, from where `trace_shadows` starts its rays
+  (`trace.ray_starts`: the hit lifted off its flat face towards the smooth surface of the vertex
+  normals, then moved `trace.SHADOW_OFFSET × mesh.scale` along the geometric normal turned to the
+  viewer). Every direction above the shading normal's horizon is traced, also one below the face's
+  own plane (it may hit the face itself), as `trace_shadows` treats a light there. Environment and
+  directional lights are unbounded rays; a point light's term is
   occluded only by a hit before its centre (t_max = distance − offset, as `trace_shadows`), so a
   sample that hits something is traced again, up to each point light it sees.
 - F: an analytic BRDF's f_r(n, ω, ωo)·(n·ω)⁺ (`Brdf.eval`), a `MeasuredBRDF`'s alike (its float64
@@ -80,7 +82,7 @@ from .shading import surface_frames
 from .montecarlo_sampling import (_basis, _CosineStrategy, _dot, _EnvironmentStrategy, _GlossyStrategy,  # noqa: F401
                                   _LightStrategy, _LobeMixtureStrategy, sample_vmf, vmf_pdf)
 from .svbrdf import Textured
-from .trace import offsets
+from .trace import offsets, ray_starts
 from .truth import (BOUNCE_PATHS, MAX_FACETS, MAX_TRUTH_DIRECTIONS, TRUTH_FACETS, GroundTruth, _check_bounces,
                     _check_count, cached_truth)
 
@@ -280,8 +282,8 @@ def _gbuffer_frame(scene, g):
     """Per hit pixel (P hits): the pixel indices and the shading inputs, built as shading.shade_reference does.
 
     → dict pix (P,) int, mat (P,) int, pos, n, t, b, wo (ωo with ωo·n clamped to MIN_COS_VIEW, world),
-    wo_local (tile frame), origin (pos + offset along the viewer-side geometric normal), ng (that normal),
-    all (P, 3) float64; uv (P, 2) the interpolated texture coordinates (zeros without mesh UVs)."""
+    wo_local (tile frame), origin (where the rays leave: trace.ray_starts), all (P, 3) float64; uv (P, 2) the
+    interpolated texture coordinates (zeros without mesh UVs)."""
     mesh = scene.mesh
     eye = scene.camera.packed()[0:3].astype(np.float64)
     face = np.asarray(g.face)
@@ -296,12 +298,13 @@ def _gbuffer_frame(scene, g):
                         host["tangents"], f, bary, eye)
     interp, pos, n, t, b, wo_local = sf["interp"], sf["pos"], sf["n"], sf["t"], sf["b"], sf["wo_local"]
     wo_clamped = wo_local[:, 0:1] * t + wo_local[:, 1:2] * b + wo_local[:, 2:3] * n
-    ng = mesh.face_normals[f]
-    ng = np.where((_dot(ng, eye[None] - pos) < 0)[:, None], -ng, ng)
-    eps = offsets(mesh)[0]
+    # The rays leave where the SG renderer's shadow rays do (trace.ray_starts: lifted off the flat face
+    # towards the smooth surface, then moved along the geometric normal turned to the viewer).
+    start = ray_starts(mesh.vertices.astype(np.float32), mesh.normals.astype(np.float32), mesh.faces, f, bary, pos,
+                       eye, offsets(mesh)[0])
     uv = interp(mesh.uvs.astype(np.float32)) if mesh.uvs is not None else np.zeros((len(pix), 2))  # texture lookups
     return {"pix": pix, "mat": mesh.face_material[f], "pos": pos, "n": n, "t": t, "b": b, "wo": wo_clamped,
-            "wo_local": wo_local, "ng": ng, "origin": pos + eps * ng, "uv": uv}
+            "wo_local": wo_local, "origin": start["origin"], "uv": uv}
 
 
 def missing_provenance(scene, truths=None) -> list:
@@ -578,8 +581,9 @@ def _render_batch(ctx, mat, strategies, counts, terms, env, lights, eps, mesh, b
     wf = w.reshape(-1, 3)
     pix = np.repeat(np.arange(npix), samples)
     col = np.tile(np.arange(samples), npix)
-    # Only directions above both the shading and the geometric horizon can contribute (V = 0 below the latter).
-    act = np.flatnonzero((_dot(wf, ctx["n"][pix]) > 0) & (_dot(wf, ctx["ng"][pix]) > 0))
+    # Only directions above the shading horizon contribute. One below the face's own plane is traced like any
+    # other from the lifted origin, as the SG renderer's shadow rays are (it may hit the face itself).
+    act = np.flatnonzero(_dot(wf, ctx["n"][pix]) > 0)
     wa, pa, ca = wf[act], pix[act], col[act]
     f = mat.f(ctx, pa, wa)  # (K, 3)
     unbounded = np.zeros((len(act), 3))  # environment and directional lights: occluded by any hit

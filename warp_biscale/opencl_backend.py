@@ -749,9 +749,9 @@ class OpenCLBackend(DeviceBackend):
         self._launch("trace", "trace_occluded", (n,), m["nodes"], m["tris"], origins, directions, np.float32(t_min),
                      t_max, np.int32(n), occluded)
 
-    def _launch_trace_shadows(self, m, face, position, eye, lights, eps, t_min, samples, n, vis):
-        self._launch("trace", "trace_shadows", (n, len(lights)), m["nodes"], m["tris"], m["face_normals"], face,
-                     position, *(np.float32(e) for e in eye), self._buffer(lights, np.float32), np.float32(eps),
+    def _launch_trace_shadows(self, m, face, bary, position, eye, lights, eps, t_min, samples, n, vis):
+        self._launch("trace", "trace_shadows", (n, len(lights)), m["nodes"], m["tris"], *self._ray_mesh(m), face,
+                     bary, position, *(np.float32(e) for e in eye), self._buffer(lights, np.float32), np.float32(eps),
                      np.float32(t_min), np.int32(samples), np.int32(n), np.int32(len(lights)), vis)
 
     def _upload_shade_static(self, static, levels, basis, coeffs):
@@ -781,13 +781,15 @@ class OpenCLBackend(DeviceBackend):
                            np.float32(sg.SHARPNESS_MAX)),
         }
 
-    def _launch_trace_occlusion(self, m, face, position, eye, eps, t_min, samples, n, mask):
-        self._launch("trace", "trace_occlusion", (n,), m["nodes"], m["tris"], m["face_normals"], face, position,
+    def _launch_trace_occlusion(self, m, face, bary, position, eye, eps, t_min, samples, n, mask):
+        self._launch("trace", "trace_occlusion", (n,), m["nodes"], m["tris"], *self._ray_mesh(m), face, bary,
+                     position,
                      *(np.float32(e) for e in eye), np.float32(eps), np.float32(t_min), np.int32(samples), np.int32(n),
                      mask)
 
-    def _launch_trace_lobe_rays(self, m, face, position, eye, lobes, eps, t_min, n, mask):
-        self._launch("trace", "trace_lobe_rays", (n,), m["nodes"], m["tris"], m["face_normals"], face, position,
+    def _launch_trace_lobe_rays(self, m, face, bary, position, eye, lobes, eps, t_min, n, mask):
+        self._launch("trace", "trace_lobe_rays", (n,), m["nodes"], m["tris"], *self._ray_mesh(m), face, bary,
+                     position,
                      *(np.float32(e) for e in eye), self._buffer(lobes, np.float32),
                      np.int32(len(lobes)), np.float32(eps), np.float32(t_min), np.int32(n), mask)
 

@@ -22,7 +22,7 @@ from .environment import (
 )
 from .lighting import prefiltered_lookup, sg_irradiance  # noqa: F401
 from .model import facet_shift, radical_inverse  # noqa: F401
-from .trace import LOBE_RAYS, disk_basis, disk_sample, lobe_ray_directions, occlusion_directions, oriented_face_normals
+from .trace import LOBE_RAYS, disk_basis, disk_sample, lobe_ray_directions, occlusion_directions, ray_starts
 from .sg import one_minus_cos
 from .smallscale import (
     SmallScale,
@@ -762,70 +762,69 @@ def trace_primary(mesh, camera) -> dict:
     return {"face": face, "bary": np.stack([u, v], 1), "position": pos, "t": t, "eye": camera.eye.copy()}
 
 
-def trace_shadows(vertices, faces, face, position, eye, lights_packed, eps, t_min, tol=0.0,
+def trace_shadows(vertices, normals, faces, face, bary, position, eye, lights_packed, eps, t_min, tol=0.0,
                   samples: int = 1) -> np.ndarray:
     """(P, L) uint8, the share of light k visible from hit pixel p in 255ths (trace.VISIBLE = 255: all).
 
-    Each shadow ray starts at position + eps·n, n the unit geometric normal of the hit face turned
-    to the side of `eye` (the side the surface is seen from). Ray i of `samples` aims at disc point
-    q = trace.disk_sample(i, samples, p) in the frame (a, b) = trace.disk_basis(w). Directional light
-    (row[0] = 0): w = row[1:4] normalised, direction w + tan(α)(q_x a + q_y b), α = √(row[7]/π) its
-    angular radius, unbounded. Point light (row[0] = 1): w towards the centre c = row[1:4] from the
-    moved origin, ray towards c + r(q_x a + q_y b) (r = row[7]) up to eps short of it. A ray counts if
-    it is above the horizon of n and hits no triangle with t in (t_min, t_max]; the entry is
-    (count·255 + ⌊S/2⌋) // S. 0 for a missed pixel (face −1).
+    Each shadow ray starts at trace.ray_starts' origin (the hit lifted towards the smooth surface of the
+    vertex `normals`, then eps along the geometric normal turned to the side of `eye`). Ray i of `samples`
+    aims at disc point q = trace.disk_sample(i, samples, p) in the frame (a, b) = trace.disk_basis(w).
+    Directional light (row[0] = 0): w = row[1:4] normalised, direction w + tan(α)(q_x a + q_y b),
+    α = √(row[7]/π) its angular radius, unbounded. Point light (row[0] = 1): w towards the centre c = row[1:4]
+    from the origin, ray towards c + r(q_x a + q_y b) (r = row[7]) up to eps short of it. A ray counts if it
+    is above the horizon of the shading normal (ray_starts' ns, which may see a light the face's plane hides)
+    and hits no triangle with t in (t_min, t_max]; the entry is (count·255 + ⌊S/2⌋) // S. 0 for a missed
+    pixel (face −1).
     """
-    v = np.asarray(vertices, np.float64)
-    f = np.asarray(faces, np.int64)
     face = np.asarray(face, np.int64)
-    x = np.asarray(position, np.float64).reshape(-1, 3)
     lights = np.asarray(lights_packed, np.float64).reshape(-1, 8)
     out = np.zeros((len(face), len(lights)), np.uint8)
     hit = np.flatnonzero(face >= 0)
     if len(hit) == 0 or len(lights) == 0:
         return out
-    if samples != 1:
-        counts = np.zeros((len(hit), len(lights)), np.int64)
-        for i in range(samples):
-            counts += _shadow_rays(v, f, face, x, eye, lights, eps, t_min, tol, hit, i, samples)
-        out[hit] = ((counts * 255 + samples // 2) // samples).astype(np.uint8)
-        return out
-    out[hit] = 255 * _shadow_rays(v, f, face, x, eye, lights, eps, t_min, tol, hit, 0, 1)
+    start = ray_starts(vertices, normals, faces, face[hit], np.asarray(bary, np.float64).reshape(-1, 2)[hit],
+                       np.asarray(position, np.float64).reshape(-1, 3)[hit], eye, eps)
+    counts = np.zeros((len(hit), len(lights)), np.int64)
+    for i in range(samples):
+        counts += _shadow_rays(vertices, faces, start, lights, eps, t_min, tol, hit, i, samples)
+    out[hit] = ((counts * 255 + samples // 2) // samples).astype(np.uint8)
     return out
 
 
-def trace_occlusion(vertices, faces, face, position, eye, eps, t_min, samples: int, tol=0.0) -> np.ndarray:
+def trace_occlusion(vertices, normals, faces, face, bary, position, eye, eps, t_min, samples: int,
+                    tol=0.0) -> np.ndarray:
     """(P,) uint32 environment-occlusion masks: bit i set where ray i of `samples` from hit pixel p hits a
-    triangle with t in (t_min, inf). The rays start at position + eps·n (n: `oriented_face_normals`) along
-    trace.occlusion_directions(n, samples, p). 0 for a missed pixel (face −1) and for samples = 0."""
+    triangle with t in (t_min, inf). The rays start at trace.ray_starts' origin and go along
+    trace.occlusion_directions(ng, samples, p), ng its geometric normal turned to the eye. 0 for a missed
+    pixel (face −1) and for samples = 0."""
     face = np.asarray(face, np.int64)
     out = np.zeros(len(face), np.uint32)
     hit = np.flatnonzero(face >= 0)
     if len(hit) == 0 or samples == 0:
         return out
-    x = np.asarray(position, np.float64).reshape(-1, 3)[hit]
-    n = oriented_face_normals(vertices, faces, face[hit], x, eye)
-    d = occlusion_directions(n, samples, hit)  # (H, S, 3)
-    o = np.repeat(x + eps * n, samples, axis=0)
+    start = ray_starts(vertices, normals, faces, face[hit], np.asarray(bary, np.float64).reshape(-1, 2)[hit],
+                       np.asarray(position, np.float64).reshape(-1, 3)[hit], eye, eps)
+    d = occlusion_directions(start["ng"], samples, hit)  # (H, S, 3)
+    o = np.repeat(start["origin"], samples, axis=0)
     blocked = trace_occluded(vertices, faces, o, d.reshape(-1, 3), t_min, np.inf, tol).reshape(len(hit), samples)
     out[hit] = (blocked.astype(np.uint64) << np.arange(samples, dtype=np.uint64)).sum(1).astype(np.uint32)
     return out
 
 
-def trace_lobe_rays(vertices, faces, face, position, eye, eps, t_min, lobes, tol=0.0) -> np.ndarray:
+def trace_lobe_rays(vertices, normals, faces, face, bary, position, eye, eps, t_min, lobes, tol=0.0) -> np.ndarray:
     """(P,) uint32 lobe masks: bit k·LOBE_RAYS + i set where ray i towards sharp lobe k of `lobes` (M, 4)
     [axis, η] (trace.lobe_ray_directions) from hit pixel p hits a triangle with t in (t_min, inf). The rays
-    start as trace_occlusion's; one below the oriented geometric normal's horizon is not traced (bit clear).
-    0 for a missed pixel and for no lobes."""
+    start as trace_occlusion's; one below the shading normal's horizon (ray_starts' ns) is not traced (bit
+    clear). 0 for a missed pixel and for no lobes."""
     face = np.asarray(face, np.int64)
     out = np.zeros(len(face), np.uint32)
     lobes = np.asarray(lobes, np.float64).reshape(-1, 4)
     hit = np.flatnonzero(face >= 0)
     if len(hit) == 0 or len(lobes) == 0:
         return out
-    x = np.asarray(position, np.float64).reshape(-1, 3)[hit]
-    n = oriented_face_normals(vertices, faces, face[hit], x, eye)
-    o = x + eps * n
+    start = ray_starts(vertices, normals, faces, face[hit], np.asarray(bary, np.float64).reshape(-1, 2)[hit],
+                       np.asarray(position, np.float64).reshape(-1, 3)[hit], eye, eps)
+    o, n = start["origin"], start["ns"]
     bits = np.zeros(len(hit), np.uint64)
     for k, lobe in enumerate(lobes):
         d, _ = lobe_ray_directions(np.broadcast_to(lobe[:3], (len(hit), 3)), np.full(len(hit), lobe[3]), hit)
@@ -839,12 +838,11 @@ def trace_lobe_rays(vertices, faces, face, position, eye, eps, t_min, lobes, tol
     return out
 
 
-def _shadow_rays(v, f, face, x, eye, lights, eps, t_min, tol, hit, i, samples) -> np.ndarray:
-    """(len(hit), L) bool: ray i of `samples` of trace_shadows unoccluded, per hit pixel and light."""
+def _shadow_rays(v, f, start, lights, eps, t_min, tol, hit, i, samples) -> np.ndarray:
+    """(len(hit), L) bool: ray i of `samples` of trace_shadows unoccluded, per hit pixel and light, from the
+    ray starts `start` (trace.ray_starts of the hit pixels)."""
+    o, n = start["origin"], start["ns"]
     out = np.zeros((len(hit), len(lights)), bool)
-    xh = x[hit]
-    n = oriented_face_normals(v, f, face[hit], xh, eye)
-    o = xh + eps * n
     q = disk_sample(i, samples, hit)
     for k, row in enumerate(lights):
         if row[0] == 0:

@@ -39,7 +39,7 @@ from .scene import Camera, Mesh, _integer
 __all__ = ["T_MIN", "SHADOW_OFFSET", "CHUNK_RAYS", "offsets", "check_mesh", "check_camera", "check_rays",
            "check_lights", "check_gbuffer", "check_shadow_samples", "disk_sample", "disk_basis", "VISIBLE",
            "SHADOW_SAMPLES_MAX", "OCCLUSION_SAMPLES_MAX", "check_occlusion_samples", "occlusion_directions",
-           "oriented_face_normals", "LOBE_RAYS", "LOBE_RAY_LOBES", "lobe_ray_directions", "check_lobes"]
+           "oriented_face_normals", "ray_starts", "LOBE_RAYS", "LOBE_RAY_LOBES", "lobe_ray_directions", "check_lobes"]
 
 T_MIN = 1e-6
 SHADOW_OFFSET = 1e-4
@@ -92,12 +92,46 @@ def occlusion_directions(normal, samples: int, pixel) -> np.ndarray:
 def oriented_face_normals(vertices, faces, face, position, eye) -> np.ndarray:
     """(R, 3) float64 unit geometric normals of faces `face` (R,), each turned to the side of `eye` seen
     from its point `position` (R, 3): the normal shadow and occlusion rays leave along."""
-    tri = np.asarray(vertices, np.float64)[np.asarray(faces, np.int64)[np.asarray(face, np.int64)]]
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    n = np.where(length > 0, n / np.where(length > 0, length, 1.0), 0.0)
+    n = _unit_face_normals(np.asarray(vertices, np.float64)[np.asarray(faces, np.int64)[np.asarray(face, np.int64)]])
     x = np.asarray(position, np.float64).reshape(-1, 3)
     return np.where((np.sum(n * (np.asarray(eye, np.float64) - x), axis=1) < 0)[:, None], -n, n)
+
+
+def _unit_face_normals(tri) -> np.ndarray:
+    """(R, 3) unit normals of triangles tri (R, 3 vertices, 3), by their winding; 0 for a degenerate one."""
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.where(length > 0, n / np.where(length > 0, length, 1.0), 0.0)
+
+
+def ray_starts(vertices, normals, faces, face, bary, position, eye, eps) -> dict:
+    """Where the shadow, occlusion and lobe rays of hit pixels leave from, float64 (the kernels' `ray_start`):
+    face (R,), bary (R, 2) and position (R, 3) of the hits, eye (3,), eps the offset (`offsets`).
+
+    → dict ng (R, 3): the unit geometric normal turned to the eye's side (`oriented_face_normals`); ns: the
+    interpolated vertex normal, turned with it; origin: the hit moved onto the curved surface that the vertex
+    normals describe, then eps along ng.
+
+    The move is Hanika's ("Hacking the shadow terminator", Ray Tracing Gems II, 2021): for each vertex k of
+    the face, the hit's offset from it loses its part below k's tangent plane, d_k = min(0, (x − p_k)·n_k);
+    the origin is x − Σ_k w_k d_k n_k (w_k the barycentric weights). On a convex patch that lifts x off the
+    flat triangle towards the smooth surface, so a light that the shading normal sees but the face's plane
+    hides is reached by a ray that clears the neighbouring faces instead of the face itself; where the
+    surface is flat or concave it leaves x where it is."""
+    v = np.asarray(vertices, np.float64)
+    tri = np.asarray(faces, np.int64)[np.asarray(face, np.int64)]
+    x = np.asarray(position, np.float64).reshape(-1, 3)
+    ng = _unit_face_normals(v[tri])
+    side = np.where(np.sum(ng * (np.asarray(eye, np.float64) - x), axis=1) < 0, -1.0, 1.0)
+    ng = side[:, None] * ng
+    u, w = np.asarray(bary, np.float64)[:, 0], np.asarray(bary, np.float64)[:, 1]
+    weights = np.stack([1.0 - u - w, u, w], 1)  # (R, 3)
+    nk = side[:, None, None] * np.asarray(normals, np.float64)[tri]  # (R, 3, 3)
+    d = np.minimum(np.einsum("rkc,rkc->rk", x[:, None] - v[tri], nk), 0.0)
+    lifted = x - np.einsum("rk,rk,rkc->rc", weights, d, nk)
+    ns = np.einsum("rk,rkc->rc", weights, nk)
+    ns = ns / np.maximum(np.linalg.norm(ns, axis=1, keepdims=True), 1e-300)
+    return {"ng": ng, "ns": ns, "origin": lifted + eps * ng}
 
 
 def lobe_ray_directions(axis, eta, pixel) -> tuple[np.ndarray, np.ndarray]:
@@ -223,18 +257,21 @@ def check_lights(lights) -> np.ndarray:
 
 
 def check_gbuffer(gbuffer, n_faces):
-    """→ (face int32 (N,), position float32 (N, 3), eye float32 (3,)) of a GBuffer for shadow rays (what
-    `trace_primary` returns, or one built by hand with face, position and eye)."""
+    """→ (face int32 (N,), bary float32 (N, 2), position float32 (N, 3), eye float32 (3,)) of a GBuffer for
+    shadow rays (what `trace_primary` returns, or one built by hand with face, bary, position and eye)."""
     if not isinstance(gbuffer, GBuffer):
         raise ValueError(f"gbuffer must be the GBuffer trace_primary returns (or None), got {type(gbuffer).__name__}")
-    for key in ("position", "eye"):
+    for key in ("bary", "position", "eye"):
         if getattr(gbuffer, key) is None:
-            raise ValueError(f"gbuffer has no {key} (shadow rays need face, position and eye)")
+            raise ValueError(f"gbuffer has no {key} (shadow rays need face, bary, position and eye)")
     face = _array("gbuffer.face", gbuffer.face, np.int64)
+    bary = _array("gbuffer.bary", gbuffer.bary)
     pos = _array("gbuffer.position", gbuffer.position)
     eye = _array("gbuffer.eye", gbuffer.eye).reshape(-1)
     if face.ndim != 1:
         raise ValueError(f"gbuffer.face must be (N,), got shape {face.shape}")
+    if bary.shape != (len(face), 2):
+        raise ValueError(f"gbuffer.bary must be ({len(face)}, 2), got shape {bary.shape}")
     if pos.shape != (len(face), 3):
         raise ValueError(f"gbuffer.position must be ({len(face)}, 3), got shape {pos.shape}")
     if eye.shape != (3,) or not np.isfinite(eye).all():
@@ -243,5 +280,7 @@ def check_gbuffer(gbuffer, n_faces):
         raise ValueError(f"gbuffer.face must hold -1 (miss) or a face index 0..{n_faces - 1}")
     if not np.isfinite(pos[face >= 0]).all():
         raise ValueError("gbuffer.position contains NaN or inf at a hit pixel")
-    return (np.ascontiguousarray(face, np.int32), np.ascontiguousarray(pos, np.float32),
-            np.ascontiguousarray(eye, np.float32))
+    if not np.isfinite(bary[face >= 0]).all():
+        raise ValueError("gbuffer.bary contains NaN or inf at a hit pixel")
+    return (np.ascontiguousarray(face, np.int32), np.ascontiguousarray(bary, np.float32),
+            np.ascontiguousarray(pos, np.float32), np.ascontiguousarray(eye, np.float32))

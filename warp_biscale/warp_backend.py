@@ -662,9 +662,9 @@ class WarpBackend(DeviceBackend):
     def _launch_trace_occluded(self, m, origins, directions, t_min, t_max, n, occluded):
         self._launch(ktrace.trace_occluded, n, [m["mesh"].id, origins, directions, t_min, t_max], [occluded])
 
-    def _launch_trace_shadows(self, m, face, position, eye, lights, eps, t_min, samples, n, vis):
+    def _launch_trace_shadows(self, m, face, bary, position, eye, lights, eps, t_min, samples, n, vis):
         self._launch(ktrace.trace_shadows, (len(lights), n),
-                     [m["mesh"].id, m["face_normals"], face, position, wp.vec3(*eye),
+                     [m["mesh"].id, *self._ray_mesh(m), face, bary, position, wp.vec3(*eye),
                       self._small_upload(m, "lights", lights), eps, t_min, samples],
                      [vis])
 
@@ -701,13 +701,13 @@ class WarpBackend(DeviceBackend):
             "n_env": len(static.env_sgs), "has_ssdf": int(static.has_ssdf), "ssdf_res": int(static.ssdf_res),
         }
 
-    def _launch_trace_occlusion(self, m, face, position, eye, eps, t_min, samples, n, mask):
-        self._launch(ktrace.trace_occlusion, n, [m["mesh"].id, m["face_normals"], face, position, wp.vec3(*eye), eps,
-                                                 t_min, samples], [mask])
+    def _launch_trace_occlusion(self, m, face, bary, position, eye, eps, t_min, samples, n, mask):
+        self._launch(ktrace.trace_occlusion, n, [m["mesh"].id, *self._ray_mesh(m), face, bary, position,
+                                                 wp.vec3(*eye), eps, t_min, samples], [mask])
 
-    def _launch_trace_lobe_rays(self, m, face, position, eye, lobes, eps, t_min, n, mask):
+    def _launch_trace_lobe_rays(self, m, face, bary, position, eye, lobes, eps, t_min, n, mask):
         self._launch(ktrace.trace_lobe_rays, n,
-                     [m["mesh"].id, m["face_normals"], face, position, wp.vec3(*eye),
+                     [m["mesh"].id, *self._ray_mesh(m), face, bary, position, wp.vec3(*eye),
                       self._small_upload(m, "lobe_ray_lobes", lobes), len(lobes), eps, t_min], [mask])
 
     def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, lights, camera, n,
