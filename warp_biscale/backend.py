@@ -154,16 +154,17 @@ class Backend(Protocol):
     def trace_shadows(self, mesh, gbuffer: GBuffer | None, lights_packed, to_host: bool = True,
                       samples: int = 1) -> np.ndarray | None:
         """(P, L) uint8, the visible share of each light in 255ths (reference.trace_shadows): from each hit
-        pixel, `samples` rays from the hit point moved trace.SHADOW_OFFSET × mesh.scale along the geometric
-        normal turned to the eye's side, towards points of each light's disc (`lights_packed` (L, 8)
-        Light.packed(); one sample: its centre); a point light's rays stop that offset short of it.
-        Misses get 0, and rays below the normal's horizon count as blocked. `gbuffer`:
-        None or the GBuffer trace_primary last returned (both use the device copy), or any GBuffer with
-        face, position and eye (uploaded). Fills "gbuffer_light_vis"; returns None unless to_host."""
+        pixel, `samples` rays from trace.ray_starts' origin (the hit lifted towards the smooth surface of the
+        vertex normals, then moved trace.SHADOW_OFFSET × mesh.scale along the geometric normal turned to the
+        eye's side), towards points of each light's disc (`lights_packed` (L, 8) Light.packed(); one sample:
+        its centre); a point light's rays stop that offset short of it. Misses get 0, and rays below the
+        shading normal's horizon count as blocked. `gbuffer`: None or the GBuffer trace_primary last returned
+        (both use the device copy), or any GBuffer with face, bary, position and eye (uploaded). Fills
+        "gbuffer_light_vis"; returns None unless to_host."""
 
     def trace_occlusion(self, mesh, gbuffer: GBuffer | None, samples: int, to_host: bool = True) -> np.ndarray | None:
         """(P,) uint32 environment-occlusion masks (reference.trace_occlusion): from each hit pixel, `samples`
-        (≤ trace.OCCLUSION_SAMPLES_MAX) unbounded rays from the hit point moved as shadow rays are, along
+        (≤ trace.OCCLUSION_SAMPLES_MAX) unbounded rays from where the shadow rays start, along
         trace.occlusion_directions (cosine-distributed over the geometric normal's hemisphere); bit i set
         where ray i is blocked, 0 for a miss. `gbuffer` as trace_shadows. Fills "gbuffer_occlusion" and
         "occlusion_samples", which shade reads; returns None unless to_host."""
