@@ -487,3 +487,21 @@ def test_bad_inputs(backend, mesh):
         backend.trace_shadows(mesh, dataclasses.replace(g, face=g.face + len(mesh.faces)), good)
     with pytest.raises(ValueError, match="gbuffer"):
         backend.trace_shadows(showcase_mesh(), None, good)  # no trace_primary on this mesh yet
+
+
+def test_a_gbuffer_by_hand_needs_what_the_rays_start_from(backend, occlusion_reference):
+    """Shadow, occlusion and lobe rays start from the hit lifted by its face's vertex normals (trace.ray_starts),
+    so a GBuffer built by hand must carry bary too; what is missing or malformed is named in one line, before
+    any ray is traced."""
+    mesh, g, _ = occlusion_reference
+    lights = _shadow_scene()[2]
+    cases = ((GBuffer(face=g.face, position=g.position, eye=g.eye), "gbuffer has no bary"),
+             (GBuffer(face=g.face, bary=g.bary[:-1], position=g.position, eye=g.eye), "gbuffer.bary must be"),
+             (GBuffer(face=g.face, bary=np.where(g.face[:, None] >= 0, np.nan, g.bary), position=g.position,
+                      eye=g.eye), "gbuffer.bary contains NaN"))
+    for bad, message in cases:
+        for trace in (lambda b: backend.trace_shadows(mesh, b, lights), lambda b: backend.trace_occlusion(mesh, b, 8),
+                      lambda b: backend.trace_lobe_rays(mesh, b, LOBES)):
+            with pytest.raises(ValueError, match=message) as err:
+                trace(bad)
+            assert "\n" not in str(err.value)
