@@ -9,6 +9,9 @@ Parts (records go to --out/results.json; table.md and plots follow):
   shadow rays — one frame = G-buffer + shadow rays + occlusion rays + shading, device-resident (no host
   copy; the read-back is timed apart). Swept over resolution (512² … 1920×1080), J, number of lights, PCA
   terms, shadow rays and occlusion rays.
+- ``stages``: each stage of one frame of the target scene apart, at the first size: the G-buffer, the
+  shadow rays (1 and the default count a light), the occlusion and sun-lobe rays, the shading, and the
+  read-backs of the float and the 8-bit frame (not in the default parts).
 - ``pareto``: at a small resolution, the SG image against a Monte Carlo reference (PSNR, RMSE over the
   object pixels; the background is the environment in both) for J, against its frame time; and at the
   largest J without occlusion rays (the SSDF alone).
@@ -124,6 +127,40 @@ def part_frames(backends, sizes, lobe_list, light_list, term_list, frames, runs,
                     f"readback {back * 1e3:7.2f} ms")
 
 
+def part_stages(backends, size, runs, out, repeat=10):
+    """Each stage of a frame of the target scene apart (J = 8, one light, 16 terms), device-synchronised
+    medians of `runs` loops of `repeat` calls: the G-buffer, the shadow rays at 1 and 16 a light, the
+    occlusion rays, the sun lobes' rays, the shading (image left on the device), and the read-backs of the
+    float frame and of the 8-bit display frame."""
+    w, h = size
+    for backend in backends:
+        be = wb.get_backend(backend)
+        scene = target_scene(w, h, backend=backend)
+        wb.render(scene, backend=be)  # compiles, precomputes, leaves this camera's G-buffer and rays on the device
+        inputs = pack_frame(scene, be).inputs
+        lights, cam, mesh = scene.lights_packed, scene.camera.packed(), scene.mesh
+        stages = {
+            "trace_primary": lambda: be.trace_primary(mesh, scene.camera, to_host=False),
+            "trace_shadows (1 ray)": lambda: be.trace_shadows(mesh, None, lights, to_host=False, samples=1),
+            f"trace_shadows ({SHADOW_SAMPLES} rays)": lambda: be.trace_shadows(mesh, None, lights, to_host=False,
+                                                                               samples=SHADOW_SAMPLES),
+            f"trace_occlusion ({OCCLUSION_SAMPLES} rays)": lambda: be.trace_occlusion(mesh, None, OCCLUSION_SAMPLES,
+                                                                                      to_host=False),
+            "trace_lobe_rays": lambda: be.trace_lobe_rays(mesh, None, inputs.sharp_lobes(), to_host=False),
+            "shade": lambda: be.shade(mesh, inputs, cam, lights, to_host=False),
+            "shade + float read-back": lambda: be.shade(mesh, inputs, cam, lights, to_host=True),
+            "frame_u8 (tone map + 8-bit read-back)": lambda: be.frame_u8(mesh, w, h),
+        }
+        for name, call in stages.items():
+            def loop(call=call):
+                for _ in range(repeat):
+                    call()
+            t = common.timed(loop, runs, be).median_s / repeat
+            out.records.append({"part": "stages", "backend": be.name, "device": be.device, "width": w, "height": h,
+                                "stage": name, "stage_s": t, "sharp_lobes": int(inputs.n_sharp_lobes)})
+            out.log(f"{be.name:<28} {w}x{h} {name:<40} {t * 1e3:8.3f} ms")
+
+
 def part_pareto(backends, size, lobe_list, samples, runs, out):
     w, h = size
     for backend in backends:
@@ -161,6 +198,11 @@ def table(records, meta):
           r.get("shadows", 1), r.get("occlusion", 0),
           f"{r['frame_s'] * 1e3:.3f}", f"{r['fps']:.1f}", f"{r['precompute_s']:.2f}", f"{r['readback_s'] * 1e3:.2f}"]
          for r in records if r["part"] == "frames"])
+    stages = [r for r in records if r["part"] == "stages"]
+    if stages:
+        lines += [""] + common.markdown_table(
+            ["backend", "size", "stage", "ms"],
+            [[r["backend"], f"{r['width']}×{r['height']}", r["stage"], f"{r['stage_s'] * 1e3:.3f}"] for r in stages])
     pareto = [r for r in records if r["part"] == "pareto"]
     if pareto:
         lines += [""] + common.markdown_table(
@@ -235,6 +277,9 @@ def main(argv=None):
     if "frames" in args.parts:
         part_frames(backends, sizes, args.lobes, args.lights, args.terms, frames, args.runs, out, args.shadow_samples,
                     args.occlusion_samples)
+        save()
+    if "stages" in args.parts:
+        part_stages(backends, sizes[0], args.runs, out)
         save()
     if "pareto" in args.parts:
         part_pareto(backends, pareto_size, args.lobes, args.samples, args.runs, out)
