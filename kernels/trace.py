@@ -225,6 +225,7 @@ def trace_lobe_rays(
     eye: wp.vec3,
     lobes: wp.array2d(dtype=wp.float32),  # (M, 4) [axis, η]
     n_lobes: int,
+    rays: int,  # LOBE_RAYS, passed in: Warp unrolls a loop over a constant, copying the BVH walk once a ray
     eps: float,
     t_min: float,
     offset: int,
@@ -241,7 +242,7 @@ def trace_lobe_rays(
         for k in range(n_lobes):
             axis = wp.vec3(lobes[k, 0], lobes[k, 1], lobes[k, 2])
             frame = disk_basis(axis)
-            for i in range(LOBE_RAYS):
+            for i in range(rays):
                 d = lobe_ray_direction(frame, lobes[k, 3], i, p)
                 if wp.dot(n, d) > 0.0:
                     if wp.mesh_query_ray_anyhit(mesh, o + t_min * d, d, wp.inf):

@@ -41,6 +41,7 @@ from .environment import SUPPORT, equirect_tables
 from .lobes import KERNEL_LOBES, START_RES
 from .progress import compile_notice
 from .smallscale import ray_offset
+from .trace import LOBE_RAYS
 
 _READY = False
 _NO_CUDA_DRIVER = False  # Warp's native library found no CUDA driver (a CPU-only machine)
@@ -708,7 +709,7 @@ class WarpBackend(DeviceBackend):
     def _launch_trace_lobe_rays(self, m, face, bary, position, eye, lobes, eps, t_min, n, mask):
         self._launch(ktrace.trace_lobe_rays, n,
                      [m["mesh"].id, *self._ray_mesh(m), face, bary, position, wp.vec3(*eye),
-                      self._small_upload(m, "lobe_ray_lobes", lobes), len(lobes), eps, t_min], [mask])
+                      self._small_upload(m, "lobe_ray_lobes", lobes), len(lobes), LOBE_RAYS, eps, t_min], [mask])
 
     def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, lights, camera, n,
                       only_material, out):
