@@ -129,13 +129,14 @@ def test_bake_takes_a_merl_file(tmp_path, capsys):
     assert not (tmp_path / "n.wbm").exists()
 
 
-def test_bake_bad_input_is_named(tmp_path):
-    r = run_cli("bake", "pyramid", "--lobes", "lots", "-o", str(tmp_path / "m.wbm"))
-    assert r.returncode == 2 and "--lobes must be an integer or 'auto'" in r.stderr
-    r = run_cli("bake", "pyramid", "--brdf", "phong:exponent=-1", "-o", str(tmp_path / "m.wbm"))
-    assert r.returncode == 2 and "exponent" in r.stderr
-    r = run_cli("bake", "pyramid", "--method", "matrix", "--lobes", "4", "-o", str(tmp_path / "m.wbm"))
-    assert r.returncode == 2 and "--method matrix takes no --lobes" in r.stderr
+def test_bake_bad_input_is_named(tmp_path, capsys):
+    # (in-process, `cli.main`: the console script's own exit codes are checked by the tests above and below)
+    for args, message in ((["--lobes", "lots"], "--lobes must be an integer or 'auto'"),
+                          (["--brdf", "phong:exponent=-1"], "exponent"),
+                          (["--method", "matrix", "--lobes", "4"], "--method matrix takes no --lobes")):
+        assert cli.main(["bake", "pyramid", *args, "-o", str(tmp_path / "m.wbm")]) == 2
+        err = capsys.readouterr().err
+        assert message in err and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "m.wbm").exists()
 
 
@@ -210,32 +211,33 @@ def test_render_exr_reads_back_linear(tmp_path):
     from warp_biscale.images import read_exr
 
     out = tmp_path / "out.exr"
-    r = run_cli("render", str(_tiny_scene(tmp_path)), "-o", str(out), "--size", "32", "16", "-q")
-    assert r.returncode == 0, r.stderr
+    # (in-process, `cli.main`: test_render_png_with_overrides runs the console script's render)
+    assert cli.main(["render", str(_tiny_scene(tmp_path)), "-o", str(out), "--size", "32", "16", "-q"]) == 0
     img = read_exr(out)
     assert img.shape == (16, 32, 3) and img.dtype == np.float32
     assert np.isfinite(img).all() and (img >= 0).all()
     assert img.mean() > 0.01 and img.std() > 0.005
 
 
-def test_render_monte_carlo(tmp_path):
+def test_render_monte_carlo(tmp_path, capsys):
     out = tmp_path / "mc.png"
-    r = run_cli("render", str(_tiny_scene(tmp_path)), "-o", str(out), "--method", "mc", "--samples", "8",
-                "--size", "16", "12")
-    assert r.returncode == 0, r.stderr
-    assert "method mc" in r.stdout
+    # (in-process, `cli.main`: test_render_png_with_overrides runs the console script's render)
+    assert cli.main(["render", str(_tiny_scene(tmp_path)), "-o", str(out), "--method", "mc", "--samples", "8",
+                     "--size", "16", "12"]) == 0
+    assert "method mc" in capsys.readouterr().out
     assert np.asarray(Image.open(out)).shape == (12, 16, 3)
 
 
-def test_render_bakes_a_bake_material(tmp_path):
+def test_render_bakes_a_bake_material(tmp_path, capsys):
     text = TINY_SCENE.replace('[material.shiny]\ntype = "blinnphong"\nkd = [0.5, 0.2, 0.1]\nks = 0.5\n'
                               'exponent = 100.0',
                               '[material.shiny]\ntype = "bake"\ntile = "vgroove"\nbrdf = "ward:alpha=0.2"\n'
                               'lobes = 2\ndirections = 4\nfacets = 512\nnormal_res = 16')
     out = tmp_path / "b.png"
-    r = run_cli("render", str(_tiny_scene(tmp_path, text)), "-o", str(out))
-    assert r.returncode == 0, r.stderr
-    assert "baked material 'shiny': tile grooves(" in r.stdout and "512 facets" in r.stdout
+    # (in-process, `cli.main`: test_render_png_with_overrides runs the console script's render)
+    assert cli.main(["render", str(_tiny_scene(tmp_path, text)), "-o", str(out)]) == 0
+    stdout = capsys.readouterr().out
+    assert "baked material 'shiny': tile grooves(" in stdout and "512 facets" in stdout
     assert out.exists()
 
 
