@@ -230,7 +230,8 @@ __kernel void trace_lobe_rays(
     __global const float *position,      /* (P, 3) */
     const float eye_x, const float eye_y, const float eye_z,
     __global const float *lobes,         /* (M, 4) [axis, η] */
-    const int n_lobes, const float eps, const float t_min,
+    const int n_lobes, const int rays,   /* LOBE_RAYS, passed in as the Warp twin takes it */
+    const float eps, const float t_min,
     const int n_pixels,
     __global uint *mask)                 /* (P,) */
 {
@@ -247,7 +248,7 @@ __kernel void trace_lobe_rays(
             float3 w = (float3)(lobes[4 * k], lobes[4 * k + 1], lobes[4 * k + 2]);
             float3 a, b;
             disk_basis(w, &a, &b);
-            for (int i = 0; i < LOBE_RAYS; ++i) {
+            for (int i = 0; i < rays; ++i) {
                 float3 d = lobe_ray_direction(a, b, w, lobes[4 * k + 3], i, p);
                 if (dot3(n, d) > 0.0f && bvh_any_hit(nodes, tris, o, d, t_min, INFINITY))
                     bits |= 1u << (k * LOBE_RAYS + i);

@@ -225,7 +225,7 @@ def trace_lobe_rays(
     eye: wp.vec3,
     lobes: wp.array2d(dtype=wp.float32),  # (M, 4) [axis, η]
     n_lobes: int,
-    rays: int,  # LOBE_RAYS, passed in: Warp unrolls a loop over a constant, copying the BVH walk once a ray
+    rays: int,  # LOBE_RAYS, passed in (as to the OpenCL twin): Warp unrolls a loop over a constant, BVH walk and all
     eps: float,
     t_min: float,
     offset: int,

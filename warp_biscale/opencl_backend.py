@@ -45,6 +45,7 @@ from .environment import SUPPORT, equirect_tables
 from .lobes import KERNEL_LOBES, START_RES
 from .progress import compile_notice
 from .smallscale import ray_offset
+from .trace import LOBE_RAYS
 
 __all__ = ["OpenCLBackend", "list_devices"]
 
@@ -791,7 +792,7 @@ class OpenCLBackend(DeviceBackend):
         self._launch("trace", "trace_lobe_rays", (n,), m["nodes"], m["tris"], *self._ray_mesh(m), face, bary,
                      position,
                      *(np.float32(e) for e in eye), self._buffer(lobes, np.float32),
-                     np.int32(len(lobes)), np.float32(eps), np.float32(t_min), np.int32(n), mask)
+                     np.int32(len(lobes)), np.int32(LOBE_RAYS), np.float32(eps), np.float32(t_min), np.int32(n), mask)
 
     def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, lights, camera, n,
                       only_material, out):
