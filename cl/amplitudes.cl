@@ -12,6 +12,9 @@
  *
  * Histogram route: the same sums over the L non-empty normal bins, each taken at its mean normal.
  *
+ * ASG lobes (the ASG bake): asg_lobe_values tabulates G_j(n_s) of ASG rows in lobe_values' place, and
+ * asg_value_sums gives Σ_s w_s G_j(n_s); both call cl/asg.cl's asg_eval (opencl_backend.USES).
+ *
  * Lobe layout: the table G_j(n) has a row of 8·⌈J/8⌉ floats, zero past J, read as one or two float8
  * (values past J are 0 and are never written out), so the hot loops add whole vectors — per lane the
  * same float32 (facet route) or float64 (histogram route) operations as the Warp twin's vec16, and
@@ -63,6 +66,54 @@ __kernel void lobe_values(
     }
     for (int j = n_lobes; j < stride; ++j)
         values[(size_t)s * stride + j] = 0.0f;
+}
+
+/* The ASG bake's lobes in lobe_values' place: values[s, j] = G_j(n_s) of ASG rows (J, 12) (cl/asg.cl, which
+ * opencl_backend.USES puts before this file), rows of `stride` floats, zero past J. */
+__kernel void asg_lobe_values(
+    __global const float *normal,     /* (Ns, 3) */
+    __global const float *rows,       /* (J, 12) */
+    const int n_lobes,
+    const int stride,
+    const int n_facets,
+    __global float *values)           /* (Ns, stride), zero past J */
+{
+    int s = get_global_id(0);
+    if (s >= n_facets)
+        return;
+    float3 n = load3(normal, s);
+    for (int j = 0; j < n_lobes; ++j) {
+        float e = asg_eval(asg_load(rows, j), n);
+        values[(size_t)s * stride + j] = e < 1.0e-30f ? 0.0f : e;
+    }
+    for (int j = n_lobes; j < stride; ++j)
+        values[(size_t)s * stride + j] = 0.0f;
+}
+
+/* partial[c, j] = Σ_s w_s G_j(n_s) over chunk c's facets [c·per, (c + 1)·per), in double (the ASG bake's
+ * calibration sums; the host adds the chunks). */
+__kernel void asg_value_sums(
+    __global const float *normal,     /* (Ns, 3) */
+    __global const float *weight,     /* (Ns,) */
+    __global const float *rows,       /* (J, 12) */
+    const int n_lobes,
+    const int n_facets,
+    const int facets_per_chunk,
+    const int n_chunks,
+    __global double *partial)         /* (chunks, J) */
+{
+    int c = get_global_id(0);
+    if (c >= n_chunks)
+        return;
+    int start = c * facets_per_chunk;
+    int stop = min(start + facets_per_chunk, n_facets);
+    for (int j = 0; j < n_lobes; ++j) {
+        Asg g = asg_load(rows, j);
+        double acc = 0.0;
+        for (int s = start; s < stop; ++s)
+            acc += (double)(weight[s] * asg_eval(g, load3(normal, s)));
+        partial[(size_t)c * n_lobes + j] = acc;
+    }
 }
 
 __kernel void lobe_moments_partial(

@@ -12,6 +12,9 @@ as in the ground truth: float32 within a 32-facet word, float64 across words and
 
 Histogram route: the same sums over the L non-empty normal bins, each taken at its mean normal.
 
+ASG lobes (the ASG bake): ``asg_lobe_values`` tabulates G_j(n_s) of ASG rows in ``lobe_values``' place, and
+``asg_value_sums`` gives Σ_s w_s G_j(n_s); both call kernels/asg.py's ``asg_eval``.
+
 Solve: one thread per ordered pair (i, o) reads the unordered pair's moments, divides by a_v(ωo),
 applies the J×J solve rows (float64: A⁻¹ of close lobes has large entries of both signs), clamps
 negative amplitudes and rescales to the exact energy c, as the reference does.
@@ -23,6 +26,7 @@ cost more than the read-back (strided writes into the RGB-last table; bench/READ
 
 import warp as wp
 
+from .asg import asg_eval, asg_load
 from .common import lowest_bit
 
 MAX_LOBES = 16
@@ -85,6 +89,22 @@ def _facet_kernels(lanes: int):
         values[s] = v
 
     @wp.kernel(module="unique")
+    def asg_lobe_values(
+        normal: wp.array(dtype=wp.vec3),
+        rows: wp.array2d(dtype=wp.float32),
+        offset: int,
+        values: wp.array(dtype=vec),
+    ):
+        """The ASG bake's lobes in lobe_values' place: G_j(n_s) of ASG rows (J, 12) (kernels/asg.py)."""
+        s = wp.tid() + offset
+        n = normal[s]
+        v = vec()
+        for j in range(rows.shape[0]):
+            e = asg_eval(asg_load(rows, j), n)
+            v[j] = wp.where(e < 1.0e-30, 0.0, e)
+        values[s] = v
+
+    @wp.kernel(module="unique")
     def lobe_moments_partial(
         directions: wp.array(dtype=wp.vec3),
         pair_i: wp.array(dtype=wp.int32),
@@ -136,16 +156,39 @@ def _facet_kernels(lanes: int):
             partial[c, u, j] = float(acc[j])
         partial[c, u, n_lobes] = float(acc_c)
 
-    return vec, lobe_values, lobe_moments_partial
+    return vec, lobe_values, lobe_moments_partial, asg_lobe_values
 
 
-FACET_KERNELS = {lanes: _facet_kernels(lanes) for lanes in (8, MAX_LOBES)}  # lanes → (vec, lobe_values, moments)
+# lanes → (vec, lobe_values, moments, asg_lobe_values)
+FACET_KERNELS = {lanes: _facet_kernels(lanes) for lanes in (8, MAX_LOBES)}
 lobe_values = FACET_KERNELS[MAX_LOBES][1]  # histogram route: bin values as 16-vectors
 
 
 def facet_kernels(n_lobes: int):
-    """(vec type, lobe_values, lobe_moments_partial) with the fewest lanes holding `n_lobes`."""
+    """(vec type, lobe_values, lobe_moments_partial, asg_lobe_values) with the fewest lanes holding `n_lobes`."""
     return FACET_KERNELS[8 if n_lobes <= 8 else MAX_LOBES]
+
+
+@wp.kernel
+def asg_value_sums(
+    normal: wp.array(dtype=wp.vec3),
+    weight: wp.array(dtype=wp.float32),
+    rows: wp.array2d(dtype=wp.float32),
+    facets_per_chunk: int,
+    offset: int,
+    partial: wp.array2d(dtype=wp.float64),
+):
+    """partial[c, j] = Σ_s w_s G_j(n_s) over chunk c's facets, float64 (the ASG bake's calibration sums;
+    the host adds the chunks)."""
+    c = wp.tid() + offset
+    start = c * facets_per_chunk
+    stop = wp.min(start + facets_per_chunk, normal.shape[0])
+    for j in range(rows.shape[0]):
+        g = asg_load(rows, j)
+        acc = wp.float64(0.0)
+        for s in range(start, stop):
+            acc += wp.float64(weight[s] * asg_eval(g, normal[s]))
+        partial[c, j] = acc
 
 
 @wp.kernel

@@ -211,9 +211,12 @@ def test_ndf_error_against_quadrature():
 
 
 def test_moment_kernels_fed_asg_values_against_float64(backend):
-    """`lobe_moments(..., lobe_values=)` (the SG bake's moment kernels fed the ASGs' values at the facets) against
-    `asg_moments` (float64 matrix products) on a random height field's facets, 5 fitted ASGs. Tolerance: float32
-    values and sums, as the SG route's moments: measured 3.8e-8 of the largest moment (both backends) → 1e-5.
+    """`lobe_moments(..., lobe_values=)` (the SG bake's moment kernels fed the ASGs' values at the facets: a host
+    table, or the ASGs themselves, evaluated on the device) against `asg_moments` (float64 matrix products) on a
+    random height field's facets, 5 fitted ASGs. Tolerance: float32 values and sums, as the SG route's moments:
+    measured 3.8e-8 of the largest moment (both backends) → 1e-5. The calibration's facet sums
+    `asg_value_sums` against Σ_s w_s G_j(n_s) in float64, on random weights: float32 terms summed in float64,
+    → 1e-5 relative per lobe (the terms' rounding, ~1e-7, and float32 normals' ~1e-7·λ in the exponent).
     Past 16 lobes the bake takes the host's path: a J = 20 bake is finite and keeps ∫γ̃ (its diffuse table
     under a Lambertian material equals the J = 5 bake's: measured within 2.7e-7 of the largest entry) → 1e-4."""
     from warp_biscale import directions as dirs
@@ -232,8 +235,15 @@ def test_moment_kernels_fed_asg_values_against_float64(backend):
     proj = vis.as_bool() * np.maximum(np.asarray(grid) @ normal.T, 0.0)
     ref = asg_bake.asg_moments(proj, values, area, iu, ou)
     err = np.abs(got - ref).max() / np.abs(ref).max()
-    print(f"{backend.name}: {err:.1e} of the largest moment")
-    assert err < 1e-5
+    on_device = np.asarray(backend.lobe_moments(fac, vis, None, None, None, iu, ou, lobe_values=mat.asgs), np.float64)
+    err_device = np.abs(on_device - ref).max() / np.abs(ref).max()
+    weight = np.random.default_rng(3).random(len(area))
+    sums = backend.asg_value_sums(fac, weight, mat.asgs)
+    want = values.T @ weight.astype(np.float32)
+    err_sums = np.max(np.abs(sums / want - 1))
+    print(f"{backend.name}: {err:.1e} | {err_device:.1e} (values on the device) of the largest moment; "
+          f"sums {err_sums:.1e}")
+    assert err < 1e-5 and err_device < 1e-5 and err_sums < 1e-5
     many = wb.bake(tile, wb.Lambert(0.5), method="asg", lobes=20, directions=4, facets=4096, backend=backend)
     assert len(many.weight) > 16 and np.isfinite(many.amplitudes).all()
     assert np.abs(many.diffuse - mat.diffuse).max() < 1e-4 * np.abs(mat.diffuse).max()

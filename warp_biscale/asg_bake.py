@@ -23,15 +23,16 @@ What it does, stage by stage (the geometry stages are the SG bake's own, `bake._
    A·α_j/∫G_j). b by the exact facet sums Σ_s P_si P_so w_s G_j(n_s) (`reference.lobe_moments`' sums), solved
    as `lobes.solve_amplitudes` (negative amplitudes 0, Σ_j μ_j ∫G_j = ∫γ̃ exactly, so the diffuse part is
    exact): for J ≤ lobes.KERNEL_LOBES by the SG bake's moment, solve and table kernels fed the ASGs' values at
-   the facets (`Backend.lobe_moments(..., lobe_values=)`), past that on the host in float64 (P diag(w G_j) Pᵀ
-   per lobe, `asg_moments`).
+   the facets, made on the device (`Backend.lobe_moments(..., lobe_values=asgs)`; the calibration's facet sums
+   by `Backend.asg_value_sums`), past that on the host in float64 (P diag(w G_j) Pᵀ per lobe, `asg_moments`).
 3. **f̄** (`ASGBRDF.eval`, float64): diffuse Σ_j μ_j kd/π ∫G_j; specular M(ωi, ωo)·Σ_j μ_j (G_j ⊛ SG_s)(h) with
    the small-scale BRDF's SG (`sg.specular_lobe`; a measured BRDF's fit of two lobes is two such terms,
    `sg.specular_lobes`) and Xu's Eq. 18 (`asg.convolve_sg`): its bandwidths and
    amplitude, with a shape that is exact for a delta NDF lobe too (`convolve_sg_at`; method "asg-eq18" is
    Eq. 18's own shape).
 
-The ASG fit (EM) is host numpy (float64); the moments and the solve run in the SG bake's kernels. The SG
+The ASG fit (EM) is host numpy (float64); the lobes' values, the moments and the solve run in the SG bake's
+kernels. The SG
 renderer shades an `ASGBRDF` in its kernels (`shade_lobes`, `diffuse`; docs/design.md §9 "ASG rendering"),
 the lit-sphere renderer evaluates it on the host (`host_texels`), the Monte Carlo reference samples it by
 isotropic stand-ins of its lobes (`sampling_lobes`) and evaluates its exact ground truth; the Mitsuba export
@@ -67,6 +68,8 @@ BANDWIDTH_MAX = sg.SHARPNESS_MAX / 2.0  # a delta direction (flat facets): the S
 BANDWIDTH_MIN = 1e-6
 _CONVERGED = 1e-6  # relative change of the bandwidths and axis movement (rad²/2) that stops the EM
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(48)
+_GL_X2 = _GL_X * _GL_X
+_GL_B_MOMENTS = np.stack([_GL_W, _GL_W * _GL_X2, _GL_W * _GL_X2 * _GL_X2], -1)  # (48, 3)
 
 NO_SG_LOBES = ("a material baked by the ASG method (Xu 2013) holds anisotropic spherical Gaussians, not the SG "
                "lobes that the Mitsuba export reads: bake the tile with method='sg' to export it")
@@ -80,31 +83,41 @@ def _disk_moments(lam, mu):
     """For the density ∝ exp(−λa² − μb²) on the unit disk, per lobe: (E[a²], E[b²], E[a⁴], E[b⁴], E[a²b²]).
     Gauss–Legendre 48 × 48 on a ∈ [−A, A], b ∈ [−B(a), B(a)], A = min(1, 6/√(2λ)), B = min(√(1 − a²),
     6/√(2μ)): the Gaussian is below e^{−18} of its peak past those limits, so sharp lobes get their nodes
-    where their mass is (bandwidths from 1e−6 to 5e5)."""
+    where their mass is (bandwidths from 1e−6 to 5e5). The inner rule in b is one product per lobe: with
+    b = B(a)·x_k, Σ_k w_k b^{2p} e^{−μb²} = B^{2p+1}·Σ_k (w_k x_k^{2p}) e^{−μB²x_k²} for p = 0, 1, 2."""
     lam, mu = np.asarray(lam, np.float64), np.asarray(mu, np.float64)
     amax = np.minimum(1.0, 6.0 / np.sqrt(2.0 * lam))[..., None]
-    a = amax * _GL_X
-    wa = amax * _GL_W
-    bmax = np.minimum(np.sqrt(np.maximum(1.0 - a * a, 0.0)), 6.0 / np.sqrt(2.0 * mu)[..., None])
-    b = bmax[..., None] * _GL_X  # (J, na, nb)
-    w = (wa * bmax)[..., None] * _GL_W
-    a2, b2 = (a * a)[..., None], b * b
-    w = w * np.exp(-lam[..., None, None] * a2 - mu[..., None, None] * b2)
-    z = w.sum((-2, -1))
-    m = [np.sum(w * f, (-2, -1)) / z for f in (a2 + 0 * b2, b2, a2 * a2 + 0 * b2, b2 * b2, a2 * b2)]
-    return tuple(m)
+    a2 = (amax * _GL_X) ** 2  # (J, na)
+    wa = amax * _GL_W * np.exp(-lam[..., None] * a2)
+    bmax = np.minimum(np.sqrt(np.maximum(1.0 - a2, 0.0)), 6.0 / np.sqrt(2.0 * mu)[..., None])  # (J, na)
+    b2 = bmax * bmax
+    inner = np.exp(-(mu[..., None] * b2)[..., None] * _GL_X2) @ _GL_B_MOMENTS  # (J, na, 3): Σ_k, ·x², ·x⁴
+    s0, s2, s4 = bmax * inner[..., 0], bmax * b2 * inner[..., 1], bmax * b2 * b2 * inner[..., 2]
+    z = np.sum(wa * s0, -1)
+    return (np.sum(wa * a2 * s0, -1) / z, np.sum(wa * s2, -1) / z, np.sum(wa * a2 * a2 * s0, -1) / z,
+            np.sum(wa * s4, -1) / z, np.sum(wa * a2 * s2, -1) / z)
 
 
-def bandwidths_from_moments(ma, mb, iterations: int = 60):
+def bandwidths_from_moments(ma, mb, iterations: int = 60, start=None):
     """(λ, μ) whose truncated-disk Gaussian exp(−λa² − μb²) has E[a²] = ma, E[b²] = mb (the ML of an ASG for
-    its frame): Newton in (log λ, log μ), started at the untruncated 1/(2m); bandwidths clipped to
-    [BANDWIDTH_MIN, BANDWIDTH_MAX] (a second moment at or above the disk's own leaves the bandwidth at its
-    floor: an ASG cannot be broader than uniform in that direction)."""
+    its frame): Newton in (log λ, log μ), per lobe from whichever start fits its moments better, the
+    untruncated 1/(2m) or `start` (λ, μ) (the EM's previous bandwidths, close once the EM settles: one
+    Newton step fewer or two); bandwidths clipped to [BANDWIDTH_MIN, BANDWIDTH_MAX] (a second moment at or
+    above the disk's own leaves the bandwidth at its floor: an ASG cannot be broader than uniform in that
+    direction). Stops when no step exceeds 1e−7 in log: Newton's error after it is of its square."""
     ma, mb = np.asarray(ma, np.float64), np.asarray(mb, np.float64)
     lo, hi = np.log(BANDWIDTH_MIN), np.log(BANDWIDTH_MAX)
     th = np.stack([np.log(np.clip(0.5 / np.maximum(ma, 1e-300), BANDWIDTH_MIN, BANDWIDTH_MAX)),
                    np.log(np.clip(0.5 / np.maximum(mb, 1e-300), BANDWIDTH_MIN, BANDWIDTH_MAX))], -1)
     target = np.stack([ma, mb], -1)
+    if start is not None:  # both starts' moments in one evaluation; each lobe keeps the closer start
+        warm = np.log(np.clip(np.stack(np.broadcast_arrays(*start), -1), BANDWIDTH_MIN, BANDWIDTH_MAX))
+        both = np.concatenate([th, warm])
+        m = _disk_moments(np.exp(both[:, 0]), np.exp(both[:, 1]))
+        n = len(th)
+        ratio = np.maximum(np.stack(m[:2], -1), 1e-300) / np.maximum(np.concatenate([target, target]), 1e-300)
+        err = np.abs(np.log(ratio)).sum(-1)
+        th = np.where((err[n:] < err[:n])[:, None], warm, th)
     for _ in range(iterations):
         lam, mu = np.exp(th[..., 0]), np.exp(th[..., 1])
         ea, eb, ea4, eb4, eab = _disk_moments(lam, mu)
@@ -122,7 +135,7 @@ def bandwidths_from_moments(ma, mb, iterations: int = 60):
                          (jac[..., 0, 0] * f[..., 1] - jac[..., 1, 0] * f[..., 0]) / sdet], -1)
         step = np.where(ok[..., None], np.clip(step, -2.0, 2.0), 0.0)  # (damped: at most e² a step)
         new = np.clip(th - step, lo, hi)
-        done = np.all(np.abs(new - th) < 1e-10)
+        done = np.all(np.abs(new - th) < 1e-7)
         th = new
         if done:
             break
@@ -155,7 +168,8 @@ def _m_step(normal, weight, resp, previous: asg_mod.ASG):
     ex, ey = evecs[..., :, 0], evecs[..., :, 1]
     x = ex[:, :1] * x0 + ex[:, 1:] * y0
     y = ey[:, :1] * x0 + ey[:, 1:] * y0
-    lam, mu = bandwidths_from_moments(np.maximum(evals[:, 0], 0.0), np.maximum(evals[:, 1], 0.0))
+    lam, mu = bandwidths_from_moments(np.maximum(evals[:, 0], 0.0), np.maximum(evals[:, 1], 0.0),
+                                      start=(previous.lam, previous.mu))
     keep = live & (m > 1e-300)
     x = np.where(keep[:, None], x, previous.x)
     y = np.where(keep[:, None], y, previous.y)
@@ -236,20 +250,19 @@ def gram(asgs: asg_mod.ASG):
     return 0.5 * (a + a.T)
 
 
-def amplitude_system(asgs: asg_mod.ASG, alpha, normal=None, weight=None, values=None):
+def amplitude_system(asgs: asg_mod.ASG, alpha, value_sums=None, total_weight=None):
     """→ (solve rows (J, J), integrals (J,), gram (J, J), condition number): `lobes.amplitude_system` for ASGs.
-    With the fitted NDF (normals, weights) each row is calibrated so that the NDF's own least-squares
-    amplitudes are the fitted ones, total·α_j/∫G_j (`values`: the lobes' values at the normals, `_values`,
-    if the caller has them)."""
+    With the fitted NDF's sums each row is calibrated so that the NDF's own least-squares amplitudes are the
+    fitted ones, total·α_j/∫G_j: `value_sums` (J,) Σ_s w_s G_j(n_s) over the facets (`_values(...).T @ w` on the
+    host, `Backend.asg_value_sums` on the device) and `total_weight` Σ_s w_s."""
     a = gram(asgs)
     integrals = asg_mod.unit_integral(asgs.lam, asgs.mu)
     d = np.sqrt(np.maximum(np.diag(a), 1e-300))
     unit = a / np.outer(d, d) + lobes_mod.RIDGE * np.eye(len(d))
     inv = np.linalg.inv(unit) / np.outer(d, d)
-    if normal is not None:
-        w = np.asarray(weight, np.float64)
-        lsq = inv @ ((_values(asgs, normal) if values is None else values).T @ w)
-        target = w.sum() * np.asarray(alpha, np.float64) / integrals
+    if value_sums is not None:
+        lsq = inv @ np.asarray(value_sums, np.float64)
+        target = float(total_weight) * np.asarray(alpha, np.float64) / integrals
         scale = np.where(lsq > 1e-12 * target.max(), target / np.where(lsq > 0, lsq, 1.0), 1.0)
         inv = inv * scale[:, None]
     return inv, integrals, a, float(np.linalg.cond(unit))
@@ -348,22 +361,24 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
     asgs, alpha, steps = fitted
     prog.stage(f"amplitudes ({len(alpha)} ASG lobes, {len(q.channels)} channel(s))", 1)
     t0 = time.perf_counter()
-    values = _values(asgs, normal)
-    rows, integrals, _, cond = amplitude_system(asgs, alpha, normal, em_w, values)
     nd = len(q.grid)
     pi, po = dirs.all_pairs(nd)
     if len(alpha) <= lobes_mod.KERNEL_LOBES:
-        # The SG bake's moment, solve and table kernels, with the ASGs' values at the facets in place of the SG
-        # lobes' (uploaded: (Ns, J) floats): exact facet sums, float32, as the SG route.
-        solved = [(m, mult, be.solve_amplitudes(
-            be.lobe_moments(q.fac, q.vis, w, None, None, q.iu, q.ou, to_host=False, lobe_values=values),
-            q.a_v, rows, integrals, pi, po, nd, to_host=False)) for m, mult, w in q.channels]
+        # The SG bake's moment, solve and table kernels, with the ASGs' values at the facets (made on the device)
+        # in place of the SG lobes': exact facet sums, float32, as the SG route.
+        moments = [be.lobe_moments(q.fac, q.vis, w, None, None, q.iu, q.ou, to_host=False, lobe_values=asgs)
+                   for _, _, w in q.channels]
+        rows, integrals, _, cond = amplitude_system(asgs, alpha, be.asg_value_sums(q.fac, em_w, asgs), em_w.sum())
+        solved = [(m, mult, be.solve_amplitudes(b, q.a_v, rows, integrals, pi, po, nd, to_host=False))
+                  for (m, mult, _), b in zip(q.channels, moments)]
         amps = np.zeros((tile.n_materials, nd * nd, len(alpha), 3), np.float32)
         for m in range(tile.n_materials):
             mine = [(mu, mult) for mm, mult, mu in solved if mm == m]
             if mine:
                 amps[m] = be.amplitude_tables(mine, integrals, nd * nd)[0]
     else:  # past the kernels' lobes: float64 on the host (P diag(w G_j) Pᵀ per lobe)
+        values = _values(asgs, normal)
+        rows, integrals, _, cond = amplitude_system(asgs, alpha, values.T @ em_w, em_w.sum())
         proj = q.vis.as_bool() * np.maximum(q.grid @ normal.T, 0.0)  # (D, Ns)
         a_v = np.asarray(q.a_v.host(), np.float64)
         amps = np.zeros((tile.n_materials, nd * nd, len(alpha), 3))

@@ -1081,6 +1081,25 @@ class DeviceBackend:
     def _launch_sgfit_residual(self, data, candidates, n, chunk, n_candidates, n_chunks, coef, out):
         raise NotImplementedError
 
+    def asg_value_sums(self, facets, weight, asgs: ASG) -> np.ndarray:
+        """(J,) float64 Σ_s w_s G_j(n_s) over the facets, `weight` (Ns,) w_s, for an ASG batch (J,) (the ASG
+        bake's calibration sums, asg_bake.amplitude_system; float32 terms, float64 sums)."""
+        n = len(facets)
+        weight = np.asarray(weight, np.float32).reshape(-1)
+        if weight.shape != (n,):
+            raise ValueError(f"asg_value_sums: weight must have {n} entries (one a facet), got {weight.shape}")
+        rows = self._asg_rows(asgs, asgs.shape).reshape(-1, 12)
+        if n == 0 or len(rows) == 0:
+            return np.zeros(len(rows))
+        # Whole 32-facet words a chunk, as many chunks as the moment sums' one output would get.
+        chunks, words = chunking(-(-n // 32), 1, self._threads)
+        per = 32 * words
+        return self._asg_value_partial(facets, weight, rows, per, -(-n // per)).sum(0)
+
+    def _asg_value_partial(self, facets, weight, rows, per, chunks) -> np.ndarray:
+        """(chunks, J) float64 partial sums of asg_value_sums, chunk c over facets [c·per, (c + 1)·per)."""
+        raise NotImplementedError
+
     # --- ASG operators (stage `asg`, Xu 2013; oracle warp_biscale.asg, docs/design.md §9) ---
     # Each runs one device function of kernels/asg.py / cl/asg.cl over a batch, one thread a row: the
     # functions the ASG bake and shading will call, exercised here against their float64 oracle. ASGs travel

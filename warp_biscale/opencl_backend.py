@@ -37,6 +37,7 @@ import numpy as np
 
 from . import cl as cl_sources
 from . import sg
+from .asg import ASG
 from .device import (KINDS, DeviceBackend, PROBE_VALUES, SCRATCH_BYTES, DeviceStart, UploadCache,
                      check_kernel_lobes, chunking, one_line, padded_lobe_values,
                      probe_mismatch, start_scale)
@@ -210,7 +211,7 @@ def build_failure(platform, device, log) -> str:
 # Stage files whose functions a stage calls, built into its program ahead of it (after common.cl), in order:
 # cl/shade.cl calls cl/asg.cl's convolution, warp and integrals (ASG materials), and cl/litsphere.cl calls
 # camera_ray and prefiltered of cl/shade.cl, as the kernels/ twins import them.
-USES = {"shade": ("asg",), "litsphere": ("asg", "shade")}
+USES = {"shade": ("asg",), "litsphere": ("asg", "shade"), "amplitudes": ("asg",)}
 
 
 def program_source(stem: str) -> str:
@@ -619,12 +620,22 @@ class OpenCLBackend(DeviceBackend):
         f = self._facets(facets)
         v = self._vis(vis)
         n, n_pairs = len(facets), len(pair_i)
-        j = len(axes) if lobe_values is None else lobe_values.shape[1]  # (len of a DeviceLobes: its count)
+        asgs = lobe_values if isinstance(lobe_values, ASG) else None  # (values made on the device)
+        if lobe_values is None:
+            j = len(axes)  # (len of a DeviceLobes: its count)
+        else:
+            j = len(asgs.lam) if asgs is not None else lobe_values.shape[1]
         check_kernel_lobes(j)  # (private per-lobe arrays of cl/amplitudes.cl)
         if n_pairs == 0:
             return np.zeros((0, j + 1), np.float32)
         if lobe_values is None:
             values = self._lobe_values(f["normal"], n, axes, sharpness)
+        elif asgs is not None:
+            stride = -(-j // 8) * 8
+            values = self._scratch("lobe_values", n * stride, np.float32)
+            self._launch("amplitudes", "asg_lobe_values", (n,), f["normal"],
+                         self._buffer(self._asg_rows(asgs, asgs.shape), np.float32), np.int32(j), np.int32(stride),
+                         np.int32(n), values)
         else:
             values = self._buffer(padded_lobe_values(lobe_values, -(-j // 8) * 8), np.float32)
         runs = f.get("area_runs") if weight is None else None  # the area's runs depend on the facets alone
@@ -651,6 +662,13 @@ class OpenCLBackend(DeviceBackend):
             self._launch("amplitudes", "sum_chunks_moments", (n_pairs,),
                          partial, np.int32(chunks), np.int32(n_pairs), np.int32(j + 1), out)
         return self._read(out, (n_pairs, j + 1), np.float32) if to_host else out
+
+    def _asg_value_partial(self, facets, weight, rows, per, chunks):
+        partial = self._empty(chunks * len(rows), np.float64)
+        self._launch("amplitudes", "asg_value_sums", (chunks,), self._facets(facets)["normal"],
+                     self._buffer(weight, np.float32), self._buffer(rows, np.float32), np.int32(len(rows)),
+                     np.int32(len(facets)), np.int32(per), np.int32(chunks), partial)
+        return self._read(partial, (chunks, len(rows)), np.float64)
 
     def histogram_moments(self, hist, bin_normal, directions, axes, sharpness, pair_i, pair_o):
         bin_normal = np.asarray(bin_normal, np.float32)

@@ -18,6 +18,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import warp as wp
 
+from .asg import ASG
 from .device import (KINDS, DeviceBackend, PROBE_VALUES, SCRATCH_BYTES, DeviceStart, UploadCache,
                      check_kernel_lobes, chunking, one_line, padded_lobe_values,
                      probe_mismatch, start_scale)
@@ -451,15 +452,20 @@ class WarpBackend(DeviceBackend):
         v = self._vis(vis)
         dev = self._device
         n, n_pairs = len(facets), len(pair_i)
+        asgs = lobe_values if isinstance(lobe_values, ASG) else None  # (values made on the device)
         if lobe_values is None:
             j, axes_arr, sharpness_arr = self._lobes_on_device(axes, sharpness)
         else:
-            j = lobe_values.shape[1]
+            j = len(asgs.lam) if asgs is not None else lobe_values.shape[1]
         check_kernel_lobes(j)
-        vec, lobe_values_kernel, lobe_moments_partial = kamplitudes.facet_kernels(j)
+        vec, lobe_values_kernel, lobe_moments_partial, asg_lobe_values = kamplitudes.facet_kernels(j)
         if lobe_values is None:
             values = self._scratch("lobe_values", n, vec)
             self._launch(lobe_values_kernel, n, [f["normal"], axes_arr, sharpness_arr], [values])
+        elif asgs is not None:
+            values = self._scratch("lobe_values", n, vec)
+            self._launch(asg_lobe_values, n, [f["normal"], self._array(self._asg_rows(asgs, asgs.shape), wp.float32)],
+                         [values])
         else:
             values = wp.array(padded_lobe_values(lobe_values, vec._length_), dtype=vec, device=dev)
         runs = f.get("area_runs") if weight is None else None  # the area's runs depend on the facets alone
@@ -487,6 +493,12 @@ class WarpBackend(DeviceBackend):
             out = wp.empty((n_pairs, j + 1), dtype=wp.float32, device=dev)
             self._launch(kamplitudes.sum_chunks_moments, n_pairs, [partial], [out])
         return self._trace_host(out) if to_host else out
+
+    def _asg_value_partial(self, facets, weight, rows, per, chunks):
+        partial = wp.empty((chunks, len(rows)), dtype=wp.float64, device=self._device)
+        self._launch(kamplitudes.asg_value_sums, chunks, [self._facets(facets)["normal"],
+                     self._array(weight, wp.float32), self._array(rows, wp.float32), per], [partial])
+        return partial.numpy()
 
     def histogram_moments(self, hist, bin_normal, directions, axes, sharpness, pair_i, pair_o):
 
