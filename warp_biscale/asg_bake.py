@@ -110,14 +110,12 @@ def bandwidths_from_moments(ma, mb, iterations: int = 60, start=None):
     th = np.stack([np.log(np.clip(0.5 / np.maximum(ma, 1e-300), BANDWIDTH_MIN, BANDWIDTH_MAX)),
                    np.log(np.clip(0.5 / np.maximum(mb, 1e-300), BANDWIDTH_MIN, BANDWIDTH_MAX))], -1)
     target = np.stack([ma, mb], -1)
-    if start is not None:  # both starts' moments in one evaluation; each lobe keeps the closer start
+    if start is not None:
+        # The untruncated start is exact (to the rule's e^{−18}) where its ±6σ box lies inside the disk; elsewhere
+        # the EM's last bandwidths are closer once the EM settles.
+        inside = np.sum(18.0 / np.exp(th), -1) <= 1.0
         warm = np.log(np.clip(np.stack(np.broadcast_arrays(*start), -1), BANDWIDTH_MIN, BANDWIDTH_MAX))
-        both = np.concatenate([th, warm])
-        m = _disk_moments(np.exp(both[:, 0]), np.exp(both[:, 1]))
-        n = len(th)
-        ratio = np.maximum(np.stack(m[:2], -1), 1e-300) / np.maximum(np.concatenate([target, target]), 1e-300)
-        err = np.abs(np.log(ratio)).sum(-1)
-        th = np.where((err[n:] < err[:n])[:, None], warm, th)
+        th = np.where(inside[:, None], th, warm)
     for _ in range(iterations):
         lam, mu = np.exp(th[..., 0]), np.exp(th[..., 1])
         ea, eb, ea4, eb4, eab = _disk_moments(lam, mu)
@@ -142,15 +140,20 @@ def bandwidths_from_moments(ma, mb, iterations: int = 60, start=None):
     return np.exp(th[..., 0]), np.exp(th[..., 1])
 
 
-def _log_pdf(asgs: asg_mod.ASG, log_norm, normal):
+class _Lobes(collections.namedtuple("_Lobes", "x y z lam mu")):
+    """The EM's ASGs between its steps: frames already orthonormal (the M-step builds them so), so not
+    checked and re-orthonormalised at every step as an asg.ASG is; one is made at the end."""
+
+
+def _log_pdf(asgs: _Lobes, log_norm, normal):
     """(Ns, J) log of the normalised ASG densities G_j(n)/∫G_j; −inf below each lobe's horizon."""
     a, b, t = normal @ asgs.x.T, normal @ asgs.y.T, normal @ asgs.z.T
     with np.errstate(divide="ignore"):
         return np.log(np.maximum(t, 0.0)) - asgs.lam * a * a - asgs.mu * b * b - log_norm
 
 
-def _m_step(normal, weight, resp, previous: asg_mod.ASG):
-    """Axes, frames and bandwidths from responsibilities `resp` (Ns, J) → (ASG, mass (J,))."""
+def _m_step(normal, weight, resp, previous: _Lobes):
+    """Axes, frames and bandwidths from responsibilities `resp` (Ns, J) → (_Lobes, mass (J,))."""
     rw = resp * weight[:, None]
     mass = rw.sum(0)
     mean = rw.T @ normal  # (J, 3)
@@ -177,7 +180,7 @@ def _m_step(normal, weight, resp, previous: asg_mod.ASG):
     lam = np.where(keep, lam, previous.lam)
     mu = np.where(keep, mu, previous.mu)
     y = np.cross(z, x)  # (a right-handed frame; the density does not depend on y's sign)
-    return asg_mod.ASG(x, y, z, lam, mu, 1.0), np.where(keep, mass, 0.0)
+    return _Lobes(x, y, z, lam, mu), np.where(keep, mass, 0.0)
 
 
 def fit_asg(normal, weight, start: lobes_mod.LobeSet, iterations: int = EM_ITERATIONS):
@@ -188,7 +191,7 @@ def fit_asg(normal, weight, start: lobes_mod.LobeSet, iterations: int = EM_ITERA
     normal = normal / np.linalg.norm(normal, axis=1, keepdims=True)
     weight = np.asarray(weight, np.float64)
     eta = np.clip(start.sharpness, 2 * BANDWIDTH_MIN, 2 * BANDWIDTH_MAX)
-    g = asg_mod.from_sg(start.axes, eta)
+    g = _Lobes(*(getattr(asg_mod.from_sg(start.axes, eta), k) for k in _Lobes._fields))
     alpha = np.asarray(start.weight, np.float64)
     alpha = alpha / alpha.sum()
     steps = 0
@@ -214,7 +217,7 @@ def fit_asg(normal, weight, start: lobes_mod.LobeSet, iterations: int = EM_ITERA
         if moved:
             break
     live = alpha > 0
-    return g[live], alpha[live] / alpha[live].sum(), steps
+    return asg_mod.ASG(*g, 1.0)[live], alpha[live] / alpha[live].sum(), steps
 
 
 def ndf_error(asgs: asg_mod.ASG, alpha, bin_normal, bin_weight, probe_sharpness: float) -> float:
