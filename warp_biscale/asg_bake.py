@@ -183,6 +183,24 @@ def _m_step(normal, weight, resp, previous: _Lobes):
     return _Lobes(x, y, z, lam, mu), np.where(keep, mass, 0.0)
 
 
+def _em_start(start: lobes_mod.LobeSet):
+    """The EM's deterministic start: the SG lobes as isotropic ASGs (Xu's Eq. 3, λ = μ = η/2, within the
+    bandwidth range) and their weights summing to 1 → (ASG batch (J,), α (J,))."""
+    eta = np.clip(start.sharpness, 2 * BANDWIDTH_MIN, 2 * BANDWIDTH_MAX)
+    alpha = np.asarray(start.weight, np.float64)
+    return asg_mod.from_sg(start.axes, eta), alpha / alpha.sum()
+
+
+def fit_asg_on(backend, normal, weight, start: lobes_mod.LobeSet, iterations: int = EM_ITERATIONS):
+    """`fit_asg` on `backend`'s device (`Backend.asg_em`: the EM's steps queued at once), float64 sums with a
+    float32 inner rule in the bandwidths' Newton (kernels/asgfit.py). → as fit_asg."""
+    first, alpha = _em_start(start)
+    g, alpha, steps = backend.asg_em(normal, weight, first, alpha, iterations, (BANDWIDTH_MIN, BANDWIDTH_MAX),
+                                     _CONVERGED)
+    live = alpha > 0
+    return g[live], alpha[live] / alpha[live].sum(), steps
+
+
 def fit_asg(normal, weight, start: lobes_mod.LobeSet, iterations: int = EM_ITERATIONS):
     """EM for a mixture of J normalised ASGs on unit normals (Ns, 3) with weights (Ns,), from the SG lobes
     `start` (each as the isotropic ASG of Xu's Eq. 3, λ = μ = η/2, capped at BANDWIDTH_MAX).
@@ -190,10 +208,8 @@ def fit_asg(normal, weight, start: lobes_mod.LobeSet, iterations: int = EM_ITERA
     normal = np.asarray(normal, np.float64)
     normal = normal / np.linalg.norm(normal, axis=1, keepdims=True)
     weight = np.asarray(weight, np.float64)
-    eta = np.clip(start.sharpness, 2 * BANDWIDTH_MIN, 2 * BANDWIDTH_MAX)
-    g = _Lobes(*(getattr(asg_mod.from_sg(start.axes, eta), k) for k in _Lobes._fields))
-    alpha = np.asarray(start.weight, np.float64)
-    alpha = alpha / alpha.sum()
+    first, alpha = _em_start(start)
+    g = _Lobes(*(getattr(first, k) for k in _Lobes._fields))
     steps = 0
     for _ in range(int(iterations)):
         log_norm = np.log(asg_mod.unit_integral(g.lam, g.mu))
@@ -350,7 +366,7 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
                                                                 "histogram", tolerance, None, timer, prog)
         prog.stage(f"ASG fit ({len(lob)} lobes)", 1)
         t0 = time.perf_counter()
-        fitted = fit_asg(seen_normal, seen_weight, lob, EM_ITERATIONS)
+        fitted = fit_asg_on(be, seen_normal, seen_weight, lob, EM_ITERATIONS)
         timer.timings["asg_fit"] = timer.timings.get("asg_fit", 0.0) + time.perf_counter() - t0
         if j_req != "auto":
             break

@@ -17,9 +17,9 @@ import weakref
 
 import numpy as np
 
-from .asg import ASG
+from .asg import ASG, unit_integral
 from .brdf import ANISOTROPIC_KINDS, MEASURED
-from .lobes import KERNEL_LOBES, LobeSet
+from .lobes import DEAD_MASS, KERNEL_LOBES, LobeSet
 from .model import Facets, GBuffer, ShadeInputs, Visibility, facet_shift
 from .trace import (CHUNK_RAYS, check_camera, check_gbuffer, check_lights, check_mesh, check_occlusion,
                     check_lobes, check_occlusion_samples, check_shadow_samples, offsets)
@@ -281,7 +281,7 @@ def one_line(text) -> str:
 FACET_KINDS = {"normal": "vec3", "face": "i32", "area": "f32", "material": "i32", "weight": "vec3"}
 KINDS = {"i32": (np.int32, 1), "i64": (np.int64, 1), "u8": (np.uint8, 1), "u32": (np.uint32, 1),
          "f32": (np.float32, 1), "f64": (np.float64, 1), "vec2": (np.float32, 2), "vec3": (np.float32, 3),
-         "vec4d": (np.float64, 4)}
+         "vec4d": (np.float64, 4), "vec3d": (np.float64, 3)}
 
 
 _NO_FACE = np.zeros(1, np.int32)  # effective_brdf's face and tangent arguments when no material is anisotropic
@@ -317,6 +317,10 @@ class DeviceBackend:
 
     def _new(self, shape, kind: str):
         """An uninitialised device array of `shape` elements of `kind`."""
+        raise NotImplementedError
+
+    def _to_device_mutable(self, host, kind: str):
+        """As `_to_device`, a copy that kernels may also write (an OpenCL `_to_device` buffer is read-only)."""
         raise NotImplementedError
 
     def _to_host(self, array, shape, kind: str, out=None) -> np.ndarray:
@@ -1098,6 +1102,41 @@ class DeviceBackend:
 
     def _asg_value_partial(self, facets, weight, rows, per, chunks) -> np.ndarray:
         """(chunks, J) float64 partial sums of asg_value_sums, chunk c over facets [c·per, (c + 1)·per)."""
+        raise NotImplementedError
+
+    def asg_em(self, bin_normal, bin_weight, start: ASG, alpha, iterations: int, bandwidth_range, converged: float):
+        """asg_bake.fit_asg's EM on the device (stage `asgfit`: kernels/asgfit.py, cl/asgfit.cl) over the normal
+        bins (L, 3) weighing (L,), from the ASG batch `start` (J,) with weights `alpha` (J,): at most
+        `iterations` steps, every one queued at once, stopping after the first whose lobes and weights all
+        moved less than `converged`; bandwidths within `bandwidth_range` (lo, hi). → (ASG batch (J,), alpha (J,)
+        float64, steps taken), dead lobes (alpha 0) included."""
+        normal = np.asarray(bin_normal, np.float64).reshape(-1, 3)
+        normal = normal / np.linalg.norm(normal, axis=1, keepdims=True)
+        weight = np.asarray(bin_weight, np.float64).reshape(-1)
+        alpha = np.asarray(alpha, np.float64).reshape(-1)
+        n_bins, j = len(normal), len(alpha)
+        if weight.shape != (n_bins,) or start.lam.shape != (j,):
+            raise ValueError(f"asg_em: {n_bins} bin normals, {len(weight)} weights, {start.lam.size} lobes and "
+                             f"{j} lobe weights do not match")
+        if int(iterations) <= 0 or n_bins == 0 or j == 0:
+            return start, alpha, 0
+        rows = np.concatenate([start.x, start.y, start.z, start.lam[:, None], start.mu[:, None],
+                               np.log(unit_integral(start.lam, start.mu))[:, None]], axis=1)
+        arrays = {"normal": self._to_device(normal, "vec3d"), "weight": self._to_device(weight, "f64"),
+                  "lobes": self._to_device_mutable(rows, "f64"), "alpha": self._to_device_mutable(alpha, "f64"),
+                  "state": self._to_device_mutable(np.zeros(2, np.int32), "i32"),
+                  "resp_weight": self._new((n_bins, j), "f64"), "seen_weight": self._new(n_bins, "f64"),
+                  "new_lobes": self._new((j, 12), "f64"), "mass": self._new(j, "f64"), "moved": self._new(j, "f64")}
+        log_range = (float(np.log(bandwidth_range[0])), float(np.log(bandwidth_range[1])))
+        for _ in range(int(iterations)):
+            self._launch_asg_em_step(arrays, n_bins, j, DEAD_MASS, log_range, float(converged))
+        rows = self._to_host(arrays["lobes"], (j, 12), "f64").reshape(j, 12)
+        alpha = self._to_host(arrays["alpha"], j, "f64")
+        steps = int(self._to_host(arrays["state"], 2, "i32")[1])
+        return ASG(rows[:, 0:3], rows[:, 3:6], rows[:, 6:9], rows[:, 9], rows[:, 10], 1.0), alpha, steps
+
+    def _launch_asg_em_step(self, arrays, n_bins, n_lobes, dead_mass, log_range, converged):
+        """Queue one EM step of asg_em: its three launches over `arrays` (asg_em's)."""
         raise NotImplementedError
 
     # --- ASG operators (stage `asg`, Xu 2013; oracle warp_biscale.asg, docs/design.md §9) ---

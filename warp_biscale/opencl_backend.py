@@ -211,7 +211,7 @@ def build_failure(platform, device, log) -> str:
 # Stage files whose functions a stage calls, built into its program ahead of it (after common.cl), in order:
 # cl/shade.cl calls cl/asg.cl's convolution, warp and integrals (ASG materials), and cl/litsphere.cl calls
 # camera_ray and prefiltered of cl/shade.cl, as the kernels/ twins import them.
-USES = {"shade": ("asg",), "litsphere": ("asg", "shade"), "amplitudes": ("asg",)}
+USES = {"shade": ("asg",), "litsphere": ("asg", "shade"), "amplitudes": ("asg",), "asgfit": ("asg",)}
 
 
 def program_source(stem: str) -> str:
@@ -727,6 +727,22 @@ class OpenCLBackend(DeviceBackend):
     def _new(self, shape, kind):
         np_dtype, width = KINDS[kind]
         return self._empty(int(np.prod(shape)) * width, np_dtype)
+
+    def _to_device_mutable(self, host, kind):
+        cl = self._cl
+        data = np.ascontiguousarray(host, KINDS[kind][0])
+        return cl.Buffer(self._ctx, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR,
+                         hostbuf=data if data.size else np.zeros(1, data.dtype))
+
+    def _launch_asg_em_step(self, arrays, n_bins, n_lobes, dead_mass, log_range, converged):
+        a, j = arrays, np.int32(n_lobes)
+        self._launch("asgfit", "asg_em_responsibilities", (n_bins,), a["normal"], a["weight"], a["lobes"], a["alpha"],
+                     a["state"], j, np.int32(n_bins), a["resp_weight"], a["seen_weight"])
+        self._launch("asgfit", "asg_em_m_step", (n_lobes,), a["normal"], a["seen_weight"], a["resp_weight"],
+                     a["lobes"], np.float64(dead_mass), np.float64(log_range[0]), np.float64(log_range[1]),
+                     a["state"], j, np.int32(n_bins), a["new_lobes"], a["mass"], a["moved"])
+        self._launch("asgfit", "asg_em_finish", (1,), a["new_lobes"], a["mass"], a["moved"], np.float64(converged), j,
+                     a["lobes"], a["alpha"], a["state"])
 
     def frame_buffer(self, width: int, height: int) -> np.ndarray:
         """On a GPU, a host array mapped from a buffer the driver allocates in pinned host memory

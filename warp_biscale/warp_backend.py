@@ -24,6 +24,7 @@ from .device import (KINDS, DeviceBackend, PROBE_VALUES, SCRATCH_BYTES, DeviceSt
                      probe_mismatch, start_scale)
 from .kernels import amplitudes as kamplitudes
 from .kernels import asg as kasg
+from .kernels import asgfit as kasgfit
 from .kernels import bvndf as kbvndf
 from .kernels import em as kem
 from .kernels import envmap as kenvmap
@@ -122,7 +123,7 @@ def list_devices() -> list[dict]:
 
 
 WARP_TYPES = {"i32": wp.int32, "i64": wp.int64, "u8": wp.uint8, "u32": wp.uint32, "f32": wp.float32,
-              "f64": wp.float64, "vec2": wp.vec2, "vec3": wp.vec3, "vec4d": wp.vec4d}
+              "f64": wp.float64, "vec2": wp.vec2, "vec3": wp.vec3, "vec4d": wp.vec4d, "vec3d": wp.vec3d}
 
 
 class WarpBackend(DeviceBackend):
@@ -618,6 +619,18 @@ class WarpBackend(DeviceBackend):
     def _new(self, shape, kind):
         """(`kind` may also be a Warp dtype: the scratch arrays of some stages hold vectors of J floats.)"""
         return wp.empty(shape, dtype=WARP_TYPES.get(kind, kind), device=self._device)
+
+    _to_device_mutable = _to_device
+
+    def _launch_asg_em_step(self, arrays, n_bins, n_lobes, dead_mass, log_range, converged):
+        a = arrays
+        self._launch(kasgfit.asg_em_responsibilities, n_bins, [a["normal"], a["weight"], a["lobes"], a["alpha"],
+                                                               a["state"]], [a["resp_weight"], a["seen_weight"]])
+        self._launch(kasgfit.asg_em_m_step, n_lobes,
+                     [a["normal"], a["seen_weight"], a["resp_weight"], a["lobes"], dead_mass, *log_range, a["state"]],
+                     [a["new_lobes"], a["mass"], a["moved"]])
+        self._launch(kasgfit.asg_em_finish, 1, [a["new_lobes"], a["mass"], a["moved"], converged],
+                     [a["lobes"], a["alpha"], a["state"]])
 
     def frame_buffer(self, width: int, height: int) -> np.ndarray:
         """On a GPU, pinned host memory: a frame is then copied into it from the device and nowhere else."""

@@ -1,0 +1,288 @@
+/* The ASG bake's EM on the device (issue 20; Xu 2013 §4 on Iwasaki's bins): J anisotropic spherical Gaussians
+ * fitted to the NDF's non-empty normal bins.
+ *
+ * Twin of kernels/asgfit.py, in the same operation order (its docstring gives the layout and the precision);
+ * the float64 reference is warp_biscale.asg_bake.fit_asg. Needs cl_khr_fp64; takes asg_unit_integral from
+ * cl/asg.cl (opencl_backend.USES). One EM step is three launches: asg_em_responsibilities (one work-item per
+ * bin), asg_em_m_step (one per lobe), asg_em_finish (one). state = [done, steps]: once done is set, every later
+ * launch returns. Lobe rows (J, 12) double: [x (3), y (3), z (3), λ, μ, log ∫G]; bin normals (L, 3) double.
+ */
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+
+#define ASGFIT_NEG (-1.0e300)        /* log density of a lobe that does not see the normal */
+#define ASGFIT_TINY 1.0e-300
+#define ASGFIT_NEWTON_STEPS 30
+#define ASGFIT_NEWTON_DONE 1.0e-5    /* a step below this in log λ and log μ ends the Newton */
+
+/* 48-point Gauss–Legendre on [−1, 1] (numpy.polynomial.legendre.leggauss(48)), as asg_bake._disk_moments. */
+__constant double GL48_X[48] = {
+    -0.9987710072524261, -0.9935301722663508, -0.9841245837228269, -0.9705915925462473, -0.9529877031604308,
+    -0.9313866907065543, -0.9058791367155696, -0.8765720202742479, -0.8435882616243935, -0.8070662040294426,
+    -0.7671590325157404, -0.7240341309238146, -0.6778723796326639, -0.6288673967765136, -0.5772247260839727,
+    -0.523160974722233, -0.4669029047509584, -0.4086864819907167, -0.3487558862921607, -0.28736248735545555,
+    -0.22476379039468905, -0.1612223560688917, -0.0970046992094627, -0.03238017096286937, 0.03238017096286937,
+    0.0970046992094627, 0.1612223560688917, 0.22476379039468905, 0.28736248735545555, 0.3487558862921607,
+    0.4086864819907167, 0.4669029047509584, 0.523160974722233, 0.5772247260839727, 0.6288673967765136,
+    0.6778723796326639, 0.7240341309238146, 0.7671590325157404, 0.8070662040294426, 0.8435882616243935,
+    0.8765720202742479, 0.9058791367155696, 0.9313866907065543, 0.9529877031604308, 0.9705915925462473,
+    0.9841245837228269, 0.9935301722663508, 0.9987710072524261};
+__constant double GL48_W[48] = {
+    0.0031533460523098414, 0.007327553901276135, 0.011477234579234614, 0.015579315722943226, 0.019616160457356056,
+    0.023570760839324047, 0.027426509708357034, 0.031167227832798097, 0.034777222564770394, 0.0382413510658305,
+    0.04154508294346455, 0.04467456085669423, 0.04761665849249024, 0.0503590355538542, 0.05289018948519344,
+    0.05519950369998403, 0.057277292100402916, 0.059114839698395344, 0.0607044391658936, 0.06203942315989242,
+    0.06311419228625373, 0.06392423858464787, 0.06446616443594982, 0.06473769681268365, 0.06473769681268365,
+    0.06446616443594982, 0.06392423858464787, 0.06311419228625373, 0.06203942315989242, 0.0607044391658936,
+    0.059114839698395344, 0.057277292100402916, 0.05519950369998403, 0.05289018948519344, 0.0503590355538542,
+    0.04761665849249024, 0.04467456085669423, 0.04154508294346455, 0.0382413510658305, 0.034777222564770394,
+    0.031167227832798097, 0.027426509708357034, 0.023570760839324047, 0.019616160457356056, 0.015579315722943226,
+    0.011477234579234614, 0.007327553901276135, 0.0031533460523098414};
+
+CL_INLINE double3 asgfit_vec(__global const double *lobes, int j, int k)
+{
+    return (double3)(lobes[12 * j + k], lobes[12 * j + k + 1], lobes[12 * j + k + 2]);
+}
+
+CL_INLINE double asgfit_dot(double3 a, double3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+
+CL_INLINE double3 asgfit_cross(double3 a, double3 b)
+{
+    return (double3)(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x);
+}
+
+/* Duff et al. 2017's frame (asg.tangent_frame), double. */
+CL_INLINE double3 asgfit_frame_x(double3 z)
+{
+    double s = z.z < 0.0 ? -1.0 : 1.0;
+    double a = -1.0 / (s + z.z);
+    return (double3)(1.0 + s * z.x * z.x * a, s * z.x * z.y * a, -s * z.x);
+}
+
+CL_INLINE double3 asgfit_frame_y(double3 z)
+{
+    double s = z.z < 0.0 ? -1.0 : 1.0;
+    double a = -1.0 / (s + z.z);
+    return (double3)(z.x * z.y * a, s + z.y * z.y * a, -z.y);
+}
+
+/* log(α_j G_j(n)/∫G_j) (asg_bake._log_pdf plus log α), ASGFIT_NEG where α_j = 0 or n is below the horizon. */
+CL_INLINE double asgfit_log_density(__global const double *lobes, __global const double *alpha, int j, double3 n)
+{
+    double t = asgfit_dot(n, asgfit_vec(lobes, j, 6));
+    if (alpha[j] <= 0.0 || t <= 0.0)
+        return ASGFIT_NEG;
+    double a = asgfit_dot(n, asgfit_vec(lobes, j, 0));
+    double b = asgfit_dot(n, asgfit_vec(lobes, j, 3));
+    return log(t) - lobes[12 * j + 9] * a * a - lobes[12 * j + 10] * b * b - lobes[12 * j + 11] + log(alpha[j]);
+}
+
+/* (E[a²], E[b²], E[a⁴], E[b⁴], E[a²b²]) of exp(−λa² − μb²) on the unit disk (asg_bake._disk_moments): the
+ * inner rule in float. */
+CL_INLINE void asgfit_disk_moments(double lam, double mu, double *m)
+{
+    double amax = fmin(1.0, 6.0 / sqrt(2.0 * lam));
+    double bcap = 6.0 / sqrt(2.0 * mu);
+    double z = 0.0, sa2 = 0.0, sb2 = 0.0, sa4 = 0.0, sb4 = 0.0, sab = 0.0;
+    for (int i = 0; i < 48; ++i) {
+        double a = amax * GL48_X[i];
+        double a2 = a * a;
+        double wa = amax * GL48_W[i] * exp(-lam * a2);
+        double bmax = fmin(sqrt(fmax(1.0 - a2, 0.0)), bcap);
+        double b2 = bmax * bmax;
+        float c = (float)(mu * b2);
+        float i0 = 0.0f, i2 = 0.0f, i4 = 0.0f;
+        for (int k = 0; k < 48; ++k) {
+            float x2 = (float)(GL48_X[k] * GL48_X[k]);
+            float w = (float)GL48_W[k];
+            float e = exp(-c * x2);
+            i0 += w * e;
+            i2 += (float)(GL48_W[k] * GL48_X[k] * GL48_X[k]) * e;
+            i4 += (float)(GL48_W[k] * GL48_X[k] * GL48_X[k] * GL48_X[k] * GL48_X[k]) * e;
+        }
+        double s0 = bmax * (double)i0;
+        double s2 = bmax * b2 * (double)i2;
+        double s4 = bmax * b2 * b2 * (double)i4;
+        z += wa * s0;
+        sa2 += wa * a2 * s0;
+        sa4 += wa * a2 * a2 * s0;
+        sb2 += wa * s2;
+        sb4 += wa * s4;
+        sab += wa * a2 * s2;
+    }
+    m[0] = sa2 / z;
+    m[1] = sb2 / z;
+    m[2] = sa4 / z;
+    m[3] = sb4 / z;
+    m[4] = sab / z;
+}
+
+/* asg_bake.bandwidths_from_moments with start = (prev_lam, prev_mu), log bandwidths clipped to [lo, hi]. */
+CL_INLINE double2 asgfit_bandwidths(double ma, double mb, double prev_lam, double prev_mu, double lo, double hi)
+{
+    double t0 = clamp(log(0.5 / fmax(ma, ASGFIT_TINY)), lo, hi);
+    double t1 = clamp(log(0.5 / fmax(mb, ASGFIT_TINY)), lo, hi);
+    if (18.0 / exp(t0) + 18.0 / exp(t1) > 1.0) { /* not inside the disk: warm start */
+        t0 = clamp(log(prev_lam), lo, hi);
+        t1 = clamp(log(prev_mu), lo, hi);
+    }
+    for (int it = 0; it < ASGFIT_NEWTON_STEPS; ++it) {
+        double lam = exp(t0), mu = exp(t1);
+        double m[5];
+        asgfit_disk_moments(lam, mu, m);
+        double f0 = m[0] - ma, f1 = m[1] - mb;
+        double j00 = -lam * (m[2] - m[0] * m[0]);
+        double j01 = -mu * (m[4] - m[0] * m[1]);
+        double j10 = -lam * (m[4] - m[0] * m[1]);
+        double j11 = -mu * (m[3] - m[1] * m[1]);
+        double det = j00 * j11 - j01 * j10;
+        double s0 = 0.0, s1 = 0.0;
+        if (fabs(det) > ASGFIT_TINY) {
+            s0 = clamp((j11 * f0 - j01 * f1) / det, -2.0, 2.0);
+            s1 = clamp((j00 * f1 - j10 * f0) / det, -2.0, 2.0);
+        }
+        double n0 = clamp(t0 - s0, lo, hi), n1 = clamp(t1 - s1, lo, hi);
+        int done = fabs(n0 - t0) < ASGFIT_NEWTON_DONE && fabs(n1 - t1) < ASGFIT_NEWTON_DONE;
+        t0 = n0;
+        t1 = n1;
+        if (done)
+            break;
+    }
+    return (double2)(exp(t0), exp(t1));
+}
+
+/* resp_weight[l, j] = r_lj·w_l; seen_weight[l] = w_l, or 0 where the normal is below every live lobe's horizon. */
+__kernel void asg_em_responsibilities(__global const double *bin_normal, __global const double *bin_weight,
+                                      __global const double *lobes, __global const double *alpha,
+                                      __global const int *state, const int n_lobes, const int n_bins,
+                                      __global double *resp_weight, __global double *seen_weight)
+{
+    int l = get_global_id(0);
+    if (l >= n_bins || state[0] != 0)
+        return;
+    double3 n = (double3)(bin_normal[3 * l], bin_normal[3 * l + 1], bin_normal[3 * l + 2]);
+    double top = ASGFIT_NEG;
+    for (int j = 0; j < n_lobes; ++j)
+        top = fmax(top, asgfit_log_density(lobes, alpha, j, n));
+    __global double *row = resp_weight + (size_t)l * n_lobes;
+    if (top <= ASGFIT_NEG) {
+        for (int j = 0; j < n_lobes; ++j)
+            row[j] = 0.0;
+        seen_weight[l] = 0.0;
+        return;
+    }
+    double total = 0.0;
+    for (int j = 0; j < n_lobes; ++j) {
+        double lp = asgfit_log_density(lobes, alpha, j, n);
+        double e = lp > ASGFIT_NEG ? exp(lp - top) : 0.0;
+        row[j] = e;
+        total += e;
+    }
+    double scale = bin_weight[l] / total;
+    for (int j = 0; j < n_lobes; ++j)
+        row[j] = row[j] * scale;
+    seen_weight[l] = bin_weight[l];
+}
+
+/* asg_bake._m_step for lobe j: its new row, its mass (0 if it died) and how far it moved. */
+__kernel void asg_em_m_step(__global const double *bin_normal, __global const double *seen_weight,
+                            __global const double *resp_weight, __global const double *lobes, const double dead_mass,
+                            const double log_min, const double log_max, __global const int *state, const int n_lobes,
+                            const int n_bins, __global double *new_lobes, __global double *mass,
+                            __global double *moved)
+{
+    int j = get_global_id(0);
+    if (j >= n_lobes || state[0] != 0)
+        return;
+    double m_j = 0.0, total = 0.0;
+    double3 mean = (double3)(0.0, 0.0, 0.0);
+    for (int l = 0; l < n_bins; ++l) {
+        double r = resp_weight[(size_t)l * n_lobes + j];
+        double3 n = (double3)(bin_normal[3 * l], bin_normal[3 * l + 1], bin_normal[3 * l + 2]);
+        m_j += r;
+        total += seen_weight[l];
+        mean += r * n;
+    }
+    double3 prev_x = asgfit_vec(lobes, j, 0), prev_z = asgfit_vec(lobes, j, 6);
+    double prev_lam = lobes[12 * j + 9], prev_mu = lobes[12 * j + 10];
+    double norm = sqrt(asgfit_dot(mean, mean));
+    int live = m_j > dead_mass * total && norm > 0.0;
+    double3 z = live ? mean / norm : prev_z;
+    double3 x0 = asgfit_frame_x(z), y0 = asgfit_frame_y(z);
+    double m2 = 0.0, caa = 0.0, cbb = 0.0, cab = 0.0;
+    for (int l = 0; l < n_bins; ++l) {
+        double3 n = (double3)(bin_normal[3 * l], bin_normal[3 * l + 1], bin_normal[3 * l + 2]);
+        if (asgfit_dot(n, z) > 0.0) {
+            double r = resp_weight[(size_t)l * n_lobes + j];
+            double a = asgfit_dot(n, x0), b = asgfit_dot(n, y0);
+            m2 += r;
+            caa += r * a * a;
+            cbb += r * b * b;
+            cab += r * a * b;
+        }
+    }
+    double mm = fmax(m2, ASGFIT_TINY);
+    caa /= mm;
+    cbb /= mm;
+    cab /= mm;
+    /* The 2×2 covariance's smaller eigenvalue e0 (its eigenvector → x, the larger λ) and the larger e1. */
+    double mid = 0.5 * (caa + cbb);
+    double d = sqrt(0.25 * (caa - cbb) * (caa - cbb) + cab * cab);
+    double e0 = mid - d, e1 = mid + d;
+    double2 u = (double2)(cab, e0 - caa); /* (A − e0 I)u = 0 from either row: the longer of the two */
+    double2 v = (double2)(cbb - e0, -cab);
+    if (v.x * v.x + v.y * v.y > u.x * u.x + u.y * u.y)
+        u = v;
+    double uu = u.x * u.x + u.y * u.y;
+    u = uu > 0.0 ? u / sqrt(uu) : (double2)(1.0, 0.0);
+    double2 bw = asgfit_bandwidths(fmax(e0, 0.0), fmax(e1, 0.0), prev_lam, prev_mu, log_min, log_max);
+    int keep = live && m2 > ASGFIT_TINY;
+    double3 x = prev_x;
+    double lam = prev_lam, mu = prev_mu, log_norm = lobes[12 * j + 11];
+    if (keep) {
+        x = u.x * x0 + u.y * y0;
+        lam = bw.x;
+        mu = bw.y;
+        log_norm = (double)log(asg_unit_integral((float)lam, (float)mu));
+    } else {
+        z = prev_z;
+    }
+    double3 y = asgfit_cross(z, x);
+    __global double *out = new_lobes + 12 * j;
+    out[0] = x.x; out[1] = x.y; out[2] = x.z;
+    out[3] = y.x; out[4] = y.y; out[5] = y.z;
+    out[6] = z.x; out[7] = z.y; out[8] = z.z;
+    out[9] = lam;
+    out[10] = mu;
+    out[11] = log_norm;
+    mass[j] = keep ? m_j : 0.0;
+    double3 dz = z - prev_z;
+    moved[j] = fmax(0.5 * asgfit_dot(dz, dz), fmax(fabs(log(lam / prev_lam)), fabs(log(mu / prev_mu))));
+}
+
+/* One work-item: the step counted; with no mass left the EM stops where it was, else the new lobes and weights
+ * replace the old, and the EM is done once nothing moved by `converged`. */
+__kernel void asg_em_finish(__global const double *new_lobes, __global const double *mass,
+                            __global const double *moved, const double converged, const int n_lobes,
+                            __global double *lobes, __global double *alpha, __global int *state)
+{
+    if (get_global_id(0) != 0 || state[0] != 0)
+        return;
+    state[1] = state[1] + 1;
+    double total = 0.0;
+    for (int j = 0; j < n_lobes; ++j)
+        total += mass[j];
+    if (!(total > 0.0)) {
+        state[0] = 1;
+        return;
+    }
+    double worst = 0.0;
+    for (int j = 0; j < n_lobes; ++j) {
+        double a = mass[j] / total;
+        worst = fmax(worst, fmax(moved[j], fabs(a - alpha[j])));
+        alpha[j] = a;
+        for (int k = 0; k < 12; ++k)
+            lobes[12 * j + k] = new_lobes[12 * j + k];
+    }
+    if (worst < converged)
+        state[0] = 1;
+}
