@@ -331,12 +331,14 @@ def bake_asg(tile, mats, lobes, directions, normal_res, facets, backend, seed, k
         cache.move_to_end(key)
     prog.stage("tables", 1)
     t0 = time.perf_counter()
-    amps = geo["amplitudes"]
+    amps, energy = geo["amplitudes"], geo["energy"]
     if len(mats) > len(amps):  # materials beyond the tile's ids reflect nothing
         amps = np.concatenate([amps, np.zeros((len(mats) - len(amps),) + amps.shape[1:], amps.dtype)])
+        energy = None if energy is None else np.concatenate(
+            [energy, np.zeros((len(mats) - len(energy),) + energy.shape[1:], energy.dtype)])
     mat = ASGBRDF(geo["asgs"], geo["alpha"], amps, mats, k, info={**geo["info"], "backend": be.name,
                                                                   "tile": tile.name},
-                  bvndf=geo["bvndf"], provenance=Provenance(tile, int(seed), count))
+                  bvndf=geo["bvndf"], provenance=Provenance(tile, int(seed), count), energy=energy)
     timer.timings["tables"] = time.perf_counter() - t0
     mat.timings = dict(timer.timings)
     prog.done()
@@ -391,11 +393,14 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
         solved = [(m, mult, be.solve_amplitudes(b, q.a_v, rows, integrals, pi, po, nd, to_host=False))
                   for (m, mult, _), b in zip(q.channels, moments)]
         amps = np.zeros((tile.n_materials, nd * nd, len(alpha), 3), np.float32)
+        energy = np.zeros((tile.n_materials, nd, nd, 3), np.float32)  # (the tables' Σ_j μ_j ∫G_j, made with them)
         for m in range(tile.n_materials):
             mine = [(mu, mult) for mm, mult, mu in solved if mm == m]
             if mine:
-                amps[m] = be.amplitude_tables(mine, integrals, nd * nd)[0]
+                amps[m], energy[m] = (t.reshape(shape) for t, shape in
+                                      zip(be.amplitude_tables(mine, integrals, nd * nd), (amps.shape[1:], (nd, nd, 3))))
     else:  # past the kernels' lobes: float64 on the host (P diag(w G_j) Pᵀ per lobe)
+        energy = None
         values = _values(asgs, normal)
         rows, integrals, _, cond = amplitude_system(asgs, alpha, values.T @ em_w, em_w.sum())
         proj = q.vis.as_bool() * np.maximum(q.grid @ normal.T, 0.0)  # (D, Ns)
@@ -414,7 +419,7 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
             "sg_em_iterations": lob.iterations, "asg_em_iterations": steps,
             "gram_condition": cond, "nonempty_bins": int(len(bv.bins)), "channels": len(q.channels)}
     return {"asgs": asgs, "alpha": alpha, "amplitudes": amps.reshape(tile.n_materials, nd, nd, len(alpha), 3),
-            "bvndf": bv, "info": info}
+            "energy": energy, "bvndf": bv, "info": info}
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -442,7 +447,7 @@ class ASGBRDF(HostOnlyBRDF):
     no_sg_lobes = NO_SG_LOBES
 
     def __init__(self, asgs: asg_mod.ASG, weight, amplitudes, materials, directions: int, timings=None, info=None,
-                 bvndf=None, provenance: Provenance | None = None, path=None):
+                 bvndf=None, provenance: Provenance | None = None, path=None, energy=None):
         if not isinstance(asgs, asg_mod.ASG) or asgs.lam.ndim != 1 or not (1 <= len(asgs.lam) <= lobes_mod.MAX_LOBES):
             raise ValueError(f"asgs must be an asg.ASG batch of 1..{lobes_mod.MAX_LOBES} lobes")
         self.asgs = asg_mod.ASG(asgs.x, asgs.y, asgs.z, asgs.lam, asgs.mu, 1.0)
@@ -474,8 +479,14 @@ class ASGBRDF(HostOnlyBRDF):
         self.provenance = provenance
         self.path = None if path is None else os.path.abspath(os.fspath(path))
         self.integrals = asg_mod.unit_integral(self.asgs.lam, self.asgs.mu)
-        # Σ_j μ_mj ∫G_j per material, independent of the BRDFs (EffectiveBRDF's; `energy_levels` reads it)
-        self._energy = np.einsum("miojc,j->mioc", self.amplitudes, self.integrals.astype(np.float32))
+        # Σ_j μ_mj ∫G_j per material, independent of the BRDFs (EffectiveBRDF's; `energy_levels` reads it), or
+        # `energy` (M, K², K², 3), the same sums as the bake's table kernels made them
+        if energy is None:
+            self._energy = np.einsum("miojc,j->mioc", self.amplitudes, self.integrals.astype(np.float32))
+        else:
+            self._energy = np.asarray(energy, np.float32)
+            if self._energy.shape != self.amplitudes.shape[:3] + (3,):
+                raise ValueError(f"energy must have shape {self.amplitudes.shape[:3] + (3,)}, got {self._energy.shape}")
         self._energy_levels = None
         self._diffuse = None  # made on first use (`diffuse`)
 
