@@ -61,7 +61,8 @@ from .progress import as_progress
 from .truth import _check_count, _Timer
 
 __all__ = ["ASGBRDF", "bake_asg", "fit_asg", "bandwidths_from_moments", "amplitude_system", "asg_moments",
-           "NO_SG_LOBES", "EM_ITERATIONS", "EVAL_METHODS"]
+           "calibrated_rows", "NO_SG_LOBES", "EM_ITERATIONS",
+           "EVAL_METHODS", "fit_asg_on"]
 
 EM_ITERATIONS = 8  # ASG EM steps after the SG start (0: the SG lobes as isotropic ASGs, λ = μ = η/2)
 BANDWIDTH_MAX = sg.SHARPNESS_MAX / 2.0  # a delta direction (flat facets): the SG cap, in Xu's ν = η/2 units
@@ -263,28 +264,34 @@ def _values(asgs: asg_mod.ASG, normal):
 
 
 def gram(asgs: asg_mod.ASG):
-    """(J, J) A_ij = ∫G_iG_j by Xu's product (Eq. 13) and the exact integral."""
-    p = asg_mod.product(asgs[:, None], asgs[None, :])
-    a = asg_mod.integral(p)
-    return 0.5 * (a + a.T)
+    """(J, J) A_ij = ∫G_iG_j by Xu's product (Eq. 13) and the exact integral, each pair i ≤ j once."""
+    i, j = np.triu_indices(len(asgs.lam))
+    a = np.empty((len(asgs.lam),) * 2)
+    a[i, j] = a[j, i] = asg_mod.integral(asg_mod.product(asgs[i], asgs[j]))
+    return a
 
 
-def amplitude_system(asgs: asg_mod.ASG, alpha, value_sums=None, total_weight=None):
+def amplitude_system(asgs: asg_mod.ASG, alpha=None, value_sums=None, total_weight=None):
     """→ (solve rows (J, J), integrals (J,), gram (J, J), condition number): `lobes.amplitude_system` for ASGs.
-    With the fitted NDF's sums each row is calibrated so that the NDF's own least-squares amplitudes are the
-    fitted ones, total·α_j/∫G_j: `value_sums` (J,) Σ_s w_s G_j(n_s) over the facets (`_values(...).T @ w` on the
-    host, `Backend.asg_value_sums` on the device) and `total_weight` Σ_s w_s."""
+    With the fitted NDF's sums the rows are calibrated (`calibrated_rows`), else not."""
     a = gram(asgs)
     integrals = asg_mod.unit_integral(asgs.lam, asgs.mu)
     d = np.sqrt(np.maximum(np.diag(a), 1e-300))
     unit = a / np.outer(d, d) + lobes_mod.RIDGE * np.eye(len(d))
     inv = np.linalg.inv(unit) / np.outer(d, d)
     if value_sums is not None:
-        lsq = inv @ np.asarray(value_sums, np.float64)
-        target = float(total_weight) * np.asarray(alpha, np.float64) / integrals
-        scale = np.where(lsq > 1e-12 * target.max(), target / np.where(lsq > 0, lsq, 1.0), 1.0)
-        inv = inv * scale[:, None]
+        inv = calibrated_rows(inv, integrals, alpha, value_sums, total_weight)
     return inv, integrals, a, float(np.linalg.cond(unit))
+
+
+def calibrated_rows(inv, integrals, alpha, value_sums, total_weight):
+    """The solve rows scaled so that the fitted NDF's own least-squares amplitudes are its fitted ones,
+    total·α_j/∫G_j: `value_sums` (J,) Σ_s w_s G_j(n_s) over the facets (`_values(...).T @ w` on the host,
+    `Backend.asg_value_sums` on the device) and `total_weight` Σ_s w_s."""
+    lsq = inv @ np.asarray(value_sums, np.float64)
+    target = float(total_weight) * np.asarray(alpha, np.float64) / integrals
+    scale = np.where(lsq > 1e-12 * target.max(), target / np.where(lsq > 0, lsq, 1.0), 1.0)
+    return inv * scale[:, None]
 
 
 def asg_moments(proj, values, weight, pair_i, pair_o):
@@ -389,7 +396,8 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
         # in place of the SG lobes': exact facet sums, float32, as the SG route.
         moments = [be.lobe_moments(q.fac, q.vis, w, None, None, q.iu, q.ou, to_host=False, lobe_values=asgs)
                    for _, _, w in q.channels]
-        rows, integrals, _, cond = amplitude_system(asgs, alpha, be.asg_value_sums(q.fac, em_w, asgs), em_w.sum())
+        rows, integrals, _, cond = amplitude_system(asgs)  # (on the host while the device sums the moments)
+        rows = calibrated_rows(rows, integrals, alpha, be.asg_value_sums(q.fac, em_w, asgs), em_w.sum())
         solved = [(m, mult, be.solve_amplitudes(b, q.a_v, rows, integrals, pi, po, nd, to_host=False))
                   for (m, mult, _), b in zip(q.channels, moments)]
         amps = np.zeros((tile.n_materials, nd * nd, len(alpha), 3), np.float32)
