@@ -11,8 +11,9 @@
 
 #define ASGFIT_NEG (-1.0e300)        /* log density of a lobe that does not see the normal */
 #define ASGFIT_TINY 1.0e-300
-#define ASGFIT_NEWTON_STEPS 30
-#define ASGFIT_NEWTON_DONE 1.0e-5    /* a step below this in log λ and log μ ends the Newton */
+#define ASGFIT_CHORD_TERMS 24        /* = asg_bake.CHORD_TERMS */
+#define ASGFIT_NEWTON_STEPS 60       /* = bandwidths_from_moments' iterations */
+#define ASGFIT_NEWTON_DONE 1.0e-7    /* a step below this in log λ and log μ ends the Newton, as on the host */
 
 /* 48-point Gauss–Legendre on [−1, 1] (numpy.polynomial.legendre.leggauss(48)), as asg_bake._disk_moments. */
 __constant double GL48_X[48] = {
@@ -76,8 +77,31 @@ CL_INLINE double asgfit_log_density(__global const double *lobes, __global const
     return log(t) - lobes[12 * j + 9] * a * a - lobes[12 * j + 10] * b * b - lobes[12 * j + 11] + log(alpha[j]);
 }
 
-/* (E[a²], E[b²], E[a⁴], E[b⁴], E[a²b²]) of exp(−λa² − μb²) on the unit disk (asg_bake._disk_moments): the
- * inner rule in float. */
+/* asg_bake._chord_moments: (S0, S2, S4) = ∫_{−B}^{B} b^{2k} e^{−μb²} db, B = half, by erf and parts, or by the
+ * series where μB² < 1. */
+CL_INLINE double3 asgfit_chord_moments(double mu, double half_width)
+{
+    double x = mu * half_width * half_width;
+    if (x < 1.0) {
+        double h2 = half_width * half_width, term = 2.0 * half_width;
+        double s0 = 0.0, s2 = 0.0, s4 = 0.0;
+        for (int m = 0; m < ASGFIT_CHORD_TERMS; ++m) {
+            double k = (double)(2 * m);
+            s0 += term / (k + 1.0);
+            s2 += term * h2 / (k + 3.0);
+            s4 += term * h2 * h2 / (k + 5.0);
+            term = term * (-x) / (double)(m + 1);
+        }
+        return (double3)(s0, s2, s4);
+    }
+    double e = exp(-x);
+    double c0 = sqrt(M_PI / mu) * erf(sqrt(x));
+    double c2 = (c0 - 2.0 * half_width * e) / (2.0 * mu);
+    double c4 = (3.0 * c2 - 2.0 * half_width * half_width * half_width * e) / (2.0 * mu);
+    return (double3)(c0, c2, c4);
+}
+
+/* (E[a²], E[b²], E[a⁴], E[b⁴], E[a²b²]) of exp(−λa² − μb²) on the unit disk (asg_bake._disk_moments). */
 CL_INLINE void asgfit_disk_moments(double lam, double mu, double *m)
 {
     double amax = fmin(1.0, 6.0 / sqrt(2.0 * lam));
@@ -87,27 +111,13 @@ CL_INLINE void asgfit_disk_moments(double lam, double mu, double *m)
         double a = amax * GL48_X[i];
         double a2 = a * a;
         double wa = amax * GL48_W[i] * exp(-lam * a2);
-        double bmax = fmin(sqrt(fmax(1.0 - a2, 0.0)), bcap);
-        double b2 = bmax * bmax;
-        float c = (float)(mu * b2);
-        float i0 = 0.0f, i2 = 0.0f, i4 = 0.0f;
-        for (int k = 0; k < 48; ++k) {
-            float x2 = (float)(GL48_X[k] * GL48_X[k]);
-            float w = (float)GL48_W[k];
-            float e = exp(-c * x2);
-            i0 += w * e;
-            i2 += (float)(GL48_W[k] * GL48_X[k] * GL48_X[k]) * e;
-            i4 += (float)(GL48_W[k] * GL48_X[k] * GL48_X[k] * GL48_X[k] * GL48_X[k]) * e;
-        }
-        double s0 = bmax * (double)i0;
-        double s2 = bmax * b2 * (double)i2;
-        double s4 = bmax * b2 * b2 * (double)i4;
-        z += wa * s0;
-        sa2 += wa * a2 * s0;
-        sa4 += wa * a2 * a2 * s0;
-        sb2 += wa * s2;
-        sb4 += wa * s4;
-        sab += wa * a2 * s2;
+        double3 chord = asgfit_chord_moments(mu, fmin(sqrt(fmax(1.0 - a2, 0.0)), bcap));
+        z += wa * chord.x;
+        sa2 += wa * a2 * chord.x;
+        sa4 += wa * a2 * a2 * chord.x;
+        sb2 += wa * chord.y;
+        sb4 += wa * chord.z;
+        sab += wa * a2 * chord.y;
     }
     m[0] = sa2 / z;
     m[1] = sb2 / z;

@@ -10,10 +10,10 @@ for every step at once with no host round trip: `asg_em_responsibilities` (one t
 few thousand — and the lobes' Newton is the step's largest work) and `asg_em_finish` (one thread: the weights,
 the convergence test and the new lobes). `state` = [done, steps]: once done is set, every later launch returns.
 
-Precision: the bins, the lobes and every sum are float64 (a lobe at the bandwidth cap, λ = 5e5, has E[a²] =
-1e−6, which float32 normals would give to 1e−4); the disk moments' inner rule runs in float32 (its 48
-exponentials of a bounded argument, summed to ~1e−7), so the Newton stops at a step of 1e−5 in log λ where the
-reference stops at 1e−7, and the bandwidths agree with the reference to ~1e−6 (tests/test_asg_bake.py).
+Precision: float64 throughout, as the reference (a lobe at the bandwidth cap, λ = 5e5, has E[a²] = 1e−6, which
+float32 normals would give to 1e−4); the disk moments are the reference's (48 Gauss–Legendre nodes across, each
+chord in closed form), and the E-step's responsibilities and ∫G (kernels/asg.py's 56-node float32 rule, 2.7e−7)
+are where the two differ (tests/test_asg_bake.py).
 
 Lobe rows (J, 12) float64: [x (3), y (3), z (3), λ, μ, log ∫G] (∫G by kernels/asg.py's 56-node rule).
 """
@@ -26,21 +26,18 @@ from .asg import asg_unit_integral
 # 48-point Gauss–Legendre on [−1, 1] (numpy.polynomial.legendre.leggauss(48)), as asg_bake._disk_moments.
 _X, _W = np.polynomial.legendre.leggauss(48)
 vec48 = wp.types.vector(length=48, dtype=wp.float64)
-vec48f = wp.types.vector(length=48, dtype=wp.float32)
 GL48_X = wp.constant(vec48(*_X))
 GL48_W = wp.constant(vec48(*_W))
-GL48_X2 = wp.constant(vec48f(*(_X * _X)))  # the inner rule's nodes², weights, ·x², ·x⁴ (float32)
-GL48_W0 = wp.constant(vec48f(*_W))
-GL48_W2 = wp.constant(vec48f(*(_W * _X * _X)))
-GL48_W4 = wp.constant(vec48f(*(_W * _X**4)))
 vec5d = wp.types.vector(length=5, dtype=wp.float64)
 
 D0 = wp.constant(wp.float64(0.0))
 D1 = wp.constant(wp.float64(1.0))
 NEG = wp.constant(wp.float64(-1.0e300))  # log density of a lobe that does not see the normal
 TINY = wp.constant(wp.float64(1.0e-300))
-NEWTON_STEPS = wp.constant(30)
-NEWTON_DONE = wp.constant(wp.float64(1.0e-5))  # a step below this in log λ and log μ ends the Newton
+PI64 = wp.constant(wp.float64(3.141592653589793))
+CHORD_TERMS = wp.constant(24)  # = asg_bake.CHORD_TERMS
+NEWTON_STEPS = wp.constant(60)  # = bandwidths_from_moments' iterations
+NEWTON_DONE = wp.constant(wp.float64(1.0e-7))  # a step below this in log λ and log μ ends the Newton, as on the host
 
 
 @wp.func
@@ -80,6 +77,31 @@ def log_density(lobes: wp.array2d(dtype=wp.float64), alpha: wp.array(dtype=wp.fl
 
 
 @wp.func
+def chord_moments(mu: wp.float64, half: wp.float64) -> wp.vec3d:
+    """asg_bake._chord_moments: (S0, S2, S4) = ∫_{−B}^{B} b^{2k} e^{−μb²} db, B = half, by erf and parts, or by the
+    series where μB² < 1."""
+    x = mu * half * half
+    if x < D1:
+        h2 = half * half
+        term = wp.float64(2.0) * half
+        s0 = D0
+        s2 = D0
+        s4 = D0
+        for m in range(CHORD_TERMS):
+            k = wp.float64(2 * m)
+            s0 += term / (k + D1)
+            s2 += term * h2 / (k + wp.float64(3.0))
+            s4 += term * h2 * h2 / (k + wp.float64(5.0))
+            term = term * (-x) / wp.float64(m + 1)
+        return wp.vec3d(s0, s2, s4)
+    e = wp.exp(-x)
+    c0 = wp.sqrt(PI64 / mu) * wp.erf(wp.sqrt(x))
+    c2 = (c0 - wp.float64(2.0) * half * e) / (wp.float64(2.0) * mu)
+    c4 = (wp.float64(3.0) * c2 - wp.float64(2.0) * half * half * half * e) / (wp.float64(2.0) * mu)
+    return wp.vec3d(c0, c2, c4)
+
+
+@wp.func
 def disk_moments(lam: wp.float64, mu: wp.float64) -> vec5d:
     """(E[a²], E[b²], E[a⁴], E[b⁴], E[a²b²]) of exp(−λa² − μb²) on the unit disk (asg_bake._disk_moments)."""
     amax = wp.min(D1, wp.float64(6.0) / wp.sqrt(wp.float64(2.0) * lam))
@@ -94,26 +116,13 @@ def disk_moments(lam: wp.float64, mu: wp.float64) -> vec5d:
         a = amax * GL48_X[i]
         a2 = a * a
         wa = amax * GL48_W[i] * wp.exp(-lam * a2)
-        bmax = wp.min(wp.sqrt(wp.max(D1 - a2, D0)), bcap)
-        b2 = bmax * bmax
-        c = float(mu * b2)
-        i0 = float(0.0)
-        i2 = float(0.0)
-        i4 = float(0.0)
-        for k in range(48):
-            e = wp.exp(-c * GL48_X2[k])
-            i0 += GL48_W0[k] * e
-            i2 += GL48_W2[k] * e
-            i4 += GL48_W4[k] * e
-        s0 = bmax * wp.float64(i0)
-        s2 = bmax * b2 * wp.float64(i2)
-        s4 = bmax * b2 * b2 * wp.float64(i4)
-        z += wa * s0
-        sa2 += wa * a2 * s0
-        sa4 += wa * a2 * a2 * s0
-        sb2 += wa * s2
-        sb4 += wa * s4
-        sab += wa * a2 * s2
+        chord = chord_moments(mu, wp.min(wp.sqrt(wp.max(D1 - a2, D0)), bcap))
+        z += wa * chord[0]
+        sa2 += wa * a2 * chord[0]
+        sa4 += wa * a2 * a2 * chord[0]
+        sb2 += wa * chord[1]
+        sb4 += wa * chord[2]
+        sab += wa * a2 * chord[1]
     return vec5d(sa2 / z, sb2 / z, sa4 / z, sb4 / z, sab / z)
 
 

@@ -4,19 +4,19 @@ method="asg", lobes=J)` → `ASGBRDF`.
 What it does, stage by stage (the geometry stages are the SG bake's own, `bake._sample_facets` …
 `bake._fit_ndf`: facets, visibility, the visible weights, the SG EM on the device):
 
-1. **The fit** (`fit_asg`, host float64): J anisotropic spherical Gaussians fitted to the NDF's non-empty
-   normal bins (the cube map of `normal_res`, each bin at its facets' area-weighted mean normal, weighing their
-   visible weights summed: the NDF as the direction grid sees it, as the SG EM fits it; a bin's own spread,
-   under a degree at R = 128, is what binning loses, and the facets would cost the fit their number per
-   step: docs/design.md §9 has the comparison). The start
+1. **The fit** (`fit_asg_on` on the device; `fit_asg`, host float64, its reference): J anisotropic spherical
+   Gaussians fitted to the NDF's non-empty normal bins (the cube map of `normal_res`, each bin at its facets'
+   area-weighted mean normal, weighing their visible weights summed: the NDF as the direction grid sees it, as
+   the SG EM fits it; a bin's own spread, under a degree at R = 128, is what binning loses, and the facets would
+   cost the fit their number per step: docs/design.md §9 has the comparison). The start
    is deterministic: the SG EM's lobes as isotropic ASGs (Xu's ν = η/2, `asg.from_sg`). Then EM steps on
    the mixture of normalised ASGs p_j(n) = G_j(n)/∫G_j: E-step responsibilities; M-step axis z = the
    responsibility-weighted mean normal, and in the tangent plane of z the weighted second moments of the
    disk coordinates (a, b) = (n·x, n·y): their eigenvectors give the frame, and λ, μ are the exact maximum
    likelihood of the truncated Gaussian on the unit disk for that frame (an ASG *is* that Gaussian in (a, b),
    asg.py's module notes; its sufficient statistics are a², b², so ML = matching E[a²], E[b²], solved by
-   Newton in log λ, log μ with the moments by Gauss–Legendre over the disk). A facet whose normal lies
-   below a lobe's horizon takes no responsibility from it.
+   Newton in log λ, log μ with the moments by Gauss–Legendre across the disk, each chord in closed form).
+   A facet whose normal lies below a lobe's horizon takes no responsibility from it.
 2. **Amplitudes by the Gram route** (`amplitude_system`): A_ij = ∫G_iG_j by Xu's product (Eq. 13) and the
    exact integral, regularised on its unit diagonal as the SG route (`lobes.RIDGE`) and calibrated per lobe
    by the fitted NDF (`lobes.amplitude_system`'s calibration: the amplitude of lobe j on the fitted NDF is
@@ -31,8 +31,8 @@ What it does, stage by stage (the geometry stages are the SG bake's own, `bake._
    amplitude, with a shape that is exact for a delta NDF lobe too (`convolve_sg_at`; method "asg-eq18" is
    Eq. 18's own shape).
 
-The ASG fit (EM) is host numpy (float64); the lobes' values, the moments and the solve run in the SG bake's
-kernels. The SG
+The ASG fit (EM) runs on the device (`fit_asg_on`, stage asgfit; `fit_asg` is its float64 host reference); the
+lobes' values, the moments and the solve run in the SG bake's kernels. The SG
 renderer shades an `ASGBRDF` in its kernels (`shade_lobes`, `diffuse`; docs/design.md §9 "ASG rendering"),
 the lit-sphere renderer evaluates it on the host (`host_texels`), the Monte Carlo reference samples it by
 isotropic stand-ins of its lobes (`sampling_lobes`) and evaluates its exact ground truth; the Mitsuba export
@@ -46,6 +46,7 @@ import os
 import time
 
 import numpy as np
+from scipy.special import erf
 
 from . import asg as asg_mod
 from . import bake as bake_mod
@@ -69,8 +70,7 @@ BANDWIDTH_MAX = sg.SHARPNESS_MAX / 2.0  # a delta direction (flat facets): the S
 BANDWIDTH_MIN = 1e-6
 _CONVERGED = 1e-6  # relative change of the bandwidths and axis movement (rad²/2) that stops the EM
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(48)
-_GL_X2 = _GL_X * _GL_X
-_GL_B_MOMENTS = np.stack([_GL_W, _GL_W * _GL_X2, _GL_W * _GL_X2 * _GL_X2], -1)  # (48, 3)
+CHORD_TERMS = 24  # series terms of _chord_moments where μB² < 1: the last below 1/24! ≈ 1.6e−24
 
 NO_SG_LOBES = ("a material baked by the ASG method (Xu 2013) holds anisotropic spherical Gaussians, not the SG "
                "lobes that the Mitsuba export reads: bake the tile with method='sg' to export it")
@@ -80,20 +80,43 @@ NO_SG_LOBES = ("a material baked by the ASG method (Xu 2013) holds anisotropic s
 # The fit
 # ---------------------------------------------------------------------------------------------------
 
+def _chord_moments(mu, half):
+    """(S0, S2, S4) = ∫_{−B}^{B} b^{2k} e^{−μb²} db for k = 0, 1, 2, B = `half`, in closed form: S0 = √(π/μ)·erf(B√μ)
+    and, by parts, S2 = (S0 − 2B·e^{−μB²})/(2μ), S4 = (3·S2 − 2B³·e^{−μB²})/(2μ); where x = μB² < 1 those lose
+    ~ε/x to cancellation, so there the series S_2k = 2Σ_m (−x)^m B^{2k+1}/(m!(2k + 2m + 1)) (terms below 1/m!:
+    CHORD_TERMS of them are exact to float64) takes over."""
+    mu, half = np.broadcast_arrays(np.asarray(mu, np.float64), np.asarray(half, np.float64))
+    x = mu * half * half
+    small = x < 1.0
+    rmu = np.where(small, 1.0, mu)  # (the closed form where x >= 1; the series below replaces the rest)
+    e = np.exp(-np.where(small, 0.0, x))
+    s0 = np.sqrt(np.pi / rmu) * erf(np.sqrt(np.where(small, 1.0, x)))
+    s2 = (s0 - 2.0 * half * e) / (2.0 * rmu)
+    s4 = (3.0 * s2 - 2.0 * half**3 * e) / (2.0 * rmu)
+    if small.any():
+        s0, s2, s4 = (np.array(v, np.float64) for v in (s0, s2, s4))  # (writable, scalars too)
+        xs, hs = x[small], half[small]
+        term, series = 2.0 * hs, [np.zeros_like(xs) for _ in range(3)]
+        for m in range(CHORD_TERMS):
+            for k in range(3):
+                series[k] += term * hs ** (2 * k) / (2 * k + 2 * m + 1)
+            term = term * -xs / (m + 1)
+        for out, value in zip((s0, s2, s4), series):
+            out[small] = value
+    return s0, s2, s4
+
+
 def _disk_moments(lam, mu):
     """For the density ∝ exp(−λa² − μb²) on the unit disk, per lobe: (E[a²], E[b²], E[a⁴], E[b⁴], E[a²b²]).
-    Gauss–Legendre 48 × 48 on a ∈ [−A, A], b ∈ [−B(a), B(a)], A = min(1, 6/√(2λ)), B = min(√(1 − a²),
-    6/√(2μ)): the Gaussian is below e^{−18} of its peak past those limits, so sharp lobes get their nodes
-    where their mass is (bandwidths from 1e−6 to 5e5). The inner rule in b is one product per lobe: with
-    b = B(a)·x_k, Σ_k w_k b^{2p} e^{−μb²} = B^{2p+1}·Σ_k (w_k x_k^{2p}) e^{−μB²x_k²} for p = 0, 1, 2."""
+    Gauss–Legendre 48 in a ∈ [−A, A], A = min(1, 6/√(2λ)), and for each a the chord b ∈ [−B(a), B(a)],
+    B = min(√(1 − a²), 6/√(2μ)), in closed form (`_chord_moments`): the Gaussian is below e^{−18} of its peak
+    past those limits, so sharp lobes get their nodes where their mass is (bandwidths from 1e−6 to 5e5)."""
     lam, mu = np.asarray(lam, np.float64), np.asarray(mu, np.float64)
     amax = np.minimum(1.0, 6.0 / np.sqrt(2.0 * lam))[..., None]
     a2 = (amax * _GL_X) ** 2  # (J, na)
     wa = amax * _GL_W * np.exp(-lam[..., None] * a2)
     bmax = np.minimum(np.sqrt(np.maximum(1.0 - a2, 0.0)), 6.0 / np.sqrt(2.0 * mu)[..., None])  # (J, na)
-    b2 = bmax * bmax
-    inner = np.exp(-(mu[..., None] * b2)[..., None] * _GL_X2) @ _GL_B_MOMENTS  # (J, na, 3): Σ_k, ·x², ·x⁴
-    s0, s2, s4 = bmax * inner[..., 0], bmax * b2 * inner[..., 1], bmax * b2 * b2 * inner[..., 2]
+    s0, s2, s4 = _chord_moments(mu[..., None], bmax)
     z = np.sum(wa * s0, -1)
     return (np.sum(wa * a2 * s0, -1) / z, np.sum(wa * s2, -1) / z, np.sum(wa * a2 * a2 * s0, -1) / z,
             np.sum(wa * s4, -1) / z, np.sum(wa * a2 * s2, -1) / z)
