@@ -63,7 +63,7 @@ def test_chord_moments_against_quadrature():
             half = min(half, 6.0 / np.sqrt(2.0 * mu))
             got = asg_bake._chord_moments(mu, half)
             for k in range(3):
-                want = integrate.quad(lambda b, k=k: b ** (2 * k) * np.exp(-mu * b * b), -half, half, epsabs=0,
+                want = integrate.quad(lambda b, k=k, mu=mu: b ** (2 * k) * np.exp(-mu * b * b), -half, half, epsabs=0,
                                       epsrel=1e-13, limit=200)[0]
                 assert got[k] == pytest.approx(want, rel=1e-13), (mu, half, k)
 
