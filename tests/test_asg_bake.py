@@ -419,3 +419,10 @@ def test_bad_inputs_are_one_line_errors():
         wb.ASGBRDF(mat.asgs, mat.weight, mat.amplitudes[:, :3], [lam], 4)
     with pytest.raises(ValueError, match="asg.ASG batch"):
         wb.ASGBRDF("lobes", mat.weight, mat.amplitudes, [lam], 4)
+    for bad in (np.nan, np.inf, -1e-3):
+        amps = mat.amplitudes.copy()
+        amps[0, 1, 2, 0, 1] = bad
+        with pytest.raises(ValueError, match="amplitudes must be finite and >= 0"):
+            wb.ASGBRDF(mat.asgs, mat.weight, amps, [lam], 4)
+    with pytest.raises(ValueError, match="energy must have shape"):
+        wb.ASGBRDF(mat.asgs, mat.weight, mat.amplitudes, [lam], 4, energy=np.zeros((1, 16, 16)))

@@ -481,7 +481,8 @@ class ASGBRDF(HostOnlyBRDF):
                  bvndf=None, provenance: Provenance | None = None, path=None, energy=None):
         if not isinstance(asgs, asg_mod.ASG) or asgs.lam.ndim != 1 or not (1 <= len(asgs.lam) <= lobes_mod.MAX_LOBES):
             raise ValueError(f"asgs must be an asg.ASG batch of 1..{lobes_mod.MAX_LOBES} lobes")
-        self.asgs = asg_mod.ASG(asgs.x, asgs.y, asgs.z, asgs.lam, asgs.mu, 1.0)
+        unit = np.all(asgs.amplitude == 1.0)
+        self.asgs = asgs if unit else asg_mod.ASG(asgs.x, asgs.y, asgs.z, asgs.lam, asgs.mu, 1.0)
         j = len(self.asgs.lam)
         self.weight = np.asarray(weight, np.float64).reshape(-1)
         if self.weight.shape != (j,):
@@ -493,8 +494,8 @@ class ASGBRDF(HostOnlyBRDF):
         self.amplitudes = np.asarray(amplitudes, np.float32)
         if self.amplitudes.ndim != 5 or self.amplitudes.shape[1:] != (nd, nd, j, 3):
             raise ValueError(f"amplitudes must have shape (M, {nd}, {nd}, {j}, 3), got {self.amplitudes.shape}")
-        if not np.all(np.isfinite(self.amplitudes)) or (self.amplitudes < 0).any():
-            raise ValueError("amplitudes must be finite and >= 0")
+        if self.amplitudes.size and not (self.amplitudes.min() >= 0 and np.isfinite(self.amplitudes.max())):
+            raise ValueError("amplitudes must be finite and >= 0")  # (a NaN fails min() >= 0)
         self.materials = as_material_list(materials)
         if len(self.materials) != len(self.amplitudes):
             raise ValueError(f"{len(self.amplitudes)} amplitude table(s) but {len(self.materials)} material(s)")
