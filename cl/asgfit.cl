@@ -12,6 +12,7 @@
 #define ASGFIT_NEG (-1.0e300)        /* log density of a lobe that does not see the normal */
 #define ASGFIT_TINY 1.0e-300
 #define ASGFIT_CHORD_TERMS 24        /* = asg_bake.CHORD_TERMS */
+#define ASGFIT_CHORD_DONE 1.0e-17    /* = asg_bake.CHORD_DONE */
 #define ASGFIT_NEWTON_STEPS 60       /* = bandwidths_from_moments' iterations */
 #define ASGFIT_NEWTON_DONE 1.0e-7    /* a step below this in log λ and log μ ends the Newton, as on the host */
 
@@ -38,6 +39,19 @@ __constant double GL48_W[48] = {
     0.04761665849249024, 0.04467456085669423, 0.04154508294346455, 0.0382413510658305, 0.034777222564770394,
     0.031167227832798097, 0.027426509708357034, 0.023570760839324047, 0.019616160457356056, 0.015579315722943226,
     0.011477234579234614, 0.007327553901276135, 0.0031533460523098414};
+
+/* 1/(2n + 1) and 1/(m + 1): the chord series' divisions as products. */
+__constant double ASGFIT_INV_ODD[26] = {
+    1.0, 0.3333333333333333, 0.2, 0.14285714285714285, 0.1111111111111111, 0.09090909090909091,
+    0.07692307692307693, 0.06666666666666667, 0.058823529411764705, 0.05263157894736842, 0.047619047619047616,
+    0.043478260869565216, 0.04, 0.037037037037037035, 0.034482758620689655, 0.03225806451612903,
+    0.030303030303030304, 0.02857142857142857, 0.02702702702702703, 0.02564102564102564, 0.024390243902439025,
+    0.023255813953488372, 0.022222222222222223, 0.02127659574468085, 0.02040816326530612, 0.0196078431372549};
+__constant double ASGFIT_INV_NEXT[24] = {
+    1.0, 0.5, 0.3333333333333333, 0.25, 0.2, 0.16666666666666666, 0.14285714285714285, 0.125, 0.1111111111111111,
+    0.1, 0.09090909090909091, 0.08333333333333333, 0.07692307692307693, 0.07142857142857142, 0.06666666666666667,
+    0.0625, 0.058823529411764705, 0.05555555555555555, 0.05263157894736842, 0.05, 0.047619047619047616,
+    0.045454545454545456, 0.043478260869565216, 0.041666666666666664};
 
 CL_INLINE double3 asgfit_vec(__global const double *lobes, int j, int k)
 {
@@ -86,11 +100,12 @@ CL_INLINE double3 asgfit_chord_moments(double mu, double half_width)
         double h2 = half_width * half_width, term = 2.0 * half_width;
         double s0 = 0.0, s2 = 0.0, s4 = 0.0;
         for (int m = 0; m < ASGFIT_CHORD_TERMS; ++m) {
-            double k = (double)(2 * m);
-            s0 += term / (k + 1.0);
-            s2 += term * h2 / (k + 3.0);
-            s4 += term * h2 * h2 / (k + 5.0);
-            term = term * (-x) / (double)(m + 1);
+            s0 += term * ASGFIT_INV_ODD[m];
+            s2 += term * h2 * ASGFIT_INV_ODD[m + 1];
+            s4 += term * h2 * h2 * ASGFIT_INV_ODD[m + 2];
+            term = term * (-x) * ASGFIT_INV_NEXT[m];
+            if (fabs(term) < ASGFIT_CHORD_DONE * s0)
+                break;
         }
         return (double3)(s0, s2, s4);
     }

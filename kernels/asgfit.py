@@ -36,6 +36,11 @@ NEG = wp.constant(wp.float64(-1.0e300))  # log density of a lobe that does not s
 TINY = wp.constant(wp.float64(1.0e-300))
 PI64 = wp.constant(wp.float64(3.141592653589793))
 CHORD_TERMS = wp.constant(24)  # = asg_bake.CHORD_TERMS
+CHORD_DONE = wp.constant(wp.float64(1.0e-17))  # = asg_bake.CHORD_DONE
+vec26d = wp.types.vector(length=26, dtype=wp.float64)
+vec24d = wp.types.vector(length=24, dtype=wp.float64)
+INV_ODD = wp.constant(vec26d(*(1.0 / (2.0 * np.arange(26) + 1.0))))  # 1/(2n + 1): the series' divisions as products
+INV_NEXT = wp.constant(vec24d(*(1.0 / (np.arange(24) + 1.0))))  # 1/(m + 1)
 NEWTON_STEPS = wp.constant(60)  # = bandwidths_from_moments' iterations
 NEWTON_DONE = wp.constant(wp.float64(1.0e-7))  # a step below this in log λ and log μ ends the Newton, as on the host
 
@@ -88,11 +93,12 @@ def chord_moments(mu: wp.float64, half: wp.float64) -> wp.vec3d:
         s2 = D0
         s4 = D0
         for m in range(CHORD_TERMS):
-            k = wp.float64(2 * m)
-            s0 += term / (k + D1)
-            s2 += term * h2 / (k + wp.float64(3.0))
-            s4 += term * h2 * h2 / (k + wp.float64(5.0))
-            term = term * (-x) / wp.float64(m + 1)
+            s0 += term * INV_ODD[m]
+            s2 += term * h2 * INV_ODD[m + 1]
+            s4 += term * h2 * h2 * INV_ODD[m + 2]
+            term = term * (-x) * INV_NEXT[m]
+            if wp.abs(term) < CHORD_DONE * s0:
+                break
         return wp.vec3d(s0, s2, s4)
     e = wp.exp(-x)
     c0 = wp.sqrt(PI64 / mu) * wp.erf(wp.sqrt(x))

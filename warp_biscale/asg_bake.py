@@ -71,6 +71,7 @@ BANDWIDTH_MIN = 1e-6
 _CONVERGED = 1e-6  # relative change of the bandwidths and axis movement (rad²/2) that stops the EM
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(48)
 CHORD_TERMS = 24  # series terms of _chord_moments where μB² < 1: the last below 1/24! ≈ 1.6e−24
+CHORD_DONE = 1e-17  # ... or fewer, once a term is below this fraction of the sum
 
 NO_SG_LOBES = ("a material baked by the ASG method (Xu 2013) holds anisotropic spherical Gaussians, not the SG "
                "lobes that the Mitsuba export reads: bake the tile with method='sg' to export it")
@@ -84,7 +85,7 @@ def _chord_moments(mu, half):
     """(S0, S2, S4) = ∫_{−B}^{B} b^{2k} e^{−μb²} db for k = 0, 1, 2, B = `half`, in closed form: S0 = √(π/μ)·erf(B√μ)
     and, by parts, S2 = (S0 − 2B·e^{−μB²})/(2μ), S4 = (3·S2 − 2B³·e^{−μB²})/(2μ); where x = μB² < 1 those lose
     ~ε/x to cancellation, so there the series S_2k = 2Σ_m (−x)^m B^{2k+1}/(m!(2k + 2m + 1)) (terms below 1/m!:
-    CHORD_TERMS of them are exact to float64) takes over."""
+    CHORD_TERMS of them are exact to float64, and it stops once a term is below CHORD_DONE of S0) takes over."""
     mu, half = np.broadcast_arrays(np.asarray(mu, np.float64), np.asarray(half, np.float64))
     x = mu * half * half
     small = x < 1.0
@@ -101,6 +102,8 @@ def _chord_moments(mu, half):
             for k in range(3):
                 series[k] += term * hs ** (2 * k) / (2 * k + 2 * m + 1)
             term = term * -xs / (m + 1)
+            if np.all(np.abs(term) < CHORD_DONE * series[0]):
+                break
         for out, value in zip((s0, s2, s4), series):
             out[small] = value
     return s0, s2, s4
