@@ -90,8 +90,8 @@ def table(records, meta):
                   f"{r0['runs'] + 1} facet seeds (1 … {r0['runs'] + 1}; per seed the two methods see the same facets). "
                   "ASG: the default eval "
                   "(Eq. 18's bandwidths and amplitude, `asg.convolve_sg_at`'s shape); \"Eq. 18\": Xu's shape "
-                  "literally. Times: median of whole bakes, a new facet seed each (host numpy after the SG EM "
-                  f"for the ASG bake), backend {r0['backend']}.", ""]
+                  "literally. Times: median of whole bakes, a new facet seed each, "
+                  f"backend {r0['backend']}.", ""]
         rows = []
         for r in fam:
             s, a = r["sg"], r["asg"]
