@@ -319,10 +319,6 @@ class DeviceBackend:
         """An uninitialised device array of `shape` elements of `kind`."""
         raise NotImplementedError
 
-    def _to_device_mutable(self, host, kind: str):
-        """As `_to_device`, a copy that kernels may also write (an OpenCL `_to_device` buffer is read-only)."""
-        raise NotImplementedError
-
     def _to_host(self, array, shape, kind: str, out=None) -> np.ndarray:
         """A host copy of `array`, `shape` elements of `kind` (a vec kind adds its components as a last
         axis), once the work queued on it is done; in `out` (a C-contiguous host array of that size and
@@ -1122,21 +1118,17 @@ class DeviceBackend:
             return start, alpha, 0
         rows = np.concatenate([start.x, start.y, start.z, start.lam[:, None], start.mu[:, None],
                                np.log(unit_integral(start.lam, start.mu))[:, None]], axis=1)
-        arrays = {"normal": self._to_device(normal, "vec3d"), "weight": self._to_device(weight, "f64"),
-                  "lobes": self._to_device_mutable(rows, "f64"), "alpha": self._to_device_mutable(alpha, "f64"),
-                  "state": self._to_device_mutable(np.zeros(2, np.int32), "i32"),
-                  "resp_weight": self._new((n_bins, j), "f64"), "seen_weight": self._new(n_bins, "f64"),
-                  "new_lobes": self._new((j, 12), "f64"), "mass": self._new(j, "f64"), "moved": self._new(j, "f64")}
         log_range = (float(np.log(bandwidth_range[0])), float(np.log(bandwidth_range[1])))
-        for _ in range(int(iterations)):
-            self._launch_asg_em_step(arrays, n_bins, j, DEAD_MASS, log_range, float(converged))
-        rows = self._to_host(arrays["lobes"], (j, 12), "f64").reshape(j, 12)
-        alpha = self._to_host(arrays["alpha"], j, "f64")
-        steps = int(self._to_host(arrays["state"], 2, "i32")[1])
+        rows, alpha, steps = self._run_asg_em(normal, weight, rows, alpha, int(iterations), DEAD_MASS, log_range,
+                                              float(converged))
+        rows = np.asarray(rows, np.float64).reshape(j, 12)
         return ASG(rows[:, 0:3], rows[:, 3:6], rows[:, 6:9], rows[:, 9], rows[:, 10], 1.0), alpha, steps
 
-    def _launch_asg_em_step(self, arrays, n_bins, n_lobes, dead_mass, log_range, converged):
-        """Queue one EM step of asg_em: its three launches over `arrays` (asg_em's)."""
+    def _run_asg_em(self, normal, weight, rows, alpha, iterations, dead_mass, log_range, converged) -> tuple:
+        """asg_em's steps on the device from host float64 bins (L, 3), weights (L,), lobe rows (J, 12) [x, y, z,
+        λ, μ, log ∫G] and weights (J,): each step kernels/asgfit.py's asg_em_responsibilities (L threads),
+        asg_em_m_step (J) and asg_em_finish (1), all queued before the one read. → (rows (J, 12), alpha (J,),
+        steps) on the host."""
         raise NotImplementedError
 
     # --- ASG operators (stage `asg`, Xu 2013; oracle warp_biscale.asg, docs/design.md §9) ---

@@ -729,20 +729,31 @@ class OpenCLBackend(DeviceBackend):
         return self._empty(int(np.prod(shape)) * width, np_dtype)
 
     def _to_device_mutable(self, host, kind):
+        """As `_to_device`, a copy that kernels may also write (a `_to_device` buffer is read-only)."""
         cl = self._cl
         data = np.ascontiguousarray(host, KINDS[kind][0])
         return cl.Buffer(self._ctx, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR,
                          hostbuf=data if data.size else np.zeros(1, data.dtype))
 
-    def _launch_asg_em_step(self, arrays, n_bins, n_lobes, dead_mass, log_range, converged):
-        a, j = arrays, np.int32(n_lobes)
-        self._launch("asgfit", "asg_em_responsibilities", (n_bins,), a["normal"], a["weight"], a["lobes"], a["alpha"],
-                     a["state"], j, np.int32(n_bins), a["resp_weight"], a["seen_weight"])
-        self._launch("asgfit", "asg_em_m_step", (n_lobes,), a["normal"], a["seen_weight"], a["resp_weight"],
-                     a["lobes"], np.float64(dead_mass), np.float64(log_range[0]), np.float64(log_range[1]),
-                     a["state"], j, np.int32(n_bins), a["new_lobes"], a["mass"], a["moved"])
-        self._launch("asgfit", "asg_em_finish", (1,), a["new_lobes"], a["mass"], a["moved"], np.float64(converged), j,
-                     a["lobes"], a["alpha"], a["state"])
+    def _run_asg_em(self, normal, weight, rows, alpha, iterations, dead_mass, log_range, converged):
+        n_bins, n_lobes = len(normal), len(alpha)
+        a = {"normal": self._to_device(normal, "vec3d"), "weight": self._to_device(weight, "f64"),
+             "lobes": self._to_device_mutable(rows, "f64"), "alpha": self._to_device_mutable(alpha, "f64"),
+             "state": self._to_device_mutable(np.zeros(2, np.int32), "i32"),
+             "resp_weight": self._new((n_bins, n_lobes), "f64"), "seen_weight": self._new(n_bins, "f64"),
+             "new_lobes": self._new((n_lobes, 12), "f64"), "mass": self._new(n_lobes, "f64"),
+             "moved": self._new(n_lobes, "f64")}
+        j = np.int32(n_lobes)
+        for _ in range(iterations):
+            self._launch("asgfit", "asg_em_responsibilities", (n_bins,), a["normal"], a["weight"], a["lobes"],
+                         a["alpha"], a["state"], j, np.int32(n_bins), a["resp_weight"], a["seen_weight"])
+            self._launch("asgfit", "asg_em_m_step", (n_lobes,), a["normal"], a["seen_weight"], a["resp_weight"],
+                         a["lobes"], np.float64(dead_mass), np.float64(log_range[0]), np.float64(log_range[1]),
+                         a["state"], j, np.int32(n_bins), a["new_lobes"], a["mass"], a["moved"])
+            self._launch("asgfit", "asg_em_finish", (1,), a["new_lobes"], a["mass"], a["moved"],
+                         np.float64(converged), j, a["lobes"], a["alpha"], a["state"])
+        return (self._read(a["lobes"], (n_lobes, 12), np.float64), self._read(a["alpha"], n_lobes, np.float64),
+                int(self._read(a["state"], 2, np.int32)[1]))
 
     def frame_buffer(self, width: int, height: int) -> np.ndarray:
         """On a GPU, a host array mapped from a buffer the driver allocates in pinned host memory

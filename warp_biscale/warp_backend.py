@@ -160,6 +160,7 @@ class WarpBackend(DeviceBackend):
         self._pinned = {}  # (shape, dtype) → pinned host buffer for large read-backs, see _trace_host
         self._em_graphs = {}  # (Ns, J, steps, weighted) → captured EM (CUDA): see _em_graph
         self._em_buffers = {}
+        self._asg_em_graphs = {}  # (bins rounded up, J, steps, constants) → captured ASG EM (CUDA): _run_asg_em
         self._pinned = {}  # (shape, dtype) → [(pinned host array, event)] free for _read_later
         self._frame_buffers = {}  # id of a frame_buffer view → (its pinned Warp array, the view)
 
@@ -620,17 +621,60 @@ class WarpBackend(DeviceBackend):
         """(`kind` may also be a Warp dtype: the scratch arrays of some stages hold vectors of J floats.)"""
         return wp.empty(shape, dtype=WARP_TYPES.get(kind, kind), device=self._device)
 
-    _to_device_mutable = _to_device
+    def _asg_em_program(self, n_bins, j, iterations, dead_mass, log_range, converged) -> dict:
+        """The ASG EM's buffers for `n_bins` bins and J lobes and its steps' launches, recorded."""
+        shapes = {"normal": (n_bins, wp.vec3d), "weight": (n_bins, wp.float64), "lobes": ((j, 12), wp.float64),
+                  "alpha": (j, wp.float64), "state": (2, wp.int32), "resp_weight": ((n_bins, j), wp.float64),
+                  "seen_weight": (n_bins, wp.float64), "new_lobes": ((j, 12), wp.float64), "mass": (j, wp.float64),
+                  "moved": (j, wp.float64)}
+        a = {name: wp.zeros(shape, dtype=dtype, device=self._device) for name, (shape, dtype) in shapes.items()}
+        a["step"] = [
+            self._recorded(kasgfit.asg_em_responsibilities, n_bins, [a["normal"], a["weight"], a["lobes"], a["alpha"],
+                                                                     a["state"]], [a["resp_weight"], a["seen_weight"]]),
+            self._recorded(kasgfit.asg_em_m_step, j, [a["normal"], a["seen_weight"], a["resp_weight"], a["lobes"],
+                                                      dead_mass, *log_range, a["state"]],
+                           [a["new_lobes"], a["mass"], a["moved"]], split=False),
+            self._recorded(kasgfit.asg_em_finish, 1, [a["new_lobes"], a["mass"], a["moved"], converged],
+                           [a["lobes"], a["alpha"], a["state"]], split=False)]
+        return a
 
-    def _launch_asg_em_step(self, arrays, n_bins, n_lobes, dead_mass, log_range, converged):
-        a = arrays
-        self._launch(kasgfit.asg_em_responsibilities, n_bins, [a["normal"], a["weight"], a["lobes"], a["alpha"],
-                                                               a["state"]], [a["resp_weight"], a["seen_weight"]])
-        self._launch(kasgfit.asg_em_m_step, n_lobes,
-                     [a["normal"], a["seen_weight"], a["resp_weight"], a["lobes"], dead_mass, *log_range, a["state"]],
-                     [a["new_lobes"], a["mass"], a["moved"]])
-        self._launch(kasgfit.asg_em_finish, 1, [a["new_lobes"], a["mass"], a["moved"], converged],
-                     [a["lobes"], a["alpha"], a["state"]])
+    def _run_asg_em(self, normal, weight, rows, alpha, iterations, dead_mass, log_range, converged):
+        n_bins, j = len(normal), len(alpha)
+        if self._device.is_cuda:
+            # One CUDA graph per bin count rounded up to a power of two (the padding bins weigh 0, so they add
+            # exact zeros), J and step cap, captured once and replayed: 3 launches a step from Python cost the
+            # host more than the GPU's work (bench/results/asg-h100-08728a0).
+            size = max(256, 1 << (n_bins - 1).bit_length())
+            key = (size, j, iterations, dead_mass, log_range, converged)
+            graph = self._asg_em_graphs.pop(key, None)
+            if graph is None:
+                prog = self._asg_em_program(size, j, iterations, dead_mass, log_range, converged)
+                with wp.ScopedCapture(device=self._device, force_module_load=False) as capture:
+                    for _ in range(iterations):
+                        for launch in prog["step"]:
+                            launch()
+                graph = {"prog": prog, "graph": capture.graph}
+            self._keep_recent(self._asg_em_graphs, key, graph)
+            prog = graph["prog"]
+            padded = np.zeros((size, 3))
+            padded[:, 2] = 1.0
+            padded[:n_bins] = normal
+            prog["normal"].assign(padded)
+            prog["weight"].assign(np.concatenate([weight, np.zeros(size - n_bins)]))
+        else:
+            prog = self._asg_em_program(n_bins, j, iterations, dead_mass, log_range, converged)
+            prog["normal"].assign(normal)
+            prog["weight"].assign(weight)
+        prog["lobes"].assign(rows)
+        prog["alpha"].assign(alpha)
+        prog["state"].zero_()
+        if self._device.is_cuda:
+            wp.capture_launch(graph["graph"])
+        else:
+            for _ in range(iterations):
+                for launch in prog["step"]:
+                    launch()
+        return prog["lobes"].numpy(), prog["alpha"].numpy(), int(prog["state"].numpy()[1])
 
     def frame_buffer(self, width: int, height: int) -> np.ndarray:
         """On a GPU, pinned host memory: a frame is then copied into it from the device and nowhere else."""
