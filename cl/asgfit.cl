@@ -3,12 +3,9 @@
  *
  * Twin of kernels/asgfit.py, in the same operation order (its docstring gives the layout and the precision);
  * the float64 reference is warp_biscale.asg_bake.fit_asg. Needs cl_khr_fp64; takes asg_unit_integral from
- * cl/asg.cl (opencl_backend.USES). One EM step is six launches: asg_em_responsibilities (one work-item per bin),
- * the M-step's two sums over the bins by (lobe, chunk of bins) work-items and one work-item per lobe adding the
- * chunks (asg_em_mean_partial → asg_em_axis, asg_em_frame_partial → asg_em_bandwidths), asg_em_finish (one).
- * state = [done, steps]: once done is set, every later launch returns. NDRanges (lobes, chunks): dimension 0
- * varying fastest, as the last dimension of the Warp twin's (chunks, lobes). Lobe rows (J, 12) double: [x (3),
- * y (3), z (3), λ, μ, log ∫G]; bin normals (L, 3) double.
+ * cl/asg.cl (opencl_backend.USES). One EM step is three launches: asg_em_responsibilities (one work-item per
+ * bin), asg_em_m_step (one per lobe), asg_em_finish (one). state = [done, steps]: once done is set, every later
+ * launch returns. Lobe rows (J, 12) double: [x (3), y (3), z (3), λ, μ, log ∫G]; bin normals (L, 3) double.
  */
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
 
@@ -211,80 +208,33 @@ __kernel void asg_em_responsibilities(__global const double *bin_normal, __globa
     seen_weight[l] = bin_weight[l];
 }
 
-/* Work-item (lobe j, chunk c): over the chunk's bins, [Σ r_lj w_l, Σ_l seen w_l, Σ r_lj w_l n_l (3)]. */
-__kernel void asg_em_mean_partial(__global const double *bin_normal, __global const double *seen_weight,
-                                  __global const double *resp_weight, const int bins_per_chunk,
-                                  __global const int *state, const int n_lobes, const int n_bins,
-                                  __global double *partial)  /* (chunks, J, 5) */
-{
-    int j = get_global_id(0), c = get_global_id(1);
-    if (j >= n_lobes || state[0] != 0)
-        return;
-    int start = c * bins_per_chunk, stop = min(start + bins_per_chunk, n_bins);
-    double m_j = 0.0, total = 0.0;
-    double3 mean = (double3)(0.0, 0.0, 0.0);
-    for (int l = start; l < stop; ++l) {
-        double r = resp_weight[(size_t)l * n_lobes + j];
-        m_j += r;
-        total += seen_weight[l];
-        mean += r * (double3)(bin_normal[3 * l], bin_normal[3 * l + 1], bin_normal[3 * l + 2]);
-    }
-    __global double *out = partial + ((size_t)c * n_lobes + j) * 5;
-    out[0] = m_j;
-    out[1] = total;
-    out[2] = mean.x;
-    out[3] = mean.y;
-    out[4] = mean.z;
-}
-
-/* Lobe j: its chunks' sums added; whether it lives, its new axis z and the frame (x0, y0) of z. Row [z, x0, y0,
- * mass, live]. */
-__kernel void asg_em_axis(__global const double *partial, __global const double *lobes, const double dead_mass,
-                          __global const int *state, const int n_lobes, const int n_chunks,
-                          __global double *axis)  /* (J, 11) */
+/* asg_bake._m_step for lobe j: its new row, its mass (0 if it died) and how far it moved. */
+__kernel void asg_em_m_step(__global const double *bin_normal, __global const double *seen_weight,
+                            __global const double *resp_weight, __global const double *lobes, const double dead_mass,
+                            const double log_min, const double log_max, __global const int *state, const int n_lobes,
+                            const int n_bins, __global double *new_lobes, __global double *mass,
+                            __global double *moved)
 {
     int j = get_global_id(0);
     if (j >= n_lobes || state[0] != 0)
         return;
     double m_j = 0.0, total = 0.0;
     double3 mean = (double3)(0.0, 0.0, 0.0);
-    for (int c = 0; c < n_chunks; ++c) {
-        __global const double *p = partial + ((size_t)c * n_lobes + j) * 5;
-        m_j += p[0];
-        total += p[1];
-        mean += (double3)(p[2], p[3], p[4]);
+    for (int l = 0; l < n_bins; ++l) {
+        double r = resp_weight[(size_t)l * n_lobes + j];
+        double3 n = (double3)(bin_normal[3 * l], bin_normal[3 * l + 1], bin_normal[3 * l + 2]);
+        m_j += r;
+        total += seen_weight[l];
+        mean += r * n;
     }
+    double3 prev_x = asgfit_vec(lobes, j, 0), prev_z = asgfit_vec(lobes, j, 6);
+    double prev_lam = lobes[12 * j + 9], prev_mu = lobes[12 * j + 10];
     double norm = sqrt(asgfit_dot(mean, mean));
     int live = m_j > dead_mass * total && norm > 0.0;
-    double3 z = live ? mean / norm : asgfit_vec(lobes, j, 6);
+    double3 z = live ? mean / norm : prev_z;
     double3 x0 = asgfit_frame_x(z), y0 = asgfit_frame_y(z);
-    __global double *out = axis + 11 * j;
-    out[0] = z.x; out[1] = z.y; out[2] = z.z;
-    out[3] = x0.x; out[4] = x0.y; out[5] = x0.z;
-    out[6] = y0.x; out[7] = y0.y; out[8] = y0.z;
-    out[9] = m_j;
-    out[10] = live ? 1.0 : 0.0;
-}
-
-CL_INLINE double3 asgfit_axis_vec(__global const double *axis, int j, int k)
-{
-    return (double3)(axis[11 * j + k], axis[11 * j + k + 1], axis[11 * j + k + 2]);
-}
-
-/* Work-item (lobe j, chunk c): over the chunk's bins above the new axis' horizon, [Σ r w, Σ r w a², Σ r w b²,
- * Σ r w ab], (a, b) the normal's disk coordinates in (x0, y0). */
-__kernel void asg_em_frame_partial(__global const double *bin_normal, __global const double *resp_weight,
-                                   __global const double *axis, const int bins_per_chunk, __global const int *state,
-                                   const int n_lobes, const int n_bins,
-                                   __global double *partial)  /* (chunks, J, 4) */
-{
-    int j = get_global_id(0), c = get_global_id(1);
-    if (j >= n_lobes || state[0] != 0)
-        return;
-    double3 z = asgfit_axis_vec(axis, j, 0), x0 = asgfit_axis_vec(axis, j, 3), y0 = asgfit_axis_vec(axis, j, 6);
-    int start = c * bins_per_chunk, stop = min(start + bins_per_chunk, n_bins);
     double m2 = 0.0, caa = 0.0, cbb = 0.0, cab = 0.0;
-    for (int l = start; l < stop; ++l) {
+    for (int l = 0; l < n_bins; ++l) {
         double3 n = (double3)(bin_normal[3 * l], bin_normal[3 * l + 1], bin_normal[3 * l + 2]);
         if (asgfit_dot(n, z) > 0.0) {
             double r = resp_weight[(size_t)l * n_lobes + j];
@@ -295,34 +245,6 @@ __kernel void asg_em_frame_partial(__global const double *bin_normal, __global c
             cab += r * a * b;
         }
     }
-    __global double *out = partial + ((size_t)c * n_lobes + j) * 4;
-    out[0] = m2;
-    out[1] = caa;
-    out[2] = cbb;
-    out[3] = cab;
-}
-
-/* Lobe j (asg_bake._m_step's rest): the frame from the second moments' eigenvectors, λ, μ by Newton, its new row,
- * its mass (0 if it died) and how far it moved. */
-__kernel void asg_em_bandwidths(__global const double *partial, __global const double *axis,
-                                __global const double *lobes, const double log_min, const double log_max,
-                                __global const int *state, const int n_lobes, const int n_chunks,
-                                __global double *new_lobes, __global double *mass, __global double *moved)
-{
-    int j = get_global_id(0);
-    if (j >= n_lobes || state[0] != 0)
-        return;
-    double m2 = 0.0, caa = 0.0, cbb = 0.0, cab = 0.0;
-    for (int c = 0; c < n_chunks; ++c) {
-        __global const double *p = partial + ((size_t)c * n_lobes + j) * 4;
-        m2 += p[0];
-        caa += p[1];
-        cbb += p[2];
-        cab += p[3];
-    }
-    double3 prev_x = asgfit_vec(lobes, j, 0), prev_z = asgfit_vec(lobes, j, 6);
-    double prev_lam = lobes[12 * j + 9], prev_mu = lobes[12 * j + 10];
-    double3 z = asgfit_axis_vec(axis, j, 0), x0 = asgfit_axis_vec(axis, j, 3), y0 = asgfit_axis_vec(axis, j, 6);
     double mm = fmax(m2, ASGFIT_TINY);
     caa /= mm;
     cbb /= mm;
@@ -338,7 +260,7 @@ __kernel void asg_em_bandwidths(__global const double *partial, __global const d
     double uu = u.x * u.x + u.y * u.y;
     u = uu > 0.0 ? u / sqrt(uu) : (double2)(1.0, 0.0);
     double2 bw = asgfit_bandwidths(fmax(e0, 0.0), fmax(e1, 0.0), prev_lam, prev_mu, log_min, log_max);
-    int keep = axis[11 * j + 10] > 0.0 && m2 > ASGFIT_TINY;
+    int keep = live && m2 > ASGFIT_TINY;
     double3 x = prev_x;
     double lam = prev_lam, mu = prev_mu, log_norm = lobes[12 * j + 11];
     if (keep) {
@@ -357,7 +279,7 @@ __kernel void asg_em_bandwidths(__global const double *partial, __global const d
     out[9] = lam;
     out[10] = mu;
     out[11] = log_norm;
-    mass[j] = keep ? axis[11 * j + 9] : 0.0;
+    mass[j] = keep ? m_j : 0.0;
     double3 dz = z - prev_z;
     moved[j] = fmax(0.5 * asgfit_dot(dz, dz), fmax(fabs(log(lam / prev_lam)), fabs(log(mu / prev_mu))));
 }

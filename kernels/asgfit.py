@@ -4,14 +4,11 @@ fitted to the NDF's non-empty normal bins.
 Twin of ``cl/asgfit.cl``; the float64 reference is ``warp_biscale.asg_bake.fit_asg`` (its module notes give the
 EM: E-step responsibilities of the normalised ASGs; M-step axis = the weighted mean normal, frame and bandwidths
 from the second moments of the disk coordinates in its tangent plane, the bandwidths the exact maximum likelihood
-of the truncated Gaussian on the unit disk, by Newton in log λ, log μ). One EM step is six launches, queued for
-every step at once with no host round trip: `asg_em_responsibilities` (one thread per bin); the M-step's two
-sums over the bins, each by threads of (chunk of bins, lobe) (device.ASG_EM_BINS_PER_CHUNK bins a chunk) and
-then one thread per lobe that adds the chunks (`asg_em_mean_partial` → `asg_em_axis`: mass and axis;
-`asg_em_frame_partial` → `asg_em_bandwidths`: the second moments in the axis' frame, the frame and the
-bandwidths' Newton); and `asg_em_finish` (one thread: the weights, the convergence test and the new lobes).
-The chunks are there because one GPU thread walking all the bins waits on memory at every bin. `state` =
-[done, steps]: once done is set, every later launch returns.
+of the truncated Gaussian on the unit disk, by Newton in log λ, log μ). One EM step is three launches, queued
+for every step at once with no host round trip: `asg_em_responsibilities` (one thread per bin),
+`asg_em_m_step` (one thread per lobe: its sums over the bins are serial, as the bins are few — hundreds to a
+few thousand — and the lobes' Newton is the step's largest work) and `asg_em_finish` (one thread: the weights,
+the convergence test and the new lobes). `state` = [done, steps]: once done is set, every later launch returns.
 
 Precision: float64 throughout, as the reference (a lobe at the bandwidth cap, λ = 5e5, has E[a²] = 1e−6, which
 float32 normals would give to 1e−4); the disk moments are the reference's (48 Gauss–Legendre nodes across, each
@@ -211,99 +208,50 @@ def asg_em_responsibilities(
 
 
 @wp.kernel
-def asg_em_mean_partial(
+def asg_em_m_step(
     bin_normal: wp.array(dtype=wp.vec3d),
     seen_weight: wp.array(dtype=wp.float64),
     resp_weight: wp.array2d(dtype=wp.float64),
-    bins_per_chunk: int,
+    lobes: wp.array2d(dtype=wp.float64),
+    dead_mass: wp.float64,
+    log_min: wp.float64,
+    log_max: wp.float64,
     state: wp.array(dtype=wp.int32),
     offset: int,
-    partial: wp.array3d(dtype=wp.float64),
+    new_lobes: wp.array2d(dtype=wp.float64),
+    mass: wp.array(dtype=wp.float64),
+    moved: wp.array(dtype=wp.float64),
 ):
-    """Thread (chunk c, lobe j): over the chunk's bins, [Σ r_lj w_l, Σ_l seen w_l, Σ r_lj w_l n_l (3)]."""
+    """asg_bake._m_step for lobe j: its new row, its mass (0 if it died) and how far it moved (the larger of
+    1 − cos between the axes and |Δ log λ|, |Δ log μ|)."""
     if state[0] != 0:
         return
-    c, j_local = wp.tid()
-    j = j_local + offset
-    start = c * bins_per_chunk
-    stop = wp.min(start + bins_per_chunk, bin_normal.shape[0])
+    j = wp.tid() + offset
+    n_bins = bin_normal.shape[0]
     m_j = D0
     total = D0
     mean = wp.vec3d(D0, D0, D0)
-    for l in range(start, stop):
+    for l in range(n_bins):
         r = resp_weight[l, j]
         m_j += r
         total += seen_weight[l]
         mean += r * bin_normal[l]
-    partial[c, j, 0] = m_j
-    partial[c, j, 1] = total
-    for k in range(3):
-        partial[c, j, 2 + k] = mean[k]
-
-
-@wp.kernel
-def asg_em_axis(
-    partial: wp.array3d(dtype=wp.float64),
-    lobes: wp.array2d(dtype=wp.float64),
-    dead_mass: wp.float64,
-    state: wp.array(dtype=wp.int32),
-    offset: int,
-    axis: wp.array2d(dtype=wp.float64),
-):
-    """Lobe j: its chunks' sums added; whether it lives (its mass above dead_mass of the total and a mean normal
-    of some length), its new axis z (the mean normal, else the old) and the frame (x0, y0) of z in which the
-    second moments are taken. Row [z (3), x0 (3), y0 (3), mass, live]."""
-    if state[0] != 0:
-        return
-    j = wp.tid() + offset
-    m_j = D0
-    total = D0
-    mean = wp.vec3d(D0, D0, D0)
-    for c in range(partial.shape[0]):
-        m_j += partial[c, j, 0]
-        total += partial[c, j, 1]
-        mean += wp.vec3d(partial[c, j, 2], partial[c, j, 3], partial[c, j, 4])
+    prev_x = lobe_vec(lobes, j, 0)
+    prev_z = lobe_vec(lobes, j, 6)
+    prev_lam = lobes[j, 9]
+    prev_mu = lobes[j, 10]
     norm = wp.length(mean)
     live = m_j > dead_mass * total and norm > D0
-    z = lobe_vec(lobes, j, 6)
+    z = prev_z
     if live:
         z = mean / norm
     x0 = frame_x(z)
     y0 = frame_y(z)
-    for k in range(3):
-        axis[j, k] = z[k]
-        axis[j, 3 + k] = x0[k]
-        axis[j, 6 + k] = y0[k]
-    axis[j, 9] = m_j
-    axis[j, 10] = wp.where(live, D1, D0)
-
-
-@wp.kernel
-def asg_em_frame_partial(
-    bin_normal: wp.array(dtype=wp.vec3d),
-    resp_weight: wp.array2d(dtype=wp.float64),
-    axis: wp.array2d(dtype=wp.float64),
-    bins_per_chunk: int,
-    state: wp.array(dtype=wp.int32),
-    offset: int,
-    partial: wp.array3d(dtype=wp.float64),
-):
-    """Thread (chunk c, lobe j): over the chunk's bins above the new axis' horizon, [Σ r w, Σ r w a², Σ r w b²,
-    Σ r w ab] with (a, b) the normal's disk coordinates in (x0, y0)."""
-    if state[0] != 0:
-        return
-    c, j_local = wp.tid()
-    j = j_local + offset
-    z = lobe_vec(axis, j, 0)
-    x0 = lobe_vec(axis, j, 3)
-    y0 = lobe_vec(axis, j, 6)
-    start = c * bins_per_chunk
-    stop = wp.min(start + bins_per_chunk, bin_normal.shape[0])
     m2 = D0
     caa = D0
     cbb = D0
     cab = D0
-    for l in range(start, stop):
+    for l in range(n_bins):
         n = bin_normal[l]
         if wp.dot(n, z) > D0:
             r = resp_weight[l, j]
@@ -313,47 +261,6 @@ def asg_em_frame_partial(
             caa += r * a * a
             cbb += r * b * b
             cab += r * a * b
-    partial[c, j, 0] = m2
-    partial[c, j, 1] = caa
-    partial[c, j, 2] = cbb
-    partial[c, j, 3] = cab
-
-
-@wp.kernel
-def asg_em_bandwidths(
-    partial: wp.array3d(dtype=wp.float64),
-    axis: wp.array2d(dtype=wp.float64),
-    lobes: wp.array2d(dtype=wp.float64),
-    log_min: wp.float64,
-    log_max: wp.float64,
-    state: wp.array(dtype=wp.int32),
-    offset: int,
-    new_lobes: wp.array2d(dtype=wp.float64),
-    mass: wp.array(dtype=wp.float64),
-    moved: wp.array(dtype=wp.float64),
-):
-    """Lobe j (asg_bake._m_step's rest): the frame from the second moments' eigenvectors, λ, μ by Newton, its new
-    row, its mass (0 if it died) and how far it moved (the larger of 1 − cos between the axes and |Δ log λ|,
-    |Δ log μ|)."""
-    if state[0] != 0:
-        return
-    j = wp.tid() + offset
-    m2 = D0
-    caa = D0
-    cbb = D0
-    cab = D0
-    for c in range(partial.shape[0]):
-        m2 += partial[c, j, 0]
-        caa += partial[c, j, 1]
-        cbb += partial[c, j, 2]
-        cab += partial[c, j, 3]
-    prev_x = lobe_vec(lobes, j, 0)
-    prev_z = lobe_vec(lobes, j, 6)
-    prev_lam = lobes[j, 9]
-    prev_mu = lobes[j, 10]
-    z = lobe_vec(axis, j, 0)
-    x0 = lobe_vec(axis, j, 3)
-    y0 = lobe_vec(axis, j, 6)
     mm = wp.max(m2, TINY)
     caa = caa / mm
     cbb = cbb / mm
@@ -372,7 +279,7 @@ def asg_em_bandwidths(
     else:
         u = wp.vec2d(D1, D0)
     bw = bandwidths(wp.max(e0, D0), wp.max(e1, D0), prev_lam, prev_mu, log_min, log_max)
-    keep = axis[j, 10] > D0 and m2 > TINY
+    keep = live and m2 > TINY
     x = prev_x
     lam = prev_lam
     mu = prev_mu
@@ -392,7 +299,7 @@ def asg_em_bandwidths(
     new_lobes[j, 9] = lam
     new_lobes[j, 10] = mu
     new_lobes[j, 11] = log_norm
-    mass[j] = wp.where(keep, axis[j, 9], D0)
+    mass[j] = wp.where(keep, m_j, D0)
     dz = z - prev_z
     moved[j] = wp.max(wp.float64(0.5) * wp.dot(dz, dz), wp.max(wp.abs(wp.log(lam / prev_lam)),
                                                                  wp.abs(wp.log(mu / prev_mu))))

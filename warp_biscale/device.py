@@ -289,7 +289,6 @@ _NO_TANGENT = np.zeros((1, 3), np.float32)
 _NO_TABLE = np.zeros(1, np.float32)  # the measured-table argument when no material is measured
 for _a in (_NO_FACE, _NO_TANGENT, _NO_TABLE):
     _a.flags.writeable = False
-ASG_EM_BINS_PER_CHUNK = 32  # bins one thread of the ASG EM's M-step sums adds (kernels/asgfit.py)
 MEASURED_TABLE_SETS = 2  # sets of measured tables a backend keeps on its device (17.5 MB a table)
 
 
@@ -1127,8 +1126,9 @@ class DeviceBackend:
 
     def _run_asg_em(self, normal, weight, rows, alpha, iterations, dead_mass, log_range, converged) -> tuple:
         """asg_em's steps on the device from host float64 bins (L, 3), weights (L,), lobe rows (J, 12) [x, y, z,
-        λ, μ, log ∫G] and weights (J,): each step kernels/asgfit.py's six launches, all queued before the
-        reads. → (rows (J, 12), alpha (J,), steps) on the host."""
+        λ, μ, log ∫G] and weights (J,): each step kernels/asgfit.py's asg_em_responsibilities (L threads),
+        asg_em_m_step (J) and asg_em_finish (1), all queued before the one read. → (rows (J, 12), alpha (J,),
+        steps) on the host."""
         raise NotImplementedError
 
     # --- ASG operators (stage `asg`, Xu 2013; oracle warp_biscale.asg, docs/design.md §9) ---

@@ -38,7 +38,7 @@ import numpy as np
 from . import cl as cl_sources
 from . import sg
 from .asg import ASG
-from .device import (ASG_EM_BINS_PER_CHUNK, KINDS, DeviceBackend, PROBE_VALUES, SCRATCH_BYTES, DeviceStart, UploadCache,
+from .device import (KINDS, DeviceBackend, PROBE_VALUES, SCRATCH_BYTES, DeviceStart, UploadCache,
                      check_kernel_lobes, chunking, one_line, padded_lobe_values,
                      probe_mismatch, start_scale)
 from .bvh import build_bvh
@@ -737,27 +737,19 @@ class OpenCLBackend(DeviceBackend):
 
     def _run_asg_em(self, normal, weight, rows, alpha, iterations, dead_mass, log_range, converged):
         n_bins, n_lobes = len(normal), len(alpha)
-        chunks = -(-n_bins // ASG_EM_BINS_PER_CHUNK)
         a = {"normal": self._to_device(normal, "vec3d"), "weight": self._to_device(weight, "f64"),
              "lobes": self._to_device_mutable(rows, "f64"), "alpha": self._to_device_mutable(alpha, "f64"),
              "state": self._to_device_mutable(np.zeros(2, np.int32), "i32"),
              "resp_weight": self._new((n_bins, n_lobes), "f64"), "seen_weight": self._new(n_bins, "f64"),
-             "mean_partial": self._new((chunks, n_lobes, 5), "f64"), "axis": self._new((n_lobes, 11), "f64"),
-             "frame_partial": self._new((chunks, n_lobes, 4), "f64"), "new_lobes": self._new((n_lobes, 12), "f64"),
-             "mass": self._new(n_lobes, "f64"), "moved": self._new(n_lobes, "f64")}
-        j, per, n, nc = np.int32(n_lobes), np.int32(ASG_EM_BINS_PER_CHUNK), np.int32(n_bins), np.int32(chunks)
+             "new_lobes": self._new((n_lobes, 12), "f64"), "mass": self._new(n_lobes, "f64"),
+             "moved": self._new(n_lobes, "f64")}
+        j = np.int32(n_lobes)
         for _ in range(iterations):
             self._launch("asgfit", "asg_em_responsibilities", (n_bins,), a["normal"], a["weight"], a["lobes"],
-                         a["alpha"], a["state"], j, n, a["resp_weight"], a["seen_weight"])
-            self._launch("asgfit", "asg_em_mean_partial", (n_lobes, chunks), a["normal"], a["seen_weight"],
-                         a["resp_weight"], per, a["state"], j, n, a["mean_partial"])
-            self._launch("asgfit", "asg_em_axis", (n_lobes,), a["mean_partial"], a["lobes"], np.float64(dead_mass),
-                         a["state"], j, nc, a["axis"])
-            self._launch("asgfit", "asg_em_frame_partial", (n_lobes, chunks), a["normal"], a["resp_weight"], a["axis"],
-                         per, a["state"], j, n, a["frame_partial"])
-            self._launch("asgfit", "asg_em_bandwidths", (n_lobes,), a["frame_partial"], a["axis"], a["lobes"],
-                         np.float64(log_range[0]), np.float64(log_range[1]), a["state"], j, nc, a["new_lobes"],
-                         a["mass"], a["moved"])
+                         a["alpha"], a["state"], j, np.int32(n_bins), a["resp_weight"], a["seen_weight"])
+            self._launch("asgfit", "asg_em_m_step", (n_lobes,), a["normal"], a["seen_weight"], a["resp_weight"],
+                         a["lobes"], np.float64(dead_mass), np.float64(log_range[0]), np.float64(log_range[1]),
+                         a["state"], j, np.int32(n_bins), a["new_lobes"], a["mass"], a["moved"])
             self._launch("asgfit", "asg_em_finish", (1,), a["new_lobes"], a["mass"], a["moved"],
                          np.float64(converged), j, a["lobes"], a["alpha"], a["state"])
         return (self._read(a["lobes"], (n_lobes, 12), np.float64), self._read(a["alpha"], n_lobes, np.float64),

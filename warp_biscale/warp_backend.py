@@ -19,7 +19,7 @@ import numpy as np
 import warp as wp
 
 from .asg import ASG
-from .device import (ASG_EM_BINS_PER_CHUNK, KINDS, DeviceBackend, PROBE_VALUES, SCRATCH_BYTES, DeviceStart, UploadCache,
+from .device import (KINDS, DeviceBackend, PROBE_VALUES, SCRATCH_BYTES, DeviceStart, UploadCache,
                      check_kernel_lobes, chunking, one_line, padded_lobe_values,
                      probe_mismatch, start_scale)
 from .kernels import amplitudes as kamplitudes
@@ -623,27 +623,17 @@ class WarpBackend(DeviceBackend):
 
     def _asg_em_program(self, n_bins, j, iterations, dead_mass, log_range, converged) -> dict:
         """The ASG EM's buffers for `n_bins` bins and J lobes and its steps' launches, recorded."""
-        chunks = -(-n_bins // ASG_EM_BINS_PER_CHUNK)
         shapes = {"normal": (n_bins, wp.vec3d), "weight": (n_bins, wp.float64), "lobes": ((j, 12), wp.float64),
                   "alpha": (j, wp.float64), "state": (2, wp.int32), "resp_weight": ((n_bins, j), wp.float64),
-                  "seen_weight": (n_bins, wp.float64), "mean_partial": ((chunks, j, 5), wp.float64),
-                  "axis": ((j, 11), wp.float64), "frame_partial": ((chunks, j, 4), wp.float64),
-                  "new_lobes": ((j, 12), wp.float64), "mass": (j, wp.float64), "moved": (j, wp.float64)}
+                  "seen_weight": (n_bins, wp.float64), "new_lobes": ((j, 12), wp.float64), "mass": (j, wp.float64),
+                  "moved": (j, wp.float64)}
         a = {name: wp.zeros(shape, dtype=dtype, device=self._device) for name, (shape, dtype) in shapes.items()}
         a["step"] = [
             self._recorded(kasgfit.asg_em_responsibilities, n_bins, [a["normal"], a["weight"], a["lobes"], a["alpha"],
                                                                      a["state"]], [a["resp_weight"], a["seen_weight"]]),
-            self._recorded(kasgfit.asg_em_mean_partial, (chunks, j), [a["normal"], a["seen_weight"], a["resp_weight"],
-                                                                      ASG_EM_BINS_PER_CHUNK, a["state"]],
-                           [a["mean_partial"]], split=False),
-            self._recorded(kasgfit.asg_em_axis, j, [a["mean_partial"], a["lobes"], dead_mass, a["state"]], [a["axis"]],
-                           split=False),
-            self._recorded(kasgfit.asg_em_frame_partial, (chunks, j), [a["normal"], a["resp_weight"], a["axis"],
-                                                                       ASG_EM_BINS_PER_CHUNK, a["state"]],
-                           [a["frame_partial"]], split=False),
-            self._recorded(kasgfit.asg_em_bandwidths, j, [a["frame_partial"], a["axis"], a["lobes"], *log_range,
-                                                          a["state"]], [a["new_lobes"], a["mass"], a["moved"]],
-                           split=False),
+            self._recorded(kasgfit.asg_em_m_step, j, [a["normal"], a["seen_weight"], a["resp_weight"], a["lobes"],
+                                                      dead_mass, *log_range, a["state"]],
+                           [a["new_lobes"], a["mass"], a["moved"]], split=False),
             self._recorded(kasgfit.asg_em_finish, 1, [a["new_lobes"], a["mass"], a["moved"], converged],
                            [a["lobes"], a["alpha"], a["state"]], split=False)]
         return a
