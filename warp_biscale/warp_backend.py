@@ -654,7 +654,7 @@ class WarpBackend(DeviceBackend):
                         for launch in prog["step"]:
                             launch()
                 graph = {"prog": prog, "graph": capture.graph}
-            self._keep_recent(self._asg_em_graphs, key, graph)
+            self._keep_recent(self._asg_em_graphs, key, graph, size=8)  # (each holds its buffers: (bins, J) float64)
             prog = graph["prog"]
             padded = np.zeros((size, 3))
             padded[:, 2] = 1.0
