@@ -151,6 +151,25 @@ def test_asg_reorthonormalises_and_broadcasts():
     assert asg.evaluate(left, v) == pytest.approx(asg.evaluate(axis_aligned(2.0, 1.0), v), rel=1e-15)
 
 
+def test_asg_parts_select_whole_lobes():
+    """Indexing a batch (not checked again: its frames are already orthonormal) selects lobes on the batch axes
+    only, whatever the index: an integer, a slice, a mask, an index array, `...`, a new axis; the parts equal
+    the lobes they were cut from."""
+    z = np.array([[0.0, 0.0, 1.0], [0.0, 0.6, 0.8], [1.0, 0.0, 0.0]])
+    x, y = asg.tangent_frame(z)
+    g = asg.ASG(x, y, z, np.array([1.0, 20.0, 3e5]), np.array([0.5, 2.0, 7.0]), np.array([1.0, 2.0, 3.0]))
+    for index, lobes in ((1, [1]), (slice(0, 2), [0, 1]), (np.array([True, False, True]), [0, 2]),
+                         (np.array([2, 0]), [2, 0]), ((..., 0), [0]), ((..., 2), [2]), (-1, [2])):
+        part = g[index]
+        assert part.x.shape == part.lam.shape + (3,), index
+        for name in ("x", "y", "z", "lam", "mu", "amplitude"):
+            np.testing.assert_array_equal(np.reshape(getattr(part, name), (len(lobes), -1)),
+                                          np.reshape(getattr(g, name)[lobes], (len(lobes), -1)))
+    assert g[None].shape == (1, 3) and g[:, None].x.shape == (3, 1, 3)
+    grid = asg.ASG(np.broadcast_to(x, (2, 3, 3)), np.broadcast_to(y, (2, 3, 3)), z, g.lam, g.mu)
+    assert grid[..., 1].shape == (2,) and np.array_equal(grid[..., 1].z, np.broadcast_to(z[1], (2, 3)))
+
+
 def test_evaluate_hard_cases():
     """No overflow or NaN at λ, μ = 1e6 (every exponent ≤ 0), exactly 0 at and below the horizon, the band
     μ = 0 constant along y, and the value written out independently."""

@@ -127,11 +127,11 @@ def _disk_moments(lam, mu):
 
 def bandwidths_from_moments(ma, mb, iterations: int = 60, start=None):
     """(λ, μ) whose truncated-disk Gaussian exp(−λa² − μb²) has E[a²] = ma, E[b²] = mb (the ML of an ASG for
-    its frame): Newton in (log λ, log μ), per lobe from whichever start fits its moments better, the
-    untruncated 1/(2m) or `start` (λ, μ) (the EM's previous bandwidths, close once the EM settles: one
-    Newton step fewer or two); bandwidths clipped to [BANDWIDTH_MIN, BANDWIDTH_MAX] (a second moment at or
-    above the disk's own leaves the bandwidth at its floor: an ASG cannot be broader than uniform in that
-    direction). Stops when no step exceeds 1e−7 in log: Newton's error after it is of its square."""
+    its frame): Newton in (log λ, log μ) from the untruncated 1/(2m), exact where a lobe's ±6σ box lies inside
+    the disk, or elsewhere, given `start` (λ, μ) (the EM's previous bandwidths), from those; bandwidths clipped
+    to [BANDWIDTH_MIN, BANDWIDTH_MAX] (a second moment at or above the disk's own leaves the bandwidth at its
+    floor: an ASG cannot be broader than uniform in that direction). Stops when no step exceeds 1e−7 in log:
+    Newton's error after it is of its square."""
     ma, mb = np.asarray(ma, np.float64), np.asarray(mb, np.float64)
     lo, hi = np.log(BANDWIDTH_MIN), np.log(BANDWIDTH_MAX)
     th = np.stack([np.log(np.clip(0.5 / np.maximum(ma, 1e-300), BANDWIDTH_MIN, BANDWIDTH_MAX)),
@@ -142,7 +142,7 @@ def bandwidths_from_moments(ma, mb, iterations: int = 60, start=None):
         # the EM's last bandwidths are closer once the EM settles.
         inside = np.sum(18.0 / np.exp(th), -1) <= 1.0
         warm = np.log(np.clip(np.stack(np.broadcast_arrays(*start), -1), BANDWIDTH_MIN, BANDWIDTH_MAX))
-        th = np.where(inside[:, None], th, warm)
+        th = np.where(inside[..., None], th, warm)
     for _ in range(iterations):
         lam, mu = np.exp(th[..., 0]), np.exp(th[..., 1])
         ea, eb, ea4, eb4, eab = _disk_moments(lam, mu)
@@ -219,8 +219,8 @@ def _em_start(start: lobes_mod.LobeSet):
 
 
 def fit_asg_on(backend, normal, weight, start: lobes_mod.LobeSet, iterations: int = EM_ITERATIONS):
-    """`fit_asg` on `backend`'s device (`Backend.asg_em`: the EM's steps queued at once), float64 sums with a
-    float32 inner rule in the bandwidths' Newton (kernels/asgfit.py). → as fit_asg."""
+    """`fit_asg` on `backend`'s device (`Backend.asg_em`: the EM's steps queued at once), float64 as the host's
+    but for the E-step's ∫G, the kernels' float32 56-node rule (kernels/asgfit.py). → as fit_asg."""
     first, alpha = _em_start(start)
     g, alpha, steps = backend.asg_em(normal, weight, first, alpha, iterations, (BANDWIDTH_MIN, BANDWIDTH_MAX),
                                      _CONVERGED)
@@ -379,9 +379,10 @@ def bake_asg(tile, mats, lobes, directions, normal_res, facets, backend, seed, k
 
 
 def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, tolerance=0.02, probe=None) -> dict:
-    """Facets, visibility, weights and the SG EM by the SG bake's stages; then the ASG EM (per J tried, for
-    "auto"), the moments and the solve on the host. → {"asgs", "alpha", "amplitudes" (M, K², K², J, 3), "bvndf",
-    "info"}."""
+    """Facets, visibility, weights and the SG EM by the SG bake's stages; then the ASG EM on the device (per J
+    tried, for "auto"), the moments, the solve and the tables (in kernels up to lobes.KERNEL_LOBES lobes, else
+    on the host). → {"asgs", "alpha", "amplitudes" (M, K², K², J, 3), "energy" (M, K², K², 3) Σ_j μ_j ∫G_j from
+    the table kernels or None, "bvndf", "info"}."""
     q = bake_mod._sample_facets(tile, be, count, seed, dirs.frozen_grid(k), r, timer, prog)
     t0 = time.perf_counter()
     bake_mod._queue_visibility(tile, be, q, prog)
@@ -444,7 +445,8 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
             mom = asg_moments(proj, values, area if w is None else np.asarray(w, np.float64), q.iu, q.ou)
             mu = lobes_mod.solve_amplitudes(mom, a_v, pi, po, nd, rows, integrals)
             amps[m] += np.asarray(mu, np.float64)[..., None] * mult
-    if not np.isfinite(amps).all():
+    if not np.isfinite(amps).all() or (energy is not None and not np.isfinite(energy).all()):
+        # (a NaN μ leaves its amplitude 0 in the table kernels' output but makes its pair's energy NaN)
         raise FloatingPointError("the ASG amplitude solve gave non-finite values")
     bv.a_v = np.asarray(q.a_v.host(), np.float64)
     timer.timings["amplitudes"] = time.perf_counter() - t0
@@ -522,6 +524,8 @@ class ASGBRDF(HostOnlyBRDF):
             self._energy = np.asarray(energy, np.float32)
             if self._energy.shape != self.amplitudes.shape[:3] + (3,):
                 raise ValueError(f"energy must have shape {self.amplitudes.shape[:3] + (3,)}, got {self._energy.shape}")
+            if self._energy.size and not (self._energy.min() >= 0 and np.isfinite(self._energy.max())):
+                raise ValueError("energy must be finite and >= 0")
         self._energy_levels = None
         self._diffuse = None  # made on first use (`diffuse`)
 
@@ -554,7 +558,7 @@ class ASGBRDF(HostOnlyBRDF):
         provenance and `path` carry over, as EffectiveBRDF.with_materials."""
         t0 = time.perf_counter()
         out = ASGBRDF(self.asgs, self.weight, self.amplitudes, materials, self.directions, info=self.info,
-                      bvndf=self.bvndf, provenance=self.provenance, path=self.path)
+                      bvndf=self.bvndf, provenance=self.provenance, path=self.path, energy=self._energy)
         out._energy_levels = self._energy_levels
         out.timings = {"tables": time.perf_counter() - t0}
         return out

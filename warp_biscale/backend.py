@@ -99,11 +99,12 @@ class Backend(Protocol):
         round trip through the host). `axes` may be the DeviceLobes of this backend's last ndf_em
         (`sharpness` None): its J lobes, dead ones included, as the device holds them (float32). With
         `lobe_values`, the facets' values of other lobes stand for the SG lobes' (axes and sharpness unused):
-        a host (Ns, J) array, or an asg.ASG batch (J,) (the ASG bake's lobes), evaluated on the device."""
+        a host (Ns, J) array, or an asg.ASG batch (J,) (the ASG bake's lobes, their amplitudes included),
+        evaluated on the device."""
 
     def asg_value_sums(self, facets: Facets, weight: np.ndarray, asgs) -> np.ndarray:
         """(J,) float64 Σ_s w_s G_j(n_s) over the facets for an asg.ASG batch (J,), `weight` (Ns,) w_s: the ASG
-        bake's calibration sums (asg_bake.amplitude_system). float32 terms, float64 sums."""
+        bake's calibration sums (asg_bake.calibrated_rows). float32 terms, float64 sums."""
 
     def solve_amplitudes(self, moments, a_v, rows, integrals, pair_i, pair_o, n_dirs: int, to_host: bool = True):
         """(P, J) float32 μ ≥ 0 for the ordered pairs (reference.solve_amplitudes); `moments` a host

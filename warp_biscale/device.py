@@ -1083,7 +1083,7 @@ class DeviceBackend:
 
     def asg_value_sums(self, facets, weight, asgs: ASG) -> np.ndarray:
         """(J,) float64 Σ_s w_s G_j(n_s) over the facets, `weight` (Ns,) w_s, for an ASG batch (J,) (the ASG
-        bake's calibration sums, asg_bake.amplitude_system; float32 terms, float64 sums)."""
+        bake's calibration sums, asg_bake.calibrated_rows; float32 terms, float64 sums)."""
         n = len(facets)
         weight = np.asarray(weight, np.float32).reshape(-1)
         if weight.shape != (n,):

@@ -160,7 +160,7 @@ class WarpBackend(DeviceBackend):
         self._pinned = {}  # (shape, dtype) → pinned host buffer for large read-backs, see _trace_host
         self._em_graphs = {}  # (Ns, J, steps, weighted) → captured EM (CUDA): see _em_graph
         self._em_buffers = {}
-        self._asg_em_graphs = {}  # (bins rounded up, J, steps, constants) → captured ASG EM (CUDA): _run_asg_em
+        self._asg_em_programs = {}  # (bins rounded up, J, steps, constants) → an ASG EM's program: _run_asg_em
         self._pinned = {}  # (shape, dtype) → [(pinned host array, event)] free for _read_later
         self._frame_buffers = {}  # id of a frame_buffer view → (its pinned Warp array, the view)
 
@@ -639,42 +639,42 @@ class WarpBackend(DeviceBackend):
         return a
 
     def _run_asg_em(self, normal, weight, rows, alpha, iterations, dead_mass, log_range, converged):
+        # One program (buffers and recorded launches) per bin count rounded up to a power of two (the padding bins
+        # weigh 0, so they add exact zeros), J and step cap, kept and reused; on CUDA its steps are one graph,
+        # captured once and replayed, as the SG EM's (_em_graph): the replay of its 24 launches costs ~0.3 ms
+        # where every kernel returns at once (bench/results/asg-h100-860865a).
         n_bins, j = len(normal), len(alpha)
-        if self._device.is_cuda:
-            # One CUDA graph per bin count rounded up to a power of two (the padding bins weigh 0, so they add
-            # exact zeros), J and step cap, captured once and replayed, as the SG EM's (_em_graph): the replay
-            # of its 24 launches costs ~0.3 ms where every kernel returns at once (bench/results/asg-h100-860865a).
-            size = max(256, 1 << (n_bins - 1).bit_length())
-            key = (size, j, iterations, dead_mass, log_range, converged)
-            graph = self._asg_em_graphs.pop(key, None)
-            if graph is None:
-                prog = self._asg_em_program(size, j, iterations, dead_mass, log_range, converged)
+        size = max(256, 1 << (n_bins - 1).bit_length())
+        key = (size, j, iterations, dead_mass, log_range, converged)
+        kept = self._asg_em_programs.pop(key, None)
+        if kept is None:
+            prog = self._asg_em_program(size, j, iterations, dead_mass, log_range, converged)
+            kept = {"prog": prog, "graph": None}
+            if self._device.is_cuda:
                 with wp.ScopedCapture(device=self._device, force_module_load=False) as capture:
-                    for _ in range(iterations):
-                        for launch in prog["step"]:
-                            launch()
-                graph = {"prog": prog, "graph": capture.graph}
-            self._keep_recent(self._asg_em_graphs, key, graph, size=8)  # (each holds its buffers: (bins, J) float64)
-            prog = graph["prog"]
-            padded = np.zeros((size, 3))
-            padded[:, 2] = 1.0
-            padded[:n_bins] = normal
-            prog["normal"].assign(padded)
-            prog["weight"].assign(np.concatenate([weight, np.zeros(size - n_bins)]))
-        else:
-            prog = self._asg_em_program(n_bins, j, iterations, dead_mass, log_range, converged)
-            prog["normal"].assign(normal)
-            prog["weight"].assign(weight)
+                    self._asg_em_steps(prog, iterations)
+                kept["graph"] = capture.graph
+        self._keep_recent(self._asg_em_programs, key, kept, size=8)  # (each holds its buffers: (bins, J) float64)
+        prog = kept["prog"]
+        padded = np.zeros((size, 3))
+        padded[:, 2] = 1.0
+        padded[:n_bins] = normal
+        prog["normal"].assign(padded)
+        prog["weight"].assign(np.concatenate([weight, np.zeros(size - n_bins)]))
         prog["lobes"].assign(rows)
         prog["alpha"].assign(alpha)
         prog["state"].zero_()
-        if self._device.is_cuda:
-            wp.capture_launch(graph["graph"])
+        if kept["graph"] is not None:
+            wp.capture_launch(kept["graph"])
         else:
-            for _ in range(iterations):
-                for launch in prog["step"]:
-                    launch()
+            self._asg_em_steps(prog, iterations)
         return prog["lobes"].numpy(), prog["alpha"].numpy(), int(prog["state"].numpy()[1])
+
+    @staticmethod
+    def _asg_em_steps(prog, iterations):
+        for _ in range(iterations):
+            for launch in prog["step"]:
+                launch()
 
     def frame_buffer(self, width: int, height: int) -> np.ndarray:
         """On a GPU, pinned host memory: a frame is then copied into it from the device and nowhere else."""
