@@ -1,34 +1,47 @@
 """The 1080p frame of the render target scene (bench_render.target_scene) with its baked torus material made by the
-SG bake and by the ASG bake (the pyramid tile, coloured Blinn–Phong n = 256, K = 12, J = 8): per frame the
-G-buffer, the shadow rays and the shading, left on the device (bench_render.time_frames), hard (1) and soft (16)
-shadow rays; one JSON line each (issue 20's "1080p with ASG materials ≥ 400 fps").
+SG bake and by the ASG bake (a tile, coloured Blinn–Phong n = 256, K = 12, J lobes): per frame the G-buffer, the
+shadow rays and the shading, left on the device (bench_render.time_frames), hard (1) and soft (16) shadow rays;
+one JSON line each (issue 20's "1080p with ASG materials ≥ 400 fps", and its render speed per material × J).
+The default tile is the pyramid (at most 5 distinct normals, so at most 5 lobes whatever J); the height field
+gives every J its lobes.
 
     python -m bench.render_asg warp:cuda opencl:nvidia > $OUT/render_asg.jsonl
+    python -m bench.render_asg warp:cuda opencl:nvidia --tile heightfield --lobes 2 4 8 16 > $OUT/render_asg_j.jsonl
 """
 
+import argparse
 import json
-import sys
 import warnings
 
 import warp_biscale as wb
+from bench.bench_bake import families
 from bench.bench_render import target_scene, time_frames
 
 
-def main(backends):
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("backends", nargs="*", default=["auto"])
+    ap.add_argument("--tile", default="pyramid", help="a family of bench_bake.families (default pyramid)")
+    ap.add_argument("--lobes", type=int, nargs="+", default=[8], help="J, one or more (default 8)")
+    ap.add_argument("--size", type=int, nargs=2, default=(1920, 1080), metavar=("W", "H"))
+    args = ap.parse_args(argv)
     warnings.simplefilter("ignore", wb.EnergyWarning)
-    for backend in backends:
+    tile = families()[args.tile]
+    for backend in args.backends:
         be = wb.get_backend(backend)
-        tile = wb.geometry.pyramid()
-        brdf = [wb.BlinnPhong((0.9, 0.7, 0.3), 256, kd=(0.25, 0.12, 0.05))]
-        for method in ("sg", "asg"):
-            scene = target_scene(1920, 1080, backend=be)
-            scene.materials[0] = wb.bake(tile, brdf, method=method, lobes=8, directions=12, facets=2**14, backend=be)
-            for shadows in (1, 16):
-                per_frame, _, _, _ = time_frames(scene, be, frames=10, runs=5, shadow_samples=shadows)
-                print(json.dumps({"backend": be.name, "device": be.device, "material": method,
-                                  "shadow_samples": shadows, "frame_ms": 1e3 * per_frame, "fps": 1.0 / per_frame}),
-                      flush=True)
+        brdf = [wb.BlinnPhong((0.9, 0.7, 0.3), 256, kd=(0.25, 0.12, 0.05))] * tile.n_materials
+        for j in args.lobes:
+            for method in ("sg", "asg"):
+                scene = target_scene(*args.size, backend=be)
+                mat = wb.bake(tile, brdf, method=method, lobes=j, directions=12, facets=2**14, backend=be)
+                scene.materials[0] = mat
+                for shadows in (1, 16):
+                    per_frame, _, _, _ = time_frames(scene, be, frames=10, runs=5, shadow_samples=shadows)
+                    print(json.dumps({"backend": be.name, "device": be.device, "tile": args.tile, "J": j,
+                                      "lobes": len(mat.weight if method == "asg" else mat.lobes),
+                                      "material": method, "size": list(args.size), "shadow_samples": shadows,
+                                      "frame_ms": 1e3 * per_frame, "fps": 1.0 / per_frame}), flush=True)
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:] or ["auto"])
+    main()
