@@ -139,11 +139,7 @@ def plot_pareto(records, path):
         ax.set(xscale="log", xlabel="bake time (ms)", ylabel="PSNR of f̄ (dB)", title=brdf)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
-    fig.tight_layout()
-    tmp = path + ".part.png"
-    fig.savefig(tmp, dpi=110)
-    os.replace(tmp, path)
-    plt.close(fig)
+    common.save_figure(fig, path)
 
 
 def main(argv=None):

@@ -144,11 +144,7 @@ def plot(records, path):
     for a in ax:
         a.grid(True, which="both", alpha=0.3)
         a.legend(fontsize=7)
-    fig.tight_layout()
-    tmp = path + ".part.png"
-    fig.savefig(tmp, dpi=110)
-    os.replace(tmp, path)
-    plt.close(fig)
+    common.save_figure(fig, path)
 
 
 def main(argv=None):

@@ -193,6 +193,16 @@ def markdown_table(header, rows) -> list[str]:
            ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
 
 
+def save_figure(fig, path: str, dpi: int = 110) -> None:
+    """A matplotlib figure written whole or not at all (as write_json), then closed."""
+    root, ext = os.path.splitext(path)
+    tmp = f"{root}.part{ext}"
+    fig.tight_layout()
+    fig.savefig(tmp, dpi=dpi)
+    os.replace(tmp, path)
+    pyplot().close(fig)
+
+
 def pyplot():
     """matplotlib.pyplot drawing to files only (no display needed)."""
     import matplotlib
