@@ -102,6 +102,12 @@ class Backend(Protocol):
         a host (Ns, J) array, or an asg.ASG batch (J,) (the ASG bake's lobes, their amplitudes included),
         evaluated on the device."""
 
+    def asg_em(self, bin_normal: np.ndarray, bin_weight: np.ndarray, start, alpha, iterations: int,
+               bandwidth_range, converged: float) -> tuple:
+        """The ASG bake's EM (asg_bake.fit_asg, stage `asgfit`) over normal bins (L, 3) weighing (L,) from the
+        asg.ASG batch `start` (J,) with weights `alpha` (J,), every step queued at once → (asg.ASG (J,), alpha
+        (J,), steps), dead lobes (alpha 0) included; float64 but for the E-step's ∫G (float32)."""
+
     def asg_value_sums(self, facets: Facets, weight: np.ndarray, asgs) -> np.ndarray:
         """(J,) float64 Σ_s w_s G_j(n_s) over the facets for an asg.ASG batch (J,), `weight` (Ns,) w_s: the ASG
         bake's calibration sums (asg_bake.calibrated_rows). float32 terms, float64 sums."""

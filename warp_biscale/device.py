@@ -1127,7 +1127,7 @@ class DeviceBackend:
     def _run_asg_em(self, normal, weight, rows, alpha, iterations, dead_mass, log_range, converged) -> tuple:
         """asg_em's steps on the device from host float64 bins (L, 3), weights (L,), lobe rows (J, 12) [x, y, z,
         λ, μ, log ∫G] and weights (J,): each step kernels/asgfit.py's asg_em_responsibilities (L threads),
-        asg_em_m_step (J) and asg_em_finish (1), all queued before the one read. → (rows (J, 12), alpha (J,),
+        asg_em_m_step (J) and asg_em_finish (1), all queued before the reads. → (rows (J, 12), alpha (J,),
         steps) on the host."""
         raise NotImplementedError
 
