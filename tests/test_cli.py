@@ -29,6 +29,20 @@ def run_cli(*args):
                               timeout=600)
 
 
+def run_cli_in_process(capsys, *args):
+    """The command in this process (`cli.main`), for tests of a command's options: → its return code, stdout and
+    stderr as run_cli's result has them. (A subprocess costs ~5 s of imports and kernel loads; the console
+    script itself runs as a subprocess in this file's other tests.)"""
+    from types import SimpleNamespace
+
+    from warp_biscale import cli
+
+    capsys.readouterr()
+    code = cli.main([str(a) for a in args])
+    out = capsys.readouterr()
+    return SimpleNamespace(returncode=code, stdout=out.out, stderr=out.err)
+
+
 def test_truth_builtin_tile_writes_plot_and_table(tmp_path):
     out = tmp_path / "plot.png"
     npz = tmp_path / "gt.npz"

@@ -13,7 +13,7 @@ import json
 import numpy as np
 import pytest
 from conftest import random_heightfield, vgroove_tile
-from test_cli import TINY_SCENE, run_cli
+from test_cli import TINY_SCENE, run_cli, run_cli_in_process
 
 import warp_biscale as wb
 from warp_biscale import montecarlo as mc
@@ -362,12 +362,12 @@ def test_cli_render_mc_uses_and_caches_the_ground_truth(tmp_path, capsys):
     _bake().save(tmp_path / "groove.wbm")
     scene = _file_scene(tmp_path, "groove.wbm")
     args = ["render", str(scene), "--method", "mc", "--samples", "8", "--size", "8", "6", "--truth-facets", "256"]
-    r = run_cli(*args, "-o", str(tmp_path / "a.exr"))
+    r = run_cli_in_process(capsys, *args, "-o", str(tmp_path / "a.exr"))
     assert r.returncode == 0, r.stderr
     cache = tmp_path / "groove.truth.npz"
     assert cache.exists()
     assert "ground truth of material 'shiny': computed (ground truth (tile 'vgroove', K=4, 256 facets" in r.stdout
-    r = run_cli(*args, "-o", str(tmp_path / "b.exr"))
+    r = run_cli_in_process(capsys, *args, "-o", str(tmp_path / "b.exr"))
     assert r.returncode == 0, r.stderr
     assert f"ground truth of material 'shiny': read from {cache}" in r.stdout
     from warp_biscale.images import read_exr
@@ -387,22 +387,22 @@ def test_cli_render_mc_uses_and_caches_the_ground_truth(tmp_path, capsys):
     assert not (tmp_path / "d.exr").exists()
 
 
-def test_cli_render_mc_of_an_old_material_file(tmp_path):
+def test_cli_render_mc_of_an_old_material_file(tmp_path, capsys):
     _v1_file(_bake(), tmp_path / "old.wbm")
     scene = _file_scene(tmp_path, "old.wbm")
     out = tmp_path / "x.png"
     args = ["render", str(scene), "--method", "mc", "--samples", "8", "--size", "8", "6", "-o", str(out)]
-    r = run_cli(*args)
+    r = run_cli_in_process(capsys, *args)
     assert r.returncode == 2
     errors = [line for line in r.stderr.splitlines() if line.startswith("error:")]
     assert len(errors) == 1 and r.stderr.rstrip().endswith(errors[0]) and "Traceback" not in r.stderr
     assert errors[0].startswith(f"error: material 'shiny' ({tmp_path / 'old.wbm'}) does not record how it was baked")
     assert "--mc-fallback sg" in errors[0]
     assert not out.exists()
-    r = run_cli(*args, "--mc-fallback", "sg", "-q")
+    r = run_cli(*args, "--mc-fallback", "sg", "-q")  # (a subprocess: its warning goes to stderr, not to pytest)
     assert r.returncode == 0, r.stderr
     assert "fallback='sg'" in r.stderr and out.exists()
-    r = run_cli("render", str(scene), "--mc-fallback", "sg", "-o", str(out))  # the file's method: sg
+    r = run_cli_in_process(capsys, "render", scene, "--mc-fallback", "sg", "-o", out)  # the file's method: sg
     assert r.returncode == 2 and "--mc-fallback is for --method mc" in r.stderr
 
 
