@@ -217,6 +217,51 @@ CL_INLINE float log1p_small(float x)
     return log(u) * x / (u - 1.0f);
 }
 
+/* f_s of the anisotropic kinds, without the cosines, in the facet frame (x, y, n): the anisotropic Ward
+ * (p1, p2 = αx, αy) and Ashikhmin–Shirley (ks = Rs, p1, p2 = nu, nv); twin of kernels/common.py's
+ * anisotropic_specular. 0 where either direction is at or below the horizon. */
+CL_INLINE float3 anisotropic_specular(int kind, float3 ks, float p1, float p2, float3 x, float3 y, float3 n,
+                                      float3 wi, float3 wo)
+{
+    float ci = dot3(n, wi);
+    float co = dot3(n, wo);
+    if (ci <= 0.0f || co <= 0.0f)
+        return (float3)(0.0f, 0.0f, 0.0f);
+    float3 h = normalize3((float3)(wi.x + wo.x, wi.y + wo.y, wi.z + wo.z));
+    float nh = clampf(dot3(n, h), -1.0f, 1.0f);
+    float hi = clampf(dot3(h, wi), 0.0f, 1.0f);
+    float hx = dot3(h, x);
+    float hy = dot3(h, y);
+    if (kind == ANISOTROPIC_WARD) {
+        if (nh <= 0.0f)
+            return (float3)(0.0f, 0.0f, 0.0f);
+        float e = (hx / p1) * (hx / p1) + (hy / p2) * (hy / p2);
+        float spec = exp(-e / (nh * nh)) / (4.0f * M_PI_F * p1 * p2 * sqrt(ci * co));
+        return (float3)(ks.x * spec, ks.y * spec, ks.z * spec);
+    }
+    /* Ashikhmin–Shirley: (n·h)^e as exp(e/2·log(1 − sin²θh)), sin²θh from the tangential components (n·h
+     * rounds to within 6e-8 of 1 in float32, which an exponent of 10^4 would make a 6e-4 error). */
+    float s2 = hx * hx + hy * hy;
+    float d = 1.0f;
+    if (s2 >= 1.0f)
+        d = 0.0f;
+    else if (s2 > 0.0f)
+        d = exp(0.5f * ((p1 * hx * hx + p2 * hy * hy) / s2) * log1p_small(-s2));
+    float hk = maxf(hi, 1.0e-30f);
+    float spec = sqrt((p1 + 1.0f) * (p2 + 1.0f)) / (8.0f * M_PI_F) * d / (hk * maxf(ci, co));
+    float f5 = pow5(1.0f - hi);
+    return (float3)((ks.x + (1.0f - ks.x) * f5) * spec, (ks.y + (1.0f - ks.y) * f5) * spec,
+                    (ks.z + (1.0f - ks.z) * f5) * spec);
+}
+
+/* Ashikhmin–Shirley's ρd = 28 Rd/(23π)·(1 − Rs)·(1 − (1 − cos θi/2)⁵)·(1 − (1 − cos θo/2)⁵), without the
+ * cosines (kd = Rd, ks = Rs); twin of kernels/common.py's ashikhmin_shirley_diffuse. */
+CL_INLINE float3 ashikhmin_shirley_diffuse(float3 kd, float3 ks, float ci, float co)
+{
+    float g = 28.0f / (23.0f * M_PI_F) * (1.0f - pow5(1.0f - 0.5f * ci)) * (1.0f - pow5(1.0f - 0.5f * co));
+    return (float3)(kd.x * (1.0f - ks.x) * g, kd.y * (1.0f - ks.y) * g, kd.z * (1.0f - ks.z) * g);
+}
+
 /* brdf_cosine_weighted for the anisotropic kinds, in the facet frame of tangent t (any vector off n): the
  * anisotropic Ward (p1, p2 = alpha_x, alpha_y) and Ashikhmin–Shirley (row [Rd, Rs, nu, nv]); any other kind
  * is brdf_cosine_weighted itself. See warp_biscale.brdf and kernels/common.py. */
@@ -232,41 +277,13 @@ CL_INLINE float3 brdf_cosine_weighted_tangent(int kind, __global const float *pa
     __global const float *p = params + 8 * m;
     float3 kd = (float3)(p[0], p[1], p[2]);
     float3 ks = (float3)(p[3], p[4], p[5]);
-    float p1 = p[6];
-    float p2 = p[7];
-    float3 h = normalize3((float3)(wi.x + wo.x, wi.y + wo.y, wi.z + wo.z));
-    float nh = clampf(dot3(n, h), -1.0f, 1.0f);
-    float hi = clampf(dot3(h, wi), 0.0f, 1.0f);
     float3 x = facet_tangent(n, t);
-    float3 y = cross3(n, x);
-    float hx = dot3(h, x);
-    float hy = dot3(h, y);
-    if (kind == ANISOTROPIC_WARD) {
-        float spec = 0.0f;
-        if (nh > 0.0f) {
-            float e = (hx / p1) * (hx / p1) + (hy / p2) * (hy / p2);
-            spec = exp(-e / (nh * nh)) / (4.0f * M_PI_F * p1 * p2) * sqrt(ci * co);
-        }
-        float s = INV_PI * ci * co;
-        return (float3)(kd.x * s + ks.x * spec, kd.y * s + ks.y * spec, kd.z * s + ks.z * spec);
-    }
-    /* Ashikhmin–Shirley: (n·h)^e as exp(e/2·log(1 − sin²θh)), sin²θh from the tangential components (n·h
-     * rounds to within 6e-8 of 1 in float32, which an exponent of 10^4 would make a 6e-4 error). */
-    float s2 = hx * hx + hy * hy;
-    float d = 1.0f;
-    if (s2 >= 1.0f)
-        d = 0.0f;
-    else if (s2 > 0.0f)
-        d = exp(0.5f * ((p1 * hx * hx + p2 * hy * hy) / s2) * log1p_small(-s2));
-    float hk = maxf(hi, 1.0e-30f);
-    float spec = sqrt((p1 + 1.0f) * (p2 + 1.0f)) / (8.0f * M_PI_F) * d * minf(ci, co) / hk;
-    float f5 = pow5(1.0f - hi);
-    float gi = 1.0f - pow5(1.0f - 0.5f * ci);
-    float go = 1.0f - pow5(1.0f - 0.5f * co);
-    float diffuse = 28.0f / (23.0f * M_PI_F) * gi * go * ci * co;
-    return (float3)(kd.x * (1.0f - ks.x) * diffuse + (ks.x + (1.0f - ks.x) * f5) * spec,
-                    kd.y * (1.0f - ks.y) * diffuse + (ks.y + (1.0f - ks.y) * f5) * spec,
-                    kd.z * (1.0f - ks.z) * diffuse + (ks.z + (1.0f - ks.z) * f5) * spec);
+    float3 spec = anisotropic_specular(kind, ks, p[6], p[7], x, cross3(n, x), n, wi, wo);
+    float3 diffuse = (float3)(kd.x * INV_PI, kd.y * INV_PI, kd.z * INV_PI);
+    if (kind == ASHIKHMIN_SHIRLEY)
+        diffuse = ashikhmin_shirley_diffuse(kd, ks, ci, co);
+    float c = ci * co;
+    return (float3)((diffuse.x + spec.x) * c, (diffuse.y + spec.y) * c, (diffuse.z + spec.z) * c);
 }
 
 /* ---- Measured (MERL) BRDFs: twin of kernels/common.py's measured_cosine_weighted; the mathematics is

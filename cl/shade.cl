@@ -314,6 +314,14 @@ CL_INLINE float3 specular_scale(int kind, float3 ks, float p1, float p2, float c
     }
     if (kind == WARD)
         return ks / (4.0f * SHADE_PI * p1 * p1 * cos_d);
+    if (kind == ANISOTROPIC_WARD)
+        return ks / (4.0f * SHADE_PI * p1 * p2 * cos_d);
+    if (kind == ASHIKHMIN_SHIRLEY) {
+        float e = 1.0f - cos_d;
+        float f5 = e * e * e * e * e;
+        return (ks + ((float3)(1.0f, 1.0f, 1.0f) - ks) * f5) * (sqrt((p1 + 1.0f) * (p2 + 1.0f))
+                                                                / (8.0f * SHADE_PI * cos_d * cos_d));
+    }
     return (float3)(0.0f, 0.0f, 0.0f);
 }
 
@@ -579,6 +587,53 @@ CL_INLINE float3 lobe_from_lights(Table tab, float3 axis, float eta, SurfacePoin
     return out;
 }
 
+/* An anisotropic BRDF's NDF as one ASG about the shading normal, in the frame of the mesh tangent
+ * (brdf.ndf_bandwidths), amplitude 1. */
+CL_INLINE Asg ndf_asg(int kind, float p1, float p2, SurfacePoint s)
+{
+    Asg g;
+    g.x = s.t;
+    g.y = s.b;
+    g.z = s.n;
+    g.c = 1.0f;
+    if (kind == ANISOTROPIC_WARD) {
+        g.lam = 1.0f / (p1 * p1);
+        g.mu = 1.0f / (p2 * p2);
+    } else {
+        g.lam = 0.5f * p1;
+        g.mu = 0.5f * p2;
+    }
+    return g;
+}
+
+/* f_d of an analytic material towards `axis`: kd/π, or Ashikhmin–Shirley's ρd (kd = Rd/π here) at the axis's
+ * cos θi. */
+CL_INLINE float3 analytic_diffuse(int kind, float3 kd, float3 ks, float3 axis, SurfacePoint s, float cos_o)
+{
+    if (kind == ASHIKHMIN_SHIRLEY)
+        return ashikhmin_shirley_diffuse(kd * SHADE_PI, ks, maxf(dot3(axis, s.n), 0.0f), cos_o);
+    return kd;
+}
+
+/* An anisotropic BRDF's specular radiance from the lights: f_s at each light's direction times the light's
+ * irradiance, cosine and visible share, as the diffuse term takes it. */
+CL_INLINE float3 anisotropic_from_lights(int kind, float3 ks, float p1, float p2, SurfacePoint s, float3 wo, Table tab,
+                                         int n_lights, __global const float *lights, __global const uchar *vis)
+{
+    float3 out = (float3)(0.0f, 0.0f, 0.0f);
+    for (int l = 0; l < n_lights; ++l) {
+        if (vis[l] == 0)
+            continue;
+        __global const float *row = lights + 8 * l;
+        float3 la = light_axis(row, s.pos);
+        float le = light_sharpness(row, s.pos);
+        float3 f = anisotropic_specular(kind, ks, p1, p2, s.t, s.b, s.n, la, wo);
+        out = out + f * light_amplitude(row, s.pos, le)
+                        * (cosine_integral(tab, la, le, eta_row(tab, le), s.n) * (float)vis[l] / 255.0f);
+    }
+    return out;
+}
+
 /* ASG lobe row `lobe` of an effective material ([z, 0, x, λ, μ] in the tile frame) in the world, unit amplitude. */
 CL_INLINE Asg lobe_asg(__global const float *lobe, SurfacePoint s)
 {
@@ -744,8 +799,12 @@ __kernel void shade_pixels(
      * (slot >= 0) scales kd, ks and p1 by its maps at the pixel's UV, read once here into per-pixel factors. */
     float3 t_ks = (float3)(1.0f, 1.0f, 1.0f);
     float t_p1 = 1.0f;
+    int a_kind = 0;
+    float3 a_ks = (float3)(0.0f, 0.0f, 0.0f);
     if (kind == 0) {
         __global const float *row = analytic + 9 * idx;
+        a_kind = (int)row[0];
+        a_ks = (float3)(row[4], row[5], row[6]);
         float3 a_kd = (float3)(row[1], row[2], row[3]);
         int slot = mat_info[4 * mat + 3];
         if (slot >= 0) {
@@ -781,7 +840,7 @@ __kernel void shade_pixels(
                                              ray_lobe, p);
         } else
             amount = amount * environment_share(tab, axis, lobe[3], row, s, has_ssdf, ssdf, occ);
-        float3 fd = kd;
+        float3 fd = analytic_diffuse(a_kind, kd, a_ks, axis, s, cos_o);
         if (kind != 0)
             fd = effective_diffuse(ei, eff_sub, eff_diffuse, k2, lobe[3], to_local(s, axis), k, oo, ow);
         out = out + fd * radiance_e * amount;
@@ -794,7 +853,7 @@ __kernel void shade_pixels(
         __global const float *row = lights + 8 * l;
         float3 axis = light_axis(row, s.pos);
         float eta = light_sharpness(row, s.pos);
-        float3 fd = kd;
+        float3 fd = analytic_diffuse(a_kind, kd, a_ks, axis, s, cos_o);
         if (kind != 0)
             fd = effective_diffuse(ei, eff_sub, eff_diffuse, k2, eta, to_local(s, axis), k, oo, ow);
         out = out + fd * light_amplitude(row, s.pos, eta) * (cosine_integral(tab, axis, eta, eta_row(tab, eta), s.n) * (float)vis[l] / 255.0f);
@@ -816,12 +875,26 @@ __kernel void shade_pixels(
                 int with_lights = 1;
                 if (kind == 0) {
                     __global const float *row = analytic + 9 * (idx + j);
-                    int a_kind = (int)row[0];
-                    float3 a_ks = (float3)(row[4], row[5], row[6]) * t_ks;
-                    float a_p1 = row[7] * t_p1;
-                    amp = specular_scale(a_kind, a_ks, a_p1, row[8], cos_o);
-                    axis = normalize3(2.0f * cos_o * s.n - wo);
-                    eta = ndf_sharpness(a_kind, a_p1) / (4.0f * cos_o);
+                    int r_kind = (int)row[0];
+                    float3 r_ks = (float3)(row[4], row[5], row[6]) * t_ks;
+                    float r_p1 = row[7] * t_p1;
+                    amp = specular_scale(r_kind, r_ks, r_p1, row[8], cos_o);
+                    if (r_kind == ANISOTROPIC_WARD || r_kind == ASHIKHMIN_SHIRLEY) {
+                        /* Xu 2013 §5.2: the lights by f_s itself; the environment through the NDF's ASG warped
+                         * to the light directions, as an effective material's ASG lobe below. */
+                        out = out + anisotropic_from_lights(r_kind, r_ks, r_p1, row[8], s, wo, tab, n_lights, lights,
+                                                            vis);
+                        Asg w = asg_warp(ndf_asg(r_kind, r_p1, row[8], s), wo);
+                        float lam = maxf(w.lam, 1.0e-6f);
+                        float mu_w = maxf(w.mu, 1.0e-6f);
+                        eta = minf(2.0f * sqrt(lam * mu_w), sharpness_max);
+                        axis = w.z;
+                        amp = amp * (w.c * asg_shade_integral(lam, mu_w) / sg_integral(eta));
+                        with_lights = 0;
+                    } else {
+                        axis = normalize3(2.0f * cos_o * s.n - wo);
+                        eta = ndf_sharpness(r_kind, r_p1) / (4.0f * cos_o);
+                    }
                 } else {
                     __global const float *sub = eff_sub + 9 * (ei[4] + sub_i);
                     __global const float *lobe = eff_lobes + EFF_LOBE_WIDTH * (ei[3] + j);

@@ -80,6 +80,51 @@ def log1p_small(x: float) -> float:
 
 
 @wp.func
+def anisotropic_specular(kind: int, ks: wp.vec3, p1: float, p2: float, x: wp.vec3, y: wp.vec3, n: wp.vec3,
+                         wi: wp.vec3, wo: wp.vec3) -> wp.vec3:
+    """f_s of the anisotropic kinds, without the cosines, in the facet frame (x, y, n): the anisotropic Ward
+    (p1, p2 = αx, αy: ks·D/(4π αx αy √(cos θi cos θo))) and Ashikhmin–Shirley (ks = Rs, p1, p2 = nu, nv:
+    F(h·ωi)·√((nu+1)(nv+1))/(8π)·D/((h·ωi) max(cos θi, cos θo))); see warp_biscale.brdf. 0 where either
+    direction is at or below the horizon."""
+    ci = wp.dot(n, wi)
+    co = wp.dot(n, wo)
+    if ci <= 0.0 or co <= 0.0:
+        return wp.vec3(0.0)
+    h = wp.normalize(wi + wo)
+    nh = wp.clamp(wp.dot(n, h), -1.0, 1.0)
+    hi = wp.clamp(wp.dot(h, wi), 0.0, 1.0)
+    hx = wp.dot(h, x)
+    hy = wp.dot(h, y)
+    if kind == ANISOTROPIC_WARD:
+        if nh <= 0.0:
+            return wp.vec3(0.0)
+        ew = (hx / p1) * (hx / p1) + (hy / p2) * (hy / p2)
+        return ks * (wp.exp(-ew / (nh * nh)) / (4.0 * 3.14159265358979 * p1 * p2 * wp.sqrt(ci * co)))
+    # Ashikhmin–Shirley: (n·h)^e as exp(e/2·log(1 − sin²θh)) with sin²θh from the tangential components: n·h
+    # rounds to within 6e-8 of 1 in float32, which an exponent of 10^4 would turn into a 6e-4 error.
+    s2 = hx * hx + hy * hy
+    d = float(1.0)
+    if s2 >= 1.0:
+        d = 0.0
+    elif s2 > 0.0:
+        e = (p1 * hx * hx + p2 * hy * hy) / s2
+        d = wp.exp(0.5 * e * log1p_small(-s2))
+    hk = wp.max(hi, 1.0e-30)
+    one = wp.vec3(1.0)
+    fresnel = ks + (one - ks) * wp.pow(1.0 - hi, 5.0)
+    return fresnel * (wp.sqrt((p1 + 1.0) * (p2 + 1.0)) / (8.0 * 3.14159265358979) * d / (hk * wp.max(ci, co)))
+
+
+@wp.func
+def ashikhmin_shirley_diffuse(kd: wp.vec3, ks: wp.vec3, ci: float, co: float) -> wp.vec3:
+    """Ashikhmin–Shirley's ρd = 28 Rd/(23π)·(1 − Rs)·(1 − (1 − cos θi/2)⁵)·(1 − (1 − cos θo/2)⁵), without the
+    cosines (kd = Rd, ks = Rs)."""
+    gi = 1.0 - wp.pow(1.0 - 0.5 * ci, 5.0)
+    go = 1.0 - wp.pow(1.0 - 0.5 * co, 5.0)
+    return wp.cw_mul(kd, wp.vec3(1.0) - ks) * (28.0 / (23.0 * 3.14159265358979) * gi * go)
+
+
+@wp.func
 def brdf_cosine_weighted_tangent(kind: int, params: wp.array2d(dtype=wp.float32), m: int,
                                  n: wp.vec3, t: wp.vec3, wi: wp.vec3, wo: wp.vec3) -> wp.vec3:
     """brdf_cosine_weighted for the anisotropic kinds, in the facet frame of tangent t (any vector off n):
@@ -93,40 +138,12 @@ def brdf_cosine_weighted_tangent(kind: int, params: wp.array2d(dtype=wp.float32)
         return wp.vec3(0.0)
     kd = wp.vec3(params[m, 0], params[m, 1], params[m, 2])
     ks = wp.vec3(params[m, 3], params[m, 4], params[m, 5])
-    p1 = params[m, 6]
-    p2 = params[m, 7]
-    h = wp.normalize(wi + wo)
-    nh = wp.clamp(wp.dot(n, h), -1.0, 1.0)
-    hi = wp.clamp(wp.dot(h, wi), 0.0, 1.0)
     x = facet_tangent(n, t)
-    y = wp.cross(n, x)
-    hx = wp.dot(h, x)
-    hy = wp.dot(h, y)
-    if kind == ANISOTROPIC_WARD:
-        spec_w = float(0.0)
-        if nh > 0.0:
-            ew = (hx / p1) * (hx / p1) + (hy / p2) * (hy / p2)
-            spec_w = wp.exp(-ew / (nh * nh)) / (4.0 * 3.14159265358979 * p1 * p2) * wp.sqrt(ci * co)
-        return kd * (INV_PI * ci * co) + ks * spec_w
-    # Ashikhmin–Shirley: kd = Rd, ks = Rs, p1 = nu, p2 = nv. (n·h)^e as exp(e/2·log(1 − sin²θh)) with
-    # sin²θh from the tangential components: n·h rounds to within 6e-8 of 1 in float32, which an exponent
-    # of 10^4 would turn into a 6e-4 error.
-    s2 = hx * hx + hy * hy
-    d = float(1.0)
-    if s2 >= 1.0:
-        d = 0.0
-    elif s2 > 0.0:
-        e = (p1 * hx * hx + p2 * hy * hy) / s2
-        d = wp.exp(0.5 * e * log1p_small(-s2))
-    hk = wp.max(hi, 1.0e-30)
-    spec = wp.sqrt((p1 + 1.0) * (p2 + 1.0)) / (8.0 * 3.14159265358979) * d * wp.min(ci, co) / hk
-    f5 = wp.pow(1.0 - hi, 5.0)
-    gi = 1.0 - wp.pow(1.0 - 0.5 * ci, 5.0)
-    go = 1.0 - wp.pow(1.0 - 0.5 * co, 5.0)
-    diffuse = 28.0 / (23.0 * 3.14159265358979) * gi * go * ci * co
-    one = wp.vec3(1.0)
-    fresnel = ks + (one - ks) * f5
-    return wp.cw_mul(kd, one - ks) * diffuse + fresnel * spec
+    spec = anisotropic_specular(kind, ks, params[m, 6], params[m, 7], x, wp.cross(n, x), n, wi, wo)
+    diffuse = kd * INV_PI
+    if kind == ASHIKHMIN_SHIRLEY:
+        diffuse = ashikhmin_shirley_diffuse(kd, ks, ci, co)
+    return (diffuse + spec) * (ci * co)
 
 
 # The MERL grid (warp_biscale.measured): 90 θh × 90 θd × 180 φd samples of 3 floats, one table a slot.

@@ -18,7 +18,8 @@ from warp_biscale import sg as _sg
 from warp_biscale import shading as _shading
 
 from .asg import Asg, asg_convolve_sg, asg_integral_eq10, asg_unit_integral, asg_warp, harmonic
-from .common import GOLDEN_ANGLE, LOBE_COS_MIN, LOBE_RAYS, disk_basis, disk_turn, lobe_ray_direction
+from .common import (ANISOTROPIC_WARD, ASHIKHMIN_SHIRLEY, GOLDEN_ANGLE, LOBE_COS_MIN, LOBE_RAYS, anisotropic_specular,
+                     ashikhmin_shirley_diffuse, disk_basis, disk_turn, lobe_ray_direction)
 
 # Fast math on CUDA (approximate division, square root, exp and trigonometry): this shading is bound by its
 # arithmetic, and its float32 results are read against the float64 oracle with tolerances far above fast
@@ -348,6 +349,12 @@ def specular_scale(kind: int, ks: wp.vec3, p1: float, p2: float, cos_d_in: float
         return ks * (fres / (PI * cos_d * cos_d))
     if kind == 3:
         return ks / (4.0 * PI * p1 * p1 * cos_d)
+    if kind == ANISOTROPIC_WARD:
+        return ks / (4.0 * PI * p1 * p2 * cos_d)
+    if kind == ASHIKHMIN_SHIRLEY:
+        e = 1.0 - cos_d
+        f5 = e * e * e * e * e
+        return (ks + (wp.vec3(1.0) - ks) * f5) * (wp.sqrt((p1 + 1.0) * (p2 + 1.0)) / (8.0 * PI * cos_d * cos_d))
     return wp.vec3(0.0)
 
 
@@ -482,6 +489,33 @@ def surface_point(faces: wp.array2d(dtype=wp.int32), positions: wp.array(dtype=w
 @wp.func
 def to_local(s: SurfacePoint, d: wp.vec3) -> wp.vec3:
     return wp.vec3(wp.dot(d, s.t), wp.dot(d, s.b), wp.dot(d, s.n))
+
+
+@wp.func
+def ndf_asg(kind: int, p1: float, p2: float, s: SurfacePoint) -> Asg:
+    """An anisotropic BRDF's NDF as one ASG about the shading normal, in the frame of the mesh tangent
+    (brdf.ndf_bandwidths), amplitude 1."""
+    g = Asg()
+    g.x = s.t
+    g.y = s.b
+    g.z = s.n
+    g.c = 1.0
+    if kind == ANISOTROPIC_WARD:
+        g.lam = 1.0 / (p1 * p1)
+        g.mu = 1.0 / (p2 * p2)
+    else:
+        g.lam = 0.5 * p1
+        g.mu = 0.5 * p2
+    return g
+
+
+@wp.func
+def analytic_diffuse(kind: int, kd: wp.vec3, ks: wp.vec3, axis: wp.vec3, s: SurfacePoint, cos_o: float) -> wp.vec3:
+    """f_d of an analytic material towards `axis`: kd/π, or Ashikhmin–Shirley's ρd (kd = Rd/π here) at the
+    axis's cos θi."""
+    if kind == ASHIKHMIN_SHIRLEY:
+        return ashikhmin_shirley_diffuse(kd * PI, ks, wp.max(wp.dot(axis, s.n), 0.0), cos_o)
+    return kd
 
 
 @wp.func
@@ -710,6 +744,25 @@ def finite_radiance(v: wp.vec3) -> wp.vec3:
     return out
 
 
+@wp.func
+def anisotropic_from_lights(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoint, wo: wp.vec3,
+                            table: wp.array3d(dtype=wp.float32), n_lights: int, lights: wp.array2d(dtype=wp.float32),
+                            light_vis: wp.array2d(dtype=wp.uint8), p: int) -> wp.vec3:
+    """An anisotropic BRDF's specular radiance from the lights: f_s at each light's direction times the light's
+    irradiance, cosine and visible share, as the diffuse term takes it."""
+    out = wp.vec3(0.0)
+    for l in range(n_lights):
+        if u8_at2(light_vis, p, l) == wp.uint8(0):
+            continue
+        la = light_axis(lights, l, s.pos)
+        le = light_sharpness(lights, l, s.pos)
+        f = anisotropic_specular(kind, ks, p1, p2, s.t, s.b, s.n, la, wo)
+        e = light_amplitude(lights, l, s.pos, le) * (
+            cosine_integral(table, la, le, eta_row(table, le), s.n) * float(int(u8_at2(light_vis, p, l))) / 255.0)
+        out = out + wp.cw_mul(f, e)
+    return out
+
+
 # A register cap (ptxas spills the rest to local memory, cached): more resident warps hide the gathers' latency
 # better than registers save spills, and the rarely taken ASG path would otherwise set the whole kernel's count.
 # The cap was chosen by timing caps on an H100 (bench/results/shade-h100).
@@ -775,7 +828,11 @@ def shade_pixels(
     # (slot >= 0) scales kd, ks and p1 by its maps at the pixel's UV, read once here into per-pixel factors.
     t_ks = wp.vec3(1.0)
     t_p1 = float(1.0)
+    a_kind = int(0)
+    a_ks = wp.vec3(0.0)
     if kind == 0:
+        a_kind = int(analytic[idx, 0])
+        a_ks = wp.vec3(analytic[idx, 4], analytic[idx, 5], analytic[idx, 6])
         a_kd = wp.vec3(analytic[idx, 1], analytic[idx, 2], analytic[idx, 3])
         slot = i32_at2(mat_info, mat, 3)
         if slot >= 0:
@@ -811,7 +868,7 @@ def shade_pixels(
         else:
             amount = amount * environment_share(table, axis, eta, tr, s, has_ssdf, ssdf_res, ssdf_basis,
                                                 ssdf_coeffs, mask, occlusion_samples, frame, p)
-        fd = kd
+        fd = analytic_diffuse(a_kind, kd, a_ks, axis, s, cos_o)
         if kind != 0:
             fd = effective_diffuse(eff_info, eff_sub, eff_diffuse, idx, k2, eta, to_local(s, axis), k, oo, ow)
         out = out + wp.cw_mul(fd, radiance_e) * amount
@@ -822,7 +879,7 @@ def shade_pixels(
             continue
         axis = light_axis(lights, l, s.pos)
         eta = light_sharpness(lights, l, s.pos)
-        fd = kd
+        fd = analytic_diffuse(a_kind, kd, a_ks, axis, s, cos_o)
         if kind != 0:
             fd = effective_diffuse(eff_info, eff_sub, eff_diffuse, idx, k2, eta, to_local(s, axis), k, oo, ow)
         out = out + wp.cw_mul(fd, light_amplitude(lights, l, s.pos, eta)) * (
@@ -843,12 +900,26 @@ def shade_pixels(
                 with_lights = int(1)
                 if kind == 0:
                     row = idx + j
-                    a_kind = int(analytic[row, 0])
-                    a_ks = wp.cw_mul(wp.vec3(analytic[row, 4], analytic[row, 5], analytic[row, 6]), t_ks)
-                    a_p1 = analytic[row, 7] * t_p1
-                    amp = specular_scale(a_kind, a_ks, a_p1, analytic[row, 8], cos_o)
-                    axis = wp.normalize(2.0 * cos_o * s.n - wo)
-                    eta = ndf_sharpness(a_kind, a_p1) / (4.0 * cos_o)
+                    r_kind = int(analytic[row, 0])
+                    r_ks = wp.cw_mul(wp.vec3(analytic[row, 4], analytic[row, 5], analytic[row, 6]), t_ks)
+                    r_p1 = analytic[row, 7] * t_p1
+                    r_p2 = analytic[row, 8]
+                    amp = specular_scale(r_kind, r_ks, r_p1, r_p2, cos_o)
+                    if r_kind == ANISOTROPIC_WARD or r_kind == ASHIKHMIN_SHIRLEY:
+                        # Xu 2013 §5.2: the lights by f_s itself; the environment through the NDF's ASG warped
+                        # to the light directions, as an effective material's ASG lobe below.
+                        out = out + anisotropic_from_lights(r_kind, r_ks, r_p1, r_p2, s, wo, table, n_lights, lights,
+                                                            light_vis, p)
+                        w = asg_warp(ndf_asg(r_kind, r_p1, r_p2, s), wo)
+                        lam = wp.max(w.lam, 1.0e-6)
+                        mu_w = wp.max(w.mu, 1.0e-6)
+                        eta = wp.min(2.0 * wp.sqrt(lam * mu_w), SHARPNESS_MAX)
+                        axis = w.z
+                        amp = amp * (w.c * asg_shade_integral(lam, mu_w) / sg_integral(eta))
+                        with_lights = 0
+                    else:
+                        axis = wp.normalize(2.0 * cos_o * s.n - wo)
+                        eta = ndf_sharpness(r_kind, r_p1) / (4.0 * cos_o)
                 else:
                     sub = i32_at2(eff_info, idx, 4) + sub_i
                     lobe = i32_at2(eff_info, idx, 3) + j

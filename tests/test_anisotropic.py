@@ -440,10 +440,11 @@ def test_effective_material_refuses_anisotropic_materials(flat):
         mat.with_materials([AnisotropicWard()])
 
 
-@pytest.mark.parametrize("method", ["sg", "mc"])
-def test_renderers_refuse_anisotropic_materials(method):
+def test_lit_sphere_refuses_anisotropic_materials():
+    """A lit sphere holds one value per normal: an anisotropic material, which the SG renderer and the Monte
+    Carlo reference shade in the mesh's tangent frame (tests/test_anisotropic_render.py), is refused in one line."""
     scene = Scene(wb.Mesh.sphere(1.0, subdivisions=1), [AshikhminShirley()], wb.Camera(eye=(0, 0, 3.5), width=8,
                   height=8), None, [wb.DirectionalLight((0, 0, 1), 1.0)])
-    with pytest.raises(ValueError, match="anisotropic.*ASG method of issue 20") as err:
-        wb.render(scene, method=method, backend="warp:cpu")
+    with pytest.raises(ValueError, match=r"materials\[0\] \(AshikhminShirley\) is anisotropic: .*lit spheres") as err:
+        wb.render(scene, method="litsphere", backend="warp:cpu")
     assert "\n" not in str(err.value)

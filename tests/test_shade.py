@@ -65,9 +65,20 @@ def asg_material():
                    directions=8, facets=2**12, backend="warp:cpu")
 
 
-@pytest.mark.parametrize("which", ["lone", "occluded", "occluded-24-lobes", "occluded-asg"])
+def _anisotropic(scene):
+    """`scene` with its sphere in anisotropic Ward and its torus in Ashikhmin–Shirley (in the frames of the
+    meshes' tangents, along their u directions)."""
+    materials = [wb.AnisotropicWard(0.5, 0.08, 0.35, kd=0.3), wb.AshikhminShirley(rs=0.4, nu=20, nv=400, rd=0.4),
+                 *scene.materials[2:]]
+    return Scene(scene.mesh, materials, scene.camera, scene.environment, scene.lights, ssdf_resolution=16,
+                 ssdf_terms=8)
+
+
+@pytest.mark.parametrize("which", ["lone", "occluded", "occluded-24-lobes", "occluded-asg", "occluded-anisotropic"])
 def test_shade_kernel_matches_reference(backend, which, effective_material, many_lobe_material, asg_material):
-    if which == "occluded-24-lobes":
+    if which == "occluded-anisotropic":
+        scene = _anisotropic(_scenes(effective_material)["occluded"])
+    elif which == "occluded-24-lobes":
         assert len(many_lobe_material.lobes) > 16
         scene = _scenes(many_lobe_material)["occluded"]
     elif which == "occluded-asg":

@@ -28,7 +28,7 @@ from . import asg, batch, directions, geometry, lobes, matrix, sg
 from .backend import Backend, backends, get_backend
 from .bake import bake
 from .model import Bvndf
-from .brdf import BlinnPhong, CookTorrance, EnergyWarning, Lambert, Ward
+from .brdf import AnisotropicWard, AshikhminShirley, BlinnPhong, CookTorrance, EnergyWarning, Lambert, Ward
 from .effective import EffectiveBRDF, compare
 from .environment import Environment
 from .images import compare_images, read_image, write_image
@@ -49,7 +49,8 @@ from .svbrdf import Textured
 from .truth import GroundTruth, effective_brdf_exact, ground_truth, truth_of
 
 __all__ = [
-    "ASGBRDF", "Backend", "BlinnPhong", "asg", "batch", "Bvndf", "Camera", "CookTorrance", "DirectionalLight",
+    "AnisotropicWard", "AshikhminShirley", "ASGBRDF", "Backend", "BlinnPhong", "asg", "batch", "Bvndf", "Camera",
+    "CookTorrance", "DirectionalLight",
     "EffectiveBRDF",
     "Editor", "EnergyWarning",
     "Environment",

@@ -15,9 +15,10 @@ anisotropic Ward's p1, p2 are αx, αy, Ashikhmin–Shirley's row is [Rd rgb, Rs
 row is [slot, mode, 0, …]: its table is slot `slot` of a table array the kernel takes beside `params`
 (`measured_tables`), and mode 0 is trilinear interpolation, 1 nearest (`measured.MeasuredBRDF`).
 
-Only the ground truth (which has each facet's tangent) evaluates the anisotropic models so far: every
-other consumer of materials (`as_material_list`, `pack_materials`: effective materials, the SG bake, the
-renderers, lit spheres) refuses them in one line unless asked with ``anisotropic=True``. Likewise only the
+Only the ground truth (which has each facet's tangent) and the renderers (the SG renderer and the Monte Carlo
+reference, for a large-scale mesh's own material, in the frame of the mesh tangents) evaluate the anisotropic
+models: every other consumer of materials (`as_material_list`, `pack_materials`: effective materials, the
+bakes, lit spheres) refuses them in one line unless asked with ``anisotropic=True``. Likewise only the
 ground truth and the matrix method's M pack measured BRDFs (``measured=True``); every other packing refuses
 them in one line (`MeasuredBRDF.packed`).
 """
@@ -212,8 +213,7 @@ class Brdf:
         n, wi, wo = np.broadcast_arrays(n, wi, wo)
         if self.anisotropic and tangent is None:
             raise ValueError(f"{type(self).__name__}.eval needs the facet's tangent (eval(n, wi, wo, tangent)): an "
-                             "anisotropic BRDF depends on the direction across the normal (the renderers have no "
-                             "tangent frame for it until the ASG method of issue 20)")
+                             "anisotropic BRDF depends on the direction across the normal")
         kinds, params = pack_materials([self], anisotropic=True)
         t = None if tangent is None else np.broadcast_to(np.asarray(tangent, np.float64), n.shape)
         fc = brdf_cosine_weighted(kinds, params, np.zeros(len(n), np.int32), n, wi, wo, t)
@@ -441,6 +441,11 @@ class AnisotropicWard(Brdf):
     def packed(self):
         return np.array([*self.kd, *self.ks, self.alpha_x, self.alpha_y], np.float64)
 
+    @property
+    def ndf_bandwidths(self) -> tuple:
+        """(λ, μ) of the ASG that stands for its NDF in the renderer (`ndf_bandwidths`)."""
+        return ndf_bandwidths(self.kind, self.alpha_x, self.alpha_y)
+
 
 @dataclass(frozen=True)
 class AshikhminShirley(Brdf):
@@ -507,10 +512,27 @@ class AshikhminShirley(Brdf):
     def packed(self):
         return np.array([*self.rd, *self.rs, self.nu, self.nv], np.float64)
 
+    @property
+    def ndf_bandwidths(self) -> tuple:
+        """(λ, μ) of the ASG that stands for its NDF in the renderer (`ndf_bandwidths`)."""
+        return ndf_bandwidths(self.kind, self.nu, self.nv)
 
-_ANISOTROPIC_REFUSAL = ("it needs each facet's tangent, which only the ground truth has so far (wb.ground_truth, "
-                        "wb.effective_brdf_exact); effective materials, the bakes, the renderers and lit spheres "
-                        "need the ASG method of issue 20 to take anisotropic BRDFs, not built yet")
+
+def ndf_bandwidths(kind, p1, p2) -> tuple:
+    """(λ, μ): the bandwidths of the one ASG G(h) = exp(−λ(h·x)² − μ(h·y)²) (amplitude 1 at h = n) that stands
+    for an anisotropic BRDF's NDF in the renderers (Xu 2013 §5.2), from its packed p1, p2. Anisotropic Ward:
+    1/αx², 1/αy² (exp(−((h·x/αx)² + (h·y/αy)²)/(h·n)²) to second order in θh); Ashikhmin–Shirley: nu/2, nv/2
+    ((n·h)^e = (1 − sin²θh)^(e/2) = exp(−e·sin²θh/2 + O(sin⁴θh)))."""
+    if kind == ANISOTROPIC_WARD:
+        return 1.0 / np.square(p1), 1.0 / np.square(p2)
+    if kind == ASHIKHMIN_SHIRLEY:
+        return np.asarray(p1) / 2.0, np.asarray(p2) / 2.0
+    raise ValueError(f"ndf_bandwidths: kind {kind} is not an anisotropic BRDF's")
+
+
+_ANISOTROPIC_REFUSAL = ("it needs each facet's tangent, which only the ground truth (wb.ground_truth, "
+                        "wb.effective_brdf_exact) and the renderers (as a large-scale material) have; effective "
+                        "materials, the bakes and lit spheres do not take anisotropic BRDFs")
 
 
 def refuse_anisotropic(materials, why: str = _ANISOTROPIC_REFUSAL) -> None:

@@ -127,6 +127,12 @@ def material_response(material, n: np.ndarray, light: np.ndarray, view: np.ndarr
             out[ok] = material.eval(wi[ok], wo[ok])
         return np.maximum(out, 0.0)
     if isinstance(material, Brdf):
+        if material.anisotropic:
+            if tangent is None:  # a lit sphere holds one value per normal, for any tangent a mesh has there
+                raise ValueError(f"{type(material).__name__} is anisotropic: a lit sphere, one value per normal, "
+                                 "cannot hold it (render it with method='sg' or 'mc')")
+            tangent = np.asarray(tangent, np.float64).reshape(-1, 3)
+            return np.maximum(material.eval(n, light, view, tangent=tangent) * np.maximum(cos_l, 0.0)[:, None], 0.0)
         return np.maximum(material.eval(n, light, view) * np.maximum(cos_l, 0.0)[:, None], 0.0)
     raise ValueError(f"a lit sphere is made from an analytic Brdf or an EffectiveBRDF, got {material!r}")
 

@@ -114,6 +114,8 @@ def _glossy_eta(brdf: Brdf):
         return _measured_lobe(brdf)[2]
     if isinstance(brdf, Lambert) or float(np.max(brdf.ks)) <= 0:
         return None
+    if brdf.anisotropic:  # the NDF's ASG (brdf.ndf_bandwidths): an SG as broad as its broader axis covers it
+        return 2.0 * float(min(brdf.ndf_bandwidths))
     z = np.array([[0.0, 0.0, 1.0]])
     return sg.specular_lobe(brdf, z, z)[0]
 
@@ -170,7 +172,8 @@ class _AnalyticMaterial:
     def f(self, ctx, pix, w):
         """(K, 3) f_r(n, ω, ωo)·(n·ω)⁺ for samples w (K, 3) of pixels pix (K,) of the batch."""
         n = ctx["n"][pix]
-        return self.brdf.eval(n, w, ctx["wo"][pix]) * np.maximum(_dot(n, w), 0.0)[:, None]
+        tangent = ctx["t"][pix] if self.brdf.anisotropic else None  # the frame the SG renderer shades it in
+        return self.brdf.eval(n, w, ctx["wo"][pix], tangent=tangent) * np.maximum(_dot(n, w), 0.0)[:, None]
 
 
 class _TexturedMaterial(_AnalyticMaterial):

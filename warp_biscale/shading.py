@@ -170,10 +170,11 @@ IRRADIANCE_RATIO_MAX = 1e3  # the diffuse term's E/E_sg stops here: it then neve
 MIN_COS_VIEW = 1e-4  # ωo·n is clamped here: silhouette pixels whose interpolated normal faces away
 
 
-def _analytic_rows(m) -> np.ndarray:
+def _analytic_rows(m, anisotropic: bool = False) -> np.ndarray:
     """(R, 9) float32: the shade kernels' rows of a BRDF, one per SG lobe of its SG form (`brdf.sg_lobes`: the
-    BRDF itself, or a measured one's SG fit of one or two lobes, the first carrying kd)."""
-    kinds, params = brdf_mod.pack_materials(list(brdf_mod.sg_lobes(m)))
+    BRDF itself, or a measured one's SG fit of one or two lobes, the first carrying kd). `anisotropic`: take an
+    anisotropic BRDF (a large-scale material, in the frame of the mesh's tangents), else refuse it."""
+    kinds, params = brdf_mod.pack_materials(list(brdf_mod.sg_lobes(m)), anisotropic=anisotropic)
     return np.concatenate([kinds[:, None], params], 1).astype(np.float32)
 
 
@@ -183,7 +184,9 @@ def _specular_rows(m) -> int:
     if isinstance(m, Textured):  # the maps only scale ks: no specular term appears where ks = 0
         m = m.brdf
     lobes = brdf_mod.sg_lobes(m)
-    spec = any(not isinstance(b, brdf_mod.Lambert) and float(np.max(b.ks)) > 0 for b in lobes)
+    # (Ashikhmin–Shirley's Fresnel term reflects at grazing angles even where Rs = 0.)
+    spec = any(isinstance(b, brdf_mod.AshikhminShirley)
+               or not isinstance(b, brdf_mod.Lambert) and float(np.max(b.ks)) > 0 for b in lobes)
     return len(lobes) if spec else 0
 
 
@@ -230,7 +233,7 @@ def pack_materials(materials) -> dict:
                 n_texels += tex.shape[0] * tex.shape[1]
         elif isinstance(m, brdf_mod.Brdf):
             info.append([0, len(analytic), _specular_rows(m), -1])
-            analytic.extend(_analytic_rows(m))
+            analytic.extend(_analytic_rows(m, anisotropic=True))
         elif isinstance(m, EffectiveBRDF):
             k2 = m.directions**2
             lobe_type, rows = m.shade_lobes()  # a matrix-method material has none: a one-line refusal
@@ -307,6 +310,13 @@ def specular_scale(row, cos_d):
         return ks * (fres / (np.pi * cos_d**2))[:, None], 2 / p1**2
     if kind == brdf_mod.WARD:
         return ks / (4 * np.pi * p1**2 * cos_d)[:, None], 2 / p1**2
+    # The anisotropic kinds: f_s at the mirror direction (h = n, cos θi = cos θo = cos θd) over their NDF's ASG,
+    # which is 1 there; η_s is that ASG's effective SG sharpness 2√(λμ) (Xu §5.3).
+    if kind == brdf_mod.ANISOTROPIC_WARD:
+        return ks / (4 * np.pi * p1 * p2 * cos_d)[:, None], 2 / (p1 * p2)
+    if kind == brdf_mod.ASHIKHMIN_SHIRLEY:
+        fres = ks + (1 - ks) * ((1 - cos_d) ** 5)[:, None]
+        return fres * (np.sqrt((p1 + 1) * (p2 + 1)) / (8 * np.pi * cos_d**2))[:, None], np.sqrt(p1 * p2)
     return np.zeros(shape), 1.0
 
 
@@ -341,6 +351,48 @@ def _asg_environment_lobe(g, eta_s, scale, wo, c_oj, t, b, n, wo_local, tables, 
     mu_tab = _table_interp(tables, base, k, j_count, j, wl, wo_local)
     amp = scale * mu_tab * (c.amplitude * np.where(c_oj > 0, integral / sg.integral(eta), 0.0))[:, None]
     return axis, eta, amp, False
+
+
+def _ashikhmin_shirley_diffuse(row, cos_i, cos_o):
+    """(m, 3) Ashikhmin–Shirley's ρd (no cosines) of packed rows (m, 9) [kind, Rd, Rs, nu, nv]."""
+    g = (1 - (1 - cos_i / 2) ** 5) * (1 - (1 - cos_o / 2) ** 5) * 28 / (23 * np.pi)
+    return row[:, 1:4] * (1 - row[:, 4:7]) * g[:, None]
+
+
+def _anisotropic_specular(row, n, t, wi, wo):
+    """(m, 3) f_s (no cosines) of an anisotropic BRDF's packed rows (m, 9) in the frame of tangents t: its
+    cosine-weighted specular term (`brdf.brdf_cosine_weighted` with no diffuse) over cos θi cos θo."""
+    params = row[:, 1:9].copy()
+    params[:, 0:3] = 0.0
+    fc = brdf_mod.brdf_cosine_weighted(row[:, 0].astype(np.int32), params, np.arange(len(row)), n, wi, wo, t)
+    c = np.maximum(_dot(n, wi), 0.0) * np.maximum(_dot(n, wo), 0.0)
+    return np.where((c > 0)[:, None], fc / np.where(c > 0, c, 1.0)[:, None], 0.0)
+
+
+def _anisotropic_environment_lobe(row, n, t, wo, cos_o):
+    """An anisotropic BRDF's specular lobe against the environment (Xu 2013 §5.2): its NDF as one ASG about n in
+    the frame of the tangents (`brdf.ndf_bandwidths`), warped to the light directions (Eq. 23–26), then the SG of
+    the warped axis, of the effective bandwidth 2√(λ_iμ_i) and of the same integral, as an effective material's
+    ASG lobe (`_asg_environment_lobe`); its amplitude is f_s at the mirror direction (`specular_scale`)."""
+    x, y = brdf_mod.tangent_frame(n, t)
+    lam, mu = brdf_mod.ndf_bandwidths(int(row[0, 0]), row[:, 7], row[:, 8])
+    w = asg_mod.warp(asg_mod.ASG(x, y, n, lam, mu), wo)
+    lam, mu = np.maximum(w.lam, 1e-6), np.maximum(w.mu, 1e-6)
+    eta = np.minimum(2.0 * np.sqrt(lam) * np.sqrt(mu), sg.SHARPNESS_MAX)
+    scale, _ = specular_scale(row, cos_o)
+    amp = scale * (w.amplitude * asg_mod.shade_integral(lam, mu) / sg.integral(eta))[:, None]
+    return w.z, eta, amp, False
+
+
+def _anisotropic_lights(row, n, t, wo, table, l_axis, l_eta, l_amp, l_vis):
+    """(m, 3) an anisotropic BRDF's specular radiance from the lights: f_s at each light's direction times the
+    light's irradiance with its cosine and visible share, as the diffuse term takes it."""
+    out = np.zeros((len(wo), 3))
+    for li in range(l_axis.shape[1]):
+        light = l_axis[:, li]
+        e = sg.integral(l_eta[:, li]) * sg.table_lookup(table, 0, _dot(light, n), l_eta[:, li])
+        out += _anisotropic_specular(row, n, t, light, wo) * l_amp[:, li] * (e * l_vis[:, li])[:, None]
+    return out
 
 
 def _asg_lights(g, sub, eta_s, wo, t, b, n, wo_local, tables, base, k, j_count, j, table, l_axis, l_eta, l_amp,
@@ -494,7 +546,9 @@ def shade_reference(frame: Frame) -> np.ndarray:
                     for row in rows:
                         row[:, cols] *= factor
 
-            def diffuse_over_cos(axis_world, eta, row=rows[0]):
+            def diffuse_over_cos(axis_world, eta, row=rows[0], ns=ns, cos_os=cos_os):
+                if int(row[0, 0]) == brdf_mod.ASHIKHMIN_SHIRLEY:  # ρd of cos θi at the lobe's axis and cos θo
+                    return _ashikhmin_shirley_diffuse(row, np.maximum(_dot(axis_world, ns), 0.0), cos_os)
                 return row[:, 1:4] / np.pi
         else:
             ei = static.eff_info[idx]
@@ -539,6 +593,11 @@ def shade_reference(frame: Frame) -> np.ndarray:
         lobes = []
         if kind == 0:
             for row in rows:
+                if int(row[0, 0]) in brdf_mod.ANISOTROPIC_KINDS:
+                    lobes.append(_anisotropic_environment_lobe(row, ns, ts_, wo_s, cos_os))
+                    rad[sel] += _anisotropic_lights(row, ns, ts_, wo_s, table, light_axis[sel], light_eta[sel],
+                                                    light_amp[sel], light_vis[sel])
+                    continue
                 scale, eta_s = specular_scale(row, cos_os)
                 axis = 2 * cos_os[:, None] * ns - wo_s
                 lobes.append((_normalize(axis), eta_s / (4 * cos_os), scale, True))
