@@ -27,6 +27,7 @@
 #define DIFFUSE_LEVELS 5 /* = len(effective.DIFFUSE_LEVEL_ETAS): f̄d and its prefiltered levels */
 #define DIFFUSE_LEVEL_SHARP 64.0f /* = effective.DIFFUSE_LEVEL_SHARP */
 #define DIFFUSE_LEVEL_STEP 8.0f /* = effective.DIFFUSE_LEVEL_STEP */
+#define AS_UNIFORM_COS 0.58292645536f /* = shading.AS_UNIFORM_COS */
 
 /* floor(x) as an int for x >= 0 (every caller clamps x to a non-negative range first): truncation,
  * the same integer, without PoCL's out-of-line floor call. */
@@ -606,12 +607,23 @@ CL_INLINE Asg ndf_asg(int kind, float p1, float p2, SurfacePoint s)
     return g;
 }
 
-/* f_d of an analytic material towards `axis`: kd/π, or Ashikhmin–Shirley's ρd (kd = Rd/π here) at the axis's
- * cos θi. */
-CL_INLINE float3 analytic_diffuse(int kind, float3 kd, float3 ks, float3 axis, SurfacePoint s, float cos_o)
+/* The cosine at which Ashikhmin–Shirley's ρd is read for a light lobe (shading.lobe_cosine). */
+CL_INLINE float lobe_cosine(float c, float eta)
+{
+    float r = eta / 3.0f - eta * eta * eta / 45.0f;
+    if (eta >= 1.0e-2f) {
+        float e2 = exp(-2.0f * eta);
+        r = (1.0f + e2) / (1.0f - e2) - 1.0f / eta;
+    }
+    return r * maxf(c, 0.0f) + (1.0f - r) * AS_UNIFORM_COS;
+}
+
+/* f_d of an analytic material towards a light lobe: kd/π, or Ashikhmin–Shirley's ρd (kd = Rd/π here) at the
+ * lobe's cosine. */
+CL_INLINE float3 analytic_diffuse(int kind, float3 kd, float3 ks, float3 axis, float eta, SurfacePoint s, float cos_o)
 {
     if (kind == ASHIKHMIN_SHIRLEY)
-        return ashikhmin_shirley_diffuse(kd * SHADE_PI, ks, maxf(dot3(axis, s.n), 0.0f), cos_o);
+        return ashikhmin_shirley_diffuse(kd * SHADE_PI, ks, lobe_cosine(dot3(axis, s.n), eta), cos_o);
     return kd;
 }
 
@@ -840,7 +852,7 @@ __kernel void shade_pixels(
                                              ray_lobe, p);
         } else
             amount = amount * environment_share(tab, axis, lobe[3], row, s, has_ssdf, ssdf, occ);
-        float3 fd = analytic_diffuse(a_kind, kd, a_ks, axis, s, cos_o);
+        float3 fd = analytic_diffuse(a_kind, kd, a_ks, axis, lobe[3], s, cos_o);
         if (kind != 0)
             fd = effective_diffuse(ei, eff_sub, eff_diffuse, k2, lobe[3], to_local(s, axis), k, oo, ow);
         out = out + fd * radiance_e * amount;
@@ -853,7 +865,7 @@ __kernel void shade_pixels(
         __global const float *row = lights + 8 * l;
         float3 axis = light_axis(row, s.pos);
         float eta = light_sharpness(row, s.pos);
-        float3 fd = analytic_diffuse(a_kind, kd, a_ks, axis, s, cos_o);
+        float3 fd = analytic_diffuse(a_kind, kd, a_ks, axis, eta, s, cos_o);
         if (kind != 0)
             fd = effective_diffuse(ei, eff_sub, eff_diffuse, k2, eta, to_local(s, axis), k, oo, ow);
         out = out + fd * light_amplitude(row, s.pos, eta) * (cosine_integral(tab, axis, eta, eta_row(tab, eta), s.n) * (float)vis[l] / 255.0f);
@@ -873,6 +885,7 @@ __kernel void shade_pixels(
                 float eta;
                 float3 amp;
                 int with_lights = 1;
+                float cap = -1.0f; /* Ashikhmin–Shirley's cap on the cosine integral (shading.capped_cosine_integral) */
                 if (kind == 0) {
                     __global const float *row = analytic + 9 * (idx + j);
                     int r_kind = (int)row[0];
@@ -891,6 +904,8 @@ __kernel void shade_pixels(
                         axis = w.z;
                         amp = amp * (w.c * asg_shade_integral(lam, mu_w) / sg_integral(eta));
                         with_lights = 0;
+                        if (r_kind == ASHIKHMIN_SHIRLEY)
+                            cap = cos_o;
                     } else {
                         axis = normalize3(2.0f * cos_o * s.n - wo);
                         eta = ndf_sharpness(r_kind, r_p1) / (4.0f * cos_o);
@@ -940,8 +955,13 @@ __kernel void shade_pixels(
                 }
                 eta = minf(eta, sharpness_max);
                 EtaRow er = eta_row(tab, eta);
-                float amount = cosine_integral(tab, axis, eta, er, s.n)
-                               * environment_share(tab, axis, eta, er, s, has_ssdf, ssdf, occ);
+                float amount = cosine_integral(tab, axis, eta, er, s.n);
+                if (cap >= 0.0f) {
+                    float spread = sqrt(maxf(1.0f - cap * cap, 0.0f) / (2.0f * SHADE_PI * eta));
+                    amount = maxf(amount - spread * sg_integral(eta) * lookup(tab, 1, er, dot3(axis, s.n))
+                                               / (1.0f + exp(-eta)), 0.0f);
+                }
+                amount = amount * environment_share(tab, axis, eta, er, s, has_ssdf, ssdf, occ);
                 float3 light_part = (float3)(0.0f, 0.0f, 0.0f);
                 if (with_lights != 0)
                     light_part = lobe_from_lights(tab, axis, eta, s, n_lights, lights, vis);

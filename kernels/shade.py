@@ -41,6 +41,7 @@ SSDF_ONLY = wp.constant(_shading.SSDF_ONLY)
 DIFFUSE_LEVELS = wp.constant(len(_effective.DIFFUSE_LEVEL_ETAS))  # f̄d and its prefiltered levels
 DIFFUSE_LEVEL_SHARP = wp.constant(_effective.DIFFUSE_LEVEL_SHARP)
 DIFFUSE_LEVEL_STEP = wp.constant(_effective.DIFFUSE_LEVEL_STEP)
+AS_UNIFORM_COS = wp.constant(_shading.AS_UNIFORM_COS)
 
 vec4i = wp.vec4i
 
@@ -510,11 +511,22 @@ def ndf_asg(kind: int, p1: float, p2: float, s: SurfacePoint) -> Asg:
 
 
 @wp.func
-def analytic_diffuse(kind: int, kd: wp.vec3, ks: wp.vec3, axis: wp.vec3, s: SurfacePoint, cos_o: float) -> wp.vec3:
-    """f_d of an analytic material towards `axis`: kd/π, or Ashikhmin–Shirley's ρd (kd = Rd/π here) at the
-    axis's cos θi."""
+def lobe_cosine(c: float, eta: float) -> float:
+    """The cosine at which Ashikhmin–Shirley's ρd is read for a light lobe (shading.lobe_cosine)."""
+    r = eta / 3.0 - eta * eta * eta / 45.0
+    if eta >= 1.0e-2:
+        e2 = wp.exp(-2.0 * eta)
+        r = (1.0 + e2) / (1.0 - e2) - 1.0 / eta
+    return r * wp.max(c, 0.0) + (1.0 - r) * AS_UNIFORM_COS
+
+
+@wp.func
+def analytic_diffuse(kind: int, kd: wp.vec3, ks: wp.vec3, axis: wp.vec3, eta: float, s: SurfacePoint,
+                     cos_o: float) -> wp.vec3:
+    """f_d of an analytic material towards a light lobe: kd/π, or Ashikhmin–Shirley's ρd (kd = Rd/π here) at the
+    lobe's cosine."""
     if kind == ASHIKHMIN_SHIRLEY:
-        return ashikhmin_shirley_diffuse(kd * PI, ks, wp.max(wp.dot(axis, s.n), 0.0), cos_o)
+        return ashikhmin_shirley_diffuse(kd * PI, ks, lobe_cosine(wp.dot(axis, s.n), eta), cos_o)
     return kd
 
 
@@ -868,7 +880,7 @@ def shade_pixels(
         else:
             amount = amount * environment_share(table, axis, eta, tr, s, has_ssdf, ssdf_res, ssdf_basis,
                                                 ssdf_coeffs, mask, occlusion_samples, frame, p)
-        fd = analytic_diffuse(a_kind, kd, a_ks, axis, s, cos_o)
+        fd = analytic_diffuse(a_kind, kd, a_ks, axis, eta, s, cos_o)
         if kind != 0:
             fd = effective_diffuse(eff_info, eff_sub, eff_diffuse, idx, k2, eta, to_local(s, axis), k, oo, ow)
         out = out + wp.cw_mul(fd, radiance_e) * amount
@@ -879,7 +891,7 @@ def shade_pixels(
             continue
         axis = light_axis(lights, l, s.pos)
         eta = light_sharpness(lights, l, s.pos)
-        fd = analytic_diffuse(a_kind, kd, a_ks, axis, s, cos_o)
+        fd = analytic_diffuse(a_kind, kd, a_ks, axis, eta, s, cos_o)
         if kind != 0:
             fd = effective_diffuse(eff_info, eff_sub, eff_diffuse, idx, k2, eta, to_local(s, axis), k, oo, ow)
         out = out + wp.cw_mul(fd, light_amplitude(lights, l, s.pos, eta)) * (
@@ -898,6 +910,7 @@ def shade_pixels(
                 eta = float(0.0)
                 amp = wp.vec3(0.0)
                 with_lights = int(1)
+                cap = float(-1.0)  # Ashikhmin–Shirley's cap on the cosine integral (shading.capped_cosine_integral)
                 if kind == 0:
                     row = idx + j
                     r_kind = int(analytic[row, 0])
@@ -917,6 +930,8 @@ def shade_pixels(
                         axis = w.z
                         amp = amp * (w.c * asg_shade_integral(lam, mu_w) / sg_integral(eta))
                         with_lights = 0
+                        if r_kind == ASHIKHMIN_SHIRLEY:
+                            cap = cos_o
                     else:
                         axis = wp.normalize(2.0 * cos_o * s.n - wo)
                         eta = ndf_sharpness(r_kind, r_p1) / (4.0 * cos_o)
@@ -964,7 +979,12 @@ def shade_pixels(
                         eta = 1.0 / (1.0 / eta_j + 1.0 / eta_s) / (4.0 * wp.max(c_oj, MIN_COS_VIEW))
                 eta = wp.min(eta, SHARPNESS_MAX)
                 tr = eta_row(table, eta)
-                amount = cosine_integral(table, axis, eta, tr, s.n) * environment_share(
+                amount = cosine_integral(table, axis, eta, tr, s.n)
+                if cap >= 0.0:
+                    spread = wp.sqrt(wp.max(1.0 - cap * cap, 0.0) / (2.0 * PI * eta))
+                    amount = wp.max(amount - spread * sg_integral(eta) * table_lookup(table, 1, wp.dot(axis, s.n), tr)
+                                    / (1.0 + wp.exp(-eta)), 0.0)
+                amount = amount * environment_share(
                     table, axis, eta, tr, s, has_ssdf, ssdf_res, ssdf_basis, ssdf_coeffs, mask, occlusion_samples,
                     frame, p)
                 light_part = wp.vec3(0.0)

@@ -353,6 +353,21 @@ def _asg_environment_lobe(g, eta_s, scale, wo, c_oj, t, b, n, wo_local, tables, 
     return axis, eta, amp, False
 
 
+# Ashikhmin–Shirley's ρd varies with cos θi as g(c) = 1 − (1 − c/2)⁵, whose cosine-weighted mean over the
+# hemisphere is 23/28 (the model's normalisation): g takes it at this cosine, 2(1 − (5/28)^(1/5)) = 0.5829.
+AS_UNIFORM_COS = 2.0 * (1.0 - (5.0 / 28.0) ** 0.2)
+
+
+def lobe_cosine(c, eta):
+    """The cosine at which Ashikhmin–Shirley's ρd is read for a light lobe of sharpness η whose axis has cosine c:
+    c itself for a sharp lobe, AS_UNIFORM_COS (exact for a uniform one) for a broad one, blended by the lobe's mean
+    resultant length R = coth η − 1/η (η/3 below 1e-2)."""
+    eta = np.asarray(eta, np.float64)
+    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+        r = np.where(eta < 1e-2, eta / 3 - eta**3 / 45, 1 / np.tanh(np.maximum(eta, 1e-2)) - 1 / np.maximum(eta, 1e-2))
+    return r * np.maximum(c, 0.0) + (1 - r) * AS_UNIFORM_COS
+
+
 def _ashikhmin_shirley_diffuse(row, cos_i, cos_o):
     """(m, 3) Ashikhmin–Shirley's ρd (no cosines) of packed rows (m, 9) [kind, Rd, Rs, nu, nv]."""
     g = (1 - (1 - cos_i / 2) ** 5) * (1 - (1 - cos_o / 2) ** 5) * 28 / (23 * np.pi)
@@ -381,7 +396,20 @@ def _anisotropic_environment_lobe(row, n, t, wo, cos_o):
     eta = np.minimum(2.0 * np.sqrt(lam) * np.sqrt(mu), sg.SHARPNESS_MAX)
     scale, _ = specular_scale(row, cos_o)
     amp = scale * (w.amplitude * asg_mod.shade_integral(lam, mu) / sg.integral(eta))[:, None]
-    return w.z, eta, amp, False
+    return w.z, eta, amp, False, cos_o if int(row[0, 0]) == brdf_mod.ASHIKHMIN_SHIRLEY else None
+
+
+def capped_cosine_integral(e, cap, axis, n, eta, table):
+    """Ashikhmin–Shirley's 1/max(cos θi, cos θo) over a lobe whose M is taken at cos θi = cos θo = `cap`: its
+    f_s·cos θi is M·D·min(cos θi, cos θo), so the lobe's cosine integral e = ∫G·(n·ω)⁺ loses ∫G·(cos θi − cos θo)⁺.
+    Across a lobe of sharpness η about an axis of sine s = √(1 − cap²), cos θi − cos θo is ≈ Gaussian of spread
+    s/√η, whose positive part has the mean s/√(2πη); ∫G is taken over the lobe's visible part (the visible
+    fraction of its own hemisphere, whose share of ∫G is 1/(1 + e^−η)). Measured against the Monte Carlo
+    reference (tests/test_anisotropic_render.py's sphere, constant environment, nu = nv = 100): 24.7 dB without
+    it, 30.7 dB with it."""
+    visible = sg.integral(eta) * sg.table_lookup(table, 1, _dot(axis, n), eta) / (1 + np.exp(-eta))
+    spread = np.sqrt(np.maximum(1 - cap * cap, 0.0) / (2 * np.pi * eta))
+    return np.maximum(e - spread * visible, 0.0)
 
 
 def _anisotropic_lights(row, n, t, wo, table, l_axis, l_eta, l_amp, l_vis):
@@ -547,8 +575,8 @@ def shade_reference(frame: Frame) -> np.ndarray:
                         row[:, cols] *= factor
 
             def diffuse_over_cos(axis_world, eta, row=rows[0], ns=ns, cos_os=cos_os):
-                if int(row[0, 0]) == brdf_mod.ASHIKHMIN_SHIRLEY:  # ρd of cos θi at the lobe's axis and cos θo
-                    return _ashikhmin_shirley_diffuse(row, np.maximum(_dot(axis_world, ns), 0.0), cos_os)
+                if int(row[0, 0]) == brdf_mod.ASHIKHMIN_SHIRLEY:  # ρd of the lobe's cosine (`lobe_cosine`) and cos θo
+                    return _ashikhmin_shirley_diffuse(row, lobe_cosine(_dot(axis_world, ns), eta), cos_os)
                 return row[:, 1:4] / np.pi
         else:
             ei = static.eff_info[idx]
@@ -629,9 +657,11 @@ def shade_reference(frame: Frame) -> np.ndarray:
                     amp = scale * mu * (2 * np.pi / (lobe[3] + eta_s))
                     amp *= (c_oj > 0)[:, None]  # a lobe facing away from the viewer reflects nothing
                     lobes.append((axis, eta_c / (4 * np.maximum(c_oj, MIN_COS_VIEW)), amp, True))
-        for axis, eta, amp, with_lights in lobes:
+        for axis, eta, amp, with_lights, *cap in lobes:
             eta = np.minimum(eta, sg.SHARPNESS_MAX)
             e = sg.integral(eta) * sg.table_lookup(table, 0, _dot(axis, ns), eta)
+            if cap and cap[0] is not None:
+                e = capped_cosine_integral(e, cap[0], axis, ns, eta, table)
             occ = occlusion(axis, eta, sel)
             env_avg = prefiltered_lookup(static.env_maps, static.env_levels, axis, eta)
             rad[sel] += amp * env_avg * (e * occ)[:, None]
