@@ -438,3 +438,15 @@ def test_bi_scale_example_is_the_demo_scene():
     with open(EXAMPLES / "bi-scale.toml", "rb") as f:
         example = tomllib.load(f)
     assert example == tomllib.loads(demo.scene_text(512))
+
+
+def test_anisotropic_material_types():
+    """The anisotropic BRDFs as large-scale materials (in the mesh's tangent frame); a wrong key is named."""
+    text = BASE.replace('type = "lambert"\nalbedo = 0.5', 'type = "anisotropicward"\nks = 0.6\nalpha_x = 0.08\n'
+                        'alpha_y = 0.4\nkd = 0.2')
+    mat = loads_scene(text).scene.materials[0]
+    assert mat == wb.AnisotropicWard(0.6, 0.08, 0.4, kd=0.2)
+    text = BASE.replace('type = "lambert"\nalbedo = 0.5', 'type = "ashikhminshirley"\nrs = 0.5\nnu = 20\nnv = 400')
+    assert loads_scene(text).scene.materials[0] == wb.AshikhminShirley(rs=0.5, nu=20, nv=400)
+    with pytest.raises(SceneError, match="alpha"):
+        loads_scene(BASE.replace('type = "lambert"\nalbedo = 0.5', 'type = "anisotropicward"\nalpha = 0.1'))

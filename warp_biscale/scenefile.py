@@ -62,7 +62,9 @@ or ``warp-biscale render scene.toml -o out.png``. Every table and key is optiona
     [material.floor]
     type = "lambert"             # "lambert": albedo ; "blinnphong": ks, exponent, kd, normalization
     albedo = [0.5, 0.5, 0.5]     #   ("iwasaki" | "energy") ; "cooktorrance": ks, roughness, f0, kd ;
-                                 #   "ward": ks, alpha, kd
+                                 #   "ward": ks, alpha, kd ; "anisotropicward": ks, alpha_x, alpha_y, kd ;
+                                 #   "ashikhminshirley": rs, nu, nv, rd (both in the frame of the mesh's
+                                 #   tangents: the u direction of its UVs)
     kd_map = "floor.png"         # optional maps (svbrdf.Textured, images relative to this file): kd_map,
                                  #   and ks_map, parameter_map (multiplies exponent | roughness | alpha)
 
@@ -166,6 +168,9 @@ _BRDF_KEYS = {
     "blinnphong": {"ks": RGB, "exponent": NUM, "kd": RGB, "normalization": STR, **_MAPS},
     "cooktorrance": {"ks": RGB, "roughness": NUM, "f0": NUM, "kd": RGB, **_MAPS},
     "ward": {"ks": RGB, "alpha": NUM, "kd": RGB, **_MAPS},
+    # anisotropic: in the frame of the mesh's tangents (its UVs' u direction)
+    "anisotropicward": {"ks": RGB, "alpha_x": NUM, "alpha_y": NUM, "kd": RGB},
+    "ashikhminshirley": {"rs": RGB, "nu": NUM, "nv": NUM, "rd": RGB},
 }
 BAKE_KEYS = {"tile": STR, "tile_params": TABLE, "brdf": STRLIST, "lobes": LOBES, "directions": INT, "facets": INT,
              "normal_res": INT, "method": STR, "route": STR, "seed": INT}
@@ -530,7 +535,8 @@ def _material(ctx, table, kind, v, sf, name, used, prog):
 
     if kind in _BRDF_KEYS:
         cls = {"lambert": brdf_mod.Lambert, "blinnphong": brdf_mod.BlinnPhong,
-               "cooktorrance": brdf_mod.CookTorrance, "ward": brdf_mod.Ward}[kind]
+               "cooktorrance": brdf_mod.CookTorrance, "ward": brdf_mod.Ward,
+               "anisotropicward": brdf_mod.AnisotropicWard, "ashikhminshirley": brdf_mod.AshikhminShirley}[kind]
         v = dict(v)
         maps = {key: v.pop(key) for key in _MAPS if key in v}
         mat = _build(ctx, table, v, cls)
