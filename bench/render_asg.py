@@ -7,6 +7,9 @@ gives every J its lobes.
 
     python -m bench.render_asg warp:cuda opencl:nvidia > $OUT/render_asg.jsonl
     python -m bench.render_asg warp:cuda opencl:nvidia --tile heightfield --lobes 2 4 8 16 > $OUT/render_asg_j.jsonl
+
+`--analytic`: instead, the torus in analytic materials: isotropic Ward, and the anisotropic Ward and
+Ashikhmin–Shirley, which the renderer shades through one ASG each (the "material" key names them).
 """
 
 import argparse
@@ -18,17 +21,33 @@ from bench.bench_bake import families
 from bench.bench_render import target_scene, time_frames
 
 
+ANALYTIC = {"ward": wb.Ward((0.9, 0.7, 0.3), 0.15, kd=(0.25, 0.12, 0.05)),
+            "anisotropic-ward": wb.AnisotropicWard((0.9, 0.7, 0.3), 0.05, 0.3, kd=(0.25, 0.12, 0.05)),
+            "ashikhmin-shirley": wb.AshikhminShirley(rs=(0.9, 0.7, 0.3), nu=20, nv=400, rd=(0.1, 0.05, 0.02))}
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("backends", nargs="*", default=["auto"])
     ap.add_argument("--tile", default="pyramid", help="a family of bench_bake.families (default pyramid)")
     ap.add_argument("--lobes", type=int, nargs="+", default=[8], help="J, one or more (default 8)")
     ap.add_argument("--size", type=int, nargs=2, default=(1920, 1080), metavar=("W", "H"))
+    ap.add_argument("--analytic", action="store_true", help="the torus in analytic (an)isotropic materials")
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore", wb.EnergyWarning)
     tile = families()[args.tile]
     for backend in args.backends:
         be = wb.get_backend(backend)
+        if args.analytic:
+            for name, mat in ANALYTIC.items():
+                scene = target_scene(*args.size, backend=be)
+                scene.materials[0] = mat
+                for shadows in (1, 16):
+                    per_frame, _, _, _ = time_frames(scene, be, frames=10, runs=5, shadow_samples=shadows)
+                    print(json.dumps({"backend": be.name, "device": be.device, "material": name,
+                                      "size": list(args.size), "shadow_samples": shadows,
+                                      "frame_ms": 1e3 * per_frame, "fps": 1.0 / per_frame}), flush=True)
+            continue
         brdf = [wb.BlinnPhong((0.9, 0.7, 0.3), 256, kd=(0.25, 0.12, 0.05))] * tile.n_materials
         for j in args.lobes:
             for method in ("sg", "asg"):
