@@ -30,24 +30,33 @@ def run_cli(*args):
 
 
 def run_cli_in_process(capsys, *args):
-    """The command in this process (`cli.main`), for tests of a command's options: → its return code, stdout and
-    stderr as run_cli's result has them. (A subprocess costs ~5 s of imports and kernel loads; the console
-    script itself runs as a subprocess in this file's other tests.)"""
+    """The command in this process (`cli.main`), for tests of a command's options and errors: → its return code,
+    stdout and stderr as run_cli's result has them, the warnings it gave written to stderr as the console script
+    writes them (after the rest). A subprocess costs ~1.5 s to start and ~5 s more to load the kernels; the
+    console script itself runs as a subprocess in this file's other tests (the quiet, view, help, version and
+    backends listing tests)."""
+    import warnings
     from types import SimpleNamespace
 
     from warp_biscale import cli
 
     capsys.readouterr()
-    code = cli.main([str(a) for a in args])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("default")
+        try:
+            code = cli.main([str(a) for a in args])
+        except SystemExit as exc:  # argparse's usage errors
+            code = exc.code
     out = capsys.readouterr()
-    return SimpleNamespace(returncode=code, stdout=out.out, stderr=out.err)
+    said = "".join(f"warning: {w.message}\n" for w in caught)
+    return SimpleNamespace(returncode=code, stdout=out.out, stderr=out.err + said)
 
 
-def test_truth_builtin_tile_writes_plot_and_table(tmp_path):
+def test_truth_builtin_tile_writes_plot_and_table(tmp_path, capsys):
     out = tmp_path / "plot.png"
     npz = tmp_path / "gt.npz"
-    r = run_cli("truth", "vgroove", "--facets", "4096", "--directions", "6", "--backend", "warp:cpu",
-                "--brdf", "blinnphong:exponent=64,ks=0.8,kd=0.1", "-o", str(out), "--save", str(npz))
+    r = run_cli_in_process(capsys, "truth", "vgroove", "--facets", "4096", "--directions", "6", "--backend", "warp:cpu",
+                           "--brdf", "blinnphong:exponent=64,ks=0.8,kd=0.1", "-o", str(out), "--save", str(npz))
     assert r.returncode == 0, r.stderr
     assert "θi \\ θo" in r.stdout and "directional albedo" in r.stdout
     assert "effective BRDF" in r.stderr  # progress lines
@@ -58,14 +67,14 @@ def test_truth_builtin_tile_writes_plot_and_table(tmp_path):
     assert gt.directions == 6 and gt.facets == 4096 and gt.tile.startswith("grooves(v")
 
 
-def test_truth_mesh_file(tmp_path):
+def test_truth_mesh_file(tmp_path, capsys):
     import trimesh
     from conftest import random_heightfield
 
     tile = random_heightfield(n=4)
     trimesh.Trimesh(tile.vertices, tile.faces, process=False).export(tmp_path / "hf.obj")
-    r = run_cli("truth", str(tmp_path / "hf.obj"), "--facets", "1024", "--directions", "4",
-                "--backend", "warp:cpu", "-q", "-o", str(tmp_path / "p.png"))
+    r = run_cli_in_process(capsys, "truth", str(tmp_path / "hf.obj"), "--facets", "1024", "--directions", "4",
+                           "--backend", "warp:cpu", "-q", "-o", str(tmp_path / "p.png"))
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "p.png").exists()
 
@@ -77,21 +86,21 @@ def test_truth_mesh_file(tmp_path):
     (["truth", "flat", "--facets", "0"], "facets must be an integer"),
     (["truth", "flat", "--backend", "metal"], "unknown backend"),
 ])
-def test_truth_errors_are_clear(tmp_path, args, message):
-    r = run_cli(*args, "-o", str(tmp_path / "x.png"))
+def test_truth_errors_are_clear(tmp_path, args, message, capsys):
+    r = run_cli_in_process(capsys, *args, "-o", str(tmp_path / "x.png"))
     assert r.returncode == 2
     assert message in r.stderr
     assert not (tmp_path / "x.png").exists()
 
 
-def test_backends_command_lists_warp_cpu():
+def test_backends_command_lists_warp_cpu(capsys):
     r = run_cli("backends")
     assert r.returncode == 0
     assert "warp:cpu" in r.stdout and "usable" in r.stdout and "auto picks" in r.stdout
     assert "Warp CUDA warning" not in r.stderr  # said once, in the listing, instead
-    r = run_cli("backends", "-q", "--require", "warp:cpu")
+    r = run_cli_in_process(capsys, "backends", "-q", "--require", "warp:cpu")
     assert r.returncode == 0 and r.stdout == "" and r.stderr == ""
-    r = run_cli("backends", "-q", "--require", "metal")
+    r = run_cli_in_process(capsys, "backends", "-q", "--require", "metal")
     assert r.returncode == 1 and "no usable metal backend here" in r.stderr
 
 
@@ -100,11 +109,11 @@ def test_help_lists_commands():
     assert r.returncode == 0 and "truth" in r.stdout and "backends" in r.stdout
 
 
-def test_bake_writes_a_material_file_that_loads(tmp_path):
+def test_bake_writes_a_material_file_that_loads(tmp_path, capsys):
     out = tmp_path / "m.wbm"
-    r = run_cli("bake", "vgroove", "--facets", "4096", "--directions", "6", "--backend", "warp:cpu",
-                "--brdf", "cooktorrance:roughness=0.2,ks=0.9,kd=0.1", "--lobes", "auto", "--truth", "8192",
-                "-o", str(out))
+    r = run_cli_in_process(capsys, "bake", "vgroove", "--facets", "4096", "--directions", "6", "--backend", "warp:cpu",
+                           "--brdf", "cooktorrance:roughness=0.2,ks=0.9,kd=0.1", "--lobes", "auto", "--truth", "8192",
+                           "-o", str(out))
     assert r.returncode == 0, r.stderr
     assert "lobes (NDF fit error" in r.stdout and "PSNR" in r.stdout and "MiB per material" in r.stdout
     assert "amplitudes" in r.stderr  # progress lines
@@ -114,12 +123,12 @@ def test_bake_writes_a_material_file_that_loads(tmp_path):
 
 
 @pytest.mark.parametrize("method", ["asg", "matrix"])
-def test_bake_other_methods(tmp_path, method):
+def test_bake_other_methods(tmp_path, method, capsys):
     """`bake --method asg` (with --lobes auto) and `--method matrix` write material files of their kind."""
     out = tmp_path / "m.wbm"
     lobes = ["--lobes", "auto"] if method == "asg" else []
-    r = run_cli("bake", "vgroove", "--facets", "2048", "--directions", "4", "--backend", "warp:cpu",
-                "--method", method, *lobes, "-o", str(out))
+    r = run_cli_in_process(capsys, "bake", "vgroove", "--facets", "2048", "--directions", "4", "--backend", "warp:cpu",
+                           "--method", method, *lobes, "-o", str(out))
     assert r.returncode == 0, r.stderr
     assert ("2 ASG lobes (NDF fit error" in r.stdout) == (method == "asg") and "MiB per material" in r.stdout
     assert isinstance(wb.load(out), {"asg": wb.ASGBRDF, "matrix": wb.MatrixBRDF}[method])
@@ -131,12 +140,11 @@ def test_bake_takes_a_merl_file(tmp_path, capsys):
     table = tmp_path / "ct.binary"
     wb.MeasuredBRDF.from_brdf(wb.CookTorrance(0.6, 0.2, kd=0.2)).save(table)
     out = tmp_path / "m.wbm"
-    r = run_cli("bake", "pyramid", "--facets", "1024", "--directions", "4", "--lobes", "2", "--backend", "warp:cpu",
-                "--brdf", str(table), "-o", str(out))
+    r = run_cli_in_process(capsys, "bake", "pyramid", "--facets", "1024", "--directions", "4", "--lobes", "2",
+                           "--backend", "warp:cpu", "--brdf", str(table), "-o", str(out))
     assert r.returncode == 0, r.stderr
     mat = wb.load(out)
     assert isinstance(mat.materials[0], wb.MeasuredBRDF) and "sg_fit" in mat.info
-    # (the refusal in-process, `cli.main`: the console script itself ran above)
     assert cli.main(["bake", "pyramid", "--brdf", str(tmp_path / "none.binary"), "-o", str(tmp_path / "n.wbm")]) == 2
     err = capsys.readouterr().err
     assert "no such MERL BRDF file" in err and len(err.strip().splitlines()) == 1, err
@@ -210,9 +218,10 @@ def _tiny_scene(tmp_path, text=TINY_SCENE):
     return p
 
 
-def test_render_png_with_overrides(tmp_path):
+def test_render_png_with_overrides(tmp_path, capsys):
     out = tmp_path / "out.png"
-    r = run_cli("render", str(_tiny_scene(tmp_path)), "-o", str(out), "--size", "40", "24", "--exposure", "0.5")
+    r = run_cli_in_process(capsys, "render", str(_tiny_scene(tmp_path)), "-o", str(out), "--size", "40", "24",
+                           "--exposure", "0.5")
     assert r.returncode == 0, r.stderr
     assert "stage times:" in r.stdout and "shade" in r.stdout
     assert f"wrote {out} (40×24 pixels, method sg, backend warp:cpu" in r.stdout
@@ -225,7 +234,7 @@ def test_render_exr_reads_back_linear(tmp_path):
     from warp_biscale.images import read_exr
 
     out = tmp_path / "out.exr"
-    # (in-process, `cli.main`: test_render_png_with_overrides runs the console script's render)
+    # (in-process, `cli.main`: test_quiet_means_quiet runs the console script's render)
     assert cli.main(["render", str(_tiny_scene(tmp_path)), "-o", str(out), "--size", "32", "16", "-q"]) == 0
     img = read_exr(out)
     assert img.shape == (16, 32, 3) and img.dtype == np.float32
@@ -235,7 +244,7 @@ def test_render_exr_reads_back_linear(tmp_path):
 
 def test_render_monte_carlo(tmp_path, capsys):
     out = tmp_path / "mc.png"
-    # (in-process, `cli.main`: test_render_png_with_overrides runs the console script's render)
+    # (in-process, `cli.main`: test_quiet_means_quiet runs the console script's render)
     assert cli.main(["render", str(_tiny_scene(tmp_path)), "-o", str(out), "--method", "mc", "--samples", "8",
                      "--size", "16", "12"]) == 0
     assert "method mc" in capsys.readouterr().out
@@ -248,7 +257,7 @@ def test_render_bakes_a_bake_material(tmp_path, capsys):
                               '[material.shiny]\ntype = "bake"\ntile = "vgroove"\nbrdf = "ward:alpha=0.2"\n'
                               'lobes = 2\ndirections = 4\nfacets = 512\nnormal_res = 16')
     out = tmp_path / "b.png"
-    # (in-process, `cli.main`: test_render_png_with_overrides runs the console script's render)
+    # (in-process, `cli.main`: test_quiet_means_quiet runs the console script's render)
     assert cli.main(["render", str(_tiny_scene(tmp_path, text)), "-o", str(out)]) == 0
     stdout = capsys.readouterr().out
     assert "baked material 'shiny': tile grooves(" in stdout and "512 facets" in stdout
@@ -267,26 +276,26 @@ def test_render_bakes_a_bake_material(tmp_path, capsys):
     (None, ["--size", "0"], "--size values must be integers in 1..16384, got 0"),
     (None, ["--size", "40", "30", "20"], "--size takes a width and an optional height"),
 ])
-def test_render_errors_are_clear(tmp_path, edit, args, message):
+def test_render_errors_are_clear(tmp_path, edit, args, message, capsys):
     text = TINY_SCENE if edit is None else TINY_SCENE.replace(*edit)
     out = tmp_path / "x.png"
-    r = run_cli("render", str(_tiny_scene(tmp_path, text)), "-o", str(out), *args)
+    r = run_cli_in_process(capsys, "render", str(_tiny_scene(tmp_path, text)), "-o", str(out), *args)
     assert r.returncode == 2
     assert message in r.stderr, r.stderr
     assert "Traceback" not in r.stderr
     assert not out.exists()
 
 
-def test_render_refuses_unknown_extension_and_missing_file(tmp_path):
-    r = run_cli("render", str(_tiny_scene(tmp_path)), "-o", str(tmp_path / "x.jpg"))
+def test_render_refuses_unknown_extension_and_missing_file(tmp_path, capsys):
+    r = run_cli_in_process(capsys, "render", str(_tiny_scene(tmp_path)), "-o", str(tmp_path / "x.jpg"))
     assert r.returncode != 0 and "must end in .png, .exr, .hdr" in r.stderr
-    r = run_cli("render", str(tmp_path / "none.toml"))
+    r = run_cli_in_process(capsys, "render", str(tmp_path / "none.toml"))
     assert r.returncode != 0 and "no such scene file" in r.stderr
 
 
-def test_demo_writes_a_png(tmp_path):
+def test_demo_writes_a_png(tmp_path, capsys):
     out = tmp_path / "demo.png"
-    r = run_cli("demo", "--size", "48", "-o", str(out), "--backend", "warp:cpu")
+    r = run_cli_in_process(capsys, "demo", "--size", "48", "-o", str(out), "--backend", "warp:cpu")
     assert r.returncode == 0, r.stderr
     assert "baked material 'demo_tile': tile pyramid(" in r.stdout
     assert "demo done in" in r.stdout and str(out) in r.stdout
@@ -346,7 +355,7 @@ GOOD_SUFFIX = {"render": ".png", "demo": ".png", "view": ".png", "bake": ".wbm",
 
 @pytest.mark.parametrize("case", ["directory", "unwritable folder", "folder is a file", "unknown suffix"])
 @pytest.mark.parametrize("command", list(WRITERS))
-def test_unwritable_output_is_refused_before_any_work(tmp_path, command, case):
+def test_unwritable_output_is_refused_before_any_work(tmp_path, command, case, capsys):
     scene = str(_tiny_scene(tmp_path))
     suffix = GOOD_SUFFIX[command]
     (tmp_path / "afile").write_text("x")
@@ -354,7 +363,7 @@ def test_unwritable_output_is_refused_before_any_work(tmp_path, command, case):
            "unwritable folder": os.path.join(_unwritable_dir(tmp_path), "sub", "out" + suffix),
            "folder is a file": str(tmp_path / "afile" / ("out" + suffix)),
            "unknown suffix": str(tmp_path / "out.txt")}[case]
-    r = run_cli(*WRITERS[command](scene, out))
+    r = run_cli_in_process(capsys, *WRITERS[command](scene, out))
     assert r.returncode == 2, r.stderr
     assert r.stderr.startswith("error: ") and out in r.stderr and r.stderr.count("\n") == 1, r.stderr
     assert "done in" not in r.stderr and r.stdout == ""  # refused before the first stage
@@ -366,9 +375,9 @@ def test_unwritable_output_is_refused_before_any_work(tmp_path, command, case):
     ("-40", "exposure -40 stops would turn the whole image black"),
     ("40", "exposure 40 stops would turn the whole image white"),
 ])
-def test_bad_exposure_is_refused_before_rendering(tmp_path, exposure, message):
+def test_bad_exposure_is_refused_before_rendering(tmp_path, exposure, message, capsys):
     out = tmp_path / "x.png"
-    r = run_cli("render", str(_tiny_scene(tmp_path)), "-o", str(out), f"--exposure={exposure}")
+    r = run_cli_in_process(capsys, "render", str(_tiny_scene(tmp_path)), "-o", str(out), f"--exposure={exposure}")
     assert r.returncode == 2 and message in r.stderr and r.stderr.count("\n") == 1, r.stderr
     assert not out.exists()
 

@@ -55,7 +55,8 @@ def _incidence_slices(gt, thetas_i, n_out=61):
     return np.degrees(theta_o), np.array(rows)
 
 
-def _print_table(gt, thetas_i, file=sys.stdout):
+def _print_table(gt, thetas_i, file=None):
+    file = sys.stdout if file is None else file  # (at call time: sys.stdout may have been redirected since import)
     cols = [-60, -30, 0, 30, 60]
     bounces = f", {gt.bounces} bounces ({gt.paths} paths)" if gt.bounces > 1 else ""
     print(f"\nf̄(ωi, ωo) (mean of RGB, cos θi included) in the plane of incidence, tile {gt.tile!r}, "
