@@ -2,6 +2,8 @@
 float64 reference with textured materials, a constant map against the untextured material it equals,
 where a map changes the image, the lookup convention, and the errors (no UVs, bad maps, TOML keys)."""
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -19,15 +21,23 @@ def _checker(n=8, lo=0.2, hi=1.0, rgb=True):
     return np.repeat(c[..., None], 3, 2) * np.array([1.0, 0.8, 0.6]) if rgb else c
 
 
+@functools.cache
 def _env():
+    """One environment object for every scene here: its prepared lighting is made once."""
     return wb.Environment.from_sgs([[0.3, 0.8, 0.5], [0, 1, 0]], [40.0, 2.0], [[6.0, 5.5, 5.0], [0.6, 0.7, 0.9]],
                                    constant=0.15, height=32, width=64)
 
 
-def _scene(materials, lights=True, size=(40, 32)):
+@functools.cache
+def _mesh():
+    """One mesh object for every scene here: its SSDF and BVH are made once."""
     sphere = Mesh.sphere(radius=0.6, center=(0.0, 0.6, 0.0), subdivisions=3, material=0)
     floor = Mesh.plane(size=4.0, height=0.0, divisions=8, material=1)
-    return Scene(Mesh.merge([sphere, floor]), materials,
+    return Mesh.merge([sphere, floor])
+
+
+def _scene(materials, lights=True, size=(40, 32)):
+    return Scene(_mesh(), materials,
                  Camera(eye=(0.0, 2.0, 3.0), target=(0.0, 0.4, 0.0), width=size[0], height=size[1], fov=50),
                  _env(), [PointLight((1.5, 3.0, 1.0), 10.0, 0.2)] if lights else [], ssdf_resolution=16, ssdf_terms=8)
 
