@@ -31,9 +31,13 @@ MATERIALS = {"ward": wb.AnisotropicWard(0.6, 0.08, 0.4, kd=0.2),
              "ashikhmin-shirley": wb.AshikhminShirley(rs=0.5, nu=20, nv=400, rd=0.3)}
 
 
+SPHERE = wb.Mesh.sphere(1.0, subdivisions=4)  # one mesh object: its BVH is built once for every scene here
+CONSTANT = wb.Environment.constant(1.0)  # one environment object: its lighting is prepared once
+
+
 def _sphere(material, environment=None, lights=(), width=48, height=36):
     cam = wb.Camera(eye=(0.3, 0.5, 3.2), width=width, height=height, fov=45)
-    return wb.Scene(wb.Mesh.sphere(1.0, subdivisions=4), [material], cam, environment, list(lights))
+    return wb.Scene(SPHERE, [material], cam, environment, list(lights))
 
 
 @pytest.mark.parametrize("name", sorted(MATERIALS))
@@ -59,7 +63,7 @@ def test_lights_shade_the_exact_brdf(backend, name):
 def test_environment_against_the_monte_carlo_reference(backend, name, psnr, mean_rel):
     """A sphere under a constant environment against the Monte Carlo reference at 256 samples a pixel (bounds
     2.5 dB and ~1.4× under the module's measurements)."""
-    env = wb.Environment.constant(1.0)
+    env = CONSTANT
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         a = wb.render(_sphere(MATERIALS[name], env, width=32, height=24), backend=backend, aa=1).image

@@ -31,9 +31,12 @@ def grooves_asg():
                    directions=8, facets=2**12, backend="warp:cpu")
 
 
+SPHERE = wb.Mesh.sphere(1.0, subdivisions=4)  # one mesh object: its BVH is built once for every scene here
+
+
 def _lit_sphere(material, width=48, height=36):
     cam = wb.Camera(eye=(0.3, 0.5, 3.2), width=width, height=height, fov=45)
-    return wb.Scene(wb.Mesh.sphere(1.0, subdivisions=4), [material], cam, None,
+    return wb.Scene(SPHERE, [material], cam, None,
                     [wb.DirectionalLight((0.3, 1.0, 0.6), 2.0, 0.5)])
 
 
