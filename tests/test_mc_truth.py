@@ -13,7 +13,7 @@ import json
 import numpy as np
 import pytest
 from conftest import random_heightfield, vgroove_tile
-from test_cli import TINY_SCENE, run_cli, run_cli_in_process
+from test_cli import TINY_SCENE, run_cli_in_process
 
 import warp_biscale as wb
 from warp_biscale import montecarlo as mc
@@ -399,7 +399,7 @@ def test_cli_render_mc_of_an_old_material_file(tmp_path, capsys):
     assert errors[0].startswith(f"error: material 'shiny' ({tmp_path / 'old.wbm'}) does not record how it was baked")
     assert "--mc-fallback sg" in errors[0]
     assert not out.exists()
-    r = run_cli(*args, "--mc-fallback", "sg", "-q")  # (a subprocess: its warning goes to stderr, not to pytest)
+    r = run_cli_in_process(capsys, *args, "--mc-fallback", "sg", "-q")
     assert r.returncode == 0, r.stderr
     assert "fallback='sg'" in r.stderr and out.exists()
     r = run_cli_in_process(capsys, "render", scene, "--mc-fallback", "sg", "-o", out)  # the file's method: sg
@@ -469,13 +469,14 @@ def test_mc_uses_the_truth_with_bounces():
             _mc(scene, **bad)
 
 
-def test_cli_truth_and_render_take_bounces_and_paths(tmp_path):
+def test_cli_truth_and_render_take_bounces_and_paths(tmp_path, capsys):
     """`truth --bounces B --paths P` saves the B-bounce table (equal to the library's); `render --method mc
     --truth-bounces B --truth-paths P` judges a baked material with it; bad values are one-line errors naming
     the flag, before any work."""
     npz = tmp_path / "gt.npz"
-    r = run_cli("truth", "vgroove", "--facets", "1024", "--directions", "4", "--backend", "warp:cpu",
-                "--bounces", "2", "--paths", str(PATHS), "--save", str(npz), "-o", str(tmp_path / "p.png"))
+    r = run_cli_in_process(capsys, "truth", "vgroove", "--facets", "1024", "--directions", "4", "--backend",
+                           "warp:cpu", "--bounces", "2", "--paths", str(PATHS), "--save", str(npz), "-o",
+                           str(tmp_path / "p.png"))
     assert r.returncode == 0, r.stderr
     assert f"2 bounces ({PATHS} paths)" in r.stdout
     gt = wb.load(npz)
@@ -486,8 +487,9 @@ def test_cli_truth_and_render_take_bounces_and_paths(tmp_path):
 
     _bake().save(tmp_path / "groove.wbm")
     scene = _file_scene(tmp_path, "groove.wbm")
-    r = run_cli("render", str(scene), "--method", "mc", "--samples", "8", "--size", "8", "6", "--truth-facets",
-                "256", "--truth-bounces", "2", "--truth-paths", str(PATHS), "-o", str(tmp_path / "a.exr"))
+    r = run_cli_in_process(capsys, "render", str(scene), "--method", "mc", "--samples", "8", "--size", "8", "6",
+                           "--truth-facets", "256", "--truth-bounces", "2", "--truth-paths", str(PATHS), "-o",
+                           str(tmp_path / "a.exr"))
     assert r.returncode == 0, r.stderr
     assert f"256 facets, 2 bounces ({PATHS} paths)" in r.stdout
     assert wb.load(tmp_path / "groove.truth.npz").bounces == 2
@@ -499,7 +501,7 @@ def test_cli_truth_and_render_take_bounces_and_paths(tmp_path):
                           (["render", str(scene), "--method", "mc", "--truth-bounces", "17"],
                            "--truth-bounces must be an integer in [1, 16], got 17")):
         out = tmp_path / ("x.wbm" if args[0] == "bake" else "x.png")
-        r = run_cli(*args, "-o", str(out))
+        r = run_cli_in_process(capsys, *args, "-o", str(out))
         errors = [line for line in r.stderr.splitlines() if line.startswith("error:")]
         assert r.returncode == 2 and len(errors) == 1 and message in errors[0], r.stderr
         assert not out.exists()
