@@ -4,6 +4,8 @@ each kind, an effective (bi-scale) material, environment lobes with and without 
 per-pixel occlusion rays), point and
 directional lights with shadows, background pixels, and silhouettes (normals facing away)."""
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -15,6 +17,7 @@ from warp_biscale.scene import Camera, DirectionalLight, Mesh, PointLight
 from warp_biscale.shading import shade_reference
 
 
+@functools.cache
 def _sg_environment(h=32, w=64):
     """A sky-like environment: a broad bright zenith lobe, a sharp warm "sun" (its fitted lobes 28 % of the power:
     the strongest gets rays of its own) and a constant ambient."""
@@ -31,18 +34,26 @@ def effective_material():
     return wb.bake(tile, [wb.BlinnPhong(0.6, 200, kd=0.2)], lobes=4, directions=8, facets=2**12, backend="warp:cpu")
 
 
-def _scenes(effective):
-    env = _sg_environment()
-    lone = Scene(
-        Mesh.sphere(radius=1.0, subdivisions=3),
-        [wb.BlinnPhong(0.5, 150, kd=(0.5, 0.3, 0.2))],
-        Camera(eye=(0.3, 0.4, 3.2), width=40, height=32, fov=45),
-        env, [DirectionalLight((0.2, 1.0, 0.4), 2.0, 3.0), PointLight((2.0, 2.0, 2.0), 8.0, 0.1)])
+@functools.cache
+def _meshes():
+    """One object per mesh for every scene here (as one environment object): their BVH, SSDF and lighting are
+    prepared once."""
     sphere = Mesh.sphere(radius=0.6, center=(0.0, 0.6, 0.0), subdivisions=3, material=0)
     torus = Mesh.torus(0.5, 0.18, center=(1.1, 0.2, 0.0), segments=(32, 16), material=1)
     floor = Mesh.plane(size=4.0, height=0.0, divisions=12, material=2)
+    return Mesh.sphere(radius=1.0, subdivisions=3), Mesh.merge([sphere, torus, floor])
+
+
+def _scenes(effective):
+    env = _sg_environment()
+    lone_mesh, occluded_mesh = _meshes()
+    lone = Scene(
+        lone_mesh,
+        [wb.BlinnPhong(0.5, 150, kd=(0.5, 0.3, 0.2))],
+        Camera(eye=(0.3, 0.4, 3.2), width=40, height=32, fov=45),
+        env, [DirectionalLight((0.2, 1.0, 0.4), 2.0, 3.0), PointLight((2.0, 2.0, 2.0), 8.0, 0.1)])
     occluded = Scene(
-        Mesh.merge([sphere, torus, floor]),
+        occluded_mesh,
         [wb.CookTorrance(0.6, 0.25, kd=0.3), wb.Ward(0.4, 0.15, kd=(0.2, 0.4, 0.3)), effective],
         Camera(eye=(0.0, 2.2, 3.5), target=(0.2, 0.3, 0.0), width=40, height=32, fov=50),
         env, [PointLight((1.5, 3.0, 1.0), 10.0, 0.2)], ssdf_resolution=16, ssdf_terms=8)
