@@ -83,3 +83,15 @@ def test_isotropic_limit_is_the_isotropic_ward(backend):
     ward = wb.render(_sphere(wb.Ward(0.6, 0.2, kd=0.2), env, lights, 32, 24), backend=backend, aa=1).image
     c = wb.compare_images(iso, ward)
     assert c["psnr"] > 40, c
+
+
+def test_textured_anisotropic_material_is_refused():
+    """The texture maps scale an isotropic BRDF's parameters only: an anisotropic one under maps is refused in
+    one line, naming it."""
+    from warp_biscale.svbrdf import Textured
+
+    with pytest.raises(ValueError, match=r"\(AnisotropicWard\) is anisotropic: .*textured") as err:
+        textured = Textured(MATERIALS["ward"], kd_map=np.ones((2, 2, 3)))
+        wb.render(_sphere(textured, lights=[wb.DirectionalLight((0, 0, 1), 1.0)], width=8, height=8),
+                  backend="warp:cpu")
+    assert "\n" not in str(err.value)

@@ -532,7 +532,8 @@ def ndf_bandwidths(kind, p1, p2) -> tuple:
 
 _ANISOTROPIC_REFUSAL = ("it needs each facet's tangent, which only the ground truth (wb.ground_truth, "
                         "wb.effective_brdf_exact) and the renderers (as a large-scale material) have; effective "
-                        "materials, the bakes and lit spheres do not take anisotropic BRDFs")
+                        "materials, the bakes, lit spheres and textured (svbrdf.Textured) materials do not take "
+                        "anisotropic BRDFs")
 
 
 def refuse_anisotropic(materials, why: str = _ANISOTROPIC_REFUSAL) -> None:
