@@ -756,6 +756,6 @@ def test_sample_batch_and_edges():
     acceptance = asg.unit_integral(lam, mu) / (side(lam) * side(mu))
     assert acceptance.min() == pytest.approx(np.pi / 4, rel=1e-12) and acceptance[0, 0] == acceptance.min()
     rng = np.random.default_rng(4)
-    a = asg._truncated_gaussian(rng.uniform(-1, 1, 100_000), 0.0)
-    b = asg._truncated_gaussian(rng.uniform(-1, 1, 100_000), 0.0)
+    a = asg.truncated_gaussian(rng.uniform(-1, 1, 100_000), 0.0)
+    b = asg.truncated_gaussian(rng.uniform(-1, 1, 100_000), 0.0)
     assert np.mean(a * a + b * b < 1) == pytest.approx(np.pi / 4, abs=0.01)

@@ -142,6 +142,23 @@ def test_glossy_strategy_pdf_is_its_density(brdf):
     _check_strategy(s, ctx, lambda w: mc.vmf_pdf(w, r[:, None], kappa[:, None]), 1.0)
 
 
+@pytest.mark.parametrize("brdf", [wb.AnisotropicWard(1.0, 0.08, 0.4), wb.AshikhminShirley(nu=20, nv=400),
+                                  wb.AshikhminShirley(nu=1, nv=3)], ids=["ward", "ashikhmin-shirley", "broad"])
+def test_asg_glossy_strategy_pdf_is_its_density(brdf):
+    """An anisotropic BRDF's half vector from its NDF's ASG in the pixel's tangent frame, reflected about ωo:
+    E[g/p] = ∫g for g a unit vMF about the mirror direction sharper than the reflected lobe along both axes
+    (g/p bounded); and the pdf is 0 nowhere the BRDF's lobe is."""
+    ctx = _ctx(2)
+    s = mc._AnalyticMaterial(brdf).strategy
+    assert isinstance(s, mc._AsgGlossyStrategy) and (s.lam, s.mu) == brdf.ndf_bandwidths
+    n, wo = ctx["n"], ctx["wo"]
+    cos_o = np.einsum("ij,ij->i", wo, n)
+    r = 2 * cos_o[:, None] * n - wo
+    kappa = 2 * max(s.lam, s.mu, 1.0) / cos_o**2
+    _check_strategy(s, ctx, lambda w: mc.vmf_pdf(w, r[:, None], kappa[:, None]), 1.0)
+    assert (s.pdf(ctx, r[:, None]) > 0).all()
+
+
 def test_lobe_mixture_strategy_pdf_is_its_density():
     """An effective BRDF with a specular sub-material: its warped-lobe vMF mixture samples what its pdf says."""
     mat = wb.bake(vgroove_tile(), [wb.BlinnPhong(1.0, 64.0, kd=0.1)], lobes=2, directions=6, facets=1 << 10)

@@ -539,7 +539,7 @@ def occlude(asg: ASG, sin_theta_d) -> ASG:
 # Importance sampling (not in Xu; his §7 asks for it)
 # ---------------------------------------------------------------------------------------------------
 
-def _truncated_gaussian(u, beta):
+def truncated_gaussian(u, beta):
     """Inverse CDF of the density ∝ exp(−βa²) on [−1, 1] at u ∈ (−1, 1) (u = 2·CDF − 1):
     a = erfinv(u·erf(√β))/√β; uniform (a = u) at β = 0, and accurate for tiny β, where both erf and erfinv
     are linear."""
@@ -570,8 +570,8 @@ def sample(asg: ASG, n: int, rng):
     while todo.any():
         # Fresh draws for every slot, kept only where still empty: simple, and each round fills ≥ π/4 of
         # them (the acceptance's minimum over λ, μ ∈ {0} ∪ [1e−3, 1e6], at λ = μ = 0; tests/test_asg.py).
-        ca = _truncated_gaussian(rng.uniform(-1.0, 1.0, a.shape), lam)
-        cb = _truncated_gaussian(rng.uniform(-1.0, 1.0, a.shape), mu)
+        ca = truncated_gaussian(rng.uniform(-1.0, 1.0, a.shape), lam)
+        cb = truncated_gaussian(rng.uniform(-1.0, 1.0, a.shape), mu)
         ok = todo & (ca * ca + cb * cb < 1.0)
         a = np.where(ok, ca, a)
         b = np.where(ok, cb, b)

@@ -79,8 +79,9 @@ from .progress import Progress
 from .scene import Rendering, Scene
 from .scene import light_sg, vertex_tangents
 from .shading import surface_frames
-from .montecarlo_sampling import (_basis, _CosineStrategy, _dot, _EnvironmentStrategy, _GlossyStrategy,  # noqa: F401
-                                  _LightStrategy, _LobeMixtureStrategy, sample_vmf, vmf_pdf)
+from .montecarlo_sampling import (_AsgGlossyStrategy, _basis, _CosineStrategy, _dot,  # noqa: F401
+                                  _EnvironmentStrategy, _GlossyStrategy, _LightStrategy, _LobeMixtureStrategy,
+                                  sample_vmf, vmf_pdf)
 from .svbrdf import Textured
 from .trace import offsets, ray_starts
 from .truth import (BOUNCE_PATHS, MAX_FACETS, MAX_TRUTH_DIRECTIONS, TRUTH_FACETS, GroundTruth, _check_bounces,
@@ -114,8 +115,6 @@ def _glossy_eta(brdf: Brdf):
         return _measured_lobe(brdf)[2]
     if isinstance(brdf, Lambert) or float(np.max(brdf.ks)) <= 0:
         return None
-    if brdf.anisotropic:  # the NDF's ASG (brdf.ndf_bandwidths): an SG as broad as its broader axis covers it
-        return 2.0 * float(min(brdf.ndf_bandwidths))
     z = np.array([[0.0, 0.0, 1.0]])
     return sg.specular_lobe(brdf, z, z)[0]
 
@@ -164,8 +163,11 @@ class _AnalyticMaterial:
 
     def __init__(self, brdf: Brdf):
         self.brdf = brdf
-        eta = _glossy_eta(brdf)
-        self.strategy = None if eta is None else _GlossyStrategy(eta)
+        if brdf.anisotropic:  # its NDF's ASG, in the pixel's tangent frame (Ashikhmin–Shirley's Fresnel reflects
+            self.strategy = _AsgGlossyStrategy(*brdf.ndf_bandwidths)  # even where rs = 0)
+        else:
+            eta = _glossy_eta(brdf)
+            self.strategy = None if eta is None else _GlossyStrategy(eta)
         self.albedos = _albedos(brdf)
         self.label = None
 
