@@ -174,6 +174,26 @@ def test_lobe_mixture_strategy_pdf_is_its_density():
     _check_strategy(s, ctx, g, 1.0)
 
 
+def test_asg_lobe_mixture_strategy_pdf_is_its_density():
+    """An ASG material (Xu 2013): its warped lobes G_j ⊛ SG_s sampled as ASGs (`sample_asg`), the mixture's pdf
+    the density of its samples; g: a unit vMF about each lobe's axis sharper than the lobe along both axes."""
+    tile = wb.geometry.grooves(profile="u")
+    mat = wb.bake(tile, [wb.CookTorrance(0.7, 0.15, kd=0.2)] * tile.n_materials, method="asg", lobes=2,
+                  directions=4, facets=1 << 10, backend="warp:cpu")
+    ctx = _ctx(2)
+    s = mc._LobeMixtureStrategy(mat, [(0, mc._glossy_eta(mat.materials[0]))])
+    s.setup(ctx)
+    x, y, z, lam, mu = s.asg
+    assert z.shape == (2, 2, 3) and np.allclose(s.weight.sum(1), 1.0)
+    assert (np.maximum(lam, mu) > 4 * np.minimum(lam, mu)).any()  # anisotropic lobes
+
+    def g(w):
+        return sum(s.weight[:, q, None] * mc.vmf_pdf(w, z[:, None, q], 4 * np.maximum(lam, mu)[:, q, None] + 1.0)
+                   for q in range(s.weight.shape[1]))
+
+    _check_strategy(s, ctx, g, 1.0)
+
+
 # ---------------------------------------------------------------------------------------------------
 # whole images against closed forms (every backend)
 # ---------------------------------------------------------------------------------------------------

@@ -539,8 +539,9 @@ class ASGBRDF(HostOnlyBRDF):
 
     def sampling_lobes(self) -> tuple[np.ndarray, np.ndarray]:
         """The Monte Carlo reference's BRDF sampling (`EffectiveBRDF.sampling_lobes`): each ASG's axis with the SG
-        sharpness of its equal-area circle, 2√(λμ) (`asg.effective_sharpness`). Any lobes sample without bias
-        (the estimator divides by their exact density); these are the isotropic stand-ins of the ASGs."""
+        sharpness of its equal-area circle, 2√(λμ) (`asg.effective_sharpness`), the isotropic stand-ins whose
+        energies weigh the lobes; the lobes themselves are drawn as ASGs (`montecarlo_sampling.sample_asg`).
+        Any lobes sample without bias (the estimator divides by their exact density)."""
         return self.asgs.z, asg_mod.effective_sharpness(self.asgs)
 
     def _interpolated_amplitudes(self, wi, wo):

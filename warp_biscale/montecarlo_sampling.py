@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import erf
 
+from . import asg as asg_mod
 from . import sg
 from .asg import truncated_gaussian
 from .effective import EffectiveBRDF
@@ -214,13 +215,35 @@ def _gaussian_mass(beta, r):
     return np.where(x2 < 1e-4, 2.0 * r * (1.0 - x2 / 3.0 + x2 * x2 / 10.0), full)
 
 
+def sample_asg(x, y, z, lam, mu, u1, u2):
+    """Directions (..., 3) from the density ∝ exp(−λ(ω·x)² − μ(ω·y)²)(ω·z)⁺ of ASGs with frames x, y, z (..., 3)
+    and bandwidths λ, μ ≥ 0 (...), from uniforms u1, u2 in [0, 1) (...). In the disk coordinates (a, c) =
+    (ω·x, ω·y): a from exp(−λa²) on [−1, 1], then c from exp(−μc²) on the chord |c| < √(1 − a²), each by its
+    inverse CDF (`asg.truncated_gaussian`) — exact, with no rejection (unlike `asg.sample`), so stratified
+    uniforms stay stratified. The density is not the ASG's own (c's chord is normalised per a) but is exact:
+    `asg_pdf`."""
+    a = truncated_gaussian(2.0 * np.asarray(u1) - 1.0, lam)
+    r = np.sqrt(np.maximum(1.0 - a * a, 0.0))
+    c = r * truncated_gaussian(2.0 * np.asarray(u2) - 1.0, mu * r * r)
+    up = np.sqrt(np.maximum(1.0 - a * a - c * c, 0.0))
+    return a[..., None] * x + c[..., None] * y + up[..., None] * z
+
+
+def asg_pdf(x, y, z, lam, mu, w):
+    """The density of `sample_asg` per unit solid angle at directions w (..., 3): p(a)·p(c|a)·(ω·z) (dω =
+    da dc/(ω·z)), 0 at or below the lobe's horizon ω·z = 0."""
+    a, c, up = _dot(w, x), _dot(w, y), _dot(w, z)
+    r = np.sqrt(np.maximum(1.0 - a * a, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        p_a = np.exp(-lam * a * a) / _gaussian_mass(lam, 1.0)
+        p_c = np.where(r > 0, np.exp(-mu * c * c) / _gaussian_mass(mu, r), 0.0)
+        return np.where(up > 0, np.minimum(p_a * p_c * up, 1e300), 0.0)
+
+
 class _AsgGlossyStrategy:
-    """Analytic anisotropic BRDF: the half vector h from its NDF's ASG exp(−λ(h·t)² − μ(h·b)²) (h·n)⁺ in the
-    pixel's tangent frame (`brdf.ndf_bandwidths`; Xu 2013's "importance sampling of an ASG", his future work),
-    ω = 2(ωo·h)h − ωo. In the disk coordinates (a, c) = (h·t, h·b): a from exp(−λa²) on [−1, 1], then c from
-    exp(−μc²) on the chord |c| < √(1 − a²), each by its inverse CDF — exact, and with no rejection, so the
-    renderer's stratified uniforms stay stratified. As dω_h = da dc/(h·n), h's density per solid angle is
-    p(a)·p(c|a)·(h·n), and p(ω) = p_h(±h)/(4|ωo·h|) with ±h the half vector on n's side."""
+    """Analytic anisotropic BRDF: the half vector h from its NDF's ASG exp(−λ(h·t)² − μ(h·b)²)(h·n)⁺ in the
+    pixel's tangent frame (`brdf.ndf_bandwidths`; Xu 2013's "importance sampling of an ASG", his future work) by
+    `sample_asg`, ω = 2(ωo·h)h − ωo, and p(ω) = p_h(±h)/(4|ωo·h|) with ±h the half vector on n's side."""
 
     name = "brdf"
     dims = 2
@@ -230,27 +253,20 @@ class _AsgGlossyStrategy:
 
     def sample(self, ctx, u):
         t, b, n, wo = (ctx[k][:, None] for k in ("t", "b", "n", "wo"))
-        a = truncated_gaussian(2.0 * u[0] - 1.0, self.lam)
-        r = np.sqrt(np.maximum(1.0 - a * a, 0.0))
-        c = r * truncated_gaussian(2.0 * u[1] - 1.0, self.mu * r * r)
-        up = np.sqrt(np.maximum(1.0 - a * a - c * c, 0.0))
-        h = a[..., None] * t + c[..., None] * b + up[..., None] * n
+        h = sample_asg(t, b, n, self.lam, self.mu, u[0], u[1])
         return _normalize(2.0 * _dot(wo, h)[..., None] * h - wo)
 
     def pdf(self, ctx, w):
         t, b, n, wo = (ctx[k][:, None] for k in ("t", "b", "n", "wo"))
         h = _normalize(w + wo)
         h = np.where((_dot(h, n) < 0)[..., None], -h, h)  # the half vector the sampler draws (on n's side)
-        a, c, up = _dot(h, t), _dot(h, b), _dot(h, n)
-        r = np.sqrt(np.maximum(1.0 - a * a, 0.0))
-        p_a = np.exp(-self.lam * a * a) / _gaussian_mass(self.lam, 1.0)
         with np.errstate(divide="ignore", invalid="ignore"):
-            p_c = np.where(r > 0, np.exp(-self.mu * c * c) / _gaussian_mass(self.mu, r), 0.0)
-            return np.minimum(p_a * p_c * up / (4.0 * np.abs(_dot(wo, h))), 1e300)
+            return np.minimum(asg_pdf(t, b, n, self.lam, self.mu, h) / (4.0 * np.abs(_dot(wo, h))), 1e300)
 
 
 class _LobeMixtureStrategy:
-    """Effective BRDF: a vMF mixture over its warped lobes q = (small-scale material m, NDF lobe j), per pixel
+    """Effective BRDF: a vMF mixture (an ASG material's: an ASG mixture, `sample_asg`) over its warped lobes q =
+    (small-scale material m, NDF lobe j), per pixel
     axis ξ'_j = 2(ωo·ξ_j)ξ_j − ωo, sharpness η_jη_s/((η_j + η_s)·4 ωo·ξ_j) (Iwasaki Eq. 14 + Wang Eq. 18–21),
     weight ∝ the lobe's SG energy M_m·μ_mj(ξ'_j, ωo)·2π/(η_j + η_s)·∫G' (what the SG renderer gives it),
     plus LOBE_FLOOR spread evenly over the lobes facing the viewer, so a lobe the tables underrate is still
@@ -276,6 +292,18 @@ class _LobeMixtureStrategy:
                          -1)
         mu = mat._interpolated_amplitudes(_normalize(local).reshape(-1, 3), np.repeat(wo_local, nj, axis=0))
         mu = mu[:, np.arange(npix * nj), np.tile(np.arange(nj), npix)].mean(-1).reshape(-1, npix, nj)  # (M, B, J)
+        # An ASG material's lobes (Xu 2013): each G_j ⊛ SG_s warped to the light directions, sampled as the ASG it
+        # is (`sample_asg`) rather than by its isotropic stand-in; the weights are the stand-ins' energies.
+        asgs = getattr(mat, "asgs", None)
+        if asgs is not None:
+            def world(v):
+                return v[None, :, 0:1] * t[:, None] + v[None, :, 1:2] * b[:, None] + v[None, :, 2:3] * n[:, None]
+
+            lobes = asg_mod.ASG(world(asgs.x), world(asgs.y), world(asgs.z), asgs.lam[None], asgs.mu[None])
+            warped = [asg_mod.warp(asg_mod.convolve_sg(lobes, eta_s), wo[:, None]) for _, eta_s in self.speculars]
+            self.asg = tuple(np.concatenate([getattr(g, k) for g in warped], 1) for k in ("x", "y", "z", "lam", "mu"))
+        else:
+            self.asg = None
         axes, sharp, weight = [], [], []
         for m, eta_s in self.speculars:
             eta_c = 1.0 / (1.0 / eta + 1.0 / eta_s)
@@ -303,6 +331,10 @@ class _LobeMixtureStrategy:
     def sample(self, ctx, u):
         nq = self.weight.shape[1]
         q = np.minimum((u[0][..., None] * self.cdf[:, None, -1:] >= self.cdf[:, None, :]).sum(-1), nq - 1)
+        if self.asg is not None:
+            x, y, z = (np.take_along_axis(v, q[..., None], 1) for v in self.asg[:3])
+            lam, mu = (np.take_along_axis(v, q, 1) for v in self.asg[3:])
+            return _normalize(sample_asg(x, y, z, lam, mu, u[1], u[2]))
         axis = np.take_along_axis(self.axis, q[..., None], 1)
         eta = np.take_along_axis(self.eta, q, 1)
         return sample_vmf(axis, eta, u[1], u[2])
@@ -310,5 +342,9 @@ class _LobeMixtureStrategy:
     def pdf(self, ctx, w):
         out = np.zeros(w.shape[:-1])
         for q in range(self.weight.shape[1]):
-            out += self.weight[:, q, None] * vmf_pdf(w, self.axis[:, None, q], self.eta[:, q, None])
+            if self.asg is not None:
+                x, y, z, lam, mu = (v[:, q, None] for v in self.asg)
+                out += self.weight[:, q, None] * asg_pdf(x, y, z, lam, mu, w)
+            else:
+                out += self.weight[:, q, None] * vmf_pdf(w, self.axis[:, None, q], self.eta[:, q, None])
         return out
