@@ -173,9 +173,12 @@ class _AnalyticMaterial:
 
     def f(self, ctx, pix, w):
         """(K, 3) f_r(n, ω, ωo)·(n·ω)⁺ for samples w (K, 3) of pixels pix (K,) of the batch."""
-        n = ctx["n"][pix]
-        tangent = ctx["t"][pix] if self.brdf.anisotropic else None  # the frame the SG renderer shades it in
-        return self.brdf.eval(n, w, ctx["wo"][pix], tangent=tangent) * np.maximum(_dot(n, w), 0.0)[:, None]
+        n, wo = ctx["n"][pix], ctx["wo"][pix]
+        if self.brdf.anisotropic:  # in the frame the SG renderer shades it in
+            f = self.brdf.eval(n, w, wo, tangent=ctx["t"][pix])
+        else:
+            f = self.brdf.eval(n, w, wo)
+        return f * np.maximum(_dot(n, w), 0.0)[:, None]
 
 
 class _TexturedMaterial(_AnalyticMaterial):
