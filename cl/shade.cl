@@ -28,6 +28,13 @@
 #define DIFFUSE_LEVEL_SHARP 64.0f /* = effective.DIFFUSE_LEVEL_SHARP */
 #define DIFFUSE_LEVEL_STEP 8.0f /* = effective.DIFFUSE_LEVEL_STEP */
 #define AS_UNIFORM_COS 0.58292645536f /* = shading.AS_UNIFORM_COS */
+#define ASG_TAPS 8 /* = shading.ASG_TAPS */
+#define ASG_TAP_SHARE 0.15f /* = shading.ASG_TAP_SHARE */
+/* shading._TAP_NODES, _TAP_WEIGHTS: the probabilists' Gauss–Hermite rule of ASG_TAPS nodes, weights summing to 1 */
+__constant float TAP_NODES[ASG_TAPS] = {-4.14454719f, -2.80248586f, -1.63651904f, -0.539079811f,
+                                        0.539079811f, 1.63651904f, 2.80248586f, 4.14454719f};
+__constant float TAP_WEIGHTS[ASG_TAPS] = {0.000112614538f, 0.00963522012f, 0.117239908f, 0.373012258f,
+                                          0.373012258f, 0.117239908f, 0.00963522012f, 0.000112614538f};
 
 /* floor(x) as an int for x >= 0 (every caller clamps x to a non-negative range first): truncation,
  * the same integer, without PoCL's out-of-line floor call. */
@@ -680,6 +687,26 @@ CL_INLINE float asg_convolved_at(Asg g, float eta, float3 h)
     return SHADE_PI / sqrt((g.lam + nu) * (g.mu + nu)) * pow(t, w) * exp(-expo);
 }
 
+/* The environment's mean radiance under a warped ASG lobe: ASG_TAPS prefiltered lookups along its broad axis
+ * (shading.asg_prefiltered). */
+CL_INLINE float3 asg_prefiltered(__global const float *maps, __global const float *levels, int n_levels, Asg g,
+                                 float sharpness_max)
+{
+    float3 long_axis = g.lam > g.mu ? g.y : g.x;
+    float var_long = 0.5f / minf(g.lam, g.mu);
+    float var_tap = maxf(0.5f / maxf(g.lam, g.mu), ASG_TAP_SHARE * var_long);
+    if (var_long - var_tap <= 1.0e-6f * var_long)
+        return prefiltered(maps, levels, n_levels, g.z, minf(2.0f * sqrt(g.lam * g.mu), sharpness_max));
+    float spread = sqrt(var_long - var_tap);
+    float eta_tap = minf(1.0f / var_tap, sharpness_max);
+    float3 out = (float3)(0.0f, 0.0f, 0.0f);
+    for (int k = 0; k < ASG_TAPS; ++k) {
+        float3 d = normalize3(g.z + (TAP_NODES[k] * spread) * long_axis);
+        out = out + TAP_WEIGHTS[k] * prefiltered(maps, levels, n_levels, d, eta_tap);
+    }
+    return out;
+}
+
 /* ∫ of a unit ASG: Xu's Eq. 10 where both bandwidths pass ASG_EQ10_MIN, else the exact quadrature
  * (asg.shade_integral). */
 CL_INLINE float asg_shade_integral(float lam, float mu)
@@ -886,6 +913,8 @@ __kernel void shade_pixels(
                 float3 amp;
                 int with_lights = 1;
                 float cap = -1.0f; /* Ashikhmin–Shirley's cap on the cosine integral (shading.capped_cosine_integral) */
+                Asg tap; /* an ASG lobe's warped shape, for the anisotropic lookup (asg_prefiltered) */
+                int taps = 0;
                 if (kind == 0) {
                     __global const float *row = analytic + 9 * (idx + j);
                     int r_kind = (int)row[0];
@@ -906,6 +935,10 @@ __kernel void shade_pixels(
                         with_lights = 0;
                         if (r_kind == ASHIKHMIN_SHIRLEY)
                             cap = cos_o;
+                        tap = w;
+                        tap.lam = lam;
+                        tap.mu = mu_w;
+                        taps = 1;
                     } else {
                         axis = normalize3(2.0f * cos_o * s.n - wo);
                         eta = ndf_sharpness(r_kind, r_p1) / (4.0f * cos_o);
@@ -945,6 +978,10 @@ __kernel void shade_pixels(
                         eta = minf(eta, sharpness_max);
                         amp = scale * mu * (c.c * asg_shade_integral(lam, mu_w) / sg_integral(eta));
                         with_lights = 0;
+                        tap = w;
+                        tap.lam = lam;
+                        tap.mu = mu_w;
+                        taps = 1;
                     } else {
                         float eta_j = lobe[3];
                         axis = normalize3(2.0f * c_oj * xi - wo);
@@ -965,7 +1002,9 @@ __kernel void shade_pixels(
                 float3 light_part = (float3)(0.0f, 0.0f, 0.0f);
                 if (with_lights != 0)
                     light_part = lobe_from_lights(tab, axis, eta, s, n_lights, lights, vis);
-                out = out + amp * (prefiltered(env_maps, env_levels, n_levels, axis, eta) * amount + light_part);
+                float3 env_l = taps != 0 ? asg_prefiltered(env_maps, env_levels, n_levels, tap, sharpness_max)
+                                         : prefiltered(env_maps, env_levels, n_levels, axis, eta);
+                out = out + amp * (env_l * amount + light_part);
             }
         }
     }

@@ -42,6 +42,11 @@ DIFFUSE_LEVELS = wp.constant(len(_effective.DIFFUSE_LEVEL_ETAS))  # f̄d and its
 DIFFUSE_LEVEL_SHARP = wp.constant(_effective.DIFFUSE_LEVEL_SHARP)
 DIFFUSE_LEVEL_STEP = wp.constant(_effective.DIFFUSE_LEVEL_STEP)
 AS_UNIFORM_COS = wp.constant(_shading.AS_UNIFORM_COS)
+ASG_TAPS = wp.constant(_shading.ASG_TAPS)
+ASG_TAP_SHARE = wp.constant(_shading.ASG_TAP_SHARE)
+tap_vec = wp.types.vector(length=_shading.ASG_TAPS, dtype=wp.float32)
+TAP_NODES = wp.constant(tap_vec(*[float(x) for x in _shading._TAP_NODES]))
+TAP_WEIGHTS = wp.constant(tap_vec(*[float(x) for x in _shading._TAP_WEIGHTS]))
 
 vec4i = wp.vec4i
 
@@ -712,6 +717,26 @@ def asg_convolved_at(g: Asg, eta: float, h: wp.vec3) -> float:
 
 
 @wp.func
+def asg_prefiltered(maps: wp.array(dtype=wp.vec3), levels: wp.array2d(dtype=wp.float32), g: Asg) -> wp.vec3:
+    """The environment's mean radiance under a warped ASG lobe: ASG_TAPS prefiltered lookups along its broad axis
+    (shading.asg_prefiltered)."""
+    long_axis = g.x
+    if g.lam > g.mu:
+        long_axis = g.y
+    var_long = 0.5 / wp.min(g.lam, g.mu)
+    var_tap = wp.max(0.5 / wp.max(g.lam, g.mu), ASG_TAP_SHARE * var_long)
+    if var_long - var_tap <= 1.0e-6 * var_long:
+        return prefiltered(maps, levels, g.z, wp.min(2.0 * wp.sqrt(g.lam * g.mu), SHARPNESS_MAX))
+    spread = wp.sqrt(var_long - var_tap)
+    eta_tap = wp.min(1.0 / var_tap, SHARPNESS_MAX)
+    out = wp.vec3(0.0)
+    for k in range(ASG_TAPS):
+        d = wp.normalize(g.z + (TAP_NODES[k] * spread) * long_axis)
+        out = out + TAP_WEIGHTS[k] * prefiltered(maps, levels, d, eta_tap)
+    return out
+
+
+@wp.func
 def asg_shade_integral(lam: float, mu: float) -> float:
     """∫ of a unit ASG: Xu's Eq. 10 where both bandwidths pass ASG_EQ10_MIN, else the exact quadrature
     (asg.shade_integral)."""
@@ -911,6 +936,8 @@ def shade_pixels(
                 amp = wp.vec3(0.0)
                 with_lights = int(1)
                 cap = float(-1.0)  # Ashikhmin–Shirley's cap on the cosine integral (shading.capped_cosine_integral)
+                tap = Asg()  # an ASG lobe's warped shape, for the anisotropic lookup (asg_prefiltered)
+                taps = int(0)
                 if kind == 0:
                     row = idx + j
                     r_kind = int(analytic[row, 0])
@@ -932,6 +959,10 @@ def shade_pixels(
                         with_lights = 0
                         if r_kind == ASHIKHMIN_SHIRLEY:
                             cap = cos_o
+                        tap = w
+                        tap.lam = lam
+                        tap.mu = mu_w
+                        taps = 1
                     else:
                         axis = wp.normalize(2.0 * cos_o * s.n - wo)
                         eta = ndf_sharpness(r_kind, r_p1) / (4.0 * cos_o)
@@ -971,6 +1002,10 @@ def shade_pixels(
                         eta = wp.min(eta, SHARPNESS_MAX)
                         amp = wp.cw_mul(scale, mu) * (c.c * asg_shade_integral(lam, mu_w) / sg_integral(eta))
                         with_lights = 0
+                        tap = w
+                        tap.lam = lam
+                        tap.mu = mu_w
+                        taps = 1
                     else:
                         eta_j = f32_at2(eff_lobes, lobe, 3)
                         axis = wp.normalize(2.0 * c_oj * xi - wo)
@@ -990,5 +1025,10 @@ def shade_pixels(
                 light_part = wp.vec3(0.0)
                 if with_lights != 0:
                     light_part = lobe_from_lights(table, axis, eta, s, n_lights, lights, light_vis, p)
-                out = out + wp.cw_mul(amp, prefiltered(env_maps, env_levels, axis, eta) * amount + light_part)
+                env_l = wp.vec3(0.0)
+                if taps != 0:
+                    env_l = asg_prefiltered(env_maps, env_levels, tap)
+                else:
+                    env_l = prefiltered(env_maps, env_levels, axis, eta)
+                out = out + wp.cw_mul(amp, env_l * amount + light_part)
     radiance[p] = finite_radiance(out)

@@ -350,7 +350,7 @@ def _asg_environment_lobe(g, eta_s, scale, wo, c_oj, t, b, n, wo_local, tables, 
     wl = np.stack([_dot(axis, t), _dot(axis, b), _dot(axis, n)], 1)
     mu_tab = _table_interp(tables, base, k, j_count, j, wl, wo_local)
     amp = scale * mu_tab * (c.amplitude * np.where(c_oj > 0, integral / sg.integral(eta), 0.0))[:, None]
-    return axis, eta, amp, False
+    return axis, eta, amp, False, None, (w.x, w.y, lam, mu)
 
 
 # Ashikhmin–Shirley's ρd varies with cos θi as g(c) = 1 − (1 − c/2)⁵, whose cosine-weighted mean over the
@@ -396,7 +396,39 @@ def _anisotropic_environment_lobe(row, n, t, wo, cos_o):
     eta = np.minimum(2.0 * np.sqrt(lam) * np.sqrt(mu), sg.SHARPNESS_MAX)
     scale, _ = specular_scale(row, cos_o)
     amp = scale * (w.amplitude * asg_mod.shade_integral(lam, mu) / sg.integral(eta))[:, None]
-    return w.z, eta, amp, False, cos_o if int(row[0, 0]) == brdf_mod.ASHIKHMIN_SHIRLEY else None
+    return w.z, eta, amp, False, cos_o if int(row[0, 0]) == brdf_mod.ASHIKHMIN_SHIRLEY else None, (w.x, w.y, lam, mu)
+
+
+# The anisotropic lookup of an ASG lobe in the prefiltered maps (`asg_prefiltered`): ASG_TAPS lookups along its
+# broad axis at Gauss–Hermite offsets, each as sharp as its narrow axis allows — but at most as narrow as
+# ASG_TAP_SHARE of the broad axis's variance, so that neighbouring taps overlap and a sharp light (a sun) is a
+# streak, not a row of spots.
+ASG_TAPS = 8
+ASG_TAP_SHARE = 0.15
+_TAP_NODES, _TAP_WEIGHTS = np.polynomial.hermite_e.hermegauss(ASG_TAPS)
+_TAP_WEIGHTS = _TAP_WEIGHTS / _TAP_WEIGHTS.sum()
+
+
+def asg_prefiltered(maps, levels, x, y, z, lam, mu):
+    """(m, 3) the environment's mean radiance under warped ASG lobes (frames x, y, z (m, 3), bandwidths λ, μ (m,)):
+    where the lobe is elongated, the Gauss–Hermite average of ASG_TAPS prefiltered lookups spread along its broad
+    axis (variance 1/(2·min(λ, μ)) in all), each tap an SG of the narrow axis's variance 1/(2·max(λ, μ)) or of
+    ASG_TAP_SHARE of the broad one's, whichever is broader (λ = μ: the taps coincide, one lookup at η = 2λ, the
+    SG lobes' own lookup)."""
+    long = np.where((lam <= mu)[:, None], x, y)
+    var_long = 0.5 / np.minimum(lam, mu)
+    var_tap = np.maximum(0.5 / np.maximum(lam, mu), ASG_TAP_SHARE * var_long)
+    spread = np.sqrt(np.maximum(var_long - var_tap, 0.0))
+    iso = var_long - var_tap <= 1e-6 * var_long  # round: the taps would coincide
+    out = prefiltered_lookup(maps, levels, z, np.minimum(2.0 * np.sqrt(lam) * np.sqrt(mu), sg.SHARPNESS_MAX))
+    if (~iso).any():
+        taps = np.zeros((int((~iso).sum()), 3))
+        eta_tap = np.minimum(1.0 / var_tap[~iso], sg.SHARPNESS_MAX)
+        for node, weight in zip(_TAP_NODES, _TAP_WEIGHTS):
+            d = _normalize(z[~iso] + (node * spread[~iso])[:, None] * long[~iso])
+            taps += weight * prefiltered_lookup(maps, levels, d, eta_tap)
+        out[~iso] = taps
+    return out
 
 
 def capped_cosine_integral(e, cap, axis, n, eta, table):
@@ -657,13 +689,18 @@ def shade_reference(frame: Frame) -> np.ndarray:
                     amp = scale * mu * (2 * np.pi / (lobe[3] + eta_s))
                     amp *= (c_oj > 0)[:, None]  # a lobe facing away from the viewer reflects nothing
                     lobes.append((axis, eta_c / (4 * np.maximum(c_oj, MIN_COS_VIEW)), amp, True))
-        for axis, eta, amp, with_lights, *cap in lobes:
+        for axis, eta, amp, with_lights, *extra in lobes:
+            cap, asg_lobe = (extra + [None, None])[:2]
             eta = np.minimum(eta, sg.SHARPNESS_MAX)
             e = sg.integral(eta) * sg.table_lookup(table, 0, _dot(axis, ns), eta)
-            if cap and cap[0] is not None:
-                e = capped_cosine_integral(e, cap[0], axis, ns, eta, table)
+            if cap is not None:
+                e = capped_cosine_integral(e, cap, axis, ns, eta, table)
             occ = occlusion(axis, eta, sel)
-            env_avg = prefiltered_lookup(static.env_maps, static.env_levels, axis, eta)
+            if asg_lobe is None:
+                env_avg = prefiltered_lookup(static.env_maps, static.env_levels, axis, eta)
+            else:
+                env_avg = asg_prefiltered(static.env_maps, static.env_levels, asg_lobe[0], asg_lobe[1], axis,
+                                          *asg_lobe[2:])
             rad[sel] += amp * env_avg * (e * occ)[:, None]
             for li in range(light_axis.shape[1] if with_lights else 0):
                 p_axis, p_eta, p_amp = sg.product(axis, eta, 1.0, light_axis[sel, li], light_eta[sel, li], 1.0)
