@@ -436,9 +436,7 @@ def capped_cosine_integral(e, cap, axis, n, eta, table):
     f_s·cos θi is M·D·min(cos θi, cos θo), so the lobe's cosine integral e = ∫G·(n·ω)⁺ loses ∫G·(cos θi − cos θo)⁺.
     Across a lobe of sharpness η about an axis of sine s = √(1 − cap²), cos θi − cos θo is ≈ Gaussian of spread
     s/√η, whose positive part has the mean s/√(2πη); ∫G is taken over the lobe's visible part (the visible
-    fraction of its own hemisphere, whose share of ∫G is 1/(1 + e^−η)). Measured against the Monte Carlo
-    reference (tests/test_anisotropic_render.py's sphere, constant environment, nu = nv = 100): 24.7 dB without
-    it, 30.7 dB with it."""
+    fraction of its own hemisphere, whose share of ∫G is 1/(1 + e^−η)); docs/design.md §9 gives its effect."""
     visible = sg.integral(eta) * sg.table_lookup(table, 1, _dot(axis, n), eta) / (1 + np.exp(-eta))
     spread = np.sqrt(np.maximum(1 - cap * cap, 0.0) / (2 * np.pi * eta))
     return np.maximum(e - spread * visible, 0.0)
