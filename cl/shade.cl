@@ -28,13 +28,15 @@
 #define DIFFUSE_LEVEL_SHARP 64.0f /* = effective.DIFFUSE_LEVEL_SHARP */
 #define DIFFUSE_LEVEL_STEP 8.0f /* = effective.DIFFUSE_LEVEL_STEP */
 #define AS_UNIFORM_COS 0.58292645536f /* = shading.AS_UNIFORM_COS */
-#define ASG_TAPS 8 /* = shading.ASG_TAPS */
-#define ASG_TAP_SHARE 0.15f /* = shading.ASG_TAP_SHARE */
-/* shading._TAP_NODES, _TAP_WEIGHTS: the probabilists' Gauss–Hermite rule of ASG_TAPS nodes, weights summing to 1 */
-__constant float TAP_NODES[ASG_TAPS] = {-4.14454719f, -2.80248586f, -1.63651904f, -0.539079811f,
-                                        0.539079811f, 1.63651904f, 2.80248586f, 4.14454719f};
-__constant float TAP_WEIGHTS[ASG_TAPS] = {0.000112614538f, 0.00963522012f, 0.117239908f, 0.373012258f,
-                                          0.373012258f, 0.117239908f, 0.00963522012f, 0.000112614538f};
+#define ASG_TAPS 12 /* = shading.ASG_TAPS */
+#define ASG_TAP_SHARE 0.05f /* = shading.ASG_TAP_SHARE */
+/* shading._TAP_NODES, _TAP_WEIGHTS: ASG_TAPS offsets evenly over ±2.75 standard deviations, a Gaussian's weights
+ * summing to 1 */
+__constant float TAP_NODES[ASG_TAPS] = {-2.75f, -2.25f, -1.75f, -1.25f, -0.75f, -0.25f,
+                                        0.25f, 0.75f, 1.25f, 1.75f, 2.25f, 2.75f};
+__constant float TAP_WEIGHTS[ASG_TAPS] = {0.00455787892f, 0.0159085606f, 0.0432439512f, 0.0915474454f,
+                                          0.15093622f, 0.193805943f, 0.193805943f, 0.15093622f,
+                                          0.0915474454f, 0.0432439512f, 0.0159085606f, 0.00455787892f};
 
 /* floor(x) as an int for x >= 0 (every caller clamps x to a non-negative range first): truncation,
  * the same integer, without PoCL's out-of-line floor call. */

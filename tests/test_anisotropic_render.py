@@ -95,3 +95,20 @@ def test_textured_anisotropic_material_is_refused():
         wb.render(_sphere(textured, lights=[wb.DirectionalLight((0, 0, 1), 1.0)], width=8, height=8),
                   backend="warp:cpu")
     assert "\n" not in str(err.value)
+
+
+def test_opencl_taps_are_the_references():
+    """cl/shade.cl writes the anisotropic lookup's taps out (`shading.asg_prefiltered`; kernels/shade.py takes them
+    from `shading`): the same offsets and weights, to float32."""
+    import re
+    from importlib import resources
+
+    from warp_biscale import cl as cl_sources
+    from warp_biscale import shading
+
+    text = resources.files(cl_sources).joinpath("shade.cl").read_text()
+    for name, want in (("TAP_NODES", shading._TAP_NODES), ("TAP_WEIGHTS", shading._TAP_WEIGHTS)):
+        body = re.search(name + r"\[ASG_TAPS\] = \{([^}]*)\}", text).group(1)
+        got = np.array([float(v.strip().rstrip("f")) for v in body.split(",")])
+        np.testing.assert_allclose(got, want, rtol=1e-7, atol=1e-9)
+    assert f"#define ASG_TAPS {shading.ASG_TAPS} " in text and f"#define ASG_TAP_SHARE {shading.ASG_TAP_SHARE}f" in text
