@@ -396,6 +396,14 @@ CL_INLINE float3 light_amplitude(__global const float *row, float3 pos, float et
     return power / sg_integral(eta);
 }
 
+/* A light's irradiance at a point of normal n, its cosine included (the light SG's cosine integral), times the
+ * share of its shadow rays that reached it (vis, in 255ths); axis and eta: light_axis, light_sharpness. */
+CL_INLINE float3 light_irradiance(Table tab, __global const float *row, float3 pos, float3 n, float3 axis, float eta,
+                                  uchar vis)
+{
+    return light_amplitude(row, pos, eta) * (cosine_integral(tab, axis, eta, eta_row(tab, eta), n) * (float)vis / 255.0f);
+}
+
 /* ∫ G(a1, e1)·G(a2, e2)·(n·ω)⁺: the product SG (sg.product) against the clamped cosine. */
 CL_INLINE float product_integral(Table t, float3 a1, float e1, float3 a2, float e2, float3 n)
 {
@@ -649,8 +657,7 @@ CL_INLINE float3 anisotropic_from_lights(int kind, float3 ks, float p1, float p2
         float3 la = light_axis(row, s.pos);
         float le = light_sharpness(row, s.pos);
         float3 f = anisotropic_specular(kind, ks, p1, p2, s.t, s.b, s.n, la, wo);
-        out = out + f * light_amplitude(row, s.pos, le)
-                        * (cosine_integral(tab, la, le, eta_row(tab, le), s.n) * (float)vis[l] / 255.0f);
+        out = out + f * light_irradiance(tab, row, s.pos, s.n, la, le, vis[l]);
     }
     return out;
 }
@@ -738,7 +745,7 @@ CL_INLINE float3 asg_from_lights(Asg g, float eta_s, int kind, float3 ks, float 
             continue;
         float3 scale = specular_scale(kind, ks, p1, p2, dot3(h, la));
         float3 mu = table_rgb(eff_tables, base, k2, j_count, j, to_local(s, la), k, oo, ow);
-        float3 e = light_amplitude(row, s.pos, le) * (cosine_integral(tab, la, le, eta_row(tab, le), s.n) * (float)vis[l] / 255.0f);
+        float3 e = light_irradiance(tab, row, s.pos, s.n, la, le, vis[l]);
         out = out + scale * mu * e * shape;
     }
     return out;
@@ -897,7 +904,7 @@ __kernel void shade_pixels(
         float3 fd = analytic_diffuse(a_kind, kd, a_ks, axis, eta, s, cos_o);
         if (kind != 0)
             fd = effective_diffuse(ei, eff_sub, eff_diffuse, k2, eta, to_local(s, axis), k, oo, ow);
-        out = out + fd * light_amplitude(row, s.pos, eta) * (cosine_integral(tab, axis, eta, eta_row(tab, eta), s.n) * (float)vis[l] / 255.0f);
+        out = out + fd * light_irradiance(tab, row, s.pos, s.n, axis, eta, vis[l]);
     }
 
     /* Specular: each warped lobe against the prefiltered environment and each light. */

@@ -422,6 +422,15 @@ def light_amplitude(lights: wp.array2d(dtype=wp.float32), l: int, pos: wp.vec3, 
 
 
 @wp.func
+def light_irradiance(table: wp.array3d(dtype=wp.float32), lights: wp.array2d(dtype=wp.float32), l: int,
+                     pos: wp.vec3, n: wp.vec3, axis: wp.vec3, eta: float, vis: wp.uint8) -> wp.vec3:
+    """Light l's irradiance at a point of normal n, its cosine included (the light SG's cosine integral), times
+    the share of its shadow rays that reached it (vis, in 255ths); axis and η: light_axis, light_sharpness."""
+    return light_amplitude(lights, l, pos, eta) * (
+        cosine_integral(table, axis, eta, eta_row(table, eta), n) * float(int(vis)) / 255.0)
+
+
+@wp.func
 def product_integral(table: wp.array3d(dtype=wp.float32), a1: wp.vec3, e1: float, a2: wp.vec3, e2: float,
                      n: wp.vec3) -> float:
     """∫ G(a1, e1)·G(a2, e2)·(n·ω)⁺: the product SG (sg.product) against the clamped cosine."""
@@ -765,8 +774,7 @@ def asg_from_lights(g: Asg, eta_s: float, kind: int, ks: wp.vec3, p1: float, p2:
             continue
         scale = specular_scale(kind, ks, p1, p2, wp.dot(h, la))
         mu = table_rgb(eff_tables, base, k2, j_count, j, to_local(s, la), k, oo, ow)
-        e = light_amplitude(lights, l, s.pos, le) * (
-            cosine_integral(table, la, le, eta_row(table, le), s.n) * float(int(u8_at2(light_vis, p, l))) / 255.0)
+        e = light_irradiance(table, lights, l, s.pos, s.n, la, le, u8_at2(light_vis, p, l))
         out = out + wp.cw_mul(wp.cw_mul(scale, mu), e) * shape
     return out
 
@@ -794,8 +802,7 @@ def anisotropic_from_lights(kind: int, ks: wp.vec3, p1: float, p2: float, s: Sur
         la = light_axis(lights, l, s.pos)
         le = light_sharpness(lights, l, s.pos)
         f = anisotropic_specular(kind, ks, p1, p2, s.t, s.b, s.n, la, wo)
-        e = light_amplitude(lights, l, s.pos, le) * (
-            cosine_integral(table, la, le, eta_row(table, le), s.n) * float(int(u8_at2(light_vis, p, l))) / 255.0)
+        e = light_irradiance(table, lights, l, s.pos, s.n, la, le, u8_at2(light_vis, p, l))
         out = out + wp.cw_mul(f, e)
     return out
 
@@ -919,8 +926,7 @@ def shade_pixels(
         fd = analytic_diffuse(a_kind, kd, a_ks, axis, eta, s, cos_o)
         if kind != 0:
             fd = effective_diffuse(eff_info, eff_sub, eff_diffuse, idx, k2, eta, to_local(s, axis), k, oo, ow)
-        out = out + wp.cw_mul(fd, light_amplitude(lights, l, s.pos, eta)) * (
-            cosine_integral(table, axis, eta, eta_row(table, eta), s.n) * float(int(u8_at2(light_vis, p, l))) / 255.0)
+        out = out + wp.cw_mul(fd, light_irradiance(table, lights, l, s.pos, s.n, axis, eta, u8_at2(light_vis, p, l)))
 
     # Specular: each warped lobe against the prefiltered environment and each light.
     if has_spec != 0:
