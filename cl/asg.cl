@@ -231,6 +231,32 @@ CL_INLINE Asg asg_convolve_sg(Asg g, float eta, float amplitude)
     return r;
 }
 
+/* G convolved with an anisotropic small-scale NDF (λ_s, μ_s) whose facets' doubled tangent angles in G's frame
+   have the mean (oc, os): covariances added in G's tangent plane (asg.convolve_asg, its stable forms). */
+CL_INLINE Asg asg_convolve_asg(Asg g, float lam_s, float mu_s, float oc, float os)
+{
+    float sx = 0.5f / lam_s, sy = 0.5f / mu_s;
+    float mean = 0.5f * (sx + sy), spread = 0.5f * (sx - sy); /* (`half` is an OpenCL type) */
+    float s00 = mean + spread * oc, s01 = spread * os, s11 = mean - spread * oc;
+    float det_s = sx * sy + spread * spread * fmax(1.0f - oc * oc - os * os, 0.0f);
+    float det = 1.0f + 2.0f * s00 * g.lam + 2.0f * s11 * g.mu + 4.0f * g.lam * g.mu * det_s;
+    float c00 = g.lam * (1.0f + 2.0f * s11 * g.mu) / det;
+    float c11 = g.mu * (1.0f + 2.0f * s00 * g.lam) / det;
+    float c01 = -2.0f * g.lam * g.mu * s01 / det;
+    float big = 0.5f * (c00 + c11) + sqrt(0.25f * (c00 - c11) * (c00 - c11) + c01 * c01);
+    float small = big > 0.0f ? fmin(g.lam * g.mu / det / big, big) : 0.0f;
+    float psi = 0.5f * atan2(2.0f * c01, c00 - c11);
+    float cp = cos(psi), sp = sin(psi);
+    Asg r;
+    r.x = cp * g.x + sp * g.y;
+    r.y = cp * g.y - sp * g.x;
+    r.z = g.z;
+    r.lam = big;
+    r.mu = small;
+    r.c = g.c * ASG_PI / sqrt(det * lam_s * mu_s);
+    return r;
+}
+
 /* Our SG sharpness of the SSDF's stand-in circle, 2√(λμ) (asg.effective_sharpness). */
 CL_INLINE float asg_effective_sharpness(Asg g) { return 2.0f * sqrt(g.lam * g.mu); }
 
@@ -488,6 +514,17 @@ __kernel void asg_convolve_rows(__global const float *rows, __global const float
     if (i >= n)
         return;
     asg_store(out, i, asg_convolve_sg(asg_load(rows, i), sharpness[i], amplitude[i]));
+}
+
+/* kernel rows: [λ_s, μ_s, o_c, o_s]. */
+__kernel void asg_convolve_asg_rows(__global const float *rows, __global const float *kernel_rows, const int n,
+                                    __global float *out)
+{
+    int i = get_global_id(0);
+    if (i >= n)
+        return;
+    __global const float *k = kernel_rows + 4 * i;
+    asg_store(out, i, asg_convolve_asg(asg_load(rows, i), k[0], k[1], k[2], k[3]));
 }
 
 #ifdef cl_khr_fp64

@@ -296,6 +296,40 @@ def asg_convolve_sg(g: Asg, eta: float, amplitude: float) -> Asg:
 
 
 @wp.func
+def asg_convolve_asg(g: Asg, lam_s: float, mu_s: float, oc: float, os: float) -> Asg:
+    """G convolved with an anisotropic small-scale NDF of bandwidths (λ_s, μ_s) whose facets' doubled tangent
+    angles in G's frame have the mean (oc, os): Gaussian covariances added in G's tangent plane
+    (asg.convolve_asg, its stable forms)."""
+    sx = 0.5 / lam_s
+    sy = 0.5 / mu_s
+    mean = 0.5 * (sx + sy)
+    half = 0.5 * (sx - sy)
+    s00 = mean + half * oc
+    s01 = half * os
+    s11 = mean - half * oc
+    det_s = sx * sy + half * half * wp.max(1.0 - oc * oc - os * os, 0.0)
+    det = 1.0 + 2.0 * s00 * g.lam + 2.0 * s11 * g.mu + 4.0 * g.lam * g.mu * det_s
+    c00 = g.lam * (1.0 + 2.0 * s11 * g.mu) / det
+    c11 = g.mu * (1.0 + 2.0 * s00 * g.lam) / det
+    c01 = -2.0 * g.lam * g.mu * s01 / det
+    big = 0.5 * (c00 + c11) + wp.sqrt(0.25 * (c00 - c11) * (c00 - c11) + c01 * c01)
+    small = float(0.0)
+    if big > 0.0:
+        small = wp.min(g.lam * g.mu / det / big, big)
+    psi = 0.5 * wp.atan2(2.0 * c01, c00 - c11)
+    cp = wp.cos(psi)
+    sp = wp.sin(psi)
+    r = Asg()
+    r.x = cp * g.x + sp * g.y
+    r.y = cp * g.y - sp * g.x
+    r.z = g.z
+    r.lam = big
+    r.mu = small
+    r.c = g.c * PI / wp.sqrt(det * lam_s * mu_s)
+    return r
+
+
+@wp.func
 def asg_effective_sharpness(g: Asg) -> float:
     """Our SG sharpness of the circle that stands in for the ASG's ellipse in the SSDF visibility
     (Xu §5.3): η = 2√(λμ), Xu's bandwidth √(λμ) read in his ν = η/2 units (asg.effective_sharpness)."""
@@ -541,6 +575,14 @@ def asg_convolve_rows(rows: wp.array2d(dtype=wp.float32), sharpness: wp.array(dt
                       amplitude: wp.array(dtype=wp.float32), offset: int, out: wp.array2d(dtype=wp.float32)):
     i = wp.tid() + offset
     asg_store(out, i, asg_convolve_sg(asg_load(rows, i), sharpness[i], amplitude[i]))
+
+
+@wp.kernel
+def asg_convolve_asg_rows(rows: wp.array2d(dtype=wp.float32), kernel: wp.array2d(dtype=wp.float32), offset: int,
+                          out: wp.array2d(dtype=wp.float32)):
+    """kernel rows: [λ_s, μ_s, o_c, o_s]."""
+    i = wp.tid() + offset
+    asg_store(out, i, asg_convolve_asg(asg_load(rows, i), kernel[i, 0], kernel[i, 1], kernel[i, 2], kernel[i, 3]))
 
 
 @wp.kernel

@@ -1202,6 +1202,20 @@ class DeviceBackend:
         return self._asg_batch("asg_convolve_rows", shape,
                                [self._to_device(self._asg_rows(g, shape), "f32"), flat(eta), flat(amplitude)])
 
+    def asg_convolve_asg(self, g: ASG, lam_s, mu_s, order=(0.0, 0.0)) -> ASG:
+        """G convolved with an anisotropic small-scale NDF (oracle asg.convolve_asg)."""
+        lam_s, mu_s = np.asarray(lam_s, np.float32), np.asarray(mu_s, np.float32)
+        order = np.asarray(order, np.float32)
+        if (np.any(~(lam_s > 0)) or np.any(~(mu_s > 0)) or not np.all(np.isfinite(lam_s) & np.isfinite(mu_s))
+                or order.shape[-1:] != (2,) or not np.all(np.isfinite(order))):
+            raise ValueError("asg_convolve_asg: the kernel's bandwidths must be finite and > 0, order (..., 2) finite")
+        shape = np.broadcast_shapes(g.shape, lam_s.shape, mu_s.shape, order.shape[:-1])
+        kernel = np.stack([np.broadcast_to(lam_s, shape), np.broadcast_to(mu_s, shape),
+                           np.broadcast_to(order[..., 0], shape), np.broadcast_to(order[..., 1], shape)], -1)
+        return self._asg_batch("asg_convolve_asg_rows", shape,
+                               [self._to_device(self._asg_rows(g, shape), "f32"),
+                                self._to_device(np.ascontiguousarray(kernel.reshape(-1, 4), np.float32), "f32")])
+
     def asg_product(self, g1: ASG, g2: ASG) -> ASG:
         """Xu Eq. 13, G1·G2 as one ASG (oracle asg.product; float64 on the device)."""
         shape = np.broadcast_shapes(g1.shape, g2.shape)
