@@ -20,7 +20,7 @@
 #define MIN_COS_VIEW 1.0e-4f /* = shading.MIN_COS_VIEW */
 #define ASG_LOBES 1 /* = effective.ASG_LOBES: eff_info[7] of a material with ASG lobes */
 #define ASG_EQ10_MIN 5.0f /* = asg.EQ10_MIN_BANDWIDTH */
-#define EFF_LOBE_WIDTH 9 /* eff_lobes' row: [axis or z (3), η, x (3), λ, μ] */
+#define EFF_LOBE_WIDTH 11 /* eff_lobes' row: [axis or z (3), η, x (3), λ, μ, tangent order (2)] */
 #define RAYS_ONLY 0.125f /* = shading.RAYS_ONLY */
 #define SSDF_ONLY 0.5f /* = shading.SSDF_ONLY */
 #define SHARP_LOBE_ETA 8.0f /* = shading.SHARP_LOBE_ETA */
@@ -605,23 +605,37 @@ CL_INLINE float3 lobe_from_lights(Table tab, float3 axis, float eta, SurfacePoin
     return out;
 }
 
-/* An anisotropic BRDF's NDF as one ASG about the shading normal, in the frame of the mesh tangent
- * (brdf.ndf_bandwidths), amplitude 1. */
+/* (λ, μ) of an anisotropic BRDF's NDF as one ASG (brdf.ndf_bandwidths). */
+CL_INLINE float2 ndf_bandwidths(int kind, float p1, float p2)
+{
+    if (kind == ANISOTROPIC_WARD)
+        return (float2)(1.0f / (p1 * p1), 1.0f / (p2 * p2));
+    return (float2)(0.5f * p1, 0.5f * p2);
+}
+
+/* An anisotropic BRDF's NDF as one ASG about the shading normal, in the frame of the mesh tangent, amplitude 1. */
 CL_INLINE Asg ndf_asg(int kind, float p1, float p2, SurfacePoint s)
 {
+    float2 bw = ndf_bandwidths(kind, p1, p2);
     Asg g;
     g.x = s.t;
     g.y = s.b;
     g.z = s.n;
     g.c = 1.0f;
-    if (kind == ANISOTROPIC_WARD) {
-        g.lam = 1.0f / (p1 * p1);
-        g.mu = 1.0f / (p2 * p2);
-    } else {
-        g.lam = 0.5f * p1;
-        g.mu = 0.5f * p2;
-    }
+    g.lam = bw.x;
+    g.mu = bw.y;
     return g;
+}
+
+/* An effective material's ASG lobe convolved with its small-scale BRDF's NDF: an anisotropic one's ASG turned by
+ * the lobe's tangent order (oc, os) (asg.convolve_asg), else its SG (Xu Eq. 18). */
+CL_INLINE Asg small_scale_convolved(Asg g, int kind, float p1, float p2, float eta_s, float oc, float os)
+{
+    if (kind == ANISOTROPIC_WARD || kind == ASHIKHMIN_SHIRLEY) {
+        float2 bw = ndf_bandwidths(kind, p1, p2);
+        return asg_convolve_asg(g, bw.x, bw.y, oc, os);
+    }
+    return asg_convolve_sg(g, eta_s, 1.0f);
 }
 
 /* The cosine at which Ashikhmin–Shirley's ρd is read for a light lobe (shading.lobe_cosine). */
@@ -726,8 +740,10 @@ CL_INLINE float asg_shade_integral(float lam, float mu)
 }
 
 /* An ASG lobe's specular radiance from the lights: the material's own f̄ at each light's direction
- * (M(h·l)·μ_j(l, ωo)/cos θi·(G_j ⊛ SG_s)(h)) times the light's irradiance, cosine and visible share. */
-CL_INLINE float3 asg_from_lights(Asg g, float eta_s, int kind, float3 ks, float p1, float p2,
+ * (M(h·l)·μ_j(l, ωo)/cos θi·(G_j ⊛ D_s)(h)) times the light's irradiance, cosine and visible share. `conv` is
+ * G_j ⊛ D_s (small_scale_convolved), evaluated as it is for an anisotropic D_s; an SG's takes the shape that is
+ * exact for a delta lobe too (asg_convolved_at). */
+CL_INLINE float3 asg_from_lights(Asg g, Asg conv, float eta_s, int kind, float3 ks, float p1, float p2,
                                  __global const float *eff_tables, int base, int k2, int j_count, int j, int k,
                                  const int *oo, const float *ow, SurfacePoint s, float3 wo, Table tab, int n_lights,
                                  __global const float *lights, __global const uchar *vis)
@@ -740,7 +756,8 @@ CL_INLINE float3 asg_from_lights(Asg g, float eta_s, int kind, float3 ks, float 
         float3 la = light_axis(row, s.pos);
         float le = light_sharpness(row, s.pos);
         float3 h = normalize3(la + wo);
-        float shape = asg_convolved_at(g, eta_s, h);
+        float shape = (kind == ANISOTROPIC_WARD || kind == ASHIKHMIN_SHIRLEY) ? asg_eval(conv, h)
+                                                                              : asg_convolved_at(g, eta_s, h);
         if (shape <= 0.0f)
             continue;
         float3 scale = specular_scale(kind, ks, p1, p2, dot3(h, la));
@@ -963,12 +980,13 @@ __kernel void shade_pixels(
                     float eta_s = ndf_sharpness(s_kind, s_p1);
                     int base = ei[5] + sub_i * k2 * k2 * j_count * 3;
                     int asg_lobes = ei[7] == ASG_LOBES;
-                    Asg g;
+                    Asg g, conv;
                     if (asg_lobes) {
                         /* Xu 2013: the lights by the material's own f̄ at their directions, whichever way the
                          * lobe faces; the environment below through the warped lobe's equal-integral SG. */
                         g = lobe_asg(lobe, s);
-                        out = out + asg_from_lights(g, eta_s, s_kind, s_ks, s_p1, sub[8], eff_tables, base, k2,
+                        conv = small_scale_convolved(g, s_kind, s_p1, sub[8], eta_s, lobe[9], lobe[10]);
+                        out = out + asg_from_lights(g, conv, eta_s, s_kind, s_ks, s_p1, sub[8], eff_tables, base, k2,
                                                     j_count, j, k, oo, ow, s, wo, tab, n_lights, lights, vis);
                     }
                     if (c_oj <= 0.0f)
@@ -977,7 +995,7 @@ __kernel void shade_pixels(
                     if (scale.x + scale.y + scale.z <= 0.0f)
                         continue;
                     if (asg_lobes) {
-                        Asg c = asg_convolve_sg(g, eta_s, 1.0f);
+                        Asg c = conv;
                         Asg w = asg_warp(c, wo);
                         float lam = maxf(w.lam, 1.0e-6f);
                         float mu_w = maxf(w.mu, 1.0e-6f);

@@ -17,7 +17,8 @@ from warp_biscale import sg as _sg
 
 from warp_biscale import shading as _shading
 
-from .asg import Asg, asg_convolve_sg, asg_integral_eq10, asg_unit_integral, asg_warp, harmonic
+from .asg import (Asg, asg_convolve_asg, asg_convolve_sg, asg_eval, asg_integral_eq10, asg_unit_integral, asg_warp,
+                  harmonic)
 from .common import (ANISOTROPIC_WARD, ASHIKHMIN_SHIRLEY, GOLDEN_ANGLE, LOBE_COS_MIN, LOBE_RAYS, anisotropic_specular,
                      ashikhmin_shirley_diffuse, disk_basis, disk_turn, lobe_ray_direction)
 
@@ -507,21 +508,36 @@ def to_local(s: SurfacePoint, d: wp.vec3) -> wp.vec3:
 
 
 @wp.func
+def ndf_bandwidths(kind: int, p1: float, p2: float) -> wp.vec2:
+    """(λ, μ) of an anisotropic BRDF's NDF as one ASG (brdf.ndf_bandwidths)."""
+    if kind == ANISOTROPIC_WARD:
+        return wp.vec2(1.0 / (p1 * p1), 1.0 / (p2 * p2))
+    return wp.vec2(0.5 * p1, 0.5 * p2)
+
+
+@wp.func
 def ndf_asg(kind: int, p1: float, p2: float, s: SurfacePoint) -> Asg:
-    """An anisotropic BRDF's NDF as one ASG about the shading normal, in the frame of the mesh tangent
-    (brdf.ndf_bandwidths), amplitude 1."""
+    """An anisotropic BRDF's NDF as one ASG about the shading normal, in the frame of the mesh tangent,
+    amplitude 1."""
+    bw = ndf_bandwidths(kind, p1, p2)
     g = Asg()
     g.x = s.t
     g.y = s.b
     g.z = s.n
     g.c = 1.0
-    if kind == ANISOTROPIC_WARD:
-        g.lam = 1.0 / (p1 * p1)
-        g.mu = 1.0 / (p2 * p2)
-    else:
-        g.lam = 0.5 * p1
-        g.mu = 0.5 * p2
+    g.lam = bw[0]
+    g.mu = bw[1]
     return g
+
+
+@wp.func
+def small_scale_convolved(g: Asg, kind: int, p1: float, p2: float, eta_s: float, oc: float, os: float) -> Asg:
+    """An effective material's ASG lobe convolved with its small-scale BRDF's NDF: an anisotropic one's ASG turned
+    by the lobe's tangent order (oc, os) (asg.convolve_asg), else its SG (Xu Eq. 18)."""
+    if kind == ANISOTROPIC_WARD or kind == ASHIKHMIN_SHIRLEY:
+        bw = ndf_bandwidths(kind, p1, p2)
+        return asg_convolve_asg(g, bw[0], bw[1], oc, os)
+    return asg_convolve_sg(g, eta_s, 1.0)
 
 
 @wp.func
@@ -755,13 +771,16 @@ def asg_shade_integral(lam: float, mu: float) -> float:
 
 
 @wp.func
-def asg_from_lights(g: Asg, eta_s: float, kind: int, ks: wp.vec3, p1: float, p2: float,
+def asg_from_lights(g: Asg, conv: Asg, eta_s: float, kind: int, ks: wp.vec3, p1: float, p2: float,
                     eff_tables: wp.array(dtype=wp.float32), base: int, k2: int, j_count: int, j: int, k: int,
                     oo: vec4i, ow: wp.vec4, s: SurfacePoint, wo: wp.vec3, table: wp.array3d(dtype=wp.float32),
                     n_lights: int, lights: wp.array2d(dtype=wp.float32), light_vis: wp.array2d(dtype=wp.uint8),
                     p: int) -> wp.vec3:
     """An ASG lobe's specular radiance from the lights: the material's own f̄ at each light's direction
-    (M(h·l)·μ_j(l, ωo)/cos θi·(G_j ⊛ SG_s)(h)) times the light's irradiance, cosine and visible share."""
+    (M(h·l)·μ_j(l, ωo)/cos θi·(G_j ⊛ D_s)(h)) times the light's irradiance, cosine and visible share. `conv` is
+    G_j ⊛ D_s (`small_scale_convolved`), evaluated as it is for an anisotropic D_s; an SG's takes the shape
+    that is exact for a delta lobe too (asg_convolved_at)."""
+    anisotropic = kind == ANISOTROPIC_WARD or kind == ASHIKHMIN_SHIRLEY
     out = wp.vec3(0.0)
     for l in range(n_lights):
         if u8_at2(light_vis, p, l) == wp.uint8(0):
@@ -769,7 +788,11 @@ def asg_from_lights(g: Asg, eta_s: float, kind: int, ks: wp.vec3, p1: float, p2:
         la = light_axis(lights, l, s.pos)
         le = light_sharpness(lights, l, s.pos)
         h = wp.normalize(la + wo)
-        shape = asg_convolved_at(g, eta_s, h)
+        shape = float(0.0)
+        if anisotropic:
+            shape = asg_eval(conv, h)
+        else:
+            shape = asg_convolved_at(g, eta_s, h)
         if shape <= 0.0:
             continue
         scale = specular_scale(kind, ks, p1, p2, wp.dot(h, la))
@@ -985,20 +1008,24 @@ def shade_pixels(
                     base = i32_at2(eff_info, idx, 5) + sub_i * k2 * k2 * j_count * 3
                     asg_lobes = i32_at2(eff_info, idx, 7) == ASG_LOBES
                     g = Asg()
+                    conv = Asg()
+                    s_p2 = f32_at2(eff_sub, sub, 8)
                     if asg_lobes:
                         # Xu 2013: the lights by the material's own f̄ at their directions, whichever way the
                         # lobe faces; the environment below through the warped lobe's equal-integral SG.
                         g = lobe_asg(eff_lobes, lobe, s)
-                        out = out + asg_from_lights(g, eta_s, s_kind, s_ks, s_p1, f32_at2(eff_sub, sub, 8), eff_tables,
+                        conv = small_scale_convolved(g, s_kind, s_p1, s_p2, eta_s, f32_at2(eff_lobes, lobe, 9),
+                                                     f32_at2(eff_lobes, lobe, 10))
+                        out = out + asg_from_lights(g, conv, eta_s, s_kind, s_ks, s_p1, s_p2, eff_tables,
                                                     base, k2, j_count, j, k, oo, ow, s, wo, table, n_lights, lights,
                                                     light_vis, p)
                     if c_oj <= 0.0:
                         continue
-                    scale = specular_scale(s_kind, s_ks, s_p1, f32_at2(eff_sub, sub, 8), c_oj)
+                    scale = specular_scale(s_kind, s_ks, s_p1, s_p2, c_oj)
                     if scale[0] + scale[1] + scale[2] <= 0.0:
                         continue
                     if asg_lobes:
-                        c = asg_convolve_sg(g, eta_s, 1.0)
+                        c = conv
                         w = asg_warp(c, wo)
                         lam = wp.max(w.lam, 1.0e-6)
                         mu_w = wp.max(w.mu, 1.0e-6)

@@ -427,11 +427,13 @@ def test_isotropic_ground_truth_ignores_the_tangents(backend, heightfield):
 
 
 def test_sg_bake_refuses_anisotropic_materials(vgroove):
-    with pytest.raises(ValueError, match=r"materials\[1\] \(AshikhminShirley\) is anisotropic: .*ASG bake") as err:
+    with pytest.raises(ValueError, match=r"materials\[1\] \(AshikhminShirley\) is anisotropic: method='sg' .*"
+                                         r"bake it with method='asg'") as err:
         wb.bake(vgroove, [wb.Lambert(0.5), AshikhminShirley()], facets=256, directions=4)
     assert "\n" not in str(err.value)
-    with pytest.raises(ValueError, match="ASG"):
-        wb.bake(vgroove, AnisotropicWard(), facets=256, directions=4, method="sg-exact")
+    for method in ("sg-exact", "matrix"):
+        with pytest.raises(ValueError, match="method='asg'"):
+            wb.bake(vgroove, AnisotropicWard(), facets=256, directions=4, method=method)
 
 
 def test_effective_material_refuses_anisotropic_materials(flat):

@@ -78,9 +78,9 @@ from scipy.special import erf, erfinv, i0e
 
 from . import sg
 
-__all__ = ["ASG", "evaluate", "rotate", "from_sg", "unit_integral", "integral", "product", "convolve_sg", "convolve_asg",
-           "convolve_sg_at", "convolve_sg_local", "warp", "warp_hessian", "effective_sharpness", "visible_fraction",
-           "occlude", "sample", "pdf", "tangent_frame"]
+__all__ = ["ASG", "evaluate", "rotate", "from_sg", "unit_integral", "integral", "product", "convolve_sg",
+           "convolve_asg", "convolve_sg_at", "convolve_sg_local", "warp", "warp_hessian", "effective_sharpness",
+           "visible_fraction", "occlude", "sample", "pdf", "tangent_frame"]
 
 _ORTHO_TOL = 1e-6  # a frame further than this from orthonormal is an error, not rounding
 

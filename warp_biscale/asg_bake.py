@@ -54,8 +54,8 @@ from . import directions as dirs
 from . import lobes as lobes_mod
 from . import sg
 from .brdf import as_material_list, diffuse_albedo
-from .effective import (ASG_LOBES, EffectiveBRDF, HostOnlyBRDF, Provenance, interpolated_amplitudes,
-                        materials_from_file, materials_to_file)
+from .effective import (ASG_LOBES, EFF_LOBE_WIDTH, EffectiveBRDF, HostOnlyBRDF, Provenance,
+                        interpolated_amplitudes, materials_from_file, materials_to_file)
 from .io import read_npz, save_npz
 from .model import Bvndf
 from .progress import as_progress
@@ -289,6 +289,33 @@ def _values(asgs: asg_mod.ASG, normal):
     return np.maximum(t, 0.0) * np.exp(-asgs.lam * a * a - asgs.mu * b * b)
 
 
+TANGENT_SAMPLE = 8192  # facets read for the lobes' tangent orders (every k-th): plenty for a mean of cosines
+
+
+def tangent_order(asgs: asg_mod.ASG, alpha, normal, tangent, weight) -> np.ndarray:
+    """(J, 2) each lobe's tangent order: the mean (cos 2φ, sin 2φ) of its facets' tangents' angles φ in the lobe's
+    frame (their direction across the lobe's tangent plane; doubled, as a tangent and its opposite are one line),
+    each facet weighed by its weight and its responsibility α_jG_j(n)/Σ_k α_kG_k(n). What an anisotropic
+    small-scale BRDF's NDF is convolved with (`asg.convolve_asg`): length 1 where all of a lobe's tangents lie on
+    one line (grooves, threads), 0 where they turn every way; (0, 0) for a lobe no facet reaches. Read on every
+    k-th facet (TANGENT_SAMPLE of them)."""
+    step = max(1, len(normal) // TANGENT_SAMPLE)
+    n, t, w = normal[::step], np.asarray(tangent, np.float64)[::step], np.asarray(weight, np.float64)[::step]
+    resp = _values(asgs, n) * alpha
+    total = resp.sum(1, keepdims=True)
+    resp = np.where(total > 0, resp / np.where(total > 0, total, 1.0), 0.0) * w[:, None]
+    c, d = t @ asgs.x.T, t @ asgs.y.T  # (Ns, J) the tangent across each lobe's plane
+    r2 = c * c + d * d
+    ok = r2 > 1e-12
+    r2 = np.where(ok, r2, 1.0)
+    cos2, sin2 = np.where(ok, (c * c - d * d) / r2, 0.0), np.where(ok, 2 * c * d / r2, 0.0)
+    mass = (resp * ok).sum(0)
+    order = np.stack([(resp * cos2).sum(0), (resp * sin2).sum(0)], 1)
+    order = np.where(mass[:, None] > 0, order / np.where(mass > 0, mass, 1.0)[:, None], 0.0)
+    length = np.hypot(order[:, 0], order[:, 1])
+    return order / np.maximum(length, 1.0)[:, None]  # (rounding past 1)
+
+
 def gram(asgs: asg_mod.ASG):
     """(J, J) A_ij = ∫G_iG_j by Xu's product (Eq. 13) and the exact integral, each pair i ≤ j once."""
     i, j = np.triu_indices(len(asgs.lam))
@@ -371,7 +398,8 @@ def bake_asg(tile, mats, lobes, directions, normal_res, facets, backend, seed, k
             [energy, np.zeros((len(mats) - len(energy),) + energy.shape[1:], energy.dtype)])
     mat = ASGBRDF(geo["asgs"], geo["alpha"], amps, mats, k, info={**geo["info"], "backend": be.name,
                                                                   "tile": tile.name},
-                  bvndf=geo["bvndf"], provenance=Provenance(tile, int(seed), count), energy=energy)
+                  bvndf=geo["bvndf"], provenance=Provenance(tile, int(seed), count), energy=energy,
+                  tangent_order=geo["tangent_order"])
     timer.timings["tables"] = time.perf_counter() - t0
     mat.timings = dict(timer.timings)
     prog.done()
@@ -449,13 +477,14 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
         # (a NaN μ leaves its amplitude 0 in the table kernels' output but makes its pair's energy NaN)
         raise FloatingPointError("the ASG amplitude solve gave non-finite values")
     bv.a_v = np.asarray(q.a_v.host(), np.float64)
+    order = tangent_order(asgs, alpha, normal, tile.face_tangents[np.asarray(q.fac.face)], em_w)
     timer.timings["amplitudes"] = time.perf_counter() - t0
     info = {"facets": count, "seed": seed, "normal_res": r, "route": "facets", "lobes": int(len(alpha)),
             "lobes_requested": j_req, "ndf_error": ndf_err, "ndf_probe_sharpness": probe,
             "sg_em_iterations": lob.iterations, "asg_em_iterations": steps,
             "gram_condition": cond, "nonempty_bins": int(len(bv.bins)), "channels": len(q.channels)}
     return {"asgs": asgs, "alpha": alpha, "amplitudes": amps.reshape(tile.n_materials, nd, nd, len(alpha), 3),
-            "energy": energy, "bvndf": bv, "info": info}
+            "energy": energy, "bvndf": bv, "info": info, "tangent_order": order}
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -483,7 +512,7 @@ class ASGBRDF(HostOnlyBRDF):
     no_sg_lobes = NO_SG_LOBES
 
     def __init__(self, asgs: asg_mod.ASG, weight, amplitudes, materials, directions: int, timings=None, info=None,
-                 bvndf=None, provenance: Provenance | None = None, path=None, energy=None):
+                 bvndf=None, provenance: Provenance | None = None, path=None, energy=None, tangent_order=None):
         if not isinstance(asgs, asg_mod.ASG) or asgs.lam.ndim != 1 or not (1 <= len(asgs.lam) <= lobes_mod.MAX_LOBES):
             raise ValueError(f"asgs must be an asg.ASG batch of 1..{lobes_mod.MAX_LOBES} lobes")
         unit = np.all(asgs.amplitude == 1.0)
@@ -501,7 +530,13 @@ class ASGBRDF(HostOnlyBRDF):
             raise ValueError(f"amplitudes must have shape (M, {nd}, {nd}, {j}, 3), got {self.amplitudes.shape}")
         if self.amplitudes.size and not (self.amplitudes.min() >= 0 and np.isfinite(self.amplitudes.max())):
             raise ValueError("amplitudes must be finite and >= 0")  # (a NaN fails min() >= 0)
-        self.materials = as_material_list(materials)
+        # Anisotropic small-scale BRDFs too: each lobe's facets' tangent order says how to turn their NDF's ASG
+        # before it is convolved with the lobe (`asg.convolve_asg`).
+        self.materials = as_material_list(materials, anisotropic=True)
+        self.tangent_order = np.zeros((j, 2)) if tangent_order is None else np.asarray(tangent_order, np.float64)
+        if (self.tangent_order.shape != (j, 2) or not np.isfinite(self.tangent_order).all()
+                or np.hypot(*self.tangent_order.T).max() > 1 + 1e-6):
+            raise ValueError(f"tangent_order must be ({j}, 2), finite, each row of length <= 1")
         if len(self.materials) != len(self.amplitudes):
             raise ValueError(f"{len(self.amplitudes)} amplitude table(s) but {len(self.materials)} material(s)")
         self.method = "asg"
@@ -530,11 +565,12 @@ class ASGBRDF(HostOnlyBRDF):
         self._diffuse = None  # made on first use (`diffuse`)
 
     def shade_lobes(self) -> tuple[int, np.ndarray]:
-        """The SG renderer's lobe rows (`shading.pack_materials`): ASG_LOBES and (J, 9) float32
-        [z (3), 0, x (3), λ, μ] in the tile frame (y = z × x: an ASG is even in x and y)."""
+        """The SG renderer's lobe rows (`shading.pack_materials`): ASG_LOBES and (J, EFF_LOBE_WIDTH) float32
+        [z (3), 0, x (3), λ, μ, tangent order (2)] in the tile frame (y = z × x: an ASG is even in x and y)."""
         g = self.asgs
-        rows = np.zeros((len(self.weight), 9), np.float32)
+        rows = np.zeros((len(self.weight), EFF_LOBE_WIDTH), np.float32)
         rows[:, 0:3], rows[:, 4:7], rows[:, 7], rows[:, 8] = g.z, g.x, g.lam, g.mu
+        rows[:, 9:11] = self.tangent_order
         return ASG_LOBES, rows
 
     def sampling_lobes(self) -> tuple[np.ndarray, np.ndarray]:
@@ -559,7 +595,8 @@ class ASGBRDF(HostOnlyBRDF):
         provenance and `path` carry over, as EffectiveBRDF.with_materials."""
         t0 = time.perf_counter()
         out = ASGBRDF(self.asgs, self.weight, self.amplitudes, materials, self.directions, info=self.info,
-                      bvndf=self.bvndf, provenance=self.provenance, path=self.path, energy=self._energy)
+                      bvndf=self.bvndf, provenance=self.provenance, path=self.path, energy=self._energy,
+                      tangent_order=self.tangent_order)
         out._energy_levels = self._energy_levels
         out.timings = {"tables": time.perf_counter() - t0}
         return out
@@ -591,6 +628,9 @@ class ASGBRDF(HostOnlyBRDF):
         for m, mat in enumerate(self.materials):
             kd = diffuse_albedo(mat) / np.pi
             out += np.einsum("njc,j->nc", mu[m], self.integrals) * kd
+            if mat.anisotropic:
+                out += self._anisotropic_specular(mat, mu[m], wi, wo)
+                continue
             for eta_s, scale, h in sg.specular_lobes(mat, wi, wo):
                 if eta_s is None or not scale.any():
                     continue
@@ -602,12 +642,25 @@ class ASGBRDF(HostOnlyBRDF):
         out[(wi[:, 2] <= 0) | (wo[:, 2] <= 0)] = 0.0
         return np.maximum(out, 0.0)
 
+    def _anisotropic_specular(self, mat, mu, wi, wo) -> np.ndarray:
+        """(N, 3) the specular term of an anisotropic small-scale BRDF: M(cos θd)·Σ_j μ_j (G_j ⊛ D_s)(h), D_s its NDF's
+        ASG turned by each lobe's tangent order (`asg.convolve_asg`), M its f_s at the mirror direction over D_s
+        (`shading.specular_scale`, which the renderers use)."""
+        from .shading import _analytic_rows, specular_scale  # (shading imports this module's neighbours)
+
+        h = wi + wo
+        h /= np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-300)
+        scale, _ = specular_scale(_analytic_rows(mat, anisotropic=True)[0], np.einsum("ij,ij->i", h, wi))
+        lam_s, mu_s = mat.ndf_bandwidths
+        conv = asg_mod.convolve_asg(self.asgs, float(lam_s), float(mu_s), self.tangent_order)
+        return scale * np.einsum("njc,nj->nc", mu, asg_mod.evaluate(conv, h[:, None, :]))
+
     # ------------------------------------------------------------------ files
     def save(self, path) -> None:
         """Write atomically as a versioned npz (format "asg_brdf"; `wb.load` reads it back)."""
         g = self.asgs
         arrays = {"asg_x": g.x, "asg_y": g.y, "asg_z": g.z, "asg_lam": g.lam, "asg_mu": g.mu, "weight": self.weight,
-                  "amplitudes": self.amplitudes}
+                  "amplitudes": self.amplitudes, "tangent_order": self.tangent_order}
         if self.bvndf is not None:
             arrays.update({f"bvndf_{k}": v for k, v in self.bvndf.arrays().items()})
         if self.provenance is not None:
@@ -634,7 +687,7 @@ class ASGBRDF(HostOnlyBRDF):
                                                                   if k.startswith("bvndf_")})
             prov = Provenance.from_file(head["provenance"], arrays) if head.get("provenance") is not None else None
             return cls(g, arrays["weight"], arrays["amplitudes"], mats, head["directions"], head.get("timings"),
-                       head.get("info"), bv, prov, path)
+                       head.get("info"), bv, prov, path, tangent_order=arrays.get("tangent_order"))
         except KeyError as exc:
             raise ValueError(f"{path} is missing {exc} (corrupt material file)") from None
         except (TypeError, ValueError) as exc:

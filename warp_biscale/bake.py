@@ -117,7 +117,9 @@ def _fit_lobes(be, fac, facet_weight, bin_normal, bin_weight, count, tolerance, 
 def probe_sharpness(mats) -> float:
     """The sharpest small-scale lobe's SG sharpness (64 with no specular lobe): what lobes="auto" fits the NDF
     for (`lobes.ndf_error`)."""
-    spec = [lobe[0] for m in mats for lobe in sg.specular_lobes(m, [[0, 0, 1.0]], [[0, 0, 1.0]])]
+    # (an anisotropic BRDF's NDF by its narrower axis's sharpness, 2·max(λ, μ))
+    spec = [2.0 * float(max(m.ndf_bandwidths)) for m in mats if m.anisotropic]
+    spec += [lobe[0] for m in mats if not m.anisotropic for lobe in sg.specular_lobes(m, [[0, 0, 1.0]], [[0, 0, 1.0]])]
     return max([s for s in spec if s is not None], default=64.0)
 
 
@@ -203,15 +205,16 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
     EM and the moment sums are queued behind the rays too, and the device time they take shows in the
     stage that next waits for the device).
     """
-    # Refused rather than fitted as an isotropic average: one isotropic SG per specular lobe cannot hold an
-    # anisotropic one, so the result would be wrong by the anisotropy itself (issue 20: the ASG bake).
-    refuse_anisotropic(materials, "the SG bake fits each specular lobe as one isotropic SG, the matrix method's "
-                                  "bins carry no tangent, and the ASG bake convolves with the small-scale BRDF's "
-                                  "isotropic SG, so none can hold it yet (issue 20: ASG x ASG); wb.ground_truth "
-                                  "evaluates it exactly")
+    # Anisotropic small-scale BRDFs: the ASG bake convolves their NDF's ASG, turned by each lobe's facet tangents,
+    # with its lobes. The others refuse rather than fit an isotropic average: one isotropic SG per specular lobe
+    # cannot hold an anisotropic one, so the result would be wrong by the anisotropy itself.
+    if method != "asg":
+        refuse_anisotropic(materials, f"method={method!r} cannot hold it (the SG bake fits each specular lobe as "
+                                      "one isotropic SG, the matrix method's bins carry no tangent): bake it with "
+                                      "method='asg'; wb.ground_truth evaluates it exactly")
     # A measured BRDF: the matrix method's M looks its table up; the SG and ASG bakes convolve with its SG
     # fit (`brdf.sg_lobes`), fitted here so that its time and error are the bake's (`_fit_measured`).
-    mats, _, _ = _prepare(tile, materials, measured=True)
+    mats, _, _ = _prepare(tile, materials, anisotropic=method == "asg", measured=True)
     if method == "matrix":
         return _bake_matrix(tile, mats, directions, normal_res, facets, backend, seed, bvndf, progress, matrix)
     if method in METHOD_BAKES:  # "asg": asg_bake.bake_asg (Xu 2013; its lobes fitted from the SG EM's)

@@ -531,9 +531,9 @@ def ndf_bandwidths(kind, p1, p2) -> tuple:
 
 
 _ANISOTROPIC_REFUSAL = ("it needs each facet's tangent, which only the ground truth (wb.ground_truth, "
-                        "wb.effective_brdf_exact) and the renderers (as a large-scale material) have; effective "
-                        "materials, the bakes, lit spheres and textured (svbrdf.Textured) materials do not take "
-                        "anisotropic BRDFs")
+                        "wb.effective_brdf_exact), the ASG bake (method='asg') and the renderers (as a large-scale "
+                        "material) have; SG- and matrix-baked materials, lit spheres and textured (svbrdf.Textured) "
+                        "materials do not take anisotropic BRDFs")
 
 
 def refuse_anisotropic(materials, why: str = _ANISOTROPIC_REFUSAL) -> None:
@@ -595,7 +595,11 @@ def sg_lobes(brdf) -> tuple:
 
 def diffuse_albedo(brdf) -> np.ndarray:
     """(3,) float64: the Lambertian albedo of `brdf`'s SG form (Lambert's albedo, any other model's kd; a
-    measured one's fitted kd)."""
+    measured one's fitted kd). Ashikhmin–Shirley's diffuse term is not Lambertian: its albedo at incidence θi is
+    rd(1 − rs)g(cos θi), g(c) = 1 − (1 − c/2)⁵, whose cosine-weighted mean over θi is rd(1 − rs)·23/28 — the
+    Lambertian albedo of the same energy, which an effective material's facets average it to."""
+    if isinstance(brdf, AshikhminShirley):
+        return np.asarray(brdf.rd, np.float64) * (1 - np.asarray(brdf.rs, np.float64)) * (23.0 / 28.0)
     return sum(np.asarray(b.albedo if isinstance(b, Lambert) else b.kd, np.float64) for b in sg_lobes(brdf))
 
 

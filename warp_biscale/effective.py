@@ -41,6 +41,7 @@ METHODS = ("sg", "sg-exact")
 # The lobe types of `shade_lobes` (the shade stage's eff_info[:, 7]): SG lobes [axis, η] (Iwasaki), or ASG
 # lobes [z, 0, x, λ, μ] (Xu 2013, `asg_bake.ASGBRDF`).
 SG_LOBES, ASG_LOBES = 0, 1
+EFF_LOBE_WIDTH = 11  # a lobe row of the shade kernels (`shading.pack_materials`' eff_lobes)
 # Writers of a baked material for other renderers, by name, each (material, path) → what it wrote. The
 # interface modules that write them fill this in when warp_biscale loads (mitsuba_export), so that this
 # data-model module imports none of them.
@@ -247,8 +248,8 @@ class EffectiveBRDF:
 
     def shade_lobes(self) -> tuple[int, np.ndarray]:
         """What the SG renderer's shade stage reads of the lobes (`shading.pack_materials`): the lobe type
-        (SG_LOBES) and rows (J, 9) float32 [axis (3), η, 0 …] in the tile frame."""
-        rows = np.zeros((len(self.lobes), 9), np.float32)
+        (SG_LOBES) and rows (J, EFF_LOBE_WIDTH) float32 [axis (3), η, 0 …] in the tile frame."""
+        rows = np.zeros((len(self.lobes), EFF_LOBE_WIDTH), np.float32)
         rows[:, 0:3], rows[:, 3] = self.lobes.axes, self.lobes.sharpness
         return SG_LOBES, rows
 

@@ -59,9 +59,11 @@ bilinear, repeat: `svbrdf.sample`) and use only those values afterwards;
 ``analytic`` (A, 9) float32 [brdf kind, kd rgb, ks rgb, p1, p2] (brdf.pack_materials' row with the kind first);
 ``eff_info`` (E, 8) int32 [K, J, n_sub, lobe_offset, sub_offset, table_offset, diffuse_offset, lobe type
 (`effective.SG_LOBES` 0, `effective.ASG_LOBES` 1)];
-``eff_lobes`` (ΣJ, 9) float32 in the tile frame (`EffectiveBRDF.shade_lobes`): an SG lobe [axis, η, 0 …], an
-ASG lobe [z, 0, x, λ, μ] (y = z × x); ``eff_sub`` (Σn_sub, 9) like ``analytic``, n_sub rows per effective
-material: one per SG lobe of each small-scale material, each row with its material's tables below;
+``eff_lobes`` (ΣJ, EFF_LOBE_WIDTH = 11) float32 in the tile frame (`EffectiveBRDF.shade_lobes`): an SG lobe
+[axis, η, 0 …], an ASG lobe [z, 0, x, λ, μ, o_c, o_s] (y = z × x; o its facets' tangent order,
+`asg_bake.tangent_order`, read for anisotropic small-scale BRDFs); ``eff_sub`` (Σn_sub, 9) like ``analytic``,
+n_sub rows per effective material: one per SG lobe of each small-scale material, each row with its material's
+tables below;
 ``eff_tables`` float32, per effective material and sub-row m the (K², K², J, 3) table of
 μ (index table_offset + (((m·K² + i)·K² + o)·J + j)·3 + c), the bake's own array where every small-scale
 material has one row (a view, no copy: a material edit keeps it, and the backends then keep its device copy),
@@ -83,7 +85,7 @@ from . import brdf as brdf_mod
 from . import directions as dirs
 from . import asg as asg_mod
 from . import litsphere, sg, svbrdf
-from .effective import ASG_LOBES, DIFFUSE_LEVEL_ETAS, EffectiveBRDF, diffuse_level
+from .effective import ASG_LOBES, DIFFUSE_LEVEL_ETAS, EFF_LOBE_WIDTH, EffectiveBRDF, diffuse_level
 from .model import Frame
 from .lighting import prefiltered_lookup
 from .scene import light_sg, vertex_tangents
@@ -178,6 +180,16 @@ def _analytic_rows(m, anisotropic: bool = False) -> np.ndarray:
     return np.concatenate([kinds[:, None], params], 1).astype(np.float32)
 
 
+def _sub_rows(m) -> np.ndarray:
+    """An effective material's small-scale BRDF as the shade kernels' rows (`_analytic_rows`), its diffuse slot
+    holding the Lambertian albedo its facets average to (`brdf.diffuse_albedo`: Ashikhmin–Shirley's is not kd).
+    Anisotropic ones only reach here from a bake that convolves their NDF per lobe (the ASG bake's)."""
+    rows = _analytic_rows(m, anisotropic=True)
+    if isinstance(m, brdf_mod.AshikhminShirley):
+        rows[0, 1:4] = brdf_mod.diffuse_albedo(m)
+    return rows
+
+
 def _specular_rows(m) -> int:
     """How many of `_analytic_rows(m)` the specular loop reads: all of them, or 0 where none has a specular
     term (Lambert, ks = 0)."""
@@ -240,7 +252,7 @@ def pack_materials(materials) -> dict:
             j = len(rows)
             # One sub-row per SG lobe of each small-scale material (two for a measured BRDF's two-lobe fit), each
             # with its material's tables: the amplitudes do not depend on the BRDF, so its lobes share them.
-            sub_rows = [_analytic_rows(s) for s in m.materials]
+            sub_rows = [_sub_rows(s) for s in m.materials]
             owner = np.repeat(np.arange(len(sub_rows)), [len(r) for r in sub_rows])
             subs = np.concatenate(sub_rows)
             info.append([1, len(eff_info), int(any(_specular_rows(s) for s in m.materials)), -1])
@@ -268,7 +280,7 @@ def pack_materials(materials) -> dict:
         "mat_info": stack(info, 4, np.int32),
         "analytic": stack(analytic, 9, np.float32),
         "eff_info": stack(eff_info, 8, np.int32),
-        "eff_lobes": np.concatenate(eff_lobes) if eff_lobes else np.zeros((0, 9), np.float32),
+        "eff_lobes": np.concatenate(eff_lobes) if eff_lobes else np.zeros((0, EFF_LOBE_WIDTH), np.float32),
         "eff_sub": stack(eff_sub, 9, np.float32),
         "eff_tables": (eff_tables[0] if len(eff_tables) == 1 else
                        np.concatenate(eff_tables) if eff_tables else np.zeros(0, np.float32)),
@@ -335,13 +347,22 @@ def _table_interp(table_flat, base, k, j_count, j, wi_local, wo_local):
     return out
 
 
-def _asg_environment_lobe(g, eta_s, scale, wo, c_oj, t, b, n, wo_local, tables, base, k, j_count, j):
+def _small_scale_convolved(g, sub, eta_s, order):
+    """G_j ⊛ D_s: an effective material's ASG lobes g (world frame) convolved with its small-scale BRDF's NDF, an
+    anisotropic one's ASG turned by the lobe's tangent order (`asg.convolve_asg`), else its SG (Xu Eq. 18)."""
+    kind = int(sub[0])
+    if kind in brdf_mod.ANISOTROPIC_KINDS:
+        lam_s, mu_s = brdf_mod.ndf_bandwidths(kind, sub[7], sub[8])
+        return asg_mod.convolve_asg(g, lam_s, mu_s, order)
+    return asg_mod.convolve_sg(g, eta_s)
+
+
+def _asg_environment_lobe(c, scale, wo, c_oj, t, b, n, wo_local, tables, base, k, j_count, j):
     """An ASG lobe of an effective material (Xu 2013) against the environment, as the SG lobes are: the lobe
-    G_j (world frame, unit amplitude) convolved with the small-scale SG of sharpness η_s (Xu Eq. 18),
-    warped to the light directions (Eq. 23–26), then replaced by the SG of the same axis, of Xu's effective
-    bandwidth (η = 2√(λ_i μ_i), §5.3) and of the same integral — so the prefiltered maps, the cosine and the
-    SSDF take it as an SG lobe. → (axis, η, amplitude (m, 3) that multiplies the SG's ∫G·cos·visibility·L̄)."""
-    c = asg_mod.convolve_sg(g, eta_s)
+    G_j convolved with the small-scale NDF (`c`, world frame: `_small_scale_convolved`), warped to the light
+    directions (Eq. 23–26), then replaced by the SG of the same axis, of Xu's effective bandwidth
+    (η = 2√(λ_i μ_i), §5.3) and of the same integral — so the prefiltered maps, the cosine and the SSDF take it
+    as an SG lobe. → (axis, η, amplitude (m, 3) that multiplies the SG's ∫G·cos·visibility·L̄)."""
     w = asg_mod.warp(c, wo)
     lam, mu = np.maximum(w.lam, 1e-6), np.maximum(w.mu, 1e-6)
     eta = np.minimum(2.0 * np.sqrt(lam) * np.sqrt(mu), sg.SHARPNESS_MAX)  # (λμ itself can overflow)
@@ -455,16 +476,21 @@ def _anisotropic_lights(row, n, t, wo, table, l_axis, l_eta, l_amp, l_vis):
     return out
 
 
-def _asg_lights(g, sub, eta_s, wo, t, b, n, wo_local, tables, base, k, j_count, j, table, l_axis, l_eta, l_amp,
+def _asg_lights(g, conv, sub, eta_s, wo, t, b, n, wo_local, tables, base, k, j_count, j, table, l_axis, l_eta, l_amp,
                 l_vis):
     """(m, 3) an ASG lobe's specular radiance from the lights: the material's own f̄ at each light's
-    direction (`ASGBRDF.eval`'s specular term: M(h·l)·μ_j(l, ωo)/cos θi·(G_j ⊛ SG_s)(h), `asg.convolve_sg_at`)
-    times the light's irradiance with its cosine and visible share, as the diffuse term takes it."""
+    direction (`ASGBRDF.eval`'s specular term: M(h·l)·μ_j(l, ωo)/cos θi·(G_j ⊛ D_s)(h); `conv` = G_j ⊛ D_s as it
+    is for an anisotropic D_s, else `asg.convolve_sg_at`'s shape) times the light's irradiance with its cosine
+    and visible share, as the diffuse term takes it."""
     out = np.zeros((len(wo), 3))
+    anisotropic = int(sub[0]) in brdf_mod.ANISOTROPIC_KINDS
     for li in range(l_axis.shape[1]):
         light = l_axis[:, li]
         h = _normalize(light + wo)
-        shape = asg_mod.convolve_sg_local(g.lam, g.mu, eta_s, _dot(h, g.x), _dot(h, g.y), _dot(h, g.z))
+        if anisotropic:
+            shape = asg_mod.evaluate(conv, h)
+        else:
+            shape = asg_mod.convolve_sg_local(g.lam, g.mu, eta_s, _dot(h, g.x), _dot(h, g.y), _dot(h, g.z))
         scale, _ = specular_scale(sub, _dot(h, light))
         wl = np.stack([_dot(light, t), _dot(light, b), _dot(light, n)], 1)
         mu_tab = _table_interp(tables, base, k, j_count, j, wl, wo_local)
@@ -676,10 +702,11 @@ def shade_reference(frame: Frame) -> np.ndarray:
                     if int(ei[7]) == ASG_LOBES:
                         x_w = lobe[4] * ts_ + lobe[5] * bs + lobe[6] * ns
                         g = asg_mod.ASG(x_w, np.cross(xi, x_w), xi, lobe[7], lobe[8])
-                        lobes.append(_asg_environment_lobe(g, eta_s, scale, wo_s, c_oj, ts_, bs, ns, wol_s,
+                        conv = _small_scale_convolved(g, sub, eta_s, lobe[9:11])
+                        lobes.append(_asg_environment_lobe(conv, scale, wo_s, c_oj, ts_, bs, ns, wol_s,
                                                            static.eff_tables, base, k, j_count, j))
-                        rad[sel] += _asg_lights(g, sub, eta_s, wo_s, ts_, bs, ns, wol_s, static.eff_tables, base, k,
-                                                j_count, j, table, light_axis[sel], light_eta[sel], light_amp[sel],
+                        rad[sel] += _asg_lights(g, conv, sub, eta_s, wo_s, ts_, bs, ns, wol_s, static.eff_tables, base,
+                                                k, j_count, j, table, light_axis[sel], light_eta[sel], light_amp[sel],
                                                 light_vis[sel])
                         continue
                     eta_c = 1.0 / (1.0 / lobe[3] + 1.0 / eta_s)

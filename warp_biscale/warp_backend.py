@@ -19,6 +19,7 @@ import numpy as np
 import warp as wp
 
 from .asg import ASG
+from .effective import EFF_LOBE_WIDTH
 from .device import (KINDS, DeviceBackend, PROBE_VALUES, SCRATCH_BYTES, DeviceStart, UploadCache,
                      check_kernel_lobes, chunking, one_line, padded_lobe_values,
                      probe_mismatch, start_scale)
@@ -764,7 +765,7 @@ class WarpBackend(DeviceBackend):
             "ssdf_coeffs": arr("ssdf_coeffs", wp.float32, host=coeffs),
             "table": arr("table", wp.float32), "mat_info": arr("mat_info", wp.int32, 4),
             "analytic": arr("analytic", wp.float32, 9), "eff_info": arr("eff_info", wp.int32, 8),
-            "eff_lobes": arr("eff_lobes", wp.float32, 9), "eff_sub": arr("eff_sub", wp.float32, 9),
+            "eff_lobes": arr("eff_lobes", wp.float32, EFF_LOBE_WIDTH), "eff_sub": arr("eff_sub", wp.float32, 9),
             "eff_tables": arr("eff_tables", wp.float32), "eff_diffuse": arr("eff_diffuse", wp.float32),
             "uvs": arr("uvs", wp.vec2), "tex_info": arr("tex_info", wp.int32, 4),
             "tex_data": arr("tex_data", wp.vec3, host=np.asarray(static.tex_data, np.float32), shape=(-1, 3)),
