@@ -85,9 +85,21 @@ def _anisotropic(scene):
                  ssdf_terms=8)
 
 
-@pytest.mark.parametrize("which", ["lone", "occluded", "occluded-24-lobes", "occluded-asg", "occluded-anisotropic"])
+def _anisotropic_small_scale(asg_material):
+    """The ASG-baked grooves with anisotropic small-scale BRDFs (a material edit: the lobes' tangent orders are
+    the bake's): Ashikhmin–Shirley on the first material id, anisotropic Ward on any other."""
+    n = len(asg_material.materials)
+    return asg_material.with_materials([wb.AshikhminShirley(rs=0.5, nu=40, nv=300, rd=0.3)]
+                                       + [wb.AnisotropicWard(0.7, 0.1, 0.3, kd=0.2)] * (n - 1))
+
+
+@pytest.mark.parametrize("which", ["lone", "occluded", "occluded-24-lobes", "occluded-asg", "occluded-anisotropic",
+                                   "occluded-asg-anisotropic"])
 def test_shade_kernel_matches_reference(backend, which, effective_material, many_lobe_material, asg_material):
-    if which == "occluded-anisotropic":
+    if which == "occluded-asg-anisotropic":
+        assert np.hypot(*asg_material.tangent_order.T).max() > 0.9  # the grooves' tangents lie on one line
+        scene = _scenes(_anisotropic_small_scale(asg_material))["occluded"]
+    elif which == "occluded-anisotropic":
         scene = _anisotropic(_scenes(effective_material)["occluded"])
     elif which == "occluded-24-lobes":
         assert len(many_lobe_material.lobes) > 16
