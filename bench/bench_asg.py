@@ -5,7 +5,8 @@ Per tile family and BRDF: a ground truth (`--gt-facets`, seed 99); the SG bake a
 same facets and seed), each timed whole (median over `--runs`, a new facet seed each run so that the geometry
 is made again); their PSNR against the truth (`wb.compare`) for every seed baked, and its mean; for the ASG
 bake also with Xu's Eq. 18 shape (eval method "asg-eq18"), the fitted bandwidths and the stage times. Records
-go to --out/results.json, the table to table.md.
+go to --out/results.json, the table to table.md. `--anisotropic`: anisotropic small-scale BRDFs, which only the
+ASG bake takes (ASG × ASG), with the same lobes' PSNR without their tangent orders beside it.
 
     OPENBLAS_NUM_THREADS=1 python -m bench.bench_asg --quick --out bench/results/asg-cpu-2core     # a CPU
 """
@@ -29,6 +30,9 @@ from bench import common  # noqa: E402
 from bench.bench_bake import BRDFS, families  # noqa: E402  (the tile families and BRDFs every bake bench uses)
 
 warnings.simplefilter("ignore", wb.EnergyWarning)
+
+ANISOTROPIC_BRDFS = {"anisoward0.08x0.4": wb.AnisotropicWard(1.0, 0.08, 0.4),
+                     "ashikhminshirley100x1000": wb.AshikhminShirley(1.0, 100, 1000)}
 
 
 def timed_bake(be, runs, **kw) -> common.Timed:
@@ -60,7 +64,8 @@ def compare_methods(be, tile, tname, mats, bname, gt, k, j, facets, gt_facets, r
     """The SG and the ASG bake of one tile at J lobes and `facets` facets against the truth `gt`: a record."""
     rec = {"part": "families", "tile": tname, "brdf": bname, "backend": be.name, "device": be.device,
            "K": k, "J": j, "facets": facets, "gt_facets": gt_facets, "runs": runs}
-    for method in ("sg", "asg"):
+    anisotropic = any(m.anisotropic for m in mats)  # (the SG bake refuses those: the ASG bake alone)
+    for method in ("asg",) if anisotropic else ("sg", "asg"):
         t = timed_bake(be, runs, tile=tile, materials=mats, method=method, lobes=j, directions=k, facets=facets)
         baked = [t.first, *t.results]  # facet seeds 1 … runs + 1: the PSNR per seed
         mat = t.first
@@ -74,11 +79,18 @@ def compare_methods(be, tile, tname, mats, bname, gt, k, j, facets, gt_facets, r
             rec["asg"]["lam"] = mat.asgs.lam.tolist()
             rec["asg"]["mu"] = mat.asgs.mu.tolist()
             rec["asg"]["em_iterations"] = mat.info["asg_em_iterations"]
-    rec["diff_seeds"] = [a - b for a, b in zip(rec["asg"]["psnr_seeds"], rec["sg"]["psnr_seeds"])]
+            if anisotropic:  # the same lobes with no tangent order: what turning the small-scale NDF is worth
+                rec["asg"]["psnr_unordered"] = float(np.mean([wb.compare(wb.ASGBRDF(
+                    m.asgs, m.weight, m.amplitudes, m.materials, m.directions), gt)["psnr"] for m in baked]))
+    rec["sg"] = rec.get("sg")
+    rec["diff_seeds"] = ([a - b for a, b in zip(rec["asg"]["psnr_seeds"], rec["sg"]["psnr_seeds"])]
+                         if rec["sg"] else None)
     s, a = rec["sg"], rec["asg"]
-    out.log(f"  J = {j}, {facets} facets: SG {s['psnr']:6.2f} dB ({s['time_s'] * 1e3:7.1f} ms) | "
+    sg_part = f"SG {s['psnr']:6.2f} dB ({s['time_s'] * 1e3:7.1f} ms)" if s else "SG refuses it"
+    unordered = f"; no tangent order {a['psnr_unordered']:6.2f} dB" if "psnr_unordered" in a else ""
+    out.log(f"  J = {j}, {facets} facets: {sg_part} | "
             f"ASG {a['psnr']:6.2f} dB "
-            f"(Eq. 18 shape {a['psnr_eq18']:6.2f}; {a['time_s'] * 1e3:7.1f} ms: "
+            f"(Eq. 18 shape {a['psnr_eq18']:6.2f}{unordered}; {a['time_s'] * 1e3:7.1f} ms: "
             f"{', '.join(f'{n} {v * 1e3:.0f}' for n, v in a['stages_s'].items())} ms) "
             f"anisotropy λ/μ {np.round(np.maximum(a['lam'], a['mu']) / np.minimum(a['lam'], a['mu']), 1)}")
     return rec
@@ -104,9 +116,12 @@ def table(records, meta):
             s, a = r["sg"], r["asg"]
             ratio = np.maximum(a["lam"], a["mu"]) / np.minimum(a["lam"], a["mu"])
             d = r["diff_seeds"]
-            rows.append([r["tile"], r["brdf"], r["J"], r["facets"], f"{s['psnr']:.2f}", f"{a['psnr']:.2f}",
-                         f"{a['psnr'] - s['psnr']:+.2f} ({min(d):+.2f} … {max(d):+.2f})",
-                         f"{a['psnr_eq18']:.2f}", f"{s['time_s'] * 1e3:.1f}", f"{a['time_s'] * 1e3:.1f}",
+            # an anisotropic small-scale BRDF: no SG bake; the "Eq. 18" column holds the lobes with no tangent order
+            rows.append([r["tile"], r["brdf"], r["J"], r["facets"], f"{s['psnr']:.2f}" if s else "refused",
+                         f"{a['psnr']:.2f}",
+                         f"{a['psnr'] - s['psnr']:+.2f} ({min(d):+.2f} … {max(d):+.2f})" if s else "—",
+                         f"{a['psnr_eq18']:.2f}" if s else f"no order: {a['psnr_unordered']:.2f}",
+                         f"{s['time_s'] * 1e3:.1f}" if s else "—", f"{a['time_s'] * 1e3:.1f}",
                          f"{a['lobes']}", f"{np.median(ratio):.1f} / {ratio.max():.0f}"])
         lines += common.markdown_table(["tile", "BRDF", "J", "facets", "SG dB", "ASG dB",
                                         "ASG − SG (per seed: min … max)", "ASG (Eq. 18) dB",
@@ -126,10 +141,11 @@ def plot_pareto(records, path):
     for ax, brdf in zip(axes[0], brdfs):
         for r in (r for r in fam if r["brdf"] == brdf):
             c = colours[r["tile"]]
-            xs = [r["sg"]["time_s"] * 1e3, r["asg"]["time_s"] * 1e3]
-            ys = [r["sg"]["psnr"], r["asg"]["psnr"]]
-            ax.plot(xs, ys, "-", color=c, alpha=0.35, lw=0.8)
-            ax.plot(xs[0], ys[0], "o", mfc="none", color=c)
+            xs = [r["sg"]["time_s"] * 1e3 if r["sg"] else None, r["asg"]["time_s"] * 1e3]
+            ys = [r["sg"]["psnr"] if r["sg"] else None, r["asg"]["psnr"]]
+            if r["sg"]:
+                ax.plot(xs, ys, "-", color=c, alpha=0.35, lw=0.8)
+                ax.plot(xs[0], ys[0], "o", mfc="none", color=c)
             ax.plot(xs[1], ys[1], "o", color=c)
             ax.annotate(f"{r['J']}", (xs[1], ys[1]), fontsize=6, xytext=(3, 2), textcoords="offset points")
         for t in tiles:
@@ -154,6 +170,9 @@ def main(argv=None):
     ap.add_argument("--gt-facets", type=int, default=None, help="ground-truth facets (default 2^18; 2^16 with --quick)")
     ap.add_argument("--tiles", nargs="*", help="families (default all)")
     ap.add_argument("--runs", type=int, default=None, help="timed runs (default 5; 2 with --quick)")
+    ap.add_argument("--anisotropic", action="store_true",
+                    help="anisotropic small-scale BRDFs (ASG x ASG; the SG bake refuses them): anisotropic Ward "
+                         "(0.08, 0.4) and Ashikhmin-Shirley (100, 1000) instead of Blinn-Phong and Cook-Torrance")
     args = ap.parse_args(argv)
     k = args.directions or (8 if args.quick else 12)
     facets = args.facets or [2**14 if args.quick else 2**16]
@@ -166,7 +185,8 @@ def main(argv=None):
     fams = families()
     if args.tiles:
         fams = {n: fams[n] for n in args.tiles}
-    part_families(args.backend, fams, BRDFS, k, args.lobes, facets, gt_facets, runs, out, lambda: out.save(table))
+    brdfs = ANISOTROPIC_BRDFS if args.anisotropic else BRDFS
+    part_families(args.backend, fams, brdfs, k, args.lobes, facets, gt_facets, runs, out, lambda: out.save(table))
     out.finish(table)
     plot_pareto(out.records, out.path("pareto.png"))
     out.log(f"wrote {args.out}/results.json, table.md, pareto.png")

@@ -29,7 +29,9 @@ What it does, stage by stage (the geometry stages are the SG bake's own, `bake._
    the small-scale BRDF's SG (`sg.specular_lobe`; a measured BRDF's fit of two lobes is two such terms,
    `sg.specular_lobes`) and Xu's Eq. 18 (`asg.convolve_sg`): its bandwidths and
    amplitude, with a shape that is exact for a delta NDF lobe too (`convolve_sg_at`; method "asg-eq18" is
-   Eq. 18's own shape).
+   Eq. 18's own shape). An anisotropic small-scale BRDF (anisotropic Ward, Ashikhmin–Shirley) is instead its
+   NDF's ASG (`brdf.ndf_bandwidths`) turned by each lobe's facets' tangents (`tangent_order`, recorded by the
+   bake) and convolved with the lobe as Gaussians in its tangent plane (`asg.convolve_asg`: ASG × ASG).
 
 The ASG fit (EM) runs on the device (`fit_asg_on`, stage asgfit; `fit_asg` is its float64 host reference); the
 lobes' values, the moments and the solve run in the SG bake's kernels. The SG
@@ -501,7 +503,9 @@ class ASGBRDF(HostOnlyBRDF):
     SG form), `table()`, `wb.compare`, `save` / `wb.load` (format "asg_brdf", versioned), `with_materials`
     (new small-scale BRDFs, nothing re-baked), `provenance`, `path`, `timings`, `info`. Attributes: `asgs`
     (asg.ASG batch (J,), unit amplitude), `weight` (J,) α_j, `amplitudes` (M, K², K², J, 3) float32 μ tables
-    (of the ASGs), `integrals` (J,) ∫G_j, `diffuse` the f̄d table. It has no SG lobes: `lobes` and the
+    (of the ASGs), `integrals` (J,) ∫G_j, `diffuse` the f̄d table, `tangent_order` (J, 2) each lobe's facets'
+    mean (cos 2φ, sin 2φ) of their tangents' angles in its frame (`tangent_order`; what an anisotropic small-scale
+    BRDF's NDF is turned by). It has no SG lobes: `lobes` and the
     Mitsuba export raise `NO_SG_LOBES`; the SG renderer reads its ASG lobes (`shade_lobes`), the Monte Carlo
     reference samples their isotropic stand-ins (`sampling_lobes`), the lit-sphere renderer evaluates it on
     the host."""
