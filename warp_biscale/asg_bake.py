@@ -299,10 +299,9 @@ def tangent_order(asgs: asg_mod.ASG, alpha, normal, tangent, weight) -> np.ndarr
     frame (their direction across the lobe's tangent plane; doubled, as a tangent and its opposite are one line),
     each facet weighed by its weight and its responsibility α_jG_j(n)/Σ_k α_kG_k(n). What an anisotropic
     small-scale BRDF's NDF is convolved with (`asg.convolve_asg`): length 1 where all of a lobe's tangents lie on
-    one line (grooves, threads), 0 where they turn every way; (0, 0) for a lobe no facet reaches. Read on every
-    k-th facet (TANGENT_SAMPLE of them)."""
-    step = max(1, len(normal) // TANGENT_SAMPLE)
-    n, t, w = normal[::step], np.asarray(tangent, np.float64)[::step], np.asarray(weight, np.float64)[::step]
+    one line (grooves, threads), 0 where they turn every way; (0, 0) for a lobe no facet reaches. Read on the
+    facets given (the bake gives every k-th, TANGENT_SAMPLE of them)."""
+    n, t, w = (np.asarray(a, np.float64) for a in (normal, tangent, weight))
     resp = _values(asgs, n) * alpha
     total = resp.sum(1, keepdims=True)
     resp = np.where(total > 0, resp / np.where(total > 0, total, 1.0), 0.0) * w[:, None]
@@ -479,7 +478,8 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
         # (a NaN μ leaves its amplitude 0 in the table kernels' output but makes its pair's energy NaN)
         raise FloatingPointError("the ASG amplitude solve gave non-finite values")
     bv.a_v = np.asarray(q.a_v.host(), np.float64)
-    order = tangent_order(asgs, alpha, normal, tile.face_tangents[np.asarray(q.fac.face)], em_w)
+    every = slice(None, None, max(1, len(normal) // TANGENT_SAMPLE))  # (a mean of cosines: a sample suffices)
+    order = tangent_order(asgs, alpha, normal[every], tile.face_tangents[np.asarray(q.fac.face)[every]], em_w[every])
     timer.timings["amplitudes"] = time.perf_counter() - t0
     info = {"facets": count, "seed": seed, "normal_res": r, "route": "facets", "lobes": int(len(alpha)),
             "lobes_requested": j_req, "ndf_error": ndf_err, "ndf_probe_sharpness": probe,
