@@ -110,7 +110,10 @@ def table(records, meta):
                   "ASG: the default eval "
                   "(Eq. 18's bandwidths and amplitude, `asg.convolve_sg_at`'s shape); \"Eq. 18\": Xu's shape "
                   "literally. Times: median of whole bakes, a new facet seed each, "
-                  f"backend {r0['backend']}. pareto.png: PSNR against bake time, every row.", ""]
+                  f"backend {r0['backend']}. pareto.png: PSNR against bake time, every row."
+                  + (" Anisotropic small-scale BRDFs (ASG × ASG): the SG bake refuses them, and the Eq. 18 column "
+                     "holds the same lobes' PSNR with no tangent order instead." if any(not r["sg"] for r in fam)
+                     else ""), ""]
         rows = []
         for r in fam:
             s, a = r["sg"], r["asg"]

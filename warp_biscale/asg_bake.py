@@ -317,6 +317,21 @@ def tangent_order(asgs: asg_mod.ASG, alpha, normal, tangent, weight) -> np.ndarr
     return order / np.maximum(length, 1.0)[:, None]  # (rounding past 1)
 
 
+class TangentSample:
+    """What `tangent_order` reads, kept by a bake (and shared by the materials made from it: the geometry cache,
+    material edits) so that the order is made once, and only when an anisotropic small-scale BRDF needs it
+    (`ASGBRDF.tangent_order`: most materials never do, and it costs milliseconds on the host)."""
+
+    def __init__(self, asgs, alpha, normal, tangent, weight):
+        self.inputs = (asgs, alpha, normal, tangent, weight)
+        self._order = None
+
+    def order(self) -> np.ndarray:
+        if self._order is None:
+            self._order = tangent_order(*self.inputs)
+        return self._order
+
+
 def gram(asgs: asg_mod.ASG):
     """(J, J) A_ij = ∫G_iG_j by Xu's product (Eq. 13) and the exact integral, each pair i ≤ j once."""
     i, j = np.triu_indices(len(asgs.lam))
@@ -479,7 +494,8 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
         raise FloatingPointError("the ASG amplitude solve gave non-finite values")
     bv.a_v = np.asarray(q.a_v.host(), np.float64)
     every = slice(None, None, max(1, len(normal) // TANGENT_SAMPLE))  # (a mean of cosines: a sample suffices)
-    order = tangent_order(asgs, alpha, normal[every], tile.face_tangents[np.asarray(q.fac.face)[every]], em_w[every])
+    order = TangentSample(asgs, alpha, normal[every], tile.face_tangents[np.asarray(q.fac.face)[every]],
+                          em_w[every])
     timer.timings["amplitudes"] = time.perf_counter() - t0
     info = {"facets": count, "seed": seed, "normal_res": r, "route": "facets", "lobes": int(len(alpha)),
             "lobes_requested": j_req, "ndf_error": ndf_err, "ndf_probe_sharpness": probe,
@@ -537,10 +553,10 @@ class ASGBRDF(HostOnlyBRDF):
         # Anisotropic small-scale BRDFs too: each lobe's facets' tangent order says how to turn their NDF's ASG
         # before it is convolved with the lobe (`asg.convolve_asg`).
         self.materials = as_material_list(materials, anisotropic=True)
-        self.tangent_order = np.zeros((j, 2)) if tangent_order is None else np.asarray(tangent_order, np.float64)
-        if (self.tangent_order.shape != (j, 2) or not np.isfinite(self.tangent_order).all()
-                or np.hypot(*self.tangent_order.T).max() > 1 + 1e-6):
-            raise ValueError(f"tangent_order must be ({j}, 2), finite, each row of length <= 1")
+        # (a TangentSample: made on first use, `tangent_order`)
+        self._tangent_order = np.zeros((j, 2)) if tangent_order is None else tangent_order
+        if not isinstance(tangent_order, TangentSample):
+            self._tangent_order = self._checked_order(self._tangent_order)
         if len(self.materials) != len(self.amplitudes):
             raise ValueError(f"{len(self.amplitudes)} amplitude table(s) but {len(self.materials)} material(s)")
         self.method = "asg"
@@ -568,13 +584,28 @@ class ASGBRDF(HostOnlyBRDF):
         self._energy_levels = None
         self._diffuse = None  # made on first use (`diffuse`)
 
+    def _checked_order(self, order) -> np.ndarray:
+        order = np.asarray(order, np.float64)
+        j = len(self.weight)
+        if order.shape != (j, 2) or not np.isfinite(order).all() or np.hypot(*order.T).max() > 1 + 1e-6:
+            raise ValueError(f"tangent_order must be ({j}, 2), finite, each row of length <= 1")
+        return order
+
+    @property
+    def tangent_order(self) -> np.ndarray:
+        """(J, 2) each lobe's facets' tangent order (`tangent_order`), made from the bake's sample on first use."""
+        if isinstance(self._tangent_order, TangentSample):
+            return self._checked_order(self._tangent_order.order())
+        return self._tangent_order
+
     def shade_lobes(self) -> tuple[int, np.ndarray]:
         """The SG renderer's lobe rows (`shading.pack_materials`): ASG_LOBES and (J, EFF_LOBE_WIDTH) float32
         [z (3), 0, x (3), λ, μ, tangent order (2)] in the tile frame (y = z × x: an ASG is even in x and y)."""
         g = self.asgs
         rows = np.zeros((len(self.weight), EFF_LOBE_WIDTH), np.float32)
         rows[:, 0:3], rows[:, 4:7], rows[:, 7], rows[:, 8] = g.z, g.x, g.lam, g.mu
-        rows[:, 9:11] = self.tangent_order
+        if any(m.anisotropic for m in self.materials):  # (read for those alone: an isotropic one never makes it)
+            rows[:, 9:11] = self.tangent_order
         return ASG_LOBES, rows
 
     def sampling_lobes(self) -> tuple[np.ndarray, np.ndarray]:
@@ -600,7 +631,7 @@ class ASGBRDF(HostOnlyBRDF):
         t0 = time.perf_counter()
         out = ASGBRDF(self.asgs, self.weight, self.amplitudes, materials, self.directions, info=self.info,
                       bvndf=self.bvndf, provenance=self.provenance, path=self.path, energy=self._energy,
-                      tangent_order=self.tangent_order)
+                      tangent_order=self._tangent_order)
         out._energy_levels = self._energy_levels
         out.timings = {"tables": time.perf_counter() - t0}
         return out
