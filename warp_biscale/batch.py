@@ -274,7 +274,7 @@ def execute(task: dict, hook=None, pin: int = 0) -> dict:
     record = {
         "status": "done", "hash": task["hash"], "label": task["label"], "outputs": outputs, "timings": timings,
         "metrics": metrics, "caches": caches,
-        "bake_info": {"lobes_live": len(mat.lobes), "backend": mat.info.get("backend"),
+        "bake_info": {"lobes_live": len(mat.sampling_lobes()[1]), "backend": mat.info.get("backend"),
                       "ndf_error": mat.info.get("ndf_error")},
         "memory": {**_memory(), "wbm_bytes": len(files["material.wbm"]),
                    "table_bytes": int(mat.amplitudes.nbytes)},

@@ -5,7 +5,7 @@ compute; their cross product (or the combinations it lists) becomes one `Task` p
     output = "results"           # optional: the results folder (relative to this file; -o overrides it)
 
     [bake]                       # wb.bake's settings; a list (or a range table) is a sweep axis
-    method = "sg"                # "sg" | "sg-exact"
+    method = "sg"                # "sg" | "sg-exact" | "asg" (Xu 2013; it also takes anisotropic BRDFs)
     lobes = 4                    # J, or "auto"
     facets = 4096
     directions = 6               # K
@@ -86,6 +86,10 @@ try:  # Python >= 3.11
     import tomllib
 except ModuleNotFoundError:  # pragma: no cover - Python 3.10
     import tomli as tomllib
+
+# What a job's [bake] method may be: the bakes whose materials every task step takes (the ground truth's compare,
+# the SG renderer); the matrix method's cannot be rendered by it.
+BAKE_METHODS = (*METHODS, "asg")
 
 __all__ = ["Jobs", "Task", "load_jobs", "loads_jobs", "jobs_from_dict", "FAMILIES", "MAX_TASKS", "FORMAT"]
 
@@ -406,7 +410,7 @@ def _check_settings(ctx, table, s, bake=False):
         need("lobes", lambda v: not isinstance(v, (bool, float)) and _ok(_check_lobes, v), "an integer in [1, 128] "
              'or "auto"')
         need("normal_res", lambda v: integer(v) and 1 <= v <= 1024, "an integer in [1, 1024]")
-        need("method", lambda v: v in METHODS, f"one of {', '.join(map(repr, METHODS))}")
+        need("method", lambda v: v in BAKE_METHODS, f"one of {', '.join(map(repr, BAKE_METHODS))}")
         need("route", lambda v: v in ROUTES, f"one of {', '.join(map(repr, ROUTES))}")
         need("backend", lambda v: isinstance(v, str) and re.fullmatch(r"(auto|warp|opencl)(:.+)?", v) is not None,
              "auto, warp, warp:cpu, warp:cuda, opencl or opencl:<name>")
