@@ -27,7 +27,7 @@ import numpy as np
 
 from . import geometry, images
 from .bake import bake
-from .brdf import BlinnPhong, CookTorrance, Lambert, Ward
+from .brdf import AnisotropicWard, AshikhminShirley, BlinnPhong, CookTorrance, Lambert, Ward
 from .io import atomic_path, check_output
 from .render import OCCLUSION_SAMPLES, render, static_inputs
 from .scene import Camera, DirectionalLight, Mesh, Scene
@@ -113,7 +113,9 @@ FAMILIES = {
 ALIASES = {"pentagon": ("pyramid", {"sides": 5}), "vgroove": ("grooves", {"profile": "v"}),
            "ugroove": ("grooves", {"profile": "u"})}
 
-BRDF_KINDS = ("lambert", "blinnphong", "cooktorrance", "ward")
+# (The anisotropic two, in the frame of the tile's face tangents, only through the ASG bake: `_check_design`.)
+BRDF_KINDS = ("lambert", "blinnphong", "cooktorrance", "ward", "anisotropicward", "ashikhminshirley")
+ANISOTROPIC_KINDS = ("anisotropicward", "ashikhminshirley")
 # A small-scale material's controls by kind: (name, kind, lo, hi, help); kd/ks are RGB.
 BRDF_PARAMS = {
     "lambert": [("kd", "rgb", None, None, "albedo")],
@@ -123,12 +125,19 @@ BRDF_PARAMS = {
                      ("roughness", "real", 0.03, 1.0, "Beckmann roughness m"), ("f0", "real", 0.0, 1.0, "Fresnel F0")],
     "ward": [("kd", "rgb", None, None, "diffuse albedo"), ("ks", "rgb", None, None, "specular colour"),
              ("alpha", "real", 0.03, 1.0, "Ward roughness")],
+    "anisotropicward": [("kd", "rgb", None, None, "diffuse albedo"), ("ks", "rgb", None, None, "specular colour"),
+                        ("alpha_x", "real", 0.03, 1.0, "Ward roughness along the facets' tangents"),
+                        ("alpha_y", "real", 0.03, 1.0, "Ward roughness across them")],
+    "ashikhminshirley": [("kd", "rgb", None, None, "diffuse reflectance Rd"),
+                         ("ks", "rgb", None, None, "specular reflectance Rs at normal incidence"),
+                         ("nu", "real", 1.0, 10000.0, "Phong exponent towards the facets' tangents"),
+                         ("nv", "real", 1.0, 10000.0, "Phong exponent across them")],
 }
 DEFAULT_MATERIALS = [
     {"kind": "blinnphong", "kd": (0.2, 0.2, 0.2), "ks": (0.8, 0.8, 0.8), "exponent": 256.0, "roughness": 0.2,
-     "f0": 0.9, "alpha": 0.2},
+     "f0": 0.9, "alpha": 0.2, "alpha_x": 0.1, "alpha_y": 0.4, "nu": 20.0, "nv": 400.0},
     {"kind": "lambert", "kd": (0.6, 0.6, 0.6), "ks": (0.5, 0.5, 0.5), "exponent": 64.0, "roughness": 0.3,
-     "f0": 0.05, "alpha": 0.3},
+     "f0": 0.05, "alpha": 0.3, "alpha_x": 0.1, "alpha_y": 0.4, "nu": 20.0, "nv": 400.0},
 ]
 QUALITY = [
     ("lobes", "int", 1, 32, 8, True, "J: SG lobes of the normal distribution"),
@@ -211,7 +220,21 @@ def _brdf(m: dict):
         return BlinnPhong(m["ks"], m["exponent"], kd=m["kd"], normalization="energy")
     if m["kind"] == "cooktorrance":
         return CookTorrance(m["ks"], m["roughness"], kd=m["kd"], f0=m["f0"])
+    if m["kind"] == "anisotropicward":
+        return AnisotropicWard(m["ks"], m["alpha_x"], m["alpha_y"], kd=m["kd"])
+    if m["kind"] == "ashikhminshirley":
+        return AshikhminShirley(rs=m["ks"], nu=m["nu"], nv=m["nv"], rd=m["kd"])
     return Ward(m["ks"], m["alpha"], kd=m["kd"])
+
+
+def _check_design(state) -> None:
+    """A one-line error for what no bake can make: an anisotropic small-scale BRDF (each facet in its own tangent
+    frame) is convolved per lobe by the ASG bake alone."""
+    if state["quality"]["bake"] != "asg":
+        for i, m in enumerate(state["materials"]):
+            if m["kind"] in ANISOTROPIC_KINDS:
+                raise ValueError(f"material{i}.kind {m['kind']!r} is anisotropic: only the ASG bake takes it "
+                                 f"(set quality.bake to 'asg' first; it is {state['quality']['bake']!r})")
 
 
 def brdf_spec(m: dict) -> str:
@@ -224,6 +247,10 @@ def brdf_spec(m: dict) -> str:
         return f"blinnphong:ks={rgb(m['ks'])},exponent={m['exponent']:.6g},kd={rgb(m['kd'])},normalization=energy"
     if m["kind"] == "cooktorrance":
         return f"cooktorrance:ks={rgb(m['ks'])},roughness={m['roughness']:.6g},f0={m['f0']:.6g},kd={rgb(m['kd'])}"
+    if m["kind"] == "anisotropicward":
+        return f"ward:ks={rgb(m['ks'])},alpha_x={m['alpha_x']:.6g},alpha_y={m['alpha_y']:.6g},kd={rgb(m['kd'])}"
+    if m["kind"] == "ashikhminshirley":
+        return f"as:rs={rgb(m['ks'])},nu={m['nu']:.6g},nv={m['nv']:.6g},rd={rgb(m['kd'])}"
     return f"ward:ks={rgb(m['ks'])},alpha={m['alpha']:.6g},kd={rgb(m['kd'])}"
 
 
@@ -528,6 +555,7 @@ class Editor:
 
     def _build(self, state, redo, coarse):
         """Make what `redo` needs from `state`, render, and only then replace the editor's state."""
+        _check_design(state)
         t_all = time.perf_counter()
         timings = {"redone": redo}
         tile, effective = self.tile, self.effective
@@ -752,13 +780,14 @@ def _material_controls(text) -> dict:
     from .brdf import parse_brdf
 
     b = parse_brdf(text)
-    out = {"kind": {Lambert: "lambert", BlinnPhong: "blinnphong", CookTorrance: "cooktorrance", Ward: "ward"}[type(b)]}
+    out = {"kind": {Lambert: "lambert", BlinnPhong: "blinnphong", CookTorrance: "cooktorrance", Ward: "ward",
+                    AnisotropicWard: "anisotropicward", AshikhminShirley: "ashikhminshirley"}[type(b)]}
     if isinstance(b, Lambert):
         out["kd"] = tuple(float(x) for x in b.albedo)
         return out
     out["kd"] = tuple(float(x) for x in b.kd)
     out["ks"] = tuple(float(x) for x in b.ks)
-    for name in ("exponent", "roughness", "f0", "alpha"):
+    for name in ("exponent", "roughness", "f0", "alpha", "alpha_x", "alpha_y", "nu", "nv"):
         if hasattr(b, name):
             out[name] = float(getattr(b, name))
     return out
