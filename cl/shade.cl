@@ -20,7 +20,8 @@
 #define MIN_COS_VIEW 1.0e-4f /* = shading.MIN_COS_VIEW */
 #define ASG_LOBES 1 /* = effective.ASG_LOBES: eff_info[7] of a material with ASG lobes */
 #define ASG_EQ10_MIN 5.0f /* = asg.EQ10_MIN_BANDWIDTH */
-#define EFF_LOBE_WIDTH 11 /* eff_lobes' row: [axis or z (3), η, x (3), λ, μ, tangent order (2)] */
+#define EFF_LOBE_WIDTH 9 /* eff_lobes' row: [axis or z (3), η, x (3), λ, μ]; an ASG material's tangent orders
+                             after its lobes, [o_c, o_s, 0 …] per sub-row and lobe */
 #define RAYS_ONLY 0.125f /* = shading.RAYS_ONLY */
 #define SSDF_ONLY 0.5f /* = shading.SSDF_ONLY */
 #define SHARP_LOBE_ETA 8.0f /* = shading.SHARP_LOBE_ETA */
@@ -985,7 +986,8 @@ __kernel void shade_pixels(
                         /* Xu 2013: the lights by the material's own f̄ at their directions, whichever way the
                          * lobe faces; the environment below through the warped lobe's equal-integral SG. */
                         g = lobe_asg(lobe, s);
-                        conv = small_scale_convolved(g, s_kind, s_p1, sub[8], eta_s, lobe[9], lobe[10]);
+                        __global const float *order = eff_lobes + EFF_LOBE_WIDTH * (ei[3] + j_count * (1 + sub_i) + j);
+                        conv = small_scale_convolved(g, s_kind, s_p1, sub[8], eta_s, order[0], order[1]);
                         out = out + asg_from_lights(g, conv, eta_s, s_kind, s_ks, s_p1, sub[8], eff_tables, base, k2,
                                                     j_count, j, k, oo, ow, s, wo, tab, n_lights, lights, vis);
                     }

@@ -1014,8 +1014,9 @@ def shade_pixels(
                         # Xu 2013: the lights by the material's own f̄ at their directions, whichever way the
                         # lobe faces; the environment below through the warped lobe's equal-integral SG.
                         g = lobe_asg(eff_lobes, lobe, s)
-                        conv = small_scale_convolved(g, s_kind, s_p1, s_p2, eta_s, f32_at2(eff_lobes, lobe, 9),
-                                                     f32_at2(eff_lobes, lobe, 10))
+                        order = i32_at2(eff_info, idx, 3) + j_count * (1 + sub_i) + j  # (after the lobes' rows)
+                        conv = small_scale_convolved(g, s_kind, s_p1, s_p2, eta_s, f32_at2(eff_lobes, order, 0),
+                                                     f32_at2(eff_lobes, order, 1))
                         out = out + asg_from_lights(g, conv, eta_s, s_kind, s_ks, s_p1, s_p2, eff_tables,
                                                     base, k2, j_count, j, k, oo, ow, s, wo, table, n_lights, lights,
                                                     light_vis, p)

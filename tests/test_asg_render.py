@@ -92,7 +92,7 @@ def test_flat_tile_of_an_anisotropic_brdf_renders_as_the_brdf(backend, brdf):
     f_s's own shape and the K = 8 tables. Measured (PoCL, 48×36): Ward (0.1, 0.3) 53.2 dB, Ashikhmin–Shirley
     (40, 300) 56.5 dB; the same BRDF turned by 90° is 24.0 and 26.4 dB away. Bound 48 dB; the turned one < 40."""
     mat = wb.bake(flat_tile(), brdf, method="asg", lobes=1, directions=8, facets=2**10, backend=backend)
-    np.testing.assert_allclose(mat.tangent_order, [[1.0, 0.0]], atol=1e-6)
+    np.testing.assert_allclose(mat.tangent_order, [[[1.0, 0.0]]], atol=1e-6)  # (material, lobe, 2)
     effective = wb.render(_lit_sphere(mat), backend=backend, aa=1).image
     analytic = wb.render(_lit_sphere(brdf), backend=backend, aa=1).image
     db = wb.compare_images(effective, analytic)["psnr"]

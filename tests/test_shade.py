@@ -93,10 +93,26 @@ def _anisotropic_small_scale(asg_material):
                                        + [wb.AnisotropicWard(0.7, 0.1, 0.3, kd=0.2)] * (n - 1))
 
 
+@functools.cache
+def _woven_anisotropic():
+    """The woven tile's ASG bake in anisotropic Ward (warp) and Ashikhmin–Shirley (weft): two materials whose
+    tangents cross, each lobe turned each material's way (per-material tangent orders after the lobe rows)."""
+    tile = wb.geometry.woven()
+    return wb.bake(tile, [wb.AnisotropicWard(0.7, 0.08, 0.3, kd=0.2), wb.AshikhminShirley(rs=0.5, nu=30, nv=300,
+                                                                                           rd=0.3)],
+                   method="asg", lobes=4, directions=4, facets=2**12, backend="warp:cpu")
+
+
 @pytest.mark.parametrize("which", ["lone", "occluded", "occluded-24-lobes", "occluded-asg", "occluded-anisotropic",
-                                   "occluded-asg-anisotropic"])
+                                   "occluded-asg-anisotropic", "occluded-woven-anisotropic"])
 def test_shade_kernel_matches_reference(backend, which, effective_material, many_lobe_material, asg_material):
-    if which == "occluded-asg-anisotropic":
+    if which == "occluded-woven-anisotropic":
+        woven = _woven_anisotropic()
+        order = woven.tangent_order
+        # the threads cross: their doubled-angle orders point apart (opposite: perpendicular lines)
+        assert np.einsum("jc,jc->j", order[0], order[1]).min() < -0.5
+        scene = _scenes(woven)["occluded"]
+    elif which == "occluded-asg-anisotropic":
         assert np.hypot(*asg_material.tangent_order.T).max() > 0.9  # the grooves' tangents lie on one line
         scene = _scenes(_anisotropic_small_scale(asg_material))["occluded"]
     elif which == "occluded-anisotropic":

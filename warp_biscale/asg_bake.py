@@ -294,14 +294,24 @@ def _values(asgs: asg_mod.ASG, normal):
 TANGENT_SAMPLE = 8192  # facets read for the lobes' tangent orders (every k-th): plenty for a mean of cosines
 
 
-def tangent_order(asgs: asg_mod.ASG, alpha, normal, tangent, weight) -> np.ndarray:
-    """(J, 2) each lobe's tangent order: the mean (cos 2φ, sin 2φ) of its facets' tangents' angles φ in the lobe's
-    frame (their direction across the lobe's tangent plane; doubled, as a tangent and its opposite are one line),
-    each facet weighed by its weight and its responsibility α_jG_j(n)/Σ_k α_kG_k(n). What an anisotropic
-    small-scale BRDF's NDF is convolved with (`asg.convolve_asg`): length 1 where all of a lobe's tangents lie on
-    one line (grooves, threads), 0 where they turn every way; (0, 0) for a lobe no facet reaches. Read on the
-    facets given (the bake gives every k-th, TANGENT_SAMPLE of them)."""
-    n, t, w = (np.asarray(a, np.float64) for a in (normal, tangent, weight))
+def tangent_order(asgs: asg_mod.ASG, alpha, normal, tangent, weight, material, n_materials: int) -> np.ndarray:
+    """(M, J, 2) each material's lobes' tangent orders: the mean (cos 2φ, sin 2φ) of the angles φ, in the lobe's
+    frame, of the tangents of that material's facets (their direction across the lobe's tangent plane; doubled, as
+    a tangent and its opposite are one line), each facet weighed by its weight and its responsibility
+    α_jG_j(n)/Σ_k α_kG_k(n). What an anisotropic small-scale BRDF's NDF is convolved with (`asg.convolve_asg`):
+    length 1 where all of a lobe's tangents lie on one line (grooves; each thread of a weave, whose warp and weft
+    are two materials), 0 where they turn every way; (0, 0) for a lobe none of the material's facets reach. Per
+    material because the amplitudes are: f̄ = Σ_m Σ_j μ_mj (G_j ⊛ D_m), so a lobe shared by two materials whose
+    tangents cross (a weave) is turned each material's way. Read on the facets given (the bake gives every k-th,
+    TANGENT_SAMPLE of them)."""
+    material = np.asarray(material)
+    return np.stack([_tangent_order_of(asgs, alpha, *(np.asarray(a, np.float64)[material == m]
+                                                      for a in (normal, tangent, weight)))
+                     for m in range(n_materials)])
+
+
+def _tangent_order_of(asgs, alpha, n, t, w) -> np.ndarray:
+    """(J, 2) `tangent_order` over the facets given."""
     resp = _values(asgs, n) * alpha
     total = resp.sum(1, keepdims=True)
     resp = np.where(total > 0, resp / np.where(total > 0, total, 1.0), 0.0) * w[:, None]
@@ -322,8 +332,8 @@ class TangentSample:
     material edits) so that the order is made once, and only when an anisotropic small-scale BRDF needs it
     (`ASGBRDF.tangent_order`: most materials never do, and it costs milliseconds on the host)."""
 
-    def __init__(self, asgs, alpha, normal, tangent, weight):
-        self.inputs = (asgs, alpha, normal, tangent, weight)
+    def __init__(self, asgs, alpha, normal, tangent, weight, material, n_materials):
+        self.inputs = (asgs, alpha, normal, tangent, weight, material, n_materials)
         self._order = None
 
     def order(self) -> np.ndarray:
@@ -494,8 +504,9 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
         raise FloatingPointError("the ASG amplitude solve gave non-finite values")
     bv.a_v = np.asarray(q.a_v.host(), np.float64)
     every = slice(None, None, max(1, len(normal) // TANGENT_SAMPLE))  # (a mean of cosines: a sample suffices)
-    order = TangentSample(asgs, alpha, normal[every], tile.face_tangents[np.asarray(q.fac.face)[every]],
-                          em_w[every])
+    face = np.asarray(q.fac.face)[every]
+    order = TangentSample(asgs, alpha, normal[every], tile.face_tangents[face], em_w[every], tile.material_ids[face],
+                          tile.n_materials)
     timer.timings["amplitudes"] = time.perf_counter() - t0
     info = {"facets": count, "seed": seed, "normal_res": r, "route": "facets", "lobes": int(len(alpha)),
             "lobes_requested": j_req, "ndf_error": ndf_err, "ndf_probe_sharpness": probe,
@@ -519,9 +530,9 @@ class ASGBRDF(HostOnlyBRDF):
     SG form), `table()`, `wb.compare`, `save` / `wb.load` (format "asg_brdf", versioned), `with_materials`
     (new small-scale BRDFs, nothing re-baked), `provenance`, `path`, `timings`, `info`. Attributes: `asgs`
     (asg.ASG batch (J,), unit amplitude), `weight` (J,) α_j, `amplitudes` (M, K², K², J, 3) float32 μ tables
-    (of the ASGs), `integrals` (J,) ∫G_j, `diffuse` the f̄d table, `tangent_order` (J, 2) each lobe's facets'
-    mean (cos 2φ, sin 2φ) of their tangents' angles in its frame (`tangent_order`; what an anisotropic small-scale
-    BRDF's NDF is turned by). It has no SG lobes: `lobes` and the
+    (of the ASGs), `integrals` (J,) ∫G_j, `diffuse` the f̄d table, `tangent_order` (M, J, 2) per material and lobe
+    its facets' mean (cos 2φ, sin 2φ) of their tangents' angles in the lobe's frame (`tangent_order`; what an
+    anisotropic small-scale BRDF's NDF is turned by). It has no SG lobes: `lobes` and the
     Mitsuba export raise `NO_SG_LOBES`; the SG renderer reads its ASG lobes (`shade_lobes`), the Monte Carlo
     reference samples their isotropic stand-ins (`sampling_lobes`), the lit-sphere renderer evaluates it on
     the host."""
@@ -554,7 +565,7 @@ class ASGBRDF(HostOnlyBRDF):
         # before it is convolved with the lobe (`asg.convolve_asg`).
         self.materials = as_material_list(materials, anisotropic=True)
         # (a TangentSample: made on first use, `tangent_order`)
-        self._tangent_order = np.zeros((j, 2)) if tangent_order is None else tangent_order
+        self._tangent_order = np.zeros((len(self.amplitudes), j, 2)) if tangent_order is None else tangent_order
         if not isinstance(tangent_order, TangentSample):
             self._tangent_order = self._checked_order(self._tangent_order)
         if len(self.materials) != len(self.amplitudes):
@@ -586,27 +597,38 @@ class ASGBRDF(HostOnlyBRDF):
 
     def _checked_order(self, order) -> np.ndarray:
         order = np.asarray(order, np.float64)
-        j = len(self.weight)
-        if order.shape != (j, 2) or not np.isfinite(order).all() or np.hypot(*order.T).max() > 1 + 1e-6:
-            raise ValueError(f"tangent_order must be ({j}, 2), finite, each row of length <= 1")
+        shape = (len(self.amplitudes), len(self.weight), 2)
+        if len(order) < shape[0] and order.shape[1:] == shape[1:]:  # materials beyond the tile's ids: no facets
+            order = np.concatenate([order, np.zeros((shape[0] - len(order),) + shape[1:])])
+        if (order.shape != shape or not np.isfinite(order).all()
+                or (order.size and np.hypot(order[..., 0], order[..., 1]).max() > 1 + 1e-6)):
+            raise ValueError(f"tangent_order must be {shape} (materials, lobes, 2), finite, each of length <= 1")
         return order
 
     @property
     def tangent_order(self) -> np.ndarray:
-        """(J, 2) each lobe's facets' tangent order (`tangent_order`), made from the bake's sample on first use."""
+        """(M, J, 2) each material's lobes' tangent orders (`tangent_order`), made from the bake's sample on first
+        use."""
         if isinstance(self._tangent_order, TangentSample):
             return self._checked_order(self._tangent_order.order())
         return self._tangent_order
 
     def shade_lobes(self) -> tuple[int, np.ndarray]:
         """The SG renderer's lobe rows (`shading.pack_materials`): ASG_LOBES and (J, EFF_LOBE_WIDTH) float32
-        [z (3), 0, x (3), λ, μ, tangent order (2)] in the tile frame (y = z × x: an ASG is even in x and y)."""
+        [z (3), 0, x (3), λ, μ] in the tile frame (y = z × x: an ASG is even in x and y)."""
         g = self.asgs
         rows = np.zeros((len(self.weight), EFF_LOBE_WIDTH), np.float32)
         rows[:, 0:3], rows[:, 4:7], rows[:, 7], rows[:, 8] = g.z, g.x, g.lam, g.mu
-        if any(m.anisotropic for m in self.materials):  # (read for those alone: an isotropic one never makes it)
-            rows[:, 9:11] = self.tangent_order
         return ASG_LOBES, rows
+
+    def tangent_rows(self, owner) -> np.ndarray:
+        """(len(owner)·J, EFF_LOBE_WIDTH) float32: per shade sub-row s (of small-scale material owner[s]) and lobe j,
+        [o_c, o_s, 0 …], that material's tangent order (`shading.pack_materials` puts them after the lobe rows);
+        zero, and never made, where no material is anisotropic (the kernels read them for those alone)."""
+        rows = np.zeros((len(owner) * len(self.weight), EFF_LOBE_WIDTH), np.float32)
+        if any(m.anisotropic for m in self.materials):
+            rows[:, 0:2] = self.tangent_order[np.asarray(owner)].reshape(-1, 2)
+        return rows
 
     def sampling_lobes(self) -> tuple[np.ndarray, np.ndarray]:
         """The Monte Carlo reference's BRDF sampling (`EffectiveBRDF.sampling_lobes`): each ASG's axis with the SG
@@ -664,7 +686,7 @@ class ASGBRDF(HostOnlyBRDF):
             kd = diffuse_albedo(mat) / np.pi
             out += np.einsum("njc,j->nc", mu[m], self.integrals) * kd
             if mat.anisotropic:
-                out += self._anisotropic_specular(mat, mu[m], wi, wo)
+                out += self._anisotropic_specular(m, mat, mu[m], wi, wo)
                 continue
             for eta_s, scale, h in sg.specular_lobes(mat, wi, wo):
                 if eta_s is None or not scale.any():
@@ -677,17 +699,17 @@ class ASGBRDF(HostOnlyBRDF):
         out[(wi[:, 2] <= 0) | (wo[:, 2] <= 0)] = 0.0
         return np.maximum(out, 0.0)
 
-    def _anisotropic_specular(self, mat, mu, wi, wo) -> np.ndarray:
-        """(N, 3) the specular term of an anisotropic small-scale BRDF: M(cos θd)·Σ_j μ_j (G_j ⊛ D_s)(h), D_s its NDF's
-        ASG turned by each lobe's tangent order (`asg.convolve_asg`), M its f_s at the mirror direction over D_s
-        (`shading.specular_scale`, which the renderers use)."""
+    def _anisotropic_specular(self, m, mat, mu, wi, wo) -> np.ndarray:
+        """(N, 3) the specular term of material m, an anisotropic small-scale BRDF: M(cos θd)·Σ_j μ_j (G_j ⊛ D_s)(h),
+        D_s its NDF's ASG turned by its tangent order for each lobe (`asg.convolve_asg`), M its f_s at the mirror
+        direction over D_s (`shading.specular_scale`, which the renderers use)."""
         from .shading import _analytic_rows, specular_scale  # (shading imports this module's neighbours)
 
         h = wi + wo
         h /= np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-300)
         scale, _ = specular_scale(_analytic_rows(mat, anisotropic=True)[0], np.einsum("ij,ij->i", h, wi))
         lam_s, mu_s = mat.ndf_bandwidths
-        conv = asg_mod.convolve_asg(self.asgs, float(lam_s), float(mu_s), self.tangent_order)
+        conv = asg_mod.convolve_asg(self.asgs, float(lam_s), float(mu_s), self.tangent_order[m])
         return scale * np.einsum("njc,nj->nc", mu, asg_mod.evaluate(conv, h[:, None, :]))
 
     # ------------------------------------------------------------------ files

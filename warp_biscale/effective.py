@@ -41,7 +41,7 @@ METHODS = ("sg", "sg-exact")
 # The lobe types of `shade_lobes` (the shade stage's eff_info[:, 7]): SG lobes [axis, η] (Iwasaki), or ASG
 # lobes [z, 0, x, λ, μ] (Xu 2013, `asg_bake.ASGBRDF`).
 SG_LOBES, ASG_LOBES = 0, 1
-EFF_LOBE_WIDTH = 11  # a lobe row of the shade kernels (`shading.pack_materials`' eff_lobes)
+EFF_LOBE_WIDTH = 9  # a lobe row of the shade kernels (`shading.pack_materials`' eff_lobes)
 # Writers of a baked material for other renderers, by name, each (material, path) → what it wrote. The
 # interface modules that write them fill this in when warp_biscale loads (mitsuba_export), so that this
 # data-model module imports none of them.

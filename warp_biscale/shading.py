@@ -59,9 +59,10 @@ bilinear, repeat: `svbrdf.sample`) and use only those values afterwards;
 ``analytic`` (A, 9) float32 [brdf kind, kd rgb, ks rgb, p1, p2] (brdf.pack_materials' row with the kind first);
 ``eff_info`` (E, 8) int32 [K, J, n_sub, lobe_offset, sub_offset, table_offset, diffuse_offset, lobe type
 (`effective.SG_LOBES` 0, `effective.ASG_LOBES` 1)];
-``eff_lobes`` (ΣJ, EFF_LOBE_WIDTH = 11) float32 in the tile frame (`EffectiveBRDF.shade_lobes`): an SG lobe
-[axis, η, 0 …], an ASG lobe [z, 0, x, λ, μ, o_c, o_s] (y = z × x; o its facets' tangent order,
-`asg_bake.tangent_order`, read for anisotropic small-scale BRDFs); ``eff_sub`` (Σn_sub, 9) like ``analytic``,
+``eff_lobes`` (ΣJ + Σn_sub·J of the ASG materials, EFF_LOBE_WIDTH = 9) float32 in the tile frame
+(`EffectiveBRDF.shade_lobes`): an SG lobe [axis, η, 0 …], an ASG lobe [z, 0, x, λ, μ] (y = z × x), and after an
+ASG material's J lobes its tangent orders, row J·(1 + s) + j for sub-row s and lobe j [o_c, o_s, 0 …]
+(`ASGBRDF.tangent_rows`, read for anisotropic small-scale BRDFs); ``eff_sub`` (Σn_sub, 9) like ``analytic``,
 n_sub rows per effective material: one per SG lobe of each small-scale material, each row with its material's
 tables below;
 ``eff_tables`` float32, per effective material and sub-row m the (K², K², J, 3) table of
@@ -255,6 +256,8 @@ def pack_materials(materials) -> dict:
             sub_rows = [_sub_rows(s) for s in m.materials]
             owner = np.repeat(np.arange(len(sub_rows)), [len(r) for r in sub_rows])
             subs = np.concatenate(sub_rows)
+            if lobe_type == ASG_LOBES:  # then each sub-row's tangent orders per lobe (`ASGBRDF.tangent_rows`)
+                rows = np.concatenate([rows, m.tangent_rows(owner)])
             info.append([1, len(eff_info), int(any(_specular_rows(s) for s in m.materials)), -1])
             eff_info.append([m.directions, j, len(subs), n_lobes, n_sub, n_table, n_diffuse, lobe_type])
             eff_lobes.append(rows)
@@ -265,7 +268,7 @@ def pack_materials(materials) -> dict:
                 table, diffuse = _tables_per_row(table, diffuse, owner)
             eff_tables.append(table.ravel())
             eff_diffuse.append(diffuse.ravel())
-            n_lobes += j
+            n_lobes += len(rows)
             n_sub += len(subs)
             n_table += table.size
             n_diffuse += diffuse.size
@@ -702,7 +705,8 @@ def shade_reference(frame: Frame) -> np.ndarray:
                     if int(ei[7]) == ASG_LOBES:
                         x_w = lobe[4] * ts_ + lobe[5] * bs + lobe[6] * ns
                         g = asg_mod.ASG(x_w, np.cross(xi, x_w), xi, lobe[7], lobe[8])
-                        conv = _small_scale_convolved(g, sub, eta_s, lobe[9:11])
+                        order = static.eff_lobes[int(ei[3]) + j_count * (1 + si) + j, 0:2].astype(np.float64)
+                        conv = _small_scale_convolved(g, sub, eta_s, order)
                         lobes.append(_asg_environment_lobe(conv, scale, wo_s, c_oj, ts_, bs, ns, wol_s,
                                                            static.eff_tables, base, k, j_count, j))
                         rad[sel] += _asg_lights(g, conv, sub, eta_s, wo_s, ts_, bs, ns, wol_s, static.eff_tables, base,
