@@ -502,7 +502,7 @@ def _anisotropic_convolution_truth(lam, mu, lam_s, mu_s, angles, p):
     D(p; n) = max(p·n, 0)·exp(−λ_s(p·x_n)² − μ_s(p·y_n)²), x_n the tile tangent (cos φ, sin φ, 0) made
     perpendicular to n, y_n = n × x_n; the mean over the tangents' `angles` (written out here)."""
     frame = (np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), np.array([0, 0, 1.0]))
-    v, w, _, _ = lobe_rule(frame, lam, mu, n=16)
+    v, w, _, _ = lobe_rule(frame, lam, mu, n=12)
     wg = w * asg_value(frame, lam, mu, 1.0, v)
     keep = wg > 1e-16 * wg.max()
     v, wg = v[keep], wg[keep]
@@ -520,22 +520,22 @@ def _anisotropic_convolution_truth(lam, mu, lam_s, mu_s, angles, p):
 
 
 @pytest.mark.parametrize("lam, mu, lam_s, mu_s, angles, bound", [
-    (500.0, 50.0, 100.0, 10.0, (0.3,), 0.007),          # measured 0.62 %
+    (500.0, 50.0, 100.0, 10.0, (0.3,), 0.0075),         # measured 0.67 %
     (300.0, 30.0, 25.0, 400.0, (1.2,), 0.0104),         # 0.94 %
     (1e4, 1e4, 50.0, 800.0, (0.7,), 0.0005),            # 0.03 %: a delta-like lobe leaves the kernel
-    (40.0, 40.0, 300.0, 30.0, (2.0,), 0.0087),          # 0.79 %
-    (200.0, 40.0, 400.0, 20.0, (0.2, 0.5), 0.035),      # 3.15 %: two tangent directions 0.3 rad apart
+    (40.0, 40.0, 300.0, 30.0, (2.0,), 0.0092),          # 0.83 %
+    (200.0, 40.0, 400.0, 20.0, (0.2, 0.5), 0.035),      # 3.19 %: two tangent directions 0.3 rad apart
     (200.0, 40.0, 400.0, 20.0, (0.2, 1.4), 0.225),      # 20.4 %: 1.2 rad apart, a cross, which no one ASG is
-    (0.0, 80.0, 100.0, 20.0, (0.5,), 0.034),            # 3.07 %: a band (its tangent plane is no plane)
+    (0.0, 80.0, 100.0, 20.0, (0.5,), 0.032),            # 2.90 %: a band (its tangent plane is no plane)
 ])
 def test_convolve_asg_against_brute_force(lam, mu, lam_s, mu_s, angles, bound):
     """`convolve_asg` (an NDF lobe convolved with an anisotropic small-scale NDF, beyond Xu) against quadrature
     over the facets' normals with each facet's kernel in its own tangent frame: relative L2 over the upper
     hemisphere. The bounds are the measured values (docstring column) plus ~10 %."""
-    p = np.random.default_rng(3).normal(size=(600, 3))
+    p = np.random.default_rng(3).normal(size=(400, 3))
     p /= np.linalg.norm(p, axis=1, keepdims=True)
     p[:, 2] = np.abs(p[:, 2])
-    p = np.concatenate([p, [[0, 0, 1.0]], _near_axis(400)])
+    p = np.concatenate([p, [[0, 0, 1.0]], _near_axis(300)])
     truth = _anisotropic_convolution_truth(lam, mu, lam_s, mu_s, angles, p)
     order = np.mean([[np.cos(2 * a), np.sin(2 * a)] for a in angles], 0)
     got = asg.evaluate(asg.convolve_asg(axis_aligned(lam, mu), lam_s, mu_s, order), p)
