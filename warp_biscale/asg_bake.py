@@ -422,8 +422,11 @@ def bake_asg(tile, mats, lobes, directions, normal_res, facets, backend, seed, k
         amps = np.concatenate([amps, np.zeros((len(mats) - len(amps),) + amps.shape[1:], amps.dtype)])
         energy = None if energy is None else np.concatenate(
             [energy, np.zeros((len(mats) - len(energy),) + energy.shape[1:], energy.dtype)])
+    # An anisotropic small-scale BRDF's NDF stands as one ASG: its fit error (brdf.ndf_asg_error), per material.
+    fit = {str(i): m.ndf_fit_error for i, m in enumerate(mats) if m.anisotropic}
     mat = ASGBRDF(geo["asgs"], geo["alpha"], amps, mats, k, info={**geo["info"], "backend": be.name,
-                                                                  "tile": tile.name},
+                                                                  "tile": tile.name,
+                                                                  **({"ndf_asg_error": fit} if fit else {})},
                   bvndf=geo["bvndf"], provenance=Provenance(tile, int(seed), count), energy=energy,
                   tangent_order=geo["tangent_order"])
     timer.timings["tables"] = time.perf_counter() - t0
