@@ -560,7 +560,7 @@ def main(argv=None):
     p.add_argument("--save", help="also save the table as .npz (read back with wb.load)")
     p.add_argument("-q", "--quiet", action="store_true", help="no table, no progress")
     p.set_defaults(func=cmd_truth)
-    k = sub.add_parser("bake", help="bake a tile's SG effective BRDF (Iwasaki 2012) into a material file")
+    k = sub.add_parser("bake", help="bake a tile's effective BRDF (SG, ASG or matrix method) into a material file")
     k.add_argument("tile", nargs="?", default="pyramid",
                    help=f"mesh file (OBJ/PLY/STL/GLB) or built-in tile: {', '.join(BUILTIN_TILES)} (default: pyramid)")
     k.add_argument("--brdf", action="append", help="small-scale BRDF, once per material id (as for `truth`)")
