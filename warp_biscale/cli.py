@@ -1,7 +1,8 @@
 """Command line: ``warp-biscale demo`` (bake a tile and render a scene with it), ``render`` (a TOML scene
-file to PNG / EXR / HDR), ``view`` (the interactive viewer), ``edit`` (the bi-scale editor), ``bake`` (SG
-effective BRDF of a tile), ``truth`` (its ground truth), ``ball`` (a material thumbnail), ``batch`` (a job
-file of bakes and renders, on a Dask cluster), ``export`` (a baked material for Mitsuba 3) and ``backends``."""
+file to PNG / EXR / HDR), ``view`` (the interactive viewer), ``edit`` (the bi-scale editor), ``bake`` (the
+effective BRDF of a tile: SG, ASG or matrix), ``truth`` (its ground truth), ``ball`` (a material thumbnail),
+``batch`` (a job file of bakes and renders, on a Dask cluster), ``export`` (a baked material for Mitsuba 3) and
+``backends``."""
 
 from __future__ import annotations
 
