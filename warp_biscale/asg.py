@@ -303,11 +303,12 @@ EQ10_MIN_BANDWIDTH = 5.0
 def shade_integral(lam, mu):
     """The unit integral as the shade kernels take it: Eq. 10 where min(λ, μ) > EQ10_MIN_BANDWIDTH, else exact."""
     lam, mu = np.broadcast_arrays(np.asarray(lam, np.float64), np.asarray(mu, np.float64))
-    exact = unit_integral(lam, mu)
     big = np.minimum(lam, mu) > EQ10_MIN_BANDWIDTH
-    if big.any():
-        exact[big] = unit_integral(lam[big], mu[big], "eq10")
-    return exact
+    out = np.empty(lam.shape)
+    out[big] = unit_integral(lam[big], mu[big], "eq10")
+    if not big.all():  # (the quadrature only where Eq. 10 does not hold)
+        out[~big] = unit_integral(lam[~big], mu[~big])
+    return out
 
 
 def integral(asg: ASG, method="exact"):

@@ -17,9 +17,9 @@ What it does, stage by stage (the geometry stages are the SG bake's own, `bake._
    asg.py's module notes; its sufficient statistics are a², b², so ML = matching E[a²], E[b²], solved by
    Newton in log λ, log μ with the moments by Gauss–Legendre across the disk, each chord in closed form).
    A facet whose normal lies below a lobe's horizon takes no responsibility from it.
-2. **Amplitudes by the Gram route** (`amplitude_system`): A_ij = ∫G_iG_j by Xu's product (Eq. 13) and the
-   exact integral, regularised on its unit diagonal as the SG route (`lobes.RIDGE`) and calibrated per lobe
-   by the fitted NDF (`lobes.amplitude_system`'s calibration: the amplitude of lobe j on the fitted NDF is
+2. **Amplitudes by the Gram route** (`amplitude_system`): A_ij = ∫G_iG_j by Xu's product (Eq. 13) and its
+   integral (`gram`: Eq. 10 where it holds, else exact), regularised on its unit diagonal as the SG route
+   (`lobes.RIDGE`) and calibrated per lobe by the fitted NDF (`lobes.amplitude_system`'s calibration: the amplitude of lobe j on the fitted NDF is
    A·α_j/∫G_j). b by the exact facet sums Σ_s P_si P_so w_s G_j(n_s) (`reference.lobe_moments`' sums), solved
    as `lobes.solve_amplitudes` (negative amplitudes 0, Σ_j μ_j ∫G_j = ∫γ̃ exactly, so the diffuse part is
    exact): for J ≤ lobes.KERNEL_LOBES by the SG bake's moment, solve and table kernels fed the ASGs' values at
@@ -343,10 +343,14 @@ class TangentSample:
 
 
 def gram(asgs: asg_mod.ASG):
-    """(J, J) A_ij = ∫G_iG_j by Xu's product (Eq. 13) and the exact integral, each pair i ≤ j once."""
+    """(J, J) A_ij = ∫G_iG_j by Xu's product (Eq. 13) and its integral as the shade kernels take it
+    (`asg.shade_integral`: Eq. 10 where both bandwidths exceed 5, within 0.026 % there and to rounding for the
+    sharp products of a bake's lobes; the exact quadrature elsewhere, at twice the host time), each pair i ≤ j
+    once."""
     i, j = np.triu_indices(len(asgs.lam))
     a = np.empty((len(asgs.lam),) * 2)
-    a[i, j] = a[j, i] = asg_mod.integral(asg_mod.product(asgs[i], asgs[j]))
+    p = asg_mod.product(asgs[i], asgs[j])
+    a[i, j] = a[j, i] = p.amplitude * asg_mod.shade_integral(p.lam, p.mu)
     return a
 
 
