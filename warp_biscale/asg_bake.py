@@ -17,14 +17,14 @@ What it does, stage by stage (the geometry stages are the SG bake's own, `bake._
    asg.py's module notes; its sufficient statistics are a², b², so ML = matching E[a²], E[b²], solved by
    Newton in log λ, log μ with the moments by Gauss–Legendre across the disk, each chord in closed form).
    A facet whose normal lies below a lobe's horizon takes no responsibility from it.
-2. **Amplitudes by the Gram route** (`amplitude_system`): A_ij = ∫G_iG_j by Xu's product (Eq. 13) and its
-   integral (`gram`: Eq. 10 where it holds, else exact), regularised on its unit diagonal as the SG route
-   (`lobes.RIDGE`) and calibrated per lobe by the fitted NDF (`lobes.amplitude_system`'s calibration: the
-   amplitude of lobe j on the fitted NDF is A·α_j/∫G_j). b by the exact facet sums Σ_s P_si P_so w_s G_j(n_s) (`reference.lobe_moments`' sums), solved
-   as `lobes.solve_amplitudes` (negative amplitudes 0, Σ_j μ_j ∫G_j = ∫γ̃ exactly, so the diffuse part is
-   exact): for J ≤ lobes.KERNEL_LOBES by the SG bake's moment, solve and table kernels fed the ASGs' values at
-   the facets, made on the device (`Backend.lobe_moments(..., lobe_values=asgs)`; the calibration's facet sums
-   by `Backend.asg_value_sums`), past that on the host in float64 (P diag(w G_j) Pᵀ per lobe, `asg_moments`).
+2. **Amplitudes by the Gram route** (`amplitude_system`): A_ij = ∫G_iG_j by Xu's product (Eq. 13) and its integral
+   (`gram`: Eq. 10 where it holds, else exact), regularised on its unit diagonal as the SG route (`lobes.RIDGE`) and
+   calibrated per lobe by the fitted NDF (`lobes.amplitude_system`'s calibration: the amplitude of lobe j on the
+   fitted NDF is A·α_j/∫G_j). b by the exact facet sums Σ_s P_si P_so w_s G_j(n_s) (`reference.lobe_moments`' sums),
+   solved as `lobes.solve_amplitudes` (negative amplitudes 0, Σ_j μ_j ∫G_j = ∫γ̃ exactly, so the diffuse part is
+   exact): for J ≤ lobes.KERNEL_LOBES by the SG bake's moment, solve and table kernels fed the ASGs' values at the
+   facets, made on the device (`Backend.lobe_moments(..., lobe_values=asgs)`; the calibration's facet sums by
+   `Backend.asg_value_sums`), past that on the host in float64 (P diag(w G_j) Pᵀ per lobe, `asg_moments`).
 3. **f̄** (`ASGBRDF.eval`, float64): diffuse Σ_j μ_j kd/π ∫G_j; specular M(ωi, ωo)·Σ_j μ_j (G_j ⊛ SG_s)(h) with
    the small-scale BRDF's SG (`sg.specular_lobe`; a measured BRDF's fit of two lobes is two such terms,
    `sg.specular_lobes`) and Xu's Eq. 18 (`asg.convolve_sg`): its bandwidths and
