@@ -490,3 +490,6 @@ def test_the_asg_bake_reports_the_ndf_fit_error(vgroove):
     for i, e in mat.info["ndf_asg_error"].items():
         assert e == pytest.approx(expected[i], rel=0.01)
     assert AshikhminShirley(1.0, 20, 400).ndf_fit_error == pytest.approx(0.0214, rel=0.01)
+    edited = mat.with_materials([AshikhminShirley(1.0, 20, 400)] * len(mats))  # an edit reports its own BRDFs'
+    assert edited.info["ndf_asg_error"]["0"] == pytest.approx(0.0214, rel=0.01)
+    assert "ndf_asg_error" not in mat.with_materials([wb.Lambert(0.5)] * len(mats)).info

@@ -426,17 +426,21 @@ def bake_asg(tile, mats, lobes, directions, normal_res, facets, backend, seed, k
         amps = np.concatenate([amps, np.zeros((len(mats) - len(amps),) + amps.shape[1:], amps.dtype)])
         energy = None if energy is None else np.concatenate(
             [energy, np.zeros((len(mats) - len(energy),) + energy.shape[1:], energy.dtype)])
-    # An anisotropic small-scale BRDF's NDF stands as one ASG: its fit error (brdf.ndf_asg_error), per material.
-    fit = {str(i): m.ndf_fit_error for i, m in enumerate(mats) if m.anisotropic}
     mat = ASGBRDF(geo["asgs"], geo["alpha"], amps, mats, k, info={**geo["info"], "backend": be.name,
-                                                                  "tile": tile.name,
-                                                                  **({"ndf_asg_error": fit} if fit else {})},
+                                                                  "tile": tile.name, **_ndf_fit_info(mats)},
                   bvndf=geo["bvndf"], provenance=Provenance(tile, int(seed), count), energy=energy,
                   tangent_order=geo["tangent_order"])
     timer.timings["tables"] = time.perf_counter() - t0
     mat.timings = dict(timer.timings)
     prog.done()
     return mat
+
+
+def _ndf_fit_info(mats) -> dict:
+    """{"ndf_asg_error": {material index: error}} for the anisotropic small-scale BRDFs among `mats`, whose NDF
+    stands as one ASG (`brdf.ndf_asg_error`), else {}."""
+    fit = {str(i): m.ndf_fit_error for i, m in enumerate(mats) if m.anisotropic}
+    return {"ndf_asg_error": fit} if fit else {}
 
 
 def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, tolerance=0.02, probe=None) -> dict:
@@ -658,9 +662,11 @@ class ASGBRDF(HostOnlyBRDF):
         """The same baked ASGs and amplitudes with other small-scale BRDFs (a material-only edit: no re-bake);
         provenance and `path` carry over, as EffectiveBRDF.with_materials."""
         t0 = time.perf_counter()
-        out = ASGBRDF(self.asgs, self.weight, self.amplitudes, materials, self.directions, info=self.info,
+        info = {k: v for k, v in self.info.items() if k != "ndf_asg_error"}  # (the new BRDFs' fit errors instead)
+        out = ASGBRDF(self.asgs, self.weight, self.amplitudes, materials, self.directions, info=info,
                       bvndf=self.bvndf, provenance=self.provenance, path=self.path, energy=self._energy,
                       tangent_order=self._tangent_order)
+        out.info.update(_ndf_fit_info(out.materials))
         out._energy_levels = self._energy_levels
         out.timings = {"tables": time.perf_counter() - t0}
         return out
