@@ -14,6 +14,7 @@ import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.sparse
 
 from . import directions as dirs
 from . import lobes as lobes_mod
@@ -370,8 +371,20 @@ def _queue_visibility(tile, be, q: _Queued, prog) -> None:
 def _occupied_bins(q: _Queued, r) -> tuple:
     """(the facets' area per fine normal bin (6R²,), the non-empty bins): what the EM's start needs to know
     before it is queued, the cheap part of `_bin_normals`."""
-    mass = np.bincount(q.bins, weights=q.fac.area.astype(np.float64), minlength=6 * r * r)
+    area = _equal_area(q.fac)
+    if area is None:
+        mass = np.bincount(q.bins, weights=q.fac.area.astype(np.float64), minlength=6 * r * r)
+    else:  # sampled facets share one ΔA: a count (no weights to convert and read) times it
+        mass = np.bincount(q.bins, minlength=6 * r * r) * area
     return mass, np.flatnonzero(mass > 0)
+
+
+def _equal_area(facets):
+    """ΔA when every facet has the same area (as sampled facets do: `device.equal_areas`), else None."""
+    area = facets.area
+    if not len(area) or not (area == area[0]).all():
+        return None
+    return float(area[0])
 
 
 def _bin_normals(q: _Queued, r, mass=None, occupied=None) -> tuple:
@@ -380,13 +393,16 @@ def _bin_normals(q: _Queued, r, mass=None, occupied=None) -> tuple:
     after the rays that does not depend on them."""
     if mass is None:
         mass, occupied = _occupied_bins(q, r)
-    area = q.fac.area.astype(np.float64)
-    slot = np.full(6 * r * r, -1, np.int64)
+    slot = np.full(6 * r * r, -1, np.int32)
     slot[occupied] = np.arange(len(occupied))
     facet_bin = slot[q.bins]
-    mean = np.stack([np.bincount(facet_bin, weights=area * q.normal[:, c], minlength=len(occupied))
-                     for c in range(3)])  # (3, L): numpy's loops run along the bins (3 innermost: ~4× slower)
-    mean = np.ascontiguousarray((mean / np.maximum(np.sqrt((mean * mean).sum(0)), 1e-300)).T)
+    # The per-bin sums as one sparse (L, Ns) × (Ns, 3) product, in float64: a third of the time of three
+    # weighted bincounts, the same sums. Equal areas weigh nothing (the mean is normalised below).
+    n = len(facet_bin)
+    weight = np.ones(n) if _equal_area(q.fac) is not None else q.fac.area.astype(np.float64)
+    member = scipy.sparse.csc_matrix((weight, facet_bin, np.arange(n + 1)), shape=(len(occupied), n))
+    mean = member @ np.asarray(q.normal, np.float64)  # (L, 3)
+    mean = np.ascontiguousarray(mean / np.maximum(np.sqrt((mean * mean).sum(1)), 1e-300)[:, None])
     return Bvndf(r, occupied.astype(np.int32), mean, mass[occupied], None), facet_bin
 
 
