@@ -267,8 +267,8 @@ CL_INLINE float3 effective_response(__global const int *kinds, __global const fl
     int j_count = info[1];
     int k2 = k * k;
     int oo[4];
-    float ow[4];
-    grid_bilinear(wo, k, oo, ow);
+    float ow[4], oc[4];  /* (ωo's cosines: unused) */
+    grid_bilinear(wo, k, oo, ow, oc);
     float3 half_sum = wi + wo;
     float3 h = (float3)(0.0f, 0.0f, 1.0f);
     if (dot3(half_sum, half_sum) > 0.0f)

@@ -13,7 +13,11 @@
  * env_levels (n_levels, 4) [log2 η, texel offset, H, W]; ssdf_basis texel-major (res², n_basis) (the transpose of static['ssdf_basis']);
  * ssdf_coeffs (V, n_coeffs); the material arrays as warp_biscale.shading.pack_materials.
  * The two one-cell bilinear helpers that Warp calls twice (grid_corners, grid_weights) are one
- * function here (grid_bilinear): the same values, one concentric map instead of two.
+ * function here (grid_bilinear): the same values, one concentric map instead of two. It also gives the
+ * cells' cos θ from their column and row (Warp's grid_cos divides the index by K), and the specular
+ * loop runs lobe by lobe with an SG lobe's SSDF angle and table cell found once for all its material
+ * sub-rows (Warp's runs sub-row by sub-row): the same values summed in another order, measured faster on
+ * NVIDIA's OpenCL and slower under Warp (bench/README.md).
  */
 
 #define SHADE_PI 3.14159265358979f
@@ -198,12 +202,16 @@ CL_INLINE float ssdf_theta(Ssdf s, float3 d)
 
 /* The share of a lobe's horizon-clipped integral left visible by the SSDF's θd at its axis:
  * visible_fraction(sin θd, η) / visible_fraction(axis·n, η), clamped to [0, 1]. */
-CL_INLINE float ssdf_visible(Ssdf s, Table t, float3 axis, EtaRow r, float3 n)
+CL_INLINE float ssdf_visible_at(Table t, float theta, float3 axis, EtaRow r, float3 n)
 {
-    float theta = ssdf_theta(s, axis);
     float c = sin(clampf(theta, -0.5f * SHADE_PI, 0.5f * SHADE_PI));
     float vis = lookup(t, 1, r, c) / maxf(lookup(t, 1, r, dot3(axis, n)), 1.0e-6f);
     return clampf(vis, 0.0f, 1.0f);
+}
+
+CL_INLINE float ssdf_visible(Ssdf s, Table t, float3 axis, EtaRow r, float3 n)
+{
+    return ssdf_visible_at(t, ssdf_theta(s, axis), axis, r, n);
 }
 
 /* directions.hemisphere_to_square (z clamped to [0, 1]). */
@@ -232,9 +240,10 @@ CL_INLINE float2 concentric_uv(float3 w)
     return (float2)((a + 1.0f) * 0.5f, (b + 1.0f) * 0.5f);
 }
 
-/* The four K×K grid indices around w and their weights (directions.bilinear_corners' order):
- * kernels/shade.py's grid_corners and grid_weights in one. */
-CL_INLINE void grid_bilinear(float3 w, int k, int *idx, float *wgt)
+/* The four K×K grid indices around w, their weights (directions.bilinear_corners' order) and their directions'
+ * cos θ (directions.grid: 1 − r², r the cell centre's concentric radius), from their column and row with no
+ * integer division by K: kernels/shade.py's grid_bilinear (and grid_corners, grid_weights in one). */
+CL_INLINE void grid_bilinear(float3 w, int k, int *idx, float *wgt, float *cosv)
 {
     float2 uv = concentric_uv(w);
     float x = clampf(uv.x * (float)k - 0.5f, 0.0f, (float)(k - 1));
@@ -253,29 +262,26 @@ CL_INLINE void grid_bilinear(float3 w, int k, int *idx, float *wgt)
     wgt[1] = tx * (1.0f - ty);
     wgt[2] = (1.0f - tx) * ty;
     wgt[3] = tx * ty;
-}
-
-/* cos θ of direction i of the K×K grid (directions.grid: 1 − r², r the cell centre's concentric radius). */
-CL_INLINE float grid_cos(int i, int k)
-{
-    float a = fabs(2.0f * ((float)(i % k) + 0.5f) / (float)k - 1.0f);
-    float b = fabs(2.0f * ((float)(i / k) + 0.5f) / (float)k - 1.0f);
-    float r = fmax(a, b);
-    return 1.0f - r * r;
+    float ax0 = fabs(2.0f * ((float)x0 + 0.5f) / (float)k - 1.0f);
+    float ax1 = fabs(2.0f * ((float)x1 + 0.5f) / (float)k - 1.0f);
+    float by0 = fabs(2.0f * ((float)y0 + 0.5f) / (float)k - 1.0f);
+    float by1 = fabs(2.0f * ((float)y1 + 0.5f) / (float)k - 1.0f);
+    float r00 = fmax(ax0, by0), r10 = fmax(ax1, by0), r01 = fmax(ax0, by1), r11 = fmax(ax1, by1);
+    cosv[0] = 1.0f - r00 * r00;
+    cosv[1] = 1.0f - r10 * r10;
+    cosv[2] = 1.0f - r01 * r01;
+    cosv[3] = 1.0f - r11 * r11;
 }
 
 /* Bilinear (ωi) × bilinear (ωo) lookup of value/cos θi in a (K², K², J, 3) table of values at lobe j; oo,
  * ow: ωo's corners. The division by each ωi corner's cos θi is done here, so that a bake's tables are read
  * as they are (no host copy per edit). */
-CL_INLINE float3 table_rgb(__global const float *table, int base, int k2, int j_count, int j, float3 wi_local, int k,
-                           const int *oo, const float *ow)
+CL_INLINE float3 table_rgb_cell(__global const float *table, int base, int k2, int j_count, int j, const int *ii,
+                                const float *iw, const float *ic, const int *oo, const float *ow)
 {
-    int ii[4];
-    float iw[4];
-    grid_bilinear(wi_local, k, ii, iw);
     float3 out = (float3)(0.0f, 0.0f, 0.0f);
     for (int a = 0; a < 4; ++a) {
-        float wa = iw[a] / grid_cos(ii[a], k);
+        float wa = iw[a] / ic[a];
         for (int b = 0; b < 4; ++b) {
             int i = base + ((ii[a] * k2 + oo[b]) * j_count + j) * 3;
             float wgt = wa * ow[b];
@@ -283,6 +289,16 @@ CL_INLINE float3 table_rgb(__global const float *table, int base, int k2, int j_
         }
     }
     return out;
+}
+
+/* table_rgb_cell at wi_local's grid cell (ii, iw, ic: grid_bilinear's), for a caller that reads one table there. */
+CL_INLINE float3 table_rgb(__global const float *table, int base, int k2, int j_count, int j, float3 wi_local, int k,
+                           const int *oo, const float *ow)
+{
+    int ii[4];
+    float iw[4], ic[4];
+    grid_bilinear(wi_local, k, ii, iw, ic);
+    return table_rgb_cell(table, base, k2, j_count, j, ii, iw, ic, oo, ow);
 }
 
 /* The level of an effective material's energy that a lobe of sharpness η reads: the nearest in log η,
@@ -302,11 +318,14 @@ CL_INLINE float3 effective_diffuse(__global const int *ei, __global const float 
 {
     float3 out = (float3)(0.0f, 0.0f, 0.0f);
     int level = diffuse_level(eta);
+    int ii[4];
+    float iw[4], ic[4];
+    grid_bilinear(wi_local, k, ii, iw, ic);  /* (one ωi for every material's table) */
     for (int sub_i = 0; sub_i < ei[2]; ++sub_i) {
         __global const float *sub = eff_sub + 9 * (ei[4] + sub_i);
         float3 kd = (float3)(sub[1], sub[2], sub[3]) / SHADE_PI;
         int base = ei[6] + (sub_i * DIFFUSE_LEVELS + level) * k2 * k2 * 3;
-        out = out + kd * table_rgb(eff_diffuse, base, k2, 1, 0, wi_local, k, oo, ow);
+        out = out + kd * table_rgb_cell(eff_diffuse, base, k2, 1, 0, ii, iw, ic, oo, ow);
     }
     return out;
 }
@@ -561,18 +580,25 @@ CL_INLINE int nearest_ray_lobe(__global const float *env_sgs, int n_sharp, int e
 
 /* The share of ∫ G(ω; axis, η, 1)(n·ω)⁺ dω left unoccluded (1 without an SSDF): the SSDF's, blended for
  * broad lobes with the occlusion rays' (ray_weight; a mask with no bit set sees it all). */
-CL_INLINE float environment_share(Table tab, float3 axis, float eta, EtaRow row, SurfacePoint s, int has_ssdf,
-                                  Ssdf ssdf, Occlusion occ)
+CL_INLINE float environment_share_at(Table tab, float theta, float3 axis, float eta, EtaRow row, SurfacePoint s,
+                                     Occlusion occ)
 {
-    if (has_ssdf == 0)
-        return 1.0f;
-    float share = ssdf_visible(ssdf, tab, axis, row, s.n);
+    float share = ssdf_visible_at(tab, theta, axis, row, s.n);
     float weight = ray_weight(eta, occ.samples);
     if (weight > 0.0f) {
         float rays = occ.mask != 0u ? ray_share(axis, eta, s.n, occ) : 1.0f;
         share = weight * rays + (1.0f - weight) * share;
     }
     return share;
+}
+
+/* environment_share_at with the SSDF's θd at the axis (1 without an SSDF). */
+CL_INLINE float environment_share(Table tab, float3 axis, float eta, EtaRow row, SurfacePoint s, int has_ssdf,
+                                  Ssdf ssdf, Occlusion occ)
+{
+    if (has_ssdf == 0)
+        return 1.0f;
+    return environment_share_at(tab, ssdf_theta(ssdf, axis), axis, eta, row, s, occ);
 }
 
 /* Per channel, the exact irradiance E = lobes + residual over the environment lobes' own irradiance:
@@ -886,7 +912,8 @@ __kernel void shade_pixels(
         k = ei[0];
         k2 = k * k;
         j_count = ei[1];
-        grid_bilinear(wo_local, k, oo, ow);
+        float oc[4];  /* (ωo's cosines: unused) */
+        grid_bilinear(wo_local, k, oo, ow, oc);
     }
     float3 out = (float3)(0.0f, 0.0f, 0.0f);
 
@@ -933,8 +960,15 @@ __kernel void shade_pixels(
             n_sub = ei[2];
             n_lobes = j_count;
         }
-        for (int sub_i = 0; sub_i < n_sub; ++sub_i) {
-            for (int j = 0; j < n_lobes; ++j) {
+        /* Lobe by lobe, then its material sub-rows: an effective material's SG lobe reflects about the same axis
+         * for every sub-row, so its SSDF angle and table cell are found once (lobe_cached). (kernels/shade.py
+         * keeps sub-row by sub-row: the same caching measured slower under Warp's CUDA code, faster here.) */
+        for (int j = 0; j < n_lobes; ++j) {
+            int lobe_cached = 0;
+            float lobe_theta = 0.0f;
+            int lobe_ii[4];
+            float lobe_iw[4], lobe_ic[4];
+            for (int sub_i = 0; sub_i < n_sub; ++sub_i) {
                 float3 axis;
                 float eta;
                 float3 amp;
@@ -1014,7 +1048,13 @@ __kernel void shade_pixels(
                     } else {
                         float eta_j = lobe[3];
                         axis = normalize3(2.0f * c_oj * xi - wo);
-                        float3 mu = table_rgb(eff_tables, base, k2, j_count, j, to_local(s, axis), k, oo, ow);
+                        if (!lobe_cached) {
+                            grid_bilinear(to_local(s, axis), k, lobe_ii, lobe_iw, lobe_ic);
+                            if (has_ssdf != 0)
+                                lobe_theta = ssdf_theta(ssdf, axis);
+                            lobe_cached = 1;
+                        }
+                        float3 mu = table_rgb_cell(eff_tables, base, k2, j_count, j, lobe_ii, lobe_iw, lobe_ic, oo, ow);
                         amp = scale * mu * (2.0f * SHADE_PI / (eta_j + eta_s));
                         eta = 1.0f / (1.0f / eta_j + 1.0f / eta_s) / (4.0f * maxf(c_oj, MIN_COS_VIEW));
                     }
@@ -1027,7 +1067,9 @@ __kernel void shade_pixels(
                     amount = maxf(amount - spread * sg_integral(eta) * lookup(tab, 1, er, dot3(axis, s.n))
                                                / (1.0f + exp(-eta)), 0.0f);
                 }
-                amount = amount * environment_share(tab, axis, eta, er, s, has_ssdf, ssdf, occ);
+                if (has_ssdf != 0)
+                    amount = amount * environment_share_at(tab, lobe_cached ? lobe_theta : ssdf_theta(ssdf, axis), axis,
+                                                           eta, er, s, occ);
                 float3 light_part = (float3)(0.0f, 0.0f, 0.0f);
                 if (with_lights != 0)
                     light_part = lobe_from_lights(tab, axis, eta, s, n_lights, lights, vis);
