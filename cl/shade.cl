@@ -13,11 +13,10 @@
  * env_levels (n_levels, 4) [log2 η, texel offset, H, W]; ssdf_basis texel-major (res², n_basis) (the transpose of static['ssdf_basis']);
  * ssdf_coeffs (V, n_coeffs); the material arrays as warp_biscale.shading.pack_materials.
  * The two one-cell bilinear helpers that Warp calls twice (grid_corners, grid_weights) are one
- * function here (grid_bilinear): the same values, one concentric map instead of two. It also gives the
- * cells' cos θ from their column and row (Warp's grid_cos divides the index by K), and the specular
- * loop runs lobe by lobe with an SG lobe's SSDF angle and table cell found once for all its material
- * sub-rows (Warp's runs sub-row by sub-row): the same values summed in another order, measured faster on
- * NVIDIA's OpenCL and slower under Warp (bench/README.md).
+ * function here (grid_bilinear): the same values, one concentric map instead of two. The specular loop
+ * runs lobe by lobe with an SG lobe's SSDF angle and table cell found once for all its material sub-rows
+ * (Warp's runs sub-row by sub-row): the same values summed in another order, measured faster on NVIDIA's
+ * OpenCL and slower under Warp (bench/README.md).
  */
 
 #define SHADE_PI 3.14159265358979f

@@ -256,9 +256,10 @@ def concentric_uv(w: wp.vec3) -> wp.vec2:
 
 @wp.struct
 class GridCell:
-    """The four K×K grid indices around a direction and their bilinear weights."""
+    """The four K×K grid indices around a direction, their bilinear weights and their directions' cos θ."""
     idx: vec4i
     wgt: wp.vec4
+    cos: wp.vec4
 
 
 @wp.func
@@ -276,6 +277,17 @@ def grid_bilinear(w: wp.vec3, k: int) -> GridCell:
     g = GridCell()
     g.idx = vec4i(y0 * k + x0, y0 * k + x1, y1 * k + x0, y1 * k + x1)
     g.wgt = wp.vec4((1.0 - tx) * (1.0 - ty), tx * (1.0 - ty), (1.0 - tx) * ty, tx * ty)
+    # cos θ of the four cells (directions.grid: 1 − r², r the cell centre's concentric radius) from their
+    # column and row, with no integer division by K.
+    ax0 = wp.abs(2.0 * (float(x0) + 0.5) / float(k) - 1.0)
+    ax1 = wp.abs(2.0 * (float(x1) + 0.5) / float(k) - 1.0)
+    by0 = wp.abs(2.0 * (float(y0) + 0.5) / float(k) - 1.0)
+    by1 = wp.abs(2.0 * (float(y1) + 0.5) / float(k) - 1.0)
+    r00 = wp.max(ax0, by0)
+    r10 = wp.max(ax1, by0)
+    r01 = wp.max(ax0, by1)
+    r11 = wp.max(ax1, by1)
+    g.cos = wp.vec4(1.0 - r00 * r00, 1.0 - r10 * r10, 1.0 - r01 * r01, 1.0 - r11 * r11)
     return g
 
 
@@ -291,26 +303,23 @@ def grid_weights(w: wp.vec3, k: int) -> wp.vec4:
 
 
 @wp.func
-def grid_cos(i: int, k: int) -> float:
-    """cos θ of direction i of the K×K grid (directions.grid: 1 − r², r the cell centre's concentric radius)."""
-    a = wp.abs(2.0 * (float(i % k) + 0.5) / float(k) - 1.0)
-    b = wp.abs(2.0 * (float(i / k) + 0.5) / float(k) - 1.0)
-    r = wp.max(a, b)
-    return 1.0 - r * r
-
-
-@wp.func
 def table_rgb(table: wp.array(dtype=wp.float32), base: int, k2: int, j_count: int, j: int, wi_local: wp.vec3, k: int,
               oo: vec4i, ow: wp.vec4) -> wp.vec3:
     """Bilinear (ωi) × bilinear (ωo) lookup of value/cos θi in a (K², K², J, 3) table of values at lobe j:
     the division by each ωi corner's cos θi is done here, so that a bake's tables are read as they are
     (no host copy per edit)."""
     g = grid_bilinear(wi_local, k)
-    ii = g.idx
-    iw = g.wgt
+    return table_rgb_cell(table, base, k2, j_count, j, g.idx, wp.cw_div(g.wgt, g.cos), oo, ow)
+
+
+@wp.func
+def table_rgb_cell(table: wp.array(dtype=wp.float32), base: int, k2: int, j_count: int, j: int, ii: vec4i,
+                   iw_cos: wp.vec4, oo: vec4i, ow: wp.vec4) -> wp.vec3:
+    """table_rgb at ωi's grid cell: its corners ii and their bilinear weights over their cos θ (grid_bilinear's
+    idx and wgt / cos), for callers that read several tables at one ωi."""
     out = wp.vec3(0.0)
     for a in range(4):
-        wa = iw[a] / grid_cos(ii[a], k)
+        wa = iw_cos[a]
         for b in range(4):
             idx = base + ((ii[a] * k2 + oo[b]) * j_count + j) * 3
             wgt = wa * ow[b]
@@ -335,11 +344,13 @@ def effective_diffuse(eff_info: wp.array2d(dtype=wp.int32), eff_sub: wp.array2d(
     the lobe's level (diffuse_level)."""
     out = wp.vec3(0.0)
     level = diffuse_level(eta)
+    g = grid_bilinear(wi_local, k)  # (one ωi for every material's table)
+    iw_cos = wp.cw_div(g.wgt, g.cos)
     for sub_i in range(i32_at2(eff_info, idx, 2)):
         sub = i32_at2(eff_info, idx, 4) + sub_i
         kd = wp.vec3(f32_at2(eff_sub, sub, 1), f32_at2(eff_sub, sub, 2), f32_at2(eff_sub, sub, 3)) / PI
         base = i32_at2(eff_info, idx, 6) + (sub_i * DIFFUSE_LEVELS + level) * k2 * k2 * 3
-        out = out + wp.cw_mul(kd, table_rgb(eff_diffuse, base, k2, 1, 0, wi_local, k, oo, ow))
+        out = out + wp.cw_mul(kd, table_rgb_cell(eff_diffuse, base, k2, 1, 0, g.idx, iw_cos, oo, ow))
     return out
 
 
