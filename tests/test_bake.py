@@ -300,6 +300,32 @@ def test_coarse_bins_from_fine_bins_match_binning_the_normals(resolution):
     assert bake_module._coarse_bins(ids, 24) is None  # 16 does not divide 24: initial_lobes bins itself
 
 
+@pytest.mark.parametrize("equal_areas", [True, False])
+def test_normal_bins_match_a_plain_float64_binning(equal_areas):
+    """The bake's bins (`_occupied_bins`, `_bin_normals`: counts times ΔA and one sparse product where the
+    facets' areas are equal, weighted sums otherwise) against per-bin float64 sums written out plainly:
+    the same bins, areas to 1e-12 and mean normals to 1e-12."""
+    rng = np.random.default_rng(11)
+    count, r = 5000, 8
+    normal = rng.normal(size=(count, 3))
+    normal[:, 2] = np.abs(normal[:, 2]) + 0.3
+    normal = (normal / np.linalg.norm(normal, axis=1, keepdims=True)).astype(np.float32)
+    area = np.full(count, 0.01, np.float32) if equal_areas else rng.uniform(0.005, 0.02, count).astype(np.float32)
+    fac = wb.Facets(np.zeros((count, 3), np.float32), normal, np.zeros(count, np.int32), area,
+                    np.zeros(count, np.int32), np.ones((count, 3), np.float32))
+    bins = ref.cube_bin(normal.astype(np.float64), r)
+    q = bake_module._Queued(fac, bins, normal, dirs.grid(2))
+    bv, facet_bin = bake_module._bin_normals(q, r)
+    expect_bins = np.unique(bins)
+    np.testing.assert_array_equal(bv.bins, expect_bins)
+    np.testing.assert_array_equal(expect_bins[facet_bin], bins)
+    for slot, b in enumerate(expect_bins):
+        mine = bins == b
+        np.testing.assert_allclose(bv.area[slot], area[mine].astype(np.float64).sum(), rtol=1e-12)
+        s = (area[mine, None].astype(np.float64) * normal[mine].astype(np.float64)).sum(0)
+        np.testing.assert_allclose(bv.normal[slot], s / np.linalg.norm(s), rtol=0, atol=1e-12)
+
+
 def test_sharpness_from_mean_resultant_is_exact():
     kappa = np.array([0.01, 1.0, 10.0, 300.0, 1e5])
     rbar = 1 / np.tanh(kappa) - 1 / kappa
