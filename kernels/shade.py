@@ -5,6 +5,8 @@ Twin of ``cl/shade.cl``; the mathematics and the packed inputs are ``warp_biscal
 from the G-buffer (face, barycentrics), sums the environment's SG lobes and each light's SG
 emitter against the diffuse part, then the warped specular lobes against the prefiltered
 environment and the lights, each lobe shadowed by the SSDF (environment) or the light's shadow ray.
+The specular loop runs material sub-row by sub-row here and lobe by lobe in the twin: the same values,
+summed in another order, each order measured the faster on its own toolkit (bench/README.md).
 """
 
 import math
