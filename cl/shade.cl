@@ -208,11 +208,6 @@ CL_INLINE float ssdf_visible_at(Table t, float theta, float3 axis, EtaRow r, flo
     return clampf(vis, 0.0f, 1.0f);
 }
 
-CL_INLINE float ssdf_visible(Ssdf s, Table t, float3 axis, EtaRow r, float3 n)
-{
-    return ssdf_visible_at(t, ssdf_theta(s, axis), axis, r, n);
-}
-
 /* directions.hemisphere_to_square (z clamped to [0, 1]). */
 CL_INLINE float2 concentric_uv(float3 w)
 {
