@@ -27,7 +27,7 @@ from bench.bench_bake import BRDFS, families  # noqa: E402
 
 warnings.simplefilter("ignore", wb.EnergyWarning)
 bake_module = sys.modules["warp_biscale.bake"]
-BACKEND_CALLS = ("asg_em", "asg_value_sums", "lobe_moments", "solve_amplitudes", "amplitude_tables")
+BACKEND_CALLS = ("asg_em", "asg_value_sums", "lobe_moments", "solve_amplitudes", "material_tables")
 MODULE_CALLS = ((asg_bake, "amplitude_system"), (asg_bake, "ASGBRDF"), (bake_module, "_sample_facets"),
                 (bake_module, "_queue_visibility"), (bake_module, "_queue_em_and_bin"), (bake_module, "_fit_ndf"))
 

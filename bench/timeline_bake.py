@@ -40,7 +40,7 @@ GPU = {"device": None}  # the Warp CUDA device when GPU events are recorded
 
 # What a bake calls on its backend: each is traced where the backend has it.
 BACKEND_CALLS = ("sample_facets", "normal_bins", "visibility", "visible_area", "visible_weights", "em_start",
-                 "ndf_em", "lobe_moments", "solve_amplitudes", "amplitude_tables", "synchronize")
+                 "ndf_em", "lobe_moments", "solve_amplitudes", "material_tables", "synchronize")
 # The host steps between them. `_channels` is private: it splits the facet weights per material and
 # colour, host work between the rays and the moments that the timeline must show.
 LOBE_STEPS = ("initial_lobes", "amplitude_system")

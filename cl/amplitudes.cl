@@ -26,9 +26,10 @@
  * a_v(ωo), applies the J×J solve rows (float64: A⁻¹ of close lobes has large entries of both signs),
  * clamps negative amplitudes and rescales to the exact energy c, as the reference does.
  *
- * Tables: one work-item per ordered pair adds a channel's amplitudes times its colour into the
+ * Tables: one work-item per ordered pair adds a channel's amplitudes times its colour into its
  * material's (P, J, 3) table and their energy Σ_j μ_j ∫G_j into (P, 3), on the device (the same numpy
- * on the host cost more than the read-back: bench/README.md).
+ * on the host cost more than the read-back: bench/README.md); then one per (pair, level, material)
+ * prefilters the energy over ωi for the renderer's broad environment lobes (energy_levels).
  *
  * At most MAX_LOBES lobes (private arrays). NDRanges as in cl/truth.cl: (outputs, chunks), dimension
  * 0 varying fastest as the last dimension of Warp's (chunks, outputs) launch, rounded up to a whole
@@ -320,18 +321,19 @@ __kernel void solve_amplitudes(
     }
 }
 
-/* reference.amplitude_tables for one channel: amps[p, j, :] (+)= max(μ_pj, 0)·color and energy[p, :]
- * (+)= Σ_j max(μ_pj, 0) ∫G_j · color (added when `accumulate`, else written). A non-finite μ makes the
- * pair's energy NaN, which the host checks. */
+/* reference.amplitude_tables for one channel of `material`: amps[m, p, j, :] (+)= max(μ_pj, 0)·color and
+ * energy[m, p, :] (+)= Σ_j max(μ_pj, 0) ∫G_j · color (added when `accumulate`, else written). A non-finite
+ * μ makes the pair's energy NaN, which the host checks. */
 __kernel void amplitude_tables(
     __global const float *mu,          /* (P, J) */
     __global const double *integrals,  /* (J,) */
     const float red, const float green, const float blue,
     const int accumulate,
+    const int material,
     const int n_lobes,
     const int n_pairs,
-    __global float *amps,              /* (P, J, 3) */
-    __global float *energy)            /* (P, 3) */
+    __global float *amps,              /* (M, P, J, 3) */
+    __global float *energy)            /* (M, P, 3) */
 {
     int p = get_global_id(0);
     if (p >= n_pairs)
@@ -339,19 +341,58 @@ __kernel void amplitude_tables(
     float color[3] = {red, green, blue};
     double total = 0.0;
     int finite = 1;
+    __global float *mine = amps + (size_t)material * n_pairs * n_lobes * 3;
+    __global float *e_out = energy + ((size_t)material * n_pairs + p) * 3;
     for (int j = 0; j < n_lobes; ++j) {
         float m = mu[(size_t)p * n_lobes + j];
         if (!isfinite(m))
             finite = 0;
         m = m > 0.0f ? m : 0.0f;
         total += (double)m * integrals[j];
-        __global float *a = amps + ((size_t)p * n_lobes + j) * 3;
+        __global float *a = mine + ((size_t)p * n_lobes + j) * 3;
         for (int c = 0; c < 3; ++c)
             a[c] = (accumulate ? a[c] : 0.0f) + m * color[c];
     }
     float e = (float)total;
     for (int c = 0; c < 3; ++c) {
-        float v = (accumulate ? energy[(size_t)p * 3 + c] : 0.0f) + e * color[c];
-        energy[(size_t)p * 3 + c] = finite ? v : NAN;
+        float v = (accumulate ? e_out[c] : 0.0f) + e * color[c];
+        e_out[c] = finite ? v : NAN;
     }
+}
+
+/* reference.energy_levels: levels[m, 0] = energy[m] and, for l >= 1, levels[m, l, (ξ, o)] =
+ * Σ_g weights[(l − 1)·K² + ξ, g]·energy[m, (g, o)] over the K² grid directions (pairs ωi-major), in
+ * float32 as the Warp twin. NDRange (pairs, levels, materials). */
+__kernel void energy_levels(
+    __global const float *energy,   /* (M, P, 3), P = K²·K² */
+    __global const float *weights,  /* ((L − 1)·K², K²) */
+    const int n_levels,
+    const int k2,
+    __global float *levels)         /* (M, L, P, 3) */
+{
+    int p = get_global_id(0);
+    int level = get_global_id(1);
+    int m = get_global_id(2);
+    int n_pairs = k2 * k2;
+    if (p >= n_pairs)
+        return;
+    __global const float *e = energy + (size_t)m * n_pairs * 3;
+    __global float *out = levels + (((size_t)m * n_levels + level) * n_pairs + p) * 3;
+    if (level == 0) {
+        for (int c = 0; c < 3; ++c)
+            out[c] = e[(size_t)p * 3 + c];
+        return;
+    }
+    int xi = p / k2, o = p - xi * k2;
+    __global const float *row = weights + ((size_t)(level - 1) * k2 + xi) * k2;
+    float r = 0.0f, g_ = 0.0f, b = 0.0f;
+    for (int g = 0; g < k2; ++g) {
+        __global const float *v = e + ((size_t)g * k2 + o) * 3;
+        r += row[g] * v[0];
+        g_ += row[g] * v[1];
+        b += row[g] * v[2];
+    }
+    out[0] = r;
+    out[1] = g_;
+    out[2] = b;
 }

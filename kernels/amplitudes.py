@@ -19,9 +19,11 @@ Solve: one thread per ordered pair (i, o) reads the unordered pair's moments, di
 applies the J×J solve rows (float64: A⁻¹ of close lobes has large entries of both signs), clamps
 negative amplitudes and rescales to the exact energy c, as the reference does.
 
-Tables: one thread per ordered pair adds a channel's amplitudes times its colour into the material's
+Tables: one thread per ordered pair adds a channel's amplitudes times its colour into its material's
 (P, J, 3) table and their energy Σ_j μ_j ∫G_j into (P, 3), on the device: the same numpy on the host
-cost more than the read-back (strided writes into the RGB-last table; bench/README.md).
+cost more than the read-back (strided writes into the RGB-last table; bench/README.md). Then one thread
+per (material, level, pair) prefilters the energy over ωi for the renderer's broad environment lobes
+(`effective.broad_levels`' product, on the device beside the energy it reads).
 """
 
 import warp as wp
@@ -285,12 +287,13 @@ def amplitude_tables(
     integrals: wp.array(dtype=wp.float64),
     color: wp.vec3,
     accumulate: int,
+    material: int,
     offset: int,
-    amps: wp.array3d(dtype=wp.float32),
-    energy: wp.array2d(dtype=wp.float32),
+    amps: wp.array4d(dtype=wp.float32),
+    energy: wp.array3d(dtype=wp.float32),
 ):
-    """reference.amplitude_tables for one channel: amps[p, j, :] (+)= max(μ_pj, 0)·color and
-    energy[p, :] (+)= Σ_j max(μ_pj, 0) ∫G_j · color (added when `accumulate`, else written). A
+    """reference.amplitude_tables for one channel of `material`: amps[m, p, j, :] (+)= max(μ_pj, 0)·color
+    and energy[m, p, :] (+)= Σ_j max(μ_pj, 0) ∫G_j · color (added when `accumulate`, else written). A
     non-finite μ (NaN is not clamped away) makes the pair's energy NaN, which the host checks."""
     p = wp.tid() + offset
     total = wp.float64(0.0)
@@ -304,13 +307,41 @@ def amplitude_tables(
         for c in range(3):
             a = m * color[c]
             if accumulate != 0:
-                a += amps[p, j, c]
-            amps[p, j, c] = a
+                a += amps[material, p, j, c]
+            amps[material, p, j, c] = a
     e = float(total)
     for c in range(3):
         v = e * color[c]
         if accumulate != 0:
-            v += energy[p, c]
+            v += energy[material, p, c]
         if finite == 0:
             v = wp.nan
-        energy[p, c] = v
+        energy[material, p, c] = v
+
+
+@wp.kernel
+def energy_levels(
+    energy: wp.array3d(dtype=wp.float32),
+    weights: wp.array2d(dtype=wp.float32),
+    offset: int,
+    levels: wp.array4d(dtype=wp.float32),
+):
+    """reference.energy_levels: levels[m, 0] = energy[m] and, for l ≥ 1, levels[m, l, (ξ, o)] =
+    Σ_g weights[(l − 1)·K² + ξ, g]·energy[m, (g, o)] over the K² grid directions ω_g (pairs ωi-major),
+    summed in float32 as the host's float32 product was."""
+    m, level, p0 = wp.tid()
+    p = p0 + offset
+    k2 = weights.shape[1]
+    if level == 0:
+        for c in range(3):
+            levels[m, 0, p, c] = energy[m, p, c]
+        return
+    xi = p // k2
+    o = p - xi * k2
+    row = (level - 1) * k2 + xi
+    total = wp.vec3(0.0)
+    for g in range(k2):
+        q = g * k2 + o
+        total += weights[row, g] * wp.vec3(energy[m, q, 0], energy[m, q, 1], energy[m, q, 2])
+    for c in range(3):
+        levels[m, level, p, c] = total[c]

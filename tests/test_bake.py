@@ -8,10 +8,14 @@ Tolerances, and why:
   inside a 32-facet word); relative 1e-5 of the largest entry covers float32 products of unit vectors
   (~1e-7) summed over at most a few thousand facets. Measured: ≤ 1e-7.
 - solve: float64 rows applied to float32 moments; relative 1e-5 (measured ~1e-7).
+- energy levels: float32 sums of K² terms, all ≥ 0, so each within K²·2⁻²⁴ of its value; we allow 4× that.
 - the whole bake of a flat Lambertian tile: 1e-5 absolute on f̄ ~ 0.16 (float32 tables).
 """
 
+import math
+import os
 import sys
+import tempfile
 
 import numpy as np
 import pytest
@@ -19,8 +23,10 @@ from conftest import flat_tile, random_heightfield, vgroove_tile
 
 import warp_biscale as wb
 from warp_biscale import directions as dirs
+from warp_biscale import effective
 from warp_biscale import lobes as lobes_mod
 from warp_biscale import reference as ref
+from warp_biscale import shading
 from warp_biscale.device import OnDevice
 
 bake_module = sys.modules["warp_biscale.bake"]
@@ -802,26 +808,41 @@ def test_lobe_moments_by_runs_match_reference(backend, tile_name, weights):
 
 
 
-def test_amplitude_tables_match_reference(backend):
-    """A material's tables on the device: channels added with their colours, μ < 0 clamped, energies
-    Σ μ_j ∫G_j; a NaN or ±inf μ makes its pair's energy NaN (the bake's check); μ from the host or
-    left on the device by solve_amplitudes."""
+def test_material_tables_match_reference(backend):
+    """The materials' tables on the device: each material's channels added with their colours, μ < 0 clamped,
+    energies Σ μ_j ∫G_j, a material with no channel zero; a NaN or ±inf μ makes its pair's energy NaN (the
+    bake's check); the energy levels against the float64 reference; μ from the host or left on the device by
+    solve_amplitudes."""
     rng = np.random.default_rng(5)
-    n_pairs, j = 300, 7
+    k, j = 4, 7
+    n_pairs = k**4
+    weights = effective.level_weights(k)
     integrals = rng.random(j) * 3 + 0.1
     chans = [(rng.normal(size=(n_pairs, j)).astype(np.float32), rng.random(3)) for _ in range(3)]
     chans[1][0][5, 2] = np.nan
     chans[2][0][9, 0] = np.inf
     chans[0][0][11, 6] = -np.inf
-    got_a, got_e = backend.amplitude_tables(chans, integrals, n_pairs)
-    want_a, want_e = ref.amplitude_tables(chans, integrals)
-    assert got_a.shape == (n_pairs, j, 3) and got_e.shape == (n_pairs, 3)
-    bad = np.zeros(n_pairs, bool)
-    bad[[5, 9, 11]] = True
-    assert np.isnan(got_e[bad]).all() and np.isnan(want_e[bad]).all()
-    np.testing.assert_allclose(got_a[~bad], want_a[~bad], rtol=1e-6, atol=1e-7)  # float32 products
-    np.testing.assert_allclose(got_e[~bad], want_e[~bad], rtol=1e-5)  # float64 sum, float32 out
-    assert (got_a[~bad] >= 0).all()
+    got_a, got_e, got_l = backend.material_tables([chans[:2], [], chans[2:]], integrals, n_pairs, weights)
+    n_levels = len(effective.DIFFUSE_LEVEL_ETAS)
+    assert got_a.shape == (3, n_pairs, j, 3) and got_e.shape == (3, n_pairs, 3)
+    assert got_l.shape == (3, n_levels, n_pairs, 3)
+    assert not got_a.flags.writeable and not got_l.flags.writeable  # (their device copies stand for them)
+    assert not got_a[1].any() and not got_e[1].any() and not got_l[1].any()  # no channel: reflects nothing
+    for m, mine in ((0, chans[:2]), (2, chans[2:])):
+        want_a, want_e = ref.amplitude_tables(mine, integrals)
+        bad = ~np.isfinite(want_e).all(axis=1)
+        assert bad.sum() == (2 if m == 0 else 1)
+        assert np.isnan(got_e[m][bad]).all()
+        np.testing.assert_allclose(got_a[m][~bad], want_a[~bad], rtol=1e-6, atol=1e-7)  # float32 products
+        np.testing.assert_allclose(got_e[m][~bad], want_e[~bad], rtol=1e-5)  # float64 sum, float32 out
+        assert (got_a[m][~bad] >= 0).all()
+    # The levels of finite energies: float32 sums of K² terms, all ≥ 0, so within K²·2⁻²⁴ of each value.
+    energy = np.abs(rng.normal(size=(2, n_pairs, j))).astype(np.float32)
+    _, e, levels = backend.material_tables([[(energy[0], [1.0, 0.5, 0.25])], [(energy[1], [0.2, 1.0, 0.7])]],
+                                           integrals, n_pairs, weights)
+    want = ref.energy_levels(e.reshape(2, k * k, k * k, 3), k, effective.DIFFUSE_LEVEL_ETAS)
+    np.testing.assert_allclose(levels.reshape(want.shape), want, rtol=k * k * 2.0**-24 * 4, atol=1e-12)
+    np.testing.assert_array_equal(levels[:, 0], e)
     # One channel, μ kept on the device by the solve: the same table as from its host copy.
     fac, fd, grid, vis, vb = _case(backend, wb.geometry.pyramid())
     nd = len(grid)
@@ -833,12 +854,48 @@ def test_amplitude_tables_match_reference(backend):
     pi, po = dirs.all_pairs(nd)
     on_device = backend.solve_amplitudes(mom, a_v, rows, integ, pi, po, nd, to_host=False)
     host = backend.solve_amplitudes(mom, a_v, rows, integ, pi, po, nd)
-    a, e = backend.amplitude_tables([(on_device, [1.0, 0.5, 0.25])], integ, nd * nd)
+    kk = math.isqrt(nd)
+    a, e, _ = backend.material_tables([[(on_device, [1.0, 0.5, 0.25])]], integ, nd * nd, effective.level_weights(kk))
     want_a, want_e = ref.amplitude_tables([(host, [1.0, 0.5, 0.25])], integ)
-    np.testing.assert_allclose(a, want_a, rtol=1e-6, atol=1e-7)
-    np.testing.assert_allclose(e, want_e, rtol=1e-5, atol=1e-7)
-    a0, e0 = backend.amplitude_tables([], integ, nd * nd)  # a material with no facets reflects nothing
-    assert not a0.any() and not e0.any()
+    np.testing.assert_allclose(a[0], want_a, rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(e[0], want_e, rtol=1e-5, atol=1e-7)
+    with pytest.raises(ValueError, match="level_weights"):
+        backend.material_tables([[(host, [1.0, 1.0, 1.0])]], integ, nd * nd, effective.level_weights(kk + 1))
+
+
+def test_a_bake_leaves_its_tables_on_the_device_for_the_shade_stage(backend):
+    """The bake's amplitude tables and energy levels are the ones the shade stage reads without an upload: its
+    packed inputs view their memory, and the backend hands back the device copies it made them in. The levels
+    equal the host product (`broad_levels`) they replace, and the frame of the baked material equals bit for bit
+    the frame of its copy loaded from a file and given a copy of its levels (every table uploaded)."""
+    tile = wb.geometry.pyramid(material=0, base_material=1)
+    mat = wb.bake(tile, [wb.BlinnPhong(exponent=64.0), wb.Lambert(0.4)], lobes=4, directions=4, facets=1 << 12,
+                  backend=backend)
+    host_levels = np.concatenate([mat._energy[None], effective.broad_levels(mat._energy, 4)]).transpose(1, 0, 2, 3, 4)
+    np.testing.assert_allclose(mat.energy_levels, host_levels, rtol=1e-5, atol=1e-7)
+    packed = shading.pack_materials([mat])
+
+    def no_upload(a):
+        raise AssertionError("uploaded")
+
+    for role, table in (("eff_tables", packed["eff_tables"]), ("eff_diffuse", packed["eff_diffuse"])):
+        assert backend._shade_input(role, table, no_upload) is not None
+    copy = mat.with_materials(mat.materials)
+    assert backend._shade_input("eff_tables", shading.pack_materials([copy])["eff_tables"], no_upload) is not None
+
+    def frame(m):
+        mesh = wb.Mesh.merge([wb.Mesh.sphere(1.0, (0, 1, 0), material=0), wb.Mesh.plane(6.0, 0.0, 4, material=1)])
+        scene = wb.Scene(mesh, [m, wb.Lambert(0.5)], wb.Camera(eye=(0, 2, 4), target=(0, 0.8, 0), width=40,
+                                                               height=30), wb.Environment.sky(height=16, width=32))
+        return wb.render(scene, backend=backend, shadow_samples=1, occlusion_samples=4).image
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "m.wbm")
+        mat.save(path)
+        loaded = wb.EffectiveBRDF.load(path)
+    loaded._energy_levels = np.array(mat.energy_levels)  # (the host product differs in the last bit)
+    np.testing.assert_array_equal(frame(mat), frame(loaded))
+
 
 def test_solve_amplitudes_with_the_held_visible_area(backend, heightfield):
     """solve_amplitudes given the very a_v that visible_area returned uses its device copy (no upload);
@@ -978,11 +1035,12 @@ def test_reused_device_scratch_does_not_leak_into_earlier_results(backend):
     np.testing.assert_array_equal(bins_a, kept)
     integ = np.ones(3)
     rng = np.random.default_rng(9)
-    t1 = backend.amplitude_tables([(rng.random((40, 3)), [1.0, 1.0, 1.0])], integ, 40)
+    weights = effective.level_weights(2)
+    t1 = backend.material_tables([[(rng.random((16, 3)), [1.0, 1.0, 1.0])]], integ, 16, weights)
     kept = [x.copy() for x in t1]
-    backend.amplitude_tables([(rng.random((40, 3)), [0.5, 0.2, 0.1])], integ, 40)
-    np.testing.assert_array_equal(t1[0], kept[0])
-    np.testing.assert_array_equal(t1[1], kept[1])
+    backend.material_tables([[(rng.random((16, 3)), [0.5, 0.2, 0.1])]], integ, 16, weights)
+    for a, b in zip(t1, kept):
+        np.testing.assert_array_equal(a, b)
 
 
 # ------------------------------------------------------------------ results left on the device

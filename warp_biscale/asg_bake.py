@@ -44,6 +44,7 @@ reads SG lobes and refuses it in one line (`NO_SG_LOBES`).
 from __future__ import annotations
 
 import collections
+import math
 import os
 import time
 
@@ -56,8 +57,8 @@ from . import directions as dirs
 from . import lobes as lobes_mod
 from . import sg
 from .brdf import as_material_list, diffuse_albedo
-from .effective import (ASG_LOBES, EFF_LOBE_WIDTH, EffectiveBRDF, HostOnlyBRDF, Provenance,
-                        interpolated_amplitudes, materials_from_file, materials_to_file)
+from .effective import (ASG_LOBES, DIFFUSE_LEVEL_ETAS, EFF_LOBE_WIDTH, EffectiveBRDF, HostOnlyBRDF, Provenance,
+                        interpolated_amplitudes, level_weights, materials_from_file, materials_to_file)
 from .io import read_npz, save_npz
 from .model import Bvndf
 from .progress import as_progress
@@ -421,15 +422,15 @@ def bake_asg(tile, mats, lobes, directions, normal_res, facets, backend, seed, k
         cache.move_to_end(key)
     prog.stage("tables", 1)
     t0 = time.perf_counter()
-    amps, energy = geo["amplitudes"], geo["energy"]
+    amps, energy, levels = geo["amplitudes"], geo["energy"], geo["levels"]
     if len(mats) > len(amps):  # materials beyond the tile's ids reflect nothing
-        amps = np.concatenate([amps, np.zeros((len(mats) - len(amps),) + amps.shape[1:], amps.dtype)])
-        energy = None if energy is None else np.concatenate(
-            [energy, np.zeros((len(mats) - len(energy),) + energy.shape[1:], energy.dtype)])
+        amps, energy, levels = (None if a is None else np.concatenate([a, np.zeros((len(mats) - len(a),) + a.shape[1:],
+                                                                                  a.dtype)])
+                                for a in (amps, energy, levels))
     mat = ASGBRDF(geo["asgs"], geo["alpha"], amps, mats, k, info={**geo["info"], "backend": be.name,
                                                                   "tile": tile.name, **_ndf_fit_info(mats)},
                   bvndf=geo["bvndf"], provenance=Provenance(tile, int(seed), count), energy=energy,
-                  tangent_order=geo["tangent_order"])
+                  tangent_order=geo["tangent_order"], energy_levels=levels)
     timer.timings["tables"] = time.perf_counter() - t0
     mat.timings = dict(timer.timings)
     prog.done()
@@ -492,15 +493,13 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
         rows = calibrated_rows(rows, integrals, alpha, be.asg_value_sums(q.fac, em_w, asgs), em_w.sum())
         solved = [(m, mult, be.solve_amplitudes(b, q.a_v, rows, integrals, pi, po, nd, to_host=False))
                   for (m, mult, _), b in zip(q.channels, moments)]
-        amps = np.zeros((tile.n_materials, nd * nd, len(alpha), 3), np.float32)
-        energy = np.zeros((tile.n_materials, nd, nd, 3), np.float32)  # (the tables' Σ_j μ_j ∫G_j, made with them)
-        for m in range(tile.n_materials):
-            mine = [(mu, mult) for mm, mult, mu in solved if mm == m]
-            if mine:
-                amps[m], energy[m] = (t.reshape(shape) for t, shape in
-                                      zip(be.amplitude_tables(mine, integrals, nd * nd), (amps.shape[1:], (nd, nd, 3))))
+        # (with the tables their Σ_j μ_j ∫G_j and its levels for the renderer, as the SG bake's)
+        amps, energy, levels = be.material_tables([[(mu, mult) for mm, mult, mu in solved if mm == m]
+                                                   for m in range(tile.n_materials)], integrals, nd * nd,
+                                                  level_weights(math.isqrt(nd)))
+        energy, levels = energy.reshape(tile.n_materials, nd, nd, 3), levels.reshape(tile.n_materials, -1, nd, nd, 3)
     else:  # past the kernels' lobes: float64 on the host (P diag(w G_j) Pᵀ per lobe)
-        energy = None
+        energy = levels = None
         values = _values(asgs, normal)
         rows, integrals, _, cond = amplitude_system(asgs, alpha, values.T @ em_w, em_w.sum())
         proj = q.vis.as_bool() * np.maximum(q.grid @ normal.T, 0.0)  # (D, Ns)
@@ -524,7 +523,7 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
             "sg_em_iterations": lob.iterations, "asg_em_iterations": steps,
             "gram_condition": cond, "nonempty_bins": int(len(bv.bins)), "channels": len(q.channels)}
     return {"asgs": asgs, "alpha": alpha, "amplitudes": amps.reshape(tile.n_materials, nd, nd, len(alpha), 3),
-            "energy": energy, "bvndf": bv, "info": info, "tangent_order": order}
+            "energy": energy, "levels": levels, "bvndf": bv, "info": info, "tangent_order": order}
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -554,7 +553,8 @@ class ASGBRDF(HostOnlyBRDF):
     no_sg_lobes = NO_SG_LOBES
 
     def __init__(self, asgs: asg_mod.ASG, weight, amplitudes, materials, directions: int, timings=None, info=None,
-                 bvndf=None, provenance: Provenance | None = None, path=None, energy=None, tangent_order=None):
+                 bvndf=None, provenance: Provenance | None = None, path=None, energy=None, tangent_order=None,
+                 energy_levels=None):
         if not isinstance(asgs, asg_mod.ASG) or asgs.lam.ndim != 1 or not (1 <= len(asgs.lam) <= lobes_mod.MAX_LOBES):
             raise ValueError(f"asgs must be an asg.ASG batch of 1..{lobes_mod.MAX_LOBES} lobes")
         unit = np.all(asgs.amplitude == 1.0)
@@ -603,7 +603,11 @@ class ASGBRDF(HostOnlyBRDF):
                 raise ValueError(f"energy must have shape {self.amplitudes.shape[:3] + (3,)}, got {self._energy.shape}")
             if self._energy.size and not (self._energy.min() >= 0 and np.isfinite(self._energy.max())):
                 raise ValueError("energy must be finite and >= 0")
-        self._energy_levels = None
+        # `energy_levels`: the bake's (made on the device with the tables), else made on first use
+        if energy_levels is not None and np.shape(energy_levels) != (len(self.materials), len(DIFFUSE_LEVEL_ETAS),
+                                                                      nd, nd, 3):
+            raise ValueError(f"energy levels of shape {np.shape(energy_levels)} do not fit the tables")
+        self._energy_levels = energy_levels
         self._diffuse = None  # made on first use (`diffuse`)
 
     def _checked_order(self, order) -> np.ndarray:
@@ -665,9 +669,8 @@ class ASGBRDF(HostOnlyBRDF):
         info = {k: v for k, v in self.info.items() if k != "ndf_asg_error"}  # (the new BRDFs' fit errors instead)
         out = ASGBRDF(self.asgs, self.weight, self.amplitudes, materials, self.directions, info=info,
                       bvndf=self.bvndf, provenance=self.provenance, path=self.path, energy=self._energy,
-                      tangent_order=self._tangent_order)
+                      tangent_order=self._tangent_order, energy_levels=self._energy_levels)
         out.info.update(_ndf_fit_info(out.materials))
-        out._energy_levels = self._energy_levels
         out.timings = {"tables": time.perf_counter() - t0}
         return out
 

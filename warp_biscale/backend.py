@@ -116,12 +116,15 @@ class Backend(Protocol):
         """(P, J) float32 μ ≥ 0 for the ordered pairs (reference.solve_amplitudes); `moments` a host
         array or what lobe_moments(..., to_host=False) returned; `a_v` a host array or what
         visible_area(..., to_host=False) returned. With to_host=False μ stays on the device (for
-        amplitude_tables)."""
+        material_tables)."""
 
-    def amplitude_tables(self, channels, integrals, n_pairs: int) -> tuple:
-        """A material's (P, J, 3) amplitude table and (P, 3) energies, float32, from its channels
-        [(μ, rgb)] (reference.amplitude_tables; μ a host (P, J) array or what solve_amplitudes(...,
-        to_host=False) returned; J = len(integrals)). A non-finite μ gives its pair a NaN energy."""
+    def material_tables(self, materials, integrals, n_pairs: int, level_weights) -> tuple:
+        """Per material m its channels materials[m] = [(μ, rgb)] (μ a host (P, J) array or what
+        solve_amplitudes(..., to_host=False) returned; J = len(integrals)) → float32 host arrays: the (M, P, J, 3)
+        amplitude tables and (M, P, 3) energies (reference.amplitude_tables per material; a material with no
+        channel reflects nothing; a non-finite μ gives its pair a NaN energy), and the (M, L, P, 3) energy levels
+        (reference.energy_levels, `level_weights` = effective.level_weights(K), P = K⁴). The tables and the
+        levels come back read-only: the shade stage takes this backend's device copies of them (no upload)."""
 
     # --- SSDF visibility of the large-scale mesh (stage `ssdf`, warp_biscale.ssdf) ---
     def ssdf_distance(self, grid, visible: np.ndarray) -> np.ndarray:

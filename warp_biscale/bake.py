@@ -9,6 +9,7 @@ only "tables"); `EffectiveBRDF.with_materials` does the same on a material in ha
 from __future__ import annotations
 
 import collections
+import math
 import time
 import weakref
 from dataclasses import dataclass, field
@@ -23,7 +24,7 @@ from . import sg
 from .backend import get_backend
 from .device import once
 from .brdf import MEASURED, refuse_anisotropic
-from .effective import METHODS, EffectiveBRDF, Provenance
+from .effective import METHODS, EffectiveBRDF, Provenance, level_weights
 from .progress import as_progress
 from .truth import _check_count, _prepare, _Timer
 from .model import Bvndf, Facets
@@ -259,15 +260,15 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
         cache.move_to_end(key)
     prog.stage("tables", 1)
     t0 = time.perf_counter()
-    amps, energy = geo["amplitudes"], geo["energy"]
+    amps, energy, levels = geo["amplitudes"], geo["energy"], geo["levels"]
     if len(mats) > len(amps):  # materials beyond the tile's ids reflect nothing
         extra = len(mats) - len(amps)
-        amps = np.concatenate([amps, np.zeros((extra,) + amps.shape[1:], amps.dtype)])
-        energy = np.concatenate([energy, np.zeros((extra,) + energy.shape[1:], energy.dtype)])
+        amps, energy, levels = (np.concatenate([a, np.zeros((extra,) + a.shape[1:], a.dtype)])
+                                for a in (amps, energy, levels))
     # The provenance lets the Monte Carlo reference rebuild this material's exact ground truth (truth.truth_of).
     mat = EffectiveBRDF(geo["lobes"], amps, mats, k, method,
                         info={**geo["info"], "backend": be.name, "tile": tile.name}, bvndf=geo["bvndf"],
-                        provenance=Provenance(tile, int(seed), count), _energy=energy)
+                        provenance=Provenance(tile, int(seed), count), _energy=energy, _energy_levels=levels)
     timer.timings["tables"] = time.perf_counter() - t0
     mat.timings = dict(timer.timings)
     prog.done()
@@ -331,13 +332,13 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     hists = _histograms(be, q, bv, facet_bin, route, keep_hist, timer, prog)
     lob, ndf_err, queued, seen_normal, seen_weight = _fit_ndf(be, q, bv, facet_bin, weight_host, r, j_req,
                                                              route, tolerance, probe, timer, prog)
-    amps, energy, cond = _amplitudes(tile, be, q, bv, hists, lob, queued, seen_normal, seen_weight, route, timer,
-                                     prog)
+    amps, energy, levels, cond = _amplitudes(tile, be, q, bv, hists, lob, queued, seen_normal, seen_weight, route,
+                                             timer, prog)
     info = {"facets": count, "seed": int(seed), "normal_res": r, "route": route, "lobes": len(lob),
             "lobes_requested": j_req, "ndf_error": ndf_err, "ndf_probe_sharpness": probe,
             "em_iterations": lob.iterations, "gram_condition": cond, "nonempty_bins": int(len(bv.bins)),
             "channels": len(q.channels)}
-    return {"lobes": lob, "amplitudes": amps, "energy": energy, "bvndf": bv, "info": info}
+    return {"lobes": lob, "amplitudes": amps, "energy": energy, "levels": levels, "bvndf": bv, "info": info}
 
 
 def _sample_facets(tile, be, count, seed, grid, r, timer, prog) -> _Queued:
@@ -530,23 +531,21 @@ def _amplitudes(tile, be, q: _Queued, bv, hists, lob, queued, seen_normal, seen_
             mu = lobes_mod.solve_amplitudes(mom, q.a_v.host(), pi, po, nd, rows, integrals)
         solved.append((m, mult, mu))
         prog.advance()
-    # Per material, on the device: the channels' amplitudes times their colours (BRDF-independent) and
-    # their energies Σ_j μ_j ∫G_j (from μ: the tables need not be summed again).
+    # Per material, on the device: the channels' amplitudes times their colours (BRDF-independent), their
+    # energies Σ_j μ_j ∫G_j (from μ: the tables need not be summed again) and the energies prefiltered for the
+    # renderer's broad environment lobes.
     n_mat, n_pairs = tile.n_materials, nd * nd
-    tables = [be.amplitude_tables([(mu, mult) for mm, mult, mu in solved if mm == m], integrals, n_pairs)
-              for m in range(n_mat)]
-    if n_mat == 1:
-        amps, energy = tables[0][0][None], tables[0][1][None]
-    else:
-        amps = np.stack([a for a, _ in tables])
-        energy = np.stack([e for _, e in tables])
+    amps, energy, levels = be.material_tables([[(mu, mult) for mm, mult, mu in solved if mm == m]
+                                               for m in range(n_mat)], integrals, n_pairs,
+                                              level_weights(math.isqrt(nd)))
     if not np.isfinite(energy).all():  # (one pass: a reduction over the last axis of 3 took ~0.3 ms)
         bad = int((~np.isfinite(energy).all(axis=-1)).sum())
         raise FloatingPointError(f"the amplitude solve gave non-finite values in {bad} direction pairs")
     bv.a_v = np.asarray(q.a_v.host(), np.float64)
     be.synchronize()
     timer.timings["amplitudes"] = timer.timings.get("amplitudes", 0.0) + time.perf_counter() - t0
-    return amps.reshape(n_mat, nd, nd, len(lob), 3), energy.reshape(n_mat, nd, nd, 3), cond
+    return (amps.reshape(n_mat, nd, nd, len(lob), 3), energy.reshape(n_mat, nd, nd, 3),
+            levels.reshape(n_mat, -1, nd, nd, 3), cond)
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -28,6 +28,12 @@ from .trace import (CHUNK_RAYS, check_camera, check_gbuffer, check_lights, check
 # larger ones by their memory.
 SHADE_INPUT_COMPARE_BYTES = 1 << 20
 SCRATCH_BYTES = 64 << 20  # the largest scratch array a backend keeps between calls (see their _scratch)
+RESIDENT_ARRAYS = 4  # device copies of bake tables kept for the shade stage: two bakes' amplitudes and levels
+
+
+def _memory_key(a: np.ndarray) -> tuple:
+    """What identifies the memory a contiguous array views: its address, size and type."""
+    return (a.__array_interface__["data"][0], a.nbytes, a.dtype.str)
 
 
 class OnDevice:
@@ -304,8 +310,8 @@ class DeviceBackend:
     KINDS), `_context` (what device arrays cached on data objects belong to) — and one
     `_launch_<stage>` (or `_run_em`, `_upload_*`) per kernel launch, which only passes arguments in its
     toolkit's convention. The stages whose device work differs past argument passing (em_start,
-    ndf_statistics, lobe_moments, histogram_moments, solve_amplitudes, amplitude_tables,
-    prefilter_level) stay in the subclasses."""
+    ndf_statistics, lobe_moments, histogram_moments, solve_amplitudes, prefilter_level) stay in the
+    subclasses."""
 
     name: str
     device: str
@@ -317,6 +323,14 @@ class DeviceBackend:
 
     def _new(self, shape, kind: str):
         """An uninitialised device array of `shape` elements of `kind`."""
+        raise NotImplementedError
+
+    def _zeros(self, shape, kind: str):
+        """A device array of `shape` elements of `kind`, zero."""
+        raise NotImplementedError
+
+    def _flat(self, array):
+        """`array` as the one-dimensional array of its elements that a kernel's flat argument takes (a view)."""
         raise NotImplementedError
 
     def _to_host(self, array, shape, kind: str, out=None) -> np.ndarray:
@@ -414,6 +428,52 @@ class DeviceBackend:
         host.flags.writeable = False  # (so that the device copy stays what it holds)
         self._held_visible_area = (host, a_v)  # solve_amplitudes given `host` itself uses the device copy
         return host
+
+    def material_tables(self, materials, integrals, n_pairs, level_weights):
+
+        integrals = np.asarray(integrals, np.float64)
+        weights = np.asarray(level_weights, np.float32)
+        k2 = weights.shape[1] if weights.ndim == 2 else 0
+        if k2 == 0 or len(weights) % k2 or n_pairs != k2 * k2:
+            raise ValueError(f"level_weights must have shape ((L - 1)·K², K²) for {n_pairs} = K⁴ direction pairs, "
+                             f"got {weights.shape}")
+        j, n_mat, n_levels = len(integrals), len(materials), len(weights) // k2 + 1
+        shapes = ((n_mat, n_pairs, j, 3), (n_mat, n_pairs, 3), (n_mat, n_levels, n_pairs, 3))
+        if not (n_mat and j):
+            return tuple(np.zeros(s, np.float32) for s in shapes)
+        amps, energy = self._zeros(shapes[0], "f32"), self._zeros(shapes[1], "f32")  # (a material may have no channel)
+        integ = self._recurring(integrals, "f64")
+        for m, channels in enumerate(materials):
+            for k, (mu, rgb) in enumerate(channels):
+                if isinstance(mu, (np.ndarray, list, tuple)):  # a host μ (else solve_amplitudes' device copy)
+                    mu = self._to_device(np.asarray(mu, np.float32).reshape(n_pairs, j), "f32")
+                self._launch_amplitude_tables(mu, integ, [float(c) for c in rgb], k > 0, m, n_pairs, j, amps, energy)
+        levels = self._new(shapes[2], "f32")
+        self._launch_energy_levels(energy, self._recurring(weights, "f32"), n_mat, n_levels, k2, levels)
+        host = [read() for read in [self._queued_read(a, s, "f32") for a, s in zip((amps, energy, levels), shapes)]]
+        # The shade stage reads the amplitudes and levels as they are: it finds these device copies by the host
+        # arrays' memory instead of uploading them again (`_shade_input`).
+        self._keep_resident(host[0], amps)
+        self._keep_resident(host[2], levels)
+        return tuple(host)
+
+    def _keep_resident(self, host, device):
+        """Keep `device` as the device copy of host array `host` (made read-only) for `_shade_input`: the last
+        RESIDENT_ARRAYS such pairs, each host array held so that its memory cannot pass to another array."""
+        host.flags.writeable = False
+        held = self.__dict__.setdefault("_resident", collections.OrderedDict())
+        held[_memory_key(host)] = (host, self._flat(device))
+        while len(held) > RESIDENT_ARRAYS:
+            held.popitem(last=False)
+
+    def _resident_copy(self, host):
+        """The device copy kept by `_keep_resident` of the memory `host` views whole (a read-only, contiguous
+        array: the kept array itself or a reshaped view of it), or None."""
+        held = self.__dict__.get("_resident")
+        if not held or host.flags.writeable or not host.flags.c_contiguous:
+            return None
+        hit = held.get(_memory_key(host))
+        return None if hit is None else hit[1]
 
     def _visible_area_device(self, a_v):
         """The device copy of a_v (see device_copy): on a GPU host an upload costs more than the solve."""
@@ -878,6 +938,9 @@ class DeviceBackend:
         edit copies only what the edit changed: on a GPU host each upload costs 0.1–0.3 ms of host time.
         Shade inputs are not changed in place (render.static_inputs makes new arrays)."""
         host = np.asarray(host)
+        resident = self._resident_copy(host)
+        if resident is not None:  # a bake's table, left on the device by material_tables
+            return resident
         held = self.__dict__.setdefault("_shade_inputs_held", {}).get(role)
         if held is not None and held[0].shape == host.shape and held[0].dtype == host.dtype:
             given, kept, device = held

@@ -67,13 +67,16 @@ def diffuse_level(eta):
 
 
 @functools.lru_cache(maxsize=8)
-def _level_weights(k: int) -> np.ndarray:
-    """((L − 1)·K², K²) float32: row (l, ξ) holds G(ω_g; ξ, η_l)·cos θξ / Σ_g G(ω_g; ξ, η_l)·cos θ_g over ω_g."""
+def level_weights(k: int) -> np.ndarray:
+    """((L − 1)·K², K²) float32, read-only: row (l, ξ) holds G(ω_g; ξ, η_l)·cos θξ / Σ_g G(ω_g; ξ, η_l)·cos θ_g
+    over ω_g (`broad_levels`' product; the bake's table kernels apply it on the device)."""
     g = dirs.grid(k)
     cos = g[:, 2]
     w = np.stack([np.exp(eta * (g @ g.T - 1.0)) for eta in DIFFUSE_LEVEL_ETAS[1:]])  # (L − 1, ξ, ω)
     w *= (cos / (w @ cos))[..., None]
-    return w.reshape(-1, len(g)).astype(np.float32)
+    out = w.reshape(-1, len(g)).astype(np.float32)
+    out.flags.writeable = False  # (one object per K: a backend's upload cache knows it without hashing)
+    return out
 
 
 def broad_levels(table, k: int) -> np.ndarray:
@@ -86,7 +89,7 @@ def broad_levels(table, k: int) -> np.ndarray:
     re-weighs it."""
     t = np.asarray(table, np.float32)
     m, k2 = t.shape[0], k * k
-    out = _level_weights(k) @ t.reshape(m, k2, -1)  # (M, (L − 1)·K², K²·3)
+    out = level_weights(k) @ t.reshape(m, k2, -1)  # (M, (L − 1)·K², K²·3)
     return out.reshape(m, len(DIFFUSE_LEVEL_ETAS) - 1, k2, k2, 3).transpose(1, 0, 2, 3, 4)
 
 
@@ -197,7 +200,8 @@ class EffectiveBRDF:
     VERSIONS = (1, 2)
 
     def __init__(self, lobes: LobeSet, amplitudes, materials, directions: int, method: str = "sg", timings=None,
-                 info=None, bvndf=None, provenance: Provenance | None = None, path=None, _energy=None):
+                 info=None, bvndf=None, provenance: Provenance | None = None, path=None, _energy=None,
+                 _energy_levels=None):
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
         self.lobes = lobes
@@ -227,7 +231,11 @@ class EffectiveBRDF:
         # Σ_j μ_mj ∫G_j = ∫γ̃ per material: independent of the BRDFs, so a material edit reuses it.
         self._energy = (np.einsum("miojc,j->mioc", self.amplitudes, self._integrals.astype(np.float32))
                         if _energy is None else _energy)
-        self._energy_levels = None  # `energy_levels`, made on first use and kept by material edits
+        # `energy_levels`: the bake's (made on the device with the tables), else made on first use; kept by edits
+        if _energy_levels is not None and np.shape(_energy_levels) != (len(self.materials), len(DIFFUSE_LEVEL_ETAS),
+                                                                        nd, nd, 3):
+            raise ValueError(f"energy levels of shape {np.shape(_energy_levels)} do not fit the tables")
+        self._energy_levels = _energy_levels
         self._diffuse = None  # `diffuse`, made on first use (the renderer reads `energy_levels` instead)
 
     def __repr__(self):

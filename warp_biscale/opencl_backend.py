@@ -699,19 +699,13 @@ class OpenCLBackend(DeviceBackend):
                      np.int32(n_pairs), mu)
         return self._read(mu, (n_pairs, j), np.float32) if to_host else mu
 
-    def amplitude_tables(self, channels, integrals, n_pairs):
-        j = len(integrals)
-        if n_pairs == 0 or not channels:
-            return np.zeros((n_pairs, j, 3), np.float32), np.zeros((n_pairs, 3), np.float32)
-        amps = self._empty(n_pairs * j * 3, np.float32)
-        energy = self._empty(n_pairs * 3, np.float32)
-        integ = self._recurring(integrals, "f64")  # (the solve's upload, if it ran just before)
-        for k, (mu, rgb) in enumerate(channels):
-            if not isinstance(mu, self._cl.Buffer):
-                mu = self._buffer(np.asarray(mu, np.float32).reshape(n_pairs, j), np.float32)
-            self._launch("amplitudes", "amplitude_tables", (n_pairs,), mu, integ,
-                         *(np.float32(c) for c in rgb), np.int32(k > 0), np.int32(j), np.int32(n_pairs), amps, energy)
-        return self._read(amps, (n_pairs, j, 3), np.float32), self._read(energy, (n_pairs, 3), np.float32)
+    def _launch_amplitude_tables(self, mu, integ, rgb, accumulate, material, n_pairs, j, amps, energy):
+        self._launch("amplitudes", "amplitude_tables", (n_pairs,), mu, integ, *(np.float32(c) for c in rgb),
+                     np.int32(accumulate), np.int32(material), np.int32(j), np.int32(n_pairs), amps, energy)
+
+    def _launch_energy_levels(self, energy, weights, n_mat, n_levels, k2, levels):
+        self._launch("amplitudes", "energy_levels", (k2 * k2, n_levels, n_mat), energy, weights, np.int32(n_levels),
+                     np.int32(k2), levels)
 
     # ------------------------------------------------------------------ SSDF (stage `ssdf`, warp_biscale.ssdf)
     def _launch_ssdf_distance(self, g, blocks, visible, classes, n_v, n, theta):
@@ -727,6 +721,15 @@ class OpenCLBackend(DeviceBackend):
     def _new(self, shape, kind):
         np_dtype, width = KINDS[kind]
         return self._empty(int(np.prod(shape)) * width, np_dtype)
+
+    def _zeros(self, shape, kind):
+        np_dtype, width = KINDS[kind]
+        buf = self._empty(int(np.prod(shape)) * width, np_dtype)
+        self._cl.enqueue_fill_buffer(self._queue, buf, np.zeros(1, np_dtype), 0, buf.size)
+        return buf
+
+    def _flat(self, array):
+        return array
 
     def _to_device_mutable(self, host, kind):
         """As `_to_device`, a copy that kernels may also write (a `_to_device` buffer is read-only)."""

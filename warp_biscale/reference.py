@@ -15,6 +15,7 @@ from . import lobes
 from .brdf import (ANISOTROPIC_WARD, ASHIKHMIN_SHIRLEY, BLINN_PHONG, COOK_TORRANCE, WARD,  # noqa: F401
                    brdf_cosine_weighted, tangent_frame)
 from .directions import cube_bin  # noqa: F401
+from .directions import grid as direction_grid
 from .environment import (
     environment_irradiance,  # noqa: F401
     equirect_directions,
@@ -54,6 +55,7 @@ __all__ = [
     "histogram_moments",
     "solve_amplitudes",
     "amplitude_tables",
+    "energy_levels",
 ]
 
 # ----------------------------------------------------------------------------------------------
@@ -619,6 +621,23 @@ def amplitude_tables(channels, integrals):
         amps = amps + mu[..., None] * rgb
         energy = energy + np.where(bad, np.nan, mu @ integrals)[:, None] * rgb
     return amps, energy
+
+def energy_levels(energy, k: int, etas) -> np.ndarray:
+    """Materials' energies (M, K², K², 3) prefiltered over ωi for broad environment lobes → (M, L, K², K², 3),
+    L = len(etas): level 0 the energy itself, level l ≥ 1 (η = etas[l]) at (ξ, ωo) the mean of E/cos θ
+    under the SG G(·; ξ, η) over the K×K grid's equal-area cells, times cos θξ:
+    Σ_g G(ω_g; ξ, η)·E(ω_g, ωo) / Σ_g G(ω_g; ξ, η)·cos θ_g · cos θξ, in float64
+    (effective.EffectiveBRDF.energy_levels)."""
+    g = direction_grid(k)
+    energy = np.asarray(energy, np.float64)
+    m, k2 = energy.shape[0], len(g)
+    out = [energy]
+    for eta in etas[1:]:
+        w = np.exp(eta * (g @ g.T - 1.0))  # (ξ, ω_g)
+        w = w * (g[:, 2] / (w @ g[:, 2]))[:, None]
+        out.append(np.einsum("xg,mgoc->mxoc", w, energy.reshape(m, k2, k2, 3)))
+    return np.stack(out, axis=1)
+
 
 # ==============================================================================================
 # SSDF visibility of the large-scale mesh (Wang 2009 §5; warp_biscale.ssdf).

@@ -532,24 +532,16 @@ class WarpBackend(DeviceBackend):
         self._launch(kamplitudes.solve_amplitudes, len(pair_i),
                      [self._recurring(pair_i, "i32"), self._recurring(pair_o, "i32"),
                       int(n_dirs), self._visible_area_device(a_v), moments,
-                      self._recurring(rows, "f64"),  # (integrals recur in amplitude_tables)
+                      self._recurring(rows, "f64"),  # (integrals recur in material_tables)
                       self._recurring(integrals, "f64")], [mu])
         return self._trace_host(mu) if to_host else mu
 
-    def amplitude_tables(self, channels, integrals, n_pairs):
+    def _launch_amplitude_tables(self, mu, integ, rgb, accumulate, material, n_pairs, j, amps, energy):
+        self._launch(kamplitudes.amplitude_tables, n_pairs, [mu, integ, wp.vec3(*rgb), int(accumulate), int(material)],
+                     [amps, energy])
 
-        j = len(integrals)
-        if n_pairs == 0 or not channels:
-            return np.zeros((n_pairs, j, 3), np.float32), np.zeros((n_pairs, 3), np.float32)
-        amps = self._scratch("amplitude_tables", (n_pairs, j, 3), wp.float32)  # (both read back below)
-        energy = self._scratch("amplitude_energy", (n_pairs, 3), wp.float32)
-        integ = self._recurring(integrals, "f64")  # (the solve's upload, if it ran just before)
-        for k, (mu, rgb) in enumerate(channels):
-            if not isinstance(mu, wp.array):
-                mu = self._array(np.asarray(mu, np.float32).reshape(n_pairs, j), wp.float32)
-            self._launch(kamplitudes.amplitude_tables, n_pairs,
-                         [mu, integ, wp.vec3(*(float(c) for c in rgb)), int(k > 0)], [amps, energy])
-        return self._trace_host(amps), self._trace_host(energy)
+    def _launch_energy_levels(self, energy, weights, n_mat, n_levels, k2, levels):
+        self._launch(kamplitudes.energy_levels, (n_mat, n_levels, k2 * k2), [energy, weights], [levels])
 
     # ------------------------------------------------------------------ SSDF (stage `ssdf`, warp_biscale.ssdf)
     def _launch_ssdf_distance(self, g, blocks, visible, classes, n_v, n, theta):
@@ -621,6 +613,12 @@ class WarpBackend(DeviceBackend):
     def _new(self, shape, kind):
         """(`kind` may also be a Warp dtype: the scratch arrays of some stages hold vectors of J floats.)"""
         return wp.empty(shape, dtype=WARP_TYPES.get(kind, kind), device=self._device)
+
+    def _zeros(self, shape, kind):
+        return wp.zeros(shape, dtype=WARP_TYPES[kind], device=self._device)
+
+    def _flat(self, array):
+        return array.flatten()
 
     def _asg_em_program(self, n_bins, j, iterations, dead_mass, log_range, converged) -> dict:
         """The ASG EM's buffers for `n_bins` bins and J lobes and its steps' launches, recorded."""
