@@ -1,7 +1,7 @@
 """Host timeline of one warm bake: when each backend call and host step starts and ends (no added
 synchronisation, ~1 µs of overhead a call), so that the gaps between them show what the critical path is.
 
-    python -m bench.timeline_bake warp:cuda [--gpu] [--facets N] [--tile pyramid] [--runs 5]
+    python -m bench.timeline_bake warp:cuda [--gpu] [--facets N] [--tile pyramid|editor] [--runs 5]
     python -m bench.timeline_bake warp:cpu --facets 4096 --runs 2          # a smoke test
 
 With --gpu (Warp CUDA only) each call also records a CUDA event on the device's stream before and
@@ -44,7 +44,7 @@ BACKEND_CALLS = ("sample_facets", "normal_bins", "visibility", "visible_area", "
 # The host steps between them. `_channels` is private: it splits the facet weights per material and
 # colour, host work between the rays and the moments that the timeline must show.
 LOBE_STEPS = ("initial_lobes", "amplitude_system")
-BAKE_STEPS = ("_channels", "EffectiveBRDF")
+BAKE_STEPS = ("_channels", "_occupied_bins", "_bin_normals", "EffectiveBRDF")
 
 
 def _mark():
@@ -87,9 +87,13 @@ def main(backend, facets=1 << 16, runs=5, gpu=False, tile="heightfield"):
     for name in BAKE_STEPS:
         if hasattr(bake_module, name):
             traced(bake_module, name)
-    tile = common.heightfield_tile() if tile == "heightfield" else getattr(wb.geometry, tile)()
-    kw = dict(tile=tile, materials=wb.BlinnPhong(1.0, 512), lobes=8, directions=12, normal_res=128,
-              facets=facets, backend=be)
+    materials = wb.BlinnPhong(1.0, 512)
+    if tile == "editor":  # the editor's first design: a pyramid and its ground, two materials and colours
+        tile = wb.geometry.pyramid(material=0, base_material=1, color=(1.0, 0.75, 0.3), base_color=(0.55, 0.1, 0.07))
+        materials = [materials, wb.BlinnPhong(0.3, 64, kd=0.5)]
+    else:
+        tile = common.heightfield_tile() if tile == "heightfield" else getattr(wb.geometry, tile)()
+    kw = dict(tile=tile, materials=materials, lobes=8, directions=12, normal_res=128, facets=facets, backend=be)
     # A seed of its own for each bake: the bake keeps what depends on the geometry per seed, and a second
     # bake of one seed would redo the tables alone.
     seeds = itertools.count()
@@ -154,7 +158,8 @@ if __name__ == "__main__":
     ap.add_argument("backend")
     ap.add_argument("--gpu", action="store_true", help="CUDA events per call and device activities (Warp CUDA)")
     ap.add_argument("--facets", type=int, default=1 << 16)
-    ap.add_argument("--tile", default="heightfield", help="heightfield (the targets' tile) or a geometry family")
+    ap.add_argument("--tile", default="heightfield",
+                    help="heightfield (the targets' tile), editor (the editor's first design) or a geometry family")
     ap.add_argument("--runs", type=int, default=5)
     a = ap.parse_args()
     main(a.backend, facets=a.facets, runs=a.runs, gpu=a.gpu, tile=a.tile)

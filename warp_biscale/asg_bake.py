@@ -58,7 +58,7 @@ from . import lobes as lobes_mod
 from . import sg
 from .brdf import as_material_list, diffuse_albedo
 from .effective import (ASG_LOBES, DIFFUSE_LEVEL_ETAS, EFF_LOBE_WIDTH, EffectiveBRDF, HostOnlyBRDF, Provenance,
-                        interpolated_amplitudes, level_weights, materials_from_file, materials_to_file)
+                        device_levels, interpolated_amplitudes, materials_from_file, materials_to_file)
 from .io import read_npz, save_npz
 from .model import Bvndf
 from .progress import as_progress
@@ -496,8 +496,9 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
         # (with the tables their Σ_j μ_j ∫G_j and its levels for the renderer, as the SG bake's)
         amps, energy, levels = be.material_tables([[(mu, mult) for mm, mult, mu in solved if mm == m]
                                                    for m in range(tile.n_materials)], integrals, nd * nd,
-                                                  level_weights(math.isqrt(nd)))
-        energy, levels = energy.reshape(tile.n_materials, nd, nd, 3), levels.reshape(tile.n_materials, -1, nd, nd, 3)
+                                                  device_levels(be, math.isqrt(nd)))
+        energy = energy.reshape(tile.n_materials, nd, nd, 3)
+        levels = None if levels is None else levels.reshape(tile.n_materials, -1, nd, nd, 3)
     else:  # past the kernels' lobes: float64 on the host (P diag(w G_j) Pᵀ per lobe)
         energy = levels = None
         values = _values(asgs, normal)

@@ -118,13 +118,14 @@ class Backend(Protocol):
         visible_area(..., to_host=False) returned. With to_host=False μ stays on the device (for
         material_tables)."""
 
-    def material_tables(self, materials, integrals, n_pairs: int, level_weights) -> tuple:
+    def material_tables(self, materials, integrals, n_pairs: int, level_weights=None) -> tuple:
         """Per material m its channels materials[m] = [(μ, rgb)] (μ a host (P, J) array or what
         solve_amplitudes(..., to_host=False) returned; J = len(integrals)) → float32 host arrays: the (M, P, J, 3)
         amplitude tables and (M, P, 3) energies (reference.amplitude_tables per material; a material with no
-        channel reflects nothing; a non-finite μ gives its pair a NaN energy), and the (M, L, P, 3) energy levels
-        (reference.energy_levels, `level_weights` = effective.level_weights(K), P = K⁴). The tables and the
-        levels come back read-only: the shade stage takes this backend's device copies of them (no upload)."""
+        channel reflects nothing; a non-finite μ gives its pair a NaN energy), and with `level_weights`
+        (effective.level_weights(K), P = K⁴) the (M, L, P, 3) energy levels (reference.energy_levels), else
+        None. The tables and the levels come back read-only: the shade stage takes this backend's device copies
+        of them (no upload)."""
 
     # --- SSDF visibility of the large-scale mesh (stage `ssdf`, warp_biscale.ssdf) ---
     def ssdf_distance(self, grid, visible: np.ndarray) -> np.ndarray:

@@ -24,7 +24,7 @@ from . import sg
 from .backend import get_backend
 from .device import once
 from .brdf import MEASURED, refuse_anisotropic
-from .effective import METHODS, EffectiveBRDF, Provenance, level_weights
+from .effective import METHODS, EffectiveBRDF, Provenance, device_levels
 from .progress import as_progress
 from .truth import _check_count, _prepare, _Timer
 from .model import Bvndf, Facets
@@ -263,7 +263,7 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
     amps, energy, levels = geo["amplitudes"], geo["energy"], geo["levels"]
     if len(mats) > len(amps):  # materials beyond the tile's ids reflect nothing
         extra = len(mats) - len(amps)
-        amps, energy, levels = (np.concatenate([a, np.zeros((extra,) + a.shape[1:], a.dtype)])
+        amps, energy, levels = (None if a is None else np.concatenate([a, np.zeros((extra,) + a.shape[1:], a.dtype)])
                                 for a in (amps, energy, levels))
     # The provenance lets the Monte Carlo reference rebuild this material's exact ground truth (truth.truth_of).
     mat = EffectiveBRDF(geo["lobes"], amps, mats, k, method,
@@ -533,11 +533,11 @@ def _amplitudes(tile, be, q: _Queued, bv, hists, lob, queued, seen_normal, seen_
         prog.advance()
     # Per material, on the device: the channels' amplitudes times their colours (BRDF-independent), their
     # energies Σ_j μ_j ∫G_j (from μ: the tables need not be summed again) and the energies prefiltered for the
-    # renderer's broad environment lobes.
+    # renderer's broad environment lobes (`device_levels`).
     n_mat, n_pairs = tile.n_materials, nd * nd
     amps, energy, levels = be.material_tables([[(mu, mult) for mm, mult, mu in solved if mm == m]
                                                for m in range(n_mat)], integrals, n_pairs,
-                                              level_weights(math.isqrt(nd)))
+                                              device_levels(be, math.isqrt(nd)))
     if not np.isfinite(energy).all():  # (one pass: a reduction over the last axis of 3 took ~0.3 ms)
         bad = int((~np.isfinite(energy).all(axis=-1)).sum())
         raise FloatingPointError(f"the amplitude solve gave non-finite values in {bad} direction pairs")
@@ -545,7 +545,7 @@ def _amplitudes(tile, be, q: _Queued, bv, hists, lob, queued, seen_normal, seen_
     be.synchronize()
     timer.timings["amplitudes"] = timer.timings.get("amplitudes", 0.0) + time.perf_counter() - t0
     return (amps.reshape(n_mat, nd, nd, len(lob), 3), energy.reshape(n_mat, nd, nd, 3),
-            levels.reshape(n_mat, -1, nd, nd, 3), cond)
+            None if levels is None else levels.reshape(n_mat, -1, nd, nd, 3), cond)
 
 
 # ---------------------------------------------------------------------------------------------------

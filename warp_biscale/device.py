@@ -429,18 +429,21 @@ class DeviceBackend:
         self._held_visible_area = (host, a_v)  # solve_amplitudes given `host` itself uses the device copy
         return host
 
-    def material_tables(self, materials, integrals, n_pairs, level_weights):
+    def material_tables(self, materials, integrals, n_pairs, level_weights=None):
 
         integrals = np.asarray(integrals, np.float64)
-        weights = np.asarray(level_weights, np.float32)
-        k2 = weights.shape[1] if weights.ndim == 2 else 0
-        if k2 == 0 or len(weights) % k2 or n_pairs != k2 * k2:
-            raise ValueError(f"level_weights must have shape ((L - 1)·K², K²) for {n_pairs} = K⁴ direction pairs, "
-                             f"got {weights.shape}")
-        j, n_mat, n_levels = len(integrals), len(materials), len(weights) // k2 + 1
-        shapes = ((n_mat, n_pairs, j, 3), (n_mat, n_pairs, 3), (n_mat, n_levels, n_pairs, 3))
+        j, n_mat = len(integrals), len(materials)
+        shapes = [(n_mat, n_pairs, j, 3), (n_mat, n_pairs, 3)]
+        if level_weights is not None:
+            weights = np.asarray(level_weights, np.float32)
+            k2 = weights.shape[1] if weights.ndim == 2 else 0
+            if k2 == 0 or len(weights) % k2 or n_pairs != k2 * k2:
+                raise ValueError(f"level_weights must have shape ((L - 1)·K², K²) for {n_pairs} = K⁴ direction "
+                                 f"pairs, got {weights.shape}")
+            n_levels = len(weights) // k2 + 1
+            shapes.append((n_mat, n_levels, n_pairs, 3))
         if not (n_mat and j):
-            return tuple(np.zeros(s, np.float32) for s in shapes)
+            return (*(np.zeros(s, np.float32) for s in shapes), *([None] if level_weights is None else []))
         amps, energy = self._zeros(shapes[0], "f32"), self._zeros(shapes[1], "f32")  # (a material may have no channel)
         integ = self._recurring(integrals, "f64")
         for m, channels in enumerate(materials):
@@ -448,13 +451,17 @@ class DeviceBackend:
                 if isinstance(mu, (np.ndarray, list, tuple)):  # a host μ (else solve_amplitudes' device copy)
                     mu = self._to_device(np.asarray(mu, np.float32).reshape(n_pairs, j), "f32")
                 self._launch_amplitude_tables(mu, integ, [float(c) for c in rgb], k > 0, m, n_pairs, j, amps, energy)
-        levels = self._new(shapes[2], "f32")
-        self._launch_energy_levels(energy, self._recurring(weights, "f32"), n_mat, n_levels, k2, levels)
-        host = [read() for read in [self._queued_read(a, s, "f32") for a, s in zip((amps, energy, levels), shapes)]]
+        arrays = [amps, energy]
+        if level_weights is not None:
+            arrays.append(self._new(shapes[2], "f32"))
+            self._launch_energy_levels(energy, self._recurring(weights, "f32"), n_mat, n_levels, k2, arrays[2])
+        host = [read() for read in [self._queued_read(a, s, "f32") for a, s in zip(arrays, shapes)]]
         # The shade stage reads the amplitudes and levels as they are: it finds these device copies by the host
         # arrays' memory instead of uploading them again (`_shade_input`).
         self._keep_resident(host[0], amps)
-        self._keep_resident(host[2], levels)
+        if level_weights is None:
+            return host[0], host[1], None
+        self._keep_resident(host[2], arrays[2])
         return tuple(host)
 
     def _keep_resident(self, host, device):

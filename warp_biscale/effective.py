@@ -79,6 +79,15 @@ def level_weights(k: int) -> np.ndarray:
     return out
 
 
+def device_levels(backend, k: int):
+    """`level_weights(k)` where a bake's table kernels should prefilter its energy into levels beside the tables
+    (Backend.material_tables), or None where the host's float32 product (`broad_levels`, made when a renderer
+    first asks) is the cheaper: on a CPU device, whose kernels run the product far slower than the host's BLAS
+    (K = 12, two materials, this 2-core CPU: 71 ms on Warp CPU and 30 ms on PoCL against 2.5 ms in numpy;
+    bench/README.md). A GPU makes them in microseconds and keeps them for the shade stage."""
+    return level_weights(k) if backend.is_gpu else None
+
+
 def broad_levels(table, k: int) -> np.ndarray:
     """(L − 1, M, K², K², 3) float32 of (M, K², K², 3) tables of f̄ values (cosine θi included) on the K×K
     grid: per level l ≥ 1 (η = DIFFUSE_LEVEL_ETAS[l]) P(ξ, ωo)·cos θξ, where P(ξ, ωo) =
