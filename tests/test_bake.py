@@ -332,6 +332,40 @@ def test_normal_bins_match_a_plain_float64_binning(equal_areas):
         np.testing.assert_allclose(bv.normal[slot], s / np.linalg.norm(s), rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("order", ["face_runs", "shuffled"])
+def test_colour_channels_match_a_plain_per_facet_split(backend, order):
+    """The bake's colour channels (`_channels`: per-face values repeated over the facets' runs of faces, or
+    gathered where the facets do not run face by face) against per-facet weights written out plainly, bit for
+    bit: one channel ΔA on its facets for a material of one colour, three of ΔA·c_s for one of several; and
+    the moments of a weight uploaded ahead (`facet_weight`) equal those of its host array."""
+    t = wb.geometry.pyramid(material=0, base_material=1)
+    colors = np.random.default_rng(1).random((len(t.faces), 3))
+    colors[t.material_ids == 0] = (1.0, 0.5, 0.25)
+    tile = wb.SmallScale(t.vertices, t.faces, material_ids=t.material_ids, colors=colors, period=t.period)
+    fac, _, grid, vis, _ = _case(backend, tile, count=4096, seed=3)
+    if order == "shuffled":
+        perm = np.random.default_rng(2).permutation(len(fac.face))
+        fac = wb.Facets(*(getattr(fac, name)[perm] for name in wb.Facets.FIELDS))
+        assert bake_module._face_runs(fac.face, len(tile.faces)) is None
+    else:
+        assert bake_module._face_runs(fac.face, len(tile.faces)) is not None
+    area, facet_material = fac.area.astype(np.float64), tile.material_ids[fac.face]
+    want = [(0, np.array([1.0, 0.5, 0.25]), np.where(facet_material == 0, area, 0.0))]
+    want += [(1, np.eye(3)[c], np.where(facet_material == 1, area * colors[fac.face, c], 0.0)) for c in range(3)]
+    got = bake_module._channels(tile, fac)
+    assert len(got) == len(want)
+    for (m, mult, w), (m2, mult2, w2) in zip(got, want):
+        assert m == m2
+        np.testing.assert_array_equal(mult, mult2)
+        np.testing.assert_array_equal(w, w2)
+    iu, ou = np.triu_indices(len(grid))
+    lob = lobes_mod.initial_lobes(fac.normal.astype(np.float64), area, 3)
+    w = got[1][2]
+    np.testing.assert_array_equal(
+        backend.lobe_moments(fac, vis, backend.facet_weight(w), lob.axes, lob.sharpness, iu, ou),
+        backend.lobe_moments(fac, vis, w, lob.axes, lob.sharpness, iu, ou))
+
+
 def test_sharpness_from_mean_resultant_is_exact():
     kappa = np.array([0.01, 1.0, 10.0, 300.0, 1e5])
     rbar = 1 / np.tanh(kappa) - 1 / kappa

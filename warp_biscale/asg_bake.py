@@ -488,7 +488,7 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
         # The SG bake's moment, solve and table kernels, with the ASGs' values at the facets (made on the device)
         # in place of the SG lobes': exact facet sums, float32, as the SG route.
         moments = [be.lobe_moments(q.fac, q.vis, w, None, None, q.iu, q.ou, to_host=False, lobe_values=asgs)
-                   for _, _, w in q.channels]
+                   for w in q.weights]
         rows, integrals, _, cond = amplitude_system(asgs)  # (on the host while the device sums the moments)
         rows = calibrated_rows(rows, integrals, alpha, be.asg_value_sums(q.fac, em_w, asgs), em_w.sum())
         solved = [(m, mult, be.solve_amplitudes(b, q.a_v, rows, integrals, pi, po, nd, to_host=False))

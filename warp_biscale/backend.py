@@ -90,14 +90,19 @@ class Backend(Protocol):
         has them. `meanwhile()`, if given, runs on the host before ndf_em first waits on the device (it may
         never wait: a caller with host work to hide runs it afterwards too, wrapped in `device.once`)."""
 
+    def facet_weight(self, weight: np.ndarray):
+        """A device copy of a facet weight (Ns,) as lobe_moments takes it (an OnDevice whose host() is `weight`),
+        made now: an upload waits for the work queued before it, so a caller uploads while the device is idle."""
+
     def lobe_moments(self, facets: Facets, vis: Visibility, weight: np.ndarray | None, axes: np.ndarray | DeviceLobes,
                      sharpness: np.ndarray | None, pair_i: np.ndarray, pair_o: np.ndarray,
                      to_host: bool = True, lobe_values=None):
         """(P, J + 1) float32 facet sums of docs/design.md §5 for the unordered pairs (reference.lobe_moments),
-        each facet weighing `weight` (Ns,), or its area ΔA when `weight` is None (a tile of one material
-        and one colour: nothing uploaded); with to_host=False a device array for solve_amplitudes (no
-        round trip through the host). `axes` may be the DeviceLobes of this backend's last ndf_em
-        (`sharpness` None): its J lobes, dead ones included, as the device holds them (float32). With
+        each facet weighing `weight` (Ns,) (a host array or what facet_weight returned), or its area ΔA when
+        `weight` is None (a tile of one material and one colour: nothing uploaded); with to_host=False a device
+        array for solve_amplitudes (no round trip through the host). `axes` may be the DeviceLobes of this
+        backend's last ndf_em (`sharpness` None): its J lobes, dead ones included, as the device holds them
+        (float32). With
         `lobe_values`, the facets' values of other lobes stand for the SG lobes' (axes and sharpness unused):
         a host (Ns, J) array, or an asg.ASG batch (J,) (the ASG bake's lobes, their amplitudes included),
         evaluated on the device."""

@@ -65,25 +65,46 @@ def _channels(tile, facets):
     """
     if _one_channel(tile):
         return [(int(tile.material_ids[0]), tile.colors[0].astype(np.float64), None)]
-    # Materials and colours are the faces': decided per face, then one gather per facet (per-facet tests of
-    # the colours cost a GPU host milliseconds an edit).
+    # Materials and colours are the faces': decided per face. Sampled facets run face by face, so a face's value
+    # is repeated over its run (`_face_runs`) rather than gathered facet by facet (per-facet tests of the colours
+    # cost a GPU host milliseconds an edit; the gathers most of a millisecond).
     ids, colors = tile.material_ids, tile.colors
-    facet_material = ids[facets.face]
-    present = np.bincount(facet_material, minlength=tile.n_materials) > 0
-    area = facets.area.astype(np.float64)
-    facet_color = None
-    out = []
-    for m in np.flatnonzero(present):
-        mine = facet_material == m
-        face_colors = colors[ids == m]
-        if (face_colors == face_colors[0]).all():  # one colour: applied after one sum
-            out.append((int(m), face_colors[0].astype(np.float64), np.where(mine, area, 0.0)))
+    runs, equal = _face_runs(facets.face, len(ids)), _equal_area(facets)
+    if runs is None:
+        facet_count = np.bincount(ids[facets.face], minlength=tile.n_materials)
+        area = facets.area.astype(np.float64)
+
+        def weight(per_face):
+            return per_face[facets.face] * area
+    else:
+        facet_count = np.bincount(ids, weights=runs, minlength=tile.n_materials)
+        if equal is None:
+            area = facets.area.astype(np.float64)
+
+            def weight(per_face):
+                return np.repeat(per_face, runs) * area
         else:
-            if facet_color is None:
-                facet_color = colors[facets.face].astype(np.float64)
+            def weight(per_face):  # (ΔA times a face's value, repeated: one pass over the facets)
+                return np.repeat(per_face * equal, runs)
+    out = []
+    for m in np.flatnonzero(facet_count > 0):
+        mine = ids == m
+        face_colors = colors[mine]
+        if (face_colors == face_colors[0]).all():  # one colour: applied after one sum
+            out.append((int(m), face_colors[0].astype(np.float64), weight(mine.astype(np.float64))))
+        else:
             for c in range(3):
-                out.append((int(m), np.eye(3)[c], np.where(mine, area * facet_color[:, c], 0.0)))
+                out.append((int(m), np.eye(3)[c], weight(np.where(mine, colors[:, c], 0.0))))
     return out
+
+
+def _face_runs(face, n_faces: int):
+    """The number of facets of each face (n_faces,) when the facets run face by face (face ids not decreasing,
+    as `sample_facets` makes them: its points walk the faces' cumulative area), else None."""
+    face = np.asarray(face)
+    if len(face) > 1 and not (face[1:] >= face[:-1]).all():
+        return None
+    return np.diff(np.searchsorted(face, np.arange(n_faces + 1)))
 
 
 def _fit_lobes(be, fac, facet_weight, bin_normal, bin_weight, count, tolerance, probe_sharpness, coarse_bins=None,
@@ -310,6 +331,7 @@ class _Queued:
     a_v: object = None
     em_weight: object = None
     channels: list = field(default_factory=list)
+    weights: list = field(default_factory=list)  # the channels' weights on the device (None: the area)
     iu: np.ndarray = None
     ou: np.ndarray = None
     em_start: object = None
@@ -341,21 +363,25 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
     return {"lobes": lob, "amplitudes": amps, "energy": energy, "levels": levels, "bvndf": bv, "info": info}
 
 
-def _sample_facets(tile, be, count, seed, grid, r, timer, prog) -> _Queued:
-    """Facets, and each one's normal bin; the normals (and, for a tile of several materials or colours, the
-    facets' faces that `_channels` splits them by) are read back now, before the rays queue behind them:
-    read later, they would wait for the rays, and the host's work would not overlap them."""
+def _sample_facets(tile, be, count, seed, grid, r, timer, prog, weights_on_device=True) -> _Queued:
+    """Facets, each one's normal bin and the colour channels (`_channels`); the normals (and, for a tile of
+    several materials or colours, the facets' faces that the channels split them by) are read back now,
+    before the rays queue behind them: read later, they would wait for the rays, and the host's work would
+    not overlap them. With `weights_on_device` the channels' weights go to the device now too, for the moment
+    sums (`q.weights`): an upload waits for the work queued before it, so one made behind the rays held the
+    host until the device had done them and the EM (bench/README.md)."""
     prog.stage(f"facets ({count})", 1)
     fac = timer("facets", be.sample_facets, tile, count, seed)
     bins = timer("bvndf", be.normal_bins, fac, r)
-    if not _one_channel(tile):
-        fac.face  # noqa: B018 (the read-back itself is wanted here: `_channels` splits by it)
-    return _Queued(fac, bins, fac.normal, grid)
+    q = _Queued(fac, bins, fac.normal, grid)
+    q.channels = _channels(tile, fac)
+    if weights_on_device:
+        q.weights = [None if w is None else be.facet_weight(w) for _, _, w in q.channels]
+    return q
 
 
 def _queue_visibility(tile, be, q: _Queued, prog) -> None:
-    """Queue the rays, a_v and the EM's facet weights (all left on the device), and split the facets
-    into colour channels while the device works.
+    """Queue the rays, a_v and the EM's facet weights (all left on the device).
 
     The lobes fit the NDF as the direction grid sees it: each facet weighs its projected area averaged
     over the grid (reference.visible_weights), so no lobe is spent on normals that no direction sees
@@ -365,7 +391,6 @@ def _queue_visibility(tile, be, q: _Queued, prog) -> None:
     q.vis = be.visibility(tile, q.fac, q.grid)
     q.a_v = be.visible_area(q.fac, q.vis, to_host=False)
     q.em_weight = be.visible_weights(q.fac, q.vis, to_host=False)  # float32 OnDevice, what EM weighs
-    q.channels = _channels(tile, q.fac)
     q.iu, q.ou = dirs.unordered_pairs(len(q.grid))
 
 
@@ -419,7 +444,7 @@ def _queue_moments(be, q: _Queued, em, route):
     the device sums. → (J, per-channel device moments), or None."""
     if route != "facets" or em.count > lobes_mod.KERNEL_LOBES:
         return None
-    return em.count, [be.lobe_moments(q.fac, q.vis, w, em, None, q.iu, q.ou, to_host=False) for _, _, w in q.channels]
+    return em.count, [be.lobe_moments(q.fac, q.vis, w, em, None, q.iu, q.ou, to_host=False) for w in q.weights]
 
 
 def _queue_em_and_bin(be, q: _Queued, r, j_req, route) -> tuple:
@@ -516,7 +541,7 @@ def _amplitudes(tile, be, q: _Queued, bv, hists, lob, queued, seen_normal, seen_
     elif route == "facets":  # with few lobes the moments stay on the device for the solve
         def sums(w, ax, eta):
             return be.lobe_moments(q.fac, q.vis, w, ax, eta, q.iu, q.ou, to_host=not few)
-        moments = [_grouped_moments(sums, w, lob) for _, _, w in q.channels]
+        moments = [_grouped_moments(sums, w, lob) for w in q.weights]
     else:
         def sums(hist, ax, eta):
             return be.histogram_moments(hist, bv.normal, q.grid, ax, eta, q.iu, q.ou)
@@ -606,12 +631,11 @@ def _bake_matrix(tile, mats, directions, normal_res, facets, backend, seed, keep
 def _matrix_geometry(tile, be, count, seed, k, r, settings, keep_hist, timer, prog) -> dict:
     """The part of a matrix bake that depends on the geometry alone: → {"bvndf", "channels" [(material,
     rgb multiplier, N's MatrixFactors)], "info"}; stages "facets", "visibility", "bvndf", "n_factors"."""
-    q = _sample_facets(tile, be, count, seed, dirs.frozen_grid(k), r, timer, prog)
+    q = _sample_facets(tile, be, count, seed, dirs.frozen_grid(k), r, timer, prog, weights_on_device=False)
     prog.stage(f"visibility ({len(q.grid)} dirs)", 1)
     t0 = time.perf_counter()
     q.vis = be.visibility(tile, q.fac, q.grid)
     q.a_v = be.visible_area(q.fac, q.vis, to_host=False)
-    q.channels = _channels(tile, q.fac)  # (on the host while the device traces)
     q.iu, q.ou = dirs.unordered_pairs(len(q.grid))
     bv, facet_bin = _bin_normals(q, r)
     bv.a_v = np.asarray(q.a_v.host(), np.float64)

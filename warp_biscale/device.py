@@ -429,6 +429,9 @@ class DeviceBackend:
         self._held_visible_area = (host, a_v)  # solve_amplitudes given `host` itself uses the device copy
         return host
 
+    def facet_weight(self, weight):
+        return OnDevice(self._to_device(np.asarray(weight, np.float32), "f32"), lambda: weight)
+
     def material_tables(self, materials, integrals, n_pairs, level_weights=None):
 
         integrals = np.asarray(integrals, np.float64)

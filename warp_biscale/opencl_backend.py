@@ -39,7 +39,7 @@ from . import cl as cl_sources
 from . import sg
 from .asg import ASG
 from .device import (KINDS, DeviceBackend, PROBE_VALUES, SCRATCH_BYTES, DeviceStart, UploadCache,
-                     check_kernel_lobes, chunking, one_line, padded_lobe_values,
+                     check_kernel_lobes, chunking, device_copy, one_line, padded_lobe_values,
                      probe_mismatch, start_scale)
 from .bvh import build_bvh
 from .environment import SUPPORT, equirect_tables
@@ -639,7 +639,8 @@ class OpenCLBackend(DeviceBackend):
         else:
             values = self._buffer(padded_lobe_values(lobe_values, -(-j // 8) * 8), np.float32)
         runs = f.get("area_runs") if weight is None else None  # the area's runs depend on the facets alone
-        weight = f["area"] if weight is None else self._buffer(np.asarray(weight, np.float32), np.float32)
+        weight = f["area"] if weight is None else device_copy(
+            weight, None, lambda host: self._buffer(np.asarray(host, np.float32), np.float32))
         n_words = vis.words
         if runs is None:
             if weight is f["area"]:  # kept with the facets

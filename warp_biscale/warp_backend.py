@@ -21,7 +21,7 @@ import warp as wp
 from .asg import ASG
 from .effective import EFF_LOBE_WIDTH
 from .device import (KINDS, DeviceBackend, PROBE_VALUES, SCRATCH_BYTES, DeviceStart, UploadCache,
-                     check_kernel_lobes, chunking, one_line, padded_lobe_values,
+                     check_kernel_lobes, chunking, device_copy, one_line, padded_lobe_values,
                      probe_mismatch, start_scale)
 from .kernels import amplitudes as kamplitudes
 from .kernels import asg as kasg
@@ -472,7 +472,8 @@ class WarpBackend(DeviceBackend):
         else:
             values = wp.array(padded_lobe_values(lobe_values, vec._length_), dtype=vec, device=dev)
         runs = f.get("area_runs") if weight is None else None  # the area's runs depend on the facets alone
-        weight = f["area"] if weight is None else self._array(np.asarray(weight, np.float32), wp.float32)
+        weight = f["area"] if weight is None else device_copy(
+            weight, None, lambda host: self._array(np.asarray(host, np.float32), wp.float32))
         if runs is None:
             runs = (wp.empty(vis.words, dtype=wp.uint32, device=dev), wp.empty(n, dtype=wp.int32, device=dev))
             self._launch(kamplitudes.facet_runs, vis.words, [f["normal"], weight], list(runs))
