@@ -366,6 +366,37 @@ def test_colour_channels_match_a_plain_per_facet_split(backend, order):
         backend.lobe_moments(fac, vis, w, lob.axes, lob.sharpness, iu, ou))
 
 
+@pytest.mark.parametrize("family", ["pyramid", "grooves"])
+def test_a_flat_tiles_bins_summed_over_its_faces_match_the_facets(backend, family):
+    """A tile without vertex normals gives each facet its face's normal, so its bins are summed over the faces
+    (`_face_bins`): the same bins, the same facets' slots and areas bit for bit, mean normals within 1e-12 of
+    the facet-by-facet sums; a tile with vertex normals, or with fewer than FACETS_PER_FACE facets a face, takes
+    the facet-by-facet path."""
+    tile = getattr(wb.geometry, family)(material=0, **({"base_material": 1} if family == "pyramid" else {}))
+    r = 32
+    fac = backend.sample_facets(tile, 5000, 1)
+    bins = backend.normal_bins(fac, r)
+    q = bake_module._Queued(fac, bins, fac.normal, dirs.grid(2))
+    q.face_bins = bake_module._face_bins(tile, fac, bins)
+    assert q.face_bins is not None and len(q.face_bins[0]) <= len(tile.faces)
+    plain = bake_module._Queued(fac, bins, fac.normal, dirs.grid(2))
+    bv, facet_bin = bake_module._bin_normals(q, r)
+    want, want_bin = bake_module._bin_normals(plain, r)
+    np.testing.assert_array_equal(bv.bins, want.bins)
+    np.testing.assert_array_equal(facet_bin, want_bin)
+    np.testing.assert_array_equal(bv.area, want.area)
+    np.testing.assert_allclose(bv.normal, want.normal, rtol=0, atol=1e-12)
+    hf = wb.geometry.heightfield(np.random.default_rng(0).random((8, 8)), scale=0.2)
+    fh = backend.sample_facets(hf, 5000, 1)  # (every built-in family is flat-shaded; 128 faces, 39 facets a face)
+    assert bake_module._face_bins(hf, fh, backend.normal_bins(fh, r)) is not None
+    few = backend.sample_facets(hf, 2000, 1)  # 16 facets a face
+    assert bake_module._face_bins(hf, few, backend.normal_bins(few, r)) is None
+    tilt = np.random.default_rng(1).normal(scale=0.2, size=(len(hf.vertices), 3)) + (0.0, 0.0, 1.0)
+    smooth = wb.SmallScale(hf.vertices, hf.faces, vertex_normals=tilt, period=hf.period)
+    fs = backend.sample_facets(smooth, 2000, 1)
+    assert bake_module._face_bins(smooth, fs, backend.normal_bins(fs, r)) is None
+
+
 def test_sharpness_from_mean_resultant_is_exact():
     kappa = np.array([0.01, 1.0, 10.0, 300.0, 1e5])
     rbar = 1 / np.tanh(kappa) - 1 / kappa

@@ -42,6 +42,9 @@ EM_ITERATIONS = 8
 # 0.040 at 64 and 0.037 at 128, for 22.9, 25.4, 34.9 and 35.6 dB against its 2^18-facet truth).
 AUTO_LOBES = (*range(1, 17), 24, 32, 48, 64, 96, 128)
 HISTOGRAM_BYTES = 1 << 30  # the dense histogram N (pairs × non-empty bins) is refused beyond this
+# A flat tile's bins are summed over its faces (`_face_bins`) when it has at most one face per this many facets
+# (a height field's 8192 faces at 2^16 facets were faster facet by facet).
+FACETS_PER_FACE = 32
 # Bakes of other methods by name, each (tile, materials, lobes, directions, normal_res, facets, backend, seed,
 # bvndf, progress) → material: their modules register them when warp_biscale loads ("asg": asg_bake), so that
 # this driver imports none of them.
@@ -332,6 +335,7 @@ class _Queued:
     em_weight: object = None
     channels: list = field(default_factory=list)
     weights: list = field(default_factory=list)  # the channels' weights on the device (None: the area)
+    face_bins: tuple = None  # `_face_bins`: the bins of a flat tile's faces, or None
     iu: np.ndarray = None
     ou: np.ndarray = None
     em_start: object = None
@@ -374,6 +378,7 @@ def _sample_facets(tile, be, count, seed, grid, r, timer, prog, weights_on_devic
     fac = timer("facets", be.sample_facets, tile, count, seed)
     bins = timer("bvndf", be.normal_bins, fac, r)
     q = _Queued(fac, bins, fac.normal, grid)
+    q.face_bins = _face_bins(tile, fac, bins)
     q.channels = _channels(tile, fac)
     if weights_on_device:
         q.weights = [None if w is None else be.facet_weight(w) for _, _, w in q.channels]
@@ -394,15 +399,39 @@ def _queue_visibility(tile, be, q: _Queued, prog) -> None:
     q.iu, q.ou = dirs.unordered_pairs(len(q.grid))
 
 
+def _face_bins(tile, facets, bins):
+    """For a tile whose facets take their face's normal (no vertex normals), run face by face, share one area
+    and are at least FACETS_PER_FACE a face on average: (the normal bin of each face that has facets, those
+    faces' facet counts, their first facets), each face's facets all in its bin (checked); else None. The
+    bins' sums then run over the faces, not the facets (`_occupied_bins`, `_bin_normals`, `_fit_ndf`)."""
+    if (tile.vertex_normals is not None or len(tile.faces) * FACETS_PER_FACE > len(bins)
+            or _equal_area(facets) is None):
+        return None
+    runs = _face_runs(facets.face, len(tile.faces))
+    if runs is None:
+        return None
+    counts = runs[runs > 0]
+    starts = np.cumsum(counts) - counts
+    face_bin = bins[starts]
+    if not np.array_equal(np.repeat(face_bin, counts), bins):
+        return None
+    return face_bin, counts, starts
+
+
 def _occupied_bins(q: _Queued, r) -> tuple:
-    """(the facets' area per fine normal bin (6R²,), the non-empty bins): what the EM's start needs to know
-    before it is queued, the cheap part of `_bin_normals`."""
+    """(the facets' area in each non-empty fine normal bin, those bins (ascending)): what the EM's start needs
+    to know before it is queued, the cheap part of `_bin_normals`."""
     area = _equal_area(q.fac)
+    if q.face_bins is not None:  # a flat tile: counted over its faces
+        face_bin, counts, _ = q.face_bins
+        occupied, slot = np.unique(face_bin, return_inverse=True)
+        return np.bincount(slot, weights=counts) * area, occupied
     if area is None:
         mass = np.bincount(q.bins, weights=q.fac.area.astype(np.float64), minlength=6 * r * r)
     else:  # sampled facets share one ΔA: a count (no weights to convert and read) times it
         mass = np.bincount(q.bins, minlength=6 * r * r) * area
-    return mass, np.flatnonzero(mass > 0)
+    occupied = np.flatnonzero(mass > 0)
+    return mass[occupied], occupied
 
 
 def _equal_area(facets):
@@ -419,10 +448,18 @@ def _bin_normals(q: _Queued, r, mass=None, occupied=None) -> tuple:
     after the rays that does not depend on them."""
     if mass is None:
         mass, occupied = _occupied_bins(q, r)
+    equal = _equal_area(q.fac)
+    if q.face_bins is not None:  # a flat tile: each face's facets have its normal, Σ over the faces
+        face_bin, counts, starts = q.face_bins
+        face_slot = np.searchsorted(occupied, face_bin).astype(np.int32)
+        facet_bin = np.repeat(face_slot, counts)
+        normal = np.asarray(q.normal[starts], np.float64) * counts[:, None]
+        mean = np.stack([np.bincount(face_slot, weights=normal[:, c], minlength=len(occupied)) for c in range(3)]).T
+        mean = np.ascontiguousarray(mean / np.maximum(np.sqrt((mean * mean).sum(1)), 1e-300)[:, None])
+        return Bvndf(r, occupied.astype(np.int32), mean, mass, None), facet_bin
     slot = np.full(6 * r * r, -1, np.int32)
     slot[occupied] = np.arange(len(occupied))
     facet_bin = slot[q.bins]
-    equal = _equal_area(q.fac)
     if equal is not None and equal > 0:
         # Every facet's bin is occupied: the per-bin sums as one sparse (L, Ns) × (Ns, 3) product in float64,
         # a third of the time of three weighted bincounts, the same sums; equal areas weigh nothing (the mean
@@ -435,7 +472,7 @@ def _bin_normals(q: _Queued, r, mass=None, occupied=None) -> tuple:
         mean = np.stack([np.bincount(facet_bin, weights=area * q.normal[:, c], minlength=len(occupied))
                          for c in range(3)]).T
     mean = np.ascontiguousarray(mean / np.maximum(np.sqrt((mean * mean).sum(1)), 1e-300)[:, None])
-    return Bvndf(r, occupied.astype(np.int32), mean, mass[occupied], None), facet_bin
+    return Bvndf(r, occupied.astype(np.int32), mean, mass, None), facet_bin
 
 
 def _queue_moments(be, q: _Queued, em, route):
@@ -509,7 +546,12 @@ def _fit_ndf(be, q: _Queued, bv, facet_bin, weight_host, r, j_req, route, tolera
     prog.stage("NDF fit (spherical EM)", 1)
     t0 = time.perf_counter()
     em_weight, fixed_j = q.em_weight, q.em is not None
-    bin_weight = np.bincount(facet_bin, weights=weight_host, minlength=len(bv.bins))  # (summed in float64)
+    if q.face_bins is not None:  # a flat tile: summed over each face's run of facets, then per bin
+        starts = q.face_bins[2]
+        per_face = np.add.reduceat(np.asarray(weight_host, np.float64), starts)
+        bin_weight = np.bincount(facet_bin[starts], weights=per_face, minlength=len(bv.bins))
+    else:
+        bin_weight = np.bincount(facet_bin, weights=weight_host, minlength=len(bv.bins))  # (summed in float64)
     if not bin_weight.any():  # no grid direction sees the tile at all: fall back on the bare NDF
         bin_weight, em_weight, fixed_j = bv.area, None, False
     seen = bin_weight > 0
