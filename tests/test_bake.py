@@ -14,6 +14,7 @@ Tolerances, and why:
 
 import math
 import os
+import pickle
 import sys
 import tempfile
 
@@ -28,6 +29,7 @@ from warp_biscale import lobes as lobes_mod
 from warp_biscale import reference as ref
 from warp_biscale import shading
 from warp_biscale.device import OnDevice
+from warp_biscale.model import DeviceArray
 
 bake_module = sys.modules["warp_biscale.bake"]
 
@@ -889,9 +891,10 @@ def test_material_tables_match_reference(backend):
     chans[0][0][11, 6] = -np.inf
     got_a, got_e, got_l = backend.material_tables([chans[:2], [], chans[2:]], integrals, n_pairs, weights)
     n_levels = len(effective.DIFFUSE_LEVEL_ETAS)
+    assert isinstance(got_a, DeviceArray) and isinstance(got_l, DeviceArray)  # left on the device
     assert got_a.shape == (3, n_pairs, j, 3) and got_e.shape == (3, n_pairs, 3)
     assert got_l.shape == (3, n_levels, n_pairs, 3)
-    assert not got_a.flags.writeable and not got_l.flags.writeable  # (their device copies stand for them)
+    got_a, got_l = np.asarray(got_a), np.asarray(got_l)  # (read back now)
     assert not got_a[1].any() and not got_e[1].any() and not got_l[1].any()  # no channel: reflects nothing
     for m, mine in ((0, chans[:2]), (2, chans[2:])):
         want_a, want_e = ref.amplitude_tables(mine, integrals)
@@ -905,6 +908,7 @@ def test_material_tables_match_reference(backend):
     energy = np.abs(rng.normal(size=(2, n_pairs, j))).astype(np.float32)
     _, e, levels = backend.material_tables([[(energy[0], [1.0, 0.5, 0.25])], [(energy[1], [0.2, 1.0, 0.7])]],
                                            integrals, n_pairs, weights)
+    levels = np.asarray(levels)
     want = ref.energy_levels(e.reshape(2, k * k, k * k, 3), k, effective.DIFFUSE_LEVEL_ETAS)
     np.testing.assert_allclose(levels.reshape(want.shape), want, rtol=k * k * 2.0**-24 * 4, atol=1e-12)
     np.testing.assert_array_equal(levels[:, 0], e)
@@ -921,6 +925,7 @@ def test_material_tables_match_reference(backend):
     host = backend.solve_amplitudes(mom, a_v, rows, integ, pi, po, nd)
     kk = math.isqrt(nd)
     a, e, _ = backend.material_tables([[(on_device, [1.0, 0.5, 0.25])]], integ, nd * nd, effective.level_weights(kk))
+    a = np.asarray(a)
     want_a, want_e = ref.amplitude_tables([(host, [1.0, 0.5, 0.25])], integ)
     np.testing.assert_allclose(a[0], want_a, rtol=1e-6, atol=1e-7)
     np.testing.assert_allclose(e[0], want_e, rtol=1e-5, atol=1e-7)
@@ -929,16 +934,15 @@ def test_material_tables_match_reference(backend):
 
 
 def test_a_bake_leaves_its_tables_on_the_device_for_the_shade_stage(backend):
-    """The bake's amplitude tables (and on a GPU its energy levels) are the ones the shade stage reads without an
-    upload: its packed inputs view their memory, and the backend hands back the device copies it made them in.
-    The levels equal the host product (`broad_levels`), and the frame of the baked material equals bit for bit
+    """The bake's amplitude tables (and on a GPU its energy levels) stay on the device (no read-back) and are the
+    ones the shade stage reads without an upload: the backend hands back the device arrays it made them in. The
+    levels equal the host product (`broad_levels`), and the frame of the baked material equals bit for bit
     the frame of its copy loaded from a file and given a copy of its levels (every table uploaded)."""
     tile = wb.geometry.pyramid(material=0, base_material=1)
     mat = wb.bake(tile, [wb.BlinnPhong(exponent=64.0), wb.Lambert(0.4)], lobes=4, directions=4, facets=1 << 12,
                   backend=backend)
-    host_levels = np.concatenate([mat._energy[None], effective.broad_levels(mat._energy, 4)]).transpose(1, 0, 2, 3, 4)
-    np.testing.assert_allclose(mat.energy_levels, host_levels, rtol=1e-5, atol=1e-7)
     packed = shading.pack_materials([mat])
+    assert isinstance(packed["eff_tables"], DeviceArray)  # (nothing read back to pack the frame's inputs)
 
     def no_upload(a):
         raise AssertionError("uploaded")
@@ -948,6 +952,10 @@ def test_a_bake_leaves_its_tables_on_the_device_for_the_shade_stage(backend):
         assert backend._shade_input("eff_diffuse", packed["eff_diffuse"], no_upload) is not None
     copy = mat.with_materials(mat.materials)
     assert backend._shade_input("eff_tables", shading.pack_materials([copy])["eff_tables"], no_upload) is not None
+    host_levels = np.concatenate([mat._energy[None], effective.broad_levels(mat._energy, 4)]).transpose(1, 0, 2, 3, 4)
+    np.testing.assert_allclose(mat.energy_levels, host_levels, rtol=1e-5, atol=1e-7)
+    pickled = pickle.loads(pickle.dumps(mat))  # (a pickle holds host arrays)
+    np.testing.assert_array_equal(pickled.amplitudes, mat.amplitudes)
 
     def frame(m):
         mesh = wb.Mesh.merge([wb.Mesh.sphere(1.0, (0, 1, 0), material=0), wb.Mesh.plane(6.0, 0.0, 4, material=1)])
@@ -1103,10 +1111,11 @@ def test_reused_device_scratch_does_not_leak_into_earlier_results(backend):
     rng = np.random.default_rng(9)
     weights = effective.level_weights(2)
     t1 = backend.material_tables([[(rng.random((16, 3)), [1.0, 1.0, 1.0])]], integ, 16, weights)
-    kept = [x.copy() for x in t1]
-    backend.material_tables([[(rng.random((16, 3)), [0.5, 0.2, 0.1])]], integ, 16, weights)
+    kept = [np.array(x) for x in t1]
+    t2 = backend.material_tables([[(rng.random((16, 3)), [0.5, 0.2, 0.1])]], integ, 16, weights)
+    [np.asarray(x) for x in t2]
     for a, b in zip(t1, kept):
-        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(np.asarray(a), b)
 
 
 # ------------------------------------------------------------------ results left on the device

@@ -497,8 +497,9 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
         amps, energy, levels = be.material_tables([[(mu, mult) for mm, mult, mu in solved if mm == m]
                                                    for m in range(tile.n_materials)], integrals, nd * nd,
                                                   device_levels(be, math.isqrt(nd)))
-        energy = energy.reshape(tile.n_materials, nd, nd, 3)
-        levels = None if levels is None else levels.reshape(tile.n_materials, -1, nd, nd, 3)
+        # (read back: the ASG material checks its tables on the host)
+        amps, energy = np.asarray(amps), energy.reshape(tile.n_materials, nd, nd, 3)
+        levels = None if levels is None else np.asarray(levels).reshape(tile.n_materials, -1, nd, nd, 3)
     else:  # past the kernels' lobes: float64 on the host (P diag(w G_j) Pᵀ per lobe)
         energy = levels = None
         values = _values(asgs, normal)

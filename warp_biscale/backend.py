@@ -129,8 +129,8 @@ class Backend(Protocol):
         amplitude tables and (M, P, 3) energies (reference.amplitude_tables per material; a material with no
         channel reflects nothing; a non-finite μ gives its pair a NaN energy), and with `level_weights`
         (effective.level_weights(K), P = K⁴) the (M, L, P, 3) energy levels (reference.energy_levels), else
-        None. The tables and the levels come back read-only: the shade stage takes this backend's device copies
-        of them (no upload)."""
+        None. The tables and the levels stay on the device (model.DeviceArray, read back when host code asks for
+        them): the shade stage takes them there (no upload)."""
 
     # --- SSDF visibility of the large-scale mesh (stage `ssdf`, warp_biscale.ssdf) ---
     def ssdf_distance(self, grid, visible: np.ndarray) -> np.ndarray:

@@ -20,7 +20,7 @@ import numpy as np
 from .asg import ASG, unit_integral
 from .brdf import ANISOTROPIC_KINDS, MEASURED
 from .lobes import DEAD_MASS, KERNEL_LOBES, LobeSet
-from .model import Facets, GBuffer, ShadeInputs, Visibility, facet_shift
+from .model import DeviceArray, Facets, GBuffer, ShadeInputs, Visibility, facet_shift
 from .trace import (CHUNK_RAYS, check_camera, check_gbuffer, check_lights, check_mesh, check_occlusion,
                     check_lobes, check_occlusion_samples, check_shadow_samples, offsets)
 
@@ -28,12 +28,6 @@ from .trace import (CHUNK_RAYS, check_camera, check_gbuffer, check_lights, check
 # larger ones by their memory.
 SHADE_INPUT_COMPARE_BYTES = 1 << 20
 SCRATCH_BYTES = 64 << 20  # the largest scratch array a backend keeps between calls (see their _scratch)
-RESIDENT_ARRAYS = 4  # device copies of bake tables kept for the shade stage: two bakes' amplitudes and levels
-
-
-def _memory_key(a: np.ndarray) -> tuple:
-    """What identifies the memory a contiguous array views: its address, size and type."""
-    return (a.__array_interface__["data"][0], a.nbytes, a.dtype.str)
 
 
 class OnDevice:
@@ -458,32 +452,12 @@ class DeviceBackend:
         if level_weights is not None:
             arrays.append(self._new(shapes[2], "f32"))
             self._launch_energy_levels(energy, self._recurring(weights, "f32"), n_mat, n_levels, k2, arrays[2])
-        host = [read() for read in [self._queued_read(a, s, "f32") for a, s in zip(arrays, shapes)]]
-        # The shade stage reads the amplitudes and levels as they are: it finds these device copies by the host
-        # arrays' memory instead of uploading them again (`_shade_input`).
-        self._keep_resident(host[0], amps)
-        if level_weights is None:
-            return host[0], host[1], None
-        self._keep_resident(host[2], arrays[2])
-        return tuple(host)
-
-    def _keep_resident(self, host, device):
-        """Keep `device` as the device copy of host array `host` (made read-only) for `_shade_input`: the last
-        RESIDENT_ARRAYS such pairs, each host array held so that its memory cannot pass to another array."""
-        host.flags.writeable = False
-        held = self.__dict__.setdefault("_resident", collections.OrderedDict())
-        held[_memory_key(host)] = (host, self._flat(device))
-        while len(held) > RESIDENT_ARRAYS:
-            held.popitem(last=False)
-
-    def _resident_copy(self, host):
-        """The device copy kept by `_keep_resident` of the memory `host` views whole (a read-only, contiguous
-        array: the kept array itself or a reshaped view of it), or None."""
-        held = self.__dict__.get("_resident")
-        if not held or host.flags.writeable or not host.flags.c_contiguous:
-            return None
-        hit = held.get(_memory_key(host))
-        return None if hit is None else hit[1]
+        # The tables and levels stay on the device: the shade stage takes them as they are (`_shade_input`), and a
+        # host copy is read only where host code asks for one. The energies come back now (the bake checks them).
+        out = [DeviceArray(self, a, self._flat(a), s, lambda a=a, s=s: self._to_host(a, s, "f32"))
+               for a, s in zip(arrays, shapes)]
+        out[1] = out[1].host()
+        return tuple(out) if level_weights is not None else (out[0], out[1], None)
 
     def _visible_area_device(self, a_v):
         """The device copy of a_v (see device_copy): on a GPU host an upload costs more than the solve."""
@@ -947,10 +921,9 @@ class DeviceBackend:
         cannot pass to another array) or, if small, holds the same values. So the new ShadeInputs of an
         edit copies only what the edit changed: on a GPU host each upload costs 0.1–0.3 ms of host time.
         Shade inputs are not changed in place (render.static_inputs makes new arrays)."""
+        if isinstance(host, DeviceArray) and host.owner is self:  # a bake's table, left here by material_tables
+            return host.flat
         host = np.asarray(host)
-        resident = self._resident_copy(host)
-        if resident is not None:  # a bake's table, left on the device by material_tables
-            return resident
         held = self.__dict__.setdefault("_shade_inputs_held", {}).get(role)
         if held is not None and held[0].shape == host.shape and held[0].dtype == host.dtype:
             given, kept, device = held

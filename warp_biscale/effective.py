@@ -29,7 +29,7 @@ import numpy as np
 from . import brdf as brdf_mod
 from . import directions as dirs
 from . import sg
-from .model import Bvndf
+from .model import Bvndf, DeviceArray
 from .io import read_npz, save_npz
 from .lobes import LobeSet
 from .measured import MeasuredBRDF
@@ -214,17 +214,19 @@ class EffectiveBRDF:
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
         self.lobes = lobes
-        self.amplitudes = np.asarray(amplitudes, np.float32)
+        # (a bake's tables may stay on its device, a DeviceArray: `amplitudes` reads them when first asked for)
+        self._amplitudes = amplitudes if isinstance(amplitudes, DeviceArray) else np.asarray(amplitudes, np.float32)
         self.directions = int(directions)
         nd = self.directions**2
         j = len(lobes)
-        if self.amplitudes.ndim != 5 or self.amplitudes.shape[1:] != (nd, nd, j, 3):
-            raise ValueError(f"amplitudes must have shape (M, {nd}, {nd}, {j}, 3), got {self.amplitudes.shape}")
+        shape = self._amplitudes.shape
+        if len(shape) != 5 or shape[1:] != (nd, nd, j, 3):
+            raise ValueError(f"amplitudes must have shape (M, {nd}, {nd}, {j}, 3), got {shape}")
         if _energy is None and (not np.all(np.isfinite(self.amplitudes)) or (self.amplitudes < 0).any()):
             raise ValueError("amplitudes must be finite and >= 0")  # (checked once, where _energy was made)
         self.materials = brdf_mod.as_material_list(materials)
-        if len(self.materials) != len(self.amplitudes):
-            raise ValueError(f"{len(self.amplitudes)} amplitude table(s) but {len(self.materials)} material(s)")
+        if len(self.materials) != shape[0]:
+            raise ValueError(f"{shape[0]} amplitude table(s) but {len(self.materials)} material(s)")
         self.method = method
         self.timings = dict(timings or {})
         self.info = dict(info or {})
@@ -246,6 +248,25 @@ class EffectiveBRDF:
             raise ValueError(f"energy levels of shape {np.shape(_energy_levels)} do not fit the tables")
         self._energy_levels = _energy_levels
         self._diffuse = None  # `diffuse`, made on first use (the renderer reads `energy_levels` instead)
+
+    @property
+    def amplitudes(self) -> np.ndarray:
+        """(M, K², K², J, 3) float32 μ tables (read back from the device the first time, where the bake left
+        them there)."""
+        if isinstance(self._amplitudes, DeviceArray):
+            self._amplitudes = np.asarray(self._amplitudes)
+        return self._amplitudes
+
+    @amplitudes.setter
+    def amplitudes(self, value):
+        self._amplitudes = value
+
+    def shade_tables(self) -> tuple:
+        """(the μ tables, the energy levels) as the shade stage takes them (`shading.pack_materials`): where the
+        bake left them on its device, those device arrays (a backend's DeviceArray; no read-back, no upload
+        again), else host arrays."""
+        levels = self._energy_levels if isinstance(self._energy_levels, DeviceArray) else self.energy_levels
+        return self._amplitudes, levels
 
     def __repr__(self):
         return (f"EffectiveBRDF(K={self.directions}, lobes={len(self.lobes)}, materials={self.materials}, "
@@ -282,6 +303,9 @@ class EffectiveBRDF:
         diffuse term reads, weighing level lookups by each material's kd/π (so f̄d = Σ_m kd_m/π·level 0). It does
         not depend on the small-scale BRDFs: made once per bake, kept by `with_materials`, so a material edit
         uploads nothing new for it."""
+        if isinstance(self._energy_levels, DeviceArray):
+            self._energy_levels = np.asarray(self._energy_levels)
+            self._energy_levels.setflags(write=False)
         if self._energy_levels is None:
             broad = broad_levels(self._energy, self.directions)  # (L − 1, M, K², K², 3)
             levels = np.ascontiguousarray(np.concatenate([np.asarray(self._energy, np.float32)[None], broad])
@@ -293,7 +317,7 @@ class EffectiveBRDF:
     @property
     def nbytes_per_material(self) -> int:
         """Bytes of the μ table of one material (what a renderer uploads per material)."""
-        return int(self.amplitudes[0].nbytes)
+        return int(self._amplitudes.nbytes // self._amplitudes.shape[0])
 
     @property
     def grid(self) -> np.ndarray:
@@ -304,7 +328,7 @@ class EffectiveBRDF:
         provenance (the tile) and `path` carry over: the new BRDFs are the recorded ones, so the Monte Carlo
         reference computes the edited material's ground truth, and caches it beside the same file."""
         t0 = time.perf_counter()
-        out = EffectiveBRDF(self.lobes, self.amplitudes, materials, self.directions, self.method,
+        out = EffectiveBRDF(self.lobes, self._amplitudes, materials, self.directions, self.method,
                             info=self.info, bvndf=self.bvndf, provenance=self.provenance, path=self.path,
                             _energy=self._energy)
         out._energy_levels = self._energy_levels

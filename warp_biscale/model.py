@@ -323,3 +323,42 @@ class Frame:
     gbuffer: GBuffer
     camera: np.ndarray
     lights: np.ndarray
+
+
+class DeviceArray:
+    """A float32 array a backend left on its device, read back only when host code asks for it: `shape`, `ndim`,
+    `size`, `nbytes`, len(); numpy reads it through `__array__` (np.asarray, arithmetic, concatenation), a pickle
+    or copy holds the host array. `owner`: the backend whose `device` it is (its flat view, for a kernel's flat
+    argument); `reshape` and `ravel` are views of the same device array."""
+
+    def __init__(self, owner, device, flat, shape, read):
+        self.owner, self.device, self.flat, self.shape = owner, device, flat, tuple(int(s) for s in shape)
+        self.dtype = np.dtype(np.float32)
+        self._read, self._host = read, None
+
+    def host(self) -> np.ndarray:
+        if self._host is None:
+            self._host = self._read()
+        return self._host
+
+    ndim = property(lambda self: len(self.shape))
+    size = property(lambda self: int(np.prod(self.shape)))
+    nbytes = property(lambda self: self.size * self.dtype.itemsize)
+
+    def __len__(self):
+        return self.shape[0]
+
+    def __array__(self, dtype=None, copy=None):
+        a = self.host()
+        return a if dtype is None else a.astype(dtype, copy=False)
+
+    def __reduce__(self):
+        return np.asarray, (self.host(),)
+
+    def reshape(self, *shape):
+        shape = shape[0] if len(shape) == 1 and isinstance(shape[0], (tuple, list)) else shape
+        new = np.empty(self.shape, bool).reshape(shape).shape  # (numpy's rules, -1 included)
+        return DeviceArray(self.owner, self.device, self.flat, new, lambda: self.host().reshape(new))
+
+    def ravel(self):
+        return self.reshape(-1)

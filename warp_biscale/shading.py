@@ -80,6 +80,8 @@ with the tangent along the mesh's u direction (`scene.vertex_tangents`).
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from . import brdf as brdf_mod
@@ -262,10 +264,11 @@ def pack_materials(materials) -> dict:
             eff_info.append([m.directions, j, len(subs), n_lobes, n_sub, n_table, n_diffuse, lobe_type])
             eff_lobes.append(rows)
             eff_sub.extend(subs)
-            table = m.amplitudes  # float32, contiguous: ravel() is a view
-            diffuse = m.energy_levels  # frozen, kept by material edits: ravel() is a view of the same memory
+            # float32, contiguous (ravel() is a view), the levels kept by material edits; where the bake left them
+            # on its device, those device arrays (the backend takes them without an upload)
+            table, diffuse = m.shade_tables()
             if len(subs) != len(m.materials):  # a material of several lobes: its tables once per lobe
-                table, diffuse = _tables_per_row(table, diffuse, owner)
+                table, diffuse = _tables_per_row(np.asarray(table), np.asarray(diffuse), owner)
             eff_tables.append(table.ravel())
             eff_diffuse.append(diffuse.ravel())
             n_lobes += len(rows)
@@ -545,6 +548,10 @@ def irradiance_scale(lobes, residual):
 def shade_reference(frame: Frame) -> np.ndarray:
     """(N, 3) float64 radiance of every pixel of a packed frame (`render.pack_frame`)."""
     static = frame.inputs
+    if not isinstance(static.eff_tables, np.ndarray) or not isinstance(static.eff_diffuse, np.ndarray):
+        # (a bake's tables left on its device: this reference reads them on the host)
+        static = dataclasses.replace(static, eff_tables=np.asarray(static.eff_tables),
+                                     eff_diffuse=np.asarray(static.eff_diffuse))
 
     table = static.table
     face = frame.gbuffer.face
