@@ -388,6 +388,9 @@ def test_a_flat_tiles_bins_summed_over_its_faces_match_the_facets(backend, famil
     np.testing.assert_array_equal(facet_bin, want_bin)
     np.testing.assert_array_equal(bv.area, want.area)
     np.testing.assert_allclose(bv.normal, want.normal, rtol=0, atol=1e-12)
+    timer, prog = sys.modules["warp_biscale.truth"]._Timer(backend), wb.progress.as_progress(None)
+    sampled = bake_module._sample_facets(tile, backend, 5000, 1, dirs.grid(2), r, timer, prog)
+    assert sampled.face_bins is not None and "normal" not in sampled.fac._host  # (the normals not read back)
     hf = wb.geometry.heightfield(np.random.default_rng(0).random((8, 8)), scale=0.2)
     fh = backend.sample_facets(hf, 5000, 1)  # (every built-in family is flat-shaded; 128 faces, 39 facets a face)
     assert bake_module._face_bins(hf, fh, backend.normal_bins(fh, r)) is not None

@@ -377,8 +377,10 @@ def _sample_facets(tile, be, count, seed, grid, r, timer, prog, weights_on_devic
     prog.stage(f"facets ({count})", 1)
     fac = timer("facets", be.sample_facets, tile, count, seed)
     bins = timer("bvndf", be.normal_bins, fac, r)
-    q = _Queued(fac, bins, fac.normal, grid)
+    q = _Queued(fac, bins, None, grid)
     q.face_bins = _face_bins(tile, fac, bins)
+    if q.face_bins is None:  # the bins are summed facet by facet: the facets' normals, read now
+        q.normal = fac.normal
     q.channels = _channels(tile, fac)
     if weights_on_device:
         q.weights = [None if w is None else be.facet_weight(w) for _, _, w in q.channels]
@@ -402,8 +404,9 @@ def _queue_visibility(tile, be, q: _Queued, prog) -> None:
 def _face_bins(tile, facets, bins):
     """For a tile whose facets take their face's normal (no vertex normals), run face by face, share one area
     and are at least FACETS_PER_FACE a face on average: (the normal bin of each face that has facets, those
-    faces' facet counts, their first facets), each face's facets all in its bin (checked); else None. The
-    bins' sums then run over the faces, not the facets (`_occupied_bins`, `_bin_normals`, `_fit_ndf`)."""
+    faces' facet counts, their first facets, their normals as the facets have them), each face's facets all in
+    its bin (checked); else None. The bins' sums then run over the faces, not the facets (`_occupied_bins`,
+    `_bin_normals`, `_fit_ndf`), and the facets' normals are not read back."""
     if (tile.vertex_normals is not None or len(tile.faces) * FACETS_PER_FACE > len(bins)
             or _equal_area(facets) is None):
         return None
@@ -415,7 +418,8 @@ def _face_bins(tile, facets, bins):
     face_bin = bins[starts]
     if not np.array_equal(np.repeat(face_bin, counts), bins):
         return None
-    return face_bin, counts, starts
+    # (a facet of a face without vertex normals takes the face's normal as the kernels hold it, in float32)
+    return face_bin, counts, starts, tile.face_normals[runs > 0].astype(np.float32)
 
 
 def _occupied_bins(q: _Queued, r) -> tuple:
@@ -423,7 +427,7 @@ def _occupied_bins(q: _Queued, r) -> tuple:
     to know before it is queued, the cheap part of `_bin_normals`."""
     area = _equal_area(q.fac)
     if q.face_bins is not None:  # a flat tile: counted over its faces
-        face_bin, counts, _ = q.face_bins
+        face_bin, counts = q.face_bins[:2]
         occupied, slot = np.unique(face_bin, return_inverse=True)
         return np.bincount(slot, weights=counts) * area, occupied
     if area is None:
@@ -450,10 +454,10 @@ def _bin_normals(q: _Queued, r, mass=None, occupied=None) -> tuple:
         mass, occupied = _occupied_bins(q, r)
     equal = _equal_area(q.fac)
     if q.face_bins is not None:  # a flat tile: each face's facets have its normal, Σ over the faces
-        face_bin, counts, starts = q.face_bins
+        face_bin, counts, _, face_normal = q.face_bins
         face_slot = np.searchsorted(occupied, face_bin).astype(np.int32)
         facet_bin = np.repeat(face_slot, counts)
-        normal = np.asarray(q.normal[starts], np.float64) * counts[:, None]
+        normal = np.asarray(face_normal, np.float64) * counts[:, None]
         mean = np.stack([np.bincount(face_slot, weights=normal[:, c], minlength=len(occupied)) for c in range(3)]).T
         mean = np.ascontiguousarray(mean / np.maximum(np.sqrt((mean * mean).sum(1)), 1e-300)[:, None])
         return Bvndf(r, occupied.astype(np.int32), mean, mass, None), facet_bin
