@@ -2,6 +2,8 @@
 and their table,
 against independent brute-force quadrature over the sphere."""
 
+import os
+
 import numpy as np
 import pytest
 
@@ -95,6 +97,46 @@ def test_table_lookup_error_bound():
     # Away from the step (|c| > 3 columns + 6/√η) the sharp lobes' fraction is exact to the table too.
     far = (eta > 1e3) & (np.abs(c) > 3 * 2 / 256 + 6 / np.sqrt(eta))
     assert err_hemi[far].max() < 1e-3
+
+
+def test_lighting_table_kept_on_disk_between_processes(tmp_path, monkeypatch):
+    """A fresh process reads the table from the cache folder instead of a second of quadrature; what it reads
+    is the computed table bit for bit; a corrupt file or a folder that takes no file costs the quadrature
+    again, never a wrong table."""
+    monkeypatch.setenv("WARP_BISCALE_CACHE", str(tmp_path / "cache"))
+    computed = sg._computed_table()
+
+    def fresh():  # a new process's first call
+        monkeypatch.setattr(sg, "_TABLE", None)
+        return sg.lighting_table()
+
+    path = sg.table_cache_path()
+    assert os.path.dirname(path) == str(tmp_path / "cache")
+    np.testing.assert_array_equal(fresh(), computed)  # computed, then written
+    assert os.path.exists(path)
+    np.testing.assert_array_equal(np.load(path), computed)
+
+    def no_quadrature():
+        raise AssertionError("the table was computed although a valid one was on disk")
+
+    with monkeypatch.context() as m:
+        m.setattr(sg, "_computed_table", no_quadrature)
+        table = fresh()
+    np.testing.assert_array_equal(table, computed)
+    assert not table.flags.writeable
+    for bad in (b"not a numpy file", np.zeros((2, 3), np.float32)):  # corrupt, then the wrong shape
+        if isinstance(bad, bytes):
+            with open(path, "wb") as fh:
+                fh.write(bad)
+        else:
+            np.save(path, bad)
+        np.testing.assert_array_equal(fresh(), computed)
+        np.testing.assert_array_equal(np.load(path), computed)  # and put right on disk
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    monkeypatch.setenv("WARP_BISCALE_CACHE", str(blocker / "cache"))  # a folder that cannot be made
+    np.testing.assert_array_equal(fresh(), computed)
+    monkeypatch.setattr(sg, "_TABLE", None)  # the next test's first call makes it again
 
 
 def test_tangents_follow_u_across_uv_seams():

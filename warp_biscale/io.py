@@ -16,7 +16,9 @@ import zipfile
 import numpy as np
 
 
-__all__ = ["atomic_path", "check_output", "save_npz", "read_npz"]
+__all__ = ["atomic_path", "cache_folder", "check_output", "save_npz", "read_npz"]
+
+CACHE_ENV = "WARP_BISCALE_CACHE"
 
 
 def check_output(path, suffixes=None, what: str = "output") -> None:
@@ -41,6 +43,16 @@ def check_output(path, suffixes=None, what: str = "output") -> None:
         raise ValueError(f"{what} {path!r} cannot be written: {exc.strerror or exc} ({folder})") from None
     os.close(fd)
     os.remove(probe)
+
+
+def cache_folder() -> str:
+    """Where computed constants are kept between processes (as Warp keeps its kernels): $WARP_BISCALE_CACHE,
+    else $XDG_CACHE_HOME/warp_biscale, else ~/.cache/warp_biscale. Nothing in it is needed: a missing,
+    stale or unreadable entry is computed again."""
+    if os.environ.get(CACHE_ENV):
+        return os.environ[CACHE_ENV]
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "warp_biscale")
 
 
 @contextlib.contextmanager

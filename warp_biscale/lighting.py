@@ -568,23 +568,33 @@ def sg_irradiance(axes, sharpness, amplitude, normals, nodes: int = 32) -> np.nd
     amplitude (K, 3), unit normals (N, 3).
 
     With u = 1 − ω·ξ, dω = du dφ and the φ integral in closed form (`_clamped_cosine_ring`), each
-    term is ∫_0^2 e^{−ηu} ring(u) du, done by Gauss–Legendre on 32 panels of `nodes` points over
-    u ∈ [0, min(2, 50/η)] (e^{−50} is nothing). Error per lobe, measured against adaptive quadrature
-    for η = 1e−3 … 1e6: ≤ 8e−7·∫G at 32 nodes (1.3e−7 at 64; the ring has kinks at u = 1 ∓ sin α).
+    term is ∫_0^2 e^{−ηu} ring(u) du over u ∈ [0, min(2, 50/η)] (e^{−50} is nothing). The ring has kinks
+    at u = 1 ∓ sin α (α: the normal's angle from ξ), so the range is cut there and each piece taken by
+    Gauss–Legendre of `nodes` points under the smoothstep u = lo + (hi − lo)·t²(3 − 2t), which gathers
+    the nodes at the pieces' ends, where the kinks are. Error per lobe against adaptive quadrature, for
+    η = 1e−3 … 1e6 and normals at every angle, the horizon included: ≤ 1e−8·∫G at 32 nodes
+    (tests/test_lighting.py), in 3·32 evaluations a normal.
     """
     axes = np.asarray(axes, np.float64).reshape(-1, 3)
     sharpness = np.asarray(sharpness, np.float64).reshape(-1)
     amplitude = np.asarray(amplitude, np.float64).reshape(-1, 3)
     normals = np.asarray(normals, np.float64).reshape(-1, 3)
     x, wq = np.polynomial.legendre.leggauss(nodes)
-    panels = 32
+    t = (x + 1.0) / 2.0
+    step = t * t * (3.0 - 2.0 * t)
+    step_weight = 3.0 * t * (1.0 - t) * wq  # d(step)/dx · the Gauss weight
     out = np.zeros((len(normals), 3))
     for xi, eta, mu in zip(axes, sharpness, amplitude):
         top = min(2.0, 50.0 / eta)
-        edges = np.linspace(0.0, top, panels + 1)
-        half = 0.5 * (edges[1:] - edges[:-1])
-        u = ((edges[:-1] + half)[:, None] + half[:, None] * x[None]).reshape(-1)
-        w = (half[:, None] * wq[None]).reshape(-1) * np.exp(-eta * u)
         cos_a = np.clip(normals @ xi, -1.0, 1.0)
-        out += (_clamped_cosine_ring(u[None, :], cos_a[:, None]) @ w)[:, None] * mu[None, :]
+        sin_a = np.sqrt(np.maximum(1.0 - cos_a * cos_a, 0.0))
+        cuts = np.sort(np.clip(np.stack([np.zeros_like(sin_a), 1.0 - sin_a, 1.0 + sin_a,
+                                         np.full_like(sin_a, top)], 1), 0.0, top), axis=1)
+        e = np.zeros(len(normals))
+        for k in range(3):
+            lo, hi = cuts[:, k:k + 1], cuts[:, k + 1:k + 2]
+            u = lo + (hi - lo) * step[None]
+            w = (hi - lo) * step_weight[None] * np.exp(-eta * u)
+            e += np.sum(_clamped_cosine_ring(u, cos_a[:, None]) * w, axis=1)
+        out += e[:, None] * mu[None, :]
     return out

@@ -11,9 +11,13 @@ and d → 0 is a finite limit, so sharpness up to 10⁶ and antipodal lobes are 
 
 from __future__ import annotations
 
+import hashlib
+import os
+
 import numpy as np
 
 from .brdf import BlinnPhong, CookTorrance, Ward, sg_lobes
+from .io import atomic_path, cache_folder
 
 __all__ = ["evaluate", "integral", "inner_product", "product", "convolve", "one_minus_cos", "SHARPNESS_MAX",
            "SHARPNESS_MIN", "specular_lobe", "specular_lobes"]
@@ -252,15 +256,47 @@ def table_axes():
 _TABLE = None
 
 
+def _computed_table() -> np.ndarray:
+    log_eta, c = table_axes()
+    cc, ee = np.meshgrid(c, 10.0**log_eta)
+    return np.stack([_half_space_fractions(cc, ee)[0], _lune_fraction(cc, ee)]).astype(np.float32)
+
+
+def table_cache_path() -> str:
+    """The file `lighting_table` is kept in between processes: named by a digest of this module's source
+    (every quadrature and constant the table depends on lives here) and numpy's version."""
+    with open(__file__, "rb") as fh:
+        digest = hashlib.sha256(fh.read()).hexdigest()[:16]
+    return os.path.join(cache_folder(), f"lighting-table-{digest}-numpy{np.__version__}.npy")
+
+
 def lighting_table() -> np.ndarray:
     """(2, TABLE_ROWS, TABLE_COLUMNS) float32: [0] cosine_fraction, [1] visible_fraction on the grid
-    of `table_axes` (built on the first call and kept)."""
+    of `table_axes`. Its quadrature takes about a second, which every fresh process (a CLI render, a batch
+    worker) would pay: it is read from `table_cache_path()` where a valid one is there, else computed
+    and written there atomically (a folder that takes no file only costs the next process the
+    second); then kept for the process."""
     global _TABLE
     if _TABLE is None:
-        log_eta, c = table_axes()
-        cc, ee = np.meshgrid(c, 10.0**log_eta)
-        _TABLE = np.stack([_half_space_fractions(cc, ee)[0], _lune_fraction(cc, ee)]).astype(np.float32)
-        _TABLE.setflags(write=False)
+        shape = (2, TABLE_ROWS, TABLE_COLUMNS)
+        table = None
+        try:
+            path = table_cache_path()
+            table = np.load(path, allow_pickle=False)
+            if table.shape != shape or table.dtype != np.float32 or not np.isfinite(table).all():
+                table = None
+        except Exception:  # noqa: BLE001 - whatever is wrong with the cached file, the table is computed again
+            table = None
+        if table is None:
+            table = _computed_table()
+            try:
+                with atomic_path(table_cache_path()) as tmp:
+                    with open(tmp, "wb") as fh:
+                        np.save(fh, table)
+            except OSError:
+                pass
+        table.setflags(write=False)
+        _TABLE = table
     return _TABLE
 
 
