@@ -122,6 +122,7 @@ def main(argv=None):
     ap.add_argument("--backend", default="warp:cuda", help="each GPU worker's backend (its own GPU)")
     ap.add_argument("--cpu-workers", type=int, nargs="*", default=[], help="CPU worker counts to run too")
     ap.add_argument("--cpu-tasks", type=int, default=32)
+    ap.add_argument("--cold-only", action="store_true", help="no warm (standing cluster) runs")
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore")
     logging.getLogger("distributed").setLevel(logging.CRITICAL)
@@ -135,7 +136,9 @@ def main(argv=None):
     warm = write_job(os.path.join(work, "warm"), [0.33, 0.66], [50.0], args.backend)
     out.log(f"{len(jobs.tasks)} tasks; warm-up job of {len(warm.tasks)} tasks (fills the kernel caches)")
     timed_run(warm, os.path.join(work, "warm-out"), gpus=max(args.gpus))
-    settings = [("gpus", n, jobs) for n in args.gpus] + [("warm-gpus", n, jobs) for n in args.gpus]
+    settings = [("gpus", n, jobs) for n in args.gpus]
+    if not args.cold_only:
+        settings += [("warm-gpus", n, jobs) for n in args.gpus]
     if args.cpu_workers:
         n_c = max(1, args.cpu_tasks // 4)
         cpu_jobs = write_job(os.path.join(work, "cpu"), [round(float(h), 4) for h in np.linspace(0.1, 1.0, n_c)],
