@@ -61,7 +61,7 @@ import numpy as np
 from . import directions as dirs
 from .brdf import BLINN_PHONG, COOK_TORRANCE, LAMBERT, MEASURED, WARD, as_material_list, pack_materials
 from .effective import HostOnlyBRDF, Provenance, materials_from_file, materials_to_file
-from .io import read_npz, save_npz
+from .io import cache_folder, read_npz, save_npz
 from .model import Bvndf
 
 __all__ = [
@@ -921,10 +921,9 @@ def factors_key(brdf, directions: int, normal_res, power: float = M_POWER, overs
 
 
 def factors_cache_dir():
-    """Where `material_factors` caches by default: $WARP_BISCALE_MATRIX_CACHE, else
-    ~/.cache/warp_biscale/matrix."""
-    return os.environ.get("WARP_BISCALE_MATRIX_CACHE") or os.path.join(os.path.expanduser("~"), ".cache",
-                                                                         "warp_biscale", "matrix")
+    """Where `material_factors` caches by default: $WARP_BISCALE_MATRIX_CACHE, else the library's cache
+    folder's `matrix` (`io.cache_folder`: ~/.cache/warp_biscale/matrix unless moved)."""
+    return os.environ.get("WARP_BISCALE_MATRIX_CACHE") or os.path.join(cache_folder(), "matrix")
 
 
 def material_factors(brdf, directions: int = 12, normal_res="auto", power: float = M_POWER, oversample: int = 10,
