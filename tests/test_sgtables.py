@@ -139,6 +139,25 @@ def test_lighting_table_kept_on_disk_between_processes(tmp_path, monkeypatch):
     monkeypatch.setattr(sg, "_TABLE", None)  # the next test's first call makes it again
 
 
+def test_one_cache_folder_for_every_cached_constant(tmp_path, monkeypatch):
+    """WARP_BISCALE_CACHE, else XDG_CACHE_HOME/warp_biscale, else ~/.cache/warp_biscale; the matrix factors'
+    folder under it unless WARP_BISCALE_MATRIX_CACHE names its own."""
+    from warp_biscale import io, matrix
+
+    for name in ("WARP_BISCALE_CACHE", "XDG_CACHE_HOME", "WARP_BISCALE_MATRIX_CACHE"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    assert io.cache_folder() == str(tmp_path / "home" / ".cache" / "warp_biscale")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert io.cache_folder() == str(tmp_path / "xdg" / "warp_biscale")
+    monkeypatch.setenv("WARP_BISCALE_CACHE", str(tmp_path / "mine"))
+    assert io.cache_folder() == str(tmp_path / "mine")
+    assert matrix.factors_cache_dir() == str(tmp_path / "mine" / "matrix")
+    assert os.path.dirname(sg.table_cache_path()) == str(tmp_path / "mine")
+    monkeypatch.setenv("WARP_BISCALE_MATRIX_CACHE", str(tmp_path / "factors"))
+    assert matrix.factors_cache_dir() == str(tmp_path / "factors")
+
+
 def test_tangents_follow_u_across_uv_seams():
     """A closed torus wraps its UVs: the faces across the seam must not turn the tangent (it would rotate an
     anisotropic effective BRDF there: streaks along the seam)."""
