@@ -108,6 +108,14 @@ CL_INLINE float2 disk_sample(int i, int samples, int pixel)
     return (float2)(r * cos(a), r * sin(a));
 }
 
+/* (first, stride) of the rays anti-aliasing sample part_index of part_count traces of a set of `samples`
+ * (trace.ray_part). */
+CL_INLINE int2 ray_part(int samples, int part_index, int part_count)
+{
+    int stride = max(1, min(part_count, samples));
+    return (int2)(part_index % stride, stride);
+}
+
 /* a right-handed frame (a, b, w) (trace.disk_basis) */
 CL_INLINE void disk_basis(float3 w, float3 *a, float3 *b)
 {

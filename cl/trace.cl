@@ -135,6 +135,7 @@ __kernel void trace_shadows(
     const float eye_x, const float eye_y, const float eye_z,
     __global const float *lights,        /* (L, 8) Light.packed() rows */
     const float eps, const float t_min, const int samples,
+    const int part_index, const int part_count, /* the anti-aliasing sample's rays of the set (ray_part) */
     const int n_pixels, const int n_lights,
     __global uchar *visible)             /* (P, L) visible share in 255ths */
 {
@@ -144,6 +145,8 @@ __kernel void trace_shadows(
         return;
     int f = face[p];
     int hits = 0;
+    int2 part = ray_part(samples, part_index, part_count);
+    int traced = (samples - part.x + part.y - 1) / part.y;
     if (f >= 0) {
         float3 ng, n;
         float3 o = ray_start(points, normals, faces, face_normals, f, bary, p, position,
@@ -158,7 +161,7 @@ __kernel void trace_shadows(
         }
         float3 a, b;
         disk_basis(w, &a, &b);
-        for (int i = 0; i < samples; ++i) {
+        for (int i = part.x; i < samples; i += part.y) {
             float2 q = disk_sample(i, samples, p);
             float3 on_disc = spread * (q.x * a + q.y * b);
             float3 d = w + on_disc;
@@ -174,12 +177,13 @@ __kernel void trace_shadows(
                 hits += 1;
         }
     }
-    visible[(long)p * n_lights + k] = (uchar)((hits * 255 + samples / 2) / samples);
+    visible[(long)p * n_lights + k] = (uchar)((hits * 255 + traced / 2) / traced);
 }
 
-/* One work-item per pixel: `samples` unbounded any-hit rays, cosine-distributed over the hemisphere of
- * the geometric normal on the camera's side (occlusion_direction); bit i of the pixel's mask is set
- * where ray i is blocked (trace.occlusion_directions, reference.trace_occlusion). */
+/* One work-item per pixel: of `samples` unbounded any-hit rays, cosine-distributed over the hemisphere of
+ * the geometric normal on the camera's side (occlusion_direction), those of anti-aliasing sample part_index
+ * of part_count (ray_part); bit i of the pixel's mask is set where ray i is blocked
+ * (trace.occlusion_directions, reference.trace_occlusion). */
 __kernel void trace_occlusion(
     __global const float *nodes,
     __global const float *tris,
@@ -192,6 +196,7 @@ __kernel void trace_occlusion(
     __global const float *position,      /* (P, 3) */
     const float eye_x, const float eye_y, const float eye_z,
     const float eps, const float t_min, const int samples,
+    const int part_index, const int part_count,
     const int n_pixels,
     __global uint *mask)                 /* (P,) */
 {
@@ -206,7 +211,8 @@ __kernel void trace_occlusion(
                              (float3)(eye_x, eye_y, eye_z), eps, &n, &ns);
         float3 a, b;
         disk_basis(n, &a, &b);
-        for (int i = 0; i < samples; ++i) {
+        int2 part = ray_part(samples, part_index, part_count);
+        for (int i = part.x; i < samples; i += part.y) {
             float3 d = occlusion_direction(a, b, n, i, samples, p);
             if (bvh_any_hit(nodes, tris, o, d, t_min, INFINITY))
                 bits |= 1u << i;
@@ -215,9 +221,9 @@ __kernel void trace_occlusion(
     mask[p] = bits;
 }
 
-/* One work-item per pixel: LOBE_RAYS unbounded any-hit rays over each sharp lobe's cap (lobe_ray_direction);
- * bit k·LOBE_RAYS + i set where ray i of lobe k is blocked; a ray below the shading normal's horizon is not
- * traced (reference.trace_lobe_rays). */
+/* One work-item per pixel: of LOBE_RAYS unbounded any-hit rays over each sharp lobe's cap (lobe_ray_direction),
+ * those of anti-aliasing sample part_index of part_count (ray_part); bit k·LOBE_RAYS + i set where ray i of
+ * lobe k is blocked; a ray below the shading normal's horizon is not traced (reference.trace_lobe_rays). */
 __kernel void trace_lobe_rays(
     __global const float *nodes,
     __global const float *tris,
@@ -232,6 +238,7 @@ __kernel void trace_lobe_rays(
     __global const float *lobes,         /* (M, 4) [axis, η] */
     const int n_lobes, const int rays,   /* LOBE_RAYS, passed in as the Warp twin takes it */
     const float eps, const float t_min,
+    const int part_index, const int part_count,
     const int n_pixels,
     __global uint *mask)                 /* (P,) */
 {
@@ -244,11 +251,12 @@ __kernel void trace_lobe_rays(
         float3 ng, n;
         float3 o = ray_start(points, normals, faces, face_normals, f, bary, p, position,
                              (float3)(eye_x, eye_y, eye_z), eps, &ng, &n);
+        int2 part = ray_part(rays, part_index, part_count);
         for (int k = 0; k < n_lobes; ++k) {
             float3 w = (float3)(lobes[4 * k], lobes[4 * k + 1], lobes[4 * k + 2]);
             float3 a, b;
             disk_basis(w, &a, &b);
-            for (int i = 0; i < rays; ++i) {
+            for (int i = part.x; i < rays; i += part.y) {
                 float3 d = lobe_ray_direction(a, b, w, lobes[4 * k + 3], i, p);
                 if (dot3(n, d) > 0.0f && bvh_any_hit(nodes, tris, o, d, t_min, INFINITY))
                     bits |= 1u << (k * LOBE_RAYS + i);

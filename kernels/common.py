@@ -354,6 +354,14 @@ def disk_sample(i: int, samples: int, pixel: int) -> wp.vec2:
 
 
 @wp.func
+def ray_part(samples: int, part_index: int, part_count: int) -> wp.vec2i:
+    """(first, stride) of the rays anti-aliasing sample part_index of part_count traces of a set of `samples`
+    (trace.ray_part)."""
+    stride = wp.max(1, wp.min(part_count, samples))
+    return wp.vec2i(part_index % stride, stride)
+
+
+@wp.func
 def disk_basis(w: wp.vec3) -> wp.mat33:
     """Rows a, b, w: a right-handed frame whose third row is w (trace.disk_basis)."""
     ref = wp.vec3(0.0, 1.0, 0.0)

@@ -22,7 +22,7 @@ from warp_biscale import shading as _shading
 from .asg import (Asg, asg_convolve_asg, asg_convolve_sg, asg_eval, asg_integral_eq10, asg_unit_integral, asg_warp,
                   harmonic)
 from .common import (ANISOTROPIC_WARD, ASHIKHMIN_SHIRLEY, GOLDEN_ANGLE, LOBE_COS_MIN, LOBE_RAYS, anisotropic_specular,
-                     ashikhmin_shirley_diffuse, disk_basis, disk_turn, lobe_ray_direction)
+                     ashikhmin_shirley_diffuse, disk_basis, disk_turn, lobe_ray_direction, ray_part)
 
 # Fast math on CUDA (approximate division, square root, exp and trigonometry): this shading is bound by its
 # arithmetic, and its float32 results are read against the float64 oracle with tolerances far above fast
@@ -585,23 +585,29 @@ def ray_weight(eta: float, samples: int) -> float:
 
 @wp.func
 def ray_share(axis: wp.vec3, eta: float, n: wp.vec3, frame: wp.mat33, mask: wp.uint32, samples: int,
-              pixel: int) -> float:
-    """The lobe's share that the pixel's occlusion rays see unblocked (shading.ray_share): the rays'
-    directions made again (occlusion_direction about frame's third row, the geometric normal), each
-    weighted by G(ω)(n·ω)⁺/(ng·ω). The spiral's angle steps by the golden angle, so its cosine and sine
-    are turned by a fixed rotation from one ray to the next rather than computed per ray."""
+              part: wp.vec2i, pixel: int) -> float:
+    """The lobe's share that the pixel's occlusion rays see unblocked (shading.ray_share): the rays traced,
+    part = (first, stride) of the set (ray_part), their directions made again (occlusion_direction about
+    frame's third row, the geometric normal), each weighted by G(ω)(n·ω)⁺/(ng·ω). The spiral's angle steps
+    by `stride` golden angles, so its cosine and sine are turned by a fixed rotation from one ray to the
+    next rather than computed per ray."""
     total = float(0.0)
     seen = float(0.0)
-    turn = disk_turn(pixel)
+    turn = disk_turn(pixel) + float(part[0]) * GOLDEN_ANGLE
     c = wp.cos(turn)
     s = wp.sin(turn)
+    step_cos = GOLDEN_COS
+    step_sin = GOLDEN_SIN
+    if part[1] != 1:
+        step_cos = wp.cos(float(part[1]) * GOLDEN_ANGLE)
+        step_sin = wp.sin(float(part[1]) * GOLDEN_ANGLE)
     ax = wp.dot(frame[0], axis)  # the axis and the shading normal in the rays' frame
     ay = wp.dot(frame[1], axis)
     az = wp.dot(frame[2], axis)
     nx = wp.dot(frame[0], n)
     ny = wp.dot(frame[1], n)
     nz = wp.dot(frame[2], n)
-    for i in range(samples):
+    for i in range(part[0], samples, part[1]):
         r2 = (float(i) + 0.5) / float(samples)
         if samples == 1:
             r2 = 0.0
@@ -614,8 +620,8 @@ def ray_share(axis: wp.vec3, eta: float, n: wp.vec3, frame: wp.mat33, mask: wp.u
         total = total + w
         if ((mask >> wp.uint32(i)) & wp.uint32(1)) == wp.uint32(0):
             seen = seen + w
-        c_next = c * GOLDEN_COS - s * GOLDEN_SIN
-        s = s * GOLDEN_COS + c * GOLDEN_SIN
+        c_next = c * step_cos - s * step_sin
+        s = s * step_cos + c * step_sin
         c = c_next
     if total > 1.0e-30:
         return seen / total
@@ -624,15 +630,15 @@ def ray_share(axis: wp.vec3, eta: float, n: wp.vec3, frame: wp.mat33, mask: wp.u
 
 @wp.func
 def lobe_ray_share(ray_axis: wp.vec3, ray_eta: float, axis: wp.vec3, eta: float, n: wp.vec3, mask: wp.uint32,
-                   k: int, pixel: int) -> float:
+                   k: int, part: wp.vec2i, pixel: int) -> float:
     """The share of a lobe (axis, η) that sharp lobe k's rays (about ray_axis, ray_eta) see unblocked
-    (shading.lobe_ray_share): the rays made again (lobe_ray_direction), each weighted by G(ω)(n·ω)⁺ and its
-    solid-angle weight cos³ (its cosine to ray_axis, cubed); a ray below the geometric horizon, not traced,
-    has its bit clear."""
+    (shading.lobe_ray_share): the rays traced, part = (first, stride) of the set (ray_part), made again
+    (lobe_ray_direction), each weighted by G(ω)(n·ω)⁺ and its solid-angle weight cos³ (its cosine to
+    ray_axis, cubed); a ray below the geometric horizon, not traced, has its bit clear."""
     frame = disk_basis(ray_axis)
     total = float(0.0)
     seen = float(0.0)
-    for i in range(LOBE_RAYS):
+    for i in range(part[0], LOBE_RAYS, part[1]):
         d = lobe_ray_direction(frame, ray_eta, i, pixel)
         c = wp.dot(d, ray_axis)
         w = wp.exp(eta * (wp.dot(d, axis) - 1.0)) * wp.max(wp.dot(d, n), 0.0) * c * c * c
@@ -668,8 +674,8 @@ def nearest_ray_lobe(env_sgs: wp.array2d(dtype=wp.float32), n_sharp: int, e: int
 @wp.func
 def environment_share(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: float, tr: float, s: SurfacePoint,
                       has_ssdf: int, ssdf_res: int, ssdf_basis: wp.array2d(dtype=wp.float32),
-                      ssdf_coeffs: wp.array2d(dtype=wp.float32), mask: wp.uint32, samples: int, frame: wp.mat33,
-                      pixel: int) -> float:
+                      ssdf_coeffs: wp.array2d(dtype=wp.float32), mask: wp.uint32, samples: int, part: wp.vec2i,
+                      frame: wp.mat33, pixel: int) -> float:
     """The share of ∫ G(ω; axis, η, 1)(n·ω)⁺ dω left unoccluded (1 without an SSDF): the SSDF's, blended
     for broad lobes with the occlusion rays' (ray_weight; a mask with no bit set sees it all); tr: η's
     table row."""
@@ -681,7 +687,7 @@ def environment_share(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: f
     if weight > 0.0:
         rays = float(1.0)
         if mask != wp.uint32(0):
-            rays = ray_share(axis, eta, s.n, frame, mask, samples, pixel)
+            rays = ray_share(axis, eta, s.n, frame, mask, samples, part, pixel)
         share = weight * rays + (1.0 - weight) * share
     return share
 
@@ -850,7 +856,7 @@ def anisotropic_from_lights(kind: int, ks: wp.vec3, p1: float, p2: float, s: Sur
 def shade_pixels(
     face: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec2), light_vis: wp.array2d(dtype=wp.uint8),
     occlusion: wp.array(dtype=wp.uint32), occlusion_samples: int, lobe_occlusion: wp.array(dtype=wp.uint32),
-    n_sharp: int,
+    n_sharp: int, part_index: int, part_count: int,
     faces: wp.array2d(dtype=wp.int32), positions: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp.vec3),
     tangents: wp.array(dtype=wp.vec3), face_material: wp.array(dtype=wp.int32),
     camera: wp.array(dtype=wp.float32),
@@ -884,7 +890,10 @@ def shade_pixels(
     wo = wp.normalize(wp.vec3(camera[0], camera[1], camera[2]) - s.pos)
     cos_o = wp.max(wp.dot(wo, s.n), MIN_COS_VIEW)
     wo_local = wp.normalize(wp.vec3(wp.dot(wo, s.t), wp.dot(wo, s.b), cos_o))
-    # The occlusion rays' mask and frame (about the geometric normal on the camera's side, as traced).
+    # The occlusion rays' mask and frame (about the geometric normal on the camera's side, as traced), and
+    # which rays of the occlusion and lobe ray sets this anti-aliasing sample traced.
+    occlusion_part = ray_part(occlusion_samples, part_index, part_count)
+    lobe_part = ray_part(LOBE_RAYS, part_index, part_count)
     mask = wp.uint32(0)
     frame = wp.identity(3, dtype=float)
     if occlusion_samples > 0:
@@ -944,10 +953,10 @@ def shade_pixels(
             ray_axis = wp.vec3(f32_at2(env_sgs, ray_lobe, 0), f32_at2(env_sgs, ray_lobe, 1),
                                f32_at2(env_sgs, ray_lobe, 2))
             amount = amount * lobe_ray_share(ray_axis, f32_at2(env_sgs, ray_lobe, 3), axis, eta, s.n,
-                                             lobe_occlusion[p], ray_lobe, p)
+                                             lobe_occlusion[p], ray_lobe, lobe_part, p)
         else:
             amount = amount * environment_share(table, axis, eta, tr, s, has_ssdf, ssdf_res, ssdf_basis,
-                                                ssdf_coeffs, mask, occlusion_samples, frame, p)
+                                                ssdf_coeffs, mask, occlusion_samples, occlusion_part, frame, p)
         fd = analytic_diffuse(a_kind, kd, a_ks, axis, eta, s, cos_o)
         if kind != 0:
             fd = effective_diffuse(eff_info, eff_sub, eff_diffuse, idx, k2, eta, to_local(s, axis), k, oo, ow)
@@ -1068,7 +1077,7 @@ def shade_pixels(
                                     / (1.0 + wp.exp(-eta)), 0.0)
                 amount = amount * environment_share(
                     table, axis, eta, tr, s, has_ssdf, ssdf_res, ssdf_basis, ssdf_coeffs, mask, occlusion_samples,
-                    frame, p)
+                    occlusion_part, frame, p)
                 light_part = wp.vec3(0.0)
                 if with_lights != 0:
                     light_part = lobe_from_lights(table, axis, eta, s, n_lights, lights, light_vis, p)

@@ -17,7 +17,7 @@ Conventions shared with the OpenCL twin and the reference:
 
 import warp as wp
 
-from .common import LOBE_RAYS, disk_basis, disk_sample, lobe_ray_direction, occlusion_direction
+from .common import LOBE_RAYS, disk_basis, disk_sample, lobe_ray_direction, occlusion_direction, ray_part
 
 
 @wp.func
@@ -138,17 +138,23 @@ def trace_shadows(
     eps: float,
     t_min: float,
     samples: int,
+    part_index: int,
+    part_count: int,
     offset: int,
     visible: wp.array2d(dtype=wp.uint8),  # (N, L)
 ):
     """One thread per (light, pixel); neighbouring threads take neighbouring pixels towards one
-    light, so their BVH walks stay coherent. `samples` rays go to points spread over the light's
-    disc (a point light's sphere seen from the pixel; a directional light's cone); the result is
-    the visible share in 255ths, rounded."""
+    light, so their BVH walks stay coherent. The rays of anti-aliasing sample part_index of part_count
+    (ray_part) among `samples` go to points spread over the light's disc (a point light's sphere seen from
+    the pixel; a directional light's cone); the result is their visible share in 255ths, rounded."""
     k, p_local = wp.tid()
     p = p_local + offset
     f = face[p]
     hits = int(0)
+    part = ray_part(samples, part_index, part_count)
+    first = part[0]
+    stride = part[1]
+    traced = (samples - first + stride - 1) // stride
     if f >= 0:
         o, ng, n = ray_start(points, normals, faces, face_normals[f], f, bary[p], position[p], eye, eps)
         c = wp.vec3(lights[k, 1], lights[k, 2], lights[k, 3])
@@ -158,7 +164,7 @@ def trace_shadows(
             w = wp.normalize(c - o)
             spread = lights[k, 7]  # point: the radius
         frame = disk_basis(w)
-        for i in range(samples):
+        for i in range(first, samples, stride):
             q = disk_sample(i, samples, p)
             offset_on_disc = spread * (q[0] * frame[0] + q[1] * frame[1])
             d = w + offset_on_disc
@@ -176,7 +182,7 @@ def trace_shadows(
                         hits = hits + 1
                 else:
                     hits = hits + 1
-    visible[p, k] = wp.uint8((hits * 255 + samples // 2) // samples)
+    visible[p, k] = wp.uint8((hits * 255 + traced // 2) // traced)
 
 
 @wp.kernel
@@ -193,19 +199,22 @@ def trace_occlusion(
     eps: float,
     t_min: float,
     samples: int,
+    part_index: int,
+    part_count: int,
     offset: int,
     mask: wp.array(dtype=wp.uint32),
 ):
-    """One thread per pixel: `samples` unbounded any-hit rays, cosine-distributed over the hemisphere of
-    the geometric normal on the camera's side (occlusion_direction); bit i of the pixel's mask is set
-    where ray i is blocked."""
+    """One thread per pixel: of `samples` unbounded any-hit rays, cosine-distributed over the hemisphere of
+    the geometric normal on the camera's side (occlusion_direction), those of anti-aliasing sample
+    part_index of part_count (ray_part); bit i of the pixel's mask is set where ray i is blocked."""
     p = wp.tid() + offset
     f = face[p]
     bits = wp.uint32(0)
     if f >= 0:
         o, n, ns = ray_start(points, normals, faces, face_normals[f], f, bary[p], position[p], eye, eps)
         frame = disk_basis(n)
-        for i in range(samples):
+        part = ray_part(samples, part_index, part_count)
+        for i in range(part[0], samples, part[1]):
             d = occlusion_direction(frame, i, samples, p)
             if wp.mesh_query_ray_anyhit(mesh, o + t_min * d, d, wp.inf):
                 bits = bits | (wp.uint32(1) << wp.uint32(i))
@@ -228,21 +237,24 @@ def trace_lobe_rays(
     rays: int,  # LOBE_RAYS, passed in (as to the OpenCL twin): Warp unrolls a loop over a constant, BVH walk and all
     eps: float,
     t_min: float,
+    part_index: int,
+    part_count: int,
     offset: int,
     mask: wp.array(dtype=wp.uint32),
 ):
-    """One thread per pixel: LOBE_RAYS unbounded any-hit rays over each sharp lobe's cap (lobe_ray_direction);
-    bit k·LOBE_RAYS + i set where ray i of lobe k is blocked. A ray below the shading normal's horizon is not
-    traced."""
+    """One thread per pixel: of LOBE_RAYS unbounded any-hit rays over each sharp lobe's cap (lobe_ray_direction),
+    those of anti-aliasing sample part_index of part_count (ray_part); bit k·LOBE_RAYS + i set where ray i of
+    lobe k is blocked. A ray below the shading normal's horizon is not traced."""
     p = wp.tid() + offset
     f = face[p]
     bits = wp.uint32(0)
     if f >= 0:
         o, ng, n = ray_start(points, normals, faces, face_normals[f], f, bary[p], position[p], eye, eps)
+        part = ray_part(rays, part_index, part_count)
         for k in range(n_lobes):
             axis = wp.vec3(lobes[k, 0], lobes[k, 1], lobes[k, 2])
             frame = disk_basis(axis)
-            for i in range(rays):
+            for i in range(part[0], rays, part[1]):
                 d = lobe_ray_direction(frame, lobes[k, 3], i, p)
                 if wp.dot(n, d) > 0.0:
                     if wp.mesh_query_ray_anyhit(mesh, o + t_min * d, d, wp.inf):

@@ -417,7 +417,7 @@ def test_sg_irradiance_against_adaptive_quadrature(eta):
     for c in cs:
         s = np.sqrt(max(1.0 - c * c, 0.0))
         kinks = [u for u in (1.0 - s, 1.0 + s) if 0.0 < u < top]
-        want.append(quad(lambda u: np.exp(-eta * u) * lighting._clamped_cosine_ring(np.array(u), np.array(c)),
+        want.append(quad(lambda u, c=c: np.exp(-eta * u) * lighting._clamped_cosine_ring(np.array(u), np.array(c)),
                          0.0, top, points=kinks or None, limit=500, epsabs=0.0, epsrel=1e-12)[0])
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-7 * float(sg.integral(np.array(eta))))
 

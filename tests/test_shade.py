@@ -148,6 +148,33 @@ def test_shade_kernel_matches_reference(backend, which, effective_material, many
     assert err.max() < 2e-2 * peak, msg
 
 
+@pytest.mark.parametrize("part", [(1, 4), (2, 3)])
+def test_shade_of_an_anti_aliasing_samples_part_of_the_rays(backend, effective_material, part):
+    """A G-buffer whose occlusion, lobe and shadow rays are one anti-aliasing sample's part of each set
+    (`trace.ray_part`): the kernel weighs those rays alone, as the float64 reference does (tolerances as
+    test_shade_kernel_matches_reference's); and from the device's own copies it shades the same."""
+    scene = _scenes(effective_material)["occluded"]
+    frame = pack_frame(scene, backend, part=part)
+    assert frame.gbuffer.occlusion.any() and frame.gbuffer.lobe_occlusion.any()
+    ref = shade_reference(frame)
+    out = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights, gbuffer=frame.gbuffer)
+    peak = ref.max()
+    err = np.abs(out - ref)
+    msg = f"max err {err.max():.3g}, peak {peak:.3g}, p99.9 {np.quantile(err, 0.999):.3g}"
+    assert np.quantile(err / (np.abs(ref) + 1e-3 * peak), 0.999) < 2e-3, msg
+    assert err.max() < 2e-2 * peak, msg
+    whole = shade_reference(pack_frame(scene, backend))
+    assert np.abs(ref - whole).max() > 1e-3 * peak  # a part is not the whole set
+    backend.trace_primary(scene.mesh, scene.camera, to_host=False)
+    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=SHADOW_SAMPLES, part=part)
+    backend.trace_occlusion(scene.mesh, None, OCCLUSION_SAMPLES, to_host=False, part=part)
+    backend.trace_lobe_rays(scene.mesh, None, frame.inputs.sharp_lobes(), to_host=False, part=part)
+    np.testing.assert_array_equal(backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights), out)
+    backend.trace_lobe_rays(scene.mesh, None, frame.inputs.sharp_lobes(), to_host=False)  # the whole set's
+    with pytest.raises(ValueError, match="same anti-aliasing sample"):
+        backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights)
+
+
 def test_shade_uses_device_gbuffer(backend, effective_material):
     """The render path: G-buffer, shadows and occlusion masks left on the device by trace_primary,
     trace_shadows and trace_occlusion."""

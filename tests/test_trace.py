@@ -427,6 +427,63 @@ def test_occlusion_from_the_device_gbuffer(backend):
     assert host[g.face >= 0].any() and not host[g.face < 0].any()
 
 
+def test_ray_part_covers_each_set_once():
+    """The parts of n anti-aliasing samples cover every ray of a set exactly once where n ≤ the set, and every
+    sample gets one ray, in turn, past it; the kernels' (first, stride) are these."""
+    for samples in (1, 8, 16):
+        for count in (1, 2, 3, 4, 16, 40):
+            cast = np.array([trace_module.part_rays(samples, (k, count)) for k in range(count)])
+            assert cast.any(1).all()  # no sample traces nothing
+            if count <= samples:
+                np.testing.assert_array_equal(cast.sum(0), 1)
+            else:
+                assert cast.sum(1).max() == 1 and cast.any(0).all()
+    assert trace_module.ray_part(16, (0, 1)) == (0, 1)
+
+
+@pytest.mark.parametrize("part", [(1, 4), (2, 3)])
+def test_a_part_of_each_ray_set_matches_reference(backend, occlusion_reference, part):
+    """An anti-aliasing sample's part of the occlusion, lobe and shadow rays against the float64 reference's
+    same part (bit for bit where a ray is unambiguous; the shadow shares to a step of the part's own rays);
+    bits outside the part stay clear, and the parts of all samples together make the whole set's masks."""
+    mesh, g, (exact, grown, shrunk) = occlusion_reference
+    eps, t_min = offsets(mesh)
+    args = (mesh.vertices, mesh.normals, mesh.faces, g.face, g.bary, g.position, g.eye, eps, t_min)
+    index, count = part
+    union = np.zeros(len(g.face), np.uint32)
+    for k in range(count):
+        got = backend.trace_occlusion(mesh, g, 16, part=(k, count))
+        assert not (_bits(got) & ~trace_module.part_rays(16, (k, count))[None]).any()
+        want = [ref.trace_occlusion(*args, 16, tol=tol, part=(k, count)) for tol in (0.0, BARY_TOL, -BARY_TOL)]
+        clear = _bits(want[1]) == _bits(want[2])
+        assert not (clear & (_bits(got) != _bits(want[0]))).any()
+        union |= got
+    clear = _bits(grown) == _bits(shrunk)
+    assert not (clear & (_bits(union) != _bits(exact))).any()
+    lobes = [ref.trace_lobe_rays(*args, LOBES, tol=tol, part=part) for tol in (0.0, BARY_TOL, -BARY_TOL)]
+    got = _bits(backend.trace_lobe_rays(mesh, g, LOBES, part=part), 32)
+    clear = _bits(lobes[1], 32) == _bits(lobes[2], 32)
+    assert not (clear & (got != _bits(lobes[0], 32))).any()
+    assert not (got[:, :16] & ~np.tile(trace_module.part_rays(8, part), 2)[None]).any()
+    lights = np.stack([PointLight((0.3, 3.0, 0.2), radius=0.4).packed(),
+                       DirectionalLight((-0.5, 1.0, 0.3), angular_radius=8.0).packed()])
+    vis = backend.trace_shadows(mesh, g, lights, samples=16, part=part).astype(np.int64)
+    want = ref.trace_shadows(mesh.vertices, mesh.normals, mesh.faces, g.face, g.bary, g.position, g.eye, lights,
+                             eps, t_min, samples=16, part=part).astype(np.int64)
+    step = 255 / trace_module.part_rays(16, part).sum()
+    assert (np.abs(vis - want) > step + 1).sum() == 0 and (vis != want).mean() < 0.02
+
+
+@pytest.mark.parametrize("bad", [(4, 4), (-1, 2), (0, 0), "x", (0.5, 2)])
+def test_bad_ray_part_is_one_line(backend, bad):
+    mesh, cam, lights = _shadow_scene()
+    g = backend.trace_primary(mesh, cam)
+    with pytest.raises(ValueError, match="ray part"):
+        backend.trace_occlusion(mesh, g, 8, part=bad)
+    with pytest.raises(ValueError, match="ray part"):
+        backend.trace_shadows(mesh, g, lights, samples=4, part=bad)
+
+
 @pytest.mark.parametrize("bad", [-1, 33, 2.5, "8"])
 def test_bad_occlusion_samples_are_one_line(backend, bad):
     mesh, cam, _ = _shadow_scene()

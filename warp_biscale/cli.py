@@ -286,6 +286,8 @@ def cmd_render(args):
             options["shadow_samples"] = args.shadow_samples
         if args.occlusion_samples is not None:
             options["occlusion_samples"] = args.occlusion_samples
+        if args.every_ray_per_sample:
+            options["split_rays"] = False
     if method == "mc" and args.mc_fallback is None:
         # Before the render starts: a material file of format 1 records no tile to compute the truth from.
         for i in missing_provenance(sf.scene):
@@ -308,7 +310,8 @@ def cmd_render(args):
 
 def _refuse_sg_options(args):
     for flag, value in (("--aa", args.aa), ("--shadow-samples", args.shadow_samples),
-                        ("--occlusion-samples", args.occlusion_samples)):
+                        ("--occlusion-samples", args.occlusion_samples),
+                        ("--every-ray-per-sample", args.every_ray_per_sample or None)):
         if value is not None:
             raise ValueError(f"{flag} is for the SG renderer (--method sg); the Monte Carlo reference samples "
                              "pixel centres and lights as emitters")
@@ -485,6 +488,9 @@ def _add_render_commands(sub):
                    help=f"environment-occlusion rays a pixel, 0..{OCCLUSION_SAMPLES_MAX}, that shadow the broad "
                         f"environment lobes where the scene occludes itself (default {OCCLUSION_SAMPLES}; 0: the "
                         "SSDF alone)")
+    r.add_argument("--every-ray-per-sample", action="store_true",
+                   help="every anti-aliasing sample traces every shadow and occlusion ray (--aa times the rays, less "
+                        "noise); by default the samples of a pixel share each set of rays between them")
     r.add_argument("--mc-fallback", choices=["sg"],
                    help="--method mc: judge every baked material with its SG fit (not exact; with a warning) "
                         "instead of its exact ground truth, e.g. for a material file of format 1, which records "

@@ -22,7 +22,7 @@ from .brdf import ANISOTROPIC_KINDS, MEASURED
 from .lobes import DEAD_MASS, KERNEL_LOBES, LobeSet
 from .model import DeviceArray, Facets, GBuffer, ShadeInputs, Visibility, facet_shift
 from .trace import (CHUNK_RAYS, check_camera, check_gbuffer, check_lights, check_mesh, check_occlusion,
-                    check_lobes, check_occlusion_samples, check_shadow_samples, offsets)
+                    check_lobes, check_occlusion_samples, check_ray_part, check_shadow_samples, offsets)
 
 # Shade inputs up to this size are compared by value to the last upload of their role (`_shade_input`),
 # larger ones by their memory.
@@ -665,60 +665,69 @@ class DeviceBackend:
             m["offsets"] = offsets(mesh)
         return m["offsets"]
 
-    def trace_shadows(self, mesh, gbuffer, lights_packed, to_host=True, samples=1, if_changed=False):
+    def trace_shadows(self, mesh, gbuffer, lights_packed, to_host=True, samples=1, if_changed=False, part=(0, 1)):
         """`samples` shadow rays per light and pixel of the G-buffer (None: the one on the device), the
         visible shares left on the device. With if_changed (and to_host False), nothing is traced when the
-        device already holds them for this G-buffer, these lights and samples."""
+        device already holds them for this G-buffer, these lights and samples. `part` (index, count): only
+        the rays that anti-aliasing sample index of count traces of the set (trace.ray_part), their share."""
         check_mesh(mesh)
         lights = check_lights(lights_packed)
         samples = check_shadow_samples(samples)
+        part = check_ray_part(part)
         m = self._trace_mesh(mesh)
-        key = self._rays_key(m, gbuffer, lights.tobytes(), samples)
+        key = self._rays_key(m, gbuffer, lights.tobytes(), samples, part)
         if if_changed and not to_host and key is not None and m.get("light_vis_key") == key:
             return None
         face, bary, position, eye, n = self._ray_starts(mesh, m, gbuffer)
         vis = self._reuse(m, "gbuffer_light_vis", (n, len(lights)), "u8")
         if n and len(lights):
-            self._launch_trace_shadows(m, face, bary, position, eye, lights, *self._offsets(mesh, m), samples, n, vis)
+            self._launch_trace_shadows(m, face, bary, position, eye, lights, *self._offsets(mesh, m), samples, part,
+                                       n, vis)
         m["light_vis_key"] = key
         return self._to_host(vis, (n, len(lights)), "u8") if to_host else None
 
-    def trace_occlusion(self, mesh, gbuffer, samples, to_host=True, if_changed=False):
+    def trace_occlusion(self, mesh, gbuffer, samples, to_host=True, if_changed=False, part=(0, 1)):
         """`samples` environment-occlusion rays per pixel of the G-buffer (None: the one on the device), their
         (P,) uint32 masks left on the device for shade (reference.trace_occlusion); 0 samples: none, and shade
         shadows the environment by the SSDF alone. With if_changed (and to_host False), nothing is traced
-        when the device already holds them for this G-buffer and samples."""
+        when the device already holds them for this G-buffer and samples. `part` (index, count): only the
+        rays that anti-aliasing sample index of count traces (trace.ray_part); shade then reads those."""
         check_mesh(mesh)
         samples = check_occlusion_samples(samples)
+        part = check_ray_part(part)
         m = self._trace_mesh(mesh)
-        key = self._rays_key(m, gbuffer, samples)
+        key = self._rays_key(m, gbuffer, samples, part)
         if if_changed and not to_host and key is not None and m.get("occlusion_key") == key:
             return None
         face, bary, position, eye, n = self._ray_starts(mesh, m, gbuffer)
         mask = self._reuse(m, "gbuffer_occlusion", n, "u32")
         if n and samples:
-            self._launch_trace_occlusion(m, face, bary, position, eye, *self._offsets(mesh, m), samples, n, mask)
-        m["occlusion_key"], m["occlusion_samples"] = key, samples
+            self._launch_trace_occlusion(m, face, bary, position, eye, *self._offsets(mesh, m), samples, part, n,
+                                         mask)
+        m["occlusion_key"], m["occlusion_samples"], m["occlusion_part"] = key, samples, part
         if not to_host:
             return None
         return self._to_host(mask, n, "u32") if samples else np.zeros(n, np.uint32)
 
-    def trace_lobe_rays(self, mesh, gbuffer, lobes, to_host=True, if_changed=False):
+    def trace_lobe_rays(self, mesh, gbuffer, lobes, to_host=True, if_changed=False, part=(0, 1)):
         """trace.LOBE_RAYS rays per pixel of the G-buffer (None: the one on the device) towards each sharp
         environment lobe of `lobes` (M ≤ trace.LOBE_RAY_LOBES rows [axis, η]), their (P,) uint32 masks left on
         the device for shade (reference.trace_lobe_rays). With if_changed (and to_host False), nothing is
-        traced when the device already holds them for this G-buffer and lobes."""
+        traced when the device already holds them for this G-buffer and lobes. `part`: as trace_occlusion's,
+        and the same as the occlusion rays' for shade."""
         check_mesh(mesh)
         lobes = check_lobes(lobes)
+        part = check_ray_part(part)
         m = self._trace_mesh(mesh)
-        key = self._rays_key(m, gbuffer, lobes.tobytes())
+        key = self._rays_key(m, gbuffer, lobes.tobytes(), part)
         if if_changed and not to_host and key is not None and m.get("lobe_rays_key") == key:
             return None
         face, bary, position, eye, n = self._ray_starts(mesh, m, gbuffer)
         mask = self._reuse(m, "gbuffer_lobe_occlusion", n, "u32")
         if n and len(lobes):
-            self._launch_trace_lobe_rays(m, face, bary, position, eye, lobes, *self._offsets(mesh, m), n, mask)
-        m["lobe_rays_key"], m["lobe_rays"] = key, lobes.tobytes()
+            self._launch_trace_lobe_rays(m, face, bary, position, eye, lobes, *self._offsets(mesh, m), part, n,
+                                         mask)
+        m["lobe_rays_key"], m["lobe_rays"], m["lobe_part"] = key, lobes.tobytes(), part
         if not to_host:
             return None
         return self._to_host(mask, n, "u32") if len(lobes) else np.zeros(n, np.uint32)
@@ -746,11 +755,15 @@ class DeviceBackend:
                 raise ValueError("no shadow rays on the device for these lights: call trace_shadows first")
             occ_samples = m.get("occlusion_samples", 0)
             occ = m["gbuffer_occlusion"] if occ_samples else None
+            part = m.get("occlusion_part", (0, 1)) if occ_samples else (0, 1)
             lobe_occ = None
             if occ_samples and static.n_sharp_lobes:
                 if m.get("lobe_rays") != static.sharp_lobes().tobytes():
                     raise ValueError("no lobe rays on the device for this environment's sharp lobes: call "
                                      "trace_lobe_rays after trace_occlusion")
+                if m.get("lobe_part") != part:
+                    raise ValueError(f"the lobe rays on the device are part {m.get('lobe_part')} of their set and the "
+                                     f"occlusion rays part {part}: trace both for the same anti-aliasing sample")
                 lobe_occ = m["gbuffer_lobe_occlusion"]
         else:
             if not isinstance(gbuffer, GBuffer):
@@ -769,6 +782,7 @@ class DeviceBackend:
                     raise ValueError(f"gbuffer.light_vis must have shape ({n}, {n_lights}), got {vis_h.shape}")
                 vis = self._to_device(vis_h, "u8")
             occ_samples, occ = check_occlusion_samples(gbuffer.occlusion_samples), None
+            part = check_ray_part(gbuffer.ray_part)
             if occ_samples:
                 occ_h = np.asarray(gbuffer.occlusion, np.uint32) if gbuffer.occlusion is not None else None
                 if occ_h is None or occ_h.shape != (n,):
@@ -791,7 +805,7 @@ class DeviceBackend:
             lobe_occ = occ  # never read: no lobe rays
         out = self._reuse(m, "radiance", n, "vec3")
         if n:
-            self._launch_shade(dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, lights,
+            self._launch_shade(dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, part, lights,
                                np.asarray(camera_packed, np.float32).reshape(16), n,
                                -1 if only_material is None else int(only_material), out)
         return self._to_host(out, n, "vec3") if to_host else None

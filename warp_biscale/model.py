@@ -260,7 +260,9 @@ class GBuffer:
     occlusion (P,) uint32, bit i set where environment-occlusion ray i of occlusion_samples is blocked
     (trace_occlusion's result; occlusion_samples 0: none traced, the SSDF alone shadows the environment);
     lobe_occlusion (P,) uint32, bit k·trace.LOBE_RAYS + i set where ray i towards the inputs' sharp
-    environment lobe k is blocked (trace_lobe_rays' result, read where occlusion_samples > 0)."""
+    environment lobe k is blocked (trace_lobe_rays' result, read where occlusion_samples > 0); ray_part
+    (index, count): which anti-aliasing sample of how many the light_vis, occlusion and lobe_occlusion rays
+    were traced for (trace.ray_part: those rays of each set alone), (0, 1) for all of them."""
     face: np.ndarray
     bary: np.ndarray | None = None
     position: np.ndarray | None = None
@@ -270,6 +272,7 @@ class GBuffer:
     occlusion: np.ndarray | None = None
     occlusion_samples: int = 0
     lobe_occlusion: np.ndarray | None = None
+    ray_part: tuple = (0, 1)
 
 
 @dataclass(eq=False)

@@ -799,10 +799,11 @@ class OpenCLBackend(DeviceBackend):
         self._launch("trace", "trace_occluded", (n,), m["nodes"], m["tris"], origins, directions, np.float32(t_min),
                      t_max, np.int32(n), occluded)
 
-    def _launch_trace_shadows(self, m, face, bary, position, eye, lights, eps, t_min, samples, n, vis):
+    def _launch_trace_shadows(self, m, face, bary, position, eye, lights, eps, t_min, samples, part, n, vis):
         self._launch("trace", "trace_shadows", (n, len(lights)), m["nodes"], m["tris"], *self._ray_mesh(m), face,
                      bary, position, *(np.float32(e) for e in eye), self._buffer(lights, np.float32), np.float32(eps),
-                     np.float32(t_min), np.int32(samples), np.int32(n), np.int32(len(lights)), vis)
+                     np.float32(t_min), np.int32(samples), *map(np.int32, part), np.int32(n), np.int32(len(lights)),
+                     vis)
 
     def _upload_shade_static(self, static, levels, basis, coeffs):
         """Empty arrays become one-element dummies the kernel never reads."""
@@ -831,19 +832,20 @@ class OpenCLBackend(DeviceBackend):
                            np.float32(sg.SHARPNESS_MAX)),
         }
 
-    def _launch_trace_occlusion(self, m, face, bary, position, eye, eps, t_min, samples, n, mask):
+    def _launch_trace_occlusion(self, m, face, bary, position, eye, eps, t_min, samples, part, n, mask):
         self._launch("trace", "trace_occlusion", (n,), m["nodes"], m["tris"], *self._ray_mesh(m), face, bary,
                      position,
-                     *(np.float32(e) for e in eye), np.float32(eps), np.float32(t_min), np.int32(samples), np.int32(n),
-                     mask)
+                     *(np.float32(e) for e in eye), np.float32(eps), np.float32(t_min), np.int32(samples),
+                     *map(np.int32, part), np.int32(n), mask)
 
-    def _launch_trace_lobe_rays(self, m, face, bary, position, eye, lobes, eps, t_min, n, mask):
+    def _launch_trace_lobe_rays(self, m, face, bary, position, eye, lobes, eps, t_min, part, n, mask):
         self._launch("trace", "trace_lobe_rays", (n,), m["nodes"], m["tris"], *self._ray_mesh(m), face, bary,
                      position,
                      *(np.float32(e) for e in eye), self._buffer(lobes, np.float32),
-                     np.int32(len(lobes)), np.int32(LOBE_RAYS), np.float32(eps), np.float32(t_min), np.int32(n), mask)
+                     np.int32(len(lobes)), np.int32(LOBE_RAYS), np.float32(eps), np.float32(t_min),
+                     *map(np.int32, part), np.int32(n), mask)
 
-    def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, lights, camera, n,
+    def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, part, lights, camera, n,
                       only_material, out):
         cltypes = self._cl.cltypes
         light_buf = self._reuse(m, "shade_lights", (max(1, len(lights)), 8), "f32")
@@ -851,7 +853,8 @@ class OpenCLBackend(DeviceBackend):
             self._cl.enqueue_copy(self._queue, light_buf, np.ascontiguousarray(lights))
         eye, forward, right, up = (cltypes.make_float4(*camera[k:k + 3], 0.0) for k in (0, 3, 6, 9))
         self._launch("shade", "shade_pixels", (n,),
-                     face, bary, vis, occ, np.int32(occ_samples), lobe_occ, np.int32(n_sharp), dev["faces"],
+                     face, bary, vis, occ, np.int32(occ_samples), lobe_occ, np.int32(n_sharp), *map(np.int32, part),
+                     dev["faces"],
                      dev["positions"], dev["normals"], dev["tangents"],
                      dev["face_material"], eye, forward, right, up, np.float32(camera[12]), np.float32(camera[13]),
                      np.int32(len(lights)), light_buf, dev["n_env"], dev["env_sgs"], dev["env_residual"],

@@ -23,7 +23,8 @@ from .environment import (
 )
 from .lighting import prefiltered_lookup, sg_irradiance  # noqa: F401
 from .model import facet_shift, radical_inverse  # noqa: F401
-from .trace import LOBE_RAYS, disk_basis, disk_sample, lobe_ray_directions, occlusion_directions, ray_starts
+from .trace import (LOBE_RAYS, disk_basis, disk_sample, lobe_ray_directions, occlusion_directions, part_rays,
+                    ray_starts)
 from .sg import one_minus_cos
 from .smallscale import (
     SmallScale,
@@ -782,7 +783,7 @@ def trace_primary(mesh, camera) -> dict:
 
 
 def trace_shadows(vertices, normals, faces, face, bary, position, eye, lights_packed, eps, t_min, tol=0.0,
-                  samples: int = 1) -> np.ndarray:
+                  samples: int = 1, part=(0, 1)) -> np.ndarray:
     """(P, L) uint8, the share of light k visible from hit pixel p in 255ths (trace.VISIBLE = 255: all).
 
     Each shadow ray starts at trace.ray_starts' origin (the hit lifted towards the smooth surface of the
@@ -793,7 +794,8 @@ def trace_shadows(vertices, normals, faces, face, bary, position, eye, lights_pa
     from the origin, ray towards c + r(q_x a + q_y b) (r = row[7]) up to eps short of it. A ray counts if it
     is above the horizon of the shading normal (ray_starts' ns, which may see a light the face's plane hides)
     and hits no triangle with t in (t_min, t_max]; the entry is (count·255 + ⌊S/2⌋) // S. 0 for a missed
-    pixel (face −1).
+    pixel (face −1). With `part` (index, count) only the rays i of trace.ray_part(samples, part) are cast, and
+    S is their number.
     """
     face = np.asarray(face, np.int64)
     lights = np.asarray(lights_packed, np.float64).reshape(-1, 8)
@@ -804,18 +806,20 @@ def trace_shadows(vertices, normals, faces, face, bary, position, eye, lights_pa
     start = ray_starts(vertices, normals, faces, face[hit], np.asarray(bary, np.float64).reshape(-1, 2)[hit],
                        np.asarray(position, np.float64).reshape(-1, 3)[hit], eye, eps)
     counts = np.zeros((len(hit), len(lights)), np.int64)
-    for i in range(samples):
+    cast = np.flatnonzero(part_rays(samples, part))
+    for i in cast:
         counts += _shadow_rays(vertices, faces, start, lights, eps, t_min, tol, hit, i, samples)
-    out[hit] = ((counts * 255 + samples // 2) // samples).astype(np.uint8)
+    out[hit] = ((counts * 255 + len(cast) // 2) // len(cast)).astype(np.uint8)
     return out
 
 
 def trace_occlusion(vertices, normals, faces, face, bary, position, eye, eps, t_min, samples: int,
-                    tol=0.0) -> np.ndarray:
+                    tol=0.0, part=(0, 1)) -> np.ndarray:
     """(P,) uint32 environment-occlusion masks: bit i set where ray i of `samples` from hit pixel p hits a
     triangle with t in (t_min, inf). The rays start at trace.ray_starts' origin and go along
     trace.occlusion_directions(ng, samples, p), ng its geometric normal turned to the eye. 0 for a missed
-    pixel (face −1) and for samples = 0."""
+    pixel (face −1) and for samples = 0. With `part` (index, count) only the rays of trace.ray_part are cast;
+    the others' bits stay clear."""
     face = np.asarray(face, np.int64)
     out = np.zeros(len(face), np.uint32)
     hit = np.flatnonzero(face >= 0)
@@ -826,15 +830,17 @@ def trace_occlusion(vertices, normals, faces, face, bary, position, eye, eps, t_
     d = occlusion_directions(start["ng"], samples, hit)  # (H, S, 3)
     o = np.repeat(start["origin"], samples, axis=0)
     blocked = trace_occluded(vertices, faces, o, d.reshape(-1, 3), t_min, np.inf, tol).reshape(len(hit), samples)
+    blocked &= part_rays(samples, part)[None]
     out[hit] = (blocked.astype(np.uint64) << np.arange(samples, dtype=np.uint64)).sum(1).astype(np.uint32)
     return out
 
 
-def trace_lobe_rays(vertices, normals, faces, face, bary, position, eye, eps, t_min, lobes, tol=0.0) -> np.ndarray:
+def trace_lobe_rays(vertices, normals, faces, face, bary, position, eye, eps, t_min, lobes, tol=0.0,
+                    part=(0, 1)) -> np.ndarray:
     """(P,) uint32 lobe masks: bit k·LOBE_RAYS + i set where ray i towards sharp lobe k of `lobes` (M, 4)
     [axis, η] (trace.lobe_ray_directions) from hit pixel p hits a triangle with t in (t_min, inf). The rays
     start as trace_occlusion's; one below the shading normal's horizon (ray_starts' ns) is not traced (bit
-    clear). 0 for a missed pixel and for no lobes."""
+    clear), nor one outside trace.ray_part(LOBE_RAYS, part). 0 for a missed pixel and for no lobes."""
     face = np.asarray(face, np.int64)
     out = np.zeros(len(face), np.uint32)
     lobes = np.asarray(lobes, np.float64).reshape(-1, 4)
@@ -847,7 +853,7 @@ def trace_lobe_rays(vertices, normals, faces, face, bary, position, eye, eps, t_
     bits = np.zeros(len(hit), np.uint64)
     for k, lobe in enumerate(lobes):
         d, _ = lobe_ray_directions(np.broadcast_to(lobe[:3], (len(hit), 3)), np.full(len(hit), lobe[3]), hit)
-        up = np.einsum("prk,pk->pr", d, n) > 0
+        up = (np.einsum("prk,pk->pr", d, n) > 0) & part_rays(LOBE_RAYS, part)[None]
         blocked = np.zeros(up.shape, bool)
         rows, cols = np.nonzero(up)
         blocked[rows, cols] = trace_occluded(vertices, faces, o[rows], d[rows, cols], t_min, np.inf, tol)

@@ -30,7 +30,7 @@ from .progress import Progress
 from .model import Frame, ShadeInputs
 from .scene import vertex_tangents
 from .shading import pack_materials, sharp_lobes_first
-from .trace import check_occlusion_samples, check_shadow_samples
+from .trace import check_occlusion_samples, check_ray_part, check_shadow_samples
 from .images import compare_images
 from .scene import Camera, DirectionalLight, Mesh, Rendering, Scene, _black_environment, _integer
 
@@ -132,23 +132,26 @@ OCCLUSION_SAMPLES = 16
 
 
 def pack_frame(scene: Scene, backend="auto", progress=None, timings=None,
-               shadow_samples: int = SHADOW_SAMPLES, occlusion_samples: int = OCCLUSION_SAMPLES) -> Frame:
+               shadow_samples: int = SHADOW_SAMPLES, occlusion_samples: int = OCCLUSION_SAMPLES,
+               part=(0, 1)) -> Frame:
     """The shade stage's inputs for the scene's current camera and lights, its G-buffer on the host
     (light_vis included, `shadow_samples` rays per light; and the occlusion masks of `occlusion_samples`
     rays per pixel where the scene has an SSDF): what `shading.shade_reference` takes (and `backend.shade`,
-    its inputs and G-buffer)."""
+    its inputs and G-buffer). `part`: those of anti-aliasing sample (index, count)'s rays alone (`trace.ray_part`)."""
     backend = get_backend(backend)
     timings = {} if timings is None else timings
     n_occlusion = check_occlusion_samples(occlusion_samples)
+    part = check_ray_part(part)
     static = _static_inputs(scene, backend, progress, timings)
     g = backend.trace_primary(scene.mesh, scene.camera)
     lights = scene.lights_packed
-    g.light_vis = (backend.trace_shadows(scene.mesh, g, lights, samples=shadow_samples) if len(lights)
+    g.ray_part = part
+    g.light_vis = (backend.trace_shadows(scene.mesh, g, lights, samples=shadow_samples, part=part) if len(lights)
                    else np.zeros((len(g.face), 0), np.uint8))
     if static.has_ssdf and n_occlusion:
-        g.occlusion = backend.trace_occlusion(scene.mesh, g, n_occlusion)
+        g.occlusion = backend.trace_occlusion(scene.mesh, g, n_occlusion, part=part)
         g.occlusion_samples = n_occlusion
-        g.lobe_occlusion = backend.trace_lobe_rays(scene.mesh, g, static.sharp_lobes())
+        g.lobe_occlusion = backend.trace_lobe_rays(scene.mesh, g, static.sharp_lobes(), part=part)
     return Frame(static, g, scene.camera.packed(), lights)
 
 
@@ -178,13 +181,17 @@ def check_aa(aa) -> int:
 
 
 def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: int = 1,
-           shadow_samples: int = SHADOW_SAMPLES, occlusion_samples: int = OCCLUSION_SAMPLES, **options) -> Rendering:
+           shadow_samples: int = SHADOW_SAMPLES, occlusion_samples: int = OCCLUSION_SAMPLES, split_rays: bool = True,
+           **options) -> Rendering:
     """Render `scene` → `Rendering`. method "sg": the per-pixel SG renderer (Wang 2009 / Iwasaki 2012 §5), with `aa`
     jittered samples per pixel (`aa_offsets`; 1: the pixel centre only) averaged with a box filter, `shadow_samples`
     shadow rays per light spread over its disc (soft shadows; 1: one ray to its centre, a hard shadow), and, where
     the mesh occludes itself under an environment, `occlusion_samples` environment-occlusion rays per pixel that
     shadow the broad lobes, and with them rays towards a sun's or a softbox's sharp lobes (shading's "Broad lobes'
-    visibility per pixel" and "Sharp environment lobes' visibility per pixel"; 0: the SSDF alone); "mc": the Monte
+    visibility per pixel" and "Sharp environment lobes' visibility per pixel"; 0: the SSDF alone). `split_rays`
+    (default): the `aa` samples of a pixel share each set of rays, sample k of n tracing rays k, k + n, … of it
+    (`trace.ray_part`), so an anti-aliased frame traces the rays of one frame and its average holds every ray of
+    each set once; False: every sample traces every ray (n times the rays, less noise); "mc": the Monte
     Carlo reference (`montecarlo.render`, options `samples`, `seed`, `truths`, `fallback`, `truth_facets`,
     `truth_seed`, `truth_directions`), whose lights are the same discs and which judges a baked material by its
     exact ground truth (`truth.truth_of`); "litsphere": the lit-sphere shader (seed 004, `warp_biscale.litsphere`),
@@ -199,13 +206,15 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     n_aa = check_aa(aa)
     n_shadow = check_shadow_samples(shadow_samples)
     n_occlusion = check_occlusion_samples(occlusion_samples)
+    if not isinstance(split_rays, bool):
+        raise ValueError(f"split_rays must be True or False, got {split_rays!r}")
     if method == "mc":
         if n_aa != 1:
             raise ValueError("aa is an option of the SG renderer; the Monte Carlo reference samples pixel centres")
         check_no_litspheres(scene, method)
         return montecarlo.render(scene, backend=backend, progress=progress, **options)
     if method == "litsphere":
-        return _render_litsphere(scene, get_backend(backend), n_aa, n_shadow, **options)
+        return _render_litsphere(scene, get_backend(backend), n_aa, n_shadow, split_rays=split_rays, **options)
     if options:
         raise ValueError(f"unknown option(s) for the SG renderer: {sorted(options)}")
     check_no_litspheres(scene, method)
@@ -218,12 +227,12 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     n_occlusion = n_occlusion if static.has_ssdf else 0  # nothing occludes: the rays would all escape
     image = _accumulate(scene, backend, n_aa, n_shadow, n_occlusion, lights, timings,
                         lambda cam, to_host: backend.shade(scene.mesh, static, cam.packed(), lights, to_host=to_host),
-                        static.sharp_lobes())
+                        static.sharp_lobes(), split_rays)
     timings["total"] = time.perf_counter() - t_all
     cam = scene.camera
     info = {"backend": backend.name, "device": backend.device, "method": "sg", "ssdf": bool(static.has_ssdf),
             "env_lobes": len(static.env_sgs), "lights": len(lights), "width": cam.width, "height": cam.height,
-            "aa": n_aa, "shadow_samples": n_shadow, "occlusion_samples": n_occlusion}
+            "aa": n_aa, "shadow_samples": n_shadow, "occlusion_samples": n_occlusion, "split_rays": split_rays}
     return Rendering(image, timings, info)
 
 
@@ -238,30 +247,32 @@ def check_no_litspheres(scene: Scene, method: str) -> None:
 
 
 def _accumulate(scene: Scene, backend, n_aa: int, n_shadow: int, n_occlusion: int, lights, timings: dict, shade,
-                lobes=None):
+                lobes=None, split_rays: bool = True):
     """The (H, W, 3) image: per anti-aliasing sample (`aa_offsets`) the G-buffer, the shadow rays of
     `lights` (n_shadow a light; none when 0), the environment-occlusion rays (n_occlusion a pixel; none
     when 0) and with them the rays of the sharp environment lobes `lobes` (`ShadeInputs.sharp_lobes`), then
     `shade(camera, to_host)` (→ (P, 3) with to_host), averaged with a box filter on the device
-    (`accumulate_frame`: one read-back, of the average)."""
+    (`accumulate_frame`: one read-back, of the average). With split_rays, sample i of n traces its part
+    (i, n) of each set of rays (`trace.ray_part`), else all of them."""
     cam = scene.camera
     image = None
     for i, (jx, jy) in enumerate(aa_offsets(n_aa)):
         sample = dataclasses.replace(cam, jitter=(jx, jy)) if n_aa > 1 else cam
+        part = (i, n_aa) if split_rays else (0, 1)
         t0 = time.perf_counter()
         backend.trace_primary(scene.mesh, sample, to_host=False)
         backend.synchronize()
         timings["gbuffer"] += time.perf_counter() - t0
         t0 = time.perf_counter()
         if len(lights) and n_shadow:
-            backend.trace_shadows(scene.mesh, None, lights, to_host=False, samples=n_shadow)
+            backend.trace_shadows(scene.mesh, None, lights, to_host=False, samples=n_shadow, part=part)
             backend.synchronize()
             timings["shadows"] = timings.get("shadows", 0.0) + time.perf_counter() - t0
         if n_occlusion:
             t0 = time.perf_counter()
-            backend.trace_occlusion(scene.mesh, None, n_occlusion, to_host=False)
+            backend.trace_occlusion(scene.mesh, None, n_occlusion, to_host=False, part=part)
             if lobes is not None and len(lobes):
-                backend.trace_lobe_rays(scene.mesh, None, lobes, to_host=False)
+                backend.trace_lobe_rays(scene.mesh, None, lobes, to_host=False, part=part)
             backend.synchronize()
             timings["occlusion"] = timings.get("occlusion", 0.0) + time.perf_counter() - t0
         t0 = time.perf_counter()
@@ -326,7 +337,7 @@ def litsphere_errors(scene: Scene, image, backend="auto", references=("sg", "mc"
 def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str = "pixel",
                       env_lights: int = litsphere.ENV_LIGHTS, angles=litsphere.PAPER_ANGLES,
                       resolution: int = litsphere.RESOLUTION, shrink: float = 1.0, report_error=None,
-                      samples: int = 64, shadows: bool = True) -> Rendering:
+                      samples: int = 64, shadows: bool = True, split_rays: bool = True) -> Rendering:
     if view not in VIEWS:
         raise ValueError(f"view must be one of {sorted(VIEWS)}, got {view!r}")
     if isinstance(shrink, bool) or not isinstance(shrink, (int, float)) or not (0.5 <= shrink <= 1):
@@ -361,7 +372,7 @@ def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str
     image = _accumulate(scene, backend, n_aa, n_shadow if shadows else 0, 0, lights, timings,
                         lambda cam, to_host: backend.shade_litsphere(scene.mesh, pack, cam.packed(), lights, maps,
                                                                      levels, VIEWS[view], shrink, shadowed=shadows,
-                                                                     to_host=to_host))
+                                                                     to_host=to_host), None, split_rays)
     timings["total"] = time.perf_counter() - t_all
     cam = scene.camera
     info = {"backend": backend.name, "device": backend.device, "method": "litsphere", "view": view, "shrink": shrink,

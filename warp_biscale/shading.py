@@ -94,8 +94,8 @@ from .lighting import prefiltered_lookup
 from .scene import light_sg, vertex_tangents
 from .environment import equirect_bilinear
 from .ssdf import ssdf_eval
-from .trace import (LOBE_COS_MIN, LOBE_RAY_LOBES, LOBE_RAYS, VISIBLE, lobe_ray_directions, occlusion_directions,
-                    oriented_face_normals)
+from .trace import (LOBE_COS_MIN, LOBE_RAY_LOBES, LOBE_RAYS, VISIBLE, check_ray_part, lobe_ray_directions,
+                    occlusion_directions, oriented_face_normals, part_rays)
 from .svbrdf import Textured
 
 __all__ = ["pack_materials", "shade_reference", "surface_frames", "MIN_COS_VIEW", "ray_share", "ray_weight",
@@ -582,12 +582,16 @@ def shade_reference(frame: Frame) -> np.ndarray:
     coeffs = interp(static.ssdf_coeffs) if has_ssdf else None
 
     samples = int(frame.gbuffer.occlusion_samples) if has_ssdf else 0
+    # The rays of each set that the G-buffer's anti-aliasing sample traced (all of them by default).
+    part = check_ray_part(getattr(frame.gbuffer, "ray_part", (0, 1)))
     if samples:
         n_geo = oriented_face_normals(static.positions, static.faces, f, pos, eye)
-        ray_dirs = occlusion_directions(n_geo, samples, pix)
+        cast = part_rays(samples, part)
+        ray_dirs = occlusion_directions(n_geo, samples, pix)[:, cast]
         mask = np.asarray(frame.gbuffer.occlusion, np.uint32)[pix].astype(np.uint64)
-        blocked = ((mask[:, None] >> np.arange(samples, dtype=np.uint64)[None]) & np.uint64(1)).astype(bool)
+        blocked = ((mask[:, None] >> np.arange(samples, dtype=np.uint64)[None]) & np.uint64(1)).astype(bool)[:, cast]
     n_sharp = int(static.n_sharp_lobes) if samples else 0
+    lobe_cast = part_rays(LOBE_RAYS, part)
     if n_sharp:
         lobe_mask = np.asarray(frame.gbuffer.lobe_occlusion, np.uint32)[pix].astype(np.uint64)
         lobe_bits = ((lobe_mask[:, None] >> np.arange(32, dtype=np.uint64)[None]) & np.uint64(1)).astype(bool)
@@ -613,7 +617,7 @@ def shade_reference(frame: Frame) -> np.ndarray:
         row = env[ray_lobe]
         d, solid = lobe_ray_directions(np.tile(row[0:3], (len(sel), 1)), np.full(len(sel), row[3]), pix[sel])
         bits = lobe_bits[sel][:, ray_lobe * LOBE_RAYS:(ray_lobe + 1) * LOBE_RAYS]
-        return lobe_ray_share(axis, eta, n[sel], d, solid, bits)
+        return lobe_ray_share(axis, eta, n[sel], d[:, lobe_cast], solid[:, lobe_cast], bits[:, lobe_cast])
 
     rad = np.zeros((len(pix), 3))
     env = static.env_sgs.astype(np.float64)

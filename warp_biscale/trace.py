@@ -37,7 +37,8 @@ from .model import GBuffer
 from .scene import Camera, Mesh, _integer
 
 __all__ = ["T_MIN", "SHADOW_OFFSET", "CHUNK_RAYS", "offsets", "check_mesh", "check_camera", "check_rays",
-           "check_lights", "check_gbuffer", "check_shadow_samples", "disk_sample", "disk_basis", "VISIBLE",
+           "check_lights", "check_gbuffer", "check_shadow_samples", "check_ray_part", "ray_part", "part_rays",
+           "disk_sample", "disk_basis", "VISIBLE",
            "SHADOW_SAMPLES_MAX", "OCCLUSION_SAMPLES_MAX", "check_occlusion_samples", "occlusion_directions",
            "oriented_face_normals", "ray_starts", "LOBE_RAYS", "LOBE_RAY_LOBES", "lobe_ray_directions", "check_lobes"]
 
@@ -170,6 +171,31 @@ def check_occlusion_samples(samples) -> int:
 
 def check_shadow_samples(samples) -> int:
     return _integer("shadow samples", samples, 1, SHADOW_SAMPLES_MAX, " (rays per light and pixel)")
+
+
+def check_ray_part(part) -> tuple[int, int]:
+    """→ (index, count): which of `count` anti-aliasing samples a trace is for (`ray_part`); (0, 1) all rays."""
+    try:
+        index, count = part
+    except (TypeError, ValueError):
+        raise ValueError(f"ray part must be a pair (index, count), got {part!r}") from None
+    count = _integer("ray part count", count, 1, 1 << 16, " (anti-aliasing samples sharing the rays)")
+    return _integer("ray part index", index, 0, count - 1, f" (of {count})"), count
+
+
+def ray_part(samples: int, part) -> tuple[int, int]:
+    """(first, stride): the rays i = first, first + stride, … < `samples` of a pixel's set that anti-aliasing
+    sample `part` = (index, count) traces, so that `count` samples trace the set once between them (each ray
+    once where count divides the set; when count exceeds it, every sample one ray, in turn). (0, 1): all."""
+    index, count = part
+    stride = max(1, min(int(count), int(samples)))
+    return int(index) % stride, stride
+
+
+def part_rays(samples: int, part) -> np.ndarray:
+    """(samples,) bool: the rays `ray_part` traces."""
+    first, stride = ray_part(samples, part)
+    return (np.arange(samples) >= first) & ((np.arange(samples) - first) % stride == 0)
 
 
 def offsets(mesh) -> tuple[float, float]:

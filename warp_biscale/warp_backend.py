@@ -732,10 +732,10 @@ class WarpBackend(DeviceBackend):
     def _launch_trace_occluded(self, m, origins, directions, t_min, t_max, n, occluded):
         self._launch(ktrace.trace_occluded, n, [m["mesh"].id, origins, directions, t_min, t_max], [occluded])
 
-    def _launch_trace_shadows(self, m, face, bary, position, eye, lights, eps, t_min, samples, n, vis):
+    def _launch_trace_shadows(self, m, face, bary, position, eye, lights, eps, t_min, samples, part, n, vis):
         self._launch(ktrace.trace_shadows, (len(lights), n),
                      [m["mesh"].id, *self._ray_mesh(m), face, bary, position, wp.vec3(*eye),
-                      self._small_upload(m, "lights", lights), eps, t_min, samples],
+                      self._small_upload(m, "lights", lights), eps, t_min, samples, *part],
                      [vis])
 
     def _upload_shade_static(self, static, levels, basis, coeffs):
@@ -771,22 +771,24 @@ class WarpBackend(DeviceBackend):
             "n_env": len(static.env_sgs), "has_ssdf": int(static.has_ssdf), "ssdf_res": int(static.ssdf_res),
         }
 
-    def _launch_trace_occlusion(self, m, face, bary, position, eye, eps, t_min, samples, n, mask):
+    def _launch_trace_occlusion(self, m, face, bary, position, eye, eps, t_min, samples, part, n, mask):
         self._launch(ktrace.trace_occlusion, n, [m["mesh"].id, *self._ray_mesh(m), face, bary, position,
-                                                 wp.vec3(*eye), eps, t_min, samples], [mask])
+                                                 wp.vec3(*eye), eps, t_min, samples, *part], [mask])
 
-    def _launch_trace_lobe_rays(self, m, face, bary, position, eye, lobes, eps, t_min, n, mask):
+    def _launch_trace_lobe_rays(self, m, face, bary, position, eye, lobes, eps, t_min, part, n, mask):
         self._launch(ktrace.trace_lobe_rays, n,
                      [m["mesh"].id, *self._ray_mesh(m), face, bary, position, wp.vec3(*eye),
-                      self._small_upload(m, "lobe_ray_lobes", lobes), len(lobes), LOBE_RAYS, eps, t_min], [mask])
+                      self._small_upload(m, "lobe_ray_lobes", lobes), len(lobes), LOBE_RAYS, eps, t_min, *part],
+                     [mask])
 
-    def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, lights, camera, n,
+    def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, part, lights, camera, n,
                       only_material, out):
         light_arr = self._small_upload(m, "shade_lights", lights if len(lights) else np.zeros((1, 8), np.float32))
         # Blocks of 128: a frame's pixels differ in cost (the design's against the floor's and the sky's),
         # and smaller blocks free their slots sooner (bench/results/editor-h100: 128 beat Warp's 256).
         self._launch(kshade.shade_pixels, n,
-                     [face, bary, vis, occ, int(occ_samples), lobe_occ, int(n_sharp), dev["faces"], dev["positions"],
+                     [face, bary, vis, occ, int(occ_samples), lobe_occ, int(n_sharp), *part, dev["faces"],
+                      dev["positions"],
                       dev["normals"], dev["tangents"],
                       dev["face_material"], self._small_upload(m, "shade_camera", camera),
                       len(lights), light_arr, dev["n_env"], dev["env_sgs"], dev["env_residual"],
