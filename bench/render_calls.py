@@ -1,10 +1,12 @@
 """Whole `wb.render` calls, read-back included, of the render target scene (bench_render.target_scene) at
-1920×1080: aa 1 and 4 samples a pixel, hard (1) and soft (16) shadow rays; medians of 5 after 2 warm
-calls, one JSON line each.
+1920×1080: aa 1 and 4 samples a pixel, hard (1) and soft (16) shadow rays, and where the library has it
+4 samples with every ray per sample (split_rays=False; the default splits each set between the samples);
+medians of 5 after 2 warm calls, one JSON line each.
 
     python -m bench.render_calls warp:cuda opencl:nvidia > $OUT/render_calls.jsonl
 """
 
+import inspect
 import json
 import sys
 import time
@@ -19,15 +21,19 @@ def main(backends):
     for backend in backends:
         be = wb.get_backend(backend)
         scene = target_scene(1920, 1080, backend=be)
-        for aa, shadows in ((1, 1), (1, 16), (4, 1), (4, 16)):
+        rows = [(1, 1, {}), (1, 16, {}), (4, 1, {}), (4, 16, {})]
+        if "split_rays" in inspect.signature(wb.render).parameters:
+            rows += [(4, 1, {"split_rays": False}), (4, 16, {"split_rays": False})]
+        for aa, shadows, extra in rows:
             for _ in range(2):
-                result = wb.render(scene, backend=be, aa=aa, shadow_samples=shadows)
+                result = wb.render(scene, backend=be, aa=aa, shadow_samples=shadows, **extra)
             times = []
             for _ in range(5):
                 t0 = time.perf_counter()
-                result = wb.render(scene, backend=be, aa=aa, shadow_samples=shadows)
+                result = wb.render(scene, backend=be, aa=aa, shadow_samples=shadows, **extra)
                 times.append(time.perf_counter() - t0)
             print(json.dumps({"backend": be.name, "device": be.device, "aa": aa, "shadow_samples": shadows,
+                              "split_rays": result.info.get("split_rays"),
                               "render_ms": 1e3 * float(np.median(times)),
                               "timings_ms": {k: round(1e3 * v, 2) for k, v in result.timings.items()}}), flush=True)
 
