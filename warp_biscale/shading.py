@@ -583,7 +583,7 @@ def shade_reference(frame: Frame) -> np.ndarray:
 
     samples = int(frame.gbuffer.occlusion_samples) if has_ssdf else 0
     # The rays of each set that the G-buffer's anti-aliasing sample traced (all of them by default).
-    part = check_ray_part(getattr(frame.gbuffer, "ray_part", (0, 1)))
+    part = check_ray_part(frame.gbuffer.ray_part)
     if samples:
         n_geo = oriented_face_normals(static.positions, static.faces, f, pos, eye)
         cast = part_rays(samples, part)
