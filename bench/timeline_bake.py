@@ -1,7 +1,7 @@
 """Host timeline of one warm bake: when each backend call and host step starts and ends (no added
 synchronisation, ~1 µs of overhead a call), so that the gaps between them show what the critical path is.
 
-    python -m bench.timeline_bake warp:cuda [--gpu] [--facets N] [--tile pyramid|editor] [--runs 5]
+    python -m bench.timeline_bake warp:cuda [--gpu] [--facets N] [--tile pyramid|editor] [--runs 5] [--fresh-tiles]
     python -m bench.timeline_bake warp:cpu --facets 4096 --runs 2          # a smoke test
 
 With --gpu (Warp CUDA only) each call also records a CUDA event on the device's stream before and
@@ -13,6 +13,10 @@ one more bake with its device time (Warp's activity timing, `wp.timing_begin`).
 The timeline wraps what the bake calls in place (the backend's methods, the lobe functions of
 `warp_biscale.lobes`, and two names inside `warp_biscale.bake`): it instruments the library's inner
 steps on purpose, so it follows them when they are renamed; bench_bake.py's figures need none of it.
+
+With --fresh-tiles every bake gets a tile object of its own (the editor's geometry edit: the height of the
+editor's pyramid, or the family's default height, alternated), built before the timed bake, so the tile's
+device copies and its BVH (`_tile`) are made within the bake as they are after an edit.
 """
 
 from __future__ import annotations
@@ -39,7 +43,7 @@ EVENTS = []
 GPU = {"device": None}  # the Warp CUDA device when GPU events are recorded
 
 # What a bake calls on its backend: each is traced where the backend has it.
-BACKEND_CALLS = ("sample_facets", "normal_bins", "visibility", "visible_area", "visible_weights", "em_start",
+BACKEND_CALLS = ("_tile", "sample_facets", "normal_bins", "visibility", "visible_area", "visible_weights", "em_start",
                  "ndf_em", "lobe_moments", "solve_amplitudes", "material_tables", "synchronize")
 # The host steps between them. `_channels` is private: it splits the facet weights per material and
 # colour, host work between the rays and the moments that the timeline must show.
@@ -71,7 +75,7 @@ def traced(owner, name, label=None):
     setattr(owner, name, wrapper)
 
 
-def main(backend, facets=1 << 16, runs=5, gpu=False, tile="heightfield"):
+def main(backend, facets=1 << 16, runs=5, gpu=False, tile="heightfield", fresh_tiles=False):
     be = wb.get_backend(backend)
     if gpu:
         if not be.name.startswith("warp:cuda"):
@@ -88,12 +92,21 @@ def main(backend, facets=1 << 16, runs=5, gpu=False, tile="heightfield"):
         if hasattr(bake_module, name):
             traced(bake_module, name)
     materials = wb.BlinnPhong(1.0, 512)
-    if tile == "editor":  # the editor's first design: a pyramid and its ground, two materials and colours
-        tile = wb.geometry.pyramid(material=0, base_material=1, color=(1.0, 0.75, 0.3), base_color=(0.55, 0.1, 0.07))
+    family = tile
+    if family == "editor":  # the editor's first design: a pyramid and its ground, two materials and colours
+        def make(height=0.5):
+            return wb.geometry.pyramid(height=height, material=0, base_material=1, color=(1.0, 0.75, 0.3),
+                                       base_color=(0.55, 0.1, 0.07))
         materials = [materials, wb.BlinnPhong(0.3, 64, kd=0.5)]
+    elif family == "heightfield":
+        def make(height=None):
+            return common.heightfield_tile()
     else:
-        tile = common.heightfield_tile() if tile == "heightfield" else getattr(wb.geometry, tile)()
+        def make(height=None):
+            return getattr(wb.geometry, family)() if height is None else getattr(wb.geometry, family)(height=height)
+    tile = make()
     kw = dict(tile=tile, materials=materials, lobes=8, directions=12, normal_res=128, facets=facets, backend=be)
+    heights = itertools.cycle((0.45, 0.55) if family in ("editor", "pyramid") else (None,))
     # A seed of its own for each bake: the bake keeps what depends on the geometry per seed, and a second
     # bake of one seed would redo the tables alone.
     seeds = itertools.count()
@@ -101,6 +114,8 @@ def main(backend, facets=1 << 16, runs=5, gpu=False, tile="heightfield"):
     rows = []
     for _ in range(runs):
         seed = next(seeds)
+        if fresh_tiles:
+            kw["tile"] = make(next(heights))
         EVENTS.clear()
         be.synchronize()
         start = _mark()
@@ -161,5 +176,6 @@ if __name__ == "__main__":
     ap.add_argument("--tile", default="heightfield",
                     help="heightfield (the targets' tile), editor (the editor's first design) or a geometry family")
     ap.add_argument("--runs", type=int, default=5)
+    ap.add_argument("--fresh-tiles", action="store_true", help="a new tile object for every bake (an edit)")
     a = ap.parse_args()
-    main(a.backend, facets=a.facets, runs=a.runs, gpu=a.gpu, tile=a.tile)
+    main(a.backend, facets=a.facets, runs=a.runs, gpu=a.gpu, tile=a.tile, fresh_tiles=a.fresh_tiles)
