@@ -3,6 +3,10 @@ the functions sorted by their own time, so that host work (uploads, launches, nu
 (synchronisation, read-backs) show apart.
 
     python -m bench.profile_editor --backends warp:cuda opencl:nvidia --size 1920x1080 --edits 10
+    python -m bench.profile_editor --backends warp:cuda --size 1920x1080 --activities   # device time per kernel
+
+--activities (Warp CUDA) lists each kernel, copy and graph of one warm edit of each kind with its device time
+(Warp's activity timing), beside the edit's wall time: what the GPU does and how long the host keeps it waiting.
 """
 
 from __future__ import annotations
@@ -63,6 +67,27 @@ def edit_parts(ed, runs=20):
     return res
 
 
+def edit_activities(ed, kinds):
+    """Print each device activity of one warm edit of each kind (Warp CUDA's activity timing)."""
+    import warp as wp
+
+    for kind in kinds:
+        name, values = EDITS[kind]
+        for v in (values[1], values[0], values[1]):  # warm
+            ed.set(name, v)
+        ed.backend.synchronize()
+        wp.timing_begin(cuda_filter=wp.TIMING_ALL)
+        t0 = time.perf_counter()
+        ed.set(name, values[0])
+        wall = time.perf_counter() - t0
+        results = wp.timing_end()
+        print(f"== {ed.backend.name} {kind}: {wall * 1e3:.2f} ms wall, {len(results)} device activities, "
+              f"{sum(r.elapsed for r in results):.2f} ms of device time; timings "
+              f"{ {k: round(v * 1e3, 2) for k, v in ed.timings.items() if isinstance(v, float)} }")
+        for r in results:
+            print(f"  {r.elapsed:7.3f} ms  {r.name}")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--backends", nargs="+", default=["auto"])
@@ -72,6 +97,7 @@ def main(argv=None):
     ap.add_argument("--top", type=int, default=25)
     ap.add_argument("--sort", default="tottime", help="pstats order: tottime (own time) or cumulative")
     ap.add_argument("--parts", action="store_true", help="time the edit's pieces instead (device-synchronised)")
+    ap.add_argument("--activities", action="store_true", help="each kernel and copy of one edit (Warp CUDA)")
     a = ap.parse_args(argv)
     w, h = (int(x) for x in a.size.split("x"))
     for backend in a.backends:
@@ -79,6 +105,9 @@ def main(argv=None):
         ed = Editor("pyramid", backend=be, width=w, height=h)
         if a.parts:
             print(f"== {be.name} parts (ms): {edit_parts(ed)}")
+            continue
+        if a.activities:
+            edit_activities(ed, a.kinds)
             continue
         for kind in a.kinds:
             name, values = EDITS[kind]

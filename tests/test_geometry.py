@@ -687,3 +687,35 @@ def test_load_round_trip(tmp_path_factory, tile, fmt):
     np.testing.assert_allclose(back.vertices.max(0), tile.vertices.max(0), rtol=0, atol=1e-6 * scale)
     assert len(back.faces) == len(tile.faces)
     assert back.period == tile.period
+
+
+def test_weld_components_as_scipy():
+    """The union-find that joins a few near-coincident corners labels the components as scipy's connected_components
+    (numbered by their lowest vertex), on random graphs below and above its pair count."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from warp_biscale.geometry_mesh import _components
+
+    rng = np.random.default_rng(7)
+    for n, p in [(2, 1), (5, 3), (40, 25), (60, 80), (3000, 300)]:
+        pairs = rng.integers(0, n, (p, 2))
+        pairs = pairs[pairs[:, 0] != pairs[:, 1]]
+        graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+        np.testing.assert_array_equal(_components(n, pairs), connected_components(graph, directed=False)[1])
+
+
+def test_merge_duplicates_as_numpy_unique():
+    """SmallScale's duplicate merge (rows sorted by lexsort) keeps the same vertices in the same order and maps the
+    faces as np.unique(axis=0, return_index=True, return_inverse=True) does."""
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        v = rng.integers(-2, 3, (int(rng.integers(4, 40)), 3)).astype(float) * 0.5
+        f = rng.integers(0, len(v), (12, 3))
+        key = np.round(v / (np.ptp(v, axis=0).max() * 1e-9)).astype(np.int64)
+        _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", TileWarning)
+            v2, f2, _ = SmallScale._merge_duplicates(v, f, None)
+        np.testing.assert_array_equal(v2, v[first] if len(first) < len(v) else v)
+        np.testing.assert_array_equal(f2, inverse.reshape(-1)[f] if len(first) < len(v) else f)

@@ -14,9 +14,9 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from .smallscale import SmallScale, default_face_tangents
+from .smallscale import SmallScale, cross_rows, default_face_tangents, row_norms
 
-__all__ = ["TriangleSoup", "weld", "check_faces", "lift", "triangulate_ground"]
+__all__ = ["TriangleSoup", "weld", "check_faces", "lift", "triangulate_ground", "following"]
 
 
 class TriangleSoup:
@@ -36,8 +36,8 @@ class TriangleSoup:
             self.mats.append(np.full(len(tris), material, np.int32))
             self.cols.append(np.broadcast_to(color, (len(tris), 3)))
             if tangents is None:  # the default rule, on the triangles' own normals
-                normals = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
-                tangents = default_face_tangents(normals / np.linalg.norm(normals, axis=1, keepdims=True))
+                normals = cross_rows(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+                tangents = default_face_tangents(normals / row_norms(normals)[:, None])
             self.tangents.append(np.broadcast_to(np.asarray(tangents, np.float64), (len(tris), 3)))
 
     def build(self, fn, period, name, params) -> SmallScale:
@@ -71,12 +71,35 @@ def weld(points: np.ndarray):
     pairs = cKDTree(uniq).query_pairs(1e-8 * scale, output_type="ndarray")
     if len(pairs):
         n = len(uniq)
-        graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-        ncomp, labels = connected_components(graph, directed=False)
-        keep = np.zeros(ncomp, np.int64)
+        labels = _components(n, pairs)
+        keep = np.zeros(labels.max() + 1, np.int64)
         keep[labels[::-1]] = np.arange(n)[::-1]  # lowest member index of each group
         uniq, inverse = uniq[keep], labels[inverse]
     return uniq, inverse.reshape(-1, 3)
+
+
+def _components(n, pairs) -> np.ndarray:
+    """Connected-component labels of n nodes joined by (P, 2) `pairs`, numbered in the order of each component's
+    lowest node (as scipy's connected_components). A few pairs (the usual near-coincident corners) are joined
+    in Python with a union-find: a sparse graph costs far more than its search on a few dozen vertices."""
+    if len(pairs) > 256:
+        graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+        return connected_components(graph, directed=False)[1]
+    parent = {}
+
+    def root(i):
+        while parent.get(i, i) != i:
+            i = parent[i]
+        return i
+
+    for i, j in pairs.tolist():
+        ri, rj = root(i), root(j)
+        if ri != rj:
+            parent[max(ri, rj)] = min(ri, rj)  # a component's root is its lowest node
+    lowest = np.arange(n)
+    for i in parent:
+        lowest[i] = root(i)
+    return np.unique(lowest, return_inverse=True)[1].reshape(-1)
 
 
 def check_faces(fn, v, f, params):
@@ -86,7 +109,7 @@ def check_faces(fn, v, f, params):
     so coordinate rounding in file round trips cannot push a face over the line.
     """
     a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
-    area2 = np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    area2 = row_norms(cross_rows(b - a, c - a))
     longest2 = np.max([((b - a) ** 2).sum(1), ((c - b) ** 2).sum(1), ((a - c) ** 2).sum(1)], axis=0)
     repeated = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])
     bad = repeated | ~(area2 > 2e-7 * longest2)
@@ -198,19 +221,25 @@ def _between(values, lo, hi) -> list:
     return [v for v in values if lo < v < hi]
 
 
+def following(a) -> np.ndarray:
+    """Each row's successor around a closed polygon (np.roll(a, -1, axis=0), which costs several times this on
+    the few rows of a polygon)."""
+    return np.concatenate([a[1:], a[:1]])
+
+
 def _dedupe(poly, tol) -> np.ndarray:
     """Drop consecutive (cyclically) repeated points of a polygon."""
-    keep = np.linalg.norm(poly - np.roll(poly, -1, axis=0), axis=1) > tol
+    keep = row_norms(poly - following(poly)) > tol
     return poly[keep] if keep.any() else poly[:1]
 
 
 def _shoelace(poly) -> float:
     x, y = poly[:, 0], poly[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+    return 0.5 * float(np.dot(x, following(y)) - np.dot(following(x), y))
 
 
 def _fan(poly) -> np.ndarray:
     """Fan a convex CCW polygon from its vertex mean (robust to collinear runs of border points)."""
     g = poly.mean(axis=0)
-    nxt = np.roll(poly, -1, axis=0)
+    nxt = following(poly)
     return np.stack([np.broadcast_to(g, poly.shape), poly, nxt], axis=1)

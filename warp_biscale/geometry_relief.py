@@ -12,7 +12,7 @@ import os
 import numpy as np
 from PIL import Image
 
-from .geometry_mesh import TriangleSoup, check_faces, lift, triangulate_ground
+from .geometry_mesh import TriangleSoup, check_faces, following, lift, triangulate_ground
 from .geometry_params import WHITE, format_params, integer, material_id, one_of, real, rgb
 from .smallscale import SmallScale
 
@@ -125,7 +125,7 @@ def pyramid(
     soup = TriangleSoup()
     apex = np.array([half, half, height])
     base3 = np.concatenate([p, np.zeros((sides, 1))], axis=1)
-    lateral = np.stack([base3, np.roll(base3, -1, axis=0), np.broadcast_to(apex, base3.shape)], axis=1)
+    lateral = np.stack([base3, following(base3), np.broadcast_to(apex, base3.shape)], axis=1)
     soup.add(lateral, material, color)
     soup.add(lift(triangulate_ground(1, size, {(0, 0): p})), base_material, base_color)
     params = format_params(height=height, base_fraction=base_fraction, sides=sides, rotation=rotation, size=size)
