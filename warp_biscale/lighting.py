@@ -484,6 +484,9 @@ class EnvironmentLighting:
     irradiance_residual: np.ndarray  # for shadow_sgs
     open_residual: np.ndarray  # for sgs
     timings: dict = field(default_factory=dict)
+    # The shade's order of the diffuse lobes (render._static_inputs), made once per `shadowed`: a material edit
+    # keeps the environment, and its ShadeInputs then hold the very same frozen array.
+    shade_order: dict = field(default_factory=dict)
 
     def diffuse_lobes(self, shadowed: bool) -> tuple:
         """(lobes, residual) for the diffuse term: the six-way split ambient lobe only where the SSDF

@@ -102,8 +102,12 @@ def _static_inputs(scene: Scene, backend, progress, timings) -> ShadeInputs:
     packed = pack_materials(scene.materials)
     timings["materials"] = time.perf_counter() - t0
     lobes, residual = light.diffuse_lobes(has_ssdf)
-    # Where an SSDF shadows the lobes, the sharpest, most powerful ones come first: they get their own rays.
-    env_sgs, n_sharp = sharp_lobes_first(lobes.packed()) if has_ssdf else (lobes.packed(), 0)
+    if has_ssdf not in light.shade_order:
+        # Where an SSDF shadows the lobes, the sharpest, most powerful ones come first: they get their own rays.
+        order = sharp_lobes_first(lobes.packed()) if has_ssdf else (lobes.packed(), 0)
+        order[0].flags.writeable = False
+        light.shade_order[has_ssdf] = order
+    env_sgs, n_sharp = light.shade_order[has_ssdf]
     # The cached environment, SSDF and SG table arrays are frozen: a backend then knows them by identity.
     basis, coeffs = np.ascontiguousarray(basis, np.float32), np.ascontiguousarray(coeffs, np.float32)
     for a in (light.prefiltered.maps, light.prefiltered.levels, basis, coeffs, sg.lighting_table()):
