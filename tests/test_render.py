@@ -165,3 +165,17 @@ def test_bad_scene_inputs_are_named():
         wb.render(Scene(mesh, [wb.Lambert(0.5)]), method="path")
     with pytest.raises(ValueError, match="Camera.fov"):
         wb.Camera(fov=0)
+
+
+def test_camera_packed_follows_its_fields():
+    """Camera.packed() is kept between calls, but any field changed since (in place or replaced) gives the row
+    made afresh; the kept row is read-only, so that no caller can change what another gets."""
+    cam = wb.Camera(eye=(0, 1, 4), target=(0, 0, 0), width=64, height=48)
+    first = cam.packed()
+    assert cam.packed() is first and not first.flags.writeable
+    for change in (lambda c: c.eye.__setitem__(0, 0.5), lambda c: setattr(c, "width", 80),
+                   lambda c: setattr(c, "fov", 30.0), lambda c: setattr(c, "jitter", (0.25, -0.25)),
+                   lambda c: setattr(c, "target", np.array([0.0, 0.2, 0.0]))):
+        change(cam)
+        np.testing.assert_array_equal(cam.packed(), cam._packed_now())
+    assert not np.array_equal(cam.packed(), first)
