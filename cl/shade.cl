@@ -845,6 +845,9 @@ __kernel void shade_pixels(
     __global const int *tex_info,       /* (T, 4) [texel offset, H, W, 0] */
     __global const float *tex_data,     /* (Σ H·W, 3) */
     const int n_pixels, const int only_material,
+    const int kept_mode,                /* 1: keep each lobe's shadowed amount and the irradiance scale, 2: read them */
+    __global float *kept_amount,        /* (P, K) */
+    __global float *kept_scale,         /* (P, 3) */
     __global float *radiance)           /* (P, 3) */
 {
     int p = get_global_id(0);
@@ -923,28 +926,44 @@ __kernel void shade_pixels(
     float3 out = (float3)(0.0f, 0.0f, 0.0f);
 
     /* Diffuse: environment lobes (SSDF-shadowed, scaled to the exact irradiance), then lights (shadow rays). */
+    /* Each lobe's shadowed amount and the irradiance scale depend on the pixel, the environment and the rays, not
+     * on the material: kept_mode 1 keeps them per pixel, 2 reads them back (a material edit's shade), 0 neither. */
     float3 lobes_irradiance = (float3)(0.0f, 0.0f, 0.0f);
     for (int e = 0; e < n_env; ++e) {
         __global const float *lobe = env_sgs + 7 * e;
         float3 axis = (float3)(lobe[0], lobe[1], lobe[2]);
         float3 radiance_e = (float3)(lobe[4], lobe[5], lobe[6]);
-        EtaRow row = eta_row(tab, lobe[3]);
-        float amount = cosine_integral(tab, axis, lobe[3], row, s.n);
-        lobes_irradiance = lobes_irradiance + radiance_e * amount;
-        int ray_lobe = nearest_ray_lobe(env_sgs, n_sharp, e, axis, lobe[3]);
-        if (ray_lobe >= 0) { /* a sharp lobe: through its own rays, or those of the ray lobe whose cap holds its axis */
-            __global const float *r = env_sgs + 7 * ray_lobe;
-            amount = amount * lobe_ray_share((float3)(r[0], r[1], r[2]), r[3], axis, lobe[3], s.n, lobe_occlusion[p],
-                                             ray_lobe, lobe_part, p);
-        } else
-            amount = amount * environment_share(tab, axis, lobe[3], row, s, has_ssdf, ssdf, occ);
+        float amount;
+        if (kept_mode == 2) {
+            amount = kept_amount[p * n_env + e];
+        } else {
+            EtaRow row = eta_row(tab, lobe[3]);
+            amount = cosine_integral(tab, axis, lobe[3], row, s.n);
+            lobes_irradiance = lobes_irradiance + radiance_e * amount;
+            int ray_lobe = nearest_ray_lobe(env_sgs, n_sharp, e, axis, lobe[3]);
+            if (ray_lobe >= 0) { /* a sharp lobe: through its own rays, or those of the ray lobe whose cap holds its axis */
+                __global const float *r = env_sgs + 7 * ray_lobe;
+                amount = amount * lobe_ray_share((float3)(r[0], r[1], r[2]), r[3], axis, lobe[3], s.n,
+                                                 lobe_occlusion[p], ray_lobe, lobe_part, p);
+            } else
+                amount = amount * environment_share(tab, axis, lobe[3], row, s, has_ssdf, ssdf, occ);
+            if (kept_mode == 1)
+                kept_amount[p * n_env + e] = amount;
+        }
         float3 fd = analytic_diffuse(a_kind, kd, a_ks, axis, lobe[3], s, cos_o);
         if (kind != 0)
             fd = effective_diffuse(ei, eff_sub, eff_diffuse, k2, lobe[3], to_local(s, axis), k, oo, ow);
         out = out + fd * radiance_e * amount;
     }
-    out = out * irradiance_scale(lobes_irradiance,
-                                 equirect_bilinear_dir(env_residual, 0, residual_h, residual_w, s.n));
+    float3 scale;
+    if (kept_mode == 2) {
+        scale = load3(kept_scale, p);
+    } else {
+        scale = irradiance_scale(lobes_irradiance, equirect_bilinear_dir(env_residual, 0, residual_h, residual_w, s.n));
+        if (kept_mode == 1)
+            store3(kept_scale, p, scale);
+    }
+    out = out * scale;
     for (int l = 0; l < n_lights; ++l) {
         if (vis[l] == 0)
             continue;

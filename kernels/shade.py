@@ -871,6 +871,7 @@ def shade_pixels(
     eff_sub: wp.array2d(dtype=wp.float32), eff_tables: wp.array(dtype=wp.float32),
     eff_diffuse: wp.array(dtype=wp.float32),
     uvs: wp.array(dtype=wp.vec2), tex_info: wp.array2d(dtype=wp.int32), tex_data: wp.array(dtype=wp.vec3),
+    kept_mode: int, kept_amount: wp.array(dtype=wp.float32), kept_scale: wp.array(dtype=wp.vec3),
     n_pixels: int, only_material: int, offset: int,
     radiance: wp.array(dtype=wp.vec3),
 ):
@@ -940,29 +941,43 @@ def shade_pixels(
     out = wp.vec3(0.0)
 
     # Diffuse: environment lobes (SSDF-shadowed, scaled to the exact irradiance), then lights (shadow rays).
+    # Each lobe's shadowed amount and the irradiance scale depend on the pixel, the environment and the rays, not
+    # on the material: kept_mode 1 keeps them per pixel, 2 reads them back (a material edit's shade), 0 neither.
     lobes_irradiance = wp.vec3(0.0)
     for e in range(n_env):
         axis = wp.vec3(f32_at2(env_sgs, e, 0), f32_at2(env_sgs, e, 1), f32_at2(env_sgs, e, 2))
         eta = f32_at2(env_sgs, e, 3)
         radiance_e = wp.vec3(f32_at2(env_sgs, e, 4), f32_at2(env_sgs, e, 5), f32_at2(env_sgs, e, 6))
-        tr = eta_row(table, eta)
-        amount = cosine_integral(table, axis, eta, tr, s.n)
-        lobes_irradiance = lobes_irradiance + radiance_e * amount
-        ray_lobe = nearest_ray_lobe(env_sgs, n_sharp, e, axis, eta)
-        if ray_lobe >= 0:  # a sharp lobe: through its own rays, or those of the ray lobe whose cap holds its axis
-            ray_axis = wp.vec3(f32_at2(env_sgs, ray_lobe, 0), f32_at2(env_sgs, ray_lobe, 1),
-                               f32_at2(env_sgs, ray_lobe, 2))
-            amount = amount * lobe_ray_share(ray_axis, f32_at2(env_sgs, ray_lobe, 3), axis, eta, s.n,
-                                             lobe_occlusion[p], ray_lobe, lobe_part, p)
+        amount = float(0.0)
+        if kept_mode == 2:
+            amount = kept_amount[p * n_env + e]
         else:
-            amount = amount * environment_share(table, axis, eta, tr, s, has_ssdf, ssdf_res, ssdf_basis,
-                                                ssdf_coeffs, mask, occlusion_samples, occlusion_part, frame, p)
+            tr = eta_row(table, eta)
+            amount = cosine_integral(table, axis, eta, tr, s.n)
+            lobes_irradiance = lobes_irradiance + radiance_e * amount
+            ray_lobe = nearest_ray_lobe(env_sgs, n_sharp, e, axis, eta)
+            if ray_lobe >= 0:  # a sharp lobe: through its own rays, or those of the ray lobe whose cap holds its axis
+                ray_axis = wp.vec3(f32_at2(env_sgs, ray_lobe, 0), f32_at2(env_sgs, ray_lobe, 1),
+                                   f32_at2(env_sgs, ray_lobe, 2))
+                amount = amount * lobe_ray_share(ray_axis, f32_at2(env_sgs, ray_lobe, 3), axis, eta, s.n,
+                                                 lobe_occlusion[p], ray_lobe, lobe_part, p)
+            else:
+                amount = amount * environment_share(table, axis, eta, tr, s, has_ssdf, ssdf_res, ssdf_basis,
+                                                    ssdf_coeffs, mask, occlusion_samples, occlusion_part, frame, p)
+            if kept_mode == 1:
+                kept_amount[p * n_env + e] = amount
         fd = analytic_diffuse(a_kind, kd, a_ks, axis, eta, s, cos_o)
         if kind != 0:
             fd = effective_diffuse(eff_info, eff_sub, eff_diffuse, idx, k2, eta, to_local(s, axis), k, oo, ow)
         out = out + wp.cw_mul(fd, radiance_e) * amount
-    out = wp.cw_mul(out, irradiance_scale(lobes_irradiance,
-                                          equirect_bilinear_dir(env_residual, 0, residual_h, residual_w, s.n)))
+    scale = wp.vec3(0.0)
+    if kept_mode == 2:
+        scale = kept_scale[p]
+    else:
+        scale = irradiance_scale(lobes_irradiance, equirect_bilinear_dir(env_residual, 0, residual_h, residual_w, s.n))
+        if kept_mode == 1:
+            kept_scale[p] = scale
+    out = wp.cw_mul(out, scale)
     for l in range(n_lights):
         if u8_at2(light_vis, p, l) == wp.uint8(0):
             continue

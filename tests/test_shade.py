@@ -222,3 +222,50 @@ def test_shade_only_one_material_over_the_last_frame(backend, effective_material
         backend.shade(scene.mesh, inputs, frame.camera, frame.lights, gbuffer=frame.gbuffer, only_material=1)
     with pytest.raises(ValueError, match="material index"):
         backend.shade(scene.mesh, inputs, frame.camera, frame.lights, only_material=3)
+
+
+def _trace_on_device(backend, scene, frame):
+    backend.trace_primary(scene.mesh, scene.camera, to_host=False)
+    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=SHADOW_SAMPLES)
+    backend.trace_occlusion(scene.mesh, None, OCCLUSION_SAMPLES, to_host=False)
+    backend.trace_lobe_rays(scene.mesh, None, frame.inputs.sharp_lobes(), to_host=False)
+
+
+def test_shade_only_one_material_reads_the_kept_visibility(backend, effective_material):
+    """A whole frame shaded with keep_visibility keeps each pixel's shadowed environment amounts; an only_material
+    shade after a material edit reads them back and gives, bit for bit, what a whole shade of the edited inputs
+    gives, and agrees with the float64 `shade_reference` as test_shade_kernel_matches_reference's frames do. A
+    changed environment is not shaded from them."""
+    scene = _scenes(effective_material)["occluded"]
+    frame = pack_frame(scene, backend)
+    _trace_on_device(backend, scene, frame)
+    backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights, to_host=False, keep_visibility=True)
+    m = scene.mesh.device_cache[backend.name]
+    assert m["visibility_read"] is False
+    edited = Scene(scene.mesh, [scene.materials[0], wb.Ward(0.2, 0.3, kd=(0.6, 0.1, 0.1)), scene.materials[2]],
+                   scene.camera, scene.environment, scene.lights, ssdf_resolution=16, ssdf_terms=8)
+    edited_frame = pack_frame(edited, backend)
+    _trace_on_device(backend, scene, frame)  # (if_changed not set: the same rays again, the same keys)
+    masked = backend.shade(scene.mesh, edited_frame.inputs, frame.camera, frame.lights, only_material=1)
+    assert m["visibility_read"] is True
+    whole = backend.shade(scene.mesh, edited_frame.inputs, frame.camera, frame.lights)
+    np.testing.assert_array_equal(masked, whole)
+    face = frame.gbuffer.face
+    torus = (face >= 0) & (scene.mesh.face_material[np.maximum(face, 0)] == 1)
+    assert torus.sum() > 20
+    ref = shade_reference(edited_frame)
+    peak = ref.max()
+    err = np.abs(masked - ref)[torus]
+    msg = f"max err {err.max():.3g}, peak {peak:.3g}"
+    assert np.quantile(err / (np.abs(ref[torus]) + 1e-3 * peak), 0.999) < 2e-3, msg
+    assert err.max() < 2e-2 * peak, msg
+    # Another environment: the kept amounts are not its own, and are not read.
+    other = Scene(scene.mesh, edited.materials, scene.camera, Environment.constant(0.7, 16, 32), scene.lights,
+                  ssdf_resolution=16, ssdf_terms=8)
+    other_frame = pack_frame(other, backend)
+    _trace_on_device(backend, other, other_frame)
+    backend.shade(scene.mesh, other_frame.inputs, frame.camera, other_frame.lights, to_host=False)
+    again = backend.shade(scene.mesh, other_frame.inputs, frame.camera, other_frame.lights, only_material=1)
+    assert m["visibility_read"] is False
+    np.testing.assert_array_equal(again, backend.shade(scene.mesh, other_frame.inputs, frame.camera,
+                                                       other_frame.lights))

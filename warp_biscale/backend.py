@@ -199,7 +199,7 @@ class Backend(Protocol):
     # --- Per-pixel SG shading (stage `shade`: kernels/shade.py, cl/shade.cl; warp_biscale.shading) ---
     def shade(self, mesh, static: ShadeInputs, camera_packed: np.ndarray, lights_packed: np.ndarray,
               gbuffer: GBuffer | None = None, to_host: bool = True,
-              only_material: int | None = None) -> np.ndarray | None:
+              only_material: int | None = None, keep_visibility: bool = False) -> np.ndarray | None:
         """(P, 3) float32 outgoing radiance of every pixel (shading.shade_reference; P = W·H, row-major),
         never NaN, inf or negative; background pixels get the environment along the camera ray.
         `static`: the scene's packed inputs (render._static_inputs), uploaded once and kept in
@@ -212,7 +212,11 @@ class Backend(Protocol):
         the last shade of this mesh's device G-buffer left it (gbuffer None only; ValueError if the
         kept radiance is for another frame size): after an edit of one material, with the camera,
         lights and environment unchanged, the same frame as a whole shade, for that material's share
-        of the work."""
+        of the work. keep_visibility (a whole frame over the device's G-buffer): keep each pixel's shadowed
+        amount of every environment lobe and its irradiance scale on the device, which a later only_material
+        shade reads back, bit for bit the same, while the G-buffer, its rays, the environment and the mesh's
+        arrays are those it was kept for (else it computes them again): the environment's visibility is most
+        of a design pixel's work, and a material edit does not change it."""
 
     # --- Prefiltered environment (stage `envmap`: kernels/envmap.py, cl/envmap.cl; warp_biscale.lighting) ---
     def prefilter_level(self, radiance: np.ndarray, sharpness: float, height: int, width: int) -> np.ndarray:

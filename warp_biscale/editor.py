@@ -617,7 +617,10 @@ class Editor:
         if static.has_ssdf:  # traced again only when the camera or the mesh moved, as the G-buffer
             be.trace_occlusion(scene.mesh, None, OCCLUSION_SAMPLES, to_host=False, if_changed=True)
             be.trace_lobe_rays(scene.mesh, None, static.sharp_lobes(), to_host=False, if_changed=True)
-        be.shade(scene.mesh, static, cam.packed(), lights, to_host=False, only_material=only_material)
+        # A whole frame keeps each pixel's environment visibility: the design-only shades of later material and
+        # geometry edits read it back instead of casting it again.
+        be.shade(scene.mesh, static, cam.packed(), lights, to_host=False, only_material=only_material,
+                 keep_visibility=True)
         # Two host frames in turn: the one shown stays whole while the next is read back into the other.
         pair = self._frame_buffers.setdefault((cam.height, cam.width), [])
         if len(pair) < 2:

@@ -846,7 +846,7 @@ class OpenCLBackend(DeviceBackend):
                      *map(np.int32, part), np.int32(n), mask)
 
     def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, part, lights, camera, n,
-                      only_material, out):
+                      only_material, kept_mode, kept_amount, kept_scale, out):
         cltypes = self._cl.cltypes
         light_buf = self._reuse(m, "shade_lights", (max(1, len(lights)), 8), "f32")
         if len(lights):
@@ -862,7 +862,8 @@ class OpenCLBackend(DeviceBackend):
                      dev["n_levels"], dev["env_levels"], *dev["ssdf_args"], dev["ssdf_basis"],
                      dev["ssdf_coeffs"], dev["table"], *dev["table_args"], dev["mat_info"], dev["analytic"],
                      dev["eff_info"], dev["eff_lobes"], dev["eff_sub"], dev["eff_tables"], dev["eff_diffuse"],
-                     dev["uvs"], dev["tex_info"], dev["tex_data"], np.int32(n), np.int32(only_material), out)
+                     dev["uvs"], dev["tex_info"], dev["tex_data"], np.int32(n), np.int32(only_material),
+                     np.int32(kept_mode), kept_amount, kept_scale, out)
 
     def _upload_spheres(self, spheres):
         return {"of_material": self._buffer(spheres.sphere_of_material, np.int32),

@@ -782,7 +782,7 @@ class WarpBackend(DeviceBackend):
                      [mask])
 
     def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, part, lights, camera, n,
-                      only_material, out):
+                      only_material, kept_mode, kept_amount, kept_scale, out):
         light_arr = self._small_upload(m, "shade_lights", lights if len(lights) else np.zeros((1, 8), np.float32))
         # Blocks of 128: a frame's pixels differ in cost (the design's against the floor's and the sky's),
         # and smaller blocks free their slots sooner (bench/results/editor-h100: 128 beat Warp's 256).
@@ -796,7 +796,7 @@ class WarpBackend(DeviceBackend):
                       dev["has_ssdf"], dev["ssdf_res"], dev["ssdf_basis"], dev["ssdf_coeffs"],
                       dev["table"], dev["mat_info"], dev["analytic"], dev["eff_info"], dev["eff_lobes"],
                       dev["eff_sub"], dev["eff_tables"], dev["eff_diffuse"], dev["uvs"], dev["tex_info"],
-                      dev["tex_data"], n, only_material],
+                      dev["tex_data"], kept_mode, kept_amount, kept_scale, n, only_material],
                      [out], block_dim=128)
 
     def _upload_spheres(self, spheres):
