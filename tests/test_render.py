@@ -175,7 +175,8 @@ def test_camera_packed_follows_its_fields():
     assert cam.packed() is first and not first.flags.writeable
     for change in (lambda c: c.eye.__setitem__(0, 0.5), lambda c: setattr(c, "width", 80),
                    lambda c: setattr(c, "fov", 30.0), lambda c: setattr(c, "jitter", (0.25, -0.25)),
-                   lambda c: setattr(c, "target", np.array([0.0, 0.2, 0.0]))):
+                   lambda c: setattr(c, "target", np.array([0.0, 0.2, 0.0])),
+                   lambda c: setattr(c, "eye", (0.5, 1.0, 4.0)), lambda c: setattr(c, "jitter", np.array([0.1, 0.2]))):
         change(cam)
         np.testing.assert_array_equal(cam.packed(), cam._packed_now())
     assert not np.array_equal(cam.packed(), first)

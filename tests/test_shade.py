@@ -259,6 +259,11 @@ def test_shade_only_one_material_reads_the_kept_visibility(backend, effective_ma
     msg = f"max err {err.max():.3g}, peak {peak:.3g}"
     assert np.quantile(err / (np.abs(ref[torus]) + 1e-3 * peak), 0.999) < 2e-3, msg
     assert err.max() < 2e-2 * peak, msg
+    # Another eye than the G-buffer's: it turns the occlusion rays' frame, so the kept amounts are not read.
+    moved = frame.camera.copy()
+    moved[0] += 0.3
+    backend.shade(scene.mesh, edited_frame.inputs, moved, frame.lights, to_host=False, only_material=1)
+    assert m["visibility_read"] is False
     # Another environment: the kept amounts are not its own, and are not read.
     other = Scene(scene.mesh, edited.materials, scene.camera, Environment.constant(0.7, 16, 32), scene.lights,
                   ssdf_resolution=16, ssdf_terms=8)

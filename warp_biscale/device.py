@@ -805,26 +805,30 @@ class DeviceBackend:
         if lobe_occ is None:
             lobe_occ = occ  # never read: no lobe rays
         out = self._reuse(m, "radiance", n, "vec3")
-        kept_mode, kept = self._kept_visibility(m, dev, static, gbuffer, occ_samples, part, n_sharp, n,
+        camera = np.asarray(camera_packed, np.float32).reshape(16)
+        kept_mode, kept = self._kept_visibility(m, dev, static, camera, gbuffer, occ_samples, part, n_sharp, n,
                                                 only_material, keep_visibility)
         if n:
             self._launch_shade(dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, part, lights,
-                               np.asarray(camera_packed, np.float32).reshape(16), n,
-                               -1 if only_material is None else int(only_material), kept_mode, *kept, out)
+                               camera, n, -1 if only_material is None else int(only_material), kept_mode, *kept, out)
         m["visibility_read"] = kept_mode == 2
         return self._to_host(out, n, "vec3") if to_host else None
 
-    def _kept_visibility(self, m, dev, static, gbuffer, occ_samples, part, n_sharp, n, only_material, keep) -> tuple:
+    def _kept_visibility(self, m, dev, static, camera, gbuffer, occ_samples, part, n_sharp, n, only_material,
+                         keep) -> tuple:
         """(kept_mode, (amounts, scales)) of a shade: each environment lobe's shadowed amount and the irradiance
         scale at every pixel, which depend on the G-buffer, the rays and the environment but not on the materials.
         A whole frame with keep_visibility keeps them (mode 1); a later only_material shade whose inputs they
         still fit reads them back (mode 2) instead of casting the environment's visibility again; else mode 0."""
         n_env = int(dev["n_env"])
         key = None
-        if gbuffer is None and n_env and n and (occ_samples == 0 or m.get("occlusion_key") is not None) \
+        # (the kernels index the kept amounts with 32-bit integers)
+        if gbuffer is None and n_env and n and n * n_env < 2**31 \
+                and (occ_samples == 0 or m.get("occlusion_key") is not None) \
                 and (n_sharp == 0 or m.get("lobe_rays_key") is not None):
-            # (the device arrays themselves, compared by identity: held in the key, none can pass its id on)
-            key = (m.get("gbuffer_key"), m.get("occlusion_key") if occ_samples else None,
+            # The eye turns the occlusion rays' frame to the camera's side. The device arrays themselves are
+            # compared by identity: held in the key, none can pass its id on.
+            key = (m.get("gbuffer_key"), camera[:3].tobytes(), m.get("occlusion_key") if occ_samples else None,
                    m.get("lobe_rays_key") if n_sharp else None, tuple(part), int(occ_samples), int(n_sharp),
                    *(dev[name] for name in ("env_sgs", "env_residual", "ssdf_basis", "ssdf_coeffs", "table", "faces",
                                             "positions", "normals", "tangents")),

@@ -314,8 +314,8 @@ class Camera:
         read). A jitter moves `forward` by that many pixels (kernels normalise the ray), so the kernels, which
         aim at pixel centres, need not know of it. Kept until a field changes: a frame asks for it several
         times (the G-buffer's key, the launches), and making it costs a GPU host about 0.1 ms each time."""
-        key = (self.eye.tobytes(), self.target.tobytes(), self.up.tobytes(), self.fov, self.width, self.height,
-               self.jitter)
+        key = (*(np.asarray(v, np.float64).tobytes() for v in (self.eye, self.target, self.up, self.jitter)),
+               float(self.fov), int(self.width), int(self.height))
         held = self.__dict__.get("_packed")
         if held is not None and held[0] == key:
             return held[1]
