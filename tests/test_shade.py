@@ -234,8 +234,8 @@ def _trace_on_device(backend, scene, frame):
 def test_shade_only_one_material_reads_the_kept_visibility(backend, effective_material):
     """A whole frame shaded with keep_visibility keeps each pixel's shadowed environment amounts; an only_material
     shade after a material edit reads them back and gives, bit for bit, what a whole shade of the edited inputs
-    gives, and agrees with the float64 `shade_reference` as test_shade_kernel_matches_reference's frames do. A
-    changed environment is not shaded from them."""
+    gives, and agrees with the float64 `shade_reference` as test_shade_kernel_matches_reference's frames do; so
+    does a whole frame after the lights changed. Another eye or environment is not shaded from them."""
     scene = _scenes(effective_material)["occluded"]
     frame = pack_frame(scene, backend)
     _trace_on_device(backend, scene, frame)
@@ -259,6 +259,16 @@ def test_shade_only_one_material_reads_the_kept_visibility(backend, effective_ma
     msg = f"max err {err.max():.3g}, peak {peak:.3g}"
     assert np.quantile(err / (np.abs(ref[torus]) + 1e-3 * peak), 0.999) < 2e-3, msg
     assert err.max() < 2e-2 * peak, msg
+    # New lights (other shadow rays): a whole frame that keeps the visibility reads it back, the same bit for bit.
+    lit = Scene(scene.mesh, edited.materials, scene.camera, scene.environment,
+                [PointLight((-1.0, 2.5, 1.5), 6.0, 0.3), DirectionalLight((0.3, 1.0, -0.2), 1.5, 2.0)],
+                ssdf_resolution=16, ssdf_terms=8)
+    lit_frame = pack_frame(lit, backend)
+    _trace_on_device(backend, lit, lit_frame)
+    relit = backend.shade(scene.mesh, lit_frame.inputs, frame.camera, lit_frame.lights, keep_visibility=True)
+    assert m["visibility_read"] is True
+    np.testing.assert_array_equal(relit, backend.shade(scene.mesh, lit_frame.inputs, frame.camera, lit_frame.lights))
+    _trace_on_device(backend, scene, frame)
     # Another eye than the G-buffer's: it turns the occlusion rays' frame, so the kept amounts are not read.
     moved = frame.camera.copy()
     moved[0] += 0.3

@@ -214,9 +214,10 @@ class Backend(Protocol):
         lights and environment unchanged, the same frame as a whole shade, for that material's share
         of the work. keep_visibility (a whole frame over the device's G-buffer): keep each pixel's shadowed
         amount of every environment lobe and its irradiance scale on the device, which a later only_material
-        shade reads back, bit for bit the same, while the G-buffer, its rays, the environment and the mesh's
-        arrays are those it was kept for (else it computes them again): the environment's visibility is most
-        of a design pixel's work, and a material edit does not change it."""
+        shade, or whole frame with keep_visibility (new lights), reads back, bit for bit the same, while the
+        G-buffer, its rays, the environment and the mesh's arrays are those it was kept for (else it computes
+        them again): the environment's visibility is most of a pixel's work, and neither a material nor a light
+        changes it."""
 
     # --- Prefiltered environment (stage `envmap`: kernels/envmap.py, cl/envmap.cl; warp_biscale.lighting) ---
     def prefilter_level(self, radiance: np.ndarray, sharpness: float, height: int, width: int) -> np.ndarray:

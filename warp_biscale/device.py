@@ -818,8 +818,9 @@ class DeviceBackend:
                          keep) -> tuple:
         """(kept_mode, (amounts, scales)) of a shade: each environment lobe's shadowed amount and the irradiance
         scale at every pixel, which depend on the G-buffer, the rays and the environment but not on the materials.
-        A whole frame with keep_visibility keeps them (mode 1); a later only_material shade whose inputs they
-        still fit reads them back (mode 2) instead of casting the environment's visibility again; else mode 0."""
+        A whole frame with keep_visibility keeps them (mode 1); a later only_material shade, or whole frame with
+        keep_visibility, whose inputs they still fit reads them back (mode 2) instead of casting the environment's
+        visibility again; else mode 0."""
         n_env = int(dev["n_env"])
         key = None
         # (the kernels index the kept amounts with 32-bit integers)
@@ -835,7 +836,9 @@ class DeviceBackend:
                    bool(static.has_ssdf), int(static.ssdf_res), tuple(np.shape(static.env_residual)))
         held = m.get("visibility_key")
         mode = 0
-        if key is not None and only_material is not None and held is not None and len(held) == len(key) \
+        # Read back by a design-only shade, and by a whole frame that would keep them (the lights, which they do
+        # not hold, changed: an editor's light edit), where they still fit.
+        if key is not None and (only_material is not None or keep) and held is not None and len(held) == len(key) \
                 and all(a is b or (isinstance(a, (bytes, tuple, int)) and a == b) for a, b in zip(held, key)):
             mode = 2
         elif key is not None and only_material is None and keep:
