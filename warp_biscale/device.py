@@ -806,17 +806,21 @@ class DeviceBackend:
             lobe_occ = occ  # never read: no lobe rays
         out = self._reuse(m, "radiance", n, "vec3")
         camera = np.asarray(camera_packed, np.float32).reshape(16)
-        kept_mode, kept = self._kept_visibility(m, dev, static, camera, gbuffer, occ_samples, part, n_sharp, n,
-                                                only_material, keep_visibility)
+        kept_mode, kept, key = self._kept_visibility(m, dev, static, camera, gbuffer, occ_samples, part, n_sharp, n,
+                                                     only_material, keep_visibility)
+        if kept_mode == 1:
+            m["visibility_key"] = None  # (until the launch that writes them is queued)
         if n:
             self._launch_shade(dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, part, lights,
                                camera, n, -1 if only_material is None else int(only_material), kept_mode, *kept, out)
+        if kept_mode == 1:
+            m["visibility_key"] = key
         m["visibility_read"] = kept_mode == 2
         return self._to_host(out, n, "vec3") if to_host else None
 
     def _kept_visibility(self, m, dev, static, camera, gbuffer, occ_samples, part, n_sharp, n, only_material,
                          keep) -> tuple:
-        """(kept_mode, (amounts, scales)) of a shade: each environment lobe's shadowed amount and the irradiance
+        """(kept_mode, (amounts, scales), key) of a shade: each environment lobe's shadowed amount and the irradiance
         scale at every pixel, which depend on the G-buffer, the rays and the environment but not on the materials.
         A whole frame with keep_visibility keeps them (mode 1); a later only_material shade, or whole frame with
         keep_visibility, whose inputs they still fit reads them back (mode 2) instead of casting the environment's
@@ -844,11 +848,8 @@ class DeviceBackend:
         elif key is not None and only_material is None and keep:
             mode = 1
         if mode == 0:
-            return 0, (self._reuse(m, "no_kept_amount", 1, "f32"), self._reuse(m, "no_kept_scale", 1, "vec3"))
-        kept = self._reuse(m, "kept_amount", n * n_env, "f32"), self._reuse(m, "kept_scale", n, "vec3")
-        if mode == 1:
-            m["visibility_key"] = key
-        return mode, kept
+            return 0, (self._reuse(m, "no_kept_amount", 1, "f32"), self._reuse(m, "no_kept_scale", 1, "vec3")), None
+        return mode, (self._reuse(m, "kept_amount", n * n_env, "f32"), self._reuse(m, "kept_scale", n, "vec3")), key
 
     def shade_litsphere(self, mesh, spheres, camera_packed, lights_packed, env_maps, env_levels, view_mode=0,
                         shrink=1.0, shadowed=True, to_host=True):
