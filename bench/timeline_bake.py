@@ -3,6 +3,7 @@ synchronisation, ~1 µs of overhead a call), so that the gaps between them show 
 
     python -m bench.timeline_bake warp:cuda [--gpu] [--facets N] [--tile pyramid|editor] [--runs 5] [--fresh-tiles]
     python -m bench.timeline_bake warp:cpu --facets 4096 --runs 2          # a smoke test
+    python -m bench.timeline_bake warp:cuda --gpu --method asg --tile woven   # issue 20's ASG bake
 
 With --gpu (Warp CUDA only) each call also records a CUDA event on the device's stream before and
 after it (no synchronisation; a few µs a call): the timeline then shows, for each call, when the GPU
@@ -44,11 +45,14 @@ GPU = {"device": None}  # the Warp CUDA device when GPU events are recorded
 
 # What a bake calls on its backend: each is traced where the backend has it.
 BACKEND_CALLS = ("_tile", "sample_facets", "normal_bins", "visibility", "visible_area", "visible_weights", "em_start",
-                 "ndf_em", "lobe_moments", "solve_amplitudes", "material_tables", "synchronize")
+                 "ndf_em", "lobe_moments", "solve_amplitudes", "material_tables", "synchronize", "asg_em",
+                 "asg_value_sums")
 # The host steps between them. `_channels` is private: it splits the facet weights per material and
 # colour, host work between the rays and the moments that the timeline must show.
 LOBE_STEPS = ("initial_lobes", "amplitude_system")
 BAKE_STEPS = ("_channels", "_occupied_bins", "_bin_normals", "EffectiveBRDF")
+# The ASG bake's host steps (method "asg").
+ASG_STEPS = ("amplitude_system", "calibrated_rows", "fit_asg_on")
 
 
 def _mark():
@@ -75,7 +79,7 @@ def traced(owner, name, label=None):
     setattr(owner, name, wrapper)
 
 
-def main(backend, facets=1 << 16, runs=5, gpu=False, tile="heightfield", fresh_tiles=False):
+def main(backend, facets=1 << 16, runs=5, gpu=False, tile="heightfield", fresh_tiles=False, method="sg"):
     be = wb.get_backend(backend)
     if gpu:
         if not be.name.startswith("warp:cuda"):
@@ -91,6 +95,11 @@ def main(backend, facets=1 << 16, runs=5, gpu=False, tile="heightfield", fresh_t
     for name in BAKE_STEPS:
         if hasattr(bake_module, name):
             traced(bake_module, name)
+    if method == "asg":
+        asg_bake = importlib.import_module("warp_biscale.asg_bake")
+        for name in ASG_STEPS:
+            traced(asg_bake, name, f"asg.{name}")
+        traced(asg_bake.ASGBRDF, "__init__", "ASGBRDF")  # (the class itself stays a class: isinstance checks)
     materials = wb.BlinnPhong(1.0, 512)
     family = tile
     if family == "editor":  # the editor's first design: a pyramid and its ground, two materials and colours
@@ -105,7 +114,10 @@ def main(backend, facets=1 << 16, runs=5, gpu=False, tile="heightfield", fresh_t
         def make(height=None):
             return getattr(wb.geometry, family)() if height is None else getattr(wb.geometry, family)(height=height)
     tile = make()
-    kw = dict(tile=tile, materials=materials, lobes=8, directions=12, normal_res=128, facets=facets, backend=be)
+    if not isinstance(materials, list):
+        materials = [materials] * tile.n_materials
+    kw = dict(tile=tile, materials=materials, lobes=8, directions=12, normal_res=128, facets=facets, backend=be,
+              method=method)
     heights = itertools.cycle((0.45, 0.55) if family in ("editor", "pyramid") else (None,))
     # A seed of its own for each bake: the bake keeps what depends on the geometry per seed, and a second
     # bake of one seed would redo the tables alone.
@@ -177,5 +189,6 @@ if __name__ == "__main__":
                     help="heightfield (the targets' tile), editor (the editor's first design) or a geometry family")
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--fresh-tiles", action="store_true", help="a new tile object for every bake (an edit)")
+    ap.add_argument("--method", default="sg", choices=("sg", "asg"))
     a = ap.parse_args()
-    main(a.backend, facets=a.facets, runs=a.runs, gpu=a.gpu, tile=a.tile, fresh_tiles=a.fresh_tiles)
+    main(a.backend, facets=a.facets, runs=a.runs, gpu=a.gpu, tile=a.tile, fresh_tiles=a.fresh_tiles, method=a.method)

@@ -311,6 +311,39 @@ def test_moment_kernels_fed_asg_values_against_float64(backend):
     assert np.abs(many.diffuse - mat.diffuse).max() < 1e-4 * np.abs(mat.diffuse).max()
 
 
+def test_the_bake_leaves_its_tables_on_the_device_and_checks_their_energies(backend, monkeypatch):
+    """As the SG bake's: the ASG bake's amplitude tables stay where the table kernels made them (a DeviceArray the
+    shade stage takes with no upload), read back equal to the float64 sums of their energies (above); a NaN in
+    the solve shows in the energies it makes, which the bake checks before it returns."""
+    from warp_biscale import shading
+    from warp_biscale.model import DeviceArray
+
+    tile = wb.geometry.grooves(material=0)
+    kw = dict(method="asg", lobes=3, directions=4, facets=1 << 11, backend=backend)
+    mat = wb.bake(tile, wb.BlinnPhong(0.5, 64), **kw)
+    packed = shading.pack_materials([mat])
+    assert isinstance(packed["eff_tables"], DeviceArray)
+
+    def no_upload(a):
+        raise AssertionError("uploaded")
+
+    assert backend._shade_input("eff_tables", packed["eff_tables"], no_upload) is not None
+    assert isinstance(mat.with_materials([wb.Lambert(0.5)])._amplitudes, DeviceArray)  # (an edit reads none back)
+    assert np.isfinite(mat.amplitudes).all() and mat.amplitudes.min() >= 0
+    real = backend.material_tables
+
+    def poisoned(*args, **kwargs):
+        amps, energy, levels = real(*args, **kwargs)
+        energy = np.array(energy)
+        energy.flat[7] = np.nan
+        return amps, energy, levels
+
+    monkeypatch.setattr(backend, "material_tables", poisoned)
+    bake_module._GEOMETRY.clear()
+    with pytest.raises(FloatingPointError, match="non-finite"):
+        wb.bake(tile, wb.BlinnPhong(0.5, 64), **kw)
+
+
 def test_auto_lobes(backend):
     """lobes="auto" for ASGs: the first J of bake.AUTO_LOBES whose ASG mixture's NDF error (at the sharpest
     small-scale lobe) meets the tolerance. The V-grooves' two flat walls are met at J = 2, as by the SG bake

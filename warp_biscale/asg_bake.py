@@ -60,7 +60,7 @@ from .brdf import as_material_list, diffuse_albedo
 from .effective import (ASG_LOBES, DIFFUSE_LEVEL_ETAS, EFF_LOBE_WIDTH, EffectiveBRDF, HostOnlyBRDF, Provenance,
                         device_levels, interpolated_amplitudes, materials_from_file, materials_to_file)
 from .io import read_npz, save_npz
-from .model import Bvndf
+from .model import Bvndf, DeviceArray
 from .progress import as_progress
 from .truth import _check_count, _Timer
 
@@ -285,6 +285,12 @@ def ndf_error(asgs: asg_mod.ASG, alpha, bin_normal, bin_weight, probe_sharpness:
 # Amplitudes
 # ---------------------------------------------------------------------------------------------------
 
+def _unit_rows(v) -> np.ndarray:
+    """(N, 3) float64 rows scaled to unit length (the facets' float32 normals, made unit again in float64)."""
+    v = np.asarray(v, np.float64)
+    return v / np.sqrt(v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1] + v[:, 2] * v[:, 2])[:, None]
+
+
 def _values(asgs: asg_mod.ASG, normal):
     """(Ns, J) G_j(n_s), unit amplitude."""
     normal = np.asarray(normal, np.float64)
@@ -457,10 +463,8 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
     timer.timings["visibility"] = timer.timings.get("visibility", 0.0) + time.perf_counter() - t0
     hists = bake_mod._histograms(be, q, bv, facet_bin, "facets", keep_hist, timer, prog)
     del hists  # (only bv.histogram, with keep_hist)
-    normal = np.asarray(q.fac.normal, np.float64)
-    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
-    area = np.asarray(q.fac.area, np.float64)
-    em_w = weight_host if weight_host.any() else area  # (no grid direction sees the tile: the bare NDF)
+    # (no grid direction sees the tile: the bare NDF)
+    em_w = weight_host if weight_host.any() else np.asarray(q.fac.area, np.float64)
     ndf_err = None
     for j in (bake_mod.AUTO_LOBES if j_req == "auto" else (j_req,)):
         # (With a fixed J the SG EM was queued behind the rays; "auto" runs one per J tried.)
@@ -497,11 +501,13 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
         amps, energy, levels = be.material_tables([[(mu, mult) for mm, mult, mu in solved if mm == m]
                                                    for m in range(tile.n_materials)], integrals, nd * nd,
                                                   device_levels(be, math.isqrt(nd)))
-        # (read back: the ASG material checks its tables on the host)
-        amps, energy = np.asarray(amps), energy.reshape(tile.n_materials, nd, nd, 3)
-        levels = None if levels is None else np.asarray(levels).reshape(tile.n_materials, -1, nd, nd, 3)
+        # (the tables and levels stay on the device, as the SG bake's: the shade stage takes them from there)
+        energy = energy.reshape(tile.n_materials, nd, nd, 3)
+        levels = None if levels is None else levels.reshape(tile.n_materials, -1, nd, nd, 3)
     else:  # past the kernels' lobes: float64 on the host (P diag(w G_j) Pᵀ per lobe)
         energy = levels = None
+        normal = _unit_rows(q.fac.normal)
+        area = np.asarray(q.fac.area, np.float64)
         values = _values(asgs, normal)
         rows, integrals, _, cond = amplitude_system(asgs, alpha, values.T @ em_w, em_w.sum())
         proj = q.vis.as_bool() * np.maximum(q.grid @ normal.T, 0.0)  # (D, Ns)
@@ -511,14 +517,15 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
             mom = asg_moments(proj, values, area if w is None else np.asarray(w, np.float64), q.iu, q.ou)
             mu = lobes_mod.solve_amplitudes(mom, a_v, pi, po, nd, rows, integrals)
             amps[m] += np.asarray(mu, np.float64)[..., None] * mult
-    if not np.isfinite(amps).all() or (energy is not None and not np.isfinite(energy).all()):
-        # (a NaN μ leaves its amplitude 0 in the table kernels' output but makes its pair's energy NaN)
+    # (a NaN μ leaves its amplitude 0 in the table kernels' output but makes its pair's energy NaN: the energies
+    # are checked, the tables only where the host made them)
+    if (energy is None and not np.isfinite(amps).all()) or (energy is not None and not np.isfinite(energy).all()):
         raise FloatingPointError("the ASG amplitude solve gave non-finite values")
     bv.a_v = np.asarray(q.a_v.host(), np.float64)
-    every = slice(None, None, max(1, len(normal) // TANGENT_SAMPLE))  # (a mean of cosines: a sample suffices)
+    every = slice(None, None, max(1, len(q.fac) // TANGENT_SAMPLE))  # (a mean of cosines: a sample suffices)
     face = np.asarray(q.fac.face)[every]
-    order = TangentSample(asgs, alpha, normal[every], tile.face_tangents[face], em_w[every], tile.material_ids[face],
-                          tile.n_materials)
+    order = TangentSample(asgs, alpha, _unit_rows(np.asarray(q.fac.normal)[every]), tile.face_tangents[face],
+                          em_w[every], tile.material_ids[face], tile.n_materials)
     timer.timings["amplitudes"] = time.perf_counter() - t0
     info = {"facets": count, "seed": seed, "normal_res": r, "route": "facets", "lobes": int(len(alpha)),
             "lobes_requested": j_req, "ndf_error": ndf_err, "ndf_probe_sharpness": probe,
@@ -569,20 +576,25 @@ class ASGBRDF(HostOnlyBRDF):
         if not (2 <= self.directions <= 32):
             raise ValueError(f"directions must be in [2, 32], got {directions!r}")
         nd = self.directions**2
-        self.amplitudes = np.asarray(amplitudes, np.float32)
-        if self.amplitudes.ndim != 5 or self.amplitudes.shape[1:] != (nd, nd, j, 3):
-            raise ValueError(f"amplitudes must have shape (M, {nd}, {nd}, {j}, 3), got {self.amplitudes.shape}")
-        if self.amplitudes.size and not (self.amplitudes.min() >= 0 and np.isfinite(self.amplitudes.max())):
+        # (a bake's tables stay on its device, a DeviceArray, as the SG bake's: `amplitudes` reads them back when
+        # host code first asks. Checked once, where their energies are made: the bake checked those, an edit
+        # passes them on, tables without them are checked here.)
+        self._amplitudes = amplitudes if isinstance(amplitudes, DeviceArray) else np.asarray(amplitudes, np.float32)
+        shape = self._amplitudes.shape
+        if len(shape) != 5 or shape[1:] != (nd, nd, j, 3):
+            raise ValueError(f"amplitudes must have shape (M, {nd}, {nd}, {j}, 3), got {shape}")
+        if (energy is None and self._amplitudes.size
+                and not (self.amplitudes.min() >= 0 and np.isfinite(self.amplitudes.max()))):
             raise ValueError("amplitudes must be finite and >= 0")  # (a NaN fails min() >= 0)
         # Anisotropic small-scale BRDFs too: each lobe's facets' tangent order says how to turn their NDF's ASG
         # before it is convolved with the lobe (`asg.convolve_asg`).
         self.materials = as_material_list(materials, anisotropic=True)
         # (a TangentSample: made on first use, `tangent_order`)
-        self._tangent_order = np.zeros((len(self.amplitudes), j, 2)) if tangent_order is None else tangent_order
+        self._tangent_order = np.zeros((shape[0], j, 2)) if tangent_order is None else tangent_order
         if not isinstance(tangent_order, TangentSample):
             self._tangent_order = self._checked_order(self._tangent_order)
-        if len(self.materials) != len(self.amplitudes):
-            raise ValueError(f"{len(self.amplitudes)} amplitude table(s) but {len(self.materials)} material(s)")
+        if len(self.materials) != shape[0]:
+            raise ValueError(f"{shape[0]} amplitude table(s) but {len(self.materials)} material(s)")
         self.method = "asg"
         self.timings = dict(timings or {})
         self.info = dict(info or {})
@@ -601,8 +613,8 @@ class ASGBRDF(HostOnlyBRDF):
             self._energy = np.einsum("miojc,j->mioc", self.amplitudes, self.integrals.astype(np.float32))
         else:
             self._energy = np.asarray(energy, np.float32)
-            if self._energy.shape != self.amplitudes.shape[:3] + (3,):
-                raise ValueError(f"energy must have shape {self.amplitudes.shape[:3] + (3,)}, got {self._energy.shape}")
+            if self._energy.shape != shape[:3] + (3,):
+                raise ValueError(f"energy must have shape {shape[:3] + (3,)}, got {self._energy.shape}")
             if self._energy.size and not (self._energy.min() >= 0 and np.isfinite(self._energy.max())):
                 raise ValueError("energy must be finite and >= 0")
         # `energy_levels`: the bake's (made on the device with the tables), else made on first use
@@ -614,7 +626,7 @@ class ASGBRDF(HostOnlyBRDF):
 
     def _checked_order(self, order) -> np.ndarray:
         order = np.asarray(order, np.float64)
-        shape = (len(self.amplitudes), len(self.weight), 2)
+        shape = (len(self._amplitudes), len(self.weight), 2)
         if len(order) < shape[0] and order.shape[1:] == shape[1:]:  # materials beyond the tile's ids: no facets
             order = np.concatenate([order, np.zeros((shape[0] - len(order),) + shape[1:])])
         if (order.shape != shape or not np.isfinite(order).all()
@@ -669,7 +681,7 @@ class ASGBRDF(HostOnlyBRDF):
         provenance and `path` carry over, as EffectiveBRDF.with_materials."""
         t0 = time.perf_counter()
         info = {k: v for k, v in self.info.items() if k != "ndf_asg_error"}  # (the new BRDFs' fit errors instead)
-        out = ASGBRDF(self.asgs, self.weight, self.amplitudes, materials, self.directions, info=info,
+        out = ASGBRDF(self.asgs, self.weight, self._amplitudes, materials, self.directions, info=info,
                       bvndf=self.bvndf, provenance=self.provenance, path=self.path, energy=self._energy,
                       tangent_order=self._tangent_order, energy_levels=self._energy_levels)
         out.info.update(_ndf_fit_info(out.materials))
