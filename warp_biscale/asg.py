@@ -286,7 +286,15 @@ def unit_integral(lam, mu, method="exact"):
     if np.any(~np.isfinite(lam) | ~np.isfinite(mu) | (lam < 0) | (mu < 0)):
         raise ValueError("unit_integral: bandwidths must be finite and >= 0")
     if method == "exact":
-        return _integral_exact(lam, mu)
+        iso = lam == mu  # (an isotropic lobe's integral in closed form, π(1 − e^{−λ})/λ: an SG's, Xu's ν = η/2)
+        if not iso.any():
+            return _integral_exact(lam, mu)
+        out = np.empty(lam.shape)
+        k = lam[iso]
+        out[iso] = np.where(k > 0, -np.pi * np.expm1(-k) / np.where(k > 0, k, 1.0), np.pi)
+        if not iso.all():
+            out[~iso] = _integral_exact(lam[~iso], mu[~iso])
+        return out
     if method == "eq10":
         return _integral_eq10(lam, mu)
     if method == "eq11":

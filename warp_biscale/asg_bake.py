@@ -352,8 +352,36 @@ class TangentSample:
 def gram(asgs: asg_mod.ASG):
     """(J, J) A_ij = ∫G_iG_j by Xu's product (Eq. 13) and its integral as the shade kernels take it
     (`asg.shade_integral`: Eq. 10 where both bandwidths exceed 5, within 0.026 % there and to rounding for the
-    sharp products of a bake's lobes; the exact quadrature elsewhere, at twice the host time), each pair i ≤ j
-    once."""
+    sharp products of a bake's lobes; the exact quadrature elsewhere), each pair i ≤ j once.
+
+    `asg.product` in closed form where A1 + A2's smallest eigenvalue w0 is simple, as it is for two lobes of a
+    fitted mixture: z3 is its eigenvector, λ3 = w2 − w0, μ3 = w1 − w0 and the amplitude
+    (z3·z1)⁺(z3·z2)⁺e^{−w0} (equal to `product`'s to rounding, which forms λ3 and μ3 from x3ᵀA3x3); the pairs with
+    a degenerate w0 (one lobe with itself where μ = λ, coinciding lobes) go through `product`. One batched
+    eigendecomposition instead of `product`'s general path: the Gram matrix is on the bake's critical path."""
+    lam, mu, x, y = asgs.lam, asgs.mu, asgs.x, asgs.y
+    forms = lam[:, None, None] * x[:, :, None] * x[:, None, :] + mu[:, None, None] * y[:, :, None] * y[:, None, :]
+    i, j = np.triu_indices(len(lam))
+    w, q = np.linalg.eigh(forms[i] + forms[j])
+    z1, z2 = asgs.z[i], asgs.z[j]
+    zsum = z1 + z2
+    z3 = q[:, :, 0]
+    z3 = np.where((np.einsum("pi,pi->p", z3, zsum) < 0)[:, None], -z3, z3)
+    tol = 1e-12 * np.maximum(w[:, 2], 1.0)  # (as `product`)
+    simple = (w[:, 1] - w[:, 0]) > tol
+    smooth = np.maximum(np.einsum("pi,pi->p", z3, z1), 0.0) * np.maximum(np.einsum("pi,pi->p", z3, z2), 0.0)
+    amp = smooth * np.exp(-np.maximum(w[:, 0], 0.0))
+    lam3, mu3 = np.maximum(w[:, 2] - w[:, 0], 0.0), np.maximum(w[:, 1] - w[:, 0], 0.0)
+    if not simple.all():
+        p = asg_mod.product(asgs[i[~simple]], asgs[j[~simple]])
+        amp[~simple], lam3[~simple], mu3[~simple] = p.amplitude, p.lam, p.mu
+    a = np.empty((len(lam),) * 2)
+    a[i, j] = a[j, i] = amp * asg_mod.shade_integral(lam3, mu3)
+    return a
+
+
+def gram_by_products(asgs: asg_mod.ASG):
+    """`gram` through `asg.product` for every pair (its oracle in the tests)."""
     i, j = np.triu_indices(len(asgs.lam))
     a = np.empty((len(asgs.lam),) * 2)
     p = asg_mod.product(asgs[i], asgs[j])
@@ -436,7 +464,7 @@ def bake_asg(tile, mats, lobes, directions, normal_res, facets, backend, seed, k
     mat = ASGBRDF(geo["asgs"], geo["alpha"], amps, mats, k, info={**geo["info"], "backend": be.name,
                                                                   "tile": tile.name, **_ndf_fit_info(mats)},
                   bvndf=geo["bvndf"], provenance=Provenance(tile, int(seed), count), energy=energy,
-                  tangent_order=geo["tangent_order"], energy_levels=levels)
+                  tangent_order=geo["tangent_order"], energy_levels=levels, _integrals=geo["integrals"])
     timer.timings["tables"] = time.perf_counter() - t0
     mat.timings = dict(timer.timings)
     prog.done()
@@ -453,8 +481,8 @@ def _ndf_fit_info(mats) -> dict:
 def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, tolerance=0.02, probe=None) -> dict:
     """Facets, visibility, weights and the SG EM by the SG bake's stages; then the ASG EM on the device (per J
     tried, for "auto"), the moments, the solve and the tables (in kernels up to lobes.KERNEL_LOBES lobes, else
-    on the host). → {"asgs", "alpha", "amplitudes" (M, K², K², J, 3), "energy" (M, K², K², 3) Σ_j μ_j ∫G_j from
-    the table kernels or None, "bvndf", "info"}."""
+    on the host). → {"asgs", "alpha", "integrals" (J,) ∫G_j, "amplitudes" (M, K², K², J, 3), "energy" (M, K², K², 3)
+    Σ_j μ_j ∫G_j from the table kernels or None, "bvndf", "info"}."""
     q = bake_mod._sample_facets(tile, be, count, seed, dirs.frozen_grid(k), r, timer, prog)
     t0 = time.perf_counter()
     bake_mod._queue_visibility(tile, be, q, prog)
@@ -491,10 +519,11 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
     if len(alpha) <= lobes_mod.KERNEL_LOBES:
         # The SG bake's moment, solve and table kernels, with the ASGs' values at the facets (made on the device)
         # in place of the SG lobes': exact facet sums, float32, as the SG route.
+        value_sums = be.asg_value_sums(q.fac, q.em_weight if em_w is weight_host else em_w, asgs, to_host=False)
         moments = [be.lobe_moments(q.fac, q.vis, w, None, None, q.iu, q.ou, to_host=False, lobe_values=asgs)
                    for w in q.weights]
-        rows, integrals, _, cond = amplitude_system(asgs)  # (on the host while the device sums the moments)
-        rows = calibrated_rows(rows, integrals, alpha, be.asg_value_sums(q.fac, em_w, asgs), em_w.sum())
+        rows, integrals, _, cond = amplitude_system(asgs)  # (on the host while the device sums)
+        rows = calibrated_rows(rows, integrals, alpha, value_sums.host(), em_w.sum())
         solved = [(m, mult, be.solve_amplitudes(b, q.a_v, rows, integrals, pi, po, nd, to_host=False))
                   for (m, mult, _), b in zip(q.channels, moments)]
         # (with the tables their Σ_j μ_j ∫G_j and its levels for the renderer, as the SG bake's)
@@ -531,7 +560,8 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
             "lobes_requested": j_req, "ndf_error": ndf_err, "ndf_probe_sharpness": probe,
             "sg_em_iterations": lob.iterations, "asg_em_iterations": steps,
             "gram_condition": cond, "nonempty_bins": int(len(bv.bins)), "channels": len(q.channels)}
-    return {"asgs": asgs, "alpha": alpha, "amplitudes": amps.reshape(tile.n_materials, nd, nd, len(alpha), 3),
+    return {"asgs": asgs, "alpha": alpha, "integrals": integrals,
+            "amplitudes": amps.reshape(tile.n_materials, nd, nd, len(alpha), 3),
             "energy": energy, "levels": levels, "bvndf": bv, "info": info, "tangent_order": order}
 
 
@@ -563,7 +593,7 @@ class ASGBRDF(HostOnlyBRDF):
 
     def __init__(self, asgs: asg_mod.ASG, weight, amplitudes, materials, directions: int, timings=None, info=None,
                  bvndf=None, provenance: Provenance | None = None, path=None, energy=None, tangent_order=None,
-                 energy_levels=None):
+                 energy_levels=None, _integrals=None):
         if not isinstance(asgs, asg_mod.ASG) or asgs.lam.ndim != 1 or not (1 <= len(asgs.lam) <= lobes_mod.MAX_LOBES):
             raise ValueError(f"asgs must be an asg.ASG batch of 1..{lobes_mod.MAX_LOBES} lobes")
         unit = np.all(asgs.amplitude == 1.0)
@@ -606,7 +636,9 @@ class ASGBRDF(HostOnlyBRDF):
                              f"has {len(self.materials)} BRDF(s)")
         self.provenance = provenance
         self.path = None if path is None else os.path.abspath(os.fspath(path))
-        self.integrals = asg_mod.unit_integral(self.asgs.lam, self.asgs.mu)
+        # (`_integrals`: the bake's or the edited material's own ∫G_j of these ASGs, not made again)
+        self.integrals = (asg_mod.unit_integral(self.asgs.lam, self.asgs.mu) if _integrals is None
+                          else np.asarray(_integrals, np.float64))
         # Σ_j μ_mj ∫G_j per material, independent of the BRDFs (EffectiveBRDF's; `energy_levels` reads it), or
         # `energy` (M, K², K², 3), the same sums as the bake's table kernels made them
         if energy is None:
@@ -683,7 +715,7 @@ class ASGBRDF(HostOnlyBRDF):
         info = {k: v for k, v in self.info.items() if k != "ndf_asg_error"}  # (the new BRDFs' fit errors instead)
         out = ASGBRDF(self.asgs, self.weight, self._amplitudes, materials, self.directions, info=info,
                       bvndf=self.bvndf, provenance=self.provenance, path=self.path, energy=self._energy,
-                      tangent_order=self._tangent_order, energy_levels=self._energy_levels)
+                      tangent_order=self._tangent_order, energy_levels=self._energy_levels, _integrals=self.integrals)
         out.info.update(_ndf_fit_info(out.materials))
         out.timings = {"tables": time.perf_counter() - t0}
         return out

@@ -113,9 +113,10 @@ class Backend(Protocol):
         asg.ASG batch `start` (J,) with weights `alpha` (J,), every step queued at once → (asg.ASG (J,), alpha
         (J,), steps), dead lobes (alpha 0) included; float64 but for the E-step's ∫G (float32)."""
 
-    def asg_value_sums(self, facets: Facets, weight: np.ndarray, asgs) -> np.ndarray:
-        """(J,) float64 Σ_s w_s G_j(n_s) over the facets for an asg.ASG batch (J,), `weight` (Ns,) w_s: the ASG
-        bake's calibration sums (asg_bake.calibrated_rows). float32 terms, float64 sums."""
+    def asg_value_sums(self, facets: Facets, weight, asgs, to_host: bool = True):
+        """(J,) float64 Σ_s w_s G_j(n_s) over the facets for an asg.ASG batch (J,), `weight` (Ns,) w_s (a host
+        array or visible_weights' OnDevice): the ASG bake's calibration sums (asg_bake.calibrated_rows). float32
+        terms, float64 sums. to_host=False: an OnDevice to read when needed."""
 
     def solve_amplitudes(self, moments, a_v, rows, integrals, pair_i, pair_o, n_dirs: int, to_host: bool = True):
         """(P, J) float32 μ ≥ 0 for the ordered pairs (reference.solve_amplitudes); `moments` a host

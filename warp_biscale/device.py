@@ -1182,23 +1182,34 @@ class DeviceBackend:
     def _launch_sgfit_residual(self, data, candidates, n, chunk, n_candidates, n_chunks, coef, out):
         raise NotImplementedError
 
-    def asg_value_sums(self, facets, weight, asgs: ASG) -> np.ndarray:
-        """(J,) float64 Σ_s w_s G_j(n_s) over the facets, `weight` (Ns,) w_s, for an ASG batch (J,) (the ASG
-        bake's calibration sums, asg_bake.calibrated_rows; float32 terms, float64 sums)."""
+    def asg_value_sums(self, facets, weight, asgs: ASG, to_host=True):
+        """(J,) float64 Σ_s w_s G_j(n_s) over the facets, `weight` (Ns,) w_s (a host array, or visible_weights'
+        OnDevice: its device copy, no upload), for an ASG batch (J,) (the ASG bake's calibration sums,
+        asg_bake.calibrated_rows; float32 terms, float64 sums). to_host=False: an OnDevice whose host() waits
+        for these sums alone (their copy is queued with them), so the host goes on meanwhile."""
         n = len(facets)
-        weight = np.asarray(weight, np.float32).reshape(-1)
-        if weight.shape != (n,):
-            raise ValueError(f"asg_value_sums: weight must have {n} entries (one a facet), got {weight.shape}")
+        if not isinstance(weight, OnDevice):
+            weight = np.asarray(weight, np.float32).reshape(-1)
+            if weight.shape != (n,):
+                raise ValueError(f"asg_value_sums: weight must have {n} entries (one a facet), got {weight.shape}")
         rows = self._asg_rows(asgs, asgs.shape).reshape(-1, 12)
         if n == 0 or len(rows) == 0:
-            return np.zeros(len(rows))
+            zeros = np.zeros(len(rows))
+            return zeros if to_host else OnDevice(None, lambda: zeros)
+        f = self._facets(facets)
         # Whole 32-facet words a chunk, as many chunks as the moment sums' one output would get.
         chunks, words = chunking(-(-n // 32), 1, self._threads)
         per = 32 * words
-        return self._asg_value_partial(facets, weight, rows, per, -(-n // per)).sum(0)
+        chunks = -(-n // per)
+        partial = self._new((chunks, len(rows)), "f64")
+        self._launch_asg_value_sums(f, self._facet_weight(f, weight), self._to_device(rows, "f32"), len(rows), n, per,
+                                    chunks, partial)
+        read = self._queued_read(partial, (chunks, len(rows)), "f64")
+        return read().sum(0) if to_host else OnDevice(partial, lambda: read().sum(0))
 
-    def _asg_value_partial(self, facets, weight, rows, per, chunks) -> np.ndarray:
-        """(chunks, J) float64 partial sums of asg_value_sums, chunk c over facets [c·per, (c + 1)·per)."""
+    def _launch_asg_value_sums(self, f, weight, rows, n_rows, n, per, chunks, partial):
+        """(chunks, J) float64 partial sums of asg_value_sums into `partial`, chunk c over facets
+        [c·per, (c + 1)·per)."""
         raise NotImplementedError
 
     def asg_em(self, bin_normal, bin_weight, start: ASG, alpha, iterations: int, bandwidth_range, converged: float):

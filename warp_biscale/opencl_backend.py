@@ -664,12 +664,9 @@ class OpenCLBackend(DeviceBackend):
                          partial, np.int32(chunks), np.int32(n_pairs), np.int32(j + 1), out)
         return self._read(out, (n_pairs, j + 1), np.float32) if to_host else out
 
-    def _asg_value_partial(self, facets, weight, rows, per, chunks):
-        partial = self._empty(chunks * len(rows), np.float64)
-        self._launch("amplitudes", "asg_value_sums", (chunks,), self._facets(facets)["normal"],
-                     self._buffer(weight, np.float32), self._buffer(rows, np.float32), np.int32(len(rows)),
-                     np.int32(len(facets)), np.int32(per), np.int32(chunks), partial)
-        return self._read(partial, (chunks, len(rows)), np.float64)
+    def _launch_asg_value_sums(self, f, weight, rows, n_rows, n, per, chunks, partial):
+        self._launch("amplitudes", "asg_value_sums", (chunks,), f["normal"], weight, rows, np.int32(n_rows),
+                     np.int32(n), np.int32(per), np.int32(chunks), partial)
 
     def histogram_moments(self, hist, bin_normal, directions, axes, sharpness, pair_i, pair_o):
         bin_normal = np.asarray(bin_normal, np.float32)

@@ -498,11 +498,8 @@ class WarpBackend(DeviceBackend):
             self._launch(kamplitudes.sum_chunks_moments, n_pairs, [partial], [out])
         return self._trace_host(out) if to_host else out
 
-    def _asg_value_partial(self, facets, weight, rows, per, chunks):
-        partial = wp.empty((chunks, len(rows)), dtype=wp.float64, device=self._device)
-        self._launch(kamplitudes.asg_value_sums, chunks, [self._facets(facets)["normal"],
-                     self._array(weight, wp.float32), self._array(rows, wp.float32), per], [partial])
-        return partial.numpy()
+    def _launch_asg_value_sums(self, f, weight, rows, n_rows, n, per, chunks, partial):
+        self._launch(kamplitudes.asg_value_sums, chunks, [f["normal"], weight, rows, per], [partial])
 
     def histogram_moments(self, hist, bin_normal, directions, axes, sharpness, pair_i, pair_o):
 
