@@ -4,7 +4,7 @@
  * Twin of kernels/asgfit.py, in the same operation order (its docstring gives the layout and the precision);
  * the float64 reference is warp_biscale.asg_bake.fit_asg. Needs cl_khr_fp64; takes asg_unit_integral from
  * cl/asg.cl (opencl_backend.USES). One EM step is three launches: asg_em_responsibilities (one work-item per
- * bin), asg_em_m_step (one per lobe), asg_em_finish (one). state = [done, steps]: once done is set, every later
+ * bin), asg_em_m_step (one work-group per lobe), asg_em_finish (one). state = [done, steps]: once done is set, every later
  * launch returns. Lobe rows (J, 12) double: [x (3), y (3), z (3), λ, μ, log ∫G]; bin normals (L, 3) double.
  */
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
@@ -208,47 +208,68 @@ __kernel void asg_em_responsibilities(__global const double *bin_normal, __globa
     seen_weight[l] = bin_weight[l];
 }
 
-/* asg_bake._m_step for lobe j: its new row, its mass (0 if it died) and how far it moved. */
-__kernel void asg_em_m_step(__global const double *bin_normal, __global const double *seen_weight,
-                            __global const double *resp_weight, __global const double *lobes, const double dead_mass,
-                            const double log_min, const double log_max, __global const int *state, const int n_lobes,
-                            const int n_bins, __global double *new_lobes, __global double *mass,
-                            __global double *moved)
+#define ASGFIT_GROUP 128  /* work-items a lobe in asg_em_m_step (= device.ASG_EM_BLOCK) */
+
+/* The work-group's sum of each work-item's x, returned to every work-item (the barrier after the read lets the
+ * scratch be used again). */
+CL_INLINE double4 asgfit_group_sum(double4 x, __local double4 *scratch)
 {
-    int j = get_global_id(0);
+    int l = get_local_id(0);
+    scratch[l] = x;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    for (int stride = ASGFIT_GROUP / 2; stride > 0; stride >>= 1) {
+        if (l < stride)
+            scratch[l] += scratch[l + stride];
+        barrier(CLK_LOCAL_MEM_FENCE);
+    }
+    double4 r = scratch[0];
+    barrier(CLK_LOCAL_MEM_FENCE);
+    return r;
+}
+
+/* asg_bake._m_step for lobe j, one work-group a lobe: its new row, its mass (0 if it died) and how far it moved.
+ * The work-items take the bins lane, lane + ASGFIT_GROUP, … and the group sums their shares; every work-item then
+ * solves the lobe's frame and bandwidths alike, and lane 0 writes them. */
+__kernel __attribute__((reqd_work_group_size(ASGFIT_GROUP, 1, 1)))
+void asg_em_m_step(__global const double *bin_normal, __global const double *seen_weight,
+                   __global const double *resp_weight, __global const double *lobes, const double dead_mass,
+                   const double log_min, const double log_max, __global const int *state, const int n_lobes,
+                   const int n_bins, __global double *new_lobes, __global double *mass, __global double *moved)
+{
+    __local double4 scratch[ASGFIT_GROUP];
+    int j = get_group_id(0), lane = get_local_id(0);
     if (j >= n_lobes || state[0] != 0)
         return;
-    double m_j = 0.0, total = 0.0;
-    double3 mean = (double3)(0.0, 0.0, 0.0);
-    for (int l = 0; l < n_bins; ++l) {
+    double4 part = (double4)(0.0, 0.0, 0.0, 0.0); /* [Σ r, Σ r·n] */
+    double part_total = 0.0;
+    for (int l = lane; l < n_bins; l += ASGFIT_GROUP) {
         double r = resp_weight[(size_t)l * n_lobes + j];
-        double3 n = (double3)(bin_normal[3 * l], bin_normal[3 * l + 1], bin_normal[3 * l + 2]);
-        m_j += r;
-        total += seen_weight[l];
-        mean += r * n;
+        part += (double4)(r, r * bin_normal[3 * l], r * bin_normal[3 * l + 1], r * bin_normal[3 * l + 2]);
+        part_total += seen_weight[l];
     }
+    double4 sums = asgfit_group_sum(part, scratch);
+    double total = asgfit_group_sum((double4)(part_total, 0.0, 0.0, 0.0), scratch).x;
+    double m_j = sums.x;
+    double3 mean = (double3)(sums.y, sums.z, sums.w);
     double3 prev_x = asgfit_vec(lobes, j, 0), prev_z = asgfit_vec(lobes, j, 6);
     double prev_lam = lobes[12 * j + 9], prev_mu = lobes[12 * j + 10];
     double norm = sqrt(asgfit_dot(mean, mean));
     int live = m_j > dead_mass * total && norm > 0.0;
     double3 z = live ? mean / norm : prev_z;
     double3 x0 = asgfit_frame_x(z), y0 = asgfit_frame_y(z);
-    double m2 = 0.0, caa = 0.0, cbb = 0.0, cab = 0.0;
-    for (int l = 0; l < n_bins; ++l) {
+    part = (double4)(0.0, 0.0, 0.0, 0.0); /* [Σ r, Σ r·a², Σ r·b², Σ r·ab] over the bins in z's hemisphere */
+    for (int l = lane; l < n_bins; l += ASGFIT_GROUP) {
         double3 n = (double3)(bin_normal[3 * l], bin_normal[3 * l + 1], bin_normal[3 * l + 2]);
         if (asgfit_dot(n, z) > 0.0) {
             double r = resp_weight[(size_t)l * n_lobes + j];
             double a = asgfit_dot(n, x0), b = asgfit_dot(n, y0);
-            m2 += r;
-            caa += r * a * a;
-            cbb += r * b * b;
-            cab += r * a * b;
+            part += (double4)(r, r * a * a, r * b * b, r * a * b);
         }
     }
+    double4 second = asgfit_group_sum(part, scratch);
+    double m2 = second.x;
     double mm = fmax(m2, ASGFIT_TINY);
-    caa /= mm;
-    cbb /= mm;
-    cab /= mm;
+    double caa = second.y / mm, cbb = second.z / mm, cab = second.w / mm;
     /* The 2×2 covariance's smaller eigenvalue e0 (its eigenvector → x, the larger λ) and the larger e1. */
     double mid = 0.5 * (caa + cbb);
     double d = sqrt(0.25 * (caa - cbb) * (caa - cbb) + cab * cab);
@@ -272,6 +293,8 @@ __kernel void asg_em_m_step(__global const double *bin_normal, __global const do
         z = prev_z;
     }
     double3 y = asgfit_cross(z, x);
+    if (lane != 0)
+        return;
     __global double *out = new_lobes + 12 * j;
     out[0] = x.x; out[1] = x.y; out[2] = x.z;
     out[3] = y.x; out[4] = y.y; out[5] = y.z;

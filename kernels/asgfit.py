@@ -6,9 +6,9 @@ EM: E-step responsibilities of the normalised ASGs; M-step axis = the weighted m
 from the second moments of the disk coordinates in its tangent plane, the bandwidths the exact maximum likelihood
 of the truncated Gaussian on the unit disk, by Newton in log λ, log μ). One EM step is three launches, queued
 for every step at once with no host round trip: `asg_em_responsibilities` (one thread per bin),
-`asg_em_m_step` (one thread per lobe: its sums over the bins are serial, as the bins are few — hundreds to a
-few thousand — and the lobes' Newton is the step's largest work) and `asg_em_finish` (one thread: the weights,
-the convergence test and the new lobes). `state` = [done, steps]: once done is set, every later launch returns.
+`asg_em_m_step` (one block per lobe: its threads share the sums over the bins, which one thread a lobe had
+walked serially, latency-bound, for most of the EM's time on a GPU) and `asg_em_finish` (one thread: the
+weights, the convergence test and the new lobes). `state` = [done, steps]: once done is set, every later launch returns.
 
 Precision: float64 throughout, as the reference (a lobe at the bandwidth cap, λ = 5e5, has E[a²] = 1e−6, which
 float32 normals would give to 1e−4); the disk moments are the reference's (48 Gauss–Legendre nodes across, each
@@ -222,20 +222,27 @@ def asg_em_m_step(
     mass: wp.array(dtype=wp.float64),
     moved: wp.array(dtype=wp.float64),
 ):
-    """asg_bake._m_step for lobe j: its new row, its mass (0 if it died) and how far it moved (the larger of
-    1 − cos between the axes and |Δ log λ|, |Δ log μ|)."""
+    """asg_bake._m_step for lobe j, one block a lobe (launch_tiled, dim [J]; on the CPU a block of one): its new
+    row, its mass (0 if it died) and how far it moved (the larger of 1 − cos between the axes and |Δ log λ|,
+    |Δ log μ|). The block's threads take the bins lane, lane + block_dim, … and the block sums their shares; every
+    thread then solves the lobe's frame and bandwidths alike, and lane 0 writes them."""
     if state[0] != 0:
         return
-    j = wp.tid() + offset
+    block, lane = wp.tid()
+    j = block + offset
+    width = wp.block_dim()
     n_bins = bin_normal.shape[0]
-    m_j = D0
-    total = D0
-    mean = wp.vec3d(D0, D0, D0)
-    for l in range(n_bins):
+    part = wp.vec4d(D0, D0, D0, D0)  # [Σ r, Σ r·n]
+    part_total = D0
+    for l in range(lane, n_bins, width):
         r = resp_weight[l, j]
-        m_j += r
-        total += seen_weight[l]
-        mean += r * bin_normal[l]
+        n = bin_normal[l]
+        part += wp.vec4d(r, r * n[0], r * n[1], r * n[2])
+        part_total += seen_weight[l]
+    sums = wp.tile_sum(wp.tile(part, preserve_type=True))[0]
+    total = wp.tile_sum(wp.tile(part_total))[0]
+    m_j = sums[0]
+    mean = wp.vec3d(sums[1], sums[2], sums[3])
     prev_x = lobe_vec(lobes, j, 0)
     prev_z = lobe_vec(lobes, j, 6)
     prev_lam = lobes[j, 9]
@@ -247,24 +254,20 @@ def asg_em_m_step(
         z = mean / norm
     x0 = frame_x(z)
     y0 = frame_y(z)
-    m2 = D0
-    caa = D0
-    cbb = D0
-    cab = D0
-    for l in range(n_bins):
+    part = wp.vec4d(D0, D0, D0, D0)  # [Σ r, Σ r·a², Σ r·b², Σ r·ab] over the bins in z's hemisphere
+    for l in range(lane, n_bins, width):
         n = bin_normal[l]
         if wp.dot(n, z) > D0:
             r = resp_weight[l, j]
             a = wp.dot(n, x0)
             b = wp.dot(n, y0)
-            m2 += r
-            caa += r * a * a
-            cbb += r * b * b
-            cab += r * a * b
+            part += wp.vec4d(r, r * a * a, r * b * b, r * a * b)
+    second = wp.tile_sum(wp.tile(part, preserve_type=True))[0]
+    m2 = second[0]
     mm = wp.max(m2, TINY)
-    caa = caa / mm
-    cbb = cbb / mm
-    cab = cab / mm
+    caa = second[1] / mm
+    cbb = second[2] / mm
+    cab = second[3] / mm
     # The 2×2 covariance's smaller eigenvalue e0 (its eigenvector → x, the larger λ) and the larger e1.
     mid = wp.float64(0.5) * (caa + cbb)
     d = wp.sqrt(wp.float64(0.25) * (caa - cbb) * (caa - cbb) + cab * cab)
@@ -292,6 +295,8 @@ def asg_em_m_step(
     else:
         z = prev_z
     y = wp.cross(z, x)
+    if lane != 0:
+        return
     for k in range(3):
         new_lobes[j, k] = x[k]
         new_lobes[j, 3 + k] = y[k]

@@ -28,6 +28,9 @@ from .trace import (CHUNK_RAYS, check_camera, check_gbuffer, check_lights, check
 # larger ones by their memory.
 SHADE_INPUT_COMPARE_BYTES = 1 << 20
 SCRATCH_BYTES = 64 << 20  # the largest scratch array a backend keeps between calls (see their _scratch)
+# Threads a lobe in the ASG EM's M-step (kernels/asgfit.py's blocks, cl/asgfit.cl's ASGFIT_GROUP): they share
+# its sums over a few hundred to a few thousand normal bins.
+ASG_EM_BLOCK = 128
 
 
 class OnDevice:

@@ -38,7 +38,7 @@ import numpy as np
 from . import cl as cl_sources
 from . import sg
 from .asg import ASG
-from .device import (KINDS, DeviceBackend, PROBE_VALUES, SCRATCH_BYTES, DeviceStart, UploadCache,
+from .device import (ASG_EM_BLOCK, KINDS, DeviceBackend, PROBE_VALUES, SCRATCH_BYTES, DeviceStart, UploadCache,
                      check_kernel_lobes, chunking, device_copy, one_line, padded_lobe_values,
                      probe_mismatch, start_scale)
 from .bvh import build_bvh
@@ -745,16 +745,20 @@ class OpenCLBackend(DeviceBackend):
              "new_lobes": self._new((n_lobes, 12), "f64"), "mass": self._new(n_lobes, "f64"),
              "moved": self._new(n_lobes, "f64")}
         j = np.int32(n_lobes)
+        m_step = self._kernel("asgfit", "asg_em_m_step")  # (one work-group a lobe)
         for _ in range(iterations):
             self._launch("asgfit", "asg_em_responsibilities", (n_bins,), a["normal"], a["weight"], a["lobes"],
                          a["alpha"], a["state"], j, np.int32(n_bins), a["resp_weight"], a["seen_weight"])
-            self._launch("asgfit", "asg_em_m_step", (n_lobes,), a["normal"], a["seen_weight"], a["resp_weight"],
-                         a["lobes"], np.float64(dead_mass), np.float64(log_range[0]), np.float64(log_range[1]),
-                         a["state"], j, np.int32(n_bins), a["new_lobes"], a["mass"], a["moved"])
+            m_step(self._queue, (n_lobes * ASG_EM_BLOCK,), (ASG_EM_BLOCK,), a["normal"], a["seen_weight"],
+                   a["resp_weight"], a["lobes"], np.float64(dead_mass), np.float64(log_range[0]),
+                   np.float64(log_range[1]), a["state"], j, np.int32(n_bins), a["new_lobes"], a["mass"], a["moved"])
             self._launch("asgfit", "asg_em_finish", (1,), a["new_lobes"], a["mass"], a["moved"],
                          np.float64(converged), j, a["lobes"], a["alpha"], a["state"])
-        return (self._read(a["lobes"], (n_lobes, 12), np.float64), self._read(a["alpha"], n_lobes, np.float64),
-                int(self._read(a["state"], 2, np.int32)[1]))
+        # (the three copies queued together, then one wait: one round trip, not three)
+        reads = [self._read_later(a["lobes"], (n_lobes, 12), np.float64),
+                 self._read_later(a["alpha"], n_lobes, np.float64), self._read_later(a["state"], 2, np.int32)]
+        lobes, alpha, state = (read() for read in reads)
+        return lobes, alpha, int(state[1])
 
     def frame_buffer(self, width: int, height: int) -> np.ndarray:
         """On a GPU, a host array mapped from a buffer the driver allocates in pinned host memory

@@ -20,7 +20,7 @@ import warp as wp
 
 from .asg import ASG
 from .effective import EFF_LOBE_WIDTH
-from .device import (KINDS, DeviceBackend, PROBE_VALUES, SCRATCH_BYTES, DeviceStart, UploadCache,
+from .device import (ASG_EM_BLOCK, KINDS, DeviceBackend, PROBE_VALUES, SCRATCH_BYTES, DeviceStart, UploadCache,
                      check_kernel_lobes, chunking, device_copy, one_line, padded_lobe_values,
                      probe_mismatch, start_scale)
 from .kernels import amplitudes as kamplitudes
@@ -354,10 +354,15 @@ class WarpBackend(DeviceBackend):
             f[key] = wp.empty((n, n_lobes), dtype=wp.float32, device=self._device)
         return f[key]
 
-    def _recorded(self, kernel, dim, inputs, outputs, split=True):
+    def _recorded(self, kernel, dim, inputs, outputs, split=True, block_dim=None):
         """A callable that re-issues this launch (see _launch): recorded (re-issued without Python's
         argument packing), or with `split` on the CPU sliced over the cores (a sliced launch costs
-        ~200 µs there, so tiny kernels are not split)."""
+        ~200 µs there, so tiny kernels are not split). `block_dim`: a tiled launch of `dim` blocks of
+        that many threads (wp.launch_tiled; on the CPU a block of one), not split."""
+        if block_dim is not None:
+            self._load(kernel, block_dim)
+            return wp.launch_tiled(kernel, dim=[dim], inputs=[*inputs, 0], outputs=outputs, device=self._device,
+                                   block_dim=block_dim, record_cmd=True).launch
         if split and self._slices > 1:
             return functools.partial(self._launch, kernel, dim, inputs, outputs)
         self._load(kernel)
@@ -630,7 +635,7 @@ class WarpBackend(DeviceBackend):
                                                                      a["state"]], [a["resp_weight"], a["seen_weight"]]),
             self._recorded(kasgfit.asg_em_m_step, j, [a["normal"], a["seen_weight"], a["resp_weight"], a["lobes"],
                                                       dead_mass, *log_range, a["state"]],
-                           [a["new_lobes"], a["mass"], a["moved"]], split=False),
+                           [a["new_lobes"], a["mass"], a["moved"]], block_dim=ASG_EM_BLOCK),
             self._recorded(kasgfit.asg_em_finish, 1, [a["new_lobes"], a["mass"], a["moved"], converged],
                            [a["lobes"], a["alpha"], a["state"]], split=False)]
         return a
