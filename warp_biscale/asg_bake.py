@@ -339,13 +339,17 @@ class TangentSample:
     material edits) so that the order is made once, and only when an anisotropic small-scale BRDF needs it
     (`ASGBRDF.tangent_order`: most materials never do, and it costs milliseconds on the host)."""
 
-    def __init__(self, asgs, alpha, normal, tangent, weight, material, n_materials):
-        self.inputs = (asgs, alpha, normal, tangent, weight, material, n_materials)
+    def __init__(self, asgs, alpha, normal, face, weight, tile):
+        """normal (Ns, 3) the sampled facets' normals as the device holds them (made unit in float64 on first use),
+        face (Ns,) their faces (the tile's tangents and material ids are looked up then too), weight (Ns,)."""
+        self.inputs = (asgs, alpha, normal, face, weight, tile)
         self._order = None
 
     def order(self) -> np.ndarray:
         if self._order is None:
-            self._order = tangent_order(*self.inputs)
+            asgs, alpha, normal, face, weight, tile = self.inputs
+            self._order = tangent_order(asgs, alpha, _unit_rows(normal), tile.face_tangents[face], weight,
+                                        tile.material_ids[face], tile.n_materials)
         return self._order
 
 
@@ -552,9 +556,9 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
         raise FloatingPointError("the ASG amplitude solve gave non-finite values")
     bv.a_v = np.asarray(q.a_v.host(), np.float64)
     every = slice(None, None, max(1, len(q.fac) // TANGENT_SAMPLE))  # (a mean of cosines: a sample suffices)
-    face = np.asarray(q.fac.face)[every]
-    order = TangentSample(asgs, alpha, _unit_rows(np.asarray(q.fac.normal)[every]), tile.face_tangents[face],
-                          em_w[every], tile.material_ids[face], tile.n_materials)
+    # (copies of the sample alone: a view would keep the whole arrays)
+    order = TangentSample(asgs, alpha, np.asarray(q.fac.normal)[every].copy(), np.asarray(q.fac.face)[every].copy(),
+                          em_w[every].copy(), tile)
     timer.timings["amplitudes"] = time.perf_counter() - t0
     info = {"facets": count, "seed": seed, "normal_res": r, "route": "facets", "lobes": int(len(alpha)),
             "lobes_requested": j_req, "ndf_error": ndf_err, "ndf_probe_sharpness": probe,
