@@ -116,13 +116,33 @@ CL_INLINE double3 asgfit_chord_moments(double mu, double half_width)
     return (double3)(c0, c2, c4);
 }
 
-/* (E[a²], E[b²], E[a⁴], E[b⁴], E[a²b²]) of exp(−λa² − μb²) on the unit disk (asg_bake._disk_moments). */
-CL_INLINE void asgfit_disk_moments(double lam, double mu, double *m)
+#define ASGFIT_GROUP 128  /* work-items a lobe in asg_em_m_step (= device.ASG_EM_BLOCK) */
+
+/* The work-group's sum of each work-item's x, returned to every work-item (the barrier after the read lets the
+ * scratch be used again). */
+CL_INLINE double4 asgfit_group_sum(double4 x, __local double4 *scratch)
+{
+    int l = get_local_id(0);
+    scratch[l] = x;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    for (int stride = ASGFIT_GROUP / 2; stride > 0; stride >>= 1) {
+        if (l < stride)
+            scratch[l] += scratch[l + stride];
+        barrier(CLK_LOCAL_MEM_FENCE);
+    }
+    double4 r = scratch[0];
+    barrier(CLK_LOCAL_MEM_FENCE);
+    return r;
+}
+
+/* (E[a²], E[b²], E[a⁴], E[b⁴], E[a²b²]) of exp(−λa² − μb²) on the unit disk (asg_bake._disk_moments), the 48
+ * nodes shared by the work-group (node i by work-item i mod ASGFIT_GROUP), every work-item getting the sums. */
+CL_INLINE void asgfit_disk_moments(double lam, double mu, double *m, __local double4 *scratch)
 {
     double amax = fmin(1.0, 6.0 / sqrt(2.0 * lam));
     double bcap = 6.0 / sqrt(2.0 * mu);
     double z = 0.0, sa2 = 0.0, sb2 = 0.0, sa4 = 0.0, sb4 = 0.0, sab = 0.0;
-    for (int i = 0; i < 48; ++i) {
+    for (int i = get_local_id(0); i < 48; i += ASGFIT_GROUP) {
         double a = amax * GL48_X[i];
         double a2 = a * a;
         double wa = amax * GL48_W[i] * exp(-lam * a2);
@@ -134,6 +154,14 @@ CL_INLINE void asgfit_disk_moments(double lam, double mu, double *m)
         sb4 += wa * chord.z;
         sab += wa * a2 * chord.y;
     }
+    double4 first = asgfit_group_sum((double4)(z, sa2, sb2, sa4), scratch);
+    double4 second = asgfit_group_sum((double4)(sb4, sab, 0.0, 0.0), scratch);
+    z = first.x;
+    sa2 = first.y;
+    sb2 = first.z;
+    sa4 = first.w;
+    sb4 = second.x;
+    sab = second.y;
     m[0] = sa2 / z;
     m[1] = sb2 / z;
     m[2] = sa4 / z;
@@ -141,8 +169,10 @@ CL_INLINE void asgfit_disk_moments(double lam, double mu, double *m)
     m[4] = sab / z;
 }
 
-/* asg_bake.bandwidths_from_moments with start = (prev_lam, prev_mu), log bandwidths clipped to [lo, hi]. */
-CL_INLINE double2 asgfit_bandwidths(double ma, double mb, double prev_lam, double prev_mu, double lo, double hi)
+/* asg_bake.bandwidths_from_moments with start = (prev_lam, prev_mu), log bandwidths clipped to [lo, hi]; called by
+ * every work-item of a group alike (its disk moments are group sums). */
+CL_INLINE double2 asgfit_bandwidths(double ma, double mb, double prev_lam, double prev_mu, double lo, double hi,
+                                    __local double4 *scratch)
 {
     double t0 = clamp(log(0.5 / fmax(ma, ASGFIT_TINY)), lo, hi);
     double t1 = clamp(log(0.5 / fmax(mb, ASGFIT_TINY)), lo, hi);
@@ -153,7 +183,7 @@ CL_INLINE double2 asgfit_bandwidths(double ma, double mb, double prev_lam, doubl
     for (int it = 0; it < ASGFIT_NEWTON_STEPS; ++it) {
         double lam = exp(t0), mu = exp(t1);
         double m[5];
-        asgfit_disk_moments(lam, mu, m);
+        asgfit_disk_moments(lam, mu, m, scratch);
         double f0 = m[0] - ma, f1 = m[1] - mb;
         double j00 = -lam * (m[2] - m[0] * m[0]);
         double j01 = -mu * (m[4] - m[0] * m[1]);
@@ -208,28 +238,10 @@ __kernel void asg_em_responsibilities(__global const double *bin_normal, __globa
     seen_weight[l] = bin_weight[l];
 }
 
-#define ASGFIT_GROUP 128  /* work-items a lobe in asg_em_m_step (= device.ASG_EM_BLOCK) */
-
-/* The work-group's sum of each work-item's x, returned to every work-item (the barrier after the read lets the
- * scratch be used again). */
-CL_INLINE double4 asgfit_group_sum(double4 x, __local double4 *scratch)
-{
-    int l = get_local_id(0);
-    scratch[l] = x;
-    barrier(CLK_LOCAL_MEM_FENCE);
-    for (int stride = ASGFIT_GROUP / 2; stride > 0; stride >>= 1) {
-        if (l < stride)
-            scratch[l] += scratch[l + stride];
-        barrier(CLK_LOCAL_MEM_FENCE);
-    }
-    double4 r = scratch[0];
-    barrier(CLK_LOCAL_MEM_FENCE);
-    return r;
-}
-
 /* asg_bake._m_step for lobe j, one work-group a lobe: its new row, its mass (0 if it died) and how far it moved.
  * The work-items take the bins lane, lane + ASGFIT_GROUP, … and the group sums their shares; every work-item then
- * solves the lobe's frame and bandwidths alike, and lane 0 writes them. */
+ * solves the lobe's frame and bandwidths alike (the Newton's disk moments shared node by node), and lane 0 writes
+ * them. */
 __kernel __attribute__((reqd_work_group_size(ASGFIT_GROUP, 1, 1)))
 void asg_em_m_step(__global const double *bin_normal, __global const double *seen_weight,
                    __global const double *resp_weight, __global const double *lobes, const double dead_mass,
@@ -280,7 +292,7 @@ void asg_em_m_step(__global const double *bin_normal, __global const double *see
         u = v;
     double uu = u.x * u.x + u.y * u.y;
     u = uu > 0.0 ? u / sqrt(uu) : (double2)(1.0, 0.0);
-    double2 bw = asgfit_bandwidths(fmax(e0, 0.0), fmax(e1, 0.0), prev_lam, prev_mu, log_min, log_max);
+    double2 bw = asgfit_bandwidths(fmax(e0, 0.0), fmax(e1, 0.0), prev_lam, prev_mu, log_min, log_max, scratch);
     int keep = live && m2 > ASGFIT_TINY;
     double3 x = prev_x;
     double lam = prev_lam, mu = prev_mu, log_norm = lobes[12 * j + 11];

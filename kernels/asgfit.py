@@ -29,6 +29,7 @@ vec48 = wp.types.vector(length=48, dtype=wp.float64)
 GL48_X = wp.constant(vec48(*_X))
 GL48_W = wp.constant(vec48(*_W))
 vec5d = wp.types.vector(length=5, dtype=wp.float64)
+vec6d = wp.types.vector(length=6, dtype=wp.float64)
 
 D0 = wp.constant(wp.float64(0.0))
 D1 = wp.constant(wp.float64(1.0))
@@ -108,34 +109,29 @@ def chord_moments(mu: wp.float64, half: wp.float64) -> wp.vec3d:
 
 
 @wp.func
-def disk_moments(lam: wp.float64, mu: wp.float64) -> vec5d:
-    """(E[a²], E[b²], E[a⁴], E[b⁴], E[a²b²]) of exp(−λa² − μb²) on the unit disk (asg_bake._disk_moments)."""
+def disk_moments(lam: wp.float64, mu: wp.float64, lane: int, width: int) -> vec5d:
+    """(E[a²], E[b²], E[a⁴], E[b⁴], E[a²b²]) of exp(−λa² − μb²) on the unit disk (asg_bake._disk_moments), the
+    48 nodes shared by the block (node i by lane i mod width), every thread getting the block's sums."""
     amax = wp.min(D1, wp.float64(6.0) / wp.sqrt(wp.float64(2.0) * lam))
     bcap = wp.float64(6.0) / wp.sqrt(wp.float64(2.0) * mu)
-    z = D0
-    sa2 = D0
-    sb2 = D0
-    sa4 = D0
-    sb4 = D0
-    sab = D0
-    for i in range(48):
+    part = vec6d(D0, D0, D0, D0, D0, D0)  # [z, Σa², Σb², Σa⁴, Σb⁴, Σa²b²] (weighted)
+    for i in range(lane, 48, width):
         a = amax * GL48_X[i]
         a2 = a * a
         wa = amax * GL48_W[i] * wp.exp(-lam * a2)
         chord = chord_moments(mu, wp.min(wp.sqrt(wp.max(D1 - a2, D0)), bcap))
-        z += wa * chord[0]
-        sa2 += wa * a2 * chord[0]
-        sa4 += wa * a2 * a2 * chord[0]
-        sb2 += wa * chord[1]
-        sb4 += wa * chord[2]
-        sab += wa * a2 * chord[1]
-    return vec5d(sa2 / z, sb2 / z, sa4 / z, sb4 / z, sab / z)
+        part += vec6d(wa * chord[0], wa * a2 * chord[0], wa * chord[1], wa * a2 * a2 * chord[0], wa * chord[2],
+                      wa * a2 * chord[1])
+    s = wp.tile_sum(wp.tile(part, preserve_type=True))[0]
+    z = s[0]
+    return vec5d(s[1] / z, s[2] / z, s[3] / z, s[4] / z, s[5] / z)
 
 
 @wp.func
 def bandwidths(ma: wp.float64, mb: wp.float64, prev_lam: wp.float64, prev_mu: wp.float64, lo: wp.float64,
-               hi: wp.float64) -> wp.vec2d:
-    """asg_bake.bandwidths_from_moments with start=(prev_lam, prev_mu), in log bandwidths clipped to [lo, hi]."""
+               hi: wp.float64, lane: int, width: int) -> wp.vec2d:
+    """asg_bake.bandwidths_from_moments with start=(prev_lam, prev_mu), in log bandwidths clipped to [lo, hi];
+    called by every thread of a block alike (its disk moments are block sums)."""
     t0 = wp.clamp(wp.log(wp.float64(0.5) / wp.max(ma, TINY)), lo, hi)
     t1 = wp.clamp(wp.log(wp.float64(0.5) / wp.max(mb, TINY)), lo, hi)
     if wp.float64(18.0) / wp.exp(t0) + wp.float64(18.0) / wp.exp(t1) > D1:  # not inside the disk: warm start
@@ -144,7 +140,7 @@ def bandwidths(ma: wp.float64, mb: wp.float64, prev_lam: wp.float64, prev_mu: wp
     for _ in range(NEWTON_STEPS):
         lam = wp.exp(t0)
         mu = wp.exp(t1)
-        m = disk_moments(lam, mu)
+        m = disk_moments(lam, mu, lane, width)
         f0 = m[0] - ma
         f1 = m[1] - mb
         j00 = -lam * (m[2] - m[0] * m[0])
@@ -225,7 +221,8 @@ def asg_em_m_step(
     """asg_bake._m_step for lobe j, one block a lobe (launch_tiled, dim [J]; on the CPU a block of one): its new
     row, its mass (0 if it died) and how far it moved (the larger of 1 − cos between the axes and |Δ log λ|,
     |Δ log μ|). The block's threads take the bins lane, lane + block_dim, … and the block sums their shares; every
-    thread then solves the lobe's frame and bandwidths alike, and lane 0 writes them."""
+    thread then solves the lobe's frame and bandwidths alike (the Newton's disk moments shared node by node), and
+    lane 0 writes them."""
     if state[0] != 0:
         return
     block, lane = wp.tid()
@@ -281,7 +278,7 @@ def asg_em_m_step(
         u = u / wp.length(u)
     else:
         u = wp.vec2d(D1, D0)
-    bw = bandwidths(wp.max(e0, D0), wp.max(e1, D0), prev_lam, prev_mu, log_min, log_max)
+    bw = bandwidths(wp.max(e0, D0), wp.max(e1, D0), prev_lam, prev_mu, log_min, log_max, lane, width)
     keep = live and m2 > TINY
     x = prev_x
     lam = prev_lam
