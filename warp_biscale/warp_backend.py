@@ -670,7 +670,10 @@ class WarpBackend(DeviceBackend):
             wp.capture_launch(kept["graph"])
         else:
             self._asg_em_steps(prog, iterations)
-        return prog["lobes"].numpy(), prog["alpha"].numpy(), int(prog["state"].numpy()[1])
+        # (the three copies queued together, then one wait: one round trip, not three)
+        reads = [self._read_later(prog[name]) for name in ("lobes", "alpha", "state")]
+        lobes, alpha, state = (read() for read in reads)
+        return lobes, alpha, int(state[1])
 
     @staticmethod
     def _asg_em_steps(prog, iterations):
