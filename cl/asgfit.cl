@@ -116,7 +116,9 @@ CL_INLINE double3 asgfit_chord_moments(double mu, double half_width)
     return (double3)(c0, c2, c4);
 }
 
-#define ASGFIT_GROUP 128  /* work-items a lobe in asg_em_m_step (= device.ASG_EM_BLOCK) */
+#ifndef ASGFIT_GROUP  /* work-items a lobe in asg_em_m_step: device.ASG_EM_BLOCK, given by opencl_backend's build */
+#error "cl/asgfit.cl is built with -DASGFIT_GROUP=<device.ASG_EM_BLOCK> (opencl_backend.stage_options)"
+#endif
 
 /* The work-group's sum of each work-item's x, returned to every work-item (the barrier after the read lets the
  * scratch be used again). */

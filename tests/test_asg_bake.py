@@ -349,26 +349,58 @@ def test_the_bake_leaves_its_tables_on_the_device_and_checks_their_energies(back
         wb.bake(tile, wb.BlinnPhong(0.5, 64), **kw)
 
 
-def test_gram_against_the_products():
+def test_gram_against_the_products(monkeypatch):
     """`gram` (A1 + A2's eigenvalues in closed form where the smallest is simple, `asg.product` where not)
     against `gram_by_products` (`asg.product` for every pair; tests/test_asg.py checks it against quadrature):
-    a fitted-like mixture with bands, sharp and broad lobes, an isotropic lobe (its pair with itself is
-    degenerate), an exact duplicate and a near-duplicate lobe (the hard cases of the Gram matrix). Measured
+    a fitted-like mixture with sharp and broad lobes, an isotropic one, a band (μ = 0) and a λ = μ = 0 lobe (the
+    three pairs among those two have a degenerate smallest eigenvalue), an exact duplicate
+    and a near-duplicate lobe (the hard cases of the Gram matrix); amplitudes 1, then other than 1. Measured
     4.7e-16 of the largest entry on the woven tile's fitted lobes → 1e-12, entry by entry."""
     rng = np.random.default_rng(11)
-    z = rng.normal(size=(6, 3))
+    z = rng.normal(size=(7, 3))
     z[:, 2] = np.abs(z[:, 2]) + 0.5
     z /= np.linalg.norm(z, axis=1, keepdims=True)
     x, y = asg_mod.tangent_frame(z)
-    lam = np.array([1111.0, 40.5, 8.6, 30.0, 5e5, 0.5])
-    mu = np.array([13.7, 14.6, 0.0, 30.0, 2.0, 0.5])
+    lam = np.array([1111.0, 40.5, 8.6, 30.0, 5e5, 0.5, 0.0])
+    mu = np.array([13.7, 14.6, 0.0, 30.0, 2.0, 0.5, 0.0])
     # (an exact duplicate of lobe 1, and one a hair from it)
     xs = np.concatenate([x, x[1:2], x[1:2] * (1 - 1e-13) + 1e-13 * y[1:2]])
-    both = asg_mod.ASG(xs, np.concatenate([y, y[1:2], y[1:2]]), np.concatenate([z, z[1:2], z[1:2]]),
-                       np.concatenate([lam, lam[1:2], lam[1:2] * (1 + 1e-12)]), np.concatenate([mu, mu[1:2], mu[1:2]]))
-    got, want = asg_bake.gram(both), asg_bake.gram_by_products(both)
-    assert np.all(np.isfinite(got)) and np.allclose(got, got.T)
-    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12 * np.abs(want).max())
+    frames = (xs, np.concatenate([y, y[1:2], y[1:2]]), np.concatenate([z, z[1:2], z[1:2]]),
+              np.concatenate([lam, lam[1:2], lam[1:2] * (1 + 1e-12)]), np.concatenate([mu, mu[1:2], mu[1:2]]))
+    products = []
+    real = asg_mod.product
+
+    def counted(a, b):
+        products.append(len(a.lam))
+        return real(a, b)
+
+    for amplitude in (1.0, np.linspace(0.5, 2.0, 9)):
+        both = asg_mod.ASG(*frames, amplitude)
+        products.clear()
+        monkeypatch.setattr(asg_mod, "product", counted)
+        got = asg_bake.gram(both)
+        fallback = list(products)
+        monkeypatch.setattr(asg_mod, "product", real)
+        want = asg_bake.gram_by_products(both)
+        assert fallback == [3]  # (band × band, band × zero, zero × zero: through `product`)
+        assert np.all(np.isfinite(got)) and np.allclose(got, got.T)
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12 * np.abs(want).max())
+
+
+def test_a_baked_tile_is_not_kept_alive_by_its_cached_geometry():
+    """The bake caches a tile's geometry in a dictionary keyed weakly by the tile: nothing the ASG bake keeps
+    there (its tangent sample) may hold the tile, or every edited tile would stay in memory with its tables."""
+    import gc
+    import weakref
+
+    tile = wb.geometry.pyramid(material=0)
+    mat = wb.bake(tile, wb.BlinnPhong(0.5, 64), method="asg", lobes=3, directions=4, facets=1 << 11,
+                  backend="warp:cpu")
+    assert mat.tangent_order.shape == (1, len(mat.weight), 2)  # (the lazy sample read, as an anisotropic BRDF's)
+    alive = weakref.ref(tile)
+    del tile, mat
+    gc.collect()
+    assert alive() is None
 
 
 def test_auto_lobes(backend):

@@ -305,7 +305,7 @@ def unit_integral(lam, mu, method="exact"):
         out[iso] = np.where(k > 0, -np.pi * np.expm1(-k) / np.where(k > 0, k, 1.0), np.pi)
         if not iso.all():
             out[~iso] = _integral_exact(lam[~iso], mu[~iso])
-        return out
+        return out[()]  # (a scalar for scalar bandwidths, as the quadrature's)
     if method == "eq10":
         return _integral_eq10(lam, mu)
     if method == "eq11":

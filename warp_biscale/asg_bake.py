@@ -339,30 +339,33 @@ class TangentSample:
     material edits) so that the order is made once, and only when an anisotropic small-scale BRDF needs it
     (`ASGBRDF.tangent_order`: most materials never do, and it costs milliseconds on the host)."""
 
-    def __init__(self, asgs, alpha, normal, face, weight, tile):
+    def __init__(self, asgs, alpha, normal, face, weight, face_tangents, material_ids, n_materials):
         """normal (Ns, 3) the sampled facets' normals as the device holds them (made unit in float64 on first use),
-        face (Ns,) their faces (the tile's tangents and material ids are looked up then too), weight (Ns,)."""
-        self.inputs = (asgs, alpha, normal, face, weight, tile)
+        face (Ns,) their faces, weight (Ns,); the tile's face_tangents (F, 3) and material_ids (F,), looked up on
+        first use too. (The tile's arrays, not the tile: the bake's geometry cache, which keeps this, is keyed by
+        the tile weakly, and a value holding its key would keep every baked tile alive.)"""
+        self.inputs = (asgs, alpha, normal, face, weight, face_tangents, material_ids, n_materials)
         self._order = None
 
     def order(self) -> np.ndarray:
         if self._order is None:
-            asgs, alpha, normal, face, weight, tile = self.inputs
-            self._order = tangent_order(asgs, alpha, _unit_rows(normal), tile.face_tangents[face], weight,
-                                        tile.material_ids[face], tile.n_materials)
+            asgs, alpha, normal, face, weight, face_tangents, material_ids, n_materials = self.inputs
+            self._order = tangent_order(asgs, alpha, _unit_rows(normal), face_tangents[face], weight,
+                                        material_ids[face], n_materials)
         return self._order
 
 
 def gram(asgs: asg_mod.ASG):
     """(J, J) A_ij = ∫G_iG_j by Xu's product (Eq. 13) and its integral as the shade kernels take it
     (`asg.shade_integral`: Eq. 10 where both bandwidths exceed 5, within 0.026 % there and to rounding for the
-    sharp products of a bake's lobes; the exact quadrature elsewhere), each pair i ≤ j once.
+    sharp products of a bake's lobes; the kernels' 56-node rule elsewhere), each pair i ≤ j once.
 
     `asg.product` in closed form where A1 + A2's smallest eigenvalue w0 is simple, as it is for two lobes of a
     fitted mixture: z3 is its eigenvector, λ3 = w2 − w0, μ3 = w1 − w0 and the amplitude
-    (z3·z1)⁺(z3·z2)⁺e^{−w0} (equal to `product`'s to rounding, which forms λ3 and μ3 from x3ᵀA3x3); the pairs with
-    a degenerate w0 (one lobe with itself where μ = λ, coinciding lobes) go through `product`. One batched
-    eigendecomposition instead of `product`'s general path: the Gram matrix is on the bake's critical path."""
+    c1c2(z3·z1)⁺(z3·z2)⁺e^{−w0} (equal to `product`'s to rounding, which forms λ3 and μ3 from x3ᵀA3x3); the pairs
+    whose w0 is degenerate (a band, μ = 0, with itself or one along the same axis; λ = μ = 0 lobes) go through
+    `product`. One batched eigendecomposition instead of `product`'s general path: the Gram matrix is on the
+    bake's critical path."""
     lam, mu, x, y = asgs.lam, asgs.mu, asgs.x, asgs.y
     forms = lam[:, None, None] * x[:, :, None] * x[:, None, :] + mu[:, None, None] * y[:, :, None] * y[:, None, :]
     i, j = np.triu_indices(len(lam))
@@ -374,7 +377,7 @@ def gram(asgs: asg_mod.ASG):
     tol = 1e-12 * np.maximum(w[:, 2], 1.0)  # (as `product`)
     simple = (w[:, 1] - w[:, 0]) > tol
     smooth = np.maximum(np.einsum("pi,pi->p", z3, z1), 0.0) * np.maximum(np.einsum("pi,pi->p", z3, z2), 0.0)
-    amp = smooth * np.exp(-np.maximum(w[:, 0], 0.0))
+    amp = asgs.amplitude[i] * asgs.amplitude[j] * smooth * np.exp(-np.maximum(w[:, 0], 0.0))
     lam3, mu3 = np.maximum(w[:, 2] - w[:, 0], 0.0), np.maximum(w[:, 1] - w[:, 0], 0.0)
     if not simple.all():
         p = asg_mod.product(asgs[i[~simple]], asgs[j[~simple]])
@@ -558,7 +561,7 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
     every = slice(None, None, max(1, len(q.fac) // TANGENT_SAMPLE))  # (a mean of cosines: a sample suffices)
     # (copies of the sample alone: a view would keep the whole arrays)
     order = TangentSample(asgs, alpha, np.asarray(q.fac.normal)[every].copy(), np.asarray(q.fac.face)[every].copy(),
-                          em_w[every].copy(), tile)
+                          em_w[every].copy(), tile.face_tangents, tile.material_ids, tile.n_materials)
     timer.timings["amplitudes"] = time.perf_counter() - t0
     info = {"facets": count, "seed": seed, "normal_res": r, "route": "facets", "lobes": int(len(alpha)),
             "lobes_requested": j_req, "ndf_error": ndf_err, "ndf_probe_sharpness": probe,

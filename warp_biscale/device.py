@@ -28,8 +28,9 @@ from .trace import (CHUNK_RAYS, check_camera, check_gbuffer, check_lights, check
 # larger ones by their memory.
 SHADE_INPUT_COMPARE_BYTES = 1 << 20
 SCRATCH_BYTES = 64 << 20  # the largest scratch array a backend keeps between calls (see their _scratch)
-# Threads a lobe in the ASG EM's M-step (kernels/asgfit.py's blocks, cl/asgfit.cl's ASGFIT_GROUP): they share
-# its sums over a few hundred to a few thousand normal bins.
+# Threads a lobe in the ASG EM's M-step (kernels/asgfit.py's blocks; cl/asgfit.cl's ASGFIT_GROUP, which the
+# OpenCL build is given from here): they share its sums over a few hundred to a few thousand normal bins and the
+# Newton's 48 disk nodes.
 ASG_EM_BLOCK = 128
 
 
@@ -1187,9 +1188,10 @@ class DeviceBackend:
 
     def asg_value_sums(self, facets, weight, asgs: ASG, to_host=True):
         """(J,) float64 Σ_s w_s G_j(n_s) over the facets, `weight` (Ns,) w_s (a host array, or visible_weights'
-        OnDevice: its device copy, no upload), for an ASG batch (J,) (the ASG bake's calibration sums,
-        asg_bake.calibrated_rows; float32 terms, float64 sums). to_host=False: an OnDevice whose host() waits
-        for these sums alone (their copy is queued with them), so the host goes on meanwhile."""
+        OnDevice for these very facets: its device copy, no upload, its length not checked), for an ASG batch
+        (J,) (the ASG bake's calibration sums, asg_bake.calibrated_rows; float32 terms, float64 sums).
+        to_host=False: an OnDevice whose host() waits for these sums alone (their copy is queued with them), so
+        the host goes on meanwhile."""
         n = len(facets)
         if not isinstance(weight, OnDevice):
             weight = np.asarray(weight, np.float32).reshape(-1)

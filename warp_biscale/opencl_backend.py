@@ -189,7 +189,10 @@ QUEUED_UPLOAD_BYTES = 1 << 20  # shade inputs this large are copied to a GPU wit
 
 
 def stage_options(options: list[str], stem: str) -> list[str]:
-    """`options` (build_options) for cl/<stem>.cl: fast math instead of exact rounding for FAST_MATH."""
+    """`options` (build_options) for cl/<stem>.cl: fast math instead of exact rounding for FAST_MATH; the ASG EM's
+    work-group size (device.ASG_EM_BLOCK, the one definition both backends read) for asgfit."""
+    if stem == "asgfit":
+        options = [*options, f"-DASGFIT_GROUP={ASG_EM_BLOCK}"]
     if stem not in FAST_MATH:
         return options
     return [o for o in options if o != "-cl-fp32-correctly-rounded-divide-sqrt"] + ["-cl-fast-relaxed-math"]
