@@ -748,15 +748,27 @@ class OpenCLBackend(DeviceBackend):
              "new_lobes": self._new((n_lobes, 12), "f64"), "mass": self._new(n_lobes, "f64"),
              "moved": self._new(n_lobes, "f64")}
         j = np.int32(n_lobes)
-        m_step = self._kernel("asgfit", "asg_em_m_step")  # (one work-group a lobe)
+        g = self._group
+        # Every step launches the same three kernels on the same arguments: set once, then only enqueued (each
+        # pyopencl call that sets a kernel's arguments again cost tens of µs of host time, 24 of them a bake).
+        steps = []
+        for name, size, local, args in (
+                ("asg_em_responsibilities", -(-n_bins // g) * g, g,
+                 (a["normal"], a["weight"], a["lobes"], a["alpha"], a["state"], j, np.int32(n_bins),
+                  a["resp_weight"], a["seen_weight"])),
+                ("asg_em_m_step", n_lobes * ASG_EM_BLOCK, ASG_EM_BLOCK,  # (one work-group a lobe)
+                 (a["normal"], a["seen_weight"], a["resp_weight"], a["lobes"], np.float64(dead_mass),
+                  np.float64(log_range[0]), np.float64(log_range[1]), a["state"], j, np.int32(n_bins),
+                  a["new_lobes"], a["mass"], a["moved"])),
+                ("asg_em_finish", g, g,
+                 (a["new_lobes"], a["mass"], a["moved"], np.float64(converged), j, a["lobes"], a["alpha"],
+                  a["state"]))):
+            kernel = self._kernel("asgfit", name)
+            kernel.set_args(*args)
+            steps.append((kernel, (size,), (local,)))
         for _ in range(iterations):
-            self._launch("asgfit", "asg_em_responsibilities", (n_bins,), a["normal"], a["weight"], a["lobes"],
-                         a["alpha"], a["state"], j, np.int32(n_bins), a["resp_weight"], a["seen_weight"])
-            m_step(self._queue, (n_lobes * ASG_EM_BLOCK,), (ASG_EM_BLOCK,), a["normal"], a["seen_weight"],
-                   a["resp_weight"], a["lobes"], np.float64(dead_mass), np.float64(log_range[0]),
-                   np.float64(log_range[1]), a["state"], j, np.int32(n_bins), a["new_lobes"], a["mass"], a["moved"])
-            self._launch("asgfit", "asg_em_finish", (1,), a["new_lobes"], a["mass"], a["moved"],
-                         np.float64(converged), j, a["lobes"], a["alpha"], a["state"])
+            for kernel, size, local in steps:
+                self._cl.enqueue_nd_range_kernel(self._queue, kernel, size, local)
         # (the three copies queued together, then one wait: one round trip, not three)
         reads = [self._read_later(a["lobes"], (n_lobes, 12), np.float64),
                  self._read_later(a["alpha"], n_lobes, np.float64), self._read_later(a["state"], 2, np.int32)]
