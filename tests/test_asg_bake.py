@@ -132,6 +132,42 @@ def test_fit_on_the_device_against_float64(backend):
         np.testing.assert_allclose(got_alpha, want_alpha, atol=1e-6)
 
 
+def test_opencl_m_step_on_small_work_groups(backend):
+    """A device whose work-groups are smaller than device.ASG_EM_BLOCK gets the M-step built and launched at the
+    largest power of two it takes (cl/asgfit.cl's group sums): at 1, 4 and 32 work-items a lobe the fit equals
+    the one at the full size, to the rounding of sums taken in another order (measured on PoCL: 7.1e-15 relative
+    on λ and μ, 3.9e-16 on the axes, 3.3e-16 on the weights → 1e-12). Warp's blocks are its own (on the CPU a
+    block of one)."""
+    if not backend.name.startswith("opencl"):
+        pytest.skip("OpenCL only: the work-group size is the OpenCL build's")
+    rng = np.random.default_rng(5)
+    true = asg_mod.ASG.from_axis([[0.3, 0.0, 1.0], [-0.5, 0.4, 1.0]], [[1.0, 0.2, 0.0], [0.0, 1.0, 0.0]],
+                                 [2000.0, 8.0], [40.0, 3.0])
+    normal = np.concatenate([asg_mod.sample(true[k:k + 1], 300, rng)[0][0] for k in range(2)])
+    weight = rng.random(len(normal)) + 0.1
+    axes = np.array([[0.25, 0.05, 1.0], [-0.4, 0.3, 1.0]])
+    start = wb.lobes.LobeSet(axes / np.linalg.norm(axes, axis=1, keepdims=True), np.array([500.0, 10.0]),
+                             np.array([0.5, 0.5]))
+    full = asg_bake.fit_asg_on(backend, normal, weight, start, 8)
+    kept = backend._asg_em_group
+    try:
+        for group in (1, 4, 32):
+            backend._asg_em_group = group
+            backend._programs.pop("asgfit", None)  # (built again with this group size)
+            for key in [k for k in backend._kernels if k[0] == "asgfit"]:
+                del backend._kernels[key]
+            got = asg_bake.fit_asg_on(backend, normal, weight, start, 8)
+            assert got[2] == full[2]
+            for name in ("lam", "mu", "z"):
+                np.testing.assert_allclose(getattr(got[0], name), getattr(full[0], name), rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose(got[1], full[1], rtol=1e-12, atol=1e-14)
+    finally:
+        backend._asg_em_group = kept
+        backend._programs.pop("asgfit", None)
+        for key in [k for k in backend._kernels if k[0] == "asgfit"]:
+            del backend._kernels[key]
+
+
 def _brute_convolution(g, eta, p, nodes=160):
     """(G ⊛ SG)(p) for one unit ASG g by Gauss–Legendre in its disk coordinates (G dω = e^{−λa²−μb²} da db)."""
     x, w = np.polynomial.legendre.leggauss(nodes)

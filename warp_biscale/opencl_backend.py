@@ -188,11 +188,12 @@ FAST_MATH = {"litsphere", "shade"}
 QUEUED_UPLOAD_BYTES = 1 << 20  # shade inputs this large are copied to a GPU without blocking (_shade_buffer)
 
 
-def stage_options(options: list[str], stem: str) -> list[str]:
+def stage_options(options: list[str], stem: str, asg_em_group: int = ASG_EM_BLOCK) -> list[str]:
     """`options` (build_options) for cl/<stem>.cl: fast math instead of exact rounding for FAST_MATH; the ASG EM's
-    work-group size (device.ASG_EM_BLOCK, the one definition both backends read) for asgfit."""
+    work-group size for asgfit (device.ASG_EM_BLOCK, the one definition both backends read, or less where the
+    device's work-groups are smaller)."""
     if stem == "asgfit":
-        options = [*options, f"-DASGFIT_GROUP={ASG_EM_BLOCK}"]
+        options = [*options, f"-DASGFIT_GROUP={int(asg_em_group)}"]
     if stem not in FAST_MATH:
         return options
     return [o for o in options if o != "-cl-fp32-correctly-rounded-divide-sqrt"] + ["-cl-fast-relaxed-math"]
@@ -294,6 +295,9 @@ class OpenCLBackend(DeviceBackend):
         # compiles a kernel once per work-group size, and would otherwise recompile for every new
         # facet or pair count. Small on a CPU (a group runs on one core), a few warps on a GPU.
         self._group = max(1, min(8 if is_cpu else 64, device.max_work_group_size))
+        # The ASG EM's M-step: a work-group a lobe, ASG_EM_BLOCK work-items or the largest power of two the device
+        # takes (cl/asgfit.cl's group sums halve it).
+        self._asg_em_group = min(ASG_EM_BLOCK, 1 << (max(1, device.max_work_group_size).bit_length() - 1))
         self._tiles = weakref.WeakKeyDictionary()
         self._uploads = UploadCache()
         self._held_visible_area = None  # (host, device) of the last visible_area
@@ -323,20 +327,20 @@ class OpenCLBackend(DeviceBackend):
 
     def _build(self, stem: str):
         try:
-            return build_program(self._ctx, stem, stage_options(self.build_options, stem))
+            return build_program(self._ctx, stem, stage_options(self.build_options, stem, self._asg_em_group))
         except self._cl.Error as exc:
             raise RuntimeError(f"building cl/{stem}.cl for {self.device} failed: "
                                f"{build_failure(self._platform, self._device, exc)}\n{exc}") from None
 
-    def _prepared(self, stem, name, shape, *args):
+    def _prepared(self, stem, name, shape, *args, group=None):
         """A callable that enqueues kernel `name` over `shape` (as _launch) with `args` set once: for a
         loop that enqueues the same launch many times (on NVIDIA's OpenCL setting the arguments at every
-        launch cost the EM about half again its time)."""
+        launch cost the EM about half again its time). `group`: a work-group size other than the backend's."""
         cl = self._cl
         self._kernel(stem, name)  # builds the program once
         kernel = cl.Kernel(self._programs[stem], name)  # its own instance: its arguments stay set
         kernel.set_args(*args)
-        g = self._group
+        g = group or self._group
         global_size = (-(-shape[0] // g) * g, *shape[1:])
         local_size = (g,) + (1,) * (len(shape) - 1)
         # The closure keeps `args` alive: a set argument holds no reference to its buffer.
@@ -748,27 +752,18 @@ class OpenCLBackend(DeviceBackend):
              "new_lobes": self._new((n_lobes, 12), "f64"), "mass": self._new(n_lobes, "f64"),
              "moved": self._new(n_lobes, "f64")}
         j = np.int32(n_lobes)
-        g = self._group
-        # Every step launches the same three kernels on the same arguments: set once, then only enqueued (each
-        # pyopencl call that sets a kernel's arguments again cost tens of µs of host time, 24 of them a bake).
-        steps = []
-        for name, size, local, args in (
-                ("asg_em_responsibilities", -(-n_bins // g) * g, g,
-                 (a["normal"], a["weight"], a["lobes"], a["alpha"], a["state"], j, np.int32(n_bins),
-                  a["resp_weight"], a["seen_weight"])),
-                ("asg_em_m_step", n_lobes * ASG_EM_BLOCK, ASG_EM_BLOCK,  # (one work-group a lobe)
-                 (a["normal"], a["seen_weight"], a["resp_weight"], a["lobes"], np.float64(dead_mass),
-                  np.float64(log_range[0]), np.float64(log_range[1]), a["state"], j, np.int32(n_bins),
-                  a["new_lobes"], a["mass"], a["moved"])),
-                ("asg_em_finish", g, g,
-                 (a["new_lobes"], a["mass"], a["moved"], np.float64(converged), j, a["lobes"], a["alpha"],
-                  a["state"]))):
-            kernel = self._kernel("asgfit", name)
-            kernel.set_args(*args)
-            steps.append((kernel, (size,), (local,)))
+        # Every step launches the same three kernels on the same arguments: set once (`_prepared`).
+        steps = [self._prepared("asgfit", "asg_em_responsibilities", (n_bins,), a["normal"], a["weight"], a["lobes"],
+                                a["alpha"], a["state"], j, np.int32(n_bins), a["resp_weight"], a["seen_weight"]),
+                 self._prepared("asgfit", "asg_em_m_step", (n_lobes * self._asg_em_group,), a["normal"],
+                                a["seen_weight"], a["resp_weight"], a["lobes"], np.float64(dead_mass),
+                                np.float64(log_range[0]), np.float64(log_range[1]), a["state"], j, np.int32(n_bins),
+                                a["new_lobes"], a["mass"], a["moved"], group=self._asg_em_group),  # (a group a lobe)
+                 self._prepared("asgfit", "asg_em_finish", (1,), a["new_lobes"], a["mass"], a["moved"],
+                                np.float64(converged), j, a["lobes"], a["alpha"], a["state"])]
         for _ in range(iterations):
-            for kernel, size, local in steps:
-                self._cl.enqueue_nd_range_kernel(self._queue, kernel, size, local)
+            for step in steps:
+                step()
         # (the three copies queued together, then one wait: one round trip, not three)
         reads = [self._read_later(a["lobes"], (n_lobes, 12), np.float64),
                  self._read_later(a["alpha"], n_lobes, np.float64), self._read_later(a["state"], 2, np.int32)]
