@@ -24,7 +24,7 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import flat_tile, random_heightfield
+from conftest import BACKEND_ENTRIES, backend_params, flat_tile, random_heightfield
 
 import warp_biscale as wb
 from warp_biscale import asg as asg_mod
@@ -132,14 +132,14 @@ def test_fit_on_the_device_against_float64(backend):
         np.testing.assert_allclose(got_alpha, want_alpha, atol=1e-6)
 
 
-def test_opencl_m_step_on_small_work_groups(backend):
+@pytest.mark.parametrize("name", backend_params([b for b in BACKEND_ENTRIES if b["kind"] == "opencl"]))
+def test_opencl_m_step_on_small_work_groups(name):
     """A device whose work-groups are smaller than device.ASG_EM_BLOCK gets the M-step built and launched at the
     largest power of two it takes (cl/asgfit.cl's group sums): at 1, 4 and 32 work-items a lobe the fit equals
     the one at the full size, to the rounding of sums taken in another order (measured on PoCL: 7.1e-15 relative
     on λ and μ, 3.9e-16 on the axes, 3.3e-16 on the weights → 1e-12). Warp's blocks are its own (on the CPU a
     block of one)."""
-    if not backend.name.startswith("opencl"):
-        pytest.skip("OpenCL only: the work-group size is the OpenCL build's")
+    backend = wb.get_backend(name)
     rng = np.random.default_rng(5)
     true = asg_mod.ASG.from_axis([[0.3, 0.0, 1.0], [-0.5, 0.4, 1.0]], [[1.0, 0.2, 0.0], [0.0, 1.0, 0.0]],
                                  [2000.0, 8.0], [40.0, 3.0])
