@@ -391,7 +391,7 @@ def test_gram_against_the_products(monkeypatch):
     a fitted-like mixture with sharp and broad lobes, an isotropic one, a band (μ = 0) and a λ = μ = 0 lobe (the
     three pairs among those two have a degenerate smallest eigenvalue), an exact duplicate
     and a near-duplicate lobe (the hard cases of the Gram matrix); amplitudes 1, then other than 1. Measured
-    4.7e-16 of the largest entry on the woven tile's fitted lobes → 1e-12, entry by entry."""
+    3.7e-16 of the largest entry on the woven tile's fitted lobes → 1e-12, entry by entry."""
     rng = np.random.default_rng(11)
     z = rng.normal(size=(7, 3))
     z[:, 2] = np.abs(z[:, 2]) + 0.5

@@ -77,6 +77,7 @@ import numpy as np
 from scipy.special import erf, erfinv, i0e
 
 from . import sg
+from .smallscale import cross_rows
 
 __all__ = ["ASG", "evaluate", "rotate", "from_sg", "unit_integral", "integral", "product", "convolve_sg",
            "convolve_asg", "convolve_sg_at", "convolve_sg_local", "warp", "warp_hessian", "effective_sharpness",
@@ -87,17 +88,6 @@ _ORTHO_TOL = 1e-6  # a frame further than this from orthonormal is an error, not
 
 def _dot(a, b):
     return np.einsum("...i,...i->...", a, b)
-
-
-def _cross(a, b):
-    """a × b over the last axis of (..., 3) arrays: np.cross's arithmetic, component by component (np.cross's
-    own checks and moves cost more than the products for a bake's few lobes)."""
-    a, b = np.broadcast_arrays(a, b)
-    out = np.empty(a.shape, np.result_type(a, b))
-    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
-    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
-    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
-    return out
 
 
 def _normalize(v):
@@ -164,7 +154,7 @@ class ASG:
         # v = a·x + b·y + t·z) assume an exact frame, and v = z then gives exactly the amplitude.
         z = _normalize(z)
         x = _normalize(x - _dot(x, z)[..., None] * z)
-        zx = _cross(z, x)
+        zx = cross_rows(z, x)
         y = np.where((_dot(zx, y) >= 0)[..., None], zx, -zx)
         object.__setattr__(self, "x", x)
         object.__setattr__(self, "y", y)
@@ -186,7 +176,7 @@ class ASG:
         if np.any(n < 1e-9):
             raise ValueError("ASG.from_axis: x_hint is parallel to z")
         x = x / n
-        return cls(x, _cross(z, x), z, lam, mu, amplitude)
+        return cls(x, cross_rows(z, x), z, lam, mu, amplitude)
 
     def __getitem__(self, index):
         # A part of a checked batch: its frames are orthonormal and its arrays broadcast, so it is not checked
@@ -400,7 +390,7 @@ def product(g1: ASG, g2: ASG) -> ASG:
     # x3 along the largest eigenvalue; y3 completes the frame (exactly q1 up to sign unless degenerate).
     x3 = np.where(deg2[..., None], tangent_frame(z3)[0], q2)
     x3 = _normalize(x3 - _dot(x3, z3)[..., None] * z3)
-    y3 = _cross(z3, x3)
+    y3 = cross_rows(z3, x3)
     lam3 = np.maximum(_dot(x3, np.einsum("...ij,...j->...i", a3, x3)) - w[..., 0], 0.0)
     mu3 = np.maximum(_dot(y3, np.einsum("...ij,...j->...i", a3, y3)) - w[..., 0], 0.0)
     smooth = np.maximum(_dot(z3, z1), 0.0) * np.maximum(_dot(z3, z2), 0.0)
@@ -540,11 +530,11 @@ def warp_hessian(asg: ASG, wo):
     t1, t2 = tangent_frame(zi)
     # Xu's x'_i ⊥ o: any tangent basis gives the same Q up to rotation; use o × z_h where it is defined,
     # so that the frame follows the geometry, and the Duff frame at normal view (o ∥ z_h).
-    cross = _cross(o, zh)
+    cross = cross_rows(o, zh)
     cn = np.linalg.norm(cross, axis=-1, keepdims=True)
     use = cn > 1e-12
     t1 = np.where(use, cross / np.where(use, cn, 1.0), t1)
-    t2 = np.where(use, _cross(zi, t1), t2)
+    t2 = np.where(use, cross_rows(zi, t1), t2)
     tb = np.stack([t1, t2], axis=-1)  # (..., 3, 2)
     c = np.maximum(cos_d, 1e-100)  # o·z_h ≤ 0 has no lobe (amplitude 0 in `warp`); keep Q finite
     jac = np.stack([np.einsum("...i,...ik->...k", asg.x, tb), np.einsum("...i,...ik->...k", asg.y, tb)],

@@ -62,6 +62,7 @@ from .effective import (ASG_LOBES, DIFFUSE_LEVEL_ETAS, EFF_LOBE_WIDTH, Effective
 from .io import read_npz, save_npz
 from .model import Bvndf, DeviceArray
 from .progress import as_progress
+from .smallscale import row_norms
 from .truth import _check_count, _Timer
 
 __all__ = ["ASGBRDF", "bake_asg", "fit_asg", "bandwidths_from_moments", "amplitude_system", "asg_moments",
@@ -288,7 +289,7 @@ def ndf_error(asgs: asg_mod.ASG, alpha, bin_normal, bin_weight, probe_sharpness:
 def _unit_rows(v) -> np.ndarray:
     """(N, 3) float64 rows scaled to unit length (the facets' float32 normals, made unit again in float64)."""
     v = np.asarray(v, np.float64)
-    return v / np.sqrt(v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1] + v[:, 2] * v[:, 2])[:, None]
+    return v / row_norms(v)[:, None]
 
 
 def _values(asgs: asg_mod.ASG, normal):

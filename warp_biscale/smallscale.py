@@ -25,10 +25,11 @@ class TileWarning(UserWarning):
 
 
 def cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise cross product of two (N, 3) arrays: np.cross's arithmetic (the same bits) without its axis
-    handling, which costs several times the arithmetic on the few rows of a procedural tile."""
-    return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
-                     a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
+    """Cross product over the last axis of (..., 3) arrays (broadcast): np.cross's arithmetic (the same bits)
+    without its axis handling, which costs several times the arithmetic on the few rows of a procedural tile or
+    a bake's few ASG lobes."""
+    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1], a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
 
 
 def row_norms(a: np.ndarray) -> np.ndarray:
