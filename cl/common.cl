@@ -116,6 +116,32 @@ CL_INLINE int2 ray_part(int samples, int part_index, int part_count)
     return (int2)(part_index % stride, stride);
 }
 
+#define BLOCK_SLOTS 4 /* = trace.BLOCK_SLOTS: the pixels of a 2x2 block, which share their rays */
+
+/* (first, stride, turn pixel) of the rays pixel `pixel` traces of a set of `samples` (trace.pixel_parts): with
+ * block_width W > 0 and samples >= BLOCK_SLOTS, slot q = x mod 2 + 2 (y mod 2) of its 2x2 block takes part
+ * q + 4 part_index of 4 part_count, its rays turned by the block's first pixel, so that the block's pixels trace
+ * the sample's part between them; else the sample's part, turned by the pixel itself. */
+CL_INLINE int3 pixel_part(int samples, int part_index, int part_count, int block_width, int pixel)
+{
+    if (block_width > 0 && samples >= BLOCK_SLOTS) {
+        int x = pixel % block_width, y = pixel / block_width;
+        int2 part = ray_part(samples, x % 2 + 2 * (y % 2) + BLOCK_SLOTS * part_index, BLOCK_SLOTS * part_count);
+        return (int3)(part.x, part.y, pixel - x % 2 - (y % 2) * block_width);
+    }
+    int2 part = ray_part(samples, part_index, part_count);
+    return (int3)(part.x, part.y, pixel);
+}
+
+/* Bit i set for each ray i = first, first + stride, ... < samples (<= 32) of a part. */
+CL_INLINE uint part_bits(int first, int stride, int samples)
+{
+    uint bits = 0u;
+    for (int i = first; i < samples; i += stride)
+        bits |= 1u << i;
+    return bits;
+}
+
 /* a right-handed frame (a, b, w) (trace.disk_basis) */
 CL_INLINE void disk_basis(float3 w, float3 *a, float3 *b)
 {

@@ -481,15 +481,15 @@ CL_INLINE SurfacePoint surface_point(__global const int *faces, __global const f
 
 CL_INLINE float3 to_local(SurfacePoint s, float3 d) { return (float3)(dot3(d, s.t), dot3(d, s.b), dot3(d, s.n)); }
 
-/* A pixel's occlusion rays: their mask (bit i: ray i blocked), the set's count, the rays of it traced
- * (first, stride: ray_part), and the frame (a, b, n) about the geometric normal on the camera's side that
- * they were traced in. */
+/* A pixel's occlusion rays: their mask (bit i: ray i blocked), the set's count, the rays of it traced (bit i:
+ * ray i, by the pixel or a block neighbour that lends it its rays), the frame (a, b, n) about the geometric
+ * normal on the camera's side that they were traced in, and the pixel whose hash angle turns them. */
 typedef struct {
     uint mask;
     int samples;
-    int2 part;
+    uint known;
     float3 a, b, n;
-    int pixel;
+    int turn;
 } Occlusion;
 
 /* The occlusion rays' weight against the SSDF's for a lobe of sharpness η (shading.ray_weight). */
@@ -502,57 +502,56 @@ CL_INLINE float ray_weight(float eta, int samples)
     return clampf(log(hi / maxf(eta, 1.0e-30f)) / log(hi / lo), 0.0f, 1.0f);
 }
 
-/* The lobe's share that the pixel's occlusion rays see unblocked (shading.ray_share): the rays traced, their
- * directions made again, each weighted by G(ω)(n·ω)⁺/(ng·ω). The spiral's angle steps by `stride` golden
- * angles, so its cosine and sine are turned by a fixed rotation from one ray to the next rather than
- * computed per ray. */
+/* The lobe's share that the pixel's occlusion rays see unblocked (shading.ray_share): the rays of occ.known,
+ * their directions made again, each weighted by G(ω)(n·ω)⁺/(ng·ω). The spiral's angle steps by the golden
+ * angle, so its cosine and sine are turned by a fixed rotation from one ray to the next rather than computed
+ * per ray. */
 CL_INLINE float ray_share(float3 axis, float eta, float3 n, Occlusion occ)
 {
     float total = 0.0f, seen = 0.0f;
-    float turn = disk_turn(occ.pixel) + (float)occ.part.x * GOLDEN_ANGLE;
+    float turn = disk_turn(occ.turn);
     float c = cos(turn), s = sin(turn);
-    float step_cos = GOLDEN_COS, step_sin = GOLDEN_SIN;
-    if (occ.part.y != 1) {
-        step_cos = cos((float)occ.part.y * GOLDEN_ANGLE);
-        step_sin = sin((float)occ.part.y * GOLDEN_ANGLE);
-    }
     /* the axis and the shading normal in the rays' frame */
     float ax = dot3(occ.a, axis), ay = dot3(occ.b, axis), az = dot3(occ.n, axis);
     float nx = dot3(occ.a, n), ny = dot3(occ.b, n), nz = dot3(occ.n, n);
-    for (int i = occ.part.x; i < occ.samples; i += occ.part.y) {
-        float r2 = occ.samples == 1 ? 0.0f : ((float)i + 0.5f) / (float)occ.samples;
-        float r = sqrt(r2);
-        float lift = sqrt(maxf(1.0f - r2, 0.0f));
-        float x = r * c, y = r * s;
-        float w = exp(eta * (x * ax + y * ay + lift * az - 1.0f)) * maxf(x * nx + y * ny + lift * nz, 0.0f)
-                  / maxf(lift, 1.0e-6f);
-        total = total + w;
-        if (((occ.mask >> i) & 1u) == 0u)
-            seen = seen + w;
-        float c_next = c * step_cos - s * step_sin;
-        s = s * step_cos + c * step_sin;
+    for (int i = 0; i < occ.samples; ++i) {
+        if ((occ.known >> i) & 1u) {
+            float r2 = occ.samples == 1 ? 0.0f : ((float)i + 0.5f) / (float)occ.samples;
+            float r = sqrt(r2);
+            float lift = sqrt(maxf(1.0f - r2, 0.0f));
+            float x = r * c, y = r * s;
+            float w = exp(eta * (x * ax + y * ay + lift * az - 1.0f)) * maxf(x * nx + y * ny + lift * nz, 0.0f)
+                      / maxf(lift, 1.0e-6f);
+            total = total + w;
+            if (((occ.mask >> i) & 1u) == 0u)
+                seen = seen + w;
+        }
+        float c_next = c * GOLDEN_COS - s * GOLDEN_SIN;
+        s = s * GOLDEN_COS + c * GOLDEN_SIN;
         c = c_next;
     }
     return total > 1.0e-30f ? seen / total : 1.0f;
 }
 
 /* The share of a lobe (axis, η) that sharp lobe k's rays (about ray_axis, ray_eta) see unblocked
- * (shading.lobe_ray_share): the rays traced (part: first, stride, ray_part), made again (lobe_ray_direction),
- * each weighted by G(ω)(n·ω)⁺ and its solid-angle weight cos³ (its cosine to ray_axis, cubed); a ray below the
- * geometric horizon, not traced, has its bit clear. */
+ * (shading.lobe_ray_share): the rays of `known` (bit i: ray i traced), made again (lobe_ray_direction, turned by
+ * pixel `turn`), each weighted by G(ω)(n·ω)⁺ and its solid-angle weight cos³ (its cosine to ray_axis, cubed); a
+ * ray below the geometric horizon, not traced, has its bit clear. */
 CL_INLINE float lobe_ray_share(float3 ray_axis, float ray_eta, float3 axis, float eta, float3 n, uint mask, int k,
-                               int2 part, int pixel)
+                               uint known, int turn)
 {
     float3 a, b;
     disk_basis(ray_axis, &a, &b);
     float total = 0.0f, seen = 0.0f;
-    for (int i = part.x; i < LOBE_RAYS; i += part.y) {
-        float3 d = lobe_ray_direction(a, b, ray_axis, ray_eta, i, pixel);
-        float c = dot3(d, ray_axis);
-        float w = exp(eta * (dot3(d, axis) - 1.0f)) * maxf(dot3(d, n), 0.0f) * c * c * c;
-        total = total + w;
-        if (((mask >> (k * LOBE_RAYS + i)) & 1u) == 0u)
-            seen = seen + w;
+    for (int i = 0; i < LOBE_RAYS; ++i) {
+        if ((known >> i) & 1u) {
+            float3 d = lobe_ray_direction(a, b, ray_axis, ray_eta, i, turn);
+            float c = dot3(d, ray_axis);
+            float w = exp(eta * (dot3(d, axis) - 1.0f)) * maxf(dot3(d, n), 0.0f) * c * c * c;
+            total = total + w;
+            if (((mask >> (k * LOBE_RAYS + i)) & 1u) == 0u)
+                seen = seen + w;
+        }
     }
     return total > 1.0e-30f ? seen / total : 1.0f;
 }
@@ -820,6 +819,9 @@ __kernel void shade_pixels(
     __global const uint *lobe_occlusion, /* (P,) sharp lobes' ray masks */
     const int n_sharp,
     const int part_index, const int part_count, /* the anti-aliasing sample's rays of each set (ray_part) */
+    const int block_width,              /* > 0: the rays shared in 2x2 pixel blocks (pixel_part) ... */
+    __global const uint *occlusion_known, /* ... (P,) the occlusion rays each pixel was lent */
+    __global const uint *lobe_known,    /* (P,) and the lobe rays */
     __global const int *faces,          /* (F, 3) */
     __global const float *positions,    /* (V, 3) */
     __global const float *normals,      /* (V, 3) */
@@ -868,12 +870,21 @@ __kernel void shade_pixels(
     float cos_o = maxf(dot3(wo, s.n), MIN_COS_VIEW);
     float3 wo_local = normalize3((float3)(dot3(wo, s.t), dot3(wo, s.b), cos_o));
     /* The occlusion rays' mask and frame (about the geometric normal on the camera's side, as traced), and
-     * which rays of the occlusion and lobe ray sets this anti-aliasing sample traced. */
-    Occlusion occ = {0u, occlusion_samples, ray_part(occlusion_samples, part_index, part_count),
-                     (float3)(1.0f, 0.0f, 0.0f), (float3)(0.0f, 1.0f, 0.0f), (float3)(0.0f, 0.0f, 1.0f), p};
-    int2 lobe_part = ray_part(LOBE_RAYS, part_index, part_count);
+     * which rays of the occlusion and lobe ray sets this anti-aliasing sample traced: the pixel's own part, or,
+     * with block_width > 0, those its 2x2 block lent it (share_block_masks' known bits). */
+    int3 occlusion_part = pixel_part(occlusion_samples, part_index, part_count, block_width, p);
+    int3 lobe_part = pixel_part(LOBE_RAYS, part_index, part_count, block_width, p);
+    Occlusion occ = {0u, occlusion_samples, part_bits(occlusion_part.x, occlusion_part.y, occlusion_samples),
+                     (float3)(1.0f, 0.0f, 0.0f), (float3)(0.0f, 1.0f, 0.0f), (float3)(0.0f, 0.0f, 1.0f),
+                     occlusion_part.z};
+    uint lobe_rays = part_bits(lobe_part.x, lobe_part.y, LOBE_RAYS);
     if (occlusion_samples > 0) {
         occ.mask = occlusion[p];
+        if (block_width > 0) {
+            occ.known = occlusion_known[p];
+            if (n_sharp > 0)
+                lobe_rays = lobe_known[p];
+        }
         float3 p0 = load3(positions, s.i0);
         float3 ng = normalize3(cross3(load3(positions, s.i1) - p0, load3(positions, s.i2) - p0));
         if (dot3(ng, wo) < 0.0f)
@@ -944,7 +955,7 @@ __kernel void shade_pixels(
             if (ray_lobe >= 0) { /* a sharp lobe: through its own rays, or those of the ray lobe whose cap holds its axis */
                 __global const float *r = env_sgs + 7 * ray_lobe;
                 amount = amount * lobe_ray_share((float3)(r[0], r[1], r[2]), r[3], axis, lobe[3], s.n,
-                                                 lobe_occlusion[p], ray_lobe, lobe_part, p);
+                                                 lobe_occlusion[p], ray_lobe, lobe_rays, lobe_part.z);
             } else
                 amount = amount * environment_share(tab, axis, lobe[3], row, s, has_ssdf, ssdf, occ);
             if (kept_mode == 1)

@@ -136,6 +136,7 @@ __kernel void trace_shadows(
     __global const float *lights,        /* (L, 8) Light.packed() rows */
     const float eps, const float t_min, const int samples,
     const int part_index, const int part_count, /* the anti-aliasing sample's rays of the set (ray_part) */
+    const int block_width,               /* > 0: shared in the 2x2 pixel blocks of frame rows this wide (pixel_part) */
     const int n_pixels, const int n_lights,
     __global uchar *visible)             /* (P, L) visible share in 255ths */
 {
@@ -145,7 +146,7 @@ __kernel void trace_shadows(
         return;
     int f = face[p];
     int hits = 0;
-    int2 part = ray_part(samples, part_index, part_count);
+    int3 part = pixel_part(samples, part_index, part_count, block_width, p);
     int traced = (samples - part.x + part.y - 1) / part.y;
     if (f >= 0) {
         float3 ng, n;
@@ -162,7 +163,7 @@ __kernel void trace_shadows(
         float3 a, b;
         disk_basis(w, &a, &b);
         for (int i = part.x; i < samples; i += part.y) {
-            float2 q = disk_sample(i, samples, p);
+            float2 q = disk_sample(i, samples, part.z);
             float3 on_disc = spread * (q.x * a + q.y * b);
             float3 d = w + on_disc;
             float t_hi = INFINITY;
@@ -181,8 +182,8 @@ __kernel void trace_shadows(
 }
 
 /* One work-item per pixel: of `samples` unbounded any-hit rays, cosine-distributed over the hemisphere of
- * the geometric normal on the camera's side (occlusion_direction), those of anti-aliasing sample part_index
- * of part_count (ray_part); bit i of the pixel's mask is set where ray i is blocked
+ * the geometric normal on the camera's side (occlusion_direction), the pixel's of anti-aliasing sample
+ * part_index of part_count (pixel_part); bit i of the pixel's mask is set where ray i is blocked
  * (trace.occlusion_directions, reference.trace_occlusion). */
 __kernel void trace_occlusion(
     __global const float *nodes,
@@ -196,7 +197,7 @@ __kernel void trace_occlusion(
     __global const float *position,      /* (P, 3) */
     const float eye_x, const float eye_y, const float eye_z,
     const float eps, const float t_min, const int samples,
-    const int part_index, const int part_count,
+    const int part_index, const int part_count, const int block_width,
     const int n_pixels,
     __global uint *mask)                 /* (P,) */
 {
@@ -211,9 +212,9 @@ __kernel void trace_occlusion(
                              (float3)(eye_x, eye_y, eye_z), eps, &n, &ns);
         float3 a, b;
         disk_basis(n, &a, &b);
-        int2 part = ray_part(samples, part_index, part_count);
+        int3 part = pixel_part(samples, part_index, part_count, block_width, p);
         for (int i = part.x; i < samples; i += part.y) {
-            float3 d = occlusion_direction(a, b, n, i, samples, p);
+            float3 d = occlusion_direction(a, b, n, i, samples, part.z);
             if (bvh_any_hit(nodes, tris, o, d, t_min, INFINITY))
                 bits |= 1u << i;
         }
@@ -222,7 +223,7 @@ __kernel void trace_occlusion(
 }
 
 /* One work-item per pixel: of LOBE_RAYS unbounded any-hit rays over each sharp lobe's cap (lobe_ray_direction),
- * those of anti-aliasing sample part_index of part_count (ray_part); bit k·LOBE_RAYS + i set where ray i of
+ * the pixel's of anti-aliasing sample part_index of part_count (pixel_part); bit k·LOBE_RAYS + i set where ray i of
  * lobe k is blocked; a ray below the shading normal's horizon is not traced (reference.trace_lobe_rays). */
 __kernel void trace_lobe_rays(
     __global const float *nodes,
@@ -238,7 +239,7 @@ __kernel void trace_lobe_rays(
     __global const float *lobes,         /* (M, 4) [axis, η] */
     const int n_lobes, const int rays,   /* LOBE_RAYS, passed in as the Warp twin takes it */
     const float eps, const float t_min,
-    const int part_index, const int part_count,
+    const int part_index, const int part_count, const int block_width,
     const int n_pixels,
     __global uint *mask)                 /* (P,) */
 {
@@ -251,17 +252,139 @@ __kernel void trace_lobe_rays(
         float3 ng, n;
         float3 o = ray_start(points, normals, faces, face_normals, f, bary, p, position,
                              (float3)(eye_x, eye_y, eye_z), eps, &ng, &n);
-        int2 part = ray_part(rays, part_index, part_count);
+        int3 part = pixel_part(rays, part_index, part_count, block_width, p);
         for (int k = 0; k < n_lobes; ++k) {
             float3 w = (float3)(lobes[4 * k], lobes[4 * k + 1], lobes[4 * k + 2]);
             float3 a, b;
             disk_basis(w, &a, &b);
             for (int i = part.x; i < rays; i += part.y) {
-                float3 d = lobe_ray_direction(a, b, w, lobes[4 * k + 3], i, p);
+                float3 d = lobe_ray_direction(a, b, w, lobes[4 * k + 3], i, part.z);
                 if (dot3(n, d) > 0.0f && bvh_any_hit(nodes, tris, o, d, t_min, INFINITY))
                     bits |= 1u << (k * LOBE_RAYS + i);
             }
         }
     }
     mask[p] = bits;
+}
+
+#define SHARE_NORMAL_COS 0.9f /* = trace.SHARE_NORMAL_COS */
+#define SHARE_PLANE 0.1f      /* = trace.SHARE_PLANE */
+
+CL_INLINE float3 seen_normal(__global const float *face_normals, int f, float3 x, float3 eye)
+{
+    float3 n = load3(face_normals, f);
+    return dot3(n, eye - x) < 0.0f ? -n : n;
+}
+
+/* The pixel in slot q of pixel p's 2x2 block. */
+CL_INLINE int block_pixel(int p, int width, int q)
+{
+    int x = p % width, y = p / width;
+    return (y - y % 2 + q / 2) * width + x - x % 2 + q % 2;
+}
+
+/* Bit q set where the pixel in slot q of hit pixel p's 2x2 block lends p its rays (trace.share_block): p itself,
+ * or a hit neighbour in the frame whose geometric normal is within SHARE_NORMAL_COS of p's and which lies near
+ * p's tangent plane (SHARE_PLANE), so that a depth or crease edge keeps each side's rays apart. */
+CL_INLINE int block_lenders(__global const int *face, __global const float *position,
+                            __global const float *face_normals, float3 eye, int width, int n_pixels, int p)
+{
+    int x = p % width, y = p / width;
+    float3 xp = load3(position, p);
+    float3 ng = seen_normal(face_normals, face[p], xp, eye);
+    int lenders = 0;
+    for (int q = 0; q < BLOCK_SLOTS; ++q) {
+        int xb = x - x % 2 + q % 2;
+        int b = (y - y % 2 + q / 2) * width + xb;
+        if (xb < width && b < n_pixels) {
+            if (b == p) {
+                lenders |= 1 << q;
+            } else if (face[b] >= 0) {
+                float3 xq = load3(position, b);
+                float3 d = xq - xp;
+                float3 nb = seen_normal(face_normals, face[b], xq, eye);
+                if (dot3(ng, nb) >= SHARE_NORMAL_COS && fabs(dot3(ng, d)) <= SHARE_PLANE * sqrt(dot3(d, d)))
+                    lenders |= 1 << q;
+            }
+        }
+    }
+    return lenders;
+}
+
+/* One work-item per pixel (reference.share_block_masks): the union of the ray masks (occlusion or lobe rays, a
+ * set of `samples`) that the pixels of its 2x2 block lend it (block_lenders), and of the rays they traced
+ * (pixel_part with block width `width`): what the shade stage weighs. A set of fewer than BLOCK_SLOTS rays is
+ * not shared: the pixel's own. 0 for a miss. */
+__kernel void share_block_masks(
+    __global const int *face,            /* (P,) */
+    __global const float *position,      /* (P, 3) */
+    __global const float *face_normals,  /* (F, 3) unit, original face order */
+    const float eye_x, const float eye_y, const float eye_z,
+    const int width, const int n_pixels, const int samples, const int part_index, const int part_count,
+    __global const uint *mask,           /* (P,) each pixel's own rays */
+    __global uint *shared,               /* (P,) */
+    __global uint *known)                /* (P,) */
+{
+    int p = get_global_id(0);
+    if (p >= n_pixels)
+        return;
+    uint bits = 0u, traced = 0u;
+    if (face[p] >= 0) {
+        if (samples < BLOCK_SLOTS) {
+            int3 part = pixel_part(samples, part_index, part_count, width, p);
+            bits = mask[p];
+            traced = part_bits(part.x, part.y, samples);
+        } else {
+            int lenders = block_lenders(face, position, face_normals, (float3)(eye_x, eye_y, eye_z), width,
+                                        n_pixels, p);
+            for (int q = 0; q < BLOCK_SLOTS; ++q) {
+                if ((lenders >> q) & 1) {
+                    int b = block_pixel(p, width, q);
+                    int3 part = pixel_part(samples, part_index, part_count, width, b);
+                    bits |= mask[b];
+                    traced |= part_bits(part.x, part.y, samples);
+                }
+            }
+        }
+    }
+    shared[p] = bits;
+    known[p] = traced;
+}
+
+/* One work-item per pixel (reference.share_block_shadows): each light's visible share over the shadow rays that
+ * the pixels of its 2x2 block lend it (block_lenders), sum(traced * share) / sum(traced) in 255ths, rounded; the
+ * pixel's own share for a set of fewer than BLOCK_SLOTS rays, and for a miss. */
+__kernel void share_block_shadows(
+    __global const int *face,            /* (P,) */
+    __global const float *position,      /* (P, 3) */
+    __global const float *face_normals,  /* (F, 3) unit, original face order */
+    const float eye_x, const float eye_y, const float eye_z,
+    const int width, const int n_pixels, const int samples, const int part_index, const int part_count,
+    const int n_lights,
+    __global const uchar *visible,       /* (P, L) each pixel's own rays */
+    __global uchar *shared)              /* (P, L) */
+{
+    int p = get_global_id(0);
+    if (p >= n_pixels)
+        return;
+    int lenders = 0;
+    if (face[p] >= 0 && samples >= BLOCK_SLOTS)
+        lenders = block_lenders(face, position, face_normals, (float3)(eye_x, eye_y, eye_z), width, n_pixels, p);
+    for (int l = 0; l < n_lights; ++l) {
+        int value = visible[(long)p * n_lights + l];
+        if (lenders != 0) {
+            int num = 0, den = 0;
+            for (int q = 0; q < BLOCK_SLOTS; ++q) {
+                if ((lenders >> q) & 1) {
+                    int b = block_pixel(p, width, q);
+                    int3 part = pixel_part(samples, part_index, part_count, width, b);
+                    int traced = (samples - part.x + part.y - 1) / part.y;
+                    num += traced * (int)visible[(long)b * n_lights + l];
+                    den += traced;
+                }
+            }
+            value = (num + den / 2) / den;
+        }
+        shared[(long)p * n_lights + l] = (uchar)value;
+    }
 }

@@ -361,6 +361,33 @@ def ray_part(samples: int, part_index: int, part_count: int) -> wp.vec2i:
     return wp.vec2i(part_index % stride, stride)
 
 
+BLOCK_SLOTS = wp.constant(_trace.BLOCK_SLOTS)
+
+
+@wp.func
+def pixel_part(samples: int, part_index: int, part_count: int, block_width: int, pixel: int) -> wp.vec3i:
+    """(first, stride, turn pixel) of the rays pixel `pixel` traces of a set of `samples` (trace.pixel_parts):
+    with block_width W > 0 and samples >= BLOCK_SLOTS, slot q = x mod 2 + 2 (y mod 2) of its 2x2 block takes
+    part q + 4 part_index of 4 part_count, its rays turned by the block's first pixel, so that the block's
+    pixels trace the sample's part between them; else the sample's part, turned by the pixel itself."""
+    if block_width > 0 and samples >= BLOCK_SLOTS:
+        x = pixel % block_width
+        y = pixel // block_width
+        part = ray_part(samples, x % 2 + 2 * (y % 2) + BLOCK_SLOTS * part_index, BLOCK_SLOTS * part_count)
+        return wp.vec3i(part[0], part[1], pixel - x % 2 - (y % 2) * block_width)
+    part = ray_part(samples, part_index, part_count)
+    return wp.vec3i(part[0], part[1], pixel)
+
+
+@wp.func
+def part_bits(first: int, stride: int, samples: int) -> wp.uint32:
+    """Bit i set for each ray i = first, first + stride, … < samples (≤ 32) of a part."""
+    bits = wp.uint32(0)
+    for i in range(first, samples, stride):
+        bits = bits | (wp.uint32(1) << wp.uint32(i))
+    return bits
+
+
 @wp.func
 def disk_basis(w: wp.vec3) -> wp.mat33:
     """Rows a, b, w: a right-handed frame whose third row is w (trace.disk_basis)."""

@@ -22,7 +22,7 @@ from warp_biscale import shading as _shading
 from .asg import (Asg, asg_convolve_asg, asg_convolve_sg, asg_eval, asg_integral_eq10, asg_unit_integral, asg_warp,
                   harmonic)
 from .common import (ANISOTROPIC_WARD, ASHIKHMIN_SHIRLEY, GOLDEN_ANGLE, LOBE_COS_MIN, LOBE_RAYS, anisotropic_specular,
-                     ashikhmin_shirley_diffuse, disk_basis, disk_turn, lobe_ray_direction, ray_part)
+                     ashikhmin_shirley_diffuse, disk_basis, disk_turn, lobe_ray_direction, part_bits, pixel_part)
 
 # Fast math on CUDA (approximate division, square root, exp and trigonometry): this shading is bound by its
 # arithmetic, and its float32 results are read against the float64 oracle with tolerances far above fast
@@ -585,43 +585,39 @@ def ray_weight(eta: float, samples: int) -> float:
 
 @wp.func
 def ray_share(axis: wp.vec3, eta: float, n: wp.vec3, frame: wp.mat33, mask: wp.uint32, samples: int,
-              part: wp.vec2i, pixel: int) -> float:
-    """The lobe's share that the pixel's occlusion rays see unblocked (shading.ray_share): the rays traced,
-    part = (first, stride) of the set (ray_part), their directions made again (occlusion_direction about
-    frame's third row, the geometric normal), each weighted by G(ω)(n·ω)⁺/(ng·ω). The spiral's angle steps
-    by `stride` golden angles, so its cosine and sine are turned by a fixed rotation from one ray to the
-    next rather than computed per ray."""
+              known: wp.uint32, turn: int) -> float:
+    """The lobe's share that the pixel's occlusion rays see unblocked (shading.ray_share): the rays of `known`
+    (bit i: ray i was traced, by the pixel or a block neighbour that lends it its rays), their directions made
+    again (occlusion_direction about frame's third row, the geometric normal, turned by pixel `turn`), each
+    weighted by G(ω)(n·ω)⁺/(ng·ω). The spiral's angle steps by the golden angle, so its cosine and sine are
+    turned by a fixed rotation from one ray to the next rather than computed per ray."""
     total = float(0.0)
     seen = float(0.0)
-    turn = disk_turn(pixel) + float(part[0]) * GOLDEN_ANGLE
-    c = wp.cos(turn)
-    s = wp.sin(turn)
-    step_cos = GOLDEN_COS
-    step_sin = GOLDEN_SIN
-    if part[1] != 1:
-        step_cos = wp.cos(float(part[1]) * GOLDEN_ANGLE)
-        step_sin = wp.sin(float(part[1]) * GOLDEN_ANGLE)
+    turn_angle = disk_turn(turn)
+    c = wp.cos(turn_angle)
+    s = wp.sin(turn_angle)
     ax = wp.dot(frame[0], axis)  # the axis and the shading normal in the rays' frame
     ay = wp.dot(frame[1], axis)
     az = wp.dot(frame[2], axis)
     nx = wp.dot(frame[0], n)
     ny = wp.dot(frame[1], n)
     nz = wp.dot(frame[2], n)
-    for i in range(part[0], samples, part[1]):
-        r2 = (float(i) + 0.5) / float(samples)
-        if samples == 1:
-            r2 = 0.0
-        r = wp.sqrt(r2)
-        lift = wp.sqrt(wp.max(1.0 - r2, 0.0))
-        x = r * c
-        y = r * s
-        w = wp.exp(eta * (x * ax + y * ay + lift * az - 1.0)) * wp.max(x * nx + y * ny + lift * nz, 0.0) / wp.max(
-            lift, 1.0e-6)
-        total = total + w
-        if ((mask >> wp.uint32(i)) & wp.uint32(1)) == wp.uint32(0):
-            seen = seen + w
-        c_next = c * step_cos - s * step_sin
-        s = s * step_cos + c * step_sin
+    for i in range(samples):
+        if ((known >> wp.uint32(i)) & wp.uint32(1)) != wp.uint32(0):
+            r2 = (float(i) + 0.5) / float(samples)
+            if samples == 1:
+                r2 = 0.0
+            r = wp.sqrt(r2)
+            lift = wp.sqrt(wp.max(1.0 - r2, 0.0))
+            x = r * c
+            y = r * s
+            w = wp.exp(eta * (x * ax + y * ay + lift * az - 1.0)) * wp.max(x * nx + y * ny + lift * nz, 0.0) / wp.max(
+                lift, 1.0e-6)
+            total = total + w
+            if ((mask >> wp.uint32(i)) & wp.uint32(1)) == wp.uint32(0):
+                seen = seen + w
+        c_next = c * GOLDEN_COS - s * GOLDEN_SIN
+        s = s * GOLDEN_COS + c * GOLDEN_SIN
         c = c_next
     if total > 1.0e-30:
         return seen / total
@@ -630,21 +626,22 @@ def ray_share(axis: wp.vec3, eta: float, n: wp.vec3, frame: wp.mat33, mask: wp.u
 
 @wp.func
 def lobe_ray_share(ray_axis: wp.vec3, ray_eta: float, axis: wp.vec3, eta: float, n: wp.vec3, mask: wp.uint32,
-                   k: int, part: wp.vec2i, pixel: int) -> float:
+                   k: int, known: wp.uint32, turn: int) -> float:
     """The share of a lobe (axis, η) that sharp lobe k's rays (about ray_axis, ray_eta) see unblocked
-    (shading.lobe_ray_share): the rays traced, part = (first, stride) of the set (ray_part), made again
-    (lobe_ray_direction), each weighted by G(ω)(n·ω)⁺ and its solid-angle weight cos³ (its cosine to
-    ray_axis, cubed); a ray below the geometric horizon, not traced, has its bit clear."""
+    (shading.lobe_ray_share): the rays of `known` (bit i: ray i traced), made again (lobe_ray_direction, turned
+    by pixel `turn`), each weighted by G(ω)(n·ω)⁺ and its solid-angle weight cos³ (its cosine to ray_axis,
+    cubed); a ray below the geometric horizon, not traced, has its bit clear."""
     frame = disk_basis(ray_axis)
     total = float(0.0)
     seen = float(0.0)
-    for i in range(part[0], LOBE_RAYS, part[1]):
-        d = lobe_ray_direction(frame, ray_eta, i, pixel)
-        c = wp.dot(d, ray_axis)
-        w = wp.exp(eta * (wp.dot(d, axis) - 1.0)) * wp.max(wp.dot(d, n), 0.0) * c * c * c
-        total = total + w
-        if ((mask >> wp.uint32(k * LOBE_RAYS + i)) & wp.uint32(1)) == wp.uint32(0):
-            seen = seen + w
+    for i in range(LOBE_RAYS):
+        if ((known >> wp.uint32(i)) & wp.uint32(1)) != wp.uint32(0):
+            d = lobe_ray_direction(frame, ray_eta, i, turn)
+            c = wp.dot(d, ray_axis)
+            w = wp.exp(eta * (wp.dot(d, axis) - 1.0)) * wp.max(wp.dot(d, n), 0.0) * c * c * c
+            total = total + w
+            if ((mask >> wp.uint32(k * LOBE_RAYS + i)) & wp.uint32(1)) == wp.uint32(0):
+                seen = seen + w
     if total > 1.0e-30:
         return seen / total
     return 1.0
@@ -674,8 +671,8 @@ def nearest_ray_lobe(env_sgs: wp.array2d(dtype=wp.float32), n_sharp: int, e: int
 @wp.func
 def environment_share(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: float, tr: float, s: SurfacePoint,
                       has_ssdf: int, ssdf_res: int, ssdf_basis: wp.array2d(dtype=wp.float32),
-                      ssdf_coeffs: wp.array2d(dtype=wp.float32), mask: wp.uint32, samples: int, part: wp.vec2i,
-                      frame: wp.mat33, pixel: int) -> float:
+                      ssdf_coeffs: wp.array2d(dtype=wp.float32), mask: wp.uint32, samples: int, known: wp.uint32,
+                      frame: wp.mat33, turn: int) -> float:
     """The share of ∫ G(ω; axis, η, 1)(n·ω)⁺ dω left unoccluded (1 without an SSDF): the SSDF's, blended
     for broad lobes with the occlusion rays' (ray_weight; a mask with no bit set sees it all); tr: η's
     table row."""
@@ -687,7 +684,7 @@ def environment_share(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: f
     if weight > 0.0:
         rays = float(1.0)
         if mask != wp.uint32(0):
-            rays = ray_share(axis, eta, s.n, frame, mask, samples, part, pixel)
+            rays = ray_share(axis, eta, s.n, frame, mask, samples, known, turn)
         share = weight * rays + (1.0 - weight) * share
     return share
 
@@ -856,7 +853,8 @@ def anisotropic_from_lights(kind: int, ks: wp.vec3, p1: float, p2: float, s: Sur
 def shade_pixels(
     face: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec2), light_vis: wp.array2d(dtype=wp.uint8),
     occlusion: wp.array(dtype=wp.uint32), occlusion_samples: int, lobe_occlusion: wp.array(dtype=wp.uint32),
-    n_sharp: int, part_index: int, part_count: int,
+    n_sharp: int, part_index: int, part_count: int, block_width: int,
+    occlusion_known: wp.array(dtype=wp.uint32), lobe_known: wp.array(dtype=wp.uint32),
     faces: wp.array2d(dtype=wp.int32), positions: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp.vec3),
     tangents: wp.array(dtype=wp.vec3), face_material: wp.array(dtype=wp.int32),
     camera: wp.array(dtype=wp.float32),
@@ -892,13 +890,20 @@ def shade_pixels(
     cos_o = wp.max(wp.dot(wo, s.n), MIN_COS_VIEW)
     wo_local = wp.normalize(wp.vec3(wp.dot(wo, s.t), wp.dot(wo, s.b), cos_o))
     # The occlusion rays' mask and frame (about the geometric normal on the camera's side, as traced), and
-    # which rays of the occlusion and lobe ray sets this anti-aliasing sample traced.
-    occlusion_part = ray_part(occlusion_samples, part_index, part_count)
-    lobe_part = ray_part(LOBE_RAYS, part_index, part_count)
+    # which rays of the occlusion and lobe ray sets this anti-aliasing sample traced: the pixel's own part, or,
+    # with block_width > 0, those its 2x2 block lent it (trace.share_block_masks' known bits).
+    occlusion_part = pixel_part(occlusion_samples, part_index, part_count, block_width, p)
+    lobe_part = pixel_part(LOBE_RAYS, part_index, part_count, block_width, p)
+    occlusion_rays = part_bits(occlusion_part[0], occlusion_part[1], occlusion_samples)
+    lobe_rays = part_bits(lobe_part[0], lobe_part[1], LOBE_RAYS)
     mask = wp.uint32(0)
     frame = wp.identity(3, dtype=float)
     if occlusion_samples > 0:
         mask = occlusion[p]
+        if block_width > 0:
+            occlusion_rays = occlusion_known[p]
+            if n_sharp > 0:
+                lobe_rays = lobe_known[p]
         ng = wp.normalize(wp.cross(positions[s.i1] - positions[s.i0], positions[s.i2] - positions[s.i0]))
         if wp.dot(ng, wo) < 0.0:
             ng = -ng
@@ -960,10 +965,11 @@ def shade_pixels(
                 ray_axis = wp.vec3(f32_at2(env_sgs, ray_lobe, 0), f32_at2(env_sgs, ray_lobe, 1),
                                    f32_at2(env_sgs, ray_lobe, 2))
                 amount = amount * lobe_ray_share(ray_axis, f32_at2(env_sgs, ray_lobe, 3), axis, eta, s.n,
-                                                 lobe_occlusion[p], ray_lobe, lobe_part, p)
+                                                 lobe_occlusion[p], ray_lobe, lobe_rays, lobe_part[2])
             else:
                 amount = amount * environment_share(table, axis, eta, tr, s, has_ssdf, ssdf_res, ssdf_basis,
-                                                    ssdf_coeffs, mask, occlusion_samples, occlusion_part, frame, p)
+                                                    ssdf_coeffs, mask, occlusion_samples, occlusion_rays, frame,
+                                                    occlusion_part[2])
             if kept_mode == 1:
                 kept_amount[p * n_env + e] = amount
         fd = analytic_diffuse(a_kind, kd, a_ks, axis, eta, s, cos_o)
@@ -1092,7 +1098,7 @@ def shade_pixels(
                                     / (1.0 + wp.exp(-eta)), 0.0)
                 amount = amount * environment_share(
                     table, axis, eta, tr, s, has_ssdf, ssdf_res, ssdf_basis, ssdf_coeffs, mask, occlusion_samples,
-                    occlusion_part, frame, p)
+                    occlusion_rays, frame, occlusion_part[2])
                 light_part = wp.vec3(0.0)
                 if with_lights != 0:
                     light_part = lobe_from_lights(table, axis, eta, s, n_lights, lights, light_vis, p)

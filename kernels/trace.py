@@ -17,7 +17,13 @@ Conventions shared with the OpenCL twin and the reference:
 
 import warp as wp
 
-from .common import LOBE_RAYS, disk_basis, disk_sample, lobe_ray_direction, occlusion_direction, ray_part
+from warp_biscale import trace as _trace
+
+from .common import (BLOCK_SLOTS, LOBE_RAYS, disk_basis, disk_sample, lobe_ray_direction, occlusion_direction,
+                     part_bits, pixel_part)
+
+SHARE_NORMAL_COS = wp.constant(_trace.SHARE_NORMAL_COS)
+SHARE_PLANE = wp.constant(_trace.SHARE_PLANE)
 
 
 @wp.func
@@ -140,18 +146,20 @@ def trace_shadows(
     samples: int,
     part_index: int,
     part_count: int,
+    block_width: int,
     offset: int,
     visible: wp.array2d(dtype=wp.uint8),  # (N, L)
 ):
     """One thread per (light, pixel); neighbouring threads take neighbouring pixels towards one
-    light, so their BVH walks stay coherent. The rays of anti-aliasing sample part_index of part_count
-    (ray_part) among `samples` go to points spread over the light's disc (a point light's sphere seen from
-    the pixel; a directional light's cone); the result is their visible share in 255ths, rounded."""
+    light, so their BVH walks stay coherent. The pixel's rays of anti-aliasing sample part_index of part_count
+    (pixel_part, its 2x2 block's share where block_width > 0) among `samples` go to points spread over the
+    light's disc (a point light's sphere seen from the pixel; a directional light's cone); the result is their
+    visible share in 255ths, rounded."""
     k, p_local = wp.tid()
     p = p_local + offset
     f = face[p]
     hits = int(0)
-    part = ray_part(samples, part_index, part_count)
+    part = pixel_part(samples, part_index, part_count, block_width, p)
     first = part[0]
     stride = part[1]
     traced = (samples - first + stride - 1) // stride
@@ -165,7 +173,7 @@ def trace_shadows(
             spread = lights[k, 7]  # point: the radius
         frame = disk_basis(w)
         for i in range(first, samples, stride):
-            q = disk_sample(i, samples, p)
+            q = disk_sample(i, samples, part[2])
             offset_on_disc = spread * (q[0] * frame[0] + q[1] * frame[1])
             d = w + offset_on_disc
             t_hi = float(wp.inf)
@@ -201,21 +209,22 @@ def trace_occlusion(
     samples: int,
     part_index: int,
     part_count: int,
+    block_width: int,
     offset: int,
     mask: wp.array(dtype=wp.uint32),
 ):
     """One thread per pixel: of `samples` unbounded any-hit rays, cosine-distributed over the hemisphere of
-    the geometric normal on the camera's side (occlusion_direction), those of anti-aliasing sample
-    part_index of part_count (ray_part); bit i of the pixel's mask is set where ray i is blocked."""
+    the geometric normal on the camera's side (occlusion_direction), the pixel's of anti-aliasing sample
+    part_index of part_count (pixel_part); bit i of the pixel's mask is set where ray i is blocked."""
     p = wp.tid() + offset
     f = face[p]
     bits = wp.uint32(0)
     if f >= 0:
         o, n, ns = ray_start(points, normals, faces, face_normals[f], f, bary[p], position[p], eye, eps)
         frame = disk_basis(n)
-        part = ray_part(samples, part_index, part_count)
+        part = pixel_part(samples, part_index, part_count, block_width, p)
         for i in range(part[0], samples, part[1]):
-            d = occlusion_direction(frame, i, samples, p)
+            d = occlusion_direction(frame, i, samples, part[2])
             if wp.mesh_query_ray_anyhit(mesh, o + t_min * d, d, wp.inf):
                 bits = bits | (wp.uint32(1) << wp.uint32(i))
     mask[p] = bits
@@ -239,24 +248,139 @@ def trace_lobe_rays(
     t_min: float,
     part_index: int,
     part_count: int,
+    block_width: int,
     offset: int,
     mask: wp.array(dtype=wp.uint32),
 ):
     """One thread per pixel: of LOBE_RAYS unbounded any-hit rays over each sharp lobe's cap (lobe_ray_direction),
-    those of anti-aliasing sample part_index of part_count (ray_part); bit k·LOBE_RAYS + i set where ray i of
+    the pixel's of anti-aliasing sample part_index of part_count (pixel_part); bit k·LOBE_RAYS + i set where ray i of
     lobe k is blocked. A ray below the shading normal's horizon is not traced."""
     p = wp.tid() + offset
     f = face[p]
     bits = wp.uint32(0)
     if f >= 0:
         o, ng, n = ray_start(points, normals, faces, face_normals[f], f, bary[p], position[p], eye, eps)
-        part = ray_part(rays, part_index, part_count)
+        part = pixel_part(rays, part_index, part_count, block_width, p)
         for k in range(n_lobes):
             axis = wp.vec3(lobes[k, 0], lobes[k, 1], lobes[k, 2])
             frame = disk_basis(axis)
             for i in range(part[0], rays, part[1]):
-                d = lobe_ray_direction(frame, lobes[k, 3], i, p)
+                d = lobe_ray_direction(frame, lobes[k, 3], i, part[2])
                 if wp.dot(n, d) > 0.0:
                     if wp.mesh_query_ray_anyhit(mesh, o + t_min * d, d, wp.inf):
                         bits = bits | (wp.uint32(1) << wp.uint32(k * LOBE_RAYS + i))
     mask[p] = bits
+
+
+@wp.func
+def block_lenders(face: wp.array(dtype=wp.int32), position: wp.array(dtype=wp.vec3),
+                  face_normals: wp.array(dtype=wp.vec3), eye: wp.vec3, width: int, n_pixels: int, p: int) -> int:
+    """Bit q set where the pixel in slot q of hit pixel p's 2x2 block lends p its rays (trace.share_block): p
+    itself, or a hit neighbour in the frame whose geometric normal is within SHARE_NORMAL_COS of p's and which
+    lies near p's tangent plane (SHARE_PLANE), so that a depth or crease edge keeps each side's rays apart."""
+    x = p % width
+    y = p // width
+    xp = position[p]
+    ng = seen_side(face_normals[face[p]], xp, eye)
+    lenders = int(0)
+    for q in range(BLOCK_SLOTS):
+        xb = x - x % 2 + q % 2
+        b = (y - y % 2 + q // 2) * width + xb
+        if xb < width and b < n_pixels:
+            if b == p:
+                lenders = lenders | (1 << q)
+            elif face[b] >= 0:
+                xq = position[b]
+                d = xq - xp
+                nb = seen_side(face_normals[face[b]], xq, eye)
+                if wp.dot(ng, nb) >= SHARE_NORMAL_COS and wp.abs(wp.dot(ng, d)) <= SHARE_PLANE * wp.length(d):
+                    lenders = lenders | (1 << q)
+    return lenders
+
+
+@wp.func
+def block_pixel(p: int, width: int, q: int) -> int:
+    """The pixel in slot q of pixel p's 2x2 block."""
+    x = p % width
+    y = p // width
+    return (y - y % 2 + q // 2) * width + x - x % 2 + q % 2
+
+
+@wp.kernel
+def share_block_masks(
+    face: wp.array(dtype=wp.int32),
+    position: wp.array(dtype=wp.vec3),
+    face_normals: wp.array(dtype=wp.vec3),
+    eye: wp.vec3,
+    width: int,
+    n_pixels: int,
+    samples: int,
+    part_index: int,
+    part_count: int,
+    mask: wp.array(dtype=wp.uint32),
+    offset: int,
+    shared: wp.array(dtype=wp.uint32),
+    known: wp.array(dtype=wp.uint32),
+):
+    """One thread per pixel (reference.share_block_masks): the union of the ray masks (occlusion or lobe rays, a
+    set of `samples`) that the pixels of its 2x2 block lend it (block_lenders), and of the rays they traced
+    (pixel_part with block width `width`): what the shade stage weighs. A set of fewer than BLOCK_SLOTS rays is
+    not shared: the pixel's own. 0 for a miss."""
+    p = wp.tid() + offset
+    f = face[p]
+    bits = wp.uint32(0)
+    traced = wp.uint32(0)
+    if f >= 0:
+        if samples < BLOCK_SLOTS:
+            part = pixel_part(samples, part_index, part_count, width, p)
+            bits = mask[p]
+            traced = part_bits(part[0], part[1], samples)
+        else:
+            lenders = block_lenders(face, position, face_normals, eye, width, n_pixels, p)
+            for q in range(BLOCK_SLOTS):
+                if (lenders >> q) & 1 != 0:
+                    b = block_pixel(p, width, q)
+                    part = pixel_part(samples, part_index, part_count, width, b)
+                    bits = bits | mask[b]
+                    traced = traced | part_bits(part[0], part[1], samples)
+    shared[p] = bits
+    known[p] = traced
+
+
+@wp.kernel
+def share_block_shadows(
+    face: wp.array(dtype=wp.int32),
+    position: wp.array(dtype=wp.vec3),
+    face_normals: wp.array(dtype=wp.vec3),
+    eye: wp.vec3,
+    width: int,
+    n_pixels: int,
+    samples: int,
+    part_index: int,
+    part_count: int,
+    n_lights: int,
+    visible: wp.array2d(dtype=wp.uint8),
+    offset: int,
+    shared: wp.array2d(dtype=wp.uint8),
+):
+    """One thread per pixel (reference.share_block_shadows): each light's visible share over the shadow rays
+    that the pixels of its 2x2 block lend it (block_lenders), Σ traced·share / Σ traced in 255ths, rounded; the
+    pixel's own share for a set of fewer than BLOCK_SLOTS rays, and for a miss."""
+    p = wp.tid() + offset
+    lenders = int(0)
+    if face[p] >= 0 and samples >= BLOCK_SLOTS:
+        lenders = block_lenders(face, position, face_normals, eye, width, n_pixels, p)
+    for l in range(n_lights):
+        value = int(visible[p, l])
+        if lenders != 0:
+            num = int(0)
+            den = int(0)
+            for q in range(BLOCK_SLOTS):
+                if (lenders >> q) & 1 != 0:
+                    b = block_pixel(p, width, q)
+                    part = pixel_part(samples, part_index, part_count, width, b)
+                    traced = (samples - part[0] + part[1] - 1) // part[1]
+                    num = num + traced * int(visible[b, l])
+                    den = den + traced
+            value = (num + den // 2) // den
+        shared[p, l] = wp.uint8(value)

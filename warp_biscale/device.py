@@ -21,8 +21,9 @@ from .asg import ASG, unit_integral
 from .brdf import ANISOTROPIC_KINDS, MEASURED
 from .lobes import DEAD_MASS, KERNEL_LOBES, LobeSet
 from .model import DeviceArray, Facets, GBuffer, ShadeInputs, Visibility, facet_shift
-from .trace import (CHUNK_RAYS, check_camera, check_gbuffer, check_lights, check_mesh, check_occlusion,
-                    check_lobes, check_occlusion_samples, check_ray_part, check_shadow_samples, offsets)
+from .trace import (BLOCK_SLOTS, CHUNK_RAYS, LOBE_RAYS, check_camera, check_gbuffer, check_lights, check_mesh,
+                    check_occlusion, check_lobes, check_occlusion_samples, check_ray_part, check_shadow_samples,
+                    offsets)
 
 # Shade inputs up to this size are compared by value to the last upload of their role (`_shade_input`),
 # larger ones by their memory.
@@ -685,8 +686,12 @@ class DeviceBackend:
         face, bary, position, eye, n = self._ray_starts(mesh, m, gbuffer)
         vis = self._reuse(m, "gbuffer_light_vis", (n, len(lights)), "u8")
         if n and len(lights):
+            shared = part[2] > 0 and samples >= BLOCK_SLOTS
+            traced = self._reuse(m, "block_light_vis", (n, len(lights)), "u8") if shared else vis
             self._launch_trace_shadows(m, face, bary, position, eye, lights, *self._offsets(mesh, m), samples, part,
-                                       n, vis)
+                                       n, traced)
+            if shared:
+                self._launch_share_block_shadows(m, face, position, eye, samples, part, n, len(lights), traced, vis)
         m["light_vis_key"] = key
         return self._to_host(vis, (n, len(lights)), "u8") if to_host else None
 
@@ -706,8 +711,13 @@ class DeviceBackend:
         face, bary, position, eye, n = self._ray_starts(mesh, m, gbuffer)
         mask = self._reuse(m, "gbuffer_occlusion", n, "u32")
         if n and samples:
+            traced = self._reuse(m, "block_occlusion", n, "u32") if part[2] else mask
             self._launch_trace_occlusion(m, face, bary, position, eye, *self._offsets(mesh, m), samples, part, n,
-                                         mask)
+                                         traced)
+            if part[2]:
+                self._launch_share_block_masks(m, face, position, eye, samples, part, n, traced, mask,
+                                               self._reuse(m, "occlusion_known", n, "u32"))
+            m["occlusion_known/key"] = part
         m["occlusion_key"], m["occlusion_samples"], m["occlusion_part"] = key, samples, part
         if not to_host:
             return None
@@ -729,12 +739,30 @@ class DeviceBackend:
         face, bary, position, eye, n = self._ray_starts(mesh, m, gbuffer)
         mask = self._reuse(m, "gbuffer_lobe_occlusion", n, "u32")
         if n and len(lobes):
+            traced = self._reuse(m, "block_lobe_occlusion", n, "u32") if part[2] else mask
             self._launch_trace_lobe_rays(m, face, bary, position, eye, lobes, *self._offsets(mesh, m), part, n,
-                                         mask)
+                                         traced)
+            if part[2]:
+                self._launch_share_block_masks(m, face, position, eye, LOBE_RAYS, part, n, traced, mask,
+                                               self._reuse(m, "lobe_known", n, "u32"))
+            m["lobe_known/key"] = part
         m["lobe_rays_key"], m["lobe_rays"], m["lobe_part"] = key, lobes.tobytes(), part
         if not to_host:
             return None
         return self._to_host(mask, n, "u32") if len(lobes) else np.zeros(n, np.uint32)
+
+    def ray_known(self, mesh) -> tuple:
+        """(occlusion, lobe), each (P,) uint32 read back, or None where none was traced: the occlusion and lobe
+        rays each pixel was lent by its 2×2 block (trace.share_block) in the device's last trace_occlusion and
+        trace_lobe_rays with a block width in their part: what a host GBuffer's occlusion_known and lobe_known
+        hold for shade."""
+        m = self._trace_mesh(mesh)
+        out = []
+        for name, part in (("occlusion_known", m.get("occlusion_part")), ("lobe_known", m.get("lobe_part"))):
+            spec = m.get(name + "/spec")
+            shared = part is not None and part[2] and spec is not None and m.get(name + "/key") == part
+            out.append(self._to_host(m[name], spec[0][0], "u32") if shared else None)
+        return out[0], out[1]
 
     def shade(self, mesh, static, camera_packed, lights_packed, gbuffer=None, to_host=True, only_material=None,
               keep_visibility=False):
@@ -770,6 +798,7 @@ class DeviceBackend:
                     raise ValueError(f"the lobe rays on the device are part {m.get('lobe_part')} of their set and the "
                                      f"occlusion rays part {part}: trace both for the same anti-aliasing sample")
                 lobe_occ = m["gbuffer_lobe_occlusion"]
+            known = (m.get("occlusion_known"), m.get("lobe_known") if lobe_occ is not None else None)
         else:
             if not isinstance(gbuffer, GBuffer):
                 raise ValueError(f"gbuffer must be a GBuffer (or None), got {type(gbuffer).__name__}")
@@ -801,6 +830,15 @@ class DeviceBackend:
                     raise ValueError(f"gbuffer.lobe_occlusion must have shape ({n},) where the inputs have sharp "
                                      f"lobes and occlusion_samples > 0, got {None if lobe_h is None else lobe_h.shape}")
                 lobe_occ = self._to_device(lobe_h, "u32")
+            known = [None, None]
+            if occ_samples and part[2]:  # rays shared in 2×2 blocks: the bits each pixel was lent
+                for i, (name, on) in enumerate((("occlusion_known", True), ("lobe_known", lobe_occ is not None))):
+                    bits = getattr(gbuffer, name)
+                    if on:
+                        if bits is None or np.shape(bits) != (n,):
+                            raise ValueError(f"gbuffer.{name} must have shape ({n},) where ray_part has a block "
+                                             f"width, got {None if bits is None else np.shape(bits)}")
+                        known[i] = self._to_device(np.asarray(bits, np.uint32), "u32")
         if vis is None:
             vis = self._reuse(m, "no_light_vis", (1, 1), "u8")  # never read: no light
         if occ is None:
@@ -808,6 +846,9 @@ class DeviceBackend:
         n_sharp = int(static.n_sharp_lobes) if lobe_occ is not None else 0
         if lobe_occ is None:
             lobe_occ = occ  # never read: no lobe rays
+        if not (occ_samples and part[2]):
+            known = (occ, occ)  # never read: each pixel's own part
+        known = tuple(occ if k is None else k for k in known)
         out = self._reuse(m, "radiance", n, "vec3")
         camera = np.asarray(camera_packed, np.float32).reshape(16)
         kept_mode, kept, key = self._kept_visibility(m, dev, static, camera, gbuffer, occ_samples, part, n_sharp, n,
@@ -815,7 +856,7 @@ class DeviceBackend:
         if kept_mode == 1:
             m["visibility_key"] = None  # (until the launch that writes them is queued)
         if n:
-            self._launch_shade(dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, part, lights,
+            self._launch_shade(dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, part, known, lights,
                                camera, n, -1 if only_material is None else int(only_material), kept_mode, *kept, out)
         if kept_mode == 1:
             m["visibility_key"] = key

@@ -261,8 +261,11 @@ class GBuffer:
     (trace_occlusion's result; occlusion_samples 0: none traced, the SSDF alone shadows the environment);
     lobe_occlusion (P,) uint32, bit k·trace.LOBE_RAYS + i set where ray i towards the inputs' sharp
     environment lobe k is blocked (trace_lobe_rays' result, read where occlusion_samples > 0); ray_part
-    (index, count): which anti-aliasing sample of how many the light_vis, occlusion and lobe_occlusion rays
-    were traced for (trace.ray_part: those rays of each set alone), (0, 1) for all of them."""
+    (index, count[, block_width]): which anti-aliasing sample of how many the light_vis, occlusion and
+    lobe_occlusion rays were traced for (trace.pixel_parts: those rays of each set alone), (0, 1) for all of
+    them; with a block width W > 0 the rays were shared in 2×2 pixel blocks (trace.share_block), light_vis,
+    occlusion and lobe_occlusion are the shared results, and occlusion_known and lobe_known (P,) uint32 hold
+    the bits of the occlusion and lobe rays each pixel was lent (`Backend.ray_known`)."""
     face: np.ndarray
     bary: np.ndarray | None = None
     position: np.ndarray | None = None
@@ -273,6 +276,8 @@ class GBuffer:
     occlusion_samples: int = 0
     lobe_occlusion: np.ndarray | None = None
     ray_part: tuple = (0, 1)
+    occlusion_known: np.ndarray | None = None
+    lobe_known: np.ndarray | None = None
 
 
 @dataclass(eq=False)

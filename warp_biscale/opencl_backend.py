@@ -856,8 +856,18 @@ class OpenCLBackend(DeviceBackend):
                      np.int32(len(lobes)), np.int32(LOBE_RAYS), np.float32(eps), np.float32(t_min),
                      *map(np.int32, part), np.int32(n), mask)
 
-    def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, part, lights, camera, n,
-                      only_material, kept_mode, kept_amount, kept_scale, out):
+    def _launch_share_block_masks(self, m, face, position, eye, samples, part, n, traced, shared, known):
+        self._launch("trace", "share_block_masks", (n,), face, position, self._ray_mesh(m)[3],
+                     *(np.float32(e) for e in eye), *map(np.int32, (part[2], n, samples, part[0], part[1])), traced,
+                     shared, known)
+
+    def _launch_share_block_shadows(self, m, face, position, eye, samples, part, n, n_lights, traced, shared):
+        self._launch("trace", "share_block_shadows", (n,), face, position, self._ray_mesh(m)[3],
+                     *(np.float32(e) for e in eye), *map(np.int32, (part[2], n, samples, part[0], part[1], n_lights)),
+                     traced, shared)
+
+    def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, part, known, lights, camera,
+                      n, only_material, kept_mode, kept_amount, kept_scale, out):
         cltypes = self._cl.cltypes
         light_buf = self._reuse(m, "shade_lights", (max(1, len(lights)), 8), "f32")
         if len(lights):
@@ -865,7 +875,7 @@ class OpenCLBackend(DeviceBackend):
         eye, forward, right, up = (cltypes.make_float4(*camera[k:k + 3], 0.0) for k in (0, 3, 6, 9))
         self._launch("shade", "shade_pixels", (n,),
                      face, bary, vis, occ, np.int32(occ_samples), lobe_occ, np.int32(n_sharp), *map(np.int32, part),
-                     dev["faces"],
+                     *known, dev["faces"],
                      dev["positions"], dev["normals"], dev["tangents"],
                      dev["face_material"], eye, forward, right, up, np.float32(camera[12]), np.float32(camera[13]),
                      np.int32(len(lights)), light_buf, dev["n_env"], dev["env_sgs"], dev["env_residual"],

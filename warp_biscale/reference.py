@@ -23,8 +23,8 @@ from .environment import (
 )
 from .lighting import prefiltered_lookup, sg_irradiance  # noqa: F401
 from .model import facet_shift, radical_inverse  # noqa: F401
-from .trace import (LOBE_RAYS, disk_basis, disk_sample, lobe_ray_directions, occlusion_directions, part_rays,
-                    ray_starts)
+from .trace import (BLOCK_SLOTS, LOBE_RAYS, check_ray_part, disk_basis, disk_sample, lobe_ray_directions,
+                    occlusion_directions, part_rays, pixel_parts, ray_starts)
 from .sg import one_minus_cos
 from .smallscale import (
     SmallScale,
@@ -794,8 +794,8 @@ def trace_shadows(vertices, normals, faces, face, bary, position, eye, lights_pa
     from the origin, ray towards c + r(q_x a + q_y b) (r = row[7]) up to eps short of it. A ray counts if it
     is above the horizon of the shading normal (ray_starts' ns, which may see a light the face's plane hides)
     and hits no triangle with t in (t_min, t_max]; the entry is (count·255 + ⌊S/2⌋) // S. 0 for a missed
-    pixel (face −1). With `part` (index, count) only the rays i of trace.ray_part(samples, part) are cast, and
-    S is their number.
+    pixel (face −1). With `part` (index, count[, block_width]) only the rays i of trace.pixel_parts(samples,
+    part, p) are cast, turned by its turn pixel, and S is their number.
     """
     face = np.asarray(face, np.int64)
     lights = np.asarray(lights_packed, np.float64).reshape(-1, 8)
@@ -806,10 +806,12 @@ def trace_shadows(vertices, normals, faces, face, bary, position, eye, lights_pa
     start = ray_starts(vertices, normals, faces, face[hit], np.asarray(bary, np.float64).reshape(-1, 2)[hit],
                        np.asarray(position, np.float64).reshape(-1, 3)[hit], eye, eps)
     counts = np.zeros((len(hit), len(lights)), np.int64)
-    cast = np.flatnonzero(part_rays(samples, part))
-    for i in cast:
-        counts += _shadow_rays(vertices, faces, start, lights, eps, t_min, tol, hit, i, samples)
-    out[hit] = ((counts * 255 + len(cast) // 2) // len(cast)).astype(np.uint8)
+    cast = part_rays(samples, part, hit)  # (H, S)
+    turn = pixel_parts(samples, part, hit)[2]
+    for i in np.flatnonzero(cast.any(0)):
+        counts += _shadow_rays(vertices, faces, start, lights, eps, t_min, tol, turn, i, samples) & cast[:, i, None]
+    traced = cast.sum(1)[:, None]
+    out[hit] = ((counts * 255 + traced // 2) // traced).astype(np.uint8)
     return out
 
 
@@ -818,8 +820,8 @@ def trace_occlusion(vertices, normals, faces, face, bary, position, eye, eps, t_
     """(P,) uint32 environment-occlusion masks: bit i set where ray i of `samples` from hit pixel p hits a
     triangle with t in (t_min, inf). The rays start at trace.ray_starts' origin and go along
     trace.occlusion_directions(ng, samples, p), ng its geometric normal turned to the eye. 0 for a missed
-    pixel (face −1) and for samples = 0. With `part` (index, count) only the rays of trace.ray_part are cast;
-    the others' bits stay clear."""
+    pixel (face −1) and for samples = 0. With `part` (index, count[, block_width]) only the rays of
+    trace.pixel_parts are cast, turned by the pixel's turn pixel; the others' bits stay clear."""
     face = np.asarray(face, np.int64)
     out = np.zeros(len(face), np.uint32)
     hit = np.flatnonzero(face >= 0)
@@ -827,10 +829,11 @@ def trace_occlusion(vertices, normals, faces, face, bary, position, eye, eps, t_
         return out
     start = ray_starts(vertices, normals, faces, face[hit], np.asarray(bary, np.float64).reshape(-1, 2)[hit],
                        np.asarray(position, np.float64).reshape(-1, 3)[hit], eye, eps)
-    d = occlusion_directions(start["ng"], samples, hit)  # (H, S, 3)
-    o = np.repeat(start["origin"], samples, axis=0)
-    blocked = trace_occluded(vertices, faces, o, d.reshape(-1, 3), t_min, np.inf, tol).reshape(len(hit), samples)
-    blocked &= part_rays(samples, part)[None]
+    d = occlusion_directions(start["ng"], samples, pixel_parts(samples, part, hit)[2])  # (H, S, 3)
+    cast = part_rays(samples, part, hit)
+    rows, cols = np.nonzero(cast)
+    blocked = np.zeros(cast.shape, bool)
+    blocked[rows, cols] = trace_occluded(vertices, faces, start["origin"][rows], d[rows, cols], t_min, np.inf, tol)
     out[hit] = (blocked.astype(np.uint64) << np.arange(samples, dtype=np.uint64)).sum(1).astype(np.uint32)
     return out
 
@@ -840,7 +843,7 @@ def trace_lobe_rays(vertices, normals, faces, face, bary, position, eye, eps, t_
     """(P,) uint32 lobe masks: bit k·LOBE_RAYS + i set where ray i towards sharp lobe k of `lobes` (M, 4)
     [axis, η] (trace.lobe_ray_directions) from hit pixel p hits a triangle with t in (t_min, inf). The rays
     start as trace_occlusion's; one below the shading normal's horizon (ray_starts' ns) is not traced (bit
-    clear), nor one outside trace.ray_part(LOBE_RAYS, part). 0 for a missed pixel and for no lobes."""
+    clear), nor one outside trace.pixel_parts(LOBE_RAYS, part, p). 0 for a missed pixel and for no lobes."""
     face = np.asarray(face, np.int64)
     out = np.zeros(len(face), np.uint32)
     lobes = np.asarray(lobes, np.float64).reshape(-1, 4)
@@ -852,8 +855,9 @@ def trace_lobe_rays(vertices, normals, faces, face, bary, position, eye, eps, t_
     o, n = start["origin"], start["ns"]
     bits = np.zeros(len(hit), np.uint64)
     for k, lobe in enumerate(lobes):
-        d, _ = lobe_ray_directions(np.broadcast_to(lobe[:3], (len(hit), 3)), np.full(len(hit), lobe[3]), hit)
-        up = (np.einsum("prk,pk->pr", d, n) > 0) & part_rays(LOBE_RAYS, part)[None]
+        d, _ = lobe_ray_directions(np.broadcast_to(lobe[:3], (len(hit), 3)), np.full(len(hit), lobe[3]),
+                                   pixel_parts(LOBE_RAYS, part, hit)[2])
+        up = (np.einsum("prk,pk->pr", d, n) > 0) & part_rays(LOBE_RAYS, part, hit)
         blocked = np.zeros(up.shape, bool)
         rows, cols = np.nonzero(up)
         blocked[rows, cols] = trace_occluded(vertices, faces, o[rows], d[rows, cols], t_min, np.inf, tol)
@@ -863,12 +867,12 @@ def trace_lobe_rays(vertices, normals, faces, face, bary, position, eye, eps, t_
     return out
 
 
-def _shadow_rays(v, f, start, lights, eps, t_min, tol, hit, i, samples) -> np.ndarray:
-    """(len(hit), L) bool: ray i of `samples` of trace_shadows unoccluded, per hit pixel and light, from the
-    ray starts `start` (trace.ray_starts of the hit pixels)."""
+def _shadow_rays(v, f, start, lights, eps, t_min, tol, turn, i, samples) -> np.ndarray:
+    """(len(turn), L) bool: ray i of `samples` of trace_shadows unoccluded, per hit pixel and light, from the
+    ray starts `start` (trace.ray_starts of the hit pixels), turned by pixels `turn` (trace.pixel_parts)."""
     o, n = start["origin"], start["ns"]
-    out = np.zeros((len(hit), len(lights)), bool)
-    q = disk_sample(i, samples, hit)
+    out = np.zeros((len(turn), len(lights)), bool)
+    q = disk_sample(i, samples, turn)
     for k, row in enumerate(lights):
         if row[0] == 0:
             w = np.broadcast_to(row[1:4] / np.linalg.norm(row[1:4]), o.shape)
@@ -891,6 +895,58 @@ def _shadow_rays(v, f, start, lights, eps, t_min, tol, hit, i, samples) -> np.nd
         out[:, k] = vis
     return out
 
+
+def share_block_masks(mask, lenders, samples: int, part) -> tuple[np.ndarray, np.ndarray]:
+    """(shared, known), each (P,) uint32 (the kernels' share_block_masks): per hit pixel p, the union of the ray
+    masks `mask` (P,) (occlusion or lobe rays, a set of `samples`) of the pixels of its 2×2 block that lend it
+    their rays (`lenders` (P, 4), trace.share_block), and the bits of the rays they traced (trace.pixel_parts
+    with `part`'s block width). A set of fewer than trace.BLOCK_SLOTS rays is not shared: the pixel's own.
+    0 for a miss (a row of `lenders` all False)."""
+    width = check_ray_part(part)[2]
+    mask = np.asarray(mask, np.uint32)
+    p = np.arange(len(mask))
+    bit = np.uint64(1) << np.arange(samples, dtype=np.uint64)
+    if samples < BLOCK_SLOTS:
+        hit = lenders.any(1)
+        bits = (part_rays(samples, part, p).astype(np.uint64) * bit).sum(1, dtype=np.uint64)
+        return np.where(hit, mask, 0).astype(np.uint32), np.where(hit, bits, 0).astype(np.uint32)
+    shared = np.zeros(len(mask), np.uint64)
+    known = np.zeros(len(mask), np.uint64)
+    for q in range(BLOCK_SLOTS):
+        take = lenders[:, q]
+        b = np.where(take, _block_pixel(p, width, q), p)
+        bits = (part_rays(samples, part, b).astype(np.uint64) * bit).sum(1, dtype=np.uint64)
+        shared |= np.where(take, mask[b], 0).astype(np.uint64)
+        known |= np.where(take, bits, np.uint64(0))
+    return shared.astype(np.uint32), known.astype(np.uint32)
+
+
+def share_block_shadows(visible, lenders, samples: int, part) -> np.ndarray:
+    """(P, L) uint8 (the kernels' share_block_shadows): per hit pixel, each light's visible share `visible`
+    (P, L) over the shadow rays its block's lenders (trace.share_block) traced, (Σ traced·v + ⌊Σ traced/2⌋) //
+    Σ traced in 255ths; the pixel's own for a set of fewer than trace.BLOCK_SLOTS rays and for a miss."""
+    visible = np.asarray(visible, np.uint8)
+    if samples < BLOCK_SLOTS:
+        return visible.copy()
+    width = check_ray_part(part)[2]
+    p = np.arange(len(visible))
+    num = np.zeros(visible.shape, np.int64)
+    den = np.zeros(len(p), np.int64)
+    for q in range(BLOCK_SLOTS):
+        b = np.where(lenders[:, q], _block_pixel(p, width, q), p)
+        traced = np.where(lenders[:, q], part_rays(samples, part, b).sum(1), 0)
+        num += traced[:, None] * visible[b].astype(np.int64)
+        den += traced
+    out = visible.copy()
+    on = den > 0
+    out[on] = ((num[on] + (den[on] // 2)[:, None]) // den[on, None]).astype(np.uint8)
+    return out
+
+
+def _block_pixel(p, width: int, q: int) -> np.ndarray:
+    """The pixel in slot q of pixels p's 2×2 blocks (frame width `width`)."""
+    x, y = p % width, p // width
+    return (y - y % 2 + q // 2) * width + x - x % 2 + q % 2
 
 # ----------------------------------------------------------------------------------------------
 # Environment lighting (stage `envmap`; warp_biscale/lighting.py): the prefiltered

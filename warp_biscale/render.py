@@ -141,11 +141,15 @@ def pack_frame(scene: Scene, backend="auto", progress=None, timings=None,
     """The shade stage's inputs for the scene's current camera and lights, its G-buffer on the host
     (light_vis included, `shadow_samples` rays per light; and the occlusion masks of `occlusion_samples`
     rays per pixel where the scene has an SSDF): what `shading.shade_reference` takes (and `backend.shade`,
-    its inputs and G-buffer). `part`: those of anti-aliasing sample (index, count)'s rays alone (`trace.ray_part`)."""
+    its inputs and G-buffer). `part`: those of anti-aliasing sample (index, count)'s rays alone (`trace.ray_part`),
+    shared in the 2×2 pixel blocks of a frame of width W with (index, count, W) (`trace.pixel_parts`; the G-buffer
+    then holds the shared results and the rays each pixel was lent)."""
     backend = get_backend(backend)
     timings = {} if timings is None else timings
     n_occlusion = check_occlusion_samples(occlusion_samples)
     part = check_ray_part(part)
+    if part[2] not in (0, scene.camera.width):
+        raise ValueError(f"part's block width must be 0 or the camera's width {scene.camera.width}, got {part[2]}")
     static = _static_inputs(scene, backend, progress, timings)
     g = backend.trace_primary(scene.mesh, scene.camera)
     lights = scene.lights_packed
@@ -156,6 +160,8 @@ def pack_frame(scene: Scene, backend="auto", progress=None, timings=None,
         g.occlusion = backend.trace_occlusion(scene.mesh, g, n_occlusion, part=part)
         g.occlusion_samples = n_occlusion
         g.lobe_occlusion = backend.trace_lobe_rays(scene.mesh, g, static.sharp_lobes(), part=part)
+        if part[2]:
+            g.occlusion_known, g.lobe_known = backend.ray_known(scene.mesh)
     return Frame(static, g, scene.camera.packed(), lights)
 
 
@@ -186,7 +192,7 @@ def check_aa(aa) -> int:
 
 def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: int = 1,
            shadow_samples: int = SHADOW_SAMPLES, occlusion_samples: int = OCCLUSION_SAMPLES, split_rays: bool = True,
-           **options) -> Rendering:
+           block_rays: bool = True, **options) -> Rendering:
     """Render `scene` → `Rendering`. method "sg": the per-pixel SG renderer (Wang 2009 / Iwasaki 2012 §5), with `aa`
     jittered samples per pixel (`aa_offsets`; 1: the pixel centre only) averaged with a box filter, `shadow_samples`
     shadow rays per light spread over its disc (soft shadows; 1: one ray to its centre, a hard shadow), and, where
@@ -195,7 +201,11 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     visibility per pixel" and "Sharp environment lobes' visibility per pixel"; 0: the SSDF alone). `split_rays`
     (default): the `aa` samples of a pixel share each set of rays, sample k of n tracing rays k, k + n, … of it
     (`trace.ray_part`), so an anti-aliased frame traces the rays of one frame and its average holds every ray of
-    each set once; False: every sample traces every ray (n times the rays, less noise); "mc": the Monte
+    each set once; False: every sample traces every ray (n times the rays, less noise). `block_rays` (default): the
+    pixels of each 2×2 block share their rays too, each tracing a quarter of each set of at least four rays and
+    weighing those of its neighbours on the same surface (`trace.pixel_parts`, `trace.share_block`: a depth or
+    crease edge keeps each side's rays apart), so a frame traces a quarter of the rays; False: every pixel traces
+    its own. "mc": the Monte
     Carlo reference (`montecarlo.render`, options `samples`, `seed`, `truths`, `fallback`, `truth_facets`,
     `truth_seed`, `truth_directions`), whose lights are the same discs and which judges a baked material by its
     exact ground truth (`truth.truth_of`); "litsphere": the lit-sphere shader (seed 004, `warp_biscale.litsphere`),
@@ -210,8 +220,9 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     n_aa = check_aa(aa)
     n_shadow = check_shadow_samples(shadow_samples)
     n_occlusion = check_occlusion_samples(occlusion_samples)
-    if not isinstance(split_rays, bool):
-        raise ValueError(f"split_rays must be True or False, got {split_rays!r}")
+    for name, value in (("split_rays", split_rays), ("block_rays", block_rays)):
+        if not isinstance(value, bool):
+            raise ValueError(f"{name} must be True or False, got {value!r}")
     if method == "mc":
         if n_aa != 1:
             raise ValueError("aa is an option of the SG renderer; the Monte Carlo reference samples pixel centres")
@@ -231,12 +242,13 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     n_occlusion = n_occlusion if static.has_ssdf else 0  # nothing occludes: the rays would all escape
     image = _accumulate(scene, backend, n_aa, n_shadow, n_occlusion, lights, timings,
                         lambda cam, to_host: backend.shade(scene.mesh, static, cam.packed(), lights, to_host=to_host),
-                        static.sharp_lobes(), split_rays)
+                        static.sharp_lobes(), split_rays, block_rays)
     timings["total"] = time.perf_counter() - t_all
     cam = scene.camera
     info = {"backend": backend.name, "device": backend.device, "method": "sg", "ssdf": bool(static.has_ssdf),
             "env_lobes": len(static.env_sgs), "lights": len(lights), "width": cam.width, "height": cam.height,
-            "aa": n_aa, "shadow_samples": n_shadow, "occlusion_samples": n_occlusion, "split_rays": split_rays}
+            "aa": n_aa, "shadow_samples": n_shadow, "occlusion_samples": n_occlusion, "split_rays": split_rays,
+            "block_rays": block_rays}
     return Rendering(image, timings, info)
 
 
@@ -251,18 +263,21 @@ def check_no_litspheres(scene: Scene, method: str) -> None:
 
 
 def _accumulate(scene: Scene, backend, n_aa: int, n_shadow: int, n_occlusion: int, lights, timings: dict, shade,
-                lobes=None, split_rays: bool = True):
+                lobes=None, split_rays: bool = True, block_rays: bool = False):
     """The (H, W, 3) image: per anti-aliasing sample (`aa_offsets`) the G-buffer, the shadow rays of
     `lights` (n_shadow a light; none when 0), the environment-occlusion rays (n_occlusion a pixel; none
     when 0) and with them the rays of the sharp environment lobes `lobes` (`ShadeInputs.sharp_lobes`), then
     `shade(camera, to_host)` (→ (P, 3) with to_host), averaged with a box filter on the device
     (`accumulate_frame`: one read-back, of the average). With split_rays, sample i of n traces its part
-    (i, n) of each set of rays (`trace.ray_part`), else all of them."""
+    (i, n) of each set of rays (`trace.ray_part`), else all of them; with block_rays, shared in 2×2 pixel blocks
+    (`trace.pixel_parts`)."""
     cam = scene.camera
     image = None
     for i, (jx, jy) in enumerate(aa_offsets(n_aa)):
         sample = dataclasses.replace(cam, jitter=(jx, jy)) if n_aa > 1 else cam
         part = (i, n_aa) if split_rays else (0, 1)
+        if block_rays:
+            part = (*part, cam.width)
         t0 = time.perf_counter()
         backend.trace_primary(scene.mesh, sample, to_host=False)
         backend.synchronize()

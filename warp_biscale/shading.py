@@ -95,7 +95,7 @@ from .scene import light_sg, vertex_tangents
 from .environment import equirect_bilinear
 from .ssdf import ssdf_eval
 from .trace import (LOBE_COS_MIN, LOBE_RAY_LOBES, LOBE_RAYS, VISIBLE, check_ray_part, lobe_ray_directions,
-                    occlusion_directions, oriented_face_normals, part_rays)
+                    occlusion_directions, oriented_face_normals, part_rays, pixel_parts)
 from .svbrdf import Textured
 
 __all__ = ["pack_materials", "shade_reference", "surface_frames", "MIN_COS_VIEW", "ray_share", "ray_weight",
@@ -147,26 +147,27 @@ def nearest_ray_lobe(env_sgs, n_sharp: int, index: int) -> int:
     return best if c[best] >= max(1.0 - 2.0 / rays[best, 3], LOBE_COS_MIN) else -1
 
 
-def lobe_ray_share(axis, eta, n, directions, solid, blocked):
+def lobe_ray_share(axis, eta, n, directions, solid, blocked, known=None):
     """(R,) the share of a lobe's ∫ G(ω; axis, η)(n·ω)⁺ dω that its lobe rays `directions` (R, L, 3)
-    (solid-angle weights `solid` (R, L)) see unblocked: Σ wi·(1 − blocked_i) / Σ wi, wi = G(ωi)(n·ωi)⁺·solid_i
-    (a ray below the geometric horizon was not traced: its bit is clear); 1 where every weight is below
-    1e-30."""
+    (solid-angle weights `solid` (R, L)) see unblocked: Σ wi·(1 − blocked_i) / Σ wi over the rays of `known`
+    (R, L) bool (None: all), wi = G(ωi)(n·ωi)⁺·solid_i (a ray below the geometric horizon was not traced: its
+    bit is clear); 1 where every weight is below 1e-30."""
     c = np.einsum("rlk,rk->rl", directions, axis)
     w = np.exp(np.asarray(eta, np.float64)[:, None] * (c - 1.0)) * np.maximum(
-        np.einsum("rlk,rk->rl", directions, n), 0.0) * solid
+        np.einsum("rlk,rk->rl", directions, n), 0.0) * solid * (1.0 if known is None else known)
     total = w.sum(1)
     return np.where(total > 1e-30, (w * ~blocked).sum(1) / np.maximum(total, 1e-300), 1.0)
 
 
-def ray_share(axis, eta, n, n_geo, directions, blocked):
+def ray_share(axis, eta, n, n_geo, directions, blocked, known=None):
     """(R,) the share of a lobe's ∫ G(ω; axis, η)(n·ω)⁺ dω that the occlusion rays see unblocked: per pixel
-    (R rows) the ratio Σ wi·(1 − blocked_i) / Σ wi over its S rays `directions` (R, S, 3) (cosine-distributed
-    about n_geo), wi = G(ωi)·(n·ωi)⁺/(n_geo·ωi); 1 where every weight is below 1e-30."""
+    (R rows) the ratio Σ wi·(1 − blocked_i) / Σ wi over those of its S rays `directions` (R, S, 3)
+    (cosine-distributed about n_geo) that `known` (R, S) bool marks traced (None: all), wi = G(ωi)·(n·ωi)⁺/(n_geo·ωi);
+    1 where every weight is below 1e-30."""
     c = np.einsum("rsk,rk->rs", directions, axis)
     w = (np.exp(np.asarray(eta, np.float64)[:, None] * (c - 1.0))
          * np.maximum(np.einsum("rsk,rk->rs", directions, n), 0.0)
-         / np.maximum(np.einsum("rsk,rk->rs", directions, n_geo), 1e-6))
+         / np.maximum(np.einsum("rsk,rk->rs", directions, n_geo), 1e-6)) * (1.0 if known is None else known)
     total = w.sum(1)
     seen = (w * ~blocked).sum(1)
     return np.where(total > 1e-30, seen / np.maximum(total, 1e-300), 1.0)
@@ -583,18 +584,24 @@ def shade_reference(frame: Frame) -> np.ndarray:
 
     samples = int(frame.gbuffer.occlusion_samples) if has_ssdf else 0
     # The rays of each set that the G-buffer's anti-aliasing sample traced (all of them by default).
+    # With a block width, the rays the pixel's 2×2 block lent it (the G-buffer's known bits, trace.share_block).
     part = check_ray_part(frame.gbuffer.ray_part)
+    shared = part[2] > 0
+
+    def bits_of(values, count):
+        values = np.asarray(values, np.uint32)[pix].astype(np.uint64)
+        return ((values[:, None] >> np.arange(count, dtype=np.uint64)[None]) & np.uint64(1)).astype(bool)
+
     if samples:
         n_geo = oriented_face_normals(static.positions, static.faces, f, pos, eye)
-        cast = part_rays(samples, part)
-        ray_dirs = occlusion_directions(n_geo, samples, pix)[:, cast]
-        mask = np.asarray(frame.gbuffer.occlusion, np.uint32)[pix].astype(np.uint64)
-        blocked = ((mask[:, None] >> np.arange(samples, dtype=np.uint64)[None]) & np.uint64(1)).astype(bool)[:, cast]
+        ray_dirs = occlusion_directions(n_geo, samples, pixel_parts(samples, part, pix)[2])
+        blocked = bits_of(frame.gbuffer.occlusion, samples)
+        cast = bits_of(frame.gbuffer.occlusion_known, samples) if shared else part_rays(samples, part, pix)
     n_sharp = int(static.n_sharp_lobes) if samples else 0
-    lobe_cast = part_rays(LOBE_RAYS, part)
     if n_sharp:
-        lobe_mask = np.asarray(frame.gbuffer.lobe_occlusion, np.uint32)[pix].astype(np.uint64)
-        lobe_bits = ((lobe_mask[:, None] >> np.arange(32, dtype=np.uint64)[None]) & np.uint64(1)).astype(bool)
+        lobe_turn = pixel_parts(LOBE_RAYS, part, pix)[2]
+        lobe_bits = bits_of(frame.gbuffer.lobe_occlusion, 32)
+        lobe_cast = bits_of(frame.gbuffer.lobe_known, LOBE_RAYS) if shared else part_rays(LOBE_RAYS, part, pix)
 
     def occlusion(axis, eta, sel):
         """The fraction of a lobe's horizon-clipped integral left visible: by the SSDF, blended with the
@@ -609,15 +616,15 @@ def shade_reference(frame: Frame) -> np.ndarray:
         weight = ray_weight(eta, samples)
         if not weight.any():
             return share
-        rays = ray_share(axis, eta, n[sel], n_geo[sel], ray_dirs[sel], blocked[sel])
+        rays = ray_share(axis, eta, n[sel], n_geo[sel], ray_dirs[sel], blocked[sel], cast[sel])
         return weight * rays + (1 - weight) * share
 
     def lobe_occlusion(ray_lobe, axis, eta, sel):
         """A lobe's visible share through the rays of sharp lobe `ray_lobe` (`nearest_ray_lobe`)."""
         row = env[ray_lobe]
-        d, solid = lobe_ray_directions(np.tile(row[0:3], (len(sel), 1)), np.full(len(sel), row[3]), pix[sel])
+        d, solid = lobe_ray_directions(np.tile(row[0:3], (len(sel), 1)), np.full(len(sel), row[3]), lobe_turn[sel])
         bits = lobe_bits[sel][:, ray_lobe * LOBE_RAYS:(ray_lobe + 1) * LOBE_RAYS]
-        return lobe_ray_share(axis, eta, n[sel], d[:, lobe_cast], solid[:, lobe_cast], bits[:, lobe_cast])
+        return lobe_ray_share(axis, eta, n[sel], d, solid, bits, lobe_cast[sel])
 
     rad = np.zeros((len(pix), 3))
     env = static.env_sgs.astype(np.float64)

@@ -38,6 +38,7 @@ from .scene import Camera, Mesh, _integer
 
 __all__ = ["T_MIN", "SHADOW_OFFSET", "CHUNK_RAYS", "offsets", "check_mesh", "check_camera", "check_rays",
            "check_lights", "check_gbuffer", "check_shadow_samples", "check_ray_part", "ray_part", "part_rays",
+           "pixel_parts", "share_block", "BLOCK_SLOTS", "SHARE_NORMAL_COS", "SHARE_PLANE",
            "disk_sample", "disk_basis", "VISIBLE",
            "SHADOW_SAMPLES_MAX", "OCCLUSION_SAMPLES_MAX", "check_occlusion_samples", "occlusion_directions",
            "oriented_face_normals", "ray_starts", "LOBE_RAYS", "LOBE_RAY_LOBES", "lobe_ray_directions", "check_lobes"]
@@ -46,6 +47,7 @@ T_MIN = 1e-6
 SHADOW_OFFSET = 1e-4
 CHUNK_RAYS = 1 << 22  # any-hit rays per launch: bounds device memory (~100 MB a chunk) for any ray count
 VISIBLE = 255  # a light_vis entry of a fully visible light
+BLOCK_SLOTS = 4  # the pixels of a 2×2 block, which share their rays (pixel_parts)
 SHADOW_SAMPLES_MAX = 1024
 OCCLUSION_SAMPLES_MAX = 32  # one bit each of a pixel's uint32 mask
 LOBE_RAYS = 8  # rays a sharp environment lobe and pixel ...
@@ -173,29 +175,97 @@ def check_shadow_samples(samples) -> int:
     return _integer("shadow samples", samples, 1, SHADOW_SAMPLES_MAX, " (rays per light and pixel)")
 
 
-def check_ray_part(part) -> tuple[int, int]:
-    """→ (index, count): which of `count` anti-aliasing samples a trace is for (`ray_part`); (0, 1) all rays."""
+def check_ray_part(part) -> tuple[int, int, int]:
+    """→ (index, count, block_width): which of `count` anti-aliasing samples a trace is for (`ray_part`), and the
+    width W of the frame whose 2×2 pixel blocks share each set of rays (`pixel_parts`; 0, the default: each pixel
+    traces the sample's part itself). (0, 1, 0): all rays."""
     try:
-        index, count = part
+        index, count, *rest = part
+        if len(rest) > 1:
+            raise ValueError
     except (TypeError, ValueError):
-        raise ValueError(f"ray part must be a pair (index, count), got {part!r}") from None
+        raise ValueError(f"ray part must be (index, count) or (index, count, block_width), got {part!r}") from None
     count = _integer("ray part count", count, 1, 1 << 16, " (anti-aliasing samples sharing the rays)")
-    return _integer("ray part index", index, 0, count - 1, f" (of {count})"), count
+    width = _integer("ray part block width", rest[0] if rest else 0, 0, 1 << 20,
+                     " (the frame's width, whose 2x2 pixel blocks share the rays; 0: none)")
+    return _integer("ray part index", index, 0, count - 1, f" (of {count})"), count, width
 
 
 def ray_part(samples: int, part) -> tuple[int, int]:
     """(first, stride): the rays i = first, first + stride, … < `samples` of a pixel's set that anti-aliasing
     sample `part` = (index, count) traces, so that `count` samples trace the set once between them (each ray
     once where count divides the set; when count exceeds it, every sample one ray, in turn). (0, 1): all."""
-    index, count = part
+    index, count = part[:2]
     stride = max(1, min(int(count), int(samples)))
     return int(index) % stride, stride
 
 
-def part_rays(samples: int, part) -> np.ndarray:
-    """(samples,) bool: the rays `ray_part` traces."""
+def pixel_parts(samples: int, part, pixel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(first, stride, turn) int64 arrays shaped as `pixel`: the rays first, first + stride, … < `samples` of a
+    set that pixel `pixel` traces for part (index, count, block_width) (`check_ray_part`), and the pixel whose
+    hash angle turns them (`disk_sample`). With a block width W > 0 and a set of at least BLOCK_SLOTS rays, the
+    pixel at (x, y) = (p mod W, p div W) is slot q = x mod 2 + 2 (y mod 2) of its 2×2 block and traces part
+    q + 4·index of 4·count, turned by the block's first pixel: the block's pixels trace the sample's part between
+    them in one spiral, which `share_block` then lends to each. Else each pixel traces the sample's own part,
+    turned by itself (the kernels' pixel_part)."""
+    index, count, width = check_ray_part(part)
+    p = np.asarray(pixel, np.int64)
+    if width > 0 and samples >= BLOCK_SLOTS:
+        x, y = p % width, p // width
+        stride = max(1, min(BLOCK_SLOTS * count, int(samples)))
+        first = (x % 2 + 2 * (y % 2) + BLOCK_SLOTS * index) % stride
+        return first, np.full(p.shape, stride, np.int64), p - x % 2 - (y % 2) * width
     first, stride = ray_part(samples, part)
-    return (np.arange(samples) >= first) & ((np.arange(samples) - first) % stride == 0)
+    return np.full(p.shape, first, np.int64), np.full(p.shape, stride, np.int64), p
+
+
+def part_rays(samples: int, part, pixel=None) -> np.ndarray:
+    """(samples,) bool: the rays `ray_part` traces; with `pixel` (...,), (..., samples): the rays each pixel
+    traces (`pixel_parts`)."""
+    if pixel is None:
+        first, stride = ray_part(samples, part)
+    else:
+        first, stride, _ = pixel_parts(samples, part, pixel)
+        first, stride = first[..., None], stride[..., None]
+    i = np.arange(samples)
+    return (i >= first) & ((i - first) % stride == 0)
+
+
+SHARE_NORMAL_COS = 0.9  # a block neighbour whose geometric normal is within ~26° of the pixel's ...
+SHARE_PLANE = 0.1  # ... and that lies within ~6° of the pixel's tangent plane seen from it lends its rays
+
+
+def share_block(face, position, face_normals, eye, width: int, pixel=None) -> np.ndarray:
+    """(P, 4) bool float64 twin of the kernels' block_shares: for hit pixel p (row y·W + x of a frame of width W),
+    whether the pixel in slot q (x0 + q mod 2, y0 + q div 2) of its 2×2 block (x0, y0 = x, y rounded down to even)
+    lends its rays to p — p itself, or a hit neighbour inside the frame whose geometric normal (turned to the eye)
+    n' has n·n' ≥ SHARE_NORMAL_COS and whose hit x' has |n·(x' − x)| ≤ SHARE_PLANE·|x' − x|: a depth or crease
+    edge keeps each side's rays to itself. Missed pixels: none. `face_normals` (F, 3) unit."""
+    face = np.asarray(face, np.int64)
+    position = np.asarray(position, np.float64).reshape(-1, 3)
+    n_all = len(face)
+    p = np.arange(n_all) if pixel is None else np.asarray(pixel, np.int64)
+    x, y = p % width, p // width
+    normals = np.asarray(face_normals, np.float64)
+    eye = np.asarray(eye, np.float64)
+
+    def seen(q):
+        ok = face[q] >= 0
+        n = normals[np.maximum(face[q], 0)]
+        return np.where((np.sum(n * (eye - position[q]), -1) < 0)[..., None], -n, n), ok
+
+    n_p, hit = seen(p)
+    out = np.zeros((len(p), BLOCK_SLOTS), bool)
+    for q in range(BLOCK_SLOTS):
+        xb, yb = x - x % 2 + q % 2, y - y % 2 + q // 2
+        b = yb * width + xb
+        inside = (xb < width) & (b < n_all)
+        b = np.where(inside, b, p)
+        n_b, hit_b = seen(b)
+        d = position[b] - position[p]
+        near = np.abs(np.sum(n_p * d, -1)) <= SHARE_PLANE * np.linalg.norm(d, axis=-1)
+        out[:, q] = hit & inside & ((b == p) | (hit_b & (np.sum(n_p * n_b, -1) >= SHARE_NORMAL_COS) & near))
+    return out
 
 
 def offsets(mesh) -> tuple[float, float]:

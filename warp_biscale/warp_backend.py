@@ -786,13 +786,21 @@ class WarpBackend(DeviceBackend):
                       self._small_upload(m, "lobe_ray_lobes", lobes), len(lobes), LOBE_RAYS, eps, t_min, *part],
                      [mask])
 
-    def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, part, lights, camera, n,
-                      only_material, kept_mode, kept_amount, kept_scale, out):
+    def _launch_share_block_masks(self, m, face, position, eye, samples, part, n, traced, shared, known):
+        self._launch(ktrace.share_block_masks, n, [face, position, m["face_normals"], wp.vec3(*eye), part[2], n,
+                                                   samples, part[0], part[1], traced], [shared, known])
+
+    def _launch_share_block_shadows(self, m, face, position, eye, samples, part, n, n_lights, traced, shared):
+        self._launch(ktrace.share_block_shadows, n, [face, position, m["face_normals"], wp.vec3(*eye), part[2], n,
+                                                     samples, part[0], part[1], n_lights, traced], [shared])
+
+    def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, part, known, lights, camera,
+                      n, only_material, kept_mode, kept_amount, kept_scale, out):
         light_arr = self._small_upload(m, "shade_lights", lights if len(lights) else np.zeros((1, 8), np.float32))
         # Blocks of 128: a frame's pixels differ in cost (the design's against the floor's and the sky's),
         # and smaller blocks free their slots sooner (bench/results/editor-h100: 128 beat Warp's 256).
         self._launch(kshade.shade_pixels, n,
-                     [face, bary, vis, occ, int(occ_samples), lobe_occ, int(n_sharp), *part, dev["faces"],
+                     [face, bary, vis, occ, int(occ_samples), lobe_occ, int(n_sharp), *part, *known, dev["faces"],
                       dev["positions"],
                       dev["normals"], dev["tangents"],
                       dev["face_material"], self._small_upload(m, "shade_camera", camera),
