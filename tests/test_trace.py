@@ -474,6 +474,69 @@ def test_a_part_of_each_ray_set_matches_reference(backend, occlusion_reference, 
     assert (np.abs(vis - want) > step + 1).sum() == 0 and (vis != want).mean() < 0.02
 
 
+@pytest.fixture(scope="module")
+def block_frame():
+    """The shadow scene's whole float64 G-buffer (a GBuffer by hand, rows of the camera's width), the float64
+    lenders of each pixel's 2×2 block (trace.share_block), and the pixels whose lenders stay the same with both
+    bounds moved by 1e-4 either way (the kernels decide them in float32)."""
+    mesh, cam, lights = _shadow_scene()
+    r = ref.trace_primary(mesh, cam)
+    g = GBuffer(face=r["face"].astype(np.int32), bary=r["bary"], position=r["position"], eye=r["eye"])
+    normals = trace_module._unit_face_normals(mesh.vertices[mesh.faces])
+    args = (g.face, g.position, normals, g.eye, cam.width)
+    lenders = trace_module.share_block(*args)
+    moved = [trace_module.share_block(*args, normal_cos=trace_module.SHARE_NORMAL_COS + s * 1e-4,
+                                      plane=trace_module.SHARE_PLANE - s * 1e-4) for s in (1, -1)]
+    return mesh, cam, lights, g, lenders, (moved[0] == moved[1]).all(1)
+
+
+@pytest.mark.parametrize("part", [(0, 1), (1, 4)])
+def test_rays_shared_in_2x2_blocks_match_reference(backend, block_frame, part):
+    """A part with the frame's width as its block width: each pixel traces a quarter of each set of four or more
+    rays (trace.pixel_parts) and takes the rays of its block's lenders (trace.share_block). The occlusion and lobe
+    masks, the bits each pixel was lent (ray_known) and the shadow shares against the float64 reference's traces
+    of the same parts, shared by reference.share_block_masks / share_block_shadows: where the lenders are sure
+    (block_frame) the lent bits equal, and the masks bit for bit where a ray is unambiguous (triangles grown and
+    shrunk by BARY_TOL); the shadow shares to one of a pixel's own rays (255/4) and on 98 % exactly. A pixel of
+    the open floor whose block lends it all four quarters knows the whole set; no bit outside the known ones.
+    A set of fewer than four rays (one shadow ray) is each pixel's own."""
+    mesh, cam, lights, g, lenders, sure = block_frame
+    part = (*part, cam.width)
+    eps, t_min = offsets(mesh)
+    args = (mesh.vertices, mesh.normals, mesh.faces, g.face, g.bary, g.position, g.eye, eps, t_min)
+    whole = lenders.all(1) & sure
+    assert whole.sum() > 1000 and sure[g.face >= 0].mean() > 0.97 and (~lenders.all(1) & sure).sum() > 50
+    for samples, trace, known_index in ((16, lambda **kw: ref.trace_occlusion(*args, 16, **kw), 0),
+                                        (8, lambda **kw: ref.trace_lobe_rays(*args, LOBES, **kw), 1)):
+        bits = 16 if samples == 16 else 32
+        got = (backend.trace_occlusion(mesh, g, 16, part=part) if samples == 16
+               else backend.trace_lobe_rays(mesh, g, LOBES, part=part))
+        known = backend.ray_known(mesh)[known_index]
+        want = [ref.share_block_masks(trace(tol=tol, part=part), lenders, samples, part)
+                for tol in (0.0, BARY_TOL, -BARY_TOL)]
+        np.testing.assert_array_equal(known[sure], want[0][1][sure])
+        clear = _bits(want[1][0], bits) == _bits(want[2][0], bits)
+        bad = clear & (_bits(got, bits) != _bits(want[0][0], bits)) & sure[:, None]
+        assert not bad.any(), f"{bad.sum()} clear rays disagree"
+        lent = _bits(known, samples)
+        if samples == 8:
+            lent = np.tile(lent, 2)
+        assert not (_bits(got, bits)[:, :lent.shape[1]] & ~lent).any()
+        if part[1] == 1:
+            assert (known[whole] == (1 << samples) - 1).all()
+    soft = np.stack([PointLight((0.3, 3.0, 0.2), radius=0.4).packed(),
+                     DirectionalLight((-0.5, 1.0, 0.3), angular_radius=8.0).packed()])
+    for samples in (16, 1):
+        vis = backend.trace_shadows(mesh, g, soft, samples=samples, part=part).astype(np.int64)
+        own = ref.trace_shadows(mesh.vertices, mesh.normals, mesh.faces, g.face, g.bary, g.position, g.eye, soft,
+                                eps, t_min, samples=samples, part=part)
+        want = ref.share_block_shadows(own, lenders, samples, part).astype(np.int64)
+        if samples == 1:
+            np.testing.assert_array_equal(want, own)
+        off = np.abs(vis - want)[sure]
+        assert (off > 255 / 4 + 1).sum() == 0 and (off != 0).mean() < 0.02, (off.max(), (off != 0).mean())
+
+
 @pytest.mark.parametrize("bad", [(4, 4), (-1, 2), (0, 0), "x", (0.5, 2)])
 def test_bad_ray_part_is_one_line(backend, bad):
     mesh, cam, lights = _shadow_scene()

@@ -288,6 +288,8 @@ def cmd_render(args):
             options["occlusion_samples"] = args.occlusion_samples
         if args.every_ray_per_sample:
             options["split_rays"] = False
+        if args.block_rays:
+            options["block_rays"] = True
     if method == "mc" and args.mc_fallback is None:
         # Before the render starts: a material file of format 1 records no tile to compute the truth from.
         for i in missing_provenance(sf.scene):
@@ -311,7 +313,8 @@ def cmd_render(args):
 def _refuse_sg_options(args):
     for flag, value in (("--aa", args.aa), ("--shadow-samples", args.shadow_samples),
                         ("--occlusion-samples", args.occlusion_samples),
-                        ("--every-ray-per-sample", args.every_ray_per_sample or None)):
+                        ("--every-ray-per-sample", args.every_ray_per_sample or None),
+                        ("--block-rays", args.block_rays or None)):
         if value is not None:
             raise ValueError(f"{flag} is for the SG renderer (--method sg); the Monte Carlo reference samples "
                              "pixel centres and lights as emitters")
@@ -491,6 +494,10 @@ def _add_render_commands(sub):
     r.add_argument("--every-ray-per-sample", action="store_true",
                    help="every anti-aliasing sample traces every shadow and occlusion ray (--aa times the rays, less "
                         "noise); by default the samples of a pixel share each set of rays between them")
+    r.add_argument("--block-rays", action="store_true",
+                   help="the pixels of each 2x2 block share their shadow and occlusion rays, each tracing a quarter "
+                        "of them (about a quarter of the ray cost; visibility averaged over two pixels, so a contact "
+                        "shadow comes out lighter at low resolutions)")
     r.add_argument("--mc-fallback", choices=["sg"],
                    help="--method mc: judge every baked material with its SG fit (not exact; with a warning) "
                         "instead of its exact ground truth, e.g. for a material file of format 1, which records "

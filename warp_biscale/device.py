@@ -788,7 +788,7 @@ class DeviceBackend:
                 raise ValueError("no shadow rays on the device for these lights: call trace_shadows first")
             occ_samples = m.get("occlusion_samples", 0)
             occ = m["gbuffer_occlusion"] if occ_samples else None
-            part = m.get("occlusion_part", (0, 1)) if occ_samples else (0, 1)
+            part = m.get("occlusion_part", (0, 1, 0)) if occ_samples else (0, 1, 0)
             lobe_occ = None
             if occ_samples and static.n_sharp_lobes:
                 if m.get("lobe_rays") != static.sharp_lobes().tobytes():

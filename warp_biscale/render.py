@@ -192,7 +192,7 @@ def check_aa(aa) -> int:
 
 def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: int = 1,
            shadow_samples: int = SHADOW_SAMPLES, occlusion_samples: int = OCCLUSION_SAMPLES, split_rays: bool = True,
-           block_rays: bool = True, **options) -> Rendering:
+           block_rays: bool = False, **options) -> Rendering:
     """Render `scene` → `Rendering`. method "sg": the per-pixel SG renderer (Wang 2009 / Iwasaki 2012 §5), with `aa`
     jittered samples per pixel (`aa_offsets`; 1: the pixel centre only) averaged with a box filter, `shadow_samples`
     shadow rays per light spread over its disc (soft shadows; 1: one ray to its centre, a hard shadow), and, where
@@ -201,11 +201,13 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     visibility per pixel" and "Sharp environment lobes' visibility per pixel"; 0: the SSDF alone). `split_rays`
     (default): the `aa` samples of a pixel share each set of rays, sample k of n tracing rays k, k + n, … of it
     (`trace.ray_part`), so an anti-aliased frame traces the rays of one frame and its average holds every ray of
-    each set once; False: every sample traces every ray (n times the rays, less noise). `block_rays` (default): the
-    pixels of each 2×2 block share their rays too, each tracing a quarter of each set of at least four rays and
-    weighing those of its neighbours on the same surface (`trace.pixel_parts`, `trace.share_block`: a depth or
-    crease edge keeps each side's rays apart), so a frame traces a quarter of the rays; False: every pixel traces
-    its own. "mc": the Monte
+    each set once; False: every sample traces every ray (n times the rays, less noise). `block_rays`: the
+    pixels of each 2×2 block share their rays too, each tracing a quarter of each
+    set of at least four rays and weighing those of its neighbours on the same surface (`trace.pixel_parts`,
+    `trace.share_block`: a depth or crease edge keeps each side's rays apart), so a frame traces a quarter of the
+    rays, and visibility is averaged over two pixels: at low resolutions a contact shadow or a soft terminator
+    comes out lighter (docs/design.md, "Rays shared in 2×2 blocks"); False (default): every pixel traces its own.
+    "mc": the Monte
     Carlo reference (`montecarlo.render`, options `samples`, `seed`, `truths`, `fallback`, `truth_facets`,
     `truth_seed`, `truth_directions`), whose lights are the same discs and which judges a baked material by its
     exact ground truth (`truth.truth_of`); "litsphere": the lit-sphere shader (seed 004, `warp_biscale.litsphere`),

@@ -235,12 +235,14 @@ SHARE_NORMAL_COS = 0.9  # a block neighbour whose geometric normal is within ~26
 SHARE_PLANE = 0.1  # ... and that lies within ~6° of the pixel's tangent plane seen from it lends its rays
 
 
-def share_block(face, position, face_normals, eye, width: int, pixel=None) -> np.ndarray:
+def share_block(face, position, face_normals, eye, width: int, pixel=None, normal_cos: float = SHARE_NORMAL_COS,
+                plane: float = SHARE_PLANE) -> np.ndarray:
     """(P, 4) bool float64 twin of the kernels' block_shares: for hit pixel p (row y·W + x of a frame of width W),
     whether the pixel in slot q (x0 + q mod 2, y0 + q div 2) of its 2×2 block (x0, y0 = x, y rounded down to even)
     lends its rays to p — p itself, or a hit neighbour inside the frame whose geometric normal (turned to the eye)
     n' has n·n' ≥ SHARE_NORMAL_COS and whose hit x' has |n·(x' − x)| ≤ SHARE_PLANE·|x' − x|: a depth or crease
-    edge keeps each side's rays to itself. Missed pixels: none. `face_normals` (F, 3) unit."""
+    edge keeps each side's rays to itself. Missed pixels: none. `face_normals` (F, 3) unit. (normal_cos and plane
+    move the two bounds, for a test's margins.)"""
     face = np.asarray(face, np.int64)
     position = np.asarray(position, np.float64).reshape(-1, 3)
     n_all = len(face)
@@ -263,8 +265,8 @@ def share_block(face, position, face_normals, eye, width: int, pixel=None) -> np
         b = np.where(inside, b, p)
         n_b, hit_b = seen(b)
         d = position[b] - position[p]
-        near = np.abs(np.sum(n_p * d, -1)) <= SHARE_PLANE * np.linalg.norm(d, axis=-1)
-        out[:, q] = hit & inside & ((b == p) | (hit_b & (np.sum(n_p * n_b, -1) >= SHARE_NORMAL_COS) & near))
+        near = np.abs(np.sum(n_p * d, -1)) <= plane * np.linalg.norm(d, axis=-1)
+        out[:, q] = hit & inside & ((b == p) | (hit_b & (np.sum(n_p * n_b, -1) >= normal_cos) & near))
     return out
 
 
