@@ -66,27 +66,31 @@ def target_scene(width, height, lobes=8, lights=1, terms=16, backend="auto"):
 PRECOMPUTE = ("lighting", "ssdf", "materials")  # Rendering.timings' stages of a scene's first frame only
 
 
-def time_frames(scene, backend, frames, runs, shadow_samples=SHADOW_SAMPLES, occlusion_samples=OCCLUSION_SAMPLES):
+def time_frames(scene, backend, frames, runs, shadow_samples=SHADOW_SAMPLES, occlusion_samples=OCCLUSION_SAMPLES,
+                block_rays=False):
     """(median s per frame, precompute s, first-frame extra s, read-back s). A frame is the G-buffer, the
     shadow rays and the shading, its image left on the device (what an interactive viewer draws from), so
     the loop calls the backend's stages as `wb.render` does, without its read-back and per-stage waits;
-    the read-back is timed apart."""
+    the read-back is timed apart. block_rays: the rays shared in 2×2 pixel blocks (`wb.render`'s option)."""
     be = wb.get_backend(backend)
     # compiles, and computes what does not depend on the camera
-    first = wb.render(scene, backend=be, shadow_samples=shadow_samples, occlusion_samples=occlusion_samples)
+    first = wb.render(scene, backend=be, shadow_samples=shadow_samples, occlusion_samples=occlusion_samples,
+                      **({"block_rays": True} if block_rays else {}))
+    part = (0, 1, scene.camera.width) if block_rays else (0, 1)
     precompute = sum(first.timings.get(k, 0.0) for k in PRECOMPUTE)
     inputs = pack_frame(scene, be).inputs  # the shade stage's inputs, cached on the scene by the render above
     lights = scene.lights_packed
     cam = scene.camera.packed()
+    rays = {"part": part} if block_rays else {}  # (a tree from before the option takes no part)
 
     def frame():
         be.trace_primary(scene.mesh, scene.camera, to_host=False)
         if len(lights):
-            be.trace_shadows(scene.mesh, None, lights, to_host=False, samples=shadow_samples)
+            be.trace_shadows(scene.mesh, None, lights, to_host=False, samples=shadow_samples, **rays)
         if inputs.has_ssdf and occlusion_samples:
-            be.trace_occlusion(scene.mesh, None, occlusion_samples, to_host=False)
+            be.trace_occlusion(scene.mesh, None, occlusion_samples, to_host=False, **rays)
             if inputs.n_sharp_lobes:
-                be.trace_lobe_rays(scene.mesh, None, inputs.sharp_lobes(), to_host=False)
+                be.trace_lobe_rays(scene.mesh, None, inputs.sharp_lobes(), to_host=False, **rays)
         be.shade(scene.mesh, inputs, cam, lights, to_host=False)
 
     def loop():
@@ -102,7 +106,7 @@ def time_frames(scene, backend, frames, runs, shadow_samples=SHADOW_SAMPLES, occ
 
 
 def part_frames(backends, sizes, lobe_list, light_list, term_list, frames, runs, out, shadow_list=(),
-                occlusion_list=()):
+                occlusion_list=(), block_modes=(False,)):
     base = dict(lobes=8, lights=1, terms=16, shadows=SHADOW_SAMPLES, occlusion=OCCLUSION_SAMPLES)
     sweeps = [("size", s) for s in sizes] + [("lobes", j) for j in lobe_list] + \
              [("lights", n) for n in light_list] + [("terms", t) for t in term_list] + \
@@ -116,18 +120,19 @@ def part_frames(backends, sizes, lobe_list, light_list, term_list, frames, runs,
                 kw[what] = value
             shadows, occlusion = kw.pop("shadows"), kw.pop("occlusion")
             scene = target_scene(w, h, backend=backend, **kw)
-            t, pre, first, back = time_frames(scene, be, frames, runs, shadows, occlusion)
             kw["shadows"], kw["occlusion"] = shadows, occlusion
-            out.records.append({"part": "frames", "sweep": what, "backend": be.name, "device": be.device, "width": w,
-                                "height": h, **kw, "frame_s": t, "fps": 1.0 / t, "precompute_s": pre,
-                                "first_call_extra_s": first, "readback_s": back})
-            out.log(f"{be.name:<28} {what:<7} {w}x{h} J={kw['lobes']} lights={kw['lights']} terms={kw['terms']} "
-                    f"shadow rays={kw['shadows']} occlusion rays={kw['occlusion']}: "
-                    f"{t * 1e3:9.3f} ms/frame ({1 / t:8.1f} fps), precompute {pre:6.2f} s, "
-                    f"readback {back * 1e3:7.2f} ms")
+            for block in block_modes:
+                t, pre, first, back = time_frames(scene, be, frames, runs, shadows, occlusion, block_rays=block)
+                out.records.append({"part": "frames", "sweep": what, "backend": be.name, "device": be.device,
+                                    "width": w, "height": h, **kw, "block_rays": block, "frame_s": t, "fps": 1.0 / t,
+                                    "precompute_s": pre, "first_call_extra_s": first, "readback_s": back})
+                out.log(f"{be.name:<28} {what:<7} {w}x{h} J={kw['lobes']} lights={kw['lights']} terms={kw['terms']} "
+                        f"shadow rays={kw['shadows']} occlusion rays={kw['occlusion']} 2x2 blocks={block}: "
+                        f"{t * 1e3:9.3f} ms/frame ({1 / t:8.1f} fps), precompute {pre:6.2f} s, "
+                        f"readback {back * 1e3:7.2f} ms")
 
 
-def part_stages(backends, size, runs, out, repeat=10):
+def part_stages(backends, size, runs, out, repeat=10, block_modes=(False,)):
     """Each stage of a frame of the target scene apart (J = 8, one light, 16 terms), device-synchronised
     medians of `runs` loops of `repeat` calls: the G-buffer, the shadow rays at 1 and 16 a light, the
     occlusion rays, the sun lobes' rays, the shading (image left on the device), and the read-backs of the
@@ -151,6 +156,16 @@ def part_stages(backends, size, runs, out, repeat=10):
             "shade + float read-back": lambda: be.shade(mesh, inputs, cam, lights, to_host=True),
             "frame_u8 (tone map + 8-bit read-back)": lambda: be.frame_u8(mesh, w, h),
         }
+        if True in block_modes:  # each set a quarter a pixel, shared in 2×2 blocks (its shade reads the lent rays)
+            blocks = (0, 1, w)
+            stages.update({
+                f"trace_shadows ({SHADOW_SAMPLES} rays, 2x2 blocks)": lambda: be.trace_shadows(
+                    mesh, None, lights, to_host=False, samples=SHADOW_SAMPLES, part=blocks),
+                f"trace_occlusion ({OCCLUSION_SAMPLES} rays, 2x2 blocks)": lambda: be.trace_occlusion(
+                    mesh, None, OCCLUSION_SAMPLES, to_host=False, part=blocks),
+                "trace_lobe_rays (2x2 blocks)": lambda: be.trace_lobe_rays(mesh, None, inputs.sharp_lobes(),
+                                                                           to_host=False, part=blocks),
+                "shade (2x2 blocks)": lambda: be.shade(mesh, inputs, cam, lights, to_host=False)})
         for name, call in stages.items():
             def loop(call=call):
                 for _ in range(repeat):
@@ -161,7 +176,7 @@ def part_stages(backends, size, runs, out, repeat=10):
             out.log(f"{be.name:<28} {w}x{h} {name:<40} {t * 1e3:8.3f} ms")
 
 
-def part_pareto(backends, size, lobe_list, samples, runs, out):
+def part_pareto(backends, size, lobe_list, samples, runs, out, block_modes=(False,)):
     w, h = size
     for backend in backends:
         be = wb.get_backend(backend)
@@ -171,20 +186,23 @@ def part_pareto(backends, size, lobe_list, samples, runs, out):
         t_mc = ref.timings["total"]
         out.log(f"{be.name}: MC reference {w}x{h} {samples} spp in {t_mc:.1f} s, "
                 f"stderr rms {ref.info.get('stderr_rms')}")
-        for j, occlusion in [(j, OCCLUSION_SAMPLES) for j in lobe_list] + [(lobe_list[-1], 0)]:
+        rows = [(j, OCCLUSION_SAMPLES, False) for j in lobe_list] + [(lobe_list[-1], 0, False)]
+        rows += [(j, OCCLUSION_SAMPLES, True) for j in lobe_list if True in block_modes]
+        for j, occlusion, block in rows:
             scene = target_scene(w, h, lobes=j, backend=backend)
-            t, pre, first, back = time_frames(scene, be, 3, runs, occlusion_samples=occlusion)
-            img = wb.render(scene, backend=be, occlusion_samples=occlusion)
+            t, pre, first, back = time_frames(scene, be, 3, runs, occlusion_samples=occlusion, block_rays=block)
+            img = wb.render(scene, backend=be, occlusion_samples=occlusion, **({"block_rays": True} if block else {}))
             # Over the object pixels only: the background is the environment itself in both images.
             mask = (be.trace_primary(scene.mesh, scene.camera).face >= 0).reshape(h, w)
             err = wb.compare_images(img.image, ref.image, mask=mask)
             out.records.append({"part": "pareto", "backend": be.name, "device": be.device, "width": w, "height": h,
-                                "lobes": j, "occlusion": occlusion, "frame_s": t, "psnr": err["psnr"],
+                                "lobes": j, "occlusion": occlusion, "block_rays": block, "frame_s": t,
+                                "psnr": err["psnr"],
                                 "rmse": err["rmse"],
                                 "mc_samples": samples, "mc_s": t_mc, "mc_stderr_rms": ref.info.get("stderr_rms")})
-            out.log(f"{be.name:<28} J={j:<3} occlusion rays={occlusion:<3} {t * 1e3:8.3f} ms  "
+            out.log(f"{be.name:<28} J={j:<3} occlusion rays={occlusion:<3} 2x2 blocks={block!s:<5} {t * 1e3:8.3f} ms  "
                     f"PSNR {err['psnr']:6.2f} dB vs MC")
-            if j == lobe_list[-1] and occlusion:
+            if j == lobe_list[-1] and occlusion and not block:
                 img.save(out.path(f"sg-J{j}-{tag}.png"))
                 ref.save(out.path(f"mc-{tag}.png"))
 
@@ -192,10 +210,10 @@ def part_pareto(backends, size, lobe_list, samples, runs, out):
 def table(records, meta):
     lines = [f"# Rendering benchmark ({meta['device_kind']})", "", common.commit_line(meta), ""]
     lines += common.markdown_table(
-        ["backend", "sweep", "size", "J", "lights", "PCA terms", "shadow rays", "occlusion rays", "ms/frame", "fps",
-         "precompute s", "readback ms"],
+        ["backend", "sweep", "size", "J", "lights", "PCA terms", "shadow rays", "occlusion rays", "2×2 blocks",
+         "ms/frame", "fps", "precompute s", "readback ms"],
         [[r["backend"], r["sweep"], f"{r['width']}×{r['height']}", r["lobes"], r["lights"], r["terms"],
-          r.get("shadows", 1), r.get("occlusion", 0),
+          r.get("shadows", 1), r.get("occlusion", 0), "yes" if r.get("block_rays") else "no",
           f"{r['frame_s'] * 1e3:.3f}", f"{r['fps']:.1f}", f"{r['precompute_s']:.2f}", f"{r['readback_s'] * 1e3:.2f}"]
          for r in records if r["part"] == "frames"])
     stages = [r for r in records if r["part"] == "stages"]
@@ -206,9 +224,10 @@ def table(records, meta):
     pareto = [r for r in records if r["part"] == "pareto"]
     if pareto:
         lines += [""] + common.markdown_table(
-            ["backend", "size", "J", "occlusion rays", "ms/frame", "PSNR vs MC (dB)", "RMSE", "MC spp",
+            ["backend", "size", "J", "occlusion rays", "2×2 blocks", "ms/frame", "PSNR vs MC (dB)", "RMSE", "MC spp",
              "MC stderr rms"],
             [[r["backend"], f"{r['width']}×{r['height']}", r["lobes"], r.get("occlusion", 0),
+              "yes" if r.get("block_rays") else "no",
               f"{r['frame_s'] * 1e3:.3f}", f"{r['psnr']:.2f}", f"{r['rmse']:.4g}", r["mc_samples"],
               f"{r['mc_stderr_rms']:.3g}"] for r in pareto])
     return "\n".join(lines) + "\n"
@@ -218,14 +237,19 @@ def plot(records, folder):
     plt = common.pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     for be in sorted({r["backend"] for r in records if r["part"] == "frames"}):
-        rs = [r for r in records if r["part"] == "frames" and r["backend"] == be and r["sweep"] == "size"]
-        if rs:
-            axes[0].plot([r["width"] * r["height"] / 1e6 for r in rs], [r["frame_s"] * 1e3 for r in rs], "o-", label=be)
-        ps = [r for r in records if r["part"] == "pareto" and r["backend"] == be]
-        if ps:
-            axes[1].plot([r["frame_s"] * 1e3 for r in ps], [r["psnr"] for r in ps], "o-", label=be)
-            for r in ps:
-                axes[1].annotate(f"J={r['lobes']}", (r["frame_s"] * 1e3, r["psnr"]))
+        for block in (False, True):
+            label = be + (", 2×2 blocks" if block else "")
+            rs = [r for r in records if r["part"] == "frames" and r["backend"] == be and r["sweep"] == "size"
+                  and bool(r.get("block_rays")) == block]
+            if rs:
+                axes[0].plot([r["width"] * r["height"] / 1e6 for r in rs], [r["frame_s"] * 1e3 for r in rs], "o-",
+                             label=label)
+            ps = [r for r in records if r["part"] == "pareto" and r["backend"] == be
+                  and bool(r.get("block_rays")) == block]
+            if ps:
+                axes[1].plot([r["frame_s"] * 1e3 for r in ps], [r["psnr"] for r in ps], "o-", label=label)
+                for r in ps:
+                    axes[1].annotate(f"J={r['lobes']}", (r["frame_s"] * 1e3, r["psnr"]))
     axes[0].set(xlabel="megapixels", ylabel="ms / frame", title="frame time vs resolution", xscale="log", yscale="log")
     axes[1].set(xlabel="ms / frame", ylabel="PSNR vs Monte Carlo (dB)", title="speed against error", xscale="log")
     for ax in axes:
@@ -260,7 +284,10 @@ def main(argv=None):
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--frames", type=int, default=10, help="frames a timed loop (3 with --quick)")
     ap.add_argument("--samples", type=int, default=1024, help="Monte Carlo samples a pixel of the reference")
+    ap.add_argument("--block-rays", choices=["off", "on", "both"], default="off",
+                    help="frames with the rays shared in 2x2 pixel blocks (wb.render's block_rays), without, or both")
     args = ap.parse_args(argv)
+    blocks = {"off": (False,), "on": (True,), "both": (False, True)}[args.block_rays]
     backends = common.backend_names(args.backends)
     if args.quick:
         sizes, pareto_size, frames = [(512, 512), (256, 256)], (96, 72), 3
@@ -276,13 +303,13 @@ def main(argv=None):
 
     if "frames" in args.parts:
         part_frames(backends, sizes, args.lobes, args.lights, args.terms, frames, args.runs, out, args.shadow_samples,
-                    args.occlusion_samples)
+                    args.occlusion_samples, blocks)
         save()
     if "stages" in args.parts:
-        part_stages(backends, sizes[0], args.runs, out)
+        part_stages(backends, sizes[0], args.runs, out, block_modes=blocks)
         save()
     if "pareto" in args.parts:
-        part_pareto(backends, pareto_size, args.lobes, args.samples, args.runs, out)
+        part_pareto(backends, pareto_size, args.lobes, args.samples, args.runs, out, blocks)
     out.finish(table)
     plot(out.records, args.out)
     out.log(f"wrote {args.out}/results.json, table.md, render.png")

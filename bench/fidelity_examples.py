@@ -1,7 +1,8 @@
 """The SG renderer against the Monte Carlo reference on the two example scenes (examples/glossy.toml,
 examples/bi-scale.toml), speed against error: PSNR and relative RMSE over the object pixels (the
 background is the environment itself in both), with and without the environment-occlusion rays, and the
-whole `wb.render` time beside each. `--truth-directions`: the K of the reference's ground truths for baked
+whole `wb.render` time beside each; `--block-rays`: also (or only) with the rays shared in 2×2 pixel blocks.
+`--truth-directions`: the K of the reference's ground truths for baked
 materials (a finer grid than the bake's keeps sharp highlights sharp in the reference; docs/design.md §3.4).
 One anti-aliasing sample (the reference samples pixel centres too);
 the scene files' own settings otherwise. One JSON line a render.
@@ -34,7 +35,11 @@ def main(argv=None):
                     help="K of the reference's ground truths (default: each material's own K); several: one "
                          "reference each, the SG renders judged against every one")
     ap.add_argument("--truth-facets", type=int, default=1 << 18)
+    ap.add_argument("--block-rays", choices=["off", "on", "both"], default="off",
+                    help="the SG renders with the rays shared in 2x2 pixel blocks (wb.render's block_rays), without, "
+                         "or both")
     args = ap.parse_args(argv)
+    blocks = {"off": (False,), "on": (True,), "both": (False, True)}[args.block_rays]
     w, h = (int(x) for x in args.size.lower().split("x"))
     warnings.simplefilter("ignore", wb.EnergyWarning)
     for backend in args.backends:
@@ -45,15 +50,17 @@ def main(argv=None):
             mask = (be.trace_primary(sf.scene.mesh, sf.scene.camera).face >= 0).reshape(h, w)
             refs = {k: sf.render(method="mc", backend=be, samples=args.samples, truth_directions=k,
                                  truth_facets=args.truth_facets) for k in args.truth_directions}
-            for occlusion in args.occlusion_samples:
-                sf.render(method="sg", backend=be, occlusion_samples=occlusion)  # compiles, precomputes
-                runs = [sf.render(method="sg", backend=be, occlusion_samples=occlusion) for _ in range(3)]
+            for occlusion, block in [(n, b) for n in args.occlusion_samples for b in blocks]:
+                options = {"occlusion_samples": occlusion, **({"block_rays": True} if block else {})}
+                sf.render(method="sg", backend=be, **options)  # compiles, precomputes
+                runs = [sf.render(method="sg", backend=be, **options) for _ in range(3)]
                 image = runs[-1].image
                 for k, ref in refs.items():
                     err = wb.compare_images(image, ref.image, mask=mask)
                     rel = float(np.sqrt(np.mean((image[mask] - ref.image[mask]) ** 2)) / np.mean(ref.image[mask]))
                     print(json.dumps({"scene": name, "backend": be.name, "device": be.device, "width": w,
-                                      "height": h, "occlusion_samples": occlusion, "ssdf": runs[-1].info["ssdf"],
+                                      "height": h, "occlusion_samples": occlusion, "block_rays": block,
+                                      "ssdf": runs[-1].info["ssdf"],
                                       "psnr": err["psnr"], "relative_rmse": rel, "mc_samples": args.samples,
                                       "mc_stderr_rms": ref.info.get("stderr_rms"), "truth_directions": k,
                                       "truth_facets": args.truth_facets, "mc_truths": ref.info["effective_brdf"],
