@@ -847,6 +847,9 @@ __kernel void shade_pixels(
     __global const int *tex_info,       /* (T, 4) [texel offset, H, W, 0] */
     __global const float *tex_data,     /* (Σ H·W, 3) */
     const int n_pixels, const int only_material,
+    __global const int *reference_face, /* only_changed: a pixel whose face is this one's takes ... */
+    __global const float *reference_radiance, /* ... (P, 3) this radiance, of that frame */
+    const int only_changed,
     const int kept_mode,                /* 1: keep each lobe's shadowed amount and the irradiance scale, 2: read them */
     __global float *kept_amount,        /* (P, K) */
     __global float *kept_scale,         /* (P, 3) */
@@ -856,6 +859,10 @@ __kernel void shade_pixels(
     if (p >= n_pixels)
         return;
     int f = face[p];
+    if (only_changed != 0 && reference_face[p] == f) {
+        store3(radiance, p, load3(reference_radiance, p));
+        return;
+    }
     /* only that material's pixels: the others keep the radiance they have */
     if (only_material >= 0 && (f < 0 || face_material[f] != only_material))
         return;

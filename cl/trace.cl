@@ -137,6 +137,8 @@ __kernel void trace_shadows(
     const float eps, const float t_min, const int samples,
     const int part_index, const int part_count, /* the anti-aliasing sample's rays of the set (ray_part) */
     const int block_width,               /* > 0: shared in the 2x2 pixel blocks of frame rows this wide (pixel_part) */
+    __global const int *reference_face,  /* only_changed: the pixels whose face differs from this ... */
+    const int only_changed,              /* ... alone (anti-aliasing shaded once a pixel: the others keep theirs) */
     const int n_pixels, const int n_lights,
     __global uchar *visible)             /* (P, L) visible share in 255ths */
 {
@@ -145,6 +147,8 @@ __kernel void trace_shadows(
     if (p >= n_pixels)
         return;
     int f = face[p];
+    if (only_changed != 0 && reference_face[p] == f)
+        return;
     int hits = 0;
     int3 part = pixel_part(samples, part_index, part_count, block_width, p);
     int traced = (samples - part.x + part.y - 1) / part.y;
@@ -198,6 +202,7 @@ __kernel void trace_occlusion(
     const float eye_x, const float eye_y, const float eye_z,
     const float eps, const float t_min, const int samples,
     const int part_index, const int part_count, const int block_width,
+    __global const int *reference_face, const int only_changed, /* as trace_shadows' */
     const int n_pixels,
     __global uint *mask)                 /* (P,) */
 {
@@ -205,6 +210,8 @@ __kernel void trace_occlusion(
     if (p >= n_pixels)
         return;
     int f = face[p];
+    if (only_changed != 0 && reference_face[p] == f)
+        return;
     uint bits = 0u;
     if (f >= 0) {
         float3 n, ns;
@@ -240,6 +247,7 @@ __kernel void trace_lobe_rays(
     const int n_lobes, const int rays,   /* LOBE_RAYS, passed in as the Warp twin takes it */
     const float eps, const float t_min,
     const int part_index, const int part_count, const int block_width,
+    __global const int *reference_face, const int only_changed, /* as trace_shadows' */
     const int n_pixels,
     __global uint *mask)                 /* (P,) */
 {
@@ -247,6 +255,8 @@ __kernel void trace_lobe_rays(
     if (p >= n_pixels)
         return;
     int f = face[p];
+    if (only_changed != 0 && reference_face[p] == f)
+        return;
     uint bits = 0u;
     if (f >= 0) {
         float3 ng, n;

@@ -147,6 +147,8 @@ def trace_shadows(
     part_index: int,
     part_count: int,
     block_width: int,
+    reference_face: wp.array(dtype=wp.int32),  # only_changed: the pixels whose face differs from this ...
+    only_changed: int,  # ... alone (anti-aliasing shaded once a pixel: the others keep their rays)
     offset: int,
     visible: wp.array2d(dtype=wp.uint8),  # (N, L)
 ):
@@ -158,6 +160,8 @@ def trace_shadows(
     k, p_local = wp.tid()
     p = p_local + offset
     f = face[p]
+    if only_changed != 0 and reference_face[p] == f:
+        return
     hits = int(0)
     part = pixel_part(samples, part_index, part_count, block_width, p)
     first = part[0]
@@ -210,6 +214,8 @@ def trace_occlusion(
     part_index: int,
     part_count: int,
     block_width: int,
+    reference_face: wp.array(dtype=wp.int32),  # only_changed: the pixels whose face differs from this ...
+    only_changed: int,  # ... alone (anti-aliasing shaded once a pixel: the others keep their rays)
     offset: int,
     mask: wp.array(dtype=wp.uint32),
 ):
@@ -218,6 +224,8 @@ def trace_occlusion(
     part_index of part_count (pixel_part); bit i of the pixel's mask is set where ray i is blocked."""
     p = wp.tid() + offset
     f = face[p]
+    if only_changed != 0 and reference_face[p] == f:
+        return
     bits = wp.uint32(0)
     if f >= 0:
         o, n, ns = ray_start(points, normals, faces, face_normals[f], f, bary[p], position[p], eye, eps)
@@ -249,6 +257,8 @@ def trace_lobe_rays(
     part_index: int,
     part_count: int,
     block_width: int,
+    reference_face: wp.array(dtype=wp.int32),  # only_changed: the pixels whose face differs from this ...
+    only_changed: int,  # ... alone (anti-aliasing shaded once a pixel: the others keep their rays)
     offset: int,
     mask: wp.array(dtype=wp.uint32),
 ):
@@ -257,6 +267,8 @@ def trace_lobe_rays(
     lobe k is blocked. A ray below the shading normal's horizon is not traced."""
     p = wp.tid() + offset
     f = face[p]
+    if only_changed != 0 and reference_face[p] == f:
+        return
     bits = wp.uint32(0)
     if f >= 0:
         o, ng, n = ray_start(points, normals, faces, face_normals[f], f, bary[p], position[p], eye, eps)

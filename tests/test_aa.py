@@ -42,13 +42,15 @@ def edge():
     return scene, cov, (cov > 0) & (cov < 1)
 
 
-def test_aa_matches_the_box_filtered_coverage_of_an_edge(backend, edge):
+@pytest.mark.parametrize("aa_shading", ["sample", "pixel"])
+def test_aa_matches_the_box_filtered_coverage_of_an_edge(backend, edge, aa_shading):
     """16 multi-jittered samples: per edge pixel the error is a sum of a few cells' Bernoulli draws,
     std ≈ 0.06 of the radiance (measured on Warp CPU: mean 0.053, max 0.116); one sample per pixel is
-    0.21 / 0.46. Unbiased: the signed errors cancel over the edge."""
+    0.21 / 0.46. Unbiased: the signed errors cancel over the edge. Shaded once a pixel (aa_shading="pixel"),
+    the coverage is the same."""
     scene, cov, on_edge = edge
     assert on_edge.sum() >= 30
-    img = wb.render(scene, backend=backend, aa=16).image[..., 0]
+    img = wb.render(scene, backend=backend, aa=16, aa_shading=aa_shading).image[..., 0]
     radiance = img[cov == 1].mean()
     err = (img - radiance * cov)[on_edge] / radiance
     assert np.abs(err).mean() < 0.08 and np.abs(err).max() < 0.2
@@ -129,7 +131,8 @@ def test_cli_render_anti_aliases_by_default(tmp_path, capsys):
     scene.write_text(TINY_SCENE)
     outs = {}
     # (in-process, `cli.main`: test_cli runs the console script's render itself)
-    for flag in ([], ["--aa", "1"], ["--shadow-samples", "1"], ["--every-ray-per-sample"], ["--block-rays"]):
+    for flag in ([], ["--aa", "1"], ["--shadow-samples", "1"], ["--every-ray-per-sample"], ["--block-rays"],
+                 ["--aa-shading", "pixel"]):
         out = tmp_path / f"img{len(outs)}.exr"
         assert cli.main(["render", str(scene), "-o", str(out), "-q", *flag]) == 0
         outs[tuple(flag)] = wb.images.read_image(str(out))
@@ -140,16 +143,52 @@ def test_cli_render_anti_aliases_by_default(tmp_path, capsys):
     assert np.abs(every - aa4).mean() < 0.05 * aa4.mean() and np.abs(every - aa4).max() > 0
     block = outs[("--block-rays",)]  # a quarter of the rays a pixel: the same image but for noise and a blur
     assert np.abs(block - aa4).mean() < 0.05 * aa4.mean() and np.abs(block - aa4).max() > 0
+    once = outs[("--aa-shading", "pixel")]  # edges anti-aliased alike, shading within a face from one sample
+    assert np.abs(once - aa4).mean() < 0.05 * aa4.mean() and np.abs(once - aa1).max() > 0.01
     for bad, what in ((["--aa", "0"], "aa must be"), (["--shadow-samples", "0"], "shadow samples must be"),
                       (["--occlusion-samples", "33"], "occlusion samples must be"),
                       (["--method", "mc", "--aa", "4"], "--aa is for the SG renderer"),
                       (["--method", "mc", "--occlusion-samples", "8"], "--occlusion-samples is for the SG renderer"),
                       (["--method", "mc", "--every-ray-per-sample"], "--every-ray-per-sample is for the SG"),
-                      (["--method", "mc", "--block-rays"], "--block-rays is for the SG")):
+                      (["--method", "mc", "--block-rays"], "--block-rays is for the SG"),
+                      (["--method", "mc", "--aa-shading", "pixel"], "--aa-shading is for the SG")):
         assert cli.main(["render", str(scene), "-o", str(tmp_path / "bad.png"), *bad]) == 2
         err = [line for line in capsys.readouterr().err.splitlines() if not line.startswith("warning:")]
         assert len(err) == 1 and what in err[0], err  # (the tiny scene's EnergyWarning aside)
         assert not (tmp_path / "bad.png").exists()
+
+
+@pytest.mark.parametrize("block_rays", [False, True])
+def test_aa_shaded_once_a_pixel(backend, block_rays):
+    """aa_shading="pixel": a pixel's later samples add the first sample's radiance where they hit its face, and
+    their own where they do not. Without blocks, against one-sample renders of each jittered camera (every ray of
+    each set, as the first sample traces them): the mean over k of (face_k = face_0 ? image_0 : image_k), to the
+    device sum's float32 rounding (measured 1.0e-7 Warp CPU, 7.6e-8 PoCL → 1e-6). With blocks, whose later samples
+    borrow the rays their block's first-sample pixels left, within 5 % of the image mean (pixel-wise mean
+    |Δ|) of the shading of every sample; bad values are refused in one line."""
+    import dataclasses
+
+    scene = _contact_scene()
+    n = 4
+    got = wb.render(scene, backend=backend, aa=n, aa_shading="pixel", block_rays=block_rays)
+    assert got.info["aa_shading"] == "pixel"
+    image = got.image.reshape(-1, 3)
+    if not block_rays:
+        faces, images = [], []
+        for jx, jy in aa_offsets(n):
+            cam = dataclasses.replace(scene.camera, jitter=(jx, jy))
+            one = wb.Scene(scene.mesh, scene.materials, cam, scene.environment, scene.lights)
+            images.append(wb.render(one, backend=backend).image.reshape(-1, 3).astype(np.float64))
+            faces.append(backend.trace_primary(scene.mesh, cam).face)
+        changed = np.array([faces[k] != faces[0] for k in range(1, n)])
+        assert changed.any(1).all() and (~changed).any(1).all()  # both kinds of pixel in every later sample
+        want = sum(np.where((faces[k] == faces[0])[:, None], images[0], images[k]) for k in range(n)) / n
+        assert np.abs(image - want).max() < 1e-6 * want.max()
+    else:
+        every = wb.render(scene, backend=backend, aa=n, block_rays=True).image.reshape(-1, 3)
+        assert np.abs(image - every).mean() < 0.05 * every.mean()
+    with pytest.raises(ValueError, match="aa_shading must be one of"):
+        wb.render(scene, backend=backend, aa=n, aa_shading="msaa")
 
 
 def _contact_scene(width=40, height=30):

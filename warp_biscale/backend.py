@@ -159,11 +159,13 @@ class Backend(Protocol):
     #   "occlusion_samples" int                              of this many rays (0: none since trace_primary)
     #   "gbuffer_lobe_occlusion" (P,) wp.uint32 | P uint32   the sharp environment lobes' ray masks
     # The G-buffer arrays are reused from frame to frame (same size): a new trace overwrites them.
-    def trace_primary(self, mesh, camera, to_host: bool = True) -> GBuffer | None:
+    def trace_primary(self, mesh, camera, to_host: bool = True, keep_faces: bool = False) -> GBuffer | None:
         """The G-buffer of `camera` on `mesh` (reference.trace_primary): camera rays generated in the
         kernel (Camera.packed), closest hit. Fills mesh.device_cache[self.name]["gbuffer_*"] (above)
         and, with to_host, returns the host GBuffer (face, bary, position — the barycentric combination of
-        the vertices, on the surface —, t, eye); without, returns None (no copies to the host)."""
+        the vertices, on the surface —, t, eye); without, returns None (no copies to the host). keep_faces:
+        first keep the device G-buffer's faces (same size) as the reference of the rays' and shade's
+        only_changed ("reference_face")."""
 
     def trace_occluded(self, mesh, origins: np.ndarray, directions: np.ndarray, t_max,
                        t_min: float | None = None) -> np.ndarray:
@@ -173,7 +175,7 @@ class Backend(Protocol):
         (default trace.T_MIN × mesh.scale) only guards against rounding. Any ray count (chunked)."""
 
     def trace_shadows(self, mesh, gbuffer: GBuffer | None, lights_packed, to_host: bool = True,
-                      samples: int = 1) -> np.ndarray | None:
+                      samples: int = 1, part=(0, 1), only_changed: bool = False) -> np.ndarray | None:
         """(P, L) uint8, the visible share of each light in 255ths (reference.trace_shadows): from each hit
         pixel, `samples` rays from trace.ray_starts' origin (the hit lifted towards the smooth surface of the
         vertex normals, then moved trace.SHADOW_OFFSET × mesh.scale along the geometric normal turned to the
@@ -181,26 +183,39 @@ class Backend(Protocol):
         its centre); a point light's rays stop that offset short of it. Misses get 0, and rays below the
         shading normal's horizon count as blocked. `gbuffer`: None or the GBuffer trace_primary last returned
         (both use the device copy), or any GBuffer with face, bary, position and eye (uploaded). Fills
-        "gbuffer_light_vis"; returns None unless to_host."""
+        "gbuffer_light_vis"; returns None unless to_host. `part` (index, count[, W]): only the rays each pixel
+        traces for anti-aliasing sample index of count (trace.pixel_parts), with W > 0 shared in the 2×2 pixel
+        blocks of a frame of width W (trace.share_block; reference.share_block_shadows). only_changed: only the
+        pixels whose face differs from the faces trace_primary kept (keep_faces); the others keep theirs."""
 
-    def trace_occlusion(self, mesh, gbuffer: GBuffer | None, samples: int, to_host: bool = True) -> np.ndarray | None:
+    def trace_occlusion(self, mesh, gbuffer: GBuffer | None, samples: int, to_host: bool = True, part=(0, 1),
+                        only_changed: bool = False) -> np.ndarray | None:
         """(P,) uint32 environment-occlusion masks (reference.trace_occlusion): from each hit pixel, `samples`
         (≤ trace.OCCLUSION_SAMPLES_MAX) unbounded rays from where the shadow rays start, along
         trace.occlusion_directions (cosine-distributed over the geometric normal's hemisphere); bit i set
-        where ray i is blocked, 0 for a miss. `gbuffer` as trace_shadows. Fills "gbuffer_occlusion" and
-        "occlusion_samples", which shade reads; returns None unless to_host."""
+        where ray i is blocked, 0 for a miss. `gbuffer`, `part` and only_changed as trace_shadows' (with a block
+        width the masks are shared, reference.share_block_masks, and the rays each pixel was lent kept for
+        shade: `ray_known`). Fills "gbuffer_occlusion" and "occlusion_samples", which shade reads; returns None
+        unless to_host."""
 
-    def trace_lobe_rays(self, mesh, gbuffer: GBuffer | None, lobes, to_host: bool = True) -> np.ndarray | None:
+    def trace_lobe_rays(self, mesh, gbuffer: GBuffer | None, lobes, to_host: bool = True, part=(0, 1),
+                        only_changed: bool = False) -> np.ndarray | None:
         """(P,) uint32 masks of the sharp environment lobes' rays (reference.trace_lobe_rays): from each hit
         pixel, trace.LOBE_RAYS unbounded rays over the cap of each of `lobes` ((M, 4) [axis, η], M ≤
         trace.LOBE_RAY_LOBES: the shade inputs' `ShadeInputs.sharp_lobes()`), started as trace_occlusion's; bit
         k·LOBE_RAYS + i set where ray i of lobe k is blocked. Fills "gbuffer_lobe_occlusion", which shade
-        reads for inputs with sharp lobes wherever occlusion rays were traced; returns None unless to_host."""
+        reads for inputs with sharp lobes wherever occlusion rays were traced; returns None unless to_host.
+        `part` and only_changed as trace_occlusion's."""
+
+    def ray_known(self, mesh) -> tuple:
+        """(occlusion, lobe) (P,) uint32 or None: the rays each pixel was lent by its 2×2 block in the device's
+        last trace_occlusion / trace_lobe_rays with a block width (a host GBuffer's occlusion_known, lobe_known)."""
 
     # --- Per-pixel SG shading (stage `shade`: kernels/shade.py, cl/shade.cl; warp_biscale.shading) ---
     def shade(self, mesh, static: ShadeInputs, camera_packed: np.ndarray, lights_packed: np.ndarray,
               gbuffer: GBuffer | None = None, to_host: bool = True,
-              only_material: int | None = None, keep_visibility: bool = False) -> np.ndarray | None:
+              only_material: int | None = None, keep_visibility: bool = False,
+              only_changed: bool = False) -> np.ndarray | None:
         """(P, 3) float32 outgoing radiance of every pixel (shading.shade_reference; P = W·H, row-major),
         never NaN, inf or negative; background pixels get the environment along the camera ray.
         `static`: the scene's packed inputs (render._static_inputs), uploaded once and kept in
@@ -218,7 +233,8 @@ class Backend(Protocol):
         shade, or whole frame with keep_visibility (new lights), reads back, bit for bit the same, while the
         G-buffer, its rays, the environment and the mesh's arrays are those it was kept for (else it computes
         them again): the environment's visibility is most of a pixel's work, and neither a material nor a light
-        changes it."""
+        changes it. only_changed (gbuffer None): only the pixels whose face differs from the faces trace_primary
+        kept; the others keep the radiance they have (an anti-aliased frame shaded once a pixel)."""
 
     # --- Prefiltered environment (stage `envmap`: kernels/envmap.py, cl/envmap.cl; warp_biscale.lighting) ---
     def prefilter_level(self, radiance: np.ndarray, sharpness: float, height: int, width: int) -> np.ndarray:

@@ -290,6 +290,8 @@ def cmd_render(args):
             options["split_rays"] = False
         if args.block_rays:
             options["block_rays"] = True
+        if args.aa_shading is not None:
+            options["aa_shading"] = args.aa_shading
     if method == "mc" and args.mc_fallback is None:
         # Before the render starts: a material file of format 1 records no tile to compute the truth from.
         for i in missing_provenance(sf.scene):
@@ -314,7 +316,7 @@ def _refuse_sg_options(args):
     for flag, value in (("--aa", args.aa), ("--shadow-samples", args.shadow_samples),
                         ("--occlusion-samples", args.occlusion_samples),
                         ("--every-ray-per-sample", args.every_ray_per_sample or None),
-                        ("--block-rays", args.block_rays or None)):
+                        ("--block-rays", args.block_rays or None), ("--aa-shading", args.aa_shading)):
         if value is not None:
             raise ValueError(f"{flag} is for the SG renderer (--method sg); the Monte Carlo reference samples "
                              "pixel centres and lights as emitters")
@@ -498,6 +500,9 @@ def _add_render_commands(sub):
                    help="the pixels of each 2x2 block share their shadow and occlusion rays, each tracing a quarter "
                         "of them (about a quarter of the ray cost; visibility averaged over two pixels, so a contact "
                         "shadow comes out lighter at low resolutions)")
+    r.add_argument("--aa-shading", choices=["sample", "pixel"],
+                   help="sample (default): shade every anti-aliasing sample; pixel: shade a pixel once where its "
+                        "samples hit one face, as multisampling does (edges anti-aliased at about one sample's cost)")
     r.add_argument("--mc-fallback", choices=["sg"],
                    help="--method mc: judge every baked material with its SG fit (not exact; with a warning) "
                         "instead of its exact ground truth, e.g. for a material file of format 1, which records "

@@ -601,10 +601,13 @@ class DeviceBackend:
         """The device arrays of a large-scale mesh and its BVH, as the trace and shade launches want them."""
         raise NotImplementedError
 
-    def trace_primary(self, mesh, camera, to_host=True, if_changed=False):
+    def trace_primary(self, mesh, camera, to_host=True, if_changed=False, keep_faces=False):
         """The G-buffer of `camera` on `mesh`, left on the device (and a host GBuffer with to_host). With
         if_changed (and to_host False), nothing is traced when the device already holds this camera's
-        G-buffer of this mesh: an editor's frames that move no camera."""
+        G-buffer of this mesh: an editor's frames that move no camera. keep_faces: first keep the faces of the
+        G-buffer on the device (of the same size) as the reference that the rays' and shade's only_changed
+        compare with: an anti-aliased frame's first sample, when the others shade only the pixels whose face
+        differs from it (`render`'s aa_shading="pixel")."""
         check_mesh(mesh)
         check_camera(camera)
         m = self._trace_mesh(mesh)
@@ -612,6 +615,17 @@ class DeviceBackend:
         if if_changed and not to_host and m.get("gbuffer_key") == key:
             return None
         n = camera.width * camera.height
+        if keep_faces:
+            if "gbuffer_face" not in m or m.get("gbuffer_face/spec") != ((n,), "i32"):
+                raise ValueError(f"keep_faces: no G-buffer of {n} pixels on the device to keep the faces of")
+            # Two buffers swapped, for the faces and the shaded radiance: the G-buffer's and the last shade's
+            # become the reference, and the next trace and shade fill the others.
+            for name, kind, reference in (("gbuffer_face", "i32", "reference_face"),
+                                          ("radiance", "vec3", "reference_radiance")):
+                if m.get(name + "/spec") != ((n,), kind):
+                    continue
+                spare = m[reference] if m.get(reference + "/spec") == ((n,), kind) else self._new((n,), kind)
+                m[reference], m[name], m[reference + "/spec"] = m[name], spare, ((n,), kind)
         g = {"face": self._reuse(m, "gbuffer_face", n, "i32"), "bary": self._reuse(m, "gbuffer_bary", n, "vec2"),
              "position": self._reuse(m, "gbuffer_position", n, "vec3"), "t": self._reuse(m, "gbuffer_t", n, "f32")}
         self._launch_trace_primary(m, camera, g["face"], g["bary"], g["position"], g["t"])
@@ -657,6 +671,26 @@ class DeviceBackend:
         return self._to_device(f, "i32"), self._to_device(b, "vec2"), self._to_device(p, "vec3"), eye, len(f)
 
     @staticmethod
+    def _changed(m, gbuffer, n, only_changed, face):
+        """(reference faces, flag) that the trace and shade kernels take: with only_changed, the faces trace_primary
+        kept (keep_faces), for the pixels of the device's own G-buffer whose face differs from them alone; else
+        `face`, the launch's own faces (never read)."""
+        if not only_changed:
+            return face, 0
+        if gbuffer is not None or m.get("reference_face/spec") != ((n,), "i32"):
+            raise ValueError("only_changed needs the device's own G-buffer (gbuffer None) and faces kept by "
+                             "trace_primary(..., keep_faces=True) for it")
+        return m["reference_face"], 1
+
+    def _changed_radiance(self, m, gbuffer, n, only_changed, face):
+        """(reference faces, reference radiance, flag) that the shade kernels take (`_changed`)."""
+        faces, flag = self._changed(m, gbuffer, n, only_changed, face)
+        if flag and m.get("reference_radiance/spec") != ((n,), "vec3"):
+            raise ValueError("only_changed shades over a kept frame: shade the whole frame before keep_faces")
+        radiance = m["reference_radiance"] if flag else self._reuse(m, "no_reference_radiance", 1, "vec3")
+        return faces, radiance, flag
+
+    @staticmethod
     def _ray_mesh(m):
         """The mesh arrays the shadow, occlusion and lobe rays' starts read (the trace kernels' ray_start), in
         their launch order; `_upload_trace_mesh` puts them in the mesh's device cache."""
@@ -670,11 +704,15 @@ class DeviceBackend:
             m["offsets"] = offsets(mesh)
         return m["offsets"]
 
-    def trace_shadows(self, mesh, gbuffer, lights_packed, to_host=True, samples=1, if_changed=False, part=(0, 1)):
+    def trace_shadows(self, mesh, gbuffer, lights_packed, to_host=True, samples=1, if_changed=False, part=(0, 1),
+                      only_changed=False):
         """`samples` shadow rays per light and pixel of the G-buffer (None: the one on the device), the
         visible shares left on the device. With if_changed (and to_host False), nothing is traced when the
         device already holds them for this G-buffer, these lights and samples. `part` (index, count): only
-        the rays that anti-aliasing sample index of count traces of the set (trace.ray_part), their share."""
+        the rays that anti-aliasing sample index of count traces of the set (trace.ray_part), their share;
+        (index, count, W): shared in the 2×2 pixel blocks of a frame of width W (trace.pixel_parts). only_changed:
+        the pixels whose face differs from the kept faces alone (`trace_primary`'s keep_faces); the others keep
+        the shares they have."""
         check_mesh(mesh)
         lights = check_lights(lights_packed)
         samples = check_shadow_samples(samples)
@@ -689,18 +727,20 @@ class DeviceBackend:
             shared = part[2] > 0 and samples >= BLOCK_SLOTS
             traced = self._reuse(m, "block_light_vis", (n, len(lights)), "u8") if shared else vis
             self._launch_trace_shadows(m, face, bary, position, eye, lights, *self._offsets(mesh, m), samples, part,
-                                       n, traced)
+                                       self._changed(m, gbuffer, n, only_changed, face), n, traced)
             if shared:
                 self._launch_share_block_shadows(m, face, position, eye, samples, part, n, len(lights), traced, vis)
         m["light_vis_key"] = key
         return self._to_host(vis, (n, len(lights)), "u8") if to_host else None
 
-    def trace_occlusion(self, mesh, gbuffer, samples, to_host=True, if_changed=False, part=(0, 1)):
+    def trace_occlusion(self, mesh, gbuffer, samples, to_host=True, if_changed=False, part=(0, 1),
+                        only_changed=False):
         """`samples` environment-occlusion rays per pixel of the G-buffer (None: the one on the device), their
         (P,) uint32 masks left on the device for shade (reference.trace_occlusion); 0 samples: none, and shade
         shadows the environment by the SSDF alone. With if_changed (and to_host False), nothing is traced
         when the device already holds them for this G-buffer and samples. `part` (index, count): only the
-        rays that anti-aliasing sample index of count traces (trace.ray_part); shade then reads those."""
+        rays that anti-aliasing sample index of count traces (trace.ray_part), shade then reads those; (index,
+        count, W): shared in 2×2 pixel blocks, as trace_shadows'. only_changed: as trace_shadows'."""
         check_mesh(mesh)
         samples = check_occlusion_samples(samples)
         part = check_ray_part(part)
@@ -712,8 +752,8 @@ class DeviceBackend:
         mask = self._reuse(m, "gbuffer_occlusion", n, "u32")
         if n and samples:
             traced = self._reuse(m, "block_occlusion", n, "u32") if part[2] else mask
-            self._launch_trace_occlusion(m, face, bary, position, eye, *self._offsets(mesh, m), samples, part, n,
-                                         traced)
+            self._launch_trace_occlusion(m, face, bary, position, eye, *self._offsets(mesh, m), samples, part,
+                                         self._changed(m, gbuffer, n, only_changed, face), n, traced)
             if part[2]:
                 self._launch_share_block_masks(m, face, position, eye, samples, part, n, traced, mask,
                                                self._reuse(m, "occlusion_known", n, "u32"))
@@ -723,12 +763,13 @@ class DeviceBackend:
             return None
         return self._to_host(mask, n, "u32") if samples else np.zeros(n, np.uint32)
 
-    def trace_lobe_rays(self, mesh, gbuffer, lobes, to_host=True, if_changed=False, part=(0, 1)):
+    def trace_lobe_rays(self, mesh, gbuffer, lobes, to_host=True, if_changed=False, part=(0, 1),
+                        only_changed=False):
         """trace.LOBE_RAYS rays per pixel of the G-buffer (None: the one on the device) towards each sharp
         environment lobe of `lobes` (M ≤ trace.LOBE_RAY_LOBES rows [axis, η]), their (P,) uint32 masks left on
         the device for shade (reference.trace_lobe_rays). With if_changed (and to_host False), nothing is
         traced when the device already holds them for this G-buffer and lobes. `part`: as trace_occlusion's,
-        and the same as the occlusion rays' for shade."""
+        and the same as the occlusion rays' for shade. only_changed: as trace_shadows'."""
         check_mesh(mesh)
         lobes = check_lobes(lobes)
         part = check_ray_part(part)
@@ -740,8 +781,8 @@ class DeviceBackend:
         mask = self._reuse(m, "gbuffer_lobe_occlusion", n, "u32")
         if n and len(lobes):
             traced = self._reuse(m, "block_lobe_occlusion", n, "u32") if part[2] else mask
-            self._launch_trace_lobe_rays(m, face, bary, position, eye, lobes, *self._offsets(mesh, m), part, n,
-                                         traced)
+            self._launch_trace_lobe_rays(m, face, bary, position, eye, lobes, *self._offsets(mesh, m), part,
+                                         self._changed(m, gbuffer, n, only_changed, face), n, traced)
             if part[2]:
                 self._launch_share_block_masks(m, face, position, eye, LOBE_RAYS, part, n, traced, mask,
                                                self._reuse(m, "lobe_known", n, "u32"))
@@ -765,7 +806,7 @@ class DeviceBackend:
         return out[0], out[1]
 
     def shade(self, mesh, static, camera_packed, lights_packed, gbuffer=None, to_host=True, only_material=None,
-              keep_visibility=False):
+              keep_visibility=False, only_changed=False):
         dev = self._shade_static(static)
         m = self._trace_mesh(mesh)
         if only_material is not None:
@@ -857,7 +898,8 @@ class DeviceBackend:
             m["visibility_key"] = None  # (until the launch that writes them is queued)
         if n:
             self._launch_shade(dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, part, known, lights,
-                               camera, n, -1 if only_material is None else int(only_material), kept_mode, *kept, out)
+                               camera, n, -1 if only_material is None else int(only_material),
+                               self._changed_radiance(m, gbuffer, n, only_changed, face), kept_mode, *kept, out)
         if kept_mode == 1:
             m["visibility_key"] = key
         m["visibility_read"] = kept_mode == 2

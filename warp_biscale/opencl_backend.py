@@ -810,11 +810,12 @@ class OpenCLBackend(DeviceBackend):
         self._launch("trace", "trace_occluded", (n,), m["nodes"], m["tris"], origins, directions, np.float32(t_min),
                      t_max, np.int32(n), occluded)
 
-    def _launch_trace_shadows(self, m, face, bary, position, eye, lights, eps, t_min, samples, part, n, vis):
+    def _launch_trace_shadows(self, m, face, bary, position, eye, lights, eps, t_min, samples, part, changed, n,
+                              vis):
         self._launch("trace", "trace_shadows", (n, len(lights)), m["nodes"], m["tris"], *self._ray_mesh(m), face,
                      bary, position, *(np.float32(e) for e in eye), self._buffer(lights, np.float32), np.float32(eps),
-                     np.float32(t_min), np.int32(samples), *map(np.int32, part), np.int32(n), np.int32(len(lights)),
-                     vis)
+                     np.float32(t_min), np.int32(samples), *map(np.int32, part), changed[0], np.int32(changed[1]),
+                     np.int32(n), np.int32(len(lights)), vis)
 
     def _upload_shade_static(self, static, levels, basis, coeffs):
         """Empty arrays become one-element dummies the kernel never reads."""
@@ -843,18 +844,18 @@ class OpenCLBackend(DeviceBackend):
                            np.float32(sg.SHARPNESS_MAX)),
         }
 
-    def _launch_trace_occlusion(self, m, face, bary, position, eye, eps, t_min, samples, part, n, mask):
+    def _launch_trace_occlusion(self, m, face, bary, position, eye, eps, t_min, samples, part, changed, n, mask):
         self._launch("trace", "trace_occlusion", (n,), m["nodes"], m["tris"], *self._ray_mesh(m), face, bary,
                      position,
                      *(np.float32(e) for e in eye), np.float32(eps), np.float32(t_min), np.int32(samples),
-                     *map(np.int32, part), np.int32(n), mask)
+                     *map(np.int32, part), changed[0], np.int32(changed[1]), np.int32(n), mask)
 
-    def _launch_trace_lobe_rays(self, m, face, bary, position, eye, lobes, eps, t_min, part, n, mask):
+    def _launch_trace_lobe_rays(self, m, face, bary, position, eye, lobes, eps, t_min, part, changed, n, mask):
         self._launch("trace", "trace_lobe_rays", (n,), m["nodes"], m["tris"], *self._ray_mesh(m), face, bary,
                      position,
                      *(np.float32(e) for e in eye), self._buffer(lobes, np.float32),
                      np.int32(len(lobes)), np.int32(LOBE_RAYS), np.float32(eps), np.float32(t_min),
-                     *map(np.int32, part), np.int32(n), mask)
+                     *map(np.int32, part), changed[0], np.int32(changed[1]), np.int32(n), mask)
 
     def _launch_share_block_masks(self, m, face, position, eye, samples, part, n, traced, shared, known):
         self._launch("trace", "share_block_masks", (n,), face, position, self._ray_mesh(m)[3],
@@ -867,7 +868,7 @@ class OpenCLBackend(DeviceBackend):
                      traced, shared)
 
     def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, part, known, lights, camera,
-                      n, only_material, kept_mode, kept_amount, kept_scale, out):
+                      n, only_material, changed, kept_mode, kept_amount, kept_scale, out):
         cltypes = self._cl.cltypes
         light_buf = self._reuse(m, "shade_lights", (max(1, len(lights)), 8), "f32")
         if len(lights):
@@ -884,7 +885,7 @@ class OpenCLBackend(DeviceBackend):
                      dev["ssdf_coeffs"], dev["table"], *dev["table_args"], dev["mat_info"], dev["analytic"],
                      dev["eff_info"], dev["eff_lobes"], dev["eff_sub"], dev["eff_tables"], dev["eff_diffuse"],
                      dev["uvs"], dev["tex_info"], dev["tex_data"], np.int32(n), np.int32(only_material),
-                     np.int32(kept_mode), kept_amount, kept_scale, out)
+                     changed[0], changed[1], np.int32(changed[2]), np.int32(kept_mode), kept_amount, kept_scale, out)
 
     def _upload_spheres(self, spheres):
         return {"of_material": self._buffer(spheres.sphere_of_material, np.int32),

@@ -166,6 +166,7 @@ def pack_frame(scene: Scene, backend="auto", progress=None, timings=None,
 
 
 AA_MAX = 256
+AA_SHADING = ("sample", "pixel")
 
 
 def aa_offsets(samples: int, seed: int = 0) -> np.ndarray:
@@ -192,7 +193,7 @@ def check_aa(aa) -> int:
 
 def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: int = 1,
            shadow_samples: int = SHADOW_SAMPLES, occlusion_samples: int = OCCLUSION_SAMPLES, split_rays: bool = True,
-           block_rays: bool = False, **options) -> Rendering:
+           block_rays: bool = False, aa_shading: str = "sample", **options) -> Rendering:
     """Render `scene` → `Rendering`. method "sg": the per-pixel SG renderer (Wang 2009 / Iwasaki 2012 §5), with `aa`
     jittered samples per pixel (`aa_offsets`; 1: the pixel centre only) averaged with a box filter, `shadow_samples`
     shadow rays per light spread over its disc (soft shadows; 1: one ray to its centre, a hard shadow), and, where
@@ -207,6 +208,10 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     `trace.share_block`: a depth or crease edge keeps each side's rays apart), so a frame traces a quarter of the
     rays, and visibility is averaged over two pixels: at low resolutions a contact shadow or a soft terminator
     comes out lighter (docs/design.md, "Rays shared in 2×2 blocks"); False (default): every pixel traces its own.
+    `aa_shading` "sample" (default): each anti-aliasing sample shaded; "pixel": shaded once a pixel where its samples
+    hit the face its first sample hits, as multisampling does (the first sample traces every ray of each set; a
+    later sample traces and shades only the pixels whose face differs from the first's), so edges are anti-aliased
+    at about one frame's shading and rays, and shading within a face is not.
     "mc": the Monte
     Carlo reference (`montecarlo.render`, options `samples`, `seed`, `truths`, `fallback`, `truth_facets`,
     `truth_seed`, `truth_directions`), whose lights are the same discs and which judges a baked material by its
@@ -225,6 +230,8 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     for name, value in (("split_rays", split_rays), ("block_rays", block_rays)):
         if not isinstance(value, bool):
             raise ValueError(f"{name} must be True or False, got {value!r}")
+    if aa_shading not in AA_SHADING:
+        raise ValueError(f"aa_shading must be one of {AA_SHADING}, got {aa_shading!r}")
     if method == "mc":
         if n_aa != 1:
             raise ValueError("aa is an option of the SG renderer; the Monte Carlo reference samples pixel centres")
@@ -243,14 +250,15 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     lights = scene.lights_packed
     n_occlusion = n_occlusion if static.has_ssdf else 0  # nothing occludes: the rays would all escape
     image = _accumulate(scene, backend, n_aa, n_shadow, n_occlusion, lights, timings,
-                        lambda cam, to_host: backend.shade(scene.mesh, static, cam.packed(), lights, to_host=to_host),
-                        static.sharp_lobes(), split_rays, block_rays)
+                        lambda cam, to_host, **kw: backend.shade(scene.mesh, static, cam.packed(), lights,
+                                                                 to_host=to_host, **kw),
+                        static.sharp_lobes(), split_rays, block_rays, aa_shading == "pixel")
     timings["total"] = time.perf_counter() - t_all
     cam = scene.camera
     info = {"backend": backend.name, "device": backend.device, "method": "sg", "ssdf": bool(static.has_ssdf),
             "env_lobes": len(static.env_sgs), "lights": len(lights), "width": cam.width, "height": cam.height,
             "aa": n_aa, "shadow_samples": n_shadow, "occlusion_samples": n_occlusion, "split_rays": split_rays,
-            "block_rays": block_rays}
+            "block_rays": block_rays, "aa_shading": aa_shading}
     return Rendering(image, timings, info)
 
 
@@ -265,42 +273,46 @@ def check_no_litspheres(scene: Scene, method: str) -> None:
 
 
 def _accumulate(scene: Scene, backend, n_aa: int, n_shadow: int, n_occlusion: int, lights, timings: dict, shade,
-                lobes=None, split_rays: bool = True, block_rays: bool = False):
+                lobes=None, split_rays: bool = True, block_rays: bool = False, shade_once: bool = False):
     """The (H, W, 3) image: per anti-aliasing sample (`aa_offsets`) the G-buffer, the shadow rays of
     `lights` (n_shadow a light; none when 0), the environment-occlusion rays (n_occlusion a pixel; none
     when 0) and with them the rays of the sharp environment lobes `lobes` (`ShadeInputs.sharp_lobes`), then
     `shade(camera, to_host)` (→ (P, 3) with to_host), averaged with a box filter on the device
     (`accumulate_frame`: one read-back, of the average). With split_rays, sample i of n traces its part
     (i, n) of each set of rays (`trace.ray_part`), else all of them; with block_rays, shared in 2×2 pixel blocks
-    (`trace.pixel_parts`)."""
+    (`trace.pixel_parts`). shade_once (n > 1): the first sample traces every ray of each set and is shaded whole;
+    a later one traces and shades only the pixels whose face differs from the first sample's (`only_changed`),
+    the others adding the first sample's radiance again."""
     cam = scene.camera
     image = None
+    shade_once = shade_once and n_aa > 1
     for i, (jx, jy) in enumerate(aa_offsets(n_aa)):
         sample = dataclasses.replace(cam, jitter=(jx, jy)) if n_aa > 1 else cam
-        part = (i, n_aa) if split_rays else (0, 1)
+        part = (i, n_aa) if split_rays and not shade_once else (0, 1)
         if block_rays:
             part = (*part, cam.width)
+        changed = {"only_changed": True} if shade_once and i else {}
         t0 = time.perf_counter()
-        backend.trace_primary(scene.mesh, sample, to_host=False)
+        backend.trace_primary(scene.mesh, sample, to_host=False, keep_faces=shade_once and i == 1)
         backend.synchronize()
         timings["gbuffer"] += time.perf_counter() - t0
         t0 = time.perf_counter()
         if len(lights) and n_shadow:
-            backend.trace_shadows(scene.mesh, None, lights, to_host=False, samples=n_shadow, part=part)
+            backend.trace_shadows(scene.mesh, None, lights, to_host=False, samples=n_shadow, part=part, **changed)
             backend.synchronize()
             timings["shadows"] = timings.get("shadows", 0.0) + time.perf_counter() - t0
         if n_occlusion:
             t0 = time.perf_counter()
-            backend.trace_occlusion(scene.mesh, None, n_occlusion, to_host=False, part=part)
+            backend.trace_occlusion(scene.mesh, None, n_occlusion, to_host=False, part=part, **changed)
             if lobes is not None and len(lobes):
-                backend.trace_lobe_rays(scene.mesh, None, lobes, to_host=False, part=part)
+                backend.trace_lobe_rays(scene.mesh, None, lobes, to_host=False, part=part, **changed)
             backend.synchronize()
             timings["occlusion"] = timings.get("occlusion", 0.0) + time.perf_counter() - t0
         t0 = time.perf_counter()
         if n_aa == 1:
             image = shade(sample, True)
         else:  # (summed in float32: at most 256 samples of a non-negative value, relative error ~1e-5)
-            shade(sample, False)
+            shade(sample, False, **changed)
             backend.accumulate_frame(scene.mesh, cam.width, cam.height, 1.0 / n_aa, first=i == 0)
         timings["shade"] += time.perf_counter() - t0
     if n_aa > 1:

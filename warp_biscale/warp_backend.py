@@ -737,10 +737,11 @@ class WarpBackend(DeviceBackend):
     def _launch_trace_occluded(self, m, origins, directions, t_min, t_max, n, occluded):
         self._launch(ktrace.trace_occluded, n, [m["mesh"].id, origins, directions, t_min, t_max], [occluded])
 
-    def _launch_trace_shadows(self, m, face, bary, position, eye, lights, eps, t_min, samples, part, n, vis):
+    def _launch_trace_shadows(self, m, face, bary, position, eye, lights, eps, t_min, samples, part, changed, n,
+                              vis):
         self._launch(ktrace.trace_shadows, (len(lights), n),
                      [m["mesh"].id, *self._ray_mesh(m), face, bary, position, wp.vec3(*eye),
-                      self._small_upload(m, "lights", lights), eps, t_min, samples, *part],
+                      self._small_upload(m, "lights", lights), eps, t_min, samples, *part, *changed],
                      [vis])
 
     def _upload_shade_static(self, static, levels, basis, coeffs):
@@ -776,14 +777,15 @@ class WarpBackend(DeviceBackend):
             "n_env": len(static.env_sgs), "has_ssdf": int(static.has_ssdf), "ssdf_res": int(static.ssdf_res),
         }
 
-    def _launch_trace_occlusion(self, m, face, bary, position, eye, eps, t_min, samples, part, n, mask):
+    def _launch_trace_occlusion(self, m, face, bary, position, eye, eps, t_min, samples, part, changed, n, mask):
         self._launch(ktrace.trace_occlusion, n, [m["mesh"].id, *self._ray_mesh(m), face, bary, position,
-                                                 wp.vec3(*eye), eps, t_min, samples, *part], [mask])
+                                                 wp.vec3(*eye), eps, t_min, samples, *part, *changed], [mask])
 
-    def _launch_trace_lobe_rays(self, m, face, bary, position, eye, lobes, eps, t_min, part, n, mask):
+    def _launch_trace_lobe_rays(self, m, face, bary, position, eye, lobes, eps, t_min, part, changed, n, mask):
         self._launch(ktrace.trace_lobe_rays, n,
                      [m["mesh"].id, *self._ray_mesh(m), face, bary, position, wp.vec3(*eye),
-                      self._small_upload(m, "lobe_ray_lobes", lobes), len(lobes), LOBE_RAYS, eps, t_min, *part],
+                      self._small_upload(m, "lobe_ray_lobes", lobes), len(lobes), LOBE_RAYS, eps, t_min, *part,
+                      *changed],
                      [mask])
 
     def _launch_share_block_masks(self, m, face, position, eye, samples, part, n, traced, shared, known):
@@ -795,7 +797,7 @@ class WarpBackend(DeviceBackend):
                                                      samples, part[0], part[1], n_lights, traced], [shared])
 
     def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, part, known, lights, camera,
-                      n, only_material, kept_mode, kept_amount, kept_scale, out):
+                      n, only_material, changed, kept_mode, kept_amount, kept_scale, out):
         light_arr = self._small_upload(m, "shade_lights", lights if len(lights) else np.zeros((1, 8), np.float32))
         # Blocks of 128: a frame's pixels differ in cost (the design's against the floor's and the sky's),
         # and smaller blocks free their slots sooner (bench/results/editor-h100: 128 beat Warp's 256).
@@ -809,7 +811,7 @@ class WarpBackend(DeviceBackend):
                       dev["has_ssdf"], dev["ssdf_res"], dev["ssdf_basis"], dev["ssdf_coeffs"],
                       dev["table"], dev["mat_info"], dev["analytic"], dev["eff_info"], dev["eff_lobes"],
                       dev["eff_sub"], dev["eff_tables"], dev["eff_diffuse"], dev["uvs"], dev["tex_info"],
-                      dev["tex_data"], kept_mode, kept_amount, kept_scale, n, only_material],
+                      dev["tex_data"], kept_mode, kept_amount, kept_scale, n, only_material, *changed],
                      [out], block_dim=128)
 
     def _upload_spheres(self, spheres):
