@@ -847,8 +847,8 @@ __kernel void shade_pixels(
     __global const int *tex_info,       /* (T, 4) [texel offset, H, W, 0] */
     __global const float *tex_data,     /* (Σ H·W, 3) */
     const int n_pixels, const int only_material,
-    __global const int *reference_face, /* only_changed: a pixel whose face is this one's takes ... */
-    __global const float *reference_radiance, /* ... (P, 3) this radiance, of that frame */
+    __global const uchar *changed,      /* only_changed: a pixel not flagged here (mark_changed) takes ... */
+    __global const float *reference_radiance, /* ... (P, 3) this radiance, of the reference frame */
     const int only_changed,
     const int kept_mode,                /* 1: keep each lobe's shadowed amount and the irradiance scale, 2: read them */
     __global float *kept_amount,        /* (P, K) */
@@ -859,7 +859,7 @@ __kernel void shade_pixels(
     if (p >= n_pixels)
         return;
     int f = face[p];
-    if (only_changed != 0 && reference_face[p] == f) {
+    if (only_changed != 0 && changed[p] == 0) {
         store3(radiance, p, load3(reference_radiance, p));
         return;
     }

@@ -137,8 +137,8 @@ __kernel void trace_shadows(
     const float eps, const float t_min, const int samples,
     const int part_index, const int part_count, /* the anti-aliasing sample's rays of the set (ray_part) */
     const int block_width,               /* > 0: shared in the 2x2 pixel blocks of frame rows this wide (pixel_part) */
-    __global const int *reference_face,  /* only_changed: the pixels whose face differs from this ... */
-    const int only_changed,              /* ... alone (anti-aliasing shaded once a pixel: the others keep theirs) */
+    __global const uchar *changed,       /* only_changed: the pixels flagged here alone (mark_changed: anti- */
+    const int only_changed,              /* aliasing shaded once a pixel; the others keep their rays) */
     const int n_pixels, const int n_lights,
     __global uchar *visible)             /* (P, L) visible share in 255ths */
 {
@@ -147,7 +147,7 @@ __kernel void trace_shadows(
     if (p >= n_pixels)
         return;
     int f = face[p];
-    if (only_changed != 0 && reference_face[p] == f)
+    if (only_changed != 0 && changed[p] == 0)
         return;
     int hits = 0;
     int3 part = pixel_part(samples, part_index, part_count, block_width, p);
@@ -202,7 +202,7 @@ __kernel void trace_occlusion(
     const float eye_x, const float eye_y, const float eye_z,
     const float eps, const float t_min, const int samples,
     const int part_index, const int part_count, const int block_width,
-    __global const int *reference_face, const int only_changed, /* as trace_shadows' */
+    __global const uchar *changed, const int only_changed, /* as trace_shadows' */
     const int n_pixels,
     __global uint *mask)                 /* (P,) */
 {
@@ -210,7 +210,7 @@ __kernel void trace_occlusion(
     if (p >= n_pixels)
         return;
     int f = face[p];
-    if (only_changed != 0 && reference_face[p] == f)
+    if (only_changed != 0 && changed[p] == 0)
         return;
     uint bits = 0u;
     if (f >= 0) {
@@ -247,7 +247,7 @@ __kernel void trace_lobe_rays(
     const int n_lobes, const int rays,   /* LOBE_RAYS, passed in as the Warp twin takes it */
     const float eps, const float t_min,
     const int part_index, const int part_count, const int block_width,
-    __global const int *reference_face, const int only_changed, /* as trace_shadows' */
+    __global const uchar *changed, const int only_changed, /* as trace_shadows' */
     const int n_pixels,
     __global uint *mask)                 /* (P,) */
 {
@@ -255,7 +255,7 @@ __kernel void trace_lobe_rays(
     if (p >= n_pixels)
         return;
     int f = face[p];
-    if (only_changed != 0 && reference_face[p] == f)
+    if (only_changed != 0 && changed[p] == 0)
         return;
     uint bits = 0u;
     if (f >= 0) {
@@ -293,6 +293,14 @@ CL_INLINE int block_pixel(int p, int width, int q)
     return (y - y % 2 + q / 2) * width + x - x % 2 + q % 2;
 }
 
+/* Whether a hit xq with geometric normal nb (turned to the eye) lies on the surface of the hit xp with normal ng
+ * (trace.same_surface): normals within SHARE_NORMAL_COS, and xq near xp's tangent plane seen from xp. */
+CL_INLINE int same_surface(float3 ng, float3 xp, float3 nb, float3 xq)
+{
+    float3 d = xq - xp;
+    return dot3(ng, nb) >= SHARE_NORMAL_COS && fabs(dot3(ng, d)) <= SHARE_PLANE * sqrt(dot3(d, d));
+}
+
 /* Bit q set where the pixel in slot q of hit pixel p's 2x2 block lends p its rays (trace.share_block): p itself,
  * or a hit neighbour in the frame whose geometric normal is within SHARE_NORMAL_COS of p's and which lies near
  * p's tangent plane (SHARE_PLANE), so that a depth or crease edge keeps each side's rays apart. */
@@ -311,9 +319,7 @@ CL_INLINE int block_lenders(__global const int *face, __global const float *posi
                 lenders |= 1 << q;
             } else if (face[b] >= 0) {
                 float3 xq = load3(position, b);
-                float3 d = xq - xp;
-                float3 nb = seen_normal(face_normals, face[b], xq, eye);
-                if (dot3(ng, nb) >= SHARE_NORMAL_COS && fabs(dot3(ng, d)) <= SHARE_PLANE * sqrt(dot3(d, d)))
+                if (same_surface(ng, xp, seen_normal(face_normals, face[b], xq, eye), xq))
                     lenders |= 1 << q;
             }
         }
@@ -397,4 +403,34 @@ __kernel void share_block_shadows(
         }
         shared[(long)p * n_lights + l] = (uchar)value;
     }
+}
+
+/* One work-item per pixel (trace.changed_pixels): 0 where the pixel's hit lies on the reference G-buffer's
+ * surface at that pixel (the same face, both misses, or the same material with same_surface), else 1: which
+ * pixels an anti-aliasing sample shaded once a pixel traces and shades itself. */
+__kernel void mark_changed(
+    __global const int *face,               /* (P,) */
+    __global const float *position,         /* (P, 3) */
+    __global const int *reference_face,     /* (P,) */
+    __global const float *reference_position, /* (P, 3) */
+    __global const float *face_normals,     /* (F, 3) unit, original face order */
+    __global const int *face_material,      /* (F,) */
+    const float eye_x, const float eye_y, const float eye_z,
+    const int n_pixels,
+    __global uchar *changed)                /* (P,) */
+{
+    int p = get_global_id(0);
+    if (p >= n_pixels)
+        return;
+    int f = face[p], f0 = reference_face[p];
+    uchar flag = 1;
+    if (f == f0) {
+        flag = 0;
+    } else if (f >= 0 && f0 >= 0 && face_material[f] == face_material[f0]) {
+        float3 eye = (float3)(eye_x, eye_y, eye_z);
+        float3 x = load3(position, p), x0 = load3(reference_position, p);
+        if (same_surface(seen_normal(face_normals, f0, x0, eye), x0, seen_normal(face_normals, f, x, eye), x))
+            flag = 0;
+    }
+    changed[p] = flag;
 }

@@ -870,7 +870,7 @@ def shade_pixels(
     eff_diffuse: wp.array(dtype=wp.float32),
     uvs: wp.array(dtype=wp.vec2), tex_info: wp.array2d(dtype=wp.int32), tex_data: wp.array(dtype=wp.vec3),
     kept_mode: int, kept_amount: wp.array(dtype=wp.float32), kept_scale: wp.array(dtype=wp.vec3),
-    n_pixels: int, only_material: int, reference_face: wp.array(dtype=wp.int32),
+    n_pixels: int, only_material: int, changed: wp.array(dtype=wp.uint8),
     reference_radiance: wp.array(dtype=wp.vec3), only_changed: int, offset: int,
     radiance: wp.array(dtype=wp.vec3),
 ):
@@ -878,8 +878,8 @@ def shade_pixels(
     if p >= n_pixels:
         return
     f = face[p]
-    if only_changed != 0:  # a pixel whose face is reference_face's takes the radiance of that frame
-        if reference_face[p] == f:
+    if only_changed != 0:  # a pixel not flagged changed (mark_changed) takes the reference frame's radiance
+        if changed[p] == wp.uint8(0):
             radiance[p] = reference_radiance[p]
             return
     if only_material >= 0:  # only that material's pixels: the others keep the radiance they have

@@ -147,8 +147,8 @@ def trace_shadows(
     part_index: int,
     part_count: int,
     block_width: int,
-    reference_face: wp.array(dtype=wp.int32),  # only_changed: the pixels whose face differs from this ...
-    only_changed: int,  # ... alone (anti-aliasing shaded once a pixel: the others keep their rays)
+    changed: wp.array(dtype=wp.uint8),  # only_changed: the pixels flagged here alone (mark_changed: anti-aliasing
+    only_changed: int,  # shaded once a pixel; the others keep their rays)
     offset: int,
     visible: wp.array2d(dtype=wp.uint8),  # (N, L)
 ):
@@ -160,7 +160,7 @@ def trace_shadows(
     k, p_local = wp.tid()
     p = p_local + offset
     f = face[p]
-    if only_changed != 0 and reference_face[p] == f:
+    if only_changed != 0 and changed[p] == wp.uint8(0):
         return
     hits = int(0)
     part = pixel_part(samples, part_index, part_count, block_width, p)
@@ -214,8 +214,8 @@ def trace_occlusion(
     part_index: int,
     part_count: int,
     block_width: int,
-    reference_face: wp.array(dtype=wp.int32),  # only_changed: the pixels whose face differs from this ...
-    only_changed: int,  # ... alone (anti-aliasing shaded once a pixel: the others keep their rays)
+    changed: wp.array(dtype=wp.uint8),  # only_changed: the pixels flagged here alone (mark_changed: anti-aliasing
+    only_changed: int,  # shaded once a pixel; the others keep their rays)
     offset: int,
     mask: wp.array(dtype=wp.uint32),
 ):
@@ -224,7 +224,7 @@ def trace_occlusion(
     part_index of part_count (pixel_part); bit i of the pixel's mask is set where ray i is blocked."""
     p = wp.tid() + offset
     f = face[p]
-    if only_changed != 0 and reference_face[p] == f:
+    if only_changed != 0 and changed[p] == wp.uint8(0):
         return
     bits = wp.uint32(0)
     if f >= 0:
@@ -257,8 +257,8 @@ def trace_lobe_rays(
     part_index: int,
     part_count: int,
     block_width: int,
-    reference_face: wp.array(dtype=wp.int32),  # only_changed: the pixels whose face differs from this ...
-    only_changed: int,  # ... alone (anti-aliasing shaded once a pixel: the others keep their rays)
+    changed: wp.array(dtype=wp.uint8),  # only_changed: the pixels flagged here alone (mark_changed: anti-aliasing
+    only_changed: int,  # shaded once a pixel; the others keep their rays)
     offset: int,
     mask: wp.array(dtype=wp.uint32),
 ):
@@ -267,7 +267,7 @@ def trace_lobe_rays(
     lobe k is blocked. A ray below the shading normal's horizon is not traced."""
     p = wp.tid() + offset
     f = face[p]
-    if only_changed != 0 and reference_face[p] == f:
+    if only_changed != 0 and changed[p] == wp.uint8(0):
         return
     bits = wp.uint32(0)
     if f >= 0:
@@ -282,6 +282,14 @@ def trace_lobe_rays(
                     if wp.mesh_query_ray_anyhit(mesh, o + t_min * d, d, wp.inf):
                         bits = bits | (wp.uint32(1) << wp.uint32(k * LOBE_RAYS + i))
     mask[p] = bits
+
+
+@wp.func
+def same_surface(ng: wp.vec3, xp: wp.vec3, nb: wp.vec3, xq: wp.vec3) -> bool:
+    """Whether a hit xq with geometric normal nb (turned to the eye) lies on the surface of the hit xp with normal
+    ng (trace.same_surface): normals within SHARE_NORMAL_COS, and xq near xp's tangent plane seen from xp."""
+    d = xq - xp
+    return wp.dot(ng, nb) >= SHARE_NORMAL_COS and wp.abs(wp.dot(ng, d)) <= SHARE_PLANE * wp.length(d)
 
 
 @wp.func
@@ -303,9 +311,7 @@ def block_lenders(face: wp.array(dtype=wp.int32), position: wp.array(dtype=wp.ve
                 lenders = lenders | (1 << q)
             elif face[b] >= 0:
                 xq = position[b]
-                d = xq - xp
-                nb = seen_side(face_normals[face[b]], xq, eye)
-                if wp.dot(ng, nb) >= SHARE_NORMAL_COS and wp.abs(wp.dot(ng, d)) <= SHARE_PLANE * wp.length(d):
+                if same_surface(ng, xp, seen_side(face_normals[face[b]], xq, eye), xq):
                     lenders = lenders | (1 << q)
     return lenders
 
@@ -396,3 +402,33 @@ def share_block_shadows(
                     den = den + traced
             value = (num + den // 2) // den
         shared[p, l] = wp.uint8(value)
+
+
+@wp.kernel
+def mark_changed(
+    face: wp.array(dtype=wp.int32),
+    position: wp.array(dtype=wp.vec3),
+    reference_face: wp.array(dtype=wp.int32),
+    reference_position: wp.array(dtype=wp.vec3),
+    face_normals: wp.array(dtype=wp.vec3),
+    face_material: wp.array(dtype=wp.int32),
+    eye: wp.vec3,
+    offset: int,
+    changed: wp.array(dtype=wp.uint8),
+):
+    """One thread per pixel (trace.changed_pixels): 0 where the pixel's hit lies on the reference G-buffer's surface
+    at that pixel (the same face, both misses, or the same material with same_surface), else 1: which pixels an
+    anti-aliasing sample shaded once a pixel traces and shades itself."""
+    p = wp.tid() + offset
+    f = face[p]
+    f0 = reference_face[p]
+    flag = wp.uint8(1)
+    if f == f0:
+        flag = wp.uint8(0)
+    elif f >= 0 and f0 >= 0:
+        if face_material[f] == face_material[f0]:
+            x = position[p]
+            x0 = reference_position[p]
+            if same_surface(seen_side(face_normals[f0], x0, eye), x0, seen_side(face_normals[f], x, eye), x):
+                flag = wp.uint8(0)
+    changed[p] = flag

@@ -159,13 +159,13 @@ class Backend(Protocol):
     #   "occlusion_samples" int                              of this many rays (0: none since trace_primary)
     #   "gbuffer_lobe_occlusion" (P,) wp.uint32 | P uint32   the sharp environment lobes' ray masks
     # The G-buffer arrays are reused from frame to frame (same size): a new trace overwrites them.
-    def trace_primary(self, mesh, camera, to_host: bool = True, keep_faces: bool = False) -> GBuffer | None:
+    def trace_primary(self, mesh, camera, to_host: bool = True, keep: bool = False) -> GBuffer | None:
         """The G-buffer of `camera` on `mesh` (reference.trace_primary): camera rays generated in the
         kernel (Camera.packed), closest hit. Fills mesh.device_cache[self.name]["gbuffer_*"] (above)
         and, with to_host, returns the host GBuffer (face, bary, position — the barycentric combination of
-        the vertices, on the surface —, t, eye); without, returns None (no copies to the host). keep_faces:
-        first keep the device G-buffer's faces (same size) as the reference of the rays' and shade's
-        only_changed ("reference_face")."""
+        the vertices, on the surface —, t, eye); without, returns None (no copies to the host). keep: first keep
+        the device's G-buffer (same size) and its last shade as the reference frame of the rays' and shade's
+        only_changed ("reference_face", "reference_position", "reference_radiance")."""
 
     def trace_occluded(self, mesh, origins: np.ndarray, directions: np.ndarray, t_max,
                        t_min: float | None = None) -> np.ndarray:
@@ -186,7 +186,8 @@ class Backend(Protocol):
         "gbuffer_light_vis"; returns None unless to_host. `part` (index, count[, W]): only the rays each pixel
         traces for anti-aliasing sample index of count (trace.pixel_parts), with W > 0 shared in the 2×2 pixel
         blocks of a frame of width W (trace.share_block; reference.share_block_shadows). only_changed: only the
-        pixels whose face differs from the faces trace_primary kept (keep_faces); the others keep theirs."""
+        pixels whose hit is not on the kept reference frame's surface there (trace.changed_pixels; trace_primary's
+        keep); the others keep theirs."""
 
     def trace_occlusion(self, mesh, gbuffer: GBuffer | None, samples: int, to_host: bool = True, part=(0, 1),
                         only_changed: bool = False) -> np.ndarray | None:
@@ -233,8 +234,8 @@ class Backend(Protocol):
         shade, or whole frame with keep_visibility (new lights), reads back, bit for bit the same, while the
         G-buffer, its rays, the environment and the mesh's arrays are those it was kept for (else it computes
         them again): the environment's visibility is most of a pixel's work, and neither a material nor a light
-        changes it. only_changed (gbuffer None): only the pixels whose face differs from the faces trace_primary
-        kept; the others keep the radiance they have (an anti-aliased frame shaded once a pixel)."""
+        changes it. only_changed (gbuffer None): only the pixels trace_shadows' only_changed traces; the others
+        take the kept reference frame's radiance (an anti-aliased frame shaded once a pixel)."""
 
     # --- Prefiltered environment (stage `envmap`: kernels/envmap.py, cl/envmap.cl; warp_biscale.lighting) ---
     def prefilter_level(self, radiance: np.ndarray, sharpness: float, height: int, width: int) -> np.ndarray:

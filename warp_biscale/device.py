@@ -601,13 +601,14 @@ class DeviceBackend:
         """The device arrays of a large-scale mesh and its BVH, as the trace and shade launches want them."""
         raise NotImplementedError
 
-    def trace_primary(self, mesh, camera, to_host=True, if_changed=False, keep_faces=False):
+    def trace_primary(self, mesh, camera, to_host=True, if_changed=False, keep=False):
         """The G-buffer of `camera` on `mesh`, left on the device (and a host GBuffer with to_host). With
         if_changed (and to_host False), nothing is traced when the device already holds this camera's
-        G-buffer of this mesh: an editor's frames that move no camera. keep_faces: first keep the faces of the
-        G-buffer on the device (of the same size) as the reference that the rays' and shade's only_changed
-        compare with: an anti-aliased frame's first sample, when the others shade only the pixels whose face
-        differs from it (`render`'s aa_shading="pixel")."""
+        G-buffer of this mesh: an editor's frames that move no camera. keep: first keep the G-buffer on the
+        device (of the same size) and its last shade as the reference frame of the rays' and shade's
+        only_changed, which then trace and shade only the pixels whose hit is not on the reference's surface
+        there (`trace.changed_pixels`): an anti-aliased frame's first sample, when the others are shaded once a
+        pixel (`render`'s aa_shading="pixel")."""
         check_mesh(mesh)
         check_camera(camera)
         m = self._trace_mesh(mesh)
@@ -615,17 +616,18 @@ class DeviceBackend:
         if if_changed and not to_host and m.get("gbuffer_key") == key:
             return None
         n = camera.width * camera.height
-        if keep_faces:
-            if "gbuffer_face" not in m or m.get("gbuffer_face/spec") != ((n,), "i32"):
-                raise ValueError(f"keep_faces: no G-buffer of {n} pixels on the device to keep the faces of")
-            # Two buffers swapped, for the faces and the shaded radiance: the G-buffer's and the last shade's
-            # become the reference, and the next trace and shade fill the others.
+        if keep:
+            if m.get("gbuffer_face/spec") != ((n,), "i32") or m.get("radiance/spec") != ((n,), "vec3"):
+                raise ValueError(f"keep: no shaded frame of {n} pixels on the device to keep")
+            # Two buffers each, swapped: the G-buffer's faces and hits and the last shade become the reference, and
+            # the next trace and shade fill the others.
             for name, kind, reference in (("gbuffer_face", "i32", "reference_face"),
+                                          ("gbuffer_position", "vec3", "reference_position"),
                                           ("radiance", "vec3", "reference_radiance")):
-                if m.get(name + "/spec") != ((n,), kind):
-                    continue
                 spare = m[reference] if m.get(reference + "/spec") == ((n,), kind) else self._new((n,), kind)
                 m[reference], m[name], m[reference + "/spec"] = m[name], spare, ((n,), kind)
+            m["reference_eye"] = m["gbuffer_eye"]
+        m["changed_for"] = None
         g = {"face": self._reuse(m, "gbuffer_face", n, "i32"), "bary": self._reuse(m, "gbuffer_bary", n, "vec2"),
              "position": self._reuse(m, "gbuffer_position", n, "vec3"), "t": self._reuse(m, "gbuffer_t", n, "f32")}
         self._launch_trace_primary(m, camera, g["face"], g["bary"], g["position"], g["t"])
@@ -670,25 +672,29 @@ class DeviceBackend:
         f, b, p, eye = check_gbuffer(gbuffer, len(mesh.faces))
         return self._to_device(f, "i32"), self._to_device(b, "vec2"), self._to_device(p, "vec3"), eye, len(f)
 
-    @staticmethod
-    def _changed(m, gbuffer, n, only_changed, face):
-        """(reference faces, flag) that the trace and shade kernels take: with only_changed, the faces trace_primary
-        kept (keep_faces), for the pixels of the device's own G-buffer whose face differs from them alone; else
-        `face`, the launch's own faces (never read)."""
+    def _changed(self, mesh, m, gbuffer, n, only_changed):
+        """(changed flags, flag) that the trace and shade kernels take: with only_changed, the pixels of the device's
+        own G-buffer whose hit is not on the kept reference frame's surface there (mark_changed, once a G-buffer);
+        else a dummy (never read)."""
         if not only_changed:
-            return face, 0
+            return self._reuse(m, "no_changed", 1, "u8"), 0
         if gbuffer is not None or m.get("reference_face/spec") != ((n,), "i32"):
-            raise ValueError("only_changed needs the device's own G-buffer (gbuffer None) and faces kept by "
-                             "trace_primary(..., keep_faces=True) for it")
-        return m["reference_face"], 1
+            raise ValueError("only_changed needs the device's own G-buffer (gbuffer None) and a frame kept by "
+                             "trace_primary(..., keep=True) for it")
+        if m.get("changed_for") is None:
+            if m.get("face_material_host") is not mesh.face_material:
+                m["face_material"] = self._to_device(np.asarray(mesh.face_material, np.int32), "i32")
+                m["face_material_host"] = mesh.face_material
+            changed = self._reuse(m, "changed", n, "u8")
+            self._launch_mark_changed(m, n, changed)
+            m["changed_for"] = True
+        return m["changed"], 1
 
-    def _changed_radiance(self, m, gbuffer, n, only_changed, face):
-        """(reference faces, reference radiance, flag) that the shade kernels take (`_changed`)."""
-        faces, flag = self._changed(m, gbuffer, n, only_changed, face)
-        if flag and m.get("reference_radiance/spec") != ((n,), "vec3"):
-            raise ValueError("only_changed shades over a kept frame: shade the whole frame before keep_faces")
+    def _changed_radiance(self, mesh, m, gbuffer, n, only_changed):
+        """(changed flags, reference radiance, flag) that the shade kernels take (`_changed`)."""
+        changed, flag = self._changed(mesh, m, gbuffer, n, only_changed)
         radiance = m["reference_radiance"] if flag else self._reuse(m, "no_reference_radiance", 1, "vec3")
-        return faces, radiance, flag
+        return changed, radiance, flag
 
     @staticmethod
     def _ray_mesh(m):
@@ -711,8 +717,8 @@ class DeviceBackend:
         device already holds them for this G-buffer, these lights and samples. `part` (index, count): only
         the rays that anti-aliasing sample index of count traces of the set (trace.ray_part), their share;
         (index, count, W): shared in the 2×2 pixel blocks of a frame of width W (trace.pixel_parts). only_changed:
-        the pixels whose face differs from the kept faces alone (`trace_primary`'s keep_faces); the others keep
-        the shares they have."""
+        the pixels not on the kept frame's surface alone (`trace_primary`'s keep); the others keep the shares
+        they have."""
         check_mesh(mesh)
         lights = check_lights(lights_packed)
         samples = check_shadow_samples(samples)
@@ -727,7 +733,7 @@ class DeviceBackend:
             shared = part[2] > 0 and samples >= BLOCK_SLOTS
             traced = self._reuse(m, "block_light_vis", (n, len(lights)), "u8") if shared else vis
             self._launch_trace_shadows(m, face, bary, position, eye, lights, *self._offsets(mesh, m), samples, part,
-                                       self._changed(m, gbuffer, n, only_changed, face), n, traced)
+                                       self._changed(mesh, m, gbuffer, n, only_changed), n, traced)
             if shared:
                 self._launch_share_block_shadows(m, face, position, eye, samples, part, n, len(lights), traced, vis)
         m["light_vis_key"] = key
@@ -753,7 +759,7 @@ class DeviceBackend:
         if n and samples:
             traced = self._reuse(m, "block_occlusion", n, "u32") if part[2] else mask
             self._launch_trace_occlusion(m, face, bary, position, eye, *self._offsets(mesh, m), samples, part,
-                                         self._changed(m, gbuffer, n, only_changed, face), n, traced)
+                                         self._changed(mesh, m, gbuffer, n, only_changed), n, traced)
             if part[2]:
                 self._launch_share_block_masks(m, face, position, eye, samples, part, n, traced, mask,
                                                self._reuse(m, "occlusion_known", n, "u32"))
@@ -782,7 +788,7 @@ class DeviceBackend:
         if n and len(lobes):
             traced = self._reuse(m, "block_lobe_occlusion", n, "u32") if part[2] else mask
             self._launch_trace_lobe_rays(m, face, bary, position, eye, lobes, *self._offsets(mesh, m), part,
-                                         self._changed(m, gbuffer, n, only_changed, face), n, traced)
+                                         self._changed(mesh, m, gbuffer, n, only_changed), n, traced)
             if part[2]:
                 self._launch_share_block_masks(m, face, position, eye, LOBE_RAYS, part, n, traced, mask,
                                                self._reuse(m, "lobe_known", n, "u32"))
@@ -899,7 +905,7 @@ class DeviceBackend:
         if n:
             self._launch_shade(dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, part, known, lights,
                                camera, n, -1 if only_material is None else int(only_material),
-                               self._changed_radiance(m, gbuffer, n, only_changed, face), kept_mode, *kept, out)
+                               self._changed_radiance(mesh, m, gbuffer, n, only_changed), kept_mode, *kept, out)
         if kept_mode == 1:
             m["visibility_key"] = key
         m["visibility_read"] = kept_mode == 2

@@ -857,6 +857,11 @@ class OpenCLBackend(DeviceBackend):
                      np.int32(len(lobes)), np.int32(LOBE_RAYS), np.float32(eps), np.float32(t_min),
                      *map(np.int32, part), changed[0], np.int32(changed[1]), np.int32(n), mask)
 
+    def _launch_mark_changed(self, m, n, changed):
+        self._launch("trace", "mark_changed", (n,), m["gbuffer_face"], m["gbuffer_position"], m["reference_face"],
+                     m["reference_position"], self._ray_mesh(m)[3], m["face_material"],
+                     *(np.float32(e) for e in m["gbuffer_eye"]), np.int32(n), changed)
+
     def _launch_share_block_masks(self, m, face, position, eye, samples, part, n, traced, shared, known):
         self._launch("trace", "share_block_masks", (n,), face, position, self._ray_mesh(m)[3],
                      *(np.float32(e) for e in eye), *map(np.int32, (part[2], n, samples, part[0], part[1])), traced,

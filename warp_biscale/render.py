@@ -208,10 +208,12 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     `trace.share_block`: a depth or crease edge keeps each side's rays apart), so a frame traces a quarter of the
     rays, and visibility is averaged over two pixels: at low resolutions a contact shadow or a soft terminator
     comes out lighter (docs/design.md, "Rays shared in 2×2 blocks"); False (default): every pixel traces its own.
-    `aa_shading` "sample" (default): each anti-aliasing sample shaded; "pixel": shaded once a pixel where its samples
-    hit the face its first sample hits, as multisampling does (the first sample traces every ray of each set; a
-    later sample traces and shades only the pixels whose face differs from the first's), so edges are anti-aliased
-    at about one frame's shading and rays, and shading within a face is not.
+    `aa_shading` "sample" (default): each anti-aliasing sample shaded; "pixel": a pixel shaded once where its samples
+    hit the surface its first sample hits, as multisampling does: the first sample traces every ray of each set and
+    is shaded whole; a later sample traces (its own part of each set) and shades only the pixels whose hit is not on
+    the first sample's surface there (another material, a depth or crease edge: `trace.changed_pixels`), the
+    others adding the first sample's radiance again. Edges are anti-aliased at about one frame's shading and rays;
+    shading within a surface is not.
     "mc": the Monte
     Carlo reference (`montecarlo.render`, options `samples`, `seed`, `truths`, `fallback`, `truth_facets`,
     `truth_seed`, `truth_directions`), whose lights are the same discs and which judges a baked material by its
@@ -280,20 +282,21 @@ def _accumulate(scene: Scene, backend, n_aa: int, n_shadow: int, n_occlusion: in
     `shade(camera, to_host)` (→ (P, 3) with to_host), averaged with a box filter on the device
     (`accumulate_frame`: one read-back, of the average). With split_rays, sample i of n traces its part
     (i, n) of each set of rays (`trace.ray_part`), else all of them; with block_rays, shared in 2×2 pixel blocks
-    (`trace.pixel_parts`). shade_once (n > 1): the first sample traces every ray of each set and is shaded whole;
-    a later one traces and shades only the pixels whose face differs from the first sample's (`only_changed`),
-    the others adding the first sample's radiance again."""
+    (`trace.pixel_parts`). shade_once (n > 1): the first sample traces every ray of each set (shared in blocks with
+    block_rays) and is shaded whole; a later one traces its own part (k, n) of each set and shades only the pixels
+    whose hit is off the first sample's surface (`only_changed`), the others adding the first sample's radiance
+    again."""
     cam = scene.camera
     image = None
     shade_once = shade_once and n_aa > 1
     for i, (jx, jy) in enumerate(aa_offsets(n_aa)):
         sample = dataclasses.replace(cam, jitter=(jx, jy)) if n_aa > 1 else cam
-        part = (i, n_aa) if split_rays and not shade_once else (0, 1)
-        if block_rays:
+        part = (i, n_aa) if split_rays and not (shade_once and i == 0) else (0, 1)
+        if block_rays and not (shade_once and i):  # (a changed pixel's block holds the first sample's rays)
             part = (*part, cam.width)
         changed = {"only_changed": True} if shade_once and i else {}
         t0 = time.perf_counter()
-        backend.trace_primary(scene.mesh, sample, to_host=False, keep_faces=shade_once and i == 1)
+        backend.trace_primary(scene.mesh, sample, to_host=False, keep=shade_once and i == 1)
         backend.synchronize()
         timings["gbuffer"] += time.perf_counter() - t0
         t0 = time.perf_counter()

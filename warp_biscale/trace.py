@@ -38,7 +38,8 @@ from .scene import Camera, Mesh, _integer
 
 __all__ = ["T_MIN", "SHADOW_OFFSET", "CHUNK_RAYS", "offsets", "check_mesh", "check_camera", "check_rays",
            "check_lights", "check_gbuffer", "check_shadow_samples", "check_ray_part", "ray_part", "part_rays",
-           "pixel_parts", "share_block", "BLOCK_SLOTS", "SHARE_NORMAL_COS", "SHARE_PLANE",
+           "pixel_parts", "share_block", "BLOCK_SLOTS", "SHARE_NORMAL_COS", "SHARE_PLANE", "same_surface",
+           "changed_pixels",
            "disk_sample", "disk_basis", "VISIBLE",
            "SHADOW_SAMPLES_MAX", "OCCLUSION_SAMPLES_MAX", "check_occlusion_samples", "occlusion_directions",
            "oriented_face_normals", "ray_starts", "LOBE_RAYS", "LOBE_RAY_LOBES", "lobe_ray_directions", "check_lobes"]
@@ -235,38 +236,58 @@ SHARE_NORMAL_COS = 0.9  # a block neighbour whose geometric normal is within ~26
 SHARE_PLANE = 0.1  # ... and that lies within ~6° of the pixel's tangent plane seen from it lends its rays
 
 
+def _seen_normals(face, position, face_normals, eye):
+    """(normals (..., 3) of faces `face` turned to the eye's side of `position`, hit (...,) bool)."""
+    n = np.asarray(face_normals, np.float64)[np.maximum(face, 0)]
+    n = np.where((np.sum(n * (np.asarray(eye, np.float64) - position), -1) < 0)[..., None], -n, n)
+    return n, face >= 0
+
+
+def same_surface(ng, xp, nb, xq, normal_cos: float = SHARE_NORMAL_COS, plane: float = SHARE_PLANE) -> np.ndarray:
+    """(...,) bool float64 twin of the kernels' same_surface: whether hits xq (normals nb, turned to the eye) lie on
+    the surface of hits xp (normals ng): ng·nb ≥ normal_cos and |ng·(xq − xp)| ≤ plane·|xq − xp|."""
+    d = xq - xp
+    return (np.sum(ng * nb, -1) >= normal_cos) & (np.abs(np.sum(ng * d, -1)) <= plane * np.linalg.norm(d, axis=-1))
+
+
+def changed_pixels(face, position, reference_face, reference_position, face_normals, face_material, eye,
+                   normal_cos: float = SHARE_NORMAL_COS, plane: float = SHARE_PLANE) -> np.ndarray:
+    """(P,) bool float64 twin of the kernels' mark_changed: False where a pixel's hit lies on the reference
+    G-buffer's surface at that pixel (the same face, both misses, or faces of one material whose hits pass
+    `same_surface`), True elsewhere: the pixels an anti-aliasing sample shaded once a pixel traces and shades."""
+    face, reference_face = np.asarray(face, np.int64), np.asarray(reference_face, np.int64)
+    x = np.asarray(position, np.float64).reshape(-1, 3)
+    x0 = np.asarray(reference_position, np.float64).reshape(-1, 3)
+    n, hit = _seen_normals(face, x, face_normals, eye)
+    n0, hit0 = _seen_normals(reference_face, x0, face_normals, eye)
+    material = np.asarray(face_material, np.int64)
+    same = hit & hit0 & (material[np.maximum(face, 0)] == material[np.maximum(reference_face, 0)])
+    return ~((face == reference_face) | (same & same_surface(n0, x0, n, x, normal_cos, plane)))
+
+
 def share_block(face, position, face_normals, eye, width: int, pixel=None, normal_cos: float = SHARE_NORMAL_COS,
                 plane: float = SHARE_PLANE) -> np.ndarray:
-    """(P, 4) bool float64 twin of the kernels' block_shares: for hit pixel p (row y·W + x of a frame of width W),
+    """(P, 4) bool float64 twin of the kernels' block_lenders: for hit pixel p (row y·W + x of a frame of width W),
     whether the pixel in slot q (x0 + q mod 2, y0 + q div 2) of its 2×2 block (x0, y0 = x, y rounded down to even)
     lends its rays to p — p itself, or a hit neighbour inside the frame whose geometric normal (turned to the eye)
-    n' has n·n' ≥ SHARE_NORMAL_COS and whose hit x' has |n·(x' − x)| ≤ SHARE_PLANE·|x' − x|: a depth or crease
-    edge keeps each side's rays to itself. Missed pixels: none. `face_normals` (F, 3) unit. (normal_cos and plane
-    move the two bounds, for a test's margins.)"""
+    n' has n·n' ≥ SHARE_NORMAL_COS and whose hit x' has |n·(x' − x)| ≤ SHARE_PLANE·|x' − x| (`same_surface`): a
+    depth or crease edge keeps each side's rays to itself. Missed pixels: none. `face_normals` (F, 3) unit.
+    (normal_cos and plane move the two bounds, for a test's margins.)"""
     face = np.asarray(face, np.int64)
     position = np.asarray(position, np.float64).reshape(-1, 3)
     n_all = len(face)
     p = np.arange(n_all) if pixel is None else np.asarray(pixel, np.int64)
     x, y = p % width, p // width
-    normals = np.asarray(face_normals, np.float64)
-    eye = np.asarray(eye, np.float64)
-
-    def seen(q):
-        ok = face[q] >= 0
-        n = normals[np.maximum(face[q], 0)]
-        return np.where((np.sum(n * (eye - position[q]), -1) < 0)[..., None], -n, n), ok
-
-    n_p, hit = seen(p)
+    n_p, hit = _seen_normals(face[p], position[p], face_normals, eye)
     out = np.zeros((len(p), BLOCK_SLOTS), bool)
     for q in range(BLOCK_SLOTS):
         xb, yb = x - x % 2 + q % 2, y - y % 2 + q // 2
         b = yb * width + xb
         inside = (xb < width) & (b < n_all)
         b = np.where(inside, b, p)
-        n_b, hit_b = seen(b)
-        d = position[b] - position[p]
-        near = np.abs(np.sum(n_p * d, -1)) <= plane * np.linalg.norm(d, axis=-1)
-        out[:, q] = hit & inside & ((b == p) | (hit_b & (np.sum(n_p * n_b, -1) >= normal_cos) & near))
+        n_b, hit_b = _seen_normals(face[b], position[b], face_normals, eye)
+        same = same_surface(n_p, position[p], n_b, position[b], normal_cos, plane)
+        out[:, q] = hit & inside & ((b == p) | (hit_b & same))
     return out
 
 
