@@ -499,7 +499,7 @@ def test_rays_shared_in_2x2_blocks_match_reference(backend, block_frame, part):
     (block_frame) the lent bits equal, and the masks bit for bit where a ray is unambiguous (triangles grown and
     shrunk by BARY_TOL); the shadow shares to one of a pixel's own rays (255/4) and on 98 % exactly. A pixel of
     the open floor whose block lends it all four quarters knows the whole set; no bit outside the known ones.
-    A set of fewer than four rays (one shadow ray) is each pixel's own."""
+    A set of fewer than four rays (one shadow ray) is shared too, by the reference's rule: each pixel's own."""
     mesh, cam, lights, g, lenders, sure = block_frame
     part = (*part, cam.width)
     eps, t_min = offsets(mesh)
@@ -531,8 +531,6 @@ def test_rays_shared_in_2x2_blocks_match_reference(backend, block_frame, part):
         own = ref.trace_shadows(mesh.vertices, mesh.normals, mesh.faces, g.face, g.bary, g.position, g.eye, soft,
                                 eps, t_min, samples=samples, part=part)
         want = ref.share_block_shadows(own, lenders, samples, part).astype(np.int64)
-        if samples == 1:
-            np.testing.assert_array_equal(want, own)
         off = np.abs(vis - want)[sure]
         assert (off > 255 / 4 + 1).sum() == 0 and (off != 0).mean() < 0.02, (off.max(), (off != 0).mean())
 

@@ -502,7 +502,8 @@ def _add_render_commands(sub):
                         "shadow comes out lighter at low resolutions)")
     r.add_argument("--aa-shading", choices=["sample", "pixel"],
                    help="sample (default): shade every anti-aliasing sample; pixel: shade a pixel once where its "
-                        "samples hit one face, as multisampling does (edges anti-aliased at about one sample's cost)")
+                        "samples hit one surface (one material, no depth or crease edge), as multisampling does: edges "
+                        "anti-aliased at about one sample's cost, a highlight smaller than a pixel not")
     r.add_argument("--mc-fallback", choices=["sg"],
                    help="--method mc: judge every baked material with its SG fit (not exact; with a warning) "
                         "instead of its exact ground truth, e.g. for a material file of format 1, which records "

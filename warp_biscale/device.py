@@ -626,13 +626,13 @@ class DeviceBackend:
                                           ("radiance", "vec3", "reference_radiance")):
                 spare = m[reference] if m.get(reference + "/spec") == ((n,), kind) else self._new((n,), kind)
                 m[reference], m[name], m[reference + "/spec"] = m[name], spare, ((n,), kind)
-            m["reference_eye"] = m["gbuffer_eye"]
-        m["changed_for"] = None
+            m["reference_eye"] = m["gbuffer_eye"]  # (anti-aliasing's jitter moves the rays, not the eye)
+        m["changed_for"], m["occlusion_known/key"], m["lobe_known/key"] = None, None, None
         g = {"face": self._reuse(m, "gbuffer_face", n, "i32"), "bary": self._reuse(m, "gbuffer_bary", n, "vec2"),
              "position": self._reuse(m, "gbuffer_position", n, "vec3"), "t": self._reuse(m, "gbuffer_t", n, "f32")}
         self._launch_trace_primary(m, camera, g["face"], g["bary"], g["position"], g["t"])
         eye = camera.packed()[0:3].copy()
-        m["gbuffer_eye"], m["gbuffer_size"], m["gbuffer_host"] = eye, n, None
+        m["gbuffer_eye"], m["gbuffer_size"], m["gbuffer_host"], m["gbuffer_width"] = eye, n, None, camera.width
         m["gbuffer_key"], m["light_vis_key"], m["occlusion_key"], m["occlusion_samples"] = key, None, None, 0
         m["lobe_rays_key"], m["lobe_rays"] = None, None
         if not to_host:
@@ -662,6 +662,19 @@ class DeviceBackend:
         returned) for `what`; None for rays from another GBuffer (never reused)."""
         return (m.get("gbuffer_key"), *what) if gbuffer is None or gbuffer is m.get("gbuffer_host") else None
 
+    @staticmethod
+    def _check_block_width(m, gbuffer, n, part):
+        """A ray part's block width must be the frame's: the device G-buffer's camera width, or one that divides a
+        host G-buffer's pixel count."""
+        width = part[2]
+        if not width:
+            return
+        own = gbuffer is None or gbuffer is m.get("gbuffer_host")
+        if own and width != m.get("gbuffer_width"):
+            raise ValueError(f"ray part block width {width} is not the frame's width {m.get('gbuffer_width')}")
+        if not own and n % width:
+            raise ValueError(f"ray part block width {width} does not divide the G-buffer's {n} pixels into rows")
+
     def _ray_starts(self, mesh, m, gbuffer):
         """(face, bary, position, eye, P) that shadow, occlusion and lobe rays leave from: the device's own
         G-buffer (gbuffer None or the host copy trace_primary returned), or a host GBuffer uploaded."""
@@ -678,9 +691,10 @@ class DeviceBackend:
         else a dummy (never read)."""
         if not only_changed:
             return self._reuse(m, "no_changed", 1, "u8"), 0
-        if gbuffer is not None or m.get("reference_face/spec") != ((n,), "i32"):
-            raise ValueError("only_changed needs the device's own G-buffer (gbuffer None) and a frame kept by "
-                             "trace_primary(..., keep=True) for it")
+        if gbuffer is not None or m.get("reference_face/spec") != ((n,), "i32") \
+                or not np.array_equal(m.get("reference_eye"), m["gbuffer_eye"]):
+            raise ValueError("only_changed needs the device's own G-buffer (gbuffer None) and a frame of its size "
+                             "and eye kept by trace_primary(..., keep=True)")
         if m.get("changed_for") is None:
             if m.get("face_material_host") is not mesh.face_material:
                 m["face_material"] = self._to_device(np.asarray(mesh.face_material, np.int32), "i32")
@@ -724,10 +738,11 @@ class DeviceBackend:
         samples = check_shadow_samples(samples)
         part = check_ray_part(part)
         m = self._trace_mesh(mesh)
-        key = self._rays_key(m, gbuffer, lights.tobytes(), samples, part)
+        key = self._rays_key(m, gbuffer, lights.tobytes(), samples, part, bool(only_changed))
         if if_changed and not to_host and key is not None and m.get("light_vis_key") == key:
             return None
         face, bary, position, eye, n = self._ray_starts(mesh, m, gbuffer)
+        self._check_block_width(m, gbuffer, n, part)
         vis = self._reuse(m, "gbuffer_light_vis", (n, len(lights)), "u8")
         if n and len(lights):
             shared = part[2] > 0 and samples >= BLOCK_SLOTS
@@ -751,10 +766,11 @@ class DeviceBackend:
         samples = check_occlusion_samples(samples)
         part = check_ray_part(part)
         m = self._trace_mesh(mesh)
-        key = self._rays_key(m, gbuffer, samples, part)
+        key = self._rays_key(m, gbuffer, samples, part, bool(only_changed))
         if if_changed and not to_host and key is not None and m.get("occlusion_key") == key:
             return None
         face, bary, position, eye, n = self._ray_starts(mesh, m, gbuffer)
+        self._check_block_width(m, gbuffer, n, part)
         mask = self._reuse(m, "gbuffer_occlusion", n, "u32")
         if n and samples:
             traced = self._reuse(m, "block_occlusion", n, "u32") if part[2] else mask
@@ -780,10 +796,11 @@ class DeviceBackend:
         lobes = check_lobes(lobes)
         part = check_ray_part(part)
         m = self._trace_mesh(mesh)
-        key = self._rays_key(m, gbuffer, lobes.tobytes(), part)
+        key = self._rays_key(m, gbuffer, lobes.tobytes(), part, bool(only_changed))
         if if_changed and not to_host and key is not None and m.get("lobe_rays_key") == key:
             return None
         face, bary, position, eye, n = self._ray_starts(mesh, m, gbuffer)
+        self._check_block_width(m, gbuffer, n, part)
         mask = self._reuse(m, "gbuffer_lobe_occlusion", n, "u32")
         if n and len(lobes):
             traced = self._reuse(m, "block_lobe_occlusion", n, "u32") if part[2] else mask
@@ -815,6 +832,9 @@ class DeviceBackend:
               keep_visibility=False, only_changed=False):
         dev = self._shade_static(static)
         m = self._trace_mesh(mesh)
+        if only_changed and (only_material is not None or keep_visibility):
+            raise ValueError("only_changed shades part of an anti-aliased frame: not with only_material or "
+                             "keep_visibility")
         if only_material is not None:
             if gbuffer is not None:
                 raise ValueError("only_material shades over the device's last frame: pass gbuffer=None")

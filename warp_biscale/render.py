@@ -234,6 +234,9 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
             raise ValueError(f"{name} must be True or False, got {value!r}")
     if aa_shading not in AA_SHADING:
         raise ValueError(f"aa_shading must be one of {AA_SHADING}, got {aa_shading!r}")
+    if method != "sg" and (block_rays or aa_shading != "sample"):
+        raise ValueError(f"block_rays and aa_shading are options of the SG renderer (method='sg'), not of "
+                         f"method={method!r}")
     if method == "mc":
         if n_aa != 1:
             raise ValueError("aa is an option of the SG renderer; the Monte Carlo reference samples pixel centres")
