@@ -1,7 +1,8 @@
 """The 1080p frame of the render target scene (bench_render.target_scene) with its baked torus material made by the
 SG bake and by the ASG bake (a tile, coloured Blinn–Phong n = 256, K = 12, J lobes): per frame the G-buffer, the
 shadow rays and the shading, left on the device (bench_render.time_frames), hard (1) and soft (16) shadow rays;
-one JSON line each (issue 20's "1080p with ASG materials ≥ 400 fps", and its render speed per material × J).
+one JSON line each (issue 20's "1080p with ASG materials ≥ 400 fps", and its render speed per material × J);
+`--block-rays`: each also with the rays shared in 2×2 pixel blocks.
 The default tile is the pyramid (at most 5 distinct normals, so at most 5 lobes whatever J); the height field
 gives every J its lobes.
 
@@ -37,7 +38,10 @@ def main(argv=None):
     ap.add_argument("--analytic", action="store_true", help="the torus in analytic (an)isotropic materials")
     ap.add_argument("--anisotropic", action="store_true",
                     help="the ASG bake of the tile in anisotropic Ward (the SG bake refuses it)")
+    ap.add_argument("--block-rays", action="store_true",
+                    help="also each frame with the rays shared in 2x2 pixel blocks (wb.render's block_rays)")
     args = ap.parse_args(argv)
+    blocks = (False, True) if args.block_rays else (False,)
     warnings.simplefilter("ignore", wb.EnergyWarning)
     tile = families()[args.tile]
     for backend in args.backends:
@@ -46,10 +50,11 @@ def main(argv=None):
             for name, mat in ANALYTIC.items():
                 scene = target_scene(*args.size, backend=be)
                 scene.materials[0] = mat
-                for shadows in (1, 16):
-                    per_frame, _, _, _ = time_frames(scene, be, frames=10, runs=5, shadow_samples=shadows)
+                for shadows, block in [(n, b) for n in (1, 16) for b in blocks]:
+                    per_frame, _, _, _ = time_frames(scene, be, frames=10, runs=5, shadow_samples=shadows,
+                                                     block_rays=block)
                     print(json.dumps({"backend": be.name, "device": be.device, "material": name,
-                                      "size": list(args.size), "shadow_samples": shadows,
+                                      "size": list(args.size), "shadow_samples": shadows, "block_rays": block,
                                       "frame_ms": 1e3 * per_frame, "fps": 1.0 / per_frame}), flush=True)
             continue
         small = (ANALYTIC["anisotropic-ward"] if args.anisotropic
@@ -60,12 +65,13 @@ def main(argv=None):
                 scene = target_scene(*args.size, backend=be)
                 mat = wb.bake(tile, brdf, method=method, lobes=j, directions=12, facets=2**14, backend=be)
                 scene.materials[0] = mat
-                for shadows in (1, 16):
-                    per_frame, _, _, _ = time_frames(scene, be, frames=10, runs=5, shadow_samples=shadows)
+                for shadows, block in [(n, b) for n in (1, 16) for b in blocks]:
+                    per_frame, _, _, _ = time_frames(scene, be, frames=10, runs=5, shadow_samples=shadows,
+                                                     block_rays=block)
                     print(json.dumps({"backend": be.name, "device": be.device, "tile": args.tile, "J": j,
                                       "lobes": len(mat.weight if method == "asg" else mat.lobes),
                                       "material": method + ("-anisotropic-ward" if args.anisotropic else ""),
-                                      "size": list(args.size), "shadow_samples": shadows,
+                                      "size": list(args.size), "shadow_samples": shadows, "block_rays": block,
                                       "frame_ms": 1e3 * per_frame, "fps": 1.0 / per_frame}), flush=True)
 
 
