@@ -23,7 +23,7 @@ from .environment import (
 )
 from .lighting import prefiltered_lookup, sg_irradiance  # noqa: F401
 from .model import facet_shift, radical_inverse  # noqa: F401
-from .trace import (BLOCK_SLOTS, LOBE_RAYS, check_ray_part, disk_basis, disk_sample, lobe_ray_directions,
+from .trace import (BLOCK_SLOTS, LOBE_RAYS, block_pixel, check_ray_part, disk_basis, disk_sample, lobe_ray_directions,
                     occlusion_directions, part_rays, pixel_parts, ray_starts)
 from .sg import one_minus_cos
 from .smallscale import (
@@ -914,7 +914,7 @@ def share_block_masks(mask, lenders, samples: int, part) -> tuple[np.ndarray, np
     known = np.zeros(len(mask), np.uint64)
     for q in range(BLOCK_SLOTS):
         take = lenders[:, q]
-        b = np.where(take, _block_pixel(p, width, q), p)
+        b = np.where(take, block_pixel(p, width, q), p)
         bits = (part_rays(samples, part, b).astype(np.uint64) * bit).sum(1, dtype=np.uint64)
         shared |= np.where(take, mask[b], 0).astype(np.uint64)
         known |= np.where(take, bits, np.uint64(0))
@@ -933,7 +933,7 @@ def share_block_shadows(visible, lenders, samples: int, part) -> np.ndarray:
     num = np.zeros(visible.shape, np.int64)
     den = np.zeros(len(p), np.int64)
     for q in range(BLOCK_SLOTS):
-        b = np.where(lenders[:, q], _block_pixel(p, width, q), p)
+        b = np.where(lenders[:, q], block_pixel(p, width, q), p)
         traced = np.where(lenders[:, q], part_rays(samples, part, b).sum(1), 0)
         num += traced[:, None] * visible[b].astype(np.int64)
         den += traced
@@ -942,11 +942,6 @@ def share_block_shadows(visible, lenders, samples: int, part) -> np.ndarray:
     out[on] = ((num[on] + (den[on] // 2)[:, None]) // den[on, None]).astype(np.uint8)
     return out
 
-
-def _block_pixel(p, width: int, q: int) -> np.ndarray:
-    """The pixel in slot q of pixels p's 2×2 blocks (frame width `width`)."""
-    x, y = p % width, p // width
-    return (y - y % 2 + q // 2) * width + x - x % 2 + q % 2
 
 # ----------------------------------------------------------------------------------------------
 # Environment lighting (stage `envmap`; warp_biscale/lighting.py): the prefiltered

@@ -38,8 +38,8 @@ from .scene import Camera, Mesh, _integer
 
 __all__ = ["T_MIN", "SHADOW_OFFSET", "CHUNK_RAYS", "offsets", "check_mesh", "check_camera", "check_rays",
            "check_lights", "check_gbuffer", "check_shadow_samples", "check_ray_part", "ray_part", "part_rays",
-           "pixel_parts", "share_block", "BLOCK_SLOTS", "SHARE_NORMAL_COS", "SHARE_PLANE", "same_surface",
-           "changed_pixels",
+           "pixel_parts", "block_pixel", "share_block", "BLOCK_SLOTS", "SHARE_NORMAL_COS", "SHARE_PLANE",
+           "same_surface", "changed_pixels",
            "disk_sample", "disk_basis", "VISIBLE",
            "SHADOW_SAMPLES_MAX", "OCCLUSION_SAMPLES_MAX", "check_occlusion_samples", "occlusion_directions",
            "oriented_face_normals", "ray_starts", "LOBE_RAYS", "LOBE_RAY_LOBES", "lobe_ray_directions", "check_lobes"]
@@ -265,6 +265,14 @@ def changed_pixels(face, position, reference_face, reference_position, face_norm
     return ~((face == reference_face) | (same & same_surface(n0, x0, n, x, normal_cos, plane)))
 
 
+def block_pixel(p, width: int, q: int):
+    """The pixel in slot q (x0 + q mod 2, y0 + q div 2) of pixels p's 2×2 blocks in a frame of width `width` (x0, y0:
+    p's column and row rounded down to even; the kernels' block_pixel). Past the frame's last column where the
+    width is odd: check the column, x0 + q mod 2 < width."""
+    x, y = p % width, p // width
+    return (y - y % 2 + q // 2) * width + x - x % 2 + q % 2
+
+
 def share_block(face, position, face_normals, eye, width: int, pixel=None, normal_cos: float = SHARE_NORMAL_COS,
                 plane: float = SHARE_PLANE) -> np.ndarray:
     """(P, 4) bool float64 twin of the kernels' block_lenders: for hit pixel p (row y·W + x of a frame of width W),
@@ -277,13 +285,12 @@ def share_block(face, position, face_normals, eye, width: int, pixel=None, norma
     position = np.asarray(position, np.float64).reshape(-1, 3)
     n_all = len(face)
     p = np.arange(n_all) if pixel is None else np.asarray(pixel, np.int64)
-    x, y = p % width, p // width
+    x = p % width
     n_p, hit = _seen_normals(face[p], position[p], face_normals, eye)
     out = np.zeros((len(p), BLOCK_SLOTS), bool)
     for q in range(BLOCK_SLOTS):
-        xb, yb = x - x % 2 + q % 2, y - y % 2 + q // 2
-        b = yb * width + xb
-        inside = (xb < width) & (b < n_all)
+        b = block_pixel(p, width, q)
+        inside = (x - x % 2 + q % 2 < width) & (b < n_all)
         b = np.where(inside, b, p)
         n_b, hit_b = _seen_normals(face[b], position[b], face_normals, eye)
         same = same_surface(n_p, position[p], n_b, position[b], normal_cos, plane)
