@@ -8,7 +8,8 @@ Parts (records go to --out/results.json; table.md and plots follow):
   sun's lobes), and one point light with
   shadow rays — one frame = G-buffer + shadow rays + occlusion rays + shading, device-resident (no host
   copy; the read-back is timed apart). Swept over resolution (512² … 1920×1080), J, number of lights, PCA
-  terms, shadow rays and occlusion rays.
+  terms, shadow rays and occlusion rays; with --aa N, N anti-aliasing samples a pixel (--aa-shading: each
+  sample shaded, or once a pixel), summed on the device.
 - ``stages``: each stage of one frame of the target scene apart, at the first size: the G-buffer, the
   shadow rays (1 and the default count a light), the occlusion and sun-lobe rays, the shading, and the
   read-backs of the float and the 8-bit frame (not in the default parts).
@@ -33,7 +34,7 @@ import re
 import sys
 
 import warp_biscale as wb
-from warp_biscale.render import OCCLUSION_SAMPLES, SHADOW_SAMPLES, pack_frame
+from warp_biscale.render import OCCLUSION_SAMPLES, SHADOW_SAMPLES, pack_frame, queue_frame
 
 if __package__ in (None, ""):  # run as a file: `bench` importable from the checkout, after site-packages
     sys.path.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -67,46 +68,40 @@ PRECOMPUTE = ("lighting", "ssdf", "materials")  # Rendering.timings' stages of a
 
 
 def time_frames(scene, backend, frames, runs, shadow_samples=SHADOW_SAMPLES, occlusion_samples=OCCLUSION_SAMPLES,
-                block_rays=False):
+                block_rays=False, aa=1, aa_shading="sample"):
     """(median s per frame, precompute s, first-frame extra s, read-back s). A frame is the G-buffer, the
-    shadow rays and the shading, its image left on the device (what an interactive viewer draws from), so
-    the loop calls the backend's stages as `wb.render` does, without its read-back and per-stage waits;
-    the read-back is timed apart. block_rays: the rays shared in 2×2 pixel blocks (`wb.render`'s option)."""
+    shadow rays and the shading of each of `aa` anti-aliasing samples (`wb.render`'s options: block_rays, the
+    rays shared in 2×2 pixel blocks; aa_shading), its image left on the device (what an interactive viewer
+    draws from): `render.queue_frame`, the stages of `wb.render` without its read-back and per-stage waits.
+    The read-back is timed apart."""
     be = wb.get_backend(backend)
-    # compiles, and computes what does not depend on the camera
-    first = wb.render(scene, backend=be, shadow_samples=shadow_samples, occlusion_samples=occlusion_samples,
-                      **({"block_rays": True} if block_rays else {}))
-    part = (0, 1, scene.camera.width) if block_rays else (0, 1)
+    options = dict(shadow_samples=shadow_samples, occlusion_samples=occlusion_samples, aa=aa,
+                   **({"block_rays": True} if block_rays else {}),
+                   **({"aa_shading": aa_shading} if aa_shading != "sample" else {}))
+    first = wb.render(scene, backend=be, **options)  # compiles, and computes what does not depend on the camera
     precompute = sum(first.timings.get(k, 0.0) for k in PRECOMPUTE)
-    inputs = pack_frame(scene, be).inputs  # the shade stage's inputs, cached on the scene by the render above
-    lights = scene.lights_packed
-    cam = scene.camera.packed()
-    rays = {"part": part} if block_rays else {}  # (a tree from before the option takes no part)
-
-    def frame():
-        be.trace_primary(scene.mesh, scene.camera, to_host=False)
-        if len(lights):
-            be.trace_shadows(scene.mesh, None, lights, to_host=False, samples=shadow_samples, **rays)
-        if inputs.has_ssdf and occlusion_samples:
-            be.trace_occlusion(scene.mesh, None, occlusion_samples, to_host=False, **rays)
-            if inputs.n_sharp_lobes:
-                be.trace_lobe_rays(scene.mesh, None, inputs.sharp_lobes(), to_host=False, **rays)
-        be.shade(scene.mesh, inputs, cam, lights, to_host=False)
 
     def loop():
         for _ in range(frames):
-            frame()
+            queue_frame(scene, be, **options)
 
     t = common.timed(loop, runs, be)
     per_frame = t.median_s / frames
-    back = common.timed(lambda: be.shade(scene.mesh, inputs, cam, lights, to_host=True), 3, be)
+    if aa == 1:
+        inputs = pack_frame(scene, be).inputs  # the shade stage's inputs, cached on the scene by the render above
+        lights, cam = scene.lights_packed, scene.camera.packed()
+        back = common.timed(lambda: be.shade(scene.mesh, inputs, cam, lights, to_host=True), 3, be).median_s
+        back -= per_frame
+    else:  # the device's average of the samples
+        back = common.timed(lambda: be.accumulated_frame(scene.mesh, scene.camera.width, scene.camera.height), 3,
+                            be).median_s
     # The first render's time past its precompute and one warm frame: compilation and uploads.
     first_extra = first.timings["total"] - precompute - per_frame
-    return per_frame, precompute, max(first_extra, 0.0), max(back.median_s - per_frame, 0.0)
+    return per_frame, precompute, max(first_extra, 0.0), max(back, 0.0)
 
 
 def part_frames(backends, sizes, lobe_list, light_list, term_list, frames, runs, out, shadow_list=(),
-                occlusion_list=(), block_modes=(False,)):
+                occlusion_list=(), block_modes=(False,), aa_modes=((1, "sample"),)):
     base = dict(lobes=8, lights=1, terms=16, shadows=SHADOW_SAMPLES, occlusion=OCCLUSION_SAMPLES)
     sweeps = [("size", s) for s in sizes] + [("lobes", j) for j in lobe_list] + \
              [("lights", n) for n in light_list] + [("terms", t) for t in term_list] + \
@@ -122,14 +117,17 @@ def part_frames(backends, sizes, lobe_list, light_list, term_list, frames, runs,
             scene = target_scene(w, h, backend=backend, **kw)
             kw["shadows"], kw["occlusion"] = shadows, occlusion
             for block in block_modes:
-                t, pre, first, back = time_frames(scene, be, frames, runs, shadows, occlusion, block_rays=block)
-                out.records.append({"part": "frames", "sweep": what, "backend": be.name, "device": be.device,
-                                    "width": w, "height": h, **kw, "block_rays": block, "frame_s": t, "fps": 1.0 / t,
-                                    "precompute_s": pre, "first_call_extra_s": first, "readback_s": back})
-                out.log(f"{be.name:<28} {what:<7} {w}x{h} J={kw['lobes']} lights={kw['lights']} terms={kw['terms']} "
-                        f"shadow rays={kw['shadows']} occlusion rays={kw['occlusion']} 2x2 blocks={block}: "
-                        f"{t * 1e3:9.3f} ms/frame ({1 / t:8.1f} fps), precompute {pre:6.2f} s, "
-                        f"readback {back * 1e3:7.2f} ms")
+                for aa, aa_shading in aa_modes:
+                    t, pre, first, back = time_frames(scene, be, frames, runs, shadows, occlusion, block_rays=block,
+                                                      aa=aa, aa_shading=aa_shading)
+                    out.records.append({"part": "frames", "sweep": what, "backend": be.name, "device": be.device,
+                                        "width": w, "height": h, **kw, "block_rays": block, "aa": aa,
+                                        "aa_shading": aa_shading, "frame_s": t, "fps": 1.0 / t,
+                                        "precompute_s": pre, "first_call_extra_s": first, "readback_s": back})
+                    out.log(f"{be.name:<28} {what:<7} {w}x{h} J={kw['lobes']} lights={kw['lights']} "
+                            f"terms={kw['terms']} shadow rays={kw['shadows']} occlusion rays={kw['occlusion']} "
+                            f"2x2 blocks={block} aa={aa} ({aa_shading}): {t * 1e3:9.3f} ms/frame ({1 / t:8.1f} fps), "
+                            f"precompute {pre:6.2f} s, readback {back * 1e3:7.2f} ms")
 
 
 def part_stages(backends, size, runs, out, repeat=10, block_modes=(False,)):
@@ -211,9 +209,10 @@ def table(records, meta):
     lines = [f"# Rendering benchmark ({meta['device_kind']})", "", common.commit_line(meta), ""]
     lines += common.markdown_table(
         ["backend", "sweep", "size", "J", "lights", "PCA terms", "shadow rays", "occlusion rays", "2×2 blocks",
-         "ms/frame", "fps", "precompute s", "readback ms"],
+         "aa (shading)", "ms/frame", "fps", "precompute s", "readback ms"],
         [[r["backend"], r["sweep"], f"{r['width']}×{r['height']}", r["lobes"], r["lights"], r["terms"],
           r.get("shadows", 1), r.get("occlusion", 0), "yes" if r.get("block_rays") else "no",
+          f"{r.get('aa', 1)} ({r.get('aa_shading', 'sample')})",
           f"{r['frame_s'] * 1e3:.3f}", f"{r['fps']:.1f}", f"{r['precompute_s']:.2f}", f"{r['readback_s'] * 1e3:.2f}"]
          for r in records if r["part"] == "frames"])
     stages = [r for r in records if r["part"] == "stages"]
@@ -286,8 +285,12 @@ def main(argv=None):
     ap.add_argument("--samples", type=int, default=1024, help="Monte Carlo samples a pixel of the reference")
     ap.add_argument("--block-rays", choices=["off", "on", "both"], default="off",
                     help="frames with the rays shared in 2x2 pixel blocks (wb.render's block_rays), without, or both")
+    ap.add_argument("--aa", type=int, nargs="+", default=[1], help="anti-aliasing samples a pixel of the frames")
+    ap.add_argument("--aa-shading", nargs="+", choices=["sample", "pixel"], default=["sample"],
+                    help="wb.render's aa_shading of the anti-aliased frames (aa > 1)")
     args = ap.parse_args(argv)
     blocks = {"off": (False,), "on": (True,), "both": (False, True)}[args.block_rays]
+    aa_modes = [(aa, shading) for aa in args.aa for shading in (args.aa_shading if aa > 1 else ["sample"])]
     backends = common.backend_names(args.backends)
     if args.quick:
         sizes, pareto_size, frames = [(512, 512), (256, 256)], (96, 72), 3
@@ -303,7 +306,7 @@ def main(argv=None):
 
     if "frames" in args.parts:
         part_frames(backends, sizes, args.lobes, args.lights, args.terms, frames, args.runs, out, args.shadow_samples,
-                    args.occlusion_samples, blocks)
+                    args.occlusion_samples, blocks, aa_modes)
         save()
     if "stages" in args.parts:
         part_stages(backends, sizes[0], args.runs, out, block_modes=blocks)

@@ -267,6 +267,25 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     return Rendering(image, timings, info)
 
 
+def queue_frame(scene: Scene, backend, aa: int = 1, shadow_samples: int = SHADOW_SAMPLES,
+                occlusion_samples: int = OCCLUSION_SAMPLES, split_rays: bool = True, block_rays: bool = False,
+                aa_shading: str = "sample") -> None:
+    """Queue one SG frame of `scene` as `render` makes it (the same options), its stages back to back with no
+    waits and its image left on the device: what an interactive viewer draws from, and the benchmarks' frame.
+    The scene's precomputation (lighting, SSDF, materials) is `render`'s, cached on the scene."""
+    backend = get_backend(backend)
+    n_aa = check_aa(aa)
+    if aa_shading not in AA_SHADING:
+        raise ValueError(f"aa_shading must be one of {AA_SHADING}, got {aa_shading!r}")
+    static = _static_inputs(scene, backend, Progress(None), {})
+    lights = scene.lights_packed
+    n_occlusion = check_occlusion_samples(occlusion_samples) if static.has_ssdf else 0
+    _accumulate(scene, backend, n_aa, check_shadow_samples(shadow_samples), n_occlusion, lights, {"shade": 0.0},
+                lambda cam, to_host, **kw: backend.shade(scene.mesh, static, cam.packed(), lights, to_host=to_host,
+                                                         **kw),
+                static.sharp_lobes(), split_rays, block_rays, aa_shading == "pixel", wait=False, to_host=False)
+
+
 def check_no_litspheres(scene: Scene, method: str) -> None:
     """Refuse, in one line, a material `method` cannot shade: a LitSphere (only the lit-sphere shader reads
     one). A MeasuredBRDF the SG renderer shades by its SG fit (`brdf.sg_lobes`), the Monte Carlo reference
@@ -278,7 +297,8 @@ def check_no_litspheres(scene: Scene, method: str) -> None:
 
 
 def _accumulate(scene: Scene, backend, n_aa: int, n_shadow: int, n_occlusion: int, lights, timings: dict, shade,
-                lobes=None, split_rays: bool = True, block_rays: bool = False, shade_once: bool = False):
+                lobes=None, split_rays: bool = True, block_rays: bool = False, shade_once: bool = False,
+                wait: bool = True, to_host: bool = True):
     """The (H, W, 3) image: per anti-aliasing sample (`aa_offsets`) the G-buffer, the shadow rays of
     `lights` (n_shadow a light; none when 0), the environment-occlusion rays (n_occlusion a pixel; none
     when 0) and with them the rays of the sharp environment lobes `lobes` (`ShadeInputs.sharp_lobes`), then
@@ -288,8 +308,15 @@ def _accumulate(scene: Scene, backend, n_aa: int, n_shadow: int, n_occlusion: in
     (`trace.pixel_parts`). shade_once (n > 1): the first sample traces every ray of each set (shared in blocks with
     block_rays) and is shaded whole; a later one traces its own part (k, n) of each set and shades only the pixels
     whose hit is off the first sample's surface (`only_changed`), the others adding the first sample's radiance
-    again."""
+    again. wait: wait for each stage, to time it into `timings`; False: the stages queued back to back, as a
+    viewer's frame. to_host False: the image left on the device (→ None)."""
     cam = scene.camera
+
+    def timed(key, t0):
+        if wait:
+            backend.synchronize()
+            timings[key] = timings.get(key, 0.0) + time.perf_counter() - t0
+
     image = None
     shade_once = shade_once and n_aa > 1
     for i, (jx, jy) in enumerate(aa_offsets(n_aa)):
@@ -300,27 +327,26 @@ def _accumulate(scene: Scene, backend, n_aa: int, n_shadow: int, n_occlusion: in
         changed = {"only_changed": True} if shade_once and i else {}
         t0 = time.perf_counter()
         backend.trace_primary(scene.mesh, sample, to_host=False, keep=shade_once and i == 1)
-        backend.synchronize()
-        timings["gbuffer"] += time.perf_counter() - t0
-        t0 = time.perf_counter()
+        timed("gbuffer", t0)
         if len(lights) and n_shadow:
+            t0 = time.perf_counter()
             backend.trace_shadows(scene.mesh, None, lights, to_host=False, samples=n_shadow, part=part, **changed)
-            backend.synchronize()
-            timings["shadows"] = timings.get("shadows", 0.0) + time.perf_counter() - t0
+            timed("shadows", t0)
         if n_occlusion:
             t0 = time.perf_counter()
             backend.trace_occlusion(scene.mesh, None, n_occlusion, to_host=False, part=part, **changed)
             if lobes is not None and len(lobes):
                 backend.trace_lobe_rays(scene.mesh, None, lobes, to_host=False, part=part, **changed)
-            backend.synchronize()
-            timings["occlusion"] = timings.get("occlusion", 0.0) + time.perf_counter() - t0
+            timed("occlusion", t0)
         t0 = time.perf_counter()
         if n_aa == 1:
-            image = shade(sample, True)
+            image = shade(sample, to_host)
         else:  # (summed in float32: at most 256 samples of a non-negative value, relative error ~1e-5)
             shade(sample, False, **changed)
             backend.accumulate_frame(scene.mesh, cam.width, cam.height, 1.0 / n_aa, first=i == 0)
         timings["shade"] += time.perf_counter() - t0
+    if not to_host:
+        return None
     if n_aa > 1:
         t0 = time.perf_counter()
         image = backend.accumulated_frame(scene.mesh, cam.width, cam.height)
