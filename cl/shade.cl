@@ -848,8 +848,6 @@ __kernel void shade_pixels(
     __global const float *tex_data,     /* (Σ H·W, 3) */
     const int n_pixels, const int only_material,
     __global const uchar *changed,      /* only_changed: a pixel not flagged here (mark_changed) takes ... */
-    __global const int *changed_list,   /* (the flagged pixels, changed_count[0] of them: work-item i shades */
-    __global const int *changed_count,  /* changed_list[i]) */
     __global const float *reference_radiance, /* ... (P, 3) this radiance, of the reference frame */
     const int only_changed,
     const int kept_mode,                /* 1: keep each lobe's shadowed amount and the irradiance scale, 2: read them */
@@ -860,16 +858,11 @@ __kernel void shade_pixels(
     int p = get_global_id(0);
     if (p >= n_pixels)
         return;
-    if (only_changed != 0) {
-        /* Work-item i gives pixel i the reference frame's radiance unless mark_changed flagged it, then shades
-         * the i-th flagged pixel, so the shaded pixels take consecutive work-items. */
-        if (changed[p] == 0)
-            store3(radiance, p, load3(reference_radiance, p));
-        if (p >= changed_count[0])
-            return;
-        p = changed_list[p];
-    }
     int f = face[p];
+    if (only_changed != 0 && changed[p] == 0) {
+        store3(radiance, p, load3(reference_radiance, p));
+        return;
+    }
     /* only that material's pixels: the others keep the radiance they have */
     if (only_material >= 0 && (f < 0 || face_material[f] != only_material))
         return;

@@ -137,9 +137,8 @@ __kernel void trace_shadows(
     const float eps, const float t_min, const int samples,
     const int part_index, const int part_count, /* the anti-aliasing sample's rays of the set (ray_part) */
     const int block_width,               /* > 0: shared in the 2x2 pixel blocks of frame rows this wide (pixel_part) */
-    __global const int *changed_list,    /* only_changed: the pixels listed here alone, work-item i taking */
-    __global const int *changed_count,   /* pixel changed_list[i] while i < changed_count[0] (mark_changed: */
-    const int only_changed,              /* anti-aliasing shaded once a pixel; the others keep their rays) */
+    __global const uchar *changed,       /* only_changed: the pixels flagged here alone (mark_changed: anti- */
+    const int only_changed,              /* aliasing shaded once a pixel; the others keep their rays) */
     const int n_pixels, const int n_lights,
     __global uchar *visible)             /* (P, L) visible share in 255ths */
 {
@@ -147,12 +146,9 @@ __kernel void trace_shadows(
     int k = get_global_id(1);
     if (p >= n_pixels)
         return;
-    if (only_changed != 0) {
-        if (p >= changed_count[0])
-            return;
-        p = changed_list[p];
-    }
     int f = face[p];
+    if (only_changed != 0 && changed[p] == 0)
+        return;
     int hits = 0;
     int3 part = pixel_part(samples, part_index, part_count, block_width, p);
     int traced = (samples - part.x + part.y - 1) / part.y;
@@ -206,19 +202,16 @@ __kernel void trace_occlusion(
     const float eye_x, const float eye_y, const float eye_z,
     const float eps, const float t_min, const int samples,
     const int part_index, const int part_count, const int block_width,
-    __global const int *changed_list, __global const int *changed_count, const int only_changed, /* as trace_shadows' */
+    __global const uchar *changed, const int only_changed, /* as trace_shadows' */
     const int n_pixels,
     __global uint *mask)                 /* (P,) */
 {
     int p = get_global_id(0);
     if (p >= n_pixels)
         return;
-    if (only_changed != 0) {
-        if (p >= changed_count[0])
-            return;
-        p = changed_list[p];
-    }
     int f = face[p];
+    if (only_changed != 0 && changed[p] == 0)
+        return;
     uint bits = 0u;
     if (f >= 0) {
         float3 n, ns;
@@ -254,19 +247,16 @@ __kernel void trace_lobe_rays(
     const int n_lobes, const int rays,   /* LOBE_RAYS, passed in as the Warp twin takes it */
     const float eps, const float t_min,
     const int part_index, const int part_count, const int block_width,
-    __global const int *changed_list, __global const int *changed_count, const int only_changed, /* as trace_shadows' */
+    __global const uchar *changed, const int only_changed, /* as trace_shadows' */
     const int n_pixels,
     __global uint *mask)                 /* (P,) */
 {
     int p = get_global_id(0);
     if (p >= n_pixels)
         return;
-    if (only_changed != 0) {
-        if (p >= changed_count[0])
-            return;
-        p = changed_list[p];
-    }
     int f = face[p];
+    if (only_changed != 0 && changed[p] == 0)
+        return;
     uint bits = 0u;
     if (f >= 0) {
         float3 ng, n;
@@ -417,8 +407,7 @@ __kernel void share_block_shadows(
 
 /* One work-item per pixel (trace.changed_pixels): 0 where the pixel's hit lies on the reference G-buffer's
  * surface at that pixel (the same face, both misses, or the same material with same_surface), else 1: which
- * pixels an anti-aliasing sample shaded once a pixel traces and shades itself. The flagged pixels are also
- * listed (in no set order), so that the trace and shade launches give them consecutive work-items. */
+ * pixels an anti-aliasing sample shaded once a pixel traces and shades itself. */
 __kernel void mark_changed(
     __global const int *face,               /* (P,) */
     __global const float *position,         /* (P, 3) */
@@ -428,9 +417,7 @@ __kernel void mark_changed(
     __global const int *face_material,      /* (F,) */
     const float eye_x, const float eye_y, const float eye_z,
     const int n_pixels,
-    __global uchar *changed,                /* (P,) */
-    __global int *changed_list,             /* (P,) the flagged pixels, changed_count[0] of them */
-    __global int *changed_count)            /* (1,) zeroed before the launch */
+    __global uchar *changed)                /* (P,) */
 {
     int p = get_global_id(0);
     if (p >= n_pixels)
@@ -446,6 +433,4 @@ __kernel void mark_changed(
             flag = 0;
     }
     changed[p] = flag;
-    if (flag != 0)
-        changed_list[atomic_inc(changed_count)] = p;
 }

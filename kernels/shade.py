@@ -870,23 +870,18 @@ def shade_pixels(
     eff_diffuse: wp.array(dtype=wp.float32),
     uvs: wp.array(dtype=wp.vec2), tex_info: wp.array2d(dtype=wp.int32), tex_data: wp.array(dtype=wp.vec3),
     kept_mode: int, kept_amount: wp.array(dtype=wp.float32), kept_scale: wp.array(dtype=wp.vec3),
-    n_pixels: int, only_material: int, changed: wp.array(dtype=wp.uint8), changed_list: wp.array(dtype=wp.int32),
-    changed_count: wp.array(dtype=wp.int32), reference_radiance: wp.array(dtype=wp.vec3), only_changed: int,
-    offset: int,
+    n_pixels: int, only_material: int, changed: wp.array(dtype=wp.uint8),
+    reference_radiance: wp.array(dtype=wp.vec3), only_changed: int, offset: int,
     radiance: wp.array(dtype=wp.vec3),
 ):
     p = wp.tid() + offset
     if p >= n_pixels:
         return
-    if only_changed != 0:
-        # Thread i gives pixel i the reference frame's radiance unless mark_changed flagged it, then shades the
-        # i-th flagged pixel (changed_list), so the shaded pixels take consecutive threads.
+    f = face[p]
+    if only_changed != 0:  # a pixel not flagged changed (mark_changed) takes the reference frame's radiance
         if changed[p] == wp.uint8(0):
             radiance[p] = reference_radiance[p]
-        if p >= changed_count[0]:
             return
-        p = changed_list[p]
-    f = face[p]
     if only_material >= 0:  # only that material's pixels: the others keep the radiance they have
         if f < 0:
             return

@@ -147,9 +147,8 @@ def trace_shadows(
     part_index: int,
     part_count: int,
     block_width: int,
-    changed_list: wp.array(dtype=wp.int32),  # only_changed: the pixels listed here alone, thread i taking pixel
-    changed_count: wp.array(dtype=wp.int32),  # changed_list[i] while i < changed_count[0] (mark_changed: anti-
-    only_changed: int,  # aliasing shaded once a pixel; the others keep their rays)
+    changed: wp.array(dtype=wp.uint8),  # only_changed: the pixels flagged here alone (mark_changed: anti-aliasing
+    only_changed: int,  # shaded once a pixel; the others keep their rays)
     offset: int,
     visible: wp.array2d(dtype=wp.uint8),  # (N, L)
 ):
@@ -160,11 +159,9 @@ def trace_shadows(
     visible share in 255ths, rounded."""
     k, p_local = wp.tid()
     p = p_local + offset
-    if only_changed != 0:
-        if p >= changed_count[0]:
-            return
-        p = changed_list[p]
     f = face[p]
+    if only_changed != 0 and changed[p] == wp.uint8(0):
+        return
     hits = int(0)
     part = pixel_part(samples, part_index, part_count, block_width, p)
     first = part[0]
@@ -217,9 +214,8 @@ def trace_occlusion(
     part_index: int,
     part_count: int,
     block_width: int,
-    changed_list: wp.array(dtype=wp.int32),  # only_changed: the pixels listed here alone, thread i taking pixel
-    changed_count: wp.array(dtype=wp.int32),  # changed_list[i] while i < changed_count[0] (mark_changed: anti-
-    only_changed: int,  # aliasing shaded once a pixel; the others keep their rays)
+    changed: wp.array(dtype=wp.uint8),  # only_changed: the pixels flagged here alone (mark_changed: anti-aliasing
+    only_changed: int,  # shaded once a pixel; the others keep their rays)
     offset: int,
     mask: wp.array(dtype=wp.uint32),
 ):
@@ -227,11 +223,9 @@ def trace_occlusion(
     the geometric normal on the camera's side (occlusion_direction), the pixel's of anti-aliasing sample
     part_index of part_count (pixel_part); bit i of the pixel's mask is set where ray i is blocked."""
     p = wp.tid() + offset
-    if only_changed != 0:
-        if p >= changed_count[0]:
-            return
-        p = changed_list[p]
     f = face[p]
+    if only_changed != 0 and changed[p] == wp.uint8(0):
+        return
     bits = wp.uint32(0)
     if f >= 0:
         o, n, ns = ray_start(points, normals, faces, face_normals[f], f, bary[p], position[p], eye, eps)
@@ -263,9 +257,8 @@ def trace_lobe_rays(
     part_index: int,
     part_count: int,
     block_width: int,
-    changed_list: wp.array(dtype=wp.int32),  # only_changed: the pixels listed here alone, thread i taking pixel
-    changed_count: wp.array(dtype=wp.int32),  # changed_list[i] while i < changed_count[0] (mark_changed: anti-
-    only_changed: int,  # aliasing shaded once a pixel; the others keep their rays)
+    changed: wp.array(dtype=wp.uint8),  # only_changed: the pixels flagged here alone (mark_changed: anti-aliasing
+    only_changed: int,  # shaded once a pixel; the others keep their rays)
     offset: int,
     mask: wp.array(dtype=wp.uint32),
 ):
@@ -273,11 +266,9 @@ def trace_lobe_rays(
     the pixel's of anti-aliasing sample part_index of part_count (pixel_part); bit k·LOBE_RAYS + i set where ray i of
     lobe k is blocked. A ray below the shading normal's horizon is not traced."""
     p = wp.tid() + offset
-    if only_changed != 0:
-        if p >= changed_count[0]:
-            return
-        p = changed_list[p]
     f = face[p]
+    if only_changed != 0 and changed[p] == wp.uint8(0):
+        return
     bits = wp.uint32(0)
     if f >= 0:
         o, ng, n = ray_start(points, normals, faces, face_normals[f], f, bary[p], position[p], eye, eps)
@@ -424,15 +415,10 @@ def mark_changed(
     eye: wp.vec3,
     offset: int,
     changed: wp.array(dtype=wp.uint8),
-    changed_list: wp.array(dtype=wp.int32),
-    changed_count: wp.array(dtype=wp.int32),  # (1,) zeroed before the launch
 ):
     """One thread per pixel (trace.changed_pixels): 0 where the pixel's hit lies on the reference G-buffer's surface
     at that pixel (the same face, both misses, or the same material with same_surface), else 1: which pixels an
-    anti-aliasing sample shaded once a pixel traces and shades itself. The flagged pixels are also listed (in no
-    set order), so that the trace and shade launches give them consecutive threads: a launch over every pixel
-    that skipped the others would keep a warp busy for each changed pixel in it. Atomics: launched unsplit on
-    the CPU (Warp's CPU atomics are not safe across the threads of a split launch)."""
+    anti-aliasing sample shaded once a pixel traces and shades itself."""
     p = wp.tid() + offset
     f = face[p]
     f0 = reference_face[p]
@@ -446,5 +432,3 @@ def mark_changed(
             if same_surface(seen_side(face_normals[f0], x0, eye), x0, seen_side(face_normals[f], x, eye), x):
                 flag = wp.uint8(0)
     changed[p] = flag
-    if flag != wp.uint8(0):
-        changed_list[wp.atomic_add(changed_count, 0, 1)] = p

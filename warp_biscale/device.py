@@ -686,11 +686,11 @@ class DeviceBackend:
         return self._to_device(f, "i32"), self._to_device(b, "vec2"), self._to_device(p, "vec3"), eye, len(f)
 
     def _changed(self, mesh, m, gbuffer, n, only_changed):
-        """(changed pixels, their count, flag) that the trace kernels take: with only_changed, the pixels of the
-        device's own G-buffer whose hit is not on the kept reference frame's surface there, listed by mark_changed
-        (once a G-buffer) so that a launch gives them consecutive threads; else dummies (never read)."""
+        """(changed flags, flag) that the trace and shade kernels take: with only_changed, the pixels of the device's
+        own G-buffer whose hit is not on the kept reference frame's surface there (mark_changed, once a G-buffer);
+        else a dummy (never read)."""
         if not only_changed:
-            return self._reuse(m, "no_changed_list", 1, "i32"), self._reuse(m, "no_changed_count", 1, "i32"), 0
+            return self._reuse(m, "no_changed", 1, "u8"), 0
         if gbuffer is not None or m.get("reference_face/spec") != ((n,), "i32") \
                 or not np.array_equal(m.get("reference_eye"), m["gbuffer_eye"]):
             raise ValueError("only_changed needs the device's own G-buffer (gbuffer None) and a frame of its size "
@@ -699,18 +699,16 @@ class DeviceBackend:
             if m.get("face_material_host") is not mesh.face_material:
                 m["face_material"] = self._to_device(np.asarray(mesh.face_material, np.int32), "i32")
                 m["face_material_host"] = mesh.face_material
-            self._launch_mark_changed(m, n, *(self._reuse(m, name, size, kind) for name, size, kind in (
-                ("changed", n, "u8"), ("changed_list", n, "i32"), ("changed_count", 1, "i32"))))
+            changed = self._reuse(m, "changed", n, "u8")
+            self._launch_mark_changed(m, n, changed)
             m["changed_for"] = True
-        return m["changed_list"], m["changed_count"], 1
+        return m["changed"], 1
 
     def _changed_radiance(self, mesh, m, gbuffer, n, only_changed):
-        """(changed flags, changed pixels, their count, reference radiance, flag) that the shade kernels take
-        (`_changed`)."""
-        listed, count, flag = self._changed(mesh, m, gbuffer, n, only_changed)
-        flags = m["changed"] if flag else self._reuse(m, "no_changed", 1, "u8")
+        """(changed flags, reference radiance, flag) that the shade kernels take (`_changed`)."""
+        changed, flag = self._changed(mesh, m, gbuffer, n, only_changed)
         radiance = m["reference_radiance"] if flag else self._reuse(m, "no_reference_radiance", 1, "vec3")
-        return flags, listed, count, radiance, flag
+        return changed, radiance, flag
 
     @staticmethod
     def _ray_mesh(m):

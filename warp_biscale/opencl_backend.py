@@ -814,7 +814,7 @@ class OpenCLBackend(DeviceBackend):
                               vis):
         self._launch("trace", "trace_shadows", (n, len(lights)), m["nodes"], m["tris"], *self._ray_mesh(m), face,
                      bary, position, *(np.float32(e) for e in eye), self._buffer(lights, np.float32), np.float32(eps),
-                     np.float32(t_min), np.int32(samples), *map(np.int32, part), *changed[:2], np.int32(changed[2]),
+                     np.float32(t_min), np.int32(samples), *map(np.int32, part), changed[0], np.int32(changed[1]),
                      np.int32(n), np.int32(len(lights)), vis)
 
     def _upload_shade_static(self, static, levels, basis, coeffs):
@@ -848,20 +848,19 @@ class OpenCLBackend(DeviceBackend):
         self._launch("trace", "trace_occlusion", (n,), m["nodes"], m["tris"], *self._ray_mesh(m), face, bary,
                      position,
                      *(np.float32(e) for e in eye), np.float32(eps), np.float32(t_min), np.int32(samples),
-                     *map(np.int32, part), *changed[:2], np.int32(changed[2]), np.int32(n), mask)
+                     *map(np.int32, part), changed[0], np.int32(changed[1]), np.int32(n), mask)
 
     def _launch_trace_lobe_rays(self, m, face, bary, position, eye, lobes, eps, t_min, part, changed, n, mask):
         self._launch("trace", "trace_lobe_rays", (n,), m["nodes"], m["tris"], *self._ray_mesh(m), face, bary,
                      position,
                      *(np.float32(e) for e in eye), self._buffer(lobes, np.float32),
                      np.int32(len(lobes)), np.int32(LOBE_RAYS), np.float32(eps), np.float32(t_min),
-                     *map(np.int32, part), *changed[:2], np.int32(changed[2]), np.int32(n), mask)
+                     *map(np.int32, part), changed[0], np.int32(changed[1]), np.int32(n), mask)
 
-    def _launch_mark_changed(self, m, n, changed, changed_list, changed_count):
-        self._cl.enqueue_fill_buffer(self._queue, changed_count, np.int32(0), 0, 4)
+    def _launch_mark_changed(self, m, n, changed):
         self._launch("trace", "mark_changed", (n,), m["gbuffer_face"], m["gbuffer_position"], m["reference_face"],
                      m["reference_position"], self._ray_mesh(m)[3], m["face_material"],
-                     *(np.float32(e) for e in m["gbuffer_eye"]), np.int32(n), changed, changed_list, changed_count)
+                     *(np.float32(e) for e in m["gbuffer_eye"]), np.int32(n), changed)
 
     def _launch_share_block_masks(self, m, face, position, eye, samples, part, n, traced, shared, known):
         self._launch("trace", "share_block_masks", (n,), face, position, self._ray_mesh(m)[3],
@@ -891,7 +890,7 @@ class OpenCLBackend(DeviceBackend):
                      dev["ssdf_coeffs"], dev["table"], *dev["table_args"], dev["mat_info"], dev["analytic"],
                      dev["eff_info"], dev["eff_lobes"], dev["eff_sub"], dev["eff_tables"], dev["eff_diffuse"],
                      dev["uvs"], dev["tex_info"], dev["tex_data"], np.int32(n), np.int32(only_material),
-                     *changed[:4], np.int32(changed[4]), np.int32(kept_mode), kept_amount, kept_scale, out)
+                     changed[0], changed[1], np.int32(changed[2]), np.int32(kept_mode), kept_amount, kept_scale, out)
 
     def _upload_spheres(self, spheres):
         return {"of_material": self._buffer(spheres.sphere_of_material, np.int32),

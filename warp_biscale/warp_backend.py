@@ -788,13 +788,10 @@ class WarpBackend(DeviceBackend):
                       *changed],
                      [mask])
 
-    def _launch_mark_changed(self, m, n, changed, changed_list, changed_count):
-        changed_count.zero_()
-        self._load(ktrace.mark_changed)
-        wp.launch(ktrace.mark_changed, dim=n, inputs=[m["gbuffer_face"], m["gbuffer_position"], m["reference_face"],
-                                                      m["reference_position"], m["face_normals"], m["face_material"],
-                                                      wp.vec3(*m["gbuffer_eye"]), 0],
-                  outputs=[changed, changed_list, changed_count], device=self._device)  # unsplit: it counts atomically
+    def _launch_mark_changed(self, m, n, changed):
+        self._launch(ktrace.mark_changed, n, [m["gbuffer_face"], m["gbuffer_position"], m["reference_face"],
+                                              m["reference_position"], m["face_normals"], m["face_material"],
+                                              wp.vec3(*m["gbuffer_eye"])], [changed])
 
     def _launch_share_block_masks(self, m, face, position, eye, samples, part, n, traced, shared, known):
         self._launch(ktrace.share_block_masks, n, [face, position, m["face_normals"], wp.vec3(*eye), part[2], n,
