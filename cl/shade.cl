@@ -599,6 +599,8 @@ CL_INLINE float environment_share(Table tab, float3 axis, float eta, EtaRow row,
 {
     if (has_ssdf == 0)
         return 1.0f;
+    if (ray_weight(eta, occ.samples) >= 1.0f) /* the occlusion rays alone shadow the lobe: no SSDF lookup */
+        return occ.mask != 0u ? ray_share(axis, eta, s.n, occ) : 1.0f;
     return environment_share_at(tab, ssdf_theta(ssdf, axis), axis, eta, row, s, occ);
 }
 

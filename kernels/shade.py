@@ -678,9 +678,13 @@ def environment_share(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: f
     table row."""
     if has_ssdf == 0:
         return 1.0
+    weight = ray_weight(eta, samples)
+    if weight >= 1.0:  # a lobe the occlusion rays alone shadow: no SSDF lookup (its share would weigh 0)
+        if mask != wp.uint32(0):
+            return ray_share(axis, eta, s.n, frame, mask, samples, known, turn)
+        return 1.0
     theta = ssdf_theta(ssdf_basis, ssdf_coeffs, s.i0, s.i1, s.i2, s.w0, s.w1, s.w2, ssdf_res, axis)
     share = beyond_horizon(table, theta, axis, tr, s.n)
-    weight = ray_weight(eta, samples)
     if weight > 0.0:
         rays = float(1.0)
         if mask != wp.uint32(0):
