@@ -483,13 +483,15 @@ CL_INLINE float3 to_local(SurfacePoint s, float3 d) { return (float3)(dot3(d, s.
 
 /* A pixel's occlusion rays: their mask (bit i: ray i blocked), the set's count, the rays of it traced (bit i:
  * ray i, by the pixel or a block neighbour that lends it its rays), the frame (a, b, n) about the geometric
- * normal on the camera's side that they were traced in, and the pixel whose hash angle turns them. */
+ * normal on the camera's side that they were traced in, the cosine and sine of the pixel's hash angle that turns
+ * them, and each ray's radius, lift and 1/lift (trace.disk_radii: rows (r, lift, 1/lift), S's from S(S − 1)/2). */
 typedef struct {
     uint mask;
     int samples;
     uint known;
     float3 a, b, n;
-    int turn;
+    float turn_c, turn_s;
+    __global const float *disk;
 } Occlusion;
 
 /* The occlusion rays' weight against the SSDF's for a lobe of sharpness η (shading.ray_weight). */
@@ -509,19 +511,16 @@ CL_INLINE float ray_weight(float eta, int samples)
 CL_INLINE float ray_share(float3 axis, float eta, float3 n, Occlusion occ)
 {
     float total = 0.0f, seen = 0.0f;
-    float turn = disk_turn(occ.turn);
-    float c = cos(turn), s = sin(turn);
+    float c = occ.turn_c, s = occ.turn_s;
+    __global const float *ray = occ.disk + 3 * (occ.samples * (occ.samples - 1) / 2);
     /* the axis and the shading normal in the rays' frame */
     float ax = dot3(occ.a, axis), ay = dot3(occ.b, axis), az = dot3(occ.n, axis);
     float nx = dot3(occ.a, n), ny = dot3(occ.b, n), nz = dot3(occ.n, n);
     for (int i = 0; i < occ.samples; ++i) {
         if ((occ.known >> i) & 1u) {
-            float r2 = occ.samples == 1 ? 0.0f : ((float)i + 0.5f) / (float)occ.samples;
-            float r = sqrt(r2);
-            float lift = sqrt(maxf(1.0f - r2, 0.0f));
-            float x = r * c, y = r * s;
+            float x = ray[3 * i] * c, y = ray[3 * i] * s, lift = ray[3 * i + 1];
             float w = exp(eta * (x * ax + y * ay + lift * az - 1.0f)) * maxf(x * nx + y * ny + lift * nz, 0.0f)
-                      / maxf(lift, 1.0e-6f);
+                      * ray[3 * i + 2];
             total = total + w;
             if (((occ.mask >> i) & 1u) == 0u)
                 seen = seen + w;
@@ -837,6 +836,7 @@ __kernel void shade_pixels(
     __global const float *env_maps, const int n_levels, __global const float *env_levels,
     const int has_ssdf, const int ssdf_res, const int n_basis, const int n_coeffs,
     __global const float *ssdf_basis, __global const float *ssdf_coeffs,
+    __global const float *disk_radii,   /* (Σ_S S, 3) trace.disk_radii */
     __global const float *table, const int table_rows, const int table_cols, const float log_lo, const float log_hi,
     const float sharpness_max,
     __global const int *mat_info,       /* (Mat, 4) */
@@ -883,9 +883,10 @@ __kernel void shade_pixels(
      * with block_width > 0, those its 2x2 block lent it (share_block_masks' known bits). */
     int3 occlusion_part = pixel_part(occlusion_samples, part_index, part_count, block_width, p);
     int3 lobe_part = pixel_part(LOBE_RAYS, part_index, part_count, block_width, p);
+    float turn = disk_turn(occlusion_part.z);
     Occlusion occ = {0u, occlusion_samples, part_bits(occlusion_part.x, occlusion_part.y, occlusion_samples),
                      (float3)(1.0f, 0.0f, 0.0f), (float3)(0.0f, 1.0f, 0.0f), (float3)(0.0f, 0.0f, 1.0f),
-                     occlusion_part.z};
+                     cos(turn), sin(turn), disk_radii};
     uint lobe_rays = part_bits(lobe_part.x, lobe_part.y, LOBE_RAYS);
     if (occlusion_samples > 0) {
         occ.mask = occlusion[p];

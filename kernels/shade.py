@@ -585,17 +585,18 @@ def ray_weight(eta: float, samples: int) -> float:
 
 @wp.func
 def ray_share(axis: wp.vec3, eta: float, n: wp.vec3, frame: wp.mat33, mask: wp.uint32, samples: int,
-              known: wp.uint32, turn: int) -> float:
+              known: wp.uint32, turn: wp.vec2, disk_radii: wp.array(dtype=wp.vec3)) -> float:
     """The lobe's share that the pixel's occlusion rays see unblocked (shading.ray_share): the rays of `known`
     (bit i: ray i was traced, by the pixel or a block neighbour that lends it its rays), their directions made
-    again (occlusion_direction about frame's third row, the geometric normal, turned by pixel `turn`), each
-    weighted by G(ω)(n·ω)⁺/(ng·ω). The spiral's angle steps by the golden angle, so its cosine and sine are
-    turned by a fixed rotation from one ray to the next rather than computed per ray."""
+    again (occlusion_direction about frame's third row, the geometric normal, turned by the angle whose cosine
+    and sine are `turn`), each weighted by G(ω)(n·ω)⁺/(ng·ω). The spiral's angle steps by the golden angle, so
+    its cosine and sine are turned by a fixed rotation from one ray to the next; each ray's radius, lift and
+    1/lift come from disk_radii (trace.disk_radii)."""
     total = float(0.0)
     seen = float(0.0)
-    turn_angle = disk_turn(turn)
-    c = wp.cos(turn_angle)
-    s = wp.sin(turn_angle)
+    c = turn[0]
+    s = turn[1]
+    first = samples * (samples - 1) // 2
     ax = wp.dot(frame[0], axis)  # the axis and the shading normal in the rays' frame
     ay = wp.dot(frame[1], axis)
     az = wp.dot(frame[2], axis)
@@ -604,15 +605,11 @@ def ray_share(axis: wp.vec3, eta: float, n: wp.vec3, frame: wp.mat33, mask: wp.u
     nz = wp.dot(frame[2], n)
     for i in range(samples):
         if ((known >> wp.uint32(i)) & wp.uint32(1)) != wp.uint32(0):
-            r2 = (float(i) + 0.5) / float(samples)
-            if samples == 1:
-                r2 = 0.0
-            r = wp.sqrt(r2)
-            lift = wp.sqrt(wp.max(1.0 - r2, 0.0))
-            x = r * c
-            y = r * s
-            w = wp.exp(eta * (x * ax + y * ay + lift * az - 1.0)) * wp.max(x * nx + y * ny + lift * nz, 0.0) / wp.max(
-                lift, 1.0e-6)
+            ray = disk_radii[first + i]
+            x = ray[0] * c
+            y = ray[0] * s
+            lift = ray[1]
+            w = wp.exp(eta * (x * ax + y * ay + lift * az - 1.0)) * wp.max(x * nx + y * ny + lift * nz, 0.0) * ray[2]
             total = total + w
             if ((mask >> wp.uint32(i)) & wp.uint32(1)) == wp.uint32(0):
                 seen = seen + w
@@ -672,7 +669,7 @@ def nearest_ray_lobe(env_sgs: wp.array2d(dtype=wp.float32), n_sharp: int, e: int
 def environment_share(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: float, tr: float, s: SurfacePoint,
                       has_ssdf: int, ssdf_res: int, ssdf_basis: wp.array2d(dtype=wp.float32),
                       ssdf_coeffs: wp.array2d(dtype=wp.float32), mask: wp.uint32, samples: int, known: wp.uint32,
-                      frame: wp.mat33, turn: int) -> float:
+                      frame: wp.mat33, turn: wp.vec2, disk_radii: wp.array(dtype=wp.vec3)) -> float:
     """The share of ∫ G(ω; axis, η, 1)(n·ω)⁺ dω left unoccluded (1 without an SSDF): the SSDF's, blended
     for broad lobes with the occlusion rays' (ray_weight; a mask with no bit set sees it all); tr: η's
     table row."""
@@ -681,14 +678,14 @@ def environment_share(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: f
     weight = ray_weight(eta, samples)
     if weight >= 1.0:  # a lobe the occlusion rays alone shadow: no SSDF lookup (its share would weigh 0)
         if mask != wp.uint32(0):
-            return ray_share(axis, eta, s.n, frame, mask, samples, known, turn)
+            return ray_share(axis, eta, s.n, frame, mask, samples, known, turn, disk_radii)
         return 1.0
     theta = ssdf_theta(ssdf_basis, ssdf_coeffs, s.i0, s.i1, s.i2, s.w0, s.w1, s.w2, ssdf_res, axis)
     share = beyond_horizon(table, theta, axis, tr, s.n)
     if weight > 0.0:
         rays = float(1.0)
         if mask != wp.uint32(0):
-            rays = ray_share(axis, eta, s.n, frame, mask, samples, known, turn)
+            rays = ray_share(axis, eta, s.n, frame, mask, samples, known, turn, disk_radii)
         share = weight * rays + (1.0 - weight) * share
     return share
 
@@ -867,6 +864,7 @@ def shade_pixels(
     env_residual: wp.array(dtype=wp.vec3), residual_h: int, residual_w: int,
     env_maps: wp.array(dtype=wp.vec3), env_levels: wp.array2d(dtype=wp.float32),
     has_ssdf: int, ssdf_res: int, ssdf_basis: wp.array2d(dtype=wp.float32), ssdf_coeffs: wp.array2d(dtype=wp.float32),
+    disk_radii: wp.array(dtype=wp.vec3),
     table: wp.array3d(dtype=wp.float32),
     mat_info: wp.array2d(dtype=wp.int32), analytic: wp.array2d(dtype=wp.float32),
     eff_info: wp.array2d(dtype=wp.int32), eff_lobes: wp.array2d(dtype=wp.float32),
@@ -907,7 +905,10 @@ def shade_pixels(
     lobe_rays = part_bits(lobe_part[0], lobe_part[1], LOBE_RAYS)
     mask = wp.uint32(0)
     frame = wp.identity(3, dtype=float)
+    turn = wp.vec2(1.0, 0.0)  # the cosine and sine of the angle that turns the pixel's occlusion rays (disk_turn)
     if occlusion_samples > 0:
+        turn_angle = disk_turn(occlusion_part[2])
+        turn = wp.vec2(wp.cos(turn_angle), wp.sin(turn_angle))
         mask = occlusion[p]
         if block_width > 0:
             occlusion_rays = occlusion_known[p]
@@ -978,7 +979,7 @@ def shade_pixels(
             else:
                 amount = amount * environment_share(table, axis, eta, tr, s, has_ssdf, ssdf_res, ssdf_basis,
                                                     ssdf_coeffs, mask, occlusion_samples, occlusion_rays, frame,
-                                                    occlusion_part[2])
+                                                    turn, disk_radii)
             if kept_mode == 1:
                 kept_amount[p * n_env + e] = amount
         fd = analytic_diffuse(a_kind, kd, a_ks, axis, eta, s, cos_o)
@@ -1107,7 +1108,7 @@ def shade_pixels(
                                     / (1.0 + wp.exp(-eta)), 0.0)
                 amount = amount * environment_share(
                     table, axis, eta, tr, s, has_ssdf, ssdf_res, ssdf_basis, ssdf_coeffs, mask, occlusion_samples,
-                    occlusion_rays, frame, occlusion_part[2])
+                    occlusion_rays, frame, turn, disk_radii)
                 light_part = wp.vec3(0.0)
                 if with_lights != 0:
                     light_part = lobe_from_lights(table, axis, eta, s, n_lights, lights, light_vis, p)

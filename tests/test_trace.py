@@ -623,3 +623,18 @@ def test_a_gbuffer_by_hand_needs_what_the_rays_start_from(backend, occlusion_ref
             with pytest.raises(ValueError, match=message) as err:
                 trace(bad)
             assert "\n" not in str(err.value)
+
+
+def test_disk_radii_are_the_occlusion_rays_radii_and_lifts():
+    """The shade kernels' per-ray table (trace.disk_radii, S's rows from S(S − 1)/2) against the float64 rays
+    themselves: each row's radius is |disk_sample|, its lift the ray's cosine to the normal
+    (occlusion_directions), the third 1/lift; float32 rounding (2e-7 relative)."""
+    table = trace_module.DISK_RADII
+    assert table.shape == (trace_module.OCCLUSION_SAMPLES_MAX * (trace_module.OCCLUSION_SAMPLES_MAX + 1) // 2, 3)
+    for samples in (1, 2, 7, 16, 32):
+        rows = table[samples * (samples - 1) // 2:][:samples].astype(np.float64)
+        q = trace_module.disk_sample(np.arange(samples), samples, 12345)
+        d = trace_module.occlusion_directions(np.array([0.0, 0.0, 1.0]), samples, 12345).reshape(samples, 3)
+        np.testing.assert_allclose(rows[:, 0], np.hypot(q[:, 0], q[:, 1]), rtol=2e-7, atol=1e-12)
+        np.testing.assert_allclose(rows[:, 1], d[:, 2], rtol=2e-7)
+        np.testing.assert_allclose(rows[:, 2], 1.0 / d[:, 2], rtol=2e-7)

@@ -71,6 +71,24 @@ def disk_sample(i, samples: int, pixel) -> np.ndarray:
     return np.stack([r * np.cos(a), r * np.sin(a)], -1)
 
 
+def disk_radii() -> np.ndarray:
+    """(Σ_S S, 3) float32 rows (r, lift, 1/lift) of disk_sample's ray i of S — r = √((i + ½)/S), 0 for S = 1, and
+    lift = √(1 − r²) its cosine to the normal (occlusion_directions) — for S = 1 … OCCLUSION_SAMPLES_MAX, the set
+    of S from row S(S − 1)/2: the shade kernels read them rather than take two square roots and a division per ray
+    and lobe."""
+    rows = []
+    for samples in range(1, OCCLUSION_SAMPLES_MAX + 1):
+        r2 = np.zeros(1) if samples == 1 else (np.arange(samples) + 0.5) / samples
+        lift = np.sqrt(1.0 - r2)
+        rows.append(np.stack([np.sqrt(r2), lift, 1.0 / np.maximum(lift, 1e-6)], -1))
+    out = np.concatenate(rows).astype(np.float32)
+    out.flags.writeable = False  # one array for every shade upload (device._shade_input holds it by identity)
+    return out
+
+
+DISK_RADII = disk_radii()
+
+
 def disk_basis(w) -> tuple[np.ndarray, np.ndarray]:
     """(a, b), each (..., 3): with w (..., 3) unit, the right-handed frame (a, b, w) the kernels build
     (a = normalize(w × x̂), or w × ŷ where |w_x| ≥ 0.9; b = w × a)."""

@@ -44,7 +44,7 @@ from .environment import SUPPORT, equirect_tables
 from .lobes import KERNEL_LOBES, START_RES
 from .progress import compile_notice
 from .smallscale import ray_offset
-from .trace import LOBE_RAYS
+from .trace import DISK_RADII, LOBE_RAYS
 
 _READY = False
 _NO_CUDA_DRIVER = False  # Warp's native library found no CUDA driver (a CPU-only machine)
@@ -768,6 +768,7 @@ class WarpBackend(DeviceBackend):
             # texel-major (res², terms + 1): a lookup reads each corner's terms contiguously
             "ssdf_basis": arr("ssdf_basis", wp.float32, host=basis.T),
             "ssdf_coeffs": arr("ssdf_coeffs", wp.float32, host=coeffs),
+            "disk_radii": arr("disk_radii", wp.vec3, host=DISK_RADII),
             "table": arr("table", wp.float32), "mat_info": arr("mat_info", wp.int32, 4),
             "analytic": arr("analytic", wp.float32, 9), "eff_info": arr("eff_info", wp.int32, 8),
             "eff_lobes": arr("eff_lobes", wp.float32, EFF_LOBE_WIDTH), "eff_sub": arr("eff_sub", wp.float32, 9),
@@ -813,7 +814,7 @@ class WarpBackend(DeviceBackend):
                       dev["face_material"], self._small_upload(m, "shade_camera", camera),
                       len(lights), light_arr, dev["n_env"], dev["env_sgs"], dev["env_residual"],
                       *dev["residual_shape"], dev["env_maps"], dev["env_levels"],
-                      dev["has_ssdf"], dev["ssdf_res"], dev["ssdf_basis"], dev["ssdf_coeffs"],
+                      dev["has_ssdf"], dev["ssdf_res"], dev["ssdf_basis"], dev["ssdf_coeffs"], dev["disk_radii"],
                       dev["table"], dev["mat_info"], dev["analytic"], dev["eff_info"], dev["eff_lobes"],
                       dev["eff_sub"], dev["eff_tables"], dev["eff_diffuse"], dev["uvs"], dev["tex_info"],
                       dev["tex_data"], kept_mode, kept_amount, kept_scale, n, only_material, *changed],
