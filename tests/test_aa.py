@@ -7,7 +7,7 @@ import pytest
 import warp_biscale as wb
 import warp_biscale.trace as trace_module
 from warp_biscale import cli
-from warp_biscale.render import aa_offsets, queue_frame
+from warp_biscale.render import aa_offsets
 
 
 def _edge_scene():
@@ -215,7 +215,7 @@ def test_aa_shaded_once_a_pixel(backend, block_rays):
     assert sure.mean() > 0.99
     assert np.abs(image - want)[sure].max() < 1e-6 * want.max()
     # The viewer's and the benchmarks' frame (queued with no waits, left on the device) is the same image.
-    queue_frame(scene, backend, aa=n, aa_shading="pixel", block_rays=block_rays)
+    wb.queue_frame(scene, backend, aa=n, aa_shading="pixel", block_rays=block_rays)
     queued = backend.accumulated_frame(mesh, scene.camera.width, scene.camera.height).reshape(-1, 3)
     assert np.abs(queued - image).max() <= 1e-6 * want.max()
     with pytest.raises(ValueError, match="aa_shading must be one of"):

@@ -38,7 +38,7 @@ from .asg_bake import ASGBRDF
 from .loading import load
 from .measured import MeasuredBRDF
 from .model import Facets, Visibility
-from .render import render
+from .render import queue_frame, render
 from .scene import Rendering, Scene
 from .scene import Camera, DirectionalLight, Mesh, PointLight
 from .scenefile import load_scene
@@ -59,7 +59,7 @@ __all__ = [
     "TileWarning",
     "Visibility", "Ward", "backends", "bake", "compare", "compare_images", "directions", "effective_brdf_exact",
     "geometry", "get_backend", "ground_truth", "truth_of", "load", "load_scene", "lobes", "matrix", "read_image",
-    "render", "sg",
+    "queue_frame", "render", "sg",
     "write_image",
 ]
 
