@@ -10,11 +10,12 @@ none) and the best run are reported:
   the cluster's start, each fresh worker's first task (importing Warp, the renderer's per-process tables
   and the scene's lighting) and the cluster's shutdown included;
 - warm: the same job submitted (`scheduler=`) to a cluster whose workers have each run a warm-up job first
-  (other tiles, so nothing of the measured job is cached): what workers that live across tasks give;
+  (other tiles, so nothing of the measured job is cached): what workers that live across tasks give; each
+  worker's CPU backends split their work over cores / N threads, as `run(workers=N)` sets
+  ($WARP_BISCALE_CPU_THREADS in the workers' environment);
 - warm-pinned (N > 1): warm, each worker kept on its own core(s) (`pin=N`, `--pin`);
-- warm-1-thread (N > 1): warm, and each worker's Warp CPU backend runs its launches on one thread instead of
-  splitting them over os.cpu_count() threads (every core, in every worker: what the library does today):
-  what a thread-count setting in warp_backend, set to cores / workers by the batch, would give.
+- warm-all-threads (N > 1): warm, each worker splitting its CPU work over every core (what the library did
+  before the batch gave workers their share).
 Every run writes a fresh results folder (no resume).
 
     python -m bench.bench_batch --out bench/results/batch-cpu --runs 3    # 15-30 min on a 2-core CPU
@@ -34,6 +35,7 @@ import warnings
 
 from warp_biscale import batch
 from warp_biscale.batch_jobs import loads_jobs
+from warp_biscale.device import CPU_THREADS_VARIABLE, usable_cores
 
 if __package__ in (None, ""):  # run as a file: `bench` importable from the checkout, after site-packages
     sys.path.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -126,13 +128,6 @@ MEASURED = {"heights": "[0.3, 0.6]", "depths": "[0.3, 0.6]", "lengths": "[0.3, 0
 WARMUP = {"heights": "[0.45]", "depths": "[0.45]", "lengths": "0.45"}  # other tiles: 6 tasks, both workers busy
 
 
-def _one_thread(task):
-    """Hook (runs in a worker before its backend exists): the Warp CPU backend splits each launch over
-    os.cpu_count() threads, every core of the machine in every worker process; make it one thread, as a
-    thread-count setting of the library's (not there today) would for a batch of one worker per core."""
-    os.cpu_count = lambda: 1
-
-
 def _jobs(folder, values):
     return loads_jobs(JOB.format(**values), path=os.path.join(folder, "jobs.toml"))
 
@@ -176,7 +171,7 @@ def _timed_run(jobs, out, **kw):
             "workers_seen": len({(r["worker"]["address"] or r["worker"]["pid"]) for r in res.records.values()})}
 
 
-SETTINGS = ("here", "cold", "warm", "warm-pinned", "warm-1-thread")
+SETTINGS = ("here", "cold", "warm", "warm-pinned", "warm-all-threads")
 
 
 def main(argv=None):
@@ -218,10 +213,11 @@ def main(argv=None):
         elif mode == "cold":
             r = _timed_run(jobs, folder, workers=workers)
         else:
-            kw = {"pin": workers if mode == "warm-pinned" else 0,
-                  "hook": _one_thread if mode == "warm-1-thread" else None}
+            kw = {"pin": workers if mode == "warm-pinned" else 0}
+            threads = usable_cores() if mode == "warm-all-threads" else max(1, usable_cores() // workers)
             with distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                          dashboard_address=None, silence_logs=logging.CRITICAL) as lc:
+                                          dashboard_address=None, silence_logs=logging.CRITICAL,
+                                          env={CPU_THREADS_VARIABLE: str(threads)}) as lc:
                 _timed_run(warm, folder + "-warmup", scheduler=lc.scheduler_address, **kw)
                 r = _timed_run(jobs, folder, scheduler=lc.scheduler_address, **kw)
         runs.setdefault((mode, workers), []).append(r)

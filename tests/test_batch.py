@@ -24,6 +24,7 @@ import pytest
 import warp_biscale as wb
 from warp_biscale import batch
 from warp_biscale.batch_jobs import load_jobs, loads_jobs
+from warp_biscale.device import cpu_threads, usable_cores
 from warp_biscale.tomlschema import SceneError
 
 try:
@@ -418,6 +419,8 @@ def test_cluster_run_writes_every_output(cluster_run):
     recs = [r for r in res.records.values() if r["status"] == "done"]
     # a worker process lives across tasks: a later task on it finds its scene (lighting, SSDF) ready
     assert any(r["worker"]["task_index"] >= 2 and r["caches"]["scene tiny"] for r in recs)
+    # each of the two workers splits its CPU work over its share of the cores, not over all of them
+    assert {r["worker"]["cpu_threads"] for r in recs} == {max(1, usable_cores() // 2)}
     if hasattr(os, "sched_getaffinity") and len(os.sched_getaffinity(0)) >= 2:  # each worker on its own cores
         share = len(os.sched_getaffinity(0)) // 2
         cores = {r["worker"]["pid"]: tuple(r["worker"]["cores"]) for r in recs}
@@ -556,3 +559,19 @@ def test_command_line(job_dir, tmp_path, capsys):
         with pytest.raises(ValueError, match="give one of --workers"):
             args = _parser().parse_args(["batch", job, *clash])
             args.func(args)
+
+
+def test_cpu_threads_follow_the_variable_else_the_affinity(monkeypatch):
+    """A CPU backend's threads: $WARP_BISCALE_CPU_THREADS (what a local cluster gives each worker), else the cores
+    this process may run on; a bad value is one line, refused before any backend is made (not passed over by
+    "auto" for the next backend)."""
+    monkeypatch.delenv("WARP_BISCALE_CPU_THREADS", raising=False)
+    assert cpu_threads() == usable_cores() >= 1
+    if hasattr(os, "sched_getaffinity"):
+        assert usable_cores() == len(os.sched_getaffinity(0))
+    monkeypatch.setenv("WARP_BISCALE_CPU_THREADS", "3")
+    assert cpu_threads() == 3
+    for bad in ("0", "-2", "two", "1.5"):
+        monkeypatch.setenv("WARP_BISCALE_CPU_THREADS", bad)
+        with pytest.raises(ValueError, match="WARP_BISCALE_CPU_THREADS must be a positive integer"):
+            wb.get_backend("auto")

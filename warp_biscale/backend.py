@@ -18,7 +18,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from . import litsphere
-from .device import DeviceLobes, DeviceStart, OnDevice, one_line
+from .device import DeviceLobes, DeviceStart, OnDevice, cpu_threads, one_line
 from .model import Facets, GBuffer, ShadeInputs, Visibility
 
 __all__ = ["Backend", "get_backend", "backends"]
@@ -279,6 +279,7 @@ def get_backend(backend="auto") -> Backend:
             return backend
         raise ValueError(f"backend must be a name or a Backend, got {backend!r}")
     name = backend.strip().lower() or "auto"
+    cpu_threads()  # a bad $WARP_BISCALE_CPU_THREADS is refused here, not taken by "auto" for an unusable Warp
     if name != "auto":
         return _make(name)
     try:

@@ -58,6 +58,7 @@ import warnings
 
 from .batch_jobs import Jobs, Task, check_output_folder, digest, jobs_from_dict, load_jobs, loads_jobs, open_scene
 from .batch_report import ProgressLine, write_report
+from .device import CPU_THREADS_VARIABLE, cpu_threads, usable_cores
 from .io import atomic_path
 
 __all__ = ["run", "execute", "BatchResult", "load_jobs", "loads_jobs", "jobs_from_dict", "add_parser", "cmd_batch",
@@ -194,12 +195,14 @@ def _thumbnail(src, dst):
         im.save(dst, format="PNG")
 
 
-def execute(task: dict, hook=None, pin: int = 0) -> dict:
+def execute(task: dict, hook=None, pin: int = 0, threads: int = 0) -> dict:
     """Run one task (a `Task.payload()`) here → {"record": what task.json holds, "files": name → bytes}.
     The files are made in a temporary folder and returned, not written: the caller writes them into the
     results folder (which a remote worker may not see). `pin`: the local cluster's worker count, for
-    `pin_cores` (0: leave the process where it is). `hook(task)`, if given, runs first (tests use it
-    to make a task fail or its worker die). Raises on failure."""
+    `pin_cores` (0: leave the process where it is). `threads` (> 0): the threads this process's CPU backends
+    split their work over (Warp's launch slices, PoCL's threads), unless the environment already says; set
+    before the first backend of the process is made. `hook(task)`, if given, runs first (tests use it to make
+    a task fail or its worker die). Raises on failure."""
     from .bake import bake
     from .brdf import EnergyWarning, Lambert
     from .effective import _brdf_from_dict, compare
@@ -209,6 +212,9 @@ def execute(task: dict, hook=None, pin: int = 0) -> dict:
 
     if pin:
         pin_cores(pin)
+    if threads > 0:
+        os.environ.setdefault(CPU_THREADS_VARIABLE, str(threads))
+        os.environ.setdefault("POCL_MAX_PTHREAD_COUNT", str(threads))
     if hook is not None:
         hook(task)
     t_all = time.perf_counter()
@@ -280,7 +286,8 @@ def execute(task: dict, hook=None, pin: int = 0) -> dict:
                    "table_bytes": int(mat.amplitudes.nbytes)},
         "worker": {"address": _worker_name(), "host": socket.gethostname(), "pid": os.getpid(),
                    "task_index": _STATE["tasks"], "cores": _STATE.get("pinned"),
-                   "gpus": os.environ.get("CUDA_VISIBLE_DEVICES"), "backend": mat.info.get("backend")},
+                   "gpus": os.environ.get("CUDA_VISIBLE_DEVICES"), "backend": mat.info.get("backend"),
+                   "cpu_threads": cpu_threads()},
         "warnings": sorted({f"{w.category.__name__}: {w.message}" for w in caught}),
     }
     return {"record": record, "files": files}
@@ -515,11 +522,14 @@ def _run_dask(todo, workers, scheduler, hook, dashboard, pin, done, failed, line
         line.say(f"Dask: {len(client.scheduler_info()['workers'])} worker(s)" +
                  (f", dashboard {res.dashboard}" if res.dashboard else ""))
         assignment = assign_workers(todo, sorted(client.scheduler_info()["workers"]))
+        # A local CPU cluster's workers share this machine's cores: each splits its CPU work over its share
+        # (one worker splitting over every core, as alone, had the workers' threads contend).
+        threads = max(1, usable_cores() // workers) if cluster is not None and not gpus else 0
         tag = uuid.uuid4().hex[:8]
         for task in todo:
             where = ({"workers": [assignment[task.hash]], "allow_other_workers": True} if task.hash in assignment
                      else {})
-            fut = client.submit(execute, task.payload(), hook, pin, key=f"warp-biscale-{task.hash}-{tag}",
+            fut = client.submit(execute, task.payload(), hook, pin, threads, key=f"warp-biscale-{task.hash}-{tag}",
                                 retries=RETRIES, pure=False, **where)
             futures[fut] = task
         for fut in as_completed(list(futures)):

@@ -13,6 +13,7 @@ from __future__ import annotations
 import collections
 import functools
 import hashlib
+import os
 import weakref
 
 import numpy as np
@@ -272,6 +273,29 @@ def probe_mismatch(out) -> str | None:
     if out.shape != want.shape or not np.allclose(out, want, rtol=1e-12, atol=0.0):
         return f"its probe kernel ran but returned wrong values ({out.tolist()}, expected {want.tolist()})"
     return None
+
+
+CPU_THREADS_VARIABLE = "WARP_BISCALE_CPU_THREADS"
+
+
+def cpu_threads() -> int:
+    """The threads a CPU backend splits its work over: $WARP_BISCALE_CPU_THREADS if set (a batch's local cluster
+    sets each worker's share of the cores, `batch.run`), else the cores this process may run on (its affinity:
+    `taskset`, a container's CPU set, a pinned batch worker), else os.cpu_count()."""
+    text = os.environ.get(CPU_THREADS_VARIABLE, "").strip()
+    if text:
+        if not text.isdigit() or int(text) < 1:
+            raise ValueError(f"{CPU_THREADS_VARIABLE} must be a positive integer (threads), got {text!r}")
+        return int(text)
+    return usable_cores()
+
+
+def usable_cores() -> int:
+    """The cores this process may run on: its affinity (`taskset`, a container's CPU set), else os.cpu_count()."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
 
 
 def one_line(text) -> str:

@@ -21,7 +21,7 @@ import warp as wp
 from .asg import ASG
 from .effective import EFF_LOBE_WIDTH
 from .device import (ASG_EM_BLOCK, KINDS, DeviceBackend, PROBE_VALUES, SCRATCH_BYTES, DeviceStart, UploadCache,
-                     check_kernel_lobes, chunking, device_copy, one_line, padded_lobe_values,
+                     check_kernel_lobes, chunking, cpu_threads, device_copy, one_line, padded_lobe_values,
                      probe_mismatch, start_scale)
 from .kernels import amplitudes as kamplitudes
 from .kernels import asg as kasg
@@ -148,8 +148,8 @@ class WarpBackend(DeviceBackend):
         self.name = f"warp:{self._device.alias}"
         self.device = self._device.name
         self.is_gpu = not self._device.is_cpu
-        # Launch slices: one per core on the CPU (each slice runs on one thread), one on a GPU.
-        self._slices = max(1, os.cpu_count() or 1) if self._device.is_cpu else 1
+        # Launch slices: one per thread on the CPU (backend.cpu_threads; each slice runs on one), one on a GPU.
+        self._slices = cpu_threads() if self._device.is_cpu else 1
         self._pool = ThreadPoolExecutor(self._slices) if self._slices > 1 else None
         # Threads worth launching per reduction: one per slice on the CPU, enough to fill a GPU.
         self._threads = 1 if self._device.is_cpu else 1 << 18
