@@ -11,11 +11,10 @@ none) and the best run are reported:
   and the scene's lighting) and the cluster's shutdown included;
 - warm: the same job submitted (`scheduler=`) to a cluster whose workers have each run a warm-up job first
   (other tiles, so nothing of the measured job is cached): what workers that live across tasks give; each
-  worker's CPU backends split their work over cores / N threads, as `run(workers=N)` sets
-  ($WARP_BISCALE_CPU_THREADS in the workers' environment);
-- warm-pinned (N > 1): warm, each worker kept on its own core(s) (`pin=N`, `--pin`);
-- warm-all-threads (N > 1): warm, each worker splitting its CPU work over every core (what the library did
-  before the batch gave workers their share).
+  worker splits its CPU work over every core, as `run(workers=N)` leaves it;
+- warm-pinned (N > 1): warm, each worker kept on its own core(s) (`pin=N`, `--pin`), splitting over those;
+- warm-share (N > 1): warm, each worker splitting its CPU work over cores / N threads
+  ($WARP_BISCALE_CPU_THREADS in the workers' environment), unpinned.
 Every run writes a fresh results folder (no resume).
 
     python -m bench.bench_batch --out bench/results/batch-cpu --runs 3    # 15-30 min on a 2-core CPU
@@ -171,7 +170,7 @@ def _timed_run(jobs, out, **kw):
             "workers_seen": len({(r["worker"]["address"] or r["worker"]["pid"]) for r in res.records.values()})}
 
 
-SETTINGS = ("here", "cold", "warm", "warm-pinned", "warm-all-threads")
+SETTINGS = ("here", "cold", "warm", "warm-pinned", "warm-share")
 
 
 def main(argv=None):
@@ -214,10 +213,9 @@ def main(argv=None):
             r = _timed_run(jobs, folder, workers=workers)
         else:
             kw = {"pin": workers if mode == "warm-pinned" else 0}
-            threads = usable_cores() if mode == "warm-all-threads" else max(1, usable_cores() // workers)
+            env = {CPU_THREADS_VARIABLE: str(max(1, usable_cores() // workers))} if mode == "warm-share" else {}
             with distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                          dashboard_address=None, silence_logs=logging.CRITICAL,
-                                          env={CPU_THREADS_VARIABLE: str(threads)}) as lc:
+                                          dashboard_address=None, silence_logs=logging.CRITICAL, env=env) as lc:
                 _timed_run(warm, folder + "-warmup", scheduler=lc.scheduler_address, **kw)
                 r = _timed_run(jobs, folder, scheduler=lc.scheduler_address, **kw)
         runs.setdefault((mode, workers), []).append(r)

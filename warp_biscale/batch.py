@@ -20,7 +20,9 @@ settings, scenes with the material's slot named, what to compute). What a run wr
         error.json            a task that failed twice: its error and traceback (no task.json)
 
 **Where tasks run.** ``workers=N`` (``--workers N``) starts a Dask LocalCluster of N processes with one
-Dask thread each (``pin=True``, ``--pin``: each kept on its own share of the cores, `pin_cores`);
+Dask thread each, each splitting its CPU work over every core it may run on (``pin=True``, ``--pin``: each
+kept on its own share of the cores, `pin_cores`, and splitting over those; ``$WARP_BISCALE_CPU_THREADS`` sets
+the count);
 ``gpus=N`` (``--gpus N``) starts one worker process per GPU, each seeing only its own
 (``CUDA_VISIBLE_DEVICES``: its backend's "cuda" or NVIDIA OpenCL device is that GPU; `gpu_cluster`);
 ``scheduler="tcp://host:8786"``
@@ -58,7 +60,7 @@ import warnings
 
 from .batch_jobs import Jobs, Task, check_output_folder, digest, jobs_from_dict, load_jobs, loads_jobs, open_scene
 from .batch_report import ProgressLine, write_report
-from .device import CPU_THREADS_VARIABLE, cpu_threads, usable_cores
+from .device import cpu_threads
 from .io import atomic_path
 
 __all__ = ["run", "execute", "BatchResult", "load_jobs", "loads_jobs", "jobs_from_dict", "add_parser", "cmd_batch",
@@ -195,13 +197,11 @@ def _thumbnail(src, dst):
         im.save(dst, format="PNG")
 
 
-def execute(task: dict, hook=None, pin: int = 0, threads: int = 0) -> dict:
+def execute(task: dict, hook=None, pin: int = 0) -> dict:
     """Run one task (a `Task.payload()`) here → {"record": what task.json holds, "files": name → bytes}.
     The files are made in a temporary folder and returned, not written: the caller writes them into the
     results folder (which a remote worker may not see). `pin`: the local cluster's worker count, for
-    `pin_cores` (0: leave the process where it is). `threads` (> 0): the threads this process's CPU backends
-    split their work over (Warp's launch slices, PoCL's threads), unless the environment already says; set
-    before the first backend of the process is made. `hook(task)`, if given, runs first (tests use it to make
+    `pin_cores` (0: leave the process where it is). `hook(task)`, if given, runs first (tests use it to make
     a task fail or its worker die). Raises on failure."""
     from .bake import bake
     from .brdf import EnergyWarning, Lambert
@@ -212,9 +212,6 @@ def execute(task: dict, hook=None, pin: int = 0, threads: int = 0) -> dict:
 
     if pin:
         pin_cores(pin)
-    if threads > 0:
-        os.environ.setdefault(CPU_THREADS_VARIABLE, str(threads))
-        os.environ.setdefault("POCL_MAX_PTHREAD_COUNT", str(threads))
     if hook is not None:
         hook(task)
     t_all = time.perf_counter()
@@ -522,14 +519,11 @@ def _run_dask(todo, workers, scheduler, hook, dashboard, pin, done, failed, line
         line.say(f"Dask: {len(client.scheduler_info()['workers'])} worker(s)" +
                  (f", dashboard {res.dashboard}" if res.dashboard else ""))
         assignment = assign_workers(todo, sorted(client.scheduler_info()["workers"]))
-        # A local CPU cluster's workers share this machine's cores: each splits its CPU work over its share
-        # (one worker splitting over every core, as alone, had the workers' threads contend).
-        threads = max(1, usable_cores() // workers) if cluster is not None and not gpus else 0
         tag = uuid.uuid4().hex[:8]
         for task in todo:
             where = ({"workers": [assignment[task.hash]], "allow_other_workers": True} if task.hash in assignment
                      else {})
-            fut = client.submit(execute, task.payload(), hook, pin, threads, key=f"warp-biscale-{task.hash}-{tag}",
+            fut = client.submit(execute, task.payload(), hook, pin, key=f"warp-biscale-{task.hash}-{tag}",
                                 retries=RETRIES, pure=False, **where)
             futures[fut] = task
         for fut in as_completed(list(futures)):
