@@ -73,7 +73,8 @@ def time_frames(scene, backend, frames, runs, shadow_samples=SHADOW_SAMPLES, occ
     shadow rays and the shading of each of `aa` anti-aliasing samples (`wb.render`'s options: block_rays, the
     rays shared in 2×2 pixel blocks; aa_shading), its image left on the device (what an interactive viewer
     draws from): `render.queue_frame`, the stages of `wb.render` without its read-back and per-stage waits.
-    The read-back is timed apart."""
+    The read-back is timed apart: for aa 1 a shade with its read-back less a frame, for aa > 1
+    `accumulated_frame` (the average's read-back)."""
     be = wb.get_backend(backend)
     options = dict(shadow_samples=shadow_samples, occlusion_samples=occlusion_samples, aa=aa,
                    **({"block_rays": True} if block_rays else {}),

@@ -501,6 +501,10 @@ CL_INLINE float ray_weight(float eta, int samples)
         return 0.0f;
     float lo = RAYS_ONLY * (float)samples;
     float hi = SSDF_ONLY * (float)samples;
+    if (eta <= lo) /* exactly 1 and 0 at the ends, whatever fast math makes of the logarithms' ratio there */
+        return 1.0f;
+    if (eta >= hi)
+        return 0.0f;
     return clampf(log(hi / maxf(eta, 1.0e-30f)) / log(hi / lo), 0.0f, 1.0f);
 }
 
@@ -592,14 +596,21 @@ CL_INLINE float environment_share_at(Table tab, float theta, float3 axis, float 
     return share;
 }
 
+/* The share of a lobe that the occlusion rays alone shadow (ray_weight 1): environment_share_at's, with no SSDF
+ * lookup (the SSDF's share would weigh 0). */
+CL_INLINE float rays_alone_share(float3 axis, float eta, float3 n, Occlusion occ)
+{
+    return occ.mask != 0u ? ray_share(axis, eta, n, occ) : 1.0f;
+}
+
 /* environment_share_at with the SSDF's θd at the axis (1 without an SSDF). */
 CL_INLINE float environment_share(Table tab, float3 axis, float eta, EtaRow row, SurfacePoint s, int has_ssdf,
                                   Ssdf ssdf, Occlusion occ)
 {
     if (has_ssdf == 0)
         return 1.0f;
-    if (ray_weight(eta, occ.samples) >= 1.0f) /* the occlusion rays alone shadow the lobe: no SSDF lookup */
-        return occ.mask != 0u ? ray_share(axis, eta, s.n, occ) : 1.0f;
+    if (ray_weight(eta, occ.samples) >= 1.0f)
+        return rays_alone_share(axis, eta, s.n, occ);
     return environment_share_at(tab, ssdf_theta(ssdf, axis), axis, eta, row, s, occ);
 }
 
@@ -883,12 +894,14 @@ __kernel void shade_pixels(
      * with block_width > 0, those its 2x2 block lent it (share_block_masks' known bits). */
     int3 occlusion_part = pixel_part(occlusion_samples, part_index, part_count, block_width, p);
     int3 lobe_part = pixel_part(LOBE_RAYS, part_index, part_count, block_width, p);
-    float turn = disk_turn(occlusion_part.z);
     Occlusion occ = {0u, occlusion_samples, part_bits(occlusion_part.x, occlusion_part.y, occlusion_samples),
                      (float3)(1.0f, 0.0f, 0.0f), (float3)(0.0f, 1.0f, 0.0f), (float3)(0.0f, 0.0f, 1.0f),
-                     cos(turn), sin(turn), disk_radii};
+                     1.0f, 0.0f, disk_radii};
     uint lobe_rays = part_bits(lobe_part.x, lobe_part.y, LOBE_RAYS);
     if (occlusion_samples > 0) {
+        float turn = disk_turn(occlusion_part.z);
+        occ.turn_c = cos(turn);
+        occ.turn_s = sin(turn);
         occ.mask = occlusion[p];
         if (block_width > 0) {
             occ.known = occlusion_known[p];
@@ -1113,8 +1126,10 @@ __kernel void shade_pixels(
                                                / (1.0f + exp(-eta)), 0.0f);
                 }
                 if (has_ssdf != 0)
-                    amount = amount * environment_share_at(tab, lobe_cached ? lobe_theta : ssdf_theta(ssdf, axis), axis,
-                                                           eta, er, s, occ);
+                    amount = amount * (ray_weight(eta, occ.samples) >= 1.0f
+                                       ? rays_alone_share(axis, eta, s.n, occ)
+                                       : environment_share_at(tab, lobe_cached ? lobe_theta : ssdf_theta(ssdf, axis),
+                                                              axis, eta, er, s, occ));
                 float3 light_part = (float3)(0.0f, 0.0f, 0.0f);
                 if (with_lights != 0)
                     light_part = lobe_from_lights(tab, axis, eta, s, n_lights, lights, vis);

@@ -575,11 +575,16 @@ def analytic_diffuse(kind: int, kd: wp.vec3, ks: wp.vec3, axis: wp.vec3, eta: fl
 
 @wp.func
 def ray_weight(eta: float, samples: int) -> float:
-    """The occlusion rays' weight against the SSDF's for a lobe of sharpness η (shading.ray_weight)."""
+    """The occlusion rays' weight against the SSDF's for a lobe of sharpness η (shading.ray_weight): exactly 1 at
+    η ≤ lo and 0 at η ≥ hi, whatever fast math makes of the logarithms' ratio there."""
     if samples == 0:
         return 0.0
     lo = RAYS_ONLY * float(samples)
     hi = SSDF_ONLY * float(samples)
+    if eta <= lo:
+        return 1.0
+    if eta >= hi:
+        return 0.0
     return wp.clamp(wp.log(hi / wp.max(eta, 1.0e-30)) / wp.log(hi / lo), 0.0, 1.0)
 
 

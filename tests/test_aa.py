@@ -218,6 +218,12 @@ def test_aa_shaded_once_a_pixel(backend, block_rays):
     wb.queue_frame(scene, backend, aa=n, aa_shading="pixel", block_rays=block_rays)
     queued = backend.accumulated_frame(mesh, scene.camera.width, scene.camera.height).reshape(-1, 3)
     assert np.abs(queued - image).max() <= 1e-6 * want.max()
+    for bad, message in (({"split_rays": "yes"}, "split_rays must be True or False"),
+                         ({"block_rays": 1}, "block_rays must be True or False"),
+                         ({"occlusion_samples": 99}, "occlusion samples"), ({"aa": 0}, "aa"),
+                         ({"aa_shading": "msaa"}, "aa_shading must be one of")):
+        with pytest.raises(ValueError, match=message):
+            wb.queue_frame(scene, backend, **bad)
     with pytest.raises(ValueError, match="aa_shading must be one of"):
         wb.render(scene, backend=backend, aa=n, aa_shading="msaa")
     with pytest.raises(ValueError, match="options of the SG renderer"):

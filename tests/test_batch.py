@@ -562,16 +562,19 @@ def test_command_line(job_dir, tmp_path, capsys):
 
 
 def test_cpu_threads_follow_the_variable_else_the_affinity(monkeypatch):
-    """A CPU backend's threads: $WARP_BISCALE_CPU_THREADS (what a local cluster gives each worker), else the cores
-    this process may run on; a bad value is one line, refused before any backend is made (not passed over by
+    """A CPU backend's threads: $WARP_BISCALE_CPU_THREADS, else the cores this process may run on; Warp CPU splits
+    its launches over that many; a bad value is one line, refused before any backend is made (not passed over by
     "auto" for the next backend)."""
     monkeypatch.delenv("WARP_BISCALE_CPU_THREADS", raising=False)
     assert cpu_threads() == usable_cores() >= 1
     if hasattr(os, "sched_getaffinity"):
         assert usable_cores() == len(os.sched_getaffinity(0))
-    monkeypatch.setenv("WARP_BISCALE_CPU_THREADS", "3")
+    monkeypatch.setenv("WARP_BISCALE_CPU_THREADS", " 3 ")
     assert cpu_threads() == 3
-    for bad in ("0", "-2", "two", "1.5"):
+    from warp_biscale.warp_backend import WarpBackend
+
+    assert WarpBackend("cpu")._slices == 3  # (a new backend: get_backend keeps the one made first)
+    for bad in ("0", "-2", "two", "1.5", "+3", "²", "99999"):
         monkeypatch.setenv("WARP_BISCALE_CPU_THREADS", bad)
-        with pytest.raises(ValueError, match="WARP_BISCALE_CPU_THREADS must be a positive integer"):
+        with pytest.raises(ValueError, match="WARP_BISCALE_CPU_THREADS must be an integer from 1 to 1024"):
             wb.get_backend("auto")

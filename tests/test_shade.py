@@ -148,6 +148,23 @@ def test_shade_kernel_matches_reference(backend, which, effective_material, many
     assert err.max() < 2e-2 * peak, msg
 
 
+@pytest.mark.parametrize("samples", [1, 5, 32])
+def test_shade_with_other_occlusion_ray_counts(backend, effective_material, samples):
+    """The occluded scene with 1, 5 and 32 occlusion rays a pixel (each count's rows of trace.DISK_RADII in the
+    kernels; the other tests take the default 16) against the float64 reference, tolerances as
+    test_shade_kernel_matches_reference's."""
+    scene = _scenes(effective_material)["occluded"]
+    frame = pack_frame(scene, backend, occlusion_samples=samples)
+    assert frame.gbuffer.occlusion_samples == samples and frame.gbuffer.occlusion.any()
+    ref = shade_reference(frame)
+    out = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights, gbuffer=frame.gbuffer)
+    peak = ref.max()
+    err = np.abs(out - ref)
+    msg = f"max err {err.max():.3g}, peak {peak:.3g}, p99.9 {np.quantile(err, 0.999):.3g}"
+    assert np.quantile(err / (np.abs(ref) + 1e-3 * peak), 0.999) < 2e-3, msg
+    assert err.max() < 2e-2 * peak, msg
+
+
 @pytest.mark.parametrize("part", [(1, 4), (2, 3)])
 def test_shade_of_an_anti_aliasing_samples_part_of_the_rays(backend, effective_material, part):
     """A G-buffer whose occlusion, lobe and shadow rays are one anti-aliasing sample's part of each set

@@ -278,14 +278,18 @@ def probe_mismatch(out) -> str | None:
 CPU_THREADS_VARIABLE = "WARP_BISCALE_CPU_THREADS"
 
 
+CPU_THREADS_MAX = 1024
+
+
 def cpu_threads() -> int:
-    """The threads a CPU backend splits its work over: $WARP_BISCALE_CPU_THREADS if set (a batch's local cluster
-    sets each worker's share of the cores, `batch.run`), else the cores this process may run on (its affinity:
-    `taskset`, a container's CPU set, a pinned batch worker), else os.cpu_count()."""
+    """The threads a CPU backend splits its work over: $WARP_BISCALE_CPU_THREADS if set, else the cores this
+    process may run on (its affinity: `taskset`, a container's CPU set, a pinned batch worker), else
+    os.cpu_count(). A backend reads it once, when made (`get_backend` keeps one per name and process)."""
     text = os.environ.get(CPU_THREADS_VARIABLE, "").strip()
     if text:
-        if not text.isdigit() or int(text) < 1:
-            raise ValueError(f"{CPU_THREADS_VARIABLE} must be a positive integer (threads), got {text!r}")
+        if not (text.isascii() and text.isdigit()) or not 1 <= int(text) <= CPU_THREADS_MAX:
+            raise ValueError(f"{CPU_THREADS_VARIABLE} must be an integer from 1 to {CPU_THREADS_MAX} (threads), "
+                             f"got {text!r}")
         return int(text)
     return usable_cores()
 

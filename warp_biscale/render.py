@@ -34,8 +34,8 @@ from .trace import check_occlusion_samples, check_ray_part, check_shadow_samples
 from .images import compare_images
 from .scene import Camera, DirectionalLight, Mesh, Rendering, Scene, _black_environment, _integer
 
-__all__ = ["Scene", "Rendering", "render", "pack_frame", "static_inputs", "METHODS", "environment_lights",
-           "material_ball", "litsphere_errors"]
+__all__ = ["Scene", "Rendering", "render", "queue_frame", "pack_frame", "static_inputs", "METHODS",
+           "environment_lights", "material_ball", "litsphere_errors"]
 
 METHODS = ("sg", "mc", "litsphere")
 
@@ -226,14 +226,8 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     `samples` a pixel), with `aa` and `shadow_samples` as "sg"."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-    n_aa = check_aa(aa)
-    n_shadow = check_shadow_samples(shadow_samples)
-    n_occlusion = check_occlusion_samples(occlusion_samples)
-    for name, value in (("split_rays", split_rays), ("block_rays", block_rays)):
-        if not isinstance(value, bool):
-            raise ValueError(f"{name} must be True or False, got {value!r}")
-    if aa_shading not in AA_SHADING:
-        raise ValueError(f"aa_shading must be one of {AA_SHADING}, got {aa_shading!r}")
+    n_aa, n_shadow, n_occlusion = check_frame_options(aa, shadow_samples, occlusion_samples, split_rays, block_rays,
+                                                      aa_shading)
     if method != "sg" and (block_rays or aa_shading != "sample"):
         raise ValueError(f"block_rays and aa_shading are options of the SG renderer (method='sg'), not of "
                          f"method={method!r}")
@@ -267,20 +261,34 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     return Rendering(image, timings, info)
 
 
-def queue_frame(scene: Scene, backend, aa: int = 1, shadow_samples: int = SHADOW_SAMPLES,
-                occlusion_samples: int = OCCLUSION_SAMPLES, split_rays: bool = True, block_rays: bool = False,
-                aa_shading: str = "sample") -> None:
-    """Queue one SG frame of `scene` as `render` makes it (the same options), its stages back to back with no
-    waits and its image left on the device: what an interactive viewer draws from, and the benchmarks' frame.
-    The scene's precomputation (lighting, SSDF, materials) is `render`'s, cached on the scene."""
-    backend = get_backend(backend)
+def check_frame_options(aa, shadow_samples, occlusion_samples, split_rays, block_rays, aa_shading) -> tuple:
+    """(aa, shadow samples, occlusion samples) of a frame's options, each checked (one-line errors)."""
     n_aa = check_aa(aa)
+    n_shadow = check_shadow_samples(shadow_samples)
+    n_occlusion = check_occlusion_samples(occlusion_samples)
+    for name, value in (("split_rays", split_rays), ("block_rays", block_rays)):
+        if not isinstance(value, bool):
+            raise ValueError(f"{name} must be True or False, got {value!r}")
     if aa_shading not in AA_SHADING:
         raise ValueError(f"aa_shading must be one of {AA_SHADING}, got {aa_shading!r}")
+    return n_aa, n_shadow, n_occlusion
+
+
+def queue_frame(scene: Scene, backend="auto", aa: int = 1, shadow_samples: int = SHADOW_SAMPLES,
+                occlusion_samples: int = OCCLUSION_SAMPLES, split_rays: bool = True, block_rays: bool = False,
+                aa_shading: str = "sample") -> None:
+    """Queue one SG frame of `scene` as `render` makes it (the same options, checked as `render` checks them),
+    its stages back to back with no waits and its image left on the device: what an interactive viewer draws
+    from, and the benchmarks' frame (`backend.accumulated_frame` reads an anti-aliased one back). The scene's
+    precomputation (lighting, SSDF, materials) is `render`'s, cached on the scene."""
+    n_aa, n_shadow, n_occlusion = check_frame_options(aa, shadow_samples, occlusion_samples, split_rays, block_rays,
+                                                      aa_shading)
+    check_no_litspheres(scene, "sg")
+    backend = get_backend(backend)
     static = _static_inputs(scene, backend, Progress(None), {})
     lights = scene.lights_packed
-    n_occlusion = check_occlusion_samples(occlusion_samples) if static.has_ssdf else 0
-    _accumulate(scene, backend, n_aa, check_shadow_samples(shadow_samples), n_occlusion, lights, {"shade": 0.0},
+    n_occlusion = n_occlusion if static.has_ssdf else 0
+    _accumulate(scene, backend, n_aa, n_shadow, n_occlusion, lights, {"shade": 0.0},
                 lambda cam, to_host, **kw: backend.shade(scene.mesh, static, cam.packed(), lights, to_host=to_host,
                                                          **kw),
                 static.sharp_lobes(), split_rays, block_rays, aa_shading == "pixel", wait=False, to_host=False)

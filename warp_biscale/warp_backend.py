@@ -148,7 +148,7 @@ class WarpBackend(DeviceBackend):
         self.name = f"warp:{self._device.alias}"
         self.device = self._device.name
         self.is_gpu = not self._device.is_cpu
-        # Launch slices: one per thread on the CPU (backend.cpu_threads; each slice runs on one), one on a GPU.
+        # Launch slices: one per thread on the CPU (device.cpu_threads; each slice runs on one), one on a GPU.
         self._slices = cpu_threads() if self._device.is_cpu else 1
         self._pool = ThreadPoolExecutor(self._slices) if self._slices > 1 else None
         # Threads worth launching per reduction: one per slice on the CPU, enough to fill a GPU.
