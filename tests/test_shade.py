@@ -148,6 +148,15 @@ def test_shade_kernel_matches_reference(backend, which, effective_material, many
     assert err.max() < 2e-2 * peak, msg
 
 
+def _assert_matches_reference(out, ref):
+    """A float32 shade against its float64 reference, to test_shade_kernel_matches_reference's tolerances."""
+    peak = ref.max()
+    err = np.abs(out - ref)
+    msg = f"max err {err.max():.3g}, peak {peak:.3g}, p99.9 {np.quantile(err, 0.999):.3g}"
+    assert np.quantile(err / (np.abs(ref) + 1e-3 * peak), 0.999) < 2e-3, msg
+    assert err.max() < 2e-2 * peak, msg
+
+
 @pytest.mark.parametrize("samples", [1, 5, 32])
 def test_shade_with_other_occlusion_ray_counts(backend, effective_material, samples):
     """The occluded scene with 1, 5 and 32 occlusion rays a pixel (each count's rows of trace.DISK_RADII in the
@@ -156,13 +165,8 @@ def test_shade_with_other_occlusion_ray_counts(backend, effective_material, samp
     scene = _scenes(effective_material)["occluded"]
     frame = pack_frame(scene, backend, occlusion_samples=samples)
     assert frame.gbuffer.occlusion_samples == samples and frame.gbuffer.occlusion.any()
-    ref = shade_reference(frame)
-    out = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights, gbuffer=frame.gbuffer)
-    peak = ref.max()
-    err = np.abs(out - ref)
-    msg = f"max err {err.max():.3g}, peak {peak:.3g}, p99.9 {np.quantile(err, 0.999):.3g}"
-    assert np.quantile(err / (np.abs(ref) + 1e-3 * peak), 0.999) < 2e-3, msg
-    assert err.max() < 2e-2 * peak, msg
+    _assert_matches_reference(backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights,
+                                            gbuffer=frame.gbuffer), shade_reference(frame))
 
 
 @pytest.mark.parametrize("part", [(1, 4), (2, 3)])
@@ -176,10 +180,7 @@ def test_shade_of_an_anti_aliasing_samples_part_of_the_rays(backend, effective_m
     ref = shade_reference(frame)
     out = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights, gbuffer=frame.gbuffer)
     peak = ref.max()
-    err = np.abs(out - ref)
-    msg = f"max err {err.max():.3g}, peak {peak:.3g}, p99.9 {np.quantile(err, 0.999):.3g}"
-    assert np.quantile(err / (np.abs(ref) + 1e-3 * peak), 0.999) < 2e-3, msg
-    assert err.max() < 2e-2 * peak, msg
+    _assert_matches_reference(out, ref)
     whole = shade_reference(pack_frame(scene, backend))
     assert np.abs(ref - whole).max() > 1e-3 * peak  # a part is not the whole set
     backend.trace_primary(scene.mesh, scene.camera, to_host=False)
