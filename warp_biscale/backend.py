@@ -17,9 +17,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from . import litsphere
 from .device import DeviceLobes, DeviceStart, OnDevice, cpu_threads, one_line
-from .model import Facets, GBuffer, ShadeInputs, Visibility
+from .model import BACKENDS, Facets, GBuffer, ShadeInputs, Visibility
 
 __all__ = ["Backend", "get_backend", "backends"]
 
@@ -315,4 +314,4 @@ def backends() -> list[dict]:
     return found
 
 
-litsphere.BACKENDS["get"] = get_backend  # LitSphere.from_material(backend="warp:cuda")
+BACKENDS["get"] = get_backend  # MeasuredBRDF.sg_fit("warp:cuda"), LitSphere.from_material(backend="warp:cuda")

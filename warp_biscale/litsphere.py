@@ -57,6 +57,7 @@ from . import sg
 from .brdf import Brdf, Lambert, pack_materials
 from .effective import EffectiveBRDF
 from .measured import MeasuredBRDF
+from .model import BACKENDS
 
 __all__ = ["LitSphere", "PAPER_ANGLES", "METAL_ANGLES", "reference_shade", "pack_spheres"]
 
@@ -73,9 +74,6 @@ TEST_ANGLES = tuple(np.arange(5.0, 180.0, 10.0))  # the lights interpolation_err
 ERROR_RESOLUTION = 256  # its default grid: texel-level error shows at any grid off the texel centres
 # Light-angle counts tried by from_material(tolerance=…): n angles spread evenly over [0°, 180°).
 TOLERANCE_COUNTS = (2, 3, 4, 6, 8, 12, 16, 24)
-# {"get": backend.get_backend}, filled in by warp_biscale.backend when it loads: a backend named in
-# from_material(backend=...) is found without this data-model module importing the stages above it.
-BACKENDS: dict = {}
 FORMAT = "warp_biscale.litsphere"
 VERSION = 1
 

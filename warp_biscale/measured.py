@@ -48,6 +48,7 @@ import numpy as np
 
 from .brdf import MEASURED, Brdf, CookTorrance, EnergyWarning, Lambert, parse_brdf
 from .io import atomic_path, check_output
+from .model import BACKENDS
 
 __all__ = ["MeasuredBRDF", "SGFit", "fit_sg", "paint_like", "small_scale_brdf", "half_diff_angles", "merl_indices",
            "RES_THETA_H", "RES_THETA_D", "RES_PHI_D", "SCALES", "INTERPOLATIONS"]
@@ -677,9 +678,7 @@ def fit_sg(measured: MeasuredBRDF, backend=None, lobes="auto") -> SGFit:
             return fit_sums(basis, target, weight, cand, coef)
         where = "host"
     else:
-        from .backend import get_backend  # (the backends import this module)
-
-        be = get_backend(backend)
+        be = BACKENDS["get"](backend)  # (backend.get_backend: the backends import this module)
         data = be.sg_fit_data(basis, target, weight)
 
         def sums(cand, coef=None):

@@ -15,6 +15,11 @@ from . import directions as dirs
 
 __all__ = ["Facets", "Visibility", "run_ends"]
 
+# {"get": backend.get_backend}, filled in by warp_biscale.backend when it loads (the package's __init__ imports it):
+# the modules that the backends themselves import (a measured BRDF's SG fit, the lit sphere's texels) find a
+# backend named by the user through it, without importing the backends.
+BACKENDS: dict = {}
+
 
 class Facets:
     """Ns area-weighted facets of a tile (Wu §3.2), float32 as the kernels use them.
