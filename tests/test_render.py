@@ -1,6 +1,9 @@
 """The SG renderer end to end (wb.render): physical closed forms, the Monte Carlo reference, and what the
 driver skips or re-uses. Every backend present runs them (the `backend` fixture)."""
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -180,3 +183,37 @@ def test_camera_packed_follows_its_fields():
         change(cam)
         np.testing.assert_array_equal(cam.packed(), cam._packed_now())
     assert not np.array_equal(cam.packed(), first)
+
+
+@pytest.mark.parametrize("subdivisions", [0, 1, 3])
+def test_icosphere_is_trimeshs(subdivisions):
+    """`scene.icosphere` (Mesh.sphere's, made without importing trimesh) against trimesh.creation.icosphere: the
+    same vertices (to 1e−12; the order may differ) and the same triangles with the same winding (outward)."""
+    import trimesh
+
+    from warp_biscale.scene import icosphere
+
+    v, f = icosphere(subdivisions)
+    tm = trimesh.creation.icosphere(subdivisions=subdivisions, radius=1.0)
+    tv, tf = np.asarray(tm.vertices), np.asarray(tm.faces)
+    assert v.shape == tv.shape and f.shape == tf.shape
+    np.testing.assert_allclose(np.linalg.norm(v, axis=1), 1.0, atol=1e-15)
+    match = np.argmin(np.linalg.norm(v[:, None, :] - tv[None, :, :], axis=2), axis=1)  # our vertex → trimesh's
+    np.testing.assert_allclose(v, tv[match], atol=1e-12)
+    assert len(set(match)) == len(v)
+
+    def cycles(faces):  # each triangle as its rotation starting at its smallest index (winding kept)
+        k = np.argmin(faces, axis=1)[:, None]
+        return {tuple(r) for r in np.take_along_axis(faces, (k + np.arange(3)) % 3, axis=1)}
+
+    assert cycles(match[f]) == cycles(tf)
+
+
+def test_import_leaves_trimesh_for_when_a_mesh_file_is_read(tmp_path):
+    """Importing the package, or making a sphere, does not import trimesh (a second of every process's start,
+    a batch worker's too, where networkx is installed); writing a mesh file does."""
+    code = ("import sys, warp_biscale as wb; wb.Mesh.sphere(1.0); assert 'trimesh' not in sys.modules, 'imported'; "
+            "wb.geometry.pyramid().save(sys.argv[1]); assert 'trimesh' in sys.modules")
+    r = subprocess.run([sys.executable, "-c", code, str(tmp_path / "tile.ply")], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]

@@ -21,7 +21,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import trimesh
 
 from .brdf import Brdf
 from .effective import EffectiveBRDF
@@ -96,6 +95,31 @@ def _rgb(name, v) -> np.ndarray:
     if a.shape != (3,) or not np.all(np.isfinite(a)) or (a < 0).any():
         raise ValueError(f"{name} must be a number >= 0 or an RGB triple of them, got {v!r}")
     return a
+
+
+_ICOSAHEDRON_FACES = np.array([[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4],
+                               [11, 10, 2], [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8],
+                               [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]])
+
+
+def icosphere(subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
+    """(unit vertices (V, 3) float64, faces (F, 3), counter-clockwise seen from outside): the icosahedron with
+    each triangle split into four at its edges' midpoints `subdivisions` times, each new vertex put on the unit
+    sphere (trimesh.creation.icosphere's construction, without importing trimesh)."""
+    t = (1.0 + 5.0**0.5) / 2.0
+    v = np.array([[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t], [0, -1, -t], [0, 1, -t],
+                  [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]], np.float64) / np.sqrt(1.0 + t * t)
+    f = _ICOSAHEDRON_FACES
+    for _ in range(subdivisions):
+        edges = np.sort(f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)  # each face's edges 01, 12, 20
+        _, first, inverse = np.unique(edges[:, 0] * len(v) + edges[:, 1], return_index=True, return_inverse=True)
+        mid = v[edges[first]].sum(axis=1)
+        mid /= np.linalg.norm(mid, axis=1, keepdims=True)
+        m = inverse.reshape(-1, 3) + len(v)  # the midpoints of edges 01, 12, 20
+        f = np.stack([np.stack([f[:, 0], m[:, 0], m[:, 2]], 1), np.stack([m[:, 0], f[:, 1], m[:, 1]], 1),
+                      np.stack([m[:, 2], m[:, 1], f[:, 2]], 1), m], 1).reshape(-1, 3)
+        v = np.vstack([v, mid])
+    return v, f
 
 
 @dataclass(eq=False)
@@ -181,6 +205,8 @@ class Mesh:
     @classmethod
     def load(cls, path, material: int = 0) -> Mesh:
         """Any mesh trimesh reads (OBJ, PLY, STL, GLB, ...); a scene is flattened into one mesh."""
+        import trimesh  # (on first use: importing it takes a second of every process's start, a batch worker's too)
+
         material = _integer("Mesh.load material", material, 0)
         try:
             tm = trimesh.load(str(path), force="mesh", process=False)
@@ -197,13 +223,10 @@ class Mesh:
         center = _vec3("Mesh.sphere center", center)
         subdivisions = _integer("Mesh.sphere subdivisions", subdivisions, 0)
         material = _integer("Mesh.sphere material", material, 0)
-        tm = trimesh.creation.icosphere(subdivisions=subdivisions, radius=1.0)
-        v = np.asarray(tm.vertices, np.float64)
-        n = v / np.linalg.norm(v, axis=1, keepdims=True)
+        n, faces = icosphere(subdivisions)
         uvs = np.stack([0.5 + np.arctan2(n[:, 0], n[:, 2]) / (2 * np.pi),
                         np.arccos(np.clip(n[:, 1], -1, 1)) / np.pi], 1)
-        return cls(n * radius + center, np.asarray(tm.faces), n, uvs,
-                   np.full(len(tm.faces), material, np.int32))
+        return cls(n * radius + center, faces, n, uvs, np.full(len(faces), material, np.int32))
 
     @classmethod
     def torus(cls, major=1.0, minor=0.35, center=(0.0, 0.0, 0.0), segments=(96, 48), material: int = 0) -> Mesh:

@@ -12,7 +12,6 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-import trimesh
 from scipy.spatial import cKDTree
 
 from .io import atomic_path
@@ -331,6 +330,8 @@ class SmallScale:
         with several meshes are concatenated, each mesh getting the next material id unless
         `material_ids` is given.
         """
+        import trimesh  # (on first use: importing it takes a second of every process's start)
+
         path = os.fspath(path)
         if not os.path.exists(path):
             raise FileNotFoundError(f"tile file not found: {path}")
@@ -368,6 +369,8 @@ class SmallScale:
         """Write the tile as a mesh file (format from the extension), atomically. A .ply file also keeps the
         face tangents (face properties tangent_x, tangent_y, tangent_z, which `load` reads back); other
         formats have no place for them, and the tile reloads with the default tangents."""
+
+        import trimesh
 
         mesh = trimesh.Trimesh(self.vertices, self.faces, process=False)
         if self.vertex_normals is not None:
