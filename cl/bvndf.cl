@@ -1,4 +1,4 @@
-/* The BVNDF (Iwasaki §5, Wu Eq. 11): cube-map normal bins, their sums, and the histogram N over direction pairs.
+/* The BVNDF (Iwasaki §5, Wu Eq. 11): cube-map normal bins and the histogram N over direction pairs.
  *
  * Twin of kernels/bvndf.py; the mathematics is warp_biscale.reference.cube_bin,
  * reference.normal_bin_sums and reference.bvndf_histogram. The histogram is a parallel reduction without
@@ -23,17 +23,16 @@ __kernel void normal_bins(
     bins[s] = cube_bin(load3(normal, s), resolution);
 }
 
-/* One work-item per facet: row l (stride 5) of its normal bin among `bins` (ascending; a facet in none adds
- * nothing) [sum dA, sum dA n, sum w] += its own, in fixed point round(x scale) (sums zeroed first): integer
- * sums do not depend on their order (kernels/bvndf.py's normal_bin_sums, reference.normal_bin_sums). */
+/* One work-item per facet: the row (stride 5) of its normal bin (`slot`, -1: none) [sum dA, sum dA n, sum w]
+ * += its own, in fixed point round(x scale) (sums zeroed first): integer sums do not depend on their order
+ * (kernels/bvndf.py's normal_bin_sums, reference.normal_bin_sums). */
 #pragma OPENCL EXTENSION cl_khr_int64_base_atomics : enable
 __kernel void normal_bin_sums(
     __global const float *normal,  /* (Ns, 3) */
     __global const float *area,    /* (Ns,) */
     __global const float *weight,  /* (Ns,) */
     const int resolution,
-    __global const int *bins,      /* (L,) ascending */
-    const int n_bins,
+    __global const int *slot,      /* (6 R^2,) */
     const double scale,
     const int n_facets,
     __global long *sums)           /* (L, 5) */
@@ -42,18 +41,10 @@ __kernel void normal_bin_sums(
     if (s >= n_facets)
         return;
     float3 n = load3(normal, s);
-    int b = cube_bin(n, resolution);
-    int lo = 0, hi = n_bins - 1;
-    while (lo < hi) {  /* the first of `bins` not below b */
-        int mid = (lo + hi) / 2;
-        if (bins[mid] < b)
-            lo = mid + 1;
-        else
-            hi = mid;
-    }
-    if (bins[lo] != b)
+    int k = slot[cube_bin(n, resolution)];
+    if (k < 0)
         return;
-    __global long *row = sums + 5 * (size_t)lo;
+    __global long *row = sums + 5 * (size_t)k;
     double a = (double)area[s] * scale;
     atom_add((volatile __global long *)row, (long)round(a));
     atom_add((volatile __global long *)(row + 1), (long)round(a * (double)n.x));

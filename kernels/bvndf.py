@@ -1,9 +1,10 @@
-"""The BVNDF (Iwasaki §5, Wu Eq. 11): cube-map normal bins, their sums, and the histogram N over direction pairs.
+"""The BVNDF (Iwasaki §5, Wu Eq. 11): cube-map normal bins and the histogram N over direction pairs.
 
-Twin of ``cl/bvndf.cl``; the mathematics is ``warp_biscale.reference.cube_bin``, ``reference.normal_bin_sums``
-and ``reference.bvndf_histogram``. The histogram is a parallel reduction without atomics: the facets
+Twin of ``cl/bvndf.cl``; the mathematics is ``warp_biscale.reference.cube_bin`` and
+``reference.bvndf_histogram``; the bins' sums, ``reference.normal_bin_sums``. The histogram is a parallel reduction without atomics: the facets
 are ordered by bin once (the driver sorts the bin ids), so bin l owns the contiguous range
-[bin_start[l], bin_start[l+1]) and one thread per (pair, bin) sums it."""
+[bin_start[l], bin_start[l+1]) and one thread per (pair, bin) sums it.
+"""
 
 import warp as wp
 
@@ -18,31 +19,22 @@ def normal_bins(normal: wp.array(dtype=wp.vec3), resolution: int, offset: int, b
 
 @wp.kernel
 def normal_bin_sums(normal: wp.array(dtype=wp.vec3), area: wp.array(dtype=wp.float32),
-                    weight: wp.array(dtype=wp.float32), resolution: int, bins: wp.array(dtype=wp.int32),
+                    weight: wp.array(dtype=wp.float32), resolution: int, slot: wp.array(dtype=wp.int32),
                     scale: wp.float64, offset: int, sums: wp.array2d(dtype=wp.int64)):
-    """One thread per facet: row l of its normal bin among `bins` (ascending; a facet in none adds nothing)
-    [ΣΔA, ΣΔA·n, Σw] += its own, in fixed point round(x·scale) (sums zeroed first): integer sums do not depend
-    on their order, so the bins are the same from run to run (reference.normal_bin_sums). Launched whole on
-    the CPU, where atomic_add is a plain add."""
+    """One thread per facet: the row of its normal bin (`slot`, −1: none) [ΣΔA, ΣΔA·n, Σw] += its own, in fixed
+    point round(x·scale) (sums zeroed first): integer sums do not depend on their order, so the bins are the
+    same from run to run (reference.normal_bin_sums). Launched whole on the CPU, where atomic_add is a plain add."""
     s = wp.tid() + offset
     n = normal[s]
-    b = cube_bin(n, resolution)
-    lo = int(0)
-    hi = bins.shape[0] - 1
-    while lo < hi:  # (the first of `bins` not below b)
-        mid = (lo + hi) // 2
-        if bins[mid] < b:
-            lo = mid + 1
-        else:
-            hi = mid
-    if bins[lo] != b:
+    k = slot[cube_bin(n, resolution)]
+    if k < 0:
         return
     a = wp.float64(area[s]) * scale
-    wp.atomic_add(sums, lo, 0, wp.int64(wp.round(a)))
-    wp.atomic_add(sums, lo, 1, wp.int64(wp.round(a * wp.float64(n[0]))))
-    wp.atomic_add(sums, lo, 2, wp.int64(wp.round(a * wp.float64(n[1]))))
-    wp.atomic_add(sums, lo, 3, wp.int64(wp.round(a * wp.float64(n[2]))))
-    wp.atomic_add(sums, lo, 4, wp.int64(wp.round(wp.float64(weight[s]) * scale)))
+    wp.atomic_add(sums, k, 0, wp.int64(wp.round(a)))
+    wp.atomic_add(sums, k, 1, wp.int64(wp.round(a * wp.float64(n[0]))))
+    wp.atomic_add(sums, k, 2, wp.int64(wp.round(a * wp.float64(n[1]))))
+    wp.atomic_add(sums, k, 3, wp.int64(wp.round(a * wp.float64(n[2]))))
+    wp.atomic_add(sums, k, 4, wp.int64(wp.round(wp.float64(weight[s]) * scale)))
 
 
 @wp.func

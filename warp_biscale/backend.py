@@ -58,9 +58,9 @@ class Backend(Protocol):
     def normal_bins(self, facets: Facets, resolution: int) -> np.ndarray:
         """(Ns,) int32 cube-map bin of each facet normal at `resolution` (directions.cube_bin)."""
 
-    def normal_bin_sums(self, facets: Facets, resolution: int, bins: np.ndarray,
+    def normal_bin_sums(self, facets: Facets, resolution: int, slot: np.ndarray, n_slots: int,
                         facet_weight: OnDevice | np.ndarray | None = None) -> OnDevice:
-        """(L, 5) float64 [ΣΔA, ΣΔA·n, Σw] of the facets in each normal bin of `bins` (L,) ascending
+        """(n_slots, 5) float64 [ΣΔA, ΣΔA·n, Σw] of each normal bin's facets, a facet in row slot[its bin]
         (reference.normal_bin_sums), w the facet weight (None: ΔA); left on the device, its read queued."""
 
     def bvndf_histogram(self, facets: Facets, vis: Visibility, order: np.ndarray, bin_start: np.ndarray,

@@ -455,7 +455,7 @@ def _queue_bin_sums(be, q: _Queued, r, occupied) -> None:
     (`Backend.normal_bin_sums`, w the EM's facet weights where queued, else ΔA), read back when asked: (L, 5)
     floats instead of the facets' normals and weights, and no pass over the facets on the host."""
     if q.face_bins is None and q.bin_sums is None:
-        q.bin_sums = be.normal_bin_sums(q.fac, r, occupied.astype(np.int32), q.em_weight)
+        q.bin_sums = be.normal_bin_sums(q.fac, r, _slots(occupied, r), len(occupied), q.em_weight)
 
 
 def _bin_normals(be, q: _Queued, r, mass=None, occupied=None) -> tuple:

@@ -490,19 +490,15 @@ def vgroove_effective_brdf(depth, width, kinds, params, wi, wo, material=0, colo
 # ----------------------------------------------------------------------------------------------
 
 
-def normal_bin_sums(normal: np.ndarray, area: np.ndarray, weight: np.ndarray, resolution: int,
-                    bins: np.ndarray) -> np.ndarray:
-    """(L, 5) per normal bin of `bins` (L,) (a facet whose bin is not among them adds nothing): [Σ ΔA_s,
-    Σ ΔA_s n_s, Σ w_s] in float64 — what the bake's non-empty bins hold (their area, area-weighted mean normal
-    and EM weight)."""
-    bins = np.asarray(bins)
-    own = cube_bin(normal, resolution)
-    row = np.searchsorted(bins, own)
-    keep = (row < len(bins)) & (bins[np.minimum(row, len(bins) - 1)] == own)
-    row = row[keep]
+def normal_bin_sums(normal: np.ndarray, area: np.ndarray, weight: np.ndarray, resolution: int, slot: np.ndarray,
+                    n_slots: int) -> np.ndarray:
+    """(L, 5) per normal bin's row slot[cube_bin(n_s)] (−1: none): [Σ ΔA_s, Σ ΔA_s n_s, Σ w_s] in float64 — what
+    the bake's non-empty bins hold (their area, area-weighted mean normal and EM weight)."""
+    row = np.asarray(slot)[cube_bin(normal, resolution)]
+    keep = row >= 0
     n, a = np.asarray(normal, np.float64)[keep], np.asarray(area, np.float64)[keep]
     columns = [a, a * n[:, 0], a * n[:, 1], a * n[:, 2], np.asarray(weight, np.float64)[keep]]
-    return np.stack([np.bincount(row, weights=c, minlength=len(bins)) for c in columns], 1)
+    return np.stack([np.bincount(row[keep], weights=c, minlength=n_slots) for c in columns], 1)
 
 
 def bvndf_histogram(facets: dict, vis: np.ndarray, bins: np.ndarray, weight: np.ndarray, pair_i, pair_o):

@@ -296,9 +296,9 @@ class WarpBackend(DeviceBackend):
     def _launch_normal_bins(self, f, n, resolution, bins):
         self._launch(kbvndf.normal_bins, n, [f["normal"], resolution], [bins])
 
-    def _launch_normal_bin_sums(self, f, weight, resolution, bins, n_bins, scale, n, sums):
+    def _launch_normal_bin_sums(self, f, weight, resolution, slot, scale, n, sums):
         # (not sliced over the CPU's cores: there Warp's atomic_add is a plain add)
-        self._launch(kbvndf.normal_bin_sums, n, [f["normal"], f["area"], weight, resolution, bins, scale], [sums],
+        self._launch(kbvndf.normal_bin_sums, n, [f["normal"], f["area"], weight, resolution, slot, scale], [sums],
                      split=False)
 
     def _launch_bvndf_histogram(self, v, n_words, pair_i, pair_o, order, bin_start, weight, n_pairs, n_bins, hist):
