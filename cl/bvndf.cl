@@ -1,8 +1,8 @@
 /* The BVNDF (Iwasaki §5, Wu Eq. 11): cube-map normal bins and the histogram N over direction pairs.
  *
- * Twin of kernels/bvndf.py; the mathematics is warp_biscale.reference.cube_bin,
- * reference.normal_bin_sums and reference.bvndf_histogram. The histogram is a parallel reduction without
- * atomics: the facets are ordered by bin once (the driver sorts the bin ids), so bin l owns the contiguous range
+ * Twin of kernels/bvndf.py; the mathematics is warp_biscale.reference.cube_bin and
+ * reference.bvndf_histogram. The histogram is a parallel reduction without atomics: the facets are
+ * ordered by bin once (the driver sorts the bin ids), so bin l owns the contiguous range
  * [bin_start[l], bin_start[l+1]) of `order` and one work-item per (bin, pair) sums it in float64.
  *
  * NDRanges: (facets,) for the bins; (bins, pairs) for the histogram, dimension 0 varying fastest as
@@ -21,36 +21,6 @@ __kernel void normal_bins(
     if (s >= n_facets)
         return;
     bins[s] = cube_bin(load3(normal, s), resolution);
-}
-
-/* One work-item per facet: the row (stride 5) of its normal bin (`slot`, -1: none) [sum dA, sum dA n, sum w]
- * += its own, in fixed point round(x scale) (sums zeroed first): integer sums do not depend on their order
- * (kernels/bvndf.py's normal_bin_sums, reference.normal_bin_sums). */
-#pragma OPENCL EXTENSION cl_khr_int64_base_atomics : enable
-__kernel void normal_bin_sums(
-    __global const float *normal,  /* (Ns, 3) */
-    __global const float *area,    /* (Ns,) */
-    __global const float *weight,  /* (Ns,) */
-    const int resolution,
-    __global const int *slot,      /* (6 R^2,) */
-    const double scale,
-    const int n_facets,
-    __global long *sums)           /* (L, 5) */
-{
-    int s = get_global_id(0);
-    if (s >= n_facets)
-        return;
-    float3 n = load3(normal, s);
-    int k = slot[cube_bin(n, resolution)];
-    if (k < 0)
-        return;
-    __global long *row = sums + 5 * (size_t)k;
-    double a = (double)area[s] * scale;
-    atom_add((volatile __global long *)row, (long)round(a));
-    atom_add((volatile __global long *)(row + 1), (long)round(a * (double)n.x));
-    atom_add((volatile __global long *)(row + 2), (long)round(a * (double)n.y));
-    atom_add((volatile __global long *)(row + 3), (long)round(a * (double)n.z));
-    atom_add((volatile __global long *)(row + 4), (long)round((double)weight[s] * scale));
 }
 
 __kernel void bvndf_histogram(

@@ -82,27 +82,6 @@ def test_bvndf_histogram_matches_reference(backend, heightfield):
     _close(got, ref.bvndf_histogram(fd, vb, inv, w, iu, ou))
 
 
-def test_normal_bin_sums_match_reference(backend, heightfield):
-    """`normal_bin_sums` (fixed-point sums by integer atomics) against float64 sums: [ΣΔA, ΣΔA·n, Σw] per
-    bin's slot, bins without a slot left out, w the visible weights left on the device or None (ΔA); within
-    1e-12 of the largest sum (the fixed point's 2^−52 a facet), and the same on a second run bit for bit."""
-    fac, fd, grid, vis, vb = _case(backend, heightfield)
-    r = 32
-    bins = ref.cube_bin(fd["normal"], r)
-    occupied = np.unique(bins)
-    slot = np.full(6 * r * r, -1, np.int32)
-    slot[occupied] = np.arange(len(occupied))
-    slot[occupied[::5]] = -1  # (rows left zero)
-    weight = backend.visible_weights(fac, vis, to_host=False)
-    for w, host_w in ((weight, weight.host()), (None, fac.area)):
-        got = backend.normal_bin_sums(fac, r, slot, len(occupied), w).host()
-        want = ref.normal_bin_sums(fac.normal, fac.area, host_w, r, slot, len(occupied))
-        assert got.shape == want.shape
-        np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.abs(want).max())
-        np.testing.assert_array_equal(got, backend.normal_bin_sums(fac, r, slot, len(occupied), w).host())
-    assert not got[::5].any()
-
-
 def test_ndf_statistics_match_reference(backend, heightfield):
     fac, fd, *_ = _case(backend, heightfield)
     lob = lobes_mod.initial_lobes(fd["normal"], fd["area"], 6)
@@ -330,11 +309,10 @@ def test_coarse_bins_from_fine_bins_match_binning_the_normals(resolution):
 
 
 @pytest.mark.parametrize("equal_areas", [True, False])
-def test_normal_bins_match_a_plain_float64_binning(backend, equal_areas):
-    """The bake's bins (`_occupied_bins`: counts times ΔA where the facets' areas are equal, weighted sums
-    otherwise; `_bin_normals`: the bins' sums on the device, in fixed point) against per-bin float64 sums
-    written out plainly: the same bins, areas to 1e-12 and mean normals to 1e-12 (the fixed point's error is
-    ~Ns·2^−53 of a one-facet bin's sum: 6e-13 here)."""
+def test_normal_bins_match_a_plain_float64_binning(equal_areas):
+    """The bake's bins (`_occupied_bins`, `_bin_normals`: counts times ΔA and one sparse product where the
+    facets' areas are equal, weighted sums otherwise) against per-bin float64 sums written out plainly:
+    the same bins, areas to 1e-12 and mean normals to 1e-12."""
     rng = np.random.default_rng(11)
     count, r = 5000, 8
     normal = rng.normal(size=(count, 3))
@@ -344,10 +322,8 @@ def test_normal_bins_match_a_plain_float64_binning(backend, equal_areas):
     fac = wb.Facets(np.zeros((count, 3), np.float32), normal, np.zeros(count, np.int32), area,
                     np.zeros(count, np.int32), np.ones((count, 3), np.float32))
     bins = ref.cube_bin(normal.astype(np.float64), r)
-    q = bake_module._Queued(fac, bins, dirs.grid(2))
-    bv, facet_bin = bake_module._bin_normals(backend, q, r)
-    assert facet_bin is None  # (binned facet by facet: the slots only when asked)
-    facet_bin = bake_module._facet_slots(q, bv, facet_bin)
+    q = bake_module._Queued(fac, bins, normal, dirs.grid(2))
+    bv, facet_bin = bake_module._bin_normals(q, r)
     expect_bins = np.unique(bins)
     np.testing.assert_array_equal(bv.bins, expect_bins)
     np.testing.assert_array_equal(expect_bins[facet_bin], bins)
@@ -402,14 +378,14 @@ def test_a_flat_tiles_bins_summed_over_its_faces_match_the_facets(backend, famil
     r = 32
     fac = backend.sample_facets(tile, 5000, 1)
     bins = backend.normal_bins(fac, r)
-    q = bake_module._Queued(fac, bins, dirs.grid(2))
+    q = bake_module._Queued(fac, bins, fac.normal, dirs.grid(2))
     q.face_bins = bake_module._face_bins(tile, fac, bins)
     assert q.face_bins is not None and len(q.face_bins[0]) <= len(tile.faces)
-    plain = bake_module._Queued(fac, bins, dirs.grid(2))
-    bv, facet_bin = bake_module._bin_normals(backend, q, r)
-    want, want_bin = bake_module._bin_normals(backend, plain, r)
+    plain = bake_module._Queued(fac, bins, fac.normal, dirs.grid(2))
+    bv, facet_bin = bake_module._bin_normals(q, r)
+    want, want_bin = bake_module._bin_normals(plain, r)
     np.testing.assert_array_equal(bv.bins, want.bins)
-    np.testing.assert_array_equal(facet_bin, bake_module._facet_slots(plain, want, want_bin))
+    np.testing.assert_array_equal(facet_bin, want_bin)
     np.testing.assert_array_equal(bv.area, want.area)
     np.testing.assert_allclose(bv.normal, want.normal, rtol=0, atol=1e-12)
     timer, prog = sys.modules["warp_biscale.truth"]._Timer(backend), wb.progress.as_progress(None)

@@ -58,11 +58,6 @@ class Backend(Protocol):
     def normal_bins(self, facets: Facets, resolution: int) -> np.ndarray:
         """(Ns,) int32 cube-map bin of each facet normal at `resolution` (directions.cube_bin)."""
 
-    def normal_bin_sums(self, facets: Facets, resolution: int, slot: np.ndarray, n_slots: int,
-                        facet_weight: OnDevice | np.ndarray | None = None) -> OnDevice:
-        """(n_slots, 5) float64 [ΣΔA, ΣΔA·n, Σw] of each normal bin's facets, a facet in row slot[its bin]
-        (reference.normal_bin_sums), w the facet weight (None: ΔA); left on the device, its read queued."""
-
     def bvndf_histogram(self, facets: Facets, vis: Visibility, order: np.ndarray, bin_start: np.ndarray,
                         weight: np.ndarray, pair_i: np.ndarray, pair_o: np.ndarray) -> np.ndarray:
         """(P, L) float32 BVNDF histogram N over the unordered pairs (reference.bvndf_histogram): the facets

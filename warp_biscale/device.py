@@ -580,23 +580,6 @@ class DeviceBackend:
             self._launch_normal_bins(self._facets(facets), n, int(resolution), bins)
         return self._to_host(bins, n, "i32")
 
-    def normal_bin_sums(self, facets, resolution, slot, n_slots, facet_weight=None):
-        """→ OnDevice of the (n_slots, 5) float64 rows [ΣΔA, ΣΔA·n, Σw] of the facets' normal bins, each facet in
-        row slot[its bin] (slot (6R²,) int32, −1: none; reference.normal_bin_sums), w the facet weight (an
-        OnDevice from visible_weights, or None: the area). Summed in fixed point round(x·scale) by integer
-        atomics, scale = 2^52 over the larger of ΣΔA and Σ|w| (`start_scale`: visible weights are at most the
-        area): exact to 2^−52 of it per facet, and the same order-free sums on every run. The read is queued
-        behind the sums."""
-        f = self._facets(facets)
-        n, rows = len(facets), max(int(n_slots), 1)
-        scale = min(start_scale(facets, None), start_scale(facets, facet_weight))  # (bounds Σ ΔA and Σ|w|)
-        sums = self._zeros((rows, 5), "i64")
-        if n:
-            weight = f["area"] if facet_weight is None else self._facet_weight(f, facet_weight)
-            self._launch_normal_bin_sums(f, weight, int(resolution), self._to_device(slot, "i32"), scale, n, sums)
-        read = self._queued_read(sums, (rows, 5), "i64")
-        return OnDevice(sums, lambda: read()[:int(n_slots)].astype(np.float64) / scale)
-
     def bvndf_histogram(self, facets, vis, order, bin_start, weight, pair_i, pair_o):
         n_bins, n_pairs = max(len(bin_start) - 1, 0), len(pair_i)
         hist = self._new((n_pairs, n_bins), "f32")

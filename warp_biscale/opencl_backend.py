@@ -499,10 +499,6 @@ class OpenCLBackend(DeviceBackend):
     def _launch_normal_bins(self, f, n, resolution, bins):
         self._launch("bvndf", "normal_bins", (n,), f["normal"], np.int32(resolution), np.int32(n), bins)
 
-    def _launch_normal_bin_sums(self, f, weight, resolution, slot, scale, n, sums):
-        self._launch("bvndf", "normal_bin_sums", (n,), f["normal"], f["area"], weight, np.int32(resolution), slot,
-                     np.float64(scale), np.int32(n), sums)
-
     def _launch_bvndf_histogram(self, v, n_words, pair_i, pair_o, order, bin_start, weight, n_pairs, n_bins, hist):
         self._launch("bvndf", "bvndf_histogram", (n_bins, n_pairs), pair_i, pair_o, v["bits"], np.int32(n_words),
                      order, bin_start, weight, np.int32(n_bins), np.int32(n_pairs), hist)

@@ -47,7 +47,6 @@ __all__ = [
     "vgroove_tile",
     "vgroove_effective_brdf",
     "cube_bin",
-    "normal_bin_sums",
     "bvndf_histogram",
     "ndf_statistics",
     "ndf_em",
@@ -488,17 +487,6 @@ def vgroove_effective_brdf(depth, width, kinds, params, wi, wo, material=0, colo
 # ----------------------------------------------------------------------------------------------
 # The SG bake (Iwasaki §4–5): normal bins, BVNDF histogram, spherical EM statistics, amplitudes
 # ----------------------------------------------------------------------------------------------
-
-
-def normal_bin_sums(normal: np.ndarray, area: np.ndarray, weight: np.ndarray, resolution: int, slot: np.ndarray,
-                    n_slots: int) -> np.ndarray:
-    """(L, 5) per normal bin's row slot[cube_bin(n_s)] (−1: none): [Σ ΔA_s, Σ ΔA_s n_s, Σ w_s] in float64 — what
-    the bake's non-empty bins hold (their area, area-weighted mean normal and EM weight)."""
-    row = np.asarray(slot)[cube_bin(normal, resolution)]
-    keep = row >= 0
-    n, a = np.asarray(normal, np.float64)[keep], np.asarray(area, np.float64)[keep]
-    columns = [a, a * n[:, 0], a * n[:, 1], a * n[:, 2], np.asarray(weight, np.float64)[keep]]
-    return np.stack([np.bincount(row[keep], weights=c, minlength=n_slots) for c in columns], 1)
 
 
 def bvndf_histogram(facets: dict, vis: np.ndarray, bins: np.ndarray, weight: np.ndarray, pair_i, pair_o):

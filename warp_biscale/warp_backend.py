@@ -171,18 +171,17 @@ class WarpBackend(DeviceBackend):
     def synchronize(self):
         wp.synchronize_device(self._device)
 
-    def _launch(self, kernel, dim, inputs, outputs, block_dim=256, pieces=1, split=True):
+    def _launch(self, kernel, dim, inputs, outputs, block_dim=256, pieces=1):
         """Launch `kernel` over `dim`; its last input is an offset into the last dimension.
 
         On the CPU the last dimension is cut into `pieces` slices per core, launched in parallel (a core
         that finishes its slice takes the next: for a kernel whose work varies along that dimension,
-        such as the visibility rays, more pieces even out the cores); `split=False` launches it whole (a
-        kernel that adds by atomics: on the CPU Warp's atomic_add is a plain add). On a GPU `block_dim`
-        threads make a block (Warp's default 256).
+        such as the visibility rays, more pieces even out the cores). On a GPU `block_dim` threads make
+        a block (Warp's default 256).
         """
         dim = tuple(dim) if isinstance(dim, (tuple, list)) else (int(dim),)
         n = dim[-1]
-        parts = min(self._slices * pieces, n) if self._slices > 1 and split else 1
+        parts = min(self._slices * pieces, n) if self._slices > 1 else 1
         # Compile/load before the threads race to do it (the kernel's own Warp module: kernels made
         # by a factory live in a module of their own).
         self._load(kernel, block_dim)
@@ -295,11 +294,6 @@ class WarpBackend(DeviceBackend):
 
     def _launch_normal_bins(self, f, n, resolution, bins):
         self._launch(kbvndf.normal_bins, n, [f["normal"], resolution], [bins])
-
-    def _launch_normal_bin_sums(self, f, weight, resolution, slot, scale, n, sums):
-        # (not sliced over the CPU's cores: there Warp's atomic_add is a plain add)
-        self._launch(kbvndf.normal_bin_sums, n, [f["normal"], f["area"], weight, resolution, slot, scale], [sums],
-                     split=False)
 
     def _launch_bvndf_histogram(self, v, n_words, pair_i, pair_o, order, bin_start, weight, n_pairs, n_bins, hist):
         self._launch(kbvndf.bvndf_histogram, (n_pairs, n_bins),
