@@ -50,7 +50,7 @@ BACKEND_CALLS = ("_tile", "sample_facets", "normal_bins", "visibility", "visible
 # The host steps between them. `_channels` is private: it splits the facet weights per material and
 # colour, host work between the rays and the moments that the timeline must show.
 LOBE_STEPS = ("initial_lobes", "amplitude_system")
-BAKE_STEPS = ("_channels", "_occupied_bins", "_bin_normals", "EffectiveBRDF")
+BAKE_STEPS = ("_channels", "_occupied_bins", "_bin_normals", "_fit_ndf", "EffectiveBRDF")
 # The ASG bake's host steps (method "asg").
 ASG_STEPS = ("amplitude_system", "calibrated_rows", "fit_asg_on")
 
