@@ -719,3 +719,25 @@ def test_merge_duplicates_as_numpy_unique():
             v2, f2, _ = SmallScale._merge_duplicates(v, f, None)
         np.testing.assert_array_equal(v2, v[first] if len(first) < len(v) else v)
         np.testing.assert_array_equal(f2, inverse.reshape(-1)[f] if len(first) < len(v) else f)
+
+
+def test_tile_names_of_the_command_line_and_scene_files(tmp_path):
+    """`load_tile` (the command line's and scene files' TILE) takes every family name the README and the
+    editor use — grooves and heightfield too — and a greyscale image as a height field; anything else is a
+    one-line error naming what it takes."""
+    from warp_biscale import editor, geometry
+
+    for name, (fn, kwargs) in geometry.BUILTIN_TILES.items():
+        tile = geometry.load_tile(name)
+        want = getattr(geometry, fn)(**kwargs)
+        np.testing.assert_array_equal(tile.vertices, want.vertices)
+    relief = geometry.load_tile("heightfield")
+    np.testing.assert_array_equal(relief.vertices, heightfield(geometry.relief_heights(), scale=0.15).vertices)
+    # the editor starts from the same relief
+    np.testing.assert_array_equal(editor.Editor("heightfield", backend="warp:cpu", width=16, height=16).heights,
+                                  geometry.relief_heights(editor.HEIGHTS))
+    path = tmp_path / "bumps.png"
+    Image.fromarray((np.random.default_rng(0).random((8, 8)) * 255).astype(np.uint8)).save(path)
+    np.testing.assert_array_equal(geometry.load_tile(str(path)).vertices, heightfield_from_image(path).vertices)
+    with pytest.raises(ValueError, match="neither a mesh file, a height-field image nor a built-in tile .*grooves"):
+        geometry.load_tile("groove")

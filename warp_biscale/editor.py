@@ -254,17 +254,6 @@ def brdf_spec(m: dict) -> str:
     return f"ward:ks={rgb(m['ks'])},alpha={m['alpha']:.6g},kd={rgb(m['kd'])}"
 
 
-def default_heights(n: int = HEIGHTS, seed: int = 0) -> np.ndarray:
-    """A gentle periodic relief to paint on: a few random low-frequency waves, in [0, 1]."""
-    rng = np.random.default_rng(seed)
-    y, x = np.mgrid[0:n, 0:n] / n
-    h = np.zeros((n, n))
-    for _ in range(6):
-        fx, fy = rng.integers(1, 4, 2)
-        h += np.cos(2 * np.pi * (fx * x + fy * y) + rng.uniform(0, 2 * np.pi))
-    return (h - h.min()) / (h.max() - h.min())
-
-
 def _blur(h: np.ndarray, sigma: float) -> np.ndarray:
     """Periodic Gaussian blur of a height field (sigma in grid cells), by FFT."""
     if sigma <= 0:
@@ -331,7 +320,7 @@ class Editor:
             state["tile"] = {name: default for name, _, _, _, default, _ in FAMILIES[family]}
             state["tile"].update(fixed)
             if family == "heightfield":
-                state["heights"] = default_heights()
+                state["heights"] = geometry.relief_heights(HEIGHTS)
         elif os.path.isfile(spec) and spec.lower().endswith((".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")):
             state["family"] = "heightfield"
             state["tile"] = {name: default for name, _, _, _, default, _ in FAMILIES["heightfield"]}

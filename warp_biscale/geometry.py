@@ -24,31 +24,38 @@ from __future__ import annotations
 
 import os
 
-from .geometry_relief import flat, grooves, heightfield, heightfield_from_image, pyramid, read_height_image
+from .geometry_relief import (flat, grooves, heightfield, heightfield_from_image, pyramid, read_height_image,
+                              relief, relief_heights)
 from .geometry_tubes import rods, woven
 from .smallscale import SmallScale
 
-__all__ = ["flat", "pyramid", "grooves", "rods", "woven", "heightfield", "heightfield_from_image", "read_height_image"]
+__all__ = ["flat", "pyramid", "grooves", "rods", "woven", "heightfield", "heightfield_from_image", "read_height_image",
+           "relief", "relief_heights"]
 
 # Tile names accepted by the command line and scene files: generator (an attribute of this module)
 # and its keyword arguments.
 BUILTIN_TILES = {
     "pyramid": ("pyramid", {}),
     "pentagon": ("pyramid", {"sides": 5}),
+    "grooves": ("grooves", {}),
     "vgroove": ("grooves", {"profile": "v"}),
     "ugroove": ("grooves", {"profile": "u"}),
     "rods": ("rods", {}),
     "woven": ("woven", {}),
     "flat": ("flat", {}),
+    "heightfield": ("relief", {}),
 }
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")  # a height field's greyscale image
 
 
 def load_tile(spec: str):
-    """A mesh file path, or the name of a built-in procedural tile."""
+    """A mesh file path, a greyscale image (a height field, `heightfield_from_image`), or the name of a
+    built-in procedural tile (BUILTIN_TILES)."""
 
     if os.path.exists(spec):
-        return SmallScale.load(spec)
+        return heightfield_from_image(spec) if spec.lower().endswith(IMAGE_SUFFIXES) else SmallScale.load(spec)
     if spec in BUILTIN_TILES:
         fn, kwargs = BUILTIN_TILES[spec]
         return globals()[fn](**kwargs)
-    raise ValueError(f"tile {spec!r} is neither a mesh file nor a built-in tile ({', '.join(BUILTIN_TILES)})")
+    raise ValueError(f"tile {spec!r} is neither a mesh file, a height-field image nor a built-in tile "
+                     f"({', '.join(BUILTIN_TILES)})")

@@ -16,7 +16,7 @@ from .geometry_mesh import TriangleSoup, check_faces, following, lift, triangula
 from .geometry_params import WHITE, format_params, integer, material_id, one_of, real, rgb
 from .smallscale import SmallScale
 
-__all__ = ["flat", "pyramid", "grooves", "heightfield", "heightfield_from_image"]
+__all__ = ["flat", "pyramid", "grooves", "heightfield", "heightfield_from_image", "relief", "relief_heights"]
 
 
 def flat(*, size=1.0, material=0, color=WHITE) -> SmallScale:
@@ -310,6 +310,29 @@ def heightfield(heights, *, size=1.0, scale=1.0, material=0, color=WHITE) -> Sma
         period=(size, size),
         name=f"heightfield({rows}x{cols}, scale={scale:g})",
     )
+
+
+RELIEF_GRID = 64  # the default relief's grid: RELIEF_GRID² heights a period
+
+
+def relief_heights(n: int = RELIEF_GRID, seed: int = 0) -> np.ndarray:
+    """(n, n) heights in [0, 1]: a gentle periodic relief of six random low-frequency waves (the editor's
+    starting height field, and the tile named "heightfield" on the command line and in scene files)."""
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:n, 0:n] / n
+    h = np.zeros((n, n))
+    for _ in range(6):
+        fx, fy = rng.integers(1, 4, 2)
+        h += np.cos(2 * np.pi * (fx * x + fy * y) + rng.uniform(0, 2 * np.pi))
+    return (h - h.min()) / (h.max() - h.min())
+
+
+def relief(amplitude=0.15, seed=0, *, material=0, color=WHITE) -> SmallScale:
+    """The default height field: `relief_heights(seed=seed)` raised to `amplitude` (the tile side is 1)."""
+    seed = integer("relief", "seed", seed, 0)
+    tile = heightfield(relief_heights(seed=seed), scale=amplitude, material=material, color=color)
+    tile.name = f"relief(amplitude={amplitude:g}, seed={seed})"
+    return tile
 
 
 def heightfield_from_image(path, *, size=1.0, scale=1.0, material=0, color=WHITE) -> SmallScale:
