@@ -292,3 +292,26 @@ def test_scene_file_unused_brdf_warning_has_file_and_line(tmp_path, monkeypatch)
                                             r"for a tile with 2 material ids"):
         with pytest.raises(_NoWork):
             load_scene(p, backend="warp:cpu")
+
+
+def test_load_and_compare_say_what_does_not_fit(tmp_path):
+    """`wb.load` of an image says it is not a warp_biscale file (numpy's pickle message did not), of a lit-sphere
+    folder loads it; `wb.compare` of a bake against the truth of other small-scale BRDFs warns (it returned a PSNR
+    and said nothing; not an error, as AnisotropicWard(a, a) and Ward(a) judge each other)."""
+    from PIL import Image
+
+    Image.fromarray(np.zeros((4, 4), np.uint8)).save(tmp_path / "demo.png")
+    with pytest.raises(ValueError, match=r"demo.png is truncated or corrupt, or not a warp_biscale file"):
+        wb.load(tmp_path / "demo.png")
+    ls = wb.LitSphere.from_material(wb.Lambert(0.5), angles=(0.0, 90.0), resolution=16)
+    ls.save(tmp_path / "ball")
+    assert isinstance(wb.load(tmp_path / "ball"), wb.LitSphere)
+    with pytest.raises(ValueError, match="not a lit-sphere folder"):
+        wb.load(tmp_path)
+    tile = wb.geometry.pyramid()
+    kw = dict(directions=3, facets=1024, backend="warp:cpu")
+    mat = wb.bake(tile, wb.Lambert(0.5), **kw)
+    assert wb.compare(mat, wb.ground_truth(tile, wb.Lambert(0.5), **kw))["psnr"] > 20
+    other = wb.ground_truth(tile, wb.BlinnPhong(0.5, 64, kd=0.2, normalization="energy"), **kw)
+    with pytest.warns(UserWarning, match="compare: the material's small-scale BRDFs .* are not the ground truth's"):
+        wb.compare(mat, other)

@@ -427,8 +427,18 @@ def compare(mat, gt, method: str | None = None) -> dict:
 
     Metric of Wu Table 4: the cosine-weighted BRDF f̄ (our tables include cos θi) over all K²×K²
     pairs and RGB. Returns rmse, psnr = 20·log10(peak / rmse) with peak the truth's maximum, and
-    max_rel_error = max |f̄ − f̄_gt| / f̄_gt over the entries where f̄_gt ≥ 1 % of the peak.
+    max_rel_error = max |f̄ − f̄_gt| / f̄_gt over the entries where f̄_gt ≥ 1 % of the peak. Analytic
+    small-scale BRDFs that differ between the two (a bake judged against another material's truth) are
+    warned about.
     """
+    # A ground truth names its small-scale BRDFs by repr; analytic ones are their exact parameters (a measured
+    # table's repr names its file alone, so it is not compared).
+    mine = [m if isinstance(m, str) else repr(m) for m in getattr(mat, "materials", None) or []]
+    theirs = [str(m) for m in getattr(gt, "materials", None) or []]
+    # (a warning, not an error: two spellings of one BRDF, AnisotropicWard(a, a) and Ward(a), judge each other)
+    if mine and theirs and mine != theirs and not any(m.startswith("MeasuredBRDF(") for m in mine + theirs):
+        warnings.warn(f"compare: the material's small-scale BRDFs {mine} are not the ground truth's {theirs}: a "
+                      "material is judged against the truth of its own tile and small-scale materials", stacklevel=2)
     ref = np.asarray(gt.table, np.float64)
     same_grid = getattr(mat, "directions", None) == gt.directions
     if same_grid and callable(getattr(mat, "table", None)):

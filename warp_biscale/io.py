@@ -93,6 +93,11 @@ def read_npz(path, kind: str | None = None, versions=(1,)) -> tuple[dict, dict]:
     path = os.fspath(path)
     if not os.path.exists(path):
         raise FileNotFoundError(f"no such file: {path}")
+    if os.path.isdir(path):
+        raise ValueError(f"{path} is a folder, not a warp_biscale file")
+    with open(path, "rb") as fh:
+        if fh.read(2) != b"PK":  # (numpy would try a pickle, and its message says so)
+            raise ValueError(f"{path} is truncated or corrupt, or not a warp_biscale file (not an .npz archive)")
     try:
         with np.load(path, allow_pickle=False) as z:
             if "header" not in z.files:

@@ -1,5 +1,6 @@
 """Reading back any saved warp_biscale object (`wb.load`): a ground-truth table, a baked effective
-BRDF (SG, matrix or ASG method), told apart by the header every saved file carries (see `io`)."""
+BRDF (SG, matrix or ASG method), told apart by the header every saved file carries (see `io`), or a
+lit-sphere folder."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import numpy as np
 from .asg_bake import ASGBRDF
 from .effective import EffectiveBRDF
 from .io import read_npz
+from .litsphere import LitSphere
 from .matrix import MatrixBRDF
 from .truth import GroundTruth
 
@@ -28,8 +30,11 @@ def head_version(path):
 
 
 def load(path):
-    """Load any saved warp_biscale object: a ground-truth table or a baked effective BRDF (an
-    `EffectiveBRDF`, a `MatrixBRDF` of bake(..., method="matrix") or an `ASGBRDF` of method="asg")."""
+    """Load any saved warp_biscale object: a ground-truth table, a baked effective BRDF (an
+    `EffectiveBRDF`, a `MatrixBRDF` of bake(..., method="matrix") or an `ASGBRDF` of method="asg"), or a
+    lit-sphere folder (`LitSphere.save`'s)."""
+    if os.path.isdir(os.fspath(path)):
+        return LitSphere.load(path)  # (its own one-line error for a folder that is not one)
 
     classes = {"warp_biscale.ground_truth": GroundTruth, "warp_biscale.effective_brdf": EffectiveBRDF,
                f"warp_biscale.{MatrixBRDF.FORMAT}": MatrixBRDF, f"warp_biscale.{ASGBRDF.FORMAT}": ASGBRDF}
