@@ -700,6 +700,8 @@ def parse_brdf(text: str) -> Brdf:
         key = key.strip()
         if key not in names:
             raise ValueError(f"{cls.__name__} has no parameter {key!r} (it has {', '.join(names)})")
+        if key in kwargs:  # (a typo'd spec: silently keeping the last value would hide it)
+            raise ValueError(f"BRDF parameter {key!r} is given twice in {text!r}")
         if key in words:
             kwargs[key] = val.strip()  # checked by the class, whose error names it
             continue
