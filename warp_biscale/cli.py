@@ -10,6 +10,7 @@ import argparse
 import os
 import sys
 import time
+import tomllib
 import warnings
 
 import numpy as np
@@ -28,7 +29,8 @@ from .loading import load
 from .measured import MeasuredBRDF, small_scale_brdf
 from .montecarlo import missing_provenance
 from .progress import as_progress, set_quiet
-from .render import OCCLUSION_SAMPLES, SHADOW_SAMPLES, check_aa, material_ball
+from .render import METHODS, OCCLUSION_SAMPLES, SHADOW_SAMPLES, check_aa, material_ball
+from .scene import _integer
 from .trace import OCCLUSION_SAMPLES_MAX, check_occlusion_samples, check_shadow_samples
 from .scenefile import load_scene
 from .truth import BOUNCE_PATHS, MAX_BOUNCES, MAX_PATHS, MAX_TRUTH_DIRECTIONS, _check_bounces, ground_truth
@@ -71,9 +73,16 @@ def _print_table(gt, thetas_i, file=None):
         f = gt.eval(wi, wo).mean(axis=1)
         print(f"{ti:>6.0f}° " + "".join(f"{x:>11.5f}" for x in f), file=file)
     alb = gt.albedo().mean(axis=1)
+    # Energy conservation bounds the albedo by the small-scale BRDFs' own; what can still put a value above it:
+    # with bounces, mostly the noise of the Monte Carlo paths (docs/design.md §4.6: the per-ωo spread is Monte
+    # Carlo noise; a finer grid does not lower it), else the quadrature of a lobe narrower than the grid's spacing.
+    why = (f"the bounces 2..{gt.bounces} are a Monte Carlo estimate from {gt.paths} paths a direction pair, whose "
+           "noise can put a value above the small-scale BRDFs' own albedo (more --paths narrows it); a lobe "
+           "narrower than the grid's spacing is also over- or under-counted here" if gt.bounces > 1 else
+           "a lobe narrower than the grid's spacing is over- or under-counted here: a value above the small-scale "
+           "BRDFs' own albedo is quadrature error, not an energy gain")
     print(f"directional albedo by {gt.directions}×{gt.directions} grid quadrature: min {alb.min():.4f}, max "
-          f"{alb.max():.4f} (a lobe narrower than the grid's spacing is over- or under-counted here: a value "
-          "above 1 is quadrature error, not an energy gain)", file=file)
+          f"{alb.max():.4f} ({why})", file=file)
     print("stage times (s): " + ", ".join(f"{k} {v:.3f}" for k, v in gt.timings.items()), file=file)
 
 
@@ -119,10 +128,12 @@ def cmd_truth(args):
     if args.save:
         check_output(args.save, (".npz",), "--save")
     bounces, paths = _bounce_args(args.bounces, args.paths)
+    seed = _seed(args.seed)
+    _check_backend(args.backend)
     tile = load_tile(args.tile)
     mats = _materials(args.brdf, tile)
     gt = ground_truth(tile, mats, facets=args.facets, directions=args.directions, backend=args.backend,
-                         seed=args.seed, progress=not args.quiet, bounces=bounces, paths=paths)
+                         seed=seed, progress=not args.quiet, bounces=bounces, paths=paths)
     thetas = [0, 30, 60, 75]
     if not args.quiet:
         _print_table(gt, thetas)
@@ -141,13 +152,15 @@ def cmd_bake(args):
         if value is not None and not args.truth:
             raise ValueError(f"{flag} is for the ground truth of --truth FACETS")
     bounces, paths = _bounce_args(args.truth_bounces, args.truth_paths, "truth-")
+    seed = _seed(args.seed)
+    _check_backend(args.backend)
     tile = load_tile(args.tile)
     mats = _materials(args.brdf, tile)
     lobes = args.lobes if args.lobes == "auto" else _int_arg("--lobes", args.lobes)
     if args.method == "matrix" and (args.lobes != "8" or args.route != "facets"):
         raise ValueError("--method matrix takes no --lobes or --route (Wu's factors keep ranks by power)")
     mat = bake(tile, mats, method=args.method, lobes=lobes, directions=args.directions, normal_res=args.normal_res,
-                  facets=args.facets, backend=args.backend, seed=args.seed, route=args.route,
+                  facets=args.facets, backend=args.backend, seed=seed, route=args.route,
                   progress=not args.quiet)
     if not args.quiet:
         info = mat.info
@@ -159,7 +172,7 @@ def cmd_bake(args):
         print("  ".join(f"{k} {v * 1e3:.1f} ms" for k, v in mat.timings.items()))
     if args.truth:
         gt = ground_truth(tile, mats, facets=args.truth, directions=args.directions, backend=args.backend,
-                             seed=args.seed + 1, progress=not args.quiet, bounces=bounces, paths=paths)
+                             seed=seed + 1, progress=not args.quiet, bounces=bounces, paths=paths)
         c = compare(mat, gt)
         what = f"{args.truth} facets" + (f", {bounces} bounces ({paths} paths)" if bounces > 1 else "")
         _say(args, f"against the ground truth ({what}): PSNR {c['psnr']:.1f} dB, RMSE {c['rmse']:.3g}, "
@@ -175,6 +188,23 @@ def _say(args, text):
         print(text)
 
 
+def _seed(seed):
+    """--seed, checked here: numpy's own refusal of a negative seed ("expected non-negative integer") names no
+    option."""
+    return _integer("--seed", seed, 0)
+
+
+def _check_backend(name):
+    """--backend, resolved before any work (None: the scene file's, checked as it loads): an unknown name is said
+    naming the option, not, as a scene file's bake would, the file's material that uses it."""
+    if name is None:
+        return
+    try:
+        get_backend(name)
+    except ValueError as exc:
+        raise ValueError(f"--backend: {exc}") from None
+
+
 def _int_arg(name, text):
     try:
         return int(text)
@@ -182,7 +212,16 @@ def _int_arg(name, text):
         raise ValueError(f"{name} must be an integer or 'auto', got {text!r}") from None
 
 
+BACKEND_KINDS = ("warp", "opencl")  # backends()' kinds, and the device types each may have
+BACKEND_TYPES = ("cpu", "gpu")
+
+
 def cmd_backends(args):
+    for r in args.require or ():  # a kind no backend has is a typo, not a missing backend: before the probes
+        kind, _, kind_type = r.partition(":")
+        if kind not in BACKEND_KINDS or kind_type not in ("", *BACKEND_TYPES):
+            raise ValueError(f"--require {r!r}: the kinds are {' and '.join(BACKEND_KINDS)}, each optionally with "
+                             f":{' or :'.join(BACKEND_TYPES)} (e.g. opencl:cpu, warp:gpu)")
     entries = backends()
     if not args.quiet:
         for b in entries:
@@ -263,20 +302,18 @@ def cmd_render(args):
     if args.truth_directions is not None and not 2 <= args.truth_directions <= MAX_TRUTH_DIRECTIONS:
         raise ValueError(f"--truth-directions must be a grid size K in [2, {MAX_TRUTH_DIRECTIONS}], "
                          f"got {args.truth_directions}")
+    if args.size is not None:
+        _size(args.size, 1, 1)  # (its checks; the aspect kept is the file's, known once it loads)
+    _check_backend(args.backend)
+    _check_scene_options(args)
     prog = as_progress(not args.quiet)
     sf = load_scene(args.scene, backend=args.backend, progress=prog)
     if args.size is not None:
         sf.resize(*_size(args.size, sf.width, sf.height))
     method = args.method or sf.method
     options = sf.render_options(method)
-    for flag, key, value in (("--samples", "samples", args.samples), ("--mc-fallback", "fallback", args.mc_fallback),
-                             ("--truth-facets", "truth_facets", args.truth_facets),
-                             ("--truth-directions", "truth_directions", args.truth_directions),
-                             ("--truth-bounces", "truth_bounces", args.truth_bounces),
-                             ("--truth-paths", "truth_paths", args.truth_paths)):
+    for _, key, value in _mc_options(args):  # (given for another method: refused by _check_scene_options)
         if value is not None:
-            if method != "mc":
-                raise ValueError(f"{flag} is for --method mc (the SG renderer has no such option)")
             options[key] = value
     if method == "mc":
         _refuse_sg_options(args)
@@ -312,6 +349,63 @@ def cmd_render(args):
     return 0
 
 
+def _mc_options(args):
+    """(flag, render option, value) of render's options for the Monte Carlo reference."""
+    return (("--samples", "samples", args.samples), ("--mc-fallback", "fallback", args.mc_fallback),
+            ("--truth-facets", "truth_facets", args.truth_facets),
+            ("--truth-directions", "truth_directions", args.truth_directions),
+            ("--truth-bounces", "truth_bounces", args.truth_bounces),
+            ("--truth-paths", "truth_paths", args.truth_paths))
+
+
+def _table(doc, key, kind=dict):
+    value = doc.get(key)
+    return value if isinstance(value, kind) else kind()
+
+
+def _check_scene_options(args):
+    """What render's options need of the scene, checked on the scene file's TOML before load_scene bakes its
+    materials (seconds to minutes) rather than when the render starts. A file that cannot be read, or a
+    malformed table, is left to load_scene, whose errors name the file's line."""
+    try:
+        with open(args.scene, "rb") as f:
+            doc = tomllib.load(f)
+    except (OSError, ValueError):  # (tomllib.TOMLDecodeError is a ValueError)
+        return
+    settings = _table(doc, "render")
+    method = args.method or settings.get("method", "sg")
+    if method not in METHODS:  # (a bad [render] method: load_scene's to say)
+        return
+    for flag, _, value in _mc_options(args):
+        if value is not None and method != "mc":
+            raise ValueError(f"{flag} is for --method mc (the SG renderer has no such option)")
+    samples, said = (args.samples, f"--samples {args.samples}") if args.samples is not None else \
+        (settings.get("samples"), f"{args.scene}: [render] samples = {settings.get('samples')}")
+    if method == "mc" and isinstance(samples, int):
+        # The reference takes 2 samples or more for each sampling strategy of a pixel (montecarlo._plan): with an
+        # environment its map, the cosine lobe and the BRDF, and one per light. The BRDF's is left out for a
+        # material with no specular lobe, which this count on the file's text does not tell: it may ask for 2
+        # more than such a scene needs, never fewer.
+        lights = len(_table(doc, "light", list))
+        env = "environment" in doc and _table(doc, "environment").get("type") != "none"
+        least = 2 * ((3 if env else 1 if lights else 0) + lights)
+        if samples < least:
+            which = (["the environment map", "the cosine lobe"] if env else []) + ["the BRDF"]
+            which += [f"each of its {lights} lights" if lights > 1 else "its light"] if lights else []
+            raise ValueError(f"{said} is too few for this scene's Monte Carlo reference: it takes at least 2 samples "
+                             f"a pixel for each sampling strategy ({', '.join(which)}), {least} in all")
+    if method == "litsphere":
+        materials = _table(doc, "material")
+        used = [o.get("material") for o in _table(doc, "object", list) if isinstance(o, dict)]
+        for name in dict.fromkeys(n for n in used if isinstance(n, str)):
+            table = materials.get(name)
+            maps = [k for k in ("kd_map", "ks_map", "parameter_map") if isinstance(table, dict) and k in table]
+            if maps:
+                raise ValueError(f"the lit-sphere method (--method litsphere) cannot shade textured materials: "
+                                 f"material {name!r} has {' and '.join(maps)} (a lit sphere is one BRDF's response "
+                                 "for the whole material); render it with --method sg or mc")
+
+
 def _refuse_sg_options(args):
     for flag, value in (("--aa", args.aa), ("--shadow-samples", args.shadow_samples),
                         ("--occlusion-samples", args.occlusion_samples),
@@ -326,11 +420,13 @@ def cmd_demo(args):
 
     _check_output(args.output)
     check_aa(args.aa)
+    size = _size(args.size, demo.WIDTH, demo.HEIGHT)  # checked before the bake, as the backend is
+    _check_backend(args.backend)
     t0 = time.perf_counter()
     prog = as_progress(not args.quiet)
     sf = demo.demo_scene(backend=args.backend, progress=prog)
     if args.size is not None:
-        sf.resize(*_size(args.size, sf.width, sf.height))
+        sf.resize(*size)
     if not args.quiet:
         _print_bakes(sf)
     result = sf.render(progress=prog, aa=args.aa)
@@ -376,8 +472,10 @@ def cmd_ball(args):
 
     angles = check_angles(args.angles)
     resolution = check_resolution(args.resolution)
+    size = _integer("--size", args.size, 8, 8192)  # material_ball's range, checked before loading the material
+    _check_backend(args.backend)
     material = load_material(args.material)
-    result = material_ball(material, size=args.size, backend=args.backend, resolution=resolution, angles=angles)
+    result = material_ball(material, size=size, backend=args.backend, resolution=resolution, angles=angles)
     result.save(args.output, exposure=args.exposure)
     _say(args, f"wrote {args.output}: {material!r} as a lit-sphere ball ({result.timings['total']:.2f} s, "
                f"{result.info['texture_bytes'] / 2**20:.1f} MiB of textures)")
@@ -390,8 +488,10 @@ def cmd_view(args):
         if not args.screenshot.lower().endswith(".png"):
             raise ValueError(f"--screenshot {args.screenshot!r} must be a .png")
         _check_output(args.screenshot, "--screenshot")
+    size = _size(args.size, 1200, 600)
+    _check_backend(args.backend)
     try:
-        view(args.scene, screenshot=args.screenshot, size=_size(args.size, 1200, 600), backend=args.backend,
+        view(args.scene, screenshot=args.screenshot, size=size, backend=args.backend,
              progress=as_progress(not args.quiet), render_scale=args.render_scale)
     except RuntimeError as exc:  # no display, no OpenGL: say so, no traceback
         print(f"error: {exc}", file=sys.stderr)
@@ -401,15 +501,20 @@ def cmd_view(args):
     return 0
 
 
-def _frame_size(text):
-    """--size WxH of `edit` → (width, height)."""
-    w, sep, h = text.lower().partition("x")
+def _frame_size(values):
+    """--size of `edit` → (width, height): W [H] as the other commands take it (a width alone keeps 640x480's
+    aspect), or the WxH this command took first."""
+    if values is None:
+        return 640, 480
+    if len(values) == 1 and "x" in values[0].lower():
+        values = values[0].lower().split("x", 1)
     try:
-        size = (int(w), int(h))
+        size = _size([int(v) for v in values], 640, 480)
     except ValueError:
-        size = None
-    if not sep or size is None or min(size) < 16 or max(size) > 8192:
-        raise ValueError(f"--size must be WIDTHxHEIGHT with each in 16..8192 pixels, e.g. 640x480, got {text!r}")
+        size = (0, 0)
+    if min(size) < 16 or max(size) > 8192:  # (the editor's frame sizes)
+        raise ValueError(f"--size must be WIDTH [HEIGHT] (or WIDTHxHEIGHT), each in 16..8192 pixels, e.g. 640 480, "
+                         f"got {' '.join(values)!r}")
     return size
 
 
@@ -421,6 +526,7 @@ def cmd_edit(args):
         if not args.screenshot.lower().endswith(".png"):
             raise ValueError(f"--screenshot {args.screenshot!r} must be a .png")
         check_output(args.screenshot, what="--screenshot")
+    _check_backend(args.backend)
     try:
         edit(args.target, output=args.output, backend=args.backend, size=size, screenshot=args.screenshot,
              inside=args.inside)
@@ -447,8 +553,8 @@ def _add_edit_command(sub):
                                    "design saved by the editor (.toml)")
     e.add_argument("-o", "--output", metavar="TOML", help="where 's' saves the design (a scene file `render` reads)")
     e.add_argument("--backend", default="auto", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name>")
-    e.add_argument("--size", default="640x480", metavar="WxH",
-                   help="the frame's size in pixels (default 640x480; a design file's own size wins)")
+    e.add_argument("--size", nargs="+", metavar="N",
+                   help=SIZE_HELP + " of the frame, or WIDTHxHEIGHT (default 640 480; a design file's own size wins)")
     e.add_argument("--screenshot", metavar="PNG", help="draw the window offscreen, write this PNG and exit")
     e.add_argument("--inside", action="store_true",
                    help="with --screenshot: show the 'looking inside' views (waits for the ground truth)")
@@ -470,7 +576,9 @@ def _add_render_commands(sub):
     r.add_argument("--method", choices=["sg", "mc", "litsphere"],
                    help="sg: per-pixel SG shading; mc: Monte Carlo reference; litsphere: the lit-sphere shader "
                         "(seed 004) (default: the file's [render] method, else sg)")
-    r.add_argument("--samples", type=int, help="samples per pixel for --method mc")
+    r.add_argument("--samples", type=int, help="samples per pixel for --method mc: at least 2 for each sampling "
+                   "strategy, i.e. 2 x (3 + lights) with an environment, 2 x (1 + lights) without (default: the "
+                   "file's, else 256)")
     r.add_argument("--truth-facets", type=int, metavar="N",
                    help="--method mc: facets of the ground truth computed for each baked material in view "
                         "(default 2^18; cached beside a material file as NAME.truth.npz)")
@@ -622,7 +730,8 @@ def main(argv=None):
     e.set_defaults(func=cmd_export)
     b = sub.add_parser("backends", help="list the compute backends found here, usable or not, and why")
     b.add_argument("--require", action="append", metavar="KIND[:TYPE]",
-                   help="exit 1 unless a backend of this kind is usable, e.g. opencl:cpu, warp:gpu, opencl")
+                   help="exit 1 unless a backend of this kind is usable: warp or opencl, optionally :cpu or :gpu, "
+                        "e.g. opencl:cpu, warp:gpu, opencl")
     b.add_argument("-q", "--quiet", action="store_true", help="no listing (with --require: only the exit code)")
     b.set_defaults(func=cmd_backends)
     args = parser.parse_args(argv)

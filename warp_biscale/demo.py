@@ -15,9 +15,10 @@ from __future__ import annotations
 
 from .scenefile import loads_scene
 
-__all__ = ["scene_text", "demo_scene", "DEMO_FACETS"]
+__all__ = ["scene_text", "demo_scene", "DEMO_FACETS", "WIDTH", "HEIGHT"]
 
 DEMO_FACETS = 1 << 13
+WIDTH, HEIGHT = 512, 384  # the demo's frame (`warp-biscale demo --size` checks its size against it before the bake)
 
 _TEMPLATE = """\
 # The warp-biscale demo scene: a torus of baked pyramids over a floor, sky + sun + one point light.
@@ -85,8 +86,8 @@ albedo = 0.45
 """
 
 
-def scene_text(size: int = 512, facets: int = DEMO_FACETS, directions: int = 10, lobes: int = 6,
-               aspect: float = 0.75) -> str:
+def scene_text(size: int = WIDTH, facets: int = DEMO_FACETS, directions: int = 10, lobes: int = 6,
+               aspect: float = HEIGHT / WIDTH) -> str:
     """The demo scene as TOML text: `size` pixels wide, size·aspect high, and the bake's settings."""
     width = int(size)
     if width != size or width < 1:
@@ -95,7 +96,7 @@ def scene_text(size: int = 512, facets: int = DEMO_FACETS, directions: int = 10,
                             directions=int(directions), lobes=int(lobes))
 
 
-def demo_scene(size: int = 512, backend=None, progress=None, **bake):
+def demo_scene(size: int = WIDTH, backend=None, progress=None, **bake):
     """Bake the demo tile and build the demo scene → `scenefile.SceneFile` (`.render()` renders it)."""
 
     return loads_scene(scene_text(size, **bake), path="demo.toml", base_dir=".", backend=backend,
