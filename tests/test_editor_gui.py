@@ -306,12 +306,12 @@ def test_cli_edit(tmp_path, capsys):
         cli.main(["edit", "--help"])
     assert exc.value.code == 0
     out = capsys.readouterr().out
-    assert "--size WxH" in out and "heightfield" in out and "undo" in out
+    assert "--size N [N ...]" in out and "heightfield" in out and "undo" in out
     assert cli.main(["edit", "no-such-tile", "--screenshot", str(tmp_path / "x.png")]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: Editor target 'no-such-tile'") and err.count("\n") == 1
-    assert cli.main(["edit", "pyramid", "--size", "640"]) == 2
-    assert "--size must be WIDTHxHEIGHT" in capsys.readouterr().err
+    assert cli.main(["edit", "pyramid", "--size", "8"]) == 2  # (W [H] as every command; WxH still taken)
+    assert "--size must be WIDTH [HEIGHT]" in capsys.readouterr().err
     assert cli.main(["edit", "pyramid", "--screenshot", str(tmp_path / "x.jpg")]) == 2
     assert cli.main(["edit", "pyramid", "-o", str(tmp_path / "design.txt")]) == 2  # refused before the bake
     assert "design.txt" in capsys.readouterr().err
