@@ -310,6 +310,10 @@ BAKED_SCENE = TINY_SCENE.replace('[material.shiny]\ntype = "blinnphong"\nkd = [0
      ["--method", "mc", "--samples", "3"],
      "--samples 3 is too few for this scene's Monte Carlo reference: it takes at least 2 samples a pixel for each "
      "sampling strategy (the BRDF, its light), 4 in all"),
+    (('[material.shiny]\ntype = "bake"\ntile = "vgroove"\nbrdf = "ward:alpha=0.2"\nlobes = 2\ndirections = 4\n'
+      'facets = 512\nnormal_res = 16', '[material.shiny]\ntype = "lambert"\nalbedo = 0.5'),
+     ["--method", "mc", "--samples", "5"],
+     "strategy (the environment map, the cosine lobe, its light), 6 in all"),  # (Lambertian alone: no BRDF's)
     (None, ["--backend", "nope"], "error: --backend: unknown backend 'nope'"),
     (None, ["--truth-facets", "256"], "error: --truth-facets is for --method mc"),
     (("albedo = 0.5\n", 'albedo = 0.5\nkd_map = "kd.png"\n'), ["--method", "litsphere"],

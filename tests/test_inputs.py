@@ -315,3 +315,15 @@ def test_load_and_compare_say_what_does_not_fit(tmp_path):
     other = wb.ground_truth(tile, wb.BlinnPhong(0.5, 64, kd=0.2, normalization="energy"), **kw)
     with pytest.warns(UserWarning, match="compare: the material's small-scale BRDFs .* are not the ground truth's"):
         wb.compare(mat, other)
+
+
+def test_a_brdf_spec_string_is_a_material():
+    """A spec string (the command line's --brdf syntax) is a small-scale material in the Python API too: read as
+    a list it was one "BRDF" a character ('l')."""
+    tile = wb.geometry.pyramid()
+    kw = dict(directions=3, facets=256, backend="warp:cpu")
+    assert wb.bake(tile, "lambert:albedo=0.5", **kw).materials == [wb.Lambert(0.5)]
+    assert wb.ground_truth(tile, ["blinnphong:exponent=64,ks=0.5,kd=0.2,normalization=energy"], **kw).materials == \
+        [repr(wb.BlinnPhong(0.5, 64, kd=0.2, normalization="energy"))]
+    with pytest.raises(ValueError, match="Lambert has no parameter 'albedoo'"):
+        wb.bake(tile, "lambert:albedoo=0.5", **kw)

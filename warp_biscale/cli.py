@@ -381,24 +381,25 @@ def _check_scene_options(args):
             raise ValueError(f"{flag} is for --method mc (the SG renderer has no such option)")
     samples, said = (args.samples, f"--samples {args.samples}") if args.samples is not None else \
         (settings.get("samples"), f"{args.scene}: [render] samples = {settings.get('samples')}")
+    materials = _table(doc, "material")
+    names = dict.fromkeys(o.get("material") for o in _table(doc, "object", list) if isinstance(o, dict))
+    used = {n: materials.get(n) for n in names if isinstance(n, str)}  # the objects' materials' tables
     if method == "mc" and isinstance(samples, int):
         # The reference takes 2 samples or more for each sampling strategy of a pixel (montecarlo._plan): with an
-        # environment its map, the cosine lobe and the BRDF, and one per light. The BRDF's is left out for a
-        # material with no specular lobe, which this count on the file's text does not tell: it may ask for 2
-        # more than such a scene needs, never fewer.
+        # environment its map and the cosine lobe, one per light, and the BRDF's for a material with a specular
+        # lobe, counted here for any material that is not Lambertian: a count this lets through may still be
+        # refused once the scene is made, but none that the reference would take is refused here.
         lights = len(_table(doc, "light", list))
         env = "environment" in doc and _table(doc, "environment").get("type") != "none"
-        least = 2 * ((3 if env else 1 if lights else 0) + lights)
+        glossy = any(not isinstance(t, dict) or t.get("type") != "lambert" for t in used.values())
+        least = 2 * (2 * env + glossy + lights)
         if samples < least:
-            which = (["the environment map", "the cosine lobe"] if env else []) + ["the BRDF"]
+            which = (["the environment map", "the cosine lobe"] if env else []) + (["the BRDF"] if glossy else [])
             which += [f"each of its {lights} lights" if lights > 1 else "its light"] if lights else []
             raise ValueError(f"{said} is too few for this scene's Monte Carlo reference: it takes at least 2 samples "
                              f"a pixel for each sampling strategy ({', '.join(which)}), {least} in all")
     if method == "litsphere":
-        materials = _table(doc, "material")
-        used = [o.get("material") for o in _table(doc, "object", list) if isinstance(o, dict)]
-        for name in dict.fromkeys(n for n in used if isinstance(n, str)):
-            table = materials.get(name)
+        for name, table in used.items():
             maps = [k for k in ("kd_map", "ks_map", "parameter_map") if isinstance(table, dict) and k in table]
             if maps:
                 raise ValueError(f"the lit-sphere method (--method litsphere) cannot shade textured materials: "
@@ -577,8 +578,8 @@ def _add_render_commands(sub):
                    help="sg: per-pixel SG shading; mc: Monte Carlo reference; litsphere: the lit-sphere shader "
                         "(seed 004) (default: the file's [render] method, else sg)")
     r.add_argument("--samples", type=int, help="samples per pixel for --method mc: at least 2 for each sampling "
-                   "strategy, i.e. 2 x (3 + lights) with an environment, 2 x (1 + lights) without (default: the "
-                   "file's, else 256)")
+                   "strategy, i.e. 2 x (2 + 1 + lights) with an environment and a material that is not Lambertian, "
+                   "2 x (1 + lights) without an environment (default: the file's, else 256)")
     r.add_argument("--truth-facets", type=int, metavar="N",
                    help="--method mc: facets of the ground truth computed for each baked material in view "
                         "(default 2^18; cached beside a material file as NAME.truth.npz)")
