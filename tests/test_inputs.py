@@ -315,6 +315,11 @@ def test_load_and_compare_say_what_does_not_fit(tmp_path):
     other = wb.ground_truth(tile, wb.BlinnPhong(0.5, 64, kd=0.2, normalization="energy"), **kw)
     with pytest.warns(UserWarning, match="compare: the material's small-scale BRDFs .* are not the ground truth's"):
         wb.compare(mat, other)
+    with pytest.warns(wb.TileWarning):  # a truth listing more materials than the tile has ids (the editor's)
+        more = wb.ground_truth(tile, [wb.Lambert(0.5), wb.Lambert(0.2)], **kw)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        wb.compare(mat, more)
 
 
 def test_a_brdf_spec_string_is_a_material():

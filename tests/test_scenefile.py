@@ -276,6 +276,25 @@ def test_bake_material_is_baked_at_load_with_its_tile(tmp_path):
     assert sf.materials["m"] is not None  # the unused lambert is still built
 
 
+@pytest.mark.parametrize("tile, params", [('"heightfield"', ""), ('"heightfield"', "tile_params = { seed = 3 }\n"),
+                                          ('"bumps.png"', ""),
+                                          ('"heightfield"', 'tile_params = { image = "bumps.png" }\n')])
+def test_bake_material_takes_the_tile_names_the_command_line_takes(tmp_path, tile, params):
+    """A bake material's tile is what `warp-biscale bake` takes: "heightfield" alone the default relief
+    (geometry.relief, tile_params its arguments), a greyscale image file as a height field, and the editor's
+    "heightfield" with tile_params.image as before."""
+    from PIL import Image
+
+    Image.fromarray((np.random.default_rng(0).random((8, 8)) * 255).astype(np.uint8)).save(tmp_path / "bumps.png")
+    text = BASE.replace('material = "m"', 'material = "b"') + (
+        f'\n[material.b]\ntype = "bake"\ntile = {tile}\n{params}brdf = ["lambert:albedo=0.5"]\n'
+        'lobes = 2\ndirections = 4\nfacets = 512\n')
+    sf = load_scene(write(tmp_path, text), backend="warp:cpu")
+    want = (wb.geometry.relief(**({"seed": 3} if "seed" in params else {})) if "bumps" not in tile + params
+            else wb.geometry.heightfield_from_image(tmp_path / "bumps.png"))
+    np.testing.assert_array_equal(sf.tiles["b"].vertices, want.vertices)
+
+
 def test_bake_material_takes_a_merl_file(tmp_path):
     """A bake material's brdf entry may be a MERL table file, relative to the scene file; a missing one is an
     error naming the key."""

@@ -10,7 +10,6 @@ import argparse
 import os
 import sys
 import time
-import tomllib
 import warnings
 
 import numpy as np
@@ -32,7 +31,7 @@ from .progress import as_progress, set_quiet
 from .render import METHODS, OCCLUSION_SAMPLES, SHADOW_SAMPLES, check_aa, material_ball
 from .scene import _integer
 from .trace import OCCLUSION_SAMPLES_MAX, check_occlusion_samples, check_shadow_samples
-from .scenefile import load_scene
+from .scenefile import load_scene, tomllib  # (tomllib, or tomli before Python 3.11)
 from .truth import BOUNCE_PATHS, MAX_BOUNCES, MAX_PATHS, MAX_TRUTH_DIRECTIONS, _check_bounces, ground_truth
 from .viewer import view
 
@@ -129,9 +128,9 @@ def cmd_truth(args):
         check_output(args.save, (".npz",), "--save")
     bounces, paths = _bounce_args(args.bounces, args.paths)
     seed = _seed(args.seed)
-    _check_backend(args.backend)
     tile = load_tile(args.tile)
     mats = _materials(args.brdf, tile)
+    _check_backend(args.backend)
     gt = ground_truth(tile, mats, facets=args.facets, directions=args.directions, backend=args.backend,
                          seed=seed, progress=not args.quiet, bounces=bounces, paths=paths)
     thetas = [0, 30, 60, 75]
@@ -153,9 +152,9 @@ def cmd_bake(args):
             raise ValueError(f"{flag} is for the ground truth of --truth FACETS")
     bounces, paths = _bounce_args(args.truth_bounces, args.truth_paths, "truth-")
     seed = _seed(args.seed)
-    _check_backend(args.backend)
     tile = load_tile(args.tile)
     mats = _materials(args.brdf, tile)
+    _check_backend(args.backend)
     lobes = args.lobes if args.lobes == "auto" else _int_arg("--lobes", args.lobes)
     if args.method == "matrix" and (args.lobes != "8" or args.route != "facets"):
         raise ValueError("--method matrix takes no --lobes or --route (Wu's factors keep ranks by power)")
@@ -195,8 +194,9 @@ def _seed(seed):
 
 
 def _check_backend(name):
-    """--backend, resolved before any work (None: the scene file's, checked as it loads): an unknown name is said
-    naming the option, not, as a scene file's bake would, the file's material that uses it."""
+    """--backend, resolved before the work but after the cheap input checks (starting a toolkit takes a second or
+    two, which a refused tile or option should not wait for; None: the scene file's, checked as it loads): an
+    unknown name is said naming the option, not, as a scene file's bake would, the file's material that uses it."""
     if name is None:
         return
     try:
@@ -304,8 +304,8 @@ def cmd_render(args):
                          f"got {args.truth_directions}")
     if args.size is not None:
         _size(args.size, 1, 1)  # (its checks; the aspect kept is the file's, known once it loads)
-    _check_backend(args.backend)
     _check_scene_options(args)
+    _check_backend(args.backend)
     prog = as_progress(not args.quiet)
     sf = load_scene(args.scene, backend=args.backend, progress=prog)
     if args.size is not None:
@@ -379,27 +379,17 @@ def _check_scene_options(args):
     for flag, _, value in _mc_options(args):
         if value is not None and method != "mc":
             raise ValueError(f"{flag} is for --method mc (the SG renderer has no such option)")
-    samples, said = (args.samples, f"--samples {args.samples}") if args.samples is not None else \
-        (settings.get("samples"), f"{args.scene}: [render] samples = {settings.get('samples')}")
-    materials = _table(doc, "material")
-    names = dict.fromkeys(o.get("material") for o in _table(doc, "object", list) if isinstance(o, dict))
-    used = {n: materials.get(n) for n in names if isinstance(n, str)}  # the objects' materials' tables
-    if method == "mc" and isinstance(samples, int):
-        # The reference takes 2 samples or more for each sampling strategy of a pixel (montecarlo._plan): with an
-        # environment its map and the cosine lobe, one per light, and the BRDF's for a material with a specular
-        # lobe, counted here for any material that is not Lambertian: a count this lets through may still be
-        # refused once the scene is made, but none that the reference would take is refused here.
-        lights = len(_table(doc, "light", list))
-        env = "environment" in doc and _table(doc, "environment").get("type") != "none"
-        glossy = any(not isinstance(t, dict) or t.get("type") != "lambert" for t in used.values())
-        least = 2 * (2 * env + glossy + lights)
-        if samples < least:
-            which = (["the environment map", "the cosine lobe"] if env else []) + (["the BRDF"] if glossy else [])
-            which += [f"each of its {lights} lights" if lights > 1 else "its light"] if lights else []
-            raise ValueError(f"{said} is too few for this scene's Monte Carlo reference: it takes at least 2 samples "
-                             f"a pixel for each sampling strategy ({', '.join(which)}), {least} in all")
+    samples = args.samples if args.samples is not None else settings.get("samples")
+    if method == "mc" and isinstance(samples, int) and not isinstance(samples, bool) and samples < 2:
+        # (the reference's floor, 2 a sampling strategy: a scene's own count is known once its materials are
+        # made, and the reference says it then; a malformed value is load_scene's to say)
+        said = "--samples" if args.samples is not None else f"{args.scene}: [render] samples"
+        raise ValueError(f"{said} must be at least 2 for the Monte Carlo reference (2 a sampling strategy), "
+                         f"got {samples}")
     if method == "litsphere":
-        for name, table in used.items():
+        materials = _table(doc, "material")
+        names = dict.fromkeys(o.get("material") for o in _table(doc, "object", list) if isinstance(o, dict))
+        for name, table in ((n, materials.get(n)) for n in names if isinstance(n, str)):  # the objects' materials
             maps = [k for k in ("kd_map", "ks_map", "parameter_map") if isinstance(table, dict) and k in table]
             if maps:
                 raise ValueError(f"the lit-sphere method (--method litsphere) cannot shade textured materials: "
@@ -474,8 +464,8 @@ def cmd_ball(args):
     angles = check_angles(args.angles)
     resolution = check_resolution(args.resolution)
     size = _integer("--size", args.size, 8, 8192)  # material_ball's range, checked before loading the material
-    _check_backend(args.backend)
     material = load_material(args.material)
+    _check_backend(args.backend)
     result = material_ball(material, size=size, backend=args.backend, resolution=resolution, angles=angles)
     result.save(args.output, exposure=args.exposure)
     _say(args, f"wrote {args.output}: {material!r} as a lit-sphere ball ({result.timings['total']:.2f} s, "
@@ -507,6 +497,7 @@ def _frame_size(values):
     aspect), or the WxH this command took first."""
     if values is None:
         return 640, 480
+    given = values
     if len(values) == 1 and "x" in values[0].lower():
         values = values[0].lower().split("x", 1)
     try:
@@ -515,13 +506,24 @@ def _frame_size(values):
         size = (0, 0)
     if min(size) < 16 or max(size) > 8192:  # (the editor's frame sizes)
         raise ValueError(f"--size must be WIDTH [HEIGHT] (or WIDTHxHEIGHT), each in 16..8192 pixels, e.g. 640 480, "
-                         f"got {' '.join(values)!r}")
+                         f"got {' '.join(given)!r}")
     return size
+
+
+def _edit_target(args):
+    """`edit --size 640x480 pyramid` (the --size before TARGET, as the command took it when --size was one WxH):
+    --size's list takes TARGET too, so it is taken back from there."""
+    if args.target is None and args.size and not args.size[-1].lower().replace("x", "").isdigit():
+        args.target = args.size.pop()
+    if args.target is None:
+        raise ValueError("edit needs a TARGET: a tile family, a greyscale image, a mesh file or a saved design")
+    return args.target
 
 
 def cmd_edit(args):
     from .editor_gui import edit  # (pyvista and VTK load only for this command)
 
+    target = _edit_target(args)
     size = _frame_size(args.size)
     if args.screenshot:
         if not args.screenshot.lower().endswith(".png"):
@@ -529,7 +531,7 @@ def cmd_edit(args):
         check_output(args.screenshot, what="--screenshot")
     _check_backend(args.backend)
     try:
-        edit(args.target, output=args.output, backend=args.backend, size=size, screenshot=args.screenshot,
+        edit(target, output=args.output, backend=args.backend, size=size, screenshot=args.screenshot,
              inside=args.inside)
     except RuntimeError as exc:  # no display, no OpenGL: say so, no traceback
         print(f"error: {exc}", file=sys.stderr)
@@ -549,9 +551,10 @@ def _add_edit_command(sub):
                                    "distribution, the fitted lobes and a slice of the effective BRDF against the "
                                    "ground truth. Keys: u undo, r redo, s save (-o), p screenshot, i inside, g next "
                                    "tab, m brush. docs/editor.md.")
-    e.add_argument("target", help="a tile family (pyramid, pentagon, grooves, vgroove, ugroove, rods, woven, "
-                                   "heightfield), a greyscale image (a height field to paint), a mesh file, or a "
-                                   "design saved by the editor (.toml)")
+    e.add_argument("target", nargs="?",
+                   help="a tile family (pyramid, pentagon, grooves, vgroove, ugroove, rods, woven, heightfield), a "
+                        "greyscale image (a height field to paint), a mesh file, or a design saved by the editor "
+                        "(.toml)")
     e.add_argument("-o", "--output", metavar="TOML", help="where 's' saves the design (a scene file `render` reads)")
     e.add_argument("--backend", default="auto", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name>")
     e.add_argument("--size", nargs="+", metavar="N",
@@ -578,8 +581,9 @@ def _add_render_commands(sub):
                    help="sg: per-pixel SG shading; mc: Monte Carlo reference; litsphere: the lit-sphere shader "
                         "(seed 004) (default: the file's [render] method, else sg)")
     r.add_argument("--samples", type=int, help="samples per pixel for --method mc: at least 2 for each sampling "
-                   "strategy, i.e. 2 x (2 + 1 + lights) with an environment and a material that is not Lambertian, "
-                   "2 x (1 + lights) without an environment (default: the file's, else 256)")
+                   "strategy (the environment map and the cosine lobe, each light, and the BRDF of a glossy "
+                   "material: 8 for a glossy object under an environment and one light; default: the file's, else "
+                   "256)")
     r.add_argument("--truth-facets", type=int, metavar="N",
                    help="--method mc: facets of the ground truth computed for each baked material in view "
                         "(default 2^18; cached beside a material file as NAME.truth.npz)")

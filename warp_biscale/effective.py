@@ -435,8 +435,10 @@ def compare(mat, gt, method: str | None = None) -> dict:
     # table's repr names its file alone, so it is not compared).
     mine = [m if isinstance(m, str) else repr(m) for m in getattr(mat, "materials", None) or []]
     theirs = [str(m) for m in getattr(gt, "materials", None) or []]
+    n = min(len(mine), len(theirs))  # (materials past a tile's ids reflect nothing: one side may list more)
+    mine, theirs = mine[:n], theirs[:n]
     # (a warning, not an error: two spellings of one BRDF, AnisotropicWard(a, a) and Ward(a), judge each other)
-    if mine and theirs and mine != theirs and not any(m.startswith("MeasuredBRDF(") for m in mine + theirs):
+    if mine != theirs and not any(m.startswith("MeasuredBRDF(") for m in mine + theirs):
         warnings.warn(f"compare: the material's small-scale BRDFs {mine} are not the ground truth's {theirs}: a "
                       "material is judged against the truth of its own tile and small-scale materials", stacklevel=2)
     ref = np.asarray(gt.table, np.float64)

@@ -70,8 +70,9 @@ or ``warp-biscale render scene.toml -o out.png``. Every table and key is optiona
 
     [material.gold]
     type = "bake"                # baked at load time (in memory) with the SG bake (`wb.bake`)
-    tile = "pyramid"             # required: a built-in tile (as `warp-biscale bake` takes), a mesh file, or
-                                 #   "heightfield" with tile_params.image (a greyscale image) and scale
+    tile = "pyramid"             # required: a built-in tile (as `warp-biscale bake` takes), a mesh file, a
+                                 #   greyscale image, or "heightfield" (the default relief; with
+                                 #   tile_params.image, that image, and scale)
     tile_params = { height = 0.4, color = [1.0, 0.8, 0.4] }   # keyword arguments of the tile's generator
     brdf = ["blinnphong:exponent=256,ks=0.9"]                 # one per tile material id (or one for all);
                                                               #   a MERL file ("paint.binary") is one too
@@ -585,23 +586,23 @@ def _bake(ctx, table, v, sf, name, used, prog):
     spec = v["tile"]
     params = v.get("tile_params", {})
     try:
-        if spec == "heightfield":  # a painted height field (the editor saves one): its image beside this file
+        if spec == "heightfield" and "image" in params:  # a painted height field (the editor saves one): its image
             rest = dict(params)
-            image = rest.pop("image", None)
+            image = rest.pop("image")
             if not isinstance(image, str):
-                raise ctx.error(table, "tile_params" if params else "tile",
-                                'tile "heightfield" needs tile_params.image, a greyscale image file')
+                raise ctx.error(table, "tile_params", 'tile_params.image must be a greyscale image file')
             tile = geometry.heightfield_from_image(ctx.resolve(image), **rest)
-        elif spec in BUILTIN_TILES:
+        elif spec in BUILTIN_TILES:  # ("heightfield" without an image: the default relief, geometry.relief)
             fn, kwargs = BUILTIN_TILES[spec]
             tile = getattr(geometry, fn)(**{**kwargs, **params})
         else:
             full = ctx.resolve(spec)
             if not os.path.isfile(full):
                 raise ctx.error(table, "tile", f"tile {spec!r} is neither a built-in tile "
-                                               f"({', '.join(BUILTIN_TILES)}) nor an existing mesh file "
+                                               f"({', '.join(BUILTIN_TILES)}) nor an existing mesh or image file "
                                                f"(looked for {full})")
-            tile = SmallScale.load(full, **params)
+            image = full.lower().endswith(geometry.IMAGE_SUFFIXES)  # a greyscale image: a height field
+            tile = geometry.heightfield_from_image(full, **params) if image else SmallScale.load(full, **params)
     except SceneError:
         raise
     except (ValueError, TypeError, FileNotFoundError) as exc:  # the line of the parameter it names, else of tile_params
