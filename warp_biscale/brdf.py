@@ -585,18 +585,18 @@ def refuse_anisotropic(materials, why: str = _ANISOTROPIC_REFUSAL) -> None:
 
 
 def as_material_list(materials, anisotropic: bool = False) -> list:
-    """One BRDF or a sequence of them (indexed by material id) → a list of `Brdf`; a string is a `parse_brdf` spec
-    (``"blinnphong:exponent=128"``). An anisotropic BRDF is refused (`refuse_anisotropic`) unless `anisotropic`:
-    only a caller that supplies tangents may take one."""
-    if isinstance(materials, (Brdf, str)):
+    """One BRDF or a sequence of them (indexed by material id) → a list of `Brdf`. An anisotropic BRDF is refused
+    (`refuse_anisotropic`) unless `anisotropic`: only a caller that supplies tangents may take one."""
+    if isinstance(materials, str):  # (read as a list, it was one "BRDF" a character)
+        raise ValueError(f"materials is the string {materials!r}: pass BRDF objects (e.g. Lambert(0.5)); "
+                         "warp_biscale.brdf.parse_brdf reads the command line's spec strings")
+    if isinstance(materials, Brdf):
         mats = [materials]
     else:
         try:
             mats = list(materials)
         except TypeError:
             raise ValueError(f"materials must be a BRDF or a list of BRDFs, got {materials!r}") from None
-    # (a spec string, the command line's --brdf syntax: read as a list, it was one "BRDF" a character)
-    mats = [parse_brdf(m) if isinstance(m, str) else m for m in mats]
     if not mats:
         raise ValueError("materials is empty: give one BRDF per material id")
     for i, m in enumerate(mats):
