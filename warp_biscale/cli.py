@@ -31,6 +31,7 @@ from .progress import as_progress, set_quiet
 from .render import METHODS, OCCLUSION_SAMPLES, SHADOW_SAMPLES, check_aa, material_ball
 from .scene import _integer
 from .trace import OCCLUSION_SAMPLES_MAX, check_occlusion_samples, check_shadow_samples
+from .scenefile import _MAPS as TEXTURE_MAPS  # (a material table's texture keys)
 from .scenefile import load_scene, tomllib  # (tomllib, or tomli before Python 3.11)
 from .truth import BOUNCE_PATHS, MAX_BOUNCES, MAX_PATHS, MAX_TRUTH_DIRECTIONS, _check_bounces, ground_truth
 from .viewer import view
@@ -390,7 +391,7 @@ def _check_scene_options(args):
         materials = _table(doc, "material")
         names = dict.fromkeys(o.get("material") for o in _table(doc, "object", list) if isinstance(o, dict))
         for name, table in ((n, materials.get(n)) for n in names if isinstance(n, str)):  # the objects' materials
-            maps = [k for k in ("kd_map", "ks_map", "parameter_map") if isinstance(table, dict) and k in table]
+            maps = [k for k in TEXTURE_MAPS if isinstance(table, dict) and k in table]
             if maps:
                 raise ValueError(f"the lit-sphere method (--method litsphere) cannot shade textured materials: "
                                  f"material {name!r} has {' and '.join(maps)} (a lit sphere is one BRDF's response "
