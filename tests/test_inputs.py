@@ -329,3 +329,39 @@ def test_a_brdf_spec_string_is_refused_in_one_line_naming_parse_brdf():
                                          r"parse_brdf"):
         wb.bake(wb.geometry.pyramid(), "lambert:albedo=0.5", directions=3, facets=256, backend="warp:cpu")
     assert wb.brdf.parse_brdf("lambert:albedo=0.5") == wb.Lambert(0.5)
+
+
+# ------------------------------------------------------------------------------------------------ output paths
+
+
+def test_every_save_refuses_a_bad_path_in_one_line_before_writing(tmp_path, monkeypatch):
+    """Each object's `save` checks its path as `io.check_output` does (MeasuredBRDF.save's one line): an existing
+    folder, a folder that is a file, and for a tile or an image a suffix it cannot write (trimesh's and the OS's
+    own errors named a temporary file or said "object must be PointCloud"). Nothing is left behind."""
+    monkeypatch.setenv("WARP_BISCALE_MATRIX_CACHE", str(tmp_path / "factors"))
+    tile = wb.geometry.pyramid()
+    kw = dict(directions=3, facets=256, backend="warp:cpu")
+    lam = wb.Lambert(0.5)
+    objects = {"EffectiveBRDF": wb.bake(tile, lam, **kw), "ASGBRDF": wb.bake(tile, lam, method="asg", **kw),
+               "MatrixBRDF": wb.bake(tile, lam, method="matrix", matrix={"normal_res": 9}, **kw),
+               "GroundTruth": wb.ground_truth(tile, lam, **kw), "SmallScale": tile,
+               "Rendering": wb.Rendering(np.zeros((2, 2, 3), np.float32), {}, {})}
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "folder").mkdir()
+    (out / "a_file").write_text("")
+    suffix = {"SmallScale": ".ply", "Rendering": ".png"}
+    for name, obj in objects.items():
+        good = suffix.get(name, ".wbm")
+        cases = [(out / "folder", "is a directory"), (out / "a_file" / f"x{good}", "is a file, not a directory")]
+        if name in suffix:
+            cases.append((out / "x.xyz", "must end in " + (".obj, .ply, .stl, .off, .glb" if name == "SmallScale"
+                                                           else ".exr, .hdr, .pic, .png")))
+        for path, words in cases:
+            with pytest.raises(ValueError, match=words) as err:
+                obj.save(path)
+            assert str(path) in str(err.value) and "\n" not in str(err.value) and ".tmp" not in str(err.value), name
+        obj.save(out / f"{name}{good}")  # a good path still writes
+    assert sorted(p.name for p in out.iterdir()) == sorted(["folder", "a_file"] + [
+        f"{name}{suffix.get(name, '.wbm')}" for name in objects])
+    assert not list((out / "folder").iterdir())

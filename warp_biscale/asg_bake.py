@@ -59,7 +59,7 @@ from . import sg
 from .brdf import as_material_list, diffuse_albedo
 from .effective import (ASG_LOBES, DIFFUSE_LEVEL_ETAS, EFF_LOBE_WIDTH, EffectiveBRDF, HostOnlyBRDF, Provenance,
                         device_levels, interpolated_amplitudes, materials_from_file, materials_to_file)
-from .io import read_npz, save_npz
+from .io import check_output, read_npz, save_npz
 from .model import Bvndf, DeviceArray
 from .progress import as_progress
 from .smallscale import row_norms
@@ -785,6 +785,7 @@ class ASGBRDF(HostOnlyBRDF):
     # ------------------------------------------------------------------ files
     def save(self, path) -> None:
         """Write atomically as a versioned npz (format "asg_brdf"; `wb.load` reads it back)."""
+        check_output(path, what="material file")
         g = self.asgs
         arrays = {"asg_x": g.x, "asg_y": g.y, "asg_z": g.z, "asg_lam": g.lam, "asg_mu": g.mu, "weight": self.weight,
                   "amplitudes": self.amplitudes, "tangent_order": self.tangent_order}

@@ -30,7 +30,7 @@ from . import brdf as brdf_mod
 from . import directions as dirs
 from . import sg
 from .model import Bvndf, DeviceArray
-from .io import read_npz, save_npz
+from .io import check_output, read_npz, save_npz
 from .lobes import LobeSet
 from .measured import MeasuredBRDF
 from .smallscale import SmallScale, TileWarning
@@ -379,6 +379,7 @@ class EffectiveBRDF:
     # ------------------------------------------------------------------ files
     def save(self, path) -> None:
         """Write atomically as a versioned npz (`wb.load` reads it back); `path` then names this file."""
+        check_output(path, what="material file")
         arrays = {"axes": self.lobes.axes, "sharpness": self.lobes.sharpness, "weight": self.lobes.weight,
                   "amplitudes": self.amplitudes}
         if self.bvndf is not None:

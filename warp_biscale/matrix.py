@@ -61,7 +61,7 @@ import numpy as np
 from . import directions as dirs
 from .brdf import BLINN_PHONG, COOK_TORRANCE, LAMBERT, MEASURED, WARD, as_material_list, pack_materials
 from .effective import HostOnlyBRDF, Provenance, materials_from_file, materials_to_file
-from .io import cache_folder, read_npz, save_npz
+from .io import cache_folder, check_output, read_npz, save_npz
 from .model import Bvndf
 
 __all__ = [
@@ -1312,6 +1312,7 @@ class MatrixBRDF(HostOnlyBRDF):
         tables, N's factors per channel, the bins and a_v, the materials, settings, provenance, info and
         timings. M's factors are not in the file: they are the materials' own, in the factor cache (an edit
         after `load` fetches them there, or computes them)."""
+        check_output(path, what="material file")
         arrays = {"tables": self.tables, **{f"bvndf_{k}": v for k, v in self.bvndf.arrays().items()},
                   "channel_material": np.array([m for m, _, _ in self.channels], np.int32),
                   "channel_mult": np.array([mult for _, mult, _ in self.channels], np.float64).reshape(-1, 3)}

@@ -26,6 +26,7 @@ from .brdf import Brdf
 from .effective import EffectiveBRDF
 from .environment import Environment
 from .images import write_image
+from .io import check_output
 from .litsphere import LitSphere
 from .lobes import KERNEL_LOBES
 from .smallscale import _finite_array
@@ -552,7 +553,7 @@ class Rendering:
 
     def save(self, path, exposure: float = 0.0) -> None:
         """Write .exr / .hdr (linear float) or .png (tone-mapped), atomically."""
-
+        check_output(path, (".exr", ".hdr", ".pic", ".png"), "image file")
         write_image(path, self.image, exposure=exposure)
 
 

@@ -14,9 +14,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .io import atomic_path
+from .io import atomic_path, check_output
 
 __all__ = ["SmallScale", "TileWarning"]
+
+# The suffixes `SmallScale.save` writes: the trimesh exporters that take a triangle mesh into one file that
+# `SmallScale.load` reads back (.gltf writes its buffers as further files beside it, .3mf and .dae need
+# optional packages, .xyz holds points only).
+SAVE_FORMATS = (".obj", ".ply", ".stl", ".off", ".glb")
 
 
 class TileWarning(UserWarning):
@@ -369,7 +374,9 @@ class SmallScale:
         """Write the tile as a mesh file (format from the extension), atomically. A .ply file also keeps the
         face tangents (face properties tangent_x, tangent_y, tangent_z, which `load` reads back); other
         formats have no place for them, and the tile reloads with the default tangents."""
-
+        # Checked before trimesh is imported: trimesh's own errors for a bad suffix or path are cryptic
+        # ("object must be PointCloud", "exporter not available") or name the temporary file.
+        check_output(path, SAVE_FORMATS, "tile mesh file")
         import trimesh
 
         mesh = trimesh.Trimesh(self.vertices, self.faces, process=False)

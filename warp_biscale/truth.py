@@ -23,7 +23,7 @@ from . import directions as dirs
 from .backend import get_backend
 from .brdf import MEASURED, as_material_list, measured_tables, pack_materials
 from .effective import EffectiveBRDF
-from .io import read_npz, save_npz
+from .io import check_output, read_npz, save_npz
 from .progress import as_progress
 from .smallscale import SmallScale, TileWarning
 
@@ -300,6 +300,7 @@ class GroundTruth:
 
     def save(self, path) -> None:
         """Write atomically as a versioned npz (`wb.load` reads it back)."""
+        check_output(path, what="ground-truth file")
         save_npz(path, "ground_truth", self.VERSION,
                  {"directions": self.directions, "facets": self.facets, "seed": self.seed, "tile": self.tile,
                   "footprint": self.footprint, "materials": self.materials, "backend": self.backend,
