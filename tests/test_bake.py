@@ -589,6 +589,21 @@ def test_compare_metrics():
     np.testing.assert_allclose(c2["max_rel_error"], 0.1 / 1.1, rtol=1e-4)
 
 
+def test_compare_names_a_wrong_argument():
+    """Swapped or missing arguments are refused in one line naming the argument and what it got (they failed
+    deep inside: "float() argument must be ... not 'method'", an AttributeError on None)."""
+    mat = wb.bake(flat_tile(), wb.Lambert(0.5), directions=4, facets=512, backend="warp:cpu")
+    gt = wb.GroundTruth(mat.table(), np.ones(16), 4, 512)
+    for args, words in (((gt, mat), r"^gt must be a GroundTruth \(wb.ground_truth\), got EffectiveBRDF$"),
+                        ((mat, None), r"^gt must be a GroundTruth \(wb.ground_truth\), got NoneType$"),
+                        ((None, gt), r"^mat must be an EffectiveBRDF \(wb.bake, wb.load\) or a GroundTruth, got "
+                                     r"NoneType$"),
+                        (("m.wbm", gt), "got str$")):
+        with pytest.raises(ValueError, match=words):
+            wb.compare(*args)
+    assert wb.compare(gt, gt)["psnr"] == float("inf")  # a truth against a truth stays allowed
+
+
 @pytest.mark.parametrize("kwargs, match", [
     ({"lobes": 0}, "lobes must be"), ({"lobes": 129}, "lobes must be"), ({"lobes": "many"}, "lobes must be"),
     ({"lobes": 2.5}, "lobes must be"), ({"directions": 1}, "directions must be"), ({"normal_res": 0}, "normal_res"),

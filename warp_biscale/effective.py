@@ -422,6 +422,13 @@ class EffectiveBRDF:
             raise ValueError(f"{path} is not a valid material file: {exc}") from None
 
 
+def _truth_like(obj) -> bool:
+    """Whether `obj` holds a ground truth's data: a `directions` count and a `table` array (a GroundTruth's
+    table is an attribute; an EffectiveBRDF's is a method)."""
+    table = getattr(obj, "table", None)
+    return table is not None and not callable(table) and getattr(obj, "directions", None) is not None
+
+
 def compare(mat, gt, method: str | None = None) -> dict:
     """Error of an effective BRDF (an `EffectiveBRDF`, or another `GroundTruth`, e.g. one with fewer
     facets) against a ground truth (`wb.ground_truth`), on the truth's grid.
@@ -432,6 +439,13 @@ def compare(mat, gt, method: str | None = None) -> dict:
     small-scale BRDFs that differ between the two (a bake judged against another material's truth) are
     warned about.
     """
+    # The arguments are checked by shape rather than class so that a table-holding stand-in (an object with
+    # `directions` and a `table` array, as tests and scripts build) still compares; swapped or missing
+    # arguments otherwise fail deep inside with messages about methods and floats.
+    if not _truth_like(gt):
+        raise ValueError(f"gt must be a GroundTruth (wb.ground_truth), got {type(gt).__name__}")
+    if not (isinstance(mat, EffectiveBRDF) or _truth_like(mat)):
+        raise ValueError(f"mat must be an EffectiveBRDF (wb.bake, wb.load) or a GroundTruth, got {type(mat).__name__}")
     # A ground truth names its small-scale BRDFs by repr; analytic ones are their exact parameters (a measured
     # table's repr names its file alone, so it is not compared).
     mine = [m if isinstance(m, str) else repr(m) for m in getattr(mat, "materials", None) or []]
