@@ -28,6 +28,7 @@ Tolerances, each measured here (Warp CPU and PoCL, numpy 2) and given headroom:
 
 import os
 import pickle
+import re
 import sys
 import types
 
@@ -270,6 +271,24 @@ def test_rendered_by_the_lit_sphere_refused_by_sg_and_mc(backend):
         with pytest.raises(ValueError, match="method='litsphere'") as info:
             wb.render(scene, method=method, backend=backend, **options)
         assert "\n" not in str(info.value)
+
+
+def test_sg_renderer_refuses_before_any_setup(monkeypatch):
+    """The SG renderer's refusal of a matrix material comes before the lighting fit and the SSDF (it came after
+    them, 3 s into a render), with the material's own message."""
+    mat = wb.bake(flat_tile(), wb.Lambert(0.5), method="matrix", directions=4, facets=256, backend="warp:cpu",
+                  matrix={"normal_res": 9})
+    render_module = sys.modules["warp_biscale.render"]
+
+    def no_setup(*args, **kwargs):
+        raise AssertionError("the render's setup ran before its materials were checked")
+
+    monkeypatch.setattr(render_module, "_static_inputs", no_setup)
+    monkeypatch.setattr(render_module.lighting, "prepare", no_setup)
+    scene = wb.Scene(wb.Mesh.sphere(), [wb.Lambert(0.2), mat], wb.Camera(eye=(0, 0, 4), width=8, height=6),
+                     wb.Environment.sky(height=8, width=16))
+    with pytest.raises(ValueError, match="^" + re.escape(mx.NO_LOBES) + "$"):
+        wb.render(scene, backend="warp:cpu")
 
 
 # ------------------------------------------------------------------------------------------------ bad input

@@ -226,6 +226,10 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     `samples` a pixel), with `aa` and `shadow_samples` as "sg"."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if method == "sg":  # a material with no lobes to shade (the matrix method's) refuses now, not after the setup
+        for m in scene.materials:
+            if hasattr(m, "shade_lobes"):
+                m.shade_lobes()
     n_aa, n_shadow, n_occlusion = check_frame_options(aa, shadow_samples, occlusion_samples, split_rays, block_rays,
                                                       aa_shading)
     if method != "sg" and (block_rays or aa_shading != "sample"):
