@@ -437,8 +437,8 @@ def cached_truth(mat, facets: int = TRUTH_FACETS, seed=None, backend="auto", pro
     if path is not None:
         try:
             gt.save(path)
-        except OSError as exc:
-            warnings.warn(f"could not write the ground-truth cache {path} ({exc.strerror or exc}): "
+        except (OSError, ValueError) as exc:  # (ValueError: save's check_output refusing the path)
+            warnings.warn(f"could not write the ground-truth cache {path} ({getattr(exc, 'strerror', None) or exc}): "
                           "kept in memory only", stacklevel=3)
     return gt, source
 
