@@ -312,6 +312,34 @@ def test_bad_images_and_options():
     assert np.isfinite(image).all() and image.min() >= 0
 
 
+def test_materials_a_lit_sphere_cannot_hold_are_refused_before_any_sphere(monkeypatch):
+    """A Textured material (its maps vary over the surface) and an analytic anisotropic BRDF (one value per normal
+    cannot hold a tangent-dependent one) are refused in one line naming the way to render them: by
+    `from_material`, and by render(method="litsphere") naming the material's index before any sphere is made
+    (a Textured one was refused only after a kernel compile, an anisotropic one with the bakes' message)."""
+    textured = wb.Textured(wb.BlinnPhong(0.5, 100, kd=0.5, normalization="energy"), kd_map=np.ones((2, 2, 3)))
+    cases = [(textured, "Textured", "is textured: a lit sphere, one BRDF's response for the whole material, "
+                                    "cannot hold its texture maps"),
+             (wb.AnisotropicWard(0.5, 0.1, 0.4, kd=0.2), "AnisotropicWard", "is anisotropic: a lit sphere, one "
+                                                                              "value per normal, cannot hold it"),
+             (wb.AshikhminShirley(0.5, 10, 1000), "AshikhminShirley", "is anisotropic")]
+    for material, name, words in cases:
+        with pytest.raises(ValueError, match=rf"^{name} {words}.*; render it with method='sg' or 'mc'$"):
+            L.LitSphere.from_material(material, resolution=16)
+
+    def no_spheres(*args, **kwargs):
+        raise AssertionError("a lit sphere was made before every material was checked")
+
+    monkeypatch.setattr(L.LitSphere, "from_material", no_spheres)
+    monkeypatch.setattr(L, "sphere_images", no_spheres)
+    for material, name, words in cases:
+        scene = _two_material_scene([wb.DirectionalLight()], width=8, height=6)
+        scene.materials[1] = material  # the first, an analytic isotropic BRDF, would make a sphere first
+        with pytest.raises(ValueError, match=rf"^materials\[1\] \({name}\) {words}.*; render it with method='sg' "
+                                             "or 'mc'$"):
+            wb.render(scene, method="litsphere", backend="warp:cpu", resolution=16)
+
+
 def test_memory_is_reported():
     sphere = L.LitSphere.from_material(GLOSSY, resolution=512)
     # 4 angles × 2 parts × (512² + 256² + … + 4²) texels × 12 bytes

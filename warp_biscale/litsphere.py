@@ -58,6 +58,7 @@ from .brdf import Brdf, Lambert, pack_materials
 from .effective import EffectiveBRDF
 from .measured import MeasuredBRDF
 from .model import BACKENDS
+from .svbrdf import Textured
 
 __all__ = ["LitSphere", "PAPER_ANGLES", "METAL_ANGLES", "reference_shade", "pack_spheres"]
 
@@ -133,6 +134,21 @@ def material_response(material, n: np.ndarray, light: np.ndarray, view: np.ndarr
             return np.maximum(material.eval(n, light, view, tangent=tangent) * np.maximum(cos_l, 0.0)[:, None], 0.0)
         return np.maximum(material.eval(n, light, view) * np.maximum(cos_l, 0.0)[:, None], 0.0)
     raise ValueError(f"a lit sphere is made from an analytic Brdf or an EffectiveBRDF, got {material!r}")
+
+
+def check_holdable(material, name: str = "") -> None:
+    """Refuse, in one line and before any texel is made, a material a lit sphere cannot hold: a `Textured` one
+    (its maps vary over the surface; a lit sphere is one response for the whole material) and an analytic
+    anisotropic BRDF (its value depends on the tangent; a lit sphere holds one value per normal). A baked
+    anisotropic tile is held: its bake is evaluated in the sphere's own tangent frame (`sphere_tangents`).
+    `name` (e.g. "materials[0]") is put before the material's type in the message."""
+    label = f"{name} ({type(material).__name__})" if name else type(material).__name__
+    if isinstance(material, Textured):
+        raise ValueError(f"{label} is textured: a lit sphere, one BRDF's response for the whole material, cannot "
+                         "hold its texture maps; render it with method='sg' or 'mc'")
+    if isinstance(material, Brdf) and material.anisotropic:
+        raise ValueError(f"{label} is anisotropic: a lit sphere, one value per normal, cannot hold it; render it "
+                         "with method='sg' or 'mc'")
 
 
 def diffuse_part(material):
@@ -304,17 +320,19 @@ class LitSphere:
     @classmethod
     def from_material(cls, material, angles=PAPER_ANGLES, resolution: int = RESOLUTION, tolerance=None,
                       name: str = "", backend=None) -> LitSphere:
-        """The lit sphere of an analytic `Brdf` (a `MeasuredBRDF` too) or a baked `EffectiveBRDF`, its texels the
-        material's exact response (module docstring): computed on the host in float64 (backend None), or
-        by the texel kernels on `backend` (a name such as "warp:cuda" or "opencl", or a Backend) in float32
-        — the same values to ~1e-5 (tests/test_litsphere.py), in milliseconds on a GPU where the host takes
-        seconds for a baked material. With `tolerance` (a relative RMS error, e.g. 0.02)
-        the angles and the resolution are chosen, `angles` ignored and `resolution` the largest allowed:
-        the fewest n of TOLERANCE_COUNTS (n angles evenly over [0°, 180°)) whose `interpolation_error` at
-        `resolution` is at most `tolerance`, then the smallest resolution (halving, down to 32) whose
-        error still is, each judged on the same grid (`resolution`, at most ERROR_RESOLUTION); ValueError
-        if no count meets it. The choice
-        is in the result's `chosen` dict (tolerance, error, resolution, what was tried)."""
+        """The lit sphere of an analytic isotropic `Brdf` (a `MeasuredBRDF` too) or a baked `EffectiveBRDF` (an
+        anisotropic tile's too), its texels the material's exact response (module docstring): computed on the host
+        in float64 (backend None), or by the texel kernels on `backend` (a name such as "warp:cuda" or "opencl", or
+        a Backend) in float32 — the same values to ~1e-5 (tests/test_litsphere.py), in milliseconds on a GPU where
+        the host takes seconds for a baked material. With `tolerance` (a relative RMS error, e.g. 0.02) the angles
+        and the resolution are chosen, `angles` ignored and `resolution` the largest allowed: the fewest n of
+        TOLERANCE_COUNTS (n angles evenly over [0°, 180°)) whose `interpolation_error` at `resolution` is at most
+        `tolerance`, then the smallest resolution (halving, down to 32) whose error still is, each judged on the
+        same grid (`resolution`, at most ERROR_RESOLUTION); ValueError if no count meets it. The choice is in the
+        result's `chosen` dict (tolerance, error, resolution, what was tried). A `Textured` material and an analytic
+        anisotropic BRDF (AnisotropicWard, AshikhminShirley) cannot be held: a one-line ValueError
+        (`check_holdable`)."""
+        check_holdable(material)
         resolution = check_resolution(resolution)
         if not isinstance(material, (Brdf, EffectiveBRDF)) or isinstance(material, LitSphere):
             raise ValueError(f"LitSphere.from_material takes an analytic Brdf or an EffectiveBRDF, got {material!r}")

@@ -218,12 +218,13 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     Carlo reference (`montecarlo.render`, options `samples`, `seed`, `truths`, `fallback`, `truth_facets`,
     `truth_seed`, `truth_directions`), whose lights are the same discs and which judges a baked material by its
     exact ground truth (`truth.truth_of`); "litsphere": the lit-sphere shader (seed 004, `warp_biscale.litsphere`),
-    each material a `LitSphere` (any other made into one, options `angles`, `resolution`), options `view` ("pixel":
-    each pixel's own view direction; "camera": the paper's distant viewer), `shrink` (the turned normal's scale
-    before the lookup: 1, or the paper's litsphere.SHRINK), `env_lights` (directional lights standing for the
-    environment), `shadows` (False: every light seen whole, no shadow rays — the paper's frame) and `report_error`
-    (True, or references among "sg", "mc": info["error"] then holds `litsphere_errors`, the Monte Carlo one at
-    `samples` a pixel), with `aa` and `shadow_samples` as "sg"."""
+    each material a `LitSphere` (any other made into one, options `angles`, `resolution`; a `Textured` material
+    or an analytic anisotropic BRDF, which a lit sphere cannot hold, is refused: render those with "sg" or "mc"),
+    options `view` ("pixel": each pixel's own view direction; "camera": the paper's distant viewer), `shrink` (the
+    turned normal's scale before the lookup: 1, or the paper's litsphere.SHRINK), `env_lights` (directional lights
+    standing for the environment), `shadows` (False: every light seen whole, no shadow rays — the paper's frame)
+    and `report_error` (True, or references among "sg", "mc": info["error"] then holds `litsphere_errors`, the
+    Monte Carlo one at `samples` a pixel), with `aa` and `shadow_samples` as "sg"."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     if method == "sg":  # a material with no lobes to shade (the matrix method's) refuses now, not after the setup
@@ -421,6 +422,9 @@ def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str
         raise ValueError(f"shrink must be a number in [0.5, 1] (the paper's is {litsphere.SHRINK}), got {shrink!r}")
     if isinstance(env_lights, bool) or not isinstance(env_lights, int) or not (2 <= env_lights <= 4096):
         raise ValueError(f"env_lights must be an integer in [2, 4096], got {env_lights!r}")
+    for i, m in enumerate(scene.materials):  # every material checked before any is made into a sphere
+        if not isinstance(m, LitSphere):
+            litsphere.check_holdable(m, f"materials[{i}]")
     timings: dict = {"gbuffer": 0.0, "shade": 0.0}
     t_all = time.perf_counter()
     t0 = time.perf_counter()
