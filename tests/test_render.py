@@ -217,3 +217,37 @@ def test_import_leaves_trimesh_for_when_a_mesh_file_is_read(tmp_path):
     r = subprocess.run([sys.executable, "-c", code, str(tmp_path / "tile.ply")], capture_output=True, text=True,
                        timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
+
+
+def test_readme_scenes_have_light():
+    """Every `wb.Scene(...)` in the README's and docs' snippets gives an environment or lights (the fourth and
+    fifth arguments, or by keyword): a scene with neither renders black, as the README's ASG line once did."""
+    import os
+    import re
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    docs = [os.path.join(root, "README.md")] + [os.path.join(root, "docs", f) for f in
+                                                 sorted(os.listdir(os.path.join(root, "docs"))) if f.endswith(".md")]
+    found = 0
+    for path in docs:
+        text = open(path, encoding="utf-8").read()
+        for match in re.finditer(r"wb\.Scene\(", text):
+            depth, args, i = 1, [""], match.end()
+            while depth:  # the call's top-level arguments
+                c = text[i]
+                depth += (c in "([{") - (c in ")]}")
+                if depth == 1 and c == ",":
+                    args.append("")
+                elif depth:
+                    args[-1] += c
+                i += 1
+            args = [a.split("#")[0].strip() for a in args]  # (a comment after an argument is not one)
+            given = [a for a in args if a]
+            lit = len([a for a in given if "=" not in a.split("(")[0]]) >= 4 or any(
+                re.match(r"(environment|lights)\s*=", a) for a in given)
+            assert lit, f"{os.path.basename(path)}: {text[match.start():i]!r} has no environment or lights"
+            found += 1
+    assert found >= 2
+    black = wb.render(wb.Scene(wb.Mesh.sphere(subdivisions=1), [wb.Lambert(0.5)],
+                               wb.Camera(eye=(0, 0, 4), width=8, height=6)), backend="warp:cpu").image
+    assert black.max() == 0  # (why the snippets must give one)
