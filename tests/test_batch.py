@@ -211,6 +211,10 @@ def test_example_job_file_parses():
     assert len(jobs.tasks) == 5
     assert [s["slot"] for s in jobs.scenes] == ["demo_tile"] and jobs.tasks[0].scenes[0]["width"] == 128
     assert all(t.truth is not None and t.compare for t in jobs.tasks)
+    # At least one lobe per distinct facet normal of its pyramids (four sides and the base): with lobes = 4 they
+    # scored 20-22 dB against their truths where the grooves scored 66 dB (lobes = 8: 65-68 dB for all five).
+    normals = len(np.unique(np.round(wb.geometry.pyramid().face_normals, 6), axis=0))
+    assert normals == 5 and all(t.bake["lobes"] >= normals for t in jobs.tasks)
 
 
 def test_sweep_syntax():
