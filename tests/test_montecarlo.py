@@ -7,6 +7,8 @@ highlight at low sample counts, the tail of an exactly sampled light) the check 
 or a relative bound instead, as said at each.
 """
 
+import re
+
 import numpy as np
 import pytest
 from conftest import flat_tile, vgroove_tile
@@ -468,5 +470,13 @@ def test_bad_options_are_named():
         mc.render(scene, truths={1: "table.npz"})
     with pytest.raises(ValueError, match="scene"):
         mc.render(mesh)
+    # Too few samples for a material's sampling strategies: the message says how many are needed.
+    lit = Scene(mesh, [wb.Lambert(0.5)], Camera(width=4, height=4), wb.Environment.sky(height=8, width=16),
+                [wb.PointLight((2, 3, 2), 20.0)])
+    with pytest.raises(ValueError, match=r"^samples=3 is too few for material 0's (\d) sampling strategies "
+                                         r"\([\w ]+(, [\w ]+)+\): give at least (\d+) \(2 each\)$") as err:
+        mc.render(lit, samples=3)
+    n, need = re.search(r"'s (\d) sampling.*least (\d+)", str(err.value)).groups()
+    assert int(need) == 2 * int(n)
     with pytest.raises(ValueError, match="method"):
         render_driver(scene, method="path")

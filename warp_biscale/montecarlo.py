@@ -415,8 +415,9 @@ def render(scene, backend="auto", samples: int = 256, seed: int = 0, truths=None
             materials[i] = _AnalyticMaterial(m)
         strategies, weights, terms = _plan(env_strategy, materials[i], len(lights))
         if samples < 2 * len(strategies):
-            raise ValueError(f"samples={samples} is fewer than 2 for each of the {len(strategies)} sampling "
-                             f"strategies of material {i} ({[st.name for st in strategies]})")
+            raise ValueError(f"samples={samples} is too few for material {i}'s {len(strategies)} sampling strategies "
+                             f"({', '.join(st.name for st in strategies)}): give at least {2 * len(strategies)} "
+                             "(2 each)")
         plans[i] = (strategies, _allocate(weights, samples) if strategies else [], terms)
 
     t0 = time.perf_counter()
