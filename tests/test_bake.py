@@ -606,7 +606,8 @@ def test_compare_names_a_wrong_argument():
 
 @pytest.mark.parametrize("kwargs, match", [
     ({"lobes": 0}, "lobes must be"), ({"lobes": 129}, "lobes must be"), ({"lobes": "many"}, "lobes must be"),
-    ({"lobes": 2.5}, "lobes must be"), ({"directions": 1}, "directions must be"), ({"normal_res": 0}, "normal_res"),
+    ({"lobes": 2.5}, "lobes must be"), ({"lobes": True}, "lobes must be"), ({"lobes": np.True_}, "lobes must be"),
+    ({"directions": 1}, "directions must be"), ({"normal_res": 0}, "normal_res"),
     ({"route": "magic"}, "route must be"), ({"method": "bogus"}, "method must be"), ({"facets": 0}, "facets must be"),
     ({"tolerance": float("nan")}, "tolerance"),
 ])

@@ -186,7 +186,8 @@ def _check_lobes(lobes):
         j = int(lobes)
     except (TypeError, ValueError):
         j = None
-    if j is None or j != lobes or not (1 <= j <= lobes_mod.MAX_LOBES):
+    # True == 1 in Python: without this lobes=True would bake one lobe rather than be refused as the slip it is
+    if isinstance(lobes, (bool, np.bool_)) or j is None or j != lobes or not (1 <= j <= lobes_mod.MAX_LOBES):
         raise ValueError(f"lobes must be an integer in [1, {lobes_mod.MAX_LOBES}] or 'auto', got {lobes!r}")
     return j
 
