@@ -365,3 +365,24 @@ def test_every_save_refuses_a_bad_path_in_one_line_before_writing(tmp_path, monk
     assert sorted(p.name for p in out.iterdir()) == sorted(["folder", "a_file"] + [
         f"{name}{suffix.get(name, '.wbm')}" for name in objects])
     assert not list((out / "folder").iterdir())
+
+
+def test_loading_a_material_does_not_warn_again_about_its_energy(tmp_path):
+    """A material file holding a BRDF that reflects more than it receives loads without an EnergyWarning (it was
+    given when the BRDF was built; at load it pointed at effective.py, not the caller); building the BRDF still
+    warns."""
+    def gain():
+        return wb.BlinnPhong(1.0, 512)  # Blinn–Phong's default normalisation: more out than in at grazing light
+
+    with pytest.warns(EnergyWarning):
+        brdf = gain()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", EnergyWarning)
+        mat = wb.bake(wb.geometry.pyramid(), brdf, directions=3, facets=256, backend="warp:cpu")
+    mat.save(tmp_path / "m.wbm")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", EnergyWarning)
+        back = wb.load(tmp_path / "m.wbm")
+    assert back.materials == [brdf]
+    with pytest.warns(EnergyWarning):
+        gain()

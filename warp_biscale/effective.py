@@ -121,9 +121,13 @@ def materials_to_file(materials) -> tuple[list, dict]:
 
 
 def materials_from_file(dicts, arrays) -> list:
-    """The BRDFs `materials_to_file` wrote."""
-    return [MeasuredBRDF.from_file(d, arrays) if d.get("type") == "MeasuredBRDF" else _brdf_from_dict(d)
-            for d in dicts]
+    """The BRDFs `materials_to_file` wrote. Their EnergyWarning (a BRDF reflecting more than it receives) is not
+    given again: it was given when the material was built, and a warning at each load would point at this
+    module, not at the caller, about a material the user did not just build."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", brdf_mod.EnergyWarning)
+        return [MeasuredBRDF.from_file(d, arrays) if d.get("type") == "MeasuredBRDF" else _brdf_from_dict(d)
+                for d in dicts]
 
 
 def _brdf_from_dict(d: dict):
