@@ -216,6 +216,11 @@ def test_from_file_round_trips(tmp_path):
     np.testing.assert_allclose(png.radiance, np.clip(env.radiance, 0, 1), atol=0.01)
     with pytest.raises(ValueError, match=r"\.exr, \.hdr or \.pic"):
         env.save(tmp_path / "sky.png")
+    (tmp_path / "folder.exr").mkdir()
+    with pytest.raises(ValueError, match=r"^Environment.save: '.*folder.exr' is a directory; give a file name$"):
+        env.save(tmp_path / "folder.exr")
+    with pytest.raises(ValueError, match=r"^Environment.save: '.*sky.exr/x.exr' cannot be written: .* is a file"):
+        env.save(tmp_path / "sky.exr" / "x.exr")
 
 
 def test_from_file_rejects_bad_radiance_naming_the_file(tmp_path):

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .images import read_image, write_exr, write_hdr
+from .io import check_output
 
 __all__ = ["Environment", "Softbox", "equirect_directions", "direction_to_equirect", "equirect_bilinear",
            "equirect_row_solid_angles", "sun_profile", "sun_integrals"]
@@ -129,12 +130,13 @@ class Environment:
         """Write the radiance map as float32 EXR (.exr) or Radiance RGBE (.hdr/.pic), atomically."""
 
         ext = os.path.splitext(os.fspath(path))[1].lower()
+        if ext not in (".exr", ".hdr", ".pic"):
+            raise ValueError(f"Environment.save: {os.fspath(path)} must end in .exr, .hdr or .pic")
+        check_output(path, what="Environment.save:")  # a folder, or a parent that is a file: one line, not OSError
         if ext == ".exr":
             write_exr(path, self.radiance)
-        elif ext in (".hdr", ".pic"):
-            write_hdr(path, self.radiance)
         else:
-            raise ValueError(f"Environment.save: {os.fspath(path)} must end in .exr, .hdr or .pic")
+            write_hdr(path, self.radiance)
 
     @classmethod
     def constant(cls, radiance=1.0, height: int = 32, width: int = 64, name: str = "constant") -> Environment:
