@@ -378,6 +378,19 @@ CL_INLINE float3 texture_bilinear(__global const int *tex_info, __global const f
     return top * (1.0f - fy) + bottom * fy;
 }
 
+/* An analytic row's environment-lobe scale c(ωo) (shading.specular_correction), its texture read at
+ * shading.correction_uv: φo folded into [0, π/2], cos θo, each clamped to the texel centres. */
+CL_INLINE float3 specular_correction(__global const int *tex_info, __global const float *tex_data, int slot,
+                                     float3 wo_local)
+{
+    float h = (float)tex_info[4 * slot + 1];
+    float w = (float)tex_info[4 * slot + 2];
+    float u = atan2(fabs(wo_local.y), fabs(wo_local.x)) / (0.5f * M_PI_F);
+    u = clamp(u, 0.5f / w, 1.0f - 0.5f / w);
+    float v = clamp(wo_local.z, 0.5f / h, 1.0f - 0.5f / h);
+    return texture_bilinear(tex_info, tex_data, slot, (float2)(u, v));
+}
+
 /* A light's SG emitter seen from pos (scene.light_sg): axis, η = 2π/Ω, μ with ∫G = the irradiance
  * at normal incidence. Rows: [type 0 directional | 1 point, xyz, rgb, solid angle | radius]. */
 CL_INLINE float3 light_axis(__global const float *row, float3 pos)
@@ -1034,8 +1047,10 @@ __kernel void shade_pixels(
                 float cap = -1.0f; /* Ashikhmin–Shirley's cap on the cosine integral (shading.capped_cosine_integral) */
                 Asg tap; /* an ASG lobe's warped shape, for the anisotropic lookup (asg_prefiltered) */
                 int taps = 0;
+                float3 env_scale = (float3)(1.0f); /* the environment term's scale: an analytic row's correction */
                 if (kind == 0) {
                     __global const float *row = analytic + 9 * (idx + j);
+                    env_scale = specular_correction(tex_info, tex_data, 1 + idx + j, wo_local);
                     int r_kind = (int)row[0];
                     float3 r_ks = (float3)(row[4], row[5], row[6]) * t_ks;
                     float r_p1 = row[7] * t_p1;
@@ -1135,7 +1150,7 @@ __kernel void shade_pixels(
                     light_part = lobe_from_lights(tab, axis, eta, s, n_lights, lights, vis);
                 float3 env_l = taps != 0 ? asg_prefiltered(env_maps, env_levels, n_levels, tap, sharpness_max)
                                          : prefiltered(env_maps, env_levels, n_levels, axis, eta);
-                out = out + amp * (env_l * amount + light_part);
+                out = out + amp * (env_scale * env_l * amount + light_part);
             }
         }
     }

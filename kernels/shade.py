@@ -409,6 +409,19 @@ def texture_bilinear(tex_info: wp.array2d(dtype=wp.int32), tex_data: wp.array(dt
 
 
 @wp.func
+def specular_correction(tex_info: wp.array2d(dtype=wp.int32), tex_data: wp.array(dtype=wp.vec3), slot: int,
+                        wo_local: wp.vec3) -> wp.vec3:
+    """An analytic row's environment-lobe scale c(ωo) (shading.specular_correction), its texture read at
+    shading.correction_uv: φo folded into [0, π/2], cos θo, each clamped to the texel centres."""
+    h = float(tex_info[slot, 1])
+    w = float(tex_info[slot, 2])
+    u = wp.atan2(wp.abs(wo_local[1]), wp.abs(wo_local[0])) / (0.5 * PI)
+    u = wp.clamp(u, 0.5 / w, 1.0 - 0.5 / w)
+    v = wp.clamp(wo_local[2], 0.5 / h, 1.0 - 0.5 / h)
+    return texture_bilinear(tex_info, tex_data, slot, wp.vec2(u, v))
+
+
+@wp.func
 def light_axis(lights: wp.array2d(dtype=wp.float32), l: int, pos: wp.vec3) -> wp.vec3:
     if f32_at2(lights, l, 0) == 0.0:
         return wp.vec3(f32_at2(lights, l, 1), f32_at2(lights, l, 2), f32_at2(lights, l, 3))
@@ -1025,8 +1038,10 @@ def shade_pixels(
                 cap = float(-1.0)  # Ashikhmin–Shirley's cap on the cosine integral (shading.capped_cosine_integral)
                 tap = Asg()  # an ASG lobe's warped shape, for the anisotropic lookup (asg_prefiltered)
                 taps = int(0)
+                env_scale = wp.vec3(1.0)  # the environment term's scale: an analytic row's correction
                 if kind == 0:
                     row = idx + j
+                    env_scale = specular_correction(tex_info, tex_data, 1 + row, wo_local)
                     r_kind = int(analytic[row, 0])
                     r_ks = wp.cw_mul(wp.vec3(analytic[row, 4], analytic[row, 5], analytic[row, 6]), t_ks)
                     r_p1 = analytic[row, 7] * t_p1
@@ -1122,5 +1137,5 @@ def shade_pixels(
                     env_l = asg_prefiltered(env_maps, env_levels, tap)
                 else:
                     env_l = prefiltered(env_maps, env_levels, axis, eta)
-                out = out + wp.cw_mul(amp, env_l * amount + light_part)
+                out = out + wp.cw_mul(amp, wp.cw_mul(env_scale, env_l) * amount + light_part)
     radiance[p] = finite_radiance(out)

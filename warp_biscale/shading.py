@@ -14,7 +14,9 @@ SG or tabulated against one:
   shaded as one, `brdf.sg_lobes`); an effective BRDF's specular part is Iwasaki's
   Eq. 15: per NDF lobe j and small-scale material m an SG in h of sharpness ηjηs/(ηj + ηs) and
   amplitude 2π·M·μj/(ηj + ηs). Both are warped to ωi (Wang Eq. 18–21): axis ξ' = 2(ωo·ξ)ξ − ωo,
-  sharpness η/(4 ωo·ξ); the smooth factors (M, μj) are taken at the warped axis (Wang Eq. 22).
+  sharpness η/(4 ωo·ξ); the smooth factors (M, μj) are taken at the warped axis (Wang Eq. 22). An analytic
+  row's environment lobe is then scaled by c(ωo), its exact specular albedo over the lobe's own under a
+  constant environment (`specular_correction`), so that a constant environment is exact at every angle.
 - **Cosine and horizon.** ∫ G(ω; ξ, η)(n·ω)⁺ dω = ∫G · cosine_fraction(ξ·n, η), exact and tabulated
   (`sg.lighting_table`), rather than Wang's one-lobe cosine fit (Eq. 40), whose 17 % error at normal
   incidence would dominate our error budget.
@@ -51,7 +53,9 @@ material's rows are ``analytic[index : index + R]``, one per SG lobe of its SG f
 a measured BRDF's two-lobe fit, whose second row has kd = 0), and specular is R, or 0 where no row has a
 specular term (an effective material's: 1 or 0); the slot
 is −1, or for a `svbrdf.Textured` analytic material the first of its three ``tex_info`` rows (kd, ks,
-parameter map; an absent map is a shared 1×1 texture of ones);
+parameter map; an absent map is a shared 1×1 texture of ones); ``tex_info`` row 1 + r is analytic row r's
+specular correction (`specular_correction`: (24, W) texels, W = 6 values of φo for an anisotropic row, else 1;
+a Textured material's rows corrected at its parameter map's mean p1);
 ``tex_info`` (T, 4) int32 [texel offset into tex_data, H, W, 0]; ``tex_data`` float32 (Σ H·W·3), row-major
 RGB texels (a parameter map is stored in all three channels; the kernels read channel 0). The kernels read
 each analytic row into per-pixel values, scale them by the maps at the pixel's UV (``uvs`` (V, 2),
@@ -206,6 +210,146 @@ def _specular_rows(m) -> int:
     return len(lobes) if spec else 0
 
 
+# The environment's specular term of an analytic row (Wang 2009's warped SG lobe; Xu 2013 §5.2's warped ASG for
+# the anisotropic kinds) takes its magnitude from M at the mirror direction times the lobe's cosine-weighted
+# integral. That is right near normal incidence only: towards grazing the BRDF's lobe leaves the mirror direction
+# and the horizon clips the SG where it does not clip the BRDF, so a sphere under a constant environment was
+# 3–16 % off (Cook–Torrance, Ward) and up to 50 % (Ashikhmin–Shirley) at its rim. Each row's environment lobe is
+# therefore scaled by c(ωo) = A_s(ωo)/E(ωo): the row's exact specular albedo ∫ f_s (n·ωi)⁺ dωi over what its
+# lobe gives under a constant unit environment (`specular_correction`). Exact under a constant environment; the
+# lobe still shapes everything else (docs/design.md §9 "The environment's specular magnitude").
+CORRECTION_COS = 24  # table rows: cos θo = (i + ½)/24, i = 0 … 23
+CORRECTION_PHI = 6  # an anisotropic row's columns: φo = (j + ½)/6 · π/2 (both kinds are even in x and in y)
+CORRECTION_MAX = 10.0  # c stops here: at grazing a lobe's clipped integral tends to 0
+ALBEDO_CORE, ALBEDO_TAIL, ALBEDO_PHI = 64, 32, 48  # quadrature nodes (θh within 10 NDF widths, beyond, φh)
+
+
+def _ndf_width(row) -> float:
+    """The angular width (radians) of a row's NDF about n: 1/√η of its SG, 1/√(2·min(λ, μ)) of its ASG."""
+    kind = int(row[0])
+    if kind in brdf_mod.ANISOTROPIC_KINDS:
+        lam, mu = brdf_mod.ndf_bandwidths(kind, float(row[7]), float(row[8]))
+        return float(1.0 / np.sqrt(2.0 * max(min(lam, mu), 1e-12)))
+    _, eta = specular_scale(row, np.ones(1))
+    return float(1.0 / np.sqrt(max(float(eta), 1e-12)))
+
+
+def specular_albedo(row, wo_local) -> np.ndarray:
+    """(N, 3) a packed row's exact specular albedo ∫ f_s(ωi, ωo)(n·ωi)⁺ dωi (its kd left out) for each ωo (N, 3)
+    in the surface frame (n = z, tangent = x), by Gauss–Legendre over the half vector h (dωi = 4(h·ωo) dωh): θh
+    in [0, 10σ] and [10σ, π/2] (σ the NDF's width, `_ndf_width`), φh evenly (the trapezoid rule, exact for a
+    periodic integrand to the nodes' order). Against 4× the nodes: within 1e−4 relative (tests/test_shade.py)."""
+    row = np.asarray(row, np.float64)
+    edge = min(np.pi / 2, 10.0 * _ndf_width(row))
+    pieces = [(0.0, edge, ALBEDO_CORE)] + ([(edge, np.pi / 2, ALBEDO_TAIL)] if edge < np.pi / 2 else [])
+    th, wth = [], []
+    for lo, hi, count in pieces:
+        x, w = np.polynomial.legendre.leggauss(count)
+        th.append(lo + (hi - lo) * (x + 1) / 2)
+        wth.append(w * (hi - lo) / 2)
+    th, wth = np.concatenate(th), np.concatenate(wth)
+    ph = (np.arange(ALBEDO_PHI) + 0.5) * (2 * np.pi / ALBEDO_PHI)
+    t, p = np.meshgrid(th, ph, indexing="ij")
+    h = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], -1).reshape(-1, 3)
+    dh = (np.outer(wth * np.sin(th), np.full(ALBEDO_PHI, 2 * np.pi / ALBEDO_PHI))).ravel()
+    params = row[1:9].copy()
+    params[0:3] = 0.0  # (the specular term alone)
+    kinds = np.array([int(row[0])])
+    z = np.broadcast_to(np.array([0.0, 0.0, 1.0]), h.shape)
+    x = np.broadcast_to(np.array([1.0, 0.0, 0.0]), h.shape)
+    wo_local = np.asarray(wo_local, np.float64).reshape(-1, 3)
+    out = np.zeros((len(wo_local), 3))
+    for k, o in enumerate(wo_local):
+        ho = h @ o
+        wi = 2 * ho[:, None] * h - o
+        ok = (ho > 0) & (wi[:, 2] > 0)
+        fc = brdf_mod.brdf_cosine_weighted(kinds, params[None], np.zeros(len(h), np.int64), z, wi,
+                                           np.broadcast_to(o, h.shape), x)  # f_s cos θi cos θo
+        out[k] = (fc * np.where(ok, 4 * ho * dh, 0.0)[:, None]).sum(0) / max(o[2], 1e-300)
+    return out
+
+
+def lobe_energy(row, wo_local, table) -> np.ndarray:
+    """(N, 3) what a row's environment lobe gives under a constant unit environment with nothing in the way, as
+    `shade_reference` and the kernels form it (M, the warped lobe, its cosine integral, Ashikhmin–Shirley's cap),
+    for each ωo (N, 3) in the surface frame."""
+    wo_local = np.asarray(wo_local, np.float64).reshape(-1, 3)
+    m = len(wo_local)
+    n = np.broadcast_to(np.array([0.0, 0.0, 1.0]), wo_local.shape)
+    t = np.broadcast_to(np.array([1.0, 0.0, 0.0]), wo_local.shape)
+    rows = np.tile(np.asarray(row, np.float64), (m, 1))
+    cos_o = np.maximum(wo_local[:, 2], MIN_COS_VIEW)
+    cap = None
+    if int(row[0]) in brdf_mod.ANISOTROPIC_KINDS:
+        axis, eta, amp, _, cap, _ = _anisotropic_environment_lobe(rows, n, t, wo_local, cos_o)
+    else:
+        amp, eta_s = specular_scale(rows, cos_o)
+        axis, eta = _normalize(2 * cos_o[:, None] * n - wo_local), eta_s / (4 * cos_o)
+    eta = np.minimum(eta, sg.SHARPNESS_MAX)
+    e = sg.integral(eta) * sg.table_lookup(table, 0, _dot(axis, n), eta)
+    if cap is not None:
+        e = capped_cosine_integral(e, cap, axis, n, eta, table)
+    return amp * e[:, None]
+
+
+def correction_directions(anisotropic: bool) -> np.ndarray:
+    """(CORRECTION_COS, W, 3) the ωo of `specular_correction`'s texels (W = CORRECTION_PHI, or 1 for an isotropic
+    row, whose φo does not matter)."""
+    c = (np.arange(CORRECTION_COS) + 0.5) / CORRECTION_COS
+    phi = (np.arange(CORRECTION_PHI) + 0.5) * (np.pi / 2 / CORRECTION_PHI) if anisotropic else np.zeros(1)
+    s = np.sqrt(1 - c * c)
+    return np.stack(np.broadcast_arrays(s[:, None] * np.cos(phi), s[:, None] * np.sin(phi), c[:, None]), -1)
+
+
+_CORRECTIONS: dict = {}  # a row's bytes → its table (rows recur across frames and scenes)
+_CORRECTIONS_KEPT = 256
+
+
+def specular_correction(row) -> np.ndarray:
+    """(CORRECTION_COS, W, 3) float32 c(ωo) = A_s/E of a packed row (`specular_albedo` over `lobe_energy`,
+    clipped to [0, CORRECTION_MAX]; 1 where the lobe gives nothing) at `correction_directions`: a texture the
+    kernels read bilinearly at (u, v) = (φo folded into [0, π/2] over π/2, cos θo), clamped to the texel centres
+    (`correction_uv`). A row without a specular lobe (Lambert) is the 1×1 texture of ones."""
+    row = np.asarray(row, np.float32)
+    key = row.tobytes()
+    hit = _CORRECTIONS.get(key)
+    if hit is None:
+        kind = int(row[0])
+        if kind == brdf_mod.LAMBERT:
+            hit = np.ones((1, 1, 3), np.float32)
+        else:
+            wo = correction_directions(kind in brdf_mod.ANISOTROPIC_KINDS)
+            flat = wo.reshape(-1, 3)
+            exact = specular_albedo(row, flat)
+            model = lobe_energy(row, flat, sg.lighting_table())
+            ok = model > 1e-12 * max(float(model.max()), 1e-300)
+            c = np.where(ok, exact / np.where(ok, model, 1.0), 1.0)
+            hit = np.clip(c, 0.0, CORRECTION_MAX).reshape(wo.shape).astype(np.float32)
+        if len(_CORRECTIONS) >= _CORRECTIONS_KEPT:
+            _CORRECTIONS.pop(next(iter(_CORRECTIONS)))
+        _CORRECTIONS[key] = hit
+    return hit
+
+
+def correction_at(tex_info, tex_data, slot: int, wo_local) -> np.ndarray:
+    """(N, 3) the packed correction texture `slot` (`pack_materials`) at each ωo (N, 3) in the surface frame, as
+    the kernels read it (`correction_uv`, `svbrdf.sample`)."""
+    off, h, w = (int(x) for x in tex_info[slot][:3])
+    image = np.asarray(tex_data[3 * off:3 * (off + h * w)], np.float64).reshape(h, w, 3)
+    return svbrdf.sample(image, correction_uv(wo_local, w))
+
+
+def correction_uv(wo_local, width: int) -> np.ndarray:
+    """(N, 2) where `specular_correction`'s texture of `width` columns is read for each ωo (N, 3) in the surface
+    frame: u = φo folded into [0, π/2] over π/2, v = cos θo, each clamped to its first and last texel centres (the
+    texture lookup wraps; the table must not)."""
+    wo_local = np.asarray(wo_local, np.float64)
+    u = np.arctan2(np.abs(wo_local[:, 1]), np.abs(wo_local[:, 0])) / (np.pi / 2)
+    u = np.clip(u, 0.5 / width, 1 - 0.5 / width)
+    v = np.clip(wo_local[:, 2], 0.5 / CORRECTION_COS, 1 - 0.5 / CORRECTION_COS)
+    return np.stack([u, v], 1)
+
+
 _PER_ROW: dict = {}  # (id(table), id(levels), owner) → (table, levels, their rows per sub-row): `_tables_per_row`
 _PER_ROW_KEPT = 8
 
@@ -232,24 +376,25 @@ def pack_materials(materials) -> dict:
 
     info, analytic, eff_info, eff_lobes, eff_sub, eff_tables, eff_diffuse = [], [], [], [], [], [], []
     n_lobes = n_sub = n_table = n_diffuse = 0
-    # Textures: entry 0 is the shared 1×1 texture of ones that stands in for an absent map.
-    tex_info, tex_data, n_texels = [[0, 1, 1, 0]], [np.ones(3, np.float32)], 1
+    # Textures: entry 0 is the shared 1×1 texture of ones that stands in for an absent map; entries 1 … A are the
+    # analytic rows' specular corrections (`specular_correction`, row r's at 1 + r); the materials' maps follow.
+    maps = []  # (the maps in order; a Textured material's slot is counted among them, then moved past the A rows)
+    textured, corrected = [], []  # (the rows whose corrections are made: `analytic`'s but for parameter maps)
     for idx, m in enumerate(materials):
         if isinstance(m, Textured):
-            info.append([0, len(analytic), _specular_rows(m), len(tex_info)])
-            analytic.extend(_analytic_rows(m.brdf))
-            for tex in m.maps:
-                if tex is None:
-                    tex_info.append([0, 1, 1, 0])
-                    continue
-                if tex.ndim == 2:  # the parameter map: its value in all three channels
-                    tex = np.repeat(tex[..., None], 3, axis=2)
-                tex_info.append([n_texels, tex.shape[0], tex.shape[1], 0])
-                tex_data.append(np.ascontiguousarray(tex, np.float32).ravel())
-                n_texels += tex.shape[0] * tex.shape[1]
+            textured.append(len(info))
+            info.append([0, len(analytic), _specular_rows(m), len(maps)])
+            rows = _analytic_rows(m.brdf)
+            analytic.extend(rows)
+            maps.extend(m.maps)
+            if m.parameter_map is not None:  # (its rows' corrections at the map's mean p1: one table a row)
+                rows = rows.copy()
+                rows[:, 7] *= np.float32(np.mean(m.parameter_map))
+            corrected.extend(rows)
         elif isinstance(m, brdf_mod.Brdf):
             info.append([0, len(analytic), _specular_rows(m), -1])
             analytic.extend(_analytic_rows(m, anisotropic=True))
+            corrected.extend(analytic[len(corrected):])
         elif isinstance(m, EffectiveBRDF):
             k2 = m.directions**2
             lobe_type, rows = m.shade_lobes()  # a matrix-method material has none: a one-line refusal
@@ -282,6 +427,19 @@ def pack_materials(materials) -> dict:
 
     def stack(rows, width, dtype):
         return np.asarray(rows, dtype).reshape(-1, width) if rows else np.zeros((0, width), dtype)
+
+    tex_info, tex_data, n_texels = [[0, 1, 1, 0]], [np.ones(3, np.float32)], 1
+    for tex in [specular_correction(row) for row in corrected] + maps:
+        if tex is None:
+            tex_info.append([0, 1, 1, 0])
+            continue
+        if tex.ndim == 2:  # the parameter map: its value in all three channels
+            tex = np.repeat(tex[..., None], 3, axis=2)
+        tex_info.append([n_texels, tex.shape[0], tex.shape[1], 0])
+        tex_data.append(np.ascontiguousarray(tex, np.float32).ravel())
+        n_texels += tex.shape[0] * tex.shape[1]
+    for i in textured:
+        info[i][3] += 1 + len(analytic)
 
     return {
         "mat_info": stack(info, 4, np.int32),
@@ -702,9 +860,10 @@ def shade_reference(frame: Frame) -> np.ndarray:
             continue
         # Specular lobes: (axis ξ', sharpness η', amplitude A (m, 3)) after the warp; an ASG material's lobes
         # meet the environment here and the lights in `asg_lights`.
-        lobes = []
+        lobes, env_scales = [], []  # (and per lobe its environment term's scale: an analytic row's correction)
         if kind == 0:
-            for row in rows:
+            for r, row in enumerate(rows):
+                env_scales.append(correction_at(static.tex_info, static.tex_data, 1 + idx + r, wol_s))
                 if int(row[0, 0]) in brdf_mod.ANISOTROPIC_KINDS:
                     lobes.append(_anisotropic_environment_lobe(row, ns, ts_, wo_s, cos_os))
                     rad[sel] += _anisotropic_lights(row, ns, ts_, wo_s, table, light_axis[sel], light_eta[sel],
@@ -743,7 +902,8 @@ def shade_reference(frame: Frame) -> np.ndarray:
                     amp = scale * mu * (2 * np.pi / (lobe[3] + eta_s))
                     amp *= (c_oj > 0)[:, None]  # a lobe facing away from the viewer reflects nothing
                     lobes.append((axis, eta_c / (4 * np.maximum(c_oj, MIN_COS_VIEW)), amp, True))
-        for axis, eta, amp, with_lights, *extra in lobes:
+        env_scales += [1.0] * (len(lobes) - len(env_scales))
+        for (axis, eta, amp, with_lights, *extra), env_scale in zip(lobes, env_scales):
             cap, asg_lobe = (extra + [None, None])[:2]
             eta = np.minimum(eta, sg.SHARPNESS_MAX)
             e = sg.integral(eta) * sg.table_lookup(table, 0, _dot(axis, ns), eta)
@@ -755,7 +915,7 @@ def shade_reference(frame: Frame) -> np.ndarray:
             else:
                 env_avg = asg_prefiltered(static.env_maps, static.env_levels, asg_lobe[0], asg_lobe[1], axis,
                                           *asg_lobe[2:])
-            rad[sel] += amp * env_avg * (e * occ)[:, None]
+            rad[sel] += amp * env_scale * env_avg * (e * occ)[:, None]
             for li in range(light_axis.shape[1] if with_lights else 0):
                 p_axis, p_eta, p_amp = sg.product(axis, eta, 1.0, light_axis[sel, li], light_eta[sel, li], 1.0)
                 e = sg.integral(p_eta) * sg.table_lookup(table, 0, _dot(p_axis, ns), p_eta)
