@@ -39,7 +39,7 @@ def table(records, meta):
     rows = [[r["backend"], r["material"], r["environment"], f"{100 * r['relative_l2']:.2f} %", f"{r['psnr']:.2f}",
              f"{r['rim_ratio']:.3f}", f"{r['inner_ratio']:.3f}",
              f"{100 * r['reference_noise']:.2f} %", f"{r['sg_s']:.2f}", f"{r['mc_s']:.1f}"] for r in records]
-    head = [f"# Anisotropic materials against the Monte Carlo reference ({meta['size'][0]} × {meta['size'][1]}, "
+    head = [f"# Analytic materials against the Monte Carlo reference ({meta['size'][0]} × {meta['size'][1]}, "
             f"{meta['samples']} samples a pixel; commit {meta.get('commit')})", ""]
     return "\n".join(head + markdown_table(["backend", "material", "environment", "relative L2", "PSNR dB",
                                             "SG/MC rim", "SG/MC inside", "reference noise", "SG render s",

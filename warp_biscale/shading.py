@@ -16,7 +16,8 @@ SG or tabulated against one:
   amplitude 2π·M·μj/(ηj + ηs). Both are warped to ωi (Wang Eq. 18–21): axis ξ' = 2(ωo·ξ)ξ − ωo,
   sharpness η/(4 ωo·ξ); the smooth factors (M, μj) are taken at the warped axis (Wang Eq. 22). An analytic
   row's environment lobe is then scaled by c(ωo), its exact specular albedo over the lobe's own under a
-  constant environment (`specular_correction`), so that a constant environment is exact at every angle.
+  constant environment (`specular_correction`), so that a constant environment is exact (but where c is clipped,
+  at the most grazing views).
 - **Cosine and horizon.** ∫ G(ω; ξ, η)(n·ω)⁺ dω = ∫G · cosine_fraction(ξ·n, η), exact and tabulated
   (`sg.lighting_table`), rather than Wang's one-lobe cosine fit (Eq. 40), whose 17 % error at normal
   incidence would dominate our error budget.
@@ -55,7 +56,7 @@ specular term (an effective material's: 1 or 0); the slot
 is −1, or for a `svbrdf.Textured` analytic material the first of its three ``tex_info`` rows (kd, ks,
 parameter map; an absent map is a shared 1×1 texture of ones); ``tex_info`` row 1 + r is analytic row r's
 specular correction (`specular_correction`: (24, W) texels, W = 6 values of φo for an anisotropic row, else 1;
-a Textured material's rows corrected at its parameter map's mean p1);
+a Lambert row's the 1×1 texture of ones; a Textured material's rows corrected at its parameter map's mean p1);
 ``tex_info`` (T, 4) int32 [texel offset into tex_data, H, W, 0]; ``tex_data`` float32 (Σ H·W·3), row-major
 RGB texels (a parameter map is stored in all three channels; the kernels read channel 0). The kernels read
 each analytic row into per-pixel values, scale them by the maps at the pixel's UV (``uvs`` (V, 2),
@@ -216,57 +217,73 @@ def _specular_rows(m) -> int:
 # and the horizon clips the SG where it does not clip the BRDF, so a sphere's rim under a constant environment was
 # far off the reference (bench/anisotropic_accuracy.py). Each row's environment lobe is therefore scaled by
 # c(ωo) = A_s(ωo)/E(ωo): the row's exact specular albedo ∫ f_s (n·ωi)⁺ dωi over what its lobe gives under a
-# constant unit environment (`specular_correction`). Exact under a constant environment; the lobe still shapes
-# everything else (docs/design.md §5.7 "The environment's specular magnitude of an analytic row").
+# constant unit environment (`specular_correction`). Exact under a constant environment (but where c is clipped);
+# the lobe still shapes everything else (docs/design.md §5.7 "The environment's specular magnitude of an analytic row").
 CORRECTION_COS = 24  # table rows: cos θo = (i + ½)/24, i = 0 … 23
 CORRECTION_PHI = 6  # an anisotropic row's columns: φo = (j + ½)/6 · π/2 (both kinds are even in x and in y)
 CORRECTION_MAX = 10.0  # c stops here: at grazing a lobe's clipped integral tends to 0
-ALBEDO_CORE, ALBEDO_TAIL, ALBEDO_PHI = 64, 32, 48  # quadrature nodes (θh within 10 NDF widths, beyond, φh)
+ALBEDO_REACH, ALBEDO_CORE, ALBEDO_TAIL, ALBEDO_PHI = 8.0, 48, 24, 192  # `_half_vector_rule`'s reach and nodes
+ALBEDO_CHUNK = 8  # directions ωo a batch of `specular_albedo`
 
 
-def _ndf_width(row) -> float:
-    """The angular width (radians) of a row's NDF about n: 1/√η of its SG, 1/√(2·min(λ, μ)) of its ASG."""
+def _ndf_widths(row) -> tuple[float, float]:
+    """The widths (in slope, tan θh) of a row's NDF along the tangent and the bitangent: 1/√η each for its SG,
+    1/√(2λ), 1/√(2μ) for its ASG exp(−λ(h·x)² − μ(h·y)²)."""
     kind = int(row[0])
     if kind in brdf_mod.ANISOTROPIC_KINDS:
         lam, mu = brdf_mod.ndf_bandwidths(kind, float(row[7]), float(row[8]))
-        return float(1.0 / np.sqrt(2.0 * max(min(lam, mu), 1e-12)))
+        return float(1.0 / np.sqrt(2.0 * max(lam, 1e-12))), float(1.0 / np.sqrt(2.0 * max(mu, 1e-12)))
     _, eta = specular_scale(row, np.ones(1))
-    return float(1.0 / np.sqrt(max(float(eta), 1e-12)))
+    w = float(1.0 / np.sqrt(max(float(eta), 1e-12)))
+    return w, w
+
+
+def _half_vector_rule(wx: float, wy: float) -> tuple[np.ndarray, np.ndarray]:
+    """(h (N, 3), weights (N,)): a rule for ∫ g(h) dωh over the upper hemisphere that follows an NDF of widths
+    (wx, wy): in slope space (p, q) = (wx·r cos φ, wy·r sin φ), h = (p, q, 1)/√(1 + p² + q²),
+    dωh = wx·wy·r dr dφ/(1 + p² + q²)^{3/2}; Gauss–Legendre in r on [0, ALBEDO_REACH] and in 1/r beyond (the tail
+    to the horizon), φ evenly (the trapezoid rule: periodic). An elongated lobe is as round here as an isotropic
+    one, so its narrow axis is resolved as well as its broad one."""
+    x, w = np.polynomial.legendre.leggauss(ALBEDO_CORE)
+    r_core, w_core = ALBEDO_REACH * (x + 1) / 2, w * ALBEDO_REACH / 2
+    x, w = np.polynomial.legendre.leggauss(ALBEDO_TAIL)
+    u, wu = (x + 1) / 2, w / 2
+    r_tail, w_tail = ALBEDO_REACH / u, wu * ALBEDO_REACH / (u * u)
+    r, wr = np.concatenate([r_core, r_tail]), np.concatenate([w_core, w_tail])
+    phi = (np.arange(ALBEDO_PHI) + 0.5) * (2 * np.pi / ALBEDO_PHI)
+    rr, pp = np.meshgrid(r, phi, indexing="ij")
+    p, q = wx * rr * np.cos(pp), wy * rr * np.sin(pp)
+    norm = np.sqrt(1 + p * p + q * q)
+    h = np.stack([p / norm, q / norm, 1 / norm], -1).reshape(-1, 3)
+    weight = (wx * wy * rr * wr[:, None] * (2 * np.pi / ALBEDO_PHI) / norm**3).ravel()
+    return h, weight
 
 
 def specular_albedo(row, wo_local) -> np.ndarray:
     """(N, 3) a packed row's exact specular albedo ∫ f_s(ωi, ωo)(n·ωi)⁺ dωi (its kd left out) for each ωo (N, 3)
-    in the surface frame (n = z, tangent = x), by Gauss–Legendre over the half vector h (dωi = 4(h·ωo) dωh): θh
-    in [0, 10σ] and [10σ, π/2] (σ the NDF's width, `_ndf_width`), φh evenly (the trapezoid rule, exact for a
-    periodic integrand to the nodes' order). Within 1e−3 of a plain product rule over ωi
-    (tests/test_env_specular.py)."""
+    in the surface frame (n = z, tangent = x), over the half vector (dωi = 4(h·ωo) dωh) by `_half_vector_rule`
+    at the NDF's widths (tests/test_env_specular.py checks it against a rule over ωi and, for narrow elongated
+    lobes, against importance sampling)."""
     row = np.asarray(row, np.float64)
-    edge = min(np.pi / 2, 10.0 * _ndf_width(row))
-    pieces = [(0.0, edge, ALBEDO_CORE)] + ([(edge, np.pi / 2, ALBEDO_TAIL)] if edge < np.pi / 2 else [])
-    th, wth = [], []
-    for lo, hi, count in pieces:
-        x, w = np.polynomial.legendre.leggauss(count)
-        th.append(lo + (hi - lo) * (x + 1) / 2)
-        wth.append(w * (hi - lo) / 2)
-    th, wth = np.concatenate(th), np.concatenate(wth)
-    ph = (np.arange(ALBEDO_PHI) + 0.5) * (2 * np.pi / ALBEDO_PHI)
-    t, p = np.meshgrid(th, ph, indexing="ij")
-    h = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], -1).reshape(-1, 3)
-    dh = (np.outer(wth * np.sin(th), np.full(ALBEDO_PHI, 2 * np.pi / ALBEDO_PHI))).ravel()
+    h, dh = _half_vector_rule(*_ndf_widths(row))
     params = row[1:9].copy()
     params[0:3] = 0.0  # (the specular term alone)
     kinds = np.array([int(row[0])])
-    z = np.broadcast_to(np.array([0.0, 0.0, 1.0]), h.shape)
-    x = np.broadcast_to(np.array([1.0, 0.0, 0.0]), h.shape)
+    z, x = np.array([[0.0, 0.0, 1.0]]), np.array([[1.0, 0.0, 0.0]])
     wo_local = np.asarray(wo_local, np.float64).reshape(-1, 3)
     out = np.zeros((len(wo_local), 3))
-    for k, o in enumerate(wo_local):
-        ho = h @ o
-        wi = 2 * ho[:, None] * h - o
-        ok = (ho > 0) & (wi[:, 2] > 0)
-        fc = brdf_mod.brdf_cosine_weighted(kinds, params[None], np.zeros(len(h), np.int64), z, wi,
-                                           np.broadcast_to(o, h.shape), x)  # f_s cos θi cos θo
-        out[k] = (fc * np.where(ok, 4 * ho * dh, 0.0)[:, None]).sum(0) / max(o[2], 1e-300)
+    for k in range(0, len(wo_local), ALBEDO_CHUNK):
+        o = wo_local[k:k + ALBEDO_CHUNK]  # (C, 3)
+        ho = o @ h.T  # (C, N)
+        wi = 2 * ho[..., None] * h[None] - o[:, None]
+        ok = (ho > 0) & (wi[..., 2] > 0)
+        n_all = wi.shape[0] * wi.shape[1]
+        fc = brdf_mod.brdf_cosine_weighted(kinds, params[None], np.zeros(n_all, np.int64),
+                                           np.broadcast_to(z[0], (n_all, 3)), wi.reshape(-1, 3),
+                                           np.repeat(o, len(h), axis=0), np.broadcast_to(x[0], (n_all, 3)))
+        weight = np.where(ok, 4 * ho * dh[None], 0.0).reshape(-1, 1)  # (fc: f_s cos θi cos θo)
+        out[k:k + ALBEDO_CHUNK] = ((fc * weight).reshape(len(o), len(h), 3).sum(1)
+                                   / np.maximum(o[:, 2], 1e-300)[:, None])
     return out
 
 
@@ -311,7 +328,8 @@ def specular_correction(row) -> np.ndarray:
     clipped to [0, CORRECTION_MAX]; 1 where the lobe gives nothing) at `correction_directions`: a texture the
     kernels read bilinearly at (u, v) = (φo folded into [0, π/2] over π/2, cos θo), clamped to the texel centres
     (`correction_uv`). A row without a specular lobe (Lambert) is the 1×1 texture of ones."""
-    row = np.asarray(row, np.float32)
+    row = np.array(row, np.float32)
+    row[1:4] = 0.0  # (kd does not change c: one table for a row's every diffuse colour)
     key = row.tobytes()
     hit = _CORRECTIONS.get(key)
     if hit is None:

@@ -435,11 +435,17 @@ def cached_truth(mat, facets: int = TRUTH_FACETS, seed=None, backend="auto", pro
         gt.key, source = key, "computed"
     _remember(key, gt)
     if path is not None:
+        # A cache path that cannot be written only warns; any other ValueError of the save is a defect and goes on.
         try:
-            gt.save(path)
-        except (OSError, ValueError) as exc:  # (ValueError: save's check_output refusing the path)
-            warnings.warn(f"could not write the ground-truth cache {path} ({getattr(exc, 'strerror', None) or exc}): "
-                          "kept in memory only", stacklevel=3)
+            check_output(path, what="ground-truth cache")
+        except ValueError as exc:
+            warnings.warn(f"could not write the ground-truth cache: {exc}; kept in memory only", stacklevel=3)
+        else:
+            try:
+                gt.save(path)
+            except OSError as exc:
+                warnings.warn(f"could not write the ground-truth cache {path} ({exc.strerror or exc}): kept in "
+                              "memory only", stacklevel=3)
     return gt, source
 
 
