@@ -386,3 +386,17 @@ def test_loading_a_material_does_not_warn_again_about_its_energy(tmp_path):
     assert back.materials == [brdf]
     with pytest.warns(EnergyWarning):
         gain()
+
+
+@pytest.mark.parametrize("method", ["sg", "mc", "litsphere"])
+def test_an_unknown_render_option_is_one_line_for_every_method(method, monkeypatch):
+    """Each renderer refuses an option it does not take by name, as a ValueError, before any work (the Monte Carlo
+    reference and the lit-sphere shader used to raise Python's TypeError from inside their call)."""
+    render = sys.modules["warp_biscale.render"]  # (the module: the package's `render` is its function)
+
+    def no_backend(*args, **kwargs):
+        raise AssertionError("the renderer started before checking its options")
+
+    monkeypatch.setattr(render, "get_backend", no_backend)
+    with pytest.raises(ValueError, match=r"unknown option\(s\) for .*'bogus'"):
+        wb.render(_scene(), method=method, bogus=1)

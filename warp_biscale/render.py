@@ -17,6 +17,7 @@ What is computed depends on what the scene needs, and what does not change is no
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import time
 
 import numpy as np
@@ -239,9 +240,11 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     if method == "mc":
         if n_aa != 1:
             raise ValueError("aa is an option of the SG renderer; the Monte Carlo reference samples pixel centres")
+        _check_options(method, montecarlo.render, options, ("scene", "backend", "progress"))
         check_no_litspheres(scene, method)
         return montecarlo.render(scene, backend=backend, progress=progress, **options)
     if method == "litsphere":
+        _check_options(method, _render_litsphere, options, ("scene", "backend", "n_aa", "n_shadow", "split_rays"))
         return _render_litsphere(scene, get_backend(backend), n_aa, n_shadow, split_rays=split_rays, **options)
     if options:
         raise ValueError(f"unknown option(s) for the SG renderer: {sorted(options)}")
@@ -410,6 +413,15 @@ def litsphere_errors(scene: Scene, image, backend="auto", references=("sg", "mc"
             raise ValueError(f"references must be 'sg' and/or 'mc', got {ref!r}")
         out[ref] = compare_images(np.asarray(image)[mask][None], exact[mask][None])
     return out
+
+
+def _check_options(method: str, fn, options: dict, passed: tuple) -> None:
+    """Refuse, in one line naming them and what the method takes, keyword options `fn` does not take (as the SG
+    renderer's own check does) rather than Python's TypeError from inside the call."""
+    takes = [name for name in inspect.signature(fn).parameters if name not in passed]
+    unknown = sorted(set(options) - set(takes))
+    if unknown:
+        raise ValueError(f"unknown option(s) for method={method!r}: {unknown}; it takes {takes}")
 
 
 def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str = "pixel",
