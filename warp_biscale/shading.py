@@ -223,7 +223,6 @@ CORRECTION_COS = 24  # table rows: cos θo = (i + ½)/24, i = 0 … 23
 CORRECTION_PHI = 6  # an anisotropic row's columns: φo = (j + ½)/6 · π/2 (both kinds are even in x and in y)
 CORRECTION_MAX = 10.0  # c stops here: at grazing a lobe's clipped integral tends to 0
 ALBEDO_REACH, ALBEDO_CORE, ALBEDO_TAIL, ALBEDO_PHI = 8.0, 48, 24, 192  # `_half_vector_rule`'s reach and nodes
-ALBEDO_CHUNK = 8  # directions ωo a batch of `specular_albedo`
 
 
 def _ndf_widths(row) -> tuple[float, float]:
@@ -269,21 +268,17 @@ def specular_albedo(row, wo_local) -> np.ndarray:
     params = row[1:9].copy()
     params[0:3] = 0.0  # (the specular term alone)
     kinds = np.array([int(row[0])])
-    z, x = np.array([[0.0, 0.0, 1.0]]), np.array([[1.0, 0.0, 0.0]])
+    z = np.broadcast_to(np.array([0.0, 0.0, 1.0]), h.shape)
+    x = np.broadcast_to(np.array([1.0, 0.0, 0.0]), h.shape)
     wo_local = np.asarray(wo_local, np.float64).reshape(-1, 3)
     out = np.zeros((len(wo_local), 3))
-    for k in range(0, len(wo_local), ALBEDO_CHUNK):
-        o = wo_local[k:k + ALBEDO_CHUNK]  # (C, 3)
-        ho = o @ h.T  # (C, N)
-        wi = 2 * ho[..., None] * h[None] - o[:, None]
-        ok = (ho > 0) & (wi[..., 2] > 0)
-        n_all = wi.shape[0] * wi.shape[1]
-        fc = brdf_mod.brdf_cosine_weighted(kinds, params[None], np.zeros(n_all, np.int64),
-                                           np.broadcast_to(z[0], (n_all, 3)), wi.reshape(-1, 3),
-                                           np.repeat(o, len(h), axis=0), np.broadcast_to(x[0], (n_all, 3)))
-        weight = np.where(ok, 4 * ho * dh[None], 0.0).reshape(-1, 1)  # (fc: f_s cos θi cos θo)
-        out[k:k + ALBEDO_CHUNK] = ((fc * weight).reshape(len(o), len(h), 3).sum(1)
-                                   / np.maximum(o[:, 2], 1e-300)[:, None])
+    for k, o in enumerate(wo_local):
+        ho = h @ o
+        wi = 2 * ho[:, None] * h - o
+        ok = (ho > 0) & (wi[:, 2] > 0)
+        fc = brdf_mod.brdf_cosine_weighted(kinds, params[None], np.zeros(len(h), np.int64), z, wi,
+                                           np.broadcast_to(o, h.shape), x)  # f_s cos θi cos θo
+        out[k] = (fc * np.where(ok, 4 * ho * dh, 0.0)[:, None]).sum(0) / max(o[2], 1e-300)
     return out
 
 
