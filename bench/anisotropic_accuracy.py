@@ -1,6 +1,7 @@
 """Analytic materials on a sphere (issue 20 item 2, and Xu 2013 Fig. 1's "one ASG within 0.5 % L2 of the reference"
-on our renderer): the SG renderer's image (lights by f_s itself; the environment through the NDF's one warped ASG
-for the anisotropic kinds, the warped SG for the isotropic ones) against the Monte Carlo reference (the exact BRDF),
+on our renderer), under three environments and under one light of a sun's size: the SG renderer's image (lights by
+f_s's mean over the light, `shading.light_mean`; the environment through the NDF's one warped ASG for the
+anisotropic kinds, the warped SG for the isotropic ones) against the Monte Carlo reference (the exact BRDF),
 per material × environment: relative L2 and PSNR over the sphere's pixels (those whose camera ray hits the mesh;
 the background, the environment itself, is left out), the SG image's mean over the reference's at the rim
 (cos θo < 0.35 on the unit sphere) and inside, the reference's own relative noise, and both render times.
@@ -31,8 +32,11 @@ RIM = 0.35  # cos θo below which a pixel is at the rim
 
 
 def environments():
-    return {"constant": wb.Environment.constant(1.0), "studio": wb.Environment.studio(height=64, width=128),
-            "sky (sun)": wb.Environment.sky(height=64, width=128)}
+    """name → (environment, lights): three maps, and one directional light of a sun's angular radius (2°) alone."""
+    return {"constant": (wb.Environment.constant(1.0), []),
+            "studio": (wb.Environment.studio(height=64, width=128), []),
+            "sky (sun)": (wb.Environment.sky(height=64, width=128), []),
+            "light 2°": (None, [wb.DirectionalLight((0.4, 0.8, 0.3), 3.0, 2.0)])}
 
 
 def table(records, meta):
@@ -62,9 +66,9 @@ def main(argv=None):
     cos_o = (-(eye + t[:, None] * d) * d).sum(1).reshape(args.size[1], args.size[0])
     for name in backend_names(args.backends):
         backend = wb.get_backend(name)
-        for ename, env in environments().items():
+        for ename, (env, lights) in environments().items():
             for mname, material in MATERIALS.items():
-                scene = wb.Scene(mesh, [material], camera, env, [])
+                scene = wb.Scene(mesh, [material], camera, env, lights)
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", wb.EnergyWarning)
                     t0 = time.perf_counter()

@@ -251,11 +251,12 @@ CL_INLINE float log1p_small(float x)
     return log(u) * x / (u - 1.0f);
 }
 
-/* f_s of the anisotropic kinds, without the cosines, in the facet frame (x, y, n): the anisotropic Ward
- * (p1, p2 = αx, αy) and Ashikhmin–Shirley (ks = Rs, p1, p2 = nu, nv); twin of kernels/common.py's
- * anisotropic_specular. 0 where either direction is at or below the horizon. */
-CL_INLINE float3 anisotropic_specular(int kind, float3 ks, float p1, float p2, float3 x, float3 y, float3 n,
-                                      float3 wi, float3 wo)
+/* f_s of an analytic kind, without the cosines, in the facet frame (x, y, n): the isotropic kinds as
+ * brdf_cosine_weighted's specular term over cos θi cos θo; the anisotropic Ward (p1, p2 = αx, αy) and
+ * Ashikhmin–Shirley (ks = Rs, p1, p2 = nu, nv); twin of kernels/common.py's analytic_specular. 0 where either
+ * direction is at or below the horizon. */
+CL_INLINE float3 analytic_specular(int kind, float3 ks, float p1, float p2, float3 x, float3 y, float3 n,
+                                   float3 wi, float3 wo)
 {
     float ci = dot3(n, wi);
     float co = dot3(n, wo);
@@ -264,6 +265,23 @@ CL_INLINE float3 anisotropic_specular(int kind, float3 ks, float p1, float p2, f
     float3 h = normalize3((float3)(wi.x + wo.x, wi.y + wo.y, wi.z + wo.z));
     float nh = clampf(dot3(n, h), -1.0f, 1.0f);
     float hi = clampf(dot3(h, wi), 0.0f, 1.0f);
+    if (kind == BLINN_PHONG || kind == COOK_TORRANCE || kind == WARD) {
+        float spec = 0.0f;
+        if (kind == BLINN_PHONG) {
+            spec = (p1 + 2.0f) * 0.5f * INV_PI * pow_pos(maxf(nh, 0.0f), p1);
+        } else if (kind == COOK_TORRANCE) {
+            float theta_h = acos(nh);
+            float d = exp(-(theta_h / p1) * (theta_h / p1));
+            float f = p2 + (1.0f - p2) * pow5(1.0f - hi);
+            float ho = maxf(hi, 1.0e-30f);
+            float g = minf(1.0f, minf(2.0f * maxf(nh, 0.0f) * co / ho, 2.0f * maxf(nh, 0.0f) * ci / ho));
+            spec = f * g * d * INV_PI / (ci * co);
+        } else if (nh > 0.0f) {
+            float cos2 = nh * nh;
+            spec = exp(-(1.0f - cos2) / cos2 / (p1 * p1)) / (4.0f * M_PI_F * p1 * p1 * sqrt(ci * co));
+        }
+        return (float3)(ks.x * spec, ks.y * spec, ks.z * spec);
+    }
     float hx = dot3(h, x);
     float hy = dot3(h, y);
     if (kind == ANISOTROPIC_WARD) {
@@ -312,7 +330,7 @@ CL_INLINE float3 brdf_cosine_weighted_tangent(int kind, __global const float *pa
     float3 kd = (float3)(p[0], p[1], p[2]);
     float3 ks = (float3)(p[3], p[4], p[5]);
     float3 x = facet_tangent(n, t);
-    float3 spec = anisotropic_specular(kind, ks, p[6], p[7], x, cross3(n, x), n, wi, wo);
+    float3 spec = analytic_specular(kind, ks, p[6], p[7], x, cross3(n, x), n, wi, wo);
     float3 diffuse = (float3)(kd.x * INV_PI, kd.y * INV_PI, kd.z * INV_PI);
     if (kind == ASHIKHMIN_SHIRLEY)
         diffuse = ashikhmin_shirley_diffuse(kd, ks, ci, co);

@@ -34,6 +34,7 @@
 #define AS_UNIFORM_COS 0.58292645536f /* = shading.AS_UNIFORM_COS */
 #define ASG_TAPS 12 /* = shading.ASG_TAPS */
 #define ASG_TAP_SHARE 0.05f /* = shading.ASG_TAP_SHARE */
+#define LIGHT_BLUR_EXP_MAX 4.0f /* = shading.LIGHT_BLUR_EXP_MAX */
 /* shading._TAP_NODES, _TAP_WEIGHTS: ASG_TAPS offsets evenly over ±2.75 standard deviations, a Gaussian's weights
  * summing to 1 */
 __constant float TAP_NODES[ASG_TAPS] = {-2.75f, -2.25f, -1.75f, -1.25f, -0.75f, -0.25f,
@@ -711,10 +712,60 @@ CL_INLINE float3 analytic_diffuse(int kind, float3 kd, float3 ks, float3 axis, f
     return kd;
 }
 
-/* An anisotropic BRDF's specular radiance from the lights: f_s at each light's direction times the light's
- * irradiance, cosine and visible share, as the diffuse term takes it. */
-CL_INLINE float3 anisotropic_from_lights(int kind, float3 ks, float p1, float p2, SurfacePoint s, float3 wo, Table tab,
-                                         int n_lights, __global const float *lights, __global const uchar *vis)
+/* Unit axis across unit direction la (shading.light_axes): the hint with its part along la removed, or Duff et
+ * al.'s basis vector where the hint lies along la. */
+CL_INLINE float3 light_across(float3 la, float3 hint)
+{
+    float3 x = hint - dot3(hint, la) * la;
+    float l2 = dot3(x, x);
+    if (l2 > 1.0e-6f)
+        return x / sqrt(l2);
+    float sgn = la.z < 0.0f ? -1.0f : 1.0f;
+    float a = -1.0f / (sgn + la.z);
+    return (float3)(1.0f + sgn * la.x * la.x * a, sgn * la.x * la.y * a, -sgn * la.x);
+}
+
+CL_INLINE float specular_sum(int kind, float3 ks, float p1, float p2, SurfacePoint s, float3 wi, float3 wo)
+{
+    float3 f = analytic_specular(kind, ks, p1, p2, s.t, s.b, s.n, normalize3(wi), wo);
+    return f.x + f.y + f.z;
+}
+
+/* f_s's mean over a light of variance var_l per axis about la (shading.light_mean): f_s at la, and its channel
+ * sum at ±σ along two axes across la (light_across), its logarithm taken as a quadratic along each. */
+CL_INLINE float3 light_mean(int kind, float3 ks, float p1, float p2, SurfacePoint s, float3 wo, float3 la,
+                            float3 hint, float var_l)
+{
+    float3 f0 = analytic_specular(kind, ks, p1, p2, s.t, s.b, s.n, la, wo);
+    float c0 = f0.x + f0.y + f0.z;
+    if (c0 <= 0.0f)
+        return f0;
+    float3 ax = light_across(la, hint);
+    float3 axes[2] = {ax, cross3(la, ax)};
+    float sigma = sqrt(var_l);
+    float l0 = log(c0);
+    float expo = 0.0f;
+    float scale = 1.0f;
+    for (int k = 0; k < 2; ++k) {
+        float lo = specular_sum(kind, ks, p1, p2, s, la - sigma * axes[k], wo);
+        float hi = specular_sum(kind, ks, p1, p2, s, la + sigma * axes[k], wo);
+        if (lo <= 0.0f || hi <= 0.0f)
+            return f0;
+        float log_lo = log(lo);
+        float log_hi = log(hi);
+        float g = 0.5f * (log_hi - log_lo);
+        float c = minf(log_hi + log_lo - 2.0f * l0, 0.0f);
+        expo += g * g / (2.0f * (1.0f - c));
+        scale /= sqrt(1.0f - c);
+    }
+    return f0 * (scale * exp(minf(expo, LIGHT_BLUR_EXP_MAX)));
+}
+
+/* An analytic BRDF's specular radiance from the lights: f_s's mean over each light (light_mean, read along `hint`
+ * turned across the light: the warped lobe's axis for the anisotropic kinds) times the light's irradiance,
+ * cosine and visible share, as the diffuse term takes it. */
+CL_INLINE float3 analytic_from_lights(int kind, float3 ks, float p1, float p2, SurfacePoint s, float3 wo, float3 hint,
+                                      Table tab, int n_lights, __global const float *lights, __global const uchar *vis)
 {
     float3 out = (float3)(0.0f, 0.0f, 0.0f);
     for (int l = 0; l < n_lights; ++l) {
@@ -723,7 +774,7 @@ CL_INLINE float3 anisotropic_from_lights(int kind, float3 ks, float p1, float p2
         __global const float *row = lights + 8 * l;
         float3 la = light_axis(row, s.pos);
         float le = light_sharpness(row, s.pos);
-        float3 f = anisotropic_specular(kind, ks, p1, p2, s.t, s.b, s.n, la, wo);
+        float3 f = light_mean(kind, ks, p1, p2, s, wo, la, hint, 0.5f / le);
         out = out + f * light_irradiance(tab, row, s.pos, s.n, la, le, vis[l]);
     }
     return out;
@@ -1055,28 +1106,31 @@ __kernel void shade_pixels(
                     float3 r_ks = (float3)(row[4], row[5], row[6]) * t_ks;
                     float r_p1 = row[7] * t_p1;
                     amp = specular_scale(r_kind, r_ks, r_p1, row[8], cos_o);
+                    /* The lights by f_s itself (Xu 2013 §5.2), averaged over each light's size. */
+                    with_lights = 0;
+                    float3 hint = s.t;
                     if (r_kind == ANISOTROPIC_WARD || r_kind == ASHIKHMIN_SHIRLEY) {
-                        /* Xu 2013 §5.2: the lights by f_s itself; the environment through the NDF's ASG warped
-                         * to the light directions, as an effective material's ASG lobe below. */
-                        out = out + anisotropic_from_lights(r_kind, r_ks, r_p1, row[8], s, wo, tab, n_lights, lights,
-                                                            vis);
+                        /* The environment through the NDF's ASG warped to the light directions, as an effective
+                         * material's ASG lobe below. */
                         Asg w = asg_warp(ndf_asg(r_kind, r_p1, row[8], s), wo);
                         float lam = maxf(w.lam, 1.0e-6f);
                         float mu_w = maxf(w.mu, 1.0e-6f);
                         eta = minf(2.0f * sqrt(lam * mu_w), sharpness_max);
                         axis = w.z;
                         amp = amp * (w.c * asg_shade_integral(lam, mu_w) / sg_integral(eta));
-                        with_lights = 0;
                         if (r_kind == ASHIKHMIN_SHIRLEY)
                             cap = cos_o;
                         tap = w;
                         tap.lam = lam;
                         tap.mu = mu_w;
                         taps = 1;
+                        hint = w.x;
                     } else {
                         axis = normalize3(2.0f * cos_o * s.n - wo);
                         eta = ndf_sharpness(r_kind, r_p1) / (4.0f * cos_o);
                     }
+                    out = out + analytic_from_lights(r_kind, r_ks, r_p1, row[8], s, wo, hint, tab, n_lights, lights,
+                                                     vis);
                 } else {
                     __global const float *sub = eff_sub + 9 * (ei[4] + sub_i);
                     __global const float *lobe = eff_lobes + EFF_LOBE_WIDTH * (ei[3] + j);

@@ -80,12 +80,13 @@ def log1p_small(x: float) -> float:
 
 
 @wp.func
-def anisotropic_specular(kind: int, ks: wp.vec3, p1: float, p2: float, x: wp.vec3, y: wp.vec3, n: wp.vec3,
-                         wi: wp.vec3, wo: wp.vec3) -> wp.vec3:
-    """f_s of the anisotropic kinds, without the cosines, in the facet frame (x, y, n): the anisotropic Ward
-    (p1, p2 = αx, αy: ks·D/(4π αx αy √(cos θi cos θo))) and Ashikhmin–Shirley (ks = Rs, p1, p2 = nu, nv:
-    F(h·ωi)·√((nu+1)(nv+1))/(8π)·D/((h·ωi) max(cos θi, cos θo))); see warp_biscale.brdf. 0 where either
-    direction is at or below the horizon."""
+def analytic_specular(kind: int, ks: wp.vec3, p1: float, p2: float, x: wp.vec3, y: wp.vec3, n: wp.vec3,
+                      wi: wp.vec3, wo: wp.vec3) -> wp.vec3:
+    """f_s of an analytic kind, without the cosines, in the facet frame (x, y, n); see warp_biscale.brdf. The
+    isotropic kinds as brdf_cosine_weighted's specular term over cos θi cos θo; the anisotropic Ward (p1, p2 =
+    αx, αy: ks·D/(4π αx αy √(cos θi cos θo))) and Ashikhmin–Shirley (ks = Rs, p1, p2 = nu, nv:
+    F(h·ωi)·√((nu+1)(nv+1))/(8π)·D/((h·ωi) max(cos θi, cos θo))). 0 where either direction is at or below the
+    horizon."""
     ci = wp.dot(n, wi)
     co = wp.dot(n, wo)
     if ci <= 0.0 or co <= 0.0:
@@ -93,6 +94,20 @@ def anisotropic_specular(kind: int, ks: wp.vec3, p1: float, p2: float, x: wp.vec
     h = wp.normalize(wi + wo)
     nh = wp.clamp(wp.dot(n, h), -1.0, 1.0)
     hi = wp.clamp(wp.dot(h, wi), 0.0, 1.0)
+    if kind == BLINN_PHONG:
+        return ks * ((p1 + 2.0) * 0.5 * INV_PI * wp.pow(wp.max(nh, 0.0), p1))
+    if kind == COOK_TORRANCE:
+        theta_h = wp.acos(nh)
+        dc = wp.exp(-(theta_h / p1) * (theta_h / p1))
+        fc = p2 + (1.0 - p2) * wp.pow(1.0 - hi, 5.0)
+        ho = wp.max(hi, 1.0e-30)
+        g = wp.min(1.0, wp.min(2.0 * wp.max(nh, 0.0) * co / ho, 2.0 * wp.max(nh, 0.0) * ci / ho))
+        return ks * (fc * g * dc * INV_PI / (ci * co))
+    if kind == WARD:
+        if nh <= 0.0:
+            return wp.vec3(0.0)
+        cos2 = nh * nh
+        return ks * (wp.exp(-(1.0 - cos2) / cos2 / (p1 * p1)) / (4.0 * 3.14159265358979 * p1 * p1 * wp.sqrt(ci * co)))
     hx = wp.dot(h, x)
     hy = wp.dot(h, y)
     if kind == ANISOTROPIC_WARD:
@@ -139,7 +154,7 @@ def brdf_cosine_weighted_tangent(kind: int, params: wp.array2d(dtype=wp.float32)
     kd = wp.vec3(params[m, 0], params[m, 1], params[m, 2])
     ks = wp.vec3(params[m, 3], params[m, 4], params[m, 5])
     x = facet_tangent(n, t)
-    spec = anisotropic_specular(kind, ks, params[m, 6], params[m, 7], x, wp.cross(n, x), n, wi, wo)
+    spec = analytic_specular(kind, ks, params[m, 6], params[m, 7], x, wp.cross(n, x), n, wi, wo)
     diffuse = kd * INV_PI
     if kind == ASHIKHMIN_SHIRLEY:
         diffuse = ashikhmin_shirley_diffuse(kd, ks, ci, co)

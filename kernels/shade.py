@@ -21,7 +21,7 @@ from warp_biscale import shading as _shading
 
 from .asg import (Asg, asg_convolve_asg, asg_convolve_sg, asg_eval, asg_integral_eq10, asg_unit_integral, asg_warp,
                   harmonic)
-from .common import (ANISOTROPIC_WARD, ASHIKHMIN_SHIRLEY, GOLDEN_ANGLE, LOBE_COS_MIN, LOBE_RAYS, anisotropic_specular,
+from .common import (ANISOTROPIC_WARD, ASHIKHMIN_SHIRLEY, GOLDEN_ANGLE, LOBE_COS_MIN, LOBE_RAYS, analytic_specular,
                      ashikhmin_shirley_diffuse, disk_basis, disk_turn, lobe_ray_direction, part_bits, pixel_part)
 
 # Fast math on CUDA (approximate division, square root, exp and trigonometry): this shading is bound by its
@@ -47,6 +47,7 @@ DIFFUSE_LEVEL_STEP = wp.constant(_effective.DIFFUSE_LEVEL_STEP)
 AS_UNIFORM_COS = wp.constant(_shading.AS_UNIFORM_COS)
 ASG_TAPS = wp.constant(_shading.ASG_TAPS)
 ASG_TAP_SHARE = wp.constant(_shading.ASG_TAP_SHARE)
+LIGHT_BLUR_EXP_MAX = wp.constant(_shading.LIGHT_BLUR_EXP_MAX)
 tap_vec = wp.types.vector(length=_shading.ASG_TAPS, dtype=wp.float32)
 TAP_NODES = wp.constant(tap_vec(*[float(x) for x in _shading._TAP_NODES]))
 TAP_WEIGHTS = wp.constant(tap_vec(*[float(x) for x in _shading._TAP_WEIGHTS]))
@@ -848,10 +849,62 @@ def finite_radiance(v: wp.vec3) -> wp.vec3:
 
 
 @wp.func
-def anisotropic_from_lights(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoint, wo: wp.vec3,
-                            table: wp.array3d(dtype=wp.float32), n_lights: int, lights: wp.array2d(dtype=wp.float32),
-                            light_vis: wp.array2d(dtype=wp.uint8), p: int) -> wp.vec3:
-    """An anisotropic BRDF's specular radiance from the lights: f_s at each light's direction times the light's
+def light_axes(la: wp.vec3, hint: wp.vec3) -> wp.mat33:
+    """Rows: two unit axes across unit direction la (shading.light_axes: the hint with its part along la removed,
+    or Duff et al.'s basis vector where the hint lies along la), then la × the first."""
+    x = hint - wp.dot(hint, la) * la
+    l2 = wp.dot(x, x)
+    if l2 > 1.0e-6:
+        x = x / wp.sqrt(l2)
+    else:
+        sgn = float(1.0)
+        if la[2] < 0.0:
+            sgn = -1.0
+        a = -1.0 / (sgn + la[2])
+        x = wp.vec3(1.0 + sgn * la[0] * la[0] * a, sgn * la[0] * la[1] * a, -sgn * la[0])
+    return wp.matrix_from_rows(x, wp.cross(la, x), la)
+
+
+@wp.func
+def specular_sum(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoint, wi: wp.vec3, wo: wp.vec3) -> float:
+    f = analytic_specular(kind, ks, p1, p2, s.t, s.b, s.n, wp.normalize(wi), wo)
+    return f[0] + f[1] + f[2]
+
+
+@wp.func
+def light_mean(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoint, wo: wp.vec3, la: wp.vec3,
+               hint: wp.vec3, var_l: float) -> wp.vec3:
+    """f_s's mean over a light of variance var_l per axis about la (shading.light_mean): f_s at la, and its channel
+    sum at ±σ along two axes across la (light_axes), its logarithm taken as a quadratic along each."""
+    f0 = analytic_specular(kind, ks, p1, p2, s.t, s.b, s.n, la, wo)
+    c0 = f0[0] + f0[1] + f0[2]
+    if c0 <= 0.0:
+        return f0
+    axes = light_axes(la, hint)
+    sigma = wp.sqrt(var_l)
+    l0 = wp.log(c0)
+    expo = float(0.0)
+    scale = float(1.0)
+    for k in range(2):
+        lo = specular_sum(kind, ks, p1, p2, s, la - sigma * axes[k], wo)
+        hi = specular_sum(kind, ks, p1, p2, s, la + sigma * axes[k], wo)
+        if lo <= 0.0 or hi <= 0.0:
+            return f0
+        log_lo = wp.log(lo)
+        log_hi = wp.log(hi)
+        g = 0.5 * (log_hi - log_lo)
+        c = wp.min(log_hi + log_lo - 2.0 * l0, 0.0)
+        expo = expo + g * g / (2.0 * (1.0 - c))
+        scale = scale / wp.sqrt(1.0 - c)
+    return f0 * (scale * wp.exp(wp.min(expo, LIGHT_BLUR_EXP_MAX)))
+
+
+@wp.func
+def analytic_from_lights(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoint, wo: wp.vec3, hint: wp.vec3,
+                         table: wp.array3d(dtype=wp.float32), n_lights: int, lights: wp.array2d(dtype=wp.float32),
+                         light_vis: wp.array2d(dtype=wp.uint8), p: int) -> wp.vec3:
+    """An analytic BRDF's specular radiance from the lights: f_s's mean over each light (light_mean, read along
+    `hint` turned across the light: the warped lobe's axis for the anisotropic kinds) times the light's
     irradiance, cosine and visible share, as the diffuse term takes it."""
     out = wp.vec3(0.0)
     for l in range(n_lights):
@@ -859,9 +912,8 @@ def anisotropic_from_lights(kind: int, ks: wp.vec3, p1: float, p2: float, s: Sur
             continue
         la = light_axis(lights, l, s.pos)
         le = light_sharpness(lights, l, s.pos)
-        f = anisotropic_specular(kind, ks, p1, p2, s.t, s.b, s.n, la, wo)
-        e = light_irradiance(table, lights, l, s.pos, s.n, la, le, u8_at2(light_vis, p, l))
-        out = out + wp.cw_mul(f, e)
+        f = light_mean(kind, ks, p1, p2, s, wo, la, hint, 0.5 / le)
+        out = out + wp.cw_mul(f, light_irradiance(table, lights, l, s.pos, s.n, la, le, u8_at2(light_vis, p, l)))
     return out
 
 
@@ -1047,27 +1099,30 @@ def shade_pixels(
                     r_p1 = analytic[row, 7] * t_p1
                     r_p2 = analytic[row, 8]
                     amp = specular_scale(r_kind, r_ks, r_p1, r_p2, cos_o)
+                    # The lights by f_s itself (Xu 2013 §5.2), averaged over each light's size.
+                    with_lights = 0
+                    hint = s.t
                     if r_kind == ANISOTROPIC_WARD or r_kind == ASHIKHMIN_SHIRLEY:
-                        # Xu 2013 §5.2: the lights by f_s itself; the environment through the NDF's ASG warped
-                        # to the light directions, as an effective material's ASG lobe below.
-                        out = out + anisotropic_from_lights(r_kind, r_ks, r_p1, r_p2, s, wo, table, n_lights, lights,
-                                                            light_vis, p)
+                        # The environment through the NDF's ASG warped to the light directions, as an effective
+                        # material's ASG lobe below.
                         w = asg_warp(ndf_asg(r_kind, r_p1, r_p2, s), wo)
                         lam = wp.max(w.lam, 1.0e-6)
                         mu_w = wp.max(w.mu, 1.0e-6)
                         eta = wp.min(2.0 * wp.sqrt(lam * mu_w), SHARPNESS_MAX)
                         axis = w.z
                         amp = amp * (w.c * asg_shade_integral(lam, mu_w) / sg_integral(eta))
-                        with_lights = 0
                         if r_kind == ASHIKHMIN_SHIRLEY:
                             cap = cos_o
                         tap = w
                         tap.lam = lam
                         tap.mu = mu_w
                         taps = 1
+                        hint = w.x
                     else:
                         axis = wp.normalize(2.0 * cos_o * s.n - wo)
                         eta = ndf_sharpness(r_kind, r_p1) / (4.0 * cos_o)
+                    out = out + analytic_from_lights(r_kind, r_ks, r_p1, r_p2, s, wo, hint, table, n_lights, lights,
+                                                     light_vis, p)
                 else:
                     sub = i32_at2(eff_info, idx, 4) + sub_i
                     lobe = i32_at2(eff_info, idx, 3) + j

@@ -576,9 +576,10 @@ def _ashikhmin_shirley_diffuse(row, cos_i, cos_o):
     return row[:, 1:4] * (1 - row[:, 4:7]) * g[:, None]
 
 
-def _anisotropic_specular(row, n, t, wi, wo):
-    """(m, 3) f_s (no cosines) of an anisotropic BRDF's packed rows (m, 9) in the frame of tangents t: its
-    cosine-weighted specular term (`brdf.brdf_cosine_weighted` with no diffuse) over cos θi cos θo."""
+def _analytic_specular(row, n, t, wi, wo):
+    """(m, 3) f_s (no cosines) of an analytic BRDF's packed rows (m, 9), in the frame of tangents t for the
+    anisotropic kinds: its cosine-weighted specular term (`brdf.brdf_cosine_weighted` with no diffuse) over
+    cos θi cos θo."""
     params = row[:, 1:9].copy()
     params[:, 0:3] = 0.0
     fc = brdf_mod.brdf_cosine_weighted(row[:, 0].astype(np.int32), params, np.arange(len(row)), n, wi, wo, t)
@@ -646,15 +647,66 @@ def capped_cosine_integral(e, cap, axis, n, eta, table):
     return np.maximum(e - spread * visible, 0.0)
 
 
-def _anisotropic_lights(row, n, t, wo, table, l_axis, l_eta, l_amp, l_vis):
-    """(m, 3) an anisotropic BRDF's specular radiance from the lights: f_s at each light's direction times the
-    light's irradiance with its cosine and visible share, as the diffuse term takes it."""
+# A light's size blurs f_s over its disc (`light_mean`): f_s is read at the light's centre and at ±σ along two axes
+# across it, and its logarithm taken as a quadratic there, whose mean over the light (a Gaussian of σ², the disc's
+# own variance) is closed. The exponent of that mean stops at this value (e^4 ≈ 55): far down a lobe's flank the
+# quadratic's slope would otherwise multiply a value that f_s's own tail need not follow.
+LIGHT_BLUR_EXP_MAX = 4.0
+
+
+def light_mean(f0, fx, fy, var_l):
+    """(m, 3) f_s's mean over a light from its values at the light's centre f0 (m, 3) and at ±σ = ±√var_l along
+    two axes across it (fx, fy: (2, m) of a scalar of f_s, their channel sums), the light a Gaussian of variance
+    var_l per axis (a disc of solid angle Ω: Ω/4π, = 1/(2η) of its SG). With log f ≈ l0 + g·u + c·u²/2 along each
+    axis (g, c from the three values; c ≤ 0), the mean is f0·Π 1/√(1 − c·var_l)·exp(g²·var_l/(2(1 − c·var_l))):
+    exact for a Gaussian lobe. f0 itself where any of the five is 0 (the light at a lobe's or the horizon's
+    edge)."""
+    c0 = f0.sum(1)
+    vals = np.stack([c0, fx[0], fx[1], fy[0], fy[1]])
+    ok = (vals > 0).all(0)
+    logs = np.log(np.where(ok, vals, 1.0))
+    expo = np.zeros(len(c0))
+    scale = np.ones(len(c0))
+    for lo, hi in ((logs[1], logs[2]), (logs[3], logs[4])):
+        g = (hi - lo) * 0.5  # slope times σ
+        c = np.minimum(hi + lo - 2 * logs[0], 0.0)  # curvature times σ² (= var_l)
+        expo += g * g / (2 * (1 - c))
+        scale /= np.sqrt(1 - c)
+    factor = np.where(ok, scale * np.exp(np.minimum(expo, LIGHT_BLUR_EXP_MAX)), 1.0)
+    return f0 * factor[:, None]
+
+
+def _analytic_lights(row, n, t, wo, table, l_axis, l_eta, l_amp, l_vis, hint):
+    """(m, 3) an analytic BRDF's specular radiance from the lights: f_s's mean over each light (`light_mean`,
+    read along `hint` (m, 3) turned across the light and the axis across both: the warped lobe's own axes for the
+    anisotropic kinds) times the light's irradiance with its cosine and visible share, as the diffuse term."""
     out = np.zeros((len(wo), 3))
     for li in range(l_axis.shape[1]):
         light = l_axis[:, li]
         e = sg.integral(l_eta[:, li]) * sg.table_lookup(table, 0, _dot(light, n), l_eta[:, li])
-        out += _anisotropic_specular(row, n, t, light, wo) * l_amp[:, li] * (e * l_vis[:, li])[:, None]
+        var_l = 0.5 / l_eta[:, li]
+        ax, ay = light_axes(light, hint)
+        sigma = np.sqrt(var_l)[:, None]
+
+        def at(d):
+            return _analytic_specular(row, n, t, _normalize(d), wo).sum(1)
+        fx = np.stack([at(light - sigma * ax), at(light + sigma * ax)])
+        fy = np.stack([at(light - sigma * ay), at(light + sigma * ay)])
+        f = light_mean(_analytic_specular(row, n, t, light, wo), fx, fy, var_l)
+        out += f * l_amp[:, li] * (e * l_vis[:, li])[:, None]
     return out
+
+
+def light_axes(light, hint):
+    """Two unit axes across unit directions `light` (m, 3): `hint` with its part along the light removed, or,
+    where the hint lies along the light, Duff et al.'s basis vector of the light; and light × that one."""
+    x = hint - _dot(hint, light)[:, None] * light
+    norm = np.linalg.norm(x, axis=1)
+    sgn = np.where(light[:, 2] < 0, -1.0, 1.0)
+    a = -1.0 / (sgn + light[:, 2])
+    duff = np.stack([1 + sgn * light[:, 0] ** 2 * a, sgn * light[:, 0] * light[:, 1] * a, -sgn * light[:, 0]], 1)
+    x = np.where((norm > 1e-3)[:, None], x / np.maximum(norm, 1e-30)[:, None], duff)
+    return x, np.cross(light, x)
 
 
 def _asg_lights(g, conv, sub, eta_s, wo, t, b, n, wo_local, tables, base, k, j_count, j, table, l_axis, l_eta, l_amp,
@@ -880,14 +932,17 @@ def shade_reference(frame: Frame) -> np.ndarray:
         if kind == 0:
             for r, row in enumerate(rows):
                 env_scales.append(correction_at(static.tex_info, static.tex_data, 1 + idx + r, wol_s))
+                # The lights by f_s itself (Xu 2013 §5.2), blurred by their size through the lobe's shape.
                 if int(row[0, 0]) in brdf_mod.ANISOTROPIC_KINDS:
                     lobes.append(_anisotropic_environment_lobe(row, ns, ts_, wo_s, cos_os))
-                    rad[sel] += _anisotropic_lights(row, ns, ts_, wo_s, table, light_axis[sel], light_eta[sel],
-                                                    light_amp[sel], light_vis[sel])
-                    continue
-                scale, eta_s = specular_scale(row, cos_os)
-                axis = 2 * cos_os[:, None] * ns - wo_s
-                lobes.append((_normalize(axis), eta_s / (4 * cos_os), scale, True))
+                    hint = lobes[-1][-1][0]  # the warped lobe's x axis
+                else:
+                    scale, eta_s = specular_scale(row, cos_os)
+                    axis = 2 * cos_os[:, None] * ns - wo_s
+                    lobes.append((_normalize(axis), eta_s / (4 * cos_os), scale, False))
+                    hint = ts_
+                rad[sel] += _analytic_lights(row, ns, ts_, wo_s, table, light_axis[sel], light_eta[sel],
+                                             light_amp[sel], light_vis[sel], hint)
         else:
             j_count = int(ei[1])
             for si in range(int(ei[2])):
