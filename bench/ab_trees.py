@@ -17,6 +17,12 @@ import numpy as np
 import warp_biscale as wb
 from warp_biscale.render import pack_frame
 
+try:  # the renderer's lights: the scene's and its environment's compact sources (an older tree: the scene's)
+    from warp_biscale.render import frame_lights
+except ImportError:
+    def frame_lights(scene):
+        return scene.lights_packed
+
 try:
     from bench.common import heightfield_tile, timed
 except ImportError:  # run as a file: bench/ is this file's folder
@@ -46,7 +52,7 @@ def main():
     scene = target_scene(be)
     frame = pack_frame(scene, be)  # the static inputs, uploaded once; the G-buffer stays on the device below
     inputs = getattr(frame, "inputs", frame)  # (a tree from before the typed contracts returns the inputs' dict)
-    lights, camera = scene.lights_packed, scene.camera.packed()
+    lights, camera = frame_lights(scene), scene.camera.packed()
 
     def draw():
         be.trace_primary(scene.mesh, scene.camera, to_host=False)

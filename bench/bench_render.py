@@ -36,6 +36,12 @@ import sys
 import warp_biscale as wb
 from warp_biscale.render import OCCLUSION_SAMPLES, SHADOW_SAMPLES, pack_frame, queue_frame
 
+try:  # the renderer's lights: the scene's and its environment's compact sources (an older tree: the scene's)
+    from warp_biscale.render import frame_lights
+except ImportError:
+    def frame_lights(scene):
+        return scene.lights_packed
+
 if __package__ in (None, ""):  # run as a file: `bench` importable from the checkout, after site-packages
     sys.path.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from bench import common  # noqa: E402
@@ -90,7 +96,7 @@ def time_frames(scene, backend, frames, runs, shadow_samples=SHADOW_SAMPLES, occ
     per_frame = t.median_s / frames
     if aa == 1:
         inputs = pack_frame(scene, be).inputs  # the shade stage's inputs, cached on the scene by the render above
-        lights, cam = scene.lights_packed, scene.camera.packed()
+        lights, cam = frame_lights(scene), scene.camera.packed()
         back = common.timed(lambda: be.shade(scene.mesh, inputs, cam, lights, to_host=True), 3, be).median_s
         back -= per_frame
     else:  # the device's average of the samples
@@ -142,7 +148,7 @@ def part_stages(backends, size, runs, out, repeat=10, block_modes=(False,)):
         scene = target_scene(w, h, backend=backend)
         wb.render(scene, backend=be)  # compiles, precomputes, leaves this camera's G-buffer and rays on the device
         inputs = pack_frame(scene, be).inputs
-        lights, cam, mesh = scene.lights_packed, scene.camera.packed(), scene.mesh
+        lights, cam, mesh = frame_lights(scene), scene.camera.packed(), scene.mesh
         stages = {
             "trace_primary": lambda: be.trace_primary(mesh, scene.camera, to_host=False),
             "trace_shadows (1 ray)": lambda: be.trace_shadows(mesh, None, lights, to_host=False, samples=1),

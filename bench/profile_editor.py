@@ -33,10 +33,10 @@ def edit_parts(ed, runs=20):
     frame's shade, its tone map and read-back, the static inputs of a material edit, and the bake's stages
     for the current tile (its visibility rays alone, the whole bake)."""
     from warp_biscale import directions as dirs
-    from warp_biscale.render import static_inputs
+    from warp_biscale.render import frame_lights, static_inputs
 
     be, scene = ed.backend, ed.scene
-    cam, lights = scene.camera, scene.lights_packed
+    cam, lights = scene.camera, frame_lights(scene)
 
     def timed(f):
         out = []

@@ -145,9 +145,11 @@ def test_cli_render_anti_aliases_by_default(tmp_path, capsys):
     block = outs[("--block-rays",)]  # a quarter of the rays a pixel: the same image but for noise and a blur
     assert np.abs(block - aa4).mean() < 0.05 * aa4.mean() and np.abs(block - aa4).max() > 0
     # Shaded once a pixel: the edges anti-aliased alike, shading within a surface from one sample (the shiny
-    # sphere's highlight is the pixel that differs most: 3.5 times the image mean, measured)
+    # sphere's highlight is the pixel that differs most: 3.5 times the image mean, measured). The median
+    # |once − aa4| measured 0.93 % of the mean while the sky's sun lit through its lobe, 1.11 % with the sun a
+    # light of the map's 16 × 32 texel size (a wider penumbra, its rays split four ways in both images).
     once = outs[("--aa-shading", "pixel")]
-    assert np.median(np.abs(once - aa4)) < 0.01 * aa4.mean() and np.abs(once - aa1).max() > 0.01
+    assert np.median(np.abs(once - aa4)) < 0.015 * aa4.mean() and np.abs(once - aa1).max() > 0.01
     # At the silhouettes (a pixel beside one of another material, or the sky) once is nearer aa4 than one sample is
     # (measured on its 102 such pixels: mean |once − aa4| 0.0183 against |aa1 − aa4| 0.0382; the rest is the rays'
     # noise, drawn differently, and shading across a pixel); its first sample alone would be as far as aa1.

@@ -6,7 +6,8 @@ import pytest
 
 import warp_biscale as wb
 from warp_biscale import lighting
-from warp_biscale.environment import environment_irradiance, equirect_bilinear, equirect_directions
+from warp_biscale.environment import (environment_irradiance, equirect_bilinear, equirect_directions,
+                                      equirect_row_solid_angles)
 from warp_biscale.render import pack_frame
 
 ZENITH = np.array([0.08, 0.18, 0.45])  # Environment.sky's defaults
@@ -51,17 +52,55 @@ def _loaded_map(tmp_path):
                          ids=["sky", "sky-small-sun", "studio", "constant", "from-sgs", "loaded-exr"])
 def test_lobes_plus_residual_is_the_exact_irradiance(make, tmp_path):
     """What the shade stage adds up for an unoccluded normal, the shadow lobes' irradiance plus the
-    residual map's bilinear value, against the map's irradiance by the texel rule at 400 normals:
+    residual map's bilinear value, against the irradiance by the texel rule at 400 normals of the map it
+    lights with (the map without its compact sources, which are lights: `lighting.environment_sources`):
     within 0.5 % of the mean E (measured 0.05–0.25 %; the residual map alone is E's smooth part, where
     interpolating E itself over a sun's terminator errs by 3–4 %)."""
     env = make(tmp_path)
     light = lighting.prepare(env, "warp:cpu")
     normals = lighting.fibonacci_directions(400)
-    exact = environment_irradiance(env.radiance, normals)
+    exact = environment_irradiance(lighting.environment_sources(env).residual.radiance, normals)
     for shadowed in (True, False):  # the six-way split lobes (an SSDF scene) and the fit itself (none)
         lobes, residual = light.diffuse_lobes(shadowed)
         got = lobes.irradiance(normals) + equirect_bilinear(residual, normals)
         assert np.abs(got - exact).max() / exact.mean() < 5e-3, shadowed
+
+
+@pytest.mark.parametrize("radius, size", [(2.0, (128, 256)), (2.0, (64, 128)), (0.5, (128, 256))])
+def test_a_sun_leaves_the_map_as_a_light(radius, size):
+    """The sky's sun, found in its texels alone, becomes one directional light: its direction within a fifth of a
+    texel row (measured 0.22° for the 0.5° sun on rows of 1.4°), its irradiance within 1 % of the sky's
+    `sun_irradiance` and its radius within 15 % (the edge's smoothstep and the texels blur it: measured 2.01°,
+    1.90° and 0.43° for 2°, 2° at 64 rows and 0.5°); what is left of the map
+    is the sunless sky (no texel brighter than its horizon or zenith), and power is kept exactly."""
+    env = wb.Environment.sky(sun_angular_radius=radius, height=size[0], width=size[1])
+    found = lighting.environment_sources(env)
+    assert lighting.environment_sources(env) is found  # cached on the environment
+    assert len(found.lights) == 1 and found.packed.shape == (1, 8)
+    sun = found.lights[0]
+    true = np.array([0.4, 0.8, 0.3]) / np.linalg.norm([0.4, 0.8, 0.3])
+    assert np.degrees(np.arccos(min(float(sun.direction @ true), 1.0))) < 0.2 * 180 / size[0]
+    np.testing.assert_allclose(sun.irradiance, [3.0, 2.9, 2.6], rtol=0.01)
+    assert abs(sun.angular_radius / radius - 1) < 0.15, sun.angular_radius
+    sunless = wb.Environment.sky(sun_irradiance=0, height=size[0], width=size[1])
+    assert found.residual.radiance.max() <= sunless.radiance.max() * 1.01
+    omega = equirect_row_solid_angles(*size)[:, None, None]
+    power = (env.radiance.astype(np.float64) * omega).sum((0, 1))
+    kept = (found.residual.radiance.astype(np.float64) * omega).sum((0, 1)) + sun.irradiance
+    np.testing.assert_allclose(kept, power, rtol=1e-5)
+
+
+@pytest.mark.parametrize("make", [lambda: wb.Environment.studio(), lambda: wb.Environment.constant(0.7),
+                                  lambda: wb.Environment.sky(sun_irradiance=0),
+                                  lambda: wb.Environment.from_sgs([[0.3, 0.8, 0.5]], [40.0], [[6.0, 5.5, 5.0]],
+                                                                  constant=0.1)],
+                         ids=["studio", "constant", "sunless-sky", "from-sgs"])
+def test_broad_lights_stay_in_the_map(make):
+    """Softboxes, smooth lobes and constant maps are no compact sources: the map lights as it is."""
+    env = make()
+    found = lighting.environment_sources(env)
+    assert found.lights == [] and found.residual is env
+    assert len(lighting.prepare(env, "warp:cpu").sources) == 0
 
 
 def test_irradiance_map_keeps_a_sun_in_place():

@@ -430,4 +430,4 @@ def test_prepare_is_cached_per_environment():
     a = lighting.prepare(env, "warp:cpu", lobes=5)
     assert lighting.prepare(env, "warp:cpu", lobes=5) is a
     assert lighting.prepare(env, "warp:cpu", lobes=6) is not a
-    assert set(a.timings) == {"fit", "irradiance", "prefilter"}
+    assert set(a.timings) == {"sources", "fit", "irradiance", "prefilter"}

@@ -29,7 +29,7 @@ from . import geometry, images
 from .bake import bake
 from .brdf import AnisotropicWard, AshikhminShirley, BlinnPhong, CookTorrance, Lambert, Ward
 from .io import atomic_path, check_output
-from .render import OCCLUSION_SAMPLES, render, static_inputs
+from .render import OCCLUSION_SAMPLES, frame_lights, render, static_inputs
 from .scene import Camera, DirectionalLight, Mesh, Scene
 from .environment import Environment
 from .smallscale import SmallScale
@@ -598,7 +598,7 @@ class Editor:
             image = render(scene, method="litsphere", backend=self.backend, shadow_samples=1,
                            resolution=LITSPHERE_RESOLUTION).image
             return images.tonemap(image), image
-        be, cam, lights = self.backend, scene.camera, scene.lights_packed
+        be, cam, lights = self.backend, scene.camera, frame_lights(scene)
         static = static_inputs(scene, be, timings)
         be.trace_primary(scene.mesh, cam, to_host=False, if_changed=True)
         if len(lights):

@@ -68,7 +68,8 @@ from .environment import (Environment, environment_irradiance, equirect_bilinear
 from .model import Facets
 from .environment import equirect_tables
 
-__all__ = ["EnvironmentSGs", "PrefilteredEnvironment", "EnvironmentLighting", "fit_sgs", "prefilter", "prepare",
+__all__ = ["EnvironmentSGs", "PrefilteredEnvironment", "EnvironmentLighting", "EnvironmentSources", "fit_sgs",
+           "prefilter", "prepare", "environment_sources",
            "downsample", "level_plan", "equirect_tables", "irradiance_map",
            "irradiance_residual"]
 
@@ -467,6 +468,120 @@ def irradiance_residual(env: Environment, sgs: EnvironmentSGs, shape=IRRADIANCE_
 
 
 # ----------------------------------------------------------------------------------------------
+# Compact bright sources (a sun) as lights
+# ----------------------------------------------------------------------------------------------
+
+# A sun reflected in a glossy material is where the environment's specular term erred most: its lobe, warped to the
+# light directions and read from the prefiltered maps, is round where the BRDF's image of a small source is not
+# (docs/design.md §5.7, "Compact bright sources leave the map as lights"). So texels brighter than SOURCE_CONTRAST
+# times the map's mean radiance, in connected groups (with the texels next to them) that a disc of at most
+# SOURCE_MAX_RADIUS degrees holds, leave the map and become directional lights, which the renderer shades by f_s's
+# mean over the light (`shading.light_mean`) and shadows by rays to its disc. The map without them is what the SG
+# fit, the irradiance and the prefiltered maps see; the map itself stays as the prefiltered maps' sharpest level,
+# so the background still shows the sun.
+SOURCE_CONTRAST = 100.0
+SOURCE_MAX_RADIUS = 5.0  # degrees
+
+
+@dataclass(eq=False)
+class EnvironmentSources:
+    """An environment's compact bright sources (`environment_sources`): `lights` (DirectionalLight each),
+    `packed` (K, 8) float32 their Light.packed() rows, and `residual`, the environment without them (the
+    environment itself where there are none)."""
+
+    lights: list
+    packed: np.ndarray
+    residual: Environment
+
+
+def _label_wrapped(mask: np.ndarray) -> tuple[np.ndarray, int]:
+    """Connected components (8-neighbour) of an equirect mask, joined across the φ seam."""
+    from scipy import ndimage
+
+    labels, count = ndimage.label(mask, structure=np.ones((3, 3), bool))
+    if count:
+        parent = np.arange(count + 1)
+
+        def root(a):
+            while parent[a] != a:
+                a = parent[a]
+            return a
+        h = mask.shape[0]
+        for i in range(h):
+            for di in (-1, 0, 1):
+                j = i + di
+                if 0 <= j < h and labels[i, -1] and labels[j, 0]:
+                    a, b = root(labels[i, -1]), root(labels[j, 0])
+                    parent[max(a, b)] = min(a, b)
+        roots = np.array([root(a) for a in range(count + 1)])
+        labels = roots[labels]
+        _, labels = np.unique(labels, return_inverse=True)
+        labels = labels.reshape(mask.shape)
+        count = int(labels.max())
+    return labels, count
+
+
+def environment_sources(env: Environment) -> EnvironmentSources:
+    """The environment's compact bright sources as directional lights, and the map without them (see
+    SOURCE_CONTRAST above); cached on the environment. Each source's radiance above its surroundings' (the median
+    of a two-texel ring around it, per channel) leaves the map: its integral is the light's irradiance at normal
+    incidence, its luminance-weighted mean direction the light's direction, and its second moment, less a
+    texel's own spread, the disc's radius (a uniform disc of radius r has E[γ²] = r²/2), but no less than the
+    spread of the texel at its centre (a smaller source could lie anywhere in its texel)."""
+    cached = env.device_cache.get("sources")
+    if cached is not None:
+        return cached
+    from scipy import ndimage
+
+    from .scene import DirectionalLight
+
+    rad = np.asarray(env.radiance, np.float64)
+    h, w = rad.shape[:2]
+    omega = np.broadcast_to(equirect_row_solid_angles(h, w)[:, None], (h, w))
+    lum = rad @ LUMINANCE
+    mean = float((lum * omega).sum() / (4 * np.pi))
+    lights, residual = [], rad
+    if mean > 0:
+        labels, count = _label_wrapped(lum > SOURCE_CONTRAST * mean)
+        dirs = equirect_directions(h, w)
+        theta = np.pi * (np.arange(h) + 0.5) / h
+        texel_var = ((np.pi / h) ** 2 + (2 * np.pi / w * np.sin(theta)) ** 2) / 12  # a texel's own spread (rad²)
+        texel_var = np.broadcast_to(texel_var[:, None], (h, w))
+        out = rad.copy()
+        def grown(mask, by):
+            return ndimage.binary_dilation(np.pad(mask, ((0, 0), (by, by)), mode="wrap"), iterations=by)[:, by:-by]
+
+        for k in range(1, count + 1):
+            # with its edge: the texels next to it that a soft or sub-texel disc covers in part
+            inside = grown(labels == k, 1) & ((labels == 0) | (labels == k))
+            ring = grown(inside, 2) & ~inside & (labels == 0)
+            background = np.median(rad[ring], axis=0) if ring.any() else np.zeros(3)
+            excess = np.maximum(rad[inside] - background, 0.0)
+            weight = (excess @ LUMINANCE) * omega[inside]
+            if weight.sum() <= 0:
+                continue
+            centre = (weight[:, None] * dirs[inside]).sum(0)
+            centre /= np.linalg.norm(centre)
+            spread = np.arccos(np.clip(dirs[inside] @ centre, -1.0, 1.0)) ** 2 - texel_var[inside]
+            second = max(float((weight * spread).sum() / weight.sum()), 0.0)
+            # (no smaller than the map resolves: the spread of the texel at its centre)
+            row = min(int(np.arccos(np.clip(centre[1], -1.0, 1.0)) / np.pi * h), h - 1)
+            radius = np.degrees(max(np.sqrt(2 * second), np.sqrt(texel_var[row, 0])))
+            if radius > SOURCE_MAX_RADIUS:
+                continue
+            irradiance = (excess * omega[inside][:, None]).sum(0)
+            lights.append(DirectionalLight(centre, irradiance, radius))
+            out[inside] = rad[inside] - excess
+        residual = out
+    packed = np.array([lt.packed() for lt in lights], np.float32).reshape(-1, 8)
+    packed.flags.writeable = False
+    found = EnvironmentSources(lights, packed, Environment(residual.astype(np.float32), name=env.name)
+                               if lights else env)
+    env.device_cache["sources"] = found
+    return found
+
+
+# ----------------------------------------------------------------------------------------------
 # All three, cached per environment
 # ----------------------------------------------------------------------------------------------
 
@@ -484,6 +599,9 @@ class EnvironmentLighting:
     irradiance_residual: np.ndarray  # for shadow_sgs
     open_residual: np.ndarray  # for sgs
     timings: dict = field(default_factory=dict)
+    # The environment's compact bright sources as lights (environment_sources: (K, 8) Light.packed() rows), which
+    # the four above leave out; the renderer adds them to the scene's lights.
+    sources: np.ndarray = field(default_factory=lambda: np.zeros((0, 8), np.float32))
     # The shade's order of the diffuse lobes (render._static_inputs), made once per `shadowed`: a material edit
     # keeps the environment, and its ShadeInputs then hold the very same frozen array.
     shade_order: dict = field(default_factory=dict)
@@ -495,9 +613,9 @@ class EnvironmentLighting:
 
 
 def prepare(env: Environment, backend="auto", lobes: int = 9) -> EnvironmentLighting:
-    """`fit_sgs` + `prefilter` of `env` on `backend`, cached in env.device_cache per backend name and
-    lobe count, so re-rendering under the same environment costs nothing. An Environment is treated as
-    immutable: a changed map is a new Environment."""
+    """`environment_sources`, then `fit_sgs` + `prefilter` of the map without them on `backend`, cached in
+    env.device_cache per backend name and lobe count, so re-rendering under the same environment costs nothing.
+    An Environment is treated as immutable: a changed map is a new Environment."""
 
     be = get_backend(backend)
     key = ("lighting", be.name, int(lobes))
@@ -505,16 +623,33 @@ def prepare(env: Environment, backend="auto", lobes: int = 9) -> EnvironmentLigh
     if cached is not None:
         return cached
     t0 = time.perf_counter()
-    sgs = fit_sgs(env, lobes, be)
+    sources = environment_sources(env)
+    rest = sources.residual
     t1 = time.perf_counter()
-    shading = shadow_lobes(sgs)
-    exact = irradiance_map(env)
-    residuals = [irradiance_residual(env, lobes, exact=exact) for lobes in (shading, sgs)]
+    sgs = fit_sgs(rest, lobes, be)
     t2 = time.perf_counter()
-    pre = prefilter(env, be)
+    shading = shadow_lobes(sgs)
+    exact = irradiance_map(rest)
+    residuals = [irradiance_residual(rest, lobes, exact=exact) for lobes in (shading, sgs)]
     t3 = time.perf_counter()
+    pre = prefilter(rest, be)
+    if rest is not env:
+        # The map itself past the sharpest level: the background (η → ∞) still shows the sources. (Where its offset
+        # would pass what float32 holds exactly, it replaces the base level instead: lobes sharper than the level
+        # before then see the sources twice.)
+        top = pre.levels[-1]
+        start = int(top[1]) + int(top[2]) * int(top[3])
+        if start <= MAX_TEXELS:
+            maps = np.concatenate([pre.maps, env.radiance.reshape(-1, 3)])
+            levels = np.concatenate([pre.levels, [[top[0] + 1, start, env.height, env.width]]])
+        else:
+            maps, levels = pre.maps.copy(), pre.levels
+            maps[int(top[1]):] = env.radiance.reshape(-1, 3)
+        pre = PrefilteredEnvironment(maps, levels.astype(np.float32), pre.timings)
+    t4 = time.perf_counter()
     out = EnvironmentLighting(sgs, shading, pre, *residuals,
-                              {"fit": t1 - t0, "irradiance": t2 - t1, "prefilter": t3 - t2})
+                              {"sources": t1 - t0, "fit": t2 - t1, "irradiance": t3 - t2, "prefilter": t4 - t3},
+                              sources=sources.packed)
     env.device_cache[key] = out
     return out
 

@@ -35,7 +35,7 @@ from .trace import check_occlusion_samples, check_ray_part, check_shadow_samples
 from .images import compare_images
 from .scene import Camera, DirectionalLight, Mesh, Rendering, Scene, _black_environment, _integer
 
-__all__ = ["Scene", "Rendering", "render", "queue_frame", "pack_frame", "static_inputs", "METHODS",
+__all__ = ["Scene", "Rendering", "render", "queue_frame", "pack_frame", "static_inputs", "frame_lights", "METHODS",
            "environment_lights", "material_ball", "litsphere_errors"]
 
 METHODS = ("sg", "mc", "litsphere")
@@ -130,6 +130,17 @@ def static_inputs(scene: Scene, backend, timings=None) -> ShadeInputs:
     return _static_inputs(scene, get_backend(backend), Progress(None), {} if timings is None else timings)
 
 
+def frame_lights(scene: Scene) -> np.ndarray:
+    """(L, 8) float32 the SG renderer's lights: the scene's, then its environment's compact bright sources (a sun:
+    `lighting.environment_sources`), which the renderer's environment lighting leaves out. (The Monte Carlo
+    reference keeps them in the environment.)"""
+    lights = np.asarray(scene.lights_packed, np.float32).reshape(-1, 8)
+    if scene.environment is None:
+        return lights
+    sources = lighting.environment_sources(scene.environment).packed
+    return np.concatenate([lights, sources]) if len(sources) else lights
+
+
 SHADOW_SAMPLES = 16  # shadow rays per light and pixel: a penumbra in 16 steps, noise turned per pixel
 # environment-occlusion rays per pixel where an SSDF shadows the environment: lobes up to η = 2 by the rays
 # alone (shading.RAYS_ONLY), so a constant map's six shadow lobes (lighting.shadow_lobes) are seen whole
@@ -153,7 +164,7 @@ def pack_frame(scene: Scene, backend="auto", progress=None, timings=None,
         raise ValueError(f"part's block width must be 0 or the camera's width {scene.camera.width}, got {part[2]}")
     static = _static_inputs(scene, backend, progress, timings)
     g = backend.trace_primary(scene.mesh, scene.camera)
-    lights = scene.lights_packed
+    lights = frame_lights(scene)
     g.ray_part = part
     g.light_vis = (backend.trace_shadows(scene.mesh, g, lights, samples=shadow_samples, part=part) if len(lights)
                    else np.zeros((len(g.face), 0), np.uint8))
@@ -254,7 +265,7 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     timings: dict = {"gbuffer": 0.0, "shade": 0.0}
     t_all = time.perf_counter()
     static = _static_inputs(scene, backend, progress, timings)
-    lights = scene.lights_packed
+    lights = frame_lights(scene)
     n_occlusion = n_occlusion if static.has_ssdf else 0  # nothing occludes: the rays would all escape
     image = _accumulate(scene, backend, n_aa, n_shadow, n_occlusion, lights, timings,
                         lambda cam, to_host, **kw: backend.shade(scene.mesh, static, cam.packed(), lights,
@@ -263,7 +274,8 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     timings["total"] = time.perf_counter() - t_all
     cam = scene.camera
     info = {"backend": backend.name, "device": backend.device, "method": "sg", "ssdf": bool(static.has_ssdf),
-            "env_lobes": len(static.env_sgs), "lights": len(lights), "width": cam.width, "height": cam.height,
+            "env_lobes": len(static.env_sgs), "lights": len(lights),
+            "environment_sources": len(lights) - len(scene.lights_packed), "width": cam.width, "height": cam.height,
             "aa": n_aa, "shadow_samples": n_shadow, "occlusion_samples": n_occlusion, "split_rays": split_rays,
             "block_rays": block_rays, "aa_shading": aa_shading}
     return Rendering(image, timings, info)
@@ -294,7 +306,7 @@ def queue_frame(scene: Scene, backend="auto", aa: int = 1, shadow_samples: int =
     check_no_litspheres(scene, "sg")
     backend = get_backend(backend)
     static = _static_inputs(scene, backend, Progress(None), {})
-    lights = scene.lights_packed
+    lights = frame_lights(scene)
     n_occlusion = n_occlusion if static.has_ssdf else 0
     _accumulate(scene, backend, n_aa, n_shadow, n_occlusion, lights, {"shade": 0.0},
                 lambda cam, to_host, **kw: backend.shade(scene.mesh, static, cam.packed(), lights, to_host=to_host,
@@ -451,7 +463,7 @@ def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str
     # the background: the environment's prefiltered maps, or one black texel (nothing to fit or filter)
     maps, levels = ((lambda p: (p.maps, p.levels))(lighting.prepare(env, backend, lobes=scene.env_lobes).prefiltered)
                     if env is not None else (np.zeros((1, 3), np.float32), np.array([[0, 0, 1, 1]], np.float32)))
-    lights = scene.lights_packed
+    lights = frame_lights(scene)
     if env is not None:
         env_key = ("litsphere_lights", int(env_lights), backend.name)
         extra = env.device_cache.get(env_key)
@@ -470,7 +482,7 @@ def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str
     cam = scene.camera
     info = {"backend": backend.name, "device": backend.device, "method": "litsphere", "view": view, "shrink": shrink,
             "shadows": shadows,
-            "lights": len(lights), "env_lights": len(lights) - len(scene.lights_packed), "width": cam.width,
+            "lights": len(lights), "env_lights": len(lights) - len(frame_lights(scene)), "width": cam.width,
             "height": cam.height, "aa": n_aa, "shadow_samples": n_shadow,
             "texture_bytes": int(sum(s.nbytes for s in {id(s): s for s in spheres}.values()))}
     if report_error:
