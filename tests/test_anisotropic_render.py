@@ -3,11 +3,13 @@ mesh's tangents (issue 20 item 2), in the SG renderer and the Monte Carlo refere
 The shade kernels against their float64 reference are in tests/test_shade.py ("occluded-anisotropic"); here
 the outside truths:
 
-- Under lights the renderer evaluates f_s itself at each light's direction, so a lit sphere must match
-  `shading.direct_reference` (the exact direct lighting at the same G-buffer). What differs is float32 and the
-  light SG's cosine integral against the ideal light's cosine. Measured (Warp CPU, one directional light of
-  radius 0.5°): mean relative error 4.5e-5 (Ward) and 3.8e-5 (Ashikhmin–Shirley), largest 5.6e-5 of the
-  peak. Bounds: 1e-3 and 2e-2, as tests/test_asg_render.py's.
+- Under lights the renderer evaluates f_s itself, averaged over the light's disc (`shading.light_mean`), so a lit
+  sphere must match `shading.direct_reference` (the exact direct lighting of an ideal light at the disc's centre,
+  at the same G-buffer) up to the light's size, float32 and the light SG's cosine integral against the ideal
+  light's cosine. Measured (Warp CPU and PoCL alike, one directional light of radius 0.5°): mean relative error
+  6.1e-4 (Ward) and 7.4e-4 (Ashikhmin–Shirley), largest 9.5e-4 and 9.9e-4 of the peak; with f_s at the centre
+  alone, before, 4.5e-5 and 3.8e-5. Bounds: 1e-3 and 2e-2, as tests/test_asg_render.py's (the light's size
+  against the disc's own, tests/test_light_size.py).
 - Under an environment the NDF is one ASG (Xu 2013 §5.2, `brdf.ndf_bandwidths`) warped to the light directions
   and taken by the prefiltered maps at its effective sharpness (isotropic blur), with f_s's smooth factor at
   the mirror direction (Ashikhmin–Shirley's 1/max(cos θi, cos θo) through `shading.capped_cosine_integral`, its
