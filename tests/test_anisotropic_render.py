@@ -9,7 +9,7 @@ the outside truths:
   light's cosine. Measured (Warp CPU and PoCL alike, one directional light of radius 0.5°): mean relative error
   6.1e-4 (Ward) and 7.4e-4 (Ashikhmin–Shirley), largest 9.5e-4 and 9.9e-4 of the peak; with f_s at the centre
   alone, before, 4.5e-5 and 3.8e-5. Bounds: 1e-3 and 2e-2, as tests/test_asg_render.py's (the light's size
-  against the disc's own, tests/test_light_size.py).
+  is judged against the Monte Carlo reference in tests/test_light_size.py).
 - Under an environment the NDF is one ASG (Xu 2013 §5.2, `brdf.ndf_bandwidths`) warped to the light directions
   and taken by the prefiltered maps at its effective sharpness (isotropic blur), with f_s's smooth factor at
   the mirror direction (Ashikhmin–Shirley's 1/max(cos θi, cos θo) through `shading.capped_cosine_integral`, its

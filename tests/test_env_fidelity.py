@@ -103,6 +103,23 @@ def test_broad_lights_stay_in_the_map(make):
     assert len(lighting.prepare(env, "warp:cpu").sources) == 0
 
 
+def test_at_most_two_sources_and_no_specks():
+    """Five hot texels, each 12 % of the map's power: the two strongest become lights (each light costs its shadow
+    rays in every frame), the others stay in the map; a hot texel of 0.4 % of the power stays too."""
+    image = np.full((64, 128, 3), 0.2, np.float32)
+    omega = equirect_row_solid_angles(64, 128)
+    for k, (row, col) in enumerate([(10, 10), (20, 40), (30, 70), (40, 100), (25, 120)]):
+        image[row, col] = (0.12 + 0.002 * k) * 0.2 * 4 * np.pi / omega[row] / 0.4  # the last ones a little stronger
+    image[50, 64] = 0.01 * 0.2 * 4 * np.pi / omega[50]
+    env = wb.Environment(image)
+    found = lighting.environment_sources(env)
+    assert len(found.lights) == 2
+    kept = {tuple(np.round(lt.direction, 6)) for lt in found.lights}
+    dirs = equirect_directions(64, 128)
+    assert kept == {tuple(np.round(dirs[40, 100], 6)), tuple(np.round(dirs[25, 120], 6))}
+    assert found.residual.radiance[10, 10, 0] == image[10, 10, 0] and found.residual.radiance[50, 64, 0] > 1
+
+
 def test_irradiance_map_keeps_a_sun_in_place():
     """The map sums the brightest texels where they are: against the full texel rule at its own normals."""
     env = wb.Environment.sky(sun_angular_radius=0.5)

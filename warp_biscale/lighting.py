@@ -475,12 +475,15 @@ def irradiance_residual(env: Environment, sgs: EnvironmentSGs, shape=IRRADIANCE_
 # light directions and read from the prefiltered maps, is round where the BRDF's image of a small source is not
 # (docs/design.md §5.7, "Compact bright sources leave the map as lights"). So texels brighter than SOURCE_CONTRAST
 # times the map's mean radiance, in connected groups (with the texels next to them) that a disc of at most
-# SOURCE_MAX_RADIUS degrees holds, leave the map and become directional lights, which the renderer shades by f_s's
-# mean over the light (`shading.light_mean`) and shadows by rays to its disc. The map without them is what the SG
-# fit, the irradiance and the prefiltered maps see; the map itself stays as the prefiltered maps' sharpest level,
-# so the background still shows the sun.
+# SOURCE_MAX_RADIUS degrees holds and that carry at least SOURCE_SHARE of its power (the SOURCE_COUNT strongest:
+# each light costs its shadow rays in every frame), leave the map and become directional lights, which the renderer
+# shades by f_s's mean over the light (`shading.light_mean`) and shadows by rays to its disc. The map without them
+# is what the SG fit, the irradiance and the prefiltered maps see; the map itself stays as the prefiltered maps'
+# sharpest level, so the background still shows the sun.
 SOURCE_CONTRAST = 100.0
 SOURCE_MAX_RADIUS = 5.0  # degrees
+SOURCE_SHARE = 0.05  # of the map's power, at least
+SOURCE_COUNT = 2  # at most, the most powerful
 
 
 @dataclass(eq=False)
@@ -527,7 +530,9 @@ def environment_sources(env: Environment) -> EnvironmentSources:
     of a two-texel ring around it, per channel) leaves the map: its integral is the light's irradiance at normal
     incidence, its luminance-weighted mean direction the light's direction, and its second moment, less a
     texel's own spread, the disc's radius (a uniform disc of radius r has E[γ²] = r²/2), but no less than the
-    spread of the texel at its centre (a smaller source could lie anywhere in its texel)."""
+    spread of the texel at its centre (a smaller source could lie anywhere in its texel). Only the SOURCE_COUNT
+    most powerful sources that hold at least SOURCE_SHARE of the map's power each become lights (each costs its
+    shadow rays in every frame); smaller specks stay in the map."""
     cached = env.device_cache.get("sources")
     if cached is not None:
         return cached
@@ -539,46 +544,52 @@ def environment_sources(env: Environment) -> EnvironmentSources:
     h, w = rad.shape[:2]
     omega = np.broadcast_to(equirect_row_solid_angles(h, w)[:, None], (h, w))
     lum = rad @ LUMINANCE
-    mean = float((lum * omega).sum() / (4 * np.pi))
-    lights, residual = [], rad
-    if mean > 0:
-        labels, count = _label_wrapped(lum > SOURCE_CONTRAST * mean)
-        dirs = equirect_directions(h, w)
-        theta = np.pi * (np.arange(h) + 0.5) / h
-        texel_var = ((np.pi / h) ** 2 + (2 * np.pi / w * np.sin(theta)) ** 2) / 12  # a texel's own spread (rad²)
-        texel_var = np.broadcast_to(texel_var[:, None], (h, w))
-        out = rad.copy()
+    power = float((lum * omega).sum())
+    theta = np.pi * (np.arange(h) + 0.5) / h
+    texel_var = ((np.pi / h) ** 2 + (2 * np.pi / w * np.sin(theta)) ** 2) / 12  # a texel's own spread (rad²)
+    labels, count = _label_wrapped(lum > SOURCE_CONTRAST * power / (4 * np.pi)) if power > 0 else (None, 0)
+    found = []  # (power, light, rows, texels' mask in those rows, excess radiance there)
+    for k in range(1, count + 1):
+        rows_k = np.flatnonzero((labels == k).any(1))
+        rows = slice(max(rows_k[0] - 3, 0), min(rows_k[-1] + 4, h))  # the source, its edge and its ring
+
         def grown(mask, by):
             return ndimage.binary_dilation(np.pad(mask, ((0, 0), (by, by)), mode="wrap"), iterations=by)[:, by:-by]
-
-        for k in range(1, count + 1):
-            # with its edge: the texels next to it that a soft or sub-texel disc covers in part
-            inside = grown(labels == k, 1) & ((labels == 0) | (labels == k))
-            ring = grown(inside, 2) & ~inside & (labels == 0)
-            background = np.median(rad[ring], axis=0) if ring.any() else np.zeros(3)
-            excess = np.maximum(rad[inside] - background, 0.0)
-            weight = (excess @ LUMINANCE) * omega[inside]
-            if weight.sum() <= 0:
-                continue
-            centre = (weight[:, None] * dirs[inside]).sum(0)
-            centre /= np.linalg.norm(centre)
-            spread = np.arccos(np.clip(dirs[inside] @ centre, -1.0, 1.0)) ** 2 - texel_var[inside]
-            second = max(float((weight * spread).sum() / weight.sum()), 0.0)
-            # (no smaller than the map resolves: the spread of the texel at its centre)
-            row = min(int(np.arccos(np.clip(centre[1], -1.0, 1.0)) / np.pi * h), h - 1)
-            radius = np.degrees(max(np.sqrt(2 * second), np.sqrt(texel_var[row, 0])))
-            if radius > SOURCE_MAX_RADIUS:
-                continue
-            irradiance = (excess * omega[inside][:, None]).sum(0)
-            lights.append(DirectionalLight(centre, irradiance, radius))
-            out[inside] = rad[inside] - excess
-        residual = out
+        own = labels[rows]
+        # with its edge: the texels next to it that a soft or sub-texel disc covers in part
+        inside = grown(own == k, 1) & ((own == 0) | (own == k))
+        ring = grown(inside, 2) & ~inside & (own == 0)
+        local = rad[rows]
+        background = np.median(local[ring], axis=0) if ring.any() else np.zeros(3)
+        excess = np.maximum(local[inside] - background, 0.0)
+        solid = omega[rows][inside]
+        weight = (excess @ LUMINANCE) * solid
+        if weight.sum() < SOURCE_SHARE * power:
+            continue
+        d = equirect_directions(h, w)[rows][inside]
+        centre = (weight[:, None] * d).sum(0)
+        centre /= np.linalg.norm(centre)
+        spread = np.arccos(np.clip(d @ centre, -1.0, 1.0)) ** 2 - np.broadcast_to(texel_var[rows, None],
+                                                                                 inside.shape)[inside]
+        second = max(float((weight * spread).sum() / weight.sum()), 0.0)
+        row = min(int(np.arccos(np.clip(centre[1], -1.0, 1.0)) / np.pi * h), h - 1)
+        radius = np.degrees(max(np.sqrt(2 * second), np.sqrt(texel_var[row])))
+        if radius <= SOURCE_MAX_RADIUS:
+            found.append((float(weight.sum()), DirectionalLight(centre, (excess * solid[:, None]).sum(0), radius),
+                          rows, inside, excess))
+    found = sorted(found, key=lambda f: -f[0])[:SOURCE_COUNT]
+    residual = rad.copy()
+    for _, _, rows, inside, excess in found:
+        part = residual[rows]
+        part[inside] -= excess
+        residual[rows] = part
+    lights = [f[1] for f in found]
     packed = np.array([lt.packed() for lt in lights], np.float32).reshape(-1, 8)
     packed.flags.writeable = False
-    found = EnvironmentSources(lights, packed, Environment(residual.astype(np.float32), name=env.name)
-                               if lights else env)
-    env.device_cache["sources"] = found
-    return found
+    out = EnvironmentSources(lights, packed, Environment(residual.astype(np.float32), name=env.name)
+                             if lights else env)
+    env.device_cache["sources"] = out
+    return out
 
 
 # ----------------------------------------------------------------------------------------------
