@@ -71,7 +71,7 @@ def test_a_sun_leaves_the_map_as_a_light(radius, size):
     """The sky's sun, found in its texels alone, becomes one directional light: its direction within a fifth of a
     texel row (measured 0.22° for the 0.5° sun on rows of 1.4°), its irradiance within 1 % of the sky's
     `sun_irradiance` and its radius within 15 % (the edge's smoothstep and the texels blur it: measured 2.01°,
-    1.90° and 0.43° for 2°, 2° at 64 rows and 0.5°); what is left of the map
+    1.90° and 0.46° for 2°, 2° at 64 rows and 0.5°); what is left of the map
     is the sunless sky (no texel brighter than its horizon or zenith), and power is kept exactly."""
     env = wb.Environment.sky(sun_angular_radius=radius, height=size[0], width=size[1])
     found = lighting.environment_sources(env)
