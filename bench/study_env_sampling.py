@@ -10,7 +10,6 @@ reference of bench/anisotropic_accuracy.py (48 × 36, 1024 samples a pixel, over
 """
 
 import argparse
-import dataclasses
 import importlib
 import os
 import warnings
@@ -98,12 +97,13 @@ def main(argv=None):
             shading.prefiltered_lookup = lambda maps, levels, p, eta: np.zeros((len(np.atleast_2d(p)), 3))
             shading.asg_prefiltered = lambda maps, levels, x, y, z, lam, mu: np.zeros((len(z), 3))
             try:
-                base = shading.shade_reference(dataclasses.replace(frame))
+                base = shading.shade_reference(frame)
             finally:
                 shading.prefiltered_lookup, shading.asg_prefiltered = lookups
             norm = np.linalg.norm(ref[hit])
-            rec = {"environment": ename, "material": mname, "sg": float(np.linalg.norm(sg_image[hit] - ref[hit]) / norm),
-                   "sampled": {}, "reference_noise": float(mc.info["stderr_rms"]) / float(np.sqrt((ref[hit] ** 2).mean()))}
+            noise = float(mc.info["stderr_rms"]) / float(np.sqrt((ref[hit] ** 2).mean()))
+            rec = {"environment": ename, "material": mname, "sampled": {}, "reference_noise": noise,
+                   "sg": float(np.linalg.norm(sg_image[hit] - ref[hit]) / norm)}
             for k in args.samples:
                 image = base.copy()
                 image[hit] += sampled_environment(frame, material, light.prefiltered.maps, light.prefiltered.levels, k)
