@@ -35,6 +35,8 @@
 #define ASG_TAPS 12 /* = shading.ASG_TAPS */
 #define ASG_TAP_SHARE 0.05f /* = shading.ASG_TAP_SHARE */
 #define LIGHT_BLUR_EXP_MAX 4.0f /* = shading.LIGHT_BLUR_EXP_MAX */
+#define BACKGROUND_LOG2 1.0e30f /* = lighting.BACKGROUND_LOG2 */
+#define BACKGROUND_ETA 1.0e29f /* = lighting.BACKGROUND_ETA */
 /* shading._TAP_NODES, _TAP_WEIGHTS: ASG_TAPS offsets evenly over ±2.75 standard deviations, a Gaussian's weights
  * summing to 1 */
 __constant float TAP_NODES[ASG_TAPS] = {-2.75f, -2.25f, -1.75f, -1.25f, -0.75f, -0.25f,
@@ -131,14 +133,21 @@ CL_INLINE float3 equirect_bilinear_dir(__global const float *maps, int offset, i
  * each, identically): atan2 is one of the costliest calls in PoCL. */
 CL_INLINE float3 prefiltered(__global const float *maps, __global const float *levels, int n, float3 d, float eta)
 {
-    float t = clampf(log2(maxf(eta, 1.0e-30f)) - levels[0], 0.0f, (float)(n - 1));
-    int l0 = max(min(ifloor_pos(t), n - 2), 0);
-    int l1 = min(l0 + 1, n - 1);
-    float f = clampf(t - (float)l0, 0.0f, 1.0f);
     float theta = acos(clampf(d.y, -1.0f, 1.0f));
     float phi = atan2(d.z, d.x);
     if (phi < 0.0f)
         phi = phi + 2.0f * SHADE_PI;
+    /* a last row marked BACKGROUND_LOG2: read by eta >= BACKGROUND_ETA alone (the camera's rays), by no lobe */
+    if (n > 1 && levels[4 * (n - 1)] >= BACKGROUND_LOG2) {
+        __global const float *bg = levels + 4 * (n - 1);
+        if (eta >= BACKGROUND_ETA)
+            return equirect_bilinear(maps, (int)bg[1], (int)bg[2], (int)bg[3], theta, phi);
+        n = n - 1;
+    }
+    float t = clampf(log2(maxf(eta, 1.0e-30f)) - levels[0], 0.0f, (float)(n - 1));
+    int l0 = max(min(ifloor_pos(t), n - 2), 0);
+    int l1 = min(l0 + 1, n - 1);
+    float f = clampf(t - (float)l0, 0.0f, 1.0f);
     __global const float *a4 = levels + 4 * l0;
     __global const float *b4 = levels + 4 * l1;
     float3 a = equirect_bilinear(maps, (int)a4[1], (int)a4[2], (int)a4[3], theta, phi);

@@ -15,6 +15,7 @@ import warp as wp
 
 from warp_biscale import asg as _asg
 from warp_biscale import effective as _effective
+from warp_biscale import lighting as _lighting
 from warp_biscale import sg as _sg
 
 from warp_biscale import shading as _shading
@@ -33,6 +34,8 @@ PI = wp.constant(3.14159265358979)
 LOG_LO = wp.constant(_sg.TABLE_LOG10_ETA[0])
 LOG_HI = wp.constant(_sg.TABLE_LOG10_ETA[1])
 SHARPNESS_MAX = wp.constant(_sg.SHARPNESS_MAX)
+BACKGROUND_LOG2 = wp.constant(_lighting.BACKGROUND_LOG2)
+BACKGROUND_ETA = wp.constant(_lighting.BACKGROUND_ETA)
 MIN_COS_VIEW = wp.constant(1.0e-4)  # = shading.MIN_COS_VIEW
 ASG_LOBES = wp.constant(_effective.ASG_LOBES)  # i32_at2(eff_info, :, 7) of a material with ASG lobes
 ASG_EQ10_MIN = wp.constant(_asg.EQ10_MIN_BANDWIDTH)
@@ -172,8 +175,15 @@ def equirect_bilinear_dir(maps: wp.array(dtype=wp.vec3), offset: int, h: int, w:
 
 @wp.func
 def prefiltered(maps: wp.array(dtype=wp.vec3), levels: wp.array2d(dtype=wp.float32), d: wp.vec3, eta: float) -> wp.vec3:
-    """Λ(d, η): linear in log2 η between the two nearest levels (reference.prefiltered_lookup)."""
+    """Λ(d, η): linear in log2 η between the two nearest levels (lighting.prefiltered_lookup); a last row marked
+    BACKGROUND_LOG2 is read by η ≥ BACKGROUND_ETA alone (the camera's rays), and by no lobe."""
     n = levels.shape[0]
+    if n > 1 and f32_at2(levels, n - 1, 0) >= BACKGROUND_LOG2:
+        if eta >= BACKGROUND_ETA:
+            tb = direction_angles(d)
+            return equirect_bilinear(maps, int(f32_at2(levels, n - 1, 1)), int(f32_at2(levels, n - 1, 2)),
+                                     int(f32_at2(levels, n - 1, 3)), tb[0], tb[1])
+        n = n - 1
     t = wp.clamp(wp.log2(wp.max(eta, 1.0e-30)) - f32_at2(levels, 0, 0), 0.0, float(n - 1))
     l0 = wp.max(wp.min(int(wp.floor(t)), n - 2), 0)
     l1 = wp.min(l0 + 1, n - 1)

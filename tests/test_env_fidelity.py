@@ -1,6 +1,8 @@
 """Environment lighting against outside truth: the diffuse term's exact irradiance (closed forms and the
 map's own quadrature) and broad-lobe shadows at a contact (the Monte Carlo reference)."""
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -9,6 +11,7 @@ from warp_biscale import lighting
 from warp_biscale.environment import (environment_irradiance, equirect_bilinear, equirect_directions,
                                       equirect_row_solid_angles)
 from warp_biscale.render import pack_frame
+from warp_biscale.shading import shade_reference
 
 ZENITH = np.array([0.08, 0.18, 0.45])  # Environment.sky's defaults
 HORIZON = np.array([0.55, 0.6, 0.65])
@@ -101,6 +104,34 @@ def test_broad_lights_stay_in_the_map(make):
     found = lighting.environment_sources(env)
     assert found.lights == [] and found.residual is env
     assert len(lighting.prepare(env, "warp:cpu").sources) == 0
+
+
+def test_the_sun_is_seen_by_the_camera_alone(backend):
+    """With the sun a light, the prefiltered maps keep the map itself in a row that the background alone reads
+    (lighting.BACKGROUND_LOG2): a camera ray towards the sun sees it, a lobe as sharp as any (η = SHARPNESS_MAX)
+    does not — else a near-mirror material would reflect the sun twice, once as a light. The kernels as their
+    float64 reference: the background looking at the sun, and a near-mirror sphere (Blinn–Phong n = 10^5) under
+    the sky, within 1e-3 of the peak."""
+    env = wb.Environment.sky(height=64, width=128)
+    pre = lighting.prepare(env, backend).prefiltered
+    assert pre.has_background
+    sun = lighting.environment_sources(env).lights[0].direction
+    sunless = wb.Environment.sky(sun_irradiance=0, height=64, width=128).radiance.max()
+    assert lighting.prefiltered_lookup(pre.maps, pre.levels, sun, wb.sg.SHARPNESS_MAX).max() <= sunless * 1.01
+    assert lighting.prefiltered_lookup(pre.maps, pre.levels, sun, 1e30).max() > 100 * sunless
+    eye = -3.0 * sun
+    mesh = wb.Mesh.sphere(0.5, center=(0.0, -2.0, 0.0), subdivisions=3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", wb.EnergyWarning)
+        mirror = wb.BlinnPhong(1.0, 1e5)
+    scene = wb.Scene(mesh, [mirror], wb.Camera(eye=tuple(eye), target=(0.0, -1.2, 0.0), width=32, height=24, fov=70),
+                     env)
+    frame = pack_frame(scene, backend)
+    out = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights, gbuffer=frame.gbuffer)
+    ref = shade_reference(frame)
+    assert len(frame.lights) == 1  # the sun
+    assert (frame.gbuffer.face >= 0).sum() > 20 and out[frame.gbuffer.face < 0].max() > 10 * sunless  # the sun
+    np.testing.assert_allclose(out, ref, atol=1e-3 * ref.max(), rtol=2e-3)
 
 
 def test_at_most_two_sources_and_no_specks():

@@ -81,6 +81,11 @@ INPUT_FACTOR = 2  # a level's input has this many times its rows (capped at the 
 
 
 MAX_TEXELS = 1 << 24  # `levels` holds texel offsets in float32: exact up to 2^24
+# The mark of a last row of `levels` that the background alone reads (η ≥ BACKGROUND_ETA: the camera's rays): the
+# map itself where the levels are made from the map without its compact sources, so that no lobe reads a source
+# that is also a light (`prepare`, `prefiltered_lookup`).
+BACKGROUND_LOG2 = 1.0e30
+BACKGROUND_ETA = 1.0e29
 AMBIENT_SHARPNESS = sg.SHARPNESS_MIN  # 1e−3: G varies by 0.2 % over the sphere
 FIT_HEIGHT = 128  # the SG fit works on the map area-averaged to at most this many rows
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709: the EM weights' scalar radiance
@@ -179,10 +184,11 @@ class PrefilteredEnvironment:
             raise ValueError(f"PrefilteredEnvironment.levels must be (n >= 2, 4), got {self.levels.shape}")
         sizes = self.levels[:, 2].astype(np.int64) * self.levels[:, 3].astype(np.int64)
         offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+        lobes = self.levels[:-1] if self.has_background else self.levels
         if (not np.array_equal(self.levels[:, 1].astype(np.int64), offsets) or sizes.sum() != len(self.maps)
-                or not np.array_equal(np.diff(self.levels[:, 0]), np.ones(len(self.levels) - 1))):
-            raise ValueError("PrefilteredEnvironment.levels must list consecutive log2 η and contiguous "
-                             "offsets that cover maps")
+                or not np.array_equal(np.diff(lobes[:, 0]), np.ones(len(lobes) - 1)) or len(lobes) < 2):
+            raise ValueError("PrefilteredEnvironment.levels must list consecutive log2 η (then, at most, the "
+                             "background's marked row) and contiguous offsets that cover maps")
         if not (np.all(np.isfinite(self.maps)) and (self.maps >= 0).all()):
             raise ValueError("PrefilteredEnvironment.maps holds NaN, inf or negative radiance")
 
@@ -190,9 +196,16 @@ class PrefilteredEnvironment:
         return len(self.levels)
 
     @property
+    def has_background(self) -> bool:
+        """Whether the last row is the background's alone (log2 η = BACKGROUND_LOG2: the map itself, where the
+        levels are of the map without its sources; `prefiltered_lookup`)."""
+        return bool(self.levels[-1, 0] >= BACKGROUND_LOG2)
+
+    @property
     def sharpness(self) -> np.ndarray:
-        """(n,) η_l (the last, the base map's, is nominal)."""
-        return 2.0 ** self.levels[:, 0].astype(np.float64)
+        """(n,) η_l (the last level's, the base map's, is nominal; the background's row, if any, is inf)."""
+        with np.errstate(over="ignore"):
+            return 2.0 ** self.levels[:, 0].astype(np.float64)
 
     def level(self, l: int) -> np.ndarray:
         """Level l as an (h_l, w_l, 3) float32 image."""
@@ -478,8 +491,8 @@ def irradiance_residual(env: Environment, sgs: EnvironmentSGs, shape=IRRADIANCE_
 # SOURCE_MAX_RADIUS degrees holds and that carry at least SOURCE_SHARE of its power (the SOURCE_COUNT strongest:
 # each light costs its shadow rays in every frame), leave the map and become directional lights, which the renderer
 # shades by f_s's mean over the light (`shading.light_mean`) and shadows by rays to its disc. The map without them
-# is what the SG fit, the irradiance and the prefiltered maps see; the map itself stays as the prefiltered maps'
-# sharpest level, so the background still shows the sun.
+# is what the SG fit, the irradiance and the prefiltered maps see; the map itself follows the levels in a row that
+# the background alone reads (BACKGROUND_LOG2), so the camera still sees the sun and no lobe reflects it twice.
 SOURCE_CONTRAST = 100.0
 SOURCE_MAX_RADIUS = 5.0  # degrees
 SOURCE_SHARE = 0.05  # of the map's power, at least
@@ -645,18 +658,15 @@ def prepare(env: Environment, backend="auto", lobes: int = 9) -> EnvironmentLigh
     t3 = time.perf_counter()
     pre = prefilter(rest, be)
     if rest is not env:
-        # The map itself past the sharpest level: the background (η → ∞) still shows the sources. (Where its offset
-        # would pass what float32 holds exactly, it replaces the base level instead: lobes sharper than the level
-        # before then see the sources twice.)
+        # The map itself after the levels, in a row marked for the background alone (BACKGROUND_LOG2): the camera
+        # still sees the sources, and no lobe reads them. (Where its offset would pass what float32 holds exactly,
+        # the background shows the map without them.)
         top = pre.levels[-1]
         start = int(top[1]) + int(top[2]) * int(top[3])
         if start <= MAX_TEXELS:
-            maps = np.concatenate([pre.maps, env.radiance.reshape(-1, 3)])
-            levels = np.concatenate([pre.levels, [[top[0] + 1, start, env.height, env.width]]])
-        else:
-            maps, levels = pre.maps.copy(), pre.levels
-            maps[int(top[1]):] = env.radiance.reshape(-1, 3)
-        pre = PrefilteredEnvironment(maps, levels.astype(np.float32), pre.timings)
+            pre = PrefilteredEnvironment(np.concatenate([pre.maps, env.radiance.reshape(-1, 3)]),
+                                         np.concatenate([pre.levels, [[BACKGROUND_LOG2, start, env.height,
+                                                                       env.width]]]).astype(np.float32), pre.timings)
     t4 = time.perf_counter()
     out = EnvironmentLighting(sgs, shading, pre, *residuals,
                               {"sources": t1 - t0, "fit": t2 - t1, "irradiance": t3 - t2, "prefilter": t4 - t3},
@@ -670,7 +680,8 @@ def prefiltered_lookup(maps, levels, p, eta) -> np.ndarray:
     shade kernels' lookup.
 
     `maps` (Σ h_l·w_l, 3), `levels` (n, 4) rows [log2 η_l, offset, h_l, w_l] with log2 η_l
-    consecutive integers. t = clamp(log2 max(η, 1e−30) − log2 η_0, 0, n − 1), l = max(min(⌊t⌋, n − 2), 0),
+    consecutive integers, then at most a row marked BACKGROUND_LOG2, which η ≥ BACKGROUND_ETA alone reads (bilinear)
+    and the others ignore. t = clamp(log2 max(η, 1e−30) − log2 η_0, 0, n − 1), l = max(min(⌊t⌋, n − 2), 0),
     f = t − l: (1 − f)·bilinear(level l) + f·bilinear(level min(l + 1, n − 1)), each level an equirect
     map (environment.py convention: φ wraps, θ clamps). p (..., 3) unit, η (...) broadcast together.
     (lighting.prefilter always makes n ≥ 2; n = 1 is that one level, as in the shade kernels.)
@@ -686,6 +697,12 @@ def prefiltered_lookup(maps, levels, p, eta) -> np.ndarray:
     shape = np.broadcast_shapes(p.shape[:-1], eta.shape)
     p = np.broadcast_to(p, (*shape, 3)).reshape(-1, 3)
     eta = np.broadcast_to(eta, shape).reshape(-1)
+    if n > 1 and levels[-1, 0] >= BACKGROUND_LOG2:  # the background's own row: η ≥ BACKGROUND_ETA alone reads it
+        off, h, w = levels[-1, 1:].astype(np.int64)
+        out = prefiltered_lookup(maps, levels[:-1], p, np.minimum(eta, BACKGROUND_ETA))
+        far = eta >= BACKGROUND_ETA
+        out[far] = equirect_bilinear(maps[off:off + h * w].reshape(h, w, 3), p[far])
+        return out.reshape(*shape, 3)
     t = np.clip(np.log2(np.maximum(eta, 1e-30)) - levels[0, 0], 0.0, n - 1.0)
     lev = np.maximum(np.minimum(np.floor(t), n - 2), 0).astype(np.int64)
     f = np.clip(t - lev, 0.0, 1.0)
