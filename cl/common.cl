@@ -282,6 +282,8 @@ CL_INLINE float3 analytic_specular(int kind, float3 ks, float p1, float p2, floa
         }
         return (float3)(ks.x * spec, ks.y * spec, ks.z * spec);
     }
+    if (kind != ANISOTROPIC_WARD && kind != ASHIKHMIN_SHIRLEY) /* (Lambert: no specular term) */
+        return (float3)(0.0f, 0.0f, 0.0f);
     float hx = dot3(h, x);
     float hy = dot3(h, y);
     if (kind == ANISOTROPIC_WARD) {

@@ -734,47 +734,65 @@ CL_INLINE float3 light_across(float3 la, float3 hint)
     return (float3)(1.0f + sgn * la.x * la.x * a, sgn * la.x * la.y * a, -sgn * la.x);
 }
 
-CL_INLINE float specular_sum(int kind, float3 ks, float p1, float p2, SurfacePoint s, float3 wi, float3 wo)
+/* f_s·(n·ωi)⁺ towards d (made unit here). */
+CL_INLINE float3 specular_cos(int kind, float3 ks, float p1, float p2, SurfacePoint s, float3 d, float3 wo)
 {
-    float3 f = analytic_specular(kind, ks, p1, p2, s.t, s.b, s.n, normalize3(wi), wo);
+    float3 wi = normalize3(d);
+    return analytic_specular(kind, ks, p1, p2, s.t, s.b, s.n, wi, wo) * maxf(dot3(s.n, wi), 0.0f);
+}
+
+CL_INLINE float specular_cos_sum(int kind, float3 ks, float p1, float p2, SurfacePoint s, float3 d, float3 wo)
+{
+    float3 f = specular_cos(kind, ks, p1, p2, s, d, wo);
     return f.x + f.y + f.z;
 }
 
-/* f_s's mean over a light of variance var_l per axis about la (shading.light_mean): f_s at la, and its channel
- * sum at ±σ along two axes across la (light_across), its logarithm taken as a quadratic along each. */
-CL_INLINE float3 light_mean(int kind, float3 ks, float p1, float p2, SurfacePoint s, float3 wo, float3 la,
-                            float3 hint, float var_l)
+/* f_s·(n·ωi)⁺'s mean over a light, a Gaussian of variance var_l per axis about la (shading.light_mean): read where
+ * the light's and the lobe's Gaussians overlap most (`lobe`: its centre z, axis x turned across the light
+ * (light_across), variances 1/(2λ), 1/(2μ)) and at ± their product's σ along two axes, its logarithm taken as a
+ * quadratic there and integrated against the light in closed form. */
+CL_INLINE float3 light_mean(int kind, float3 ks, float p1, float p2, SurfacePoint s, float3 wo, float3 la, Asg lobe,
+                            float var_l)
 {
-    float3 f0 = analytic_specular(kind, ks, p1, p2, s.t, s.b, s.n, la, wo);
-    float c0 = f0.x + f0.y + f0.z;
-    if (c0 <= 0.0f)
-        return f0;
-    float3 ax = light_across(la, hint);
+    float3 ax = light_across(la, lobe.x);
     float3 axes[2] = {ax, cross3(la, ax)};
-    float sigma = sqrt(var_l);
+    float var_k[2] = {0.5f / lobe.lam, 0.5f / lobe.mu};
+    float xk[2], sk[2];
+    float3 point = la;
+    for (int k = 0; k < 2; ++k) {
+        float d = dot3(lobe.z - la, axes[k]);
+        xk[k] = d * var_l / (var_l + var_k[k]);
+        sk[k] = sqrt(var_l * var_k[k] / (var_l + var_k[k]));
+        point = point + xk[k] * axes[k];
+    }
+    float3 f0 = specular_cos(kind, ks, p1, p2, s, point, wo);
+    float c0 = f0.x + f0.y + f0.z;
+    if (c0 <= 0.0f) /* (where any of the five is 0, f_s·(n·ωi)⁺ at the light's centre) */
+        return specular_cos(kind, ks, p1, p2, s, la, wo);
     float l0 = log(c0);
     float expo = 0.0f;
     float scale = 1.0f;
     for (int k = 0; k < 2; ++k) {
-        float lo = specular_sum(kind, ks, p1, p2, s, la - sigma * axes[k], wo);
-        float hi = specular_sum(kind, ks, p1, p2, s, la + sigma * axes[k], wo);
+        float lo = specular_cos_sum(kind, ks, p1, p2, s, point - sk[k] * axes[k], wo);
+        float hi = specular_cos_sum(kind, ks, p1, p2, s, point + sk[k] * axes[k], wo);
         if (lo <= 0.0f || hi <= 0.0f)
-            return f0;
+            return specular_cos(kind, ks, p1, p2, s, la, wo);
         float log_lo = log(lo);
         float log_hi = log(hi);
-        float g = 0.5f * (log_hi - log_lo);
-        float c = minf(log_hi + log_lo - 2.0f * l0, 0.0f);
-        expo += g * g / (2.0f * (1.0f - c));
-        scale /= sqrt(1.0f - c);
+        float g = (log_hi - log_lo) / (2.0f * sk[k]);
+        float c = minf((log_hi + log_lo - 2.0f * l0) / (sk[k] * sk[k]), 0.0f);
+        float big_a = 1.0f / var_l - c;
+        float big_b = g - c * xk[k];
+        expo += -g * xk[k] + 0.5f * c * xk[k] * xk[k] + big_b * big_b / (2.0f * big_a);
+        scale /= sqrt(var_l * big_a);
     }
     return f0 * (scale * exp(minf(expo, LIGHT_BLUR_EXP_MAX)));
 }
 
-/* An analytic BRDF's specular radiance from the lights: f_s's mean over each light (light_mean, read along `hint`
- * turned across the light: the warped lobe's axis for the anisotropic kinds) times the light's irradiance,
- * cosine and visible share, as the diffuse term takes it. */
-CL_INLINE float3 analytic_from_lights(int kind, float3 ks, float p1, float p2, SurfacePoint s, float3 wo, float3 hint,
-                                      Table tab, int n_lights, __global const float *lights, __global const uchar *vis)
+/* An analytic BRDF's specular radiance from the lights: f_s·(n·ωi)⁺'s mean over each light's SG (light_mean; `lobe`
+ * the warped lobe's shape) times the light's irradiance at normal incidence and its visible share. */
+CL_INLINE float3 analytic_from_lights(int kind, float3 ks, float p1, float p2, SurfacePoint s, float3 wo, Asg lobe,
+                                      int n_lights, __global const float *lights, __global const uchar *vis)
 {
     float3 out = (float3)(0.0f, 0.0f, 0.0f);
     for (int l = 0; l < n_lights; ++l) {
@@ -783,8 +801,8 @@ CL_INLINE float3 analytic_from_lights(int kind, float3 ks, float p1, float p2, S
         __global const float *row = lights + 8 * l;
         float3 la = light_axis(row, s.pos);
         float le = light_sharpness(row, s.pos);
-        float3 f = light_mean(kind, ks, p1, p2, s, wo, la, hint, 0.5f / le);
-        out = out + f * light_irradiance(tab, row, s.pos, s.n, la, le, vis[l]);
+        float3 f = light_mean(kind, ks, p1, p2, s, wo, la, lobe, 1.0f / le);
+        out = out + f * light_amplitude(row, s.pos, le) * (sg_integral(le) * (float)vis[l] / 255.0f);
     }
     return out;
 }
@@ -1117,7 +1135,7 @@ __kernel void shade_pixels(
                     amp = specular_scale(r_kind, r_ks, r_p1, row[8], cos_o);
                     /* The lights by f_s itself (Xu 2013 §5.2), averaged over each light's size. */
                     with_lights = 0;
-                    float3 hint = s.t;
+                    Asg shape;
                     if (r_kind == ANISOTROPIC_WARD || r_kind == ASHIKHMIN_SHIRLEY) {
                         /* The environment through the NDF's ASG warped to the light directions, as an effective
                          * material's ASG lobe below. */
@@ -1133,13 +1151,18 @@ __kernel void shade_pixels(
                         tap.lam = lam;
                         tap.mu = mu_w;
                         taps = 1;
-                        hint = w.x;
+                        shape = tap;
                     } else {
                         axis = normalize3(2.0f * cos_o * s.n - wo);
                         eta = ndf_sharpness(r_kind, r_p1) / (4.0f * cos_o);
+                        shape.z = axis;
+                        shape.x = s.t;
+                        shape.y = s.b;
+                        shape.lam = 0.5f * minf(eta, sharpness_max);
+                        shape.mu = shape.lam;
+                        shape.c = 1.0f;
                     }
-                    out = out + analytic_from_lights(r_kind, r_ks, r_p1, row[8], s, wo, hint, tab, n_lights, lights,
-                                                     vis);
+                    out = out + analytic_from_lights(r_kind, r_ks, r_p1, row[8], s, wo, shape, n_lights, lights, vis);
                 } else {
                     __global const float *sub = eff_sub + 9 * (ei[4] + sub_i);
                     __global const float *lobe = eff_lobes + EFF_LOBE_WIDTH * (ei[3] + j);

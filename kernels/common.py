@@ -108,6 +108,8 @@ def analytic_specular(kind: int, ks: wp.vec3, p1: float, p2: float, x: wp.vec3, 
             return wp.vec3(0.0)
         cos2 = nh * nh
         return ks * (wp.exp(-(1.0 - cos2) / cos2 / (p1 * p1)) / (4.0 * 3.14159265358979 * p1 * p1 * wp.sqrt(ci * co)))
+    if kind != ANISOTROPIC_WARD and kind != ASHIKHMIN_SHIRLEY:  # (Lambert: no specular term)
+        return wp.vec3(0.0)
     hx = wp.dot(h, x)
     hy = wp.dot(h, y)
     if kind == ANISOTROPIC_WARD:

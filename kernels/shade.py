@@ -876,54 +876,71 @@ def light_axes(la: wp.vec3, hint: wp.vec3) -> wp.mat33:
 
 
 @wp.func
-def specular_sum(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoint, wi: wp.vec3, wo: wp.vec3) -> float:
-    f = analytic_specular(kind, ks, p1, p2, s.t, s.b, s.n, wp.normalize(wi), wo)
+def specular_cos(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoint, d: wp.vec3, wo: wp.vec3) -> wp.vec3:
+    """f_s·(n·ωi)⁺ towards d (made unit here)."""
+    wi = wp.normalize(d)
+    return analytic_specular(kind, ks, p1, p2, s.t, s.b, s.n, wi, wo) * wp.max(wp.dot(s.n, wi), 0.0)
+
+
+@wp.func
+def specular_cos_sum(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoint, d: wp.vec3, wo: wp.vec3) -> float:
+    f = specular_cos(kind, ks, p1, p2, s, d, wo)
     return f[0] + f[1] + f[2]
 
 
 @wp.func
-def light_mean(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoint, wo: wp.vec3, la: wp.vec3,
-               hint: wp.vec3, var_l: float) -> wp.vec3:
-    """f_s's mean over a light of variance var_l per axis about la (shading.light_mean): f_s at la, and its channel
-    sum at ±σ along two axes across la (light_axes), its logarithm taken as a quadratic along each."""
-    f0 = analytic_specular(kind, ks, p1, p2, s.t, s.b, s.n, la, wo)
+def light_mean(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoint, wo: wp.vec3, la: wp.vec3, lobe: Asg,
+               var_l: float) -> wp.vec3:
+    """f_s·(n·ωi)⁺'s mean over a light, a Gaussian of variance var_l per axis about la (shading.light_mean): read
+    where the light's and the lobe's Gaussians overlap most (`lobe`: its centre z, axis x turned across the light
+    (light_axes), variances 1/(2λ), 1/(2μ)) and at ± their product's σ along two axes, its logarithm taken as a
+    quadratic there and integrated against the light in closed form."""
+    axes = light_axes(la, lobe.x)
+    var_x = 0.5 / lobe.lam
+    var_y = 0.5 / lobe.mu
+    dx = wp.dot(lobe.z - la, axes[0])
+    dy = wp.dot(lobe.z - la, axes[1])
+    xk = wp.vec2(dx * var_l / (var_l + var_x), dy * var_l / (var_l + var_y))
+    sk = wp.vec2(wp.sqrt(var_l * var_x / (var_l + var_x)), wp.sqrt(var_l * var_y / (var_l + var_y)))
+    point = la + xk[0] * axes[0] + xk[1] * axes[1]
+    f0 = specular_cos(kind, ks, p1, p2, s, point, wo)
     c0 = f0[0] + f0[1] + f0[2]
-    if c0 <= 0.0:
-        return f0
-    axes = light_axes(la, hint)
-    sigma = wp.sqrt(var_l)
+    if c0 <= 0.0:  # (where any of the five is 0, f_s·(n·ωi)⁺ at the light's centre)
+        return specular_cos(kind, ks, p1, p2, s, la, wo)
     l0 = wp.log(c0)
     expo = float(0.0)
     scale = float(1.0)
     for k in range(2):
-        lo = specular_sum(kind, ks, p1, p2, s, la - sigma * axes[k], wo)
-        hi = specular_sum(kind, ks, p1, p2, s, la + sigma * axes[k], wo)
+        lo = specular_cos_sum(kind, ks, p1, p2, s, point - sk[k] * axes[k], wo)
+        hi = specular_cos_sum(kind, ks, p1, p2, s, point + sk[k] * axes[k], wo)
         if lo <= 0.0 or hi <= 0.0:
-            return f0
+            return specular_cos(kind, ks, p1, p2, s, la, wo)
         log_lo = wp.log(lo)
         log_hi = wp.log(hi)
-        g = 0.5 * (log_hi - log_lo)
-        c = wp.min(log_hi + log_lo - 2.0 * l0, 0.0)
-        expo = expo + g * g / (2.0 * (1.0 - c))
-        scale = scale / wp.sqrt(1.0 - c)
+        g = (log_hi - log_lo) / (2.0 * sk[k])
+        c = wp.min((log_hi + log_lo - 2.0 * l0) / (sk[k] * sk[k]), 0.0)
+        big_a = 1.0 / var_l - c
+        big_b = g - c * xk[k]
+        expo = expo - g * xk[k] + 0.5 * c * xk[k] * xk[k] + big_b * big_b / (2.0 * big_a)
+        scale = scale / wp.sqrt(var_l * big_a)
     return f0 * (scale * wp.exp(wp.min(expo, LIGHT_BLUR_EXP_MAX)))
 
 
 @wp.func
-def analytic_from_lights(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoint, wo: wp.vec3, hint: wp.vec3,
-                         table: wp.array3d(dtype=wp.float32), n_lights: int, lights: wp.array2d(dtype=wp.float32),
-                         light_vis: wp.array2d(dtype=wp.uint8), p: int) -> wp.vec3:
-    """An analytic BRDF's specular radiance from the lights: f_s's mean over each light (light_mean, read along
-    `hint` turned across the light: the warped lobe's axis for the anisotropic kinds) times the light's
-    irradiance, cosine and visible share, as the diffuse term takes it."""
+def analytic_from_lights(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoint, wo: wp.vec3, lobe: Asg,
+                         n_lights: int, lights: wp.array2d(dtype=wp.float32), light_vis: wp.array2d(dtype=wp.uint8),
+                         p: int) -> wp.vec3:
+    """An analytic BRDF's specular radiance from the lights: f_s·(n·ωi)⁺'s mean over each light's SG (light_mean;
+    `lobe` the warped lobe's shape) times the light's irradiance at normal incidence and its visible share."""
     out = wp.vec3(0.0)
     for l in range(n_lights):
         if u8_at2(light_vis, p, l) == wp.uint8(0):
             continue
         la = light_axis(lights, l, s.pos)
         le = light_sharpness(lights, l, s.pos)
-        f = light_mean(kind, ks, p1, p2, s, wo, la, hint, 0.5 / le)
-        out = out + wp.cw_mul(f, light_irradiance(table, lights, l, s.pos, s.n, la, le, u8_at2(light_vis, p, l)))
+        f = light_mean(kind, ks, p1, p2, s, wo, la, lobe, 1.0 / le)
+        power = light_amplitude(lights, l, s.pos, le) * (sg_integral(le) * float(u8_at2(light_vis, p, l)) / 255.0)
+        out = out + wp.cw_mul(f, power)
     return out
 
 
@@ -1111,7 +1128,7 @@ def shade_pixels(
                     amp = specular_scale(r_kind, r_ks, r_p1, r_p2, cos_o)
                     # The lights by f_s itself (Xu 2013 §5.2), averaged over each light's size.
                     with_lights = 0
-                    hint = s.t
+                    shape = Asg()
                     if r_kind == ANISOTROPIC_WARD or r_kind == ASHIKHMIN_SHIRLEY:
                         # The environment through the NDF's ASG warped to the light directions, as an effective
                         # material's ASG lobe below.
@@ -1127,11 +1144,15 @@ def shade_pixels(
                         tap.lam = lam
                         tap.mu = mu_w
                         taps = 1
-                        hint = w.x
+                        shape = tap
                     else:
                         axis = wp.normalize(2.0 * cos_o * s.n - wo)
                         eta = ndf_sharpness(r_kind, r_p1) / (4.0 * cos_o)
-                    out = out + analytic_from_lights(r_kind, r_ks, r_p1, r_p2, s, wo, hint, table, n_lights, lights,
+                        shape.z = axis
+                        shape.x = s.t
+                        shape.lam = 0.5 * wp.min(eta, SHARPNESS_MAX)
+                        shape.mu = shape.lam
+                    out = out + analytic_from_lights(r_kind, r_ks, r_p1, r_p2, s, wo, shape, n_lights, lights,
                                                      light_vis, p)
                 else:
                     sub = i32_at2(eff_info, idx, 4) + sub_i

@@ -12,7 +12,7 @@ import pytest
 import warp_biscale as wb
 from warp_biscale import litsphere as L
 from warp_biscale import lighting, shading
-from warp_biscale.render import environment_lights, frame_lights, scene_spheres
+from warp_biscale.render import environment_lights, scene_spheres
 
 warnings.filterwarnings("ignore", category=wb.EnergyWarning)
 
@@ -57,9 +57,7 @@ def test_kernel_reads_mip_levels_and_the_environment(backend):
     assert r.info["env_lights"] > 0 and np.isfinite(r.image).all() and r.image.min() >= 0
     b = wb.get_backend(backend)
     g = b.trace_primary(mesh, scene.camera)
-    # (the renderer's lights: the sky's sun, a light of its own (render.frame_lights), then the 16 cells')
-    lights = np.concatenate([frame_lights(scene), np.array([lt.packed() for lt in environment_lights(env, 16, b)],
-                                                           np.float32)])
+    lights = np.array([lt.packed() for lt in environment_lights(env, 16, b)], np.float32)  # (the 16 cells', the sun)
     vis = b.trace_shadows(mesh, g, lights)
     pre = lighting.prepare(env, b).prefiltered
     ref = shading.litsphere_reference(mesh, scene_spheres(scene, resolution=256), g.face, g.bary, vis,

@@ -537,6 +537,15 @@ def _label_wrapped(mask: np.ndarray) -> tuple[np.ndarray, int]:
     return labels, count
 
 
+def _window_directions(height: int, width: int, rows: slice) -> np.ndarray:
+    """(r, W, 3) the texel directions of rows `rows` of an H×W equirect map (`equirect_directions`' rows)."""
+    theta = np.pi * (np.arange(rows.start, rows.stop) + 0.5) / height
+    phi = 2 * np.pi * (np.arange(width) + 0.5) / width
+    st = np.sin(theta)[:, None]
+    return np.stack([st * np.cos(phi)[None], np.broadcast_to(np.cos(theta)[:, None], (len(theta), width)),
+                     st * np.sin(phi)[None]], -1)
+
+
 def environment_sources(env: Environment) -> EnvironmentSources:
     """The environment's compact bright sources as directional lights, and the map without them (see
     SOURCE_CONTRAST above); cached on the environment. Each source's radiance above its surroundings' (the median
@@ -561,42 +570,48 @@ def environment_sources(env: Environment) -> EnvironmentSources:
     theta = np.pi * (np.arange(h) + 0.5) / h
     texel_var = ((np.pi / h) ** 2 + (2 * np.pi / w * np.sin(theta)) ** 2) / 12  # a texel's own spread (rad²)
     labels, count = _label_wrapped(lum > SOURCE_CONTRAST * power / (4 * np.pi)) if power > 0 else (None, 0)
-    found = []  # (power, light, rows, texels' mask in those rows, excess radiance there)
-    for k in range(1, count + 1):
-        rows_k = np.flatnonzero((labels == k).any(1))
-        rows = slice(max(rows_k[0] - 3, 0), min(rows_k[-1] + 4, h))  # the source, its edge and its ring
+    lights, residual = [], rad.copy()
+    if count:
+        # Only groups whose whole power could pass SOURCE_SHARE are looked at, the most powerful first; each texel
+        # goes to one source (the first to claim it), so that the map never goes below its surroundings.
+        held = np.bincount(labels.ravel(), weights=(lum * omega).ravel(), minlength=count + 1)
+        boxes = ndimage.find_objects(labels)
+        claimed = np.zeros((h, w), bool)
 
         def grown(mask, by):
             return ndimage.binary_dilation(np.pad(mask, ((0, 0), (by, by)), mode="wrap"), iterations=by)[:, by:-by]
-        own = labels[rows]
-        # with its edge: the texels next to it that a soft or sub-texel disc covers in part
-        inside = grown(own == k, 1) & ((own == 0) | (own == k))
-        ring = grown(inside, 2) & ~inside & (own == 0)
-        local = rad[rows]
-        background = np.median(local[ring], axis=0) if ring.any() else np.zeros(3)
-        excess = np.maximum(local[inside] - background, 0.0)
-        solid = omega[rows][inside]
-        weight = (excess @ LUMINANCE) * solid
-        if weight.sum() < SOURCE_SHARE * power:
-            continue
-        d = equirect_directions(h, w)[rows][inside]
-        centre = (weight[:, None] * d).sum(0)
-        centre /= np.linalg.norm(centre)
-        spread = np.arccos(np.clip(d @ centre, -1.0, 1.0)) ** 2 - np.broadcast_to(texel_var[rows, None],
-                                                                                 inside.shape)[inside]
-        second = max(float((weight * spread).sum() / weight.sum()), 0.0)
-        row = min(int(np.arccos(np.clip(centre[1], -1.0, 1.0)) / np.pi * h), h - 1)
-        radius = np.degrees(max(np.sqrt(2 * second), np.sqrt(texel_var[row])))
-        if radius <= SOURCE_MAX_RADIUS:
-            found.append((float(weight.sum()), DirectionalLight(centre, (excess * solid[:, None]).sum(0), radius),
-                          rows, inside, excess))
-    found = sorted(found, key=lambda f: -f[0])[:SOURCE_COUNT]
-    residual = rad.copy()
-    for _, _, rows, inside, excess in found:
-        part = residual[rows]
-        part[inside] -= excess
-        residual[rows] = part
-    lights = [f[1] for f in found]
+        for k in np.argsort(-held[1:])[:count] + 1:
+            if held[k] < SOURCE_SHARE * power or len(lights) == SOURCE_COUNT:
+                break
+            rows = slice(max(boxes[k - 1][0].start - 3, 0), min(boxes[k - 1][0].stop + 3, h))  # with edge and ring
+            own = labels[rows]
+            # with its edge: the texels next to it that a soft or sub-texel disc covers in part
+            inside = grown(own == k, 1) & ((own == 0) | (own == k)) & ~claimed[rows]
+            ring = grown(inside, 2) & ~inside & (own == 0)
+            local = rad[rows]
+            background = np.median(local[ring], axis=0) if ring.any() else np.zeros(3)
+            excess = np.maximum(local[inside] - background, 0.0)
+            solid = omega[rows][inside]
+            weight = (excess @ LUMINANCE) * solid
+            if weight.sum() < SOURCE_SHARE * power:
+                continue
+            d = _window_directions(h, w, rows)[inside]
+            centre = (weight[:, None] * d).sum(0)
+            centre /= np.linalg.norm(centre)
+            spread = np.arccos(np.clip(d @ centre, -1.0, 1.0)) ** 2 - np.broadcast_to(texel_var[rows, None],
+                                                                                     inside.shape)[inside]
+            second = max(float((weight * spread).sum() / weight.sum()), 0.0)
+            row = min(int(np.arccos(np.clip(centre[1], -1.0, 1.0)) / np.pi * h), h - 1)
+            radius = np.degrees(max(np.sqrt(2 * second), np.sqrt(texel_var[row])))
+            if radius > SOURCE_MAX_RADIUS:
+                continue
+            lights.append(DirectionalLight(centre, (excess * solid[:, None]).sum(0), radius))
+            part = residual[rows]
+            part[inside] -= excess
+            residual[rows] = part
+            window = claimed[rows]
+            window[inside] = True
+            claimed[rows] = window
     packed = np.array([lt.packed() for lt in lights], np.float32).reshape(-1, 8)
     packed.flags.writeable = False
     out = EnvironmentSources(lights, packed, Environment(residual.astype(np.float32), name=env.name)

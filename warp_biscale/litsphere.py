@@ -38,8 +38,8 @@ an interpolated normal at a silhouette), adds nothing, as the BRDF itself says �
 **Lights.** Each point or directional light adds E·s·image(…) with E its irradiance at the point and s
 its visible share from the shadow rays (`backend.trace_shadows`, as the SG renderer). The environment is
 `render.environment_lights(environment, count)`: `count` directional lights over a Fibonacci sphere, each carrying the
-radiance of its cell (the prefiltered map at the cell's width) times the cell's solid angle, shadowed
-by rays as any light.
+radiance of its cell (the prefiltered map of the map without its compact sources, at the cell's width) times the
+cell's solid angle, then those sources (a sun) as lights of their own, all shadowed by rays as any light.
 """
 
 from __future__ import annotations

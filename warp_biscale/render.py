@@ -463,7 +463,7 @@ def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str
     # the background: the environment's prefiltered maps, or one black texel (nothing to fit or filter)
     maps, levels = ((lambda p: (p.maps, p.levels))(lighting.prepare(env, backend, lobes=scene.env_lobes).prefiltered)
                     if env is not None else (np.zeros((1, 3), np.float32), np.array([[0, 0, 1, 1]], np.float32)))
-    lights = frame_lights(scene)
+    lights = scene.lights_packed
     if env is not None:
         env_key = ("litsphere_lights", int(env_lights), backend.name)
         extra = env.device_cache.get(env_key)
@@ -482,7 +482,7 @@ def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str
     cam = scene.camera
     info = {"backend": backend.name, "device": backend.device, "method": "litsphere", "view": view, "shrink": shrink,
             "shadows": shadows,
-            "lights": len(lights), "env_lights": len(lights) - len(frame_lights(scene)), "width": cam.width,
+            "lights": len(lights), "env_lights": len(lights) - len(scene.lights_packed), "width": cam.width,
             "height": cam.height, "aa": n_aa, "shadow_samples": n_shadow,
             "texture_bytes": int(sum(s.nbytes for s in {id(s): s for s in spheres}.values()))}
     if report_error:
@@ -492,9 +492,10 @@ def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str
 
 
 def environment_lights(environment, count: int = litsphere.ENV_LIGHTS, backend="auto") -> list:
-    """`count` DirectionalLights standing for `environment`: directions on a Fibonacci sphere, each
-    carrying the environment's radiance averaged over its cell (the prefiltered map at a sharpness whose
-    lobe spans the cell) times the cell's solid angle 4π/count, with the disc of that solid angle."""
+    """DirectionalLights standing for `environment`: `count` on a Fibonacci sphere, each carrying the radiance of
+    the map without its compact sources averaged over its cell (the prefiltered map at a sharpness whose lobe spans
+    the cell) times the cell's solid angle 4π/count, with the disc of that solid angle; then those sources
+    themselves (a sun: `lighting.environment_sources`)."""
     count = int(count)
     if count < 2:
         raise ValueError(f"environment_lights count must be at least 2, got {count}")
@@ -510,7 +511,7 @@ def environment_lights(environment, count: int = litsphere.ENV_LIGHTS, backend="
     radiance = lighting.prefiltered_lookup(light.prefiltered.maps, light.prefiltered.levels, dirs, np.full(count, eta))
     radius = np.degrees(np.arccos(1 - omega / (2 * np.pi)))
     return [DirectionalLight(d, np.maximum(rad, 0.0) * omega, radius) for d, rad in zip(dirs, radiance)
-            if np.max(rad) > 0]
+            if np.max(rad) > 0] + list(lighting.environment_sources(environment).lights)
 
 
 BALL_LIGHTS = (((-0.55, 0.65, 0.75), 2.4), ((0.85, 0.1, 0.5), 0.6), ((0.2, 0.6, -0.9), 1.2))  # key, fill, rim

@@ -647,53 +647,63 @@ def capped_cosine_integral(e, cap, axis, n, eta, table):
     return np.maximum(e - spread * visible, 0.0)
 
 
-# A light's size blurs f_s over its disc (`light_mean`): f_s is read at the light's centre and at ±σ along two axes
-# across it, and its logarithm taken as a quadratic there, whose mean over the light (a Gaussian of σ², the disc's
-# own variance) is closed. The exponent of that mean stops at this value (e^4 ≈ 55): far down a lobe's flank the
-# quadratic's slope would otherwise multiply a value that f_s's own tail need not follow.
+# A light's size blurs f_s over it (`light_mean`): f_s·cos θi is read where the light and the lobe overlap most (the
+# mean of the product of the light's Gaussian and the lobe's) and at ± the product's σ along two axes across the
+# light, its logarithm taken as a quadratic there, whose integral against the light (its SG emitter, the one the
+# Monte Carlo reference samples too: a Gaussian of variance 1/η) is closed. Read there rather than at the light's
+# centre, a lobe narrower than the light still has its peak in the quadratic. The exponent of the result stops at
+# LIGHT_BLUR_EXP_MAX (e^4 ≈ 55): where the lobe's centre (the warped lobe's, an estimate) is off, the quadratic's
+# slope would otherwise multiply a value that f_s's own tail need not follow.
 LIGHT_BLUR_EXP_MAX = 4.0
 
 
-def light_mean(f0, fx, fy, var_l):
-    """(m, 3) f_s's mean over a light from its values at the light's centre f0 (m, 3) and at ±σ = ±√var_l along
-    two axes across it (fx, fy: (2, m) of a scalar of f_s, their channel sums), the light a Gaussian of variance
-    var_l per axis (a disc of solid angle Ω: Ω/4π, = 1/(2η) of its SG). With log f ≈ l0 + g·u + c·u²/2 along each
-    axis (g, c from the three values; c ≤ 0), the mean is f0·Π 1/√(1 − c·var_l)·exp(g²·var_l/(2(1 − c·var_l))):
-    exact for a Gaussian lobe. f0 itself where any of the five is 0 (the light at a lobe's or the horizon's
+def light_mean(f_at, light, axes, var_l, centre, var_lobe):
+    """(m, 3) a lobe's mean over a light: f_at(d) → (m, 3) its values at unit directions d (f_s·(n·ωi)⁺ for the
+    renderer), the light a Gaussian of variance var_l (m,) per axis about unit directions `light` (m, 3) (its SG
+    emitter exp(η(ω·l − 1)), `scene.light_sg`: 1/η), `axes` two unit axes across it, the lobe about `centre` (m, 3)
+    with variances var_lobe (2, m) along them. Along each axis k the two Gaussians put their product's mass at
+    x_k = d_k·var_l/(var_l + v_k) (d_k the lobe centre's offset), of spread s_k² = var_l·v_k/(var_l + v_k); with
+    log f ≈ l0 + g·u + c·u²/2 about there (g, c from f at the point and at ±s_k; c ≤ 0), ∫N(x; 0, var_l)·f =
+    f(point)·Π exp(−g x_k + c x_k²/2 + B_k²/(2A_k))/√(var_l·A_k), A_k = 1/var_l − c, B_k = g − c·x_k: exact for a
+    Gaussian lobe. f at the light's centre where f is 0 at any of the five (the light at a lobe's or the horizon's
     edge)."""
+    offsets = [_dot(centre - light, a) for a in axes]
+    x = [o * var_l / (var_l + v) for o, v in zip(offsets, var_lobe)]
+    spread = [np.sqrt(var_l * v / (var_l + v)) for v in var_lobe]
+    point = light + x[0][:, None] * axes[0] + x[1][:, None] * axes[1]
+    f0 = f_at(_normalize(point))
     c0 = f0.sum(1)
-    vals = np.stack([c0, fx[0], fx[1], fy[0], fy[1]])
-    ok = (vals > 0).all(0)
-    logs = np.log(np.where(ok, vals, 1.0))
+    ok = c0 > 0
+    l0 = np.log(np.where(ok, c0, 1.0))
     expo = np.zeros(len(c0))
     scale = np.ones(len(c0))
-    for lo, hi in ((logs[1], logs[2]), (logs[3], logs[4])):
-        g = (hi - lo) * 0.5  # slope times σ
-        c = np.minimum(hi + lo - 2 * logs[0], 0.0)  # curvature times σ² (= var_l)
-        expo += g * g / (2 * (1 - c))
-        scale /= np.sqrt(1 - c)
-    factor = np.where(ok, scale * np.exp(np.minimum(expo, LIGHT_BLUR_EXP_MAX)), 1.0)
-    return f0 * factor[:, None]
+    for a, xk, sk in zip(axes, x, spread):
+        lo = f_at(_normalize(point - sk[:, None] * a)).sum(1)
+        hi = f_at(_normalize(point + sk[:, None] * a)).sum(1)
+        ok &= (lo > 0) & (hi > 0)
+        log_lo, log_hi = np.log(np.where(ok, lo, 1.0)), np.log(np.where(ok, hi, 1.0))
+        g = (log_hi - log_lo) / (2 * sk)
+        c = np.minimum((log_hi + log_lo - 2 * l0) / (sk * sk), 0.0)
+        big_a = 1 / var_l - c
+        big_b = g - c * xk
+        expo += -g * xk + 0.5 * c * xk * xk + big_b * big_b / (2 * big_a)
+        scale /= np.sqrt(var_l * big_a)
+    factor = scale * np.exp(np.minimum(expo, LIGHT_BLUR_EXP_MAX))
+    return np.where(ok[:, None], f0 * factor[:, None], f_at(light))
 
 
-def _analytic_lights(row, n, t, wo, table, l_axis, l_eta, l_amp, l_vis, hint):
-    """(m, 3) an analytic BRDF's specular radiance from the lights: f_s's mean over each light (`light_mean`,
-    read along `hint` (m, 3) turned across the light and the axis across both: the warped lobe's own axes for the
-    anisotropic kinds) times the light's irradiance with its cosine and visible share, as the diffuse term."""
+def _analytic_lights(row, n, t, wo, table, l_axis, l_eta, l_amp, l_vis, lobe):
+    """(m, 3) an analytic BRDF's specular radiance from the lights: f_s·(n·ωi)⁺'s mean over each light's SG
+    (`light_mean`; `lobe` = (centre, x, λ, μ): the warped lobe's centre, its x axis (turned across each light:
+    `light_axes`) and bandwidths, variances 1/(2λ), 1/(2μ)) times the light's irradiance at normal incidence and
+    its visible share."""
+    centre, hint, lam, mu = lobe
     out = np.zeros((len(wo), 3))
     for li in range(l_axis.shape[1]):
         light = l_axis[:, li]
-        e = sg.integral(l_eta[:, li]) * sg.table_lookup(table, 0, _dot(light, n), l_eta[:, li])
-        var_l = 0.5 / l_eta[:, li]
-        ax, ay = light_axes(light, hint)
-        sigma = np.sqrt(var_l)[:, None]
-
-        def at(d):
-            return _analytic_specular(row, n, t, _normalize(d), wo).sum(1)
-        fx = np.stack([at(light - sigma * ax), at(light + sigma * ax)])
-        fy = np.stack([at(light - sigma * ay), at(light + sigma * ay)])
-        f = light_mean(_analytic_specular(row, n, t, light, wo), fx, fy, var_l)
-        out += f * l_amp[:, li] * (e * l_vis[:, li])[:, None]
+        f = light_mean(lambda d: _analytic_specular(row, n, t, d, wo) * np.maximum(_dot(n, d), 0.0)[:, None], light,
+                       light_axes(light, hint), 1.0 / l_eta[:, li], centre, (0.5 / lam, 0.5 / mu))
+        out += f * l_amp[:, li] * (sg.integral(l_eta[:, li]) * l_vis[:, li])[:, None]
     return out
 
 
@@ -935,14 +945,16 @@ def shade_reference(frame: Frame) -> np.ndarray:
                 # The lights by f_s itself (Xu 2013 §5.2), blurred by their size through the lobe's shape.
                 if int(row[0, 0]) in brdf_mod.ANISOTROPIC_KINDS:
                     lobes.append(_anisotropic_environment_lobe(row, ns, ts_, wo_s, cos_os))
-                    hint = lobes[-1][-1][0]  # the warped lobe's x axis
+                    x, _, lam, mu = lobes[-1][-1]  # the warped lobe's shape
+                    shape = (lobes[-1][0], x, lam, mu)
                 else:
                     scale, eta_s = specular_scale(row, cos_os)
-                    axis = 2 * cos_os[:, None] * ns - wo_s
-                    lobes.append((_normalize(axis), eta_s / (4 * cos_os), scale, False))
-                    hint = ts_
+                    axis = _normalize(2 * cos_os[:, None] * ns - wo_s)
+                    lobes.append((axis, eta_s / (4 * cos_os), scale, False))
+                    half = 0.5 * np.minimum(lobes[-1][1], sg.SHARPNESS_MAX)
+                    shape = (axis, ts_, half, half)
                 rad[sel] += _analytic_lights(row, ns, ts_, wo_s, table, light_axis[sel], light_eta[sel],
-                                             light_amp[sel], light_vis[sel], hint)
+                                             light_amp[sel], light_vis[sel], shape)
         else:
             j_count = int(ei[1])
             for si in range(int(ei[2])):
