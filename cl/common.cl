@@ -186,22 +186,10 @@ CL_INLINE float pow5(float x)
 }
 CL_INLINE float pow_pos(float x, float y) { return x > 0.0f ? exp2(y * log2(x)) : 0.0f; }
 
-/* f_r(n, wi, wo)·(n·wi)⁺(n·wo)⁺ for material row m of the packed table: params has stride 8,
- * [kd_r, kd_g, kd_b, ks_r, ks_g, ks_b, p1, p2] (see warp_biscale.brdf). */
-CL_INLINE float3 brdf_cosine_weighted(int kind, __global const float *params, int m, float3 n, float3 wi, float3 wo)
+/* The isotropic kinds' specular factor of ks, cosine-weighted (f_s·cos θi·cos θo / ks; 0 for the others), from
+ * the cosines (ci, co > 0) and nh = n·h, hi = h·ωi; twin of kernels/common.py's isotropic_specular. */
+CL_INLINE float isotropic_specular(int kind, float p1, float p2, float ci, float co, float nh, float hi)
 {
-    float ci = dot3(n, wi);
-    float co = dot3(n, wo);
-    if (ci <= 0.0f || co <= 0.0f)
-        return (float3)(0.0f, 0.0f, 0.0f);
-    __global const float *p = params + 8 * m;
-    float3 kd = (float3)(p[0], p[1], p[2]);
-    float3 ks = (float3)(p[3], p[4], p[5]);
-    float p1 = p[6];
-    float p2 = p[7];
-    float3 h = normalize3((float3)(wi.x + wo.x, wi.y + wo.y, wi.z + wo.z));
-    float nh = clampf(dot3(n, h), -1.0f, 1.0f);
-    float hi = clampf(dot3(h, wi), 0.0f, 1.0f);
     float spec = 0.0f;
     if (kind == BLINN_PHONG) {
         spec = (p1 + 2.0f) * 0.5f * INV_PI * pow_pos(maxf(nh, 0.0f), p1) * ci * co;
@@ -220,6 +208,24 @@ CL_INLINE float3 brdf_cosine_weighted(int kind, __global const float *params, in
             spec = exp(-tan2 / a2) / (4.0f * M_PI_F * a2) * sqrt(ci * co);
         }
     }
+    return spec;
+}
+
+/* f_r(n, wi, wo)·(n·wi)⁺(n·wo)⁺ for material row m of the packed table: params has stride 8,
+ * [kd_r, kd_g, kd_b, ks_r, ks_g, ks_b, p1, p2] (see warp_biscale.brdf). */
+CL_INLINE float3 brdf_cosine_weighted(int kind, __global const float *params, int m, float3 n, float3 wi, float3 wo)
+{
+    float ci = dot3(n, wi);
+    float co = dot3(n, wo);
+    if (ci <= 0.0f || co <= 0.0f)
+        return (float3)(0.0f, 0.0f, 0.0f);
+    __global const float *p = params + 8 * m;
+    float3 kd = (float3)(p[0], p[1], p[2]);
+    float3 ks = (float3)(p[3], p[4], p[5]);
+    float p1 = p[6];
+    float p2 = p[7];
+    float3 h = normalize3((float3)(wi.x + wo.x, wi.y + wo.y, wi.z + wo.z));
+    float spec = isotropic_specular(kind, p1, p2, ci, co, clampf(dot3(n, h), -1.0f, 1.0f), clampf(dot3(h, wi), 0.0f, 1.0f));
     float s = INV_PI * ci * co;
     return (float3)(kd.x * s + ks.x * spec, kd.y * s + ks.y * spec, kd.z * s + ks.z * spec);
 }
@@ -266,20 +272,7 @@ CL_INLINE float3 analytic_specular(int kind, float3 ks, float p1, float p2, floa
     float nh = clampf(dot3(n, h), -1.0f, 1.0f);
     float hi = clampf(dot3(h, wi), 0.0f, 1.0f);
     if (kind == BLINN_PHONG || kind == COOK_TORRANCE || kind == WARD) {
-        float spec = 0.0f;
-        if (kind == BLINN_PHONG) {
-            spec = (p1 + 2.0f) * 0.5f * INV_PI * pow_pos(maxf(nh, 0.0f), p1);
-        } else if (kind == COOK_TORRANCE) {
-            float theta_h = acos(nh);
-            float d = exp(-(theta_h / p1) * (theta_h / p1));
-            float f = p2 + (1.0f - p2) * pow5(1.0f - hi);
-            float ho = maxf(hi, 1.0e-30f);
-            float g = minf(1.0f, minf(2.0f * maxf(nh, 0.0f) * co / ho, 2.0f * maxf(nh, 0.0f) * ci / ho));
-            spec = f * g * d * INV_PI / (ci * co);
-        } else if (nh > 0.0f) {
-            float cos2 = nh * nh;
-            spec = exp(-(1.0f - cos2) / cos2 / (p1 * p1)) / (4.0f * M_PI_F * p1 * p1 * sqrt(ci * co));
-        }
+        float spec = isotropic_specular(kind, p1, p2, ci, co, nh, hi) / (ci * co);
         return (float3)(ks.x * spec, ks.y * spec, ks.z * spec);
     }
     if (kind != ANISOTROPIC_WARD && kind != ASHIKHMIN_SHIRLEY) /* (Lambert: no specular term) */

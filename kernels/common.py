@@ -20,20 +20,9 @@ TANGENT_DEGENERATE = wp.constant(1.0e-4)  # = brdf.TANGENT_DEGENERATE
 
 
 @wp.func
-def brdf_cosine_weighted(kind: int, params: wp.array2d(dtype=wp.float32), m: int,
-                         n: wp.vec3, wi: wp.vec3, wo: wp.vec3) -> wp.vec3:
-    """f_r(n, ωi, ωo)·(n·ωi)⁺(n·ωo)⁺ for material row m of the packed table (see warp_biscale.brdf)."""
-    ci = wp.dot(n, wi)
-    co = wp.dot(n, wo)
-    if ci <= 0.0 or co <= 0.0:
-        return wp.vec3(0.0)
-    kd = wp.vec3(params[m, 0], params[m, 1], params[m, 2])
-    ks = wp.vec3(params[m, 3], params[m, 4], params[m, 5])
-    p1 = params[m, 6]
-    p2 = params[m, 7]
-    h = wp.normalize(wi + wo)
-    nh = wp.clamp(wp.dot(n, h), -1.0, 1.0)
-    hi = wp.clamp(wp.dot(h, wi), 0.0, 1.0)
+def isotropic_specular(kind: int, p1: float, p2: float, ci: float, co: float, nh: float, hi: float) -> float:
+    """The isotropic kinds' specular factor of ks, cosine-weighted (f_s·cos θi·cos θo / ks; 0 for the others), from
+    the cosines (ci, co > 0) and nh = n·h, hi = h·ωi (see warp_biscale.brdf)."""
     spec = float(0.0)
     if kind == BLINN_PHONG:
         spec = (p1 + 2.0) * 0.5 * INV_PI * wp.pow(wp.max(nh, 0.0), p1) * ci * co
@@ -50,6 +39,24 @@ def brdf_cosine_weighted(kind: int, params: wp.array2d(dtype=wp.float32), m: int
             tan2 = (1.0 - cos2) / cos2
             a2 = p1 * p1
             spec = wp.exp(-tan2 / a2) / (4.0 * 3.14159265358979 * a2) * wp.sqrt(ci * co)
+    return spec
+
+
+@wp.func
+def brdf_cosine_weighted(kind: int, params: wp.array2d(dtype=wp.float32), m: int,
+                         n: wp.vec3, wi: wp.vec3, wo: wp.vec3) -> wp.vec3:
+    """f_r(n, ωi, ωo)·(n·ωi)⁺(n·ωo)⁺ for material row m of the packed table (see warp_biscale.brdf)."""
+    ci = wp.dot(n, wi)
+    co = wp.dot(n, wo)
+    if ci <= 0.0 or co <= 0.0:
+        return wp.vec3(0.0)
+    kd = wp.vec3(params[m, 0], params[m, 1], params[m, 2])
+    ks = wp.vec3(params[m, 3], params[m, 4], params[m, 5])
+    p1 = params[m, 6]
+    p2 = params[m, 7]
+    h = wp.normalize(wi + wo)
+    nh = wp.clamp(wp.dot(n, h), -1.0, 1.0)
+    spec = isotropic_specular(kind, p1, p2, ci, co, nh, wp.clamp(wp.dot(h, wi), 0.0, 1.0))
     return kd * (INV_PI * ci * co) + ks * spec
 
 
@@ -94,20 +101,8 @@ def analytic_specular(kind: int, ks: wp.vec3, p1: float, p2: float, x: wp.vec3, 
     h = wp.normalize(wi + wo)
     nh = wp.clamp(wp.dot(n, h), -1.0, 1.0)
     hi = wp.clamp(wp.dot(h, wi), 0.0, 1.0)
-    if kind == BLINN_PHONG:
-        return ks * ((p1 + 2.0) * 0.5 * INV_PI * wp.pow(wp.max(nh, 0.0), p1))
-    if kind == COOK_TORRANCE:
-        theta_h = wp.acos(nh)
-        dc = wp.exp(-(theta_h / p1) * (theta_h / p1))
-        fc = p2 + (1.0 - p2) * wp.pow(1.0 - hi, 5.0)
-        ho = wp.max(hi, 1.0e-30)
-        g = wp.min(1.0, wp.min(2.0 * wp.max(nh, 0.0) * co / ho, 2.0 * wp.max(nh, 0.0) * ci / ho))
-        return ks * (fc * g * dc * INV_PI / (ci * co))
-    if kind == WARD:
-        if nh <= 0.0:
-            return wp.vec3(0.0)
-        cos2 = nh * nh
-        return ks * (wp.exp(-(1.0 - cos2) / cos2 / (p1 * p1)) / (4.0 * 3.14159265358979 * p1 * p1 * wp.sqrt(ci * co)))
+    if kind == BLINN_PHONG or kind == COOK_TORRANCE or kind == WARD:
+        return ks * (isotropic_specular(kind, p1, p2, ci, co, nh, hi) / (ci * co))
     if kind != ANISOTROPIC_WARD and kind != ASHIKHMIN_SHIRLEY:  # (Lambert: no specular term)
         return wp.vec3(0.0)
     hx = wp.dot(h, x)
