@@ -134,7 +134,8 @@ __kernel void trace_shadows(
     __global const float *position,      /* (P, 3) */
     const float eye_x, const float eye_y, const float eye_z,
     __global const float *lights,        /* (L, 8) Light.packed() rows */
-    const float eps, const float t_min, const int samples,
+    __global const int *light_samples,   /* (L,) rays a pixel for each light (trace.light_samples) */
+    const float eps, const float t_min,
     const int part_index, const int part_count, /* the anti-aliasing sample's rays of the set (ray_part) */
     const int block_width,               /* > 0: shared in the 2x2 pixel blocks of frame rows this wide (pixel_part) */
     __global const uchar *changed,       /* only_changed: the pixels flagged here alone (mark_changed: anti- */
@@ -150,6 +151,7 @@ __kernel void trace_shadows(
     if (only_changed != 0 && changed[p] == 0)
         return;
     int hits = 0;
+    int samples = light_samples[k];
     int3 part = pixel_part(samples, part_index, part_count, block_width, p);
     int traced = (samples - part.x + part.y - 1) / part.y;
     if (f >= 0) {
@@ -369,14 +371,15 @@ __kernel void share_block_masks(
 
 /* One work-item per pixel (reference.share_block_shadows): each light's visible share over the shadow rays that
  * the pixels of its 2x2 block lend it (block_lenders), sum(traced * share) / sum(traced) in 255ths, rounded; the
- * pixel's own share for a set of fewer than BLOCK_SLOTS rays, and for a miss. */
+ * pixel's own share for a light of fewer than BLOCK_SLOTS rays, and for a miss. */
 __kernel void share_block_shadows(
     __global const int *face,            /* (P,) */
     __global const float *position,      /* (P, 3) */
     __global const float *face_normals,  /* (F, 3) unit, original face order */
     const float eye_x, const float eye_y, const float eye_z,
-    const int width, const int n_pixels, const int samples, const int part_index, const int part_count,
+    const int width, const int n_pixels, const int part_index, const int part_count,
     const int n_lights,
+    __global const int *light_samples,   /* (L,) rays a pixel for each light (trace.light_samples) */
     __global const uchar *visible,       /* (P, L) each pixel's own rays */
     __global uchar *shared)              /* (P, L) */
 {
@@ -384,11 +387,12 @@ __kernel void share_block_shadows(
     if (p >= n_pixels)
         return;
     int lenders = 0;
-    if (face[p] >= 0 && samples >= BLOCK_SLOTS)
+    if (face[p] >= 0)
         lenders = block_lenders(face, position, face_normals, (float3)(eye_x, eye_y, eye_z), width, n_pixels, p);
     for (int l = 0; l < n_lights; ++l) {
         int value = visible[(long)p * n_lights + l];
-        if (lenders != 0) {
+        int samples = light_samples[l];
+        if (lenders != 0 && samples >= BLOCK_SLOTS) {
             int num = 0, den = 0;
             for (int q = 0; q < BLOCK_SLOTS; ++q) {
                 if ((lenders >> q) & 1) {

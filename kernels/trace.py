@@ -141,9 +141,9 @@ def trace_shadows(
     position: wp.array(dtype=wp.vec3),
     eye: wp.vec3,
     lights: wp.array2d(dtype=wp.float32),  # (L, 8) Light.packed() rows
+    light_samples: wp.array(dtype=wp.int32),  # (L,) rays a pixel for each light (trace.light_samples)
     eps: float,
     t_min: float,
-    samples: int,
     part_index: int,
     part_count: int,
     block_width: int,
@@ -154,15 +154,16 @@ def trace_shadows(
 ):
     """One thread per (light, pixel); neighbouring threads take neighbouring pixels towards one
     light, so their BVH walks stay coherent. The pixel's rays of anti-aliasing sample part_index of part_count
-    (pixel_part, its 2x2 block's share where block_width > 0) among `samples` go to points spread over the
-    light's disc (a point light's sphere seen from the pixel; a directional light's cone); the result is their
-    visible share in 255ths, rounded."""
+    (pixel_part, its 2x2 block's share where block_width > 0) among the light's light_samples[k] go to points
+    spread over the light's disc (a point light's sphere seen from the pixel; a directional light's cone); the result
+    is their visible share in 255ths, rounded."""
     k, p_local = wp.tid()
     p = p_local + offset
     f = face[p]
     if only_changed != 0 and changed[p] == wp.uint8(0):
         return
     hits = int(0)
+    samples = light_samples[k]
     part = pixel_part(samples, part_index, part_count, block_width, p)
     first = part[0]
     stride = part[1]
@@ -373,24 +374,25 @@ def share_block_shadows(
     eye: wp.vec3,
     width: int,
     n_pixels: int,
-    samples: int,
     part_index: int,
     part_count: int,
     n_lights: int,
+    light_samples: wp.array(dtype=wp.int32),  # (L,) rays a pixel for each light (trace.light_samples)
     visible: wp.array2d(dtype=wp.uint8),
     offset: int,
     shared: wp.array2d(dtype=wp.uint8),
 ):
     """One thread per pixel (reference.share_block_shadows): each light's visible share over the shadow rays
     that the pixels of its 2x2 block lend it (block_lenders), Σ traced·share / Σ traced in 255ths, rounded; the
-    pixel's own share for a set of fewer than BLOCK_SLOTS rays, and for a miss."""
+    pixel's own share for a light of fewer than BLOCK_SLOTS rays, and for a miss."""
     p = wp.tid() + offset
     lenders = int(0)
-    if face[p] >= 0 and samples >= BLOCK_SLOTS:
+    if face[p] >= 0:
         lenders = block_lenders(face, position, face_normals, eye, width, n_pixels, p)
     for l in range(n_lights):
         value = int(visible[p, l])
-        if lenders != 0:
+        samples = light_samples[l]
+        if lenders != 0 and samples >= BLOCK_SLOTS:
             num = int(0)
             den = int(0)
             for q in range(BLOCK_SLOTS):

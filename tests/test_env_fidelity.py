@@ -10,7 +10,7 @@ import warp_biscale as wb
 from warp_biscale import lighting
 from warp_biscale.environment import (environment_irradiance, equirect_bilinear, equirect_directions,
                                       equirect_row_solid_angles)
-from warp_biscale.render import pack_frame
+from warp_biscale.render import frame_lights, frame_shadow_samples, pack_frame
 from warp_biscale.shading import shade_reference
 
 ZENITH = np.array([0.08, 0.18, 0.45])  # Environment.sky's defaults
@@ -132,6 +132,23 @@ def test_the_sun_is_seen_by_the_camera_alone(backend):
     assert len(frame.lights) == 1  # the sun
     assert (frame.gbuffer.face >= 0).sum() > 20 and out[frame.gbuffer.face < 0].max() > 10 * sunless  # the sun
     np.testing.assert_allclose(out, ref, atol=1e-3 * ref.max(), rtol=2e-3)
+
+
+def test_a_source_gets_fewer_shadow_rays_than_the_scenes_lights():
+    """A scene's own light gets the frame's shadow rays; the sky's sun, a light of the frame too, at most
+    lighting.SOURCE_SHADOW_SAMPLES (its penumbra is narrow; the accuracy cost is measured in bench/README.md)."""
+    mesh = wb.Mesh.plane(2.0, 0.0, 2, material=0)
+    cam = wb.Camera(eye=(0, 3, 0.01), target=(0, 0, 0), width=8, height=8)
+    light = wb.PointLight((0.0, 2.0, 0.0), 5.0, 0.1)
+    sky = wb.Scene(mesh, [wb.Lambert(0.5)], cam, wb.Environment.sky(), [light])
+    cap = lighting.SOURCE_SHADOW_SAMPLES
+    assert len(frame_lights(sky)) == 2
+    np.testing.assert_array_equal(frame_shadow_samples(sky, 16), [16, cap])
+    np.testing.assert_array_equal(frame_shadow_samples(sky, 2), [2, 2])
+    studio = wb.Scene(mesh, [wb.Lambert(0.5)], cam, wb.Environment.studio(), [light])
+    np.testing.assert_array_equal(frame_shadow_samples(studio, 16), [16])
+    info = wb.render(sky, backend="warp:cpu", shadow_samples=16).info
+    assert info["shadow_samples"] == 16 and info["source_shadow_samples"] == cap
 
 
 def test_at_most_two_sources_and_no_specks():

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import warp_biscale as wb
-from warp_biscale.render import OCCLUSION_SAMPLES, SHADOW_SAMPLES, pack_frame
+from warp_biscale.render import OCCLUSION_SAMPLES, SHADOW_SAMPLES, frame_shadow_samples, pack_frame
 from warp_biscale.scene import Scene
 from warp_biscale.environment import Environment
 from warp_biscale.scene import Camera, DirectionalLight, Mesh, PointLight
@@ -184,7 +184,7 @@ def test_shade_of_an_anti_aliasing_samples_part_of_the_rays(backend, effective_m
     whole = shade_reference(pack_frame(scene, backend))
     assert np.abs(ref - whole).max() > 1e-3 * peak  # a part is not the whole set
     backend.trace_primary(scene.mesh, scene.camera, to_host=False)
-    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=SHADOW_SAMPLES, part=part)
+    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=frame_shadow_samples(scene, SHADOW_SAMPLES), part=part)
     backend.trace_occlusion(scene.mesh, None, OCCLUSION_SAMPLES, to_host=False, part=part)
     backend.trace_lobe_rays(scene.mesh, None, frame.inputs.sharp_lobes(), to_host=False, part=part)
     np.testing.assert_array_equal(backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights), out)
@@ -201,7 +201,7 @@ def test_shade_uses_device_gbuffer(backend, effective_material):
     host = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights,
                          gbuffer=frame.gbuffer)
     backend.trace_primary(scene.mesh, scene.camera, to_host=False)
-    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=SHADOW_SAMPLES)  # as pack_frame
+    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=frame_shadow_samples(scene, SHADOW_SAMPLES))  # as pack_frame
     backend.trace_occlusion(scene.mesh, None, OCCLUSION_SAMPLES, to_host=False)
     backend.trace_lobe_rays(scene.mesh, None, frame.inputs.sharp_lobes(), to_host=False)
     dev = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights)
@@ -215,7 +215,7 @@ def test_shade_only_one_material_over_the_last_frame(backend, effective_material
     scene = _scenes(effective_material)["occluded"]
     frame = pack_frame(scene, backend)
     backend.trace_primary(scene.mesh, scene.camera, to_host=False)
-    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=SHADOW_SAMPLES)
+    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=frame_shadow_samples(scene, SHADOW_SAMPLES))
     backend.trace_occlusion(scene.mesh, None, OCCLUSION_SAMPLES, to_host=False)
     backend.trace_lobe_rays(scene.mesh, None, frame.inputs.sharp_lobes(), to_host=False)
     before = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights)
@@ -223,7 +223,7 @@ def test_shade_only_one_material_over_the_last_frame(backend, effective_material
                    scene.camera, scene.environment, scene.lights, ssdf_resolution=16, ssdf_terms=8)
     inputs = pack_frame(edited, backend).inputs
     backend.trace_primary(scene.mesh, scene.camera, to_host=False)
-    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=SHADOW_SAMPLES)
+    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=frame_shadow_samples(scene, SHADOW_SAMPLES))
     backend.trace_occlusion(scene.mesh, None, OCCLUSION_SAMPLES, to_host=False)
     backend.trace_lobe_rays(scene.mesh, None, frame.inputs.sharp_lobes(), to_host=False)
     backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights, to_host=False)
@@ -244,7 +244,7 @@ def test_shade_only_one_material_over_the_last_frame(backend, effective_material
 
 def _trace_on_device(backend, scene, frame):
     backend.trace_primary(scene.mesh, scene.camera, to_host=False)
-    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=SHADOW_SAMPLES)
+    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=frame_shadow_samples(scene, SHADOW_SAMPLES))
     backend.trace_occlusion(scene.mesh, None, OCCLUSION_SAMPLES, to_host=False)
     backend.trace_lobe_rays(scene.mesh, None, frame.inputs.sharp_lobes(), to_host=False)
 

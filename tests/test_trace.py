@@ -499,7 +499,8 @@ def test_rays_shared_in_2x2_blocks_match_reference(backend, block_frame, part):
     (block_frame) the lent bits equal, and the masks bit for bit where a ray is unambiguous (triangles grown and
     shrunk by BARY_TOL); the shadow shares to one of a pixel's own rays (255/4) and on 98 % exactly. A pixel of
     the open floor whose block lends it all four quarters knows the whole set; no bit outside the known ones.
-    A set of fewer than four rays (one shadow ray) is shared too, by the reference's rule: each pixel's own."""
+    A set of fewer than four rays (one shadow ray) is shared too, by the reference's rule: each pixel's own; and
+    lights of different counts in one call (trace.light_samples) each by its own count."""
     mesh, cam, lights, g, lenders, sure = block_frame
     part = (*part, cam.width)
     eps, t_min = offsets(mesh)
@@ -526,13 +527,24 @@ def test_rays_shared_in_2x2_blocks_match_reference(backend, block_frame, part):
             assert (known[whole] == (1 << samples) - 1).all()
     soft = np.stack([PointLight((0.3, 3.0, 0.2), radius=0.4).packed(),
                      DirectionalLight((-0.5, 1.0, 0.3), angular_radius=8.0).packed()])
-    for samples in (16, 1):
+    for samples in (16, 1, (16, 3), (8, 16)):
         vis = backend.trace_shadows(mesh, g, soft, samples=samples, part=part).astype(np.int64)
         own = ref.trace_shadows(mesh.vertices, mesh.normals, mesh.faces, g.face, g.bary, g.position, g.eye, soft,
                                 eps, t_min, samples=samples, part=part)
         want = ref.share_block_shadows(own, lenders, samples, part).astype(np.int64)
         off = np.abs(vis - want)[sure]
         assert (off > 255 / 4 + 1).sum() == 0 and (off != 0).mean() < 0.02, (off.max(), (off != 0).mean())
+
+
+@pytest.mark.parametrize("bad, match", [((16, 8, 4), "one count a light, got 3 for 2 lights"),
+                                        ((16, 0), "shadow samples"), ((16, 2.5), "shadow samples")])
+def test_bad_per_light_samples_is_one_line(backend, bad, match):
+    mesh, cam, lights = _shadow_scene()
+    soft = np.stack([PointLight((0.3, 3.0, 0.2), radius=0.4).packed(),
+                     DirectionalLight((-0.5, 1.0, 0.3), angular_radius=8.0).packed()])
+    g = backend.trace_primary(mesh, cam)
+    with pytest.raises(ValueError, match=match):
+        backend.trace_shadows(mesh, g, soft, samples=bad)
 
 
 @pytest.mark.parametrize("bad", [(4, 4), (-1, 2), (0, 0), "x", (0.5, 2)])

@@ -23,7 +23,7 @@ from .brdf import ANISOTROPIC_KINDS, MEASURED
 from .lobes import DEAD_MASS, KERNEL_LOBES, LobeSet
 from .model import DeviceArray, Facets, GBuffer, ShadeInputs, Visibility, facet_shift
 from .trace import (BLOCK_SLOTS, CHUNK_RAYS, LOBE_RAYS, check_camera, check_gbuffer, check_lights, check_mesh,
-                    check_occlusion, check_lobes, check_occlusion_samples, check_ray_part, check_shadow_samples,
+                    check_occlusion, check_lobes, check_occlusion_samples, check_ray_part, light_samples,
                     offsets)
 
 # Shade inputs up to this size are compared by value to the last upload of their role (`_shade_input`),
@@ -754,28 +754,28 @@ class DeviceBackend:
 
     def trace_shadows(self, mesh, gbuffer, lights_packed, to_host=True, samples=1, if_changed=False, part=(0, 1),
                       only_changed=False):
-        """`samples` shadow rays per light and pixel of the G-buffer (None: the one on the device), the
-        visible shares left on the device. With if_changed (and to_host False), nothing is traced when the
-        device already holds them for this G-buffer, these lights and samples. `part` (index, count): only
-        the rays that anti-aliasing sample index of count traces of the set (trace.ray_part), their share;
-        (index, count, W): shared in the 2×2 pixel blocks of a frame of width W (trace.pixel_parts). only_changed:
-        the pixels not on the kept frame's surface alone (`trace_primary`'s keep); the others keep the shares
-        they have."""
+        """`samples` shadow rays per light and pixel of the G-buffer (None: the one on the device), or one count a
+        light (trace.light_samples); the visible shares left on the device. With if_changed (and to_host False),
+        nothing is traced when the device already holds them for this G-buffer, these lights and samples. `part`
+        (index, count): only the rays that anti-aliasing sample index of count traces of the set (trace.ray_part),
+        their share; (index, count, W): shared in the 2×2 pixel blocks of a frame of width W (trace.pixel_parts)
+        for a light of BLOCK_SLOTS rays or more. only_changed: the pixels not on the kept frame's surface alone
+        (`trace_primary`'s keep); the others keep the shares they have."""
         check_mesh(mesh)
         lights = check_lights(lights_packed)
-        samples = check_shadow_samples(samples)
+        samples = light_samples(samples, len(lights))
         part = check_ray_part(part)
         m = self._trace_mesh(mesh)
-        key = self._rays_key(m, gbuffer, lights.tobytes(), samples, part, bool(only_changed))
+        key = self._rays_key(m, gbuffer, lights.tobytes(), samples.tobytes(), part, bool(only_changed))
         if if_changed and not to_host and key is not None and m.get("light_vis_key") == key:
             return None
         face, bary, position, eye, n = self._ray_starts(mesh, m, gbuffer)
         self._check_block_width(m, gbuffer, n, part)
         vis = self._reuse(m, "gbuffer_light_vis", (n, len(lights)), "u8")
         if n and len(lights):
-            shared = part[2] > 0 and samples >= BLOCK_SLOTS
+            shared = part[2] > 0 and samples.max() >= BLOCK_SLOTS
             traced = self._reuse(m, "block_light_vis", (n, len(lights)), "u8") if shared else vis
-            self._launch_trace_shadows(m, face, bary, position, eye, lights, *self._offsets(mesh, m), samples, part,
+            self._launch_trace_shadows(m, face, bary, position, eye, lights, samples, *self._offsets(mesh, m), part,
                                        self._changed(mesh, m, gbuffer, n, only_changed), n, traced)
             if shared:
                 self._launch_share_block_shadows(m, face, position, eye, samples, part, n, len(lights), traced, vis)

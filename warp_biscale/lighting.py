@@ -497,6 +497,10 @@ SOURCE_CONTRAST = 100.0
 SOURCE_MAX_RADIUS = 5.0  # degrees
 SOURCE_SHARE = 0.05  # of the map's power, at least
 SOURCE_COUNT = 2  # at most, the most powerful
+# Shadow rays a pixel for a source, at most (the frame's count if fewer): a disc of at most SOURCE_MAX_RADIUS casts a
+# narrow penumbra, which this many rays step finely enough (bench/README.md, "An environment's sources with fewer
+# shadow rays"), and each ray costs every frame.
+SOURCE_SHADOW_SAMPLES = 8
 
 
 @dataclass(eq=False)

@@ -810,12 +810,12 @@ class OpenCLBackend(DeviceBackend):
         self._launch("trace", "trace_occluded", (n,), m["nodes"], m["tris"], origins, directions, np.float32(t_min),
                      t_max, np.int32(n), occluded)
 
-    def _launch_trace_shadows(self, m, face, bary, position, eye, lights, eps, t_min, samples, part, changed, n,
+    def _launch_trace_shadows(self, m, face, bary, position, eye, lights, samples, eps, t_min, part, changed, n,
                               vis):
         self._launch("trace", "trace_shadows", (n, len(lights)), m["nodes"], m["tris"], *self._ray_mesh(m), face,
-                     bary, position, *(np.float32(e) for e in eye), self._buffer(lights, np.float32), np.float32(eps),
-                     np.float32(t_min), np.int32(samples), *map(np.int32, part), changed[0], np.int32(changed[1]),
-                     np.int32(n), np.int32(len(lights)), vis)
+                     bary, position, *(np.float32(e) for e in eye), self._buffer(lights, np.float32),
+                     self._buffer(samples, np.int32), np.float32(eps), np.float32(t_min), *map(np.int32, part),
+                     changed[0], np.int32(changed[1]), np.int32(n), np.int32(len(lights)), vis)
 
     def _upload_shade_static(self, static, levels, basis, coeffs):
         """Empty arrays become one-element dummies the kernel never reads."""
@@ -870,8 +870,8 @@ class OpenCLBackend(DeviceBackend):
 
     def _launch_share_block_shadows(self, m, face, position, eye, samples, part, n, n_lights, traced, shared):
         self._launch("trace", "share_block_shadows", (n,), face, position, self._ray_mesh(m)[3],
-                     *(np.float32(e) for e in eye), *map(np.int32, (part[2], n, samples, part[0], part[1], n_lights)),
-                     traced, shared)
+                     *(np.float32(e) for e in eye), *map(np.int32, (part[2], n, part[0], part[1], n_lights)),
+                     self._buffer(samples, np.int32), traced, shared)
 
     def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, part, known, lights, camera,
                       n, only_material, changed, kept_mode, kept_amount, kept_scale, out):

@@ -23,8 +23,8 @@ from .environment import (
 )
 from .lighting import prefiltered_lookup, sg_irradiance  # noqa: F401
 from .model import facet_shift, radical_inverse  # noqa: F401
-from .trace import (BLOCK_SLOTS, LOBE_RAYS, block_pixel, check_ray_part, disk_basis, disk_sample, lobe_ray_directions,
-                    occlusion_directions, part_rays, pixel_parts, ray_starts)
+from .trace import (BLOCK_SLOTS, LOBE_RAYS, block_pixel, check_ray_part, disk_basis, disk_sample, light_samples,
+                    lobe_ray_directions, occlusion_directions, part_rays, pixel_parts, ray_starts)
 from .sg import one_minus_cos
 from .smallscale import (
     SmallScale,
@@ -783,35 +783,39 @@ def trace_primary(mesh, camera) -> dict:
 
 
 def trace_shadows(vertices, normals, faces, face, bary, position, eye, lights_packed, eps, t_min, tol=0.0,
-                  samples: int = 1, part=(0, 1)) -> np.ndarray:
+                  samples=1, part=(0, 1)) -> np.ndarray:
     """(P, L) uint8, the share of light k visible from hit pixel p in 255ths (trace.VISIBLE = 255: all).
 
-    Each shadow ray starts at trace.ray_starts' origin (the hit lifted towards the smooth surface of the
-    vertex `normals`, then eps along the geometric normal turned to the side of `eye`). Ray i of `samples`
-    aims at disc point q = trace.disk_sample(i, samples, p) in the frame (a, b) = trace.disk_basis(w).
+    `samples`: S rays a pixel for every light, or one count a light (trace.light_samples). Each shadow ray
+    starts at trace.ray_starts' origin (the hit lifted towards the smooth surface of the vertex `normals`,
+    then eps along the geometric normal turned to the side of `eye`). Ray i of light k's S aims at disc point
+    q = trace.disk_sample(i, S, p) in the frame (a, b) = trace.disk_basis(w).
     Directional light (row[0] = 0): w = row[1:4] normalised, direction w + tan(α)(q_x a + q_y b),
     α = √(row[7]/π) its angular radius, unbounded. Point light (row[0] = 1): w towards the centre c = row[1:4]
     from the origin, ray towards c + r(q_x a + q_y b) (r = row[7]) up to eps short of it. A ray counts if it
     is above the horizon of the shading normal (ray_starts' ns, which may see a light the face's plane hides)
-    and hits no triangle with t in (t_min, t_max]; the entry is (count·255 + ⌊S/2⌋) // S. 0 for a missed
-    pixel (face −1). With `part` (index, count[, block_width]) only the rays i of trace.pixel_parts(samples,
-    part, p) are cast, turned by its turn pixel, and S is their number.
+    and hits no triangle with t in (t_min, t_max]; the entry is (count·255 + ⌊S'/2⌋) // S', S' the rays cast.
+    0 for a missed pixel (face −1). With `part` (index, count[, block_width]) only the rays i of
+    trace.pixel_parts(S, part, p) are cast, turned by its turn pixel, and S' is their number.
     """
     face = np.asarray(face, np.int64)
     lights = np.asarray(lights_packed, np.float64).reshape(-1, 8)
+    counts_per_light = light_samples(samples, len(lights))
     out = np.zeros((len(face), len(lights)), np.uint8)
     hit = np.flatnonzero(face >= 0)
     if len(hit) == 0 or len(lights) == 0:
         return out
     start = ray_starts(vertices, normals, faces, face[hit], np.asarray(bary, np.float64).reshape(-1, 2)[hit],
                        np.asarray(position, np.float64).reshape(-1, 3)[hit], eye, eps)
-    counts = np.zeros((len(hit), len(lights)), np.int64)
-    cast = part_rays(samples, part, hit)  # (H, S)
-    turn = pixel_parts(samples, part, hit)[2]
-    for i in np.flatnonzero(cast.any(0)):
-        counts += _shadow_rays(vertices, faces, start, lights, eps, t_min, tol, turn, i, samples) & cast[:, i, None]
-    traced = cast.sum(1)[:, None]
-    out[hit] = ((counts * 255 + traced // 2) // traced).astype(np.uint8)
+    for k, n in enumerate(counts_per_light):
+        counts = np.zeros(len(hit), np.int64)
+        cast = part_rays(n, part, hit)  # (H, S)
+        turn = pixel_parts(n, part, hit)[2]
+        for i in np.flatnonzero(cast.any(0)):
+            counts += _shadow_rays(vertices, faces, start, lights[k:k + 1], eps, t_min, tol, turn, i, n)[:, 0] \
+                & cast[:, i]
+        traced = cast.sum(1)
+        out[hit, k] = ((counts * 255 + traced // 2) // traced).astype(np.uint8)
     return out
 
 
@@ -921,25 +925,27 @@ def share_block_masks(mask, lenders, samples: int, part) -> tuple[np.ndarray, np
     return shared.astype(np.uint32), known.astype(np.uint32)
 
 
-def share_block_shadows(visible, lenders, samples: int, part) -> np.ndarray:
+def share_block_shadows(visible, lenders, samples, part) -> np.ndarray:
     """(P, L) uint8 (the kernels' share_block_shadows): per hit pixel, each light's visible share `visible`
     (P, L) over the shadow rays its block's lenders (trace.share_block) traced, (Σ traced·v + ⌊Σ traced/2⌋) //
-    Σ traced in 255ths; the pixel's own for a set of fewer than trace.BLOCK_SLOTS rays and for a miss."""
+    Σ traced in 255ths; the pixel's own for a light of fewer than trace.BLOCK_SLOTS rays (`samples`: one count
+    for every light, or one a light) and for a miss."""
     visible = np.asarray(visible, np.uint8)
-    if samples < BLOCK_SLOTS:
-        return visible.copy()
     width = check_ray_part(part)[2]
     p = np.arange(len(visible))
-    num = np.zeros(visible.shape, np.int64)
-    den = np.zeros(len(p), np.int64)
-    for q in range(BLOCK_SLOTS):
-        b = np.where(lenders[:, q], block_pixel(p, width, q), p)
-        traced = np.where(lenders[:, q], part_rays(samples, part, b).sum(1), 0)
-        num += traced[:, None] * visible[b].astype(np.int64)
-        den += traced
     out = visible.copy()
-    on = den > 0
-    out[on] = ((num[on] + (den[on] // 2)[:, None]) // den[on, None]).astype(np.uint8)
+    for k, n in enumerate(light_samples(samples, visible.shape[1])):
+        if n < BLOCK_SLOTS:
+            continue
+        num = np.zeros(len(p), np.int64)
+        den = np.zeros(len(p), np.int64)
+        for q in range(BLOCK_SLOTS):
+            b = np.where(lenders[:, q], block_pixel(p, width, q), p)
+            traced = np.where(lenders[:, q], part_rays(n, part, b).sum(1), 0)
+            num += traced * visible[b, k].astype(np.int64)
+            den += traced
+        on = den > 0
+        out[on, k] = ((num[on] + den[on] // 2) // den[on]).astype(np.uint8)
     return out
 
 

@@ -35,7 +35,8 @@ from .trace import check_occlusion_samples, check_ray_part, check_shadow_samples
 from .images import compare_images
 from .scene import Camera, DirectionalLight, Mesh, Rendering, Scene, _black_environment, _integer
 
-__all__ = ["Scene", "Rendering", "render", "queue_frame", "pack_frame", "static_inputs", "frame_lights", "METHODS",
+__all__ = ["Scene", "Rendering", "render", "queue_frame", "pack_frame", "static_inputs", "frame_lights",
+           "frame_shadow_samples", "METHODS",
            "environment_lights", "material_ball", "litsphere_errors"]
 
 METHODS = ("sg", "mc", "litsphere")
@@ -141,6 +142,15 @@ def frame_lights(scene: Scene) -> np.ndarray:
     return np.concatenate([lights, sources]) if len(sources) else lights
 
 
+def frame_shadow_samples(scene: Scene, samples: int) -> np.ndarray:
+    """(L,) int32 the shadow rays a pixel of each of `frame_lights(scene)`: `samples` for the scene's lights, at
+    most lighting.SOURCE_SHADOW_SAMPLES for its environment's sources."""
+    n = check_shadow_samples(samples)
+    counts = np.full(len(frame_lights(scene)), n, np.int32)
+    counts[len(np.asarray(scene.lights_packed).reshape(-1, 8)):] = min(n, lighting.SOURCE_SHADOW_SAMPLES)
+    return counts
+
+
 SHADOW_SAMPLES = 16  # shadow rays per light and pixel: a penumbra in 16 steps, noise turned per pixel
 # environment-occlusion rays per pixel where an SSDF shadows the environment: lobes up to η = 2 by the rays
 # alone (shading.RAYS_ONLY), so a constant map's six shadow lobes (lighting.shadow_lobes) are seen whole
@@ -166,8 +176,8 @@ def pack_frame(scene: Scene, backend="auto", progress=None, timings=None,
     g = backend.trace_primary(scene.mesh, scene.camera)
     lights = frame_lights(scene)
     g.ray_part = part
-    g.light_vis = (backend.trace_shadows(scene.mesh, g, lights, samples=shadow_samples, part=part) if len(lights)
-                   else np.zeros((len(g.face), 0), np.uint8))
+    g.light_vis = (backend.trace_shadows(scene.mesh, g, lights, samples=frame_shadow_samples(scene, shadow_samples),
+                                         part=part) if len(lights) else np.zeros((len(g.face), 0), np.uint8))
     if static.has_ssdf and n_occlusion:
         g.occlusion = backend.trace_occlusion(scene.mesh, g, n_occlusion, part=part)
         g.occlusion_samples = n_occlusion
@@ -267,7 +277,7 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     static = _static_inputs(scene, backend, progress, timings)
     lights = frame_lights(scene)
     n_occlusion = n_occlusion if static.has_ssdf else 0  # nothing occludes: the rays would all escape
-    image = _accumulate(scene, backend, n_aa, n_shadow, n_occlusion, lights, timings,
+    image = _accumulate(scene, backend, n_aa, frame_shadow_samples(scene, n_shadow), n_occlusion, lights, timings,
                         lambda cam, to_host, **kw: backend.shade(scene.mesh, static, cam.packed(), lights,
                                                                  to_host=to_host, **kw),
                         static.sharp_lobes(), split_rays, block_rays, aa_shading == "pixel")
@@ -276,7 +286,9 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     info = {"backend": backend.name, "device": backend.device, "method": "sg", "ssdf": bool(static.has_ssdf),
             "env_lobes": len(static.env_sgs), "lights": len(lights),
             "environment_sources": len(lights) - len(scene.lights_packed), "width": cam.width, "height": cam.height,
-            "aa": n_aa, "shadow_samples": n_shadow, "occlusion_samples": n_occlusion, "split_rays": split_rays,
+            "aa": n_aa, "shadow_samples": n_shadow,
+            "source_shadow_samples": min(n_shadow, lighting.SOURCE_SHADOW_SAMPLES) if len(lights) > len(
+                scene.lights_packed) else None, "occlusion_samples": n_occlusion, "split_rays": split_rays,
             "block_rays": block_rays, "aa_shading": aa_shading}
     return Rendering(image, timings, info)
 
@@ -308,7 +320,7 @@ def queue_frame(scene: Scene, backend="auto", aa: int = 1, shadow_samples: int =
     static = _static_inputs(scene, backend, Progress(None), {})
     lights = frame_lights(scene)
     n_occlusion = n_occlusion if static.has_ssdf else 0
-    _accumulate(scene, backend, n_aa, n_shadow, n_occlusion, lights, {"shade": 0.0},
+    _accumulate(scene, backend, n_aa, frame_shadow_samples(scene, n_shadow), n_occlusion, lights, {"shade": 0.0},
                 lambda cam, to_host, **kw: backend.shade(scene.mesh, static, cam.packed(), lights, to_host=to_host,
                                                          **kw),
                 static.sharp_lobes(), split_rays, block_rays, aa_shading == "pixel", wait=False, to_host=False)
@@ -324,14 +336,14 @@ def check_no_litspheres(scene: Scene, method: str) -> None:
                              f"(method={method!r} needs the material itself)")
 
 
-def _accumulate(scene: Scene, backend, n_aa: int, n_shadow: int, n_occlusion: int, lights, timings: dict, shade,
+def _accumulate(scene: Scene, backend, n_aa: int, n_shadow, n_occlusion: int, lights, timings: dict, shade,
                 lobes=None, split_rays: bool = True, block_rays: bool = False, shade_once: bool = False,
                 wait: bool = True, to_host: bool = True):
     """The (H, W, 3) image: per anti-aliasing sample (`aa_offsets`) the G-buffer, the shadow rays of
-    `lights` (n_shadow a light; none when 0), the environment-occlusion rays (n_occlusion a pixel; none
-    when 0) and with them the rays of the sharp environment lobes `lobes` (`ShadeInputs.sharp_lobes`), then
-    `shade(camera, to_host)` (→ (P, 3) with to_host), averaged with a box filter on the device
-    (`accumulate_frame`: one read-back, of the average). With split_rays, sample i of n traces its part
+    `lights` (n_shadow a pixel for every light, or one count a light; none when 0), the environment-occlusion
+    rays (n_occlusion a pixel; none when 0) and with them the rays of the sharp environment lobes `lobes`
+    (`ShadeInputs.sharp_lobes`), then `shade(camera, to_host)` (→ (P, 3) with to_host), averaged with a box filter
+    on the device (`accumulate_frame`: one read-back, of the average). With split_rays, sample i of n traces its part
     (i, n) of each set of rays (`trace.ray_part`), else all of them; with block_rays, shared in 2×2 pixel blocks
     (`trace.pixel_parts`). shade_once (n > 1): the first sample traces every ray of each set (shared in blocks with
     block_rays) and is shaded whole; a later one traces its own part (k, n) of each set and shades only the pixels
@@ -356,7 +368,7 @@ def _accumulate(scene: Scene, backend, n_aa: int, n_shadow: int, n_occlusion: in
         t0 = time.perf_counter()
         backend.trace_primary(scene.mesh, sample, to_host=False, keep=shade_once and i == 1)
         timed("gbuffer", t0)
-        if len(lights) and n_shadow:
+        if len(lights) and np.min(n_shadow) > 0:
             t0 = time.perf_counter()
             backend.trace_shadows(scene.mesh, None, lights, to_host=False, samples=n_shadow, part=part, **changed)
             timed("shadows", t0)

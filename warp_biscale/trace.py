@@ -37,7 +37,8 @@ from .model import GBuffer
 from .scene import Camera, Mesh, _integer
 
 __all__ = ["T_MIN", "SHADOW_OFFSET", "CHUNK_RAYS", "offsets", "check_mesh", "check_camera", "check_rays",
-           "check_lights", "check_gbuffer", "check_shadow_samples", "check_ray_part", "ray_part", "part_rays",
+           "check_lights", "check_gbuffer", "check_shadow_samples", "light_samples", "check_ray_part", "ray_part",
+           "part_rays",
            "pixel_parts", "block_pixel", "share_block", "BLOCK_SLOTS", "SHARE_NORMAL_COS", "SHARE_PLANE",
            "same_surface", "changed_pixels",
            "disk_sample", "disk_basis", "VISIBLE",
@@ -192,6 +193,17 @@ def check_occlusion_samples(samples) -> int:
 
 def check_shadow_samples(samples) -> int:
     return _integer("shadow samples", samples, 1, SHADOW_SAMPLES_MAX, " (rays per light and pixel)")
+
+
+def light_samples(samples, n_lights: int) -> np.ndarray:
+    """→ (n_lights,) int32 shadow rays per pixel for each light: `samples` one count for every light, or a
+    sequence of one count a light (each checked as check_shadow_samples)."""
+    if np.ndim(samples) == 0:
+        return np.full(n_lights, check_shadow_samples(samples), np.int32)
+    counts = list(samples)
+    if len(counts) != n_lights:
+        raise ValueError(f"shadow samples: one count a light, got {len(counts)} for {n_lights} lights")
+    return np.array([check_shadow_samples(c) for c in counts], np.int32).reshape(n_lights)
 
 
 def check_ray_part(part) -> tuple[int, int, int]:

@@ -705,14 +705,14 @@ class WarpBackend(DeviceBackend):
                 "face_normals": self._to_device(mesh.face_normals, "vec3"),
                 "mesh": wp.Mesh(points=points, indices=faces.flatten(), bvh_constructor="sah", bvh_leaf_size=2)}
 
-    def _small_upload(self, entry, key, host):
-        """entry's device copy of a small float32 array (camera, lights), uploaded again only when its
-        values change: a frame that moves nothing allocates and copies nothing."""
-        host = np.ascontiguousarray(host, np.float32)
+    def _small_upload(self, entry, key, host, dtype=wp.float32):
+        """entry's device copy of a small float32 (or `dtype`) array (camera, lights), uploaded again only when
+        its values change: a frame that moves nothing allocates and copies nothing."""
+        host = np.ascontiguousarray(host, wp.dtype_to_numpy(dtype))
         held = entry.get(key + "_host")
         if held is None or held.shape != host.shape or not np.array_equal(held, host):
             entry[key + "_host"] = host.copy()
-            entry[key] = wp.array(host, dtype=wp.float32, device=self._device)
+            entry[key] = wp.array(host, dtype=dtype, device=self._device)
         return entry[key]
 
     def _scratch(self, role, shape, dtype):
@@ -737,11 +737,12 @@ class WarpBackend(DeviceBackend):
     def _launch_trace_occluded(self, m, origins, directions, t_min, t_max, n, occluded):
         self._launch(ktrace.trace_occluded, n, [m["mesh"].id, origins, directions, t_min, t_max], [occluded])
 
-    def _launch_trace_shadows(self, m, face, bary, position, eye, lights, eps, t_min, samples, part, changed, n,
+    def _launch_trace_shadows(self, m, face, bary, position, eye, lights, samples, eps, t_min, part, changed, n,
                               vis):
         self._launch(ktrace.trace_shadows, (len(lights), n),
                      [m["mesh"].id, *self._ray_mesh(m), face, bary, position, wp.vec3(*eye),
-                      self._small_upload(m, "lights", lights), eps, t_min, samples, *part, *changed],
+                      self._small_upload(m, "lights", lights),
+                      self._small_upload(m, "light_samples", samples, wp.int32), eps, t_min, *part, *changed],
                      [vis])
 
     def _upload_shade_static(self, static, levels, basis, coeffs):
@@ -800,7 +801,9 @@ class WarpBackend(DeviceBackend):
 
     def _launch_share_block_shadows(self, m, face, position, eye, samples, part, n, n_lights, traced, shared):
         self._launch(ktrace.share_block_shadows, n, [face, position, m["face_normals"], wp.vec3(*eye), part[2], n,
-                                                     samples, part[0], part[1], n_lights, traced], [shared])
+                                                     part[0], part[1], n_lights,
+                                                     self._small_upload(m, "light_samples", samples, wp.int32), traced],
+                     [shared])
 
     def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, part, known, lights, camera,
                       n, only_material, changed, kept_mode, kept_amount, kept_scale, out):
