@@ -41,6 +41,11 @@ try:  # the renderer's lights: the scene's and its environment's compact sources
 except ImportError:
     def frame_lights(scene):
         return scene.lights_packed
+try:  # the shadow rays of each of those lights (an older tree: one count for all)
+    from warp_biscale.render import frame_shadow_samples
+except ImportError:
+    def frame_shadow_samples(scene, samples):
+        return samples
 
 if __package__ in (None, ""):  # run as a file: `bench` importable from the checkout, after site-packages
     sys.path.append(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -139,7 +144,8 @@ def part_frames(backends, sizes, lobe_list, light_list, term_list, frames, runs,
 
 def part_stages(backends, size, runs, out, repeat=10, block_modes=(False,)):
     """Each stage of a frame of the target scene apart (J = 8, one light, 16 terms), device-synchronised
-    medians of `runs` loops of `repeat` calls: the G-buffer, the shadow rays at 1 and 16 a light, the
+    medians of `runs` loops of `repeat` calls: the G-buffer, the shadow rays at 1 a light and at the frame's 16 (an
+    environment's sources at most lighting.SOURCE_SHADOW_SAMPLES), the
     occlusion rays, the sun lobes' rays, the shading (image left on the device), and the read-backs of the
     float frame and of the 8-bit display frame."""
     w, h = size
@@ -149,11 +155,12 @@ def part_stages(backends, size, runs, out, repeat=10, block_modes=(False,)):
         wb.render(scene, backend=be)  # compiles, precomputes, leaves this camera's G-buffer and rays on the device
         inputs = pack_frame(scene, be).inputs
         lights, cam, mesh = frame_lights(scene), scene.camera.packed(), scene.mesh
+        shadow_rays = frame_shadow_samples(scene, SHADOW_SAMPLES)  # the frame's: an environment's sun may get fewer
         stages = {
             "trace_primary": lambda: be.trace_primary(mesh, scene.camera, to_host=False),
             "trace_shadows (1 ray)": lambda: be.trace_shadows(mesh, None, lights, to_host=False, samples=1),
             f"trace_shadows ({SHADOW_SAMPLES} rays)": lambda: be.trace_shadows(mesh, None, lights, to_host=False,
-                                                                               samples=SHADOW_SAMPLES),
+                                                                               samples=shadow_rays),
             f"trace_occlusion ({OCCLUSION_SAMPLES} rays)": lambda: be.trace_occlusion(mesh, None, OCCLUSION_SAMPLES,
                                                                                       to_host=False),
             "trace_lobe_rays": lambda: be.trace_lobe_rays(mesh, None, inputs.sharp_lobes(), to_host=False),
@@ -165,7 +172,7 @@ def part_stages(backends, size, runs, out, repeat=10, block_modes=(False,)):
             blocks = (0, 1, w)
             stages.update({
                 f"trace_shadows ({SHADOW_SAMPLES} rays, 2x2 blocks)": lambda: be.trace_shadows(
-                    mesh, None, lights, to_host=False, samples=SHADOW_SAMPLES, part=blocks),
+                    mesh, None, lights, to_host=False, samples=shadow_rays, part=blocks),
                 f"trace_occlusion ({OCCLUSION_SAMPLES} rays, 2x2 blocks)": lambda: be.trace_occlusion(
                     mesh, None, OCCLUSION_SAMPLES, to_host=False, part=blocks),
                 "trace_lobe_rays (2x2 blocks)": lambda: be.trace_lobe_rays(mesh, None, inputs.sharp_lobes(),

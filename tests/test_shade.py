@@ -18,6 +18,11 @@ from warp_biscale.shading import shade_reference
 
 
 @functools.cache
+
+def _frame_rays(scene):
+    """The shadow rays a pixel of each of the frame's lights, as pack_frame traces them."""
+    return frame_shadow_samples(scene, SHADOW_SAMPLES)
+
 def _sg_environment(h=32, w=64):
     """A sky-like environment: a broad bright zenith lobe, a sharp warm "sun" (its fitted lobes 28 % of the power:
     the strongest gets rays of its own) and a constant ambient."""
@@ -184,7 +189,7 @@ def test_shade_of_an_anti_aliasing_samples_part_of_the_rays(backend, effective_m
     whole = shade_reference(pack_frame(scene, backend))
     assert np.abs(ref - whole).max() > 1e-3 * peak  # a part is not the whole set
     backend.trace_primary(scene.mesh, scene.camera, to_host=False)
-    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=frame_shadow_samples(scene, SHADOW_SAMPLES), part=part)
+    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=_frame_rays(scene), part=part)
     backend.trace_occlusion(scene.mesh, None, OCCLUSION_SAMPLES, to_host=False, part=part)
     backend.trace_lobe_rays(scene.mesh, None, frame.inputs.sharp_lobes(), to_host=False, part=part)
     np.testing.assert_array_equal(backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights), out)
@@ -201,7 +206,7 @@ def test_shade_uses_device_gbuffer(backend, effective_material):
     host = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights,
                          gbuffer=frame.gbuffer)
     backend.trace_primary(scene.mesh, scene.camera, to_host=False)
-    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=frame_shadow_samples(scene, SHADOW_SAMPLES))  # as pack_frame
+    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=_frame_rays(scene))  # as pack_frame
     backend.trace_occlusion(scene.mesh, None, OCCLUSION_SAMPLES, to_host=False)
     backend.trace_lobe_rays(scene.mesh, None, frame.inputs.sharp_lobes(), to_host=False)
     dev = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights)
@@ -215,7 +220,7 @@ def test_shade_only_one_material_over_the_last_frame(backend, effective_material
     scene = _scenes(effective_material)["occluded"]
     frame = pack_frame(scene, backend)
     backend.trace_primary(scene.mesh, scene.camera, to_host=False)
-    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=frame_shadow_samples(scene, SHADOW_SAMPLES))
+    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=_frame_rays(scene))
     backend.trace_occlusion(scene.mesh, None, OCCLUSION_SAMPLES, to_host=False)
     backend.trace_lobe_rays(scene.mesh, None, frame.inputs.sharp_lobes(), to_host=False)
     before = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights)
@@ -223,7 +228,7 @@ def test_shade_only_one_material_over_the_last_frame(backend, effective_material
                    scene.camera, scene.environment, scene.lights, ssdf_resolution=16, ssdf_terms=8)
     inputs = pack_frame(edited, backend).inputs
     backend.trace_primary(scene.mesh, scene.camera, to_host=False)
-    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=frame_shadow_samples(scene, SHADOW_SAMPLES))
+    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=_frame_rays(scene))
     backend.trace_occlusion(scene.mesh, None, OCCLUSION_SAMPLES, to_host=False)
     backend.trace_lobe_rays(scene.mesh, None, frame.inputs.sharp_lobes(), to_host=False)
     backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights, to_host=False)
@@ -244,7 +249,7 @@ def test_shade_only_one_material_over_the_last_frame(backend, effective_material
 
 def _trace_on_device(backend, scene, frame):
     backend.trace_primary(scene.mesh, scene.camera, to_host=False)
-    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=frame_shadow_samples(scene, SHADOW_SAMPLES))
+    backend.trace_shadows(scene.mesh, None, frame.lights, to_host=False, samples=_frame_rays(scene))
     backend.trace_occlusion(scene.mesh, None, OCCLUSION_SAMPLES, to_host=False)
     backend.trace_lobe_rays(scene.mesh, None, frame.inputs.sharp_lobes(), to_host=False)
 

@@ -25,6 +25,7 @@ from .images import check_exposure
 from .io import atomic_path, check_output
 from .litsphere import LitSphere, check_angles, check_resolution
 from .loading import load
+from .lighting import SOURCE_SHADOW_SAMPLES
 from .measured import MeasuredBRDF, small_scale_brdf
 from .montecarlo import missing_provenance
 from .progress import as_progress, set_quiet
@@ -602,7 +603,7 @@ def _add_render_commands(sub):
                                                          f"(default {FILE_AA}; 1: pixel centres only)")
     r.add_argument("--shadow-samples", type=int, metavar="N",
                    help=f"shadow rays per light and pixel over the light's disc (default {SHADOW_SAMPLES}; 1: a hard "
-                        "shadow)")
+                        f"shadow; an environment's sun at most {SOURCE_SHADOW_SAMPLES})")
     r.add_argument("--occlusion-samples", type=int, metavar="N",
                    help=f"environment-occlusion rays a pixel, 0..{OCCLUSION_SAMPLES_MAX}, that shadow the broad "
                         f"environment lobes where the scene occludes itself (default {OCCLUSION_SAMPLES}; 0: the "
