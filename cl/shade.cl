@@ -35,6 +35,9 @@
 #define ASG_TAPS 12 /* = shading.ASG_TAPS */
 #define ASG_TAP_SHARE 0.05f /* = shading.ASG_TAP_SHARE */
 #define LIGHT_BLUR_EXP_MAX 4.0f /* = shading.LIGHT_BLUR_EXP_MAX */
+#define MOMENT_NODES 7 /* = shading.MOMENT_NODES */
+#define MOMENT_SPAN 3.0f /* = shading.MOMENT_SPAN */
+#define MOMENT_VAR_MIN 5.0e-7f /* = shading.MOMENT_VAR_MIN */
 #define BACKGROUND_LOG2 1.0e30f /* = lighting.BACKGROUND_LOG2 */
 #define BACKGROUND_ETA 1.0e29f /* = lighting.BACKGROUND_ETA */
 /* shading._TAP_NODES, _TAP_WEIGHTS: ASG_TAPS offsets evenly over ±2.75 standard deviations, a Gaussian's weights
@@ -789,6 +792,82 @@ CL_INLINE float3 light_mean(int kind, float3 ks, float p1, float p2, SurfacePoin
     return f0 * (scale * exp(minf(expo, LIGHT_BLUR_EXP_MAX)));
 }
 
+/* aᵀ M b of the symmetric M with entries m = (xx, yy, zz, xy, xz, yz). */
+CL_INLINE float quadratic_form(float3 a, float3 b, const float m[6])
+{
+    return a.x * (m[0] * b.x + m[3] * b.y + m[4] * b.z) + a.y * (m[3] * b.x + m[1] * b.y + m[5] * b.z)
+           + a.z * (m[4] * b.x + m[5] * b.y + m[2] * b.z);
+}
+
+/* The ASG whose prefiltered lookup (asg_prefiltered) stands for the environment's mean radiance under an analytic
+ * row's f_s·(n·ωi)⁺ (shading.specular_moments): that function on a MOMENT_NODES² grid over ±MOMENT_SPAN σ of the
+ * NDF's ASG warped to the light directions (on the tangent plane at its axis, each point weighed by cos³ of its
+ * angle from the axis), its mean direction z and its covariance's principal axes and variances on z's tangent
+ * plane; the warped ASG itself where the grid holds nothing. */
+CL_INLINE Asg specular_moments(int kind, float3 ks, float p1, float p2, SurfacePoint s, float3 wo)
+{
+    Asg g;
+    g.x = s.t;
+    g.y = s.b;
+    g.z = s.n;
+    g.c = 1.0f;
+    if (kind == ANISOTROPIC_WARD || kind == ASHIKHMIN_SHIRLEY) {
+        float2 bw = ndf_bandwidths(kind, p1, p2);
+        g.lam = bw.x;
+        g.mu = bw.y;
+    } else {
+        g.lam = 0.5f * ndf_sharpness(kind, p1);
+        g.mu = g.lam;
+    }
+    Asg w = asg_warp(g, wo);
+    w.lam = maxf(w.lam, 1.0e-6f);
+    w.mu = maxf(w.mu, 1.0e-6f);
+    float sx = sqrt(0.5f / w.lam);
+    float sy = sqrt(0.5f / w.mu);
+    const float step = 2.0f * MOMENT_SPAN / (float)(MOMENT_NODES - 1);
+    float total = 0.0f;
+    float3 first = (float3)(0.0f, 0.0f, 0.0f);
+    float m[6] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f}; /* Σ g·d dᵀ: xx, yy, zz, xy, xz, yz */
+    for (int ia = 0; ia < MOMENT_NODES; ++ia) {
+        float a = ((float)ia * step - MOMENT_SPAN) * sx;
+        for (int ib = 0; ib < MOMENT_NODES; ++ib) {
+            float b = ((float)ib * step - MOMENT_SPAN) * sy;
+            float3 d = w.z + a * w.x + b * w.y;
+            float inv = 1.0f / sqrt(dot3(d, d));
+            d = d * inv;
+            float3 f = analytic_specular(kind, ks, p1, p2, s.t, s.b, s.n, d, wo);
+            float e = (f.x + f.y + f.z) * maxf(dot3(s.n, d), 0.0f) * inv * inv * inv;
+            total += e;
+            first = first + e * d;
+            m[0] += e * d.x * d.x;
+            m[1] += e * d.y * d.y;
+            m[2] += e * d.z * d.z;
+            m[3] += e * d.x * d.y;
+            m[4] += e * d.x * d.z;
+            m[5] += e * d.y * d.z;
+        }
+    }
+    if (total <= 0.0f || dot3(first, first) <= 0.0f)
+        return w;
+    float3 z = normalize3(first);
+    float3 u = light_across(z, w.x);
+    float3 v = cross3(z, u);
+    float cuu = quadratic_form(u, u, m) / total;
+    float cvv = quadratic_form(v, v, m) / total;
+    float cuv = quadratic_form(u, v, m) / total;
+    float angle = 0.5f * atan2(2.0f * cuv, cuu - cvv);
+    float c = cos(angle);
+    float sn = sin(angle);
+    Asg out;
+    out.z = z;
+    out.x = c * u + sn * v;
+    out.y = cross3(z, out.x);
+    out.c = 1.0f;
+    out.lam = 0.5f / maxf(cuu * c * c + 2.0f * cuv * c * sn + cvv * sn * sn, MOMENT_VAR_MIN);
+    out.mu = 0.5f / maxf(cuu * sn * sn - 2.0f * cuv * c * sn + cvv * c * c, MOMENT_VAR_MIN);
+    return out;
+}
+
 /* An analytic BRDF's specular radiance from the lights: f_s·(n·ωi)⁺'s mean over each light's SG (light_mean; `lobe`
  * the warped lobe's shape) times the light's irradiance at normal incidence and its visible share. */
 CL_INLINE float3 analytic_from_lights(int kind, float3 ks, float p1, float p2, SurfacePoint s, float3 wo, Asg lobe,
@@ -1163,6 +1242,9 @@ __kernel void shade_pixels(
                         shape.c = 1.0f;
                     }
                     out = out + analytic_from_lights(r_kind, r_ks, r_p1, row[8], s, wo, shape, n_lights, lights, vis);
+                    /* The environment where f_s·cos θi itself lies, not where the warp puts it. */
+                    tap = specular_moments(r_kind, r_ks, r_p1, row[8], s, wo);
+                    taps = 1;
                 } else {
                     __global const float *sub = eff_sub + 9 * (ei[4] + sub_i);
                     __global const float *lobe = eff_lobes + EFF_LOBE_WIDTH * (ei[3] + j);

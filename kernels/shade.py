@@ -51,6 +51,11 @@ AS_UNIFORM_COS = wp.constant(_shading.AS_UNIFORM_COS)
 ASG_TAPS = wp.constant(_shading.ASG_TAPS)
 ASG_TAP_SHARE = wp.constant(_shading.ASG_TAP_SHARE)
 LIGHT_BLUR_EXP_MAX = wp.constant(_shading.LIGHT_BLUR_EXP_MAX)
+MOMENT_NODES = wp.constant(_shading.MOMENT_NODES)
+MOMENT_POINTS = wp.constant(_shading.MOMENT_NODES * _shading.MOMENT_NODES)  # one loop, > max_unroll: not unrolled
+MOMENT_SPAN = wp.constant(_shading.MOMENT_SPAN)
+MOMENT_STEP = wp.constant(2.0 * _shading.MOMENT_SPAN / (_shading.MOMENT_NODES - 1))
+MOMENT_VAR_MIN = wp.constant(_shading.MOMENT_VAR_MIN)
 tap_vec = wp.types.vector(length=_shading.ASG_TAPS, dtype=wp.float32)
 TAP_NODES = wp.constant(tap_vec(*[float(x) for x in _shading._TAP_NODES]))
 TAP_WEIGHTS = wp.constant(tap_vec(*[float(x) for x in _shading._TAP_WEIGHTS]))
@@ -927,6 +932,83 @@ def light_mean(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoint, wo
 
 
 @wp.func
+def quadratic_form(a: wp.vec3, b: wp.vec3, xx: float, yy: float, zz: float, xy: float, xz: float, yz: float) -> float:
+    """aᵀ M b of the symmetric M with those entries."""
+    return (a[0] * (xx * b[0] + xy * b[1] + xz * b[2]) + a[1] * (xy * b[0] + yy * b[1] + yz * b[2])
+            + a[2] * (xz * b[0] + yz * b[1] + zz * b[2]))
+
+
+@wp.func
+def specular_moments(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoint, wo: wp.vec3) -> Asg:
+    """The ASG whose prefiltered lookup (asg_prefiltered) stands for the environment's mean radiance under an
+    analytic row's f_s·(n·ωi)⁺ (shading.specular_moments): that function on a MOMENT_NODES² grid over ±MOMENT_SPAN
+    σ of the NDF's ASG warped to the light directions (on the tangent plane at its axis, each point weighed by
+    cos³ of its angle from the axis), its mean direction z and its covariance's principal axes and variances on
+    z's tangent plane; the warped ASG itself where the grid holds nothing."""
+    g = Asg()
+    g.x = s.t
+    g.y = s.b
+    g.z = s.n
+    g.c = 1.0
+    if kind == ANISOTROPIC_WARD or kind == ASHIKHMIN_SHIRLEY:
+        bw = ndf_bandwidths(kind, p1, p2)
+        g.lam = bw[0]
+        g.mu = bw[1]
+    else:
+        g.lam = 0.5 * ndf_sharpness(kind, p1)
+        g.mu = g.lam
+    w = asg_warp(g, wo)
+    w.lam = wp.max(w.lam, 1.0e-6)
+    w.mu = wp.max(w.mu, 1.0e-6)
+    sx = wp.sqrt(0.5 / w.lam)
+    sy = wp.sqrt(0.5 / w.mu)
+    total = float(0.0)
+    first = wp.vec3(0.0)
+    xx = float(0.0)
+    yy = float(0.0)
+    zz = float(0.0)
+    xy = float(0.0)
+    xz = float(0.0)
+    yz = float(0.0)
+    for q in range(MOMENT_POINTS):
+        a = (float(q // MOMENT_NODES) * MOMENT_STEP - MOMENT_SPAN) * sx
+        b = (float(q % MOMENT_NODES) * MOMENT_STEP - MOMENT_SPAN) * sy
+        d = w.z + a * w.x + b * w.y
+        inv = 1.0 / wp.length(d)
+        d = d * inv
+        f = analytic_specular(kind, ks, p1, p2, s.t, s.b, s.n, d, wo)
+        e = (f[0] + f[1] + f[2]) * wp.max(wp.dot(s.n, d), 0.0) * inv * inv * inv
+        total = total + e
+        first = first + e * d
+        xx = xx + e * d[0] * d[0]
+        yy = yy + e * d[1] * d[1]
+        zz = zz + e * d[2] * d[2]
+        xy = xy + e * d[0] * d[1]
+        xz = xz + e * d[0] * d[2]
+        yz = yz + e * d[1] * d[2]
+    if total <= 0.0 or wp.length(first) <= 0.0:
+        return w
+    z = wp.normalize(first)
+    frame = light_axes(z, w.x)
+    u = frame[0]
+    v = frame[1]
+    cuu = quadratic_form(u, u, xx, yy, zz, xy, xz, yz) / total
+    cvv = quadratic_form(v, v, xx, yy, zz, xy, xz, yz) / total
+    cuv = quadratic_form(u, v, xx, yy, zz, xy, xz, yz) / total
+    angle = 0.5 * wp.atan2(2.0 * cuv, cuu - cvv)
+    c = wp.cos(angle)
+    sn = wp.sin(angle)
+    out = Asg()
+    out.z = z
+    out.x = c * u + sn * v
+    out.y = wp.cross(z, out.x)
+    out.c = 1.0
+    out.lam = 0.5 / wp.max(cuu * c * c + 2.0 * cuv * c * sn + cvv * sn * sn, MOMENT_VAR_MIN)
+    out.mu = 0.5 / wp.max(cuu * sn * sn - 2.0 * cuv * c * sn + cvv * c * c, MOMENT_VAR_MIN)
+    return out
+
+
+@wp.func
 def analytic_from_lights(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoint, wo: wp.vec3, lobe: Asg,
                          n_lights: int, lights: wp.array2d(dtype=wp.float32), light_vis: wp.array2d(dtype=wp.uint8),
                          p: int) -> wp.vec3:
@@ -1154,6 +1236,9 @@ def shade_pixels(
                         shape.mu = shape.lam
                     out = out + analytic_from_lights(r_kind, r_ks, r_p1, r_p2, s, wo, shape, n_lights, lights,
                                                      light_vis, p)
+                    # The environment where f_s·cos θi itself lies, not where the warp puts it.
+                    tap = specular_moments(r_kind, r_ks, r_p1, r_p2, s, wo)
+                    taps = 1
                 else:
                     sub = i32_at2(eff_info, idx, 4) + sub_i
                     lobe = i32_at2(eff_info, idx, 3) + j

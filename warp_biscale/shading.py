@@ -636,6 +636,67 @@ def asg_prefiltered(maps, levels, x, y, z, lam, mu):
     return out
 
 
+# Where an analytic row reads the environment. Its warped NDF (Wang's isotropic warp, Xu's ASG warp) has the place
+# and the width the half-vector map gives near normal incidence; towards grazing views f_s·cos θi moves away from the
+# mirror direction (over 10° on a sphere's rim), is broader than the warp's width and the horizon cuts it, so a
+# glossy sphere's rim under the studio read 15–100 % too much light (bench/README.md, "Where an analytic material
+# reads the environment"). So f_s·(n·ωi)⁺ itself is read at MOMENT_NODES² points spread evenly over ±MOMENT_SPAN
+# standard deviations of the NDF's ASG warped to the light directions (Xu Eq. 23–26) on the tangent plane at its
+# axis, each weighed by the solid angle its cell holds (cos³ of its angle from the axis); their weighted mean
+# direction and their covariance on that direction's tangent plane make the Gaussian with which the prefiltered
+# maps are read (`asg_prefiltered`). The row's magnitude stays its exact albedo (`specular_correction`) and its
+# occlusion the warped lobe's.
+MOMENT_NODES = 7
+MOMENT_SPAN = 3.0
+MOMENT_VAR_MIN = 0.5 / sg.SHARPNESS_MAX  # (a lobe narrower than the grid resolves: as sharp as a lookup goes)
+_MOMENT_OFFSETS = np.linspace(-MOMENT_SPAN, MOMENT_SPAN, MOMENT_NODES)
+
+
+def specular_moments(row, n, t, wo) -> tuple:
+    """(x, y, z, λ, μ), `asg_prefiltered`'s arguments: the ASG whose prefiltered lookup stands for the environment's
+    mean radiance under analytic rows' (m, 9) f_s·(n·ωi)⁺ at unit normals n, tangents t and views wo (m, 3): that
+    function's weighted mean direction over the points above (z), the principal axes of its covariance on z's
+    tangent plane (x, y) and bandwidths 1/(2·variance). Where the points hold nothing (a view below the horizon) the
+    warped ASG itself."""
+    kind = int(row[0, 0])
+    x, y = brdf_mod.tangent_frame(n, t)
+    if kind in brdf_mod.ANISOTROPIC_KINDS:
+        lam, mu = brdf_mod.ndf_bandwidths(kind, row[:, 7], row[:, 8])
+    else:
+        lam = mu = np.broadcast_to(0.5 * specular_scale(row, np.ones(len(n)))[1], (len(n),))
+    w = asg_mod.warp(asg_mod.ASG(x, y, n, lam, mu), wo)
+    sx = np.sqrt(0.5 / np.maximum(w.lam, 1e-6))
+    sy = np.sqrt(0.5 / np.maximum(w.mu, 1e-6))
+    total = np.zeros(len(n))
+    first = np.zeros((len(n), 3))  # Σ g·d
+    second = np.zeros((len(n), 3, 3))  # Σ g·d dᵀ
+    for ka in _MOMENT_OFFSETS:
+        for kb in _MOMENT_OFFSETS:
+            d = w.z + (ka * sx)[:, None] * w.x + (kb * sy)[:, None] * w.y
+            length = np.linalg.norm(d, axis=1)
+            d = d / length[:, None]
+            g = (_analytic_specular(row, n, t, d, wo) * np.maximum(_dot(n, d), 0.0)[:, None]).sum(1) * length ** -3.0
+            total += g
+            first += g[:, None] * d
+            second += g[:, None, None] * d[:, :, None] * d[:, None, :]
+    ok = (total > 0) & (np.linalg.norm(first, axis=1) > 0)
+    z = _normalize(np.where(ok[:, None], first, w.z))
+    u, v = light_axes(z, w.x)  # the covariance on z's tangent plane: (u·d, v·d) of the unit points
+    safe = np.where(ok, total, 1.0)
+    cuu = np.einsum("mi,mij,mj->m", u, second, u) / safe
+    cvv = np.einsum("mi,mij,mj->m", v, second, v) / safe
+    cuv = np.einsum("mi,mij,mj->m", u, second, v) / safe
+    angle = 0.5 * np.arctan2(2.0 * cuv, cuu - cvv)
+    c, s = np.cos(angle), np.sin(angle)
+    var_x = np.maximum(cuu * c * c + 2.0 * cuv * c * s + cvv * s * s, MOMENT_VAR_MIN)
+    var_y = np.maximum(cuu * s * s - 2.0 * cuv * c * s + cvv * c * c, MOMENT_VAR_MIN)
+    ax = c[:, None] * u + s[:, None] * v
+    ay = np.cross(z, ax)
+    keep = ok[:, None]
+    return (np.where(keep, ax, w.x), np.where(keep, ay, w.y), np.where(keep, z, w.z),
+            np.where(ok, 0.5 / var_x, np.maximum(w.lam, 1e-6)), np.where(ok, 0.5 / var_y, np.maximum(w.mu, 1e-6)))
+
+
 def capped_cosine_integral(e, cap, axis, n, eta, table):
     """Ashikhmin–Shirley's 1/max(cos θi, cos θo) over a lobe whose M is taken at cos θi = cos θo = `cap`: its
     f_s·cos θi is M·D·min(cos θi, cos θo), so the lobe's cosine integral e = ∫G·(n·ω)⁺ loses ∫G·(cos θi − cos θo)⁺.
@@ -986,14 +1047,17 @@ def shade_reference(frame: Frame) -> np.ndarray:
                     amp *= (c_oj > 0)[:, None]  # a lobe facing away from the viewer reflects nothing
                     lobes.append((axis, eta_c / (4 * np.maximum(c_oj, MIN_COS_VIEW)), amp, True))
         env_scales += [1.0] * (len(lobes) - len(env_scales))
-        for (axis, eta, amp, with_lights, *extra), env_scale in zip(lobes, env_scales):
+        for lobe_index, ((axis, eta, amp, with_lights, *extra), env_scale) in enumerate(zip(lobes, env_scales)):
             cap, asg_lobe = (extra + [None, None])[:2]
             eta = np.minimum(eta, sg.SHARPNESS_MAX)
             e = sg.integral(eta) * sg.table_lookup(table, 0, _dot(axis, ns), eta)
             if cap is not None:
                 e = capped_cosine_integral(e, cap, axis, ns, eta, table)
             occ = occlusion(axis, eta, sel)
-            if asg_lobe is None:
+            if kind == 0:  # an analytic row: where f_s·cos θi itself lies (`specular_moments`)
+                env_avg = asg_prefiltered(static.env_maps, static.env_levels,
+                                          *specular_moments(rows[lobe_index], ns, ts_, wo_s))
+            elif asg_lobe is None:
                 env_avg = prefiltered_lookup(static.env_maps, static.env_levels, axis, eta)
             else:
                 env_avg = asg_prefiltered(static.env_maps, static.env_levels, asg_lobe[0], asg_lobe[1], axis,
