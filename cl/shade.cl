@@ -35,9 +35,13 @@
 #define ASG_TAPS 12 /* = shading.ASG_TAPS */
 #define ASG_TAP_SHARE 0.05f /* = shading.ASG_TAP_SHARE */
 #define LIGHT_BLUR_EXP_MAX 4.0f /* = shading.LIGHT_BLUR_EXP_MAX */
-#define MOMENT_NODES 7 /* = shading.MOMENT_NODES */
-#define MOMENT_SPAN 3.0f /* = shading.MOMENT_SPAN */
+#define MOMENT_NODES 5 /* = shading.MOMENT_NODES */
 #define MOMENT_VAR_MIN 5.0e-7f /* = shading.MOMENT_VAR_MIN */
+#define MIRROR_COS 0.999f /* an axis within ~2.6° of the plane of incidence's normal: the points are mirrored */
+/* shading._MOMENT_OFFSETS, _MOMENT_WEIGHTS: a 5-point Gauss–Hermite rule's nodes (in σ) and weights over the
+ * Gaussian at each node */
+__constant float MOMENT_OFFSETS[MOMENT_NODES] = {-2.85697001f, -1.35562618f, 0.0f, 1.35562618f, 2.85697001f};
+__constant float MOMENT_WEIGHTS[MOMENT_NODES] = {1.67087724f, 1.39523623f, 1.33686841f, 1.39523623f, 1.67087724f};
 #define BACKGROUND_LOG2 1.0e30f /* = lighting.BACKGROUND_LOG2 */
 #define BACKGROUND_ETA 1.0e29f /* = lighting.BACKGROUND_ETA */
 /* shading._TAP_NODES, _TAP_WEIGHTS: ASG_TAPS offsets evenly over ±2.75 standard deviations, a Gaussian's weights
@@ -792,18 +796,40 @@ CL_INLINE float3 light_mean(int kind, float3 ks, float p1, float p2, SurfacePoin
     return f0 * (scale * exp(minf(expo, LIGHT_BLUR_EXP_MAX)));
 }
 
-/* aᵀ M b of the symmetric M with entries m = (xx, yy, zz, xy, xz, yz). */
-CL_INLINE float quadratic_form(float3 a, float3 b, const float m[6])
+/* Σ e, Σ e·d and Σ e·d dᵀ (xx, yy, zz, xy, xz, yz) over weighted unit directions d. */
+typedef struct {
+    float total;
+    float3 first;
+    float m[6];
+} Moments;
+
+CL_INLINE void moments_add(Moments *acc, float3 d, float e)
 {
+    acc->total += e;
+    acc->first = acc->first + e * d;
+    acc->m[0] += e * d.x * d.x;
+    acc->m[1] += e * d.y * d.y;
+    acc->m[2] += e * d.z * d.z;
+    acc->m[3] += e * d.x * d.y;
+    acc->m[4] += e * d.x * d.z;
+    acc->m[5] += e * d.y * d.z;
+}
+
+/* aᵀ (Σ e·d dᵀ) b. */
+CL_INLINE float quadratic_form(float3 a, float3 b, const Moments *acc)
+{
+    const float *m = acc->m;
     return a.x * (m[0] * b.x + m[3] * b.y + m[4] * b.z) + a.y * (m[3] * b.x + m[1] * b.y + m[5] * b.z)
            + a.z * (m[4] * b.x + m[5] * b.y + m[2] * b.z);
 }
 
 /* The ASG whose prefiltered lookup (asg_prefiltered) stands for the environment's mean radiance under an analytic
- * row's f_s·(n·ωi)⁺ (shading.specular_moments): that function on a MOMENT_NODES² grid over ±MOMENT_SPAN σ of the
- * NDF's ASG warped to the light directions (on the tangent plane at its axis, each point weighed by cos³ of its
- * angle from the axis), its mean direction z and its covariance's principal axes and variances on z's tangent
- * plane; the warped ASG itself where the grid holds nothing. */
+ * row's f_s·(n·ωi)⁺ (shading.specular_moments): that function at the MOMENT_NODES² points of a Gauss–Hermite rule
+ * for the NDF's ASG warped to the light directions (on the tangent plane at its axis, each weight over that Gaussian
+ * and cos³ of its angle from the axis), its mean direction z and its covariance's principal axes and variances on
+ * z's tangent plane; the warped ASG itself where the rule holds nothing. An isotropic kind's f_s is even about the
+ * plane of incidence, across which its warped lobe has one axis: the points on one side are read and counted on
+ * both. */
 CL_INLINE Asg specular_moments(int kind, float3 ks, float p1, float p2, SurfacePoint s, float3 wo)
 {
     Asg g;
@@ -811,50 +837,50 @@ CL_INLINE Asg specular_moments(int kind, float3 ks, float p1, float p2, SurfaceP
     g.y = s.b;
     g.z = s.n;
     g.c = 1.0f;
-    if (kind == ANISOTROPIC_WARD || kind == ASHIKHMIN_SHIRLEY) {
+    int isotropic = kind != ANISOTROPIC_WARD && kind != ASHIKHMIN_SHIRLEY;
+    if (isotropic) {
+        g.lam = 0.5f * ndf_sharpness(kind, p1);
+        g.mu = g.lam;
+    } else {
         float2 bw = ndf_bandwidths(kind, p1, p2);
         g.lam = bw.x;
         g.mu = bw.y;
-    } else {
-        g.lam = 0.5f * ndf_sharpness(kind, p1);
-        g.mu = g.lam;
     }
     Asg w = asg_warp(g, wo);
     w.lam = maxf(w.lam, 1.0e-6f);
     w.mu = maxf(w.mu, 1.0e-6f);
-    float sx = sqrt(0.5f / w.lam);
-    float sy = sqrt(0.5f / w.mu);
-    const float step = 2.0f * MOMENT_SPAN / (float)(MOMENT_NODES - 1);
-    float total = 0.0f;
-    float3 first = (float3)(0.0f, 0.0f, 0.0f);
-    float m[6] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f}; /* Σ g·d dᵀ: xx, yy, zz, xy, xz, yz */
+    /* the axis across which the points are mirrored (an isotropic kind's out-of-plane one) runs along b */
+    float3 across = cross3(s.n, wo);
+    int along_x = fabs(dot3(w.x, across)) > fabs(dot3(w.y, across));
+    float3 axis_a = along_x ? w.y : w.x;
+    float3 axis_b = along_x ? w.x : w.y;
+    float s_a = sqrt(0.5f / (along_x ? w.mu : w.lam));
+    float s_b = sqrt(0.5f / (along_x ? w.lam : w.mu));
+    int mirror = isotropic && fabs(dot3(axis_b, across)) >= MIRROR_COS * sqrt(dot3(across, across));
+    const int middle = MOMENT_NODES / 2; /* the rule's node at 0 */
+    Moments acc = {0.0f, (float3)(0.0f, 0.0f, 0.0f), {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f}};
     for (int ia = 0; ia < MOMENT_NODES; ++ia) {
-        float a = ((float)ia * step - MOMENT_SPAN) * sx;
-        for (int ib = 0; ib < MOMENT_NODES; ++ib) {
-            float b = ((float)ib * step - MOMENT_SPAN) * sy;
-            float3 d = w.z + a * w.x + b * w.y;
+        float a = MOMENT_OFFSETS[ia] * s_a;
+        for (int ib = mirror ? middle : 0; ib < MOMENT_NODES; ++ib) {
+            float3 d = w.z + a * axis_a + MOMENT_OFFSETS[ib] * s_b * axis_b;
             float inv = 1.0f / sqrt(dot3(d, d));
             d = d * inv;
             float3 f = analytic_specular(kind, ks, p1, p2, s.t, s.b, s.n, d, wo);
-            float e = (f.x + f.y + f.z) * maxf(dot3(s.n, d), 0.0f) * inv * inv * inv;
-            total += e;
-            first = first + e * d;
-            m[0] += e * d.x * d.x;
-            m[1] += e * d.y * d.y;
-            m[2] += e * d.z * d.z;
-            m[3] += e * d.x * d.y;
-            m[4] += e * d.x * d.z;
-            m[5] += e * d.y * d.z;
+            float e = (f.x + f.y + f.z) * maxf(dot3(s.n, d), 0.0f)
+                      * (MOMENT_WEIGHTS[ia] * MOMENT_WEIGHTS[ib] * inv * inv * inv);
+            moments_add(&acc, d, e);
+            if (mirror && ib > middle)
+                moments_add(&acc, d - (2.0f * dot3(d, axis_b)) * axis_b, e);
         }
     }
-    if (total <= 0.0f || dot3(first, first) <= 0.0f)
+    if (acc.total <= 0.0f || dot3(acc.first, acc.first) <= 0.0f)
         return w;
-    float3 z = normalize3(first);
+    float3 z = normalize3(acc.first);
     float3 u = light_across(z, w.x);
     float3 v = cross3(z, u);
-    float cuu = quadratic_form(u, u, m) / total;
-    float cvv = quadratic_form(v, v, m) / total;
-    float cuv = quadratic_form(u, v, m) / total;
+    float cuu = quadratic_form(u, u, &acc) / acc.total;
+    float cvv = quadratic_form(v, v, &acc) / acc.total;
+    float cuv = quadratic_form(u, v, &acc) / acc.total;
     float angle = 0.5f * atan2(2.0f * cuv, cuu - cvv);
     float c = cos(angle);
     float sn = sin(angle);

@@ -53,9 +53,11 @@ ASG_TAP_SHARE = wp.constant(_shading.ASG_TAP_SHARE)
 LIGHT_BLUR_EXP_MAX = wp.constant(_shading.LIGHT_BLUR_EXP_MAX)
 MOMENT_NODES = wp.constant(_shading.MOMENT_NODES)
 MOMENT_POINTS = wp.constant(_shading.MOMENT_NODES * _shading.MOMENT_NODES)  # one loop, > max_unroll: not unrolled
-MOMENT_SPAN = wp.constant(_shading.MOMENT_SPAN)
-MOMENT_STEP = wp.constant(2.0 * _shading.MOMENT_SPAN / (_shading.MOMENT_NODES - 1))
 MOMENT_VAR_MIN = wp.constant(_shading.MOMENT_VAR_MIN)
+MIRROR_COS = wp.constant(0.999)  # an axis within ~2.6° of the plane of incidence's normal: the points are mirrored
+moment_vec = wp.types.vector(length=_shading.MOMENT_NODES, dtype=wp.float32)
+MOMENT_OFFSETS = wp.constant(moment_vec(*[float(x) for x in _shading._MOMENT_OFFSETS]))
+MOMENT_WEIGHTS = wp.constant(moment_vec(*[float(x) for x in _shading._MOMENT_WEIGHTS]))
 tap_vec = wp.types.vector(length=_shading.ASG_TAPS, dtype=wp.float32)
 TAP_NODES = wp.constant(tap_vec(*[float(x) for x in _shading._TAP_NODES]))
 TAP_WEIGHTS = wp.constant(tap_vec(*[float(x) for x in _shading._TAP_WEIGHTS]))
@@ -931,70 +933,103 @@ def light_mean(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoint, wo
     return f0 * (scale * wp.exp(wp.min(expo, LIGHT_BLUR_EXP_MAX)))
 
 
+@wp.struct
+class Moments:
+    """Σ e, Σ e·d and Σ e·d dᵀ (xx, yy, zz, xy, xz, yz) over weighted unit directions d."""
+    total: float
+    first: wp.vec3
+    xx: float
+    yy: float
+    zz: float
+    xy: float
+    xz: float
+    yz: float
+
+
 @wp.func
-def quadratic_form(a: wp.vec3, b: wp.vec3, xx: float, yy: float, zz: float, xy: float, xz: float, yz: float) -> float:
-    """aᵀ M b of the symmetric M with those entries."""
-    return (a[0] * (xx * b[0] + xy * b[1] + xz * b[2]) + a[1] * (xy * b[0] + yy * b[1] + yz * b[2])
-            + a[2] * (xz * b[0] + yz * b[1] + zz * b[2]))
+def moments_add(m: Moments, d: wp.vec3, e: float) -> Moments:
+    out = m
+    out.total = m.total + e
+    out.first = m.first + e * d
+    out.xx = m.xx + e * d[0] * d[0]
+    out.yy = m.yy + e * d[1] * d[1]
+    out.zz = m.zz + e * d[2] * d[2]
+    out.xy = m.xy + e * d[0] * d[1]
+    out.xz = m.xz + e * d[0] * d[2]
+    out.yz = m.yz + e * d[1] * d[2]
+    return out
+
+
+@wp.func
+def quadratic_form(a: wp.vec3, b: wp.vec3, m: Moments) -> float:
+    """aᵀ (Σ e·d dᵀ) b."""
+    return (a[0] * (m.xx * b[0] + m.xy * b[1] + m.xz * b[2]) + a[1] * (m.xy * b[0] + m.yy * b[1] + m.yz * b[2])
+            + a[2] * (m.xz * b[0] + m.yz * b[1] + m.zz * b[2]))
 
 
 @wp.func
 def specular_moments(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoint, wo: wp.vec3) -> Asg:
     """The ASG whose prefiltered lookup (asg_prefiltered) stands for the environment's mean radiance under an
-    analytic row's f_s·(n·ωi)⁺ (shading.specular_moments): that function on a MOMENT_NODES² grid over ±MOMENT_SPAN
-    σ of the NDF's ASG warped to the light directions (on the tangent plane at its axis, each point weighed by
-    cos³ of its angle from the axis), its mean direction z and its covariance's principal axes and variances on
-    z's tangent plane; the warped ASG itself where the grid holds nothing."""
+    analytic row's f_s·(n·ωi)⁺ (shading.specular_moments): that function at the MOMENT_NODES² points of a
+    Gauss–Hermite rule for the NDF's ASG warped to the light directions (on the tangent plane at its axis, each
+    weight over that Gaussian and cos³ of its angle from the axis), its mean direction z and its covariance's
+    principal axes and variances on z's tangent plane; the warped ASG itself where the rule holds nothing. An
+    isotropic kind's f_s is even about the plane of incidence, across which its warped lobe has one axis: the
+    points on one side are read and counted on both."""
     g = Asg()
     g.x = s.t
     g.y = s.b
     g.z = s.n
     g.c = 1.0
-    if kind == ANISOTROPIC_WARD or kind == ASHIKHMIN_SHIRLEY:
+    isotropic = kind != ANISOTROPIC_WARD and kind != ASHIKHMIN_SHIRLEY
+    if isotropic:
+        g.lam = 0.5 * ndf_sharpness(kind, p1)
+        g.mu = g.lam
+    else:
         bw = ndf_bandwidths(kind, p1, p2)
         g.lam = bw[0]
         g.mu = bw[1]
-    else:
-        g.lam = 0.5 * ndf_sharpness(kind, p1)
-        g.mu = g.lam
     w = asg_warp(g, wo)
     w.lam = wp.max(w.lam, 1.0e-6)
     w.mu = wp.max(w.mu, 1.0e-6)
-    sx = wp.sqrt(0.5 / w.lam)
-    sy = wp.sqrt(0.5 / w.mu)
-    total = float(0.0)
-    first = wp.vec3(0.0)
-    xx = float(0.0)
-    yy = float(0.0)
-    zz = float(0.0)
-    xy = float(0.0)
-    xz = float(0.0)
-    yz = float(0.0)
+    # the axis across which the points are mirrored (an isotropic kind's out-of-plane one) runs along b
+    across = wp.cross(s.n, wo)
+    along_x = wp.abs(wp.dot(w.x, across)) > wp.abs(wp.dot(w.y, across))
+    axis_a = w.x
+    axis_b = w.y
+    s_a = wp.sqrt(0.5 / w.lam)
+    s_b = wp.sqrt(0.5 / w.mu)
+    if along_x:
+        axis_a = w.y
+        axis_b = w.x
+        s_a = wp.sqrt(0.5 / w.mu)
+        s_b = wp.sqrt(0.5 / w.lam)
+    mirror = isotropic and wp.abs(wp.dot(axis_b, across)) >= MIRROR_COS * wp.length(across)
+    half = MOMENT_NODES // 2
+    m = Moments()
     for q in range(MOMENT_POINTS):
-        a = (float(q // MOMENT_NODES) * MOMENT_STEP - MOMENT_SPAN) * sx
-        b = (float(q % MOMENT_NODES) * MOMENT_STEP - MOMENT_SPAN) * sy
-        d = w.z + a * w.x + b * w.y
+        ia = q // MOMENT_NODES
+        ib = q % MOMENT_NODES
+        if mirror and ib < half:
+            continue
+        d = w.z + (MOMENT_OFFSETS[ia] * s_a) * axis_a + (MOMENT_OFFSETS[ib] * s_b) * axis_b
         inv = 1.0 / wp.length(d)
         d = d * inv
         f = analytic_specular(kind, ks, p1, p2, s.t, s.b, s.n, d, wo)
-        e = (f[0] + f[1] + f[2]) * wp.max(wp.dot(s.n, d), 0.0) * inv * inv * inv
-        total = total + e
-        first = first + e * d
-        xx = xx + e * d[0] * d[0]
-        yy = yy + e * d[1] * d[1]
-        zz = zz + e * d[2] * d[2]
-        xy = xy + e * d[0] * d[1]
-        xz = xz + e * d[0] * d[2]
-        yz = yz + e * d[1] * d[2]
-    if total <= 0.0 or wp.length(first) <= 0.0:
+        e = (f[0] + f[1] + f[2]) * wp.max(wp.dot(s.n, d), 0.0) * (MOMENT_WEIGHTS[ia] * MOMENT_WEIGHTS[ib] * inv * inv
+                                                                  * inv)
+        m = moments_add(m, d, e)
+        if mirror and ib > half:
+            m = moments_add(m, d - (2.0 * wp.dot(d, axis_b)) * axis_b, e)
+    if m.total <= 0.0 or wp.length(m.first) <= 0.0:
         return w
-    z = wp.normalize(first)
+    z = wp.normalize(m.first)
     frame = light_axes(z, w.x)
     u = frame[0]
     v = frame[1]
-    cuu = quadratic_form(u, u, xx, yy, zz, xy, xz, yz) / total
-    cvv = quadratic_form(v, v, xx, yy, zz, xy, xz, yz) / total
-    cuv = quadratic_form(u, v, xx, yy, zz, xy, xz, yz) / total
+    cuu = quadratic_form(u, u, m) / m.total
+    cvv = quadratic_form(v, v, m) / m.total
+    cuv = quadratic_form(u, v, m) / m.total
     angle = 0.5 * wp.atan2(2.0 * cuv, cuu - cvv)
     c = wp.cos(angle)
     sn = wp.sin(angle)
