@@ -825,8 +825,8 @@ CL_INLINE float quadratic_form(float3 a, float3 b, const Moments *acc)
 
 /* The ASG whose prefiltered lookup (asg_prefiltered) stands for the environment's mean radiance under an analytic
  * row's f_s·(n·ωi)⁺ (shading.specular_moments): that function at the MOMENT_NODES² points of a Gauss–Hermite rule
- * for the NDF's ASG warped to the light directions (on the tangent plane at its axis, each weight over that Gaussian
- * and cos³ of its angle from the axis), its mean direction z and its covariance's principal axes and variances on
+ * for the NDF's ASG warped to the light directions (on the tangent plane at its axis, each weight over that Gaussian,
+ * times cos³ of its angle from the axis), its mean direction z and its covariance's principal axes and variances on
  * z's tangent plane; the warped ASG itself where the rule holds nothing. An isotropic kind's f_s is even about the
  * plane of incidence, across which its warped lobe has one axis: the points on one side are read and counted on
  * both. */

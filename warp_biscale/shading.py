@@ -639,10 +639,10 @@ def asg_prefiltered(maps, levels, x, y, z, lam, mu):
 # Where an analytic row reads the environment. Its warped NDF (Wang's isotropic warp, Xu's ASG warp) has the place
 # and the width the half-vector map gives near normal incidence; towards grazing views f_s·cos θi moves away from the
 # mirror direction (over 10° on a sphere's rim), is broader than the warp's width and the horizon cuts it, so a
-# glossy sphere's rim under the studio read 15–100 % too much light (bench/README.md, "Where an analytic material
+# glossy sphere's rim under the studio read 5–100 % too much light (bench/README.md, "Where an analytic material
 # reads the environment"). So f_s·(n·ωi)⁺ itself is read at MOMENT_NODES² points of a Gauss–Hermite rule for the
 # NDF's ASG warped to the light directions (Xu Eq. 23–26), on the tangent plane at its axis (each point's weight
-# divided by that Gaussian there, and by the solid angle its cell holds, cos³ of its angle from the axis): their
+# divided by that Gaussian there and times the solid angle its cell holds, cos³ of its angle from the axis): their
 # weighted mean direction and their covariance on that direction's tangent plane make the Gaussian with which the
 # prefiltered maps are read (`asg_prefiltered`). 5 × 5 points gave about the errors of a 7 × 7 even grid over ±3σ at
 # half its cost. The row's magnitude stays its exact albedo (`specular_correction`) and its occlusion the warped
