@@ -33,6 +33,8 @@ import os
 import re
 import sys
 
+import numpy as np
+
 import warp_biscale as wb
 from warp_biscale.render import OCCLUSION_SAMPLES, SHADOW_SAMPLES, pack_frame, queue_frame
 
@@ -156,11 +158,13 @@ def part_stages(backends, size, runs, out, repeat=10, block_modes=(False,)):
         inputs = pack_frame(scene, be).inputs
         lights, cam, mesh = frame_lights(scene), scene.camera.packed(), scene.mesh
         shadow_rays = frame_shadow_samples(scene, SHADOW_SAMPLES)  # the frame's: an environment's sun may get fewer
+        fewer = sorted({int(n) for n in np.atleast_1d(shadow_rays)} - {SHADOW_SAMPLES})
+        rays = f"{SHADOW_SAMPLES} rays" + "".join(f", {n} a source" for n in fewer)
         stages = {
             "trace_primary": lambda: be.trace_primary(mesh, scene.camera, to_host=False),
             "trace_shadows (1 ray)": lambda: be.trace_shadows(mesh, None, lights, to_host=False, samples=1),
-            f"trace_shadows ({SHADOW_SAMPLES} rays)": lambda: be.trace_shadows(mesh, None, lights, to_host=False,
-                                                                               samples=shadow_rays),
+            f"trace_shadows ({rays})": lambda: be.trace_shadows(mesh, None, lights, to_host=False,
+                                                                samples=shadow_rays),
             f"trace_occlusion ({OCCLUSION_SAMPLES} rays)": lambda: be.trace_occlusion(mesh, None, OCCLUSION_SAMPLES,
                                                                                       to_host=False),
             "trace_lobe_rays": lambda: be.trace_lobe_rays(mesh, None, inputs.sharp_lobes(), to_host=False),
@@ -171,7 +175,7 @@ def part_stages(backends, size, runs, out, repeat=10, block_modes=(False,)):
         if True in block_modes:  # each set a quarter a pixel, shared in 2×2 blocks (its shade reads the lent rays)
             blocks = (0, 1, w)
             stages.update({
-                f"trace_shadows ({SHADOW_SAMPLES} rays, 2x2 blocks)": lambda: be.trace_shadows(
+                f"trace_shadows ({rays}, 2x2 blocks)": lambda: be.trace_shadows(
                     mesh, None, lights, to_host=False, samples=shadow_rays, part=blocks),
                 f"trace_occlusion ({OCCLUSION_SAMPLES} rays, 2x2 blocks)": lambda: be.trace_occlusion(
                     mesh, None, OCCLUSION_SAMPLES, to_host=False, part=blocks),

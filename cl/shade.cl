@@ -796,7 +796,7 @@ CL_INLINE float3 light_mean(int kind, float3 ks, float p1, float p2, SurfacePoin
     return f0 * (scale * exp(minf(expo, LIGHT_BLUR_EXP_MAX)));
 }
 
-/* Σ e, Σ e·d and Σ e·d dᵀ (xx, yy, zz, xy, xz, yz) over weighted unit directions d. */
+/* Σ e, Σ e·δ and Σ e·δ δᵀ (xx, yy, zz, xy, xz, yz) over weighted offsets δ. */
 typedef struct {
     float total;
     float3 first;
@@ -815,12 +815,15 @@ CL_INLINE void moments_add(Moments *acc, float3 d, float e)
     acc->m[5] += e * d.y * d.z;
 }
 
-/* aᵀ (Σ e·d dᵀ) b. */
-CL_INLINE float quadratic_form(float3 a, float3 b, const Moments *acc)
+/* Σ e (a·d)(b·d) / Σ e of the directions d = c + δ whose δ the sums acc hold. */
+CL_INLINE float moment_about(float3 a, float3 b, const Moments *acc, float3 c)
 {
     const float *m = acc->m;
-    return a.x * (m[0] * b.x + m[3] * b.y + m[4] * b.z) + a.y * (m[3] * b.x + m[1] * b.y + m[5] * b.z)
-           + a.z * (m[4] * b.x + m[5] * b.y + m[2] * b.z);
+    float second = a.x * (m[0] * b.x + m[3] * b.y + m[4] * b.z) + a.y * (m[3] * b.x + m[1] * b.y + m[5] * b.z)
+                   + a.z * (m[4] * b.x + m[5] * b.y + m[2] * b.z);
+    float ac = dot3(a, c);
+    float bc = dot3(b, c);
+    return (second + ac * dot3(b, acc->first) + bc * dot3(a, acc->first)) / acc->total + ac * bc;
 }
 
 /* The ASG whose prefiltered lookup (asg_prefiltered) stands for the environment's mean radiance under an analytic
@@ -868,19 +871,22 @@ CL_INLINE Asg specular_moments(int kind, float3 ks, float p1, float p2, SurfaceP
             float3 f = analytic_specular(kind, ks, p1, p2, s.t, s.b, s.n, d, wo);
             float e = (f.x + f.y + f.z) * maxf(dot3(s.n, d), 0.0f)
                       * (MOMENT_WEIGHTS[ia] * MOMENT_WEIGHTS[ib] * inv * inv * inv);
-            moments_add(&acc, d, e);
+            /* (the sums about the warped axis, whose second moments are of the lobe's variance: about 0 they would be
+             * of 1, and float32 would lose a sharp lobe's variance to cancellation) */
+            moments_add(&acc, d - w.z, e);
             if (mirror && ib > middle)
-                moments_add(&acc, d - (2.0f * dot3(d, axis_b)) * axis_b, e);
+                moments_add(&acc, d - (2.0f * dot3(d, axis_b)) * axis_b - w.z, e);
         }
     }
-    if (acc.total <= 0.0f || dot3(acc.first, acc.first) <= 0.0f)
+    float3 mean = acc.first + acc.total * w.z;
+    if (acc.total <= 0.0f || dot3(mean, mean) <= 0.0f)
         return w;
-    float3 z = normalize3(acc.first);
+    float3 z = normalize3(mean);
     float3 u = light_across(z, w.x);
     float3 v = cross3(z, u);
-    float cuu = quadratic_form(u, u, &acc) / acc.total;
-    float cvv = quadratic_form(v, v, &acc) / acc.total;
-    float cuv = quadratic_form(u, v, &acc) / acc.total;
+    float cuu = moment_about(u, u, &acc, w.z);
+    float cvv = moment_about(v, v, &acc, w.z);
+    float cuv = moment_about(u, v, &acc, w.z);
     float angle = 0.5f * atan2(2.0f * cuv, cuu - cvv);
     float c = cos(angle);
     float sn = sin(angle);
@@ -1252,11 +1258,9 @@ __kernel void shade_pixels(
                         amp = amp * (w.c * asg_shade_integral(lam, mu_w) / sg_integral(eta));
                         if (r_kind == ASHIKHMIN_SHIRLEY)
                             cap = cos_o;
-                        tap = w;
-                        tap.lam = lam;
-                        tap.mu = mu_w;
-                        taps = 1;
-                        shape = tap;
+                        shape = w;
+                        shape.lam = lam;
+                        shape.mu = mu_w;
                     } else {
                         axis = normalize3(2.0f * cos_o * s.n - wo);
                         eta = ndf_sharpness(r_kind, r_p1) / (4.0f * cos_o);
@@ -1268,9 +1272,12 @@ __kernel void shade_pixels(
                         shape.c = 1.0f;
                     }
                     out = out + analytic_from_lights(r_kind, r_ks, r_p1, row[8], s, wo, shape, n_lights, lights, vis);
-                    /* The environment where f_s·cos θi itself lies, not where the warp puts it. */
+                    /* The environment where f_s·cos θi itself lies, not where the warp puts it; nothing for a view
+                     * below the shading normal's horizon, where f_s is 0. */
                     tap = specular_moments(r_kind, r_ks, r_p1, row[8], s, wo);
                     taps = 1;
+                    if (dot3(wo, s.n) <= 0.0f)
+                        amp = (float3)(0.0f, 0.0f, 0.0f);
                 } else {
                     __global const float *sub = eff_sub + 9 * (ei[4] + sub_i);
                     __global const float *lobe = eff_lobes + EFF_LOBE_WIDTH * (ei[3] + j);

@@ -935,7 +935,7 @@ def light_mean(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoint, wo
 
 @wp.struct
 class Moments:
-    """Σ e, Σ e·d and Σ e·d dᵀ (xx, yy, zz, xy, xz, yz) over weighted unit directions d."""
+    """Σ e, Σ e·δ and Σ e·δ δᵀ (xx, yy, zz, xy, xz, yz) over weighted offsets δ."""
     total: float
     first: wp.vec3
     xx: float
@@ -961,10 +961,13 @@ def moments_add(m: Moments, d: wp.vec3, e: float) -> Moments:
 
 
 @wp.func
-def quadratic_form(a: wp.vec3, b: wp.vec3, m: Moments) -> float:
-    """aᵀ (Σ e·d dᵀ) b."""
-    return (a[0] * (m.xx * b[0] + m.xy * b[1] + m.xz * b[2]) + a[1] * (m.xy * b[0] + m.yy * b[1] + m.yz * b[2])
-            + a[2] * (m.xz * b[0] + m.yz * b[1] + m.zz * b[2]))
+def moment_about(a: wp.vec3, b: wp.vec3, m: Moments, c: wp.vec3) -> float:
+    """Σ e (a·d)(b·d) / Σ e of the directions d = c + δ whose δ the sums m hold."""
+    second = (a[0] * (m.xx * b[0] + m.xy * b[1] + m.xz * b[2]) + a[1] * (m.xy * b[0] + m.yy * b[1] + m.yz * b[2])
+              + a[2] * (m.xz * b[0] + m.yz * b[1] + m.zz * b[2]))
+    ac = wp.dot(a, c)
+    bc = wp.dot(b, c)
+    return (second + ac * wp.dot(b, m.first) + bc * wp.dot(a, m.first)) / m.total + ac * bc
 
 
 @wp.func
@@ -1018,18 +1021,21 @@ def specular_moments(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoi
         f = analytic_specular(kind, ks, p1, p2, s.t, s.b, s.n, d, wo)
         e = (f[0] + f[1] + f[2]) * wp.max(wp.dot(s.n, d), 0.0) * (MOMENT_WEIGHTS[ia] * MOMENT_WEIGHTS[ib] * inv * inv
                                                                   * inv)
-        m = moments_add(m, d, e)
+        # (the sums about the warped axis, whose second moments are of the lobe's variance: about 0 they would be of
+        # 1, and float32 would lose a sharp lobe's variance to cancellation)
+        m = moments_add(m, d - w.z, e)
         if mirror and ib > half:
-            m = moments_add(m, d - (2.0 * wp.dot(d, axis_b)) * axis_b, e)
-    if m.total <= 0.0 or wp.length(m.first) <= 0.0:
+            m = moments_add(m, d - (2.0 * wp.dot(d, axis_b)) * axis_b - w.z, e)
+    mean = m.first + m.total * w.z
+    if m.total <= 0.0 or wp.length(mean) <= 0.0:
         return w
-    z = wp.normalize(m.first)
+    z = wp.normalize(mean)
     frame = light_axes(z, w.x)
     u = frame[0]
     v = frame[1]
-    cuu = quadratic_form(u, u, m) / m.total
-    cvv = quadratic_form(v, v, m) / m.total
-    cuv = quadratic_form(u, v, m) / m.total
+    cuu = moment_about(u, u, m, w.z)
+    cvv = moment_about(v, v, m, w.z)
+    cuv = moment_about(u, v, m, w.z)
     angle = 0.5 * wp.atan2(2.0 * cuv, cuu - cvv)
     c = wp.cos(angle)
     sn = wp.sin(angle)
@@ -1257,11 +1263,9 @@ def shade_pixels(
                         amp = amp * (w.c * asg_shade_integral(lam, mu_w) / sg_integral(eta))
                         if r_kind == ASHIKHMIN_SHIRLEY:
                             cap = cos_o
-                        tap = w
-                        tap.lam = lam
-                        tap.mu = mu_w
-                        taps = 1
-                        shape = tap
+                        shape = w
+                        shape.lam = lam
+                        shape.mu = mu_w
                     else:
                         axis = wp.normalize(2.0 * cos_o * s.n - wo)
                         eta = ndf_sharpness(r_kind, r_p1) / (4.0 * cos_o)
@@ -1271,9 +1275,12 @@ def shade_pixels(
                         shape.mu = shape.lam
                     out = out + analytic_from_lights(r_kind, r_ks, r_p1, r_p2, s, wo, shape, n_lights, lights,
                                                      light_vis, p)
-                    # The environment where f_s·cos θi itself lies, not where the warp puts it.
+                    # The environment where f_s·cos θi itself lies, not where the warp puts it; nothing for a view
+                    # below the shading normal's horizon, where f_s is 0.
                     tap = specular_moments(r_kind, r_ks, r_p1, r_p2, s, wo)
                     taps = 1
+                    if wp.dot(wo, s.n) <= 0.0:
+                        amp = wp.vec3(0.0)
                 else:
                     sub = i32_at2(eff_info, idx, 4) + sub_i
                     lobe = i32_at2(eff_info, idx, 3) + j

@@ -134,7 +134,7 @@ def test_the_sun_is_seen_by_the_camera_alone(backend):
     np.testing.assert_allclose(out, ref, atol=1e-3 * ref.max(), rtol=2e-3)
 
 
-def test_a_source_gets_fewer_shadow_rays_than_the_scenes_lights():
+def test_a_source_gets_fewer_shadow_rays_than_the_scenes_lights(monkeypatch):
     """A scene's own light gets the frame's shadow rays; the sky's sun, a light of the frame too, at most
     lighting.SOURCE_SHADOW_SAMPLES (its penumbra is narrow; the accuracy cost is measured in bench/README.md)."""
     mesh = wb.Mesh.plane(2.0, 0.0, 2, material=0)
@@ -147,7 +147,17 @@ def test_a_source_gets_fewer_shadow_rays_than_the_scenes_lights():
     np.testing.assert_array_equal(frame_shadow_samples(sky, 2), [2, 2])
     studio = wb.Scene(mesh, [wb.Lambert(0.5)], cam, wb.Environment.studio(), [light])
     np.testing.assert_array_equal(frame_shadow_samples(studio, 16), [16])
-    info = wb.render(sky, backend="warp:cpu", shadow_samples=16).info
+    backend = wb.get_backend("warp:cpu")
+    traced = []
+    trace = backend.trace_shadows
+
+    def spy(*args, **kwargs):  # what the renderer asks the device to trace
+        traced.append(np.asarray(kwargs["samples"]).tolist())
+        return trace(*args, **kwargs)
+
+    monkeypatch.setattr(backend, "trace_shadows", spy)
+    info = wb.render(sky, backend=backend, shadow_samples=16).info
+    assert traced == [[16, cap]]
     assert info["shadow_samples"] == 16 and info["source_shadow_samples"] == cap
 
 

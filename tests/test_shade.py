@@ -17,12 +17,12 @@ from warp_biscale.scene import Camera, DirectionalLight, Mesh, PointLight
 from warp_biscale.shading import shade_reference
 
 
-@functools.cache
-
 def _frame_rays(scene):
     """The shadow rays a pixel of each of the frame's lights, as pack_frame traces them."""
     return frame_shadow_samples(scene, SHADOW_SAMPLES)
 
+
+@functools.cache
 def _sg_environment(h=32, w=64):
     """A sky-like environment: a broad bright zenith lobe, a sharp warm "sun" (its fitted lobes 28 % of the power:
     the strongest gets rays of its own) and a constant ambient."""

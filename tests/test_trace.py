@@ -536,6 +536,23 @@ def test_rays_shared_in_2x2_blocks_match_reference(backend, block_frame, part):
         assert (off > 255 / 4 + 1).sum() == 0 and (off != 0).mean() < 0.02, (off.max(), (off != 0).mean())
 
 
+@pytest.mark.parametrize("part", [(0, 1), (1, 4), "blocks", "blocks 1/4"])
+def test_each_light_traces_its_own_count(backend, block_frame, part):
+    """Lights of different counts in one call (trace.light_samples): each light's column is, bit for bit, what a
+    call with its count for every light gives, each pixel its own rays or shared in 2×2 blocks (a light of fewer
+    than four rays then keeps its own)."""
+    mesh, cam, lights, g, lenders, sure = block_frame
+    part = {"blocks": (0, 1, cam.width), "blocks 1/4": (1, 4, cam.width)}.get(part, part)
+    soft = np.stack([PointLight((0.3, 3.0, 0.2), radius=0.4).packed(),
+                     DirectionalLight((-0.5, 1.0, 0.3), angular_radius=8.0).packed()])
+    for counts in ((16, 3), (8, 16)):
+        mixed = backend.trace_shadows(mesh, g, soft, samples=counts, part=part)
+        for k, n in enumerate(counts):
+            alone = backend.trace_shadows(mesh, g, soft, samples=n, part=part)
+            np.testing.assert_array_equal(mixed[:, k], alone[:, k])
+        assert (mixed[:, 0] != mixed[:, 1]).any()
+
+
 @pytest.mark.parametrize("bad, match", [((16, 8, 4), "one count a light, got 3 for 2 lights"),
                                         ((16, 0), "shadow samples"), ((16, 2.5), "shadow samples")])
 def test_bad_per_light_samples_is_one_line(backend, bad, match):

@@ -174,19 +174,19 @@ class Backend(Protocol):
         (default trace.T_MIN × mesh.scale) only guards against rounding. Any ray count (chunked)."""
 
     def trace_shadows(self, mesh, gbuffer: GBuffer | None, lights_packed, to_host: bool = True,
-                      samples: int = 1, part=(0, 1), only_changed: bool = False) -> np.ndarray | None:
-        """(P, L) uint8, the visible share of each light in 255ths (reference.trace_shadows): from each hit
-        pixel, `samples` rays from trace.ray_starts' origin (the hit lifted towards the smooth surface of the
-        vertex normals, then moved trace.SHADOW_OFFSET × mesh.scale along the geometric normal turned to the
-        eye's side), towards points of each light's disc (`lights_packed` (L, 8) Light.packed(); one sample:
-        its centre); a point light's rays stop that offset short of it. Misses get 0, and rays below the
-        shading normal's horizon count as blocked. `gbuffer`: None or the GBuffer trace_primary last returned
-        (both use the device copy), or any GBuffer with face, bary, position and eye (uploaded). Fills
-        "gbuffer_light_vis"; returns None unless to_host. `part` (index, count[, W]): only the rays each pixel
-        traces for anti-aliasing sample index of count (trace.pixel_parts), with W > 0 shared in the 2×2 pixel
-        blocks of a frame of width W (trace.share_block; reference.share_block_shadows). only_changed: only the
-        pixels whose hit is not on the kept reference frame's surface there (trace.changed_pixels; trace_primary's
-        keep); the others keep theirs."""
+                      samples=1, part=(0, 1), only_changed: bool = False) -> np.ndarray | None:
+        """(P, L) uint8, the visible share of each light in 255ths (reference.trace_shadows): from each hit pixel,
+        `samples` rays a light (an int, or one count a light: trace.light_samples) from trace.ray_starts' origin (the
+        hit lifted towards the smooth surface of the vertex normals, then moved trace.SHADOW_OFFSET × mesh.scale along
+        the geometric normal turned to the eye's side), towards points of each light's disc (`lights_packed` (L, 8)
+        Light.packed(); one sample: its centre); a point light's rays stop that offset short of it. Misses get 0, and
+        rays below the shading normal's horizon count as blocked. `gbuffer`: None or the GBuffer trace_primary last
+        returned (both use the device copy), or any GBuffer with face, bary, position and eye (uploaded). Fills
+        "gbuffer_light_vis"; returns None unless to_host. `part` (index, count[, W]): only the rays each pixel traces
+        for anti-aliasing sample index of count (trace.pixel_parts), with W > 0 shared in the 2×2 pixel blocks of a
+        frame of width W for a light of trace.BLOCK_SLOTS rays or more (trace.share_block;
+        reference.share_block_shadows). only_changed: only the pixels whose hit is not on the kept reference frame's
+        surface there (trace.changed_pixels; trace_primary's keep); the others keep theirs."""
 
     def trace_occlusion(self, mesh, gbuffer: GBuffer | None, samples: int, to_host: bool = True, part=(0, 1),
                         only_changed: bool = False) -> np.ndarray | None:

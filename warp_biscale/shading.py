@@ -668,9 +668,11 @@ def specular_moments(row, n, t, wo) -> tuple:
     w = asg_mod.warp(asg_mod.ASG(x, y, n, lam, mu), wo)
     sx = np.sqrt(0.5 / np.maximum(w.lam, 1e-6))
     sy = np.sqrt(0.5 / np.maximum(w.mu, 1e-6))
+    # The sums about the warped axis (δ = d − w.z), whose second moments are of the lobe's variance: about 0 they
+    # would be of 1, and the kernels' float32 would lose the variance of a sharp lobe to cancellation.
     total = np.zeros(len(n))
-    first = np.zeros((len(n), 3))  # Σ g·d
-    second = np.zeros((len(n), 3, 3))  # Σ g·d dᵀ
+    first = np.zeros((len(n), 3))  # Σ g·δ
+    second = np.zeros((len(n), 3, 3))  # Σ g·δ δᵀ
     for ka, weight_a in zip(_MOMENT_OFFSETS, _MOMENT_WEIGHTS):
         for kb, weight_b in zip(_MOMENT_OFFSETS, _MOMENT_WEIGHTS):
             d = w.z + (ka * sx)[:, None] * w.x + (kb * sy)[:, None] * w.y
@@ -678,16 +680,21 @@ def specular_moments(row, n, t, wo) -> tuple:
             d = d / length[:, None]
             g = (_analytic_specular(row, n, t, d, wo) * np.maximum(_dot(n, d), 0.0)[:, None]).sum(1) * (
                 weight_a * weight_b * length ** -3.0)
+            delta = d - w.z
             total += g
-            first += g[:, None] * d
-            second += g[:, None, None] * d[:, :, None] * d[:, None, :]
-    ok = (total > 0) & (np.linalg.norm(first, axis=1) > 0)
-    z = _normalize(np.where(ok[:, None], first, w.z))
+            first += g[:, None] * delta
+            second += g[:, None, None] * delta[:, :, None] * delta[:, None, :]
+    mean = first + total[:, None] * w.z  # Σ g·d
+    ok = (total > 0) & (np.linalg.norm(mean, axis=1) > 0)
+    z = _normalize(np.where(ok[:, None], mean, w.z))
     u, v = light_axes(z, w.x)  # the covariance on z's tangent plane: (u·d, v·d) of the unit points
     safe = np.where(ok, total, 1.0)
-    cuu = np.einsum("mi,mij,mj->m", u, second, u) / safe
-    cvv = np.einsum("mi,mij,mj->m", v, second, v) / safe
-    cuv = np.einsum("mi,mij,mj->m", u, second, v) / safe
+
+    def moment(a, b):  # Σ g (a·d)(b·d) / Σ g, with d = w.z + δ
+        az, bz = _dot(a, w.z), _dot(b, w.z)
+        return (np.einsum("mi,mij,mj->m", a, second, b) + az * _dot(b, first) + bz * _dot(a, first)) / safe + az * bz
+
+    cuu, cvv, cuv = moment(u, u), moment(v, v), moment(u, v)
     angle = 0.5 * np.arctan2(2.0 * cuv, cuu - cvv)
     c, s = np.cos(angle), np.sin(angle)
     var_x = np.maximum(cuu * c * c + 2.0 * cuv * c * s + cvv * s * s, MOMENT_VAR_MIN)
@@ -1056,9 +1063,11 @@ def shade_reference(frame: Frame) -> np.ndarray:
             if cap is not None:
                 e = capped_cosine_integral(e, cap, axis, ns, eta, table)
             occ = occlusion(axis, eta, sel)
-            if kind == 0:  # an analytic row: where f_s·cos θi itself lies (`specular_moments`)
+            if kind == 0:  # an analytic row: where f_s·cos θi itself lies (`specular_moments`); nothing for a view
+                # below the shading normal's horizon, where f_s is 0
                 env_avg = asg_prefiltered(static.env_maps, static.env_levels,
                                           *specular_moments(rows[lobe_index], ns, ts_, wo_s))
+                env_avg *= (_dot(ns, wo_s) > 0)[:, None]
             elif asg_lobe is None:
                 env_avg = prefiltered_lookup(static.env_maps, static.env_levels, axis, eta)
             else:
