@@ -122,18 +122,19 @@ def test_the_correction_tables():
     np.testing.assert_array_equal(packed["tex_data"][3 * off:3 * (off + h * w)].reshape(h, w, 3), aniso)
 
 
-@pytest.mark.parametrize("name", sorted(MATERIALS))
-def test_constant_environment_against_the_monte_carlo_reference(backend, name):
+def _sphere_against_reference(backend, material, environment, samples):
+    """The unit sphere of `material` under `environment` (32 × 24), the SG image against the Monte Carlo reference
+    (`samples` a pixel, seed 1) over the sphere's pixels: ([rim, inside] means' ratios (cos θo < 0.35 / ≥ 0.35 on
+    the unit sphere the icosphere approximates), relative L2, the reference's relative noise)."""
     cam = wb.Camera(eye=(0.3, 0.5, 3.2), width=32, height=24, fov=45)
-    scene = wb.Scene(SPHERE, [MATERIALS[name]], cam, CONSTANT, [])
+    scene = wb.Scene(SPHERE, [material], cam, environment, [])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         got = wb.render(scene, backend=backend, aa=1).image
-        ref = wb.render(scene, method="mc", samples=256, backend=backend, seed=1)
+        ref = wb.render(scene, method="mc", samples=samples, backend=backend, seed=1)
     want = ref.image
     assert np.isfinite(got).all() and got.min() >= 0
     hit = (backend.trace_primary(SPHERE, cam).face >= 0).reshape(want.shape[:2])
-    # cos θo of each pixel on the unit sphere the icosphere approximates
     eye, d = cam.rays()
     b = (eye * d).sum(1)
     t = -b - np.sqrt(np.maximum(b * b - (eye * eye).sum(1) + 1.0, 0.0))
@@ -141,7 +142,12 @@ def test_constant_environment_against_the_monte_carlo_reference(backend, name):
     rim, inner = hit & (cos_o < 0.35), hit & (cos_o >= 0.35)
     ratios = [got[s].mean() / want[s].mean() for s in (rim, inner)]
     noise = ref.info["stderr_rms"] / np.sqrt((want[hit] ** 2).mean())
-    rel = np.linalg.norm(got[hit] - want[hit]) / np.linalg.norm(want[hit])
+    return ratios, np.linalg.norm(got[hit] - want[hit]) / np.linalg.norm(want[hit]), noise
+
+
+@pytest.mark.parametrize("name", sorted(MATERIALS))
+def test_constant_environment_against_the_monte_carlo_reference(backend, name):
+    ratios, rel, noise = _sphere_against_reference(backend, MATERIALS[name], CONSTANT, 256)
     msg = f"rim {ratios[0]:.4f}, inner {ratios[1]:.4f}, relative L2 {rel:.4f} (noise {noise:.4f})"
     assert abs(ratios[0] - 1) < 0.02 and abs(ratios[1] - 1) < 0.01, msg
     assert rel < 1.25 * noise + 0.002, msg
@@ -203,21 +209,7 @@ STUDIO_RIM = {"anisotropic-ward": 0.15}
 
 @pytest.mark.parametrize("name", sorted(STUDIO_L2))
 def test_studio_against_the_monte_carlo_reference(backend, name):
-    cam = wb.Camera(eye=(0.3, 0.5, 3.2), width=32, height=24, fov=45)
-    scene = wb.Scene(SPHERE, [MATERIALS[name]], cam, STUDIO, [])
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        got = wb.render(scene, backend=backend, aa=1).image
-        want = wb.render(scene, method="mc", samples=4096, backend=backend, seed=1).image
-    assert np.isfinite(got).all() and got.min() >= 0
-    hit = (backend.trace_primary(SPHERE, cam).face >= 0).reshape(want.shape[:2])
-    eye, d = cam.rays()
-    b = (eye * d).sum(1)
-    t = -b - np.sqrt(np.maximum(b * b - (eye * eye).sum(1) + 1.0, 0.0))
-    cos_o = (-(eye + t[:, None] * d) * d).sum(1).reshape(want.shape[:2])
-    rim, inner = hit & (cos_o < 0.35), hit & (cos_o >= 0.35)
-    ratios = [got[s].mean() / want[s].mean() for s in (rim, inner)]
-    rel = np.linalg.norm(got[hit] - want[hit]) / np.linalg.norm(want[hit])
+    ratios, rel, _ = _sphere_against_reference(backend, MATERIALS[name], STUDIO, 4096)
     msg = f"rim {ratios[0]:.4f}, inner {ratios[1]:.4f}, relative L2 {rel:.4f}"
     assert abs(ratios[0] - 1) < STUDIO_RIM.get(name, 0.06) and abs(ratios[1] - 1) < 0.015, msg
     assert rel < STUDIO_L2[name], msg
