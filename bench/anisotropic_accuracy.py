@@ -31,11 +31,12 @@ MATERIALS = {
 RIM = 0.35  # cos θo below which a pixel is at the rim
 
 
-def environments():
-    """name → (environment, lights): three maps, and one directional light of a sun's angular radius (2°) alone."""
+def environments(height=64, width=128):
+    """name → (environment, lights): three maps (the studio's and the sky's height × width texels), and one
+    directional light of a sun's angular radius (2°) alone."""
     return {"constant": (wb.Environment.constant(1.0), []),
-            "studio": (wb.Environment.studio(height=64, width=128), []),
-            "sky (sun)": (wb.Environment.sky(height=64, width=128), []),
+            "studio": (wb.Environment.studio(height=height, width=width), []),
+            "sky (sun)": (wb.Environment.sky(height=height, width=width), []),
             "light 2°": (None, [wb.DirectionalLight((0.4, 0.8, 0.3), 3.0, 2.0)])}
 
 
@@ -43,8 +44,9 @@ def table(records, meta):
     rows = [[r["backend"], r["material"], r["environment"], f"{100 * r['relative_l2']:.2f} %", f"{r['psnr']:.2f}",
              f"{r['rim_ratio']:.3f}", f"{r['inner_ratio']:.3f}",
              f"{100 * r['reference_noise']:.2f} %", f"{r['sg_s']:.2f}", f"{r['mc_s']:.1f}"] for r in records]
+    maps = meta.get("map_size", (64, 128))
     head = [f"# Analytic materials against the Monte Carlo reference ({meta['size'][0]} × {meta['size'][1]}, "
-            f"{meta['samples']} samples a pixel; commit {meta.get('commit')})", ""]
+            f"{meta['samples']} samples a pixel, {maps[0]} × {maps[1]} maps; commit {meta.get('commit')})", ""]
     return "\n".join(head + markdown_table(["backend", "material", "environment", "relative L2", "PSNR dB",
                                             "SG/MC rim", "SG/MC inside", "reference noise", "SG render s",
                                             "MC render s"], rows)) + "\n"
@@ -55,9 +57,12 @@ def main(argv=None):
     ap.add_argument("backends", nargs="*", default=None)
     ap.add_argument("--samples", type=int, default=1024, help="Monte Carlo samples a pixel (default 1024)")
     ap.add_argument("--size", type=int, nargs=2, default=(48, 36), metavar=("W", "H"))
+    ap.add_argument("--map-size", type=int, nargs=2, default=(64, 128), metavar=("H", "W"),
+                    help="the studio's and the sky's texels (default 64 128)")
+    ap.add_argument("--environments", nargs="+", default=None, help="a subset of the environments' names")
     ap.add_argument("--out", default=os.path.join(HERE, "out", "anisotropic-accuracy"))
     args = ap.parse_args(argv)
-    out = Output(args.out, run_meta(samples=args.samples, size=list(args.size)))
+    out = Output(args.out, run_meta(samples=args.samples, size=list(args.size), map_size=list(args.map_size)))
     mesh = wb.Mesh.sphere(1.0, subdivisions=4)
     camera = wb.Camera(eye=(0.3, 0.5, 3.2), width=args.size[0], height=args.size[1], fov=45)
     eye, d = camera.rays()  # cos θo of each pixel on the unit sphere the icosphere approximates
@@ -66,7 +71,9 @@ def main(argv=None):
     cos_o = (-(eye + t[:, None] * d) * d).sum(1).reshape(args.size[1], args.size[0])
     for name in backend_names(args.backends):
         backend = wb.get_backend(name)
-        for ename, (env, lights) in environments().items():
+        for ename, (env, lights) in environments(*args.map_size).items():
+            if args.environments and ename not in args.environments:
+                continue
             for mname, material in MATERIALS.items():
                 scene = wb.Scene(mesh, [material], camera, env, lights)
                 with warnings.catch_warnings():
