@@ -683,18 +683,33 @@ CL_INLINE float2 ndf_bandwidths(int kind, float p1, float p2)
     return (float2)(0.5f * p1, 0.5f * p2);
 }
 
-/* An anisotropic BRDF's NDF as one ASG about the shading normal, in the frame of the mesh tangent, amplitude 1. */
+/* An analytic BRDF's NDF as one ASG about the shading normal, in the frame of the mesh tangent, amplitude 1: an
+ * anisotropic kind's (ndf_bandwidths), an isotropic kind's SG (λ = μ = η/2). */
 CL_INLINE Asg ndf_asg(int kind, float p1, float p2, SurfacePoint s)
 {
-    float2 bw = ndf_bandwidths(kind, p1, p2);
     Asg g;
     g.x = s.t;
     g.y = s.b;
     g.z = s.n;
     g.c = 1.0f;
-    g.lam = bw.x;
-    g.mu = bw.y;
+    if (kind == ANISOTROPIC_WARD || kind == ASHIKHMIN_SHIRLEY) {
+        float2 bw = ndf_bandwidths(kind, p1, p2);
+        g.lam = bw.x;
+        g.mu = bw.y;
+    } else {
+        g.lam = 0.5f * ndf_sharpness(kind, p1);
+        g.mu = g.lam;
+    }
     return g;
+}
+
+/* ndf_asg warped to the light directions (Xu Eq. 23–26), its bandwidths at least 1e−6. */
+CL_INLINE Asg warped_ndf(int kind, float p1, float p2, SurfacePoint s, float3 wo)
+{
+    Asg w = asg_warp(ndf_asg(kind, p1, p2, s), wo);
+    w.lam = maxf(w.lam, 1.0e-6f);
+    w.mu = maxf(w.mu, 1.0e-6f);
+    return w;
 }
 
 /* An effective material's ASG lobe convolved with its small-scale BRDF's NDF: an anisotropic one's ASG turned by
@@ -828,30 +843,13 @@ CL_INLINE float moment_about(float3 a, float3 b, const Moments *acc, float3 c)
 
 /* The ASG whose prefiltered lookup (asg_prefiltered) stands for the environment's mean radiance under an analytic
  * row's f_s·(n·ωi)⁺ (shading.specular_moments): that function at the MOMENT_NODES² points of a Gauss–Hermite rule
- * for the NDF's ASG warped to the light directions (on the tangent plane at its axis, each weight over that Gaussian,
- * times cos³ of its angle from the axis), its mean direction z and its covariance's principal axes and variances on
- * z's tangent plane; the warped ASG itself where the rule holds nothing. An isotropic kind's f_s is even about the
- * plane of incidence, across which its warped lobe has one axis: the points on one side are read and counted on
- * both. */
-CL_INLINE Asg specular_moments(int kind, float3 ks, float p1, float p2, SurfacePoint s, float3 wo)
+ * for the NDF's warped ASG w (warped_ndf; on the tangent plane at its axis, each weight over that Gaussian, times cos³
+ * of its angle from the axis), its mean direction z and its covariance's principal axes and variances on z's tangent
+ * plane; w itself where the rule holds nothing. An isotropic kind's f_s is even about the plane of incidence, across
+ * which its warped lobe has one axis: the points on one side are read and counted on both. */
+CL_INLINE Asg specular_moments(int kind, float3 ks, float p1, float p2, SurfacePoint s, float3 wo, Asg w)
 {
-    Asg g;
-    g.x = s.t;
-    g.y = s.b;
-    g.z = s.n;
-    g.c = 1.0f;
     int isotropic = kind != ANISOTROPIC_WARD && kind != ASHIKHMIN_SHIRLEY;
-    if (isotropic) {
-        g.lam = 0.5f * ndf_sharpness(kind, p1);
-        g.mu = g.lam;
-    } else {
-        float2 bw = ndf_bandwidths(kind, p1, p2);
-        g.lam = bw.x;
-        g.mu = bw.y;
-    }
-    Asg w = asg_warp(g, wo);
-    w.lam = maxf(w.lam, 1.0e-6f);
-    w.mu = maxf(w.mu, 1.0e-6f);
     /* the axis across which the points are mirrored (an isotropic kind's out-of-plane one) runs along b */
     float3 across = cross3(s.n, wo);
     int along_x = fabs(dot3(w.x, across)) > fabs(dot3(w.y, across));
@@ -1247,20 +1245,17 @@ __kernel void shade_pixels(
                     /* The lights by f_s itself (Xu 2013 §5.2), averaged over each light's size. */
                     with_lights = 0;
                     Asg shape;
+                    Asg w = warped_ndf(r_kind, r_p1, row[8], s, wo); /* (the environment's lookup is placed from it
+                                                                       * below) */
                     if (r_kind == ANISOTROPIC_WARD || r_kind == ASHIKHMIN_SHIRLEY) {
-                        /* The environment through the NDF's ASG warped to the light directions, as an effective
+                        /* The environment's magnitude and occlusion through the NDF's warped ASG, as an effective
                          * material's ASG lobe below. */
-                        Asg w = asg_warp(ndf_asg(r_kind, r_p1, row[8], s), wo);
-                        float lam = maxf(w.lam, 1.0e-6f);
-                        float mu_w = maxf(w.mu, 1.0e-6f);
-                        eta = minf(2.0f * sqrt(lam * mu_w), sharpness_max);
+                        eta = minf(2.0f * sqrt(w.lam * w.mu), sharpness_max);
                         axis = w.z;
-                        amp = amp * (w.c * asg_shade_integral(lam, mu_w) / sg_integral(eta));
+                        amp = amp * (w.c * asg_shade_integral(w.lam, w.mu) / sg_integral(eta));
                         if (r_kind == ASHIKHMIN_SHIRLEY)
                             cap = cos_o;
                         shape = w;
-                        shape.lam = lam;
-                        shape.mu = mu_w;
                     } else {
                         axis = normalize3(2.0f * cos_o * s.n - wo);
                         eta = ndf_sharpness(r_kind, r_p1) / (4.0f * cos_o);
@@ -1274,10 +1269,12 @@ __kernel void shade_pixels(
                     out = out + analytic_from_lights(r_kind, r_ks, r_p1, row[8], s, wo, shape, n_lights, lights, vis);
                     /* The environment where f_s·cos θi itself lies, not where the warp puts it; nothing for a view
                      * below the shading normal's horizon, where f_s is 0. */
-                    tap = specular_moments(r_kind, r_ks, r_p1, row[8], s, wo);
-                    taps = 1;
-                    if (dot3(wo, s.n) <= 0.0f)
+                    if (dot3(wo, s.n) > 0.0f) {
+                        tap = specular_moments(r_kind, r_ks, r_p1, row[8], s, wo, w);
+                        taps = 1;
+                    } else {
                         amp = (float3)(0.0f, 0.0f, 0.0f);
+                    }
                 } else {
                     __global const float *sub = eff_sub + 9 * (ei[4] + sub_i);
                     __global const float *lobe = eff_lobes + EFF_LOBE_WIDTH * (ei[3] + j);

@@ -561,17 +561,30 @@ def ndf_bandwidths(kind: int, p1: float, p2: float) -> wp.vec2:
 
 @wp.func
 def ndf_asg(kind: int, p1: float, p2: float, s: SurfacePoint) -> Asg:
-    """An anisotropic BRDF's NDF as one ASG about the shading normal, in the frame of the mesh tangent,
-    amplitude 1."""
-    bw = ndf_bandwidths(kind, p1, p2)
+    """An analytic BRDF's NDF as one ASG about the shading normal, in the frame of the mesh tangent, amplitude 1: an
+    anisotropic kind's (ndf_bandwidths), an isotropic kind's SG (λ = μ = η/2)."""
     g = Asg()
     g.x = s.t
     g.y = s.b
     g.z = s.n
     g.c = 1.0
-    g.lam = bw[0]
-    g.mu = bw[1]
+    if kind == ANISOTROPIC_WARD or kind == ASHIKHMIN_SHIRLEY:
+        bw = ndf_bandwidths(kind, p1, p2)
+        g.lam = bw[0]
+        g.mu = bw[1]
+    else:
+        g.lam = 0.5 * ndf_sharpness(kind, p1)
+        g.mu = g.lam
     return g
+
+
+@wp.func
+def warped_ndf(kind: int, p1: float, p2: float, s: SurfacePoint, wo: wp.vec3) -> Asg:
+    """ndf_asg warped to the light directions (Xu Eq. 23–26), its bandwidths at least 1e−6."""
+    w = asg_warp(ndf_asg(kind, p1, p2, s), wo)
+    w.lam = wp.max(w.lam, 1.0e-6)
+    w.mu = wp.max(w.mu, 1.0e-6)
+    return w
 
 
 @wp.func
@@ -971,30 +984,15 @@ def moment_about(a: wp.vec3, b: wp.vec3, m: Moments, c: wp.vec3) -> float:
 
 
 @wp.func
-def specular_moments(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoint, wo: wp.vec3) -> Asg:
+def specular_moments(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoint, wo: wp.vec3, w: Asg) -> Asg:
     """The ASG whose prefiltered lookup (asg_prefiltered) stands for the environment's mean radiance under an
     analytic row's f_s·(n·ωi)⁺ (shading.specular_moments): that function at the MOMENT_NODES² points of a
-    Gauss–Hermite rule for the NDF's ASG warped to the light directions (on the tangent plane at its axis, each
-    weight over that Gaussian, times cos³ of its angle from the axis), its mean direction z and its covariance's
-    principal axes and variances on z's tangent plane; the warped ASG itself where the rule holds nothing. An
-    isotropic kind's f_s is even about the plane of incidence, across which its warped lobe has one axis: the
-    points on one side are read and counted on both."""
-    g = Asg()
-    g.x = s.t
-    g.y = s.b
-    g.z = s.n
-    g.c = 1.0
+    Gauss–Hermite rule for the NDF's warped ASG `w` (warped_ndf; on the tangent plane at its axis, each weight over
+    that Gaussian, times cos³ of its angle from the axis), its mean direction z and its covariance's principal axes
+    and variances on z's tangent plane; w itself where the rule holds nothing. An isotropic kind's f_s is even
+    about the plane of incidence, across which its warped lobe has one axis: the points on one side are read and
+    counted on both."""
     isotropic = kind != ANISOTROPIC_WARD and kind != ASHIKHMIN_SHIRLEY
-    if isotropic:
-        g.lam = 0.5 * ndf_sharpness(kind, p1)
-        g.mu = g.lam
-    else:
-        bw = ndf_bandwidths(kind, p1, p2)
-        g.lam = bw[0]
-        g.mu = bw[1]
-    w = asg_warp(g, wo)
-    w.lam = wp.max(w.lam, 1.0e-6)
-    w.mu = wp.max(w.mu, 1.0e-6)
     # the axis across which the points are mirrored (an isotropic kind's out-of-plane one) runs along b
     across = wp.cross(s.n, wo)
     along_x = wp.abs(wp.dot(w.x, across)) > wp.abs(wp.dot(w.y, across))
@@ -1252,20 +1250,16 @@ def shade_pixels(
                     # The lights by f_s itself (Xu 2013 §5.2), averaged over each light's size.
                     with_lights = 0
                     shape = Asg()
+                    w = warped_ndf(r_kind, r_p1, r_p2, s, wo)  # (the environment's lookup is placed from it below)
                     if r_kind == ANISOTROPIC_WARD or r_kind == ASHIKHMIN_SHIRLEY:
-                        # The environment through the NDF's ASG warped to the light directions, as an effective
+                        # The environment's magnitude and occlusion through the NDF's warped ASG, as an effective
                         # material's ASG lobe below.
-                        w = asg_warp(ndf_asg(r_kind, r_p1, r_p2, s), wo)
-                        lam = wp.max(w.lam, 1.0e-6)
-                        mu_w = wp.max(w.mu, 1.0e-6)
-                        eta = wp.min(2.0 * wp.sqrt(lam * mu_w), SHARPNESS_MAX)
+                        eta = wp.min(2.0 * wp.sqrt(w.lam * w.mu), SHARPNESS_MAX)
                         axis = w.z
-                        amp = amp * (w.c * asg_shade_integral(lam, mu_w) / sg_integral(eta))
+                        amp = amp * (w.c * asg_shade_integral(w.lam, w.mu) / sg_integral(eta))
                         if r_kind == ASHIKHMIN_SHIRLEY:
                             cap = cos_o
                         shape = w
-                        shape.lam = lam
-                        shape.mu = mu_w
                     else:
                         axis = wp.normalize(2.0 * cos_o * s.n - wo)
                         eta = ndf_sharpness(r_kind, r_p1) / (4.0 * cos_o)
@@ -1277,9 +1271,10 @@ def shade_pixels(
                                                      light_vis, p)
                     # The environment where f_s·cos θi itself lies, not where the warp puts it; nothing for a view
                     # below the shading normal's horizon, where f_s is 0.
-                    tap = specular_moments(r_kind, r_ks, r_p1, r_p2, s, wo)
-                    taps = 1
-                    if wp.dot(wo, s.n) <= 0.0:
+                    if wp.dot(wo, s.n) > 0.0:
+                        tap = specular_moments(r_kind, r_ks, r_p1, r_p2, s, wo, w)
+                        taps = 1
+                    else:
                         amp = wp.vec3(0.0)
                 else:
                     sub = i32_at2(eff_info, idx, 4) + sub_i
