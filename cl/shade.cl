@@ -44,13 +44,18 @@ __constant float MOMENT_OFFSETS[MOMENT_NODES] = {-2.85697001f, -1.35562618f, 0.0
 __constant float MOMENT_WEIGHTS[MOMENT_NODES] = {1.67087724f, 1.39523623f, 1.33686841f, 1.39523623f, 1.67087724f};
 #define BACKGROUND_LOG2 1.0e30f /* = lighting.BACKGROUND_LOG2 */
 #define BACKGROUND_ETA 1.0e29f /* = lighting.BACKGROUND_ETA */
-/* shading._TAP_NODES, _TAP_WEIGHTS: ASG_TAPS offsets evenly over ±2.75 standard deviations, a Gaussian's weights
- * summing to 1 */
-__constant float TAP_NODES[ASG_TAPS] = {-2.75f, -2.25f, -1.75f, -1.25f, -0.75f, -0.25f,
-                                        0.25f, 0.75f, 1.25f, 1.75f, 2.25f, 2.75f};
-__constant float TAP_WEIGHTS[ASG_TAPS] = {0.00455787892f, 0.0159085606f, 0.0432439512f, 0.0915474454f,
-                                          0.15093622f, 0.193805943f, 0.193805943f, 0.15093622f,
-                                          0.0915474454f, 0.0432439512f, 0.0159085606f, 0.00455787892f};
+#define TAP_SPAN 2.75f /* = shading.TAP_SPAN */
+#define TAP_GAP 1.5f /* = shading.TAP_GAP */
+#define ROUND_SPREAD 0.25f /* = shading.ROUND_SPREAD */
+/* shading._HERMITE_NODES, _HERMITE_WEIGHTS, _HERMITE_GAPS: the Gauss–Hermite rules of 2–5 nodes (in spreads) one
+ * after another, their weights summing to 1, and each rule's widest gap */
+__constant float HERMITE_NODES[14] = {-1.0f, 1.0f, -1.73205078f, 0.0f, 1.73205078f, -2.33441424f, -0.741963804f,
+                                      0.741963804f, 2.33441424f, -2.85697007f, -1.35562623f, 0.0f, 1.35562623f,
+                                      2.85697007f};
+__constant float HERMITE_WEIGHTS[14] = {0.5f, 0.5f, 0.166666672f, 0.666666687f, 0.166666672f, 0.0458758548f,
+                                        0.454124153f, 0.454124153f, 0.0458758548f, 0.011257411f, 0.222075924f,
+                                        0.533333361f, 0.222075924f, 0.011257411f};
+__constant float HERMITE_GAPS[4] = {2.0f, 1.73205078f, 1.59245038f, 1.50134385f};
 
 /* floor(x) as an int for x >= 0 (every caller clamps x to a non-negative range first): truncation,
  * the same integer, without PoCL's out-of-line floor call. */
@@ -950,24 +955,43 @@ CL_INLINE float asg_convolved_at(Asg g, float eta, float3 h)
     return SHADE_PI / sqrt((g.lam + nu) * (g.mu + nu)) * pow(t, w) * exp(-expo);
 }
 
-/* The environment's mean radiance under a warped ASG lobe: ASG_TAPS prefiltered lookups along its broad axis
- * (shading.asg_prefiltered). */
+/* The environment's mean radiance under a warped ASG lobe: prefiltered lookups along its broad axis, as many as
+ * shading.tap_plan asks (shading.asg_prefiltered). */
 CL_INLINE float3 asg_prefiltered(__global const float *maps, __global const float *levels, int n_levels, Asg g,
                                  float sharpness_max)
 {
     float3 long_axis = g.lam > g.mu ? g.y : g.x;
     float var_long = 0.5f / minf(g.lam, g.mu);
     float var_tap = maxf(0.5f / maxf(g.lam, g.mu), ASG_TAP_SHARE * var_long);
-    if (var_long - var_tap <= 1.0e-6f * var_long)
+    float spread = sqrt(maxf(var_long - var_tap, 0.0f));
+    float ratio = spread / sqrt(var_tap);
+    if (ratio <= ROUND_SPREAD)
         return prefiltered(maps, levels, n_levels, g.z, minf(2.0f * sqrt(g.lam * g.mu), sharpness_max));
-    float spread = sqrt(var_long - var_tap);
     float eta_tap = minf(1.0f / var_tap, sharpness_max);
+    int count = 0;
+    for (int k = 0; k < 4; ++k)
+        if (count == 0 && HERMITE_GAPS[k] * ratio <= TAP_GAP)
+            count = k + 2;
     float3 out = (float3)(0.0f, 0.0f, 0.0f);
-    for (int k = 0; k < ASG_TAPS; ++k) {
-        float3 d = normalize3(g.z + (TAP_NODES[k] * spread) * long_axis);
-        out = out + TAP_WEIGHTS[k] * prefiltered(maps, levels, n_levels, d, eta_tap);
+    if (count > 0) {
+        int first = (count - 2) * (count + 1) / 2;
+        for (int k = 0; k < count; ++k) {
+            float3 d = normalize3(g.z + (HERMITE_NODES[first + k] * spread) * long_axis);
+            out = out + HERMITE_WEIGHTS[first + k] * prefiltered(maps, levels, n_levels, d, eta_tap);
+        }
+        return out;
     }
-    return out;
+    count = min(ASG_TAPS, 1 + (int)ceil(2.0f * TAP_SPAN * ratio / TAP_GAP));
+    float step = 2.0f * TAP_SPAN / (float)(count - 1);
+    float total = 0.0f;
+    for (int k = 0; k < count; ++k) {
+        float node = -TAP_SPAN + step * (float)k;
+        float weight = exp(-0.5f * node * node);
+        total += weight;
+        float3 d = normalize3(g.z + (node * spread) * long_axis);
+        out = out + weight * prefiltered(maps, levels, n_levels, d, eta_tap);
+    }
+    return out / total;
 }
 
 /* ∫ of a unit ASG: Xu's Eq. 10 where both bandwidths pass ASG_EQ10_MIN, else the exact quadrature

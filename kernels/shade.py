@@ -58,9 +58,13 @@ MIRROR_COS = wp.constant(0.999)  # an axis within ~2.6° of the plane of inciden
 moment_vec = wp.types.vector(length=_shading.MOMENT_NODES, dtype=wp.float32)
 MOMENT_OFFSETS = wp.constant(moment_vec(*[float(x) for x in _shading._MOMENT_OFFSETS]))
 MOMENT_WEIGHTS = wp.constant(moment_vec(*[float(x) for x in _shading._MOMENT_WEIGHTS]))
-tap_vec = wp.types.vector(length=_shading.ASG_TAPS, dtype=wp.float32)
-TAP_NODES = wp.constant(tap_vec(*[float(x) for x in _shading._TAP_NODES]))
-TAP_WEIGHTS = wp.constant(tap_vec(*[float(x) for x in _shading._TAP_WEIGHTS]))
+TAP_SPAN = wp.constant(_shading.TAP_SPAN)
+TAP_GAP = wp.constant(_shading.TAP_GAP)
+ROUND_SPREAD = wp.constant(_shading.ROUND_SPREAD)
+hermite_vec = wp.types.vector(length=len(_shading._HERMITE_NODES), dtype=wp.float32)
+HERMITE_NODES = wp.constant(hermite_vec(*[float(x) for x in _shading._HERMITE_NODES]))
+HERMITE_WEIGHTS = wp.constant(hermite_vec(*[float(x) for x in _shading._HERMITE_WEIGHTS]))
+HERMITE_GAPS = wp.constant(wp.vec4(*[float(x) for x in _shading._HERMITE_GAPS]))
 
 vec4i = wp.vec4i
 
@@ -809,22 +813,39 @@ def asg_convolved_at(g: Asg, eta: float, h: wp.vec3) -> float:
 
 @wp.func
 def asg_prefiltered(maps: wp.array(dtype=wp.vec3), levels: wp.array2d(dtype=wp.float32), g: Asg) -> wp.vec3:
-    """The environment's mean radiance under a warped ASG lobe: ASG_TAPS prefiltered lookups along its broad axis
-    (shading.asg_prefiltered)."""
+    """The environment's mean radiance under a warped ASG lobe: prefiltered lookups along its broad axis, as many as
+    shading.tap_plan asks (shading.asg_prefiltered)."""
     long_axis = g.x
     if g.lam > g.mu:
         long_axis = g.y
     var_long = 0.5 / wp.min(g.lam, g.mu)
     var_tap = wp.max(0.5 / wp.max(g.lam, g.mu), ASG_TAP_SHARE * var_long)
-    if var_long - var_tap <= 1.0e-6 * var_long:
+    spread = wp.sqrt(wp.max(var_long - var_tap, 0.0))
+    ratio = spread / wp.sqrt(var_tap)
+    if ratio <= ROUND_SPREAD:
         return prefiltered(maps, levels, g.z, wp.min(2.0 * wp.sqrt(g.lam * g.mu), SHARPNESS_MAX))
-    spread = wp.sqrt(var_long - var_tap)
     eta_tap = wp.min(1.0 / var_tap, SHARPNESS_MAX)
+    count = int(0)
+    for k in range(4):
+        if count == 0 and HERMITE_GAPS[k] * ratio <= TAP_GAP:
+            count = k + 2
     out = wp.vec3(0.0)
-    for k in range(ASG_TAPS):
-        d = wp.normalize(g.z + (TAP_NODES[k] * spread) * long_axis)
-        out = out + TAP_WEIGHTS[k] * prefiltered(maps, levels, d, eta_tap)
-    return out
+    if count > 0:
+        first = (count - 2) * (count + 1) // 2
+        for k in range(count):
+            d = wp.normalize(g.z + (HERMITE_NODES[first + k] * spread) * long_axis)
+            out = out + HERMITE_WEIGHTS[first + k] * prefiltered(maps, levels, d, eta_tap)
+        return out
+    count = wp.min(ASG_TAPS, 1 + int(wp.ceil(2.0 * TAP_SPAN * ratio / TAP_GAP)))
+    step = 2.0 * TAP_SPAN / float(count - 1)
+    total = float(0.0)
+    for k in range(count):
+        node = -TAP_SPAN + step * float(k)
+        weight = wp.exp(-0.5 * node * node)
+        total = total + weight
+        d = wp.normalize(g.z + (node * spread) * long_axis)
+        out = out + weight * prefiltered(maps, levels, d, eta_tap)
+    return out / total
 
 
 @wp.func

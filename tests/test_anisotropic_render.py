@@ -103,8 +103,8 @@ def test_textured_anisotropic_material_is_refused():
 
 
 def test_opencl_taps_are_the_references():
-    """cl/shade.cl writes the anisotropic lookup's taps out (`shading.asg_prefiltered`; kernels/shade.py takes them
-    from `shading`): the same offsets and weights, to float32."""
+    """cl/shade.cl writes the anisotropic lookup's rules out (`shading.asg_prefiltered`; kernels/shade.py takes them
+    from `shading`): the same nodes, weights and gaps, to float32, and the same constants."""
     import re
     from importlib import resources
 
@@ -112,8 +112,34 @@ def test_opencl_taps_are_the_references():
     from warp_biscale import shading
 
     text = resources.files(cl_sources).joinpath("shade.cl").read_text()
-    for name, want in (("TAP_NODES", shading._TAP_NODES), ("TAP_WEIGHTS", shading._TAP_WEIGHTS)):
-        body = re.search(name + r"\[ASG_TAPS\] = \{([^}]*)\}", text).group(1)
+    for name, want in (("HERMITE_NODES", shading._HERMITE_NODES), ("HERMITE_WEIGHTS", shading._HERMITE_WEIGHTS),
+                       ("HERMITE_GAPS", shading._HERMITE_GAPS)):
+        body = re.search(name + r"\[\d+\] = \{([^}]*)\}", text).group(1)
         got = np.array([float(v.strip().rstrip("f")) for v in body.split(",")])
         np.testing.assert_allclose(got, want, rtol=1e-7, atol=1e-9)
-    assert f"#define ASG_TAPS {shading.ASG_TAPS} " in text and f"#define ASG_TAP_SHARE {shading.ASG_TAP_SHARE}f" in text
+    for name in ("ASG_TAPS", "ASG_TAP_SHARE", "TAP_SPAN", "TAP_GAP", "ROUND_SPREAD"):
+        value = float(re.search(r"#define " + name + r" ([0-9.e+-]+)f? ", text).group(1))
+        assert value == pytest.approx(getattr(shading, name), rel=1e-7), name
+
+
+def test_tap_plan_keeps_taps_close_and_the_variance():
+    """`shading.tap_plan`: neighbouring taps at most TAP_GAP tap deviations apart below ASG_TAPS, as few as that
+    allows (one lookup only for a near-round lobe), and every rule's variance that of the spread it stands for
+    (Gauss–Hermite: exactly; the even comb over ±TAP_SPAN: its truncation's, within 4 %)."""
+    from warp_biscale import shading
+
+    ratio = np.concatenate([np.linspace(0.0, 4.4, 441), [0.25, 1.0, 1.5013438]])
+    count, even = shading.tap_plan(ratio)
+    for r, n, ev in zip(ratio, count, even):
+        nodes, weights = shading.tap_rule(int(n), bool(ev))
+        assert len(nodes) == n and weights.sum() == pytest.approx(1.0, abs=1e-12)
+        if n == 1:
+            assert r <= shading.ROUND_SPREAD
+            continue
+        if n < shading.ASG_TAPS:  # (ASG_TAPS even taps span the longest lobes a little more thinly)
+            assert np.diff(nodes).max() * r <= shading.TAP_GAP + 1e-12, (r, n, ev)
+        variance = float((weights * nodes**2).sum())
+        assert variance == pytest.approx(1.0, rel=1e-12 if not ev else 0.04), (r, n, ev)
+        if ev and n < shading.ASG_TAPS:  # one fewer even tap would have left too wide a gap
+            assert 2 * shading.TAP_SPAN / (n - 2) * r > shading.TAP_GAP
+    assert count.max() == shading.ASG_TAPS and count[ratio > 0.25].min() == 2
