@@ -37,7 +37,6 @@
 #define LIGHT_BLUR_EXP_MAX 4.0f /* = shading.LIGHT_BLUR_EXP_MAX */
 #define MOMENT_NODES 5 /* = shading.MOMENT_NODES */
 #define MOMENT_VAR_MIN 5.0e-7f /* = shading.MOMENT_VAR_MIN */
-#define MIRROR_COS 0.999f /* an axis within ~2.6° of the plane of incidence's normal: the points are mirrored */
 /* shading._MOMENT_OFFSETS, _MOMENT_WEIGHTS: a 5-point Gauss–Hermite rule's nodes (in σ) and weights over the
  * Gaussian at each node */
 __constant float MOMENT_OFFSETS[MOMENT_NODES] = {-2.85697001f, -1.35562618f, 0.0f, 1.35562618f, 2.85697001f};
@@ -846,29 +845,20 @@ CL_INLINE float moment_about(float3 a, float3 b, const Moments *acc, float3 c)
     return (second + ac * dot3(b, acc->first) + bc * dot3(a, acc->first)) / acc->total + ac * bc;
 }
 
-/* The ASG whose prefiltered lookup (asg_prefiltered) stands for the environment's mean radiance under an analytic
+/* The ASG whose prefiltered lookup (asg_prefiltered) stands for the environment's mean radiance under an anisotropic
  * row's f_s·(n·ωi)⁺ (shading.specular_moments): that function at the MOMENT_NODES² points of a Gauss–Hermite rule
  * for the NDF's warped ASG w (warped_ndf; on the tangent plane at its axis, each weight over that Gaussian, times cos³
  * of its angle from the axis), its mean direction z and its covariance's principal axes and variances on z's tangent
- * plane; w itself where the rule holds nothing. An isotropic kind's f_s is even about the plane of incidence, across
- * which its warped lobe has one axis: the points on one side are read and counted on both. */
+ * plane; w itself where the rule holds nothing. (An isotropic row's are tabulated: tabulated_moments.) */
 CL_INLINE Asg specular_moments(int kind, float3 ks, float p1, float p2, SurfacePoint s, float3 wo, Asg w)
 {
-    int isotropic = kind != ANISOTROPIC_WARD && kind != ASHIKHMIN_SHIRLEY;
-    /* the axis across which the points are mirrored (an isotropic kind's out-of-plane one) runs along b */
-    float3 across = cross3(s.n, wo);
-    int along_x = fabs(dot3(w.x, across)) > fabs(dot3(w.y, across));
-    float3 axis_a = along_x ? w.y : w.x;
-    float3 axis_b = along_x ? w.x : w.y;
-    float s_a = sqrt(0.5f / (along_x ? w.mu : w.lam));
-    float s_b = sqrt(0.5f / (along_x ? w.lam : w.mu));
-    int mirror = isotropic && fabs(dot3(axis_b, across)) >= MIRROR_COS * sqrt(dot3(across, across));
-    const int middle = MOMENT_NODES / 2; /* the rule's node at 0 */
+    float s_x = sqrt(0.5f / w.lam);
+    float s_y = sqrt(0.5f / w.mu);
     Moments acc = {0.0f, (float3)(0.0f, 0.0f, 0.0f), {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f}};
     for (int ia = 0; ia < MOMENT_NODES; ++ia) {
-        float a = MOMENT_OFFSETS[ia] * s_a;
-        for (int ib = mirror ? middle : 0; ib < MOMENT_NODES; ++ib) {
-            float3 d = w.z + a * axis_a + MOMENT_OFFSETS[ib] * s_b * axis_b;
+        float a = MOMENT_OFFSETS[ia] * s_x;
+        for (int ib = 0; ib < MOMENT_NODES; ++ib) {
+            float3 d = w.z + a * w.x + MOMENT_OFFSETS[ib] * s_y * w.y;
             float inv = 1.0f / sqrt(dot3(d, d));
             d = d * inv;
             float3 f = analytic_specular(kind, ks, p1, p2, s.t, s.b, s.n, d, wo);
@@ -877,8 +867,6 @@ CL_INLINE Asg specular_moments(int kind, float3 ks, float p1, float p2, SurfaceP
             /* (the sums about the warped axis, whose second moments are of the lobe's variance: about 0 they would be
              * of 1, and float32 would lose a sharp lobe's variance to cancellation) */
             moments_add(&acc, d - w.z, e);
-            if (mirror && ib > middle)
-                moments_add(&acc, d - (2.0f * dot3(d, axis_b)) * axis_b - w.z, e);
         }
     }
     float3 mean = acc.first + acc.total * w.z;
@@ -901,6 +889,35 @@ CL_INLINE Asg specular_moments(int kind, float3 ks, float p1, float p2, SurfaceP
     out.lam = 0.5f / maxf(cuu * c * c + 2.0f * cuv * c * sn + cvv * sn * sn, MOMENT_VAR_MIN);
     out.mu = 0.5f / maxf(cuu * sn * sn - 2.0f * cuv * c * sn + cvv * c * c, MOMENT_VAR_MIN);
     return out;
+}
+
+/* specular_moments' ASG for an isotropic row, read from its moment table (shading.moment_table) at texture `slot`
+ * for NDF sharpness eta (shading.tabulated_moments): linear in √cos θo, the mean in the plane of incidence on the
+ * mirror side. */
+CL_INLINE Asg tabulated_moments(__global const int *tex_info, __global const float *tex_data, int slot,
+                                SurfacePoint s, float3 wo, float eta)
+{
+    int off = tex_info[4 * slot];
+    int rows = tex_info[4 * slot + 1];
+    float cos_o = clamp(dot3(wo, s.n), 0.0f, 1.0f);
+    float pos = sqrt(cos_o) * (float)(rows - 1);
+    int i0 = min((int)pos, rows - 2);
+    float f = pos - (float)i0;
+    float3 value = load3(tex_data, off + i0) * (1.0f - f) + load3(tex_data, off + i0 + 1) * f;
+    float3 side = wo - cos_o * s.n;
+    float length = sqrt(dot3(side, side));
+    side = length > 1.0e-6f ? side / length : s.t;
+    float theta = clamp(atan2(length, cos_o) + value.x / sqrt(eta), 0.0f, 0.5f * SHADE_PI);
+    float c = cos(theta);
+    float sn = sin(theta);
+    Asg g;
+    g.z = c * s.n - sn * side;
+    g.x = -(c * side + sn * s.n);
+    g.y = cross3(g.z, g.x);
+    g.c = 1.0f;
+    g.lam = 0.5f / maxf(exp(value.y) / eta, MOMENT_VAR_MIN);
+    g.mu = 0.5f / maxf(exp(value.z) / eta, MOMENT_VAR_MIN);
+    return g;
 }
 
 /* An analytic BRDF's specular radiance from the lights: f_s·(n·ωi)⁺'s mean over each light's SG (light_mean; `lobe`
@@ -1261,7 +1278,7 @@ __kernel void shade_pixels(
                 float3 env_scale = (float3)(1.0f); /* the environment term's scale: an analytic row's correction */
                 if (kind == 0) {
                     __global const float *row = analytic + 9 * (idx + j);
-                    env_scale = specular_correction(tex_info, tex_data, 1 + idx + j, wo_local);
+                    env_scale = specular_correction(tex_info, tex_data, 1 + 2 * (idx + j), wo_local);
                     int r_kind = (int)row[0];
                     float3 r_ks = (float3)(row[4], row[5], row[6]) * t_ks;
                     float r_p1 = row[7] * t_p1;
@@ -1269,11 +1286,12 @@ __kernel void shade_pixels(
                     /* The lights by f_s itself (Xu 2013 §5.2), averaged over each light's size. */
                     with_lights = 0;
                     Asg shape;
-                    Asg w = warped_ndf(r_kind, r_p1, row[8], s, wo); /* (the environment's lookup is placed from it
-                                                                       * below) */
-                    if (r_kind == ANISOTROPIC_WARD || r_kind == ASHIKHMIN_SHIRLEY) {
+                    int anisotropic = r_kind == ANISOTROPIC_WARD || r_kind == ASHIKHMIN_SHIRLEY;
+                    Asg w;
+                    if (anisotropic) {
                         /* The environment's magnitude and occlusion through the NDF's warped ASG, as an effective
-                         * material's ASG lobe below. */
+                         * material's ASG lobe below (and its lookup placed from it: specular_moments). */
+                        w = warped_ndf(r_kind, r_p1, row[8], s, wo);
                         eta = minf(2.0f * sqrt(w.lam * w.mu), sharpness_max);
                         axis = w.z;
                         amp = amp * (w.c * asg_shade_integral(w.lam, w.mu) / sg_integral(eta));
@@ -1294,7 +1312,9 @@ __kernel void shade_pixels(
                     /* The environment where f_s·cos θi itself lies, not where the warp puts it; nothing for a view
                      * below the shading normal's horizon, where f_s is 0. */
                     if (dot3(wo, s.n) > 0.0f) {
-                        tap = specular_moments(r_kind, r_ks, r_p1, row[8], s, wo, w);
+                        tap = anisotropic ? specular_moments(r_kind, r_ks, r_p1, row[8], s, wo, w)
+                                          : tabulated_moments(tex_info, tex_data, 2 + 2 * (idx + j), s, wo,
+                                                              ndf_sharpness(r_kind, r_p1));
                         taps = 1;
                     } else {
                         amp = (float3)(0.0f, 0.0f, 0.0f);

@@ -54,7 +54,6 @@ LIGHT_BLUR_EXP_MAX = wp.constant(_shading.LIGHT_BLUR_EXP_MAX)
 MOMENT_NODES = wp.constant(_shading.MOMENT_NODES)
 MOMENT_POINTS = wp.constant(_shading.MOMENT_NODES * _shading.MOMENT_NODES)  # one loop, > max_unroll: not unrolled
 MOMENT_VAR_MIN = wp.constant(_shading.MOMENT_VAR_MIN)
-MIRROR_COS = wp.constant(0.999)  # an axis within ~2.6° of the plane of incidence's normal: the points are mirrored
 moment_vec = wp.types.vector(length=_shading.MOMENT_NODES, dtype=wp.float32)
 MOMENT_OFFSETS = wp.constant(moment_vec(*[float(x) for x in _shading._MOMENT_OFFSETS]))
 MOMENT_WEIGHTS = wp.constant(moment_vec(*[float(x) for x in _shading._MOMENT_WEIGHTS]))
@@ -1007,34 +1006,18 @@ def moment_about(a: wp.vec3, b: wp.vec3, m: Moments, c: wp.vec3) -> float:
 @wp.func
 def specular_moments(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoint, wo: wp.vec3, w: Asg) -> Asg:
     """The ASG whose prefiltered lookup (asg_prefiltered) stands for the environment's mean radiance under an
-    analytic row's f_s·(n·ωi)⁺ (shading.specular_moments): that function at the MOMENT_NODES² points of a
+    anisotropic row's f_s·(n·ωi)⁺ (shading.specular_moments): that function at the MOMENT_NODES² points of a
     Gauss–Hermite rule for the NDF's warped ASG `w` (warped_ndf; on the tangent plane at its axis, each weight over
     that Gaussian, times cos³ of its angle from the axis), its mean direction z and its covariance's principal axes
-    and variances on z's tangent plane; w itself where the rule holds nothing. An isotropic kind's f_s is even
-    about the plane of incidence, across which its warped lobe has one axis: the points on one side are read and
-    counted on both."""
-    isotropic = kind != ANISOTROPIC_WARD and kind != ASHIKHMIN_SHIRLEY
-    # the axis across which the points are mirrored (an isotropic kind's out-of-plane one) runs along b
-    across = wp.cross(s.n, wo)
-    along_x = wp.abs(wp.dot(w.x, across)) > wp.abs(wp.dot(w.y, across))
-    axis_a = w.x
-    axis_b = w.y
-    s_a = wp.sqrt(0.5 / w.lam)
-    s_b = wp.sqrt(0.5 / w.mu)
-    if along_x:
-        axis_a = w.y
-        axis_b = w.x
-        s_a = wp.sqrt(0.5 / w.mu)
-        s_b = wp.sqrt(0.5 / w.lam)
-    mirror = isotropic and wp.abs(wp.dot(axis_b, across)) >= MIRROR_COS * wp.length(across)
-    half = MOMENT_NODES // 2
+    and variances on z's tangent plane; w itself where the rule holds nothing. (An isotropic row's are tabulated:
+    tabulated_moments.)"""
+    s_x = wp.sqrt(0.5 / w.lam)
+    s_y = wp.sqrt(0.5 / w.mu)
     m = Moments()
     for q in range(MOMENT_POINTS):
         ia = q // MOMENT_NODES
         ib = q % MOMENT_NODES
-        if mirror and ib < half:
-            continue
-        d = w.z + (MOMENT_OFFSETS[ia] * s_a) * axis_a + (MOMENT_OFFSETS[ib] * s_b) * axis_b
+        d = w.z + (MOMENT_OFFSETS[ia] * s_x) * w.x + (MOMENT_OFFSETS[ib] * s_y) * w.y
         inv = 1.0 / wp.length(d)
         d = d * inv
         f = analytic_specular(kind, ks, p1, p2, s.t, s.b, s.n, d, wo)
@@ -1043,8 +1026,6 @@ def specular_moments(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoi
         # (the sums about the warped axis, whose second moments are of the lobe's variance: about 0 they would be of
         # 1, and float32 would lose a sharp lobe's variance to cancellation)
         m = moments_add(m, d - w.z, e)
-        if mirror and ib > half:
-            m = moments_add(m, d - (2.0 * wp.dot(d, axis_b)) * axis_b - w.z, e)
     mean = m.first + m.total * w.z
     if m.total <= 0.0 or wp.length(mean) <= 0.0:
         return w
@@ -1066,6 +1047,38 @@ def specular_moments(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoi
     out.lam = 0.5 / wp.max(cuu * c * c + 2.0 * cuv * c * sn + cvv * sn * sn, MOMENT_VAR_MIN)
     out.mu = 0.5 / wp.max(cuu * sn * sn - 2.0 * cuv * c * sn + cvv * c * c, MOMENT_VAR_MIN)
     return out
+
+
+@wp.func
+def tabulated_moments(tex_info: wp.array2d(dtype=wp.int32), tex_data: wp.array(dtype=wp.vec3), slot: int,
+                      s: SurfacePoint, wo: wp.vec3, eta: float) -> Asg:
+    """specular_moments' ASG for an isotropic row, read from its moment table (shading.moment_table) at texture
+    `slot` for NDF sharpness η (shading.tabulated_moments): linear in √cos θo, the mean in the plane of incidence on
+    the mirror side."""
+    off = i32_at2(tex_info, slot, 0)
+    rows = i32_at2(tex_info, slot, 1)
+    cos_o = wp.clamp(wp.dot(wo, s.n), 0.0, 1.0)
+    pos = wp.sqrt(cos_o) * float(rows - 1)
+    i0 = wp.min(int(pos), rows - 2)
+    f = pos - float(i0)
+    value = tex_data[off + i0] * (1.0 - f) + tex_data[off + i0 + 1] * f
+    side = wo - cos_o * s.n
+    length = wp.length(side)
+    if length > 1.0e-6:
+        side = side / length
+    else:
+        side = s.t
+    theta = wp.clamp(wp.atan2(length, cos_o) + value[0] / wp.sqrt(eta), 0.0, 0.5 * PI)
+    c = wp.cos(theta)
+    sn = wp.sin(theta)
+    g = Asg()
+    g.z = c * s.n - sn * side
+    g.x = -(c * side + sn * s.n)
+    g.y = wp.cross(g.z, g.x)
+    g.c = 1.0
+    g.lam = 0.5 / wp.max(wp.exp(value[1]) / eta, MOMENT_VAR_MIN)
+    g.mu = 0.5 / wp.max(wp.exp(value[2]) / eta, MOMENT_VAR_MIN)
+    return g
 
 
 @wp.func
@@ -1262,7 +1275,7 @@ def shade_pixels(
                 env_scale = wp.vec3(1.0)  # the environment term's scale: an analytic row's correction
                 if kind == 0:
                     row = idx + j
-                    env_scale = specular_correction(tex_info, tex_data, 1 + row, wo_local)
+                    env_scale = specular_correction(tex_info, tex_data, 1 + 2 * row, wo_local)
                     r_kind = int(analytic[row, 0])
                     r_ks = wp.cw_mul(wp.vec3(analytic[row, 4], analytic[row, 5], analytic[row, 6]), t_ks)
                     r_p1 = analytic[row, 7] * t_p1
@@ -1271,10 +1284,12 @@ def shade_pixels(
                     # The lights by f_s itself (Xu 2013 §5.2), averaged over each light's size.
                     with_lights = 0
                     shape = Asg()
-                    w = warped_ndf(r_kind, r_p1, r_p2, s, wo)  # (the environment's lookup is placed from it below)
-                    if r_kind == ANISOTROPIC_WARD or r_kind == ASHIKHMIN_SHIRLEY:
+                    anisotropic = r_kind == ANISOTROPIC_WARD or r_kind == ASHIKHMIN_SHIRLEY
+                    w = Asg()
+                    if anisotropic:
                         # The environment's magnitude and occlusion through the NDF's warped ASG, as an effective
-                        # material's ASG lobe below.
+                        # material's ASG lobe below (and its lookup placed from it: specular_moments).
+                        w = warped_ndf(r_kind, r_p1, r_p2, s, wo)
                         eta = wp.min(2.0 * wp.sqrt(w.lam * w.mu), SHARPNESS_MAX)
                         axis = w.z
                         amp = amp * (w.c * asg_shade_integral(w.lam, w.mu) / sg_integral(eta))
@@ -1293,7 +1308,11 @@ def shade_pixels(
                     # The environment where f_s·cos θi itself lies, not where the warp puts it; nothing for a view
                     # below the shading normal's horizon, where f_s is 0.
                     if wp.dot(wo, s.n) > 0.0:
-                        tap = specular_moments(r_kind, r_ks, r_p1, r_p2, s, wo, w)
+                        if anisotropic:
+                            tap = specular_moments(r_kind, r_ks, r_p1, r_p2, s, wo, w)
+                        else:
+                            tap = tabulated_moments(tex_info, tex_data, 2 + 2 * row, s, wo,
+                                                    ndf_sharpness(r_kind, r_p1))
                         taps = 1
                     else:
                         amp = wp.vec3(0.0)

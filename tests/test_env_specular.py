@@ -117,9 +117,10 @@ def test_the_correction_tables():
         assert np.isfinite(table).all() and table.min() >= 0 and table.max() <= shading.CORRECTION_MAX
     assert shading.specular_correction(_row(MATERIALS["cook-torrance"])) is iso
     np.testing.assert_array_equal(shading.specular_correction(_row(wb.Lambert(0.5))), np.ones((1, 1, 3)))
-    packed = shading.pack_materials([wb.Lambert(0.5), MATERIALS["ashikhmin-shirley"]])
-    off, h, w, _ = packed["tex_info"][2]  # (row 1, the second material's, at slot 1 + 1)
-    np.testing.assert_array_equal(packed["tex_data"][3 * off:3 * (off + h * w)].reshape(h, w, 3), aniso)
+    packed = shading.pack_materials([wb.Lambert(0.5), MATERIALS["ashikhmin-shirley"], MATERIALS["cook-torrance"]])
+    for slot, want in ((3, aniso), (5, iso), (6, shading.moment_table(_row(MATERIALS["cook-torrance"])))):
+        off, h, w, _ = packed["tex_info"][slot]  # (row r's correction at slot 1 + 2r, its moment table at 2 + 2r)
+        np.testing.assert_array_equal(packed["tex_data"][3 * off:3 * (off + h * w)].reshape(h, w, 3), want)
 
 
 def _sphere_against_reference(backend, material, environment, samples):
@@ -190,6 +191,49 @@ def test_specular_moments_against_a_dense_quadrature(name, cos_o, phi_o):
     for axis, bandwidth in ((x[0], lam[0]), (y[0], mu[0])):
         exact = (g * (wi @ axis) ** 2).sum() / g.sum()
         assert 0.9 < (0.5 / bandwidth) / exact < 1.1, (axis, 0.5 / bandwidth, exact)
+
+
+def _dense_moments(row, cos_o, nz=768, nphi=1536):
+    """The mean direction of f_s·(n·ωi)⁺ about n = z at the view (sin θo, 0, cos θo) and its second moments, by
+    the midpoint rule in (cos θi, φi) over the hemisphere."""
+    zz, pp = np.meshgrid((np.arange(nz) + 0.5) / nz, (np.arange(nphi) + 0.5) / nphi * 2 * np.pi, indexing="ij")
+    r = np.sqrt(1 - zz * zz)
+    wi = np.stack([r * np.cos(pp), r * np.sin(pp), zz], -1).reshape(-1, 3)
+    m = len(wi)
+    wo = np.array([[np.sqrt(1 - cos_o**2), 0.0, cos_o]])
+    g = shading._analytic_specular(np.broadcast_to(row[None], (m, 9)), np.broadcast_to([[0.0, 0, 1]], (m, 3)),
+                                   np.broadcast_to([[1.0, 0, 0]], (m, 3)), wi, np.broadcast_to(wo, (m, 3)))
+    g = g.sum(1) * wi[:, 2]
+    mean = (g[:, None] * wi).sum(0)
+    return mean / np.linalg.norm(mean), (g[:, None, None] * wi[:, :, None] * wi[:, None, :]).sum(0) / g.sum()
+
+
+# An isotropic row's moments, tabulated once (`shading.moment_table`) and read per pixel (`tabulated_moments`),
+# against the dense quadrature above (768 × 1536) at views between the table's rows, grazing ones included, and
+# under a turned tangent frame (the moments must not depend on it). Measured (unturned frame): the mean within 0.033
+# of the narrow σ, the variances 0.938–0.999 of the exact ones, the lowest Cook–Torrance 0.2's at cos θo = 0.05, where
+# the per-pixel rule (`specular_moments`) has 0.10–0.24 of the variance across the plane of incidence. Bounds: 0.1 σ
+# and 0.9–1.05.
+@pytest.mark.parametrize("name", ["blinn-phong", "ward", "cook-torrance", "broad-blinn-phong"])
+@pytest.mark.parametrize("cos_o", [0.05, 0.12, 0.3, 0.55, 0.97])
+def test_tabulated_moments_against_a_dense_quadrature(name, cos_o):
+    material = MOMENT_MATERIALS.get(name) or wb.BlinnPhong(0.1, 30, kd=0.5)
+    row = _row(material)
+    mean, second = _dense_moments(row, cos_o)
+    turn = 0.7  # a tangent frame turned about the normal, the view turned with it
+    t = np.array([[np.cos(turn), np.sin(turn), 0.0]])
+    n = np.array([[0.0, 0.0, 1.0]])
+    wo = np.array([[np.sqrt(1 - cos_o**2) * np.cos(turn), np.sqrt(1 - cos_o**2) * np.sin(turn), cos_o]])
+    eta = shading.specular_scale(row[None], np.ones(1))[1]
+    x, y, z, lam, mu = shading.tabulated_moments(shading.moment_table(row), eta, n, t, wo)
+    back = np.array([[np.cos(turn), np.sin(turn), 0], [-np.sin(turn), np.cos(turn), 0], [0, 0, 1.0]])
+    x, z = back @ x[0], back @ z[0]
+    sigma_min = np.sqrt(0.5 / max(lam[0], mu[0]))
+    assert np.arccos(min(float(mean @ z), 1.0)) < 0.1 * sigma_min, (mean, z, sigma_min)
+    across = np.array([0.0, 1.0, 0.0])
+    for axis, bandwidth in ((x, lam[0]), (across, mu[0])):
+        exact = axis @ second @ axis
+        assert 0.9 < (0.5 / bandwidth) / exact < 1.05, (axis, 0.5 / bandwidth, exact)
 
 
 # The same against the Monte Carlo reference under the studio, whose softboxes a glossy sphere's rim reflects

@@ -57,8 +57,8 @@ def test_textured_kernel_matches_reference(backend, base):
     sphere = Textured(wb.BlinnPhong(0.5, 150, kd=(0.5, 0.3, 0.2)), kd_map=_checker(16))
     scene = _scene([sphere, floor])
     frame, out = _shade(backend, scene)
-    # slot 0 is the shared texture of ones, 1–2 the two analytic rows' specular corrections
-    assert frame.inputs.mat_info[:, 3].tolist() == [3, 6]
+    # slot 0 is the shared texture of ones, 1–4 the two analytic rows' specular corrections and moment tables
+    assert frame.inputs.mat_info[:, 3].tolist() == [5, 8]
     ref = shade_reference(frame)
     assert np.isfinite(out).all() and (out >= 0).all()
     peak = ref.max()
