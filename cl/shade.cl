@@ -35,12 +35,7 @@
 #define ASG_TAPS 12 /* = shading.ASG_TAPS */
 #define ASG_TAP_SHARE 0.05f /* = shading.ASG_TAP_SHARE */
 #define LIGHT_BLUR_EXP_MAX 4.0f /* = shading.LIGHT_BLUR_EXP_MAX */
-#define MOMENT_NODES 5 /* = shading.MOMENT_NODES */
 #define MOMENT_VAR_MIN 5.0e-7f /* = shading.MOMENT_VAR_MIN */
-/* shading._MOMENT_OFFSETS, _MOMENT_WEIGHTS: a 5-point Gauss–Hermite rule's nodes (in σ) and weights over the
- * Gaussian at each node */
-__constant float MOMENT_OFFSETS[MOMENT_NODES] = {-2.85697001f, -1.35562618f, 0.0f, 1.35562618f, 2.85697001f};
-__constant float MOMENT_WEIGHTS[MOMENT_NODES] = {1.67087724f, 1.39523623f, 1.33686841f, 1.39523623f, 1.67087724f};
 #define BACKGROUND_LOG2 1.0e30f /* = lighting.BACKGROUND_LOG2 */
 #define BACKGROUND_ETA 1.0e29f /* = lighting.BACKGROUND_ETA */
 #define TAP_SPAN 2.75f /* = shading.TAP_SPAN */
@@ -687,23 +682,17 @@ CL_INLINE float2 ndf_bandwidths(int kind, float p1, float p2)
     return (float2)(0.5f * p1, 0.5f * p2);
 }
 
-/* An analytic BRDF's NDF as one ASG about the shading normal, in the frame of the mesh tangent, amplitude 1: an
- * anisotropic kind's (ndf_bandwidths), an isotropic kind's SG (λ = μ = η/2). */
+/* An anisotropic BRDF's NDF as one ASG about the shading normal, in the frame of the mesh tangent, amplitude 1. */
 CL_INLINE Asg ndf_asg(int kind, float p1, float p2, SurfacePoint s)
 {
+    float2 bw = ndf_bandwidths(kind, p1, p2);
     Asg g;
     g.x = s.t;
     g.y = s.b;
     g.z = s.n;
     g.c = 1.0f;
-    if (kind == ANISOTROPIC_WARD || kind == ASHIKHMIN_SHIRLEY) {
-        float2 bw = ndf_bandwidths(kind, p1, p2);
-        g.lam = bw.x;
-        g.mu = bw.y;
-    } else {
-        g.lam = 0.5f * ndf_sharpness(kind, p1);
-        g.mu = g.lam;
-    }
+    g.lam = bw.x;
+    g.mu = bw.y;
     return g;
 }
 
@@ -815,108 +804,74 @@ CL_INLINE float3 light_mean(int kind, float3 ks, float p1, float p2, SurfacePoin
     return f0 * (scale * exp(minf(expo, LIGHT_BLUR_EXP_MAX)));
 }
 
-/* Σ e, Σ e·δ and Σ e·δ δᵀ (xx, yy, zz, xy, xz, yz) over weighted offsets δ. */
-typedef struct {
-    float total;
-    float3 first;
-    float m[6];
-} Moments;
-
-CL_INLINE void moments_add(Moments *acc, float3 d, float e)
+/* The scale of a row's moment table (shading.moment_sharpness): the NDF's sharpness, or 2·√(λμ) of its ASG. */
+CL_INLINE float moment_sharpness(int kind, float p1, float p2)
 {
-    acc->total += e;
-    acc->first = acc->first + e * d;
-    acc->m[0] += e * d.x * d.x;
-    acc->m[1] += e * d.y * d.y;
-    acc->m[2] += e * d.z * d.z;
-    acc->m[3] += e * d.x * d.y;
-    acc->m[4] += e * d.x * d.z;
-    acc->m[5] += e * d.y * d.z;
-}
-
-/* Σ e (a·d)(b·d) / Σ e of the directions d = c + δ whose δ the sums acc hold. */
-CL_INLINE float moment_about(float3 a, float3 b, const Moments *acc, float3 c)
-{
-    const float *m = acc->m;
-    float second = a.x * (m[0] * b.x + m[3] * b.y + m[4] * b.z) + a.y * (m[3] * b.x + m[1] * b.y + m[5] * b.z)
-                   + a.z * (m[4] * b.x + m[5] * b.y + m[2] * b.z);
-    float ac = dot3(a, c);
-    float bc = dot3(b, c);
-    return (second + ac * dot3(b, acc->first) + bc * dot3(a, acc->first)) / acc->total + ac * bc;
-}
-
-/* The ASG whose prefiltered lookup (asg_prefiltered) stands for the environment's mean radiance under an anisotropic
- * row's f_s·(n·ωi)⁺ (shading.specular_moments): that function at the MOMENT_NODES² points of a Gauss–Hermite rule
- * for the NDF's warped ASG w (warped_ndf; on the tangent plane at its axis, each weight over that Gaussian, times cos³
- * of its angle from the axis), its mean direction z and its covariance's principal axes and variances on z's tangent
- * plane; w itself where the rule holds nothing. (An isotropic row's are tabulated: tabulated_moments.) */
-CL_INLINE Asg specular_moments(int kind, float3 ks, float p1, float p2, SurfacePoint s, float3 wo, Asg w)
-{
-    float s_x = sqrt(0.5f / w.lam);
-    float s_y = sqrt(0.5f / w.mu);
-    Moments acc = {0.0f, (float3)(0.0f, 0.0f, 0.0f), {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f}};
-    for (int ia = 0; ia < MOMENT_NODES; ++ia) {
-        float a = MOMENT_OFFSETS[ia] * s_x;
-        for (int ib = 0; ib < MOMENT_NODES; ++ib) {
-            float3 d = w.z + a * w.x + MOMENT_OFFSETS[ib] * s_y * w.y;
-            float inv = 1.0f / sqrt(dot3(d, d));
-            d = d * inv;
-            float3 f = analytic_specular(kind, ks, p1, p2, s.t, s.b, s.n, d, wo);
-            float e = (f.x + f.y + f.z) * maxf(dot3(s.n, d), 0.0f)
-                      * (MOMENT_WEIGHTS[ia] * MOMENT_WEIGHTS[ib] * inv * inv * inv);
-            /* (the sums about the warped axis, whose second moments are of the lobe's variance: about 0 they would be
-             * of 1, and float32 would lose a sharp lobe's variance to cancellation) */
-            moments_add(&acc, d - w.z, e);
-        }
+    if (kind == ANISOTROPIC_WARD || kind == ASHIKHMIN_SHIRLEY) {
+        float2 bw = ndf_bandwidths(kind, p1, p2);
+        return 2.0f * sqrt(bw.x * bw.y);
     }
-    float3 mean = acc.first + acc.total * w.z;
-    if (acc.total <= 0.0f || dot3(mean, mean) <= 0.0f)
-        return w;
-    float3 z = normalize3(mean);
-    float3 u = light_across(z, w.x);
-    float3 v = cross3(z, u);
-    float cuu = moment_about(u, u, &acc, w.z);
-    float cvv = moment_about(v, v, &acc, w.z);
-    float cuv = moment_about(u, v, &acc, w.z);
-    float angle = 0.5f * atan2(2.0f * cuv, cuu - cvv);
-    float c = cos(angle);
-    float sn = sin(angle);
-    Asg out;
-    out.z = z;
-    out.x = c * u + sn * v;
-    out.y = cross3(z, out.x);
-    out.c = 1.0f;
-    out.lam = 0.5f / maxf(cuu * c * c + 2.0f * cuv * c * sn + cvv * sn * sn, MOMENT_VAR_MIN);
-    out.mu = 0.5f / maxf(cuu * sn * sn - 2.0f * cuv * c * sn + cvv * c * c, MOMENT_VAR_MIN);
-    return out;
+    return ndf_sharpness(kind, p1);
 }
 
-/* specular_moments' ASG for an isotropic row, read from its moment table (shading.moment_table) at texture `slot`
- * for NDF sharpness eta (shading.tabulated_moments): linear in √cos θo, the mean in the plane of incidence on the
- * mirror side. */
+/* The ASG of an analytic row's f_s·(n·ωi)⁺ moments, read from its moment table (shading.moment_table) at texture
+ * `slot` for its moment_sharpness eta (shading.tabulated_moments): linear in √cos θo and in φo folded into [0, π/2];
+ * a view in another quadrant of the tangent frame mirrors the out-of-plane angle and the covariance. */
 CL_INLINE Asg tabulated_moments(__global const int *tex_info, __global const float *tex_data, int slot,
                                 SurfacePoint s, float3 wo, float eta)
 {
     int off = tex_info[4 * slot];
     int rows = tex_info[4 * slot + 1];
+    int width = tex_info[4 * slot + 2] / 2;
     float cos_o = clamp(dot3(wo, s.n), 0.0f, 1.0f);
-    float pos = sqrt(cos_o) * (float)(rows - 1);
-    int i0 = min((int)pos, rows - 2);
-    float f = pos - (float)i0;
-    float3 value = load3(tex_data, off + i0) * (1.0f - f) + load3(tex_data, off + i0 + 1) * f;
     float3 side = wo - cos_o * s.n;
     float length = sqrt(dot3(side, side));
     side = length > 1.0e-6f ? side / length : s.t;
-    float theta = clamp(atan2(length, cos_o) + value.x / sqrt(eta), 0.0f, 0.5f * SHADE_PI);
+    float3 across = cross3(s.n, side);
+    float wx = dot3(wo, s.t);
+    float wy = dot3(wo, s.b);
+    float pos = sqrt(cos_o) * (float)(rows - 1);
+    int i0 = min((int)pos, rows - 2);
+    float fi = pos - (float)i0;
+    int j0 = 0, j1 = 0;
+    float fj = 0.0f;
+    if (width > 1) {
+        float col = atan2(fabs(wy), fabs(wx)) / (0.5f * SHADE_PI) * (float)(width - 1);
+        j0 = min((int)col, width - 2);
+        j1 = j0 + 1;
+        fj = col - (float)j0;
+    }
+    int row0 = off + i0 * 2 * width;
+    int row1 = row0 + 2 * width;
+    float3 first = (load3(tex_data, row0 + j0) * (1.0f - fj) + load3(tex_data, row0 + j1) * fj) * (1.0f - fi)
+                   + (load3(tex_data, row1 + j0) * (1.0f - fj) + load3(tex_data, row1 + j1) * fj) * fi;
+    float3 second = (load3(tex_data, row0 + width + j0) * (1.0f - fj) + load3(tex_data, row0 + width + j1) * fj)
+                        * (1.0f - fi)
+                    + (load3(tex_data, row1 + width + j0) * (1.0f - fj) + load3(tex_data, row1 + width + j1) * fj)
+                        * fi;
+    float mirror = (wx < 0.0f) != (wy < 0.0f) ? -1.0f : 1.0f;
+    float scale = sqrt(eta);
+    float theta = clamp(atan2(length, cos_o) + first.x / scale, 0.0f, 0.5f * SHADE_PI);
+    float beta = mirror * second.x / scale;
     float c = cos(theta);
     float sn = sin(theta);
+    float3 z = cos(beta) * (c * s.n - sn * side) + sin(beta) * across;
+    float3 u = -(c * side + sn * s.n);
+    u = normalize3(u - dot3(u, z) * z);
+    float3 v = cross3(z, u);
+    float var_u = exp(first.y) / eta;
+    float var_v = exp(first.z) / eta;
+    float cov = mirror * second.y / eta;
+    float angle = 0.5f * atan2(2.0f * cov, var_u - var_v);
+    float ca = cos(angle);
+    float sa = sin(angle);
     Asg g;
-    g.z = c * s.n - sn * side;
-    g.x = -(c * side + sn * s.n);
-    g.y = cross3(g.z, g.x);
+    g.z = z;
+    g.x = ca * u + sa * v;
+    g.y = cross3(z, g.x);
     g.c = 1.0f;
-    g.lam = 0.5f / maxf(exp(value.y) / eta, MOMENT_VAR_MIN);
-    g.mu = 0.5f / maxf(exp(value.z) / eta, MOMENT_VAR_MIN);
+    g.lam = 0.5f / maxf(var_u * ca * ca + 2.0f * cov * ca * sa + var_v * sa * sa, MOMENT_VAR_MIN);
+    g.mu = 0.5f / maxf(var_u * sa * sa - 2.0f * cov * ca * sa + var_v * ca * ca, MOMENT_VAR_MIN);
     return g;
 }
 
@@ -1286,12 +1241,10 @@ __kernel void shade_pixels(
                     /* The lights by f_s itself (Xu 2013 §5.2), averaged over each light's size. */
                     with_lights = 0;
                     Asg shape;
-                    int anisotropic = r_kind == ANISOTROPIC_WARD || r_kind == ASHIKHMIN_SHIRLEY;
-                    Asg w;
-                    if (anisotropic) {
+                    if (r_kind == ANISOTROPIC_WARD || r_kind == ASHIKHMIN_SHIRLEY) {
                         /* The environment's magnitude and occlusion through the NDF's warped ASG, as an effective
-                         * material's ASG lobe below (and its lookup placed from it: specular_moments). */
-                        w = warped_ndf(r_kind, r_p1, row[8], s, wo);
+                         * material's ASG lobe below. */
+                        Asg w = warped_ndf(r_kind, r_p1, row[8], s, wo);
                         eta = minf(2.0f * sqrt(w.lam * w.mu), sharpness_max);
                         axis = w.z;
                         amp = amp * (w.c * asg_shade_integral(w.lam, w.mu) / sg_integral(eta));
@@ -1312,9 +1265,8 @@ __kernel void shade_pixels(
                     /* The environment where f_s·cos θi itself lies, not where the warp puts it; nothing for a view
                      * below the shading normal's horizon, where f_s is 0. */
                     if (dot3(wo, s.n) > 0.0f) {
-                        tap = anisotropic ? specular_moments(r_kind, r_ks, r_p1, row[8], s, wo, w)
-                                          : tabulated_moments(tex_info, tex_data, 2 + 2 * (idx + j), s, wo,
-                                                              ndf_sharpness(r_kind, r_p1));
+                        tap = tabulated_moments(tex_info, tex_data, 2 + 2 * (idx + j), s, wo,
+                                                moment_sharpness(r_kind, r_p1, row[8]));
                         taps = 1;
                     } else {
                         amp = (float3)(0.0f, 0.0f, 0.0f);

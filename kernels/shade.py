@@ -51,12 +51,7 @@ AS_UNIFORM_COS = wp.constant(_shading.AS_UNIFORM_COS)
 ASG_TAPS = wp.constant(_shading.ASG_TAPS)
 ASG_TAP_SHARE = wp.constant(_shading.ASG_TAP_SHARE)
 LIGHT_BLUR_EXP_MAX = wp.constant(_shading.LIGHT_BLUR_EXP_MAX)
-MOMENT_NODES = wp.constant(_shading.MOMENT_NODES)
-MOMENT_POINTS = wp.constant(_shading.MOMENT_NODES * _shading.MOMENT_NODES)  # one loop, > max_unroll: not unrolled
 MOMENT_VAR_MIN = wp.constant(_shading.MOMENT_VAR_MIN)
-moment_vec = wp.types.vector(length=_shading.MOMENT_NODES, dtype=wp.float32)
-MOMENT_OFFSETS = wp.constant(moment_vec(*[float(x) for x in _shading._MOMENT_OFFSETS]))
-MOMENT_WEIGHTS = wp.constant(moment_vec(*[float(x) for x in _shading._MOMENT_WEIGHTS]))
 TAP_SPAN = wp.constant(_shading.TAP_SPAN)
 TAP_GAP = wp.constant(_shading.TAP_GAP)
 ROUND_SPREAD = wp.constant(_shading.ROUND_SPREAD)
@@ -564,20 +559,16 @@ def ndf_bandwidths(kind: int, p1: float, p2: float) -> wp.vec2:
 
 @wp.func
 def ndf_asg(kind: int, p1: float, p2: float, s: SurfacePoint) -> Asg:
-    """An analytic BRDF's NDF as one ASG about the shading normal, in the frame of the mesh tangent, amplitude 1: an
-    anisotropic kind's (ndf_bandwidths), an isotropic kind's SG (λ = μ = η/2)."""
+    """An anisotropic BRDF's NDF as one ASG about the shading normal, in the frame of the mesh tangent,
+    amplitude 1."""
+    bw = ndf_bandwidths(kind, p1, p2)
     g = Asg()
     g.x = s.t
     g.y = s.b
     g.z = s.n
     g.c = 1.0
-    if kind == ANISOTROPIC_WARD or kind == ASHIKHMIN_SHIRLEY:
-        bw = ndf_bandwidths(kind, p1, p2)
-        g.lam = bw[0]
-        g.mu = bw[1]
-    else:
-        g.lam = 0.5 * ndf_sharpness(kind, p1)
-        g.mu = g.lam
+    g.lam = bw[0]
+    g.mu = bw[1]
     return g
 
 
@@ -966,118 +957,76 @@ def light_mean(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoint, wo
     return f0 * (scale * wp.exp(wp.min(expo, LIGHT_BLUR_EXP_MAX)))
 
 
-@wp.struct
-class Moments:
-    """Σ e, Σ e·δ and Σ e·δ δᵀ (xx, yy, zz, xy, xz, yz) over weighted offsets δ."""
-    total: float
-    first: wp.vec3
-    xx: float
-    yy: float
-    zz: float
-    xy: float
-    xz: float
-    yz: float
-
-
 @wp.func
-def moments_add(m: Moments, d: wp.vec3, e: float) -> Moments:
-    out = m
-    out.total = m.total + e
-    out.first = m.first + e * d
-    out.xx = m.xx + e * d[0] * d[0]
-    out.yy = m.yy + e * d[1] * d[1]
-    out.zz = m.zz + e * d[2] * d[2]
-    out.xy = m.xy + e * d[0] * d[1]
-    out.xz = m.xz + e * d[0] * d[2]
-    out.yz = m.yz + e * d[1] * d[2]
-    return out
-
-
-@wp.func
-def moment_about(a: wp.vec3, b: wp.vec3, m: Moments, c: wp.vec3) -> float:
-    """Σ e (a·d)(b·d) / Σ e of the directions d = c + δ whose δ the sums m hold."""
-    second = (a[0] * (m.xx * b[0] + m.xy * b[1] + m.xz * b[2]) + a[1] * (m.xy * b[0] + m.yy * b[1] + m.yz * b[2])
-              + a[2] * (m.xz * b[0] + m.yz * b[1] + m.zz * b[2]))
-    ac = wp.dot(a, c)
-    bc = wp.dot(b, c)
-    return (second + ac * wp.dot(b, m.first) + bc * wp.dot(a, m.first)) / m.total + ac * bc
-
-
-@wp.func
-def specular_moments(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoint, wo: wp.vec3, w: Asg) -> Asg:
-    """The ASG whose prefiltered lookup (asg_prefiltered) stands for the environment's mean radiance under an
-    anisotropic row's f_s·(n·ωi)⁺ (shading.specular_moments): that function at the MOMENT_NODES² points of a
-    Gauss–Hermite rule for the NDF's warped ASG `w` (warped_ndf; on the tangent plane at its axis, each weight over
-    that Gaussian, times cos³ of its angle from the axis), its mean direction z and its covariance's principal axes
-    and variances on z's tangent plane; w itself where the rule holds nothing. (An isotropic row's are tabulated:
-    tabulated_moments.)"""
-    s_x = wp.sqrt(0.5 / w.lam)
-    s_y = wp.sqrt(0.5 / w.mu)
-    m = Moments()
-    for q in range(MOMENT_POINTS):
-        ia = q // MOMENT_NODES
-        ib = q % MOMENT_NODES
-        d = w.z + (MOMENT_OFFSETS[ia] * s_x) * w.x + (MOMENT_OFFSETS[ib] * s_y) * w.y
-        inv = 1.0 / wp.length(d)
-        d = d * inv
-        f = analytic_specular(kind, ks, p1, p2, s.t, s.b, s.n, d, wo)
-        e = (f[0] + f[1] + f[2]) * wp.max(wp.dot(s.n, d), 0.0) * (MOMENT_WEIGHTS[ia] * MOMENT_WEIGHTS[ib] * inv * inv
-                                                                  * inv)
-        # (the sums about the warped axis, whose second moments are of the lobe's variance: about 0 they would be of
-        # 1, and float32 would lose a sharp lobe's variance to cancellation)
-        m = moments_add(m, d - w.z, e)
-    mean = m.first + m.total * w.z
-    if m.total <= 0.0 or wp.length(mean) <= 0.0:
-        return w
-    z = wp.normalize(mean)
-    frame = light_axes(z, w.x)
-    u = frame[0]
-    v = frame[1]
-    cuu = moment_about(u, u, m, w.z)
-    cvv = moment_about(v, v, m, w.z)
-    cuv = moment_about(u, v, m, w.z)
-    angle = 0.5 * wp.atan2(2.0 * cuv, cuu - cvv)
-    c = wp.cos(angle)
-    sn = wp.sin(angle)
-    out = Asg()
-    out.z = z
-    out.x = c * u + sn * v
-    out.y = wp.cross(z, out.x)
-    out.c = 1.0
-    out.lam = 0.5 / wp.max(cuu * c * c + 2.0 * cuv * c * sn + cvv * sn * sn, MOMENT_VAR_MIN)
-    out.mu = 0.5 / wp.max(cuu * sn * sn - 2.0 * cuv * c * sn + cvv * c * c, MOMENT_VAR_MIN)
-    return out
+def moment_sharpness(kind: int, p1: float, p2: float) -> float:
+    """The scale of a row's moment table (shading.moment_sharpness): the NDF's sharpness, or 2·√(λμ) of its ASG."""
+    if kind == ANISOTROPIC_WARD or kind == ASHIKHMIN_SHIRLEY:
+        bw = ndf_bandwidths(kind, p1, p2)
+        return 2.0 * wp.sqrt(bw[0] * bw[1])
+    return ndf_sharpness(kind, p1)
 
 
 @wp.func
 def tabulated_moments(tex_info: wp.array2d(dtype=wp.int32), tex_data: wp.array(dtype=wp.vec3), slot: int,
                       s: SurfacePoint, wo: wp.vec3, eta: float) -> Asg:
-    """specular_moments' ASG for an isotropic row, read from its moment table (shading.moment_table) at texture
-    `slot` for NDF sharpness η (shading.tabulated_moments): linear in √cos θo, the mean in the plane of incidence on
-    the mirror side."""
+    """The ASG of an analytic row's f_s·(n·ωi)⁺ moments, read from its moment table (shading.moment_table) at
+    texture `slot` for its moment_sharpness η (shading.tabulated_moments): linear in √cos θo and in φo folded into
+    [0, π/2]; a view in another quadrant of the tangent frame mirrors the out-of-plane angle and the covariance."""
     off = i32_at2(tex_info, slot, 0)
     rows = i32_at2(tex_info, slot, 1)
+    width = i32_at2(tex_info, slot, 2) // 2
     cos_o = wp.clamp(wp.dot(wo, s.n), 0.0, 1.0)
-    pos = wp.sqrt(cos_o) * float(rows - 1)
-    i0 = wp.min(int(pos), rows - 2)
-    f = pos - float(i0)
-    value = tex_data[off + i0] * (1.0 - f) + tex_data[off + i0 + 1] * f
     side = wo - cos_o * s.n
     length = wp.length(side)
     if length > 1.0e-6:
         side = side / length
     else:
         side = s.t
-    theta = wp.clamp(wp.atan2(length, cos_o) + value[0] / wp.sqrt(eta), 0.0, 0.5 * PI)
+    across = wp.cross(s.n, side)
+    wx = wp.dot(wo, s.t)
+    wy = wp.dot(wo, s.b)
+    pos = wp.sqrt(cos_o) * float(rows - 1)
+    i0 = wp.min(int(pos), rows - 2)
+    fi = pos - float(i0)
+    j0 = int(0)
+    j1 = int(0)
+    fj = float(0.0)
+    if width > 1:
+        col = wp.atan2(wp.abs(wy), wp.abs(wx)) / (0.5 * PI) * float(width - 1)
+        j0 = wp.min(int(col), width - 2)
+        j1 = j0 + 1
+        fj = col - float(j0)
+    row0 = off + i0 * 2 * width
+    row1 = row0 + 2 * width
+    first = (tex_data[row0 + j0] * (1.0 - fj) + tex_data[row0 + j1] * fj) * (1.0 - fi) + (
+        tex_data[row1 + j0] * (1.0 - fj) + tex_data[row1 + j1] * fj) * fi
+    second = (tex_data[row0 + width + j0] * (1.0 - fj) + tex_data[row0 + width + j1] * fj) * (1.0 - fi) + (
+        tex_data[row1 + width + j0] * (1.0 - fj) + tex_data[row1 + width + j1] * fj) * fi
+    mirror = float(1.0)
+    if (wx < 0.0) != (wy < 0.0):
+        mirror = -1.0
+    scale = wp.sqrt(eta)
+    theta = wp.clamp(wp.atan2(length, cos_o) + first[0] / scale, 0.0, 0.5 * PI)
+    beta = mirror * second[0] / scale
     c = wp.cos(theta)
     sn = wp.sin(theta)
+    z = wp.cos(beta) * (c * s.n - sn * side) + wp.sin(beta) * across
+    u = -(c * side + sn * s.n)
+    u = wp.normalize(u - wp.dot(u, z) * z)
+    v = wp.cross(z, u)
+    var_u = wp.exp(first[1]) / eta
+    var_v = wp.exp(first[2]) / eta
+    cov = mirror * second[1] / eta
+    angle = 0.5 * wp.atan2(2.0 * cov, var_u - var_v)
+    ca = wp.cos(angle)
+    sa = wp.sin(angle)
     g = Asg()
-    g.z = c * s.n - sn * side
-    g.x = -(c * side + sn * s.n)
-    g.y = wp.cross(g.z, g.x)
+    g.z = z
+    g.x = ca * u + sa * v
+    g.y = wp.cross(z, g.x)
     g.c = 1.0
-    g.lam = 0.5 / wp.max(wp.exp(value[1]) / eta, MOMENT_VAR_MIN)
-    g.mu = 0.5 / wp.max(wp.exp(value[2]) / eta, MOMENT_VAR_MIN)
+    g.lam = 0.5 / wp.max(var_u * ca * ca + 2.0 * cov * ca * sa + var_v * sa * sa, MOMENT_VAR_MIN)
+    g.mu = 0.5 / wp.max(var_u * sa * sa - 2.0 * cov * ca * sa + var_v * ca * ca, MOMENT_VAR_MIN)
     return g
 
 
@@ -1284,11 +1233,9 @@ def shade_pixels(
                     # The lights by f_s itself (Xu 2013 §5.2), averaged over each light's size.
                     with_lights = 0
                     shape = Asg()
-                    anisotropic = r_kind == ANISOTROPIC_WARD or r_kind == ASHIKHMIN_SHIRLEY
-                    w = Asg()
-                    if anisotropic:
+                    if r_kind == ANISOTROPIC_WARD or r_kind == ASHIKHMIN_SHIRLEY:
                         # The environment's magnitude and occlusion through the NDF's warped ASG, as an effective
-                        # material's ASG lobe below (and its lookup placed from it: specular_moments).
+                        # material's ASG lobe below.
                         w = warped_ndf(r_kind, r_p1, r_p2, s, wo)
                         eta = wp.min(2.0 * wp.sqrt(w.lam * w.mu), SHARPNESS_MAX)
                         axis = w.z
@@ -1308,11 +1255,8 @@ def shade_pixels(
                     # The environment where f_s·cos θi itself lies, not where the warp puts it; nothing for a view
                     # below the shading normal's horizon, where f_s is 0.
                     if wp.dot(wo, s.n) > 0.0:
-                        if anisotropic:
-                            tap = specular_moments(r_kind, r_ks, r_p1, r_p2, s, wo, w)
-                        else:
-                            tap = tabulated_moments(tex_info, tex_data, 2 + 2 * row, s, wo,
-                                                    ndf_sharpness(r_kind, r_p1))
+                        tap = tabulated_moments(tex_info, tex_data, 2 + 2 * row, s, wo,
+                                                moment_sharpness(r_kind, r_p1, r_p2))
                         taps = 1
                     else:
                         amp = wp.vec3(0.0)

@@ -57,7 +57,7 @@ is −1, or for a `svbrdf.Textured` analytic material the first of its three ``t
 parameter map; an absent map is a shared 1×1 texture of ones); ``tex_info`` row 1 + 2r is analytic row r's
 specular correction (`specular_correction`: (24, W) texels, W = 6 values of φo for an anisotropic row, else 1;
 a Lambert row's the 1×1 texture of ones; a Textured material's rows corrected at its parameter map's mean p1),
-row 2 + 2r its moment table (`moment_table`: (33, 1) texels for an isotropic row, else 1×1, unread);
+row 2 + 2r its moment table (`moment_table`: (33, 2) texels, (33, 34) for an anisotropic row, a Lambert row's 1×1);
 ``tex_info`` (T, 4) int32 [texel offset into tex_data, H, W, 0]; ``tex_data`` float32 (Σ H·W·3), row-major
 RGB texels (a parameter map is stored in all three channels; the kernels read channel 0). The kernels read
 each analytic row into per-pixel values, scale them by the maps at the pixel's UV (``uvs`` (V, 2),
@@ -676,85 +676,49 @@ def asg_prefiltered(maps, levels, x, y, z, lam, mu):
     return out
 
 
-# Where an analytic row reads the environment. Its warped NDF (Wang's isotropic warp, Xu's ASG warp) has the place
-# and the width the half-vector map gives near normal incidence; towards grazing views f_s·cos θi moves away from the
-# mirror direction (over 10° on a sphere's rim), is broader than the warp's width and the horizon cuts it, so a
-# glossy sphere's rim under the studio read 5–100 % too much light (bench/README.md, "Where an analytic material
-# reads the environment"). So f_s·(n·ωi)⁺ itself is read at MOMENT_NODES² points of a Gauss–Hermite rule for the
-# NDF's ASG warped to the light directions (Xu Eq. 23–26), on the tangent plane at its axis (each point's weight
-# divided by that Gaussian there and times the solid angle its cell holds, cos³ of its angle from the axis): their
-# weighted mean direction and their covariance on that direction's tangent plane make the Gaussian with which the
-# prefiltered maps are read (`asg_prefiltered`). 5 × 5 points gave about the errors of a 7 × 7 even grid over ±3σ at
-# half its cost. The row's magnitude stays its exact albedo (`specular_correction`) and its occlusion the warped
-# lobe's.
-MOMENT_NODES = 5
-_MOMENT_OFFSETS, _hermite_weights = np.polynomial.hermite_e.hermegauss(MOMENT_NODES)
-_MOMENT_WEIGHTS = _hermite_weights * np.exp(0.5 * _MOMENT_OFFSETS**2)  # (over the Gaussian at each node)
-MOMENT_VAR_MIN = 0.5 / sg.SHARPNESS_MAX  # (a lobe narrower than the rule resolves: as sharp as a lookup goes)
-
-
-def specular_moments(row, n, t, wo) -> tuple:
-    """(x, y, z, λ, μ), `asg_prefiltered`'s arguments: the ASG whose prefiltered lookup stands for the environment's
-    mean radiance under analytic rows' (m, 9) f_s·(n·ωi)⁺ at unit normals n, tangents t and views wo (m, 3): that
-    function's weighted mean direction over the rule's points (z), the principal axes of its covariance on z's
-    tangent plane (x, y) and bandwidths 1/(2·variance). Where the points hold nothing (a view below the horizon) the
-    warped ASG itself."""
-    kind = int(row[0, 0])
-    x, y = brdf_mod.tangent_frame(n, t)
-    if kind in brdf_mod.ANISOTROPIC_KINDS:
-        lam, mu = brdf_mod.ndf_bandwidths(kind, row[:, 7], row[:, 8])
-    else:
-        lam = mu = np.broadcast_to(0.5 * specular_scale(row, np.ones(len(n)))[1], (len(n),))
-    w = asg_mod.warp(asg_mod.ASG(x, y, n, lam, mu), wo)
-    sx = np.sqrt(0.5 / np.maximum(w.lam, 1e-6))
-    sy = np.sqrt(0.5 / np.maximum(w.mu, 1e-6))
-    # The sums about the warped axis (δ = d − w.z), whose second moments are of the lobe's variance: about 0 they
-    # would be of 1, and the kernels' float32 would lose the variance of a sharp lobe to cancellation.
-    total = np.zeros(len(n))
-    first = np.zeros((len(n), 3))  # Σ g·δ
-    second = np.zeros((len(n), 3, 3))  # Σ g·δ δᵀ
-    for ka, weight_a in zip(_MOMENT_OFFSETS, _MOMENT_WEIGHTS):
-        for kb, weight_b in zip(_MOMENT_OFFSETS, _MOMENT_WEIGHTS):
-            d = w.z + (ka * sx)[:, None] * w.x + (kb * sy)[:, None] * w.y
-            length = np.linalg.norm(d, axis=1)
-            d = d / length[:, None]
-            g = (_analytic_specular(row, n, t, d, wo) * np.maximum(_dot(n, d), 0.0)[:, None]).sum(1) * (
-                weight_a * weight_b * length ** -3.0)
-            delta = d - w.z
-            total += g
-            first += g[:, None] * delta
-            second += g[:, None, None] * delta[:, :, None] * delta[:, None, :]
-    mean = first + total[:, None] * w.z  # Σ g·d
-    ok = (total > 0) & (np.linalg.norm(mean, axis=1) > 0)
-    z = _normalize(np.where(ok[:, None], mean, w.z))
-    # Σ g d dᵀ / Σ g, with d = w.z + δ
-    cross = w.z[:, :, None] * first[:, None, :]
-    moments = (second + cross + cross.transpose(0, 2, 1)) / np.where(ok, total, 1.0)[:, None, None] + (
-        w.z[:, :, None] * w.z[:, None, :])
-    ax, ay, var_x, var_y = _covariance_axes(z, w.x, moments)
-    var_x, var_y = np.maximum(var_x, MOMENT_VAR_MIN), np.maximum(var_y, MOMENT_VAR_MIN)
-    keep = ok[:, None]
-    return (np.where(keep, ax, w.x), np.where(keep, ay, w.y), np.where(keep, z, w.z),
-            np.where(ok, 0.5 / var_x, np.maximum(w.lam, 1e-6)), np.where(ok, 0.5 / var_y, np.maximum(w.mu, 1e-6)))
-
-
-# An isotropic row's moments are a function of cos θo alone, so they are tabulated once a row (`moment_table`) and the
-# frame reads the table instead of the rule above. Made on the host, the table can afford to converge: the
-# Gauss–Hermite rule on the warped lobe misses most at grazing views, where the horizon cuts f_s·cos θi (Cook–Torrance
-# 0.15 at cos θo = 0.1: mean 4.1° from the mirror direction against 6.3°, the variance across the plane of incidence
-# 43 % short; Blinn–Phong 30 at 0.05: that variance a tenth of its value), so the table takes MOMENT_TABLE_PASSES
-# midpoint grids of MOMENT_TABLE_GRID² points over ±MOMENT_TABLE_WIDTH deviations of the previous pass's Gaussian
-# (the first about the warped lobe), which agree with a 1500 × 3000 quadrature of the hemisphere to 0.1° and 3 %
-# there (`tests/test_env_specular.py`). Its MOMENT_TABLE_COS rows are at cos θo = (i/(N − 1))², denser towards
-# grazing, where the moments change fastest; each holds the mean's angle from the mirror direction (towards the
-# normal negative) times √η and the logarithms of the variances along and across the plane of incidence times η
-# (η: the NDF's sharpness; so a textured p1 rescales the row's table), read linearly in √cos θo
-# (`tabulated_moments`).
+# Where an analytic row reads the environment, tabulated. The moments of f_s·(n·ωi)⁺ depend on the view alone (in the
+# row's tangent frame), so they are made once a row, when the materials are packed (`moment_table`), and the frame
+# reads them (`tabulated_moments`) instead of evaluating f_s about the warped lobe. Made on the host, the table can
+# afford to converge where a per-pixel rule did not: a 5 × 5 Gauss–Hermite rule on the warped lobe missed most at
+# grazing views, where the horizon cuts f_s·cos θi (Cook–Torrance 0.15 at cos θo = 0.1: its mean 4.1° from the
+# mirror direction against 6.3°; Blinn–Phong 30 at 0.05: a tenth of the variance across the plane of incidence;
+# anisotropic Ward 0.08 × 0.4 up to 7.6° off its mean). The table takes MOMENT_TABLE_PASSES midpoint grids of
+# MOMENT_TABLE_GRID² points over ±MOMENT_TABLE_WIDTH deviations of the previous pass's Gaussian (the first about the
+# warped lobe). Its rows are at cos θo = (i/(N − 1))², denser towards grazing, where the moments change fastest; an
+# anisotropic row's columns at φo = j/(W − 1)·π/2 (both anisotropic kinds are even in x and in y: a view in another
+# quadrant reads the first's, mirrored). Each texel holds, in the frame of the plane of incidence (the mirror side
+# along −side, `across` = n × side), the mean's angle from the mirror direction in that plane and its angle out of it,
+# and the covariance on the mean's tangent plane along u (in the plane) and v = z × u — the angles times √η, the
+# variances' logarithms and the covariance times η (η: `moment_sharpness`, so that a textured p1 rescales an
+# isotropic row's table).
 MOMENT_TABLE_COS = 33
+MOMENT_TABLE_PHI = 17
 MOMENT_TABLE_GRID = 31
 MOMENT_TABLE_PASSES = 3
 MOMENT_TABLE_WIDTH = 5.0
 MOMENT_TABLE_COS_MIN = (0.5 / (MOMENT_TABLE_COS - 1)) ** 2  # (the first row's view: at cos θo = 0 f_s has no lobe)
+MOMENT_VAR_MIN = 0.5 / sg.SHARPNESS_MAX  # (a lobe narrower than a lookup resolves: as sharp as a lookup goes)
+
+
+def moment_sharpness(row) -> np.ndarray:
+    """(m,) the scale of packed rows' (m, 9) moment tables: the NDF's sharpness η (isotropic kinds), or 2·√(λμ) of
+    its ASG (anisotropic ones, `brdf.ndf_bandwidths`)."""
+    row = np.asarray(row, np.float64)
+    if int(row[0, 0]) in brdf_mod.ANISOTROPIC_KINDS:
+        lam, mu = brdf_mod.ndf_bandwidths(int(row[0, 0]), row[:, 7], row[:, 8])
+        return 2.0 * np.sqrt(lam * mu)
+    return specular_scale(row, np.ones(len(row)))[1]
+
+
+def _incidence_frame(n, wo):
+    """(cos θo, side, across): the view's cosine to n, the unit direction of its part across n (x where it lies
+    along n) and n × side."""
+    cos_o = np.clip(_dot(wo, n), 0.0, 1.0)
+    side = wo - cos_o[:, None] * n
+    length = np.linalg.norm(side, axis=1)
+    fallback = np.broadcast_to([1.0, 0.0, 0.0], side.shape)
+    side = np.where((length > 1e-6)[:, None], side / np.maximum(length, 1e-30)[:, None], fallback)
+    return cos_o, side, np.cross(n, side)
 
 
 def _covariance_axes(z, hint, second):
@@ -776,64 +740,88 @@ def _grid_moments(row, n, t, wo, z, x, y, half_x, half_y):
     on the tangent plane at z (axes x, y), each weighted by its solid angle; (z, x, y, var_x, var_y) of the result."""
     k = MOMENT_TABLE_GRID
     steps = (np.arange(k) + 0.5) / k * 2.0 - 1.0
-    total = np.zeros(len(n))
-    first = np.zeros((len(n), 3))
-    second = np.zeros((len(n), 3, 3))
-    for a in steps:
-        for b in steps:
-            d = z + (a * half_x)[:, None] * x + (b * half_y)[:, None] * y
-            length = np.linalg.norm(d, axis=1)
-            d = d / length[:, None]
-            g = (_analytic_specular(row, n, t, d, wo) * np.maximum(_dot(n, d), 0.0)[:, None]).sum(1) * length ** -3.0
-            total += g
-            first += g[:, None] * d
-            second += g[:, None, None] * d[:, :, None] * d[:, None, :]
+    a, b = (v.ravel() for v in np.meshgrid(steps, steps, indexing="ij"))
+    m = len(n)
+    d = (z[:, None, :] + (a[None, :] * half_x[:, None])[..., None] * x[:, None, :]
+         + (b[None, :] * half_y[:, None])[..., None] * y[:, None, :])  # (m, k², 3)
+    length = np.linalg.norm(d, axis=2)
+    d = d / length[..., None]
+
+    def each(v):  # one row of v (m, ·) per grid point
+        return np.repeat(v, k * k, axis=0)
+
+    flat = d.reshape(-1, 3)
+    g = _analytic_specular(each(row), each(n), each(t), flat, each(wo)).sum(1) * np.maximum(
+        _dot(each(n), flat), 0.0)
+    g = g.reshape(m, k * k) * length ** -3.0
+    total = g.sum(1)
+    first = np.einsum("mp,mpi->mi", g, d)
+    second = np.einsum("mp,mpi,mpj->mij", g, d, d) / np.maximum(total, 1e-300)[:, None, None]
     mean = _normalize(first)
-    return (mean, *_covariance_axes(mean, x, second / np.maximum(total, 1e-300)[:, None, None]))
+    return (mean, *_covariance_axes(mean, x, second))
 
 
 _MOMENT_TABLES: dict = {}  # a row's bytes → its table (as _CORRECTIONS)
 
 
 def moment_table(row) -> np.ndarray:
-    """(MOMENT_TABLE_COS, 1, 3) float32 texture of an isotropic packed row's moments (see above): per row i, at
-    cos θo = max((i/(N − 1))², MOMENT_TABLE_COS_MIN), [(θ_mean − θ_mirror)·√η, ln(var_along·η), ln(var_across·η)].
-    An anisotropic row (its moments are taken per pixel, `specular_moments`) or one without a specular lobe is the
-    1×1 texture of zeros."""
+    """(MOMENT_TABLE_COS, 2W, 3) float32 texture of a packed row's moments (see above), W = MOMENT_TABLE_PHI for an
+    anisotropic row, else 1: texel (i, j) at cos θo = max((i/(N − 1))², MOMENT_TABLE_COS_MIN) and φo = j/(W − 1)·π/2
+    holds [(θ_mean − θ_mirror)·√η, ln(var_u·η), ln(var_v·η)], texel (i, W + j) [β·√η, cov_uv·η, 0] (β the mean's
+    angle out of the plane of incidence). A row without a specular lobe is the 1×1 texture of zeros."""
     row = np.array(row, np.float32)
     row[1:4] = 0.0
     key = row.tobytes()
     hit = _MOMENT_TABLES.get(key)
     if hit is None:
         kind = int(row[0])
-        if kind == brdf_mod.LAMBERT or kind in brdf_mod.ANISOTROPIC_KINDS:
+        if kind == brdf_mod.LAMBERT:
             hit = np.zeros((1, 1, 3), np.float32)
         else:
+            anisotropic = kind in brdf_mod.ANISOTROPIC_KINDS
             v = np.arange(MOMENT_TABLE_COS) / (MOMENT_TABLE_COS - 1)
-            cos_o = np.maximum(v * v, MOMENT_TABLE_COS_MIN)
+            width = MOMENT_TABLE_PHI if anisotropic else 1
+            phi = np.arange(width) / max(width - 1, 1) * (0.5 * np.pi)
+            cos_o, phi = (a.ravel() for a in np.meshgrid(np.maximum(v * v, MOMENT_TABLE_COS_MIN), phi,
+                                                         indexing="ij"))
             m = len(cos_o)
+            sin_o = np.sqrt(1.0 - cos_o * cos_o)
+            wo = np.stack([sin_o * np.cos(phi), sin_o * np.sin(phi), cos_o], 1)
             rows = np.tile(row.astype(np.float64), (m, 1))
-            theta_o = np.arccos(cos_o)
-            wo = np.stack([np.sin(theta_o), np.zeros(m), cos_o], 1)
             n = np.tile([0.0, 0.0, 1.0], (m, 1))
             t = np.tile([1.0, 0.0, 0.0], (m, 1))
-            eta = specular_scale(rows, np.ones(m))[1]
-            w = asg_mod.warp(asg_mod.ASG(t, np.cross(n, t), n, 0.5 * eta, 0.5 * eta), wo)
+            eta = moment_sharpness(rows)
+            if anisotropic:
+                lam, mu = brdf_mod.ndf_bandwidths(kind, rows[:, 7], rows[:, 8])
+            else:
+                lam = mu = 0.5 * eta
+            w = asg_mod.warp(asg_mod.ASG(t, np.cross(n, t), n, lam, mu), wo)
             z, x, y = w.z, w.x, w.y
-            sx, sy = np.sqrt(0.5 / np.maximum(w.lam, 1e-6)), np.sqrt(0.5 / np.maximum(w.mu, 1e-6))
+            var_x, var_y = 0.5 / np.maximum(w.lam, 1e-6), 0.5 / np.maximum(w.mu, 1e-6)
             for _ in range(MOMENT_TABLE_PASSES):
                 # (a tangent-plane half-width past ~80° would fold the grid over the far side)
                 z, x, y, var_x, var_y = _grid_moments(rows, n, t, wo, z, x, y,
-                                                       np.minimum(MOMENT_TABLE_WIDTH * sx, 6.0),
-                                                       np.minimum(MOMENT_TABLE_WIDTH * sy, 6.0))
-                sx, sy = np.sqrt(np.maximum(var_x, MOMENT_VAR_MIN)), np.sqrt(np.maximum(var_y, MOMENT_VAR_MIN))
-            theta_m = np.arctan2(-z[:, 0], z[:, 2])  # (the mirror side is −x)
-            along = np.stack([-np.cos(theta_m), np.zeros(m), -np.sin(theta_m)], 1)
-            x_along = np.abs(_dot(x, along)) >= np.abs(_dot(y, along))
-            var_along = np.maximum(np.where(x_along, var_x, var_y), MOMENT_VAR_MIN)
-            var_across = np.maximum(np.where(x_along, var_y, var_x), MOMENT_VAR_MIN)
-            hit = np.stack([(theta_m - theta_o) * np.sqrt(eta), np.log(var_along * eta), np.log(var_across * eta)],
-                           1)[:, None, :].astype(np.float32)
+                                                       np.minimum(MOMENT_TABLE_WIDTH * np.sqrt(var_x), 6.0),
+                                                       np.minimum(MOMENT_TABLE_WIDTH * np.sqrt(var_y), 6.0))
+                var_x, var_y = np.maximum(var_x, MOMENT_VAR_MIN), np.maximum(var_y, MOMENT_VAR_MIN)
+            # (the plane of incidence from φo, which at normal incidence still names the column's frame)
+            side = np.stack([np.cos(phi), np.sin(phi), np.zeros(m)], 1)
+            across = np.cross(n, side)
+            theta_m = np.arctan2(-_dot(z, side), _dot(z, n))
+            beta = np.arcsin(np.clip(_dot(z, across), -1.0, 1.0))
+            u = -(np.cos(theta_m)[:, None] * side + np.sin(theta_m)[:, None] * n)
+            u = _normalize(u - _dot(u, z)[:, None] * z)  # (u ⊥ z exactly, whatever β)
+            vv = np.cross(z, u)
+
+            def moment(a, b):  # aᵀ C b of the covariance whose principal axes and variances the passes gave
+                return var_x * _dot(a, x) * _dot(b, x) + var_y * _dot(a, y) * _dot(b, y)
+
+            first = np.stack([(theta_m - np.arccos(cos_o)) * np.sqrt(eta),
+                              np.log(np.maximum(moment(u, u), MOMENT_VAR_MIN) * eta),
+                              np.log(np.maximum(moment(vv, vv), MOMENT_VAR_MIN) * eta)], 1)
+            second = np.stack([beta * np.sqrt(eta), moment(u, vv) * eta, np.zeros(m)], 1)
+            hit = np.concatenate([first.reshape(MOMENT_TABLE_COS, width, 3),
+                                  second.reshape(MOMENT_TABLE_COS, width, 3)], 1).astype(np.float32)
             if not np.isfinite(hit).all():
                 raise ValueError(f"moment_table: row {row.tolist()} gives non-finite moments")
         hit.setflags(write=False)
@@ -844,26 +832,49 @@ def moment_table(row) -> np.ndarray:
 
 
 def tabulated_moments(table, eta, n, t, wo) -> tuple:
-    """(x, y, z, λ, μ) as `specular_moments` gives them, read from an isotropic row's `moment_table` (N, 1, 3) for
-    NDF sharpness η (m,), unit normals n, tangents t and views wo (m, 3) above the horizon, as the kernels read it:
-    linear in √cos θo between the rows, clamped to the first and last; the mean in the plane of incidence on the
-    mirror side (along t where wo lies along n)."""
-    table = np.asarray(table, np.float64)[:, 0, :]
-    rows = len(table)
-    cos_o = np.clip(_dot(wo, n), 0.0, 1.0)
+    """(x, y, z, λ, μ), `asg_prefiltered`'s arguments: the ASG of f_s·(n·ωi)⁺'s moments read from a row's
+    `moment_table` (N, 2W, 3) for its `moment_sharpness` η (m,), unit normals n, tangents t and views wo (m, 3)
+    above the horizon, as the kernels read it: linear in √cos θo and in φo folded into [0, π/2], clamped to the
+    table; a view in another quadrant of the tangent frame mirrors the out-of-plane angle and the covariance."""
+    table = np.asarray(table, np.float64)
+    rows, width = table.shape[0], table.shape[1] // 2
+    cos_o, side, across = _incidence_frame(n, wo)
+    x_t, y_t = brdf_mod.tangent_frame(n, t)
+    wx, wy = _dot(wo, x_t), _dot(wo, y_t)
     pos = np.sqrt(cos_o) * (rows - 1)
     i0 = np.minimum(pos.astype(np.int64), rows - 2)
-    f = (pos - i0)[:, None]
-    value = (1.0 - f) * table[i0] + f * table[i0 + 1]
-    side = wo - cos_o[:, None] * n
-    length = np.linalg.norm(side, axis=1)
-    side = np.where((length > 1e-6)[:, None], side / np.maximum(length, 1e-30)[:, None], t)
-    theta_m = np.clip(np.arctan2(length, cos_o) + value[:, 0] / np.sqrt(eta), 0.0, 0.5 * np.pi)
-    z = np.cos(theta_m)[:, None] * n - np.sin(theta_m)[:, None] * side
-    x = -(np.cos(theta_m)[:, None] * side + np.sin(theta_m)[:, None] * n)
-    var_along = np.maximum(np.exp(value[:, 1]) / eta, MOMENT_VAR_MIN)
-    var_across = np.maximum(np.exp(value[:, 2]) / eta, MOMENT_VAR_MIN)
-    return x, np.cross(z, x), z, 0.5 / var_along, 0.5 / var_across
+    fi = (pos - i0)[:, None]
+    if width > 1:
+        col = np.arctan2(np.abs(wy), np.abs(wx)) / (0.5 * np.pi) * (width - 1)
+        j0 = np.minimum(col.astype(np.int64), width - 2)
+    else:
+        col = j0 = np.zeros(len(n), np.int64)
+    fj = (col - j0)[:, None]
+    j1 = np.minimum(j0 + 1, width - 1)
+
+    def read(offset):
+        top = (1.0 - fj) * table[i0, offset + j0] + fj * table[i0, offset + j1]
+        bottom = (1.0 - fj) * table[i0 + 1, offset + j0] + fj * table[i0 + 1, offset + j1]
+        return (1.0 - fi) * top + fi * bottom
+
+    first, second = read(0), read(width)
+    mirror = np.where((wx < 0) != (wy < 0), -1.0, 1.0)
+    scale = np.sqrt(eta)
+    theta_m = np.clip(np.arccos(cos_o) + first[:, 0] / scale, 0.0, 0.5 * np.pi)
+    beta = mirror * second[:, 0] / scale
+    in_plane = np.cos(theta_m)[:, None] * n - np.sin(theta_m)[:, None] * side
+    z = np.cos(beta)[:, None] * in_plane + np.sin(beta)[:, None] * across
+    u = -(np.cos(theta_m)[:, None] * side + np.sin(theta_m)[:, None] * n)
+    u = _normalize(u - _dot(u, z)[:, None] * z)
+    v = np.cross(z, u)
+    var_u, var_v = np.exp(first[:, 1]) / eta, np.exp(first[:, 2]) / eta
+    cov = mirror * second[:, 1] / eta
+    angle = 0.5 * np.arctan2(2.0 * cov, var_u - var_v)
+    c, s = np.cos(angle), np.sin(angle)
+    x = c[:, None] * u + s[:, None] * v
+    var_x = np.maximum(var_u * c * c + 2.0 * cov * c * s + var_v * s * s, MOMENT_VAR_MIN)
+    var_y = np.maximum(var_u * s * s - 2.0 * cov * c * s + var_v * c * c, MOMENT_VAR_MIN)
+    return x, np.cross(z, x), z, 0.5 / var_x, 0.5 / var_y
 
 
 def capped_cosine_integral(e, cap, axis, n, eta, table):
@@ -1223,16 +1234,13 @@ def shade_reference(frame: Frame) -> np.ndarray:
             if cap is not None:
                 e = capped_cosine_integral(e, cap, axis, ns, eta, table)
             occ = occlusion(axis, eta, sel)
-            if kind == 0:  # an analytic row: where f_s·cos θi itself lies (`specular_moments`); nothing for a view
+            if kind == 0:  # an analytic row: where f_s·cos θi itself lies (`moment_table`); nothing for a view
                 # below the shading normal's horizon, where f_s is 0
                 row = rows[lobe_index]
-                if int(row[0, 0]) in brdf_mod.ANISOTROPIC_KINDS:
-                    shape = specular_moments(row, ns, ts_, wo_s)
-                else:
-                    off, th, tw = (int(v) for v in static.tex_info[2 + 2 * (idx + lobe_index)][:3])
-                    image = static.tex_data[3 * off:3 * (off + th * tw)].reshape(th, tw, 3)
-                    shape = tabulated_moments(image, specular_scale(row, cos_os)[1], ns, ts_, wo_s)
-                env_avg = asg_prefiltered(static.env_maps, static.env_levels, *shape)
+                off, th, tw = (int(v) for v in static.tex_info[2 + 2 * (idx + lobe_index)][:3])
+                image = static.tex_data[3 * off:3 * (off + th * tw)].reshape(th, tw, 3)
+                env_avg = asg_prefiltered(static.env_maps, static.env_levels,
+                                          *tabulated_moments(image, moment_sharpness(row), ns, ts_, wo_s))
                 env_avg *= (_dot(ns, wo_s) > 0)[:, None]
             elif asg_lobe is None:
                 env_avg = prefiltered_lookup(static.env_maps, static.env_levels, axis, eta)
