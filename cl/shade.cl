@@ -36,6 +36,7 @@
 #define ASG_TAP_SHARE 0.05f /* = shading.ASG_TAP_SHARE */
 #define LIGHT_BLUR_EXP_MAX 4.0f /* = shading.LIGHT_BLUR_EXP_MAX */
 #define MOMENT_VAR_MIN 5.0e-7f /* = shading.MOMENT_VAR_MIN */
+#define MOMENT_P1_STEPS 4.0f /* = shading.MOMENT_P1_STEPS */
 #define BACKGROUND_LOG2 1.0e30f /* = lighting.BACKGROUND_LOG2 */
 #define BACKGROUND_ETA 1.0e29f /* = lighting.BACKGROUND_ETA */
 #define TAP_SPAN 2.75f /* = shading.TAP_SPAN */
@@ -815,10 +816,12 @@ CL_INLINE float moment_sharpness(int kind, float p1, float p2)
 }
 
 /* The ASG of an analytic row's f_s·(n·ωi)⁺ moments, read from its moment table (shading.moment_table) at texture
- * `slot` for its moment_sharpness eta (shading.tabulated_moments): linear in √cos θo and in φo folded into [0, π/2];
- * a view in another quadrant of the tangent frame mirrors the out-of-plane angle and the covariance. */
+ * `slot` for its moment_sharpness eta (shading.tabulated_moments): linear in √cos θo and across the columns — an
+ * isotropic row's p1 factors (its parameter map's p1_factor here; the first's log2 in texel (0, W)'s third
+ * channel), else φo folded into [0, π/2], a view in another quadrant of the tangent frame mirroring the out-of-plane
+ * angle and the correlation. */
 CL_INLINE Asg tabulated_moments(__global const int *tex_info, __global const float *tex_data, int slot,
-                                SurfacePoint s, float3 wo, float eta)
+                                SurfacePoint s, float3 wo, int kind, float eta, float p1_factor)
 {
     int off = tex_info[4 * slot];
     int rows = tex_info[4 * slot + 1];
@@ -835,8 +838,17 @@ CL_INLINE Asg tabulated_moments(__global const int *tex_info, __global const flo
     float fi = pos - (float)i0;
     int j0 = 0, j1 = 0;
     float fj = 0.0f;
+    float mirror = 1.0f;
     if (width > 1) {
-        float col = atan2(fabs(wy), fabs(wx)) / (0.5f * SHADE_PI) * (float)(width - 1);
+        float col;
+        if (kind == ANISOTROPIC_WARD || kind == ASHIKHMIN_SHIRLEY) {
+            col = atan2(fabs(wy), fabs(wx)) / (0.5f * SHADE_PI) * (float)(width - 1);
+            if ((wx < 0.0f) != (wy < 0.0f))
+                mirror = -1.0f;
+        } else {
+            col = clamp(MOMENT_P1_STEPS * (log2(maxf(p1_factor, 1.0e-30f)) - tex_data[3 * (off + width) + 2]), 0.0f,
+                        (float)(width - 1));
+        }
         j0 = min((int)col, width - 2);
         j1 = j0 + 1;
         fj = col - (float)j0;
@@ -849,7 +861,6 @@ CL_INLINE Asg tabulated_moments(__global const int *tex_info, __global const flo
                         * (1.0f - fi)
                     + (load3(tex_data, row1 + width + j0) * (1.0f - fj) + load3(tex_data, row1 + width + j1) * fj)
                         * fi;
-    float mirror = (wx < 0.0f) != (wy < 0.0f) ? -1.0f : 1.0f;
     float scale = sqrt(eta);
     float theta = clamp(atan2(length, cos_o) + first.x / scale, 0.0f, 0.5f * SHADE_PI);
     float beta = mirror * second.x / scale;
@@ -861,7 +872,7 @@ CL_INLINE Asg tabulated_moments(__global const int *tex_info, __global const flo
     float3 v = cross3(z, u);
     float var_u = exp(first.y) / eta;
     float var_v = exp(first.z) / eta;
-    float cov = mirror * second.y / eta;
+    float cov = mirror * second.y * sqrt(var_u * var_v);
     float angle = 0.5f * atan2(2.0f * cov, var_u - var_v);
     float ca = cos(angle);
     float sa = sin(angle);
@@ -1265,8 +1276,8 @@ __kernel void shade_pixels(
                     /* The environment where f_s·cos θi itself lies, not where the warp puts it; nothing for a view
                      * below the shading normal's horizon, where f_s is 0. */
                     if (dot3(wo, s.n) > 0.0f) {
-                        tap = tabulated_moments(tex_info, tex_data, 2 + 2 * (idx + j), s, wo,
-                                                moment_sharpness(r_kind, r_p1, row[8]));
+                        tap = tabulated_moments(tex_info, tex_data, 2 + 2 * (idx + j), s, wo, r_kind,
+                                                moment_sharpness(r_kind, r_p1, row[8]), t_p1);
                         taps = 1;
                     } else {
                         amp = (float3)(0.0f, 0.0f, 0.0f);

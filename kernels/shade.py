@@ -52,6 +52,7 @@ ASG_TAPS = wp.constant(_shading.ASG_TAPS)
 ASG_TAP_SHARE = wp.constant(_shading.ASG_TAP_SHARE)
 LIGHT_BLUR_EXP_MAX = wp.constant(_shading.LIGHT_BLUR_EXP_MAX)
 MOMENT_VAR_MIN = wp.constant(_shading.MOMENT_VAR_MIN)
+MOMENT_P1_STEPS = wp.constant(float(_shading.MOMENT_P1_STEPS))
 TAP_SPAN = wp.constant(_shading.TAP_SPAN)
 TAP_GAP = wp.constant(_shading.TAP_GAP)
 ROUND_SPREAD = wp.constant(_shading.ROUND_SPREAD)
@@ -968,10 +969,12 @@ def moment_sharpness(kind: int, p1: float, p2: float) -> float:
 
 @wp.func
 def tabulated_moments(tex_info: wp.array2d(dtype=wp.int32), tex_data: wp.array(dtype=wp.vec3), slot: int,
-                      s: SurfacePoint, wo: wp.vec3, eta: float) -> Asg:
+                      s: SurfacePoint, wo: wp.vec3, kind: int, eta: float, p1_factor: float) -> Asg:
     """The ASG of an analytic row's f_s·(n·ωi)⁺ moments, read from its moment table (shading.moment_table) at
-    texture `slot` for its moment_sharpness η (shading.tabulated_moments): linear in √cos θo and in φo folded into
-    [0, π/2]; a view in another quadrant of the tangent frame mirrors the out-of-plane angle and the covariance."""
+    texture `slot` for its moment_sharpness η (shading.tabulated_moments): linear in √cos θo and across the
+    columns — an isotropic row's p1 factors (its parameter map's `p1_factor` here; the first's log2 in texel
+    (0, W)'s third channel), else φo folded into [0, π/2], a view in another quadrant of the tangent frame mirroring
+    the out-of-plane angle and the correlation."""
     off = i32_at2(tex_info, slot, 0)
     rows = i32_at2(tex_info, slot, 1)
     width = i32_at2(tex_info, slot, 2) // 2
@@ -991,8 +994,16 @@ def tabulated_moments(tex_info: wp.array2d(dtype=wp.int32), tex_data: wp.array(d
     j0 = int(0)
     j1 = int(0)
     fj = float(0.0)
+    mirror = float(1.0)
     if width > 1:
-        col = wp.atan2(wp.abs(wy), wp.abs(wx)) / (0.5 * PI) * float(width - 1)
+        col = float(0.0)
+        if kind == ANISOTROPIC_WARD or kind == ASHIKHMIN_SHIRLEY:
+            col = wp.atan2(wp.abs(wy), wp.abs(wx)) / (0.5 * PI) * float(width - 1)
+            if (wx < 0.0) != (wy < 0.0):
+                mirror = -1.0
+        else:
+            col = wp.clamp(MOMENT_P1_STEPS * (wp.log2(wp.max(p1_factor, 1.0e-30)) - tex_data[off + width][2]), 0.0,
+                           float(width - 1))
         j0 = wp.min(int(col), width - 2)
         j1 = j0 + 1
         fj = col - float(j0)
@@ -1002,9 +1013,6 @@ def tabulated_moments(tex_info: wp.array2d(dtype=wp.int32), tex_data: wp.array(d
         tex_data[row1 + j0] * (1.0 - fj) + tex_data[row1 + j1] * fj) * fi
     second = (tex_data[row0 + width + j0] * (1.0 - fj) + tex_data[row0 + width + j1] * fj) * (1.0 - fi) + (
         tex_data[row1 + width + j0] * (1.0 - fj) + tex_data[row1 + width + j1] * fj) * fi
-    mirror = float(1.0)
-    if (wx < 0.0) != (wy < 0.0):
-        mirror = -1.0
     scale = wp.sqrt(eta)
     theta = wp.clamp(wp.atan2(length, cos_o) + first[0] / scale, 0.0, 0.5 * PI)
     beta = mirror * second[0] / scale
@@ -1016,7 +1024,7 @@ def tabulated_moments(tex_info: wp.array2d(dtype=wp.int32), tex_data: wp.array(d
     v = wp.cross(z, u)
     var_u = wp.exp(first[1]) / eta
     var_v = wp.exp(first[2]) / eta
-    cov = mirror * second[1] / eta
+    cov = mirror * second[1] * wp.sqrt(var_u * var_v)
     angle = 0.5 * wp.atan2(2.0 * cov, var_u - var_v)
     ca = wp.cos(angle)
     sa = wp.sin(angle)
@@ -1255,8 +1263,8 @@ def shade_pixels(
                     # The environment where f_s·cos θi itself lies, not where the warp puts it; nothing for a view
                     # below the shading normal's horizon, where f_s is 0.
                     if wp.dot(wo, s.n) > 0.0:
-                        tap = tabulated_moments(tex_info, tex_data, 2 + 2 * row, s, wo,
-                                                moment_sharpness(r_kind, r_p1, r_p2))
+                        tap = tabulated_moments(tex_info, tex_data, 2 + 2 * row, s, wo, r_kind,
+                                                moment_sharpness(r_kind, r_p1, r_p2), t_p1)
                         taps = 1
                     else:
                         amp = wp.vec3(0.0)

@@ -174,8 +174,8 @@ def _dense_moments(row, wo, nz=768, nphi=1536):
 # (768 × 1536) at views between the table's rows and columns, grazing ones included; the tangent frame turned about
 # the normal (the view turned with it: nothing may change) and, for the anisotropic kinds, views in the other
 # quadrants (read from the first's, mirrored). Measured (the frame unturned): the mean within 0.037 of the narrow
-# σ, the variances along the returned axes 0.938–0.999 of the exact ones (the lowest Cook–Torrance 0.2's at
-# cos θo = 0.05) and the exact covariance across them within 0.024 of their geometric mean; at cos θo = 0.05 the
+# σ, the variances along the returned axes 0.938–1.005 of the exact ones (the lowest Cook–Torrance 0.2's at
+# cos θo = 0.05) and the exact covariance across them within 0.025 of their geometric mean; at cos θo = 0.05 the
 # 5 × 5 Gauss–Hermite rule per pixel that the table replaced had 0.10–0.24 of the exact variance across the plane
 # of incidence. Bounds: 0.1 σ, 0.9–1.05 and 0.05.
 TABLE_MATERIALS = {
@@ -210,14 +210,55 @@ def test_tabulated_moments_against_a_dense_quadrature(name, cos_o, phi_o):
     assert abs(x @ second @ y) < 0.05 * np.sqrt(exact_x * exact_y)
 
 
+# A `Textured` material's parameter map changes p1, and with it the shape of the moments, pixel by pixel: its rows'
+# tables have a column every quarter octave of the map's factor from its least (`moment_p1_steps`; one for a
+# constant map). Read at factors between the
+# columns they must give the moments of a table made at the pixel's own p1. Measured (map 0.5–2, Cook–Torrance 0.3,
+# Blinn–Phong 64, Ward 0.15; cos θo 0.1 / 0.4 / 0.95): the mean within 0.013 of the narrow σ, the bandwidths within
+# 0.8 %; one table at the mean p1 rescaled by η (what the columns replaced) was up to 2.6× off. Bounds: 0.05 σ, 3 %.
+def test_parameter_map_rows_tabulate_their_p1():
+    steps = shading.moment_p1_steps(np.array([[0.5, 2.0], [1.0, 1.2]]))
+    assert steps == (-1.0, 9) and shading.moment_p1_steps(np.full((2, 2), 0.7))[1] == 1
+    n, t = np.array([[0.0, 0, 1]]), np.array([[1.0, 0, 0]])
+    worst_single = 0.0
+    for material in (wb.CookTorrance(0.6, 0.3), wb.BlinnPhong(0.2, 64), wb.Ward(0.5, 0.15)):
+        base = _row(material)
+        table = shading.moment_table(base, steps)
+        assert table.shape == (shading.MOMENT_TABLE_COS, 2 * steps[1], 3) and np.isfinite(table).all()
+        for factor in (0.5, 0.61, 1.3, 1.77, 2.0):
+            row = base.copy()
+            row[7] *= factor
+            eta = shading.moment_sharpness(row[None])
+            for cos_o in (0.1, 0.4, 0.95):
+                wo = np.array([[np.sqrt(1 - cos_o**2), 0.0, cos_o]])
+                got = shading.tabulated_moments(table, eta, n, t, wo, np.array([factor]))
+                want = shading.tabulated_moments(shading.moment_table(row), eta, n, t, wo)
+                sigma = np.sqrt(0.5 / max(want[3][0], want[4][0]))
+                assert np.arccos(min(float(got[2][0] @ want[2][0]), 1.0)) < 0.05 * sigma
+                for k in (3, 4):
+                    assert got[k][0] == pytest.approx(want[k][0], rel=0.03), (material, factor, cos_o, k)
+                single = shading.tabulated_moments(shading.moment_table(base), eta, n, t, wo)
+                worst_single = max(worst_single, *(abs(single[k][0] / want[k][0] - 1) for k in (3, 4)))
+    assert worst_single > 0.3  # (the columns matter: the mean-p1 table rescaled is far off somewhere)
+
+
+def test_a_row_without_specular_tabulates_its_shape():
+    """ks = 0 (a diffuse Cook–Torrance): f_s is 0, its table is that of f_s's shape (ks = 1), finite."""
+    diffuse = _row(wb.CookTorrance(0.0, 0.3, kd=0.5))
+    glossy = _row(wb.CookTorrance(1.0, 0.3, kd=0.5))
+    np.testing.assert_array_equal(shading.moment_table(diffuse), shading.moment_table(glossy))
+    packed = shading.pack_materials([wb.CookTorrance(0.0, 0.3, kd=0.5), wb.AnisotropicWard(0.0, 0.1, 0.3, kd=0.5)])
+    assert np.isfinite(packed["tex_data"]).all()
+
+
 # The same against the Monte Carlo reference under the studio, whose softboxes a glossy sphere's rim reflects
 # (32 × 24, 4096 samples a pixel, seed 1): the SG image's mean over the reference's at the rim (cos θo < 0.35) /
 # inside, and the relative L2 over the sphere. Measured (PoCL and Warp CPU alike), with the moments tabulated
 # (`moment_table`) → the 5 × 5 rule per pixel (002b5ed) → the lookup where the warp put it (6664c2f): Cook–Torrance
 # 0.2 1.011 / 0.999, 1.48 % → 1.007 / 0.998, 1.63 % → 1.049 / 0.998, 4.05 %; Ward 0.15 1.026 / 0.997, 2.61 % → 1.024
 # / 0.997, 2.73 % → 1.210 / 0.985, 9.70 %; Blinn–Phong 64 1.015 / 1.001, 3.20 % → 1.010 / 0.999, 3.61 % → 1.152 /
-# 0.970, 11.27 %; Ashikhmin–Shirley 20 × 400 1.175 / 1.013, 11.95 % → 1.028 / 1.009, 13.09 % → 2.001 / 0.976,
-# 14.09 %; anisotropic Ward 0.08 × 0.4 1.059 / 1.005, 12.00 % → 1.123 / 1.006, 15.46 % → 1.690 / 1.056, 31.62 % (the
+# 0.970, 11.27 %; Ashikhmin–Shirley 20 × 400 1.176 / 1.013, 11.99 % → 1.028 / 1.009, 13.09 % → 2.001 / 0.976,
+# 14.09 %; anisotropic Ward 0.08 × 0.4 1.059 / 1.005, 11.99 % → 1.123 / 1.006, 15.46 % → 1.690 / 1.056, 31.62 % (the
 # reference's noise 1.0–2.0 %). The table's converged moments put more light on the Ashikhmin–Shirley 20 × 400 rim
 # than the rule did (its broad lobe's Gaussian there reads more of the softboxes) while the whole sphere comes
 # closer. Bounds: the rim within 6 % (20 % for Ashikhmin–Shirley 20 × 400, 10 % for the anisotropic Ward), inside

@@ -57,11 +57,11 @@ is −1, or for a `svbrdf.Textured` analytic material the first of its three ``t
 parameter map; an absent map is a shared 1×1 texture of ones); ``tex_info`` row 1 + 2r is analytic row r's
 specular correction (`specular_correction`: (24, W) texels, W = 6 values of φo for an anisotropic row, else 1;
 a Lambert row's the 1×1 texture of ones; a Textured material's rows corrected at its parameter map's mean p1),
-row 2 + 2r its moment table (`moment_table`: (33, 2) texels, (33, 34) for an anisotropic row, a Lambert row's 1×1);
-``tex_info`` (T, 4) int32 [texel offset into tex_data, H, W, 0]; ``tex_data`` float32 (Σ H·W·3), row-major
-RGB texels (a parameter map is stored in all three channels; the kernels read channel 0). The kernels read
-each analytic row into per-pixel values, scale them by the maps at the pixel's UV (``uvs`` (V, 2),
-bilinear, repeat: `svbrdf.sample`) and use only those values afterwards;
+row 2 + 2r its moment table (`moment_table`: (33, 2W) texels, a Lambert row's 1×1);
+``tex_info`` (T, 4) int32 [texel offset into tex_data, H, W, 0]; ``tex_data``
+float32 (Σ H·W·3), row-major RGB texels (a parameter map is stored in all three channels; the kernels read
+channel 0). The kernels read each analytic row into per-pixel values, scale them by the maps at the pixel's UV
+(``uvs`` (V, 2), bilinear, repeat: `svbrdf.sample`) and use only those values afterwards;
 ``analytic`` (A, 9) float32 [brdf kind, kd rgb, ks rgb, p1, p2] (brdf.pack_materials' row with the kind first);
 ``eff_info`` (E, 8) int32 [K, J, n_sub, lobe_offset, sub_offset, table_offset, diffuse_offset, lobe type
 (`effective.SG_LOBES` 0, `effective.ASG_LOBES` 1)];
@@ -398,6 +398,7 @@ def pack_materials(materials) -> dict:
     # (`moment_table`, row r's at 2 + 2r); the materials' maps follow.
     maps = []  # (the maps in order; a Textured material's slot is counted among them, then moved past the A rows)
     textured, corrected = [], []  # (the rows whose corrections are made: `analytic`'s but for parameter maps)
+    moment_steps = []  # per analytic row, its moment table's p1 steps (`moment_p1_steps`) or None
     for idx, m in enumerate(materials):
         if isinstance(m, Textured):
             textured.append(len(info))
@@ -405,14 +406,18 @@ def pack_materials(materials) -> dict:
             rows = _analytic_rows(m.brdf)
             analytic.extend(rows)
             maps.extend(m.maps)
+            steps = None
             if m.parameter_map is not None:  # (its rows' corrections at the map's mean p1: one table a row)
+                steps = moment_p1_steps(m.parameter_map)
                 rows = rows.copy()
                 rows[:, 7] *= np.float32(np.mean(m.parameter_map))
             corrected.extend(rows)
+            moment_steps.extend([steps] * len(rows))
         elif isinstance(m, brdf_mod.Brdf):
             info.append([0, len(analytic), _specular_rows(m), -1])
             analytic.extend(_analytic_rows(m, anisotropic=True))
             corrected.extend(analytic[len(corrected):])
+            moment_steps.extend([None] * (len(analytic) - len(moment_steps)))
         elif isinstance(m, EffectiveBRDF):
             k2 = m.directions**2
             lobe_type, rows = m.shade_lobes()  # a matrix-method material has none: a one-line refusal
@@ -447,7 +452,9 @@ def pack_materials(materials) -> dict:
         return np.asarray(rows, dtype).reshape(-1, width) if rows else np.zeros((0, width), dtype)
 
     tex_info, tex_data, n_texels = [[0, 1, 1, 0]], [np.ones(3, np.float32)], 1
-    for tex in [t for row in corrected for t in (specular_correction(row), moment_table(row))] + maps:
+    tables = [t for row, base, steps in zip(corrected, analytic, moment_steps)
+              for t in (specular_correction(row), moment_table(base, steps))]
+    for tex in tables + maps:
         if tex is None:
             tex_info.append([0, 1, 1, 0])
             continue
@@ -686,17 +693,21 @@ def asg_prefiltered(maps, levels, x, y, z, lam, mu):
 # MOMENT_TABLE_GRID² points over ±MOMENT_TABLE_WIDTH deviations of the previous pass's Gaussian (the first about the
 # warped lobe). Its rows are at cos θo = (i/(N − 1))², denser towards grazing, where the moments change fastest; an
 # anisotropic row's columns at φo = j/(W − 1)·π/2 (both anisotropic kinds are even in x and in y: a view in another
-# quadrant reads the first's, mirrored). Each texel holds, in the frame of the plane of incidence (the mirror side
-# along −side, `across` = n × side), the mean's angle from the mirror direction in that plane and its angle out of it,
-# and the covariance on the mean's tangent plane along u (in the plane) and v = z × u — the angles times √η, the
-# variances' logarithms and the covariance times η (η: `moment_sharpness`, so that a textured p1 rescales an
-# isotropic row's table).
+# quadrant reads the first's, mirrored); an isotropic row under a parameter map (a `Textured` one's p1 map) has a
+# column every quarter octave of the map's factor instead, over the map's range, since its moments' shape changes
+# with p1 (a table at the map's mean rescaled by η put Cook–Torrance 0.3 at twice its p1 2.6× off in variance).
+# Each texel holds, in the frame of the plane of incidence (the mirror side along −side, `across` = n × side), the
+# mean's angle from the mirror direction in that plane and its angle out of it, times √η, the logarithms of the
+# variances along u (in the plane) and v = z × u on the mean's tangent plane, times η, and their correlation (which
+# stays in (−1, 1) between texels, as a covariance need not) (η: `moment_sharpness`).
 MOMENT_TABLE_COS = 33
 MOMENT_TABLE_PHI = 17
 MOMENT_TABLE_GRID = 31
 MOMENT_TABLE_PASSES = 3
 MOMENT_TABLE_WIDTH = 5.0
 MOMENT_TABLE_COS_MIN = (0.5 / (MOMENT_TABLE_COS - 1)) ** 2  # (the first row's view: at cos θo = 0 f_s has no lobe)
+MOMENT_P1_STEPS = 4  # an isotropic row under a parameter map: a column every quarter octave of p1 …
+MOMENT_P1_COLUMNS = 33  # … at most this many
 MOMENT_VAR_MIN = 0.5 / sg.SHARPNESS_MAX  # (a lobe narrower than a lookup resolves: as sharp as a lookup goes)
 
 
@@ -710,14 +721,13 @@ def moment_sharpness(row) -> np.ndarray:
     return specular_scale(row, np.ones(len(row)))[1]
 
 
-def _incidence_frame(n, wo):
-    """(cos θo, side, across): the view's cosine to n, the unit direction of its part across n (x where it lies
-    along n) and n × side."""
+def _incidence_frame(n, x, wo):
+    """(cos θo, side, across): the view's cosine to n, the unit direction of its part across n (the tangent x where it
+    lies along n, as the kernels take it) and n × side."""
     cos_o = np.clip(_dot(wo, n), 0.0, 1.0)
     side = wo - cos_o[:, None] * n
     length = np.linalg.norm(side, axis=1)
-    fallback = np.broadcast_to([1.0, 0.0, 0.0], side.shape)
-    side = np.where((length > 1e-6)[:, None], side / np.maximum(length, 1e-30)[:, None], fallback)
+    side = np.where((length > 1e-6)[:, None], side / np.maximum(length, 1e-30)[:, None], x)
     return cos_o, side, np.cross(n, side)
 
 
@@ -737,7 +747,8 @@ def _covariance_axes(z, hint, second):
 
 def _grid_moments(row, n, t, wo, z, x, y, half_x, half_y):
     """One pass of `moment_table`: f_s·(n·ωi)⁺ on a midpoint grid of MOMENT_TABLE_GRID² points over ±half_x, ±half_y
-    on the tangent plane at z (axes x, y), each weighted by its solid angle; (z, x, y, var_x, var_y) of the result."""
+    on the tangent plane at z (axes x, y), each weighted by its solid angle; (ok, z, x, y, var_x, var_y) of the
+    result, ok false where the grid held nothing."""
     k = MOMENT_TABLE_GRID
     steps = (np.arange(k) + 0.5) / k * 2.0 - 1.0
     a, b = (v.ravel() for v in np.meshgrid(steps, steps, indexing="ij"))
@@ -756,38 +767,58 @@ def _grid_moments(row, n, t, wo, z, x, y, half_x, half_y):
     g = g.reshape(m, k * k) * length ** -3.0
     total = g.sum(1)
     first = np.einsum("mp,mpi->mi", g, d)
-    second = np.einsum("mp,mpi,mpj->mij", g, d, d) / np.maximum(total, 1e-300)[:, None, None]
-    mean = _normalize(first)
-    return (mean, *_covariance_axes(mean, x, second))
+    ok = (total > 0) & (np.linalg.norm(first, axis=1) > 0)
+    second = np.einsum("mp,mpi,mpj->mij", g, d, d) / np.where(ok, total, 1.0)[:, None, None]
+    mean = _normalize(np.where(ok[:, None], first, z))
+    return (ok, mean, *_covariance_axes(mean, x, second))
 
 
-_MOMENT_TABLES: dict = {}  # a row's bytes → its table (as _CORRECTIONS)
+_MOMENT_TABLES: dict = {}  # (a row's bytes, its p1 steps) → its table (as _CORRECTIONS)
 
 
-def moment_table(row) -> np.ndarray:
-    """(MOMENT_TABLE_COS, 2W, 3) float32 texture of a packed row's moments (see above), W = MOMENT_TABLE_PHI for an
-    anisotropic row, else 1: texel (i, j) at cos θo = max((i/(N − 1))², MOMENT_TABLE_COS_MIN) and φo = j/(W − 1)·π/2
-    holds [(θ_mean − θ_mirror)·√η, ln(var_u·η), ln(var_v·η)], texel (i, W + j) [β·√η, cov_uv·η, 0] (β the mean's
-    angle out of the plane of incidence). A row without a specular lobe is the 1×1 texture of zeros."""
+def moment_p1_steps(parameter_map) -> tuple:
+    """(log2 f0, count): the p1 factors f0·2^(j/MOMENT_P1_STEPS), j = 0 … count − 1, over which an isotropic row under
+    a parameter map tabulates its moments, from the map's least value f0 to its greatest (at most
+    MOMENT_P1_COLUMNS; one for a constant map)."""
+    values = np.asarray(parameter_map, np.float64)
+    lo = np.log2(max(float(values.min()), 1e-30))
+    span = np.log2(max(float(values.max()), 1e-30)) - lo
+    return float(lo), int(min(np.ceil(MOMENT_P1_STEPS * span - 1e-9), MOMENT_P1_COLUMNS - 1)) + 1
+
+
+def moment_table(row, p1_steps=None) -> np.ndarray:
+    """(MOMENT_TABLE_COS, 2W, 3) float32 texture of a packed row's moments (see above). Its W columns: an
+    anisotropic row's MOMENT_TABLE_PHI at φo = j/(W − 1)·π/2; an isotropic row's `p1_steps` (log2 f0, count), p1
+    times f0·2^(j/MOMENT_P1_STEPS) (a row under a parameter map), else 1. Texel (i, j), at cos θo = max((i/(N −
+    1))², MOMENT_TABLE_COS_MIN), holds [(θ_mean − θ_mirror)·√η, ln(var_u·η), ln(var_v·η)], texel (i, W + j)
+    [β·√η, ρ_uv, log2 f0] (β the mean's angle out of the plane of incidence, ρ the correlation across u and v; f0
+    1 but under a parameter map). A row
+    without a specular lobe is the 1×1 texture of zeros; a row whose ks is 0 is tabulated as if it were 1 (its
+    moments are of f_s's shape)."""
     row = np.array(row, np.float32)
     row[1:4] = 0.0
-    key = row.tobytes()
+    key = (row.tobytes(), p1_steps)
     hit = _MOMENT_TABLES.get(key)
     if hit is None:
         kind = int(row[0])
         if kind == brdf_mod.LAMBERT:
             hit = np.zeros((1, 1, 3), np.float32)
         else:
+            if not row[4:7].any():
+                row[4:7] = 1.0
             anisotropic = kind in brdf_mod.ANISOTROPIC_KINDS
             v = np.arange(MOMENT_TABLE_COS) / (MOMENT_TABLE_COS - 1)
-            width = MOMENT_TABLE_PHI if anisotropic else 1
-            phi = np.arange(width) / max(width - 1, 1) * (0.5 * np.pi)
-            cos_o, phi = (a.ravel() for a in np.meshgrid(np.maximum(v * v, MOMENT_TABLE_COS_MIN), phi,
-                                                         indexing="ij"))
+            width = MOMENT_TABLE_PHI if anisotropic else (p1_steps[1] if p1_steps else 1)
+            phi = np.arange(width) / (width - 1) * (0.5 * np.pi) if anisotropic else np.zeros(1)
+            log_first = p1_steps[0] if p1_steps and not anisotropic else 0.0
+            factor = 2.0 ** (log_first + np.arange(width if p1_steps and not anisotropic else 1) / MOMENT_P1_STEPS)
+            cos_o, phi, factor = (a.ravel() for a in np.meshgrid(np.maximum(v * v, MOMENT_TABLE_COS_MIN), phi,
+                                                                 factor, indexing="ij")[:3])
             m = len(cos_o)
             sin_o = np.sqrt(1.0 - cos_o * cos_o)
             wo = np.stack([sin_o * np.cos(phi), sin_o * np.sin(phi), cos_o], 1)
             rows = np.tile(row.astype(np.float64), (m, 1))
+            rows[:, 7] *= factor
             n = np.tile([0.0, 0.0, 1.0], (m, 1))
             t = np.tile([1.0, 0.0, 0.0], (m, 1))
             eta = moment_sharpness(rows)
@@ -800,10 +831,12 @@ def moment_table(row) -> np.ndarray:
             var_x, var_y = 0.5 / np.maximum(w.lam, 1e-6), 0.5 / np.maximum(w.mu, 1e-6)
             for _ in range(MOMENT_TABLE_PASSES):
                 # (a tangent-plane half-width past ~80° would fold the grid over the far side)
-                z, x, y, var_x, var_y = _grid_moments(rows, n, t, wo, z, x, y,
-                                                       np.minimum(MOMENT_TABLE_WIDTH * np.sqrt(var_x), 6.0),
-                                                       np.minimum(MOMENT_TABLE_WIDTH * np.sqrt(var_y), 6.0))
-                var_x, var_y = np.maximum(var_x, MOMENT_VAR_MIN), np.maximum(var_y, MOMENT_VAR_MIN)
+                ok, *new = _grid_moments(rows, n, t, wo, z, x, y, np.minimum(MOMENT_TABLE_WIDTH * np.sqrt(var_x), 6.0),
+                                         np.minimum(MOMENT_TABLE_WIDTH * np.sqrt(var_y), 6.0))
+                # (where a pass's grid held nothing, the previous pass's Gaussian stays)
+                z, x, y = (np.where(ok[:, None], a, b) for a, b in zip(new[:3], (z, x, y)))
+                var_x = np.where(ok, np.maximum(new[3], MOMENT_VAR_MIN), var_x)
+                var_y = np.where(ok, np.maximum(new[4], MOMENT_VAR_MIN), var_y)
             # (the plane of incidence from φo, which at normal incidence still names the column's frame)
             side = np.stack([np.cos(phi), np.sin(phi), np.zeros(m)], 1)
             across = np.cross(n, side)
@@ -816,10 +849,11 @@ def moment_table(row) -> np.ndarray:
             def moment(a, b):  # aᵀ C b of the covariance whose principal axes and variances the passes gave
                 return var_x * _dot(a, x) * _dot(b, x) + var_y * _dot(a, y) * _dot(b, y)
 
-            first = np.stack([(theta_m - np.arccos(cos_o)) * np.sqrt(eta),
-                              np.log(np.maximum(moment(u, u), MOMENT_VAR_MIN) * eta),
-                              np.log(np.maximum(moment(vv, vv), MOMENT_VAR_MIN) * eta)], 1)
-            second = np.stack([beta * np.sqrt(eta), moment(u, vv) * eta, np.zeros(m)], 1)
+            var_u, var_v = np.maximum(moment(u, u), MOMENT_VAR_MIN), np.maximum(moment(vv, vv), MOMENT_VAR_MIN)
+            first = np.stack([(theta_m - np.arccos(cos_o)) * np.sqrt(eta), np.log(var_u * eta),
+                              np.log(var_v * eta)], 1)
+            second = np.stack([beta * np.sqrt(eta), np.clip(moment(u, vv) / np.sqrt(var_u * var_v), -1.0, 1.0),
+                               np.full(m, log_first)], 1)
             hit = np.concatenate([first.reshape(MOMENT_TABLE_COS, width, 3),
                                   second.reshape(MOMENT_TABLE_COS, width, 3)], 1).astype(np.float32)
             if not np.isfinite(hit).all():
@@ -831,26 +865,33 @@ def moment_table(row) -> np.ndarray:
     return hit
 
 
-def tabulated_moments(table, eta, n, t, wo) -> tuple:
+def tabulated_moments(table, eta, n, t, wo, p1_factor=None) -> tuple:
     """(x, y, z, λ, μ), `asg_prefiltered`'s arguments: the ASG of f_s·(n·ωi)⁺'s moments read from a row's
     `moment_table` (N, 2W, 3) for its `moment_sharpness` η (m,), unit normals n, tangents t and views wo (m, 3)
-    above the horizon, as the kernels read it: linear in √cos θo and in φo folded into [0, π/2], clamped to the
-    table; a view in another quadrant of the tangent frame mirrors the out-of-plane angle and the covariance."""
+    above the horizon, as the kernels read it: linear in √cos θo and across the columns, clamped to the table. The
+    columns: an isotropic row's p1 factors (`p1_factor` (m,), the row's parameter map at the pixels; the first
+    column's log2 in texel (0, W)'s third channel), else φo folded into [0, π/2] (a view in another quadrant of the
+    tangent frame mirrors the out-of-plane angle and the correlation)."""
     table = np.asarray(table, np.float64)
     rows, width = table.shape[0], table.shape[1] // 2
-    cos_o, side, across = _incidence_frame(n, wo)
     x_t, y_t = brdf_mod.tangent_frame(n, t)
+    cos_o, side, across = _incidence_frame(n, x_t, wo)
     wx, wy = _dot(wo, x_t), _dot(wo, y_t)
     pos = np.sqrt(cos_o) * (rows - 1)
     i0 = np.minimum(pos.astype(np.int64), rows - 2)
     fi = (pos - i0)[:, None]
-    if width > 1:
-        col = np.arctan2(np.abs(wy), np.abs(wx)) / (0.5 * np.pi) * (width - 1)
-        j0 = np.minimum(col.astype(np.int64), width - 2)
+    mirror = np.ones(len(n))
+    if width == 1:
+        col = np.zeros(len(n))
+    elif p1_factor is not None:
+        col = np.clip(MOMENT_P1_STEPS * (np.log2(np.maximum(p1_factor, 1e-30)) - table[0, width, 2]), 0.0,
+                      width - 1)
     else:
-        col = j0 = np.zeros(len(n), np.int64)
-    fj = (col - j0)[:, None]
+        col = np.arctan2(np.abs(wy), np.abs(wx)) / (0.5 * np.pi) * (width - 1)
+        mirror = np.where((wx < 0) != (wy < 0), -1.0, 1.0)
+    j0 = np.minimum(col.astype(np.int64), max(width - 2, 0))
     j1 = np.minimum(j0 + 1, width - 1)
+    fj = (col - j0)[:, None]
 
     def read(offset):
         top = (1.0 - fj) * table[i0, offset + j0] + fj * table[i0, offset + j1]
@@ -858,7 +899,6 @@ def tabulated_moments(table, eta, n, t, wo) -> tuple:
         return (1.0 - fi) * top + fi * bottom
 
     first, second = read(0), read(width)
-    mirror = np.where((wx < 0) != (wy < 0), -1.0, 1.0)
     scale = np.sqrt(eta)
     theta_m = np.clip(np.arccos(cos_o) + first[:, 0] / scale, 0.0, 0.5 * np.pi)
     beta = mirror * second[:, 0] / scale
@@ -868,7 +908,7 @@ def tabulated_moments(table, eta, n, t, wo) -> tuple:
     u = _normalize(u - _dot(u, z)[:, None] * z)
     v = np.cross(z, u)
     var_u, var_v = np.exp(first[:, 1]) / eta, np.exp(first[:, 2]) / eta
-    cov = mirror * second[:, 1] / eta
+    cov = mirror * second[:, 1] * np.sqrt(var_u * var_v)
     angle = 0.5 * np.arctan2(2.0 * cov, var_u - var_v)
     c, s = np.cos(angle), np.sin(angle)
     x = c[:, None] * u + s[:, None] * v
@@ -1239,8 +1279,11 @@ def shade_reference(frame: Frame) -> np.ndarray:
                 row = rows[lobe_index]
                 off, th, tw = (int(v) for v in static.tex_info[2 + 2 * (idx + lobe_index)][:3])
                 image = static.tex_data[3 * off:3 * (off + th * tw)].reshape(th, tw, 3)
-                env_avg = asg_prefiltered(static.env_maps, static.env_levels,
-                                          *tabulated_moments(image, moment_sharpness(row), ns, ts_, wo_s))
+                factor = None  # (an isotropic row's p1 at the pixels over its packed one: its parameter map)
+                if int(row[0, 0]) not in brdf_mod.ANISOTROPIC_KINDS:
+                    factor = row[:, 7] / float(static.analytic[idx + lobe_index, 7])
+                env_avg = asg_prefiltered(static.env_maps, static.env_levels, *tabulated_moments(
+                    image, moment_sharpness(row), ns, ts_, wo_s, factor))
                 env_avg *= (_dot(ns, wo_s) > 0)[:, None]
             elif asg_lobe is None:
                 env_avg = prefiltered_lookup(static.env_maps, static.env_levels, axis, eta)
