@@ -316,7 +316,20 @@ def correction_directions(anisotropic: bool) -> np.ndarray:
 
 
 _CORRECTIONS: dict = {}  # a row's bytes → its table (rows recur across frames and scenes)
-_CORRECTIONS_KEPT = 256
+_TABLES_KEPT = 256  # per table kind: the correction, the moments
+
+
+def _kept(cache: dict, key, make) -> np.ndarray:
+    """cache[key], made by make() the first time and frozen (one table for every scene that packs the row); the
+    oldest entry leaves once the cache holds _TABLES_KEPT."""
+    hit = cache.get(key)
+    if hit is None:
+        hit = make()
+        hit.setflags(write=False)
+        if len(cache) >= _TABLES_KEPT:
+            cache.pop(next(iter(cache)))
+        cache[key] = hit
+    return hit
 
 
 def specular_correction(row) -> np.ndarray:
@@ -326,26 +339,21 @@ def specular_correction(row) -> np.ndarray:
     (`correction_uv`). A row without a specular lobe (Lambert) is the 1×1 texture of ones."""
     row = np.array(row, np.float32)
     row[1:4] = 0.0  # (kd does not change c: one table for a row's every diffuse colour)
-    key = row.tobytes()
-    hit = _CORRECTIONS.get(key)
-    if hit is None:
+
+    def make():
         kind = int(row[0])
         if kind == brdf_mod.LAMBERT:
-            hit = np.ones((1, 1, 3), np.float32)
-        else:
-            wo = correction_directions(kind in brdf_mod.ANISOTROPIC_KINDS)
-            flat = wo.reshape(-1, 3)
-            exact = specular_albedo(row, flat)
-            model = lobe_energy(row, flat, sg.lighting_table())
-            ok = model > 1e-12 * max(float(model.max()), 1e-300)
-            c = np.where(ok, exact / np.where(ok, model, 1.0), 1.0)
-            c = np.where(np.isfinite(c), c, 1.0)  # (a degenerate row's NaN must not reach an image)
-            hit = np.clip(c, 0.0, CORRECTION_MAX).reshape(wo.shape).astype(np.float32)
-        hit.setflags(write=False)  # (one table for every scene that packs the row)
-        if len(_CORRECTIONS) >= _CORRECTIONS_KEPT:
-            _CORRECTIONS.pop(next(iter(_CORRECTIONS)))
-        _CORRECTIONS[key] = hit
-    return hit
+            return np.ones((1, 1, 3), np.float32)
+        wo = correction_directions(kind in brdf_mod.ANISOTROPIC_KINDS)
+        flat = wo.reshape(-1, 3)
+        exact = specular_albedo(row, flat)
+        model = lobe_energy(row, flat, sg.lighting_table())
+        ok = model > 1e-12 * max(float(model.max()), 1e-300)
+        c = np.where(ok, exact / np.where(ok, model, 1.0), 1.0)
+        c = np.where(np.isfinite(c), c, 1.0)  # (a degenerate row's NaN must not reach an image)
+        return np.clip(c, 0.0, CORRECTION_MAX).reshape(wo.shape).astype(np.float32)
+
+    return _kept(_CORRECTIONS, row.tobytes(), make)
 
 
 def correction_at(tex_info, tex_data, slot: int, wo_local) -> np.ndarray:
@@ -792,77 +800,73 @@ def moment_table(row, p1_steps=None) -> np.ndarray:
     times f0·2^(j/MOMENT_P1_STEPS) (a row under a parameter map), else 1. Texel (i, j), at cos θo = max((i/(N −
     1))², MOMENT_TABLE_COS_MIN), holds [(θ_mean − θ_mirror)·√η, ln(var_u·η), ln(var_v·η)], texel (i, W + j)
     [β·√η, ρ_uv, log2 f0] (β the mean's angle out of the plane of incidence, ρ the correlation across u and v; f0
-    1 but under a parameter map). A row
-    without a specular lobe is the 1×1 texture of zeros; a row whose ks is 0 is tabulated as if it were 1 (its
-    moments are of f_s's shape)."""
+    1 but under a parameter map). A row without a specular lobe is the 1×1 texture of zeros; a row whose ks is 0 is
+    tabulated as if it were 1 (its moments are of f_s's shape)."""
     row = np.array(row, np.float32)
     row[1:4] = 0.0
-    key = (row.tobytes(), p1_steps)
-    hit = _MOMENT_TABLES.get(key)
-    if hit is None:
+
+    def make():
         kind = int(row[0])
         if kind == brdf_mod.LAMBERT:
-            hit = np.zeros((1, 1, 3), np.float32)
+            return np.zeros((1, 1, 3), np.float32)
+        shape = row.copy()
+        if not shape[4:7].any():
+            shape[4:7] = 1.0
+        anisotropic = kind in brdf_mod.ANISOTROPIC_KINDS
+        v = np.arange(MOMENT_TABLE_COS) / (MOMENT_TABLE_COS - 1)
+        width = MOMENT_TABLE_PHI if anisotropic else (p1_steps[1] if p1_steps else 1)
+        phi = np.arange(width) / (width - 1) * (0.5 * np.pi) if anisotropic else np.zeros(1)
+        log_first = p1_steps[0] if p1_steps and not anisotropic else 0.0
+        factor = 2.0 ** (log_first + np.arange(width if p1_steps and not anisotropic else 1) / MOMENT_P1_STEPS)
+        cos_o, phi, factor = (a.ravel() for a in np.meshgrid(np.maximum(v * v, MOMENT_TABLE_COS_MIN), phi,
+                                                             factor, indexing="ij")[:3])
+        m = len(cos_o)
+        sin_o = np.sqrt(1.0 - cos_o * cos_o)
+        wo = np.stack([sin_o * np.cos(phi), sin_o * np.sin(phi), cos_o], 1)
+        rows = np.tile(shape.astype(np.float64), (m, 1))
+        rows[:, 7] *= factor
+        n = np.tile([0.0, 0.0, 1.0], (m, 1))
+        t = np.tile([1.0, 0.0, 0.0], (m, 1))
+        eta = moment_sharpness(rows)
+        if anisotropic:
+            lam, mu = brdf_mod.ndf_bandwidths(kind, rows[:, 7], rows[:, 8])
         else:
-            if not row[4:7].any():
-                row[4:7] = 1.0
-            anisotropic = kind in brdf_mod.ANISOTROPIC_KINDS
-            v = np.arange(MOMENT_TABLE_COS) / (MOMENT_TABLE_COS - 1)
-            width = MOMENT_TABLE_PHI if anisotropic else (p1_steps[1] if p1_steps else 1)
-            phi = np.arange(width) / (width - 1) * (0.5 * np.pi) if anisotropic else np.zeros(1)
-            log_first = p1_steps[0] if p1_steps and not anisotropic else 0.0
-            factor = 2.0 ** (log_first + np.arange(width if p1_steps and not anisotropic else 1) / MOMENT_P1_STEPS)
-            cos_o, phi, factor = (a.ravel() for a in np.meshgrid(np.maximum(v * v, MOMENT_TABLE_COS_MIN), phi,
-                                                                 factor, indexing="ij")[:3])
-            m = len(cos_o)
-            sin_o = np.sqrt(1.0 - cos_o * cos_o)
-            wo = np.stack([sin_o * np.cos(phi), sin_o * np.sin(phi), cos_o], 1)
-            rows = np.tile(row.astype(np.float64), (m, 1))
-            rows[:, 7] *= factor
-            n = np.tile([0.0, 0.0, 1.0], (m, 1))
-            t = np.tile([1.0, 0.0, 0.0], (m, 1))
-            eta = moment_sharpness(rows)
-            if anisotropic:
-                lam, mu = brdf_mod.ndf_bandwidths(kind, rows[:, 7], rows[:, 8])
-            else:
-                lam = mu = 0.5 * eta
-            w = asg_mod.warp(asg_mod.ASG(t, np.cross(n, t), n, lam, mu), wo)
-            z, x, y = w.z, w.x, w.y
-            var_x, var_y = 0.5 / np.maximum(w.lam, 1e-6), 0.5 / np.maximum(w.mu, 1e-6)
-            for _ in range(MOMENT_TABLE_PASSES):
-                # (a tangent-plane half-width past ~80° would fold the grid over the far side)
-                ok, *new = _grid_moments(rows, n, t, wo, z, x, y, np.minimum(MOMENT_TABLE_WIDTH * np.sqrt(var_x), 6.0),
-                                         np.minimum(MOMENT_TABLE_WIDTH * np.sqrt(var_y), 6.0))
-                # (where a pass's grid held nothing, the previous pass's Gaussian stays)
-                z, x, y = (np.where(ok[:, None], a, b) for a, b in zip(new[:3], (z, x, y)))
-                var_x = np.where(ok, np.maximum(new[3], MOMENT_VAR_MIN), var_x)
-                var_y = np.where(ok, np.maximum(new[4], MOMENT_VAR_MIN), var_y)
-            # (the plane of incidence from φo, which at normal incidence still names the column's frame)
-            side = np.stack([np.cos(phi), np.sin(phi), np.zeros(m)], 1)
-            across = np.cross(n, side)
-            theta_m = np.arctan2(-_dot(z, side), _dot(z, n))
-            beta = np.arcsin(np.clip(_dot(z, across), -1.0, 1.0))
-            u = -(np.cos(theta_m)[:, None] * side + np.sin(theta_m)[:, None] * n)
-            u = _normalize(u - _dot(u, z)[:, None] * z)  # (u ⊥ z exactly, whatever β)
-            vv = np.cross(z, u)
+            lam = mu = 0.5 * eta
+        w = asg_mod.warp(asg_mod.ASG(t, np.cross(n, t), n, lam, mu), wo)
+        z, x, y = w.z, w.x, w.y
+        var_x, var_y = 0.5 / np.maximum(w.lam, 1e-6), 0.5 / np.maximum(w.mu, 1e-6)
+        for _ in range(MOMENT_TABLE_PASSES):
+            # (a tangent-plane half-width past ~80° would fold the grid over the far side)
+            ok, *new = _grid_moments(rows, n, t, wo, z, x, y, np.minimum(MOMENT_TABLE_WIDTH * np.sqrt(var_x), 6.0),
+                                     np.minimum(MOMENT_TABLE_WIDTH * np.sqrt(var_y), 6.0))
+            # (where a pass's grid held nothing, the previous pass's Gaussian stays)
+            z, x, y = (np.where(ok[:, None], a, b) for a, b in zip(new[:3], (z, x, y)))
+            var_x = np.where(ok, np.maximum(new[3], MOMENT_VAR_MIN), var_x)
+            var_y = np.where(ok, np.maximum(new[4], MOMENT_VAR_MIN), var_y)
+        # (the plane of incidence from φo, which at normal incidence still names the column's frame)
+        side = np.stack([np.cos(phi), np.sin(phi), np.zeros(m)], 1)
+        across = np.cross(n, side)
+        theta_m = np.arctan2(-_dot(z, side), _dot(z, n))
+        beta = np.arcsin(np.clip(_dot(z, across), -1.0, 1.0))
+        u = -(np.cos(theta_m)[:, None] * side + np.sin(theta_m)[:, None] * n)
+        u = _normalize(u - _dot(u, z)[:, None] * z)  # (u ⊥ z exactly, whatever β)
+        vv = np.cross(z, u)
 
-            def moment(a, b):  # aᵀ C b of the covariance whose principal axes and variances the passes gave
-                return var_x * _dot(a, x) * _dot(b, x) + var_y * _dot(a, y) * _dot(b, y)
+        def moment(a, b):  # aᵀ C b of the covariance whose principal axes and variances the passes gave
+            return var_x * _dot(a, x) * _dot(b, x) + var_y * _dot(a, y) * _dot(b, y)
 
-            var_u, var_v = np.maximum(moment(u, u), MOMENT_VAR_MIN), np.maximum(moment(vv, vv), MOMENT_VAR_MIN)
-            first = np.stack([(theta_m - np.arccos(cos_o)) * np.sqrt(eta), np.log(var_u * eta),
-                              np.log(var_v * eta)], 1)
-            second = np.stack([beta * np.sqrt(eta), np.clip(moment(u, vv) / np.sqrt(var_u * var_v), -1.0, 1.0),
-                               np.full(m, log_first)], 1)
-            hit = np.concatenate([first.reshape(MOMENT_TABLE_COS, width, 3),
-                                  second.reshape(MOMENT_TABLE_COS, width, 3)], 1).astype(np.float32)
-            if not np.isfinite(hit).all():
-                raise ValueError(f"moment_table: row {row.tolist()} gives non-finite moments")
-        hit.setflags(write=False)
-        if len(_MOMENT_TABLES) >= _CORRECTIONS_KEPT:
-            _MOMENT_TABLES.pop(next(iter(_MOMENT_TABLES)))
-        _MOMENT_TABLES[key] = hit
-    return hit
+        var_u, var_v = np.maximum(moment(u, u), MOMENT_VAR_MIN), np.maximum(moment(vv, vv), MOMENT_VAR_MIN)
+        first = np.stack([(theta_m - np.arccos(cos_o)) * np.sqrt(eta), np.log(var_u * eta),
+                          np.log(var_v * eta)], 1)
+        second = np.stack([beta * np.sqrt(eta), np.clip(moment(u, vv) / np.sqrt(var_u * var_v), -1.0, 1.0),
+                           np.full(m, log_first)], 1)
+        table = np.concatenate([first.reshape(MOMENT_TABLE_COS, width, 3),
+                                second.reshape(MOMENT_TABLE_COS, width, 3)], 1).astype(np.float32)
+        if not np.isfinite(table).all():
+            raise ValueError(f"moment_table: row {row.tolist()} gives non-finite moments")
+        return table
+
+    return _kept(_MOMENT_TABLES, (row.tobytes(), p1_steps), make)
 
 
 def tabulated_moments(table, eta, n, t, wo, p1_factor=None) -> tuple:
