@@ -57,7 +57,7 @@ is −1, or for a `svbrdf.Textured` analytic material the first of its three ``t
 parameter map; an absent map is a shared 1×1 texture of ones); ``tex_info`` row 1 + 2r is analytic row r's
 specular correction (`specular_correction`: (24, W) texels, W = 6 values of φo for an anisotropic row, else 1;
 a Lambert row's the 1×1 texture of ones; a Textured material's rows corrected at its parameter map's mean p1),
-row 2 + 2r its moment table (`moment_table`: (33, 2W) texels, a Lambert row's 1×1);
+row 2 + 2r its moment table (`moment_table`: (33, 2W) texels, a Lambert row's 2×2 zeros);
 ``tex_info`` (T, 4) int32 [texel offset into tex_data, H, W, 0]; ``tex_data``
 float32 (Σ H·W·3), row-major RGB texels (a parameter map is stored in all three channels; the kernels read
 channel 0). The kernels read each analytic row into per-pixel values, scale them by the maps at the pixel's UV
@@ -800,15 +800,15 @@ def moment_table(row, p1_steps=None) -> np.ndarray:
     times f0·2^(j/MOMENT_P1_STEPS) (a row under a parameter map), else 1. Texel (i, j), at cos θo = max((i/(N −
     1))², MOMENT_TABLE_COS_MIN), holds [(θ_mean − θ_mirror)·√η, ln(var_u·η), ln(var_v·η)], texel (i, W + j)
     [β·√η, ρ_uv, log2 f0] (β the mean's angle out of the plane of incidence, ρ the correlation across u and v; f0
-    1 but under a parameter map). A row without a specular lobe is the 1×1 texture of zeros; a row whose ks is 0 is
+    1 but under a parameter map). A row without a specular lobe is a 2×2 texture of zeros; a row whose ks is 0 is
     tabulated as if it were 1 (its moments are of f_s's shape)."""
     row = np.array(row, np.float32)
     row[1:4] = 0.0
 
     def make():
         kind = int(row[0])
-        if kind == brdf_mod.LAMBERT:
-            return np.zeros((1, 1, 3), np.float32)
+        if kind == brdf_mod.LAMBERT:  # (never read: a lookup's bilinear reads would still stay inside it)
+            return np.zeros((2, 2, 3), np.float32)
         shape = row.copy()
         if not shape[4:7].any():
             shape[4:7] = 1.0
