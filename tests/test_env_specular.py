@@ -260,8 +260,9 @@ def test_a_row_without_specular_tabulates_its_shape():
 # 0.970, 11.27 %; Ashikhmin–Shirley 20 × 400 1.176 / 1.013, 11.99 % → 1.028 / 1.009, 13.09 % → 2.001 / 0.976,
 # 14.09 %; anisotropic Ward 0.08 × 0.4 1.059 / 1.005, 11.99 % → 1.123 / 1.006, 15.46 % → 1.690 / 1.056, 31.62 % (the
 # reference's noise 1.0–2.0 %). The table's converged moments put more light on the Ashikhmin–Shirley 20 × 400 rim
-# than the rule did (why is not known) while the whole sphere comes closer. Bounds: the rim within 6 % (20 % for Ashikhmin–Shirley 20 × 400, 10 % for the anisotropic Ward), inside
-# 1.5 %, and the relative L2 below the per-material bound (each of the rule's figures above it).
+# than the rule did (why is not known) while the whole sphere comes closer. Bounds: the rim within 6 % (20 % for
+# Ashikhmin–Shirley 20 × 400, 10 % for the anisotropic Ward), inside 1.5 %, and the relative L2 below the
+# per-material bound (each of the rule's figures above it).
 STUDIO = wb.Environment.studio(height=64, width=128)
 STUDIO_L2 = {"cook-torrance": 0.016, "ward": 0.027, "blinn-phong": 0.035, "ashikhmin-shirley": 0.127,
              "anisotropic-ward": 0.14}
