@@ -396,13 +396,18 @@ CL_INLINE float3 texture_bilinear(__global const int *tex_info, __global const f
 }
 
 /* An analytic row's environment-lobe scale c(ωo) (shading.specular_correction), its texture read at
- * shading.correction_uv: φo folded into [0, π/2], cos θo, each clamped to the texel centres. */
+ * shading.correction_uv: φo folded into [0, π/2] (an isotropic row's columns: its parameter map's p1_factor, from
+ * the first factor its moment table at slot + 1 keeps), cos θo, each clamped to the texel centres. */
 CL_INLINE float3 specular_correction(__global const int *tex_info, __global const float *tex_data, int slot,
-                                     float3 wo_local)
+                                     float3 wo_local, int kind, float p1_factor)
 {
     float h = (float)tex_info[4 * slot + 1];
     float w = (float)tex_info[4 * slot + 2];
     float u = atan2(fabs(wo_local.y), fabs(wo_local.x)) / (0.5f * M_PI_F);
+    if (w > 1.0f && kind != ANISOTROPIC_WARD && kind != ASHIKHMIN_SHIRLEY) {
+        float first = tex_data[3 * (tex_info[4 * (slot + 1)] + tex_info[4 * (slot + 1) + 2] / 2) + 2];
+        u = (clamp(MOMENT_P1_STEPS * (log2(maxf(p1_factor, 1.0e-30f)) - first), 0.0f, w - 1.0f) + 0.5f) / w;
+    }
     u = clamp(u, 0.5f / w, 1.0f - 0.5f / w);
     float v = clamp(wo_local.z, 0.5f / h, 1.0f - 0.5f / h);
     return texture_bilinear(tex_info, tex_data, slot, (float2)(u, v));
@@ -1244,8 +1249,8 @@ __kernel void shade_pixels(
                 float3 env_scale = (float3)(1.0f); /* the environment term's scale: an analytic row's correction */
                 if (kind == 0) {
                     __global const float *row = analytic + 9 * (idx + j);
-                    env_scale = specular_correction(tex_info, tex_data, 1 + 2 * (idx + j), wo_local);
                     int r_kind = (int)row[0];
+                    env_scale = specular_correction(tex_info, tex_data, 1 + 2 * (idx + j), wo_local, r_kind, t_p1);
                     float3 r_ks = (float3)(row[4], row[5], row[6]) * t_ks;
                     float r_p1 = row[7] * t_p1;
                     amp = specular_scale(r_kind, r_ks, r_p1, row[8], cos_o);

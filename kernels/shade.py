@@ -427,12 +427,16 @@ def texture_bilinear(tex_info: wp.array2d(dtype=wp.int32), tex_data: wp.array(dt
 
 @wp.func
 def specular_correction(tex_info: wp.array2d(dtype=wp.int32), tex_data: wp.array(dtype=wp.vec3), slot: int,
-                        wo_local: wp.vec3) -> wp.vec3:
+                        wo_local: wp.vec3, kind: int, p1_factor: float) -> wp.vec3:
     """An analytic row's environment-lobe scale c(ωo) (shading.specular_correction), its texture read at
-    shading.correction_uv: φo folded into [0, π/2], cos θo, each clamped to the texel centres."""
+    shading.correction_uv: φo folded into [0, π/2] (an isotropic row's columns: its parameter map's p1_factor, from
+    the first factor its moment table at slot + 1 keeps), cos θo, each clamped to the texel centres."""
     h = float(tex_info[slot, 1])
     w = float(tex_info[slot, 2])
     u = wp.atan2(wp.abs(wo_local[1]), wp.abs(wo_local[0])) / (0.5 * PI)
+    if w > 1.0 and kind != ANISOTROPIC_WARD and kind != ASHIKHMIN_SHIRLEY:
+        first = tex_data[tex_info[slot + 1, 0] + tex_info[slot + 1, 2] // 2][2]
+        u = (wp.clamp(MOMENT_P1_STEPS * (wp.log2(wp.max(p1_factor, 1.0e-30)) - first), 0.0, w - 1.0) + 0.5) / w
     u = wp.clamp(u, 0.5 / w, 1.0 - 0.5 / w)
     v = wp.clamp(wo_local[2], 0.5 / h, 1.0 - 0.5 / h)
     return texture_bilinear(tex_info, tex_data, slot, wp.vec2(u, v))
@@ -1232,8 +1236,8 @@ def shade_pixels(
                 env_scale = wp.vec3(1.0)  # the environment term's scale: an analytic row's correction
                 if kind == 0:
                     row = idx + j
-                    env_scale = specular_correction(tex_info, tex_data, 1 + 2 * row, wo_local)
                     r_kind = int(analytic[row, 0])
+                    env_scale = specular_correction(tex_info, tex_data, 1 + 2 * row, wo_local, r_kind, t_p1)
                     r_ks = wp.cw_mul(wp.vec3(analytic[row, 4], analytic[row, 5], analytic[row, 6]), t_ks)
                     r_p1 = analytic[row, 7] * t_p1
                     r_p2 = analytic[row, 8]

@@ -56,7 +56,8 @@ specular term (an effective material's: 1 or 0); the slot
 is −1, or for a `svbrdf.Textured` analytic material the first of its three ``tex_info`` rows (kd, ks,
 parameter map; an absent map is a shared 1×1 texture of ones); ``tex_info`` row 1 + 2r is analytic row r's
 specular correction (`specular_correction`: (24, W) texels, W = 6 values of φo for an anisotropic row, else 1;
-a Lambert row's the 1×1 texture of ones; a Textured material's rows corrected at its parameter map's mean p1),
+a Lambert row's the 1×1 texture of ones; a Textured material's rows under a parameter map a column per p1 step of
+its moment table instead),
 row 2 + 2r its moment table (`moment_table`: (33, 2W) texels, a Lambert row's 2×2 zeros);
 ``tex_info`` (T, 4) int32 [texel offset into tex_data, H, W, 0]; ``tex_data``
 float32 (Σ H·W·3), row-major RGB texels (a parameter map is stored in all three channels; the kernels read
@@ -332,15 +333,17 @@ def _kept(cache: dict, key, make) -> np.ndarray:
     return hit
 
 
-def specular_correction(row) -> np.ndarray:
+def specular_correction(row, p1_steps=None) -> np.ndarray:
     """(CORRECTION_COS, W, 3) float32 c(ωo) = A_s/E of a packed row (`specular_albedo` over `lobe_energy`,
     clipped to [0, CORRECTION_MAX]; 1 where the lobe gives nothing) at `correction_directions`: a texture the
     kernels read bilinearly at (u, v) = (φo folded into [0, π/2] over π/2, cos θo), clamped to the texel centres
-    (`correction_uv`). A row without a specular lobe (Lambert) is the 1×1 texture of ones."""
+    (`correction_uv`). An isotropic row under a parameter map has a column per `moment_p1_steps` step instead, c at
+    p1 times each factor (read at the pixel's factor, as its moment table is). A row without a specular lobe
+    (Lambert) is the 1×1 texture of ones."""
     row = np.array(row, np.float32)
     row[1:4] = 0.0  # (kd does not change c: one table for a row's every diffuse colour)
 
-    def make():
+    def correction(row):
         kind = int(row[0])
         if kind == brdf_mod.LAMBERT:
             return np.ones((1, 1, 3), np.float32)
@@ -353,23 +356,43 @@ def specular_correction(row) -> np.ndarray:
         c = np.where(np.isfinite(c), c, 1.0)  # (a degenerate row's NaN must not reach an image)
         return np.clip(c, 0.0, CORRECTION_MAX).reshape(wo.shape).astype(np.float32)
 
-    return _kept(_CORRECTIONS, row.tobytes(), make)
+    def make():
+        if not p1_steps or int(row[0]) in brdf_mod.ANISOTROPIC_KINDS or int(row[0]) == brdf_mod.LAMBERT:
+            return correction(row)
+        columns = []
+        for j in range(p1_steps[1]):
+            scaled = row.copy()
+            scaled[7] = np.float32(float(row[7]) * 2.0 ** (p1_steps[0] + j / MOMENT_P1_STEPS))
+            columns.append(correction(scaled))
+        return np.concatenate(columns, 1)
+
+    return _kept(_CORRECTIONS, (row.tobytes(), p1_steps), make)
 
 
-def correction_at(tex_info, tex_data, slot: int, wo_local) -> np.ndarray:
+def correction_at(tex_info, tex_data, slot: int, wo_local, p1_factor=None) -> np.ndarray:
     """(N, 3) the packed correction texture `slot` (`pack_materials`) at each ωo (N, 3) in the surface frame, as
-    the kernels read it (`correction_uv`, `svbrdf.sample`)."""
+    the kernels read it (`correction_uv`, `svbrdf.sample`); an isotropic row's columns at its parameter map's
+    `p1_factor` (N,), from the first factor that its moment table (slot + 1) keeps."""
     off, h, w = (int(x) for x in tex_info[slot][:3])
     image = np.asarray(tex_data[3 * off:3 * (off + h * w)], np.float64).reshape(h, w, 3)
-    return svbrdf.sample(image, correction_uv(wo_local, w))
+    column = None
+    if w > 1 and p1_factor is not None:
+        moff, _, mw = (int(x) for x in tex_info[slot + 1][:3])
+        first = float(tex_data[3 * (moff + mw // 2) + 2])
+        column = np.clip(MOMENT_P1_STEPS * (np.log2(np.maximum(p1_factor, 1e-30)) - first), 0.0, w - 1)
+    return svbrdf.sample(image, correction_uv(wo_local, w, column))
 
 
-def correction_uv(wo_local, width: int) -> np.ndarray:
+def correction_uv(wo_local, width: int, column=None) -> np.ndarray:
     """(N, 2) where `specular_correction`'s texture of `width` columns is read for each ωo (N, 3) in the surface
-    frame: u = φo folded into [0, π/2] over π/2, v = cos θo, each clamped to its first and last texel centres (the
-    texture lookup wraps; the table must not)."""
+    frame: u = φo folded into [0, π/2] over π/2 (or, where the columns are p1's, the centre of fractional `column`
+    (N,)), v = cos θo, each clamped to its first and last texel centres (the texture lookup wraps; the table must
+    not)."""
     wo_local = np.asarray(wo_local, np.float64)
-    u = np.arctan2(np.abs(wo_local[:, 1]), np.abs(wo_local[:, 0])) / (np.pi / 2)
+    if column is None:
+        u = np.arctan2(np.abs(wo_local[:, 1]), np.abs(wo_local[:, 0])) / (np.pi / 2)
+    else:
+        u = (np.asarray(column, np.float64) + 0.5) / width
     u = np.clip(u, 0.5 / width, 1 - 0.5 / width)
     v = np.clip(wo_local[:, 2], 0.5 / CORRECTION_COS, 1 - 0.5 / CORRECTION_COS)
     return np.stack([u, v], 1)
@@ -405,8 +428,8 @@ def pack_materials(materials) -> dict:
     # analytic rows' specular corrections (`specular_correction`, row r's at 1 + 2r) and moment tables
     # (`moment_table`, row r's at 2 + 2r); the materials' maps follow.
     maps = []  # (the maps in order; a Textured material's slot is counted among them, then moved past the A rows)
-    textured, corrected = [], []  # (the rows whose corrections are made: `analytic`'s but for parameter maps)
-    moment_steps = []  # per analytic row, its moment table's p1 steps (`moment_p1_steps`) or None
+    textured = []
+    table_steps = []  # per analytic row, its tables' p1 columns (`moment_p1_steps`) or None
     for idx, m in enumerate(materials):
         if isinstance(m, Textured):
             textured.append(len(info))
@@ -414,18 +437,12 @@ def pack_materials(materials) -> dict:
             rows = _analytic_rows(m.brdf)
             analytic.extend(rows)
             maps.extend(m.maps)
-            steps = None
-            if m.parameter_map is not None:  # (its rows' corrections at the map's mean p1: one table a row)
-                steps = moment_p1_steps(m.parameter_map)
-                rows = rows.copy()
-                rows[:, 7] *= np.float32(np.mean(m.parameter_map))
-            corrected.extend(rows)
-            moment_steps.extend([steps] * len(rows))
+            steps = None if m.parameter_map is None else moment_p1_steps(m.parameter_map)
+            table_steps.extend([steps] * len(rows))
         elif isinstance(m, brdf_mod.Brdf):
             info.append([0, len(analytic), _specular_rows(m), -1])
             analytic.extend(_analytic_rows(m, anisotropic=True))
-            corrected.extend(analytic[len(corrected):])
-            moment_steps.extend([None] * (len(analytic) - len(moment_steps)))
+            table_steps.extend([None] * (len(analytic) - len(table_steps)))
         elif isinstance(m, EffectiveBRDF):
             k2 = m.directions**2
             lobe_type, rows = m.shade_lobes()  # a matrix-method material has none: a one-line refusal
@@ -460,8 +477,8 @@ def pack_materials(materials) -> dict:
         return np.asarray(rows, dtype).reshape(-1, width) if rows else np.zeros((0, width), dtype)
 
     tex_info, tex_data, n_texels = [[0, 1, 1, 0]], [np.ones(3, np.float32)], 1
-    tables = [t for row, base, steps in zip(corrected, analytic, moment_steps)
-              for t in (specular_correction(row), moment_table(base, steps))]
+    tables = [t for row, steps in zip(analytic, table_steps) for t in (specular_correction(row, steps),
+                                                                       moment_table(row, steps))]
     for tex in tables + maps:
         if tex is None:
             tex_info.append([0, 1, 1, 0])
@@ -1226,7 +1243,10 @@ def shade_reference(frame: Frame) -> np.ndarray:
         lobes, env_scales = [], []  # (and per lobe its environment term's scale: an analytic row's correction)
         if kind == 0:
             for r, row in enumerate(rows):
-                env_scales.append(correction_at(static.tex_info, static.tex_data, 1 + 2 * (idx + r), wol_s))
+                factor = None  # (an isotropic row's p1 at the pixels over its packed one: its parameter map)
+                if int(row[0, 0]) not in brdf_mod.ANISOTROPIC_KINDS:
+                    factor = row[:, 7] / float(static.analytic[idx + r, 7])
+                env_scales.append(correction_at(static.tex_info, static.tex_data, 1 + 2 * (idx + r), wol_s, factor))
                 # The lights by f_s itself (Xu 2013 §5.2), blurred by their size through the lobe's shape.
                 if int(row[0, 0]) in brdf_mod.ANISOTROPIC_KINDS:
                     lobes.append(_anisotropic_environment_lobe(row, ns, ts_, wo_s, cos_os))
