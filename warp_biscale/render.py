@@ -101,7 +101,7 @@ def _static_inputs(scene: Scene, backend, progress, timings) -> ShadeInputs:
     fits, seconds = _fit_measured(small, backend)
     if fits:
         timings["sg_fit"] = seconds
-    packed = pack_materials(scene.materials)
+    packed = pack_materials(scene.materials, environment=scene.environment is not None)
     timings["materials"] = time.perf_counter() - t0
     lobes, residual = light.diffuse_lobes(has_ssdf)
     if has_ssdf not in light.shade_order:

@@ -419,8 +419,10 @@ def _tables_per_row(table, levels, owner):
     return hit[2], hit[3]
 
 
-def pack_materials(materials) -> dict:
-    """Pack a scene's materials (analytic `Brdf`s, `svbrdf.Textured` ones and `EffectiveBRDF`s) for the shade stage."""
+def pack_materials(materials, environment: bool = True) -> dict:
+    """Pack a scene's materials (analytic `Brdf`s, `svbrdf.Textured` ones and `EffectiveBRDF`s) for the shade stage.
+    `environment` False (a scene without one, whose specular environment term is 0): the analytic rows' correction
+    and moment tables are not made (a 1×1 texture of ones and a 2×2 one of zeros stand in)."""
 
     info, analytic, eff_info, eff_lobes, eff_sub, eff_tables, eff_diffuse = [], [], [], [], [], [], []
     n_lobes = n_sub = n_table = n_diffuse = 0
@@ -477,8 +479,11 @@ def pack_materials(materials) -> dict:
         return np.asarray(rows, dtype).reshape(-1, width) if rows else np.zeros((0, width), dtype)
 
     tex_info, tex_data, n_texels = [[0, 1, 1, 0]], [np.ones(3, np.float32)], 1
-    tables = [t for row, steps in zip(analytic, table_steps) for t in (specular_correction(row, steps),
-                                                                       moment_table(row, steps))]
+    if environment:
+        tables = [t for row, steps in zip(analytic, table_steps) for t in (specular_correction(row, steps),
+                                                                           moment_table(row, steps))]
+    else:
+        tables = [np.ones((1, 1, 3), np.float32), np.zeros((2, 2, 3), np.float32)] * len(analytic)
     for tex in tables + maps:
         if tex is None:
             tex_info.append([0, 1, 1, 0])
