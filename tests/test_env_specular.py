@@ -241,7 +241,8 @@ def test_tabulated_moments_against_a_dense_quadrature(name, cos_o, phi_o):
 # constant map). Read at factors between the
 # columns they must give the moments of a table made at the pixel's own p1. Measured (map 0.5–2, Cook–Torrance 0.3,
 # Blinn–Phong 64, Ward 0.15; cos θo 0.1 / 0.4 / 0.95): the mean within 0.013 of the narrow σ, the bandwidths within
-# 0.8 %; one table at the mean p1 rescaled by η (what the columns replaced) was up to 2.6× off. Bounds: 0.05 σ, 3 %.
+# 0.8 %; one table at the row's p1 rescaled by η (what the columns replaced, made at the map's mean) was up to 2.62×
+# off in bandwidth. Bounds: 0.05 σ, 3 %.
 def test_parameter_map_rows_tabulate_their_p1():
     steps = shading.moment_p1_steps(np.array([[0.5, 2.0], [1.0, 1.2]]))
     assert steps == (-1.0, 9) and shading.moment_p1_steps(np.full((2, 2), 0.7))[1] == 1
