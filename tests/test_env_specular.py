@@ -23,7 +23,7 @@ import pytest
 
 import warp_biscale as wb
 from warp_biscale import brdf as brdf_mod
-from warp_biscale import shading
+from warp_biscale import sg, shading
 
 MATERIALS = {
     "anisotropic-ward": wb.AnisotropicWard(0.6, 0.08, 0.4, kd=0.2),
@@ -267,6 +267,24 @@ def test_parameter_map_rows_tabulate_their_p1():
                 single = shading.tabulated_moments(shading.moment_table(base), eta, n, t, wo)
                 worst_single = max(worst_single, *(abs(single[k][0] / want[k][0] - 1) for k in (3, 4)))
     assert worst_single > 0.3  # (the columns matter: the mean-p1 table rescaled is far off somewhere)
+
+
+def test_a_colour_edit_makes_no_table_again():
+    """Neither table changes with a scale of f_s: a row whose ks (or kd) alone differs takes the very tables
+    already made, but for Ashikhmin–Shirley, whose ks is its Fresnel term's (its shape). The shared tables are
+    those the new colour would make: the correction against a fresh build at that ks (the cache bypassed)."""
+    for material, edited in ((wb.AnisotropicWard(0.6, 0.08, 0.4, kd=0.2), wb.AnisotropicWard((0.2, 0.3, 0.9), 0.08,
+                                                                                              0.4, kd=0.5)),
+                             (wb.CookTorrance(0.6, 0.2, kd=0.2), wb.CookTorrance(0.3, 0.2, kd=(0.1, 0.4, 0.2)))):
+        a, b = _row(material), _row(edited)
+        assert shading.moment_table(a) is shading.moment_table(b)
+        assert shading.specular_correction(a) is shading.specular_correction(b)
+    row = _row(wb.CookTorrance((0.3, 0.5, 0.9), 0.2, kd=0.2))  # the shared table is this colour's own ratio
+    wo = shading.correction_directions(False).reshape(-1, 3)
+    own = shading.specular_albedo(row, wo) / shading.lobe_energy(row, wo, sg.lighting_table())
+    np.testing.assert_allclose(shading.specular_correction(row).reshape(-1, 3), own, rtol=1e-5)
+    rs_low, rs_high = _row(wb.AshikhminShirley(rs=0.1, nu=20, nv=400)), _row(wb.AshikhminShirley(rs=0.9, nu=20, nv=400))
+    assert not np.array_equal(shading.moment_table(rs_low), shading.moment_table(rs_high))
 
 
 def test_a_row_without_specular_tabulates_its_shape():

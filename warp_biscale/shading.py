@@ -333,6 +333,17 @@ def _kept(cache: dict, key, make) -> np.ndarray:
     return hit
 
 
+def _table_row(row) -> np.ndarray:
+    """A packed row as its correction and moment tables are made and kept: kd set to 0, and ks to 1 where ks only
+    scales f_s (every kind but Ashikhmin–Shirley, whose Fresnel term is ks's: its shape), since neither table
+    changes with a scale of f_s. So a colour edit makes no table again (an anisotropic row's takes a second)."""
+    row = np.array(row, np.float32)
+    row[1:4] = 0.0
+    if int(row[0]) != brdf_mod.ASHIKHMIN_SHIRLEY and row[4:7].any():
+        row[4:7] = 1.0
+    return row
+
+
 def specular_correction(row, p1_steps=None) -> np.ndarray:
     """(CORRECTION_COS, W, 3) float32 c(ωo) = A_s/E of a packed row (`specular_albedo` over `lobe_energy`,
     clipped to [0, CORRECTION_MAX]; 1 where the lobe gives nothing) at `correction_directions`: a texture the
@@ -340,8 +351,7 @@ def specular_correction(row, p1_steps=None) -> np.ndarray:
     (`correction_uv`). An isotropic row under a parameter map has a column per `moment_p1_steps` step instead, c at
     p1 times each factor (read at the pixel's factor, as its moment table is). A row without a specular lobe
     (Lambert) is the 1×1 texture of ones."""
-    row = np.array(row, np.float32)
-    row[1:4] = 0.0  # (kd does not change c: one table for a row's every diffuse colour)
+    row = _table_row(row)
 
     def correction(row):
         kind = int(row[0])
@@ -824,8 +834,7 @@ def moment_table(row, p1_steps=None) -> np.ndarray:
     [β·√η, ρ_uv, log2 f0] (β the mean's angle out of the plane of incidence, ρ the correlation across u and v; f0
     1 but under a parameter map). A row without a specular lobe is a 2×2 texture of zeros; a row whose ks is 0 is
     tabulated as if it were 1 (its moments are of f_s's shape)."""
-    row = np.array(row, np.float32)
-    row[1:4] = 0.0
+    row = _table_row(row)
 
     def make():
         kind = int(row[0])
