@@ -11,7 +11,7 @@
  * Layouts (no float3 in global memory): positions, normals, tangents, env_maps and the output are
  * float arrays of stride 3; bary stride 2; light_vis (P, L) uchar; table (2, rows, cols);
  * env_levels (n_levels, 4) [log2 η, texel offset, H, W]; ssdf_basis texel-major (res², n_basis) (the transpose of static['ssdf_basis']);
- * ssdf_coeffs (V, n_coeffs); the material arrays as warp_biscale.shading.pack_materials.
+ * ssdf_coeffs (V, n_coeffs); env_theta (V, n_env) with an SSDF (ssdf.ssdf_at_axes); the material arrays as warp_biscale.shading.pack_materials.
  * The two one-cell bilinear helpers that Warp calls twice (grid_corners, grid_weights) are one
  * function here (grid_bilinear): the same values, one concentric map instead of two. The specular loop
  * runs lobe by lobe with an SG lobe's SSDF angle and table cell found once for all its material sub-rows
@@ -649,6 +649,20 @@ CL_INLINE float environment_share(Table tab, float3 axis, float eta, EtaRow row,
     return environment_share_at(tab, ssdf_theta(ssdf, axis), axis, eta, row, s, occ);
 }
 
+/* environment_share for environment lobe e, whose θd at the pixel is the blend of its three vertices'
+ * (env_theta (V, n_env), ssdf.ssdf_at_axes: θd is linear in the coefficients). */
+CL_INLINE float environment_lobe_share(Table tab, __global const float *env_theta, int n_env, int e, float3 axis,
+                                       float eta, EtaRow row, SurfacePoint s, int has_ssdf, Occlusion occ)
+{
+    if (has_ssdf == 0)
+        return 1.0f;
+    if (ray_weight(eta, occ.samples) >= 1.0f)
+        return rays_alone_share(axis, eta, s.n, occ);
+    __global const float *theta = env_theta + e;
+    return environment_share_at(tab, s.w0 * theta[s.i0 * n_env] + s.w1 * theta[s.i1 * n_env]
+                                + s.w2 * theta[s.i2 * n_env], axis, eta, row, s, occ);
+}
+
 /* Per channel, the exact irradiance E = lobes + residual over the environment lobes' own irradiance:
  * the diffuse term keeps the lobes' shadows and takes E's magnitude. Where the lobes hold under a
  * thousandth of E the ratio stops at 1000, so the term never passes kd·E. */
@@ -1059,6 +1073,7 @@ __kernel void shade_pixels(
     __global const float *env_maps, const int n_levels, __global const float *env_levels,
     const int has_ssdf, const int ssdf_res, const int n_basis, const int n_coeffs,
     __global const float *ssdf_basis, __global const float *ssdf_coeffs,
+    __global const float *env_theta,    /* (V, n_env) θd towards each environment lobe at each vertex */
     __global const float *disk_radii,   /* (Σ_S S, 3) trace.disk_radii */
     __global const float *table, const int table_rows, const int table_cols, const float log_lo, const float log_hi,
     const float sharpness_max,
@@ -1192,7 +1207,8 @@ __kernel void shade_pixels(
                 amount = amount * lobe_ray_share((float3)(r[0], r[1], r[2]), r[3], axis, lobe[3], s.n,
                                                  lobe_occlusion[p], ray_lobe, lobe_rays, lobe_part.z);
             } else
-                amount = amount * environment_share(tab, axis, lobe[3], row, s, has_ssdf, ssdf, occ);
+                amount = amount * environment_lobe_share(tab, env_theta, n_env, e, axis, lobe[3], row, s, has_ssdf,
+                                                         occ);
             if (kept_mode == 1)
                 kept_amount[p * n_env + e] = amount;
         }

@@ -716,11 +716,13 @@ def nearest_ray_lobe(env_sgs: wp.array2d(dtype=wp.float32), n_sharp: int, e: int
 @wp.func
 def environment_share(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: float, tr: float, s: SurfacePoint,
                       has_ssdf: int, ssdf_res: int, ssdf_basis: wp.array2d(dtype=wp.float32),
-                      ssdf_coeffs: wp.array2d(dtype=wp.float32), mask: wp.uint32, samples: int, known: wp.uint32,
+                      ssdf_coeffs: wp.array2d(dtype=wp.float32), env_theta: wp.array2d(dtype=wp.float32), e: int,
+                      mask: wp.uint32, samples: int, known: wp.uint32,
                       frame: wp.mat33, turn: wp.vec2, disk_radii: wp.array(dtype=wp.vec3)) -> float:
     """The share of ∫ G(ω; axis, η, 1)(n·ω)⁺ dω left unoccluded (1 without an SSDF): the SSDF's, blended
     for broad lobes with the occlusion rays' (ray_weight; a mask with no bit set sees it all); tr: η's
-    table row."""
+    table row. e ≥ 0: environment lobe e, whose θd at the vertices env_theta holds (ssdf.ssdf_at_axes), else
+    θd looked up at the axis."""
     if has_ssdf == 0:
         return 1.0
     weight = ray_weight(eta, samples)
@@ -728,7 +730,12 @@ def environment_share(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: f
         if mask != wp.uint32(0):
             return ray_share(axis, eta, s.n, frame, mask, samples, known, turn, disk_radii)
         return 1.0
-    theta = ssdf_theta(ssdf_basis, ssdf_coeffs, s.i0, s.i1, s.i2, s.w0, s.w1, s.w2, ssdf_res, axis)
+    theta = float(0.0)
+    if e >= 0:
+        theta = s.w0 * f32_at2(env_theta, s.i0, e) + s.w1 * f32_at2(env_theta, s.i1, e) + s.w2 * f32_at2(
+            env_theta, s.i2, e)
+    else:
+        theta = ssdf_theta(ssdf_basis, ssdf_coeffs, s.i0, s.i1, s.i2, s.w0, s.w1, s.w2, ssdf_res, axis)
     share = beyond_horizon(table, theta, axis, tr, s.n)
     if weight > 0.0:
         rays = float(1.0)
@@ -1077,7 +1084,7 @@ def shade_pixels(
     env_residual: wp.array(dtype=wp.vec3), residual_h: int, residual_w: int,
     env_maps: wp.array(dtype=wp.vec3), env_levels: wp.array2d(dtype=wp.float32),
     has_ssdf: int, ssdf_res: int, ssdf_basis: wp.array2d(dtype=wp.float32), ssdf_coeffs: wp.array2d(dtype=wp.float32),
-    disk_radii: wp.array(dtype=wp.vec3),
+    env_theta: wp.array2d(dtype=wp.float32), disk_radii: wp.array(dtype=wp.vec3),
     table: wp.array3d(dtype=wp.float32),
     mat_info: wp.array2d(dtype=wp.int32), analytic: wp.array2d(dtype=wp.float32),
     eff_info: wp.array2d(dtype=wp.int32), eff_lobes: wp.array2d(dtype=wp.float32),
@@ -1191,8 +1198,8 @@ def shade_pixels(
                                                  lobe_occlusion[p], ray_lobe, lobe_rays, lobe_part[2])
             else:
                 amount = amount * environment_share(table, axis, eta, tr, s, has_ssdf, ssdf_res, ssdf_basis,
-                                                    ssdf_coeffs, mask, occlusion_samples, occlusion_rays, frame,
-                                                    turn, disk_radii)
+                                                    ssdf_coeffs, env_theta, e, mask, occlusion_samples,
+                                                    occlusion_rays, frame, turn, disk_radii)
             if kept_mode == 1:
                 kept_amount[p * n_env + e] = amount
         fd = analytic_diffuse(a_kind, kd, a_ks, axis, eta, s, cos_o)
@@ -1331,8 +1338,8 @@ def shade_pixels(
                     amount = wp.max(amount - spread * sg_integral(eta) * table_lookup(table, 1, wp.dot(axis, s.n), tr)
                                     / (1.0 + wp.exp(-eta)), 0.0)
                 amount = amount * environment_share(
-                    table, axis, eta, tr, s, has_ssdf, ssdf_res, ssdf_basis, ssdf_coeffs, mask, occlusion_samples,
-                    occlusion_rays, frame, turn, disk_radii)
+                    table, axis, eta, tr, s, has_ssdf, ssdf_res, ssdf_basis, ssdf_coeffs, env_theta, -1, mask,
+                    occlusion_samples, occlusion_rays, frame, turn, disk_radii)
                 light_part = wp.vec3(0.0)
                 if with_lights != 0:
                     light_part = lobe_from_lights(table, axis, eta, s, n_lights, lights, light_vis, p)

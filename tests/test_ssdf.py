@@ -419,3 +419,25 @@ def test_build_caches_and_validates(backend):
     for bad in (0, 65, 1.5, None, "all"):
         with pytest.raises(ValueError, match="terms"):
             ssdf.build(mesh, backend, resolution=8, terms=bad)
+
+
+def test_ssdf_at_axes_is_ssdf_eval_at_each_point_and_axis():
+    """The renderer's per-vertex θd towards its environment lobes (ssdf.ssdf_at_axes) equals ssdf_eval at every point
+    and axis (float64: both are the same lookups, summed in another order), and a barycentric blend of three rows
+    is ssdf_eval at the blended coefficients (θd is linear in them: what the shade kernels rely on)."""
+    rng = np.random.default_rng(5)
+    res, terms = 8, 5
+    basis = rng.normal(size=(terms + 1, res * res))
+    coeffs = rng.normal(size=(7, terms))
+    axes = rng.normal(size=(4, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    axes[0] = (0.0, 0.0, -1.0)  # the fold and the map's border
+    at_axes = ssdf.ssdf_at_axes(basis, coeffs, res, axes)
+    assert at_axes.shape == (7, 4)
+    expect = ssdf.ssdf_eval(basis, coeffs, res, np.broadcast_to(axes, (7, 4, 3)))
+    np.testing.assert_allclose(at_axes, expect, rtol=1e-12, atol=1e-12)
+    w = np.array([0.2, 0.5, 0.3])
+    blended = ssdf.ssdf_eval(basis, np.tile(w @ coeffs[:3], (4, 1)), res, axes)  # (one point per axis)
+    np.testing.assert_allclose(w @ at_axes[:3], blended, rtol=1e-12, atol=1e-12)
+    with pytest.raises(ValueError, match="coeffs has 4 terms"):
+        ssdf.ssdf_at_axes(basis, coeffs[:, :4], res, axes)

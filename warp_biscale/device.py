@@ -1152,6 +1152,10 @@ class DeviceBackend:
             if static.has_ssdf and (coeffs.shape[1] != basis.shape[0] - 1 or basis.shape[1] != static.ssdf_res ** 2):
                 raise ValueError(f"static.ssdf_basis {basis.shape} and .ssdf_coeffs {coeffs.shape} do not fit "
                                  f"ssdf_res {static.ssdf_res} (want (R + 1, res²) and (V, R))")
+            if static.has_ssdf and len(static.env_sgs) and np.shape(static.env_theta) != (len(coeffs),
+                                                                                        len(static.env_sgs)):
+                raise ValueError(f"static.env_theta {np.shape(static.env_theta)} does not fit {len(coeffs)} vertices "
+                                 f"and {len(static.env_sgs)} environment lobes (want (V, K), ssdf.ssdf_at_axes)")
             dev = static.device[self.name] = {**self._upload_shade_static(static, levels, basis, coeffs),
                                               "context": self._context()}
         return dev

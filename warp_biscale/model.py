@@ -292,8 +292,9 @@ class ShadeInputs:
     uvs (V, 2), face_material (F,)), the environment (env_sgs (K, 7) SG lobes, env_residual (H, W, 3) the
     exact irradiance less the lobes' (an equirect map over normals), env_maps and env_levels the
     prefiltered maps, n_sharp_lobes: how many of env_sgs' first rows get lobe rays,
-    `shading.sharp_lobes_first`), the SSDF (has_ssdf, ssdf_res, ssdf_basis (R + 1, res²), ssdf_coeffs (V, R)),
-    the SG lighting table, and the packed materials (mat_info … tex_data, `shading.pack_materials`).
+    `shading.sharp_lobes_first`), the SSDF (has_ssdf, ssdf_res, ssdf_basis (R + 1, res²), ssdf_coeffs (V, R),
+    env_theta (V, K) its θd towards each environment lobe's axis at each vertex, `ssdf.ssdf_at_axes`), the SG
+    lighting table, and the packed materials (mat_info … tex_data, `shading.pack_materials`).
     Backends keep their device copies in `device`, by backend name."""
     faces: np.ndarray
     positions: np.ndarray
@@ -309,6 +310,7 @@ class ShadeInputs:
     ssdf_res: int
     ssdf_basis: np.ndarray
     ssdf_coeffs: np.ndarray
+    env_theta: np.ndarray
     table: np.ndarray
     mat_info: np.ndarray
     analytic: np.ndarray

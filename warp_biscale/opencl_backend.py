@@ -833,7 +833,8 @@ class OpenCLBackend(DeviceBackend):
                 "eff_sub", "eff_tables", "eff_diffuse", "uvs", "tex_data")},
             "env_levels": buf("env_levels", np.float32, levels),
             "ssdf_basis": buf("ssdf_basis", np.float32, basis.T),  # texel-major (res², terms + 1)
-            "ssdf_coeffs": buf("ssdf_coeffs", np.float32, coeffs), "table": buf("table", np.float32, table),
+            "ssdf_coeffs": buf("ssdf_coeffs", np.float32, coeffs), "env_theta": buf("env_theta", np.float32),
+            "table": buf("table", np.float32, table),
             "disk_radii": buf("disk_radii", np.float32, DISK_RADII),
             # Counts and shapes that the kernel takes by value.
             "n_env": np.int32(len(static.env_sgs)), "n_levels": np.int32(len(levels)),
@@ -888,8 +889,8 @@ class OpenCLBackend(DeviceBackend):
                      np.int32(len(lights)), light_buf, dev["n_env"], dev["env_sgs"], dev["env_residual"],
                      *dev["residual_shape"], dev["env_maps"],
                      dev["n_levels"], dev["env_levels"], *dev["ssdf_args"], dev["ssdf_basis"],
-                     dev["ssdf_coeffs"], dev["disk_radii"], dev["table"], *dev["table_args"], dev["mat_info"],
-                     dev["analytic"],
+                     dev["ssdf_coeffs"], dev["env_theta"], dev["disk_radii"], dev["table"], *dev["table_args"],
+                     dev["mat_info"], dev["analytic"],
                      dev["eff_info"], dev["eff_lobes"], dev["eff_sub"], dev["eff_tables"], dev["eff_diffuse"],
                      dev["uvs"], dev["tex_info"], dev["tex_data"], np.int32(n), np.int32(only_material),
                      changed[0], changed[1], np.int32(changed[2]), np.int32(kept_mode), kept_amount, kept_scale, out)

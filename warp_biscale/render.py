@@ -42,6 +42,21 @@ __all__ = ["Scene", "Rendering", "render", "queue_frame", "pack_frame", "static_
 METHODS = ("sg", "mc", "litsphere")
 
 
+def _environment_thetas(host: dict, has_ssdf: bool, basis, coeffs, res: int, env_sgs) -> np.ndarray:
+    """(V, K) float32 θd of the SSDF at each vertex towards each environment lobe's axis (ssdf.ssdf_at_axes):
+    the shade kernels blend a pixel's three rows instead of looking the basis up again per lobe and pixel. Kept
+    in the mesh's host arrays while the coefficients and the lobes are the same arrays (a material edit makes
+    neither anew). (1, 1) zeros without an SSDF or lobes (never read)."""
+    if not has_ssdf or len(env_sgs) == 0:
+        return np.zeros((1, 1), np.float32)
+    held = host.get("env_theta")
+    if held is not None and held[0] is coeffs and held[1] is env_sgs:
+        return held[2]
+    theta = np.ascontiguousarray(ssdf_mod.ssdf_at_axes(basis, coeffs, res, np.asarray(env_sgs)[:, :3]), np.float32)
+    host["env_theta"] = (coeffs, env_sgs, theta)
+    return theta
+
+
 def _static_inputs(scene: Scene, backend, progress, timings) -> ShadeInputs:
     """Everything that does not depend on the camera: cached on the scene per backend."""
     key = ("static", backend.name, id(scene.environment), tuple(id(m) for m in scene.materials))
@@ -112,14 +127,15 @@ def _static_inputs(scene: Scene, backend, progress, timings) -> ShadeInputs:
     env_sgs, n_sharp = light.shade_order[has_ssdf]
     # The cached environment, SSDF and SG table arrays are frozen: a backend then knows them by identity.
     basis, coeffs = np.ascontiguousarray(basis, np.float32), np.ascontiguousarray(coeffs, np.float32)
-    for a in (light.prefiltered.maps, light.prefiltered.levels, basis, coeffs, sg.lighting_table()):
+    env_theta = _environment_thetas(host, has_ssdf, basis, coeffs, res, env_sgs)
+    for a in (light.prefiltered.maps, light.prefiltered.levels, basis, coeffs, env_theta, sg.lighting_table()):
         a.flags.writeable = False
     static = ShadeInputs(
         faces=mesh.faces, positions=host["positions"], normals=host["normals"],
         tangents=host["tangents"], face_material=mesh.face_material, uvs=host["uvs"],
         env_sgs=env_sgs, n_sharp_lobes=n_sharp, env_residual=residual, env_maps=light.prefiltered.maps,
         env_levels=light.prefiltered.levels, has_ssdf=bool(has_ssdf), ssdf_res=int(res), ssdf_basis=basis,
-        ssdf_coeffs=coeffs, table=sg.lighting_table(), **packed)
+        ssdf_coeffs=coeffs, env_theta=env_theta, table=sg.lighting_table(), **packed)
     scene.cache.clear()  # one static set per scene: a changed material list or environment replaces it
     scene.cache[key] = static
     return static

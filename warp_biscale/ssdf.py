@@ -58,6 +58,7 @@ __all__ = [
     "octahedral_decode",
     "octahedral_encode",
     "octahedral_grid",
+    "ssdf_at_axes",
     "texel_solid_angles",
     "vertex_visibility",
 ]
@@ -420,8 +421,7 @@ def ssdf_eval(field_basis, coeffs_per_point, resolution: int, dirs) -> np.ndarra
     coordinates x = u·S − ½, y = v·S − ½ (u, v = ssdf.octahedral_encode(ω)), clamped to
     [0, S − 1], texel (i, j) at flat index j·S + i. → (P,) or (P, K).
     """
-    s = int(resolution)
-    basis = np.asarray(field_basis, np.float64).reshape(-1, s * s)
+    basis = np.asarray(field_basis, np.float64).reshape(-1, int(resolution) ** 2)
     c = np.atleast_2d(np.asarray(coeffs_per_point, np.float64))
     if c.shape[1] != basis.shape[0] - 1:
         raise ValueError(f"coeffs_per_point has {c.shape[1]} terms for a basis of {basis.shape[0] - 1}")
@@ -429,13 +429,30 @@ def ssdf_eval(field_basis, coeffs_per_point, resolution: int, dirs) -> np.ndarra
     single = d.ndim == 2
     if single:
         d = d[:, None, :]
-    uv = octahedral_encode(d)  # (P, K, 2)
+    images = _basis_at(basis, int(resolution), d)  # (R + 1, P, K)
+    theta = images[0] + np.einsum("pr,rpk->pk", c, images[1:])
+    return theta[:, 0] if single else theta
+
+
+def ssdf_at_axes(field_basis, coeffs, resolution: int, axes) -> np.ndarray:
+    """θd (rad, float64) of every point of `coeffs` (V, R) at a few fixed directions `axes` (K, 3): (V, K),
+    ssdf_eval's at each point and axis. θd is linear in the coefficients, so a barycentric blend of three
+    vertices' rows is θd at the blend's point: the renderer's environment lobes take theirs that way."""
+    basis = np.asarray(field_basis, np.float64).reshape(-1, int(resolution) ** 2)
+    c = np.atleast_2d(np.asarray(coeffs, np.float64))
+    if c.shape[1] != basis.shape[0] - 1:
+        raise ValueError(f"coeffs has {c.shape[1]} terms for a basis of {basis.shape[0] - 1}")
+    images = _basis_at(basis, int(resolution), np.asarray(axes, np.float64).reshape(1, -1, 3))[:, 0]  # (R + 1, K)
+    return images[0] + c @ images[1:]
+
+
+def _basis_at(basis, s: int, d) -> np.ndarray:
+    """(R + 1, ...) every basis image (rows of `basis` (R + 1, s²)) looked up bilinearly at directions d (..., 3)."""
+    uv = octahedral_encode(d)
     x = np.clip(uv[..., 0] * s - 0.5, 0.0, s - 1.0)
     y = np.clip(uv[..., 1] * s - 0.5, 0.0, s - 1.0)
     i0 = np.minimum(np.floor(x), s - 2).astype(np.int64)
     j0 = np.minimum(np.floor(y), s - 2).astype(np.int64)
     fx, fy = x - i0, y - j0
-    images = (basis[:, j0 * s + i0] * ((1 - fx) * (1 - fy)) + basis[:, j0 * s + i0 + 1] * (fx * (1 - fy))
-              + basis[:, (j0 + 1) * s + i0] * ((1 - fx) * fy) + basis[:, (j0 + 1) * s + i0 + 1] * (fx * fy))
-    theta = images[0] + np.einsum("pr,rpk->pk", c, images[1:])
-    return theta[:, 0] if single else theta
+    return (basis[:, j0 * s + i0] * ((1 - fx) * (1 - fy)) + basis[:, j0 * s + i0 + 1] * (fx * (1 - fy))
+            + basis[:, (j0 + 1) * s + i0] * ((1 - fx) * fy) + basis[:, (j0 + 1) * s + i0 + 1] * (fx * fy))

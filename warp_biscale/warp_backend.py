@@ -768,7 +768,7 @@ class WarpBackend(DeviceBackend):
             "env_levels": arr("env_levels", wp.float32, host=levels),
             # texel-major (res², terms + 1): a lookup reads each corner's terms contiguously
             "ssdf_basis": arr("ssdf_basis", wp.float32, host=basis.T),
-            "ssdf_coeffs": arr("ssdf_coeffs", wp.float32, host=coeffs),
+            "ssdf_coeffs": arr("ssdf_coeffs", wp.float32, host=coeffs), "env_theta": arr("env_theta", wp.float32, 1),
             "disk_radii": arr("disk_radii", wp.vec3, host=DISK_RADII),
             "table": arr("table", wp.float32), "mat_info": arr("mat_info", wp.int32, 4),
             "analytic": arr("analytic", wp.float32, 9), "eff_info": arr("eff_info", wp.int32, 8),
@@ -817,7 +817,8 @@ class WarpBackend(DeviceBackend):
                       dev["face_material"], self._small_upload(m, "shade_camera", camera),
                       len(lights), light_arr, dev["n_env"], dev["env_sgs"], dev["env_residual"],
                       *dev["residual_shape"], dev["env_maps"], dev["env_levels"],
-                      dev["has_ssdf"], dev["ssdf_res"], dev["ssdf_basis"], dev["ssdf_coeffs"], dev["disk_radii"],
+                      dev["has_ssdf"], dev["ssdf_res"], dev["ssdf_basis"], dev["ssdf_coeffs"], dev["env_theta"],
+                      dev["disk_radii"],
                       dev["table"], dev["mat_info"], dev["analytic"], dev["eff_info"], dev["eff_lobes"],
                       dev["eff_sub"], dev["eff_tables"], dev["eff_diffuse"], dev["uvs"], dev["tex_info"],
                       dev["tex_data"], kept_mode, kept_amount, kept_scale, n, only_material, *changed],
