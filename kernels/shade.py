@@ -63,6 +63,12 @@ HERMITE_GAPS = wp.constant(wp.vec4(*[float(x) for x in _shading._HERMITE_GAPS]))
 
 vec4i = wp.vec4i
 
+# The helpers marked inline=False stay out of line (CUDA __noinline__): the shade kernel is large enough that
+# fetching its instructions, not its arithmetic or memory, bounds it (half its warps' stalls under Nsight Compute),
+# and each of these bulky or hot helpers, called from several sites, then exists once. Which helpers: the set that
+# timed fastest among those tried (bench/results/shade-noinline-h200-ccd6a6f); it also compiles in a third of the
+# time. OpenCL compilers inline as they see fit.
+
 
 # Array reads with 32-bit index arithmetic, as cl/shade.cl's int indices: Warp's own indexing multiplies each
 # index by its byte stride in size_t (64-bit), and this kernel gathers thousands of values a pixel; that address
@@ -111,7 +117,7 @@ def eta_row(table: wp.array3d(dtype=wp.float32), eta: float) -> float:
     return (le - LOG_LO) / (LOG_HI - LOG_LO) * float(table.shape[1] - 1)
 
 
-@wp.func
+@wp.func(inline=False)
 def table_lookup(table: wp.array3d(dtype=wp.float32), which: int, c: float, tr: float) -> float:
     """Bilinear in (log10 η, c), η's row tr from eta_row: sg.table_lookup."""
     rows = table.shape[1]
@@ -153,7 +159,7 @@ def direction_angles(d: wp.vec3) -> wp.vec2:
     return wp.vec2(theta, phi)
 
 
-@wp.func
+@wp.func(inline=False)
 def equirect_bilinear(maps: wp.array(dtype=wp.vec3), offset: int, h: int, w: int, theta: float, phi: float) -> wp.vec3:
     """Bilinear lookup of one equirect level at polar angle θ and azimuth φ in [0, 2π) (environment.py's
     convention: wrap φ, clamp θ)."""
@@ -179,7 +185,7 @@ def equirect_bilinear_dir(maps: wp.array(dtype=wp.vec3), offset: int, h: int, w:
     return equirect_bilinear(maps, offset, h, w, tp[0], tp[1])
 
 
-@wp.func
+@wp.func(inline=False)
 def prefiltered(maps: wp.array(dtype=wp.vec3), levels: wp.array2d(dtype=wp.float32), d: wp.vec3, eta: float) -> wp.vec3:
     """Λ(d, η): linear in log2 η between the two nearest levels (lighting.prefiltered_lookup); a last row marked
     BACKGROUND_LOG2 is read by η ≥ BACKGROUND_ETA alone (the camera's rays), and by no lobe."""
@@ -202,7 +208,7 @@ def prefiltered(maps: wp.array(dtype=wp.vec3), levels: wp.array2d(dtype=wp.float
     return a * (1.0 - f) + b * f
 
 
-@wp.func
+@wp.func(inline=False)
 def ssdf_theta(basis: wp.array2d(dtype=wp.float32), coeffs: wp.array2d(dtype=wp.float32), i0: int, i1: int, i2: int,
                w0: float, w1: float, w2: float, res: int, d: wp.vec3) -> float:
     """θd(d) from the PCA basis and the barycentric blend of three vertices' coefficients
@@ -247,7 +253,7 @@ def ssdf_theta(basis: wp.array2d(dtype=wp.float32), coeffs: wp.array2d(dtype=wp.
     return theta
 
 
-@wp.func
+@wp.func(inline=False)
 def concentric_uv(w: wp.vec3) -> wp.vec2:
     """directions.hemisphere_to_square (z clamped to [0, 1])."""
     z = wp.clamp(w[2], 0.0, 1.0)
@@ -331,7 +337,7 @@ def table_rgb(table: wp.array(dtype=wp.float32), base: int, k2: int, j_count: in
     return table_rgb_cell(table, base, k2, j_count, j, g.idx, wp.cw_div(g.wgt, g.cos), oo, ow)
 
 
-@wp.func
+@wp.func(inline=False)
 def table_rgb_cell(table: wp.array(dtype=wp.float32), base: int, k2: int, j_count: int, j: int, ii: vec4i,
                    iw_cos: wp.vec4, oo: vec4i, ow: wp.vec4) -> wp.vec3:
     """table_rgb at ωi's grid cell: its corners ii and their bilinear weights over their cos θ (grid_bilinear's
@@ -402,7 +408,7 @@ def ndf_sharpness(kind: int, p1: float) -> float:
     return 2.0 / (p1 * p1)
 
 
-@wp.func
+@wp.func(inline=False)
 def texture_bilinear(tex_info: wp.array2d(dtype=wp.int32), tex_data: wp.array(dtype=wp.vec3), slot: int,
                      uv: wp.vec2) -> wp.vec3:
     """Bilinear, repeat-wrapped lookup of texture `slot` (svbrdf.sample: texel (i, j) centred at
@@ -631,7 +637,7 @@ def ray_weight(eta: float, samples: int) -> float:
     return wp.clamp(wp.log(hi / wp.max(eta, 1.0e-30)) / wp.log(hi / lo), 0.0, 1.0)
 
 
-@wp.func
+@wp.func(inline=False)
 def ray_share(axis: wp.vec3, eta: float, n: wp.vec3, frame: wp.mat33, mask: wp.uint32, samples: int,
               known: wp.uint32, turn: wp.vec2, disk_radii: wp.array(dtype=wp.vec3)) -> float:
     """The lobe's share that the pixel's occlusion rays see unblocked (shading.ray_share): the rays of `known`
@@ -813,7 +819,7 @@ def asg_convolved_at(g: Asg, eta: float, h: wp.vec3) -> float:
     return PI / wp.sqrt((g.lam + nu) * (g.mu + nu)) * wp.pow(t, w) * wp.exp(-expo)
 
 
-@wp.func
+@wp.func(inline=False)
 def asg_prefiltered(maps: wp.array(dtype=wp.vec3), levels: wp.array2d(dtype=wp.float32), g: Asg) -> wp.vec3:
     """The environment's mean radiance under a warped ASG lobe: prefiltered lookups along its broad axis, as many as
     shading.tap_plan asks (shading.asg_prefiltered)."""
@@ -918,7 +924,7 @@ def light_axes(la: wp.vec3, hint: wp.vec3) -> wp.mat33:
     return wp.matrix_from_rows(x, wp.cross(la, x), la)
 
 
-@wp.func
+@wp.func(inline=False)
 def specular_cos(kind: int, ks: wp.vec3, p1: float, p2: float, s: SurfacePoint, d: wp.vec3, wo: wp.vec3) -> wp.vec3:
     """f_s·(n·ωi)⁺ towards d (made unit here)."""
     wi = wp.normalize(d)
