@@ -64,10 +64,11 @@ HERMITE_GAPS = wp.constant(wp.vec4(*[float(x) for x in _shading._HERMITE_GAPS]))
 vec4i = wp.vec4i
 
 # The helpers marked inline=False stay out of line (CUDA __noinline__): the shade kernel is large enough that
-# fetching its instructions, not its arithmetic or memory, bounds it (half its warps' stalls under Nsight Compute),
-# and each of these bulky or hot helpers, called from several sites, then exists once. Which helpers: the set that
-# timed fastest among those tried (bench/results/shade-noinline-h200-ccd6a6f); it also compiles in a third of the
-# time. OpenCL compilers inline as they see fit.
+# fetching its instructions, not its arithmetic or memory, bounds it (half its warps' stall samples under Nsight
+# Compute), and each of these bulky or hot helpers, most of them called from several sites, then exists once.
+# Which helpers: the fastest set of those timed (bench/results/shade-noinline-h200-ccd6a6f); it also compiles in a
+# third of the time. kernels/litsphere.py calls two of them (prefiltered, and table_rgb_cell through table_rgb).
+# The OpenCL twin's helpers stay always_inline: marked noinline they were no faster on NVIDIA's OpenCL.
 
 
 # Array reads with 32-bit index arithmetic, as cl/shade.cl's int indices: Warp's own indexing multiplies each

@@ -148,6 +148,7 @@ def test_material_edit_uploads_only_what_changed(backend):
     assert dev2["eff_tables"] is dev1["eff_tables"] and dev2["positions"] is dev1["positions"]
     assert dev2["eff_diffuse"] is dev1["eff_diffuse"]  # the energy levels: kd is weighed in the kernel
     assert dev2["env_maps"] is dev1["env_maps"] and dev2["ssdf_coeffs"] is dev1["ssdf_coeffs"]
+    assert dev2["env_theta"] is dev1["env_theta"]  # (the per-vertex angles: same coefficients, same lobes)
     assert dev2["eff_sub"] is not dev1["eff_sub"]  # the new small-scale BRDF's row
     backend._shade_inputs_held.clear()  # what a backend that never saw the first scene holds
     cold = Scene(scene.mesh, [edited, wb.Lambert(0.5)], scene.camera, scene.environment, scene.lights)

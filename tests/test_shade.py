@@ -174,6 +174,20 @@ def test_shade_with_other_occlusion_ray_counts(backend, effective_material, samp
                                             gbuffer=frame.gbuffer), shade_reference(frame))
 
 
+def test_shade_without_occlusion_rays_reads_every_lobes_ssdf_angle(backend, effective_material):
+    """No occlusion rays: every environment lobe, the sun's sharp ones moved to the front (n_sharp_lobes) among
+    them, is shadowed by the SSDF alone, its angle read from the per-vertex table (ShadeInputs.env_theta, in
+    env_sgs' order), against the float64 reference's lookup at the blended coefficients (tolerances as
+    test_shade_kernel_matches_reference's)."""
+    scene = _scenes(effective_material)["occluded"]
+    frame = pack_frame(scene, backend, occlusion_samples=0)
+    static = frame.inputs
+    assert static.has_ssdf and static.n_sharp_lobes > 0 and frame.gbuffer.occlusion_samples == 0
+    assert static.env_theta.shape == (len(static.positions), len(static.env_sgs))
+    _assert_matches_reference(backend.shade(scene.mesh, static, frame.camera, frame.lights, gbuffer=frame.gbuffer),
+                              shade_reference(frame))
+
+
 @pytest.mark.parametrize("part", [(1, 4), (2, 3)])
 def test_shade_of_an_anti_aliasing_samples_part_of_the_rays(backend, effective_material, part):
     """A G-buffer whose occlusion, lobe and shadow rays are one anti-aliasing sample's part of each set
