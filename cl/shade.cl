@@ -638,21 +638,11 @@ CL_INLINE float rays_alone_share(float3 axis, float eta, float3 n, Occlusion occ
     return occ.mask != 0u ? ray_share(axis, eta, n, occ) : 1.0f;
 }
 
-/* environment_share_at with the SSDF's θd at the axis (1 without an SSDF). */
-CL_INLINE float environment_share(Table tab, float3 axis, float eta, EtaRow row, SurfacePoint s, int has_ssdf,
-                                  Ssdf ssdf, Occlusion occ)
-{
-    if (has_ssdf == 0)
-        return 1.0f;
-    if (ray_weight(eta, occ.samples) >= 1.0f)
-        return rays_alone_share(axis, eta, s.n, occ);
-    return environment_share_at(tab, ssdf_theta(ssdf, axis), axis, eta, row, s, occ);
-}
-
-/* environment_share for environment lobe e, whose θd at the pixel is the blend of its three vertices'
- * (env_theta (V, n_env), ssdf.ssdf_at_axes: θd is linear in the coefficients). */
-CL_INLINE float environment_lobe_share(Table tab, __global const float *env_theta, int n_env, int e, float3 axis,
-                                       float eta, EtaRow row, SurfacePoint s, int has_ssdf, Occlusion occ)
+/* environment_share_at for environment lobe e (1 without an SSDF), its θd at the pixel the blend of its three
+ * vertices' (env_theta (V, n_env), ssdf.ssdf_at_axes: θd is linear in the coefficients). Warp's takes e = −1 for
+ * a specular lobe's lookup; the specular loop here calls environment_share_at with its cached θd instead. */
+CL_INLINE float environment_share(Table tab, __global const float *env_theta, int n_env, int e, float3 axis,
+                                  float eta, EtaRow row, SurfacePoint s, int has_ssdf, Occlusion occ)
 {
     if (has_ssdf == 0)
         return 1.0f;
@@ -1207,8 +1197,7 @@ __kernel void shade_pixels(
                 amount = amount * lobe_ray_share((float3)(r[0], r[1], r[2]), r[3], axis, lobe[3], s.n,
                                                  lobe_occlusion[p], ray_lobe, lobe_rays, lobe_part.z);
             } else
-                amount = amount * environment_lobe_share(tab, env_theta, n_env, e, axis, lobe[3], row, s, has_ssdf,
-                                                         occ);
+                amount = amount * environment_share(tab, env_theta, n_env, e, axis, lobe[3], row, s, has_ssdf, occ);
             if (kept_mode == 1)
                 kept_amount[p * n_env + e] = amount;
         }
