@@ -11,7 +11,8 @@
  * Layouts (no float3 in global memory): positions, normals, tangents, env_maps and the output are
  * float arrays of stride 3; bary stride 2; light_vis (P, L) uchar; table (2, rows, cols);
  * env_levels (n_levels, 4) [log2 η, texel offset, H, W]; ssdf_basis texel-major (res², n_basis) (the transpose of static['ssdf_basis']);
- * ssdf_coeffs (V, n_coeffs); env_theta (V, n_env) with an SSDF (ssdf.ssdf_at_axes); the material arrays as warp_biscale.shading.pack_materials.
+ * ssdf_coeffs (V, n_coeffs); env_theta (V, n_env) with an SSDF (ssdf.ssdf_at_axes); the material arrays as
+ * warp_biscale.shading.pack_materials.
  * The two one-cell bilinear helpers that Warp calls twice (grid_corners, grid_weights) are one
  * function here (grid_bilinear): the same values, one concentric map instead of two. The specular loop
  * runs lobe by lobe with an SG lobe's SSDF angle and table cell found once for all its material sub-rows
