@@ -133,7 +133,7 @@ def test_cli_render_anti_aliases_by_default(tmp_path, capsys):
     outs = {}
     # (in-process, `cli.main`: test_cli runs the console script's render itself)
     for flag in ([], ["--aa", "1"], ["--shadow-samples", "1"], ["--every-ray-per-sample"], ["--block-rays"],
-                 ["--aa-shading", "pixel"]):
+                 ["--block-rays", "off"], ["--aa-shading", "pixel"]):
         out = tmp_path / f"img{len(outs)}.exr"
         assert cli.main(["render", str(scene), "-o", str(out), "-q", *flag]) == 0
         outs[tuple(flag)] = wb.images.read_image(str(out))
@@ -144,6 +144,7 @@ def test_cli_render_anti_aliases_by_default(tmp_path, capsys):
     assert np.abs(every - aa4).mean() < 0.05 * aa4.mean() and np.abs(every - aa4).max() > 0
     block = outs[("--block-rays",)]  # a quarter of the rays a pixel: the same image but for noise and a blur
     assert np.abs(block - aa4).mean() < 0.05 * aa4.mean() and np.abs(block - aa4).max() > 0
+    assert np.array_equal(outs[("--block-rays", "off")], aa4)  # 32×24: below 320×240 the default is off
     # Shaded once a pixel: the edges anti-aliased alike, shading within a surface from one sample (the shiny
     # sphere's highlight is the pixel that differs most: 3.5 times the image mean, measured). The median
     # |once − aa4| measured 0.93 % of the mean while the sky's sun lit through its lobe, 1.11 % with the sun a
@@ -221,7 +222,7 @@ def test_aa_shaded_once_a_pixel(backend, block_rays):
     queued = backend.accumulated_frame(mesh, scene.camera.width, scene.camera.height).reshape(-1, 3)
     assert np.abs(queued - image).max() <= 1e-6 * want.max()
     for bad, message in (({"split_rays": "yes"}, "split_rays must be True or False"),
-                         ({"block_rays": 1}, "block_rays must be True or False"),
+                         ({"block_rays": 1}, "block_rays must be True, False or 'auto'"),
                          ({"occlusion_samples": 99}, "occlusion samples"), ({"aa": 0}, "aa"),
                          ({"aa_shading": "msaa"}, "aa_shading must be one of")):
         with pytest.raises(ValueError, match=message):
@@ -276,5 +277,22 @@ def test_anti_aliasing_samples_share_the_ray_sets(backend, block_rays):
     assert abs(got.image.mean() - every.mean()) < 0.005 * every.mean()
     with pytest.raises(ValueError, match="split_rays must be True or False"):
         wb.render(scene, backend=backend, aa=n, split_rays=1)
-    with pytest.raises(ValueError, match="block_rays must be True or False"):
+    with pytest.raises(ValueError, match="block_rays must be True, False or 'auto'"):
         wb.render(scene, backend=backend, block_rays="yes")
+
+
+def test_block_rays_auto_shares_rays_from_qvga_up(backend):
+    """block_rays="auto" (the default) is block_rays=True from render.BLOCK_RAYS_MIN_PIXELS (320×240) pixels up and
+    False below: the same images, bit for bit (the same rays), and info["block_rays"] says which. The contact scene
+    at 320×240 and at 318×240 (the last even width below), each against both explicit settings, which differ."""
+    from warp_biscale.render import BLOCK_RAYS_MIN_PIXELS
+
+    assert BLOCK_RAYS_MIN_PIXELS == 320 * 240
+    for width, blocks in ((320, True), (318, False)):
+        scene = _contact_scene(width, 240)
+        auto = wb.render(scene, backend=backend)
+        assert auto.info["block_rays"] is blocks
+        on = wb.render(scene, backend=backend, block_rays=True).image
+        off = wb.render(scene, backend=backend, block_rays=False).image
+        assert np.abs(on - off).max() > 0.01  # the setting shows in the image
+        assert np.array_equal(auto.image, on if blocks else off)

@@ -171,6 +171,11 @@ SHADOW_SAMPLES = 16  # shadow rays per light and pixel: a penumbra in 16 steps, 
 # environment-occlusion rays per pixel where an SSDF shadows the environment: lobes up to η = 2 by the rays
 # alone (shading.RAYS_ONLY), so a constant map's six shadow lobes (lighting.shadow_lobes) are seen whole
 OCCLUSION_SAMPLES = 16
+# block_rays="auto" (the default) shares the rays in 2x2 blocks from this many pixels up. Below it two pixels can be
+# much of a contact shadow (the contact scene's floor by the contact: -2.4 % -> +23.8 % against Monte Carlo at
+# 80x60 with blocks, -1.4 % -> -0.7 % at 320x240); above it the blocks cost little (examples/glossy.toml at 512x384:
+# 47.27 -> 47.24 dB) and take a frame's rays to a quarter (docs/design.md, "Rays shared in 2x2 blocks").
+BLOCK_RAYS_MIN_PIXELS = 320 * 240
 
 
 def pack_frame(scene: Scene, backend="auto", progress=None, timings=None,
@@ -205,6 +210,15 @@ def pack_frame(scene: Scene, backend="auto", progress=None, timings=None,
 
 AA_MAX = 256
 AA_SHADING = ("sample", "pixel")
+BLOCK_RAYS = (True, False, "auto")
+
+
+def frame_block_rays(block_rays, camera) -> bool:
+    """Whether a frame of `camera` shares its rays in 2x2 blocks: `block_rays` itself, or for "auto" whether the
+    frame has at least BLOCK_RAYS_MIN_PIXELS pixels."""
+    if isinstance(block_rays, str):
+        return camera.width * camera.height >= BLOCK_RAYS_MIN_PIXELS
+    return block_rays
 
 
 def aa_offsets(samples: int, seed: int = 0) -> np.ndarray:
@@ -231,7 +245,7 @@ def check_aa(aa) -> int:
 
 def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: int = 1,
            shadow_samples: int = SHADOW_SAMPLES, occlusion_samples: int = OCCLUSION_SAMPLES, split_rays: bool = True,
-           block_rays: bool = False, aa_shading: str = "sample", **options) -> Rendering:
+           block_rays="auto", aa_shading: str = "sample", **options) -> Rendering:
     """Render `scene` → `Rendering`. method "sg": the per-pixel SG renderer (Wang 2009 / Iwasaki 2012 §5), with `aa`
     jittered samples per pixel (`aa_offsets`; 1: the pixel centre only) averaged with a box filter, `shadow_samples`
     shadow rays per light spread over its disc (soft shadows; 1: one ray to its centre, a hard shadow), and, where
@@ -240,12 +254,14 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     visibility per pixel" and "Sharp environment lobes' visibility per pixel"; 0: the SSDF alone). `split_rays`
     (default): the `aa` samples of a pixel share each set of rays, sample k of n tracing rays k, k + n, … of it
     (`trace.ray_part`), so an anti-aliased frame traces the rays of one frame and its average holds every ray of
-    each set once; False: every sample traces every ray (n times the rays, less noise). `block_rays`: the
+    each set once; False: every sample traces every ray (n times the rays, less noise). `block_rays` True: the
     pixels of each 2×2 block share their rays too, each tracing a quarter of each
     set of at least four rays and weighing those of its neighbours on the same surface (`trace.pixel_parts`,
     `trace.share_block`: a depth or crease edge keeps each side's rays apart), so a frame traces a quarter of the
     rays, and visibility is averaged over two pixels: at low resolutions a contact shadow or a soft terminator
-    comes out lighter (docs/design.md, "Rays shared in 2×2 blocks"); False (default): every pixel traces its own.
+    comes out lighter (docs/design.md, "Rays shared in 2×2 blocks"); False: every pixel traces its own; "auto"
+    (default): True from BLOCK_RAYS_MIN_PIXELS (320×240) pixels up, where the blocks cost little, else False
+    (`frame_block_rays`; info["block_rays"] says which).
     `aa_shading` "sample" (default): each anti-aliasing sample shaded; "pixel": a pixel shaded once where its samples
     hit the surface its first sample hits, as multisampling does: the first sample traces every ray of each set and
     is shaded whole; a later sample traces (its own part of each set) and shades only the pixels whose hit is not on
@@ -271,7 +287,7 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
                 m.shade_lobes()
     n_aa, n_shadow, n_occlusion = check_frame_options(aa, shadow_samples, occlusion_samples, split_rays, block_rays,
                                                       aa_shading)
-    if method != "sg" and (block_rays or aa_shading != "sample"):
+    if method != "sg" and (block_rays is True or aa_shading != "sample"):
         raise ValueError(f"block_rays and aa_shading are options of the SG renderer (method='sg'), not of "
                          f"method={method!r}")
     if method == "mc":
@@ -286,6 +302,7 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     if options:
         raise ValueError(f"unknown option(s) for the SG renderer: {sorted(options)}")
     check_no_litspheres(scene, method)
+    block_rays = frame_block_rays(block_rays, scene.camera)
     backend = get_backend(backend)
     progress = progress or Progress(None)
     timings: dict = {"gbuffer": 0.0, "shade": 0.0}
@@ -314,16 +331,17 @@ def check_frame_options(aa, shadow_samples, occlusion_samples, split_rays, block
     n_aa = check_aa(aa)
     n_shadow = check_shadow_samples(shadow_samples)
     n_occlusion = check_occlusion_samples(occlusion_samples)
-    for name, value in (("split_rays", split_rays), ("block_rays", block_rays)):
-        if not isinstance(value, bool):
-            raise ValueError(f"{name} must be True or False, got {value!r}")
+    if not isinstance(split_rays, bool):
+        raise ValueError(f"split_rays must be True or False, got {split_rays!r}")
+    if not (isinstance(block_rays, bool) or (isinstance(block_rays, str) and block_rays == "auto")):
+        raise ValueError(f"block_rays must be True, False or 'auto', got {block_rays!r}")
     if aa_shading not in AA_SHADING:
         raise ValueError(f"aa_shading must be one of {AA_SHADING}, got {aa_shading!r}")
     return n_aa, n_shadow, n_occlusion
 
 
 def queue_frame(scene: Scene, backend="auto", aa: int = 1, shadow_samples: int = SHADOW_SAMPLES,
-                occlusion_samples: int = OCCLUSION_SAMPLES, split_rays: bool = True, block_rays: bool = False,
+                occlusion_samples: int = OCCLUSION_SAMPLES, split_rays: bool = True, block_rays="auto",
                 aa_shading: str = "sample") -> None:
     """Queue one SG frame of `scene` as `render` makes it (the same options, checked as `render` checks them),
     its stages back to back with no waits and its image left on the device: what an interactive viewer draws
@@ -332,6 +350,7 @@ def queue_frame(scene: Scene, backend="auto", aa: int = 1, shadow_samples: int =
     n_aa, n_shadow, n_occlusion = check_frame_options(aa, shadow_samples, occlusion_samples, split_rays, block_rays,
                                                       aa_shading)
     check_no_litspheres(scene, "sg")
+    block_rays = frame_block_rays(block_rays, scene.camera)
     backend = get_backend(backend)
     static = _static_inputs(scene, backend, Progress(None), {})
     lights = frame_lights(scene)
