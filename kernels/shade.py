@@ -14,6 +14,7 @@ import math
 import warp as wp
 
 from warp_biscale import asg as _asg
+from warp_biscale import device as _device
 from warp_biscale import effective as _effective
 from warp_biscale import lighting as _lighting
 from warp_biscale import sg as _sg
@@ -1074,11 +1075,9 @@ def analytic_from_lights(kind: int, ks: wp.vec3, p1: float, p2: float, s: Surfac
     return out
 
 
-# A register cap (ptxas spills the rest to local memory, cached): more resident warps hide the gathers' latency
-# better than registers save spills, and the rarely taken ASG path would otherwise set the whole kernel's count.
-# The cap was chosen by timing caps 48-128 and none (bench/results/shade-h100, then
-# bench/results/shade-regcap-h200-0853f26 once the helpers went out of line).
-@wp.kernel(cuda_max_registers=64)
+# A register cap (device.SHADE_MAX_REGISTERS, the OpenCL build's too): the rarely taken ASG path would otherwise
+# set the whole kernel's count.
+@wp.kernel(cuda_max_registers=_device.SHADE_MAX_REGISTERS)
 def shade_pixels(
     face: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec2), light_vis: wp.array2d(dtype=wp.uint8),
     occlusion: wp.array(dtype=wp.uint32), occlusion_samples: int, lobe_occlusion: wp.array(dtype=wp.uint32),

@@ -90,6 +90,26 @@ def test_opencl_build_that_works_is_usable(monkeypatch):
     assert ocl.OpenCLBackend(None).name in again  # None takes the first usable device
 
 
+def test_shade_stage_register_cap_only_where_nvidia_options_are_taken():
+    """The shade stage's build carries the register cap (device.SHADE_MAX_REGISTERS, the Warp kernel's too) only on a
+    device that takes NVIDIA's compiler options, and no other stage does: another compiler would refuse the option.
+    Every OpenCL device here (PoCL) builds the shade stage without it."""
+    from warp_biscale import opencl_backend as ocl
+    from warp_biscale.device import SHADE_MAX_REGISTERS
+
+    cap = f"-cl-nv-maxrregcount={SHADE_MAX_REGISTERS}"
+    base = ["-cl-std=CL1.2"]
+    assert cap in ocl.stage_options(base, "shade", nvidia_options=True)
+    assert cap not in ocl.stage_options(base, "shade")
+    assert all(cap not in ocl.stage_options(base, stem, nvidia_options=True)
+               for stem in ("trace", "visibility", "asgfit", "litsphere"))
+    for b in _usable_opencl():
+        backend = wb.get_backend(b["name"])
+        assert backend._nvidia_options == ("cl_nv_compiler_options" in backend._device.extensions.split())
+        if not backend._nvidia_options:
+            assert backend._kernel("shade", "shade_pixels") is not None  # built without the option
+
+
 def test_unknown_build_failure_is_one_line(monkeypatch):
     from warp_biscale import opencl_backend as ocl
 

@@ -34,6 +34,11 @@ SCRATCH_BYTES = 64 << 20  # the largest scratch array a backend keeps between ca
 # OpenCL build is given from here): they share its sums over a few hundred to a few thousand normal bins and the
 # Newton's 48 disk nodes.
 ASG_EM_BLOCK = 128
+# The shade kernel's register cap on NVIDIA GPUs (kernels/shade.py's cuda_max_registers; the OpenCL build's
+# -cl-nv-maxrregcount where the device takes NVIDIA's compiler options): the rest spills to local memory, which the
+# cache holds, and more resident warps hide the gathers' latency better than registers save spills. Timed on both
+# backends (bench/results/shade-regcap-h200-0853f26, opencl-regcap-h200-d6d1287).
+SHADE_MAX_REGISTERS = 64
 
 
 class OnDevice:

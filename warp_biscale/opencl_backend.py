@@ -38,8 +38,8 @@ import numpy as np
 from . import cl as cl_sources
 from . import sg
 from .asg import ASG
-from .device import (ASG_EM_BLOCK, KINDS, DeviceBackend, PROBE_VALUES, SCRATCH_BYTES, DeviceStart, UploadCache,
-                     check_kernel_lobes, chunking, device_copy, one_line, padded_lobe_values,
+from .device import (ASG_EM_BLOCK, KINDS, PROBE_VALUES, SCRATCH_BYTES, SHADE_MAX_REGISTERS, DeviceBackend,
+                     DeviceStart, UploadCache, check_kernel_lobes, chunking, device_copy, one_line, padded_lobe_values,
                      probe_mismatch, start_scale)
 from .bvh import build_bvh
 from .environment import SUPPORT, equirect_tables
@@ -188,12 +188,16 @@ FAST_MATH = {"litsphere", "shade"}
 QUEUED_UPLOAD_BYTES = 1 << 20  # shade inputs this large are copied to a GPU without blocking (_shade_buffer)
 
 
-def stage_options(options: list[str], stem: str, asg_em_group: int = ASG_EM_BLOCK) -> list[str]:
+def stage_options(options: list[str], stem: str, asg_em_group: int = ASG_EM_BLOCK,
+                  nvidia_options: bool = False) -> list[str]:
     """`options` (build_options) for cl/<stem>.cl: fast math instead of exact rounding for FAST_MATH; the ASG EM's
     work-group size for asgfit (device.ASG_EM_BLOCK, the one definition both backends read, or less where the
-    device's work-groups are smaller)."""
+    device's work-groups are smaller); on a device that takes NVIDIA's compiler options (`nvidia_options`), the
+    shade kernel's register cap (device.SHADE_MAX_REGISTERS, which the Warp kernel is given too)."""
     if stem == "asgfit":
         options = [*options, f"-DASGFIT_GROUP={int(asg_em_group)}"]
+    if stem == "shade" and nvidia_options:
+        options = [*options, f"-cl-nv-maxrregcount={SHADE_MAX_REGISTERS}"]
     if stem not in FAST_MATH:
         return options
     return [o for o in options if o != "-cl-fp32-correctly-rounded-divide-sqrt"] + ["-cl-fast-relaxed-math"]
@@ -287,6 +291,7 @@ class OpenCLBackend(DeviceBackend):
         self._ctx, self._queue = state["ctx"], state["queue"]
         self._programs, self._kernels = state["programs"], state["kernels"]
         self.build_options = build_options(device)
+        self._nvidia_options = "cl_nv_compiler_options" in device.extensions.split()
         # Work-items worth launching per reduction: a few per core on a CPU, enough to fill a GPU.
         is_cpu = bool(device.type & cl.device_type.CPU)
         self.is_gpu = bool(device.type & cl.device_type.GPU)
@@ -327,7 +332,8 @@ class OpenCLBackend(DeviceBackend):
 
     def _build(self, stem: str):
         try:
-            return build_program(self._ctx, stem, stage_options(self.build_options, stem, self._asg_em_group))
+            return build_program(self._ctx, stem, stage_options(self.build_options, stem, self._asg_em_group,
+                                                                  self._nvidia_options))
         except self._cl.Error as exc:
             raise RuntimeError(f"building cl/{stem}.cl for {self.device} failed: "
                                f"{build_failure(self._platform, self._device, exc)}\n{exc}") from None
