@@ -171,10 +171,9 @@ SHADOW_SAMPLES = 16  # shadow rays per light and pixel: a penumbra in 16 steps, 
 # environment-occlusion rays per pixel where an SSDF shadows the environment: lobes up to η = 2 by the rays
 # alone (shading.RAYS_ONLY), so a constant map's six shadow lobes (lighting.shadow_lobes) are seen whole
 OCCLUSION_SAMPLES = 16
-# block_rays="auto" (the default) shares the rays in 2x2 blocks from this many pixels up. Below it two pixels can be
-# much of a contact shadow (the contact scene's floor by the contact: -2.4 % -> +23.8 % against Monte Carlo at
-# 80x60 with blocks, -1.4 % -> -0.7 % at 320x240); above it the blocks cost little (examples/glossy.toml at 512x384:
-# 47.27 -> 47.24 dB) and take a frame's rays to a quarter (docs/design.md, "Rays shared in 2x2 blocks").
+# block_rays="auto" (the default) shares the rays in 2x2 blocks from this many pixels up: below it two pixels can be
+# much of a contact shadow, above it the blocks cost the image little and a frame three quarters of its rays
+# (docs/design.md, "Rays shared in 2x2 blocks", has the measurements).
 BLOCK_RAYS_MIN_PIXELS = 320 * 240
 
 
