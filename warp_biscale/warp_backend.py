@@ -53,6 +53,9 @@ _CUDA_DRIVER_WARNING = "Could not find or load the NVIDIA CUDA driver"
 
 
 RAY_PIECES = 4  # slices per core of the visibility rays on the CPU (see _launch)
+# Slices per core of a frame's per-pixel kernels (rays, shading) on the CPU: their cost follows the image (a sky pixel
+# costs nothing), so a frame cut in one slice a core leaves cores idle (bench/README.md, "What was tried").
+FRAME_PIECES = 8
 PINNED_BYTES = 1 << 20  # read-backs from a GPU at least this large go through a pinned host buffer
 
 
@@ -732,7 +735,7 @@ class WarpBackend(DeviceBackend):
         self._launch(ktrace.trace_primary, len(face),
                      [m["mesh"].id, m["points"], m["faces"], wp.vec3(*c[0:3]), wp.vec3(*c[3:6]), wp.vec3(*c[6:9]),
                       wp.vec3(*c[9:12]), camera.width, camera.height],
-                     [face, bary, position, t])
+                     [face, bary, position, t], pieces=FRAME_PIECES)
 
     def _launch_trace_occluded(self, m, origins, directions, t_min, t_max, n, occluded):
         self._launch(ktrace.trace_occluded, n, [m["mesh"].id, origins, directions, t_min, t_max], [occluded])
@@ -743,7 +746,7 @@ class WarpBackend(DeviceBackend):
                      [m["mesh"].id, *self._ray_mesh(m), face, bary, position, wp.vec3(*eye),
                       self._small_upload(m, "lights", lights),
                       self._small_upload(m, "light_samples", samples, wp.int32), eps, t_min, *part, *changed],
-                     [vis])
+                     [vis], pieces=FRAME_PIECES)
 
     def _upload_shade_static(self, static, levels, basis, coeffs):
         def upload(dtype, width=None, shape=None):
@@ -781,29 +784,31 @@ class WarpBackend(DeviceBackend):
 
     def _launch_trace_occlusion(self, m, face, bary, position, eye, eps, t_min, samples, part, changed, n, mask):
         self._launch(ktrace.trace_occlusion, n, [m["mesh"].id, *self._ray_mesh(m), face, bary, position,
-                                                 wp.vec3(*eye), eps, t_min, samples, *part, *changed], [mask])
+                                                 wp.vec3(*eye), eps, t_min, samples, *part, *changed], [mask],
+                     pieces=FRAME_PIECES)
 
     def _launch_trace_lobe_rays(self, m, face, bary, position, eye, lobes, eps, t_min, part, changed, n, mask):
         self._launch(ktrace.trace_lobe_rays, n,
                      [m["mesh"].id, *self._ray_mesh(m), face, bary, position, wp.vec3(*eye),
                       self._small_upload(m, "lobe_ray_lobes", lobes), len(lobes), LOBE_RAYS, eps, t_min, *part,
                       *changed],
-                     [mask])
+                     [mask], pieces=FRAME_PIECES)
 
     def _launch_mark_changed(self, m, n, changed):
         self._launch(ktrace.mark_changed, n, [m["gbuffer_face"], m["gbuffer_position"], m["reference_face"],
                                               m["reference_position"], m["face_normals"], m["face_material"],
-                                              wp.vec3(*m["gbuffer_eye"])], [changed])
+                                              wp.vec3(*m["gbuffer_eye"])], [changed], pieces=FRAME_PIECES)
 
     def _launch_share_block_masks(self, m, face, position, eye, samples, part, n, traced, shared, known):
         self._launch(ktrace.share_block_masks, n, [face, position, m["face_normals"], wp.vec3(*eye), part[2], n,
-                                                   samples, part[0], part[1], traced], [shared, known])
+                                                   samples, part[0], part[1], traced], [shared, known],
+                     pieces=FRAME_PIECES)
 
     def _launch_share_block_shadows(self, m, face, position, eye, samples, part, n, n_lights, traced, shared):
         self._launch(ktrace.share_block_shadows, n, [face, position, m["face_normals"], wp.vec3(*eye), part[2], n,
                                                      part[0], part[1], n_lights,
                                                      self._small_upload(m, "light_samples", samples, wp.int32), traced],
-                     [shared])
+                     [shared], pieces=FRAME_PIECES)
 
     def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, part, known, lights, camera,
                       n, only_material, changed, kept_mode, kept_amount, kept_scale, out):
@@ -822,7 +827,7 @@ class WarpBackend(DeviceBackend):
                       dev["table"], dev["mat_info"], dev["analytic"], dev["eff_info"], dev["eff_lobes"],
                       dev["eff_sub"], dev["eff_tables"], dev["eff_diffuse"], dev["uvs"], dev["tex_info"],
                       dev["tex_data"], kept_mode, kept_amount, kept_scale, n, only_material, *changed],
-                     [out], block_dim=128)
+                     [out], block_dim=128, pieces=FRAME_PIECES)
 
     def _upload_spheres(self, spheres):
         return {"of_material": self._array(spheres.sphere_of_material, wp.int32),
@@ -839,7 +844,7 @@ class WarpBackend(DeviceBackend):
                       self._small_upload(m, "shade_camera", camera),
                       len(lights), light_arr, view_mode, shrink, env_maps, env_levels, dev["of_material"], dev["info"],
                       dev["angles"], dev["levels"], dev["texels"], n],
-                     [out])
+                     [out], pieces=FRAME_PIECES)
 
     def _launch_tonemap(self, radiance, scale, operator, n, out):
         self._launch(ktonemap.tonemap_pixels, n, [radiance, scale, operator, n], [out])
