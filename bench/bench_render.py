@@ -90,7 +90,7 @@ def time_frames(scene, backend, frames, runs, shadow_samples=SHADOW_SAMPLES, occ
     `accumulated_frame` (the average's read-back)."""
     be = wb.get_backend(backend)
     options = dict(shadow_samples=shadow_samples, occlusion_samples=occlusion_samples, aa=aa,
-                   **({"block_rays": True} if block_rays else {}),
+                   **common.block_rays_option(block_rays),
                    **({"aa_shading": aa_shading} if aa_shading != "sample" else {}))
     first = wb.render(scene, backend=be, **options)  # compiles, and computes what does not depend on the camera
     precompute = sum(first.timings.get(k, 0.0) for k in PRECOMPUTE)
@@ -207,7 +207,7 @@ def part_pareto(backends, size, lobe_list, samples, runs, out, block_modes=(Fals
         for j, occlusion, block in rows:
             scene = target_scene(w, h, lobes=j, backend=backend)
             t, pre, first, back = time_frames(scene, be, 3, runs, occlusion_samples=occlusion, block_rays=block)
-            img = wb.render(scene, backend=be, occlusion_samples=occlusion, **({"block_rays": True} if block else {}))
+            img = wb.render(scene, backend=be, occlusion_samples=occlusion, **common.block_rays_option(block))
             # Over the object pixels only: the background is the environment itself in both images.
             mask = (be.trace_primary(scene.mesh, scene.camera).face >= 0).reshape(h, w)
             err = wb.compare_images(img.image, ref.image, mask=mask)

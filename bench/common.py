@@ -131,6 +131,16 @@ def timed(fn, runs: int, sync=None, *, make_input=None, budget_s: float | None =
     return Timed(med, times, max(first_s - med, 0.0), first, results)
 
 
+def block_rays_option(block: bool) -> dict:
+    """wb.render's keyword for rays shared in 2×2 blocks or not, said outright: its default ("auto") shares them from
+    320×240 up. An older tree (A/B runs) without the option gets none for False, and refuses True."""
+    import inspect
+
+    if block or "block_rays" in inspect.signature(wb.render).parameters:
+        return {"block_rays": bool(block)}
+    return {}
+
+
 def heightfield_tile(n: int = 64, amplitude: float = 0.25, seed: int = 0):
     """The timing tile: a periodic random height field of n×n cells (2n² triangles; n = 64: 8192 triangles)."""
     rng = np.random.default_rng(seed)

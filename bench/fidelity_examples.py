@@ -20,6 +20,7 @@ import warnings
 import numpy as np
 
 import warp_biscale as wb
+from bench import common
 
 EXAMPLES = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "examples")
 
@@ -51,7 +52,7 @@ def main(argv=None):
             refs = {k: sf.render(method="mc", backend=be, samples=args.samples, truth_directions=k,
                                  truth_facets=args.truth_facets) for k in args.truth_directions}
             for occlusion, block in [(n, b) for n in args.occlusion_samples for b in blocks]:
-                options = {"occlusion_samples": occlusion, **({"block_rays": True} if block else {})}
+                options = {"occlusion_samples": occlusion, **common.block_rays_option(block)}
                 sf.render(method="sg", backend=be, **options)  # compiles, precomputes
                 runs = [sf.render(method="sg", backend=be, **options) for _ in range(3)]
                 image = runs[-1].image

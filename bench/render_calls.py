@@ -15,6 +15,7 @@ import time
 import numpy as np
 
 import warp_biscale as wb
+from bench import common
 from bench.bench_render import target_scene
 
 
@@ -22,13 +23,14 @@ def main(backends):
     for backend in backends:
         be = wb.get_backend(backend)
         scene = target_scene(1920, 1080, backend=be)
-        rows = [(1, 1, {}), (1, 16, {}), (4, 1, {}), (4, 16, {})]
+        own = common.block_rays_option(False)  # each pixel its own rays, whatever the default
+        rows = [(1, 1, own), (1, 16, own), (4, 1, own), (4, 16, own)]
         if "split_rays" in inspect.signature(wb.render).parameters:
-            rows += [(4, 1, {"split_rays": False}), (4, 16, {"split_rays": False})]
+            rows += [(4, 1, {"split_rays": False, **own}), (4, 16, {"split_rays": False, **own})]
         if "block_rays" in inspect.signature(wb.render).parameters:
             rows += [(1, 16, {"block_rays": True}), (4, 16, {"block_rays": True})]
         if "aa_shading" in inspect.signature(wb.render).parameters:
-            rows += [(4, 16, {"aa_shading": "pixel"}), (4, 16, {"aa_shading": "pixel", "block_rays": True})]
+            rows += [(4, 16, {"aa_shading": "pixel", **own}), (4, 16, {"aa_shading": "pixel", "block_rays": True})]
         for aa, shadows, extra in rows:
             for _ in range(2):
                 result = wb.render(scene, backend=be, aa=aa, shadow_samples=shadows, **extra)
