@@ -108,6 +108,18 @@ def test_design_edits_shade_only_the_design_and_give_the_whole_frame(backend):
         assert np.abs(shown - whole).max() <= 1, name
 
 
+def test_the_frame_is_the_shown_frame_at_qvga(backend):
+    """From 320×240 up the renderer's default shares rays in 2×2 blocks; the editor's window traces each pixel's
+    own, and `frame()` (screenshots, image8 at another exposure) must give the frame the window shows: within one
+    8-bit step after a light edit, which shades the whole frame."""
+    ed = E.Editor("pyramid", backend=backend, width=320, height=240)
+    for name, value in FAST.items():
+        ed.set(name, value)
+    ed.set("light.elevation", 35.0)
+    shown, whole = ed.image8().astype(int), wb.images.tonemap(ed.frame()).astype(int)
+    assert np.abs(shown - whole).max() <= 1
+
+
 def test_a_material_kind_brings_its_own_controls(pyramid):
     ed = pyramid
     ed.set("material0.kind", "cooktorrance")

@@ -622,7 +622,8 @@ class Editor:
         """(H, W, 3) float32 linear radiance of the current design on the large-scale scene (what `image8`
         shows, before tone mapping)."""
         if self._image is None:  # rendered again: the device's frame may since belong to another editor
-            image = render(self.scene, backend=self.backend, shadow_samples=1).image
+            # each pixel its own rays, as the window's frame traces them (_render)
+            image = render(self.scene, backend=self.backend, shadow_samples=1, block_rays=False).image
             self._image = _enlarged(image, self.width, self.height) if self._coarse_frame else image
         return self._image.copy()
 
