@@ -133,7 +133,7 @@ def test_cli_render_anti_aliases_by_default(tmp_path, capsys):
     outs = {}
     # (in-process, `cli.main`: test_cli runs the console script's render itself)
     for flag in ([], ["--aa", "1"], ["--shadow-samples", "1"], ["--every-ray-per-sample"], ["--block-rays"],
-                 ["--block-rays", "off"], ["--aa-shading", "pixel"]):
+                 ["--aa-shading", "pixel"]):
         out = tmp_path / f"img{len(outs)}.exr"
         assert cli.main(["render", str(scene), "-o", str(out), "-q", *flag]) == 0
         outs[tuple(flag)] = wb.images.read_image(str(out))
@@ -144,7 +144,15 @@ def test_cli_render_anti_aliases_by_default(tmp_path, capsys):
     assert np.abs(every - aa4).mean() < 0.05 * aa4.mean() and np.abs(every - aa4).max() > 0
     block = outs[("--block-rays",)]  # a quarter of the rays a pixel: the same image but for noise and a blur
     assert np.abs(block - aa4).mean() < 0.05 * aa4.mean() and np.abs(block - aa4).max() > 0
-    assert np.array_equal(outs[("--block-rays", "off")], aa4)  # 32×24: below 320×240 the default is off
+    # At 320×240 the default shares the rays in blocks: as --block-rays, bit for bit, and not as --no-block-rays
+    # (the flags before the scene's path, as a script may put them).
+    big = {}
+    for flag in ([], ["--block-rays"], ["--no-block-rays"]):
+        out = tmp_path / f"big{len(big)}.exr"
+        assert cli.main(["render", *flag, str(scene), "-o", str(out), "-q", "--aa", "1", "--size", "320", "240"]) == 0
+        big[tuple(flag)] = wb.images.read_image(str(out))
+    assert np.array_equal(big[()], big[("--block-rays",)])
+    assert np.abs(big[()] - big[("--no-block-rays",)]).max() > 0.01
     # Shaded once a pixel: the edges anti-aliased alike, shading within a surface from one sample (the shiny
     # sphere's highlight is the pixel that differs most: 3.5 times the image mean, measured). The median
     # |once − aa4| measured 0.93 % of the mean while the sky's sun lit through its lobe, 1.11 % with the sun a
@@ -296,3 +304,10 @@ def test_block_rays_auto_shares_rays_from_qvga_up(backend):
         off = wb.render(scene, backend=backend, block_rays=False).image
         assert np.abs(on - off).max() > 0.01  # the setting shows in the image
         assert np.array_equal(auto.image, on if blocks else off)
+        wb.queue_frame(scene, backend)  # the viewer's frame takes the same default
+        queued = backend.frame_radiance(scene.mesh, width, 240).reshape(auto.image.shape)
+        assert np.array_equal(queued, auto.image)
+    from warp_biscale.render import frame_block_rays
+
+    with pytest.raises(ValueError, match="block_rays must be True, False or 'auto'"):
+        frame_block_rays("off", _contact_scene().camera)

@@ -328,7 +328,7 @@ def cmd_render(args):
         if args.every_ray_per_sample:
             options["split_rays"] = False
         if args.block_rays is not None:
-            options["block_rays"] = {"on": True, "off": False}.get(args.block_rays, args.block_rays)
+            options["block_rays"] = args.block_rays
         if args.aa_shading is not None:
             options["aa_shading"] = args.aa_shading
     if method == "mc" and args.mc_fallback is None:
@@ -403,7 +403,7 @@ def _refuse_sg_options(args):
     for flag, value in (("--aa", args.aa), ("--shadow-samples", args.shadow_samples),
                         ("--occlusion-samples", args.occlusion_samples),
                         ("--every-ray-per-sample", args.every_ray_per_sample or None),
-                        ("--block-rays", args.block_rays), ("--aa-shading", args.aa_shading)):
+                        ("--block-rays", True if args.block_rays else None), ("--aa-shading", args.aa_shading)):
         if value is not None:
             raise ValueError(f"{flag} is for the SG renderer (--method sg); the Monte Carlo reference samples "
                              "pixel centres and lights as emitters")
@@ -611,11 +611,11 @@ def _add_render_commands(sub):
     r.add_argument("--every-ray-per-sample", action="store_true",
                    help="every anti-aliasing sample traces every shadow and occlusion ray (--aa times the rays, less "
                         "noise); by default the samples of a pixel share each set of rays between them")
-    r.add_argument("--block-rays", nargs="?", const="on", choices=["auto", "on", "off"],
-                   help="on: the pixels of each 2x2 block share their shadow and occlusion rays, each tracing a "
-                        "quarter of them (about a quarter of the ray cost; visibility averaged over two pixels, so a "
-                        "contact shadow comes out lighter at low resolutions); off: each pixel traces its own; auto "
-                        "(default): on from 320x240 pixels up")
+    r.add_argument("--block-rays", action=argparse.BooleanOptionalAction, default=None,
+                   help="the pixels of each 2x2 block share their shadow and occlusion rays, each tracing a quarter "
+                        "of them (about a quarter of the ray cost; visibility averaged over two pixels, so a contact "
+                        "shadow comes out lighter at low resolutions); --no-block-rays: each pixel traces its own; "
+                        "default: shared from 320x240 pixels up")
     r.add_argument("--aa-shading", choices=["sample", "pixel"],
                    help="sample (default): shade every anti-aliasing sample; pixel: shade a pixel once where its "
                         "samples hit one surface (one material, no depth or crease edge), as multisampling does: edges "

@@ -215,9 +215,11 @@ BLOCK_RAYS = (True, False, "auto")
 def frame_block_rays(block_rays, camera) -> bool:
     """Whether a frame of `camera` shares its rays in 2x2 blocks: `block_rays` itself, or for "auto" whether the
     frame has at least BLOCK_RAYS_MIN_PIXELS pixels."""
-    if isinstance(block_rays, str):
+    if isinstance(block_rays, bool):
+        return block_rays
+    if isinstance(block_rays, str) and block_rays == "auto":
         return camera.width * camera.height >= BLOCK_RAYS_MIN_PIXELS
-    return block_rays
+    raise ValueError(f"block_rays must be True, False or 'auto', got {block_rays!r}")
 
 
 def aa_offsets(samples: int, seed: int = 0) -> np.ndarray:
@@ -464,7 +466,7 @@ def litsphere_errors(scene: Scene, image, backend="auto", references=("sg", "mc"
     out = {}
     for ref in references:
         if ref == "sg":
-            exact = render(exact_scene, backend=backend, shadow_samples=1).image
+            exact = render(exact_scene, backend=backend, shadow_samples=1, block_rays=False).image
         elif ref == "mc":
             exact = render(exact_scene, method="mc", backend=backend, samples=samples).image
         else:
