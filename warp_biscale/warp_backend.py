@@ -56,6 +56,7 @@ RAY_PIECES = 4  # slices per core of the visibility rays on the CPU (see _launch
 # Slices per core of a frame's per-pixel kernels (rays, shading) on the CPU: their cost follows the image (a sky pixel
 # costs nothing), so a frame cut in one slice a core leaves cores idle (bench/README.md, "What was tried").
 FRAME_PIECES = 8
+LAUNCH_MIN_ITEMS = 1024  # items of a slice beyond the first a core: each launch costs the host tens of µs
 PINNED_BYTES = 1 << 20  # read-backs from a GPU at least this large go through a pinned host buffer
 
 
@@ -184,7 +185,9 @@ class WarpBackend(DeviceBackend):
         """
         dim = tuple(dim) if isinstance(dim, (tuple, list)) else (int(dim),)
         n = dim[-1]
-        parts = min(self._slices * pieces, n) if self._slices > 1 else 1
+        parts = 1
+        if self._slices > 1:  # one slice a core, and up to `pieces` a core of at least LAUNCH_MIN_ITEMS items
+            parts = min(self._slices * pieces, max(self._slices, n // LAUNCH_MIN_ITEMS), n)
         # Compile/load before the threads race to do it (the kernel's own Warp module: kernels made
         # by a factory live in a module of their own).
         self._load(kernel, block_dim)
