@@ -209,17 +209,21 @@ def pack_frame(scene: Scene, backend="auto", progress=None, timings=None,
 
 AA_MAX = 256
 AA_SHADING = ("sample", "pixel")
-BLOCK_RAYS = (True, False, "auto")
+
+
+def check_block_rays(block_rays):
+    """`block_rays` if it is True, False or "auto", else a one-line error."""
+    if not (isinstance(block_rays, bool) or (isinstance(block_rays, str) and block_rays == "auto")):
+        raise ValueError(f"block_rays must be True, False or 'auto', got {block_rays!r}")
+    return block_rays
 
 
 def frame_block_rays(block_rays, camera) -> bool:
     """Whether a frame of `camera` shares its rays in 2x2 blocks: `block_rays` itself, or for "auto" whether the
     frame has at least BLOCK_RAYS_MIN_PIXELS pixels."""
-    if isinstance(block_rays, bool):
-        return block_rays
-    if isinstance(block_rays, str) and block_rays == "auto":
+    if check_block_rays(block_rays) == "auto":
         return camera.width * camera.height >= BLOCK_RAYS_MIN_PIXELS
-    raise ValueError(f"block_rays must be True, False or 'auto', got {block_rays!r}")
+    return block_rays
 
 
 def aa_offsets(samples: int, seed: int = 0) -> np.ndarray:
@@ -334,8 +338,7 @@ def check_frame_options(aa, shadow_samples, occlusion_samples, split_rays, block
     n_occlusion = check_occlusion_samples(occlusion_samples)
     if not isinstance(split_rays, bool):
         raise ValueError(f"split_rays must be True or False, got {split_rays!r}")
-    if not (isinstance(block_rays, bool) or (isinstance(block_rays, str) and block_rays == "auto")):
-        raise ValueError(f"block_rays must be True, False or 'auto', got {block_rays!r}")
+    check_block_rays(block_rays)
     if aa_shading not in AA_SHADING:
         raise ValueError(f"aa_shading must be one of {AA_SHADING}, got {aa_shading!r}")
     return n_aa, n_shadow, n_occlusion
