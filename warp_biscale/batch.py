@@ -262,8 +262,10 @@ def execute(task: dict, hook=None, pin: int = 0) -> dict:
             materials = list(sf.scene.materials)
             materials[slot] = mat
             scene = dataclasses.replace(sf.scene, materials=materials, cache={})
+            block_rays = sc.get("block_rays")
             result = render(scene, method="sg", backend=backend, aa=sc["aa"],
-                            shadow_samples=sc["shadow_samples"] or SHADOW_SAMPLES)
+                            shadow_samples=sc["shadow_samples"] or SHADOW_SAMPLES,
+                            block_rays="auto" if block_rays is None else block_rays)
             image, thumb = f"render-{sc['name']}.png", f"thumb-{sc['name']}.png"
             result.save(os.path.join(tmp, image), exposure=sc["exposure"])
             _thumbnail(os.path.join(tmp, image), os.path.join(tmp, thumb))

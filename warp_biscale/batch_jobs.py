@@ -40,8 +40,8 @@ compute; their cross product (or the combinations it lists) becomes one `Task` p
     [[scene]]                    # scenes each material is rendered in
     path = "bi-scale.toml"       # a scene file (relative to this file)
     slot = "demo_tile"           # the [material.NAME] of that file the baked material replaces
-    width = 128                  # optional: size, aa (default 1), shadow_samples, exposure (default the file's)
-    height = 96
+    width = 128                  # optional: size, aa (default 1), shadow_samples, exposure (default the file's),
+    height = 96                  #   block_rays (true/false; default: shared in 2x2 blocks from 320x240 up)
 
 A sweep value is a list (``height = [0.2, 0.4]``), a range table (``{ from = 0.1, to = 0.5, steps = 5 }``,
 ``steps`` values evenly spaced, ``log = true`` for a geometric series; or ``step = 0.1``: from, from + step,
@@ -100,7 +100,7 @@ TOP_LEVEL = ("output", "bake", "compute", "truth", "tile", "material", "scene")
 FAMILIES = {**BUILTIN_TILES, **{name: (name, {}) for name in ("flat", "pyramid", "grooves", "rods", "woven")}}
 BAKE_DEFAULTS = {"method": "sg", "lobes": 8, "facets": 1 << 16, "directions": 12, "normal_res": 128,
                  "route": "facets", "seed": 0, "backend": "auto"}
-SCENE_KEYS = ("path", "slot", "name", "width", "height", "aa", "shadow_samples", "exposure")
+SCENE_KEYS = ("path", "slot", "name", "width", "height", "aa", "shadow_samples", "exposure", "block_rays")
 _RANGE_KEYS = ("from", "to", "steps", "step", "log", "values")
 
 
@@ -120,7 +120,7 @@ class Task:
     bake: dict          # wb.bake's settings (BAKE_DEFAULTS' keys)
     truth: dict | None  # facets, directions, seed; None: no ground truth
     compare: bool
-    scenes: list        # name, path, sha256, slot, width, height, aa, shadow_samples, exposure
+    scenes: list        # name, path, sha256, slot, width, height, aa, shadow_samples, exposure, block_rays
 
     def payload(self) -> dict:
         return dataclasses.asdict(self)
@@ -594,7 +594,7 @@ def _scenes(ctx, data) -> list:
     for i, item in enumerate(data):
         table = ("scene", i)
         schema = {"path": _check_str, "slot": _check_str, "name": _check_str, "width": _INT, "height": _INT,
-                  "aa": _INT, "shadow_samples": _INT, "exposure": _check_num}
+                  "aa": _INT, "shadow_samples": _INT, "exposure": _check_num, "block_rays": _BOOL}
         v = _read(ctx, table, item, schema, required=("path", "slot"))
         full = ctx.resolve(v["path"])
         if not os.path.isfile(full):
@@ -617,7 +617,8 @@ def _scenes(ctx, data) -> list:
         exposure = v.get("exposure", sf.exposure)
         out.append({"name": name, "path": full, "sha256": file_sha256(full), "slot": v["slot"],
                     "width": v.get("width", sf.width), "height": v.get("height", sf.height), "aa": v.get("aa", 1),
-                    "shadow_samples": v.get("shadow_samples"), "exposure": exposure})
+                    "shadow_samples": v.get("shadow_samples"), "exposure": exposure,
+                    "block_rays": v.get("block_rays")})
     return out
 
 
@@ -660,8 +661,9 @@ def _task(spec, mat_dicts, minfo, settings, swept, truth, compare, scenes) -> Ta
     truth_s = None if truth is None else {**truth, "directions": truth["directions"] or settings["directions"]}
     tile_spec = {k: v for k, v in spec.items() if k != "label"}
     tile_key = digest({k: tile_spec[k] for k in ("kind", "family", "fn", "path", "sha256", "params") if k in tile_spec})
+    # block_rays only where the file sets it: the hashes of the tasks that do not stay what they were
     scene_in = [{k: s[k] for k in ("name", "sha256", "slot", "width", "height", "aa", "shadow_samples", "exposure")}
-                for s in scenes]
+                | ({} if s.get("block_rays") is None else {"block_rays": s["block_rays"]}) for s in scenes]
     h = digest({"format": FORMAT, "tile": tile_key, "materials": mat_dicts, "bake": settings, "truth": truth_s,
                 "compare": compare, "scenes": scene_in})
     bake_label = ", ".join(f"{k}={_fmt(v)}" for k, v in swept.items())
