@@ -421,10 +421,7 @@ def ssdf_eval(field_basis, coeffs_per_point, resolution: int, dirs) -> np.ndarra
     coordinates x = u·S − ½, y = v·S − ½ (u, v = ssdf.octahedral_encode(ω)), clamped to
     [0, S − 1], texel (i, j) at flat index j·S + i. → (P,) or (P, K).
     """
-    basis = np.asarray(field_basis, np.float64).reshape(-1, int(resolution) ** 2)
-    c = np.atleast_2d(np.asarray(coeffs_per_point, np.float64))
-    if c.shape[1] != basis.shape[0] - 1:
-        raise ValueError(f"coeffs_per_point has {c.shape[1]} terms for a basis of {basis.shape[0] - 1}")
+    basis, c = _basis_and_coeffs(field_basis, coeffs_per_point, resolution, "coeffs_per_point")
     d = np.asarray(dirs, np.float64)
     single = d.ndim == 2
     if single:
@@ -438,12 +435,18 @@ def ssdf_at_axes(field_basis, coeffs, resolution: int, axes) -> np.ndarray:
     """θd (rad, float64) of every point of `coeffs` (V, R) at a few fixed directions `axes` (K, 3): (V, K),
     ssdf_eval's at each point and axis. θd is linear in the coefficients, so a barycentric blend of three
     vertices' rows is θd at the blend's point: the renderer's environment lobes take theirs that way."""
+    basis, c = _basis_and_coeffs(field_basis, coeffs, resolution, "coeffs")
+    images = _basis_at(basis, int(resolution), np.asarray(axes, np.float64).reshape(1, -1, 3))[:, 0]  # (R + 1, K)
+    return images[0] + c @ images[1:]
+
+
+def _basis_and_coeffs(field_basis, coeffs, resolution: int, name: str):
+    """(R + 1, S²) basis and (P, R) coefficients as float64, their term counts checked against each other."""
     basis = np.asarray(field_basis, np.float64).reshape(-1, int(resolution) ** 2)
     c = np.atleast_2d(np.asarray(coeffs, np.float64))
     if c.shape[1] != basis.shape[0] - 1:
-        raise ValueError(f"coeffs has {c.shape[1]} terms for a basis of {basis.shape[0] - 1}")
-    images = _basis_at(basis, int(resolution), np.asarray(axes, np.float64).reshape(1, -1, 3))[:, 0]  # (R + 1, K)
-    return images[0] + c @ images[1:]
+        raise ValueError(f"{name} has {c.shape[1]} terms for a basis of {basis.shape[0] - 1}")
+    return basis, c
 
 
 def _basis_at(basis, s: int, d) -> np.ndarray:
