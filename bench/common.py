@@ -131,13 +131,14 @@ def timed(fn, runs: int, sync=None, *, make_input=None, budget_s: float | None =
     return Timed(med, times, max(first_s - med, 0.0), first, results)
 
 
-def block_rays_option(block: bool) -> dict:
-    """wb.render's keyword for rays shared in 2×2 blocks or not, said outright: its default ("auto") shares them from
-    320×240 up. An older tree (A/B runs) without the option gets none for False, and refuses True."""
+def block_rays_option(block) -> dict:
+    """wb.render's keyword for the rays shared in pixel blocks or not, said outright (False, True: 2×2, or a side
+    2 / 4): its default ("auto") shares them from 320×240 up. An older tree (A/B runs) without the option gets none
+    for False, and refuses anything else."""
     import inspect
 
     if block or "block_rays" in inspect.signature(wb.render).parameters:
-        return {"block_rays": bool(block)}
+        return {"block_rays": block if isinstance(block, int) and not isinstance(block, bool) else bool(block)}
     return {}
 
 

@@ -116,18 +116,28 @@ CL_INLINE int2 ray_part(int samples, int part_index, int part_count)
     return (int2)(part_index % stride, stride);
 }
 
-#define BLOCK_SLOTS 4 /* = trace.BLOCK_SLOTS: the pixels of a 2x2 block, which share their rays */
+#define BLOCK_SLOTS 4 /* = trace.BLOCK_SLOTS: the pixels of a 2x2 block; a set of at least this many rays is shared */
 
-/* (first, stride, turn pixel) of the rays pixel `pixel` traces of a set of `samples` (trace.pixel_parts): with
- * block_width W > 0 and samples >= BLOCK_SLOTS, slot q = x mod 2 + 2 (y mod 2) of its 2x2 block takes part
- * q + 4 part_index of 4 part_count, its rays turned by the block's first pixel, so that the block's pixels trace
- * the sample's part between them; else the sample's part, turned by the pixel itself. */
-CL_INLINE int3 pixel_part(int samples, int part_index, int part_count, int block_width, int pixel)
+/* The side of the pixel blocks that share a set of `samples` rays (trace.block_side): 1 (each pixel its own)
+ * without a block width or for fewer than BLOCK_SLOTS rays, 4 where asked and samples >= 16 part_count, else 2. */
+CL_INLINE int set_block_side(int samples, int part_count, int block_width, int block_side)
 {
-    if (block_width > 0 && samples >= BLOCK_SLOTS) {
-        int x = pixel % block_width, y = pixel / block_width;
-        int2 part = ray_part(samples, x % 2 + 2 * (y % 2) + BLOCK_SLOTS * part_index, BLOCK_SLOTS * part_count);
-        return (int3)(part.x, part.y, pixel - x % 2 - (y % 2) * block_width);
+    if (block_width <= 0 || samples < BLOCK_SLOTS)
+        return 1;
+    return (block_side == 4 && samples >= 16 * part_count) ? 4 : 2;
+}
+
+/* (first, stride, turn pixel) of the rays pixel `pixel` traces of a set of `samples` (trace.pixel_parts): where
+ * the set is shared in s x s blocks (s = set_block_side > 1), slot q = x mod s + s (y mod s) of its block takes
+ * part q + s^2 part_index of s^2 part_count, its rays turned by the block's first pixel, so that the block's pixels
+ * trace the sample's part between them; else the sample's part, turned by the pixel itself. */
+CL_INLINE int3 pixel_part(int samples, int part_index, int part_count, int block_width, int block_side, int pixel)
+{
+    int side = set_block_side(samples, part_count, block_width, block_side);
+    if (side > 1) {
+        int x = pixel % block_width, y = pixel / block_width, slots = side * side;
+        int2 part = ray_part(samples, x % side + side * (y % side) + slots * part_index, slots * part_count);
+        return (int3)(part.x, part.y, pixel - x % side - (y % side) * block_width);
     }
     int2 part = ray_part(samples, part_index, part_count);
     return (int3)(part.x, part.y, pixel);

@@ -1048,7 +1048,8 @@ __kernel void shade_pixels(
     __global const uint *lobe_occlusion, /* (P,) sharp lobes' ray masks */
     const int n_sharp,
     const int part_index, const int part_count, /* the anti-aliasing sample's rays of each set (ray_part) */
-    const int block_width,              /* > 0: the rays shared in 2x2 pixel blocks (pixel_part) ... */
+    const int block_width,              /* > 0: the rays shared in pixel blocks (pixel_part) ... */
+    const int block_side,               /* ... of this side at most (2 or 4; set_block_side) ... */
     __global const uint *occlusion_known, /* ... (P,) the occlusion rays each pixel was lent */
     __global const uint *lobe_known,    /* (P,) and the lobe rays */
     __global const int *faces,          /* (F, 3) */
@@ -1109,9 +1110,9 @@ __kernel void shade_pixels(
     float3 wo_local = normalize3((float3)(dot3(wo, s.t), dot3(wo, s.b), cos_o));
     /* The occlusion rays' mask and frame (about the geometric normal on the camera's side, as traced), and
      * which rays of the occlusion and lobe ray sets this anti-aliasing sample traced: the pixel's own part, or,
-     * with block_width > 0, those its 2x2 block lent it (share_block_masks' known bits). */
-    int3 occlusion_part = pixel_part(occlusion_samples, part_index, part_count, block_width, p);
-    int3 lobe_part = pixel_part(LOBE_RAYS, part_index, part_count, block_width, p);
+     * with block_width > 0, those its pixel block lent it (share_block_masks' known bits). */
+    int3 occlusion_part = pixel_part(occlusion_samples, part_index, part_count, block_width, block_side, p);
+    int3 lobe_part = pixel_part(LOBE_RAYS, part_index, part_count, block_width, block_side, p);
     Occlusion occ = {0u, occlusion_samples, part_bits(occlusion_part.x, occlusion_part.y, occlusion_samples),
                      (float3)(1.0f, 0.0f, 0.0f), (float3)(0.0f, 1.0f, 0.0f), (float3)(0.0f, 0.0f, 1.0f),
                      1.0f, 0.0f, disk_radii};

@@ -137,7 +137,8 @@ __kernel void trace_shadows(
     __global const int *light_samples,   /* (L,) rays a pixel for each light (trace.light_samples) */
     const float eps, const float t_min,
     const int part_index, const int part_count, /* the anti-aliasing sample's rays of the set (ray_part) */
-    const int block_width,               /* > 0: shared in the 2x2 pixel blocks of frame rows this wide (pixel_part) */
+    const int block_width,               /* > 0: shared in the pixel blocks of frame rows this wide (pixel_part) ... */
+    const int block_side,                /* ... of this side at most (2 or 4; set_block_side) */
     __global const uchar *changed,       /* only_changed: the pixels flagged here alone (mark_changed: anti- */
     const int only_changed,              /* aliasing shaded once a pixel; the others keep their rays) */
     const int n_pixels, const int n_lights,
@@ -152,7 +153,7 @@ __kernel void trace_shadows(
         return;
     int hits = 0;
     int samples = light_samples[k];
-    int3 part = pixel_part(samples, part_index, part_count, block_width, p);
+    int3 part = pixel_part(samples, part_index, part_count, block_width, block_side, p);
     int traced = (samples - part.x + part.y - 1) / part.y;
     if (f >= 0) {
         float3 ng, n;
@@ -203,7 +204,7 @@ __kernel void trace_occlusion(
     __global const float *position,      /* (P, 3) */
     const float eye_x, const float eye_y, const float eye_z,
     const float eps, const float t_min, const int samples,
-    const int part_index, const int part_count, const int block_width,
+    const int part_index, const int part_count, const int block_width, const int block_side,
     __global const uchar *changed, const int only_changed, /* as trace_shadows' */
     const int n_pixels,
     __global uint *mask)                 /* (P,) */
@@ -221,7 +222,7 @@ __kernel void trace_occlusion(
                              (float3)(eye_x, eye_y, eye_z), eps, &n, &ns);
         float3 a, b;
         disk_basis(n, &a, &b);
-        int3 part = pixel_part(samples, part_index, part_count, block_width, p);
+        int3 part = pixel_part(samples, part_index, part_count, block_width, block_side, p);
         for (int i = part.x; i < samples; i += part.y) {
             float3 d = occlusion_direction(a, b, n, i, samples, part.z);
             if (bvh_any_hit(nodes, tris, o, d, t_min, INFINITY))
@@ -248,7 +249,7 @@ __kernel void trace_lobe_rays(
     __global const float *lobes,         /* (M, 4) [axis, η] */
     const int n_lobes, const int rays,   /* LOBE_RAYS, passed in as the Warp twin takes it */
     const float eps, const float t_min,
-    const int part_index, const int part_count, const int block_width,
+    const int part_index, const int part_count, const int block_width, const int block_side,
     __global const uchar *changed, const int only_changed, /* as trace_shadows' */
     const int n_pixels,
     __global uint *mask)                 /* (P,) */
@@ -264,7 +265,7 @@ __kernel void trace_lobe_rays(
         float3 ng, n;
         float3 o = ray_start(points, normals, faces, face_normals, f, bary, p, position,
                              (float3)(eye_x, eye_y, eye_z), eps, &ng, &n);
-        int3 part = pixel_part(rays, part_index, part_count, block_width, p);
+        int3 part = pixel_part(rays, part_index, part_count, block_width, block_side, p);
         for (int k = 0; k < n_lobes; ++k) {
             float3 w = (float3)(lobes[4 * k], lobes[4 * k + 1], lobes[4 * k + 2]);
             float3 a, b;
@@ -288,11 +289,11 @@ CL_INLINE float3 seen_normal(__global const float *face_normals, int f, float3 x
     return dot3(n, eye - x) < 0.0f ? -n : n;
 }
 
-/* The pixel in slot q of pixel p's 2x2 block. */
-CL_INLINE int block_pixel(int p, int width, int q)
+/* The pixel in slot q of pixel p's side x side block. */
+CL_INLINE int block_pixel(int p, int width, int q, int side)
 {
     int x = p % width, y = p / width;
-    return (y - y % 2 + q / 2) * width + x - x % 2 + q % 2;
+    return (y - y % side + q / side) * width + x - x % side + q % side;
 }
 
 /* Whether a hit xq with geometric normal nb (turned to the eye) lies on the surface of the hit xp with normal ng
@@ -303,20 +304,19 @@ CL_INLINE int same_surface(float3 ng, float3 xp, float3 nb, float3 xq)
     return dot3(ng, nb) >= SHARE_NORMAL_COS && fabs(dot3(ng, d)) <= SHARE_PLANE * sqrt(dot3(d, d));
 }
 
-/* Bit q set where the pixel in slot q of hit pixel p's 2x2 block lends p its rays (trace.share_block): p itself,
- * or a hit neighbour in the frame whose geometric normal is within SHARE_NORMAL_COS of p's and which lies near
- * p's tangent plane (SHARE_PLANE), so that a depth or crease edge keeps each side's rays apart. */
+/* Bit q set where the pixel in slot q of hit pixel p's side x side block lends p its rays (trace.share_block): p
+ * itself, or a hit neighbour in the frame whose geometric normal is within SHARE_NORMAL_COS of p's and which lies
+ * near p's tangent plane (SHARE_PLANE), so that a depth or crease edge keeps each side's rays apart. */
 CL_INLINE int block_lenders(__global const int *face, __global const float *position,
-                            __global const float *face_normals, float3 eye, int width, int n_pixels, int p)
+                            __global const float *face_normals, float3 eye, int width, int n_pixels, int p, int side)
 {
-    int x = p % width, y = p / width;
+    int x = p % width;
     float3 xp = load3(position, p);
     float3 ng = seen_normal(face_normals, face[p], xp, eye);
     int lenders = 0;
-    for (int q = 0; q < BLOCK_SLOTS; ++q) {
-        int xb = x - x % 2 + q % 2;
-        int b = (y - y % 2 + q / 2) * width + xb;
-        if (xb < width && b < n_pixels) {
+    for (int q = 0; q < side * side; ++q) {
+        int b = block_pixel(p, width, q, side);
+        if (x - x % side + q % side < width && b < n_pixels) {
             if (b == p) {
                 lenders |= 1 << q;
             } else if (face[b] >= 0) {
@@ -330,15 +330,16 @@ CL_INLINE int block_lenders(__global const int *face, __global const float *posi
 }
 
 /* One work-item per pixel (reference.share_block_masks): the union of the ray masks (occlusion or lobe rays, a
- * set of `samples`) that the pixels of its 2x2 block lend it (block_lenders), and of the rays they traced
- * (pixel_part with block width `width`): what the shade stage weighs. A set of fewer than BLOCK_SLOTS rays is
- * not shared: the pixel's own. 0 for a miss. */
+ * set of `samples`) that the pixels of its block (set_block_side) lend it (block_lenders), and of the rays they
+ * traced (pixel_part with block width `width`): what the shade stage weighs. A set of fewer than BLOCK_SLOTS rays
+ * is not shared: the pixel's own. 0 for a miss. */
 __kernel void share_block_masks(
     __global const int *face,            /* (P,) */
     __global const float *position,      /* (P, 3) */
     __global const float *face_normals,  /* (F, 3) unit, original face order */
     const float eye_x, const float eye_y, const float eye_z,
-    const int width, const int n_pixels, const int samples, const int part_index, const int part_count,
+    const int width, const int block_side, const int n_pixels, const int samples, const int part_index,
+    const int part_count,
     __global const uint *mask,           /* (P,) each pixel's own rays */
     __global uint *shared,               /* (P,) */
     __global uint *known)                /* (P,) */
@@ -348,17 +349,18 @@ __kernel void share_block_masks(
         return;
     uint bits = 0u, traced = 0u;
     if (face[p] >= 0) {
-        if (samples < BLOCK_SLOTS) {
-            int3 part = pixel_part(samples, part_index, part_count, width, p);
+        int side = set_block_side(samples, part_count, width, block_side);
+        if (side == 1) {
+            int3 part = pixel_part(samples, part_index, part_count, width, block_side, p);
             bits = mask[p];
             traced = part_bits(part.x, part.y, samples);
         } else {
             int lenders = block_lenders(face, position, face_normals, (float3)(eye_x, eye_y, eye_z), width,
-                                        n_pixels, p);
-            for (int q = 0; q < BLOCK_SLOTS; ++q) {
+                                        n_pixels, p, side);
+            for (int q = 0; q < side * side; ++q) {
                 if ((lenders >> q) & 1) {
-                    int b = block_pixel(p, width, q);
-                    int3 part = pixel_part(samples, part_index, part_count, width, b);
+                    int b = block_pixel(p, width, q, side);
+                    int3 part = pixel_part(samples, part_index, part_count, width, block_side, b);
                     bits |= mask[b];
                     traced |= part_bits(part.x, part.y, samples);
                 }
@@ -370,14 +372,15 @@ __kernel void share_block_masks(
 }
 
 /* One work-item per pixel (reference.share_block_shadows): each light's visible share over the shadow rays that
- * the pixels of its 2x2 block lend it (block_lenders), sum(traced * share) / sum(traced) in 255ths, rounded; the
- * pixel's own share for a light of fewer than BLOCK_SLOTS rays, and for a miss. */
+ * the pixels of its block (set_block_side for the light's rays) lend it (block_lenders), sum(traced * share) /
+ * sum(traced) in 255ths, rounded; the pixel's own share for a light of fewer than BLOCK_SLOTS rays, and for a
+ * miss. */
 __kernel void share_block_shadows(
     __global const int *face,            /* (P,) */
     __global const float *position,      /* (P, 3) */
     __global const float *face_normals,  /* (F, 3) unit, original face order */
     const float eye_x, const float eye_y, const float eye_z,
-    const int width, const int n_pixels, const int part_index, const int part_count,
+    const int width, const int block_side, const int n_pixels, const int part_index, const int part_count,
     const int n_lights,
     __global const int *light_samples,   /* (L,) rays a pixel for each light (trace.light_samples) */
     __global const uchar *visible,       /* (P, L) each pixel's own rays */
@@ -386,18 +389,23 @@ __kernel void share_block_shadows(
     int p = get_global_id(0);
     if (p >= n_pixels)
         return;
-    int lenders = 0;
-    if (face[p] >= 0)
-        lenders = block_lenders(face, position, face_normals, (float3)(eye_x, eye_y, eye_z), width, n_pixels, p);
+    int hit = face[p] >= 0;
+    int lenders = 0, lenders_side = 0; /* the side `lenders` was found for (lights of one count share it) */
     for (int l = 0; l < n_lights; ++l) {
         int value = visible[(long)p * n_lights + l];
         int samples = light_samples[l];
-        if (lenders != 0 && samples >= BLOCK_SLOTS) {
+        int side = set_block_side(samples, part_count, width, block_side);
+        if (hit && side > 1) {
+            if (side != lenders_side) {
+                lenders = block_lenders(face, position, face_normals, (float3)(eye_x, eye_y, eye_z), width,
+                                        n_pixels, p, side);
+                lenders_side = side;
+            }
             int num = 0, den = 0;
-            for (int q = 0; q < BLOCK_SLOTS; ++q) {
+            for (int q = 0; q < side * side; ++q) {
                 if ((lenders >> q) & 1) {
-                    int b = block_pixel(p, width, q);
-                    int3 part = pixel_part(samples, part_index, part_count, width, b);
+                    int b = block_pixel(p, width, q, side);
+                    int3 part = pixel_part(samples, part_index, part_count, width, block_side, b);
                     int traced = (samples - part.x + part.y - 1) / part.y;
                     num += traced * (int)visible[(long)b * n_lights + l];
                     den += traced;

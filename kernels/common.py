@@ -377,16 +377,30 @@ BLOCK_SLOTS = wp.constant(_trace.BLOCK_SLOTS)
 
 
 @wp.func
-def pixel_part(samples: int, part_index: int, part_count: int, block_width: int, pixel: int) -> wp.vec3i:
+def set_block_side(samples: int, part_count: int, block_width: int, block_side: int) -> int:
+    """The side of the pixel blocks that share a set of `samples` rays (trace.block_side): 1 (each pixel its own)
+    without a block width or for fewer than BLOCK_SLOTS rays, 4 where asked and samples >= 16 part_count, else 2."""
+    if block_width <= 0 or samples < BLOCK_SLOTS:
+        return 1
+    if block_side == 4 and samples >= 16 * part_count:
+        return 4
+    return 2
+
+
+@wp.func
+def pixel_part(samples: int, part_index: int, part_count: int, block_width: int, block_side: int,
+               pixel: int) -> wp.vec3i:
     """(first, stride, turn pixel) of the rays pixel `pixel` traces of a set of `samples` (trace.pixel_parts):
-    with block_width W > 0 and samples >= BLOCK_SLOTS, slot q = x mod 2 + 2 (y mod 2) of its 2x2 block takes
-    part q + 4 part_index of 4 part_count, its rays turned by the block's first pixel, so that the block's
+    where the set is shared in s x s blocks (s = set_block_side > 1), slot q = x mod s + s (y mod s) of its block
+    takes part q + s^2 part_index of s^2 part_count, its rays turned by the block's first pixel, so that the block's
     pixels trace the sample's part between them; else the sample's part, turned by the pixel itself."""
-    if block_width > 0 and samples >= BLOCK_SLOTS:
+    side = set_block_side(samples, part_count, block_width, block_side)
+    if side > 1:
         x = pixel % block_width
         y = pixel // block_width
-        part = ray_part(samples, x % 2 + 2 * (y % 2) + BLOCK_SLOTS * part_index, BLOCK_SLOTS * part_count)
-        return wp.vec3i(part[0], part[1], pixel - x % 2 - (y % 2) * block_width)
+        slots = side * side
+        part = ray_part(samples, x % side + side * (y % side) + slots * part_index, slots * part_count)
+        return wp.vec3i(part[0], part[1], pixel - x % side - (y % side) * block_width)
     part = ray_part(samples, part_index, part_count)
     return wp.vec3i(part[0], part[1], pixel)
 

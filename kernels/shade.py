@@ -1081,7 +1081,7 @@ def analytic_from_lights(kind: int, ks: wp.vec3, p1: float, p2: float, s: Surfac
 def shade_pixels(
     face: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec2), light_vis: wp.array2d(dtype=wp.uint8),
     occlusion: wp.array(dtype=wp.uint32), occlusion_samples: int, lobe_occlusion: wp.array(dtype=wp.uint32),
-    n_sharp: int, part_index: int, part_count: int, block_width: int,
+    n_sharp: int, part_index: int, part_count: int, block_width: int, block_side: int,
     occlusion_known: wp.array(dtype=wp.uint32), lobe_known: wp.array(dtype=wp.uint32),
     faces: wp.array2d(dtype=wp.int32), positions: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp.vec3),
     tangents: wp.array(dtype=wp.vec3), face_material: wp.array(dtype=wp.int32),
@@ -1125,9 +1125,9 @@ def shade_pixels(
     wo_local = wp.normalize(wp.vec3(wp.dot(wo, s.t), wp.dot(wo, s.b), cos_o))
     # The occlusion rays' mask and frame (about the geometric normal on the camera's side, as traced), and
     # which rays of the occlusion and lobe ray sets this anti-aliasing sample traced: the pixel's own part, or,
-    # with block_width > 0, those its 2x2 block lent it (trace.share_block_masks' known bits).
-    occlusion_part = pixel_part(occlusion_samples, part_index, part_count, block_width, p)
-    lobe_part = pixel_part(LOBE_RAYS, part_index, part_count, block_width, p)
+    # with block_width > 0, those its pixel block lent it (trace.share_block_masks' known bits).
+    occlusion_part = pixel_part(occlusion_samples, part_index, part_count, block_width, block_side, p)
+    lobe_part = pixel_part(LOBE_RAYS, part_index, part_count, block_width, block_side, p)
     occlusion_rays = part_bits(occlusion_part[0], occlusion_part[1], occlusion_samples)
     lobe_rays = part_bits(lobe_part[0], lobe_part[1], LOBE_RAYS)
     mask = wp.uint32(0)

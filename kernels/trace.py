@@ -19,8 +19,8 @@ import warp as wp
 
 from warp_biscale import trace as _trace
 
-from .common import (BLOCK_SLOTS, LOBE_RAYS, disk_basis, disk_sample, lobe_ray_direction, occlusion_direction,
-                     part_bits, pixel_part)
+from .common import (LOBE_RAYS, disk_basis, disk_sample, lobe_ray_direction, occlusion_direction, part_bits,
+                     pixel_part, set_block_side)
 
 SHARE_NORMAL_COS = wp.constant(_trace.SHARE_NORMAL_COS)
 SHARE_PLANE = wp.constant(_trace.SHARE_PLANE)
@@ -147,6 +147,7 @@ def trace_shadows(
     part_index: int,
     part_count: int,
     block_width: int,
+    block_side: int,
     changed: wp.array(dtype=wp.uint8),  # only_changed: the pixels flagged here alone (mark_changed: anti-aliasing
     only_changed: int,  # shaded once a pixel; the others keep their rays)
     offset: int,
@@ -154,7 +155,7 @@ def trace_shadows(
 ):
     """One thread per (light, pixel); neighbouring threads take neighbouring pixels towards one
     light, so their BVH walks stay coherent. The pixel's rays of anti-aliasing sample part_index of part_count
-    (pixel_part, its 2x2 block's share where block_width > 0) among the light's light_samples[k] go to points
+    (pixel_part, its block's share where block_width > 0) among the light's light_samples[k] go to points
     spread over the light's disc (a point light's sphere seen from the pixel; a directional light's cone); the result
     is their visible share in 255ths, rounded."""
     k, p_local = wp.tid()
@@ -164,7 +165,7 @@ def trace_shadows(
         return
     hits = int(0)
     samples = light_samples[k]
-    part = pixel_part(samples, part_index, part_count, block_width, p)
+    part = pixel_part(samples, part_index, part_count, block_width, block_side, p)
     first = part[0]
     stride = part[1]
     traced = (samples - first + stride - 1) // stride
@@ -215,6 +216,7 @@ def trace_occlusion(
     part_index: int,
     part_count: int,
     block_width: int,
+    block_side: int,
     changed: wp.array(dtype=wp.uint8),  # only_changed: the pixels flagged here alone (mark_changed: anti-aliasing
     only_changed: int,  # shaded once a pixel; the others keep their rays)
     offset: int,
@@ -231,7 +233,7 @@ def trace_occlusion(
     if f >= 0:
         o, n, ns = ray_start(points, normals, faces, face_normals[f], f, bary[p], position[p], eye, eps)
         frame = disk_basis(n)
-        part = pixel_part(samples, part_index, part_count, block_width, p)
+        part = pixel_part(samples, part_index, part_count, block_width, block_side, p)
         for i in range(part[0], samples, part[1]):
             d = occlusion_direction(frame, i, samples, part[2])
             if wp.mesh_query_ray_anyhit(mesh, o + t_min * d, d, wp.inf):
@@ -258,6 +260,7 @@ def trace_lobe_rays(
     part_index: int,
     part_count: int,
     block_width: int,
+    block_side: int,
     changed: wp.array(dtype=wp.uint8),  # only_changed: the pixels flagged here alone (mark_changed: anti-aliasing
     only_changed: int,  # shaded once a pixel; the others keep their rays)
     offset: int,
@@ -273,7 +276,7 @@ def trace_lobe_rays(
     bits = wp.uint32(0)
     if f >= 0:
         o, ng, n = ray_start(points, normals, faces, face_normals[f], f, bary[p], position[p], eye, eps)
-        part = pixel_part(rays, part_index, part_count, block_width, p)
+        part = pixel_part(rays, part_index, part_count, block_width, block_side, p)
         for k in range(n_lobes):
             axis = wp.vec3(lobes[k, 0], lobes[k, 1], lobes[k, 2])
             frame = disk_basis(axis)
@@ -294,20 +297,27 @@ def same_surface(ng: wp.vec3, xp: wp.vec3, nb: wp.vec3, xq: wp.vec3) -> bool:
 
 
 @wp.func
-def block_lenders(face: wp.array(dtype=wp.int32), position: wp.array(dtype=wp.vec3),
-                  face_normals: wp.array(dtype=wp.vec3), eye: wp.vec3, width: int, n_pixels: int, p: int) -> int:
-    """Bit q set where the pixel in slot q of hit pixel p's 2x2 block lends p its rays (trace.share_block): p
-    itself, or a hit neighbour in the frame whose geometric normal is within SHARE_NORMAL_COS of p's and which
-    lies near p's tangent plane (SHARE_PLANE), so that a depth or crease edge keeps each side's rays apart."""
+def block_pixel(p: int, width: int, q: int, side: int) -> int:
+    """The pixel in slot q of pixel p's side x side block."""
     x = p % width
     y = p // width
+    return (y - y % side + q // side) * width + x - x % side + q % side
+
+
+@wp.func
+def block_lenders(face: wp.array(dtype=wp.int32), position: wp.array(dtype=wp.vec3),
+                  face_normals: wp.array(dtype=wp.vec3), eye: wp.vec3, width: int, n_pixels: int, p: int,
+                  side: int) -> int:
+    """Bit q set where the pixel in slot q of hit pixel p's side x side block lends p its rays (trace.share_block):
+    p itself, or a hit neighbour in the frame whose geometric normal is within SHARE_NORMAL_COS of p's and which
+    lies near p's tangent plane (SHARE_PLANE), so that a depth or crease edge keeps each side's rays apart."""
+    x = p % width
     xp = position[p]
     ng = seen_side(face_normals[face[p]], xp, eye)
     lenders = int(0)
-    for q in range(BLOCK_SLOTS):
-        xb = x - x % 2 + q % 2
-        b = (y - y % 2 + q // 2) * width + xb
-        if xb < width and b < n_pixels:
+    for q in range(side * side):
+        b = block_pixel(p, width, q, side)
+        if x - x % side + q % side < width and b < n_pixels:
             if b == p:
                 lenders = lenders | (1 << q)
             elif face[b] >= 0:
@@ -317,14 +327,6 @@ def block_lenders(face: wp.array(dtype=wp.int32), position: wp.array(dtype=wp.ve
     return lenders
 
 
-@wp.func
-def block_pixel(p: int, width: int, q: int) -> int:
-    """The pixel in slot q of pixel p's 2x2 block."""
-    x = p % width
-    y = p // width
-    return (y - y % 2 + q // 2) * width + x - x % 2 + q % 2
-
-
 @wp.kernel
 def share_block_masks(
     face: wp.array(dtype=wp.int32),
@@ -332,6 +334,7 @@ def share_block_masks(
     face_normals: wp.array(dtype=wp.vec3),
     eye: wp.vec3,
     width: int,
+    block_side: int,
     n_pixels: int,
     samples: int,
     part_index: int,
@@ -342,24 +345,25 @@ def share_block_masks(
     known: wp.array(dtype=wp.uint32),
 ):
     """One thread per pixel (reference.share_block_masks): the union of the ray masks (occlusion or lobe rays, a
-    set of `samples`) that the pixels of its 2x2 block lend it (block_lenders), and of the rays they traced
-    (pixel_part with block width `width`): what the shade stage weighs. A set of fewer than BLOCK_SLOTS rays is
-    not shared: the pixel's own. 0 for a miss."""
+    set of `samples`) that the pixels of its block (set_block_side) lend it (block_lenders), and of the rays they
+    traced (pixel_part with block width `width`): what the shade stage weighs. A set of fewer than BLOCK_SLOTS rays
+    is not shared: the pixel's own. 0 for a miss."""
     p = wp.tid() + offset
     f = face[p]
     bits = wp.uint32(0)
     traced = wp.uint32(0)
     if f >= 0:
-        if samples < BLOCK_SLOTS:
-            part = pixel_part(samples, part_index, part_count, width, p)
+        side = set_block_side(samples, part_count, width, block_side)
+        if side == 1:
+            part = pixel_part(samples, part_index, part_count, width, block_side, p)
             bits = mask[p]
             traced = part_bits(part[0], part[1], samples)
         else:
-            lenders = block_lenders(face, position, face_normals, eye, width, n_pixels, p)
-            for q in range(BLOCK_SLOTS):
+            lenders = block_lenders(face, position, face_normals, eye, width, n_pixels, p, side)
+            for q in range(side * side):
                 if (lenders >> q) & 1 != 0:
-                    b = block_pixel(p, width, q)
-                    part = pixel_part(samples, part_index, part_count, width, b)
+                    b = block_pixel(p, width, q, side)
+                    part = pixel_part(samples, part_index, part_count, width, block_side, b)
                     bits = bits | mask[b]
                     traced = traced | part_bits(part[0], part[1], samples)
     shared[p] = bits
@@ -373,6 +377,7 @@ def share_block_shadows(
     face_normals: wp.array(dtype=wp.vec3),
     eye: wp.vec3,
     width: int,
+    block_side: int,
     n_pixels: int,
     part_index: int,
     part_count: int,
@@ -383,22 +388,27 @@ def share_block_shadows(
     shared: wp.array2d(dtype=wp.uint8),
 ):
     """One thread per pixel (reference.share_block_shadows): each light's visible share over the shadow rays
-    that the pixels of its 2x2 block lend it (block_lenders), Σ traced·share / Σ traced in 255ths, rounded; the
-    pixel's own share for a light of fewer than BLOCK_SLOTS rays, and for a miss."""
+    that the pixels of its block (set_block_side for the light's rays) lend it (block_lenders), Σ traced·share /
+    Σ traced in 255ths, rounded; the pixel's own share for a light of fewer than BLOCK_SLOTS rays, and for a
+    miss."""
     p = wp.tid() + offset
+    hit = face[p] >= 0
     lenders = int(0)
-    if face[p] >= 0:
-        lenders = block_lenders(face, position, face_normals, eye, width, n_pixels, p)
+    lenders_side = int(0)  # the side `lenders` was found for (lights of one count share it)
     for l in range(n_lights):
         value = int(visible[p, l])
         samples = light_samples[l]
-        if lenders != 0 and samples >= BLOCK_SLOTS:
+        side = set_block_side(samples, part_count, width, block_side)
+        if hit and side > 1:
+            if side != lenders_side:
+                lenders = block_lenders(face, position, face_normals, eye, width, n_pixels, p, side)
+                lenders_side = side
             num = int(0)
             den = int(0)
-            for q in range(BLOCK_SLOTS):
+            for q in range(side * side):
                 if (lenders >> q) & 1 != 0:
-                    b = block_pixel(p, width, q)
-                    part = pixel_part(samples, part_index, part_count, width, b)
+                    b = block_pixel(p, width, q, side)
+                    part = pixel_part(samples, part_index, part_count, width, block_side, b)
                     traced = (samples - part[0] + part[1] - 1) // part[1]
                     num = num + traced * int(visible[b, l])
                     den = den + traced

@@ -347,7 +347,7 @@ brdf = "lambert:albedo=0.5"
     ("material for an unknown tile", lambda t: t + 'tiles = ["nope"]\n', "tiles", ["no [[tile]] has name"]),
     ("render without a scene", lambda t: t + "[compute]\nrender = true\n", "render", ["[[scene]]"]),
     ("bad block_rays", lambda t: t + '[[scene]]\npath = "scene.toml"\nslot = "tile"\nblock_rays = "yes"\n',
-     "block_rays", ["block_rays", "true or false"]),
+     "block_rays", ["block_rays", "true, false or a block side 1, 2 or 4"]),
 ])
 def test_bad_job_files_are_one_line_errors_at_file_line(tmp_path, case, edit, bad_line, words):
     write(tmp_path, "scene.toml", SCENE)
@@ -372,17 +372,17 @@ def test_bad_job_files_are_one_line_errors_at_file_line(tmp_path, case, edit, ba
 
 
 def test_a_scene_chooses_block_rays_and_its_renders_follow(tmp_path):
-    """[[scene]] block_rays (true/false; absent: the renderer's default, shared in 2×2 blocks from 320×240 up) goes
-    into the task's scene and its hash only where it is set, and reaches the render: at 320×240 the default's image
-    is block_rays = true's, bit for bit, and not block_rays = false's."""
+    """[[scene]] block_rays (true/false or a block side; absent: the renderer's default, shared in 2×2 blocks from
+    320×240 up) goes into the task's scene and its hash only where it is set, and reaches the render: at 320×240
+    the default's image is block_rays = true's, bit for bit, and not block_rays = false's nor 4's (4×4 blocks)."""
     write(tmp_path, "scene.toml", SCENE)
     scene = '[[scene]]\npath = "scene.toml"\nslot = "tile"\nwidth = 320\nheight = 240\n'
     texts = {None: BASE + scene, True: BASE + scene + "block_rays = true\n",
-             False: BASE + scene + "block_rays = false\n"}
+             False: BASE + scene + "block_rays = false\n", 4: BASE + scene + "block_rays = 4\n"}
     jobs = {k: load_jobs(write(tmp_path, f"jobs-{k}.toml", t.replace("[0.2, 0.4]", "0.3"))) for k, t in texts.items()}
     for k, j in jobs.items():
         assert [t.scenes[0]["block_rays"] for t in j.tasks] == [k]
-    assert len({j.tasks[0].hash for j in jobs.values()}) == 3
+    assert len({j.tasks[0].hash for j in jobs.values()}) == 4
     images = {}
     for k, j in jobs.items():
         res = batch.run(j, str(tmp_path / f"out-{k}"), progress=False)
@@ -391,6 +391,7 @@ def test_a_scene_chooses_block_rays_and_its_renders_follow(tmp_path):
         images[k] = wb.images.read_image(os.path.join(res.output, "tasks", record["hash"], "render-scene.png"))
     assert np.array_equal(images[None], images[True])
     assert np.abs(images[None] - images[False]).max() > 1e-3
+    assert np.abs(images[None] - images[4]).max() > 1e-3
 
 
 def test_assign_workers_keeps_tiles_together_and_balances():

@@ -188,12 +188,15 @@ def test_shade_without_occlusion_rays_reads_every_lobes_ssdf_angle(backend, effe
                               shade_reference(frame))
 
 
-@pytest.mark.parametrize("part", [(1, 4), (2, 3)])
+@pytest.mark.parametrize("part", [(1, 4), (2, 3), "2x2 blocks", "4x4 blocks"])
 def test_shade_of_an_anti_aliasing_samples_part_of_the_rays(backend, effective_material, part):
     """A G-buffer whose occlusion, lobe and shadow rays are one anti-aliasing sample's part of each set
-    (`trace.ray_part`): the kernel weighs those rays alone, as the float64 reference does (tolerances as
-    test_shade_kernel_matches_reference's); and from the device's own copies it shades the same."""
+    (`trace.ray_part`), or shared in 2×2 or 4×4 pixel blocks (`trace.pixel_parts`: the rays each pixel was lent,
+    turned by its block's first pixel): the kernel weighs those rays alone, as the float64 reference does
+    (tolerances as test_shade_kernel_matches_reference's); and from the device's own copies it shades the same."""
     scene = _scenes(effective_material)["occluded"]
+    width = scene.camera.width
+    part = {"2x2 blocks": (0, 1, width), "4x4 blocks": (0, 1, width, 4)}.get(part, part)
     frame = pack_frame(scene, backend, part=part)
     assert frame.gbuffer.occlusion.any() and frame.gbuffer.lobe_occlusion.any()
     ref = shade_reference(frame)

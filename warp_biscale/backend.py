@@ -182,9 +182,10 @@ class Backend(Protocol):
         Light.packed(); one sample: its centre); a point light's rays stop that offset short of it. Misses get 0, and
         rays below the shading normal's horizon count as blocked. `gbuffer`: None or the GBuffer trace_primary last
         returned (both use the device copy), or any GBuffer with face, bary, position and eye (uploaded). Fills
-        "gbuffer_light_vis"; returns None unless to_host. `part` (index, count[, W]): only the rays each pixel traces
-        for anti-aliasing sample index of count (trace.pixel_parts), with W > 0 shared in the 2×2 pixel blocks of a
-        frame of width W for a light of trace.BLOCK_SLOTS rays or more (trace.share_block;
+        "gbuffer_light_vis"; returns None unless to_host. `part` (index, count[, W[, side]]): only the rays each pixel
+        traces for anti-aliasing sample index of count (trace.pixel_parts), with W > 0 shared in the pixel blocks
+        (side 2 or 4, trace.block_side) of a frame of width W for a light of trace.BLOCK_SLOTS rays or more
+        (trace.share_block;
         reference.share_block_shadows). only_changed: only the pixels whose hit is not on the kept reference frame's
         surface there (trace.changed_pixels; trace_primary's keep); the others keep theirs."""
 
@@ -208,7 +209,7 @@ class Backend(Protocol):
         `part` and only_changed as trace_occlusion's."""
 
     def ray_known(self, mesh) -> tuple:
-        """(occlusion, lobe) (P,) uint32 or None: the rays each pixel was lent by its 2×2 block in the device's
+        """(occlusion, lobe) (P,) uint32 or None: the rays each pixel was lent by its pixel block in the device's
         last trace_occlusion / trace_lobe_rays with a block width (a host GBuffer's occlusion_known, lobe_known)."""
 
     # --- Per-pixel SG shading (stage `shade`: kernels/shade.py, cl/shade.cl; warp_biscale.shading) ---

@@ -41,7 +41,8 @@ compute; their cross product (or the combinations it lists) becomes one `Task` p
     path = "bi-scale.toml"       # a scene file (relative to this file)
     slot = "demo_tile"           # the [material.NAME] of that file the baked material replaces
     width = 128                  # optional: size, aa (default 1), shadow_samples, exposure (default the file's),
-    height = 96                  #   block_rays (true/false; default: shared in 2x2 blocks from 320x240 up)
+    height = 96                  #   block_rays (true/false, or a block side 1, 2, 4; default: shared in 2x2 blocks
+                                 #   from 320x240 up, 4x4 from 1280x720)
 
 A sweep value is a list (``height = [0.2, 0.4]``), a range table (``{ from = 0.1, to = 0.5, steps = 5 }``,
 ``steps`` values evenly spaced, ``log = true`` for a geometric series; or ``step = 0.1``: from, from + step,
@@ -272,6 +273,11 @@ def _parse_toml(ctx, text):
 
 def _check_bool(v):
     return (v, None) if isinstance(v, bool) else (None, "true or false")
+
+
+def _check_block_rays(v):
+    ok = isinstance(v, bool) or (isinstance(v, int) and v in (1, 2, 4))
+    return (v, None) if ok else (None, "true, false or a block side 1, 2 or 4")
 
 
 def _check_int(v):
@@ -594,7 +600,8 @@ def _scenes(ctx, data) -> list:
     for i, item in enumerate(data):
         table = ("scene", i)
         schema = {"path": _check_str, "slot": _check_str, "name": _check_str, "width": _INT, "height": _INT,
-                  "aa": _INT, "shadow_samples": _INT, "exposure": _check_num, "block_rays": _BOOL}
+                  "aa": _INT, "shadow_samples": _INT, "exposure": _check_num,
+                  "block_rays": _check_block_rays}
         v = _read(ctx, table, item, schema, required=("path", "slot"))
         full = ctx.resolve(v["path"])
         if not os.path.isfile(full):

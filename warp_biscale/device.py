@@ -763,7 +763,7 @@ class DeviceBackend:
         light (trace.light_samples); the visible shares left on the device. With if_changed (and to_host False),
         nothing is traced when the device already holds them for this G-buffer, these lights and samples. `part`
         (index, count): only the rays that anti-aliasing sample index of count traces of the set (trace.ray_part),
-        their share; (index, count, W): shared in the 2×2 pixel blocks of a frame of width W (trace.pixel_parts)
+        their share; (index, count, W[, side]): shared in the pixel blocks of a frame of width W (trace.pixel_parts)
         for a light of BLOCK_SLOTS rays or more. only_changed: the pixels not on the kept frame's surface alone
         (`trace_primary`'s keep); the others keep the shares they have."""
         check_mesh(mesh)
@@ -794,7 +794,7 @@ class DeviceBackend:
         shadows the environment by the SSDF alone. With if_changed (and to_host False), nothing is traced
         when the device already holds them for this G-buffer and samples. `part` (index, count): only the
         rays that anti-aliasing sample index of count traces (trace.ray_part), shade then reads those; (index,
-        count, W): shared in 2×2 pixel blocks, as trace_shadows'. only_changed: as trace_shadows'."""
+        count, W): shared in pixel blocks, as trace_shadows'. only_changed: as trace_shadows'."""
         check_mesh(mesh)
         samples = check_occlusion_samples(samples)
         part = check_ray_part(part)
@@ -850,7 +850,7 @@ class DeviceBackend:
 
     def ray_known(self, mesh) -> tuple:
         """(occlusion, lobe), each (P,) uint32 read back, or None where none was traced: the occlusion and lobe
-        rays each pixel was lent by its 2×2 block (trace.share_block) in the device's last trace_occlusion and
+        rays each pixel was lent by its pixel block (trace.share_block) in the device's last trace_occlusion and
         trace_lobe_rays with a block width in their part: what a host GBuffer's occlusion_known and lobe_known
         hold for shade."""
         m = self._trace_mesh(mesh)
@@ -888,7 +888,7 @@ class DeviceBackend:
                 raise ValueError("no shadow rays on the device for these lights: call trace_shadows first")
             occ_samples = m.get("occlusion_samples", 0)
             occ = m["gbuffer_occlusion"] if occ_samples else None
-            part = m.get("occlusion_part", (0, 1, 0)) if occ_samples else (0, 1, 0)
+            part = m.get("occlusion_part", (0, 1, 0, 2)) if occ_samples else (0, 1, 0, 2)
             lobe_occ = None
             if occ_samples and static.n_sharp_lobes:
                 if m.get("lobe_rays") != static.sharp_lobes().tobytes():
@@ -931,7 +931,7 @@ class DeviceBackend:
                                      f"lobes and occlusion_samples > 0, got {None if lobe_h is None else lobe_h.shape}")
                 lobe_occ = self._to_device(lobe_h, "u32")
             known = [None, None]
-            if occ_samples and part[2]:  # rays shared in 2×2 blocks: the bits each pixel was lent
+            if occ_samples and part[2]:  # rays shared in pixel blocks: the bits each pixel was lent
                 for i, (name, on) in enumerate((("occlusion_known", True), ("lobe_known", lobe_occ is not None))):
                     bits = getattr(gbuffer, name)
                     if on:

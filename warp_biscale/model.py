@@ -268,7 +268,7 @@ class GBuffer:
     environment lobe k is blocked (trace_lobe_rays' result, read where occlusion_samples > 0); ray_part
     (index, count[, block_width]): which anti-aliasing sample of how many the light_vis, occlusion and
     lobe_occlusion rays were traced for (trace.pixel_parts: those rays of each set alone), (0, 1) for all of
-    them; with a block width W > 0 the rays were shared in 2×2 pixel blocks (trace.share_block), light_vis,
+    them; with a block width W > 0 the rays were shared in pixel blocks (trace.share_block), light_vis,
     occlusion and lobe_occlusion are the shared results, and occlusion_known and lobe_known (P,) uint32 hold
     the bits of the occlusion and lobe rays each pixel was lent (`Backend.ray_known`)."""
     face: np.ndarray

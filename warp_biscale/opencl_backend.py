@@ -872,12 +872,13 @@ class OpenCLBackend(DeviceBackend):
 
     def _launch_share_block_masks(self, m, face, position, eye, samples, part, n, traced, shared, known):
         self._launch("trace", "share_block_masks", (n,), face, position, self._ray_mesh(m)[3],
-                     *(np.float32(e) for e in eye), *map(np.int32, (part[2], n, samples, part[0], part[1])), traced,
+                     *(np.float32(e) for e in eye), *map(np.int32, (part[2], part[3], n, samples, part[0], part[1])),
+                     traced,
                      shared, known)
 
     def _launch_share_block_shadows(self, m, face, position, eye, samples, part, n, n_lights, traced, shared):
         self._launch("trace", "share_block_shadows", (n,), face, position, self._ray_mesh(m)[3],
-                     *(np.float32(e) for e in eye), *map(np.int32, (part[2], n, part[0], part[1], n_lights)),
+                     *(np.float32(e) for e in eye), *map(np.int32, (part[2], part[3], n, part[0], part[1], n_lights)),
                      self._buffer(samples, np.int32), traced, shared)
 
     def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, part, known, lights, camera,

@@ -23,8 +23,8 @@ from .environment import (
 )
 from .lighting import prefiltered_lookup, sg_irradiance  # noqa: F401
 from .model import facet_shift, radical_inverse  # noqa: F401
-from .trace import (BLOCK_SLOTS, LOBE_RAYS, block_pixel, check_ray_part, disk_basis, disk_sample, light_samples,
-                    lobe_ray_directions, occlusion_directions, part_rays, pixel_parts, ray_starts)
+from .trace import (LOBE_RAYS, block_pixel, block_side, block_sub_lenders, check_ray_part, disk_basis, disk_sample,
+                    light_samples, lobe_ray_directions, occlusion_directions, part_rays, pixel_parts, ray_starts)
 from .sg import one_minus_cos
 from .smallscale import (
     SmallScale,
@@ -902,23 +902,25 @@ def _shadow_rays(v, f, start, lights, eps, t_min, tol, turn, i, samples) -> np.n
 
 def share_block_masks(mask, lenders, samples: int, part) -> tuple[np.ndarray, np.ndarray]:
     """(shared, known), each (P,) uint32 (the kernels' share_block_masks): per hit pixel p, the union of the ray
-    masks `mask` (P,) (occlusion or lobe rays, a set of `samples`) of the pixels of its 2×2 block that lend it
-    their rays (`lenders` (P, 4), trace.share_block), and the bits of the rays they traced (trace.pixel_parts
-    with `part`'s block width). A set of fewer than trace.BLOCK_SLOTS rays is not shared: the pixel's own.
-    0 for a miss (a row of `lenders` all False)."""
+    masks `mask` (P,) (occlusion or lobe rays, a set of `samples`) of the pixels of its block (trace.block_side's
+    side for this set) that lend it their rays (`lenders` (P, s²) of the part's side s, trace.share_block), and the
+    bits of the rays they traced (trace.pixel_parts). A set of fewer than trace.BLOCK_SLOTS rays is not shared: the
+    pixel's own. 0 for a miss (a row of `lenders` all False)."""
     width = check_ray_part(part)[2]
+    side = block_side(samples, part)
     mask = np.asarray(mask, np.uint32)
     p = np.arange(len(mask))
     bit = np.uint64(1) << np.arange(samples, dtype=np.uint64)
-    if samples < BLOCK_SLOTS:
+    if side == 1:
         hit = lenders.any(1)
         bits = (part_rays(samples, part, p).astype(np.uint64) * bit).sum(1, dtype=np.uint64)
         return np.where(hit, mask, 0).astype(np.uint32), np.where(hit, bits, 0).astype(np.uint32)
+    lenders = block_sub_lenders(lenders, width, side)
     shared = np.zeros(len(mask), np.uint64)
     known = np.zeros(len(mask), np.uint64)
-    for q in range(BLOCK_SLOTS):
+    for q in range(side * side):
         take = lenders[:, q]
-        b = np.where(take, block_pixel(p, width, q), p)
+        b = np.where(take, block_pixel(p, width, q, side), p)
         bits = (part_rays(samples, part, b).astype(np.uint64) * bit).sum(1, dtype=np.uint64)
         shared |= np.where(take, mask[b], 0).astype(np.uint64)
         known |= np.where(take, bits, np.uint64(0))
@@ -927,21 +929,24 @@ def share_block_masks(mask, lenders, samples: int, part) -> tuple[np.ndarray, np
 
 def share_block_shadows(visible, lenders, samples, part) -> np.ndarray:
     """(P, L) uint8 (the kernels' share_block_shadows): per hit pixel, each light's visible share `visible`
-    (P, L) over the shadow rays its block's lenders (trace.share_block) traced, (Σ traced·v + ⌊Σ traced/2⌋) //
-    Σ traced in 255ths; the pixel's own for a light of fewer than trace.BLOCK_SLOTS rays (`samples`: one count
-    for every light, or one a light) and for a miss."""
+    (P, L) over the shadow rays its block's lenders traced (the light's block side, trace.block_side; `lenders`
+    (P, s²) of the part's side s, trace.share_block), (Σ traced·v + ⌊Σ traced/2⌋) // Σ traced in 255ths; the
+    pixel's own for a light of fewer than trace.BLOCK_SLOTS rays (`samples`: one count for every light, or one a
+    light) and for a miss."""
     visible = np.asarray(visible, np.uint8)
     width = check_ray_part(part)[2]
     p = np.arange(len(visible))
     out = visible.copy()
     for k, n in enumerate(light_samples(samples, visible.shape[1])):
-        if n < BLOCK_SLOTS:
+        side = block_side(int(n), part)
+        if side == 1:
             continue
+        light_lenders = block_sub_lenders(lenders, width, side)
         num = np.zeros(len(p), np.int64)
         den = np.zeros(len(p), np.int64)
-        for q in range(BLOCK_SLOTS):
-            b = np.where(lenders[:, q], block_pixel(p, width, q), p)
-            traced = np.where(lenders[:, q], part_rays(n, part, b).sum(1), 0)
+        for q in range(side * side):
+            b = np.where(light_lenders[:, q], block_pixel(p, width, q, side), p)
+            traced = np.where(light_lenders[:, q], part_rays(n, part, b).sum(1), 0)
             num += traced * visible[b, k].astype(np.int64)
             den += traced
         on = den > 0

@@ -173,8 +173,11 @@ SHADOW_SAMPLES = 16  # shadow rays per light and pixel: a penumbra in 16 steps, 
 OCCLUSION_SAMPLES = 16
 # block_rays="auto" (the default) shares the rays in 2x2 blocks from this many pixels up: below it two pixels can be
 # much of a contact shadow, above it the blocks cost the image little and a frame three quarters of its rays
-# (docs/design.md, "Rays shared in 2x2 blocks", has the measurements).
+# (docs/design.md, "Rays shared in pixel blocks", has the measurements) ...
 BLOCK_RAYS_MIN_PIXELS = 320 * 240
+# ... and in 4x4 blocks from this many up, where four pixels are as small a part of the image as two are at
+# 640x360: a set of 16 rays a pixel then costs one ray a pixel.
+BLOCK_RAYS_4_MIN_PIXELS = 1280 * 720
 
 
 def pack_frame(scene: Scene, backend="auto", progress=None, timings=None,
@@ -184,8 +187,8 @@ def pack_frame(scene: Scene, backend="auto", progress=None, timings=None,
     (light_vis included, `shadow_samples` rays per light; and the occlusion masks of `occlusion_samples`
     rays per pixel where the scene has an SSDF): what `shading.shade_reference` takes (and `backend.shade`,
     its inputs and G-buffer). `part`: those of anti-aliasing sample (index, count)'s rays alone (`trace.ray_part`),
-    shared in the 2×2 pixel blocks of a frame of width W with (index, count, W) (`trace.pixel_parts`; the G-buffer
-    then holds the shared results and the rays each pixel was lent)."""
+    shared in the pixel blocks of a frame of width W with (index, count, W[, side]) (`trace.pixel_parts`; the
+    G-buffer then holds the shared results and the rays each pixel was lent)."""
     backend = get_backend(backend)
     timings = {} if timings is None else timings
     n_occlusion = check_occlusion_samples(occlusion_samples)
@@ -212,18 +215,26 @@ AA_SHADING = ("sample", "pixel")
 
 
 def check_block_rays(block_rays):
-    """`block_rays` if it is True, False or "auto", else a one-line error."""
-    if not (isinstance(block_rays, bool) or (isinstance(block_rays, str) and block_rays == "auto")):
-        raise ValueError(f"block_rays must be True, False or 'auto', got {block_rays!r}")
-    return block_rays
+    """`block_rays` as "auto" or the side of the pixel blocks that share the rays: 1 (False: each pixel its own),
+    2 (True) or 4; anything else a one-line error."""
+    if isinstance(block_rays, bool):
+        return 2 if block_rays else 1
+    if isinstance(block_rays, str) and block_rays == "auto":
+        return block_rays
+    if isinstance(block_rays, (int, np.integer)) and int(block_rays) in (1, 2, 4):
+        return int(block_rays)
+    raise ValueError(f"block_rays must be True, False, 'auto' or a block side 1, 2 or 4, got {block_rays!r}")
 
 
-def frame_block_rays(block_rays, camera) -> bool:
-    """Whether a frame of `camera` shares its rays in 2x2 blocks: `block_rays` itself, or for "auto" whether the
-    frame has at least BLOCK_RAYS_MIN_PIXELS pixels."""
-    if check_block_rays(block_rays) == "auto":
-        return camera.width * camera.height >= BLOCK_RAYS_MIN_PIXELS
-    return block_rays
+def frame_block_rays(block_rays, camera) -> int:
+    """The side of the pixel blocks that share a frame's rays (1: each pixel its own): `block_rays` itself
+    (`check_block_rays`), or for "auto" 4 from BLOCK_RAYS_4_MIN_PIXELS pixels up, 2 from BLOCK_RAYS_MIN_PIXELS,
+    else 1."""
+    side = check_block_rays(block_rays)
+    if side == "auto":
+        pixels = camera.width * camera.height
+        return 4 if pixels >= BLOCK_RAYS_4_MIN_PIXELS else 2 if pixels >= BLOCK_RAYS_MIN_PIXELS else 1
+    return side
 
 
 def aa_offsets(samples: int, seed: int = 0) -> np.ndarray:
@@ -259,14 +270,15 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     visibility per pixel" and "Sharp environment lobes' visibility per pixel"; 0: the SSDF alone). `split_rays`
     (default): the `aa` samples of a pixel share each set of rays, sample k of n tracing rays k, k + n, … of it
     (`trace.ray_part`), so an anti-aliased frame traces the rays of one frame and its average holds every ray of
-    each set once; False: every sample traces every ray (n times the rays, less noise). `block_rays` True: the
-    pixels of each 2×2 block share their rays too, each tracing a quarter of each
-    set of at least four rays and weighing those of its neighbours on the same surface (`trace.pixel_parts`,
-    `trace.share_block`: a depth or crease edge keeps each side's rays apart), so a frame traces a quarter of the
-    rays, and visibility is averaged over two pixels: at low resolutions a contact shadow or a soft terminator
-    comes out lighter (docs/design.md, "Rays shared in 2×2 blocks"); False: every pixel traces its own; "auto"
-    (default): True from BLOCK_RAYS_MIN_PIXELS (320×240) pixels up, where the blocks cost little, else False
-    (`frame_block_rays`; info["block_rays"] says which).
+    each set once; False: every sample traces every ray (n times the rays, less noise). `block_rays` True (or 2):
+    the pixels of each 2×2 block share their rays too, each tracing a quarter of each set of at least four rays and
+    weighing those of its neighbours on the same surface (`trace.pixel_parts`, `trace.share_block`: a depth or
+    crease edge keeps each side's rays apart), so a frame traces a quarter of the rays, and visibility is averaged
+    over two pixels: at low resolutions a contact shadow or a soft terminator comes out lighter (docs/design.md,
+    "Rays shared in pixel blocks"); 4: 4×4 blocks for each set of at least 16 rays a pixel and sample (a
+    sixteenth of the rays, visibility averaged over four pixels), 2×2 for smaller sets; False (or 1): every pixel
+    traces its own; "auto" (default): 4 from BLOCK_RAYS_4_MIN_PIXELS (1280×720) pixels up, 2 from
+    BLOCK_RAYS_MIN_PIXELS (320×240), else 1 (`frame_block_rays`; info["block_rays"] says which side).
     `aa_shading` "sample" (default): each anti-aliasing sample shaded; "pixel": a pixel shaded once where its samples
     hit the surface its first sample hits, as multisampling does: the first sample traces every ray of each set and
     is shaded whole; a later sample traces (its own part of each set) and shades only the pixels whose hit is not on
@@ -292,7 +304,7 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
                 m.shade_lobes()
     n_aa, n_shadow, n_occlusion = check_frame_options(aa, shadow_samples, occlusion_samples, split_rays, block_rays,
                                                       aa_shading)
-    if method != "sg" and (block_rays is True or aa_shading != "sample"):
+    if method != "sg" and (check_block_rays(block_rays) not in ("auto", 1) or aa_shading != "sample"):
         raise ValueError(f"block_rays and aa_shading are options of the SG renderer (method='sg'), not of "
                          f"method={method!r}")
     if method == "mc":
@@ -376,19 +388,19 @@ def check_no_litspheres(scene: Scene, method: str) -> None:
 
 
 def _accumulate(scene: Scene, backend, n_aa: int, n_shadow, n_occlusion: int, lights, timings: dict, shade,
-                lobes=None, split_rays: bool = True, block_rays: bool = False, shade_once: bool = False,
+                lobes=None, split_rays: bool = True, block_rays: int = 1, shade_once: bool = False,
                 wait: bool = True, to_host: bool = True):
     """The (H, W, 3) image: per anti-aliasing sample (`aa_offsets`) the G-buffer, the shadow rays of
     `lights` (n_shadow a pixel for every light, or one count a light; none when 0), the environment-occlusion
     rays (n_occlusion a pixel; none when 0) and with them the rays of the sharp environment lobes `lobes`
     (`ShadeInputs.sharp_lobes`), then `shade(camera, to_host)` (→ (P, 3) with to_host), averaged with a box filter
     on the device (`accumulate_frame`: one read-back, of the average). With split_rays, sample i of n traces its part
-    (i, n) of each set of rays (`trace.ray_part`), else all of them; with block_rays, shared in 2×2 pixel blocks
-    (`trace.pixel_parts`). shade_once (n > 1): the first sample traces every ray of each set (shared in blocks with
-    block_rays) and is shaded whole; a later one traces its own part (k, n) of each set and shades only the pixels
-    whose hit is off the first sample's surface (`only_changed`), the others adding the first sample's radiance
-    again. wait: wait for each stage, to time it into `timings`; False: the stages queued back to back, as a
-    viewer's frame. to_host False: the image left on the device (→ None)."""
+    (i, n) of each set of rays (`trace.ray_part`), else all of them; with block_rays > 1, shared in pixel blocks
+    of that side (`trace.pixel_parts`). shade_once (n > 1): the first sample traces every ray of each set (shared
+    in blocks with block_rays) and is shaded whole; a later one traces its own part (k, n) of each set and shades
+    only the pixels whose hit is off the first sample's surface (`only_changed`), the others adding the first
+    sample's radiance again. wait: wait for each stage, to time it into `timings`; False: the stages queued back to
+    back, as a viewer's frame. to_host False: the image left on the device (→ None)."""
     cam = scene.camera
 
     def timed(key, t0):
@@ -401,8 +413,8 @@ def _accumulate(scene: Scene, backend, n_aa: int, n_shadow, n_occlusion: int, li
     for i, (jx, jy) in enumerate(aa_offsets(n_aa)):
         sample = dataclasses.replace(cam, jitter=(jx, jy)) if n_aa > 1 else cam
         part = (i, n_aa) if split_rays and not (shade_once and i == 0) else (0, 1)
-        if block_rays and not (shade_once and i):  # (a changed pixel's block holds the first sample's rays)
-            part = (*part, cam.width)
+        if block_rays > 1 and not (shade_once and i):  # (a changed pixel's block holds the first sample's rays)
+            part = (*part, cam.width, block_rays)
         changed = {"only_changed": True} if shade_once and i else {}
         t0 = time.perf_counter()
         backend.trace_primary(scene.mesh, sample, to_host=False, keep=shade_once and i == 1)

@@ -1136,13 +1136,13 @@ def shade_reference(frame: Frame) -> np.ndarray:
 
     samples = int(frame.gbuffer.occlusion_samples) if has_ssdf else 0
     # The rays of each set that the G-buffer's anti-aliasing sample traced (all of them by default).
-    # With a block width, the rays the pixel's 2×2 block lent it (the G-buffer's known bits, trace.share_block).
+    # With a block width, the rays the pixel's block lent it (the G-buffer's known bits, trace.share_block).
     part = check_ray_part(frame.gbuffer.ray_part)
     shared = part[2] > 0
     if shared and samples:
         for name in ("occlusion_known", "lobe_known")[:1 + bool(static.n_sharp_lobes)]:
             if getattr(frame.gbuffer, name) is None:
-                raise ValueError(f"gbuffer.{name} is None, but its ray_part {part} shares rays in 2×2 blocks: "
+                raise ValueError(f"gbuffer.{name} is None, but its ray_part {part} shares rays in pixel blocks: "
                                  "fill it from Backend.ray_known (render.pack_frame does)")
 
     def bits_of(values, count):

@@ -39,7 +39,8 @@ from .scene import Camera, Mesh, _integer
 __all__ = ["T_MIN", "SHADOW_OFFSET", "CHUNK_RAYS", "offsets", "check_mesh", "check_camera", "check_rays",
            "check_lights", "check_gbuffer", "check_shadow_samples", "light_samples", "check_ray_part", "ray_part",
            "part_rays",
-           "pixel_parts", "block_pixel", "share_block", "BLOCK_SLOTS", "SHARE_NORMAL_COS", "SHARE_PLANE",
+           "pixel_parts", "block_side", "block_pixel", "share_block", "block_sub_lenders", "BLOCK_SLOTS", "BLOCK_SIDES",
+           "SHARE_NORMAL_COS", "SHARE_PLANE",
            "same_surface", "changed_pixels",
            "disk_sample", "disk_basis", "VISIBLE",
            "SHADOW_SAMPLES_MAX", "OCCLUSION_SAMPLES_MAX", "check_occlusion_samples", "occlusion_directions",
@@ -49,7 +50,8 @@ T_MIN = 1e-6
 SHADOW_OFFSET = 1e-4
 CHUNK_RAYS = 1 << 22  # any-hit rays per launch: bounds device memory (~100 MB a chunk) for any ray count
 VISIBLE = 255  # a light_vis entry of a fully visible light
-BLOCK_SLOTS = 4  # the pixels of a 2×2 block, which share their rays (pixel_parts)
+BLOCK_SLOTS = 4  # the pixels of a 2×2 block: a set of at least this many rays is shared in blocks (pixel_parts)
+BLOCK_SIDES = (2, 4)  # the sides of the square pixel blocks that may share a set of rays
 SHADOW_SAMPLES_MAX = 1024
 OCCLUSION_SAMPLES_MAX = 32  # one bit each of a pixel's uint32 mask
 LOBE_RAYS = 8  # rays a sharp environment lobe and pixel ...
@@ -206,20 +208,25 @@ def light_samples(samples, n_lights: int) -> np.ndarray:
     return np.array([check_shadow_samples(c) for c in counts], np.int32).reshape(n_lights)
 
 
-def check_ray_part(part) -> tuple[int, int, int]:
-    """→ (index, count, block_width): which of `count` anti-aliasing samples a trace is for (`ray_part`), and the
-    width W of the frame whose 2×2 pixel blocks share each set of rays (`pixel_parts`; 0, the default: each pixel
-    traces the sample's part itself). (0, 1, 0): all rays."""
+def check_ray_part(part) -> tuple[int, int, int, int]:
+    """→ (index, count, block_width, block_side): which of `count` anti-aliasing samples a trace is for
+    (`ray_part`), the width W of the frame whose pixel blocks share each set of rays (`pixel_parts`; 0, the default:
+    each pixel traces the sample's part itself), and the side of those blocks, 2 (the default) or 4
+    (BLOCK_SIDES; `block_side` says which side a set takes). (0, 1, 0, 2): all rays."""
     try:
         index, count, *rest = part
-        if len(rest) > 1:
+        if len(rest) > 2:
             raise ValueError
     except (TypeError, ValueError):
-        raise ValueError(f"ray part must be (index, count) or (index, count, block_width), got {part!r}") from None
+        raise ValueError(f"ray part must be (index, count), (index, count, block_width) or (index, count, "
+                         f"block_width, block_side), got {part!r}") from None
     count = _integer("ray part count", count, 1, 1 << 16, " (anti-aliasing samples sharing the rays)")
     width = _integer("ray part block width", rest[0] if rest else 0, 0, 1 << 20,
-                     " (the frame's width, whose 2x2 pixel blocks share the rays; 0: none)")
-    return _integer("ray part index", index, 0, count - 1, f" (of {count})"), count, width
+                     " (the frame's width, whose pixel blocks share the rays; 0: none)")
+    side = _integer("ray part block side", rest[1] if len(rest) > 1 else 2, 2, 4, " (2 or 4)")
+    if side not in BLOCK_SIDES:
+        raise ValueError(f"ray part block side must be one of {BLOCK_SIDES}, got {side}")
+    return _integer("ray part index", index, 0, count - 1, f" (of {count})"), count, width, side
 
 
 def ray_part(samples: int, part) -> tuple[int, int]:
@@ -231,21 +238,34 @@ def ray_part(samples: int, part) -> tuple[int, int]:
     return int(index) % stride, stride
 
 
+def block_side(samples: int, part) -> int:
+    """The side of the square pixel blocks that share a set of `samples` rays for part (index, count, W, side)
+    (`check_ray_part`; the kernels' set_block_side): 1 (each pixel its own rays) without a block width or for a
+    set of fewer than BLOCK_SLOTS rays; 4 where the part asks for 4 and the set holds a ray for every pixel of a
+    4×4 block and every anti-aliasing sample (samples ≥ 16·count); else 2."""
+    index, count, width, side = check_ray_part(part)
+    if width == 0 or samples < BLOCK_SLOTS:
+        return 1
+    return 4 if side == 4 and samples >= 16 * count else 2
+
+
 def pixel_parts(samples: int, part, pixel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(first, stride, turn) int64 arrays shaped as `pixel`: the rays first, first + stride, … < `samples` of a
-    set that pixel `pixel` traces for part (index, count, block_width) (`check_ray_part`), and the pixel whose
-    hash angle turns them (`disk_sample`). With a block width W > 0 and a set of at least BLOCK_SLOTS rays, the
-    pixel at (x, y) = (p mod W, p div W) is slot q = x mod 2 + 2 (y mod 2) of its 2×2 block and traces part
-    q + 4·index of 4·count, turned by the block's first pixel: the block's pixels trace the sample's part between
-    them in one spiral, which `share_block` then lends to each. Else each pixel traces the sample's own part,
-    turned by itself (the kernels' pixel_part)."""
-    index, count, width = check_ray_part(part)
+    set that pixel `pixel` traces for part (index, count, block_width[, block_side]) (`check_ray_part`), and the
+    pixel whose hash angle turns them (`disk_sample`). Where the set is shared in s×s blocks (s = `block_side`
+    > 1), the pixel at (x, y) = (p mod W, p div W) is slot q = x mod s + s (y mod s) of its block and traces part
+    q + s²·index of s²·count, turned by the block's first pixel: the block's pixels trace the sample's part
+    between them in one spiral, which `share_block` then lends to each. Else each pixel traces the sample's own
+    part, turned by itself (the kernels' pixel_part)."""
+    index, count, width, _ = check_ray_part(part)
+    side = block_side(samples, part)
     p = np.asarray(pixel, np.int64)
-    if width > 0 and samples >= BLOCK_SLOTS:
+    if side > 1:
         x, y = p % width, p // width
-        stride = max(1, min(BLOCK_SLOTS * count, int(samples)))
-        first = (x % 2 + 2 * (y % 2) + BLOCK_SLOTS * index) % stride
-        return first, np.full(p.shape, stride, np.int64), p - x % 2 - (y % 2) * width
+        slots = side * side
+        stride = max(1, min(slots * count, int(samples)))
+        first = (x % side + side * (y % side) + slots * index) % stride
+        return first, np.full(p.shape, stride, np.int64), p - x % side - (y % side) * width
     first, stride = ray_part(samples, part)
     return np.full(p.shape, first, np.int64), np.full(p.shape, stride, np.int64), p
 
@@ -295,37 +315,52 @@ def changed_pixels(face, position, reference_face, reference_position, face_norm
     return ~((face == reference_face) | (same & same_surface(n0, x0, n, x, normal_cos, plane)))
 
 
-def block_pixel(p, width: int, q: int):
-    """The pixel in slot q (x0 + q mod 2, y0 + q div 2) of pixels p's 2×2 blocks in a frame of width `width` (x0, y0:
-    p's column and row rounded down to even; the kernels' block_pixel). Past the frame's last column where the
-    width is odd: check the column, x0 + q mod 2 < width."""
+def block_pixel(p, width: int, q: int, side: int = 2):
+    """The pixel in slot q (x0 + q mod s, y0 + q div s) of pixels p's s×s blocks (s = `side`) in a frame of width
+    `width` (x0, y0: p's column and row rounded down to a multiple of s; the kernels' block_pixel). Past the
+    frame's last column where s does not divide the width: check the column, x0 + q mod s < width."""
     x, y = p % width, p // width
-    return (y - y % 2 + q // 2) * width + x - x % 2 + q % 2
+    return (y - y % side + q // side) * width + x - x % side + q % side
 
 
-def share_block(face, position, face_normals, eye, width: int, pixel=None, normal_cos: float = SHARE_NORMAL_COS,
-                plane: float = SHARE_PLANE) -> np.ndarray:
-    """(P, 4) bool float64 twin of the kernels' block_lenders: for hit pixel p (row y·W + x of a frame of width W),
-    whether the pixel in slot q (x0 + q mod 2, y0 + q div 2) of its 2×2 block (x0, y0 = x, y rounded down to even)
-    lends its rays to p — p itself, or a hit neighbour inside the frame whose geometric normal (turned to the eye)
-    n' has n·n' ≥ SHARE_NORMAL_COS and whose hit x' has |n·(x' − x)| ≤ SHARE_PLANE·|x' − x| (`same_surface`): a
-    depth or crease edge keeps each side's rays to itself. Missed pixels: none. `face_normals` (F, 3) unit.
-    (normal_cos and plane move the two bounds, for a test's margins.)"""
+def share_block(face, position, face_normals, eye, width: int, pixel=None, side: int = 2,
+                normal_cos: float = SHARE_NORMAL_COS, plane: float = SHARE_PLANE) -> np.ndarray:
+    """(P, side²) bool float64 twin of the kernels' block_lenders: for hit pixel p (row y·W + x of a frame of width
+    W), whether the pixel in slot q (x0 + q mod s, y0 + q div s) of its s×s block (s = `side`; x0, y0 = x, y
+    rounded down to a multiple of s) lends its rays to p — p itself, or a hit neighbour inside the frame whose
+    geometric normal (turned to the eye) n' has n·n' ≥ SHARE_NORMAL_COS and whose hit x' has |n·(x' − x)| ≤
+    SHARE_PLANE·|x' − x| (`same_surface`): a depth or crease edge keeps each side's rays to itself. Missed pixels:
+    none. `face_normals` (F, 3) unit. (normal_cos and plane move the two bounds, for a test's margins.)"""
     face = np.asarray(face, np.int64)
     position = np.asarray(position, np.float64).reshape(-1, 3)
     n_all = len(face)
     p = np.arange(n_all) if pixel is None else np.asarray(pixel, np.int64)
     x = p % width
     n_p, hit = _seen_normals(face[p], position[p], face_normals, eye)
-    out = np.zeros((len(p), BLOCK_SLOTS), bool)
-    for q in range(BLOCK_SLOTS):
-        b = block_pixel(p, width, q)
-        inside = (x - x % 2 + q % 2 < width) & (b < n_all)
+    out = np.zeros((len(p), side * side), bool)
+    for q in range(side * side):
+        b = block_pixel(p, width, q, side)
+        inside = (x - x % side + q % side < width) & (b < n_all)
         b = np.where(inside, b, p)
         n_b, hit_b = _seen_normals(face[b], position[b], face_normals, eye)
         same = same_surface(n_p, position[p], n_b, position[b], normal_cos, plane)
         out[:, q] = hit & inside & ((b == p) | (hit_b & same))
     return out
+
+
+def block_sub_lenders(lenders, width: int, side: int, pixel=None) -> np.ndarray:
+    """(P, side²) bool: the lenders of each pixel's side×side block taken from `lenders` (P, S²) of its S×S block
+    (`share_block`, S a multiple of side): the blocks nest, and a pixel lends to another by their hits alone."""
+    lenders = np.asarray(lenders, bool)
+    big = int(round(np.sqrt(lenders.shape[1])))
+    if big == side:
+        return lenders
+    p = np.arange(len(lenders)) if pixel is None else np.asarray(pixel, np.int64)
+    x, y = p % width, p // width
+    ox, oy = x % big - x % side, y % big - y % side  # the small block's corner inside the big one
+    q = np.arange(side * side)
+    slots = (ox[:, None] + q % side) + big * (oy[:, None] + q // side)
+    return np.take_along_axis(lenders, slots, 1)
 
 
 def offsets(mesh) -> tuple[float, float]:

@@ -803,13 +803,13 @@ class WarpBackend(DeviceBackend):
                                               wp.vec3(*m["gbuffer_eye"])], [changed], pieces=FRAME_PIECES)
 
     def _launch_share_block_masks(self, m, face, position, eye, samples, part, n, traced, shared, known):
-        self._launch(ktrace.share_block_masks, n, [face, position, m["face_normals"], wp.vec3(*eye), part[2], n,
-                                                   samples, part[0], part[1], traced], [shared, known],
+        self._launch(ktrace.share_block_masks, n, [face, position, m["face_normals"], wp.vec3(*eye), part[2],
+                                                   part[3], n, samples, part[0], part[1], traced], [shared, known],
                      pieces=FRAME_PIECES)
 
     def _launch_share_block_shadows(self, m, face, position, eye, samples, part, n, n_lights, traced, shared):
-        self._launch(ktrace.share_block_shadows, n, [face, position, m["face_normals"], wp.vec3(*eye), part[2], n,
-                                                     part[0], part[1], n_lights,
+        self._launch(ktrace.share_block_shadows, n, [face, position, m["face_normals"], wp.vec3(*eye), part[2],
+                                                     part[3], n, part[0], part[1], n_lights,
                                                      self._small_upload(m, "light_samples", samples, wp.int32), traced],
                      [shared], pieces=FRAME_PIECES)
 
