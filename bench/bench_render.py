@@ -12,7 +12,11 @@ Parts (records go to --out/results.json; table.md and plots follow):
   sample shaded, or once a pixel), summed on the device.
 - ``stages``: each stage of one frame of the target scene apart, at the first size: the G-buffer, the
   shadow rays (1 and the default count a light), the occlusion and sun-lobe rays, the shading, and the
-  read-backs of the float and the 8-bit frame (not in the default parts).
+  read-backs of the float and the 8-bit frame (not in the default parts); with --block-rays 2 / 4, the ray
+  stages and the shade with the rays shared in those blocks too.
+- ``blocks``: at the first size, what sharing the rays in pixel blocks costs the image (--block-rays, default
+  off 2 4): each setting's frame time and PSNR over the object pixels against the same renderer with 64 shadow
+  and 32 occlusion rays of each pixel's own (not in the default parts).
 - ``pareto``: at a small resolution, the SG image against a Monte Carlo reference (PSNR, RMSE over the
   object pixels; the background is the environment in both) for J, against its frame time; and at the
   largest J without occlusion rays (the SSDF alone).
@@ -84,7 +88,7 @@ def time_frames(scene, backend, frames, runs, shadow_samples=SHADOW_SAMPLES, occ
                 block_rays=False, aa=1, aa_shading="sample"):
     """(median s per frame, precompute s, first-frame extra s, read-back s). A frame is the G-buffer, the
     shadow rays and the shading of each of `aa` anti-aliasing samples (`wb.render`'s options: block_rays, the
-    rays shared in 2×2 pixel blocks; aa_shading), its image left on the device (what an interactive viewer
+    rays shared in pixel blocks; aa_shading), its image left on the device (what an interactive viewer
     draws from): `render.queue_frame`, the stages of `wb.render` without its read-back and per-stage waits.
     The read-back is timed apart: for aa 1 a shade with its read-back less a frame, for aa > 1
     `accumulated_frame` (the average's read-back)."""
@@ -140,7 +144,8 @@ def part_frames(backends, sizes, lobe_list, light_list, term_list, frames, runs,
                                         "precompute_s": pre, "first_call_extra_s": first, "readback_s": back})
                     out.log(f"{be.name:<28} {what:<7} {w}x{h} J={kw['lobes']} lights={kw['lights']} "
                             f"terms={kw['terms']} shadow rays={kw['shadows']} occlusion rays={kw['occlusion']} "
-                            f"2x2 blocks={block} aa={aa} ({aa_shading}): {t * 1e3:9.3f} ms/frame ({1 / t:8.1f} fps), "
+                            f"blocks={common.block_side(block)} aa={aa} ({aa_shading}): {t * 1e3:9.3f} ms/frame "
+                            f"({1 / t:8.1f} fps), "
                             f"precompute {pre:6.2f} s, readback {back * 1e3:7.2f} ms")
 
 
@@ -172,16 +177,18 @@ def part_stages(backends, size, runs, out, repeat=10, block_modes=(False,)):
             "shade + float read-back": lambda: be.shade(mesh, inputs, cam, lights, to_host=True),
             "frame_u8 (tone map + 8-bit read-back)": lambda: be.frame_u8(mesh, w, h),
         }
-        if True in block_modes:  # each set a quarter a pixel, shared in 2×2 blocks (its shade reads the lent rays)
-            blocks = (0, 1, w)
+        for side in sorted({common.block_side(b) for b in block_modes} - {1}):
+            # each set shared in side x side blocks (the shade then reads the lent rays)
+            blocks, tag = (0, 1, w, side), f"{side}x{side} blocks"
             stages.update({
-                f"trace_shadows ({rays}, 2x2 blocks)": lambda: be.trace_shadows(
+                f"trace_shadows ({rays}, {tag})": lambda blocks=blocks: be.trace_shadows(
                     mesh, None, lights, to_host=False, samples=shadow_rays, part=blocks),
-                f"trace_occlusion ({OCCLUSION_SAMPLES} rays, 2x2 blocks)": lambda: be.trace_occlusion(
+                f"trace_occlusion ({OCCLUSION_SAMPLES} rays, {tag})": lambda blocks=blocks: be.trace_occlusion(
                     mesh, None, OCCLUSION_SAMPLES, to_host=False, part=blocks),
-                "trace_lobe_rays (2x2 blocks)": lambda: be.trace_lobe_rays(mesh, None, inputs.sharp_lobes(),
-                                                                           to_host=False, part=blocks),
-                "shade (2x2 blocks)": lambda: be.shade(mesh, inputs, cam, lights, to_host=False)})
+                f"trace_lobe_rays ({tag})": lambda blocks=blocks: be.trace_lobe_rays(
+                    mesh, None, inputs.sharp_lobes(), to_host=False, part=blocks),
+                # (the rays just traced: this side's, as the shade after each set's trace reads them)
+                f"shade ({tag})": lambda: be.shade(mesh, inputs, cam, lights, to_host=False)})
         for name, call in stages.items():
             def loop(call=call):
                 for _ in range(repeat):
@@ -203,7 +210,7 @@ def part_pareto(backends, size, lobe_list, samples, runs, out, block_modes=(Fals
         out.log(f"{be.name}: MC reference {w}x{h} {samples} spp in {t_mc:.1f} s, "
                 f"stderr rms {ref.info.get('stderr_rms')}")
         rows = [(j, OCCLUSION_SAMPLES, False) for j in lobe_list] + [(lobe_list[-1], 0, False)]
-        rows += [(j, OCCLUSION_SAMPLES, True) for j in lobe_list if True in block_modes]
+        rows += [(j, OCCLUSION_SAMPLES, b) for b in block_modes if b is not False for j in lobe_list]
         for j, occlusion, block in rows:
             scene = target_scene(w, h, lobes=j, backend=backend)
             t, pre, first, back = time_frames(scene, be, 3, runs, occlusion_samples=occlusion, block_rays=block)
@@ -216,20 +223,47 @@ def part_pareto(backends, size, lobe_list, samples, runs, out, block_modes=(Fals
                                 "psnr": err["psnr"],
                                 "rmse": err["rmse"],
                                 "mc_samples": samples, "mc_s": t_mc, "mc_stderr_rms": ref.info.get("stderr_rms")})
-            out.log(f"{be.name:<28} J={j:<3} occlusion rays={occlusion:<3} 2x2 blocks={block!s:<5} {t * 1e3:8.3f} ms  "
-                    f"PSNR {err['psnr']:6.2f} dB vs MC")
+            out.log(f"{be.name:<28} J={j:<3} occlusion rays={occlusion:<3} blocks={common.block_side(block)} "
+                    f"{t * 1e3:8.3f} ms  PSNR {err['psnr']:6.2f} dB vs MC")
             if j == lobe_list[-1] and occlusion and not block:
                 img.save(out.path(f"sg-J{j}-{tag}.png"))
                 ref.save(out.path(f"mc-{tag}.png"))
 
 
+def part_blocks(backends, size, runs, out, block_modes=(False, 2, 4), rays=(64, 32)):
+    """What sharing the rays in pixel blocks costs the image, apart from the SG method's own error: the target
+    scene's frame with each block_rays of `block_modes` at the default rays (16 shadow rays a light, 16 occlusion
+    rays), its time (time_frames) and its PSNR over the object pixels against the same renderer with each pixel
+    tracing `rays` (shadow, occlusion) of its own (the rays' noise all but gone)."""
+    w, h = size
+    for backend in backends:
+        be = wb.get_backend(backend)
+        scene = target_scene(w, h, backend=backend)
+        many = wb.render(scene, backend=be, shadow_samples=rays[0], occlusion_samples=rays[1], block_rays=False)
+        mask = (be.trace_primary(scene.mesh, scene.camera).face >= 0).reshape(h, w)
+        for block in block_modes:
+            t, pre, first, back = time_frames(scene, be, 10, runs, block_rays=block)
+            img = wb.render(scene, backend=be, **common.block_rays_option(block))
+            err = wb.compare_images(img.image, many.image, mask=mask)
+            out.records.append({"part": "blocks", "backend": be.name, "device": be.device, "width": w, "height": h,
+                                "block_rays": block, "frame_s": t, "psnr": err["psnr"], "rmse": err["rmse"],
+                                "reference_rays": list(rays)})
+            out.log(f"{be.name:<28} {w}x{h} blocks={common.block_side(block)} {t * 1e3:8.3f} ms  PSNR "
+                    f"{err['psnr']:6.2f} dB against {rays[0]} shadow and {rays[1]} occlusion rays a pixel")
+
+
+def _blocks_cell(r) -> str:
+    side = common.block_side(r.get("block_rays", False))
+    return f"{side}×{side}" if side > 1 else "no"
+
+
 def table(records, meta):
     lines = [f"# Rendering benchmark ({meta['device_kind']})", "", common.commit_line(meta), ""]
     lines += common.markdown_table(
-        ["backend", "sweep", "size", "J", "lights", "PCA terms", "shadow rays", "occlusion rays", "2×2 blocks",
+        ["backend", "sweep", "size", "J", "lights", "PCA terms", "shadow rays", "occlusion rays", "ray blocks",
          "aa (shading)", "ms/frame", "fps", "precompute s", "readback ms"],
         [[r["backend"], r["sweep"], f"{r['width']}×{r['height']}", r["lobes"], r["lights"], r["terms"],
-          r.get("shadows", 1), r.get("occlusion", 0), "yes" if r.get("block_rays") else "no",
+          r.get("shadows", 1), r.get("occlusion", 0), _blocks_cell(r),
           f"{r.get('aa', 1)} ({r.get('aa_shading', 'sample')})",
           f"{r['frame_s'] * 1e3:.3f}", f"{r['fps']:.1f}", f"{r['precompute_s']:.2f}", f"{r['readback_s'] * 1e3:.2f}"]
          for r in records if r["part"] == "frames"])
@@ -238,13 +272,19 @@ def table(records, meta):
         lines += [""] + common.markdown_table(
             ["backend", "size", "stage", "ms"],
             [[r["backend"], f"{r['width']}×{r['height']}", r["stage"], f"{r['stage_s'] * 1e3:.3f}"] for r in stages])
+    blocks = [r for r in records if r["part"] == "blocks"]
+    if blocks:
+        lines += [""] + common.markdown_table(
+            ["backend", "size", "ray blocks", "ms/frame", "PSNR vs many own rays (dB)", "RMSE"],
+            [[r["backend"], f"{r['width']}×{r['height']}", _blocks_cell(r), f"{r['frame_s'] * 1e3:.3f}",
+              f"{r['psnr']:.2f}", f"{r['rmse']:.4g}"] for r in blocks])
     pareto = [r for r in records if r["part"] == "pareto"]
     if pareto:
         lines += [""] + common.markdown_table(
-            ["backend", "size", "J", "occlusion rays", "2×2 blocks", "ms/frame", "PSNR vs MC (dB)", "RMSE", "MC spp",
+            ["backend", "size", "J", "occlusion rays", "ray blocks", "ms/frame", "PSNR vs MC (dB)", "RMSE", "MC spp",
              "MC stderr rms"],
             [[r["backend"], f"{r['width']}×{r['height']}", r["lobes"], r.get("occlusion", 0),
-              "yes" if r.get("block_rays") else "no",
+              _blocks_cell(r),
               f"{r['frame_s'] * 1e3:.3f}", f"{r['psnr']:.2f}", f"{r['rmse']:.4g}", r["mc_samples"],
               f"{r['mc_stderr_rms']:.3g}"] for r in pareto])
     return "\n".join(lines) + "\n"
@@ -254,15 +294,15 @@ def plot(records, folder):
     plt = common.pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     for be in sorted({r["backend"] for r in records if r["part"] == "frames"}):
-        for block in (False, True):
-            label = be + (", 2×2 blocks" if block else "")
+        for side in (1, 2, 4):
+            label = be + (f", {side}×{side} blocks" if side > 1 else "")
             rs = [r for r in records if r["part"] == "frames" and r["backend"] == be and r["sweep"] == "size"
-                  and bool(r.get("block_rays")) == block]
+                  and common.block_side(r.get("block_rays", False)) == side]
             if rs:
                 axes[0].plot([r["width"] * r["height"] / 1e6 for r in rs], [r["frame_s"] * 1e3 for r in rs], "o-",
                              label=label)
             ps = [r for r in records if r["part"] == "pareto" and r["backend"] == be
-                  and bool(r.get("block_rays")) == block]
+                  and common.block_side(r.get("block_rays", False)) == side]
             if ps:
                 axes[1].plot([r["frame_s"] * 1e3 for r in ps], [r["psnr"] for r in ps], "o-", label=label)
                 for r in ps:
@@ -301,13 +341,14 @@ def main(argv=None):
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--frames", type=int, default=10, help="frames a timed loop (3 with --quick)")
     ap.add_argument("--samples", type=int, default=1024, help="Monte Carlo samples a pixel of the reference")
-    ap.add_argument("--block-rays", choices=["off", "on", "both"], default="off",
-                    help="frames with the rays shared in 2x2 pixel blocks (wb.render's block_rays), without, or both")
+    ap.add_argument("--block-rays", nargs="+", choices=list(common.BLOCK_MODES), default=["off"],
+                    help="frames with the rays shared in pixel blocks (wb.render's block_rays: on = 2 = 2x2, 4 = 4x4), "
+                         "without (off), or both (off and on); several: each")
     ap.add_argument("--aa", type=int, nargs="+", default=[1], help="anti-aliasing samples a pixel of the frames")
     ap.add_argument("--aa-shading", nargs="+", choices=["sample", "pixel"], default=["sample"],
                     help="wb.render's aa_shading of the anti-aliased frames (aa > 1)")
     args = ap.parse_args(argv)
-    blocks = {"off": (False,), "on": (True,), "both": (False, True)}[args.block_rays]
+    blocks = common.block_modes(args.block_rays)
     aa_modes = [(aa, shading) for aa in args.aa for shading in (args.aa_shading if aa > 1 else ["sample"])]
     backends = common.backend_names(args.backends)
     if args.quick:
@@ -325,6 +366,9 @@ def main(argv=None):
     if "frames" in args.parts:
         part_frames(backends, sizes, args.lobes, args.lights, args.terms, frames, args.runs, out, args.shadow_samples,
                     args.occlusion_samples, blocks, aa_modes)
+        save()
+    if "blocks" in args.parts:
+        part_blocks(backends, sizes[0], args.runs, out, blocks if len(blocks) > 1 else (False, 2, 4))
         save()
     if "stages" in args.parts:
         part_stages(backends, sizes[0], args.runs, out, block_modes=blocks)

@@ -131,6 +131,22 @@ def timed(fn, runs: int, sync=None, *, make_input=None, budget_s: float | None =
     return Timed(med, times, max(first_s - med, 0.0), first, results)
 
 
+BLOCK_MODES = {"off": (False,), "on": (True,), "2": (2,), "4": (4,), "both": (False, True)}
+
+
+def block_modes(names) -> tuple:
+    """The block_rays values a bench's --block-rays names (off, on = 2×2, 2, 4, both = off and on), in order."""
+    out = []
+    for name in [names] if isinstance(names, str) else names:
+        out += [m for m in BLOCK_MODES[name] if m not in out]
+    return tuple(out)
+
+
+def block_side(block) -> int:
+    """The side of the pixel blocks a block_rays value asks for: False 1, True 2, else the value."""
+    return (2 if block else 1) if isinstance(block, bool) else int(block)
+
+
 def block_rays_option(block) -> dict:
     """wb.render's keyword for the rays shared in pixel blocks or not, said outright (False, True: 2×2, or a side
     2 / 4): its default ("auto") shares them from 320×240 up. An older tree (A/B runs) without the option gets none
