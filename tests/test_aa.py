@@ -320,16 +320,16 @@ def test_block_rays_auto_shares_rays_from_qvga_up(backend):
         frame_block_rays("off", _contact_scene().camera)
 
 
-def test_block_rays_auto_takes_4x4_blocks_from_720p_up(backend):
-    """From render.BLOCK_RAYS_4_MIN_PIXELS (1280×720) pixels up "auto" shares each set of 16 rays in 4×4 blocks
-    (block_rays=4), bit for bit, and says so; below it (1278×720) 2×2. A 4×4 frame differs from the 2×2 one (a
+def test_block_rays_auto_takes_4x4_blocks_from_1080p_up(backend):
+    """From render.BLOCK_RAYS_4_MIN_PIXELS (1920×1080) pixels up "auto" shares each set of 16 rays in 4×4 blocks
+    (block_rays=4), bit for bit, and says so; below it (1918×1080) 2×2. A 4×4 frame differs from the 2×2 one (a
     pixel traces one ray of each set, not four) by shadow noise and blur alone: their mean radiance within 1 %
-    (measured 0.007 % apart on Warp CPU and PoCL)."""
+    (measured 0.005 % apart on Warp CPU and PoCL)."""
     from warp_biscale.render import BLOCK_RAYS_4_MIN_PIXELS, frame_block_rays
 
-    assert BLOCK_RAYS_4_MIN_PIXELS == 1280 * 720
-    assert frame_block_rays("auto", _contact_scene(1278, 720).camera) == 2
-    scene = _contact_scene(1280, 720)
+    assert BLOCK_RAYS_4_MIN_PIXELS == 1920 * 1080
+    assert frame_block_rays("auto", _contact_scene(1918, 1080).camera) == 2
+    scene = _contact_scene(1920, 1080)
     auto = wb.render(scene, backend=backend)
     assert auto.info["block_rays"] == 4
     four = wb.render(scene, backend=backend, block_rays=4).image

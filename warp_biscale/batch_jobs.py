@@ -42,7 +42,7 @@ compute; their cross product (or the combinations it lists) becomes one `Task` p
     slot = "demo_tile"           # the [material.NAME] of that file the baked material replaces
     width = 128                  # optional: size, aa (default 1), shadow_samples, exposure (default the file's),
     height = 96                  #   block_rays (true/false, or a block side 1, 2, 4; default: shared in 2x2 blocks
-                                 #   from 320x240 up, 4x4 from 1280x720)
+                                 #   from 320x240 up, 4x4 from 1920x1080)
 
 A sweep value is a list (``height = [0.2, 0.4]``), a range table (``{ from = 0.1, to = 0.5, steps = 5 }``,
 ``steps`` values evenly spaced, ``log = true`` for a geometric series; or ``step = 0.1``: from, from + step,

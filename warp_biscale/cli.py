@@ -622,7 +622,7 @@ def _add_render_commands(sub):
     r.add_argument("--block-side", dest="block_rays", type=int, choices=[1, 2, 4],
                    help="the side of the pixel blocks that share each set of rays: 1 (each pixel its own), 2, or 4 "
                         "(a sixteenth of the rays of a set of 16 a pixel; 2 for smaller sets); default: 4 from "
-                        "1280x720 pixels up, 2 from 320x240, else 1")
+                        "1920x1080 pixels up, 2 from 320x240, else 1")
     r.add_argument("--aa-shading", choices=["sample", "pixel"],
                    help="sample (default): shade every anti-aliasing sample; pixel: shade a pixel once where its "
                         "samples hit one surface (one material, no depth or crease edge), as multisampling does: edges "

@@ -175,9 +175,9 @@ OCCLUSION_SAMPLES = 16
 # much of a contact shadow, above it the blocks cost the image little and a frame three quarters of its rays
 # (docs/design.md, "Rays shared in pixel blocks", has the measurements) ...
 BLOCK_RAYS_MIN_PIXELS = 320 * 240
-# ... and in 4x4 blocks from this many up, where four pixels are as small a part of the image as two are at
-# 640x360: a set of 16 rays a pixel then costs one ray a pixel.
-BLOCK_RAYS_4_MIN_PIXELS = 1280 * 720
+# ... and in 4x4 blocks from this many up, where a set of 16 rays a pixel costs one ray a pixel: below it four
+# pixels lighten a contact shadow towards the 5 % the contact scene allows (docs/design.md has the measurements).
+BLOCK_RAYS_4_MIN_PIXELS = 1920 * 1080
 
 
 def pack_frame(scene: Scene, backend="auto", progress=None, timings=None,
@@ -277,7 +277,7 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     over two pixels: at low resolutions a contact shadow or a soft terminator comes out lighter (docs/design.md,
     "Rays shared in pixel blocks"); 4: 4×4 blocks for each set of at least 16 rays a pixel and sample (a
     sixteenth of the rays, visibility averaged over four pixels), 2×2 for smaller sets; False (or 1): every pixel
-    traces its own; "auto" (default): 4 from BLOCK_RAYS_4_MIN_PIXELS (1280×720) pixels up, 2 from
+    traces its own; "auto" (default): 4 from BLOCK_RAYS_4_MIN_PIXELS (1920×1080) pixels up, 2 from
     BLOCK_RAYS_MIN_PIXELS (320×240), else 1 (`frame_block_rays`; info["block_rays"] says which side).
     `aa_shading` "sample" (default): each anti-aliasing sample shaded; "pixel": a pixel shaded once where its samples
     hit the surface its first sample hits, as multisampling does: the first sample traces every ray of each set and
