@@ -50,7 +50,7 @@ except ImportError:
 try:  # the shadow rays of each of those lights (an older tree: one count for all)
     from warp_biscale.render import frame_shadow_samples
 except ImportError:
-    def frame_shadow_samples(scene, samples):
+    def frame_shadow_samples(scene, samples, block_side=1):
         return samples
 
 if __package__ in (None, ""):  # run as a file: `bench` importable from the checkout, after site-packages
@@ -180,9 +180,15 @@ def part_stages(backends, size, runs, out, repeat=10, block_modes=(False,)):
         for side in sorted({common.block_side(b) for b in block_modes} - {1}):
             # each set shared in side x side blocks (the shade then reads the lent rays)
             blocks, tag = (0, 1, w, side), f"{side}x{side} blocks"
+            try:  # (an older tree: one count whatever the blocks)
+                side_rays = frame_shadow_samples(scene, SHADOW_SAMPLES, side)
+            except TypeError:
+                side_rays = shadow_rays
+            fewer = sorted({int(n) for n in np.atleast_1d(side_rays)} - {SHADOW_SAMPLES})
+            side_tag = f"{SHADOW_SAMPLES} rays" + "".join(f", {n} a source" for n in fewer)
             stages.update({
-                f"trace_shadows ({rays}, {tag})": lambda blocks=blocks: be.trace_shadows(
-                    mesh, None, lights, to_host=False, samples=shadow_rays, part=blocks),
+                f"trace_shadows ({side_tag}, {tag})": lambda blocks=blocks, side_rays=side_rays: be.trace_shadows(
+                    mesh, None, lights, to_host=False, samples=side_rays, part=blocks),
                 f"trace_occlusion ({OCCLUSION_SAMPLES} rays, {tag})": lambda blocks=blocks: be.trace_occlusion(
                     mesh, None, OCCLUSION_SAMPLES, to_host=False, part=blocks),
                 f"trace_lobe_rays ({tag})": lambda blocks=blocks: be.trace_lobe_rays(

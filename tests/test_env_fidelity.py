@@ -145,6 +145,10 @@ def test_a_source_gets_fewer_shadow_rays_than_the_scenes_lights(monkeypatch):
     assert len(frame_lights(sky)) == 2
     np.testing.assert_array_equal(frame_shadow_samples(sky, 16), [16, cap])
     np.testing.assert_array_equal(frame_shadow_samples(sky, 2), [2, 2])
+    # in 4x4 blocks a source takes 16, one a pixel of the block (8 would fall back to 2x2 blocks: two a pixel)
+    np.testing.assert_array_equal(frame_shadow_samples(sky, 16, 4), [16, 16])
+    np.testing.assert_array_equal(frame_shadow_samples(sky, 32, 4), [32, 16])
+    np.testing.assert_array_equal(frame_shadow_samples(sky, 16, 2), [16, cap])
     studio = wb.Scene(mesh, [wb.Lambert(0.5)], cam, wb.Environment.studio(), [light])
     np.testing.assert_array_equal(frame_shadow_samples(studio, 16), [16])
     backend = wb.get_backend("warp:cpu")
@@ -159,6 +163,9 @@ def test_a_source_gets_fewer_shadow_rays_than_the_scenes_lights(monkeypatch):
     info = wb.render(sky, backend=backend, shadow_samples=16).info
     assert traced == [[16, cap]]
     assert info["shadow_samples"] == 16 and info["source_shadow_samples"] == cap
+    traced.clear()
+    info = wb.render(sky, backend=backend, shadow_samples=16, block_rays=4).info
+    assert traced == [[16, 16]] and info["source_shadow_samples"] == 16 and info["block_rays"] == 4
 
 
 def test_at_most_two_sources_and_no_specks():

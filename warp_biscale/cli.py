@@ -605,7 +605,7 @@ def _add_render_commands(sub):
                                                          f"(default {FILE_AA}; 1: pixel centres only)")
     r.add_argument("--shadow-samples", type=int, metavar="N",
                    help=f"shadow rays per light and pixel over the light's disc (default {SHADOW_SAMPLES}; 1: a hard "
-                        f"shadow; an environment's sun at most {SOURCE_SHADOW_SAMPLES})")
+                        f"shadow; an environment's sun at most {SOURCE_SHADOW_SAMPLES}, 16 in 4x4 ray blocks)")
     r.add_argument("--occlusion-samples", type=int, metavar="N",
                    help=f"environment-occlusion rays a pixel, 0..{OCCLUSION_SAMPLES_MAX}, that shadow the broad "
                         f"environment lobes where the scene occludes itself (default {OCCLUSION_SAMPLES}; 0: the "

@@ -158,12 +158,19 @@ def frame_lights(scene: Scene) -> np.ndarray:
     return np.concatenate([lights, sources]) if len(sources) else lights
 
 
-def frame_shadow_samples(scene: Scene, samples: int) -> np.ndarray:
-    """(L,) int32 the shadow rays a pixel of each of `frame_lights(scene)`: `samples` for the scene's lights, at
-    most lighting.SOURCE_SHADOW_SAMPLES for its environment's sources."""
+def source_shadow_samples(samples: int, block_side: int = 1) -> int:
+    """The shadow rays a pixel of an environment's source: `samples`, at most lighting.SOURCE_SHADOW_SAMPLES, or
+    in a frame whose rays are shared in 4×4 blocks (`block_side`) at most one a pixel of the block (16): there 8 rays
+    would fall back to 2×2 blocks and cost each pixel two rays, 16 cost it one."""
+    return min(int(samples), max(lighting.SOURCE_SHADOW_SAMPLES, int(block_side) ** 2))
+
+
+def frame_shadow_samples(scene: Scene, samples: int, block_side: int = 1) -> np.ndarray:
+    """(L,) int32 the shadow rays a pixel of each of `frame_lights(scene)`: `samples` for the scene's lights,
+    `source_shadow_samples` for its environment's sources (`block_side`: the frame's, `frame_block_rays`)."""
     n = check_shadow_samples(samples)
     counts = np.full(len(frame_lights(scene)), n, np.int32)
-    counts[len(np.asarray(scene.lights_packed).reshape(-1, 8)):] = min(n, lighting.SOURCE_SHADOW_SAMPLES)
+    counts[len(np.asarray(scene.lights_packed).reshape(-1, 8)):] = source_shadow_samples(n, block_side)
     return counts
 
 
@@ -327,7 +334,8 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     static = _static_inputs(scene, backend, progress, timings)
     lights = frame_lights(scene)
     n_occlusion = n_occlusion if static.has_ssdf else 0  # nothing occludes: the rays would all escape
-    image = _accumulate(scene, backend, n_aa, frame_shadow_samples(scene, n_shadow), n_occlusion, lights, timings,
+    image = _accumulate(scene, backend, n_aa, frame_shadow_samples(scene, n_shadow, block_rays), n_occlusion, lights,
+                        timings,
                         lambda cam, to_host, **kw: backend.shade(scene.mesh, static, cam.packed(), lights,
                                                                  to_host=to_host, **kw),
                         static.sharp_lobes(), split_rays, block_rays, aa_shading == "pixel")
@@ -337,7 +345,7 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
             "env_lobes": len(static.env_sgs), "lights": len(lights),
             "environment_sources": len(lights) - len(scene.lights_packed), "width": cam.width, "height": cam.height,
             "aa": n_aa, "shadow_samples": n_shadow,
-            "source_shadow_samples": min(n_shadow, lighting.SOURCE_SHADOW_SAMPLES) if len(lights) > len(
+            "source_shadow_samples": source_shadow_samples(n_shadow, block_rays) if len(lights) > len(
                 scene.lights_packed) else None, "occlusion_samples": n_occlusion, "split_rays": split_rays,
             "block_rays": block_rays, "aa_shading": aa_shading}
     return Rendering(image, timings, info)
@@ -371,7 +379,8 @@ def queue_frame(scene: Scene, backend="auto", aa: int = 1, shadow_samples: int =
     static = _static_inputs(scene, backend, Progress(None), {})
     lights = frame_lights(scene)
     n_occlusion = n_occlusion if static.has_ssdf else 0
-    _accumulate(scene, backend, n_aa, frame_shadow_samples(scene, n_shadow), n_occlusion, lights, {"shade": 0.0},
+    _accumulate(scene, backend, n_aa, frame_shadow_samples(scene, n_shadow, block_rays), n_occlusion, lights,
+                {"shade": 0.0},
                 lambda cam, to_host, **kw: backend.shade(scene.mesh, static, cam.packed(), lights, to_host=to_host,
                                                          **kw),
                 static.sharp_lobes(), split_rays, block_rays, aa_shading == "pixel", wait=False, to_host=False)
