@@ -2,7 +2,8 @@
 SG bake and by the ASG bake (a tile, coloured Blinn–Phong n = 256, K = 12, J lobes): per frame the G-buffer, the
 shadow rays and the shading, left on the device (bench_render.time_frames), hard (1) and soft (16) shadow rays;
 one JSON line each (issue 20's "1080p with ASG materials ≥ 400 fps", and its render speed per material × J);
-`--block-rays`: each also with the rays shared in 2×2 pixel blocks.
+`--block-rays`: each also with the rays shared in 2×2 pixel blocks; `--block-rays 2 4`: with each of those block sides
+(off, on = 2, 2, 4, both; the frames of each).
 The default tile is the pyramid (at most 5 distinct normals, so at most 5 lobes whatever J); the height field
 gives every J its lobes.
 
@@ -20,6 +21,7 @@ import json
 import warnings
 
 import warp_biscale as wb
+from bench import common
 from bench.bench_bake import families
 from bench.bench_render import target_scene, time_frames
 
@@ -38,10 +40,11 @@ def main(argv=None):
     ap.add_argument("--analytic", action="store_true", help="the torus in analytic (an)isotropic materials")
     ap.add_argument("--anisotropic", action="store_true",
                     help="the ASG bake of the tile in anisotropic Ward (the SG bake refuses it)")
-    ap.add_argument("--block-rays", action="store_true",
-                    help="also each frame with the rays shared in 2x2 pixel blocks (wb.render's block_rays)")
+    ap.add_argument("--block-rays", nargs="*", choices=list(common.BLOCK_MODES), default=None,
+                    help="alone: each frame also with the rays shared in 2x2 pixel blocks (wb.render's block_rays); "
+                         "with values (off, on = 2, 2, 4, both): each of those settings")
     args = ap.parse_args(argv)
-    blocks = (False, True) if args.block_rays else (False,)
+    blocks = (False,) if args.block_rays is None else common.block_modes(args.block_rays or ["both"])
     warnings.simplefilter("ignore", wb.EnergyWarning)
     tile = families()[args.tile]
     for backend in args.backends:
