@@ -329,15 +329,45 @@ CL_INLINE int block_lenders(__global const int *face, __global const float *posi
     return lenders;
 }
 
-/* One work-item per pixel (reference.share_block_masks): the union of the ray masks (occlusion or lobe rays, a
- * set of `samples`) that the pixels of its block (set_block_side) lend it (block_lenders), and of the rays they
- * traced (pixel_part with block width `width`): what the shade stage weighs. A set of fewer than BLOCK_SLOTS rays
- * is not shared: the pixel's own. 0 for a miss. */
-__kernel void share_block_masks(
+/* One work-item per pixel: its lenders in its side x side block (block_lenders; 0 for a miss), found once a
+ * G-buffer for every set of rays its frame shares (trace.share_block). */
+__kernel void frame_block_lenders(
     __global const int *face,            /* (P,) */
     __global const float *position,      /* (P, 3) */
     __global const float *face_normals,  /* (F, 3) unit, original face order */
     const float eye_x, const float eye_y, const float eye_z,
+    const int width, const int side, const int n_pixels,
+    __global int *lenders)               /* (P,) */
+{
+    int p = get_global_id(0);
+    if (p >= n_pixels)
+        return;
+    lenders[p] = face[p] >= 0 ? block_lenders(face, position, face_normals, (float3)(eye_x, eye_y, eye_z), width,
+                                              n_pixels, p, side) : 0;
+}
+
+/* The lenders of pixel p's side x side block taken from `lenders`, those of its lenders_side block
+ * (trace.block_sub_lenders): the blocks nest, and a pixel lends to another by their hits alone. */
+CL_INLINE int sub_lenders(int lenders, int p, int width, int lenders_side, int side)
+{
+    if (side == lenders_side)
+        return lenders;
+    int x = p % width, y = p / width;
+    int ox = x % lenders_side - x % side, oy = y % lenders_side - y % side;
+    int out = 0;
+    for (int q = 0; q < side * side; ++q)
+        if ((lenders >> ((ox + q % side) + lenders_side * (oy + q / side))) & 1)
+            out |= 1 << q;
+    return out;
+}
+
+/* One work-item per pixel (reference.share_block_masks): the union of the ray masks (occlusion or lobe rays, a
+ * set of `samples`) that the pixels of its block (set_block_side) lend it (`lenders`, frame_block_lenders' of the
+ * part's block_side), and of the rays they traced (the part of their slot in the block): what the shade stage
+ * weighs. A set of fewer than BLOCK_SLOTS rays is not shared: the pixel's own. 0 for a miss. */
+__kernel void share_block_masks(
+    __global const int *lenders,         /* (P,) */
+    __global const int *face,            /* (P,) */
     const int width, const int block_side, const int n_pixels, const int samples, const int part_index,
     const int part_count,
     __global const uint *mask,           /* (P,) each pixel's own rays */
@@ -355,13 +385,12 @@ __kernel void share_block_masks(
             bits = mask[p];
             traced = part_bits(part.x, part.y, samples);
         } else {
-            int lenders = block_lenders(face, position, face_normals, (float3)(eye_x, eye_y, eye_z), width,
-                                        n_pixels, p, side);
-            for (int q = 0; q < side * side; ++q) {
-                if ((lenders >> q) & 1) {
-                    int b = block_pixel(p, width, q, side);
-                    int3 part = pixel_part(samples, part_index, part_count, width, block_side, b);
-                    bits |= mask[b];
+            int slots = side * side;
+            int lent = sub_lenders(lenders[p], p, width, block_side, side);
+            for (int q = 0; q < slots; ++q) {
+                if ((lent >> q) & 1) {
+                    int2 part = ray_part(samples, q + slots * part_index, slots * part_count);
+                    bits |= mask[block_pixel(p, width, q, side)];
                     traced |= part_bits(part.x, part.y, samples);
                 }
             }
@@ -372,14 +401,12 @@ __kernel void share_block_masks(
 }
 
 /* One work-item per pixel (reference.share_block_shadows): each light's visible share over the shadow rays that
- * the pixels of its block (set_block_side for the light's rays) lend it (block_lenders), sum(traced * share) /
- * sum(traced) in 255ths, rounded; the pixel's own share for a light of fewer than BLOCK_SLOTS rays, and for a
- * miss. */
+ * the pixels of its block (set_block_side for the light's rays) lend it (`lenders`, as share_block_masks'),
+ * sum(traced * share) / sum(traced) in 255ths, rounded; the pixel's own share for a light of fewer than
+ * BLOCK_SLOTS rays, and for a miss. */
 __kernel void share_block_shadows(
+    __global const int *lenders,         /* (P,) */
     __global const int *face,            /* (P,) */
-    __global const float *position,      /* (P, 3) */
-    __global const float *face_normals,  /* (F, 3) unit, original face order */
-    const float eye_x, const float eye_y, const float eye_z,
     const int width, const int block_side, const int n_pixels, const int part_index, const int part_count,
     const int n_lights,
     __global const int *light_samples,   /* (L,) rays a pixel for each light (trace.light_samples) */
@@ -390,24 +417,19 @@ __kernel void share_block_shadows(
     if (p >= n_pixels)
         return;
     int hit = face[p] >= 0;
-    int lenders = 0, lenders_side = 0; /* the side `lenders` was found for (lights of one count share it) */
     for (int l = 0; l < n_lights; ++l) {
         int value = visible[(long)p * n_lights + l];
         int samples = light_samples[l];
         int side = set_block_side(samples, part_count, width, block_side);
         if (hit && side > 1) {
-            if (side != lenders_side) {
-                lenders = block_lenders(face, position, face_normals, (float3)(eye_x, eye_y, eye_z), width,
-                                        n_pixels, p, side);
-                lenders_side = side;
-            }
+            int slots = side * side;
+            int lent = sub_lenders(lenders[p], p, width, block_side, side);
             int num = 0, den = 0;
-            for (int q = 0; q < side * side; ++q) {
-                if ((lenders >> q) & 1) {
-                    int b = block_pixel(p, width, q, side);
-                    int3 part = pixel_part(samples, part_index, part_count, width, block_side, b);
+            for (int q = 0; q < slots; ++q) {
+                if ((lent >> q) & 1) {
+                    int2 part = ray_part(samples, q + slots * part_index, slots * part_count);
                     int traced = (samples - part.x + part.y - 1) / part.y;
-                    num += traced * (int)visible[(long)b * n_lights + l];
+                    num += traced * (int)visible[(long)block_pixel(p, width, q, side) * n_lights + l];
                     den += traced;
                 }
             }

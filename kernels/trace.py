@@ -20,7 +20,7 @@ import warp as wp
 from warp_biscale import trace as _trace
 
 from .common import (LOBE_RAYS, disk_basis, disk_sample, lobe_ray_direction, occlusion_direction, part_bits,
-                     pixel_part, set_block_side)
+                     pixel_part, ray_part, set_block_side)
 
 SHARE_NORMAL_COS = wp.constant(_trace.SHARE_NORMAL_COS)
 SHARE_PLANE = wp.constant(_trace.SHARE_PLANE)
@@ -328,14 +328,49 @@ def block_lenders(face: wp.array(dtype=wp.int32), position: wp.array(dtype=wp.ve
 
 
 @wp.kernel
-def share_block_masks(
+def frame_block_lenders(
     face: wp.array(dtype=wp.int32),
     position: wp.array(dtype=wp.vec3),
     face_normals: wp.array(dtype=wp.vec3),
     eye: wp.vec3,
     width: int,
-    block_side: int,
+    side: int,
     n_pixels: int,
+    offset: int,
+    lenders: wp.array(dtype=wp.int32),
+):
+    """One thread per pixel: its lenders in its side x side block (block_lenders; 0 for a miss), found once a
+    G-buffer for every set of rays its frame shares (trace.share_block)."""
+    p = wp.tid() + offset
+    out = int(0)
+    if face[p] >= 0:
+        out = block_lenders(face, position, face_normals, eye, width, n_pixels, p, side)
+    lenders[p] = out
+
+
+@wp.func
+def sub_lenders(lenders: int, p: int, width: int, lenders_side: int, side: int) -> int:
+    """The lenders of pixel p's side x side block taken from `lenders`, those of its lenders_side block
+    (trace.block_sub_lenders): the blocks nest, and a pixel lends to another by their hits alone."""
+    if side == lenders_side:
+        return lenders
+    x = p % width
+    y = p // width
+    ox = x % lenders_side - x % side
+    oy = y % lenders_side - y % side
+    out = int(0)
+    for q in range(side * side):
+        if (lenders >> ((ox + q % side) + lenders_side * (oy + q // side))) & 1 != 0:
+            out = out | (1 << q)
+    return out
+
+
+@wp.kernel
+def share_block_masks(
+    lenders: wp.array(dtype=wp.int32),
+    face: wp.array(dtype=wp.int32),
+    width: int,
+    block_side: int,
     samples: int,
     part_index: int,
     part_count: int,
@@ -345,40 +380,36 @@ def share_block_masks(
     known: wp.array(dtype=wp.uint32),
 ):
     """One thread per pixel (reference.share_block_masks): the union of the ray masks (occlusion or lobe rays, a
-    set of `samples`) that the pixels of its block (set_block_side) lend it (block_lenders), and of the rays they
-    traced (pixel_part with block width `width`): what the shade stage weighs. A set of fewer than BLOCK_SLOTS rays
-    is not shared: the pixel's own. 0 for a miss."""
+    set of `samples`) that the pixels of its block (set_block_side) lend it (`lenders`, frame_block_lenders' of the
+    part's block_side), and of the rays they traced (the part of their slot in the block): what the shade stage
+    weighs. A set of fewer than BLOCK_SLOTS rays is not shared: the pixel's own. 0 for a miss."""
     p = wp.tid() + offset
-    f = face[p]
     bits = wp.uint32(0)
     traced = wp.uint32(0)
-    if f >= 0:
+    if face[p] >= 0:
         side = set_block_side(samples, part_count, width, block_side)
         if side == 1:
             part = pixel_part(samples, part_index, part_count, width, block_side, p)
             bits = mask[p]
             traced = part_bits(part[0], part[1], samples)
         else:
-            lenders = block_lenders(face, position, face_normals, eye, width, n_pixels, p, side)
-            for q in range(side * side):
-                if (lenders >> q) & 1 != 0:
-                    b = block_pixel(p, width, q, side)
-                    part = pixel_part(samples, part_index, part_count, width, block_side, b)
-                    bits = bits | mask[b]
-                    traced = traced | part_bits(part[0], part[1], samples)
+            slots = side * side
+            lent = sub_lenders(lenders[p], p, width, block_side, side)
+            for q in range(slots):
+                if (lent >> q) & 1 != 0:
+                    slot_part = ray_part(samples, q + slots * part_index, slots * part_count)
+                    bits = bits | mask[block_pixel(p, width, q, side)]
+                    traced = traced | part_bits(slot_part[0], slot_part[1], samples)
     shared[p] = bits
     known[p] = traced
 
 
 @wp.kernel
 def share_block_shadows(
+    lenders: wp.array(dtype=wp.int32),
     face: wp.array(dtype=wp.int32),
-    position: wp.array(dtype=wp.vec3),
-    face_normals: wp.array(dtype=wp.vec3),
-    eye: wp.vec3,
     width: int,
     block_side: int,
-    n_pixels: int,
     part_index: int,
     part_count: int,
     n_lights: int,
@@ -388,29 +419,25 @@ def share_block_shadows(
     shared: wp.array2d(dtype=wp.uint8),
 ):
     """One thread per pixel (reference.share_block_shadows): each light's visible share over the shadow rays
-    that the pixels of its block (set_block_side for the light's rays) lend it (block_lenders), Σ traced·share /
-    Σ traced in 255ths, rounded; the pixel's own share for a light of fewer than BLOCK_SLOTS rays, and for a
-    miss."""
+    that the pixels of its block (set_block_side for the light's rays) lend it (`lenders`, as share_block_masks'),
+    Σ traced·share / Σ traced in 255ths, rounded; the pixel's own share for a light of fewer than BLOCK_SLOTS
+    rays, and for a miss."""
     p = wp.tid() + offset
     hit = face[p] >= 0
-    lenders = int(0)
-    lenders_side = int(0)  # the side `lenders` was found for (lights of one count share it)
     for l in range(n_lights):
         value = int(visible[p, l])
         samples = light_samples[l]
         side = set_block_side(samples, part_count, width, block_side)
         if hit and side > 1:
-            if side != lenders_side:
-                lenders = block_lenders(face, position, face_normals, eye, width, n_pixels, p, side)
-                lenders_side = side
+            slots = side * side
+            lent = sub_lenders(lenders[p], p, width, block_side, side)
             num = int(0)
             den = int(0)
-            for q in range(side * side):
-                if (lenders >> q) & 1 != 0:
-                    b = block_pixel(p, width, q, side)
-                    part = pixel_part(samples, part_index, part_count, width, block_side, b)
+            for q in range(slots):
+                if (lent >> q) & 1 != 0:
+                    part = ray_part(samples, q + slots * part_index, slots * part_count)
                     traced = (samples - part[0] + part[1] - 1) // part[1]
-                    num = num + traced * int(visible[b, l])
+                    num = num + traced * int(visible[block_pixel(p, width, q, side), l])
                     den = den + traced
             value = (num + den // 2) // den
         shared[p, l] = wp.uint8(value)

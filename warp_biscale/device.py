@@ -661,6 +661,7 @@ class DeviceBackend:
                 m[reference], m[name], m[reference + "/spec"] = m[name], spare, ((n,), kind)
             m["reference_eye"] = m["gbuffer_eye"]  # (anti-aliasing's jitter moves the rays, not the eye)
         m["changed_for"], m["occlusion_known/key"], m["lobe_known/key"] = None, None, None
+        m["block_lenders_key"] = None  # (found again from the new hits)
         g = {"face": self._reuse(m, "gbuffer_face", n, "i32"), "bary": self._reuse(m, "gbuffer_bary", n, "vec2"),
              "position": self._reuse(m, "gbuffer_position", n, "vec3"), "t": self._reuse(m, "gbuffer_t", n, "f32")}
         self._launch_trace_primary(m, camera, g["face"], g["bary"], g["position"], g["t"])
@@ -707,6 +708,17 @@ class DeviceBackend:
             raise ValueError(f"ray part block width {width} is not the frame's width {m.get('gbuffer_width')}")
         if not own and n % width:
             raise ValueError(f"ray part block width {width} does not divide the G-buffer's {n} pixels into rows")
+
+    def _frame_lenders(self, m, gbuffer, face, position, eye, n, part):
+        """(P,) int32 on the device: each pixel's lenders in its blocks of part's side (trace.share_block), found
+        once for the device's G-buffer and that side and kept for its other sets of rays (a host GBuffer's each
+        call)."""
+        key = self._rays_key(m, gbuffer, "lenders", part[2], part[3])
+        lenders = self._reuse(m, "block_lenders", n, "i32")
+        if key is None or m.get("block_lenders_key") != key:
+            self._launch_block_lenders(m, face, position, eye, part, n, lenders)
+            m["block_lenders_key"] = key
+        return lenders
 
     def _ray_starts(self, mesh, m, gbuffer):
         """(face, bary, position, eye, P) that shadow, occlusion and lobe rays leave from: the device's own
@@ -783,7 +795,8 @@ class DeviceBackend:
             self._launch_trace_shadows(m, face, bary, position, eye, lights, samples, *self._offsets(mesh, m), part,
                                        self._changed(mesh, m, gbuffer, n, only_changed), n, traced)
             if shared:
-                self._launch_share_block_shadows(m, face, position, eye, samples, part, n, len(lights), traced, vis)
+                lenders = self._frame_lenders(m, gbuffer, face, position, eye, n, part)
+                self._launch_share_block_shadows(m, lenders, face, samples, part, n, len(lights), traced, vis)
         m["light_vis_key"] = key
         return self._to_host(vis, (n, len(lights)), "u8") if to_host else None
 
@@ -810,7 +823,8 @@ class DeviceBackend:
             self._launch_trace_occlusion(m, face, bary, position, eye, *self._offsets(mesh, m), samples, part,
                                          self._changed(mesh, m, gbuffer, n, only_changed), n, traced)
             if part[2]:
-                self._launch_share_block_masks(m, face, position, eye, samples, part, n, traced, mask,
+                self._launch_share_block_masks(m, self._frame_lenders(m, gbuffer, face, position, eye, n, part), face,
+                                               samples, part, n, traced, mask,
                                                self._reuse(m, "occlusion_known", n, "u32"))
             m["occlusion_known/key"] = part
         m["occlusion_key"], m["occlusion_samples"], m["occlusion_part"] = key, samples, part
@@ -840,7 +854,8 @@ class DeviceBackend:
             self._launch_trace_lobe_rays(m, face, bary, position, eye, lobes, *self._offsets(mesh, m), part,
                                          self._changed(mesh, m, gbuffer, n, only_changed), n, traced)
             if part[2]:
-                self._launch_share_block_masks(m, face, position, eye, LOBE_RAYS, part, n, traced, mask,
+                self._launch_share_block_masks(m, self._frame_lenders(m, gbuffer, face, position, eye, n, part), face,
+                                               LOBE_RAYS, part, n, traced, mask,
                                                self._reuse(m, "lobe_known", n, "u32"))
             m["lobe_known/key"] = part
         m["lobe_rays_key"], m["lobe_rays"], m["lobe_part"] = key, lobes.tobytes(), part

@@ -870,15 +870,17 @@ class OpenCLBackend(DeviceBackend):
                      m["reference_position"], self._ray_mesh(m)[3], m["face_material"],
                      *(np.float32(e) for e in m["gbuffer_eye"]), np.int32(n), changed)
 
-    def _launch_share_block_masks(self, m, face, position, eye, samples, part, n, traced, shared, known):
-        self._launch("trace", "share_block_masks", (n,), face, position, self._ray_mesh(m)[3],
-                     *(np.float32(e) for e in eye), *map(np.int32, (part[2], part[3], n, samples, part[0], part[1])),
-                     traced,
-                     shared, known)
+    def _launch_block_lenders(self, m, face, position, eye, part, n, lenders):
+        self._launch("trace", "frame_block_lenders", (n,), face, position, self._ray_mesh(m)[3],
+                     *(np.float32(e) for e in eye), *map(np.int32, (part[2], part[3], n)), lenders)
 
-    def _launch_share_block_shadows(self, m, face, position, eye, samples, part, n, n_lights, traced, shared):
-        self._launch("trace", "share_block_shadows", (n,), face, position, self._ray_mesh(m)[3],
-                     *(np.float32(e) for e in eye), *map(np.int32, (part[2], part[3], n, part[0], part[1], n_lights)),
+    def _launch_share_block_masks(self, m, lenders, face, samples, part, n, traced, shared, known):
+        self._launch("trace", "share_block_masks", (n,), lenders, face,
+                     *map(np.int32, (part[2], part[3], n, samples, part[0], part[1])), traced, shared, known)
+
+    def _launch_share_block_shadows(self, m, lenders, face, samples, part, n, n_lights, traced, shared):
+        self._launch("trace", "share_block_shadows", (n,), lenders, face,
+                     *map(np.int32, (part[2], part[3], n, part[0], part[1], n_lights)),
                      self._buffer(samples, np.int32), traced, shared)
 
     def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, part, known, lights, camera,

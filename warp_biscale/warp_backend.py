@@ -802,16 +802,19 @@ class WarpBackend(DeviceBackend):
                                               m["reference_position"], m["face_normals"], m["face_material"],
                                               wp.vec3(*m["gbuffer_eye"])], [changed], pieces=FRAME_PIECES)
 
-    def _launch_share_block_masks(self, m, face, position, eye, samples, part, n, traced, shared, known):
-        self._launch(ktrace.share_block_masks, n, [face, position, m["face_normals"], wp.vec3(*eye), part[2],
-                                                   part[3], n, samples, part[0], part[1], traced], [shared, known],
-                     pieces=FRAME_PIECES)
+    def _launch_block_lenders(self, m, face, position, eye, part, n, lenders):
+        self._launch(ktrace.frame_block_lenders, n, [face, position, m["face_normals"], wp.vec3(*eye), part[2], part[3],
+                                                     n], [lenders], pieces=FRAME_PIECES)
 
-    def _launch_share_block_shadows(self, m, face, position, eye, samples, part, n, n_lights, traced, shared):
-        self._launch(ktrace.share_block_shadows, n, [face, position, m["face_normals"], wp.vec3(*eye), part[2],
-                                                     part[3], n, part[0], part[1], n_lights,
-                                                     self._small_upload(m, "light_samples", samples, wp.int32), traced],
-                     [shared], pieces=FRAME_PIECES)
+    def _launch_share_block_masks(self, m, lenders, face, samples, part, n, traced, shared, known):
+        self._launch(ktrace.share_block_masks, n, [lenders, face, part[2], part[3], samples, part[0], part[1], traced],
+                     [shared, known], pieces=FRAME_PIECES)
+
+    def _launch_share_block_shadows(self, m, lenders, face, samples, part, n, n_lights, traced, shared):
+        self._launch(ktrace.share_block_shadows, n,
+                     [lenders, face, part[2], part[3], part[0], part[1], n_lights,
+                      self._small_upload(m, "light_samples", samples, wp.int32), traced], [shared],
+                     pieces=FRAME_PIECES)
 
     def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, part, known, lights, camera,
                       n, only_material, changed, kept_mode, kept_amount, kept_scale, out):
