@@ -392,6 +392,16 @@ def test_a_scene_chooses_block_rays_and_its_renders_follow(tmp_path):
     assert np.array_equal(images[None], images[True])
     assert np.abs(images[None] - images[False]).max() > 1e-3
     assert np.abs(images[None] - images[4]).max() > 1e-3
+    # A [[scene]] without the key takes the scene file's own [render] block_rays (and its other ray settings).
+    write(tmp_path, "own.toml", SCENE.replace("env_lobes = 4\n", "env_lobes = 4\nblock_rays = false\n"))
+    own = load_jobs(write(tmp_path, "jobs-own.toml", texts[None].replace("[0.2, 0.4]", "0.3").replace(
+        'path = "scene.toml"', 'path = "own.toml"')))
+    assert own.tasks[0].scenes[0]["block_rays"] is False
+    res = batch.run(own, str(tmp_path / "out-own"), progress=False)
+    record = next(iter(res.records.values()))
+    assert res.done == 1, record
+    image = wb.images.read_image(os.path.join(res.output, "tasks", record["hash"], "render-own.png"))
+    assert np.array_equal(image, images[False])
 
 
 def test_assign_workers_keeps_tiles_together_and_balances():

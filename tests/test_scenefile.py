@@ -360,6 +360,11 @@ def test_toml_syntax_error_has_line_and_column(tmp_path):
     ('[camera]\nfov = 200\n', "fov = 200", ["fov must lie in (0, 180)"]),
     ('[render]\nmethod = "path"\n', "method", ["method must be one of sg, mc"]),
     ('[render]\nbackend = "metal"\n', "backend", ["unknown backend"]),
+    ('[render]\naa = 0\n', "aa = 0", ["[render]", "aa must be"]),
+    ('[render]\nshadow_samples = 0\n', "shadow_samples", ["shadow samples must be"]),
+    ('[render]\nocclusion_samples = 99\n', "occlusion_samples", ["occlusion samples must be"]),
+    ('[render]\nblock_rays = 3\n', "block_rays", ["block_rays must be true, false, \"auto\" or a block side"]),
+    ('[render]\nblock_rays = "yes"\n', "block_rays", ["block_rays must be true, false"]),
     ('[environment]\ntype = "sky"\nsun_edge = 3\n', "sun_edge", ["sun_edge must be in [0, 1]"]),
     ('[[light]]\ntype = "point"\nradius = -1\n', "radius", ["[[light]] #1", "radius must be > 0"]),
     ('[material.g]\ntype = "bake"\ntile = "pyramid"\nbrdf = ["glass"]\n', "brdf", ["unknown BRDF 'glass'"]),
@@ -469,3 +474,32 @@ def test_anisotropic_material_types():
     assert loads_scene(text).scene.materials[0] == wb.AshikhminShirley(rs=0.5, nu=20, nv=400)
     with pytest.raises(SceneError, match="alpha"):
         loads_scene(BASE.replace('type = "lambert"\nalbedo = 0.5', 'type = "anisotropicward"\nalpha = 0.1'))
+
+
+def test_render_table_sets_the_rays_of_the_sg_renderer(tmp_path, capsys):
+    """[render] aa, shadow_samples, occlusion_samples and block_rays: render options of the SG renderer (aa and
+    shadow_samples of the lit-sphere shader too), not of the Monte Carlo reference; SceneFile.render gives them, and
+    the CLI takes each from the file unless its flag is given (aa: the file's, else the CLI's 4): the file's
+    [render] aa = 1 renders as --aa 1, bit for bit."""
+    from warp_biscale import cli
+
+    text = BASE + '\n[render]\nwidth = 24\nheight = 16\naa = 1\nshadow_samples = 4\nocclusion_samples = 8\n' \
+                  'block_rays = false\n\n[[light]]\ntype = "point"\nposition = [0, 3, 0]\nradius = 0.3\n'
+    path = write(tmp_path, text)
+    sf = load_scene(path, backend="warp:cpu")
+    rays = {"aa": 1, "shadow_samples": 4, "occlusion_samples": 8, "block_rays": False}
+    assert sf.render_options() == rays and sf.render_options("sg") == rays
+    assert sf.render_options("litsphere") == {"aa": 1, "shadow_samples": 4}
+    assert sf.render_options("mc") == {}
+    got = sf.render(backend="warp:cpu")
+    assert got.info["aa"] == 1 and got.info["shadow_samples"] == 4 and got.info["block_rays"] == 1
+    assert got.info["occlusion_samples"] in (0, 8)  # (0 where nothing occludes: the rays would all escape)
+    images = {}
+    for flags in ([], ["--aa", "1"], ["--aa", "2"]):
+        out = tmp_path / f"img{len(images)}.exr"
+        assert cli.main(["render", str(path), "-o", str(out), "-q", "--backend", "warp:cpu", *flags]) == 0
+        images[tuple(flags)] = wb.images.read_image(str(out))
+    assert np.array_equal(images[()], images[("--aa", "1")])
+    assert np.abs(images[()] - images[("--aa", "2")]).max() > 0  # the flag wins over the file
+    plain = load_scene(write(tmp_path, BASE, "plain.toml"), backend="warp:cpu")
+    assert plain.render_options("sg") == {} and plain.aa is None

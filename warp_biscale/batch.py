@@ -262,10 +262,11 @@ def execute(task: dict, hook=None, pin: int = 0) -> dict:
             materials = list(sf.scene.materials)
             materials[slot] = mat
             scene = dataclasses.replace(sf.scene, materials=materials, cache={})
-            block_rays = sc.get("block_rays")
+            block_rays, occlusion = sc.get("block_rays"), sc.get("occlusion_samples")
             result = render(scene, method="sg", backend=backend, aa=sc["aa"],
                             shadow_samples=sc["shadow_samples"] or SHADOW_SAMPLES,
-                            block_rays="auto" if block_rays is None else block_rays)
+                            block_rays="auto" if block_rays is None else block_rays,
+                            **({} if occlusion is None else {"occlusion_samples": occlusion}))
             image, thumb = f"render-{sc['name']}.png", f"thumb-{sc['name']}.png"
             result.save(os.path.join(tmp, image), exposure=sc["exposure"])
             _thumbnail(os.path.join(tmp, image), os.path.join(tmp, thumb))

@@ -40,9 +40,10 @@ compute; their cross product (or the combinations it lists) becomes one `Task` p
     [[scene]]                    # scenes each material is rendered in
     path = "bi-scale.toml"       # a scene file (relative to this file)
     slot = "demo_tile"           # the [material.NAME] of that file the baked material replaces
-    width = 128                  # optional: size, aa (default 1), shadow_samples, exposure (default the file's),
-    height = 96                  #   block_rays (true/false, or a block side 1, 2, 4; default: shared in 2x2 blocks
-                                 #   from 320x240 up, 4x4 from 1920x1080)
+    width = 128                  # optional: size, aa, shadow_samples, exposure, block_rays (true/false or a
+    height = 96                  #   block side 1, 2, 4); each unset: the scene file's [render] setting, else aa 1
+                                 #   and the renderer's defaults (block_rays: 2x2 blocks from 320x240, 4x4 from
+                                 #   1920x1080); the file's occlusion_samples too
 
 A sweep value is a list (``height = [0.2, 0.4]``), a range table (``{ from = 0.1, to = 0.5, steps = 5 }``,
 ``steps`` values evenly spaced, ``log = true`` for a geometric series; or ``step = 0.1``: from, from + step,
@@ -623,9 +624,11 @@ def _scenes(ctx, data) -> list:
             raise scene_error(ctx, table, v, exc) from None
         exposure = v.get("exposure", sf.exposure)
         out.append({"name": name, "path": full, "sha256": file_sha256(full), "slot": v["slot"],
-                    "width": v.get("width", sf.width), "height": v.get("height", sf.height), "aa": v.get("aa", 1),
-                    "shadow_samples": v.get("shadow_samples"), "exposure": exposure,
-                    "block_rays": v.get("block_rays")})
+                    "width": v.get("width", sf.width), "height": v.get("height", sf.height),
+                    # the rays: the [[scene]]'s, else the scene file's [render] (aa: else 1)
+                    "aa": v.get("aa", sf.aa or 1), "shadow_samples": v.get("shadow_samples", sf.shadow_samples),
+                    "exposure": exposure, "block_rays": v.get("block_rays", sf.block_rays),
+                    "occlusion_samples": sf.occlusion_samples})
     return out
 
 
@@ -668,9 +671,9 @@ def _task(spec, mat_dicts, minfo, settings, swept, truth, compare, scenes) -> Ta
     truth_s = None if truth is None else {**truth, "directions": truth["directions"] or settings["directions"]}
     tile_spec = {k: v for k, v in spec.items() if k != "label"}
     tile_key = digest({k: tile_spec[k] for k in ("kind", "family", "fn", "path", "sha256", "params") if k in tile_spec})
-    # block_rays only where the file sets it: the hashes of the tasks that do not stay what they were
+    # block_rays and occlusion_samples only where set: the hashes of the tasks that do not stay what they were
     scene_in = [{k: s[k] for k in ("name", "sha256", "slot", "width", "height", "aa", "shadow_samples", "exposure")}
-                | ({} if s.get("block_rays") is None else {"block_rays": s["block_rays"]}) for s in scenes]
+                | {k: s[k] for k in ("block_rays", "occlusion_samples") if s.get(k) is not None} for s in scenes]
     h = digest({"format": FORMAT, "tile": tile_key, "materials": mat_dicts, "bake": settings, "truth": truth_s,
                 "compare": compare, "scenes": scene_in})
     bake_label = ", ".join(f"{k}={_fmt(v)}" for k, v in swept.items())

@@ -320,7 +320,7 @@ def cmd_render(args):
     if method == "mc":
         _refuse_sg_options(args)
     else:
-        options["aa"] = FILE_AA if args.aa is None else args.aa
+        options["aa"] = options.get("aa", FILE_AA) if args.aa is None else args.aa  # flag, then the file's [render]
         if args.shadow_samples is not None:
             options["shadow_samples"] = args.shadow_samples
         if args.occlusion_samples is not None:
@@ -601,15 +601,17 @@ def _add_render_commands(sub):
     r.add_argument("--truth-paths", type=int, metavar="P",
                    help=f"--method mc: paths per direction pair for those truths' bounces 2..B, 1..{MAX_PATHS} "
                         f"(default {BOUNCE_PATHS})")
-    r.add_argument("--aa", type=int, metavar="N", help=f"anti-aliasing: N jittered samples a pixel for the SG renderer "
-                                                         f"(default {FILE_AA}; 1: pixel centres only)")
+    r.add_argument("--aa", type=int, metavar="N",
+                   help=f"anti-aliasing: N jittered samples a pixel for the SG renderer (default: the scene file's "
+                        f"[render] aa, else {FILE_AA}; 1: pixel centres only)")
     r.add_argument("--shadow-samples", type=int, metavar="N",
-                   help=f"shadow rays per light and pixel over the light's disc (default {SHADOW_SAMPLES}; 1: a hard "
+                   help=f"shadow rays per light and pixel over the light's disc (default: the file's [render] "
+                        f"shadow_samples, else {SHADOW_SAMPLES}; 1: a hard "
                         f"shadow; an environment's sun at most {SOURCE_SHADOW_SAMPLES}, 16 in 4x4 ray blocks)")
     r.add_argument("--occlusion-samples", type=int, metavar="N",
                    help=f"environment-occlusion rays a pixel, 0..{OCCLUSION_SAMPLES_MAX}, that shadow the broad "
-                        f"environment lobes where the scene occludes itself (default {OCCLUSION_SAMPLES}; 0: the "
-                        "SSDF alone)")
+                        f"environment lobes where the scene occludes itself (default: the file's [render] "
+                        f"occlusion_samples, else {OCCLUSION_SAMPLES}; 0: the SSDF alone)")
     r.add_argument("--every-ray-per-sample", action="store_true",
                    help="every anti-aliasing sample traces every shadow and occlusion ray (--aa times the rays, less "
                         "noise); by default the samples of a pixel share each set of rays between them")
@@ -621,8 +623,8 @@ def _add_render_commands(sub):
                    help="each pixel traces its own rays: --block-side 1")
     r.add_argument("--block-side", dest="block_rays", type=int, choices=[1, 2, 4],
                    help="the side of the pixel blocks that share each set of rays: 1 (each pixel its own), 2, or 4 "
-                        "(a sixteenth of the rays of a set of 16 a pixel; 2 for smaller sets); default: 4 from "
-                        "1920x1080 pixels up, 2 from 320x240, else 1")
+                        "(a sixteenth of the rays of a set of 16 a pixel; 2 for smaller sets); default: the file's "
+                        "[render] block_rays, else 4 from 1920x1080 pixels up, 2 from 320x240, else 1")
     r.add_argument("--aa-shading", choices=["sample", "pixel"],
                    help="sample (default): shade every anti-aliasing sample; pixel: shade a pixel once where its "
                         "samples hit one surface (one material, no depth or crease edge), as multisampling does: edges "

@@ -16,6 +16,10 @@ or ``warp-biscale render scene.toml -o out.png``. Every table and key is optiona
     method = "sg"                # "sg" (per-pixel SG shading), "mc" (Monte Carlo reference) or "litsphere"
     samples = 64                 # mc only: samples per pixel (>= 2); seed = 0 too
     exposure = 0.0               # stops, applied when writing a PNG
+    aa = 4                       # sg and litsphere: anti-aliasing samples a pixel (default: the CLI's 4, render()'s 1)
+    shadow_samples = 16          # sg and litsphere: shadow rays a light and pixel (1: hard shadows)
+    occlusion_samples = 16       # sg: environment-occlusion rays a pixel (0: the SSDF alone)
+    block_rays = "auto"          # sg: true/false or a block side 1, 2, 4 (pixels sharing their rays; "auto": by size)
     env_lobes = 9                # SG lobes fitted to the environment (diffuse term), 1..16
     ssdf_resolution = 32         # SSDF directions per side (2..128); ssdf_terms = 16 PCA terms (<= resolution²)
     backend = "auto"             # auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name>
@@ -119,7 +123,8 @@ from .litsphere import LitSphere
 from .loading import load
 from .measured import MeasuredBRDF, small_scale_brdf
 from .progress import as_progress
-from .render import METHODS, render
+from .render import METHODS, check_aa, check_block_rays, render
+from .trace import check_occlusion_samples, check_shadow_samples
 from .scene import SETTINGS_UNITS, Scene, settings_ranges
 from .scene import Camera, DirectionalLight, Mesh, PointLight
 from .smallscale import SmallScale
@@ -139,8 +144,19 @@ __all__ = ["SceneFile", "SceneError", "load_scene", "loads_scene", "MESH_BUILTIN
 # ------------------------------------------------------------------------------------------------
 # schema
 
+def _check_block_rays(v):
+    try:
+        check_block_rays(v)
+    except ValueError:
+        return None, 'true, false, "auto" or a block side 1, 2 or 4'
+    return v, None
+
+
 RENDER_KEYS = {"width": INT, "height": INT, "method": STR, "samples": INT, "seed": INT, "exposure": NUM,
-               "env_lobes": INT, "ssdf_resolution": INT, "ssdf_terms": INT, "backend": STR}
+               "env_lobes": INT, "ssdf_resolution": INT, "ssdf_terms": INT, "backend": STR,
+               "aa": INT, "shadow_samples": INT, "occlusion_samples": INT, "block_rays": _check_block_rays}
+# the [render] keys that are options of the SG renderer (aa and shadow_samples the lit-sphere shader's too)
+RAY_KEYS = ("aa", "shadow_samples", "occlusion_samples", "block_rays")
 CAMERA_KEYS = {"eye": VEC3, "target": VEC3, "up": VEC3, "fov": NUM}
 _SIZE = {"height": INT, "width": INT}
 ENVIRONMENT_TYPES = {
@@ -202,6 +218,10 @@ class SceneFile:
     seed: int | None = None
     exposure: float = 0.0
     backend: str = "auto"
+    aa: int | None = None  # (None: the renderer's default)
+    shadow_samples: int | None = None
+    occlusion_samples: int | None = None
+    block_rays: object = None
     material_names: list = field(default_factory=list)
     materials: dict = field(default_factory=dict)
     tiles: dict = field(default_factory=dict)
@@ -215,10 +235,11 @@ class SceneFile:
         self.width, self.height = self.scene.camera.width, self.scene.camera.height
 
     def render_options(self, method: str | None = None) -> dict:
-        """Keyword options for `render.render` beyond method and backend (mc: samples, seed)."""
-        if (method or self.method) != "mc":
-            return {}
-        return {k: v for k, v in (("samples", self.samples), ("seed", self.seed)) if v is not None}
+        """Keyword options for `render.render` beyond method and backend, those the file sets: mc: samples, seed;
+        sg: aa, shadow_samples, occlusion_samples, block_rays; litsphere: aa, shadow_samples."""
+        method = method or self.method
+        keys = {"mc": ("samples", "seed"), "sg": RAY_KEYS, "litsphere": RAY_KEYS[:2]}.get(method, ())
+        return {k: getattr(self, k) for k in keys if getattr(self, k) is not None}
 
     def render(self, method: str | None = None, backend=None, progress=None, **options):
         """Render with the file's settings (`method`, `backend` and options override them)."""
@@ -338,6 +359,16 @@ def _render_settings(ctx, data, sf):
             raise ctx.error(table, "exposure", str(exc)) from None
     sf.exposure = v.get("exposure", sf.exposure)
     sf.backend = v.get("backend", sf.backend)
+    for key, check in (("aa", check_aa), ("shadow_samples", check_shadow_samples),
+                       ("occlusion_samples", check_occlusion_samples)):
+        if key in v:
+            try:
+                check(v[key])
+            except ValueError as exc:
+                raise ctx.error(table, key, str(exc)) from None
+            setattr(sf, key, v[key])
+    if "block_rays" in v:
+        sf.block_rays = v["block_rays"]
     return {k: v[k] for k in ("env_lobes", "ssdf_resolution", "ssdf_terms") if k in v}
 
 

@@ -321,7 +321,8 @@ class Viewer:
         w, h = self._viewport_pixels(self.left)
         self.scene.camera = camera_from_pyvista(self.left.camera, w, h)
         t0 = time.perf_counter()
-        result = self.sf.render(method=self.method, backend=self.backend, progress=self.progress,
+        # (interactive: one sample a pixel and the viewer's rays, whatever the file's [render] asks of an image)
+        result = self.sf.render(method=self.method, backend=self.backend, progress=self.progress, aa=1,
                                 shadow_samples=VIEWER_SHADOW_SAMPLES, occlusion_samples=VIEWER_OCCLUSION_SAMPLES)
         dt = time.perf_counter() - t0
         self.image = result.image
