@@ -14,9 +14,10 @@ Parts (records go to --out/results.json; table.md and plots follow):
   shadow rays (1 and the default count a light), the occlusion and sun-lobe rays, the shading, and the
   read-backs of the float and the 8-bit frame (not in the default parts); with --block-rays 2 / 4, the ray
   stages and the shade with the rays shared in those blocks too.
-- ``blocks``: at the first size, what sharing the rays in pixel blocks costs the image (--block-rays, default
-  off 2 4): each setting's frame time and PSNR over the object pixels against the same renderer with 64 shadow
-  and 32 occlusion rays of each pixel's own (not in the default parts).
+- ``blocks``: at the first size, what sharing the rays in pixel blocks costs the image (each pixel's own rays and
+  the --block-rays settings; with the default "off", 2 and 4): each setting's frame time and PSNR over the object
+  pixels against the same renderer with 64 shadow and 32 occlusion rays of each pixel's own (not in the default
+  parts).
 - ``pareto``: at a small resolution, the SG image against a Monte Carlo reference (PSNR, RMSE over the
   object pixels; the background is the environment in both) for J, against its frame time; and at the
   largest J without occlusion rays (the SSDF alone).
@@ -374,7 +375,9 @@ def main(argv=None):
                     args.occlusion_samples, blocks, aa_modes)
         save()
     if "blocks" in args.parts:
-        part_blocks(backends, sizes[0], args.runs, out, blocks if len(blocks) > 1 else (False, 2, 4))
+        # (each pixel's own rays always, as the baseline; --block-rays off alone: 2x2 and 4x4 beside them)
+        part_blocks(backends, sizes[0], args.runs, out, (False, 2, 4) if blocks == (False,) else
+                    (False, *[b for b in blocks if b is not False]))
         save()
     if "stages" in args.parts:
         part_stages(backends, sizes[0], args.runs, out, block_modes=blocks)

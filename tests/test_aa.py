@@ -182,6 +182,7 @@ def test_cli_render_anti_aliases_by_default(tmp_path, capsys):
                       (["--method", "mc", "--every-ray-per-sample"], "--every-ray-per-sample is for the SG"),
                       (["--method", "mc", "--block-rays"], "--block-rays is for the SG"),
                       (["--method", "mc", "--block-side", "4"], "--block-side is for the SG"),
+                      (["--method", "mc", "--block-side", "2"], "--block-side is for the SG"),
                       (["--method", "mc", "--aa-shading", "pixel"], "--aa-shading is for the SG")):
         assert cli.main(["render", str(scene), "-o", str(tmp_path / "bad.png"), *bad]) == 2
         err = [line for line in capsys.readouterr().err.splitlines() if not line.startswith("warning:")]

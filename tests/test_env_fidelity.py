@@ -145,10 +145,12 @@ def test_a_source_gets_fewer_shadow_rays_than_the_scenes_lights(monkeypatch):
     assert len(frame_lights(sky)) == 2
     np.testing.assert_array_equal(frame_shadow_samples(sky, 16), [16, cap])
     np.testing.assert_array_equal(frame_shadow_samples(sky, 2), [2, 2])
-    # in 4x4 blocks a source takes 16, one a pixel of the block (8 would fall back to 2x2 blocks: two a pixel)
+    # in 4x4 blocks a source takes 16, one a pixel of the block (8 would fall back to 2x2 blocks: two a pixel),
+    # unless anti-aliasing samples split the set: it then falls back to 2x2 whatever its count, and 8 cost less
     np.testing.assert_array_equal(frame_shadow_samples(sky, 16, 4), [16, 16])
     np.testing.assert_array_equal(frame_shadow_samples(sky, 32, 4), [32, 16])
     np.testing.assert_array_equal(frame_shadow_samples(sky, 16, 2), [16, cap])
+    np.testing.assert_array_equal(frame_shadow_samples(sky, 16, 4, 2), [16, cap])
     studio = wb.Scene(mesh, [wb.Lambert(0.5)], cam, wb.Environment.studio(), [light])
     np.testing.assert_array_equal(frame_shadow_samples(studio, 16), [16])
     backend = wb.get_backend("warp:cpu")
@@ -166,6 +168,11 @@ def test_a_source_gets_fewer_shadow_rays_than_the_scenes_lights(monkeypatch):
     traced.clear()
     info = wb.render(sky, backend=backend, shadow_samples=16, block_rays=4).info
     assert traced == [[16, 16]] and info["source_shadow_samples"] == 16 and info["block_rays"] == 4
+    for options, cap_4x4 in (({"aa": 2}, cap), ({"aa": 2, "aa_shading": "pixel"}, 16),
+                             ({"aa": 2, "split_rays": False}, 16)):
+        traced.clear()
+        info = wb.render(sky, backend=backend, shadow_samples=16, block_rays=4, **options).info
+        assert traced == [[16, cap_4x4]] * 2 and info["source_shadow_samples"] == cap_4x4, (options, traced)
 
 
 def test_at_most_two_sources_and_no_specks():

@@ -533,7 +533,9 @@ def test_rays_shared_in_blocks_match_reference(backend, block_frame, part, side)
     eps, t_min = offsets(mesh)
     args = (mesh.vertices, mesh.normals, mesh.faces, g.face, g.bary, g.position, g.eye, eps, t_min)
     whole = lenders.all(1) & sure
-    assert whole.sum() > 500 and sure[g.face >= 0].mean() > 0.95 and (~lenders.all(1) & sure).sum() > 50
+    # (4×4 blocks: fewer pixels whose every slot lends, and more whose lenders the bounds' rounding could move)
+    assert whole.sum() > (1000 if side == 2 else 500) and sure[g.face >= 0].mean() > (0.97 if side == 2 else 0.95)
+    assert (~lenders.all(1) & sure).sum() > 50
     for samples, trace, known_index in ((16, lambda **kw: ref.trace_occlusion(*args, 16, **kw), 0),
                                         (8, lambda **kw: ref.trace_lobe_rays(*args, LOBES, **kw), 1)):
         set_sure = sides[trace_module.block_side(samples, part)][1] if trace_module.block_side(samples, part) > 1 \
@@ -570,6 +572,49 @@ def test_rays_shared_in_blocks_match_reference(backend, block_frame, part, side)
         on = sure & sides[2][1]
         off = np.abs(vis - want)[on]
         assert (off > step[on]).sum() == 0 and (off != 0).mean() < 0.02, (off.max(), (off != 0).mean())
+
+
+def test_block_lenders_follow_the_gbuffer(backend):
+    """The lenders a frame's sets share are found once a G-buffer and block side and kept on the device
+    (device._frame_lenders): a new camera's G-buffer, a host GBuffer in between, the own G-buffer again and a
+    change of side each get their own, on a 45×31 frame whose last 4×4 blocks the frame's edges cut. The lent
+    bits against the float64 reference where the lenders are sure (as block_frame's)."""
+    mesh = Mesh.merge([Mesh.sphere(0.5, (0, 0.8, 0), subdivisions=3), Mesh.plane(4.0, 0.0, 16)])
+    normals = trace_module._unit_face_normals(mesh.vertices[mesh.faces])
+    eps, t_min = offsets(mesh)
+    cams = [Camera(eye=(0.0, 3.5, 3.0), target=(0, 0.2, 0), fov=55, width=45, height=31),
+            Camera(eye=(1.0, 2.0, 3.0), target=(0, 0.4, 0), fov=50, width=45, height=31)]
+    light = PointLight((0.3, 3.0, 0.2), radius=0.4).packed()[None]
+
+    def check(g, side):
+        part = (0, 1, 45, side)
+        args = (g.face, g.position, normals, g.eye, 45)
+        lenders = trace_module.share_block(*args, side=side)
+        moved = [trace_module.share_block(*args, side=side, normal_cos=trace_module.SHARE_NORMAL_COS + s * 1e-4,
+                                          plane=trace_module.SHARE_PLANE - s * 1e-4) for s in (1, -1)]
+        sure = (moved[0] == moved[1]).all(1)
+        own = ref.trace_occlusion(mesh.vertices, mesh.normals, mesh.faces, g.face, g.bary, g.position, g.eye, eps,
+                                  t_min, 16, part=part)
+        want = ref.share_block_masks(own, lenders, 16, part)[1]
+        got = backend.ray_known(mesh)[0]
+        assert sure.mean() > 0.95 and (lenders.sum(1)[sure] < side * side).sum() > 20
+        np.testing.assert_array_equal(got[sure], want[sure])
+
+    for side in (4, 2):
+        part = (0, 1, 45, side)
+        g1 = backend.trace_primary(mesh, cams[0])
+        backend.trace_shadows(mesh, None, light, samples=16, part=part)  # finds camera 0's lenders
+        g2 = backend.trace_primary(mesh, cams[1])
+        backend.trace_occlusion(mesh, None, 16, part=part)
+        check(g2, side)
+        host = GBuffer(face=g1.face.copy(), bary=g1.bary.copy(), position=g1.position.copy(), eye=g1.eye.copy())
+        backend.trace_occlusion(mesh, host, 16, part=part)
+        check(host, side)
+        backend.trace_occlusion(mesh, None, 16, part=part)
+        check(g2, side)
+    backend.trace_occlusion(mesh, None, 16, part=(0, 1, 45, 4))
+    backend.trace_occlusion(mesh, None, 16, part=(0, 1, 45, 2))
+    check(g2, 2)
 
 
 @pytest.mark.parametrize("part", [(0, 1), (1, 4), "blocks", "blocks 1/4", "4x4 blocks"])

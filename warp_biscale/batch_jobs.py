@@ -277,8 +277,12 @@ def _check_bool(v):
 
 
 def _check_block_rays(v):
-    ok = isinstance(v, bool) or (isinstance(v, int) and v in (1, 2, 4))
-    return (v, None) if ok else (None, "true, false or a block side 1, 2 or 4")
+    """true/false, or a side 1, 2, 4: 1 and 2 read as false and true (the same renders, so the same task hashes)."""
+    if isinstance(v, bool):
+        return v, None
+    if isinstance(v, int) and v in (1, 2, 4):
+        return {1: False, 2: True}.get(v, v), None
+    return None, "true, false or a block side 1, 2 or 4"
 
 
 def _check_int(v):

@@ -327,8 +327,9 @@ def cmd_render(args):
             options["occlusion_samples"] = args.occlusion_samples
         if args.every_ray_per_sample:
             options["split_rays"] = False
-        if args.block_rays is not None:
-            options["block_rays"] = args.block_rays
+        side = args.block_rays if args.block_side is None else args.block_side  # (at most one is given)
+        if side is not None:
+            options["block_rays"] = side
         if args.aa_shading is not None:
             options["aa_shading"] = args.aa_shading
     if method == "mc" and args.mc_fallback is None:
@@ -403,8 +404,8 @@ def _refuse_sg_options(args):
     for flag, value in (("--aa", args.aa), ("--shadow-samples", args.shadow_samples),
                         ("--occlusion-samples", args.occlusion_samples),
                         ("--every-ray-per-sample", args.every_ray_per_sample or None),
-                        ("--block-rays" if args.block_rays == 2 else "--block-side",
-                         args.block_rays if args.block_rays not in (None, 1) else None),
+                        ("--block-rays", args.block_rays if args.block_rays == 2 else None),
+                        ("--block-side", args.block_side if args.block_side not in (None, 1) else None),
                         ("--aa-shading", args.aa_shading)):
         if value is not None:
             raise ValueError(f"{flag} is for the SG renderer (--method sg); the Monte Carlo reference samples "
@@ -615,15 +616,17 @@ def _add_render_commands(sub):
     r.add_argument("--every-ray-per-sample", action="store_true",
                    help="every anti-aliasing sample traces every shadow and occlusion ray (--aa times the rays, less "
                         "noise); by default the samples of a pixel share each set of rays between them")
-    r.add_argument("--block-rays", dest="block_rays", action="store_const", const=2, default=None,
+    blocks = r.add_mutually_exclusive_group()
+    blocks.add_argument("--block-rays", dest="block_rays", action="store_const", const=2, default=None,
                    help="the pixels of each 2x2 block share their shadow and occlusion rays, each tracing a quarter "
                         "of them (about a quarter of the ray cost; visibility averaged over two pixels, so a contact "
                         "shadow comes out lighter at low resolutions): --block-side 2")
-    r.add_argument("--no-block-rays", dest="block_rays", action="store_const", const=1,
+    blocks.add_argument("--no-block-rays", dest="block_rays", action="store_const", const=1,
                    help="each pixel traces its own rays: --block-side 1")
-    r.add_argument("--block-side", dest="block_rays", type=int, choices=[1, 2, 4],
+    blocks.add_argument("--block-side", dest="block_side", type=int, choices=[1, 2, 4],
                    help="the side of the pixel blocks that share each set of rays: 1 (each pixel its own), 2, or 4 "
-                        "(a sixteenth of the rays of a set of 16 a pixel; 2 for smaller sets); default: the file's "
+                        "(a sixteenth of the rays of a set of 16 a pixel and anti-aliasing sample; 2 for smaller "
+                        "sets); default: the file's "
                         "[render] block_rays, else 4 from 1920x1080 pixels up, 2 from 320x240, else 1")
     r.add_argument("--aa-shading", choices=["sample", "pixel"],
                    help="sample (default): shade every anti-aliasing sample; pixel: shade a pixel once where its "

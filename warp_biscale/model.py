@@ -266,7 +266,7 @@ class GBuffer:
     (trace_occlusion's result; occlusion_samples 0: none traced, the SSDF alone shadows the environment);
     lobe_occlusion (P,) uint32, bit k·trace.LOBE_RAYS + i set where ray i towards the inputs' sharp
     environment lobe k is blocked (trace_lobe_rays' result, read where occlusion_samples > 0); ray_part
-    (index, count[, block_width]): which anti-aliasing sample of how many the light_vis, occlusion and
+    (index, count[, block_width[, block_side]]): which anti-aliasing sample of how many the light_vis, occlusion and
     lobe_occlusion rays were traced for (trace.pixel_parts: those rays of each set alone), (0, 1) for all of
     them; with a block width W > 0 the rays were shared in pixel blocks (trace.share_block), light_vis,
     occlusion and lobe_occlusion are the shared results, and occlusion_known and lobe_known (P,) uint32 hold

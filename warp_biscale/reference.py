@@ -905,7 +905,8 @@ def share_block_masks(mask, lenders, samples: int, part) -> tuple[np.ndarray, np
     masks `mask` (P,) (occlusion or lobe rays, a set of `samples`) of the pixels of its block (trace.block_side's
     side for this set) that lend it their rays (`lenders` (P, s²) of the part's side s, trace.share_block), and the
     bits of the rays they traced (trace.pixel_parts). A set of fewer than trace.BLOCK_SLOTS rays is not shared: the
-    pixel's own. 0 for a miss (a row of `lenders` all False)."""
+    pixel's own; a 4×4 part shares a set of fewer than 16·count rays in 2×2 blocks. 0 for a miss (a row of
+    `lenders` all False)."""
     width = check_ray_part(part)[2]
     side = block_side(samples, part)
     mask = np.asarray(mask, np.uint32)

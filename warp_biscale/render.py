@@ -158,20 +158,30 @@ def frame_lights(scene: Scene) -> np.ndarray:
     return np.concatenate([lights, sources]) if len(sources) else lights
 
 
-def source_shadow_samples(samples: int, block_side: int = 1) -> int:
+def source_shadow_samples(samples: int, block_side: int = 1, part_count: int = 1) -> int:
     """The shadow rays a pixel of an environment's source: `samples`, at most lighting.SOURCE_SHADOW_SAMPLES, or
-    in a frame whose rays are shared in 4×4 blocks (`block_side`) at most one a pixel of the block (16): there 8 rays
-    would fall back to 2×2 blocks and cost each pixel two rays, 16 cost it one."""
-    return min(int(samples), max(lighting.SOURCE_SHADOW_SAMPLES, int(block_side) ** 2))
+    at most 16, one a pixel of a 4×4 block, where the rays are shared in 4×4 blocks (`block_side` 4) and each
+    pixel's anti-aliasing sample traces its set whole (`part_count` 1: trace.block_side's 16·count): there 8 rays
+    would fall back to 2×2 blocks and cost each pixel two rays, 16 cost it one. With the set split between samples
+    it falls back to 2×2 whatever its count, and 8 cost less."""
+    shared_4x4 = int(block_side) == 4 and int(part_count) == 1
+    return min(int(samples), 16 if shared_4x4 else lighting.SOURCE_SHADOW_SAMPLES)
 
 
-def frame_shadow_samples(scene: Scene, samples: int, block_side: int = 1) -> np.ndarray:
+def frame_shadow_samples(scene: Scene, samples: int, block_side: int = 1, part_count: int = 1) -> np.ndarray:
     """(L,) int32 the shadow rays a pixel of each of `frame_lights(scene)`: `samples` for the scene's lights,
-    `source_shadow_samples` for its environment's sources (`block_side`: the frame's, `frame_block_rays`)."""
+    `source_shadow_samples` for its environment's sources (`block_side`: the frame's, `frame_block_rays`;
+    `part_count`: the anti-aliasing samples that split each set, `frame_part_count`)."""
     n = check_shadow_samples(samples)
     counts = np.full(len(frame_lights(scene)), n, np.int32)
-    counts[len(np.asarray(scene.lights_packed).reshape(-1, 8)):] = source_shadow_samples(n, block_side)
+    counts[len(np.asarray(scene.lights_packed).reshape(-1, 8)):] = source_shadow_samples(n, block_side, part_count)
     return counts
+
+
+def frame_part_count(n_aa: int, split_rays: bool, aa_shading: str) -> int:
+    """Between how many anti-aliasing samples a frame's first sample splits each set of rays: n_aa with split_rays,
+    else 1 (every sample traces every ray); 1 with aa_shading "pixel" (the first sample traces every ray)."""
+    return n_aa if split_rays and aa_shading != "pixel" else 1
 
 
 SHADOW_SAMPLES = 16  # shadow rays per light and pixel: a penumbra in 16 steps, noise turned per pixel
@@ -206,7 +216,8 @@ def pack_frame(scene: Scene, backend="auto", progress=None, timings=None,
     g = backend.trace_primary(scene.mesh, scene.camera)
     lights = frame_lights(scene)
     g.ray_part = part
-    g.light_vis = (backend.trace_shadows(scene.mesh, g, lights, samples=frame_shadow_samples(scene, shadow_samples),
+    sources = frame_shadow_samples(scene, shadow_samples, part[3] if part[2] else 1, part[1])
+    g.light_vis = (backend.trace_shadows(scene.mesh, g, lights, samples=sources,
                                          part=part) if len(lights) else np.zeros((len(g.face), 0), np.uint8))
     if static.has_ssdf and n_occlusion:
         g.occlusion = backend.trace_occlusion(scene.mesh, g, n_occlusion, part=part)
@@ -282,8 +293,10 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     weighing those of its neighbours on the same surface (`trace.pixel_parts`, `trace.share_block`: a depth or
     crease edge keeps each side's rays apart), so a frame traces a quarter of the rays, and visibility is averaged
     over two pixels: at low resolutions a contact shadow or a soft terminator comes out lighter (docs/design.md,
-    "Rays shared in pixel blocks"); 4: 4×4 blocks for each set of at least 16 rays a pixel and sample (a
-    sixteenth of the rays, visibility averaged over four pixels), 2×2 for smaller sets; False (or 1): every pixel
+    "Rays shared in pixel blocks"); 4: 4×4 blocks for each set of at least 16·n rays, n the anti-aliasing samples
+    that split it (a sixteenth of the rays, visibility averaged over four pixels; `trace.block_side`), 2×2 for
+    smaller sets (so with aa > 1 and split_rays the default 16 rays go 2×2, but for aa_shading "pixel"'s first
+    sample, which traces them all); False (or 1): every pixel
     traces its own; "auto" (default): 4 from BLOCK_RAYS_4_MIN_PIXELS (1920×1080) pixels up, 2 from
     BLOCK_RAYS_MIN_PIXELS (320×240), else 1 (`frame_block_rays`; info["block_rays"] says which side).
     `aa_shading` "sample" (default): each anti-aliasing sample shaded; "pixel": a pixel shaded once where its samples
@@ -334,7 +347,9 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     static = _static_inputs(scene, backend, progress, timings)
     lights = frame_lights(scene)
     n_occlusion = n_occlusion if static.has_ssdf else 0  # nothing occludes: the rays would all escape
-    image = _accumulate(scene, backend, n_aa, frame_shadow_samples(scene, n_shadow, block_rays), n_occlusion, lights,
+    parts = frame_part_count(n_aa, split_rays, aa_shading)
+    image = _accumulate(scene, backend, n_aa, frame_shadow_samples(scene, n_shadow, block_rays, parts), n_occlusion,
+                        lights,
                         timings,
                         lambda cam, to_host, **kw: backend.shade(scene.mesh, static, cam.packed(), lights,
                                                                  to_host=to_host, **kw),
@@ -345,7 +360,7 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
             "env_lobes": len(static.env_sgs), "lights": len(lights),
             "environment_sources": len(lights) - len(scene.lights_packed), "width": cam.width, "height": cam.height,
             "aa": n_aa, "shadow_samples": n_shadow,
-            "source_shadow_samples": source_shadow_samples(n_shadow, block_rays) if len(lights) > len(
+            "source_shadow_samples": source_shadow_samples(n_shadow, block_rays, parts) if len(lights) > len(
                 scene.lights_packed) else None, "occlusion_samples": n_occlusion, "split_rays": split_rays,
             "block_rays": block_rays, "aa_shading": aa_shading}
     return Rendering(image, timings, info)
@@ -379,7 +394,8 @@ def queue_frame(scene: Scene, backend="auto", aa: int = 1, shadow_samples: int =
     static = _static_inputs(scene, backend, Progress(None), {})
     lights = frame_lights(scene)
     n_occlusion = n_occlusion if static.has_ssdf else 0
-    _accumulate(scene, backend, n_aa, frame_shadow_samples(scene, n_shadow, block_rays), n_occlusion, lights,
+    parts = frame_part_count(n_aa, split_rays, aa_shading)
+    _accumulate(scene, backend, n_aa, frame_shadow_samples(scene, n_shadow, block_rays, parts), n_occlusion, lights,
                 {"shade": 0.0},
                 lambda cam, to_host, **kw: backend.shade(scene.mesh, static, cam.packed(), lights, to_host=to_host,
                                                          **kw),

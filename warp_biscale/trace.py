@@ -353,6 +353,8 @@ def block_sub_lenders(lenders, width: int, side: int, pixel=None) -> np.ndarray:
     (`share_block`, S a multiple of side): the blocks nest, and a pixel lends to another by their hits alone."""
     lenders = np.asarray(lenders, bool)
     big = int(round(np.sqrt(lenders.shape[1])))
+    if big * big != lenders.shape[1] or big % side:
+        raise ValueError(f"lenders must have S² columns with S a multiple of side {side}, got {lenders.shape[1]}")
     if big == side:
         return lenders
     p = np.arange(len(lenders)) if pixel is None else np.asarray(pixel, np.int64)
