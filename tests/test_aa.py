@@ -321,6 +321,23 @@ def test_block_rays_auto_shares_rays_from_qvga_up(backend):
         frame_block_rays("off", _contact_scene().camera)
 
 
+def test_block_sides_say_which_side_each_set_of_rays_got(backend):
+    """info["block_sides"] is the side each set of rays was shared in, which a 4 asked of the frame need not give:
+    with aa = 4 splitting the default 16 rays a set, a sample holds 4 rays of each, too few for a 4×4 block, so
+    every set goes 2×2 and the image is the 2×2 one bit for bit; with aa_shading "pixel" the first sample traces
+    every ray, the sets go 4×4, and the image differs from the 2×2 one."""
+    scene = _contact_scene(64, 48)
+    for aa_shading, side in (("sample", 2), ("pixel", 4)):
+        four = wb.render(scene, backend=backend, aa=4, block_rays=4, aa_shading=aa_shading)
+        two = wb.render(scene, backend=backend, aa=4, block_rays=2, aa_shading=aa_shading)
+        assert four.info["block_rays"] == 4 and two.info["block_rays"] == 2
+        assert four.info["block_sides"] == {"shadow": [side], "occlusion": side, "lobe_rays": None}
+        assert two.info["block_sides"] == {"shadow": [2], "occlusion": 2, "lobe_rays": None}
+        assert np.array_equal(four.image, two.image) == (side == 2)
+    one = wb.render(scene, backend=backend, block_rays=False).info
+    assert one["block_rays"] == 1 and one["block_sides"] == {"shadow": [1], "occlusion": 1, "lobe_rays": None}
+
+
 def test_block_rays_auto_takes_4x4_blocks_from_1080p_up(backend):
     """From render.BLOCK_RAYS_4_MIN_PIXELS (1920×1080) pixels up "auto" shares each set of 16 rays in 4×4 blocks
     (block_rays=4), bit for bit, and says so; below it (1918×1080) 2×2. A 4×4 frame differs from the 2×2 one (a

@@ -22,7 +22,7 @@ import time
 
 import numpy as np
 
-from . import lighting, litsphere, montecarlo, sg
+from . import lighting, litsphere, montecarlo, sg, trace
 from .litsphere import LitSphere
 from . import ssdf as ssdf_mod
 from .backend import get_backend
@@ -255,6 +255,18 @@ def frame_block_rays(block_rays, camera) -> int:
     return side
 
 
+def frame_block_sides(shadow_samples, occlusion_samples: int, n_sharp: int, part_count: int, width: int,
+                      block_rays: int) -> dict:
+    """The side of the pixel blocks each set of a frame's first sample is shared in (`trace.block_side`): what a
+    frame's block_rays (`frame_block_rays`) gives each set, which may be less (a 4 asked of a set smaller than 16
+    rays for each anti-aliasing sample that splits it goes 2×2). {"shadow": [a side per light of `frame_lights`],
+    "occlusion": side or None (no occlusion rays), "lobe_rays": side or None (no sharp environment lobe)}."""
+    part = (0, part_count, width, block_rays) if block_rays > 1 else (0, part_count)
+    return {"shadow": [trace.block_side(int(n), part) for n in np.asarray(shadow_samples).reshape(-1)],
+            "occlusion": trace.block_side(occlusion_samples, part) if occlusion_samples else None,
+            "lobe_rays": trace.block_side(trace.LOBE_RAYS, part) if occlusion_samples and n_sharp else None}
+
+
 def aa_offsets(samples: int, seed: int = 0) -> np.ndarray:
     """(samples, 2) sub-pixel offsets in [−½, ½)², multi-jittered (Chiu, Shirley and Wang 1994): one in
     each cell of a k × k grid (k² ≥ samples, cells taken in a shuffled order when samples < k²) and,
@@ -298,7 +310,8 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     smaller sets (so with aa > 1 and split_rays the default 16 rays go 2×2, but for aa_shading "pixel"'s first
     sample, which traces them all); False (or 1): every pixel
     traces its own; "auto" (default): 4 from BLOCK_RAYS_4_MIN_PIXELS (1920×1080) pixels up, 2 from
-    BLOCK_RAYS_MIN_PIXELS (320×240), else 1 (`frame_block_rays`; info["block_rays"] says which side).
+    BLOCK_RAYS_MIN_PIXELS (320×240), else 1 (`frame_block_rays`; info["block_rays"] says which side the frame
+    asked, info["block_sides"] the side each set of rays got, `frame_block_sides`).
     `aa_shading` "sample" (default): each anti-aliasing sample shaded; "pixel": a pixel shaded once where its samples
     hit the surface its first sample hits, as multisampling does: the first sample traces every ray of each set and
     is shaded whole; a later sample traces (its own part of each set) and shades only the pixels whose hit is not on
@@ -362,7 +375,10 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
             "aa": n_aa, "shadow_samples": n_shadow,
             "source_shadow_samples": source_shadow_samples(n_shadow, block_rays, parts) if len(lights) > len(
                 scene.lights_packed) else None, "occlusion_samples": n_occlusion, "split_rays": split_rays,
-            "block_rays": block_rays, "aa_shading": aa_shading}
+            "block_rays": block_rays,
+            "block_sides": frame_block_sides(frame_shadow_samples(scene, n_shadow, block_rays, parts), n_occlusion,
+                                             len(static.sharp_lobes()), parts, cam.width, block_rays),
+            "aa_shading": aa_shading}
     return Rendering(image, timings, info)
 
 
