@@ -572,6 +572,39 @@ CL_INLINE float ray_share(float3 axis, float eta, float3 n, Occlusion occ)
     return total > 1.0e-30f ? seen / total : 1.0f;
 }
 
+/* ray_share for the six lobes of sharpness η along +y, −y, +x, −x, +z, −z (shading.axis_lobe_start) in one walk of
+ * the rays, into share[6]: a ray's weight towards ±x is exp(−η)·exp(±η ω_x) times its lobe-free factor, so three
+ * exponentials and their reciprocals serve all six. */
+CL_INLINE void axis_ray_shares(float eta, float3 n, Occlusion occ, float share[6])
+{
+    float total[6] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+    float seen[6] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+    float c = occ.turn_c, s = occ.turn_s;
+    __global const float *ray = occ.disk + 3 * (occ.samples * (occ.samples - 1) / 2);
+    float nx = dot3(occ.a, n), ny = dot3(occ.b, n), nz = dot3(occ.n, n);
+    float fall = exp(-eta);
+    for (int i = 0; i < occ.samples; ++i) {
+        if ((occ.known >> i) & 1u) {
+            float x = ray[3 * i] * c, y = ray[3 * i] * s, lift = ray[3 * i + 1];
+            float base = fall * maxf(x * nx + y * ny + lift * nz, 0.0f) * ray[3 * i + 2];
+            float3 d = x * occ.a + y * occ.b + lift * occ.n;
+            float ex = exp(eta * d.x), ey = exp(eta * d.y), ez = exp(eta * d.z);
+            float w[6] = {base * ey, base / ey, base * ex, base / ex, base * ez, base / ez};
+            int open = ((occ.mask >> i) & 1u) == 0u;
+            for (int k = 0; k < 6; ++k) {
+                total[k] += w[k];
+                if (open)
+                    seen[k] += w[k];
+            }
+        }
+        float c_next = c * GOLDEN_COS - s * GOLDEN_SIN;
+        s = s * GOLDEN_COS + c * GOLDEN_SIN;
+        c = c_next;
+    }
+    for (int k = 0; k < 6; ++k)
+        share[k] = total[k] > 1.0e-30f ? seen[k] / total[k] : 1.0f;
+}
+
 /* The share of a lobe (axis, η) that sharp lobe k's rays (about ray_axis, ray_eta) see unblocked
  * (shading.lobe_ray_share): the rays of `known` (bit i: ray i traced), made again (lobe_ray_direction, turned by
  * pixel `turn`), each weighted by G(ω)(n·ω)⁺ and its solid-angle weight cos³ (its cosine to ray_axis, cubed); a
@@ -1061,6 +1094,7 @@ __kernel void shade_pixels(
     const float cam_w, const float cam_h,
     const int n_lights, __global const float *lights,                 /* (L, 8) */
     const int n_env, __global const float *env_sgs,                   /* (K, 7) [axis, η, rgb] */
+    const int axis_lobes,               /* the first row of the six shadow lobes along the axes, or -1 */
     __global const float *env_residual, const int residual_h, const int residual_w, /* (H, W, 3) */
     __global const float *env_maps, const int n_levels, __global const float *env_levels,
     const int has_ssdf, const int ssdf_res, const int n_basis, const int n_coeffs,
@@ -1182,6 +1216,18 @@ __kernel void shade_pixels(
     /* Each lobe's shadowed amount and the irradiance scale depend on the pixel, the environment and the rays, not
      * on the material: kept_mode 1 keeps them per pixel, 2 reads them back (a material edit's shade), 0 neither. */
     float3 lobes_irradiance = (float3)(0.0f, 0.0f, 0.0f);
+    /* The six shadow lobes along the axes, when the occlusion rays alone shadow them (environment_share's
+     * condition): their shares from one walk of the rays (axis_ray_shares). */
+    float axis_shares[6] = {1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f};
+    int axis_end = -1;
+    if (axis_lobes >= 0 && has_ssdf != 0 && kept_mode != 2) {
+        float axis_eta = env_sgs[7 * axis_lobes + 3];
+        if (ray_weight(axis_eta, occ.samples) >= 1.0f) {
+            axis_end = axis_lobes + 6;
+            if (occ.mask != 0u)
+                axis_ray_shares(axis_eta, s.n, occ, axis_shares);
+        }
+    }
     for (int e = 0; e < n_env; ++e) {
         __global const float *lobe = env_sgs + 7 * e;
         float3 axis = (float3)(lobe[0], lobe[1], lobe[2]);
@@ -1198,7 +1244,9 @@ __kernel void shade_pixels(
                 __global const float *r = env_sgs + 7 * ray_lobe;
                 amount = amount * lobe_ray_share((float3)(r[0], r[1], r[2]), r[3], axis, lobe[3], s.n,
                                                  lobe_occlusion[p], ray_lobe, lobe_rays, lobe_part.z);
-            } else
+            } else if (e >= axis_lobes && e < axis_end)
+                amount = amount * axis_shares[e - axis_lobes];
+            else
                 amount = amount * environment_share(tab, env_theta, n_env, e, axis, lobe[3], row, s, has_ssdf, occ);
             if (kept_mode == 1)
                 kept_amount[p * n_env + e] = amount;

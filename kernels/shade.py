@@ -677,6 +677,49 @@ def ray_share(axis: wp.vec3, eta: float, n: wp.vec3, frame: wp.mat33, mask: wp.u
     return 1.0
 
 
+vec6 = wp.types.vector(length=6, dtype=wp.float32)
+
+
+@wp.func(inline=False)
+def axis_ray_shares(eta: float, n: wp.vec3, frame: wp.mat33, mask: wp.uint32, samples: int, known: wp.uint32,
+                    turn: wp.vec2, disk_radii: wp.array(dtype=wp.vec3)) -> vec6:
+    """ray_share for the six lobes of sharpness η along +y, −y, +x, −x, +z, −z (shading.axis_lobe_start) in one
+    walk of the rays: a ray's weight towards ±x is exp(−η)·exp(±η ω_x) times its lobe-free factor, so three
+    exponentials and their reciprocals serve all six."""
+    total = vec6(0.0)
+    seen = vec6(0.0)
+    c = turn[0]
+    s = turn[1]
+    first = samples * (samples - 1) // 2
+    nx = wp.dot(frame[0], n)
+    ny = wp.dot(frame[1], n)
+    nz = wp.dot(frame[2], n)
+    fall = wp.exp(-eta)
+    for i in range(samples):
+        if ((known >> wp.uint32(i)) & wp.uint32(1)) != wp.uint32(0):
+            ray = disk_radii[first + i]
+            x = ray[0] * c
+            y = ray[0] * s
+            lift = ray[1]
+            base = fall * wp.max(x * nx + y * ny + lift * nz, 0.0) * ray[2]
+            d = x * frame[0] + y * frame[1] + lift * frame[2]
+            ex = wp.exp(eta * d[0])
+            ey = wp.exp(eta * d[1])
+            ez = wp.exp(eta * d[2])
+            w = base * vec6(ey, 1.0 / ey, ex, 1.0 / ex, ez, 1.0 / ez)
+            total = total + w
+            if ((mask >> wp.uint32(i)) & wp.uint32(1)) == wp.uint32(0):
+                seen = seen + w
+        c_next = c * GOLDEN_COS - s * GOLDEN_SIN
+        s = s * GOLDEN_COS + c * GOLDEN_SIN
+        c = c_next
+    out = vec6(1.0)
+    for k in range(6):
+        if total[k] > 1.0e-30:
+            out[k] = seen[k] / total[k]
+    return out
+
+
 @wp.func
 def lobe_ray_share(ray_axis: wp.vec3, ray_eta: float, axis: wp.vec3, eta: float, n: wp.vec3, mask: wp.uint32,
                    k: int, known: wp.uint32, turn: int) -> float:
@@ -1087,7 +1130,7 @@ def shade_pixels(
     tangents: wp.array(dtype=wp.vec3), face_material: wp.array(dtype=wp.int32),
     camera: wp.array(dtype=wp.float32),
     n_lights: int, lights: wp.array2d(dtype=wp.float32),
-    n_env: int, env_sgs: wp.array2d(dtype=wp.float32),
+    n_env: int, env_sgs: wp.array2d(dtype=wp.float32), axis_lobes: int,
     env_residual: wp.array(dtype=wp.vec3), residual_h: int, residual_w: int,
     env_maps: wp.array(dtype=wp.vec3), env_levels: wp.array2d(dtype=wp.float32),
     has_ssdf: int, ssdf_res: int, ssdf_basis: wp.array2d(dtype=wp.float32), ssdf_coeffs: wp.array2d(dtype=wp.float32),
@@ -1186,6 +1229,17 @@ def shade_pixels(
     # Each lobe's shadowed amount and the irradiance scale depend on the pixel, the environment and the rays, not
     # on the material: kept_mode 1 keeps them per pixel, 2 reads them back (a material edit's shade), 0 neither.
     lobes_irradiance = wp.vec3(0.0)
+    # The six shadow lobes along the axes (axis_lobes: the first's row, or −1), when the occlusion rays alone
+    # shadow them (environment_share's condition): their shares from one walk of the rays (axis_ray_shares).
+    axis_shares = vec6(1.0)
+    axis_end = int(-1)
+    if axis_lobes >= 0 and has_ssdf != 0 and kept_mode != 2:
+        axis_eta = f32_at2(env_sgs, axis_lobes, 3)
+        if ray_weight(axis_eta, occlusion_samples) >= 1.0:
+            axis_end = axis_lobes + 6
+            if mask != wp.uint32(0):
+                axis_shares = axis_ray_shares(axis_eta, s.n, frame, mask, occlusion_samples, occlusion_rays, turn,
+                                              disk_radii)
     for e in range(n_env):
         axis = wp.vec3(f32_at2(env_sgs, e, 0), f32_at2(env_sgs, e, 1), f32_at2(env_sgs, e, 2))
         eta = f32_at2(env_sgs, e, 3)
@@ -1203,6 +1257,8 @@ def shade_pixels(
                                    f32_at2(env_sgs, ray_lobe, 2))
                 amount = amount * lobe_ray_share(ray_axis, f32_at2(env_sgs, ray_lobe, 3), axis, eta, s.n,
                                                  lobe_occlusion[p], ray_lobe, lobe_rays, lobe_part[2])
+            elif e >= axis_lobes and e < axis_end:
+                amount = amount * axis_shares[e - axis_lobes]
             else:
                 amount = amount * environment_share(table, axis, eta, tr, s, has_ssdf, ssdf_res, ssdf_basis,
                                                     ssdf_coeffs, env_theta, e, mask, occlusion_samples,

@@ -14,7 +14,7 @@ from warp_biscale.render import OCCLUSION_SAMPLES, SHADOW_SAMPLES, frame_shadow_
 from warp_biscale.scene import Scene
 from warp_biscale.environment import Environment
 from warp_biscale.scene import Camera, DirectionalLight, Mesh, PointLight
-from warp_biscale.shading import shade_reference
+from warp_biscale.shading import axis_lobe_start, shade_reference
 
 
 def _frame_rays(scene):
@@ -138,6 +138,8 @@ def test_shade_kernel_matches_reference(backend, which, effective_material, many
     # ... and its sharp lobe (the sky's sun) gets rays of its own, some blocked
     assert (frame.inputs.n_sharp_lobes == 0) == (which == "lone")
     assert which == "lone" or frame.gbuffer.lobe_occlusion.any()
+    # ... and its six shadow lobes along the axes are shadowed by the rays alone, in the kernels in one walk
+    assert axis_lobe_start(frame.inputs.env_sgs) == (-1 if which == "lone" else frame.inputs.n_sharp_lobes)
     ref = shade_reference(frame)
     out = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights,
                         gbuffer=frame.gbuffer)
@@ -151,6 +153,22 @@ def test_shade_kernel_matches_reference(backend, which, effective_material, many
     msg = f"max err {err.max():.3g}, peak {peak:.3g}, p99.9 {np.quantile(err, 0.999):.3g}"
     assert np.quantile(err / (np.abs(ref) + 1e-3 * peak), 0.999) < 2e-3, msg
     assert err.max() < 2e-2 * peak, msg
+
+
+def test_axis_lobe_start_finds_the_six_shadow_lobes():
+    """shading.axis_lobe_start: the row where lighting.shadow_lobes' six lobes (±y, ±x, ±z, one sharpness) begin,
+    after any sharp lobes; −1 for a set without them, in another order, or of mixed sharpness."""
+    from warp_biscale.lighting import SHADOW_LOBE_AXES
+
+    six = np.concatenate([SHADOW_LOBE_AXES, np.full((6, 1), 2.0), np.ones((6, 3))], 1)
+    sun = np.array([[0.0, 0.8, 0.6, 900.0, 5.0, 5.0, 5.0]])
+    assert axis_lobe_start(six.astype(np.float32)) == 0
+    assert axis_lobe_start(np.concatenate([sun, six, sun])) == 1
+    assert axis_lobe_start(sun) == -1 and axis_lobe_start(np.zeros((0, 7))) == -1
+    assert axis_lobe_start(six[[1, 0, 2, 3, 4, 5]]) == -1
+    mixed = six.copy()
+    mixed[5, 3] = 3.0
+    assert axis_lobe_start(mixed) == -1
 
 
 def _assert_matches_reference(out, ref):

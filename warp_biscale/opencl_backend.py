@@ -43,6 +43,7 @@ from .device import (ASG_EM_BLOCK, KINDS, PROBE_VALUES, SCRATCH_BYTES, SHADE_MAX
                      probe_mismatch, start_scale)
 from .bvh import build_bvh
 from .environment import SUPPORT, equirect_tables
+from .shading import axis_lobe_start
 from .lobes import KERNEL_LOBES, START_RES
 from .progress import compile_notice
 from .smallscale import ray_offset
@@ -843,7 +844,8 @@ class OpenCLBackend(DeviceBackend):
             "table": buf("table", np.float32, table),
             "disk_radii": buf("disk_radii", np.float32, DISK_RADII),
             # Counts and shapes that the kernel takes by value.
-            "n_env": np.int32(len(static.env_sgs)), "n_levels": np.int32(len(levels)),
+            "n_env": np.int32(len(static.env_sgs)), "axis_lobes": np.int32(axis_lobe_start(static.env_sgs)),
+            "n_levels": np.int32(len(levels)),
             "residual_shape": tuple(np.int32(x) for x in np.shape(static.env_residual)[:2]),
             "ssdf_args": (np.int32(has_ssdf), np.int32(static.ssdf_res), np.int32(basis.shape[0]),
                           np.int32(coeffs.shape[1] if has_ssdf else 0)),
@@ -895,7 +897,8 @@ class OpenCLBackend(DeviceBackend):
                      *known, dev["faces"],
                      dev["positions"], dev["normals"], dev["tangents"],
                      dev["face_material"], eye, forward, right, up, np.float32(camera[12]), np.float32(camera[13]),
-                     np.int32(len(lights)), light_buf, dev["n_env"], dev["env_sgs"], dev["env_residual"],
+                     np.int32(len(lights)), light_buf, dev["n_env"], dev["env_sgs"], dev["axis_lobes"],
+                     dev["env_residual"],
                      *dev["residual_shape"], dev["env_maps"],
                      dev["n_levels"], dev["env_levels"], *dev["ssdf_args"], dev["ssdf_basis"],
                      dev["ssdf_coeffs"], dev["env_theta"], dev["disk_radii"], dev["table"], *dev["table_args"],

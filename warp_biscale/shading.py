@@ -97,7 +97,7 @@ from . import asg as asg_mod
 from . import litsphere, sg, svbrdf
 from .effective import ASG_LOBES, DIFFUSE_LEVEL_ETAS, EFF_LOBE_WIDTH, EffectiveBRDF, diffuse_level
 from .model import Frame
-from .lighting import prefiltered_lookup
+from .lighting import SHADOW_LOBE_AXES, prefiltered_lookup
 from .scene import light_sg, vertex_tangents
 from .environment import equirect_bilinear
 from .ssdf import ssdf_eval
@@ -178,6 +178,22 @@ def ray_share(axis, eta, n, n_geo, directions, blocked, known=None):
     total = w.sum(1)
     seen = (w * ~blocked).sum(1)
     return np.where(total > 1e-30, seen / np.maximum(total, 1e-300), 1.0)
+
+def axis_lobe_start(env_sgs) -> int:
+    """The row of env_sgs (K, ≥4) where `lighting.shadow_lobes`' six lobes along ±y, ±x, ±z (its
+    SHADOW_LOBE_AXES, in that order, one sharpness) begin, or −1. The shade kernels weigh the occlusion rays for
+    these six in one walk of the rays (a ray's three exponentials exp(η ω_x), exp(η ω_y), exp(η ω_z) and their
+    reciprocals give all six weights), not six: the same shares as `ray_share`'s, to float32 rounding."""
+    rows = np.asarray(env_sgs, np.float64)
+    axes = SHADOW_LOBE_AXES
+    if rows.ndim != 2 or rows.shape[1] < 4:
+        return -1
+    for start in range(len(rows) - len(axes) + 1):
+        block = rows[start:start + len(axes)]
+        if np.array_equal(block[:, :3], axes) and np.all(block[:, 3] == block[0, 3]):
+            return start
+    return -1
+
 
 IRRADIANCE_RATIO_MAX = 1e3  # the diffuse term's E/E_sg stops here: it then never passes kd·E
 MIN_COS_VIEW = 1e-4  # ωo·n is clamped here: silhouette pixels whose interpolated normal faces away

@@ -41,6 +41,7 @@ from .kernels import trace as ktrace
 from .kernels import truth as ktruth
 from .kernels import visibility as kvisibility
 from .environment import SUPPORT, equirect_tables
+from .shading import axis_lobe_start
 from .lobes import KERNEL_LOBES, START_RES
 from .progress import compile_notice
 from .smallscale import ray_offset
@@ -782,7 +783,8 @@ class WarpBackend(DeviceBackend):
             "eff_tables": arr("eff_tables", wp.float32), "eff_diffuse": arr("eff_diffuse", wp.float32),
             "uvs": arr("uvs", wp.vec2), "tex_info": arr("tex_info", wp.int32, 4),
             "tex_data": arr("tex_data", wp.vec3, host=np.asarray(static.tex_data, np.float32), shape=(-1, 3)),
-            "n_env": len(static.env_sgs), "has_ssdf": int(static.has_ssdf), "ssdf_res": int(static.ssdf_res),
+            "n_env": len(static.env_sgs), "axis_lobes": axis_lobe_start(static.env_sgs),
+            "has_ssdf": int(static.has_ssdf), "ssdf_res": int(static.ssdf_res),
         }
 
     def _launch_trace_occlusion(self, m, face, bary, position, eye, eps, t_min, samples, part, changed, n, mask):
@@ -826,7 +828,7 @@ class WarpBackend(DeviceBackend):
                       dev["positions"],
                       dev["normals"], dev["tangents"],
                       dev["face_material"], self._small_upload(m, "shade_camera", camera),
-                      len(lights), light_arr, dev["n_env"], dev["env_sgs"], dev["env_residual"],
+                      len(lights), light_arr, dev["n_env"], dev["env_sgs"], dev["axis_lobes"], dev["env_residual"],
                       *dev["residual_shape"], dev["env_maps"], dev["env_levels"],
                       dev["has_ssdf"], dev["ssdf_res"], dev["ssdf_basis"], dev["ssdf_coeffs"], dev["env_theta"],
                       dev["disk_radii"],
