@@ -386,6 +386,17 @@ class DeviceBackend:
         equal facet areas), found again by content (UploadCache). No kernel may write into it."""
         return self._uploads.get(host, KINDS[kind][0], lambda h: self._to_device(h, kind), tag=kind)
 
+    def _small_upload(self, entry: dict, key: str, host, kind: str = "f32"):
+        """entry[key], a device copy of a small array (the camera, the lights, their ray counts) as `kind`, made
+        again only when its values change: a frame that moves nothing allocates and copies nothing (a new OpenCL
+        buffer, or a blocking copy into one, each frame cost a GPU host's frame its time)."""
+        host = np.ascontiguousarray(host, KINDS[kind][0])
+        held = entry.get(key + "/host")
+        if held is None or held.shape != host.shape or not np.array_equal(held, host):
+            entry[key] = self._to_device(host, kind)
+            entry[key + "/host"] = host.copy()
+        return entry[key]
+
     def _facets(self, facets: Facets) -> DeviceFacets:
         """facets.device_cache[self.name]: the facets' device arrays, each uploaded when first asked for."""
         entry = facets.device_cache.get(self.name)

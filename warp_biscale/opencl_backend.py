@@ -820,8 +820,9 @@ class OpenCLBackend(DeviceBackend):
     def _launch_trace_shadows(self, m, face, bary, position, eye, lights, samples, eps, t_min, part, changed, n,
                               vis):
         self._launch("trace", "trace_shadows", (n, len(lights)), m["nodes"], m["tris"], *self._ray_mesh(m), face,
-                     bary, position, *(np.float32(e) for e in eye), self._buffer(lights, np.float32),
-                     self._buffer(samples, np.int32), np.float32(eps), np.float32(t_min), *map(np.int32, part),
+                     bary, position, *(np.float32(e) for e in eye), self._small_upload(m, "lights", lights),
+                     self._small_upload(m, "light_samples", samples, "i32"), np.float32(eps), np.float32(t_min),
+                     *map(np.int32, part),
                      changed[0], np.int32(changed[1]), np.int32(n), np.int32(len(lights)), vis)
 
     def _upload_shade_static(self, static, levels, basis, coeffs):
@@ -863,7 +864,7 @@ class OpenCLBackend(DeviceBackend):
     def _launch_trace_lobe_rays(self, m, face, bary, position, eye, lobes, eps, t_min, part, changed, n, mask):
         self._launch("trace", "trace_lobe_rays", (n,), m["nodes"], m["tris"], *self._ray_mesh(m), face, bary,
                      position,
-                     *(np.float32(e) for e in eye), self._buffer(lobes, np.float32),
+                     *(np.float32(e) for e in eye), self._small_upload(m, "lobe_ray_lobes", lobes),
                      np.int32(len(lobes)), np.int32(LOBE_RAYS), np.float32(eps), np.float32(t_min),
                      *map(np.int32, part), changed[0], np.int32(changed[1]), np.int32(n), mask)
 
@@ -883,14 +884,12 @@ class OpenCLBackend(DeviceBackend):
     def _launch_share_block_shadows(self, m, lenders, face, samples, part, n, n_lights, traced, shared):
         self._launch("trace", "share_block_shadows", (n,), lenders, face,
                      *map(np.int32, (part[2], part[3], n, part[0], part[1], n_lights)),
-                     self._buffer(samples, np.int32), traced, shared)
+                     self._small_upload(m, "light_samples", samples, "i32"), traced, shared)
 
     def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, part, known, lights, camera,
                       n, only_material, changed, kept_mode, kept_amount, kept_scale, out):
         cltypes = self._cl.cltypes
-        light_buf = self._reuse(m, "shade_lights", (max(1, len(lights)), 8), "f32")
-        if len(lights):
-            self._cl.enqueue_copy(self._queue, light_buf, np.ascontiguousarray(lights))
+        light_buf = self._small_upload(m, "shade_lights", lights if len(lights) else np.zeros((1, 8), np.float32))
         eye, forward, right, up = (cltypes.make_float4(*camera[k:k + 3], 0.0) for k in (0, 3, 6, 9))
         self._launch("shade", "shade_pixels", (n,),
                      face, bary, vis, occ, np.int32(occ_samples), lobe_occ, np.int32(n_sharp), *map(np.int32, part),
@@ -914,9 +913,7 @@ class OpenCLBackend(DeviceBackend):
 
     def _launch_shade_litsphere(self, dev, m, face, bary, vis, lights, camera, view_mode, shrink, env_maps, env_levels,
                                 n, out):
-        light_buf = self._reuse(m, "shade_lights", (max(1, len(lights)), 8), "f32")
-        if len(lights):
-            self._cl.enqueue_copy(self._queue, light_buf, np.ascontiguousarray(lights))
+        light_buf = self._small_upload(m, "shade_lights", lights if len(lights) else np.zeros((1, 8), np.float32))
         eye, forward, right, up = (self._cl.cltypes.make_float4(*camera[k:k + 3], 0.0) for k in (0, 3, 6, 9))
         self._launch("litsphere", "shade_litsphere", (n,), face, bary, vis, m["faces"], m["points"], m["normals"],
                      m["face_material"], eye, forward, right, up, np.float32(camera[12]), np.float32(camera[13]),

@@ -712,16 +712,6 @@ class WarpBackend(DeviceBackend):
                 "face_normals": self._to_device(mesh.face_normals, "vec3"),
                 "mesh": wp.Mesh(points=points, indices=faces.flatten(), bvh_constructor="sah", bvh_leaf_size=2)}
 
-    def _small_upload(self, entry, key, host, dtype=wp.float32):
-        """entry's device copy of a small float32 (or `dtype`) array (camera, lights), uploaded again only when
-        its values change: a frame that moves nothing allocates and copies nothing."""
-        host = np.ascontiguousarray(host, wp.dtype_to_numpy(dtype))
-        held = entry.get(key + "_host")
-        if held is None or held.shape != host.shape or not np.array_equal(held, host):
-            entry[key + "_host"] = host.copy()
-            entry[key] = wp.array(host, dtype=dtype, device=self._device)
-        return entry[key]
-
     def _scratch(self, role, shape, dtype):
         """A device array that no caller keeps (a kernel's intermediate, or a table read back at once),
         reused from call to call while its shape and type match: each wp.empty costs a GPU host about
@@ -749,7 +739,7 @@ class WarpBackend(DeviceBackend):
         self._launch(ktrace.trace_shadows, (len(lights), n),
                      [m["mesh"].id, *self._ray_mesh(m), face, bary, position, wp.vec3(*eye),
                       self._small_upload(m, "lights", lights),
-                      self._small_upload(m, "light_samples", samples, wp.int32), eps, t_min, *part, *changed],
+                      self._small_upload(m, "light_samples", samples, "i32"), eps, t_min, *part, *changed],
                      [vis], pieces=FRAME_PIECES)
 
     def _upload_shade_static(self, static, levels, basis, coeffs):
@@ -815,7 +805,7 @@ class WarpBackend(DeviceBackend):
     def _launch_share_block_shadows(self, m, lenders, face, samples, part, n, n_lights, traced, shared):
         self._launch(ktrace.share_block_shadows, n,
                      [lenders, face, part[2], part[3], part[0], part[1], n_lights,
-                      self._small_upload(m, "light_samples", samples, wp.int32), traced], [shared],
+                      self._small_upload(m, "light_samples", samples, "i32"), traced], [shared],
                      pieces=FRAME_PIECES)
 
     def _launch_shade(self, dev, m, face, bary, vis, occ, occ_samples, lobe_occ, n_sharp, part, known, lights, camera,
