@@ -31,6 +31,9 @@ import warp as wp
 from .asg import asg_eval, asg_load
 from .common import lowest_bit
 
+# Nothing here is differentiated: no backward kernels, which take most of the compile time.
+wp.set_module_options({"enable_backward": False})
+
 MAX_LOBES = 16
 vec16 = wp.types.vector(length=MAX_LOBES, dtype=wp.float32)
 vec16d = wp.types.vector(length=MAX_LOBES, dtype=wp.float64)

@@ -29,6 +29,9 @@ Numerics (measured in tests/test_asg_kernels.py, quoted in docs/design.md §9):
 
 import warp as wp
 
+# Nothing here is differentiated: no backward kernels, which take most of the compile time.
+wp.set_module_options({"enable_backward": False})
+
 PI = wp.constant(3.14159265358979)
 FLOAT_MAX = wp.constant(3.4028234e38)
 

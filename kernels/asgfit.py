@@ -23,6 +23,9 @@ import warp as wp
 
 from .asg import asg_unit_integral
 
+# Nothing here is differentiated: no backward kernels, which take most of the compile time.
+wp.set_module_options({"enable_backward": False})
+
 # 48-point Gauss–Legendre on [−1, 1] (numpy.polynomial.legendre.leggauss(48)), as asg_bake._disk_moments.
 _X, _W = np.polynomial.legendre.leggauss(48)
 vec48 = wp.types.vector(length=48, dtype=wp.float64)

@@ -8,6 +8,9 @@ import warp as wp
 
 from warp_biscale import trace as _trace
 
+# Nothing here is differentiated: no backward kernels, which take most of the compile time.
+wp.set_module_options({"enable_backward": False})
+
 LAMBERT = wp.constant(0)
 BLINN_PHONG = wp.constant(1)
 COOK_TORRANCE = wp.constant(2)

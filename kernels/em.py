@@ -17,6 +17,9 @@ import warp as wp
 
 from .common import cube_bin
 
+# Nothing here is differentiated: no backward kernels, which take most of the compile time.
+wp.set_module_options({"enable_backward": False})
+
 
 @wp.kernel
 def ndf_responsibilities(

@@ -20,6 +20,9 @@ angle), columns [cos φ, sin φ, φ].
 
 import warp as wp
 
+# Nothing here is differentiated: no backward kernels, which take most of the compile time.
+wp.set_module_options({"enable_backward": False})
+
 TWO_PI = wp.constant(6.283185307179586)
 PI = wp.constant(3.141592653589793)
 

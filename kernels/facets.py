@@ -13,6 +13,9 @@ slicing: PoCL spreads one launch over every core itself.
 
 import warp as wp
 
+# Nothing here is differentiated: no backward kernels, which take most of the compile time.
+wp.set_module_options({"enable_backward": False})
+
 
 @wp.func
 def radical_inverse_24(s: int) -> float:

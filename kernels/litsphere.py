@@ -18,7 +18,8 @@ from .shade import (PI, camera_ray, finite_radiance, grid_corners, grid_weights,
 # Fast math on CUDA (approximate division, square root and trigonometry, ~1e-5 relative against the
 # float64 oracle, far inside the tests' tolerances): this shading is bound by its arithmetic. cl/'s twin
 # is built alike (opencl_backend.FAST_MATH).
-wp.set_module_options({"fast_math": True})
+# (enable_backward off: nothing here is differentiated, and backward kernels take most of the compile time)
+wp.set_module_options({"fast_math": True, "enable_backward": False})
 
 K_OUTSIDE = wp.constant(_ls.K_OUTSIDE)
 RIM = wp.constant(_ls.RIM)

@@ -13,6 +13,9 @@ import warp as wp
 
 from .common import material_cosine_weighted
 
+# Nothing here is differentiated: no backward kernels, which take most of the compile time.
+wp.set_module_options({"enable_backward": False})
+
 
 @wp.kernel
 def brdf_matrix(

@@ -6,6 +6,9 @@ as facet sampling does, so a device that cannot run the stages fails here, not i
 
 import warp as wp
 
+# Nothing here is differentiated: no backward kernels, which take most of the compile time.
+wp.set_module_options({"enable_backward": False})
+
 
 @wp.kernel
 def probe(values: wp.array(dtype=wp.float64), out: wp.array(dtype=wp.float64)):

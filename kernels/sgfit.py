@@ -19,6 +19,9 @@ The host adds the chunks' partial sums in float64.
 
 import warp as wp
 
+# Nothing here is differentiated: no backward kernels, which take most of the compile time.
+wp.set_module_options({"enable_backward": False})
+
 
 @wp.func
 def specular_basis(basis: wp.array2d(dtype=wp.float32), s: int, eta: float, f0: float):

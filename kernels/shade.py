@@ -29,7 +29,8 @@ from .common import (ANISOTROPIC_WARD, ASHIKHMIN_SHIRLEY, GOLDEN_ANGLE, LOBE_COS
 # Fast math on CUDA (approximate division, square root, exp and trigonometry): this shading is bound by its
 # arithmetic, and its float32 results are read against the float64 oracle with tolerances far above fast
 # math's error. cl/'s twin is built alike (opencl_backend.FAST_MATH).
-wp.set_module_options({"fast_math": True})
+# (enable_backward off: nothing here is differentiated, and backward kernels take most of the compile time)
+wp.set_module_options({"fast_math": True, "enable_backward": False})
 
 PI = wp.constant(3.14159265358979)
 LOG_LO = wp.constant(_sg.TABLE_LOG10_ETA[0])

@@ -17,6 +17,9 @@ atan2(|d×t|, d·t), accurate near 0.
 
 import warp as wp
 
+# Nothing here is differentiated: no backward kernels, which take most of the compile time.
+wp.set_module_options({"enable_backward": False})
+
 
 @wp.func
 def cone_near_cos(ca: float, cos_r: float, sin_r: float) -> float:

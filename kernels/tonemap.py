@@ -9,6 +9,9 @@ times its weight added to the frame's sum (the first sample sets it), so that on
 
 import warp as wp
 
+# Nothing here is differentiated: no backward kernels, which take most of the compile time.
+wp.set_module_options({"enable_backward": False})
+
 # Past this the three operators are 1 to within half an 8-bit step (ACES reaches 1 at ~7.2), and ACES's
 # products stay finite in float32.
 LARGE = wp.constant(1.0e4)

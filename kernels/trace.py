@@ -22,6 +22,9 @@ from warp_biscale import trace as _trace
 from .common import (LOBE_RAYS, disk_basis, disk_sample, lobe_ray_direction, occlusion_direction, part_bits,
                      pixel_part, ray_part, set_block_side)
 
+# Nothing here is differentiated: no backward kernels, which take most of the compile time.
+wp.set_module_options({"enable_backward": False})
+
 SHARE_NORMAL_COS = wp.constant(_trace.SHARE_NORMAL_COS)
 SHARE_PLANE = wp.constant(_trace.SHARE_PLANE)
 

@@ -16,6 +16,9 @@ import warp as wp
 
 from .common import ANISOTROPIC_WARD, ASHIKHMIN_SHIRLEY, cell_exits, lowest_bit, material_cosine_weighted, next_cell
 
+# Nothing here is differentiated: no backward kernels, which take most of the compile time.
+wp.set_module_options({"enable_backward": False})
+
 
 @wp.kernel
 def visible_area_partial(

@@ -14,6 +14,9 @@ import warp as wp
 
 from .common import cell_exits, next_cell
 
+# Nothing here is differentiated: no backward kernels, which take most of the compile time.
+wp.set_module_options({"enable_backward": False})
+
 
 @wp.func
 def hit_any_triangle(vertices: wp.array(dtype=wp.vec3), faces: wp.array2d(dtype=wp.int32),
