@@ -1,7 +1,10 @@
 """Shared fixtures: one test body runs on every backend present (Warp CPU, PoCL here and in CI;
 CUDA and NVIDIA OpenCL on a GPU machine), and small tiles built by hand."""
 
+import atexit
 import os
+import shutil
+import tempfile
 
 import numpy as np
 import pytest
@@ -16,6 +19,12 @@ settings.register_profile("ci", derandomize=True, database=None)
 settings.register_profile("explore")
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
+
+# What the library keeps between processes (the lighting table, SSDFs, matrix factors) goes to a folder of this
+# session's own: a test never reads what an earlier run (of other code) left, and every SSDF a test needs is built
+# by the kernels of this run at least once (subprocesses, the CLI's, inherit the folder).
+os.environ["WARP_BISCALE_CACHE"] = tempfile.mkdtemp(prefix="warp-biscale-tests-")
+atexit.register(shutil.rmtree, os.environ["WARP_BISCALE_CACHE"], ignore_errors=True)
 
 BACKEND_ENTRIES = wb.backends()  # probed once for the whole session
 

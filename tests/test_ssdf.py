@@ -12,6 +12,8 @@ Tolerances, and why:
   exact visibility; there the sign must agree for ≥ 97% of samples.
 """
 
+import os
+
 import numpy as np
 import pytest
 
@@ -399,19 +401,20 @@ def test_eval_reference_at_texel_centres():
 
 
 def test_build_caches_and_validates(backend):
+    """The in-memory cache and the checks (the disk's left out: test_build_keeps_ssdfs_on_disk_between_processes)."""
     mesh = sphere_over_plane(level=1, divisions=4)
-    a = ssdf.build(mesh, backend, resolution=8, terms=4)
+    a = ssdf.build(mesh, backend, resolution=8, terms=4, disk_cache=False)
     assert set(a.timings) == {"trace", "distance", "pca", "total"}
     assert ssdf.build(mesh, backend, resolution=8, terms=4) is a
-    b = ssdf.build(mesh, backend, resolution=8, terms="auto")
+    b = ssdf.build(mesh, backend, resolution=8, terms="auto", disk_cache=False)
     assert b is not a and 1 <= b.terms <= ssdf.MAX_AUTO_TERMS
     assert b.rms_error < np.sqrt(4 * np.pi / 64) / 4 + 1e-6 or b.terms == min(ssdf.MAX_AUTO_TERMS, 64)
     # An unoccluded mesh with skip_unoccluded: rays only, placeholders; an occluded one: the full field.
     lone = Mesh.sphere(1.0, subdivisions=1)
-    skipped = ssdf.build(lone, backend, resolution=8, terms=4, skip_unoccluded=True)
+    skipped = ssdf.build(lone, backend, resolution=8, terms=4, skip_unoccluded=True, disk_cache=False)
     assert skipped.occluded is False and skipped.coeffs.shape == (len(lone.vertices), 0)
     assert set(skipped.timings) == {"trace", "total"} and np.isnan(skipped.rms_error)
-    assert ssdf.build(lone, backend, resolution=8, terms=4).coeffs.shape == (len(lone.vertices), 4)
+    assert ssdf.build(lone, backend, resolution=8, terms=4, disk_cache=False).coeffs.shape == (len(lone.vertices), 4)
     assert ssdf.build(mesh, backend, resolution=8, terms=4, skip_unoccluded=True) is a
     for bad in (1, 2.5, 129):
         with pytest.raises(ValueError, match="resolution"):
@@ -419,6 +422,40 @@ def test_build_caches_and_validates(backend):
     for bad in (0, 65, 1.5, None, "all"):
         with pytest.raises(ValueError, match="terms"):
             ssdf.build(mesh, backend, resolution=8, terms=bad)
+
+
+def test_build_keeps_ssdfs_on_disk_between_processes(backend, tmp_path, monkeypatch):
+    """ssdf.build keeps each SSDF in io.cache_folder()/ssdf: a mesh of the same geometry with nothing in memory (a new
+    process's) reads it back, bit for bit and without tracing; another resolution, another geometry or disk_cache
+    False builds; a damaged file is built again and replaced; at most DISK_CACHE_ENTRIES files stay."""
+    monkeypatch.setenv("WARP_BISCALE_CACHE", str(tmp_path))
+    mesh = sphere_over_plane(level=1, divisions=4)
+    built = ssdf.build(mesh, backend, resolution=8, terms=4)
+    assert "trace" in built.timings
+    path = ssdf.disk_cache_path(mesh, backend.name, 8, 4, None, False)
+    assert os.path.isfile(path) and os.listdir(tmp_path / "ssdf") == [os.path.basename(path)]
+    again = sphere_over_plane(level=1, divisions=4)  # the same geometry, nothing in memory
+    read = ssdf.build(again, backend, resolution=8, terms=4)
+    assert set(read.timings) == {"disk", "total"}
+    np.testing.assert_array_equal(read.basis, built.basis)
+    np.testing.assert_array_equal(read.coeffs, built.coeffs)
+    assert read.rms_error == built.rms_error and read.occluded == built.occluded
+    assert ssdf.build(again, backend, resolution=8, terms=4) is read  # then kept in memory
+    assert "trace" in ssdf.build(sphere_over_plane(level=1, divisions=4), backend, resolution=16, terms=4).timings
+    moved = sphere_over_plane(level=1, divisions=4)
+    moved.vertices = moved.vertices + np.array([0.0, 0.01, 0.0])
+    assert "trace" in ssdf.build(moved, backend, resolution=8, terms=4).timings
+    assert "trace" in ssdf.build(sphere_over_plane(level=1, divisions=4), backend, resolution=8, terms=4,
+                                 disk_cache=False).timings
+    with open(path, "wb") as fh:
+        fh.write(b"PK not an archive")
+    rebuilt = ssdf.build(sphere_over_plane(level=1, divisions=4), backend, resolution=8, terms=4)
+    assert "trace" in rebuilt.timings
+    np.testing.assert_array_equal(rebuilt.coeffs, built.coeffs)
+    assert "disk" in ssdf.build(sphere_over_plane(level=1, divisions=4), backend, resolution=8, terms=4).timings
+    monkeypatch.setattr(ssdf, "DISK_CACHE_ENTRIES", 2)
+    ssdf.build(sphere_over_plane(level=1, divisions=3), backend, resolution=8, terms=4)
+    assert len(os.listdir(tmp_path / "ssdf")) == 2
 
 
 def test_ssdf_at_axes_is_ssdf_eval_at_each_point_and_axis():

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import os
 import time
 from dataclasses import dataclass, field
 
@@ -44,6 +45,7 @@ import numpy as np
 import scipy.linalg
 
 from .backend import get_backend
+from .io import cache_folder, read_npz, save_npz
 from .progress import as_progress
 from .scene import SSDF_RESOLUTIONS
 from .trace import offsets
@@ -357,11 +359,77 @@ def _fingerprint(mesh) -> str:
     return h.hexdigest()
 
 
+DISK_CACHE_ENTRIES = 32  # SSDFs kept on disk (the least recently used go first); ~0.7 MB for 10 000 vertices
+
+
+@functools.lru_cache(maxsize=1)
+def _code_digest() -> str:
+    """A digest of the package's source (host code, Warp kernels, OpenCL kernels) and numpy's version: an SSDF
+    kept on disk by one version of the code is never read by another."""
+    import warp_biscale
+
+    h = hashlib.blake2b(np.__version__.encode(), digest_size=16)
+    roots = list(dict.fromkeys(os.path.abspath(r) for r in warp_biscale.__path__))
+    for root in roots:
+        for sub in ("", "kernels", "cl"):
+            folder = os.path.join(root, sub)
+            if not os.path.isdir(folder):
+                continue
+            for name in sorted(os.listdir(folder)):
+                if name.endswith((".py", ".cl")):
+                    with open(os.path.join(folder, name), "rb") as fh:
+                        h.update(name.encode() + fh.read())
+    return h.hexdigest()
+
+
+def disk_cache_path(mesh, backend_name: str, resolution: int, terms, tolerance, skip_unoccluded: bool) -> str:
+    """The file `build` keeps this SSDF in between processes (`io.cache_folder()`/ssdf): named by a digest of the
+    geometry, the settings, the backend that traced it and the code (`_code_digest`)."""
+    key = repr(("ssdf", 1, _fingerprint(mesh), backend_name, int(resolution), terms, tolerance,
+                bool(skip_unoccluded), _code_digest()))
+    name = hashlib.blake2b(key.encode(), digest_size=16).hexdigest()
+    return os.path.join(cache_folder(), "ssdf", f"{name}.npz")
+
+
+def _read_disk(path, resolution: int, n_vertices: int) -> SsdfField | None:
+    """The SSDF kept at `path`, or None where there is none or it is unreadable or not this mesh's shape."""
+    try:
+        head, arrays = read_npz(path, "ssdf_cache")
+        basis, coeffs = arrays["basis"], arrays["coeffs"]
+        if (basis.dtype != np.float32 or coeffs.dtype != np.float32 or basis.ndim != 2 or coeffs.ndim != 2
+                or basis.shape[1] != resolution * resolution or coeffs.shape != (n_vertices, basis.shape[0] - 1)
+                or not (np.isfinite(basis).all() and np.isfinite(coeffs).all())):
+            return None
+        os.utime(path)  # recently used: the last to go
+        return SsdfField(resolution, basis, coeffs, float(head["rms_error"]), bool(head["occluded"]),
+                         arrays["rms_by_terms"], {})
+    except Exception:  # noqa: BLE001 - whatever is wrong with a kept file, the SSDF is built again
+        return None
+
+
+def _write_disk(path, field_: SsdfField) -> None:
+    """Keep `field_` at `path` (atomically), then drop the least recently used beyond DISK_CACHE_ENTRIES; a folder
+    that takes no file costs the next process the build, nothing more."""
+    try:
+        save_npz(path, "ssdf_cache", 1, {"rms_error": float(field_.rms_error), "occluded": bool(field_.occluded)},
+                 {"basis": field_.basis, "coeffs": field_.coeffs,
+                  "rms_by_terms": np.asarray(field_.rms_by_terms, np.float64)})
+        folder = os.path.dirname(path)
+        kept = sorted((os.path.getmtime(os.path.join(folder, f)), f) for f in os.listdir(folder) if f.endswith(".npz"))
+        for _, name in kept[:max(0, len(kept) - DISK_CACHE_ENTRIES)]:
+            os.remove(os.path.join(folder, name))
+    except OSError:
+        pass
+
+
 def build(mesh, backend="auto", resolution: int = DEFAULT_RESOLUTION, terms=DEFAULT_TERMS, progress=None,
-          tolerance: float | None = None, skip_unoccluded: bool = False) -> SsdfField:
+          tolerance: float | None = None, skip_unoccluded: bool = False, disk_cache: bool = True) -> SsdfField:
     """SSDF visibility of `mesh` (Wang §5), compressed with `terms` PCA terms (int or "auto", see
     `compress`). Cached on the mesh (`mesh.device_cache`, keyed by resolution, terms, tolerance and
-    a hash of the geometry), so rendering the same mesh again costs nothing.
+    a hash of the geometry), so rendering the same mesh again costs nothing; and, with `disk_cache`, on disk
+    between processes (`disk_cache_path`: the geometry, settings, backend and code; the DISK_CACHE_ENTRIES most
+    recently used kept), so a new process rendering a mesh it rendered before skips the build (timings then
+    {"disk": s, "total": s}).
 
     skip_unoccluded: when no vertex ray hits anything (`occluded` False, the renderer then uses the
     horizon asin(ω·n)), skip the distance transform and the PCA: the field's basis is then one zero
@@ -377,9 +445,16 @@ def build(mesh, backend="auto", resolution: int = DEFAULT_RESOLUTION, terms=DEFA
     if cached is not None:
         return cached
     be = get_backend(backend)
+    t0 = time.perf_counter()
+    path = disk_cache_path(mesh, be.name, s, terms, tolerance, skip_unoccluded) if disk_cache else None
+    kept = _read_disk(path, s, len(mesh.vertices)) if path else None
+    if kept is not None:
+        elapsed = time.perf_counter() - t0
+        kept.timings = {"disk": elapsed, "total": elapsed}
+        mesh.device_cache[key + (("skip",) if skip_unoccluded and not kept.occluded else ())] = kept
+        return kept
     prog = as_progress(progress)
     timings = {}
-    t0 = time.perf_counter()
     visible = vertex_visibility(mesh, be, s, prog)
     be.synchronize()
     t1 = time.perf_counter()
@@ -392,6 +467,8 @@ def build(mesh, backend="auto", resolution: int = DEFAULT_RESOLUTION, terms=DEFA
         result = SsdfField(s, np.zeros((1, s * s), np.float32), np.zeros((len(visible), 0), np.float32),
                            float("nan"), False, np.zeros(0), timings)
         mesh.device_cache[key + ("skip",)] = result
+        if path:
+            _write_disk(path, result)
         return result
     prog.stage(f"SSDF distance ({len(visible)}x{s * s})", 1)
     theta = distance_field(visible, be, s)
@@ -410,6 +487,8 @@ def build(mesh, backend="auto", resolution: int = DEFAULT_RESOLUTION, terms=DEFA
     prog.done()
     result = SsdfField(s, basis32, coeffs32, rms, occluded, rms_by_terms, timings)
     mesh.device_cache[key] = result
+    if path:
+        _write_disk(path, result)
     return result
 
 
