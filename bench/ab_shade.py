@@ -1,5 +1,6 @@
 """A/B of two library trees' shade stage alone, in one sitting: the render target scene (`ab_trees.target_scene`)
-at W × H, packed once (G-buffer, rays), then `backend.shade` N times (after one warm-up call); one JSON line a run:
+at W × H, packed once (G-buffer, rays, left on the device), then `backend.shade` of the device's G-buffer N times, the
+image left on the device (after one warm-up call; the kernel's time, not the transfers'); one JSON line a run:
 label, backend, size, the median and fastest call, and the image's mean radiance (which tells the trees apart
 where they are meant to render differently). Alternate the trees, each in its own process:
 
@@ -31,12 +32,16 @@ def main():
     backend = wb.get_backend(name)
     scene = target_scene(backend)
     scene.camera.width, scene.camera.height = w, h
-    frame = pack_frame(scene, backend)
+    frame = pack_frame(scene, backend)  # (its G-buffer and rays also stay on the device, where the shade reads them)
     seconds = []
-    for _ in range(n + 1):
+    for _ in range(n + 1):  # the shade kernel alone: no G-buffer upload, the image left on the device
         t0 = time.perf_counter()
-        out = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights, gbuffer=frame.gbuffer)
+        backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights, to_host=False)
+        backend.synchronize()
         seconds.append(time.perf_counter() - t0)
+    out = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights)
+    assert np.array_equal(out, backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights,
+                                             gbuffer=frame.gbuffer)), "the device's G-buffer is not the frame's"
     print(json.dumps({"label": label, "backend": backend.name, "size": [w, h],
                       "median_ms": 1e3 * float(np.median(seconds[1:])), "min_ms": 1e3 * min(seconds[1:]),
                       "mean_radiance": float(np.mean(out))}))
