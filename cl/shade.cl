@@ -582,7 +582,7 @@ CL_INLINE void axis_ray_shares(float eta, float3 n, Occlusion occ, float share[6
     float c = occ.turn_c, s = occ.turn_s;
     __global const float *ray = occ.disk + 3 * (occ.samples * (occ.samples - 1) / 2);
     float nx = dot3(occ.a, n), ny = dot3(occ.b, n), nz = dot3(occ.n, n);
-    float fall = exp(-eta);
+    float fall = exp(-eta); /* G's exp(−η), kept so that the 1e-30 floor on the total means what it does in ray_share */
     for (int i = 0; i < occ.samples; ++i) {
         if ((occ.known >> i) & 1u) {
             float x = ray[3 * i] * c, y = ray[3 * i] * s, lift = ray[3 * i + 1];
@@ -652,14 +652,15 @@ CL_INLINE int nearest_ray_lobe(__global const float *env_sgs, int n_sharp, int e
 }
 
 /* The share of ∫ G(ω; axis, η, 1)(n·ω)⁺ dω left unoccluded (1 without an SSDF): the SSDF's, blended for
- * broad lobes with the occlusion rays' (ray_weight; a mask with no bit set sees it all). */
+ * broad lobes with the occlusion rays' (ray_weight; a mask with no bit set sees it all). rays_given ≥ 0: the
+ * rays' share, found already (axis_ray_shares); < 0: found here. */
 CL_INLINE float environment_share_at(Table tab, float theta, float3 axis, float eta, EtaRow row, SurfacePoint s,
-                                     Occlusion occ)
+                                     Occlusion occ, float rays_given)
 {
     float share = ssdf_visible_at(tab, theta, axis, row, s.n);
     float weight = ray_weight(eta, occ.samples);
     if (weight > 0.0f) {
-        float rays = occ.mask != 0u ? ray_share(axis, eta, s.n, occ) : 1.0f;
+        float rays = rays_given >= 0.0f ? rays_given : occ.mask != 0u ? ray_share(axis, eta, s.n, occ) : 1.0f;
         share = weight * rays + (1.0f - weight) * share;
     }
     return share;
@@ -676,15 +677,15 @@ CL_INLINE float rays_alone_share(float3 axis, float eta, float3 n, Occlusion occ
  * vertices' (env_theta (V, n_env), ssdf.ssdf_at_axes: θd is linear in the coefficients). Warp's takes e = −1 for
  * a specular lobe's lookup; the specular loop here calls environment_share_at with its cached θd instead. */
 CL_INLINE float environment_share(Table tab, __global const float *env_theta, int n_env, int e, float3 axis,
-                                  float eta, EtaRow row, SurfacePoint s, int has_ssdf, Occlusion occ)
+                                  float eta, EtaRow row, SurfacePoint s, int has_ssdf, Occlusion occ, float rays_given)
 {
     if (has_ssdf == 0)
         return 1.0f;
     if (ray_weight(eta, occ.samples) >= 1.0f)
-        return rays_alone_share(axis, eta, s.n, occ);
+        return rays_given >= 0.0f ? rays_given : rays_alone_share(axis, eta, s.n, occ);
     __global const float *theta = env_theta + e;
     return environment_share_at(tab, s.w0 * theta[s.i0 * n_env] + s.w1 * theta[s.i1 * n_env]
-                                + s.w2 * theta[s.i2 * n_env], axis, eta, row, s, occ);
+                                + s.w2 * theta[s.i2 * n_env], axis, eta, row, s, occ, rays_given);
 }
 
 /* Per channel, the exact irradiance E = lobes + residual over the environment lobes' own irradiance:
@@ -1216,13 +1217,14 @@ __kernel void shade_pixels(
     /* Each lobe's shadowed amount and the irradiance scale depend on the pixel, the environment and the rays, not
      * on the material: kept_mode 1 keeps them per pixel, 2 reads them back (a material edit's shade), 0 neither. */
     float3 lobes_irradiance = (float3)(0.0f, 0.0f, 0.0f);
-    /* The six shadow lobes along the axes, when the occlusion rays alone shadow them (environment_share's
-     * condition): their shares from one walk of the rays (axis_ray_shares). */
+    /* The six shadow lobes along the axes, where the occlusion rays weigh in their shadow (environment_share's
+     * ray_weight > 0): the rays' shares from one walk of the rays (axis_ray_shares), which environment_share then
+     * takes (alone, or blended with the SSDF's). */
     float axis_shares[6] = {1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f};
     int axis_end = -1;
     if (axis_lobes >= 0 && has_ssdf != 0 && kept_mode != 2) {
         float axis_eta = env_sgs[7 * axis_lobes + 3];
-        if (ray_weight(axis_eta, occ.samples) >= 1.0f) {
+        if (ray_weight(axis_eta, occ.samples) > 0.0f) {
             axis_end = axis_lobes + 6;
             if (occ.mask != 0u)
                 axis_ray_shares(axis_eta, s.n, occ, axis_shares);
@@ -1244,10 +1246,10 @@ __kernel void shade_pixels(
                 __global const float *r = env_sgs + 7 * ray_lobe;
                 amount = amount * lobe_ray_share((float3)(r[0], r[1], r[2]), r[3], axis, lobe[3], s.n,
                                                  lobe_occlusion[p], ray_lobe, lobe_rays, lobe_part.z);
-            } else if (e >= axis_lobes && e < axis_end)
-                amount = amount * axis_shares[e - axis_lobes];
-            else
-                amount = amount * environment_share(tab, env_theta, n_env, e, axis, lobe[3], row, s, has_ssdf, occ);
+            } else
+                amount = amount * environment_share(tab, env_theta, n_env, e, axis, lobe[3], row, s, has_ssdf, occ,
+                                                    e >= axis_lobes && e < axis_end ? axis_shares[e - axis_lobes]
+                                                                                    : -1.0f);
             if (kept_mode == 1)
                 kept_amount[p * n_env + e] = amount;
         }
@@ -1409,7 +1411,7 @@ __kernel void shade_pixels(
                     amount = amount * (ray_weight(eta, occ.samples) >= 1.0f
                                        ? rays_alone_share(axis, eta, s.n, occ)
                                        : environment_share_at(tab, lobe_cached ? lobe_theta : ssdf_theta(ssdf, axis),
-                                                              axis, eta, er, s, occ));
+                                                              axis, eta, er, s, occ, -1.0f));
                 float3 light_part = (float3)(0.0f, 0.0f, 0.0f);
                 if (with_lights != 0)
                     light_part = lobe_from_lights(tab, axis, eta, s, n_lights, lights, vis);

@@ -695,7 +695,7 @@ def axis_ray_shares(eta: float, n: wp.vec3, frame: wp.mat33, mask: wp.uint32, sa
     nx = wp.dot(frame[0], n)
     ny = wp.dot(frame[1], n)
     nz = wp.dot(frame[2], n)
-    fall = wp.exp(-eta)
+    fall = wp.exp(-eta)  # (G's exp(−η), kept so that the 1e-30 floor on the total means what it does in ray_share)
     for i in range(samples):
         if ((known >> wp.uint32(i)) & wp.uint32(1)) != wp.uint32(0):
             ray = disk_radii[first + i]
@@ -770,15 +770,17 @@ def environment_share(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: f
                       has_ssdf: int, ssdf_res: int, ssdf_basis: wp.array2d(dtype=wp.float32),
                       ssdf_coeffs: wp.array2d(dtype=wp.float32), env_theta: wp.array2d(dtype=wp.float32), e: int,
                       mask: wp.uint32, samples: int, known: wp.uint32,
-                      frame: wp.mat33, turn: wp.vec2, disk_radii: wp.array(dtype=wp.vec3)) -> float:
+                      frame: wp.mat33, turn: wp.vec2, disk_radii: wp.array(dtype=wp.vec3), rays_given: float) -> float:
     """The share of ∫ G(ω; axis, η, 1)(n·ω)⁺ dω left unoccluded (1 without an SSDF): the SSDF's, blended
     for broad lobes with the occlusion rays' (ray_weight; a mask with no bit set sees it all); tr: η's
     table row. e ≥ 0: environment lobe e, whose θd at the vertices env_theta holds (ssdf.ssdf_at_axes), else
-    θd looked up at the axis."""
+    θd looked up at the axis. rays_given ≥ 0: the rays' share, found already (axis_ray_shares); < 0: found here."""
     if has_ssdf == 0:
         return 1.0
     weight = ray_weight(eta, samples)
     if weight >= 1.0:  # a lobe the occlusion rays alone shadow: no SSDF lookup (its share would weigh 0)
+        if rays_given >= 0.0:
+            return rays_given
         if mask != wp.uint32(0):
             return ray_share(axis, eta, s.n, frame, mask, samples, known, turn, disk_radii)
         return 1.0
@@ -791,7 +793,9 @@ def environment_share(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: f
     share = beyond_horizon(table, theta, axis, tr, s.n)
     if weight > 0.0:
         rays = float(1.0)
-        if mask != wp.uint32(0):
+        if rays_given >= 0.0:
+            rays = rays_given
+        elif mask != wp.uint32(0):
             rays = ray_share(axis, eta, s.n, frame, mask, samples, known, turn, disk_radii)
         share = weight * rays + (1.0 - weight) * share
     return share
@@ -1230,13 +1234,14 @@ def shade_pixels(
     # Each lobe's shadowed amount and the irradiance scale depend on the pixel, the environment and the rays, not
     # on the material: kept_mode 1 keeps them per pixel, 2 reads them back (a material edit's shade), 0 neither.
     lobes_irradiance = wp.vec3(0.0)
-    # The six shadow lobes along the axes (axis_lobes: the first's row, or −1), when the occlusion rays alone
-    # shadow them (environment_share's condition): their shares from one walk of the rays (axis_ray_shares).
+    # The six shadow lobes along the axes (axis_lobes: the first's row, or −1), where the occlusion rays weigh in
+    # their shadow (environment_share's ray_weight > 0): the rays' shares from one walk of the rays
+    # (axis_ray_shares), which environment_share then takes (alone, or blended with the SSDF's).
     axis_shares = vec6(1.0)
     axis_end = int(-1)
     if axis_lobes >= 0 and has_ssdf != 0 and kept_mode != 2:
         axis_eta = f32_at2(env_sgs, axis_lobes, 3)
-        if ray_weight(axis_eta, occlusion_samples) >= 1.0:
+        if ray_weight(axis_eta, occlusion_samples) > 0.0:
             axis_end = axis_lobes + 6
             if mask != wp.uint32(0):
                 axis_shares = axis_ray_shares(axis_eta, s.n, frame, mask, occlusion_samples, occlusion_rays, turn,
@@ -1258,12 +1263,13 @@ def shade_pixels(
                                    f32_at2(env_sgs, ray_lobe, 2))
                 amount = amount * lobe_ray_share(ray_axis, f32_at2(env_sgs, ray_lobe, 3), axis, eta, s.n,
                                                  lobe_occlusion[p], ray_lobe, lobe_rays, lobe_part[2])
-            elif e >= axis_lobes and e < axis_end:
-                amount = amount * axis_shares[e - axis_lobes]
             else:
+                rays_given = float(-1.0)
+                if e >= axis_lobes and e < axis_end:
+                    rays_given = axis_shares[e - axis_lobes]
                 amount = amount * environment_share(table, axis, eta, tr, s, has_ssdf, ssdf_res, ssdf_basis,
                                                     ssdf_coeffs, env_theta, e, mask, occlusion_samples,
-                                                    occlusion_rays, frame, turn, disk_radii)
+                                                    occlusion_rays, frame, turn, disk_radii, rays_given)
             if kept_mode == 1:
                 kept_amount[p * n_env + e] = amount
         fd = analytic_diffuse(a_kind, kd, a_ks, axis, eta, s, cos_o)
@@ -1403,7 +1409,7 @@ def shade_pixels(
                                     / (1.0 + wp.exp(-eta)), 0.0)
                 amount = amount * environment_share(
                     table, axis, eta, tr, s, has_ssdf, ssdf_res, ssdf_basis, ssdf_coeffs, env_theta, -1, mask,
-                    occlusion_samples, occlusion_rays, frame, turn, disk_radii)
+                    occlusion_samples, occlusion_rays, frame, turn, disk_radii, -1.0)
                 light_part = wp.vec3(0.0)
                 if with_lights != 0:
                     light_part = lobe_from_lights(table, axis, eta, s, n_lights, lights, light_vis, p)

@@ -157,7 +157,7 @@ def test_shade_kernel_matches_reference(backend, which, effective_material, many
 
 def test_axis_lobe_start_finds_the_six_shadow_lobes():
     """shading.axis_lobe_start: the row where lighting.shadow_lobes' six lobes (±y, ±x, ±z, one sharpness) begin,
-    after any sharp lobes; −1 for a set without them, in another order, or of mixed sharpness."""
+    after any sharp lobes; −1 for a set without them, in another order, of mixed sharpness or too sharp for the walk."""
     from warp_biscale.lighting import SHADOW_LOBE_AXES
 
     six = np.concatenate([SHADOW_LOBE_AXES, np.full((6, 1), 2.0), np.ones((6, 3))], 1)
@@ -169,6 +169,9 @@ def test_axis_lobe_start_finds_the_six_shadow_lobes():
     mixed = six.copy()
     mixed[5, 3] = 3.0
     assert axis_lobe_start(mixed) == -1
+    sharp = six.copy()
+    sharp[:, 3] = 90.0  # past the one walk's float32 range (exp(±η ω))
+    assert axis_lobe_start(sharp) == -1
 
 
 def _assert_matches_reference(out, ref):
@@ -180,11 +183,12 @@ def _assert_matches_reference(out, ref):
     assert err.max() < 2e-2 * peak, msg
 
 
-@pytest.mark.parametrize("samples", [1, 5, 32])
+@pytest.mark.parametrize("samples", [1, 5, 8, 32])
 def test_shade_with_other_occlusion_ray_counts(backend, effective_material, samples):
-    """The occluded scene with 1, 5 and 32 occlusion rays a pixel (each count's rows of trace.DISK_RADII in the
-    kernels; the other tests take the default 16) against the float64 reference, tolerances as
-    test_shade_kernel_matches_reference's."""
+    """The occluded scene with 1, 5, 8 (the viewer's) and 32 occlusion rays a pixel (each count's rows of
+    trace.DISK_RADII in the kernels; the other tests take the default 16) against the float64 reference, tolerances
+    as test_shade_kernel_matches_reference's. At 5 and 8 the six shadow lobes blend the rays' shares (from their one
+    walk, axis_ray_shares) with the SSDF's; at 1 the SSDF alone shadows them; at 32 the rays alone."""
     scene = _scenes(effective_material)["occluded"]
     frame = pack_frame(scene, backend, occlusion_samples=samples)
     assert frame.gbuffer.occlusion_samples == samples and frame.gbuffer.occlusion.any()

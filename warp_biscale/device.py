@@ -392,7 +392,7 @@ class DeviceBackend:
         buffer, or a blocking copy into one, each frame cost a GPU host's frame its time)."""
         host = np.ascontiguousarray(host, KINDS[kind][0])
         held = entry.get(key + "/host")
-        if held is None or held.shape != host.shape or not np.array_equal(held, host):
+        if held is None or held.dtype != host.dtype or held.shape != host.shape or not np.array_equal(held, host):
             entry[key] = self._to_device(host, kind)
             entry[key + "/host"] = host.copy()
         return entry[key]

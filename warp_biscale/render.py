@@ -311,7 +311,7 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     sample, which traces them all); False (or 1): every pixel
     traces its own; "auto" (default): 4 from BLOCK_RAYS_4_MIN_PIXELS (1920×1080) pixels up, 2 from
     BLOCK_RAYS_MIN_PIXELS (320×240), else 1 (`frame_block_rays`; info["block_rays"] says which side the frame
-    asked, info["block_sides"] the side each set of rays got, `frame_block_sides`).
+    asked, info["block_sides"] the side each set of the first sample's rays got, `frame_block_sides`).
     `aa_shading` "sample" (default): each anti-aliasing sample shaded; "pixel": a pixel shaded once where its samples
     hit the surface its first sample hits, as multisampling does: the first sample traces every ray of each set and
     is shaded whole; a later sample traces (its own part of each set) and shades only the pixels whose hit is not on

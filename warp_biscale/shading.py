@@ -179,18 +179,26 @@ def ray_share(axis, eta, n, n_geo, directions, blocked, known=None):
     seen = (w * ~blocked).sum(1)
     return np.where(total > 1e-30, seen / np.maximum(total, 1e-300), 1.0)
 
+
+# The six axis lobes' one walk (axis_lobe_start) takes exp(−η)·exp(±η ω) for exp(η(±ω − 1)): exact in float32 while
+# neither factor leaves its range (η up to about 85); six lobes sharper than this are walked one by one.
+AXIS_WALK_ETA_MAX = 16.0
+
+
 def axis_lobe_start(env_sgs) -> int:
     """The row of env_sgs (K, ≥4) where `lighting.shadow_lobes`' six lobes along ±y, ±x, ±z (its
-    SHADOW_LOBE_AXES, in that order, one sharpness) begin, or −1. The shade kernels weigh the occlusion rays for
-    these six in one walk of the rays (a ray's three exponentials exp(η ω_x), exp(η ω_y), exp(η ω_z) and their
-    reciprocals give all six weights), not six: the same shares as `ray_share`'s, to float32 rounding."""
+    SHADOW_LOBE_AXES, in that order, one sharpness η ≤ AXIS_WALK_ETA_MAX) begin, or −1. The shade kernels weigh
+    the occlusion rays for these six in one walk of the rays (a ray's three exponentials exp(η ω_x), exp(η ω_y),
+    exp(η ω_z) and their reciprocals give all six weights), not six: the same shares as `ray_share`'s, to float32
+    rounding."""
     rows = np.asarray(env_sgs, np.float64)
     axes = SHADOW_LOBE_AXES
     if rows.ndim != 2 or rows.shape[1] < 4:
         return -1
     for start in range(len(rows) - len(axes) + 1):
         block = rows[start:start + len(axes)]
-        if np.array_equal(block[:, :3], axes) and np.all(block[:, 3] == block[0, 3]):
+        if (np.array_equal(block[:, :3], axes) and np.all(block[:, 3] == block[0, 3])
+                and 0.0 < block[0, 3] <= AXIS_WALK_ETA_MAX):
             return start
     return -1
 
