@@ -164,20 +164,20 @@ def test_material_edit_uploads_only_what_changed(backend):
 
 
 def test_frames_upload_the_lights_only_when_they_change(backend):
-    """The lights and their ray counts live on the device from frame to frame (`_small_upload`): a second frame
-    of the same lights makes no new device copy; a moved light is uploaded again, and its frame is the one a
-    mesh the backend never saw renders, bit for bit."""
+    """The lights, their ray counts and the sharp environment lobes live on the device from frame to frame
+    (`_small_upload`): a second frame of the same ones makes no new device copy; a moved light is uploaded again,
+    and its frame is the one a mesh the backend never saw renders, bit for bit."""
     scene = _glossy_scene(24)
     wb.render(scene, backend=backend)
     entry = scene.mesh.device_cache[backend.name]
-    held = {k: entry[k] for k in ("lights", "light_samples", "shade_lights")}
+    held = {k: entry[k] for k in ("lights", "light_samples", "shade_lights", "lobe_ray_lobes")}  # (its sharp lobe)
     wb.render(scene, backend=backend)
     assert all(entry[k] is v for k, v in held.items())
     moved = Scene(scene.mesh, scene.materials, scene.camera, scene.environment,
                   [wb.PointLight((-1.5, 2.5, 1.0), 6.0, 0.15)], ssdf_terms=16)
     image = wb.render(moved, backend=backend).image
     assert entry["lights"] is not held["lights"] and entry["shade_lights"] is not held["shade_lights"]
-    assert entry["light_samples"] is held["light_samples"]  # the same ray counts
+    assert entry["light_samples"] is held["light_samples"] and entry["lobe_ray_lobes"] is held["lobe_ray_lobes"]
     new = _glossy_scene(24)  # a mesh of its own, with nothing on the device
     assert new.mesh is not scene.mesh and backend.name not in new.mesh.device_cache
     fresh = Scene(new.mesh, scene.materials, scene.camera, scene.environment, moved.lights, ssdf_terms=16)
