@@ -139,7 +139,8 @@ def test_shade_kernel_matches_reference(backend, which, effective_material, many
     assert (frame.inputs.n_sharp_lobes == 0) == (which == "lone")
     assert which == "lone" or frame.gbuffer.lobe_occlusion.any()
     # ... and its six shadow lobes along the axes are shadowed by the rays alone, in the kernels in one walk
-    assert axis_lobe_start(frame.inputs.env_sgs) == (-1 if which == "lone" else frame.inputs.n_sharp_lobes)
+    assert frame.inputs.axis_lobes == axis_lobe_start(frame.inputs.env_sgs) == (
+        -1 if which == "lone" else frame.inputs.n_sharp_lobes)
     ref = shade_reference(frame)
     out = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights,
                         gbuffer=frame.gbuffer)

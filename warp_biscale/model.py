@@ -292,7 +292,9 @@ class ShadeInputs:
     uvs (V, 2), face_material (F,)), the environment (env_sgs (K, 7) SG lobes, env_residual (H, W, 3) the
     exact irradiance less the lobes' (an equirect map over normals), env_maps and env_levels the
     prefiltered maps, n_sharp_lobes: how many of env_sgs' first rows get lobe rays,
-    `shading.sharp_lobes_first`), the SSDF (has_ssdf, ssdf_res, ssdf_basis (R + 1, res²), ssdf_coeffs (V, R),
+    `shading.sharp_lobes_first`, axis_lobes: the row of the six shadow lobes whose occlusion-ray shares the
+    kernels find in one walk, or −1, `shading.axis_lobe_start`), the SSDF (has_ssdf, ssdf_res, ssdf_basis
+    (R + 1, res²), ssdf_coeffs (V, R),
     env_theta (V, K) its θd towards each environment lobe's axis at each vertex, `ssdf.ssdf_at_axes`), the SG
     lighting table, and the packed materials (mat_info … tex_data, `shading.pack_materials`).
     Backends keep their device copies in `device`, by backend name."""
@@ -322,6 +324,7 @@ class ShadeInputs:
     tex_info: np.ndarray
     tex_data: np.ndarray
     n_sharp_lobes: int = 0
+    axis_lobes: int = -1
     device: dict = field(default_factory=dict, repr=False)
 
     def sharp_lobes(self) -> np.ndarray:

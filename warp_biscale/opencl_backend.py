@@ -43,7 +43,6 @@ from .device import (ASG_EM_BLOCK, KINDS, PROBE_VALUES, SCRATCH_BYTES, SHADE_MAX
                      probe_mismatch, start_scale)
 from .bvh import build_bvh
 from .environment import SUPPORT, equirect_tables
-from .shading import axis_lobe_start
 from .lobes import KERNEL_LOBES, START_RES
 from .progress import compile_notice
 from .smallscale import ray_offset
@@ -845,7 +844,7 @@ class OpenCLBackend(DeviceBackend):
             "table": buf("table", np.float32, table),
             "disk_radii": buf("disk_radii", np.float32, DISK_RADII),
             # Counts and shapes that the kernel takes by value.
-            "n_env": np.int32(len(static.env_sgs)), "axis_lobes": np.int32(axis_lobe_start(static.env_sgs)),
+            "n_env": np.int32(len(static.env_sgs)), "axis_lobes": np.int32(static.axis_lobes),
             "n_levels": np.int32(len(levels)),
             "residual_shape": tuple(np.int32(x) for x in np.shape(static.env_residual)[:2]),
             "ssdf_args": (np.int32(has_ssdf), np.int32(static.ssdf_res), np.int32(basis.shape[0]),

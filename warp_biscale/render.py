@@ -30,7 +30,7 @@ from .bake import _fit_measured
 from .progress import Progress
 from .model import Frame, ShadeInputs
 from .scene import vertex_tangents
-from .shading import pack_materials, sharp_lobes_first
+from .shading import axis_lobe_start, pack_materials, sharp_lobes_first
 from .trace import check_occlusion_samples, check_ray_part, check_shadow_samples
 from .images import compare_images
 from .scene import Camera, DirectionalLight, Mesh, Rendering, Scene, _black_environment, _integer
@@ -133,7 +133,8 @@ def _static_inputs(scene: Scene, backend, progress, timings) -> ShadeInputs:
     static = ShadeInputs(
         faces=mesh.faces, positions=host["positions"], normals=host["normals"],
         tangents=host["tangents"], face_material=mesh.face_material, uvs=host["uvs"],
-        env_sgs=env_sgs, n_sharp_lobes=n_sharp, env_residual=residual, env_maps=light.prefiltered.maps,
+        env_sgs=env_sgs, n_sharp_lobes=n_sharp, axis_lobes=axis_lobe_start(env_sgs), env_residual=residual,
+        env_maps=light.prefiltered.maps,
         env_levels=light.prefiltered.levels, has_ssdf=bool(has_ssdf), ssdf_res=int(res), ssdf_basis=basis,
         ssdf_coeffs=coeffs, env_theta=env_theta, table=sg.lighting_table(), **packed)
     scene.cache.clear()  # one static set per scene: a changed material list or environment replaces it

@@ -38,6 +38,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import os
+import sys
 import time
 from dataclasses import dataclass, field
 
@@ -366,10 +367,9 @@ DISK_CACHE_ENTRIES = 32  # SSDFs kept on disk (the least recently used go first)
 def _code_digest() -> str:
     """A digest of the package's source (host code, Warp kernels, OpenCL kernels) and numpy's version: an SSDF
     kept on disk by one version of the code is never read by another."""
-    import warp_biscale
-
     h = hashlib.blake2b(np.__version__.encode(), digest_size=16)
-    roots = list(dict.fromkeys(os.path.abspath(r) for r in warp_biscale.__path__))
+    # The package's folders: its own, and in a source checkout the root that holds kernels/ and cl/ (__init__.py)
+    roots = list(dict.fromkeys(os.path.abspath(r) for r in sys.modules[__package__].__path__))
     for root in roots:
         for sub in ("", "kernels", "cl"):
             folder = os.path.join(root, sub)

@@ -41,7 +41,6 @@ from .kernels import trace as ktrace
 from .kernels import truth as ktruth
 from .kernels import visibility as kvisibility
 from .environment import SUPPORT, equirect_tables
-from .shading import axis_lobe_start
 from .lobes import KERNEL_LOBES, START_RES
 from .progress import compile_notice
 from .smallscale import ray_offset
@@ -773,7 +772,7 @@ class WarpBackend(DeviceBackend):
             "eff_tables": arr("eff_tables", wp.float32), "eff_diffuse": arr("eff_diffuse", wp.float32),
             "uvs": arr("uvs", wp.vec2), "tex_info": arr("tex_info", wp.int32, 4),
             "tex_data": arr("tex_data", wp.vec3, host=np.asarray(static.tex_data, np.float32), shape=(-1, 3)),
-            "n_env": len(static.env_sgs), "axis_lobes": axis_lobe_start(static.env_sgs),
+            "n_env": len(static.env_sgs), "axis_lobes": int(static.axis_lobes),
             "has_ssdf": int(static.has_ssdf), "ssdf_res": int(static.ssdf_res),
         }
 
