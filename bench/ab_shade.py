@@ -2,7 +2,8 @@
 at W × H, packed once (G-buffer, rays, left on the device), then `backend.shade` of the device's G-buffer N times, the
 image left on the device (after one warm-up call; the kernel's time, not the transfers'); one JSON line a run:
 label, backend, size, the median and fastest call, and the image's mean radiance (which tells the trees apart
-where they are meant to render differently). Alternate the trees, each in its own process:
+where they are meant to render differently). A sixth argument sets the occlusion rays a pixel (default the
+renderer's). Alternate the trees, each in its own process:
 
     PYTHONPATH=<tree A's install> python -P bench/ab_shade.py A opencl 512 512 15 >> $OUT/ab.jsonl
     PYTHONPATH=<tree B's install> python -P bench/ab_shade.py B opencl 512 512 15 >> $OUT/ab.jsonl   # and again
@@ -17,7 +18,7 @@ import warnings
 import numpy as np
 
 import warp_biscale as wb
-from warp_biscale.render import pack_frame
+from warp_biscale.render import OCCLUSION_SAMPLES, pack_frame
 
 try:
     from bench.ab_trees import target_scene
@@ -28,11 +29,13 @@ except ImportError:  # run as a file (with -P, its folder is not on the path)
 
 def main():
     label, name, w, h, n = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5])
+    occlusion = int(sys.argv[6]) if len(sys.argv) > 6 else OCCLUSION_SAMPLES  # occlusion rays a pixel
     warnings.simplefilter("ignore", wb.EnergyWarning)
     backend = wb.get_backend(name)
     scene = target_scene(backend)
     scene.camera.width, scene.camera.height = w, h
-    frame = pack_frame(scene, backend)  # (its G-buffer and rays also stay on the device, where the shade reads them)
+    # (its G-buffer and rays also stay on the device, where the shade reads them)
+    frame = pack_frame(scene, backend, occlusion_samples=occlusion)
     seconds = []
     for _ in range(n + 1):  # the shade kernel alone: no G-buffer upload, the image left on the device
         t0 = time.perf_counter()

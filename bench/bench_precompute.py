@@ -97,7 +97,7 @@ def bench_ssdf(backend, runs, base, log, resolution=SSDF_RESOLUTION, terms=SSDF_
     field_timings = []
 
     def build(mesh):
-        field = ssdf.build(mesh, backend, resolution=resolution, terms=terms)
+        field = ssdf.build(mesh, backend, resolution=resolution, terms=terms, disk_cache=False)  # the build itself
         field_timings.append(field.timings)
         return field
 

@@ -427,7 +427,8 @@ def test_build_caches_and_validates(backend):
 def test_build_keeps_ssdfs_on_disk_between_processes(backend, tmp_path, monkeypatch):
     """ssdf.build keeps each SSDF in io.cache_folder()/ssdf: a mesh of the same geometry with nothing in memory (a new
     process's) reads it back, bit for bit and without tracing; another resolution, another geometry or disk_cache
-    False builds; a damaged file is built again and replaced; at most DISK_CACHE_ENTRIES files stay."""
+    False builds; a damaged file is built again and replaced; an unoccluded mesh's placeholder is kept apart from its
+    full field; at most DISK_CACHE_ENTRIES files stay, the most recently used."""
     monkeypatch.setenv("WARP_BISCALE_CACHE", str(tmp_path))
     mesh = sphere_over_plane(level=1, divisions=4)
     built = ssdf.build(mesh, backend, resolution=8, terms=4)
@@ -453,9 +454,21 @@ def test_build_keeps_ssdfs_on_disk_between_processes(backend, tmp_path, monkeypa
     assert "trace" in rebuilt.timings
     np.testing.assert_array_equal(rebuilt.coeffs, built.coeffs)
     assert "disk" in ssdf.build(sphere_over_plane(level=1, divisions=4), backend, resolution=8, terms=4).timings
+    # An unoccluded mesh's placeholder (skip_unoccluded) is kept under its own name: read back as a placeholder,
+    # never handed to a caller that asks for the full field.
+    lone = Mesh.sphere(1.0, subdivisions=1)
+    assert ssdf.build(lone, backend, resolution=8, terms=4, skip_unoccluded=True).coeffs.shape[1] == 0
+    placeholder = ssdf.build(Mesh.sphere(1.0, subdivisions=1), backend, resolution=8, terms=4, skip_unoccluded=True)
+    assert set(placeholder.timings) == {"disk", "total"} and placeholder.occluded is False
+    assert placeholder.coeffs.shape == (len(lone.vertices), 0) and np.isnan(placeholder.rms_error)
+    full = ssdf.build(Mesh.sphere(1.0, subdivisions=1), backend, resolution=8, terms=4)
+    assert "trace" in full.timings and full.coeffs.shape == (len(lone.vertices), 4)
+    # The least recently used go first: the file just read stays.
     monkeypatch.setattr(ssdf, "DISK_CACHE_ENTRIES", 2)
-    ssdf.build(sphere_over_plane(level=1, divisions=3), backend, resolution=8, terms=4)
-    assert len(os.listdir(tmp_path / "ssdf")) == 2
+    os.utime(path, (0, 0))  # the oldest of all ...
+    assert "disk" in ssdf.build(sphere_over_plane(level=1, divisions=4), backend, resolution=8, terms=4).timings
+    ssdf.build(sphere_over_plane(level=1, divisions=3), backend, resolution=8, terms=4)  # ... until read again
+    assert len(os.listdir(tmp_path / "ssdf")) == 2 and os.path.isfile(path)
 
 
 def test_ssdf_at_axes_is_ssdf_eval_at_each_point_and_axis():

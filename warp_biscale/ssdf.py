@@ -35,6 +35,7 @@ instead of blending with the mirrored texel across the edge (error measured in t
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import os
@@ -364,10 +365,12 @@ DISK_CACHE_ENTRIES = 32  # SSDFs kept on disk (the least recently used go first)
 
 
 @functools.lru_cache(maxsize=1)
-def _code_digest() -> str:
-    """A digest of the package's source (host code, Warp kernels, OpenCL kernels) and numpy's version: an SSDF
-    kept on disk by one version of the code is never read by another."""
+def _code_digest() -> str | None:
+    """A digest of the package's source (host code, Warp kernels, OpenCL kernels) as the process first reads it,
+    with numpy's version: an SSDF kept on disk by one version of the code is never read by another. None where no
+    source can be read (a frozen install): then nothing is kept on disk."""
     h = hashlib.blake2b(np.__version__.encode(), digest_size=16)
+    read = 0
     # The package's folders: its own, and in a source checkout the root that holds kernels/ and cl/ (__init__.py)
     roots = list(dict.fromkeys(os.path.abspath(r) for r in sys.modules[__package__].__path__))
     for root in roots:
@@ -379,14 +382,22 @@ def _code_digest() -> str:
                 if name.endswith((".py", ".cl")):
                     with open(os.path.join(folder, name), "rb") as fh:
                         h.update(name.encode() + fh.read())
-    return h.hexdigest()
+                    read += 1
+    return h.hexdigest() if read else None
 
 
-def disk_cache_path(mesh, backend_name: str, resolution: int, terms, tolerance, skip_unoccluded: bool) -> str:
+def disk_cache_path(mesh, backend_name: str, resolution: int, terms, tolerance, skip_unoccluded: bool) -> str | None:
     """The file `build` keeps this SSDF in between processes (`io.cache_folder()`/ssdf): named by a digest of the
-    geometry, the settings, the backend that traced it and the code (`_code_digest`)."""
+    geometry, the settings, the backend that traced it and the code (`_code_digest`); None where the code's digest
+    cannot be made (an unreadable source file, a frozen install): the SSDF is then built and not kept."""
+    try:
+        code = _code_digest()
+    except OSError:
+        return None
+    if code is None:
+        return None
     key = repr(("ssdf", 1, _fingerprint(mesh), backend_name, int(resolution), terms, tolerance,
-                bool(skip_unoccluded), _code_digest()))
+                bool(skip_unoccluded), code))
     name = hashlib.blake2b(key.encode(), digest_size=16).hexdigest()
     return os.path.join(cache_folder(), "ssdf", f"{name}.npz")
 
@@ -400,7 +411,8 @@ def _read_disk(path, resolution: int, n_vertices: int) -> SsdfField | None:
                 or basis.shape[1] != resolution * resolution or coeffs.shape != (n_vertices, basis.shape[0] - 1)
                 or not (np.isfinite(basis).all() and np.isfinite(coeffs).all())):
             return None
-        os.utime(path)  # recently used: the last to go
+        with contextlib.suppress(OSError):  # recently used: the last to go (a read-only folder: still read)
+            os.utime(path)
         return SsdfField(resolution, basis, coeffs, float(head["rms_error"]), bool(head["occluded"]),
                          arrays["rms_by_terms"], {})
     except Exception:  # noqa: BLE001 - whatever is wrong with a kept file, the SSDF is built again
@@ -415,7 +427,8 @@ def _write_disk(path, field_: SsdfField) -> None:
                  {"basis": field_.basis, "coeffs": field_.coeffs,
                   "rms_by_terms": np.asarray(field_.rms_by_terms, np.float64)})
         folder = os.path.dirname(path)
-        kept = sorted((os.path.getmtime(os.path.join(folder, f)), f) for f in os.listdir(folder) if f.endswith(".npz"))
+        kept = sorted((os.path.getmtime(os.path.join(folder, f)), f) for f in os.listdir(folder)
+                      if f.endswith(".npz") and not f.startswith("."))  # (not another process's file being written)
         for _, name in kept[:max(0, len(kept) - DISK_CACHE_ENTRIES)]:
             os.remove(os.path.join(folder, name))
     except OSError:
