@@ -289,11 +289,14 @@ CL_INLINE float3 seen_normal(__global const float *face_normals, int f, float3 x
     return dot3(n, eye - x) < 0.0f ? -n : n;
 }
 
-/* The pixel in slot q of pixel p's side x side block. */
-CL_INLINE int block_pixel(int p, int width, int q, int side)
+/* (the first pixel of pixel p's side x side block, its column): found once a pixel, so that the loops over a
+ * block's slots (q = r side + c: the pixel origin + r width + c) take no integer division, which on a GPU costs more
+ * than their memory reads. */
+CL_INLINE int2 block_origin(int p, int width, int side)
 {
     int x = p % width, y = p / width;
-    return (y - y % side + q / side) * width + x - x % side + q % side;
+    int x0 = x - x % side, y0 = y - y % side;
+    return (int2)(y0 * width + x0, x0);
 }
 
 /* Whether a hit xq with geometric normal nb (turned to the eye) lies on the surface of the hit xp with normal ng
@@ -310,19 +313,21 @@ CL_INLINE int same_surface(float3 ng, float3 xp, float3 nb, float3 xq)
 CL_INLINE int block_lenders(__global const int *face, __global const float *position,
                             __global const float *face_normals, float3 eye, int width, int n_pixels, int p, int side)
 {
-    int x = p % width;
     float3 xp = load3(position, p);
     float3 ng = seen_normal(face_normals, face[p], xp, eye);
+    int2 origin = block_origin(p, width, side);
     int lenders = 0;
-    for (int q = 0; q < side * side; ++q) {
-        int b = block_pixel(p, width, q, side);
-        if (x - x % side + q % side < width && b < n_pixels) {
-            if (b == p) {
-                lenders |= 1 << q;
-            } else if (face[b] >= 0) {
-                float3 xq = load3(position, b);
-                if (same_surface(ng, xp, seen_normal(face_normals, face[b], xq, eye), xq))
-                    lenders |= 1 << q;
+    for (int r = 0; r < side; ++r) {
+        for (int c = 0; c < side; ++c) {
+            int b = origin.x + r * width + c;
+            if (origin.y + c < width && b < n_pixels) {
+                if (b == p) {
+                    lenders |= 1 << (r * side + c);
+                } else if (face[b] >= 0) {
+                    float3 xq = load3(position, b);
+                    if (same_surface(ng, xp, seen_normal(face_normals, face[b], xq, eye), xq))
+                        lenders |= 1 << (r * side + c);
+                }
             }
         }
     }
@@ -387,11 +392,19 @@ __kernel void share_block_masks(
         } else {
             int slots = side * side;
             int lent = sub_lenders(lenders[p], p, width, block_side, side);
-            for (int q = 0; q < slots; ++q) {
-                if ((lent >> q) & 1) {
-                    int2 part = ray_part(samples, q + slots * part_index, slots * part_count);
-                    bits |= mask[block_pixel(p, width, q, side)];
-                    traced |= part_bits(part.x, part.y, samples);
+            int2 origin = block_origin(p, width, side);
+            /* slot q's part of the set is ray_part(samples, q + slots part_index, slots part_count): one stride for
+             * every slot, and a first ray that steps by one from slot to slot, wrapping at the stride */
+            int stride = max(1, min(slots * part_count, samples));
+            int first = (slots * part_index) % stride;
+            for (int r = 0; r < side; ++r) {
+                for (int c = 0; c < side; ++c) {
+                    if ((lent >> (r * side + c)) & 1) {
+                        bits |= mask[origin.x + r * width + c];
+                        traced |= part_bits(first, stride, samples);
+                    }
+                    if (++first == stride)
+                        first = 0;
                 }
             }
         }
@@ -424,13 +437,22 @@ __kernel void share_block_shadows(
         if (hit && side > 1) {
             int slots = side * side;
             int lent = sub_lenders(lenders[p], p, width, block_side, side);
+            int2 origin = block_origin(p, width, side);
+            /* slot q's rays, as in share_block_masks: the first steps by one a slot, the stride is the same, so a
+             * slot traces samples / stride rays, one more where its first is below samples % stride */
+            int stride = max(1, min(slots * part_count, samples));
+            int first = (slots * part_index) % stride;
+            int fewest = samples / stride, longer = samples % stride;
             int num = 0, den = 0;
-            for (int q = 0; q < slots; ++q) {
-                if ((lent >> q) & 1) {
-                    int2 part = ray_part(samples, q + slots * part_index, slots * part_count);
-                    int traced = (samples - part.x + part.y - 1) / part.y;
-                    num += traced * (int)visible[(long)block_pixel(p, width, q, side) * n_lights + l];
-                    den += traced;
+            for (int r = 0; r < side; ++r) {
+                for (int c = 0; c < side; ++c) {
+                    if ((lent >> (r * side + c)) & 1) {
+                        int traced = fewest + (first < longer ? 1 : 0);
+                        num += traced * (int)visible[(long)(origin.x + r * width + c) * n_lights + l];
+                        den += traced;
+                    }
+                    if (++first == stride)
+                        first = 0;
                 }
             }
             value = (num + den / 2) / den;

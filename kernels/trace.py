@@ -20,7 +20,7 @@ import warp as wp
 from warp_biscale import trace as _trace
 
 from .common import (LOBE_RAYS, disk_basis, disk_sample, lobe_ray_direction, occlusion_direction, part_bits,
-                     pixel_part, ray_part, set_block_side)
+                     pixel_part, set_block_side)
 
 # Nothing here is differentiated: no backward kernels, which take most of the compile time.
 wp.set_module_options({"enable_backward": False})
@@ -300,11 +300,15 @@ def same_surface(ng: wp.vec3, xp: wp.vec3, nb: wp.vec3, xq: wp.vec3) -> bool:
 
 
 @wp.func
-def block_pixel(p: int, width: int, q: int, side: int) -> int:
-    """The pixel in slot q of pixel p's side x side block."""
+def block_origin(p: int, width: int, side: int) -> wp.vec2i:
+    """(the first pixel of pixel p's side x side block, its column): found once a pixel, so that the loops
+    over a block's slots (q = r·side + c: the pixel origin + r·width + c) take no integer division, which on a GPU
+    costs more than their memory reads."""
     x = p % width
     y = p // width
-    return (y - y % side + q // side) * width + x - x % side + q % side
+    x0 = x - x % side
+    y0 = y - y % side
+    return wp.vec2i(y0 * width + x0, x0)
 
 
 @wp.func
@@ -314,19 +318,20 @@ def block_lenders(face: wp.array(dtype=wp.int32), position: wp.array(dtype=wp.ve
     """Bit q set where the pixel in slot q of hit pixel p's side x side block lends p its rays (trace.share_block):
     p itself, or a hit neighbour in the frame whose geometric normal is within SHARE_NORMAL_COS of p's and which
     lies near p's tangent plane (SHARE_PLANE), so that a depth or crease edge keeps each side's rays apart."""
-    x = p % width
     xp = position[p]
     ng = seen_side(face_normals[face[p]], xp, eye)
+    origin = block_origin(p, width, side)
     lenders = int(0)
-    for q in range(side * side):
-        b = block_pixel(p, width, q, side)
-        if x - x % side + q % side < width and b < n_pixels:
-            if b == p:
-                lenders = lenders | (1 << q)
-            elif face[b] >= 0:
-                xq = position[b]
-                if same_surface(ng, xp, seen_side(face_normals[face[b]], xq, eye), xq):
-                    lenders = lenders | (1 << q)
+    for r in range(side):
+        for c in range(side):
+            b = origin[0] + r * width + c
+            if origin[1] + c < width and b < n_pixels:
+                if b == p:
+                    lenders = lenders | (1 << (r * side + c))
+                elif face[b] >= 0:
+                    xq = position[b]
+                    if same_surface(ng, xp, seen_side(face_normals[face[b]], xq, eye), xq):
+                        lenders = lenders | (1 << (r * side + c))
     return lenders
 
 
@@ -398,11 +403,19 @@ def share_block_masks(
         else:
             slots = side * side
             lent = sub_lenders(lenders[p], p, width, block_side, side)
-            for q in range(slots):
-                if (lent >> q) & 1 != 0:
-                    slot_part = ray_part(samples, q + slots * part_index, slots * part_count)
-                    bits = bits | mask[block_pixel(p, width, q, side)]
-                    traced = traced | part_bits(slot_part[0], slot_part[1], samples)
+            origin = block_origin(p, width, side)
+            # slot q's part of the set is ray_part(samples, q + slots·part_index, slots·part_count): one stride
+            # for every slot, and a first ray that steps by one from slot to slot, wrapping at the stride
+            stride = wp.max(1, wp.min(slots * part_count, samples))
+            first = (slots * part_index) % stride
+            for r in range(side):
+                for c in range(side):
+                    if (lent >> (r * side + c)) & 1 != 0:
+                        bits = bits | mask[origin[0] + r * width + c]
+                        traced = traced | part_bits(first, stride, samples)
+                    first = first + 1
+                    if first == stride:
+                        first = 0
     shared[p] = bits
     known[p] = traced
 
@@ -434,14 +447,26 @@ def share_block_shadows(
         if hit and side > 1:
             slots = side * side
             lent = sub_lenders(lenders[p], p, width, block_side, side)
+            origin = block_origin(p, width, side)
+            # slot q's rays, as in share_block_masks: the first steps by one a slot, the stride is the same, so a
+            # slot traces samples // stride rays, one more where its first is below samples % stride
+            stride = wp.max(1, wp.min(slots * part_count, samples))
+            first = (slots * part_index) % stride
+            fewest = samples // stride
+            longer = samples % stride
             num = int(0)
             den = int(0)
-            for q in range(slots):
-                if (lent >> q) & 1 != 0:
-                    part = ray_part(samples, q + slots * part_index, slots * part_count)
-                    traced = (samples - part[0] + part[1] - 1) // part[1]
-                    num = num + traced * int(visible[block_pixel(p, width, q, side), l])
-                    den = den + traced
+            for r in range(side):
+                for c in range(side):
+                    if (lent >> (r * side + c)) & 1 != 0:
+                        traced = fewest
+                        if first < longer:
+                            traced = traced + 1
+                        num = num + traced * int(visible[origin[0] + r * width + c, l])
+                        den = den + traced
+                    first = first + 1
+                    if first == stride:
+                        first = 0
             value = (num + den // 2) // den
         shared[p, l] = wp.uint8(value)
 

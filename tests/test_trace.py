@@ -22,6 +22,7 @@ Tolerances, and why:
 """
 
 import dataclasses
+import functools
 
 import numpy as np
 import pytest
@@ -536,14 +537,16 @@ def test_rays_shared_in_blocks_match_reference(backend, block_frame, part, side)
     # (4×4 blocks: fewer pixels whose every slot lends, and more whose lenders the bounds' rounding could move)
     assert whole.sum() > (1000 if side == 2 else 500) and sure[g.face >= 0].mean() > (0.97 if side == 2 else 0.95)
     assert (~lenders.all(1) & sure).sum() > 50
-    for samples, trace, known_index in ((16, lambda **kw: ref.trace_occlusion(*args, 16, **kw), 0),
-                                        (8, lambda **kw: ref.trace_lobe_rays(*args, LOBES, **kw), 1)):
+    # (6 occlusion rays: a set whose slots' parts wrap around its stride, some slots tracing more rays than others)
+    for samples, lobes in ((16, False), (6, False), (8, True)):
+        trace = (functools.partial(ref.trace_lobe_rays, *args, LOBES) if lobes
+                 else functools.partial(ref.trace_occlusion, *args, samples))
         set_sure = sides[trace_module.block_side(samples, part)][1] if trace_module.block_side(samples, part) > 1 \
             else sure
-        bits = 16 if samples == 16 else 32
-        got = (backend.trace_occlusion(mesh, g, 16, part=part) if samples == 16
-               else backend.trace_lobe_rays(mesh, g, LOBES, part=part))
-        known = backend.ray_known(mesh)[known_index]
+        bits = 32 if lobes else 16
+        got = (backend.trace_lobe_rays(mesh, g, LOBES, part=part) if lobes
+               else backend.trace_occlusion(mesh, g, samples, part=part))
+        known = backend.ray_known(mesh)[int(lobes)]
         want = [ref.share_block_masks(trace(tol=tol, part=part), lenders, samples, part)
                 for tol in (0.0, BARY_TOL, -BARY_TOL)]
         np.testing.assert_array_equal(known[set_sure], want[0][1][set_sure])
@@ -551,7 +554,7 @@ def test_rays_shared_in_blocks_match_reference(backend, block_frame, part, side)
         bad = clear & (_bits(got, bits) != _bits(want[0][0], bits)) & set_sure[:, None]
         assert not bad.any(), f"{bad.sum()} clear rays disagree"
         lent = _bits(known, samples)
-        if samples == 8:
+        if lobes:
             lent = np.tile(lent, 2)
         assert not (_bits(got, bits)[:, :lent.shape[1]] & ~lent).any()
         if part[1] == 1:
@@ -559,7 +562,7 @@ def test_rays_shared_in_blocks_match_reference(backend, block_frame, part, side)
             assert (known[set_whole & whole] == (1 << samples) - 1).all()
     soft = np.stack([PointLight((0.3, 3.0, 0.2), radius=0.4).packed(),
                      DirectionalLight((-0.5, 1.0, 0.3), angular_radius=8.0).packed()])
-    for samples in (16, 1, (16, 3), (8, 16)):
+    for samples in (16, 1, (16, 3), (8, 16), 6):
         vis = backend.trace_shadows(mesh, g, soft, samples=samples, part=part).astype(np.int64)
         own = ref.trace_shadows(mesh.vertices, mesh.normals, mesh.faces, g.face, g.bary, g.position, g.eye, soft,
                                 eps, t_min, samples=samples, part=part)
@@ -572,6 +575,46 @@ def test_rays_shared_in_blocks_match_reference(backend, block_frame, part, side)
         on = sure & sides[2][1]
         off = np.abs(vis - want)[on]
         assert (off > step[on]).sum() == 0 and (off != 0).mean() < 0.02, (off.max(), (off != 0).mean())
+
+
+@pytest.mark.parametrize("part", [(0, 1, 45, 4), (1, 4, 45, 4), (0, 1, 45, 2), (3, 4, 45, 2)])
+def test_block_share_kernels_match_reference_exactly(backend, part):
+    """share_block_masks and share_block_shadows alone, fed random lenders, masks and visible shares on a 45×31
+    frame whose last blocks its edges cut (a fifth of the pixels misses, each hit lends to itself, no slot past the
+    frame lends): bit for bit and 255th for 255th the float64 reference's, for sets whose slots' parts wrap around
+    their stride (6 rays in parts of 4), whose slots trace unequal counts (6 rays over 4 slots), of 4×4 and 2×2 blocks
+    and not shared (3 rays)."""
+    width, height = 45, 31
+    n, side = width * height, part[3]
+    rng = np.random.default_rng(7)
+    p = np.arange(n)
+    face = np.where(rng.random(n) < 0.2, -1, rng.integers(0, 100, n)).astype(np.int32)
+    lenders = rng.random((n, side * side)) < 0.6
+    for q in range(side * side):
+        inside = (p % width) - (p % width) % side + q % side < width
+        b = trace_module.block_pixel(p, width, q, side)
+        lenders[:, q] &= inside & (b < n) & (face[np.minimum(b, n - 1)] >= 0)
+        lenders[:, q] |= b == p
+    lenders[face < 0] = False
+    packed = (lenders.astype(np.int64) << np.arange(side * side)).sum(1).astype(np.int32)
+    m = {}
+    on_device = backend._to_device(packed, "i32"), backend._to_device(face, "i32")
+    for samples in (16, 6, 8, 3):
+        own = rng.integers(0, 1 << samples, n, dtype=np.int64).astype(np.uint32)
+        shared, known = backend._new(n, "u32"), backend._new(n, "u32")
+        backend._launch_share_block_masks(m, *on_device, samples, part, n, backend._to_device(own, "u32"), shared,
+                                          known)
+        want = ref.share_block_masks(own, lenders, samples, part)
+        np.testing.assert_array_equal(backend._to_host(shared, n, "u32"), want[0], err_msg=f"{samples} rays")
+        np.testing.assert_array_equal(backend._to_host(known, n, "u32"), want[1], err_msg=f"{samples} rays")
+    counts = np.array([16, 6, 3, 8], np.int32)
+    visible = rng.integers(0, 256, (n, len(counts))).astype(np.uint8)
+    out = backend._new((n, len(counts)), "u8")
+    backend._launch_share_block_shadows(m, *on_device, counts, part, n, len(counts),
+                                        backend._to_device(visible, "u8"), out)
+    want = ref.share_block_shadows(visible, lenders, counts, part)
+    assert (want != visible).mean() > 0.3
+    np.testing.assert_array_equal(backend._to_host(out, (n, len(counts)), "u8"), want)
 
 
 def test_block_lenders_follow_the_gbuffer(backend):

@@ -317,8 +317,9 @@ def changed_pixels(face, position, reference_face, reference_position, face_norm
 
 def block_pixel(p, width: int, q: int, side: int = 2):
     """The pixel in slot q (x0 + q mod s, y0 + q div s) of pixels p's s×s blocks (s = `side`) in a frame of width
-    `width` (x0, y0: p's column and row rounded down to a multiple of s; the kernels' block_pixel). Past the
-    frame's last column where s does not divide the width: check the column, x0 + q mod s < width."""
+    `width` (x0, y0: p's column and row rounded down to a multiple of s; the kernels walk slot q = r·s + c as
+    block_origin + r·width + c). Past the frame's last column where s does not divide the width: check the
+    column, x0 + q mod s < width."""
     x, y = p % width, p // width
     return (y - y % side + q // side) * width + x - x % side + q % side
 
