@@ -108,8 +108,9 @@ CL_INLINE float cosine_integral(Table t, float3 axis, float eta, EtaRow r, float
     return sg_integral(eta) * lookup(t, 0, r, dot3(axis, n));
 }
 
-/* Bilinear lookup of one equirect level at polar angle theta and azimuth phi in [0, 2π)
- * (environment.py's convention: wrap φ, clamp θ). */
+/* Bilinear lookup of one equirect level at polar angle theta and azimuth phi in [0, 2π]
+ * (environment.py's convention: wrap φ, clamp θ). φ's column lies in [-1, w - 1], so the wrap is a compare, not an
+ * integer remainder (which a GPU computes in tens of instructions); the clamp keeps any other φ inside the map. */
 CL_INLINE float3 equirect_bilinear(__global const float *maps, int offset, int h, int w, float theta, float phi)
 {
     float row = theta * (float)h / SHADE_PI - 0.5f;
@@ -120,8 +121,11 @@ CL_INLINE float3 equirect_bilinear(__global const float *maps, int offset, int h
     float fc = col - c0f;
     int r0 = clamp((int)r0f, 0, h - 1);
     int r1 = clamp((int)r0f + 1, 0, h - 1);
-    int c0 = (((int)c0f % w) + w) % w;
-    int c1 = (c0 + 1) % w;
+    int c0 = (int)c0f;
+    if (c0 < 0)
+        c0 += w;
+    c0 = clamp(c0, 0, w - 1);
+    int c1 = c0 + 1 == w ? 0 : c0 + 1;
     float3 a = load3(maps, offset + r0 * w + c0) * (1.0f - fc) + load3(maps, offset + r0 * w + c1) * fc;
     float3 b = load3(maps, offset + r1 * w + c0) * (1.0f - fc) + load3(maps, offset + r1 * w + c1) * fc;
     return a * (1.0f - fr) + b * fr;
@@ -136,31 +140,63 @@ CL_INLINE float3 equirect_bilinear_dir(__global const float *maps, int offset, i
     return equirect_bilinear(maps, offset, h, w, acos(clampf(d.y, -1.0f, 1.0f)), phi);
 }
 
-/* Λ(d, η): linear in log2 η between the two nearest levels (reference.prefiltered_lookup). The
- * direction's angles are computed once for both levels (Warp's equirect_bilinear computes them in
- * each, identically): atan2 is one of the costliest calls in PoCL. */
-CL_INLINE float3 prefiltered(__global const float *maps, __global const float *levels, int n, float3 d, float eta)
+/* The two prefiltered levels a sharpness η reads (prefiltered_levels): each one's (texel offset, H, W), and the
+ * second's weight. */
+typedef struct {
+    int3 a, b;
+    float f;
+} LevelPair;
+
+CL_INLINE int3 level_at(__global const float *levels, int l)
+{
+    __global const float *row = levels + 4 * l;
+    return (int3)((int)row[1], (int)row[2], (int)row[3]);
+}
+
+/* The levels of Λ(·, η) and their weights: linear in log2 η between the two nearest (lighting.prefiltered_lookup);
+ * a last row marked BACKGROUND_LOG2 is read by η >= BACKGROUND_ETA alone (the camera's rays), by no lobe. Found
+ * once for all the taps of one sharpness (asg_prefiltered). */
+CL_INLINE LevelPair prefiltered_levels(__global const float *levels, int n, float eta)
+{
+    LevelPair out;
+    if (n > 1 && levels[4 * (n - 1)] >= BACKGROUND_LOG2) {
+        if (eta >= BACKGROUND_ETA) {
+            out.a = level_at(levels, n - 1);
+            out.b = out.a;
+            out.f = 0.0f;
+            return out;
+        }
+        n = n - 1;
+    }
+    float t = clampf(log2(maxf(eta, 1.0e-30f)) - levels[0], 0.0f, (float)(n - 1));
+    int l0 = max(min(ifloor_pos(t), n - 2), 0);
+    out.a = level_at(levels, l0);
+    out.b = level_at(levels, min(l0 + 1, n - 1));
+    out.f = clampf(t - (float)l0, 0.0f, 1.0f);
+    return out;
+}
+
+/* Λ(d, η) from η's levels, each read only where it weighs (an end of the range, the background). The direction's
+ * angles are computed once for both levels (Warp's equirect_bilinear computes them in each, identically): atan2 is
+ * one of the costliest calls in PoCL. */
+CL_INLINE float3 prefiltered_at(__global const float *maps, LevelPair lv, float3 d)
 {
     float theta = acos(clampf(d.y, -1.0f, 1.0f));
     float phi = atan2(d.z, d.x);
     if (phi < 0.0f)
         phi = phi + 2.0f * SHADE_PI;
-    /* a last row marked BACKGROUND_LOG2: read by eta >= BACKGROUND_ETA alone (the camera's rays), by no lobe */
-    if (n > 1 && levels[4 * (n - 1)] >= BACKGROUND_LOG2) {
-        __global const float *bg = levels + 4 * (n - 1);
-        if (eta >= BACKGROUND_ETA)
-            return equirect_bilinear(maps, (int)bg[1], (int)bg[2], (int)bg[3], theta, phi);
-        n = n - 1;
-    }
-    float t = clampf(log2(maxf(eta, 1.0e-30f)) - levels[0], 0.0f, (float)(n - 1));
-    int l0 = max(min(ifloor_pos(t), n - 2), 0);
-    int l1 = min(l0 + 1, n - 1);
-    float f = clampf(t - (float)l0, 0.0f, 1.0f);
-    __global const float *a4 = levels + 4 * l0;
-    __global const float *b4 = levels + 4 * l1;
-    float3 a = equirect_bilinear(maps, (int)a4[1], (int)a4[2], (int)a4[3], theta, phi);
-    float3 b = equirect_bilinear(maps, (int)b4[1], (int)b4[2], (int)b4[3], theta, phi);
-    return a * (1.0f - f) + b * f;
+    float3 out = (float3)(0.0f, 0.0f, 0.0f);
+    if (lv.f < 1.0f)
+        out = equirect_bilinear(maps, lv.a.x, lv.a.y, lv.a.z, theta, phi) * (1.0f - lv.f);
+    if (lv.f > 0.0f)
+        out = out + equirect_bilinear(maps, lv.b.x, lv.b.y, lv.b.z, theta, phi) * lv.f;
+    return out;
+}
+
+/* Λ(d, η) (lighting.prefiltered_lookup). */
+CL_INLINE float3 prefiltered(__global const float *maps, __global const float *levels, int n, float3 d, float eta)
+{
+    return prefiltered_at(maps, prefiltered_levels(levels, n, eta), d);
 }
 
 /* The SSDF of a pixel: basis, the three vertices' coefficient rows and their barycentric weights. */
@@ -994,7 +1030,7 @@ CL_INLINE float3 asg_prefiltered(__global const float *maps, __global const floa
     float ratio = spread / sqrt(var_tap);
     if (ratio <= ROUND_SPREAD)
         return prefiltered(maps, levels, n_levels, g.z, minf(2.0f * sqrt(g.lam * g.mu), sharpness_max));
-    float eta_tap = minf(1.0f / var_tap, sharpness_max);
+    LevelPair tap_levels = prefiltered_levels(levels, n_levels, minf(1.0f / var_tap, sharpness_max));
     int count = 0;
     for (int k = 0; k < 4; ++k)
         if (count == 0 && HERMITE_GAPS[k] * ratio <= TAP_GAP)
@@ -1004,7 +1040,7 @@ CL_INLINE float3 asg_prefiltered(__global const float *maps, __global const floa
         int first = (count - 2) * (count + 1) / 2;
         for (int k = 0; k < count; ++k) {
             float3 d = normalize3(g.z + (HERMITE_NODES[first + k] * spread) * long_axis);
-            out = out + HERMITE_WEIGHTS[first + k] * prefiltered(maps, levels, n_levels, d, eta_tap);
+            out = out + HERMITE_WEIGHTS[first + k] * prefiltered_at(maps, tap_levels, d);
         }
         return out;
     }
@@ -1016,7 +1052,7 @@ CL_INLINE float3 asg_prefiltered(__global const float *maps, __global const floa
         float weight = exp(-0.5f * node * node);
         total += weight;
         float3 d = normalize3(g.z + (node * spread) * long_axis);
-        out = out + weight * prefiltered(maps, levels, n_levels, d, eta_tap);
+        out = out + weight * prefiltered_at(maps, tap_levels, d);
     }
     return out / total;
 }

@@ -164,8 +164,9 @@ def direction_angles(d: wp.vec3) -> wp.vec2:
 
 @wp.func(inline=False)
 def equirect_bilinear(maps: wp.array(dtype=wp.vec3), offset: int, h: int, w: int, theta: float, phi: float) -> wp.vec3:
-    """Bilinear lookup of one equirect level at polar angle θ and azimuth φ in [0, 2π) (environment.py's
-    convention: wrap φ, clamp θ)."""
+    """Bilinear lookup of one equirect level at polar angle θ and azimuth φ in [0, 2π] (environment.py's
+    convention: wrap φ, clamp θ). φ's column lies in [−1, w − 1], so the wrap is a compare, not an integer
+    remainder (which a GPU computes in tens of instructions); the clamp keeps any other φ inside the map."""
     row = theta * float(h) / PI - 0.5
     col = phi * float(w) / (2.0 * PI) - 0.5
     r0f = wp.floor(row)
@@ -174,8 +175,13 @@ def equirect_bilinear(maps: wp.array(dtype=wp.vec3), offset: int, h: int, w: int
     fc = col - c0f
     r0 = wp.clamp(int(r0f), 0, h - 1)
     r1 = wp.clamp(int(r0f) + 1, 0, h - 1)
-    c0 = ((int(c0f) % w) + w) % w
-    c1 = (c0 + 1) % w
+    c0 = int(c0f)
+    if c0 < 0:
+        c0 = c0 + w
+    c0 = wp.clamp(c0, 0, w - 1)
+    c1 = c0 + 1
+    if c1 == w:
+        c1 = 0
     a = vec3_at(maps, offset + r0 * w + c0) * (1.0 - fc) + vec3_at(maps, offset + r0 * w + c1) * fc
     b = vec3_at(maps, offset + r1 * w + c0) * (1.0 - fc) + vec3_at(maps, offset + r1 * w + c1) * fc
     return a * (1.0 - fr) + b * fr
@@ -188,27 +194,58 @@ def equirect_bilinear_dir(maps: wp.array(dtype=wp.vec3), offset: int, h: int, w:
     return equirect_bilinear(maps, offset, h, w, tp[0], tp[1])
 
 
-@wp.func(inline=False)
-def prefiltered(maps: wp.array(dtype=wp.vec3), levels: wp.array2d(dtype=wp.float32), d: wp.vec3, eta: float) -> wp.vec3:
-    """Λ(d, η): linear in log2 η between the two nearest levels (lighting.prefiltered_lookup); a last row marked
-    BACKGROUND_LOG2 is read by η ≥ BACKGROUND_ETA alone (the camera's rays), and by no lobe."""
+@wp.struct
+class LevelPair:
+    """The two prefiltered levels a sharpness η reads (prefiltered_levels): each one's (texel offset, H, W), and
+    the second's weight."""
+    a: wp.vec3i
+    b: wp.vec3i
+    f: float
+
+
+@wp.func
+def level_at(levels: wp.array2d(dtype=wp.float32), l: int) -> wp.vec3i:
+    return wp.vec3i(int(f32_at2(levels, l, 1)), int(f32_at2(levels, l, 2)), int(f32_at2(levels, l, 3)))
+
+
+@wp.func
+def prefiltered_levels(levels: wp.array2d(dtype=wp.float32), eta: float) -> LevelPair:
+    """The levels of Λ(·, η) and their weights: linear in log2 η between the two nearest (lighting.prefiltered_lookup);
+    a last row marked BACKGROUND_LOG2 is read by η ≥ BACKGROUND_ETA alone (the camera's rays), and by no lobe. Found
+    once for all the taps of one sharpness (asg_prefiltered)."""
     n = levels.shape[0]
+    out = LevelPair()
     if n > 1 and f32_at2(levels, n - 1, 0) >= BACKGROUND_LOG2:
         if eta >= BACKGROUND_ETA:
-            tb = direction_angles(d)
-            return equirect_bilinear(maps, int(f32_at2(levels, n - 1, 1)), int(f32_at2(levels, n - 1, 2)),
-                                     int(f32_at2(levels, n - 1, 3)), tb[0], tb[1])
+            out.a = level_at(levels, n - 1)
+            out.b = out.a
+            out.f = 0.0
+            return out
         n = n - 1
     t = wp.clamp(wp.log2(wp.max(eta, 1.0e-30)) - f32_at2(levels, 0, 0), 0.0, float(n - 1))
     l0 = wp.max(wp.min(int(wp.floor(t)), n - 2), 0)
-    l1 = wp.min(l0 + 1, n - 1)
-    f = wp.clamp(t - float(l0), 0.0, 1.0)
+    out.a = level_at(levels, l0)
+    out.b = level_at(levels, wp.min(l0 + 1, n - 1))
+    out.f = wp.clamp(t - float(l0), 0.0, 1.0)
+    return out
+
+
+@wp.func(inline=False)
+def prefiltered_at(maps: wp.array(dtype=wp.vec3), lv: LevelPair, d: wp.vec3) -> wp.vec3:
+    """Λ(d, η) from η's levels: each level read only where it weighs (an end of the range, the background)."""
     tp = direction_angles(d)
-    a = equirect_bilinear(maps, int(f32_at2(levels, l0, 1)), int(f32_at2(levels, l0, 2)), int(f32_at2(levels, l0, 3)),
-                          tp[0], tp[1])
-    b = equirect_bilinear(maps, int(f32_at2(levels, l1, 1)), int(f32_at2(levels, l1, 2)), int(f32_at2(levels, l1, 3)),
-                          tp[0], tp[1])
-    return a * (1.0 - f) + b * f
+    out = wp.vec3(0.0)
+    if lv.f < 1.0:
+        out = equirect_bilinear(maps, lv.a[0], lv.a[1], lv.a[2], tp[0], tp[1]) * (1.0 - lv.f)
+    if lv.f > 0.0:
+        out = out + equirect_bilinear(maps, lv.b[0], lv.b[1], lv.b[2], tp[0], tp[1]) * lv.f
+    return out
+
+
+@wp.func
+def prefiltered(maps: wp.array(dtype=wp.vec3), levels: wp.array2d(dtype=wp.float32), d: wp.vec3, eta: float) -> wp.vec3:
+    """Λ(d, η) (lighting.prefiltered_lookup)."""
+    return prefiltered_at(maps, prefiltered_levels(levels, eta), d)
 
 
 @wp.func(inline=False)
@@ -882,7 +919,7 @@ def asg_prefiltered(maps: wp.array(dtype=wp.vec3), levels: wp.array2d(dtype=wp.f
     ratio = spread / wp.sqrt(var_tap)
     if ratio <= ROUND_SPREAD:
         return prefiltered(maps, levels, g.z, wp.min(2.0 * wp.sqrt(g.lam * g.mu), SHARPNESS_MAX))
-    eta_tap = wp.min(1.0 / var_tap, SHARPNESS_MAX)
+    tap_levels = prefiltered_levels(levels, wp.min(1.0 / var_tap, SHARPNESS_MAX))
     count = int(0)
     for k in range(4):
         if count == 0 and HERMITE_GAPS[k] * ratio <= TAP_GAP:
@@ -892,7 +929,7 @@ def asg_prefiltered(maps: wp.array(dtype=wp.vec3), levels: wp.array2d(dtype=wp.f
         first = (count - 2) * (count + 1) // 2
         for k in range(count):
             d = wp.normalize(g.z + (HERMITE_NODES[first + k] * spread) * long_axis)
-            out = out + HERMITE_WEIGHTS[first + k] * prefiltered(maps, levels, d, eta_tap)
+            out = out + HERMITE_WEIGHTS[first + k] * prefiltered_at(maps, tap_levels, d)
         return out
     count = wp.min(ASG_TAPS, 1 + int(wp.ceil(2.0 * TAP_SPAN * ratio / TAP_GAP)))
     step = 2.0 * TAP_SPAN / float(count - 1)
@@ -902,7 +939,7 @@ def asg_prefiltered(maps: wp.array(dtype=wp.vec3), levels: wp.array2d(dtype=wp.f
         weight = wp.exp(-0.5 * node * node)
         total = total + weight
         d = wp.normalize(g.z + (node * spread) * long_axis)
-        out = out + weight * prefiltered(maps, levels, d, eta_tap)
+        out = out + weight * prefiltered_at(maps, tap_levels, d)
     return out / total
 
 
