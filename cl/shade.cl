@@ -177,8 +177,8 @@ CL_INLINE LevelPair prefiltered_levels(__global const float *levels, int n, floa
 }
 
 /* Λ(d, η) from η's levels, each read only where it weighs (an end of the range, the background). The direction's
- * angles are computed once for both levels (Warp's equirect_bilinear computes them in each, identically): atan2 is
- * one of the costliest calls in PoCL. */
+ * angles are computed once for both levels, as Warp's prefiltered_at does: atan2 is one of the costliest calls in
+ * PoCL. */
 CL_INLINE float3 prefiltered_at(__global const float *maps, LevelPair lv, float3 d)
 {
     float theta = acos(clampf(d.y, -1.0f, 1.0f));

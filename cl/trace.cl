@@ -290,8 +290,8 @@ CL_INLINE float3 seen_normal(__global const float *face_normals, int f, float3 x
 }
 
 /* (the first pixel of pixel p's side x side block, its column): found once a pixel, so that the loops over a
- * block's slots (q = r side + c: the pixel origin + r width + c) take no integer division, which on a GPU costs more
- * than their memory reads. */
+ * block's slots (q = r side + c: the pixel origin + r width + c) find each slot's pixel without an integer division,
+ * which on a GPU costs more than the slot's memory reads. */
 CL_INLINE int2 block_origin(int p, int width, int side)
 {
     int x = p % width, y = p / width;

@@ -154,7 +154,7 @@ def beyond_horizon(table: wp.array3d(dtype=wp.float32), theta: float, axis: wp.v
 
 @wp.func
 def direction_angles(d: wp.vec3) -> wp.vec2:
-    """(θ, φ) of d, φ in [0, 2π) (environment.py's convention): prefiltered takes them once for both levels."""
+    """(θ, φ) of d, φ in [0, 2π] (environment.py's convention): prefiltered_at takes them once for both levels."""
     theta = wp.acos(wp.clamp(d[1], -1.0, 1.0))
     phi = wp.atan2(d[2], d[0])
     if phi < 0.0:

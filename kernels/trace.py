@@ -302,8 +302,8 @@ def same_surface(ng: wp.vec3, xp: wp.vec3, nb: wp.vec3, xq: wp.vec3) -> bool:
 @wp.func
 def block_origin(p: int, width: int, side: int) -> wp.vec2i:
     """(the first pixel of pixel p's side x side block, its column): found once a pixel, so that the loops
-    over a block's slots (q = r·side + c: the pixel origin + r·width + c) take no integer division, which on a GPU
-    costs more than their memory reads."""
+    over a block's slots (q = r·side + c: the pixel origin + r·width + c) find each slot's pixel without an integer
+    division, which on a GPU costs more than the slot's memory reads."""
     x = p % width
     y = p // width
     x0 = x - x % side
