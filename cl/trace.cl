@@ -360,9 +360,10 @@ CL_INLINE int sub_lenders(int lenders, int p, int width, int lenders_side, int s
     int x = p % width, y = p / width;
     int ox = x % lenders_side - x % side, oy = y % lenders_side - y % side;
     int out = 0;
-    for (int q = 0; q < side * side; ++q)
-        if ((lenders >> ((ox + q % side) + lenders_side * (oy + q / side))) & 1)
-            out |= 1 << q;
+    for (int r = 0; r < side; ++r) /* (slot q = r side + c, by row and column: no division a slot, as block_origin) */
+        for (int c = 0; c < side; ++c)
+            if ((lenders >> ((ox + c) + lenders_side * (oy + r))) & 1)
+                out |= 1 << (r * side + c);
     return out;
 }
 

@@ -367,9 +367,10 @@ def sub_lenders(lenders: int, p: int, width: int, lenders_side: int, side: int) 
     ox = x % lenders_side - x % side
     oy = y % lenders_side - y % side
     out = int(0)
-    for q in range(side * side):
-        if (lenders >> ((ox + q % side) + lenders_side * (oy + q // side))) & 1 != 0:
-            out = out | (1 << q)
+    for r in range(side):  # (slot q = r·side + c, by row and column: no division a slot, as block_origin)
+        for c in range(side):
+            if (lenders >> ((ox + c) + lenders_side * (oy + r))) & 1 != 0:
+                out = out | (1 << (r * side + c))
     return out
 
 
