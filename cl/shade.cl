@@ -147,6 +147,7 @@ typedef struct {
     float f;
 } LevelPair;
 
+/* Prefiltered level l's (texel offset, H, W), from its row of `levels`. */
 CL_INLINE int3 level_at(__global const float *levels, int l)
 {
     __global const float *row = levels + 4 * l;

@@ -205,6 +205,7 @@ class LevelPair:
 
 @wp.func
 def level_at(levels: wp.array2d(dtype=wp.float32), l: int) -> wp.vec3i:
+    """Prefiltered level l's (texel offset, H, W), from its row of `levels`."""
     return wp.vec3i(int(f32_at2(levels, l, 1)), int(f32_at2(levels, l, 2)), int(f32_at2(levels, l, 3)))
 
 
