@@ -115,8 +115,8 @@ def test_fit_on_the_device_against_float64(backend):
                              np.array([500.0, 10.0, 4.0, 1e4, 2.0]), np.array([0.3, 0.2, 0.2, 0.3, 0.0]))
     want, want_alpha, want_steps = asg_bake.fit_asg(normal, weight, start, 8)
     assert want.lam.max() == pytest.approx(asg_bake.BANDWIDTH_MAX) and want.mu.min() < 1.0  # the delta, the band
-    # All the bins, then all but the last 98 (the same power-of-two size: a Warp backend's kept program and
-    # padding bins, reused).
+    # All the bins, then all but the last 98 (the same power-of-two size: the backend's kept program and padding
+    # bins, reused).
     for count in (len(normal), len(normal) - 98):
         want, want_alpha, want_steps = asg_bake.fit_asg(normal[:count], weight[:count], start, 8)
         got, got_alpha, got_steps = asg_bake.fit_asg_on(backend, normal[:count], weight[:count], start, 8)

@@ -1408,16 +1408,24 @@ class DeviceBackend:
         rows = np.concatenate([start.x, start.y, start.z, start.lam[:, None], start.mu[:, None],
                                np.log(unit_integral(start.lam, start.mu))[:, None]], axis=1)
         log_range = (float(np.log(bandwidth_range[0])), float(np.log(bandwidth_range[1])))
-        rows, alpha, steps = self._run_asg_em(normal, weight, rows, alpha, int(iterations), DEAD_MASS, log_range,
-                                              float(converged))
+        # The bins padded to a power of two (at least 256) that weigh 0 and so add exact zeros: a backend keeps one
+        # program (buffers and launches) per padded size, J and step cap, reused by the next bake.
+        size = max(256, 1 << (n_bins - 1).bit_length())
+        padded_normal = np.zeros((size, 3))
+        padded_normal[:, 2] = 1.0
+        padded_normal[:n_bins] = normal
+        padded_weight = np.zeros(size)
+        padded_weight[:n_bins] = weight
+        rows, alpha, steps = self._run_asg_em(padded_normal, padded_weight, rows, alpha, int(iterations), DEAD_MASS,
+                                              log_range, float(converged))
         rows = np.asarray(rows, np.float64).reshape(j, 12)
         return ASG(rows[:, 0:3], rows[:, 3:6], rows[:, 6:9], rows[:, 9], rows[:, 10], 1.0), alpha, steps
 
     def _run_asg_em(self, normal, weight, rows, alpha, iterations, dead_mass, log_range, converged) -> tuple:
-        """asg_em's steps on the device from host float64 bins (L, 3), weights (L,), lobe rows (J, 12) [x, y, z,
-        λ, μ, log ∫G] and weights (J,): each step kernels/asgfit.py's asg_em_responsibilities (L threads),
-        asg_em_m_step (J) and asg_em_finish (1), all queued before the reads. → (rows (J, 12), alpha (J,),
-        steps) on the host."""
+        """asg_em's steps on the device from host float64 bins (L, 3), weights (L,) (L a power of two, the padding
+        bins weighing 0), lobe rows (J, 12) [x, y, z, λ, μ, log ∫G] and weights (J,): each step kernels/asgfit.py's
+        asg_em_responsibilities (L threads), asg_em_m_step (J) and asg_em_finish (1), all queued before the reads.
+        → (rows (J, 12), alpha (J,), steps) on the host."""
         raise NotImplementedError
 
     # --- ASG operators (stage `asg`, Xu 2013; oracle warp_biscale.asg, docs/design.md §9) ---

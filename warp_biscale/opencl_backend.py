@@ -310,6 +310,7 @@ class OpenCLBackend(DeviceBackend):
         self._queued_uploads = {}  # role → the event of its last queued upload, see _shade_buffer
         self._em_programs = {}  # (Ns, J, steps, weighted) → an EM's buffers and launches: see _em_program
         self._em_buffers = {}
+        self._asg_em_programs = {}  # (padded bins, J, steps, constants, group) → an ASG EM's buffers and launches
 
     def __repr__(self):
         return f"OpenCLBackend({self.name!r})"
@@ -749,30 +750,46 @@ class OpenCLBackend(DeviceBackend):
         return cl.Buffer(self._ctx, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR,
                          hostbuf=data if data.size else np.zeros(1, data.dtype))
 
+    def _asg_em_program(self, n_bins, n_lobes, iterations, dead_mass, log_range, converged) -> dict:
+        """The ASG EM's buffers for `n_bins` bins and J lobes and its three launches, prepared once (made at every
+        call, the three kernels' arguments cost NVIDIA's OpenCL more host time than its whole EM on the device)."""
+        a = {"normal": self._empty(3 * n_bins, np.float64), "weight": self._empty(n_bins, np.float64),
+             "lobes": self._empty(12 * n_lobes, np.float64), "alpha": self._empty(n_lobes, np.float64),
+             "state": self._empty(2, np.int32), "resp_weight": self._new((n_bins, n_lobes), "f64"),
+             "seen_weight": self._new(n_bins, "f64"), "new_lobes": self._new((n_lobes, 12), "f64"),
+             "mass": self._new(n_lobes, "f64"), "moved": self._new(n_lobes, "f64")}
+        j = np.int32(n_lobes)
+        a["steps"] = [
+            self._prepared("asgfit", "asg_em_responsibilities", (n_bins,), a["normal"], a["weight"], a["lobes"],
+                           a["alpha"], a["state"], j, np.int32(n_bins), a["resp_weight"], a["seen_weight"]),
+            self._prepared("asgfit", "asg_em_m_step", (n_lobes * self._asg_em_group,), a["normal"], a["seen_weight"],
+                           a["resp_weight"], a["lobes"], np.float64(dead_mass), np.float64(log_range[0]),
+                           np.float64(log_range[1]), a["state"], j, np.int32(n_bins), a["new_lobes"], a["mass"],
+                           a["moved"], group=self._asg_em_group),  # (a work-group a lobe)
+            self._prepared("asgfit", "asg_em_finish", (1,), a["new_lobes"], a["mass"], a["moved"],
+                           np.float64(converged), j, a["lobes"], a["alpha"], a["state"])]
+        return a
+
     def _run_asg_em(self, normal, weight, rows, alpha, iterations, dead_mass, log_range, converged):
         n_bins, n_lobes = len(normal), len(alpha)
-        a = {"normal": self._to_device(normal, "vec3d"), "weight": self._to_device(weight, "f64"),
-             "lobes": self._to_device_mutable(rows, "f64"), "alpha": self._to_device_mutable(alpha, "f64"),
-             "state": self._to_device_mutable(np.zeros(2, np.int32), "i32"),
-             "resp_weight": self._new((n_bins, n_lobes), "f64"), "seen_weight": self._new(n_bins, "f64"),
-             "new_lobes": self._new((n_lobes, 12), "f64"), "mass": self._new(n_lobes, "f64"),
-             "moved": self._new(n_lobes, "f64")}
-        j = np.int32(n_lobes)
-        # Every step launches the same three kernels on the same arguments: set once (`_prepared`).
-        steps = [self._prepared("asgfit", "asg_em_responsibilities", (n_bins,), a["normal"], a["weight"], a["lobes"],
-                                a["alpha"], a["state"], j, np.int32(n_bins), a["resp_weight"], a["seen_weight"]),
-                 self._prepared("asgfit", "asg_em_m_step", (n_lobes * self._asg_em_group,), a["normal"],
-                                a["seen_weight"], a["resp_weight"], a["lobes"], np.float64(dead_mass),
-                                np.float64(log_range[0]), np.float64(log_range[1]), a["state"], j, np.int32(n_bins),
-                                a["new_lobes"], a["mass"], a["moved"], group=self._asg_em_group),  # (a group a lobe)
-                 self._prepared("asgfit", "asg_em_finish", (1,), a["new_lobes"], a["mass"], a["moved"],
-                                np.float64(converged), j, a["lobes"], a["alpha"], a["state"])]
+        key = (n_bins, n_lobes, iterations, dead_mass, log_range, converged, self._asg_em_group)
+        prog = self._asg_em_programs.pop(key, None)
+        if prog is None:
+            prog = self._asg_em_program(n_bins, n_lobes, iterations, dead_mass, log_range, converged)
+        self._keep_recent(self._asg_em_programs, key, prog, size=8)  # (each holds its buffers: (bins, J) float64)
+        cl = self._cl
+        # (the host copies held until the reads below, which wait for the whole queue)
+        hosts = {name: np.ascontiguousarray(host, np.float64)
+                 for name, host in (("normal", normal), ("weight", weight), ("lobes", rows), ("alpha", alpha))}
+        for name, host in hosts.items():
+            cl.enqueue_copy(self._queue, prog[name], host, is_blocking=False)
+        cl.enqueue_fill_buffer(self._queue, prog["state"], np.int32(0), 0, 8)
         for _ in range(iterations):
-            for step in steps:
+            for step in prog["steps"]:
                 step()
         # (the three copies queued together, then one wait: one round trip, not three)
-        reads = [self._read_later(a["lobes"], (n_lobes, 12), np.float64),
-                 self._read_later(a["alpha"], n_lobes, np.float64), self._read_later(a["state"], 2, np.int32)]
+        reads = [self._read_later(prog["lobes"], (n_lobes, 12), np.float64),
+                 self._read_later(prog["alpha"], n_lobes, np.float64), self._read_later(prog["state"], 2, np.int32)]
         lobes, alpha, state = (read() for read in reads)
         return lobes, alpha, int(state[1])
 

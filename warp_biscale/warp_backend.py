@@ -647,12 +647,10 @@ class WarpBackend(DeviceBackend):
         return a
 
     def _run_asg_em(self, normal, weight, rows, alpha, iterations, dead_mass, log_range, converged):
-        # One program (buffers and recorded launches) per bin count rounded up to a power of two (the padding bins
-        # weigh 0, so they add exact zeros), J and step cap, kept and reused; on CUDA its steps are one graph,
-        # captured once and replayed, as the SG EM's (_em_graph): the replay of its 24 launches costs ~0.3 ms
-        # where every kernel returns at once (bench/results/asg-h100-860865a).
-        n_bins, j = len(normal), len(alpha)
-        size = max(256, 1 << (n_bins - 1).bit_length())
+        # One program (buffers and recorded launches) per padded bin count, J and step cap, kept and reused; on CUDA
+        # its steps are one graph, captured once and replayed, as the SG EM's (_em_graph): the replay of its 24
+        # launches costs ~0.3 ms where every kernel returns at once (bench/results/asg-h100-860865a).
+        size, j = len(normal), len(alpha)
         key = (size, j, iterations, dead_mass, log_range, converged)
         kept = self._asg_em_programs.pop(key, None)
         if kept is None:
@@ -664,11 +662,8 @@ class WarpBackend(DeviceBackend):
                 kept["graph"] = capture.graph
         self._keep_recent(self._asg_em_programs, key, kept, size=8)  # (each holds its buffers: (bins, J) float64)
         prog = kept["prog"]
-        padded = np.zeros((size, 3))
-        padded[:, 2] = 1.0
-        padded[:n_bins] = normal
-        prog["normal"].assign(padded)
-        prog["weight"].assign(np.concatenate([weight, np.zeros(size - n_bins)]))
+        prog["normal"].assign(normal)
+        prog["weight"].assign(weight)
         prog["lobes"].assign(rows)
         prog["alpha"].assign(alpha)
         prog["state"].zero_()
