@@ -81,3 +81,18 @@ __kernel void sample_facets(
     }
     face[s] = f;
 }
+
+/* A facet's weight from its face's value: per_face[face] * dA (bake._channels' colour channels, made where the
+ * facets are, so the host neither reads their faces back nor uploads a weight a facet). */
+__kernel void facet_weights(
+    __global const int *face,
+    __global const float *per_face,
+    __global const float *area,
+    const int count,
+    __global float *weight)
+{
+    int s = get_global_id(0);
+    if (s >= count)
+        return;
+    weight[s] = per_face[face[s]] * area[s];
+}

@@ -78,3 +78,17 @@ def sample_facets(
     else:
         normal[s] = face_normals[f]
     face[s] = f
+
+
+@wp.kernel
+def facet_weights(
+    face: wp.array(dtype=wp.int32),
+    per_face: wp.array(dtype=wp.float32),
+    area: wp.array(dtype=wp.float32),
+    offset: int,
+    weight: wp.array(dtype=wp.float32),
+):
+    """A facet's weight from its face's value: per_face[face] · ΔA (bake._channels' colour channels, made where
+    the facets are, so the host neither reads their faces back nor uploads a weight a facet)."""
+    s = wp.tid() + offset
+    weight[s] = per_face[face[s]] * area[s]

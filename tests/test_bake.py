@@ -368,6 +368,39 @@ def test_colour_channels_match_a_plain_per_facet_split(backend, order):
         backend.lobe_moments(fac, vis, w, lob.axes, lob.sharpness, iu, ou))
 
 
+def test_channel_weights_made_on_the_device_match_the_host(backend):
+    """`facet_weight_by_face` (kernels/facets.py facet_weights: per_face[face]·ΔA, float32) against the host's
+    float64 weights of the same channels (`_channels`), on sampled facets (on the device) and on host-made
+    facets in another order: a value of 0 or 1 exactly, a colour within one float32 rounding of the float64
+    product (rtol 1.2e-7 = 2^-23); and the bake's channels (`_sample_facets`) are those weights, their host
+    copies the host's arrays bit for bit."""
+    t = wb.geometry.pyramid(material=0, base_material=1)
+    colors = np.random.default_rng(1).random((len(t.faces), 3))
+    colors[t.material_ids == 0] = (1.0, 0.5, 0.25)
+    tile = wb.SmallScale(t.vertices, t.faces, material_ids=t.material_ids, colors=colors, period=t.period)
+    sampled = backend.sample_facets(tile, 5000, 3)
+    perm = np.random.default_rng(2).permutation(len(sampled))
+    shuffled = wb.Facets(*(getattr(sampled, name)[perm] for name in wb.Facets.FIELDS))
+    faces = bake_module._channel_faces(tile)
+    assert len(faces) == 4 and faces[0][2] is not None
+    for fac in (sampled, shuffled):
+        want = bake_module._channels(tile, fac)
+        for (m, mult, per_face), (m2, mult2, w) in zip(faces, want):
+            got = backend.facet_weight_by_face(fac, per_face)
+            device = backend._to_host(got.device, len(fac), "f32")
+            assert device.dtype == np.float32 and m == m2 and np.array_equal(mult, mult2)
+            np.testing.assert_allclose(device, w, rtol=1.2e-7, atol=0)
+            if set(np.unique(per_face)) <= {0.0, 1.0}:
+                np.testing.assert_array_equal(device, w.astype(np.float32))
+            np.testing.assert_array_equal(got.host(), w)
+    q = bake_module._sample_facets(tile, backend, 5000, 3, dirs.grid(2), 16, bake_module._Timer(backend),
+                                   wb.progress.as_progress(None))
+    assert len(q.channels) == len(q.weights) == 4
+    for (m, mult, w), device_w, (m2, mult2, want_w) in zip(q.channels, q.weights, bake_module._channels(tile, q.fac)):
+        assert m == m2 and np.array_equal(mult, mult2) and w is device_w
+        np.testing.assert_array_equal(bake_module.host_weight(w), want_w)
+
+
 @pytest.mark.parametrize("family", ["pyramid", "grooves"])
 def test_a_flat_tiles_bins_summed_over_its_faces_match_the_facets(backend, family):
     """A tile without vertex normals gives each facet its face's normal, so its bins are summed over the faces

@@ -551,7 +551,8 @@ def _asg_geometry(tile, be, count, seed, k, r, j_req, keep_hist, timer, prog, to
         a_v = np.asarray(q.a_v.host(), np.float64)
         amps = np.zeros((tile.n_materials, nd * nd, len(alpha), 3))
         for m, mult, w in q.channels:
-            mom = asg_moments(proj, values, area if w is None else np.asarray(w, np.float64), q.iu, q.ou)
+            mom = asg_moments(proj, values, area if w is None else np.asarray(bake_mod.host_weight(w), np.float64),
+                              q.iu, q.ou)
             mu = lobes_mod.solve_amplitudes(mom, a_v, pi, po, nd, rows, integrals)
             amps[m] += np.asarray(mu, np.float64)[..., None] * mult
     # (a NaN μ leaves its amplitude 0 in the table kernels' output but makes its pair's energy NaN: the energies

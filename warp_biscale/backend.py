@@ -93,6 +93,12 @@ class Backend(Protocol):
         """A device copy of a facet weight (Ns,) as lobe_moments takes it (an OnDevice whose host() is `weight`),
         made now: an upload waits for the work queued before it, so a caller uploads while the device is idle."""
 
+    def facet_weight_by_face(self, facets: Facets, per_face: np.ndarray, host_weight=None):
+        """A facet weight per_face[face_s]·ΔA_s (Ns,) made on the device from a value a face (F,) (float32, as
+        facet_weight uploads it), as lobe_moments takes it: an OnDevice whose host() is that weight in float64
+        (`host_weight()` if given, else gathered here). Queued, not waited for: the facets' faces stay on the
+        device and only the F values are uploaded."""
+
     def lobe_moments(self, facets: Facets, vis: Visibility, weight: np.ndarray | None, axes: np.ndarray | DeviceLobes,
                      sharpness: np.ndarray | None, pair_i: np.ndarray, pair_o: np.ndarray,
                      to_host: bool = True, lobe_values=None):

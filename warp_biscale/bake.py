@@ -9,6 +9,7 @@ only "tables"); `EffectiveBRDF.with_materials` does the same on a material in ha
 from __future__ import annotations
 
 import collections
+import functools
 import math
 import time
 import weakref
@@ -22,7 +23,7 @@ from . import lobes as lobes_mod
 from . import matrix as matrix_mod
 from . import sg
 from .backend import get_backend
-from .device import once
+from .device import OnDevice, once
 from .brdf import MEASURED, refuse_anisotropic
 from .effective import METHODS, EffectiveBRDF, Provenance, device_levels
 from .progress import as_progress
@@ -57,48 +58,60 @@ def _one_channel(tile) -> bool:
     return bool(len(ids) and (ids == ids[0]).all() and (colors == colors[0]).all())
 
 
-def _channels(tile, facets):
-    """Split the facets' weights into scalar channels: → list of (material, rgb multiplier, weight).
+def _channel_faces(tile) -> list:
+    """The colour channels a face at a time: → list of (material, rgb multiplier, its value a face (F,) float64,
+    or None).
 
-    A tile whose faces all have one material and one colour is one channel whose weight is the
-    facets' area, None (the backends then use the area they hold: no per-facet host work). Otherwise
-    a material whose facets all have one colour is one channel, weight ΔA on its facets (Ns,) and the
-    colour applied afterwards (one sum instead of three); a material with several colours gets three
-    channels, weights ΔA·c_s for R, G and B.
+    A tile whose faces all have one material and one colour is one channel whose value is None: its weight is
+    the facets' area (the backends then use the area they hold: no per-facet work). Otherwise a material whose
+    faces all have one colour is one channel, 1 on its faces and 0 elsewhere, the colour applied afterwards
+    (one sum instead of three); a material with several colours gets three channels, its faces' R, G and B. A
+    material with no area has no channel (no facet lands on it).
     """
     if _one_channel(tile):
         return [(int(tile.material_ids[0]), tile.colors[0].astype(np.float64), None)]
-    # Materials and colours are the faces': decided per face. Sampled facets run face by face, so a face's value
-    # is repeated over its run (`_face_runs`) rather than gathered facet by facet (per-facet tests of the colours
-    # cost a GPU host milliseconds an edit; the gathers most of a millisecond).
     ids, colors = tile.material_ids, tile.colors
-    runs, equal = _face_runs(facets.face, len(ids)), _equal_area(facets)
-    if runs is None:
-        facet_count = np.bincount(ids[facets.face], minlength=tile.n_materials)
-        area = facets.area.astype(np.float64)
-
-        def weight(per_face):
-            return per_face[facets.face] * area
-    else:
-        facet_count = np.bincount(ids, weights=runs, minlength=tile.n_materials)
-        if equal is None:
-            area = facets.area.astype(np.float64)
-
-            def weight(per_face):
-                return np.repeat(per_face, runs) * area
-        else:
-            def weight(per_face):  # (ΔA times a face's value, repeated: one pass over the facets)
-                return np.repeat(per_face * equal, runs)
+    area = np.bincount(ids, weights=tile.face_areas, minlength=tile.n_materials)
     out = []
-    for m in np.flatnonzero(facet_count > 0):
+    for m in np.flatnonzero(area > 0):
         mine = ids == m
         face_colors = colors[mine]
         if (face_colors == face_colors[0]).all():  # one colour: applied after one sum
-            out.append((int(m), face_colors[0].astype(np.float64), weight(mine.astype(np.float64))))
+            out.append((int(m), face_colors[0].astype(np.float64), mine.astype(np.float64)))
         else:
             for c in range(3):
-                out.append((int(m), np.eye(3)[c], weight(np.where(mine, colors[:, c], 0.0))))
+                out.append((int(m), np.eye(3)[c], np.where(mine, colors[:, c], 0.0)))
     return out
+
+
+def _facet_weigher(tile, facets):
+    """→ weight(per_face): a face value (F,) made a facet weight per_face[face_s]·ΔA_s (Ns,) float64 on the host.
+    Sampled facets run face by face, so a face's value is repeated over its run (`_face_runs`) rather than
+    gathered facet by facet (per-facet tests of the colours cost a GPU host milliseconds an edit; the gathers
+    most of a millisecond)."""
+    runs, equal = _face_runs(facets.face, len(tile.faces)), _equal_area(facets)
+    if runs is None:
+        area = facets.area.astype(np.float64)
+        return lambda per_face: per_face[facets.face] * area
+    if equal is None:
+        area = facets.area.astype(np.float64)
+        return lambda per_face: np.repeat(per_face, runs) * area
+    return lambda per_face: np.repeat(per_face * equal, runs)  # (ΔA times a face's value: one pass over the facets)
+
+
+def host_weight(weight):
+    """A channel's facet weight (`_Queued.channels`) as a host array: an OnDevice's host copy, else itself."""
+    return weight.host() if isinstance(weight, OnDevice) else weight
+
+
+def _channels(tile, facets):
+    """Split the facets' weights into scalar channels (`_channel_faces`): → list of (material, rgb multiplier,
+    weight (Ns,) float64 ΔA times the face's value, or None: the area)."""
+    channels = _channel_faces(tile)
+    if channels[0][2] is None:
+        return channels
+    weight = _facet_weigher(tile, facets)
+    return [(m, mult, weight(per_face)) for m, mult, per_face in channels]
 
 
 def _face_runs(face, n_faces: int):
@@ -334,7 +347,7 @@ class _Queued:
     vis: object = None
     a_v: object = None
     em_weight: object = None
-    channels: list = field(default_factory=list)
+    channels: list = field(default_factory=list)  # (material, rgb multiplier, facet weight: see _sample_facets)
     weights: list = field(default_factory=list)  # the channels' weights on the device (None: the area)
     face_bins: tuple = None  # `_face_bins`: the bins of a flat tile's faces, or None
     iu: np.ndarray = None
@@ -369,12 +382,12 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
 
 
 def _sample_facets(tile, be, count, seed, grid, r, timer, prog, weights_on_device=True) -> _Queued:
-    """Facets, each one's normal bin and the colour channels (`_channels`); the normals (and, for a tile of
-    several materials or colours, the facets' faces that the channels split them by) are read back now,
-    before the rays queue behind them: read later, they would wait for the rays, and the host's work would
-    not overlap them. With `weights_on_device` the channels' weights go to the device now too, for the moment
-    sums (`q.weights`): an upload waits for the work queued before it, so one made behind the rays held the
-    host until the device had done them and the EM (bench/README.md)."""
+    """Facets, each one's normal bin and the colour channels; the normals that the host bins (a curved tile's)
+    are read back now, before the rays queue behind them: read later, they would wait for the rays, and the
+    host's work would not overlap them. With `weights_on_device` the channels' facet weights are made on the
+    device now (`facet_weight_by_face`, `q.weights`, their face values uploaded ahead of the rays: an upload
+    waits for the work queued before it, bench/README.md) and `q.channels` holds them as OnDevice (`host_weight`);
+    else `q.channels` holds host arrays (`_channels`)."""
     prog.stage(f"facets ({count})", 1)
     fac = timer("facets", be.sample_facets, tile, count, seed)
     bins = timer("bvndf", be.normal_bins, fac, r)
@@ -382,9 +395,17 @@ def _sample_facets(tile, be, count, seed, grid, r, timer, prog, weights_on_devic
     q.face_bins = _face_bins(tile, fac, bins)
     if q.face_bins is None:  # the bins are summed facet by facet: the facets' normals, read now
         q.normal = fac.normal
-    q.channels = _channels(tile, fac)
     if weights_on_device:
-        q.weights = [None if w is None else be.facet_weight(w) for _, _, w in q.channels]
+        # Each channel's facet weights made on the device from its face values (facet_weight_by_face): its
+        # host array (the histogram route, J past the kernels) only when host code asks for it.
+        channels = _channel_faces(tile)
+        weigher = functools.cache(lambda: _facet_weigher(tile, fac))
+        q.weights = [None if per_face is None else
+                     be.facet_weight_by_face(fac, per_face, lambda per_face=per_face: weigher()(per_face))
+                     for _, _, per_face in channels]
+        q.channels = [(m, mult, w) for (m, mult, _), w in zip(channels, q.weights)]
+    else:
+        q.channels = _channels(tile, fac)
     return q
 
 
@@ -534,7 +555,7 @@ def _histograms(be, q: _Queued, bv, facet_bin, route, keep_hist, timer, prog):
     order = np.argsort(facet_bin, kind="stable").astype(np.int32)
     start = np.searchsorted(facet_bin[order], np.arange(len(bv.bins) + 1)).astype(np.int32)
     hists = [timer("bvndf", be.bvndf_histogram, q.fac, q.vis, order, start,
-                   (area if w is None else w).astype(np.float32), q.iu, q.ou)
+                   (area if w is None else host_weight(w)).astype(np.float32), q.iu, q.ou)
              for _, _, w in q.channels]
     if keep_hist:
         bv.histogram = timer("bvndf", be.bvndf_histogram, q.fac, q.vis, order, start, area.astype(np.float32),

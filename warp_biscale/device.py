@@ -475,6 +475,16 @@ class DeviceBackend:
     def facet_weight(self, weight):
         return OnDevice(self._to_device(np.asarray(weight, np.float32), "f32"), lambda: weight)
 
+    def facet_weight_by_face(self, facets, per_face, host_weight=None):
+        per_face = np.asarray(per_face, np.float64).reshape(-1)
+        n = len(facets)
+        weight = self._new(n, "f32")
+        f = self._facets(facets)
+        # (the face values recur from bake to bake of a tile: uploaded once, found again by content)
+        self._launch_facet_weights(f["face"], self._recurring(per_face.astype(np.float32), "f32"), f["area"], n,
+                                   weight)
+        return OnDevice(weight, host_weight or (lambda: per_face[facets.face] * facets.area.astype(np.float64)))
+
     def material_tables(self, materials, integrals, n_pairs, level_weights=None):
 
         integrals = np.asarray(integrals, np.float64)

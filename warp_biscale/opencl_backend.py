@@ -449,6 +449,9 @@ class OpenCLBackend(DeviceBackend):
                      t["face_normals"], t["cumulative_area"], t["face_area"], np.int32(len(tile.faces)),
                      np.int32(count), np.float64(xi1), np.float32(xi2), pos, nrm, face)
 
+    def _launch_facet_weights(self, face, per_face, area, count, weight):
+        self._launch("facets", "facet_weights", (count,), face, per_face, area, np.int32(count), weight)
+
     def _launch_visibility(self, tile, facets, dirs, n_dirs, words, brute_force, bits):
         t = self._tile(tile, need_bvh=True)
         position = self._facet_positions(facets, tile)

@@ -243,6 +243,9 @@ class WarpBackend(DeviceBackend):
                       t["face_normals"], t["cumulative_area"], t["face_area"], count, wp.float64(xi1), float(xi2)],
                      [pos, nrm, face])
 
+    def _launch_facet_weights(self, face, per_face, area, count, weight):
+        self._launch(kfacets.facet_weights, count, [face, per_face, area], [weight])
+
     def _launch_visibility(self, tile, facets, dirs, n_dirs, words, brute_force, bits):
         t = self._tile(tile)
         position = self._facet_positions(facets, tile)
