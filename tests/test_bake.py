@@ -401,6 +401,23 @@ def test_channel_weights_made_on_the_device_match_the_host(backend):
         np.testing.assert_array_equal(bake_module.host_weight(w), want_w)
 
 
+@pytest.mark.parametrize("method", ["sg", "asg"])
+def test_a_material_no_facet_lands_on_reflects_nothing(backend, method):
+    """A material whose faces have area but get no facet (a 1e-5-sided triangle among 256 facets) has a channel
+    on the device (`_channel_faces` decides from the faces) whose weights are all 0: the bake runs and that
+    material's amplitudes are 0; the host's channels (`_channels`) leave it out, as the matrix method sees it."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0],
+                  [0.5, 0.5, 0], [0.5 + 1e-5, 0.5, 0], [0.5, 0.5 + 1e-5, 0]], float)
+    tile = wb.SmallScale(v, np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6]]), material_ids=np.array([0, 0, 1]),
+                         colors=np.array([[1.0, 0.5, 0.2], [1.0, 0.5, 0.2], [0.2, 0.3, 0.9]]), period=(1.0, 1.0))
+    mat = wb.bake(tile, [wb.BlinnPhong(0.5, 64, kd=0.3), wb.Lambert(0.7)], method=method, lobes=2, directions=4,
+                  facets=256, backend=backend)
+    assert not (np.asarray(backend.sample_facets(tile, 256, 0).face) == 2).any()
+    amps = np.asarray(mat.amplitudes).reshape(2, -1)
+    assert mat.info["channels"] == 2 and amps[0].max() > 0 and np.all(amps[1] == 0)
+    assert len(bake_module._channels(tile, backend.sample_facets(tile, 256, 0))) == 1
+
+
 @pytest.mark.parametrize("family", ["pyramid", "grooves"])
 def test_a_flat_tiles_bins_summed_over_its_faces_match_the_facets(backend, family):
     """A tile without vertex normals gives each facet its face's normal, so its bins are summed over the faces

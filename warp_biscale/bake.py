@@ -106,12 +106,17 @@ def host_weight(weight):
 
 def _channels(tile, facets):
     """Split the facets' weights into scalar channels (`_channel_faces`): → list of (material, rgb multiplier,
-    weight (Ns,) float64 ΔA times the face's value, or None: the area)."""
+    weight (Ns,) float64 ΔA times the face's value, or None: the area), for the materials some facet lies on (a
+    bake's device channels, `_sample_facets`, also keep one of area but no facet: its weights are 0)."""
     channels = _channel_faces(tile)
     if channels[0][2] is None:
         return channels
+    runs = _face_runs(facets.face, len(tile.faces))
+    ids = tile.material_ids
+    present = (np.bincount(ids[facets.face], minlength=tile.n_materials) if runs is None
+               else np.bincount(ids, weights=runs, minlength=tile.n_materials)) > 0
     weight = _facet_weigher(tile, facets)
-    return [(m, mult, weight(per_face)) for m, mult, per_face in channels]
+    return [(m, mult, weight(per_face)) for m, mult, per_face in channels if present[m]]
 
 
 def _face_runs(face, n_faces: int):
