@@ -47,11 +47,11 @@ GPU = {"device": None}  # the Warp CUDA device when GPU events are recorded
 BACKEND_CALLS = ("_tile", "sample_facets", "normal_bins", "facet_weight_by_face", "visibility", "visible_area",
                  "visible_weights", "em_start", "ndf_em", "lobe_moments", "solve_amplitudes", "material_tables",
                  "synchronize", "asg_em", "asg_value_sums")
-# The host steps between them. `_channel_faces` and `_channels` are private: they split the facet weights per
-# material and colour (face values for the device, or the facets' weights on the host), host work before the rays
+# The host steps between them. `_channel_faces` is private: it splits the facet weights per material and colour
+# (a value a face, which facet_weight_by_face makes the facets' weights on the device), host work before the rays
 # that the timeline must show.
 LOBE_STEPS = ("initial_lobes", "amplitude_system")
-BAKE_STEPS = ("_channel_faces", "_channels", "_occupied_bins", "_bin_normals", "_fit_ndf", "EffectiveBRDF")
+BAKE_STEPS = ("_channel_faces", "_occupied_bins", "_bin_normals", "_fit_ndf", "EffectiveBRDF")
 # The ASG bake's host steps (method "asg").
 ASG_STEPS = ("amplitude_system", "calibrated_rows", "fit_asg_on")
 

@@ -82,7 +82,7 @@ __kernel void sample_facets(
     face[s] = f;
 }
 
-/* A facet's weight from its face's value: per_face[face] * dA (bake._channels' colour channels, made where the
+/* A facet's weight from its face's value: per_face[face] * dA (bake._channel_faces' colour channels, made where the
  * facets are, so the host neither reads their faces back nor uploads a weight a facet). */
 __kernel void facet_weights(
     __global const int *face,

@@ -88,7 +88,7 @@ def facet_weights(
     offset: int,
     weight: wp.array(dtype=wp.float32),
 ):
-    """A facet's weight from its face's value: per_face[face] · ΔA (bake._channels' colour channels, made where
+    """A facet's weight from its face's value: per_face[face] · ΔA (bake._channel_faces' colour channels, made where
     the facets are, so the host neither reads their faces back nor uploads a weight a facet)."""
     s = wp.tid() + offset
     weight[s] = per_face[face[s]] * area[s]

@@ -94,8 +94,8 @@ class Backend(Protocol):
         made now: an upload waits for the work queued before it, so a caller uploads while the device is idle."""
 
     def facet_weight_by_face(self, facets: Facets, per_face: np.ndarray, host_weight=None):
-        """A facet weight per_face[face_s]·ΔA_s (Ns,) made on the device from a value a face (F,) (float32, as
-        facet_weight uploads it), as lobe_moments takes it: an OnDevice whose host() is that weight in float64
+        """A facet weight per_face[face_s]·ΔA_s (Ns,) made on the device from a value a face (F,) (the float32
+        product of the float32 values), as lobe_moments takes it: an OnDevice whose host() is that weight in float64
         (`host_weight()` if given, else gathered here). Queued, not waited for: the facets' faces stay on the
         device and only the F values are uploaded."""
 
@@ -103,14 +103,13 @@ class Backend(Protocol):
                      sharpness: np.ndarray | None, pair_i: np.ndarray, pair_o: np.ndarray,
                      to_host: bool = True, lobe_values=None):
         """(P, J + 1) float32 facet sums of docs/design.md §5 for the unordered pairs (reference.lobe_moments),
-        each facet weighing `weight` (Ns,) (a host array or what facet_weight returned), or its area ΔA when
-        `weight` is None (a tile of one material and one colour: nothing uploaded); with to_host=False a device
-        array for solve_amplitudes (no round trip through the host). `axes` may be the DeviceLobes of this
-        backend's last ndf_em (`sharpness` None): its J lobes, dead ones included, as the device holds them
-        (float32). With
-        `lobe_values`, the facets' values of other lobes stand for the SG lobes' (axes and sharpness unused):
-        a host (Ns, J) array, or an asg.ASG batch (J,) (the ASG bake's lobes, their amplitudes included),
-        evaluated on the device."""
+        each facet weighing `weight` (Ns,) (a host array, or what facet_weight or facet_weight_by_face returned), or
+        its area ΔA when `weight` is None (a tile of one material and one colour: nothing uploaded); with
+        to_host=False a device array for solve_amplitudes (no round trip through the host). `axes` may be the
+        DeviceLobes of this backend's last ndf_em (`sharpness` None): its J lobes, dead ones included, as the device
+        holds them (float32). With `lobe_values`, the facets' values of other lobes stand for the SG lobes' (axes
+        and sharpness unused): a host (Ns, J) array, or an asg.ASG batch (J,) (the ASG bake's lobes, their
+        amplitudes included), evaluated on the device."""
 
     def asg_em(self, bin_normal: np.ndarray, bin_weight: np.ndarray, start, alpha, iterations: int,
                bandwidth_range, converged: float) -> tuple:

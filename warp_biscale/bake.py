@@ -58,9 +58,12 @@ def _one_channel(tile) -> bool:
     return bool(len(ids) and (ids == ids[0]).all() and (colors == colors[0]).all())
 
 
+_CHANNEL_FACES = weakref.WeakKeyDictionary()  # tile → its `_channel_faces` (a tile's faces do not change)
+
+
 def _channel_faces(tile) -> list:
     """The colour channels a face at a time: → list of (material, rgb multiplier, its value a face (F,) float64,
-    or None).
+    or None), made once per tile (`_CHANNEL_FACES`).
 
     A tile whose faces all have one material and one colour is one channel whose value is None: its weight is
     the facets' area (the backends then use the area they hold: no per-facet work). Otherwise a material whose
@@ -68,6 +71,13 @@ def _channel_faces(tile) -> list:
     (one sum instead of three); a material with several colours gets three channels, its faces' R, G and B. A
     material with no area has no channel (no facet lands on it).
     """
+    kept = _CHANNEL_FACES.get(tile)
+    if kept is None:
+        kept = _CHANNEL_FACES[tile] = _split_faces(tile)
+    return kept
+
+
+def _split_faces(tile) -> list:
     if _one_channel(tile):
         return [(int(tile.material_ids[0]), tile.colors[0].astype(np.float64), None)]
     ids, colors = tile.material_ids, tile.colors
@@ -387,12 +397,13 @@ def _bake_geometry(tile, be, count, seed, k, r, j_req, route, tolerance, probe, 
 
 
 def _sample_facets(tile, be, count, seed, grid, r, timer, prog, weights_on_device=True) -> _Queued:
-    """Facets, each one's normal bin and the colour channels; the normals that the host bins (a curved tile's)
-    are read back now, before the rays queue behind them: read later, they would wait for the rays, and the
-    host's work would not overlap them. With `weights_on_device` the channels' facet weights are made on the
-    device now (`facet_weight_by_face`, `q.weights`, their face values uploaded ahead of the rays: an upload
-    waits for the work queued before it, bench/README.md) and `q.channels` holds them as OnDevice (`host_weight`);
-    else `q.channels` holds host arrays (`_channels`)."""
+    """Facets, each one's normal bin and the colour channels. What the host needs of the facets is read back now,
+    before the rays queue behind them (read later, it would wait for the rays, and the host's work would not
+    overlap them): a tile whose bins are summed over its faces (`_face_bins`) reads the facets' faces, any other
+    their normals. With `weights_on_device` the channels' facet weights are made on the device now
+    (`facet_weight_by_face`, `q.weights`, their face values uploaded ahead of the rays: an upload waits for the
+    work queued before it, bench/README.md) and `q.channels` holds them as OnDevice (`host_weight`); else
+    `q.channels` holds host arrays (`_channels`)."""
     prog.stage(f"facets ({count})", 1)
     fac = timer("facets", be.sample_facets, tile, count, seed)
     bins = timer("bvndf", be.normal_bins, fac, r)

@@ -1052,7 +1052,8 @@ def matrix_tables(channels, bin_normals, material_factors_list, a_v, n_materials
     """(M, K², K², 3) float64 RGB f̄ per material from N's factors and the materials' M factors (Wu Eq. 12).
 
     channels: [(material id, rgb multiplier (3,), N factors)] as the bake splits the facets (bake._channels:
-    one per material, or per material and colour component), each N (U × L) over the bake's bins;
+    one per material some facet lies on, or per such material and colour component), each N (U × L) over the
+    bake's bins;
     bin_normals (L, 3) those bins' normals (`Bvndf.normal`), where each material's M rows are interpolated;
     material_factors_list: a `MaterialFactors` per material id, on the bake's grid; a_v (K²,).
     f̄_m = Σ_{channels of m} mult ⊙ d_m · f̄_channel, clamped at 0."""

@@ -781,11 +781,10 @@ class OpenCLBackend(DeviceBackend):
             prog = self._asg_em_program(n_bins, n_lobes, iterations, dead_mass, log_range, converged)
         self._keep_recent(self._asg_em_programs, key, prog, size=8)  # (each holds its buffers: (bins, J) float64)
         cl = self._cl
-        # (the host copies held until the reads below, which wait for the whole queue)
-        hosts = {name: np.ascontiguousarray(host, np.float64)
-                 for name, host in (("normal", normal), ("weight", weight), ("lobes", rows), ("alpha", alpha))}
-        for name, host in hosts.items():
-            cl.enqueue_copy(self._queue, prog[name], host, is_blocking=False)
+        # (pyopencl's event of a non-blocking copy waits for it when dropped: the events, and with them the host
+        # arrays, are held until the reads below, which wait for the whole queue)
+        uploads = [cl.enqueue_copy(self._queue, prog[name], np.ascontiguousarray(host, np.float64), is_blocking=False)
+                   for name, host in (("normal", normal), ("weight", weight), ("lobes", rows), ("alpha", alpha))]
         cl.enqueue_fill_buffer(self._queue, prog["state"], np.int32(0), 0, 8)
         for _ in range(iterations):
             for step in prog["steps"]:
@@ -794,6 +793,7 @@ class OpenCLBackend(DeviceBackend):
         reads = [self._read_later(prog["lobes"], (n_lobes, 12), np.float64),
                  self._read_later(prog["alpha"], n_lobes, np.float64), self._read_later(prog["state"], 2, np.int32)]
         lobes, alpha, state = (read() for read in reads)
+        del uploads
         return lobes, alpha, int(state[1])
 
     def frame_buffer(self, width: int, height: int) -> np.ndarray:
