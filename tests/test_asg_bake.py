@@ -29,6 +29,7 @@ from conftest import BACKEND_ENTRIES, backend_params, flat_tile, random_heightfi
 import warp_biscale as wb
 from warp_biscale import asg as asg_mod
 from warp_biscale import asg_bake
+from warp_biscale import device as device_module
 
 bake_module = sys.modules["warp_biscale.bake"]
 
@@ -130,6 +131,28 @@ def test_fit_on_the_device_against_float64(backend):
               f"weights {np.max(np.abs(got_alpha - want_alpha)):.1e}")
         assert lam_err < 1e-4 and mu_err < 1e-4 and z_err < 1e-5 and x_err < 1e-5
         np.testing.assert_allclose(got_alpha, want_alpha, atol=1e-6)
+
+
+def test_asg_em_programs_kept_up_to_their_size(backend, monkeypatch):
+    """A backend keeps an ASG EM's program (buffers, launches) for the next call of its shape, and makes one whose
+    responsibilities pass device.ASG_EM_KEEP_BYTES again: the same fit either way."""
+    rng = np.random.default_rng(3)
+    normal = rng.normal(size=(300, 3)) + [0.0, 0.0, 3.0]
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    weight = rng.random(300) + 0.1
+    start = wb.lobes.LobeSet(np.array([[0.0, 0.0, 1.0], [0.3, 0.0, 0.95]]) / np.linalg.norm(
+        [[0.0, 0.0, 1.0], [0.3, 0.0, 0.95]], axis=1, keepdims=True), np.array([20.0, 40.0]), np.array([0.5, 0.5]))
+    backend._asg_em_programs.clear()
+    kept = asg_bake.fit_asg_on(backend, normal, weight, start, 8)
+    assert len(backend._asg_em_programs) == 1  # (300 bins padded to 512, 2 lobes: 8 KiB)
+    monkeypatch.setattr(device_module, "ASG_EM_KEEP_BYTES", 512 * 2 * 8 - 1)
+    backend._asg_em_programs.clear()
+    made = asg_bake.fit_asg_on(backend, normal, weight, start, 8)
+    assert len(backend._asg_em_programs) == 0
+    assert kept[2] == made[2]
+    for name in ("lam", "mu", "z"):
+        np.testing.assert_array_equal(getattr(kept[0], name), getattr(made[0], name))
+    np.testing.assert_array_equal(kept[1], made[1])
 
 
 @pytest.mark.parametrize("name", backend_params([b for b in BACKEND_ENTRIES if b["kind"] == "opencl"]))

@@ -34,6 +34,9 @@ SCRATCH_BYTES = 64 << 20  # the largest scratch array a backend keeps between ca
 # OpenCL build is given from here): they share its sums over a few hundred to a few thousand normal bins and the
 # Newton's 48 disk nodes.
 ASG_EM_BLOCK = 128
+# The largest (bins, J) float64 responsibilities an ASG EM program kept for the next call may hold (`_keep_asg_em`):
+# `lobes="auto"` at fine bins tries many J, and eight kept programs of 128 MiB each would stay on the device.
+ASG_EM_KEEP_BYTES = 16 << 20
 # The shade kernel's register cap on NVIDIA GPUs (kernels/shade.py's cuda_max_registers; the OpenCL build's
 # -cl-nv-maxrregcount where the device takes NVIDIA's compiler options): the rest spills to local memory, which the
 # cache holds, and more resident warps hide the gathers' latency better than registers save spills. Timed on both
@@ -1278,6 +1281,12 @@ class DeviceBackend:
         while len(cache) > size:
             cache.pop(next(iter(cache)))
         return value
+
+    def _keep_asg_em(self, key, program, n_bins: int, n_lobes: int) -> None:
+        """Keep an ASG EM program (its buffers and launches) for the next call of its shape, the eight most recent,
+        unless its (bins, J) float64 responsibilities pass ASG_EM_KEEP_BYTES (then it is made again when asked)."""
+        if n_bins * n_lobes * 8 <= ASG_EM_KEEP_BYTES:
+            self._keep_recent(self._asg_em_programs, key, program, size=8)
 
     @staticmethod
     def _step_em(prog: dict, iterations: int, stopped, meanwhile=None) -> None:

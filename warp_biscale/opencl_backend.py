@@ -779,7 +779,7 @@ class OpenCLBackend(DeviceBackend):
         prog = self._asg_em_programs.pop(key, None)
         if prog is None:
             prog = self._asg_em_program(n_bins, n_lobes, iterations, dead_mass, log_range, converged)
-        self._keep_recent(self._asg_em_programs, key, prog, size=8)  # (each holds its buffers: (bins, J) float64)
+        self._keep_asg_em(key, prog, n_bins, n_lobes)
         cl = self._cl
         # (pyopencl's event of a non-blocking copy waits for it when dropped: the events, and with them the host
         # arrays, are held until the reads below, which wait for the whole queue)

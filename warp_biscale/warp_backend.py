@@ -663,7 +663,7 @@ class WarpBackend(DeviceBackend):
                 with wp.ScopedCapture(device=self._device, force_module_load=False) as capture:
                     self._asg_em_steps(prog, iterations)
                 kept["graph"] = capture.graph
-        self._keep_recent(self._asg_em_programs, key, kept, size=8)  # (each holds its buffers: (bins, J) float64)
+        self._keep_asg_em(key, kept, size, j)
         prog = kept["prog"]
         prog["normal"].assign(normal)
         prog["weight"].assign(weight)
