@@ -292,21 +292,23 @@ def test_file_tiles_and_a_job_given_as_a_dict(tmp_path, monkeypatch):
 
 
 def test_asg_method_and_an_anisotropic_material(tmp_path):
-    """[bake] method = "asg" (Xu 2013) sweeps beside "sg", and takes an anisotropic small-scale BRDF (which the SG
-    bake refuses: that task fails with its one-line reason, the rest finish); the ASG material is saved, judged
-    against its ground truth and its live lobes are counted."""
-    doc = {"bake": {"method": ["sg", "asg"], "lobes": 8, "facets": 1024, "directions": 4, "normal_res": 16},
+    """[bake] method = "asg" (Xu 2013) sweeps beside "sg" and "auto", and takes an anisotropic small-scale BRDF
+    (which the SG bake refuses: that task fails with its one-line reason, the rest finish; "auto" bakes it by ASG);
+    the ASG materials are saved, judged against their ground truth and their live lobes are counted."""
+    doc = {"bake": {"method": ["sg", "asg", "auto"], "lobes": 8, "facets": 1024, "directions": 4, "normal_res": 16},
            "compute": {"compare": True}, "truth": {"facets": 2048},
            "tile": [{"family": "pyramid"}],
            "material": [{"brdf": "ward:alpha_x=0.1,alpha_y=0.4,kd=0.1"}]}
     res = batch.run(doc, str(tmp_path / "out"), progress=False)
-    assert (res.done, res.failed) == (1, 1)
-    done, failed = sorted(res.records.values(), key=lambda r: r["status"])
-    assert done["status"] == "done" and failed["status"] == "failed", res.records
-    assert "bake it with method='asg'" in failed["error"] and "\n" not in failed["error"]
-    mat = wb.load(os.path.join(res.output, "tasks", done["hash"], "material.wbm"))
-    assert isinstance(mat, wb.ASGBRDF) and mat.materials[0].anisotropic
-    assert done["metrics"]["psnr"] > 30 and done["bake_info"]["lobes_live"] == len(mat.weight)
+    assert (res.done, res.failed) == (2, 1)
+    failed = [r for r in res.records.values() if r["status"] == "failed"]
+    assert len(failed) == 1 and "bake it with method='asg'" in failed[0]["error"] and "\n" not in failed[0]["error"]
+    for done in (r for r in res.records.values() if r["status"] == "done"):
+        mat = wb.load(os.path.join(res.output, "tasks", done["hash"], "material.wbm"))
+        assert isinstance(mat, wb.ASGBRDF) and mat.materials[0].anisotropic
+        assert done["metrics"]["psnr"] > 30 and done["bake_info"]["lobes_live"] == len(mat.weight)
+        assert ("method_choice" in mat.info) == (done["task"]["bake"]["method"] == "auto")
+        assert done["bake_info"]["method"] == "asg"
 
 
 BASE = """\

@@ -164,6 +164,21 @@ def test_bake_other_methods(tmp_path, method, capsys):
     assert isinstance(wb.load(out), {"asg": wb.ASGBRDF, "matrix": wb.MatrixBRDF}[method])
 
 
+def test_bake_method_auto_says_what_it_chose(tmp_path, capsys):
+    """`bake --method auto` prints the method it kept with both PSNRs and writes that material; the file keeps the
+    choice in its info."""
+    out = tmp_path / "m.wbm"
+    r = run_cli_in_process(capsys, "bake", "ugroove", "--facets", "2048", "--directions", "4", "--lobes", "2",
+                           "--backend", "warp:cpu", "--brdf", "blinnphong:exponent=512,ks=1", "--method", "auto",
+                           "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    said = [line for line in r.stdout.splitlines() if line.startswith("method auto: ")]
+    assert len(said) == 1 and "SG " in said[0] and "ASG " in said[0] and " dB" in said[0]
+    mat = wb.load(out)
+    chosen = mat.info["method_choice"]["chosen"]
+    assert said[0].startswith(f"method auto: {chosen.upper()} (") and getattr(mat, "method", None) == chosen
+
+
 def test_bake_takes_a_merl_file(tmp_path, capsys):
     """`--brdf` takes a MERL table file as a small-scale BRDF (fitted by the bake, the fit recorded); a missing
     one is named in one line before any work."""

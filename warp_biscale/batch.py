@@ -281,7 +281,7 @@ def execute(task: dict, hook=None, pin: int = 0) -> dict:
         "status": "done", "hash": task["hash"], "label": task["label"], "outputs": outputs, "timings": timings,
         "metrics": metrics, "caches": caches,
         "bake_info": {"lobes_live": len(mat.sampling_lobes()[1]), "backend": mat.info.get("backend"),
-                      "ndf_error": mat.info.get("ndf_error")},
+                      "ndf_error": mat.info.get("ndf_error"), "method": getattr(mat, "method", None)},
         "memory": {**_memory(), "wbm_bytes": len(files["material.wbm"]),
                    "table_bytes": int(mat.amplitudes.nbytes)},
         "worker": {"address": _worker_name(), "host": socket.gethostname(), "pid": os.getpid(),

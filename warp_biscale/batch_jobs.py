@@ -5,7 +5,8 @@ compute; their cross product (or the combinations it lists) becomes one `Task` p
     output = "results"           # optional: the results folder (relative to this file; -o overrides it)
 
     [bake]                       # wb.bake's settings; a list (or a range table) is a sweep axis
-    method = "sg"                # "sg" | "sg-exact" | "asg" (Xu 2013; it also takes anisotropic BRDFs)
+    method = "sg"                # "sg" | "sg-exact" | "asg" (Xu 2013; it also takes anisotropic BRDFs) | "auto"
+                                 #   (sg or asg, whichever is nearer the exact f̄ of the bake's facets)
     lobes = 4                    # J, or "auto"
     facets = 4096
     directions = 6               # K
@@ -91,7 +92,7 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.10
 
 # What a job's [bake] method may be: the bakes whose materials every task step takes (the ground truth's compare,
 # the SG renderer); the matrix method's cannot be rendered by it.
-BAKE_METHODS = (*METHODS, "asg")
+BAKE_METHODS = (*METHODS, "asg", "auto")
 
 __all__ = ["Jobs", "Task", "load_jobs", "loads_jobs", "jobs_from_dict", "FAMILIES", "MAX_TASKS", "FORMAT"]
 

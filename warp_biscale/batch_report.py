@@ -17,8 +17,8 @@ __all__ = ["ProgressLine", "rows", "write_report", "COLUMNS"]
 
 # Fixed columns of results.csv, in order; tile.<param>, material.<param> and image:<scene> columns are added.
 COLUMNS = ("task", "status", "label", "tile", "material", "method", "lobes", "facets", "directions", "normal_res",
-           "route", "seed", "backend", "lobes_live", "bake_s", "truth_s", "render_s", "total_s", "psnr", "rmse",
-           "max_rel_error", "rss_mb", "peak_rss_mb", "wbm_bytes", "wbm", "truth", "worker", "attempts", "error")
+           "route", "seed", "backend", "lobes_live", "method_used", "bake_s", "truth_s", "render_s", "total_s", "psnr",
+           "rmse", "max_rel_error", "rss_mb", "peak_rss_mb", "wbm_bytes", "wbm", "truth", "worker", "attempts", "error")
 
 
 def _eta(seconds) -> str:
@@ -117,7 +117,8 @@ def rows(jobs, records: dict, tasks_dir: str = "tasks") -> list:
                                                                           "normal_res", "route", "seed", "backend")}}
         if status == "done":
             row.update({
-                "lobes_live": rec.get("bake_info", {}).get("lobes_live"), "bake_s": _num(tim.get("bake")),
+                "lobes_live": rec.get("bake_info", {}).get("lobes_live"),
+                "method_used": rec.get("bake_info", {}).get("method") or "", "bake_s": _num(tim.get("bake")),
                 "truth_s": _num(tim.get("truth")), "render_s": _num(sum(tim.get("render", {}).values()))
                 if tim.get("render") else "", "total_s": _num(tim.get("total")), "psnr": _num(met.get("psnr")),
                 "rmse": _num(met.get("rmse")), "max_rel_error": _num(met.get("max_rel_error")),
@@ -196,8 +197,9 @@ _JS = """function sortBy(col, dir){
 function sortNamed(name,dir){var h=document.getElementById('t').tHead.rows[0].cells;
   for(var i=0;i<h.length;i++){if(h[i].getAttribute('data-c')===name){sortBy(i,dir);return;}}}"""
 
-_SHOWN = ("status", "tile", "material", "method", "lobes", "facets", "directions", "lobes_live", "bake_s", "truth_s",
-          "render_s", "total_s", "psnr", "max_rel_error", "peak_rss_mb", "wbm_bytes", "worker", "error")
+_SHOWN = ("status", "tile", "material", "method", "method_used", "lobes", "facets", "directions", "lobes_live",
+          "bake_s", "truth_s", "render_s", "total_s", "psnr", "max_rel_error", "peak_rss_mb", "wbm_bytes", "worker",
+          "error")
 _NUMERIC = {"lobes", "facets", "directions", "lobes_live", "bake_s", "truth_s", "render_s", "total_s", "psnr",
             "max_rel_error", "peak_rss_mb", "wbm_bytes"}
 

@@ -167,7 +167,10 @@ def cmd_bake(args):
         info = mat.info
         fit = (f" (NDF fit error {info['ndf_error']:.2%} at sharpness {info['ndf_probe_sharpness']:g})"
                if info.get("ndf_error") is not None else "")
-        lobes_said = f"{info['lobes']} {'ASG ' if args.method == 'asg' else ''}lobes{fit}, " if "lobes" in info else ""
+        asg = getattr(mat, "method", None) == "asg"
+        lobes_said = f"{info['lobes']} {'ASG ' if asg else ''}lobes{fit}, " if "lobes" in info else ""
+        if "method_choice" in info:
+            print(f"method auto: {info['method_choice']['chosen'].upper()} ({info['method_choice']['why']})")
         print(f"{tile.name}: {lobes_said}{info['nonempty_bins']} non-empty normal bins, "
               f"{mat.nbytes_per_material / 2**20:.2f} MiB per material")
         print("  ".join(f"{k} {v * 1e3:.1f} ms" for k, v in mat.timings.items()))
@@ -718,10 +721,11 @@ def main(argv=None):
     k.add_argument("--facets", type=int, default=1 << 16, help="number of facets Ns (default 2^16)")
     k.add_argument("--directions", type=int, default=12, help="direction grid size K (default 12)")
     k.add_argument("--normal-res", type=int, default=128, help="normal cube-map resolution R (default 128)")
-    k.add_argument("--method", default="sg", choices=["sg", "sg-exact", "asg", "matrix"],
+    k.add_argument("--method", default="sg", choices=["sg", "sg-exact", "asg", "matrix", "auto"],
                    help="sg = SG lobes, the specular term by the SG closure, Eq. 15 (default); sg-exact = Eq. 10; "
                         "asg = anisotropic SG lobes (Xu 2013); matrix = Wu 2011's factored matrices (--lobes "
-                        "and --route unused)")
+                        "and --route unused); auto = sg or asg, whichever is nearer the exact f̄ of the bake's "
+                        "facets (both bakes and that truth: about three bakes' time)")
     k.add_argument("--route", default="facets", choices=["facets", "histogram"],
                    help="amplitude right-hand sides from exact facet sums (default) or the BVNDF histogram")
     k.add_argument("--backend", default="auto", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name>")
