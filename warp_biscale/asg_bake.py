@@ -58,7 +58,7 @@ from . import lobes as lobes_mod
 from . import sg
 from .brdf import as_material_list, diffuse_albedo
 from .effective import (ASG_LOBES, DIFFUSE_LEVEL_ETAS, EFF_LOBE_WIDTH, EffectiveBRDF, HostOnlyBRDF, Provenance,
-                        device_levels, interpolated_amplitudes, materials_from_file, materials_to_file)
+                        device_levels, grid_amplitudes, interpolated_amplitudes, materials_from_file, materials_to_file)
 from .io import check_output, read_npz, save_npz
 from .model import Bvndf, DeviceArray
 from .progress import as_progress
@@ -740,18 +740,18 @@ class ASGBRDF(HostOnlyBRDF):
         """(M, N, J, 3) μ at (ωi, ωo), interpolated as the SG form's (`effective.interpolated_amplitudes`)."""
         return interpolated_amplitudes(self.amplitudes, self.grid, self.directions, wi, wo)
 
-    def eval(self, wi, wo, method: str | None = None) -> np.ndarray:
+    def eval(self, wi, wo, method: str | None = None, *, _on_grid: bool = False) -> np.ndarray:
         """(N, 3) f̄(ωi, ωo) (cosine θi included, docs/design.md §4); 0 below the horizon. Diffuse
         Σ_j μ_j kd/π ∫G_j, specular M·Σ_j μ_j (G_j ⊛ SG_s)(h), float64. method "asg" (default): the convolution
         by `convolve_sg_at` (Xu's Eq. 18 bandwidths and amplitude, a shape exact in both limits); "asg-eq18":
-        Xu's Eq. 18 literally (`asg.convolve_sg`)."""
+        Xu's Eq. 18 literally (`asg.convolve_sg`). (`_on_grid`: `table`'s call, as EffectiveBRDF.eval's.)"""
         self._check_method(method)
         literal = method == "asg-eq18"
         wi = dirs.check_directions("wi", wi)
         wo = dirs.check_directions("wo", wo)
         if len(wi) != len(wo):
             raise ValueError(f"wi and wo must have the same length, got {len(wi)} and {len(wo)}")
-        mu = self._mu(wi, wo)
+        mu = grid_amplitudes(self.amplitudes) if _on_grid else self._mu(wi, wo)
         out = np.zeros((len(wi), 3))
         for m, mat in enumerate(self.materials):
             kd = diffuse_albedo(mat) / np.pi

@@ -197,6 +197,14 @@ def interpolated_amplitudes(amplitudes, grid, directions: int, wi, wo) -> np.nda
     return out * np.maximum(wi[:, 2], 0.0)[None, :, None, None]
 
 
+def grid_amplitudes(amplitudes) -> np.ndarray:
+    """(M, K⁴, J, 3) float64 μ at every pair of a bake's own K×K grid, in `directions.all_pairs` order: the tables
+    themselves, which `interpolated_amplitudes` gives there up to its bilinear weights' rounding (~1e-15), without
+    its sixteen gathers (most of a K = 12 table's time: `table`)."""
+    a = np.asarray(amplitudes, np.float64)
+    return a.reshape(a.shape[0], a.shape[1] * a.shape[2], *a.shape[3:])
+
+
 class EffectiveBRDF:
     """A baked material. Build it with `wb.bake`; read it back with `wb.load`.
 
@@ -344,10 +352,11 @@ class EffectiveBRDF:
         """(M, N, J, 3) μ at (ωi, ωo): `interpolated_amplitudes` of this bake's tables."""
         return interpolated_amplitudes(self.amplitudes, self.grid, self.directions, wi, wo)
 
-    def eval(self, wi, wo, method: str | None = None) -> np.ndarray:
+    def eval(self, wi, wo, method: str | None = None, *, _on_grid: bool = False) -> np.ndarray:
         """(N, 3) f̄(ωi, ωo) (cosine θi included, docs/design.md §4) at arbitrary directions; 0 below the horizon.
 
-        method: "sg" (Eq. 15, the SG closure) or "sg-exact" (Eq. 10); default the bake's.
+        method: "sg" (Eq. 15, the SG closure) or "sg-exact" (Eq. 10); default the bake's. (`_on_grid`: `table`'s
+        call, (ωi, ωo) every pair of the bake's grid: the tables are read as they are, `grid_amplitudes`.)
         """
         method = self.method if method is None else method
         if method not in METHODS:
@@ -356,7 +365,7 @@ class EffectiveBRDF:
         wo = dirs.check_directions("wo", wo)
         if len(wi) != len(wo):
             raise ValueError(f"wi and wo must have the same length, got {len(wi)} and {len(wo)}")
-        mu = self._interpolated_amplitudes(wi, wo)  # (M, N, J, 3)
+        mu = grid_amplitudes(self.amplitudes) if _on_grid else self._interpolated_amplitudes(wi, wo)  # (M, N, J, 3)
         ax, eta = self.lobes.axes, self.lobes.sharpness
         out = np.zeros((len(wi), 3))
         for m, mat in enumerate(self.materials):
@@ -378,7 +387,7 @@ class EffectiveBRDF:
         """(K², K², 3) f̄ on the bake's own grid: table[i, o] at ωi = grid[i], ωo = grid[o]."""
         g = self.grid
         pi, po = dirs.all_pairs(len(g))
-        return self.eval(g[pi], g[po], method).reshape(len(g), len(g), 3)
+        return self.eval(g[pi], g[po], method, _on_grid=True).reshape(len(g), len(g), 3)
 
     # ------------------------------------------------------------------ files
     def save(self, path) -> None:
