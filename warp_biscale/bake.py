@@ -236,8 +236,8 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
         factored, Eq. 12; lobes, route and tolerance are the SG method's and unused), options in `matrix`;
         "asg": J anisotropic spherical Gaussians (Xu 2013) fitted from the SG EM's lobes (`asg_bake.ASGBRDF`);
         "auto": the SG or the ASG bake, whichever is nearer the exact f̄ of the bake's own facets (`_bake_auto`:
-        both bakes, that ground truth and both materials' f̄ tables evaluated on the host: 0.13–0.35 s on an H200
-        at the defaults, where one bake takes 3.8–10.5 ms; `info["method_choice"]` says which and why).
+        both bakes, that ground truth and both materials' f̄ tables evaluated on the host: 63–91 ms on an H200 at
+        the defaults, where one bake takes 3.4–9.3 ms; `info["method_choice"]` says which and why).
     lobes : J, the number of SG lobes of the NDF (1–128), or "auto": the first J of `AUTO_LOBES` (1–16,
         then 24, 32, 48, 64, 96, 128) whose NDF fit error (`lobes.ndf_error`, seen at the sharpest
         small-scale lobe, on the NDF weighted by what the direction grid sees, as the lobes are fitted)

@@ -725,8 +725,8 @@ def main(argv=None):
                    help="sg = SG lobes, the specular term by the SG closure, Eq. 15 (default); sg-exact = Eq. 10; "
                         "asg = anisotropic SG lobes (Xu 2013); matrix = Wu 2011's factored matrices (--lobes "
                         "and --route unused); auto = sg or asg, whichever is nearer the exact f̄ of the bake's "
-                        "facets (both bakes, that truth and both f̄ tables on the host: 0.13-0.35 s on an H200 at the "
-                        "defaults, where one bake takes 3.8-10.5 ms)")
+                        "facets (both bakes, that truth and both f̄ tables on the host: 63-91 ms on an H200 at the "
+                        "defaults, where one bake takes 3.4-9.3 ms)")
     k.add_argument("--route", default="facets", choices=["facets", "histogram"],
                    help="amplitude right-hand sides from exact facet sums (default) or the BVNDF histogram")
     k.add_argument("--backend", default="auto", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name>")
