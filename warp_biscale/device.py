@@ -1398,7 +1398,9 @@ class DeviceBackend:
         per = 32 * words
         chunks = -(-n // per)
         partial = self._new((chunks, len(rows)), "f64")
-        self._launch_asg_value_sums(f, self._facet_weight(f, weight), self._to_device(rows, "f32"), len(rows), n, per,
+        # (the rows by the upload cache: the moment sums that follow, one call a channel, find them there instead of
+        # uploading them again, an upload that would wait for the kernels queued before it)
+        self._launch_asg_value_sums(f, self._facet_weight(f, weight), self._recurring(rows, "f32"), len(rows), n, per,
                                     chunks, partial)
         read = self._queued_read(partial, (chunks, len(rows)), "f64")
         return read().sum(0) if to_host else OnDevice(partial, lambda: read().sum(0))

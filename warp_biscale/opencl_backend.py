@@ -651,7 +651,7 @@ class OpenCLBackend(DeviceBackend):
             stride = -(-j // 8) * 8
             values = self._scratch("lobe_values", n * stride, np.float32)
             self._launch("amplitudes", "asg_lobe_values", (n,), f["normal"],
-                         self._buffer(self._asg_rows(asgs, asgs.shape), np.float32), np.int32(j), np.int32(stride),
+                         self._recurring(self._asg_rows(asgs, asgs.shape), "f32"), np.int32(j), np.int32(stride),
                          np.int32(n), values)
         else:
             values = self._buffer(padded_lobe_values(lobe_values, -(-j // 8) * 8), np.float32)

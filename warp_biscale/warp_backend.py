@@ -481,7 +481,8 @@ class WarpBackend(DeviceBackend):
             self._launch(lobe_values_kernel, n, [f["normal"], axes_arr, sharpness_arr], [values])
         elif asgs is not None:
             values = self._scratch("lobe_values", n, vec)
-            self._launch(asg_lobe_values, n, [f["normal"], self._array(self._asg_rows(asgs, asgs.shape), wp.float32)],
+            # (the ASG bake's rows, uploaded once by its asg_value_sums: found by content, no upload behind the queue)
+            self._launch(asg_lobe_values, n, [f["normal"], self._recurring(self._asg_rows(asgs, asgs.shape), "f32")],
                          [values])
         else:
             values = wp.array(padded_lobe_values(lobe_values, vec._length_), dtype=vec, device=dev)
