@@ -698,3 +698,14 @@ def test_table_reads_the_grid_as_eval_interpolates_it(method):
     got = mat.table()
     assert want.max() > 0
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * want.max())
+
+
+def test_auto_method_says_each_material_warning_once():
+    """method="auto" checks the materials in each of its bakes and its truth: a warning about them (a BRDF past the
+    tile's material ids) is said once, not three times."""
+    tile = wb.geometry.grooves(profile="u")
+    with pytest.warns(wb.TileWarning) as said:
+        wb.bake(tile, [wb.BlinnPhong(0.5, 64), wb.Lambert(0.5)], method="auto", lobes=2, directions=4, facets=1024,
+                backend="warp:cpu")
+    assert [str(w.message) for w in said if w.category is wb.TileWarning] == [
+        "2 BRDFs given for a tile with 1 material id: BRDF 1 is unused"]

@@ -12,6 +12,7 @@ import collections
 import functools
 import math
 import time
+import warnings
 import weakref
 from dataclasses import dataclass, field
 
@@ -353,26 +354,31 @@ def _bake_auto(tile, materials, lobes, directions, normal_res, facets, backend, 
     if matrix is not None or route != "facets":
         raise ValueError("method='auto' chooses between the SG and ASG bakes, which sum their amplitudes over the "
                          "facets and take no matrix= or route= options")
-    mats, _, _ = _prepare(tile, materials, anisotropic=True, measured=True)
     kw = dict(lobes=lobes, directions=directions, normal_res=normal_res, facets=facets, backend=backend, seed=seed,
               tolerance=tolerance, bvndf=bvndf, progress=progress)
-    if any(m.anisotropic for m in mats):
-        mat = bake(tile, materials, method="asg", **kw)
-        mat.info["method_choice"] = {"chosen": "asg", "why": "an anisotropic small-scale BRDF, which only the ASG "
-                                                             "method holds"}
-        return mat
     t0 = time.perf_counter()
-    baked = {name: bake(tile, materials, method=name, **kw) for name in ("sg", "asg")}
-    truth = ground_truth(tile, materials, facets=facets, directions=directions, backend=backend, seed=seed,
-                         progress=progress)
-    psnr = {name: float(compare(m, truth)["psnr"]) for name, m in baked.items()}
-    chosen = "asg" if psnr["asg"] > psnr["sg"] + AUTO_MARGIN_DB else "sg"
-    mat = baked[chosen]
-    mat.info["method_choice"] = {
-        "chosen": chosen, "psnr_sg": psnr["sg"], "psnr_asg": psnr["asg"],
-        "why": f"PSNR of f̄ against the exact f̄ of the bake's {_check_count(facets)} facets: SG {psnr['sg']:.2f} dB, "
-               f"ASG {psnr['asg']:.2f} dB"}
-    mat.timings["method_choice"] = time.perf_counter() - t0 - sum(mat.timings.values())
+    # (each bake and the truth check the materials: their warnings are said once, not three times)
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        mats, _, _ = _prepare(tile, materials, anisotropic=True, measured=True)
+        if any(m.anisotropic for m in mats):
+            mat = bake(tile, materials, method="asg", **kw)
+            mat.info["method_choice"] = {"chosen": "asg", "why": "an anisotropic small-scale BRDF, which only the "
+                                                                 "ASG method holds"}
+        else:
+            baked = {name: bake(tile, materials, method=name, **kw) for name in ("sg", "asg")}
+            truth = ground_truth(tile, materials, facets=facets, directions=directions, backend=backend, seed=seed,
+                                 progress=progress)
+            psnr = {name: float(compare(m, truth)["psnr"]) for name, m in baked.items()}
+            chosen = "asg" if psnr["asg"] > psnr["sg"] + AUTO_MARGIN_DB else "sg"
+            mat = baked[chosen]
+            mat.info["method_choice"] = {
+                "chosen": chosen, "psnr_sg": psnr["sg"], "psnr_asg": psnr["asg"],
+                "why": f"PSNR of f̄ against the exact f̄ of the bake's {_check_count(facets)} facets: SG "
+                       f"{psnr['sg']:.2f} dB, ASG {psnr['asg']:.2f} dB"}
+            mat.timings["method_choice"] = time.perf_counter() - t0 - sum(mat.timings.values())
+    for warning in {(w.category, str(w.message)): w for w in said}.values():
+        warnings.warn_explicit(warning.message, warning.category, warning.filename, warning.lineno)
     return mat
 
 
