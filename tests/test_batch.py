@@ -309,6 +309,9 @@ def test_asg_method_and_an_anisotropic_material(tmp_path):
         assert done["metrics"]["psnr"] > 30 and done["bake_info"]["lobes_live"] == len(mat.weight)
         assert ("method_choice" in mat.info) == (done["task"]["bake"]["method"] == "auto")
         assert done["bake_info"]["method"] == "asg"
+    with open(os.path.join(res.output, "results.csv"), newline="") as fh:
+        used = {row["method"]: row["method_used"] for row in csv.DictReader(fh)}
+    assert used == {"sg": "", "asg": "asg", "auto": "asg"}  # (the sg task failed: it made no material)
 
 
 BASE = """\

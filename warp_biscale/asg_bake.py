@@ -721,7 +721,8 @@ class ASGBRDF(HostOnlyBRDF):
         """The same baked ASGs and amplitudes with other small-scale BRDFs (a material-only edit: no re-bake);
         provenance and `path` carry over, as EffectiveBRDF.with_materials."""
         t0 = time.perf_counter()
-        info = {k: v for k, v in self.info.items() if k != "ndf_asg_error"}  # (the new BRDFs' fit errors instead)
+        # (the new BRDFs' fit errors instead; and a method="auto" choice was made for the old BRDFs)
+        info = {k: v for k, v in self.info.items() if k not in ("ndf_asg_error", "method_choice")}
         out = ASGBRDF(self.asgs, self.weight, self._amplitudes, materials, self.directions, info=info,
                       bvndf=self.bvndf, provenance=self.provenance, path=self.path, energy=self._energy,
                       tangent_order=self._tangent_order, energy_levels=self._energy_levels, _integrals=self.integrals)

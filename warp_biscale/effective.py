@@ -340,9 +340,10 @@ class EffectiveBRDF:
         provenance (the tile) and `path` carry over: the new BRDFs are the recorded ones, so the Monte Carlo
         reference computes the edited material's ground truth, and caches it beside the same file."""
         t0 = time.perf_counter()
+        # (a method="auto" choice was made for the old BRDFs: not carried over)
         out = EffectiveBRDF(self.lobes, self._amplitudes, materials, self.directions, self.method,
-                            info=self.info, bvndf=self.bvndf, provenance=self.provenance, path=self.path,
-                            _energy=self._energy)
+                            info={k: v for k, v in self.info.items() if k != "method_choice"}, bvndf=self.bvndf,
+                            provenance=self.provenance, path=self.path, _energy=self._energy)
         out._energy_levels = self._energy_levels
         out.timings = {"tables": time.perf_counter() - t0}
         return out
