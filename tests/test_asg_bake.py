@@ -686,6 +686,13 @@ def test_auto_method_takes_asg_for_anisotropic_brdfs_and_refuses_the_other_metho
                     **bad)
 
 
+def test_an_unknown_method_is_named_before_the_materials_are_judged():
+    """A mistyped method with an anisotropic BRDF is an unknown method, not an anisotropy problem."""
+    for mats in (wb.AshikhminShirley(1.0, 10, 100), wb.BlinnPhong(1.0, 64)):
+        with pytest.raises(ValueError, match=r"^method must be one of .* got 'asgg'$"):
+            wb.bake(wb.geometry.pyramid(), mats, method="asgg", facets=1024, directions=4, backend="warp:cpu")
+
+
 @pytest.mark.parametrize("method", ["sg", "sg-exact", "asg"])
 def test_table_reads_the_grid_as_eval_interpolates_it(method):
     """`table()` reads the tables at the bake's own grid pairs as they are (`effective.grid_amplitudes`, no

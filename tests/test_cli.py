@@ -305,8 +305,43 @@ def test_render_bakes_a_bake_material(tmp_path, capsys):
     # (in-process, `cli.main`: test_quiet_means_quiet runs the console script's render)
     assert cli.main(["render", str(_tiny_scene(tmp_path, text)), "-o", str(out)]) == 0
     stdout = capsys.readouterr().out
-    assert "baked material 'shiny': tile grooves(" in stdout and "512 facets" in stdout
+    assert "baked material 'shiny': tile grooves(" in stdout and "512 facets, 2 lobes, K=4" in stdout
     assert out.exists()
+
+
+@pytest.mark.parametrize("method, said", [("asg", "2 ASG lobes, K=4"), ("matrix", "512 facets, K=4")])
+def test_render_says_what_an_asg_or_matrix_bake_made(tmp_path, capsys, method, said):
+    """The bake summary of a scene's ASG or matrix material reads the bake's info, not `lobes` (SG lobes, which
+    those materials refuse): the render goes on (the matrix method's by the lit-sphere renderer, which reads it)."""
+    text = BAKED_SCENE.replace("normal_res = 16", f'normal_res = 16\nmethod = "{method}"')
+    if method == "matrix":
+        text = text.replace("lobes = 2\n", "")
+    out = tmp_path / "b.png"
+    extra = ["--method", "litsphere"] if method == "matrix" else []
+    r = run_cli_in_process(capsys, "render", str(_tiny_scene(tmp_path, text)), "-o", str(out), *extra)
+    assert r.returncode == 0, r.stderr
+    assert "baked material 'shiny': tile grooves(" in r.stdout and said in r.stdout
+    assert out.exists()
+
+
+def test_render_refuses_a_matrix_bake_for_the_sg_renderer_before_baking(tmp_path, capsys, monkeypatch):
+    """The SG renderer cannot shade a matrix bake: said in one line naming the material, before any bake (by the
+    file's method, or by --method sg over a file that renders by the lit-sphere shader)."""
+    from warp_biscale import scenefile
+
+    def no_bake(*args, **kwargs):
+        raise AssertionError("baked before the scene was checked")
+
+    monkeypatch.setattr(scenefile, "bake", no_bake)
+    text = BAKED_SCENE.replace("lobes = 2\n", "").replace("normal_res = 16", 'normal_res = 16\nmethod = "matrix"')
+    out = tmp_path / "b.png"
+    for extra in ([], ["--method", "sg"]):
+        litsphere = text.replace("[render]\n", '[render]\nmethod = "litsphere"\n')
+        scene = _tiny_scene(tmp_path, litsphere if extra else text)
+        r = run_cli_in_process(capsys, "render", str(scene), "-o", str(out), *extra)
+        assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+        assert "[material.shiny] the SG renderer cannot shade a matrix bake" in r.stderr
+        assert "render this scene by method 'litsphere'" in r.stderr and not out.exists()
 
 
 BAKED_SCENE = TINY_SCENE.replace('[material.shiny]\ntype = "blinnphong"\nkd = [0.5, 0.2, 0.1]\nks = 0.5\n'

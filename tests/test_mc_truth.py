@@ -239,6 +239,27 @@ def test_a_saved_tile_comes_back_bit_for_bit(tmp_path):
     assert truth_mod.truth_key(wb.load(tmp_path / "m.wbm"), TRUTH_FACETS) == truth_mod.truth_key(mat, TRUTH_FACETS)
 
 
+def test_a_saved_tile_keeps_its_own_face_tangents(tmp_path):
+    """A tile's own tangents (the woven tile's run along its threads) are what an anisotropic BRDF's truth follows:
+    they come back bit for bit (not the default, +x on each face), so the loaded material has the truth key, and
+    so the truth, of the one baked. A tile whose tangents are the default stores none."""
+    base = random_heightfield(4)
+    rng = np.random.default_rng(3)
+    tile = wb.SmallScale(base.vertices, base.faces, face_tangents=rng.normal(size=(len(base.faces), 3)),
+                         name="turned")
+    aniso = [wb.AnisotropicWard(0.3, 0.1, 0.4, kd=0.2)]
+    mat = wb.bake(tile, aniso, method="asg", lobes=2, directions=K, facets=BAKE_FACETS, normal_res=16,
+                  backend="warp:cpu")
+    mat.save(tmp_path / "m.wbm")
+    back = wb.load(tmp_path / "m.wbm")
+    tangents = back.provenance.tile.face_tangents
+    assert tangents.dtype == np.float64 and not tangents.flags.writeable
+    np.testing.assert_array_equal(tangents, tile.face_tangents)
+    assert truth_mod.truth_key(back, TRUTH_FACETS) == truth_mod.truth_key(mat, TRUTH_FACETS)
+    assert "tile_face_tangents" in mat.provenance.arrays()
+    assert "tile_face_tangents" not in type(mat.provenance)(base, 0, BAKE_FACETS).arrays()
+
+
 def test_truth_key_covers_what_the_truth_depends_on():
     tile = random_heightfield(4, materials=2)
     mats = [wb.Lambert(0.5), wb.BlinnPhong(0.25, 16.0)]
@@ -324,6 +345,27 @@ def test_fallback_sg_is_the_old_behaviour(monkeypatch, counting):
     methods.clear()
     c = _mc(_scene(_by_hand(baked), wb.Lambert(0.5)), fallback="sg", truths={0: gt})
     assert c.info["truth_source"] == {0: "given"} and not methods
+
+
+def test_fallback_sg_evaluates_an_asg_material_by_its_own_lobes(monkeypatch, counting):
+    """An ASG bake has no SG fit: fallback="sg" judges it by its own ASG lobes (ASGBRDF.eval's default), said in
+    the warning and in info, instead of failing on eval(method='sg-exact')."""
+    asg_mat = wb.bake(vgroove_tile(), GLOSSY, method="asg", lobes=2, directions=K, facets=BAKE_FACETS, normal_res=16,
+                      backend="warp:cpu")
+    counting.refuse = True
+    methods = []
+    real_eval = wb.ASGBRDF.eval
+
+    def spy(self, wi, wo, method=None, **kw):
+        methods.append(method)
+        return real_eval(self, wi, wo, method, **kw)
+
+    monkeypatch.setattr(wb.ASGBRDF, "eval", spy)
+    with pytest.warns(UserWarning, match=r"using ASGBRDF.eval\(method='asg'\) \(its fit\)"):
+        out = _mc(_scene(asg_mat, wb.Lambert(0.5)), fallback="sg")
+    assert methods and set(methods) == {"asg"}
+    assert "ASGBRDF.eval(method='asg')" in out.info["effective_brdf"][0]
+    assert np.isfinite(out.image).all() and out.image.min() >= 0 and out.image.max() > 0
 
 
 def test_an_old_format_material_file_still_loads(tmp_path):

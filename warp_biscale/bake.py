@@ -265,6 +265,8 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
     EM and the moment sums are queued behind the rays too, and the device time they take shows in the
     stage that next waits for the device).
     """
+    if method not in (*METHODS, "matrix", *METHOD_BAKES, "auto"):  # (first: a typo is not an anisotropy problem)
+        raise ValueError(f"method must be one of {(*METHODS, 'matrix', *METHOD_BAKES, 'auto')}, got {method!r}")
     if method == "auto":
         return _bake_auto(tile, materials, lobes, directions, normal_res, facets, backend, seed, route, tolerance,
                           bvndf, progress, matrix)
@@ -287,8 +289,6 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
         mat = METHOD_BAKES[method](tile, mats, lobes, directions, normal_res, facets, backend, seed, bvndf, progress,
                                    tolerance=tolerance)
         return _record_fits(mat, fits)
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {(*METHODS, 'matrix', *METHOD_BAKES, 'auto')}, got {method!r}")
     if matrix is not None:
         raise ValueError(f"matrix= holds the options of method='matrix', not of method={method!r}")
     if route not in ROUTES:

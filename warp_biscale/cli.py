@@ -167,8 +167,7 @@ def cmd_bake(args):
         info = mat.info
         fit = (f" (NDF fit error {info['ndf_error']:.2%} at sharpness {info['ndf_probe_sharpness']:g})"
                if info.get("ndf_error") is not None else "")
-        asg = getattr(mat, "method", None) == "asg"
-        lobes_said = f"{info['lobes']} {'ASG ' if asg else ''}lobes{fit}, " if "lobes" in info else ""
+        lobes_said = _lobes_said(mat, fit)
         if "method_choice" in info:
             print(f"method auto: {info['method_choice']['chosen'].upper()} ({info['method_choice']['why']})")
         print(f"{tile.name}: {lobes_said}{info['nonempty_bins']} non-empty normal bins, "
@@ -268,13 +267,21 @@ def _size(values, width, height):
     return values[0], max(1, round(values[0] * height / width))
 
 
+def _lobes_said(mat, fit: str = "") -> str:
+    """'8 lobes, ' (SG), '8 ASG lobes, ' or '' (the matrix method keeps ranks, not lobes), from the bake's info:
+    `lobes` itself is SG lobes only, which an ASG or matrix material refuses."""
+    if "lobes" not in mat.info:
+        return ""
+    return f"{mat.info['lobes']} {'ASG ' if getattr(mat, 'method', None) == 'asg' else ''}lobes{fit}, "
+
+
 def _print_bakes(sf):
     for key, seconds in sf.timings.items():
         if key.startswith("bake "):
             name = key[5:]
             mat = sf.materials[name]
             print(f"baked material {name!r}: tile {sf.tiles[name].name}, {mat.info.get('facets')} facets, "
-                  f"{len(mat.lobes)} lobes, K={mat.directions}, in {seconds:.2f} s")
+                  f"{_lobes_said(mat)}K={mat.directions}, in {seconds:.2f} s")
 
 
 def _print_rendering(result, path, exposure=0.0, names=None):
@@ -312,7 +319,7 @@ def cmd_render(args):
     _check_scene_options(args)
     _check_backend(args.backend)
     prog = as_progress(not args.quiet)
-    sf = load_scene(args.scene, backend=args.backend, progress=prog)
+    sf = load_scene(args.scene, backend=args.backend, progress=prog, method=args.method)
     if args.size is not None:
         sf.resize(*_size(args.size, sf.width, sf.height))
     method = args.method or sf.method
@@ -342,7 +349,7 @@ def cmd_render(args):
             where = f" ({mat.path})" if mat.path else ""
             raise ValueError(f"material {sf.material_names[i]!r}{where} does not record how it was baked (a material "
                              "file of format 1), so the Monte Carlo reference cannot compute its ground truth: "
-                             "re-bake it (warp-biscale bake), or pass --mc-fallback sg to judge with its SG fit "
+                             "re-bake it (warp-biscale bake), or pass --mc-fallback sg to judge with its fit "
                              "(not exact)")
     exposure = sf.exposure if args.exposure is None else args.exposure
     if not args.quiet:
@@ -636,7 +643,8 @@ def _add_render_commands(sub):
                         "samples hit one surface (one material, no depth or crease edge), as multisampling does: edges "
                         "anti-aliased at about one sample's cost, a highlight smaller than a pixel not")
     r.add_argument("--mc-fallback", choices=["sg"],
-                   help="--method mc: judge every baked material with its SG fit (not exact; with a warning) "
+                   help="--method mc: judge every baked material with its fit (an SG bake's SG lobes, an ASG "
+                        "bake's ASG lobes; not exact; with a warning) "
                         "instead of its exact ground truth, e.g. for a material file of format 1, which records "
                         "no tile to compute the truth from")
     r.add_argument("--backend", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name> (default: the file's)")

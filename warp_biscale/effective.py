@@ -33,7 +33,7 @@ from .model import Bvndf, DeviceArray
 from .io import check_output, read_npz, save_npz
 from .lobes import LobeSet
 from .measured import MeasuredBRDF
-from .smallscale import SmallScale, TileWarning
+from .smallscale import SmallScale, TileWarning, default_face_tangents
 
 __all__ = ["EffectiveBRDF", "Provenance", "compare", "METHODS"]
 
@@ -158,6 +158,10 @@ class Provenance:
                "tile_colors": t.colors, "tile_period": np.asarray(t.period, np.float64), "tile_origin": t.origin}
         if t.vertex_normals is not None:
             out["tile_vertex_normals"] = t.vertex_normals
+        if not np.array_equal(t.face_tangents, default_face_tangents(t.face_normals)):
+            # (a tile's own tangents, such as the woven tile's along its threads: an anisotropic BRDF's truth and
+            # bake follow them; a tile whose tangents are the default stores none, as before)
+            out["tile_face_tangents"] = t.face_tangents
         return out
 
     def header(self) -> dict:
@@ -169,17 +173,19 @@ class Provenance:
         vertex, no degenerate face), so building it again changes no vertex, face, id or colour. A TileWarning it
         gave at bake time (seams) is not repeated on every load."""
         normals = arrays.get("tile_vertex_normals")
+        tangents = arrays.get("tile_face_tangents")
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", TileWarning)
             tile = SmallScale(arrays["tile_vertices"], arrays["tile_faces"], arrays["tile_material_ids"],
                               arrays["tile_colors"], tuple(arrays["tile_period"]), normals,
-                              str(head.get("tile", "tile")), arrays["tile_origin"])
-        if normals is not None:
-            # SmallScale normalises the normals again, which moves about a third of unit vectors by an ulp: the
-            # stored ones go back before anything sees the tile, so its truth is that of the tile baked.
-            normals = np.array(normals, np.float64)
-            normals.flags.writeable = False
-            tile.vertex_normals = normals
+                              str(head.get("tile", "tile")), arrays["tile_origin"], tangents)
+        # SmallScale normalises the normals and tangents again, which moves about a third of unit vectors by an
+        # ulp: the stored ones go back before anything sees the tile, so its truth is that of the tile baked.
+        for name, stored in (("vertex_normals", normals), ("face_tangents", tangents)):
+            if stored is not None:
+                stored = np.array(stored, np.float64)
+                stored.flags.writeable = False
+                setattr(tile, name, stored)
         return cls(tile, int(head.get("seed", 0)), int(head.get("facets", 0)))
 
 

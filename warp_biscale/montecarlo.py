@@ -26,8 +26,9 @@ Every hit pixel of the G-buffer gets the estimate of
   and small-scale BRDFs, on a K×K grid (`truth_directions`, the material's own K by default), `truth_facets`
   facets, `truth_bounces` bounces inside the tile), cached beside its material file and in memory. A
   material that records nothing (a format-1 file, one built by hand) is a ValueError, unless fallback="sg": then
-  `EffectiveBRDF.eval(method="sg-exact")` is used, with a warning and a note in info["effective_brdf"]
-  (that is the SG fit, not the exact f̄, so the reference is not exact for it).
+  the material's own fit is used — `EffectiveBRDF.eval(method="sg-exact")` for an SG bake, its ASG lobes
+  (`ASGBRDF.eval(method="asg")`) for an ASG bake — with a warning and a note in info["effective_brdf"] (not the
+  exact f̄, so the reference is not exact for it).
 
 Position, shading normal, tangent frame and ωo are built from the G-buffer exactly as
 `shading.shade_reference` builds them (float32 vertex attributes, barycentric interpolation, the
@@ -91,7 +92,7 @@ __all__ = ["render", "missing_provenance", "DEFAULT_BATCH", "FALLBACKS", "sample
 
 DEFAULT_BATCH = 1 << 20  # samples (pixels × samples per pixel) a batch: ~0.4 GB of temporaries (measured)
 STRATUM = 4  # samples per stratum of a strategy's u[0] (`_strata`): 3 degrees of freedom each for the variance
-FALLBACKS = (None, "sg")  # what an effective material without a ground truth uses: none (an error) or its SG fit
+FALLBACKS = (None, "sg")  # what an effective material without a ground truth uses: none (an error) or its fit
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -210,7 +211,14 @@ class _EffectiveMaterial:
         speculars = [(m, e) for m, e in speculars if e is not None]
         self.strategy = _LobeMixtureStrategy(mat, speculars) if speculars else None
         self.albedos = tuple(np.max([_albedos(m) for m in mat.materials], 0))
+        self.fit_method = self.fit_of(mat)
         self.use_truth(truth)
+
+    @staticmethod
+    def fit_of(mat) -> str:
+        """The eval method of fallback="sg": an SG bake's SG lobes by Eq. 10 ("sg-exact"), another method's
+        own lobes (an ASG bake's "asg")."""
+        return "sg-exact" if mat.method in ("sg", "sg-exact") else mat.method
 
     def use_truth(self, truth: GroundTruth | None):
         self.truth = truth
@@ -219,7 +227,7 @@ class _EffectiveMaterial:
             self.label = (f"ground truth (tile {truth.tile!r}, K={truth.directions}, {truth.facets} facets, "
                           f"{bounces}{truth.materials})")
         else:
-            self.label = "EffectiveBRDF.eval(method='sg-exact'): fallback='sg', the SG fit, not the exact f̄"
+            self.label = f"{fit_label(self.mat)}: fallback='sg', its fit, not the exact f̄"
 
     def f(self, ctx, pix, w):
         """(K, 3) f̄(ω_local, ωo_local), cos θi included, in the tile frame (t, b, n) of each pixel."""
@@ -227,7 +235,13 @@ class _EffectiveMaterial:
         wo = ctx["wo_local"][pix]
         if self.truth is not None:
             return self.truth.eval(wl, wo)
-        return self.mat.eval(wl, wo, method="sg-exact")
+        return self.mat.eval(wl, wo, method=self.fit_method)
+
+
+def fit_label(mat) -> str:
+    """How fallback="sg" evaluates `mat`: "EffectiveBRDF.eval(method='sg-exact')" (the SG fit), "ASGBRDF.eval(
+    method='asg')" (its ASG lobes)."""
+    return f"{type(mat).__name__}.eval(method={_EffectiveMaterial.fit_of(mat)!r})"
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -346,8 +360,9 @@ def render(scene, backend="auto", samples: int = 256, seed: int = 0, truths=None
         64). The table is interpolated between its nodes, so a highlight narrower than the grid's spacing is
         blurred in the reference itself: for sharp small-scale BRDFs ask for a finer grid than the bake's
         (docs/design.md §3.4). The truth's cost grows as K⁴ × truth_facets.
-    fallback: None, or "sg": materials without a truth given use their SG fit
-        (`EffectiveBRDF.eval(method="sg-exact")`, not exact), with a warning; nothing is computed for them.
+    fallback: None, or "sg": materials without a truth given use their fit (an SG bake's
+        `EffectiveBRDF.eval(method="sg-exact")`, an ASG bake's own lobes; not exact), with a warning; nothing is
+        computed for them.
     batch: samples (pixels × samples) per batch, bounding memory (~400 bytes a sample).
     progress: a `progress.Progress`, or True/False/None (None: shown on a terminal); the ground truths
         computed report their stages there too.
@@ -391,7 +406,7 @@ def render(scene, backend="auto", samples: int = 256, seed: int = 0, truths=None
                 f"effective material {i} does not record how it was baked (a material file of format 1, or "
                 f"built by hand), so its ground truth cannot be computed: pass it by hand (truths={{{i}: "
                 f"wb.ground_truth(tile, materials, directions={scene.materials[i].directions})}}), re-bake it, "
-                "or pass fallback='sg' to use its SG fit (not exact)")
+                "or pass fallback='sg' to use its fit (not exact)")
     backend = get_backend(backend)
     progress = progress if isinstance(progress, Progress) else Progress(progress)
     timings = {"gbuffer": 0.0, "truth": 0.0, "sample": 0.0, "shade": 0.0, "visibility": 0.0}
@@ -439,7 +454,7 @@ def render(scene, backend="auto", samples: int = 256, seed: int = 0, truths=None
             continue
         if fallback == "sg":
             warnings.warn(f"Monte Carlo: no ground truth for effective material {i} (fallback='sg'); using "
-                          "EffectiveBRDF.eval(method='sg-exact') (the SG fit), so the reference is not exact for it",
+                          f"{fit_label(scene.materials[i])} (its fit), so the reference is not exact for it",
                           stacklevel=2)
             continue
         gt, sources[i] = cached_truth(scene.materials[i], truth_facets, truth_seed, backend,

@@ -249,9 +249,11 @@ class SceneFile:
                       **{**self.render_options(method), **options})
 
 
-def load_scene(path, backend=None, progress=None) -> SceneFile:
+def load_scene(path, backend=None, progress=None, method=None) -> SceneFile:
     """Read a TOML scene file (see the module docstring) → SceneFile. Paths in it are relative to the
-    file. `backend` overrides [render] backend (also for baking); `progress` reports the bakes."""
+    file. `backend` overrides [render] backend (also for baking); `progress` reports the bakes; `method` is the
+    renderer the caller will use (default the file's [render] method): a bake it cannot shade (the matrix
+    method's, by the SG renderer) is refused before any bake."""
     path = os.fspath(path)
     try:
         with open(path, "rb") as f:
@@ -264,11 +266,11 @@ def load_scene(path, backend=None, progress=None) -> SceneFile:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise SceneError(f"{os.path.basename(path)}: not UTF-8 text ({exc})", path) from None
-    return loads_scene(text, path=path, backend=backend, progress=progress)
+    return loads_scene(text, path=path, backend=backend, progress=progress, method=method)
 
 
 def loads_scene(text: str, path: str | None = None, base_dir: str | None = None, backend=None,
-                progress=None) -> SceneFile:
+                progress=None, method=None) -> SceneFile:
     """`load_scene` on TOML text; `path` names it in messages, `base_dir` (default: path's folder, else
     the working directory) anchors its relative paths."""
     t_load = time.perf_counter()
@@ -303,6 +305,12 @@ def loads_scene(text: str, path: str | None = None, base_dir: str | None = None,
     camera = _camera(ctx, cam, meshes, sf)
 
 
+    if (method or sf.method) == "sg":
+        for name, (kind, values) in defs.items():
+            if kind == "bake" and name in used and values.get("method") == "matrix":
+                raise ctx.error(("material", name), "method",
+                                "the SG renderer cannot shade a matrix bake (Wu's f̄ tables, not lobes): render "
+                                "this scene by method 'litsphere' (or 'mc'), or bake with method 'sg' or 'asg'")
     prog = as_progress(progress)
     for name, (kind, values) in defs.items():
         table = ("material", name)
