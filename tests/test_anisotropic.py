@@ -220,7 +220,13 @@ def test_parse_brdf_anisotropic():
     ("as:rs=1.5", r"rs must lie in \[0, 1\]"),
     ("as:rd=-0.1", "rd must be finite and >= 0"),
     ("as:alpha=0.1", "has no parameter 'alpha'"),
-    ("as:nu=ten", "is not a number"),
+    ("as:nu=ten,nv=10", "is not a number"),
+    # one axis alone would silently pair with the other's default, under either name
+    ("anisotropicward:alpha_x=0.1", "the anisotropic ward needs both alpha_x and alpha_y .* got only alpha_x"),
+    ("as:nu=100", "ashikhminshirley needs both nu and nv .* got only nu"),
+    ("as:nu=10,,nv=100", "has an empty parameter"),
+    ("as:nu=10,nv=100,", "has an empty parameter"),
+    ("glossy:nu=1", r"unknown BRDF 'glossy'; choose one of .* ashikhminshirley \(as\)"),
 ])
 def test_parse_brdf_bad_values_are_one_line_errors(text, match):
     with pytest.raises(ValueError, match=match) as err:

@@ -17,6 +17,7 @@ import os
 import pickle
 import sys
 import tempfile
+import warnings
 
 import numpy as np
 import pytest
@@ -567,6 +568,28 @@ def test_lobes_auto():
     assert mat.info["lobes"] == 5 and mat.info["ndf_error"] <= 0.02
     mat = wb.bake(flat_tile(), wb.Lambert(0.5), lobes="auto", directions=4, facets=1024, backend="warp:cpu")
     assert mat.info["lobes"] == 1
+
+
+@pytest.mark.parametrize("method", ["sg", "asg"])
+def test_lobes_auto_says_when_no_j_meets_its_tolerance(method):
+    """lobes="auto" keeps the J of the least NDF fit error where none meets the tolerance: a warning says so at the
+    caller's line, and info records the tolerance and whether it was met (a fixed J records neither)."""
+    tile, brdf = random_heightfield(4), wb.BlinnPhong(0.2, 64)
+    with pytest.warns(UserWarning, match=r"lobes='auto' found no J whose NDF fit error meets the tolerance 1e-06: "
+                                         r"kept \d+ lobes, of the least error") as said:
+        mat = wb.bake(tile, brdf, method=method, lobes="auto", directions=4, facets=1024, normal_res=16,
+                      backend="warp:cpu", tolerance=1e-6)
+    assert [w.filename for w in said if "lobes='auto'" in str(w.message)] == [__file__]
+    assert mat.info["ndf_tolerance"] == 1e-6 and mat.info["ndf_tolerance_met"] is False
+    assert mat.info["ndf_error"] > 1e-6
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        met = wb.bake(tile, brdf, method=method, lobes="auto", directions=4, facets=1024, normal_res=16,
+                      backend="warp:cpu", tolerance=0.5)
+        fixed = wb.bake(tile, brdf, method=method, lobes=2, directions=4, facets=1024, normal_res=16,
+                        backend="warp:cpu")
+    assert met.info["ndf_tolerance_met"] is True and met.info["ndf_error"] <= 0.5
+    assert "ndf_tolerance_met" not in fixed.info
 
 
 # ------------------------------------------------------------------ edits, files, errors

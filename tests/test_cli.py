@@ -419,6 +419,10 @@ def test_demo_writes_a_png(tmp_path, capsys):
     (["demo", "--size", "0"], "error: --size values must be integers in 1..16384, got 0"),
     # (the spec's energy warning comes with loading it: the size is refused before)
     (["ball", "blinnphong:exponent=50,ks=2", "--size", "0"], "error: --size must be an integer in 8..8192, got 0"),
+    # (an anisotropic BRDF: ball has no method option, so the message points to `render`)
+    (["ball", "ward:alpha_x=0.1,alpha_y=0.4"], "error: AnisotropicWard is anisotropic: a lit sphere, one value per "
+                                               "normal, cannot hold it; show it on a scene's object with "
+                                               "`warp-biscale render`"),
 ])
 def test_bad_options_are_refused_before_loading_or_baking(tmp_path, args, message, capsys):
     out = tmp_path / "x.png"

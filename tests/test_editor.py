@@ -145,7 +145,9 @@ def test_anisotropic_materials_need_the_asg_bake(tmp_path):
     assert ed.set_many({"material0.kind": "ashikhminshirley", "material0.nu": 5.0}) == "materials"
     assert isinstance(ed.materials[0], wb.AshikhminShirley) and ed.materials[0].nu == 5.0
     state, frame = {p.name: p.value for p in ed.parameters()}, ed.frame()
-    with pytest.raises(ValueError, match=r"^material0.kind 'ashikhminshirley' is anisotropic: only the ASG bake"):
+    with pytest.raises(ValueError, match=r"^material0.kind 'ashikhminshirley' is anisotropic: only the ASG bake "
+                                         r"takes it, not quality.bake 'sg': set quality.bake to 'asg', or "
+                                         r"material0.kind to an isotropic kind$"):
         ed.set("quality.bake", "sg")
     assert {p.name: p.value for p in ed.parameters()} == state and np.array_equal(ed.frame(), frame)
     ed.save(tmp_path / "design.toml")

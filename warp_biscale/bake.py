@@ -25,7 +25,7 @@ from . import matrix as matrix_mod
 from . import sg
 from .backend import get_backend
 from .device import OnDevice, once
-from .brdf import MEASURED, refuse_anisotropic
+from .brdf import MEASURED, Lambert, refuse_anisotropic
 from .effective import METHODS, EffectiveBRDF, Provenance, compare, device_levels
 from .progress import as_progress
 from .truth import _check_count, _prepare, _Timer, ground_truth
@@ -288,7 +288,7 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
         fits = _fit_measured(mats, get_backend(backend))
         mat = METHOD_BAKES[method](tile, mats, lobes, directions, normal_res, facets, backend, seed, bvndf, progress,
                                    tolerance=tolerance)
-        return _record_fits(mat, fits)
+        return _record_tolerance(_record_fits(mat, fits), tolerance)
     if matrix is not None:
         raise ValueError(f"matrix= holds the options of method='matrix', not of method={method!r}")
     if route not in ROUTES:
@@ -333,7 +333,7 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
     timer.timings["tables"] = time.perf_counter() - t0
     mat.timings = dict(timer.timings)
     prog.done()
-    return _record_fits(mat, fits)
+    return _record_tolerance(_record_fits(mat, fits), tolerance)
 
 
 # method="auto" keeps the ASG bake only where it is nearer the facets' exact f̄ by more than this: where the two are
@@ -351,8 +351,8 @@ def _bake_auto(tile, materials, lobes, directions, normal_res, facets, backend, 
     in every case measured the bake nearer that truth was the one nearer an independent 4×-facet truth, or the two
     were within AUTO_MARGIN_DB (bench/README.md). The chosen material's `info["method_choice"]` holds both PSNRs and
     its `timings["method_choice"]` the seconds of the other bake, the truth and the two comparisons. A tile with an
-    anisotropic small-scale BRDF takes the ASG bake alone (the SG bake refuses it): its `method_choice` says so and
-    holds no PSNR."""
+    anisotropic small-scale BRDF takes the ASG bake alone (the SG bake refuses it), and one of Lambertian BRDFs only
+    the SG bake alone (the two give the same f̄): its `method_choice` says so and holds no PSNR."""
     if matrix is not None or route != "facets":
         raise ValueError("method='auto' chooses between the SG and ASG bakes, which sum their amplitudes over the "
                          "facets and take no matrix= or route= options")
@@ -370,6 +370,13 @@ def _bake_auto(tile, materials, lobes, directions, normal_res, facets, backend, 
                 mat = bake(tile, materials, method="asg", **kw)
                 mat.info["method_choice"] = {"chosen": "asg", "why": "an anisotropic small-scale BRDF, which only "
                                                                      "the ASG method holds"}
+                return mat
+            if all(type(m) is Lambert for m in mats):
+                # (both bakes solve the diffuse term's amplitudes exactly: their f̄ agree to float32 rounding, measured
+                # within 6e-8 of the peak on the six procedural families, so nothing is there to choose between)
+                mat = bake(tile, materials, method="sg", **kw)
+                mat.info["method_choice"] = {"chosen": "sg", "why": "Lambertian small-scale BRDFs only, whose f̄ "
+                                                                    "both bakes give alike"}
                 return mat
             baked = {name: bake(tile, materials, method=name, **kw) for name in ("sg", "asg")}
             truth = ground_truth(tile, materials, facets=facets, directions=directions, backend=backend, seed=seed,
@@ -395,6 +402,20 @@ def _fit_measured(mats, backend) -> tuple[dict, float]:
     t0 = time.perf_counter()
     fits = {i: m.sg_fit(backend) for i, m in enumerate(mats) if getattr(m, "kind", None) == MEASURED}
     return fits, time.perf_counter() - t0
+
+
+def _record_tolerance(mat, tolerance: float):
+    """lobes="auto": whether its J met the NDF fit tolerance, in `info["ndf_tolerance_met"]` beside the tolerance;
+    where no J of AUTO_LOBES did (the bake keeps the J of the least error), a warning says so at the caller's line."""
+    err = mat.info.get("ndf_error")
+    if mat.info.get("lobes_requested") != "auto" or err is None:
+        return mat
+    mat.info["ndf_tolerance"], mat.info["ndf_tolerance_met"] = float(tolerance), bool(err <= tolerance)
+    if err > tolerance:
+        warnings.warn(f"lobes='auto' found no J whose NDF fit error meets the tolerance {tolerance:g}: kept "
+                      f"{mat.info['lobes']} lobes, of the least error ({err:.3g} at sharpness "
+                      f"{mat.info['ndf_probe_sharpness']:g}); give a larger tolerance or a fixed J", stacklevel=3)
+    return mat
 
 
 def _record_fits(mat, fitted: tuple[dict, float]):

@@ -682,17 +682,22 @@ def parse_brdf(text: str) -> Brdf:
     name, _, rest = text.partition(":")
     cls = _BRDF_NAMES.get(name.strip().lower())
     if cls is None:
-        raise ValueError(f"unknown BRDF {name!r}; choose one of lambert, blinnphong, cooktorrance, ward, "
-                         "anisotropicward, ashikhminshirley")
-    items = [s for s in (s.strip() for s in rest.split(",")) if s]
-    if cls is Ward:
-        keys = {item.partition("=")[0].strip() for item in items}
-        if keys & {"alpha_x", "alpha_y"}:  # "ward" with αx, αy is the anisotropic Ward
-            if "alpha" in keys:
-                raise ValueError("ward takes alpha (isotropic) or alpha_x and alpha_y (anisotropic), not both")
-            if not {"alpha_x", "alpha_y"} <= keys:
-                raise ValueError("the anisotropic ward needs both alpha_x and alpha_y (alpha: the isotropic one)")
-            cls = AnisotropicWard
+        raise ValueError(f"unknown BRDF {name!r}; choose one of lambert, blinnphong (phong), cooktorrance (ct), "
+                         "ward, anisotropicward, ashikhminshirley (as)")
+    items = [s.strip() for s in rest.split(",")] if rest.strip() else []
+    if "" in items:
+        raise ValueError(f"BRDF spec {text!r} has an empty parameter (two commas in a row, or one at an end)")
+    keys = {item.partition("=")[0].strip() for item in items}
+    if cls is Ward and keys & {"alpha_x", "alpha_y"}:  # "ward" with αx, αy is the anisotropic Ward
+        if "alpha" in keys:
+            raise ValueError("ward takes alpha (isotropic) or alpha_x and alpha_y (anisotropic), not both")
+        cls = AnisotropicWard
+    # An anisotropic BRDF's two axes come together: one given alone would silently pair with the other's default.
+    axes = {AnisotropicWard: ("the anisotropic ward", "alpha_x", "alpha_y"),
+            AshikhminShirley: ("ashikhminshirley", "nu", "nv")}.get(cls)
+    if axes is not None and len(keys & set(axes[1:])) == 1:
+        raise ValueError(f"{axes[0]} needs both {axes[1]} and {axes[2]} (or neither, for the defaults), got only "
+                         f"{(keys & set(axes[1:])).pop()}")
     names = [f.name for f in fields(cls)]
     words = {f.name for f in fields(cls) if isinstance(f.default, str)}  # keys whose value is a word
     kwargs = {}

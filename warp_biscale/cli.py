@@ -23,7 +23,7 @@ from .effective import EffectiveBRDF, compare
 from .geometry import BUILTIN_TILES, load_tile
 from .images import check_exposure
 from .io import atomic_path, check_output
-from .litsphere import LitSphere, check_angles, check_resolution
+from .litsphere import LitSphere, check_angles, check_holdable, check_resolution
 from .loading import load
 from .lighting import SOURCE_SHADOW_SAMPLES
 from .measured import MeasuredBRDF, small_scale_brdf
@@ -480,6 +480,8 @@ def cmd_ball(args):
     resolution = check_resolution(args.resolution)
     size = _integer("--size", args.size, 8, 8192)  # material_ball's range, checked before loading the material
     material = load_material(args.material)
+    check_holdable(material, remedy="show it on a scene's object with `warp-biscale render` (its SG renderer or "
+                                    "--method mc) instead")
     _check_backend(args.backend)
     result = material_ball(material, size=size, backend=args.backend, resolution=resolution, angles=angles)
     result.save(args.output, exposure=args.exposure)
@@ -703,7 +705,9 @@ def main(argv=None):
                    help="small-scale BRDF, once per material id, e.g. lambert:albedo=0.5, "
                         "blinnphong:exponent=512,ks=1 (add normalization=energy for a specular albedo of at most "
                         "ks; the default iwasaki lobe reflects up to 4·ks), cooktorrance:roughness=0.2,f0=0.04, "
-                        "ward:alpha=0.2; RGB as r/g/b; or a MERL table file (.binary) (default lambert:albedo=0.5)")
+                        "ward:alpha=0.2; anisotropic (bake with --method asg or auto): ward:alpha_x=0.1,alpha_y=0.4, "
+                        "as:nu=10,nv=1000 (Ashikhmin–Shirley); RGB as r/g/b; or a MERL table file (.binary) "
+                        "(default lambert:albedo=0.5)")
     p.add_argument("--facets", type=int, default=1 << 16,
                    help="number of facets Ns (default 2^16; raise it for a more accurate table)")
     p.add_argument("--directions", type=int, default=12, help="direction grid size K (K² directions, default 12)")

@@ -233,8 +233,9 @@ def _check_design(state) -> None:
     if state["quality"]["bake"] != "asg":
         for i, m in enumerate(state["materials"]):
             if m["kind"] in ANISOTROPIC_KINDS:
-                raise ValueError(f"material{i}.kind {m['kind']!r} is anisotropic: only the ASG bake takes it "
-                                 f"(set quality.bake to 'asg' first; it is {state['quality']['bake']!r})")
+                raise ValueError(f"material{i}.kind {m['kind']!r} is anisotropic: only the ASG bake takes it, not "
+                                 f"quality.bake {state['quality']['bake']!r}: set quality.bake to 'asg', or "
+                                 f"material{i}.kind to an isotropic kind")
 
 
 def brdf_spec(m: dict) -> str:

@@ -136,19 +136,18 @@ def material_response(material, n: np.ndarray, light: np.ndarray, view: np.ndarr
     raise ValueError(f"a lit sphere is made from an analytic Brdf or an EffectiveBRDF, got {material!r}")
 
 
-def check_holdable(material, name: str = "") -> None:
+def check_holdable(material, name: str = "", remedy: str = "render it with method='sg' or 'mc'") -> None:
     """Refuse, in one line and before any texel is made, a material a lit sphere cannot hold: a `Textured` one
     (its maps vary over the surface; a lit sphere is one response for the whole material) and an analytic
     anisotropic BRDF (its value depends on the tangent; a lit sphere holds one value per normal). A baked
     anisotropic tile is held: its bake is evaluated in the sphere's own tangent frame (`sphere_tangents`).
-    `name` (e.g. "materials[0]") is put before the material's type in the message."""
+    `name` (e.g. "materials[0]") is put before the material's type in the message, `remedy` after it."""
     label = f"{name} ({type(material).__name__})" if name else type(material).__name__
     if isinstance(material, Textured):
         raise ValueError(f"{label} is textured: a lit sphere, one BRDF's response for the whole material, cannot "
-                         "hold its texture maps; render it with method='sg' or 'mc'")
+                         f"hold its texture maps; {remedy}")
     if isinstance(material, Brdf) and material.anisotropic:
-        raise ValueError(f"{label} is anisotropic: a lit sphere, one value per normal, cannot hold it; render it "
-                         "with method='sg' or 'mc'")
+        raise ValueError(f"{label} is anisotropic: a lit sphere, one value per normal, cannot hold it; {remedy}")
 
 
 def diffuse_part(material):

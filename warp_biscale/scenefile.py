@@ -73,7 +73,7 @@ or ``warp-biscale render scene.toml -o out.png``. Every table and key is optiona
                                  #   and ks_map, parameter_map (multiplies exponent | roughness | alpha)
 
     [material.gold]
-    type = "bake"                # baked at load time (in memory) with the SG bake (`wb.bake`)
+    type = "bake"                # baked at load time (in memory) by `wb.bake`: the SG bake, or the one `method` names
     tile = "pyramid"             # required: a built-in tile (as `warp-biscale bake` takes), a mesh file, a
                                  #   greyscale image, or "heightfield" (the default relief; with
                                  #   tile_params.image, that image, and scale)
@@ -81,6 +81,8 @@ or ``warp-biscale render scene.toml -o out.png``. Every table and key is optiona
     brdf = ["blinnphong:exponent=256,ks=0.9"]                 # one per tile material id (or one for all);
                                                               #   a MERL file ("paint.binary") is one too
     lobes = 6                    # J, or "auto" ; directions (K), facets, normal_res, method, route, seed
+    method = "sg"                # "sg" (default), "asg", "auto" (SG or ASG, the nearer its facets' exact f̄) or
+                                 #   "matrix" (drawn by method = "litsphere"; the SG renderer refuses it)
 
     [material.steel]
     type = "file"                # a material file written by `warp-biscale bake` / EffectiveBRDF.save
