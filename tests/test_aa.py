@@ -245,6 +245,13 @@ def test_aa_shaded_once_a_pixel(backend, block_rays):
         wb.render(scene, backend=backend, aa=n, aa_shading="msaa")
     with pytest.raises(ValueError, match="options of the SG renderer"):
         wb.render(scene, method="litsphere", backend=backend, aa=n, aa_shading="pixel")
+    # Ray options of the SG renderer, given to a method that traces no such rays: refused, not silently dropped
+    # (before any work: no backend is made).
+    for method, options in (("mc", {"shadow_samples": 1}), ("mc", {"occlusion_samples": 0}),
+                            ("mc", {"split_rays": False}), ("litsphere", {"occlusion_samples": 4})):
+        with pytest.raises(ValueError, match=rf"^{next(iter(options))}: option\(s\) of the SG renderer "
+                                             rf"\(method='sg'\), not of method='{method}'"):
+            wb.render(scene, method=method, backend="no such backend", **options)
 
 
 def _contact_scene(width=40, height=30):

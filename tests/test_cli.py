@@ -292,8 +292,19 @@ def test_render_monte_carlo(tmp_path, capsys):
     # (in-process, `cli.main`: test_quiet_means_quiet runs the console script's render)
     assert cli.main(["render", str(_tiny_scene(tmp_path)), "-o", str(out), "--method", "mc", "--samples", "8",
                      "--size", "16", "12"]) == 0
-    assert "method mc" in capsys.readouterr().out
+    said = capsys.readouterr().out
+    assert "method mc" in said and "Monte Carlo: 8 samples a pixel, standard error (RMS over the hit pixels) " in said
     assert np.asarray(Image.open(out)).shape == (12, 16, 3)
+
+
+def test_render_refuses_an_exposure_for_a_file_of_radiance(tmp_path, capsys):
+    """--exposure scales a PNG's tone mapping: for an EXR or HDR, which keep the radiance, it is refused in one line
+    (it would do nothing), before the scene loads."""
+    for name in ("x.exr", "x.hdr"):
+        r = run_cli_in_process(capsys, "render", str(_tiny_scene(tmp_path)), "-o", str(tmp_path / name),
+                               "--exposure", "1")
+        assert r.returncode == 2 and r.stderr.count("\n") == 1 and not (tmp_path / name).exists()
+        assert r.stderr.startswith(f"error: --exposure scales a PNG's tone mapping; {tmp_path / name} (EXR/HDR)")
 
 
 def test_render_bakes_a_bake_material(tmp_path, capsys):
@@ -354,7 +365,7 @@ BAKED_SCENE = TINY_SCENE.replace('[material.shiny]\ntype = "blinnphong"\nkd = [0
     (None, ["--method", "mc", "--samples", "1"],
      "error: --samples must be at least 2 for the Monte Carlo reference (2 a sampling strategy), got 1"),
     (("height = 24\n", 'height = 24\nmethod = "mc"\nsamples = 1\n'), [],
-     "scene.toml: [render] samples must be at least 2 for the Monte Carlo reference"),
+     "scene.toml:5: [render] samples must be at least 2 for the Monte Carlo reference"),
     (None, ["--backend", "nope"], "error: --backend: unknown backend 'nope'"),
     (None, ["--truth-facets", "256"], "error: --truth-facets is for --method mc"),
     (("albedo = 0.5\n", 'albedo = 0.5\nkd_map = "kd.png"\n'), ["--method", "litsphere"],
@@ -419,6 +430,9 @@ def test_demo_writes_a_png(tmp_path, capsys):
     (["demo", "--size", "0"], "error: --size values must be integers in 1..16384, got 0"),
     # (the spec's energy warning comes with loading it: the size is refused before)
     (["ball", "blinnphong:exponent=50,ks=2", "--size", "0"], "error: --size must be an integer in 8..8192, got 0"),
+    # (the SG renderer's ray options with --method litsphere, whose shader traces no such rays)
+    (["render", "SCENE", "--method", "litsphere", "--occlusion-samples", "4"],
+     "error: --occlusion-samples is for the SG renderer (--method sg); the lit-sphere shader traces no occlusion rays"),
     # (an anisotropic BRDF: ball has no method option, so the message points to `render`)
     (["ball", "ward:alpha_x=0.1,alpha_y=0.4"], "error: AnisotropicWard is anisotropic: a lit sphere, one value per "
                                                "normal, cannot hold it; show it on a scene's object with "
@@ -426,6 +440,7 @@ def test_demo_writes_a_png(tmp_path, capsys):
 ])
 def test_bad_options_are_refused_before_loading_or_baking(tmp_path, args, message, capsys):
     out = tmp_path / "x.png"
+    args = [str(_tiny_scene(tmp_path, BAKED_SCENE)) if a == "SCENE" else a for a in args]
     r = run_cli_in_process(capsys, *args, "-o", str(out))
     assert r.returncode == 2 and r.stderr.startswith(message) and r.stderr.count("\n") == 1, r.stderr
     assert r.stdout == "" and not out.exists()

@@ -426,6 +426,10 @@ def test_cli_render_mc_uses_and_caches_the_ground_truth(tmp_path, capsys):
         assert cli.main([*args, "--truth-directions", bad, "-o", str(tmp_path / "d.exr")]) == 2
         errors = [line for line in capsys.readouterr().err.splitlines() if not line.startswith("warning:")]
         assert errors == [f"error: --truth-directions must be a grid size K in [2, 64], got {bad}"]
+    for bad in ("0", str(truth_mod.MAX_FACETS + 1)):  # (named as the flag, before the scene loads)
+        assert cli.main([*args[:-2], "--truth-facets", bad, "-o", str(tmp_path / "d.exr")]) == 2
+        errors = [line for line in capsys.readouterr().err.splitlines() if not line.startswith("warning:")]
+        assert errors == [f"error: --truth-facets must be an integer in [1, {truth_mod.MAX_FACETS}], got {bad}"]
     assert not (tmp_path / "d.exr").exists()
 
 

@@ -406,6 +406,9 @@ def test_object_errors(tmp_path):
     expect_error(tmp_path, BASE + '\n[[object]]\nmesh = "sphere"\n', "[[object]]", "needs the key 'material'", nth=2)
     expect_error(tmp_path, BASE + '\n[[object]]\nmesh = "teapot.obj"\nmaterial = "m"\n', "teapot",
                  "neither a built-in", "teapot.obj")
+    # a typo'd built-in keeping the keys of the shape meant: the mesh is the error, not its keys
+    expect_error(tmp_path, BASE + '\n[[object]]\nmesh = "spehre"\nradius = 0.5\nsubdivisions = 2\nmaterial = "m"\n',
+                 'mesh = "spehre"', "mesh 'spehre' is neither a built-in (sphere, torus, plane)")
 
 
 def test_a_scene_without_objects_is_refused(tmp_path):

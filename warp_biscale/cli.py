@@ -23,6 +23,7 @@ from .effective import EffectiveBRDF, compare
 from .geometry import BUILTIN_TILES, load_tile
 from .images import check_exposure
 from .io import atomic_path, check_output
+from .tomlschema import _Ctx
 from .litsphere import LitSphere, check_angles, check_holdable, check_resolution
 from .loading import load
 from .lighting import SOURCE_SHADOW_SAMPLES
@@ -34,7 +35,8 @@ from .scene import _integer
 from .trace import OCCLUSION_SAMPLES_MAX, check_occlusion_samples, check_shadow_samples
 from .scenefile import _MAPS as TEXTURE_MAPS  # (a material table's texture keys)
 from .scenefile import load_scene, tomllib  # (tomllib, or tomli before Python 3.11)
-from .truth import BOUNCE_PATHS, MAX_BOUNCES, MAX_PATHS, MAX_TRUTH_DIRECTIONS, _check_bounces, ground_truth
+from .truth import (BOUNCE_PATHS, MAX_BOUNCES, MAX_FACETS, MAX_PATHS, MAX_TRUTH_DIRECTIONS, _check_bounces,
+                    ground_truth)
 from .viewer import view
 
 
@@ -292,6 +294,9 @@ def _print_rendering(result, path, exposure=0.0, names=None):
         name = repr(names[i]) if names else str(i)
         how = {"computed": "computed", "memory": "reused", "given": "given"}.get(source, f"read from {source}")
         print(f"ground truth of material {name}: {how} ({info['effective_brdf'][i]})")
+    if "stderr_rms" in info:  # (the Monte Carlo reference's noise, as its Python result holds it)
+        print(f"Monte Carlo: {info.get('samples')} samples a pixel, standard error (RMS over the hit pixels) "
+              f"{info['stderr_rms']:.3g}")
     print(f"wrote {path} ({w}×{h} pixels, method {info.get('method')}, backend {info.get('backend')}"
           + (f", exposure {exposure:+g}" if exposure and path.lower().endswith(".png") else "") + ")")
 
@@ -301,6 +306,9 @@ def cmd_render(args):
     _check_output(args.output)
     if args.exposure is not None:
         check_exposure(args.exposure)
+        if args.exposure != 0 and not args.output.lower().endswith(".png"):  # (EXR and HDR hold the radiance)
+            raise ValueError(f"--exposure scales a PNG's tone mapping; {args.output} (EXR/HDR) keeps the radiance "
+                             "itself: leave --exposure out, or write a .png")
     if args.aa is not None:
         check_aa(args.aa)
     if args.shadow_samples is not None:
@@ -311,6 +319,8 @@ def cmd_render(args):
         _refuse_sg_options(args)
     if args.truth_bounces is not None or args.truth_paths is not None:
         _bounce_args(args.truth_bounces, args.truth_paths, "truth-")  # before the scene's bakes
+    if args.truth_facets is not None and not 1 <= args.truth_facets <= MAX_FACETS:  # (before the scene's bakes)
+        raise ValueError(f"--truth-facets must be an integer in [1, {MAX_FACETS}], got {args.truth_facets}")
     if args.truth_directions is not None and not 2 <= args.truth_directions <= MAX_TRUTH_DIRECTIONS:
         raise ValueError(f"--truth-directions must be a grid size K in [2, {MAX_TRUTH_DIRECTIONS}], "
                          f"got {args.truth_directions}")
@@ -382,8 +392,9 @@ def _check_scene_options(args):
     malformed table, is left to load_scene, whose errors name the file's line."""
     try:
         with open(args.scene, "rb") as f:
-            doc = tomllib.load(f)
-    except (OSError, ValueError):  # (tomllib.TOMLDecodeError is a ValueError)
+            text = f.read().decode("utf-8")
+        doc = tomllib.loads(text)
+    except (OSError, ValueError):  # (tomllib.TOMLDecodeError and UnicodeDecodeError are ValueErrors)
         return
     settings = _table(doc, "render")
     method = args.method or settings.get("method", "sg")
@@ -396,10 +407,19 @@ def _check_scene_options(args):
     if method == "mc" and isinstance(samples, int) and not isinstance(samples, bool) and samples < 2:
         # (the reference's floor, 2 a sampling strategy: a scene's own count is known once its materials are
         # made, and the reference says it then; a malformed value is load_scene's to say)
-        said = "--samples" if args.samples is not None else f"{args.scene}: [render] samples"
-        raise ValueError(f"{said} must be at least 2 for the Monte Carlo reference (2 a sampling strategy), "
-                         f"got {samples}")
+        why = f"must be at least 2 for the Monte Carlo reference (2 a sampling strategy), got {samples}"
+        if args.samples is not None:
+            raise ValueError(f"--samples {why}")
+        raise _Ctx(text, args.scene, os.path.dirname(os.path.abspath(args.scene))).error(("render",), "samples",
+                                                                                        f"samples {why}")
     if method == "litsphere":
+        for flag, value in (("--occlusion-samples", args.occlusion_samples),
+                            ("--block-rays", args.block_rays if args.block_rays == 2 else None),
+                            ("--block-side", args.block_side if args.block_side not in (None, 1) else None),
+                            ("--aa-shading", args.aa_shading)):
+            if value is not None:
+                raise ValueError(f"{flag} is for the SG renderer (--method sg); the lit-sphere shader traces no "
+                                 "occlusion rays and shades each sample")
         materials = _table(doc, "material")
         names = dict.fromkeys(o.get("material") for o in _table(doc, "object", list) if isinstance(o, dict))
         for name, table in ((n, materials.get(n)) for n in names if isinstance(n, str)):  # the objects' materials
@@ -686,7 +706,8 @@ def _add_render_commands(sub):
     v.add_argument("--size", type=int, nargs="+", metavar="N", help=SIZE_HELP + " of the window (default 1200 600)")
     v.add_argument("--backend", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name> (default: the file's)")
     v.add_argument("--render-scale", type=float, default=1.0, metavar="S",
-                   help="render at S x the viewport's resolution (e.g. 0.5 for quicker frames on a CPU; default 1)")
+                   help="render at S x the viewport's resolution, 0 < S <= 1 (e.g. 0.5 for quicker frames on a CPU; "
+                        "default 1)")
     v.add_argument("-q", "--quiet", action="store_true", help="no progress")
     v.set_defaults(func=cmd_view)
     _add_edit_command(sub)

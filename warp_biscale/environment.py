@@ -82,6 +82,10 @@ class Environment:
             raise ValueError(f"Environment {self.name!r} holds negative radiance (min {float(r.min())})")
         self.radiance = np.ascontiguousarray(r)
 
+    def __repr__(self):  # (the map's size and range, not its every texel)
+        return (f"Environment({self.name!r}, {self.height}×{self.width}, radiance {float(self.radiance.min()):.4g}"
+                f"…{float(self.radiance.max()):.4g})")
+
     @property
     def height(self) -> int:
         return self.radiance.shape[0]

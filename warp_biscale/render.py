@@ -291,12 +291,13 @@ def check_aa(aa) -> int:
 
 
 def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: int = 1,
-           shadow_samples: int = SHADOW_SAMPLES, occlusion_samples: int = OCCLUSION_SAMPLES, split_rays: bool = True,
+           shadow_samples: int | None = None, occlusion_samples: int | None = None, split_rays: bool | None = None,
            block_rays="auto", aa_shading: str = "sample", **options) -> Rendering:
     """Render `scene` → `Rendering`. method "sg": the per-pixel SG renderer (Wang 2009 / Iwasaki 2012 §5), with `aa`
     jittered samples per pixel (`aa_offsets`; 1: the pixel centre only) averaged with a box filter, `shadow_samples`
-    shadow rays per light spread over its disc (soft shadows; 1: one ray to its centre, a hard shadow), and, where
-    the mesh occludes itself under an environment, `occlusion_samples` environment-occlusion rays per pixel that
+    (default SHADOW_SAMPLES) shadow rays per light spread over its disc (soft shadows; 1: one ray to its centre, a
+    hard shadow), and, where the mesh occludes itself under an environment, `occlusion_samples` (default
+    OCCLUSION_SAMPLES) environment-occlusion rays per pixel that
     shadow the broad lobes, and with them rays towards a sun's or a softbox's sharp lobes (shading's "Broad lobes'
     visibility per pixel" and "Sharp environment lobes' visibility per pixel"; 0: the SSDF alone). `split_rays`
     (default): the `aa` samples of a pixel share each set of rays, sample k of n tracing rays k, k + n, … of it
@@ -313,6 +314,9 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     traces its own; "auto" (default): 4 from BLOCK_RAYS_4_MIN_PIXELS (1920×1080) pixels up, 2 from
     BLOCK_RAYS_MIN_PIXELS (320×240), else 1 (`frame_block_rays`; info["block_rays"] says which side the frame
     asked, info["block_sides"] the side each set of the first sample's rays got, `frame_block_sides`).
+    info["env_lobes"] is the number of environment lobes shaded: the fit's (at most `Scene.env_lobes`, fewer for a
+    map that needs fewer), its ambient lobe split into six along the axes where an SSDF shadows them (so up to
+    env_lobes + 5; docs/design.md §5.7).
     `aa_shading` "sample" (default): each anti-aliasing sample shaded; "pixel": a pixel shaded once where its samples
     hit the surface its first sample hits, as multisampling does: the first sample traces every ray of each set and
     is shaded whole; a later sample traces (its own part of each set) and shades only the pixels whose hit is not on
@@ -321,7 +325,8 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     shading within a surface is not.
     "mc": the Monte
     Carlo reference (`montecarlo.render`, options `samples`, `seed`, `truths`, `fallback`, `truth_facets`,
-    `truth_seed`, `truth_directions`), whose lights are the same discs and which judges a baked material by its
+    `truth_seed`, `truth_directions`; the ray options above are the SG renderer's and refused), whose lights are the
+    same discs and which judges a baked material by its
     exact ground truth (`truth.truth_of`); "litsphere": the lit-sphere shader (seed 004, `warp_biscale.litsphere`),
     each material a `LitSphere` (any other made into one, options `angles`, `resolution`; a `Textured` material
     or an analytic anisotropic BRDF, which a lit sphere cannot hold, is refused: render those with "sg" or "mc"),
@@ -329,9 +334,20 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     turned normal's scale before the lookup: 1, or the paper's litsphere.SHRINK), `env_lights` (directional lights
     standing for the environment), `shadows` (False: every light seen whole, no shadow rays — the paper's frame)
     and `report_error` (True, or references among "sg", "mc": info["error"] then holds `litsphere_errors`, the
-    Monte Carlo one at `samples` a pixel), with `aa` and `shadow_samples` as "sg"."""
+    Monte Carlo one at `samples` a pixel), with `aa`, `shadow_samples` and `split_rays` as "sg"."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    # The ray options given for a method that traces no such rays are refused, not silently dropped.
+    given = [name for name, value in (("shadow_samples", shadow_samples), ("occlusion_samples", occlusion_samples),
+                                      ("split_rays", split_rays)) if value is not None]
+    unused = {"mc": given, "litsphere": [n for n in given if n == "occlusion_samples"]}.get(method, [])
+    if unused:
+        raise ValueError(f"{' and '.join(unused)}: option(s) of the SG renderer (method='sg'), not of "
+                         f"method={method!r}" + ("; the Monte Carlo reference traces its own rays" if method == "mc"
+                                                 else "; the lit-sphere shader traces no occlusion rays"))
+    shadow_samples = SHADOW_SAMPLES if shadow_samples is None else shadow_samples
+    occlusion_samples = OCCLUSION_SAMPLES if occlusion_samples is None else occlusion_samples
+    split_rays = True if split_rays is None else split_rays
     if method == "sg":  # a material with no lobes to shade (the matrix method's) refuses now, not after the setup
         for m in scene.materials:
             if hasattr(m, "shade_lobes"):

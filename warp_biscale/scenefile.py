@@ -494,6 +494,10 @@ def _objects(ctx, data, defs):
         if "material" not in item:
             raise ctx.error(table, None, "needs the key 'material' (the NAME of a [material.NAME])")
         mesh_kind = item["mesh"]
+        if isinstance(mesh_kind, str) and mesh_kind not in MESH_BUILTINS and not os.path.isfile(ctx.resolve(mesh_kind)):
+            # (before the keys: a typo'd built-in or a missing file is the error, not the keys of the shape meant)
+            raise ctx.error(table, "mesh", f"mesh {mesh_kind!r} is neither a built-in ({', '.join(MESH_BUILTINS)}) "
+                                           f"nor an existing mesh file (looked for {ctx.resolve(mesh_kind)})")
         schema = {**base, **MESH_BUILTINS.get(mesh_kind, {})} if isinstance(mesh_kind, str) else base
         v = _read(ctx, table, item, schema, where=f" for mesh {_show(mesh_kind)}")
         name = v.pop("material")
@@ -510,9 +514,6 @@ def _objects(ctx, data, defs):
             mesh = _build(ctx, table, v, getattr(Mesh, spec), material=mid)
         else:
             full = ctx.resolve(spec)
-            if not os.path.isfile(full):
-                raise ctx.error(table, "mesh", f"mesh {spec!r} is neither a built-in ({', '.join(MESH_BUILTINS)}) "
-                                               f"nor an existing mesh file (looked for {full})")
             try:
                 mesh = Mesh.load(full, material=mid)
             except ValueError as exc:

@@ -224,6 +224,9 @@ class Viewer:
         self.backend = backend or scenefile.backend
         # the scene file's shader when it is the lit sphere (SG for "mc": the reference is not interactive)
         self.method = "litsphere" if scenefile.method == "litsphere" else "sg"
+        if scenefile.method == "mc":
+            warnings.warn("the viewer draws this scene with the SG renderer: its [render] method 'mc', the Monte Carlo "
+                          "reference, is for `warp-biscale render`", stacklevel=2)
         self.progress = progress
         self.render_scale = float(render_scale)
         self.timings: dict = {}
@@ -322,8 +325,9 @@ class Viewer:
         self.scene.camera = camera_from_pyvista(self.left.camera, w, h)
         t0 = time.perf_counter()
         # (interactive: one sample a pixel and the viewer's rays, whatever the file's [render] asks of an image)
+        rays = {"occlusion_samples": VIEWER_OCCLUSION_SAMPLES} if self.method == "sg" else {}  # (none in a lit sphere)
         result = self.sf.render(method=self.method, backend=self.backend, progress=self.progress, aa=1,
-                                shadow_samples=VIEWER_SHADOW_SAMPLES, occlusion_samples=VIEWER_OCCLUSION_SAMPLES)
+                                shadow_samples=VIEWER_SHADOW_SAMPLES, **rays)
         dt = time.perf_counter() - t0
         self.image = result.image
         self.timings = result.timings
