@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 import warp_biscale as wb
-from warp_biscale import batch
+from warp_biscale import batch, batch_jobs
 from warp_biscale.batch_jobs import load_jobs, loads_jobs
 from warp_biscale.device import cpu_threads, usable_cores
 from warp_biscale.tomlschema import SceneError
@@ -312,6 +312,27 @@ def test_asg_method_and_an_anisotropic_material(tmp_path):
     with open(os.path.join(res.output, "results.csv"), newline="") as fh:
         used = {row["method"]: row["method_used"] for row in csv.DictReader(fh)}
     assert used == {"sg": "", "asg": "asg", "auto": "asg"}  # (the sg task failed: it made no material)
+
+
+def test_a_merl_table_as_a_jobs_brdf(tmp_path):
+    """A MERL file as a job's brdf (the CLI's --brdf syntax takes one): the task records its path and SHA-256, the
+    worker reads it and bakes it as `wb.bake` does (the same tables), and a file edited after the job was read is
+    that task's one-line failure, not a bake of other data."""
+    table = wb.MeasuredBRDF.from_brdf(wb.CookTorrance(0.8, 0.25, kd=0.2))
+    table.save(tmp_path / "ct.binary")
+    doc = {"bake": {"lobes": 2, "facets": 1024, "directions": 4, "normal_res": 16},
+           "tile": [{"family": "pyramid"}], "material": [{"brdf": str(tmp_path / "ct.binary")}]}
+    res = batch.run(doc, str(tmp_path / "out"), progress=False)
+    assert (res.done, res.failed) == (1, 0)
+    (record,) = res.records.values()
+    assert record["task"]["materials"][0]["sha256"] == batch_jobs.file_sha256(tmp_path / "ct.binary")
+    mat = wb.load(os.path.join(res.output, "tasks", record["hash"], "material.wbm"))
+    want = wb.bake(wb.geometry.pyramid(), wb.MeasuredBRDF.load(tmp_path / "ct.binary"), lobes=2, facets=1024,
+                   directions=4, normal_res=16, backend=record["task"]["bake"]["backend"])
+    np.testing.assert_array_equal(mat.table(), want.table())
+    task = dict(record["task"], materials=[dict(record["task"]["materials"][0], sha256="0" * 64)])
+    with pytest.raises(ValueError, match=r"the MERL file .*ct.binary changed since the job was read"):
+        batch.execute(task)
 
 
 BASE = """\

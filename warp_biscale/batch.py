@@ -58,7 +58,8 @@ import traceback
 import uuid
 import warnings
 
-from .batch_jobs import Jobs, Task, check_output_folder, digest, jobs_from_dict, load_jobs, loads_jobs, open_scene
+from .batch_jobs import (Jobs, Task, check_output_folder, digest, file_sha256, jobs_from_dict, load_jobs, loads_jobs,
+                         open_scene)
 from .batch_report import ProgressLine, write_report
 from .device import cpu_threads
 from .io import atomic_path
@@ -116,6 +117,19 @@ def _cached(cache, key, size, make):
     while len(cache) > size:
         cache.popitem(last=False)
     return value, False
+
+
+def _task_brdf(d: dict):
+    """A small-scale BRDF from its task record (`batch_jobs._material_dict`): a MERL table read from its file,
+    which must be the one the job was read with."""
+    from .effective import _brdf_from_dict
+    from .measured import MeasuredBRDF
+
+    if d.get("type") != "MeasuredBRDF":
+        return _brdf_from_dict(d)
+    if file_sha256(d["path"]) != d["sha256"]:
+        raise ValueError(f"the MERL file {d['path']} changed since the job was read (its SHA-256 differs)")
+    return MeasuredBRDF.load(d["path"], interpolation=d["interpolation"])
 
 
 def _build_tile(spec):
@@ -205,7 +219,7 @@ def execute(task: dict, hook=None, pin: int = 0) -> dict:
     a task fail or its worker die). Raises on failure."""
     from .bake import bake
     from .brdf import EnergyWarning, Lambert
-    from .effective import _brdf_from_dict, compare
+    from .effective import compare
     from .render import SHADOW_SAMPLES, render
     from .smallscale import TileWarning
     from .truth import ground_truth
@@ -225,7 +239,7 @@ def execute(task: dict, hook=None, pin: int = 0) -> dict:
         warnings.simplefilter("ignore", TileWarning)
         tile, caches["tile"] = _cached(_TILES, task["tile_key"], CACHE_SIZES["tiles"],
                                        lambda: _build_tile(task["tile"]))
-        mats = [_brdf_from_dict(d) for d in task["materials"]]
+        mats = [_task_brdf(d) for d in task["materials"]]
         t0 = time.perf_counter()
         mat = bake(tile, mats, method=b["method"], lobes=b["lobes"], directions=b["directions"],
                    normal_res=b["normal_res"], facets=b["facets"], backend=backend, seed=b["seed"], route=b["route"],

@@ -645,8 +645,20 @@ def _check_num(v):
     return (float(v), None) if _is_num(v) and math.isfinite(v) else (None, "a finite number")
 
 
+def _material_dict(b, sums: dict) -> dict:
+    """A task's record of one small-scale BRDF: an analytic one's type and parameters; a MERL table's file, as a
+    mesh tile's (its path, which the worker reads, and SHA-256, so that an edited file is another task; `sums`
+    keeps each file's digest for the job)."""
+    if b.kind == brdf_mod.MEASURED:
+        path = os.path.abspath(b.source)
+        if path not in sums:
+            sums[path] = file_sha256(path)
+        return {"type": "MeasuredBRDF", "path": path, "sha256": sums[path], "interpolation": b.interpolation}
+    return _brdf_to_dict(b)
+
+
 def _cross(ctx, tiles, materials, bakes, truth, compare, scenes) -> list:
-    tasks, seen = [], {}
+    tasks, seen, sums = [], {}, {}
     for tile_name, _, tile_variants in tiles:
         for mat_table, only, mat_variants in materials:
             if only is not None and tile_name not in only:
@@ -657,7 +669,7 @@ def _cross(ctx, tiles, materials, bakes, truth, compare, scenes) -> list:
                                     f"0..{tile.n_materials - 1}: give {tile.n_materials} BRDF strings (or one for "
                                     f"all), got {len(brdfs)}")
                 mats = brdfs * tile.n_materials if len(brdfs) == 1 else brdfs
-                mat_dicts = [_brdf_to_dict(b) for b in mats]
+                mat_dicts = [_material_dict(b, sums) for b in mats]
                 for settings, swept in bakes:
                     t = _task(spec, mat_dicts, minfo, settings, swept, truth, compare, scenes)
                     if t.hash in seen:  # the same inputs twice (two entries listing one combination): one task
