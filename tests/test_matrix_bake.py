@@ -291,6 +291,33 @@ def test_sg_renderer_refuses_before_any_setup(monkeypatch):
         wb.render(scene, backend="warp:cpu")
 
 
+def test_mc_and_the_lit_spheres_error_report_refuse_a_glossy_matrix_bake_before_any_work(monkeypatch):
+    """The Monte Carlo reference cannot sample a glossy matrix bake's lobes (it has none): refused before its ground
+    truth is computed. The lit-sphere render's report_error, whose references (SG, MC) cannot render it, refuses
+    before the lit spheres are made; without report_error the lit-sphere render goes on."""
+    from warp_biscale import truth as truth_mod
+
+    glossy = wb.bake(flat_tile(), wb.CookTorrance(1.0, 0.3), method="matrix", directions=4, facets=256,
+                     backend="warp:cpu", matrix={"normal_res": 9})
+    scene = wb.Scene(wb.Mesh.sphere(), [glossy], wb.Camera(eye=(0, 0, 4), width=8, height=6), None,
+                     [wb.PointLight((2, 3, 2), 20.0)])
+    render_module = sys.modules["warp_biscale.render"]
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("work started before the materials were checked")
+
+    with monkeypatch.context() as m:
+        m.setattr(truth_mod, "ground_truth", no_work)
+        m.setattr(render_module, "scene_spheres", no_work)
+        with pytest.raises(ValueError, match="^" + re.escape(mx.NO_LOBES) + "$"):
+            wb.render(scene, method="mc", backend="warp:cpu", samples=4, truth_facets=256)
+        for refs, named in ((True, "sg, mc"), (["mc"], "mc")):
+            with pytest.raises(ValueError, match=rf"^report_error: its references \({named}\) cannot render "
+                                                 r"materials\[0\]: " + re.escape(mx.NO_LOBES) + "$"):
+                wb.render(scene, method="litsphere", backend="warp:cpu", report_error=refs, samples=4)
+    assert np.isfinite(wb.render(scene, method="litsphere", backend="warp:cpu", resolution=32).image).all()
+
+
 # ------------------------------------------------------------------------------------------------ bad input
 
 

@@ -314,3 +314,13 @@ def test_two_lobe_fit_brings_the_sg_bake_closer_to_the_table(paint):
     psnr_two, psnr_one = wb.compare(two, truth)["psnr"], wb.compare(one, truth)["psnr"]
     print(f"two lobes {psnr_two:.2f} dB, one lobe {psnr_one:.2f} dB")
     assert psnr_two > psnr_one
+
+
+def test_a_lit_sphere_of_a_material_baked_over_a_table(backend, paint_baked):
+    """An SG bake over a MERL table (its two-lobe fit: two rows of one material, where the texel kernels read one)
+    makes its lit spheres on the host, from the bake's own f̄, whatever backend is asked: `LitSphere.from_material`
+    with a backend equals the host's, instead of refusing the table's packed row."""
+    on_backend = wb.LitSphere.from_material(paint_baked, angles=[0, 90], resolution=32, backend=backend)
+    on_host = wb.LitSphere.from_material(paint_baked, angles=[0, 90], resolution=32)
+    assert on_host.images.max() > 0
+    np.testing.assert_array_equal(on_backend.images, on_host.images)

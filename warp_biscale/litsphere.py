@@ -199,9 +199,12 @@ def texel_inputs(material) -> dict:
 def sphere_images(material, angles, resolution: int, backend=None) -> np.ndarray:
     """(A, R, R, 3) float32: `sphere_image` at each of `angles` (degrees); on `backend` (a name or a
     Backend) by its texel kernels in float32, else (None) on the host in float64. A MeasuredBRDF's table
-    is read on the host either way (the texel kernels have no measured lookup yet), and so is a material whose
-    tables no texel kernel reads (`host_texels`: a matrix-method MatrixBRDF)."""
-    if backend is None or isinstance(material, MeasuredBRDF) or getattr(material, "host_texels", False):
+    is read on the host either way (the texel kernels have no measured lookup yet), and so is a baked material
+    over one (its f̄ takes the table's SG fit, one or two lobes, where the kernels read one row a material) and a
+    material whose tables no texel kernel reads (`host_texels`: a matrix-method MatrixBRDF)."""
+    on_host = (isinstance(material, MeasuredBRDF) or getattr(material, "host_texels", False)
+               or any(isinstance(m, MeasuredBRDF) for m in getattr(material, "materials", ())))
+    if backend is None or on_host:
         return np.stack([sphere_image(material, phi, resolution) for phi in angles])
     lights = np.stack([light_direction(phi) for phi in angles])
     return BACKENDS["get"](backend).litsphere_texels(texel_inputs(material), lights, resolution)

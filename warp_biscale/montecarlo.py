@@ -238,6 +238,12 @@ class _EffectiveMaterial:
         return self.mat.eval(wl, wo, method=self.fit_method)
 
 
+def sampling_plan(mat: EffectiveBRDF) -> None:
+    """Refuse, as `render` would when it starts, a baked material whose glossy small-scale BRDFs' lobes cannot be
+    sampled (the matrix method's: no lobes), without computing its ground truth."""
+    _EffectiveMaterial(mat, None)
+
+
 def fit_label(mat) -> str:
     """How fallback="sg" evaluates `mat`: "EffectiveBRDF.eval(method='sg-exact')" (the SG fit), "ASGBRDF.eval(
     method='asg')" (its ASG lobes)."""

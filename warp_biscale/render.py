@@ -27,6 +27,7 @@ from .litsphere import LitSphere
 from . import ssdf as ssdf_mod
 from .backend import get_backend
 from .bake import _fit_measured
+from .effective import EffectiveBRDF
 from .progress import Progress
 from .model import Frame, ShadeInputs
 from .scene import vertex_tangents
@@ -520,6 +521,29 @@ def scene_spheres(scene: Scene, angles=litsphere.PAPER_ANGLES, resolution: int =
     return cached
 
 
+def _check_references(scene: Scene, references) -> None:
+    """What `litsphere_errors` needs, checked before the lit spheres are made: known references, and materials they
+    render (a LitSphere by its source; the SG renderer takes no matrix bake, the Monte Carlo reference samples
+    the lobes of a baked material's glossy small-scale BRDFs)."""
+    for ref in references:
+        if ref not in ("sg", "mc"):
+            raise ValueError(f"references must be 'sg' and/or 'mc', got {ref!r}")
+    for i, m in enumerate(scene.materials):
+        if isinstance(m, LitSphere):
+            if m.source is None:
+                raise ValueError(f"Scene.materials[{i}] is a loaded LitSphere (no source material): its error "
+                                 "against an exact render cannot be measured")
+            m = m.source
+        try:
+            if "sg" in references and hasattr(m, "shade_lobes"):
+                m.shade_lobes()
+            if "mc" in references and isinstance(m, EffectiveBRDF):
+                montecarlo.sampling_plan(m)
+        except ValueError as exc:
+            raise ValueError(f"report_error: its references ({', '.join(references)}) cannot render "
+                             f"materials[{i}]: {exc}") from None
+
+
 def litsphere_errors(scene: Scene, image, backend="auto", references=("sg", "mc"), samples: int = 64) -> dict:
     """The error of a lit-sphere `image` of `scene` against the exact renders of the same materials, over the
     pixels that see the object: {reference: compare_images(...)} for "sg" (our SG renderer, 1 sample a
@@ -570,6 +594,8 @@ def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str
     for i, m in enumerate(scene.materials):  # every material checked before any is made into a sphere
         if not isinstance(m, LitSphere):
             litsphere.check_holdable(m, f"materials[{i}]")
+    if report_error:
+        _check_references(scene, ("sg", "mc") if report_error is True else tuple(report_error))
     timings: dict = {"gbuffer": 0.0, "shade": 0.0}
     t_all = time.perf_counter()
     t0 = time.perf_counter()
