@@ -235,9 +235,14 @@ def test_painting_changes_the_field_only_under_the_brush():
 
 @pytest.mark.parametrize("family", ["pyramid", "rods", "heightfield"])
 def test_save_then_load_gives_the_same_frame(tmp_path, family):
+    """A saved design opened again is the same design: its controls (a painted field's amplitude and smoothing
+    too, kept in the file's editor line, the field before smoothing beside it) and its frame; and the file is a
+    scene `warp-biscale render` reads without a warning (a BRDF for each of the tile's material ids alone), whose
+    height field is the one drawn (the smoothed one)."""
     ed = _editor(family)
     if family == "heightfield":
         ed.paint(0.5, 0.5, 0.2, 0.4)
+        ed.set_many({"tile.amplitude": 0.3, "tile.smoothing": 2.0})
     else:
         ed.set("tile.color", (0.3, 0.9, 0.2))
     ed.set("material0.kind", "ward")
@@ -247,10 +252,22 @@ def test_save_then_load_gives_the_same_frame(tmp_path, family):
     again = E.Editor.load(path, backend="warp:cpu")
     assert again.family == family and again.get("material0.kind") == "ward"
     assert math.isclose(again.get("light.azimuth"), 120.0, abs_tol=1e-6)
+    if family == "heightfield":
+        assert (again.get("tile.amplitude"), again.get("tile.smoothing")) == (0.3, 2.0)
+        assert again.set("tile.amplitude", 0.3) == "none"  # (in the control's range, and unchanged)
+        # 16-bit heights: within a step of 1/65535 of the painted field's range
+        np.testing.assert_allclose(again._state["heights"], ed._state["heights"], rtol=0,
+                                   atol=np.ptp(ed._state["heights"]) / 65535)
     assert np.allclose(again.frame(), ed.frame(), rtol=1e-3, atol=1e-3 * ed.frame().max())
     # the file is a scene `warp-biscale render` reads: the same design baked by the scene loader
-    scene = wb.load_scene(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        scene = wb.load_scene(path)
     assert isinstance(scene.scene.materials[0], wb.EffectiveBRDF)
+    assert len(scene.scene.materials[0].materials) == ed.tile.n_materials
+    if family == "heightfield":
+        drawn = E._blur(ed._state["heights"], 2.0)
+        np.testing.assert_allclose(np.ptp(scene.tiles["design"].vertices[:, 2]), 0.3 * np.ptp(drawn), rtol=1e-6)
 
 
 def test_screenshot_and_bad_targets(tmp_path, pyramid):

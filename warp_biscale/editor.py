@@ -18,6 +18,7 @@ lobes: what a dragged slider shows); `refine()` then bakes at full quality.
 from __future__ import annotations
 
 import copy
+import json
 import math
 import os
 import time
@@ -59,6 +60,7 @@ HEIGHTS = 64  # a painted height field's grid (its vertices: HEIGHTS² per perio
 # Each family's controls: (name, kind, lo, hi or choices, default, help). Ranges are what every value in
 # them bakes to a valid tile with (tests/test_editor.py sets each to both ends).
 _MAT = ("int", 0, N_MATERIALS - 1)
+HEIGHTFIELD_AMPLITUDE_MAX = 0.5  # the painted field's amplitude control's range is [0, this]
 FAMILIES = {
     "pyramid": [
         ("height", "real", 0.05, 2.0, 0.5, "apex height (base side 1)"),
@@ -103,7 +105,7 @@ FAMILIES = {
         ("weft_color", "rgb", None, None, (0.2, 0.35, 0.9), "colour weight of the weft"),
     ],
     "heightfield": [
-        ("amplitude", "real", 0.0, 0.5, 0.15, "height of the painted field's unit (tile side 1)"),
+        ("amplitude", "real", 0.0, HEIGHTFIELD_AMPLITUDE_MAX, 0.15, "height of the painted field's unit (tile side 1)"),
         ("smoothing", "real", 0.0, 4.0, 0.0, "Gaussian blur of the field, in grid cells"),
         ("material", *_MAT, 0, "small-scale material of the field"),
         ("color", "rgb", None, None, (1.0, 1.0, 1.0), "colour weight of the field"),
@@ -646,10 +648,15 @@ class Editor:
         check_output(path)
         stem = os.path.splitext(os.path.basename(path))[0]
         text = _design_toml(self._state, self.width, self.height,
-                            None if self.mesh_tile is None else self.mesh_path, f"{stem}_heights.png")
+                            None if self.mesh_tile is None else self.mesh_path, f"{stem}_heights.png",
+                            self.tile.n_materials)
         folder = os.path.dirname(os.path.abspath(path))
         if self._state["heights"] is not None:
-            _write_heights(os.path.join(folder, f"{stem}_heights.png"), self._state)
+            # the field drawn (smoothed), which `render` reads; with smoothing, the painted one too, for `load`
+            smoothing = self._state["tile"]["smoothing"]
+            _write_heights(os.path.join(folder, f"{stem}_heights.png"), _blur(self._state["heights"], smoothing))
+            if smoothing > 0:
+                _write_heights(os.path.join(folder, f"{stem}_painted.png"), self._state["heights"])
         with atomic_path(path) as tmp:
             with open(tmp, "w") as f:
                 f.write(text)
@@ -663,10 +670,11 @@ class Editor:
         path = os.fspath(path)
         try:
             with open(path, "rb") as f:
-                data = tomllib.load(f)
+                text = f.read().decode("utf-8")
+            data = tomllib.loads(text)
         except OSError as exc:
             raise ValueError(f"cannot read design {path}: {exc.strerror or exc}") from None
-        except tomllib.TOMLDecodeError as exc:
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
             raise ValueError(f"design {path} is not valid TOML: {exc}") from None
         mats = data.get("material", {})
         design = next((m for m in mats.values() if isinstance(m, dict) and m.get("type") == "bake"), None)
@@ -679,9 +687,23 @@ class Editor:
         params = dict(design.get("tile_params", {}))
         if tile_spec == "heightfield":
             image = os.path.join(folder, params.pop("image"))
+            if not os.path.isfile(image):
+                raise ValueError(f"design {path}: its height image {image} is missing")
             ed = cls(image, backend=backend, **size)
-            ed._state["heights"] = geometry.read_height_image(image) * params.get("scale", 1.0)
-            params = {"amplitude": 1.0, "material": params.get("material", 0), "color": params.get("color", (1, 1, 1))}
+            meta = next((json.loads(line[len(EDITOR_LINE):]) for line in text.splitlines()
+                         if line.startswith(EDITOR_LINE)), None)
+            scale = float(params.get("scale", 1.0))
+            if meta is not None:  # the editor's own: the painted field (before smoothing) and its controls
+                smoothing = float(meta["smoothing"])
+                painted = image[:-len("_heights.png")] + "_painted.png" if smoothing > 0 else image
+                heights = geometry.read_height_image(painted) * float(meta["painted_range"])
+                amplitude = float(meta["amplitude"])
+            else:  # another scene file's height field: its image at its scale, the amplitude within the control's
+                smoothing, amplitude = 0.0, min(scale, HEIGHTFIELD_AMPLITUDE_MAX)
+                heights = geometry.read_height_image(image) * (scale / amplitude if amplitude > 0 else 1.0)
+            ed._state["heights"] = heights
+            params = {"amplitude": amplitude, "smoothing": smoothing, "material": params.get("material", 0),
+                      "color": params.get("color", (1, 1, 1))}
         else:
             spec = tile_spec if tile_spec in FAMILIES or tile_spec in ALIASES else os.path.join(folder, tile_spec)
             ed = cls(spec, backend=backend, **size)
@@ -758,12 +780,11 @@ def _make_environment(kind):
     return Environment.sky(sun_irradiance=0.0, ground=(0.3, 0.28, 0.25), height=64, width=128)
 
 
-def _write_heights(path, state):
-    """The painted field (before smoothing) as a 16-bit greyscale PNG, its top row at y = 1, scaled to the
-    full range (the scale goes into the scene file's tile_params)."""
+def _write_heights(path, h):
+    """A height field as a 16-bit greyscale PNG, its top row at y = 1, scaled to the full range (the scale goes
+    into the scene file's tile_params, the painted field's range into its editor line)."""
     from PIL import Image
 
-    h = state["heights"]
     lo, hi = float(h.min()), float(h.max())
     grey = np.ascontiguousarray(np.round((h - lo) / max(hi - lo, 1e-12) * 65535).astype(np.uint16)[::-1])
     with atomic_path(path) as tmp:
@@ -799,16 +820,25 @@ def _toml_value(v):
     return repr(float(v))
 
 
-def _design_toml(state, width, height, mesh_path, heights_name) -> str:
+# A saved height-field design's controls that the scene file cannot hold (the field's amplitude and smoothing, the
+# painted field's range): a comment `Editor.load` reads back, which `render` skips.
+EDITOR_LINE = "# editor: "
+
+
+def _design_toml(state, width, height, mesh_path, heights_name, n_brdfs: int = N_MATERIALS) -> str:
     q, li = state["quality"], state["light"]
     fam = state["family"]
+    editor_line = []
     if fam is None:
         tile, params = mesh_path, {}
     elif fam == "heightfield":
-        h = state["heights"]
+        p, painted = state["tile"], state["heights"]
+        drawn = _blur(painted, p["smoothing"])
         tile = "heightfield"
-        params = {"image": heights_name, "scale": state["tile"]["amplitude"] * float(h.max() - h.min()),
-                  "material": state["tile"]["material"], "color": state["tile"]["color"]}
+        params = {"image": heights_name, "scale": p["amplitude"] * float(drawn.max() - drawn.min()),
+                  "material": p["material"], "color": p["color"]}
+        editor_line = [EDITOR_LINE + json.dumps({"amplitude": p["amplitude"], "smoothing": p["smoothing"],
+                                                 "painted_range": float(painted.max() - painted.min())})]
     elif fam == "rods":
         p = state["tile"]
         tile = "rods"
@@ -820,7 +850,8 @@ def _design_toml(state, width, height, mesh_path, heights_name) -> str:
     el, az = math.radians(li["elevation"]), math.radians(li["azimuth"])
     direction = (math.cos(el) * math.cos(az), math.sin(el), math.cos(el) * math.sin(az))
     lines = ["# A bi-scale design saved by warp_biscale's editor: `warp-biscale render` draws it,",
-             "# `warp-biscale edit` opens it again.", "[render]", f"width = {width}", f"height = {height}",
+             "# `warp-biscale edit` opens it again.", *editor_line, "[render]", f"width = {width}",
+             f"height = {height}",
              f'method = "{_renderer(state)}"', "ssdf_resolution = 16", "", "[camera]", "eye = [0.0, 2.4, 4.6]",
              "target = [0.0, 0.9, 0.0]", "fov = 35.0", ""]
     env = li["environment"]
@@ -839,7 +870,7 @@ def _design_toml(state, width, height, mesh_path, heights_name) -> str:
               'material = "floor"', "", "[material.design]", 'type = "bake"', f"tile = {_toml_value(tile)}"]
     if params:
         lines.append("tile_params = { " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in params.items()) + " }")
-    lines += ["brdf = [" + ", ".join(f'"{brdf_spec(m)}"' for m in state["materials"]) + "]",
+    lines += ["brdf = [" + ", ".join(f'"{brdf_spec(m)}"' for m in state["materials"][:max(n_brdfs, 1)]) + "]",
               f"lobes = {q['lobes']}", f"directions = {q['directions']}", f"facets = {1 << q['facets_log2']}",
               *([f'method = "{q["bake"]}"'] if q["bake"] != "sg" else []), "",
               "[material.floor]", 'type = "lambert"', "albedo = 0.45", ""]
