@@ -4,6 +4,7 @@ painting touches the height field only under the brush; save → load gives the 
 leave the editor as it was; undo/redo; coarse edits and their refinement."""
 
 import math
+import re
 import warnings
 
 import numpy as np
@@ -268,6 +269,29 @@ def test_save_then_load_gives_the_same_frame(tmp_path, family):
     if family == "heightfield":
         drawn = E._blur(ed._state["heights"], 2.0)
         np.testing.assert_allclose(np.ptp(scene.tiles["design"].vertices[:, 2]), 0.3 * np.ptp(drawn), rtol=1e-6)
+
+
+def test_loading_a_bad_design_names_the_file_and_the_key(tmp_path, pyramid):
+    """Editor.load checks a design as its controls check values: a misspelt tile key, a value outside its control's
+    range, a width that is not an integer and a height field's missing image are one-line errors naming the file
+    (render refuses the same files), not a default silently put in their place."""
+    path = tmp_path / "design.toml"
+    pyramid.save(path)
+    text = path.read_text()
+    assert "height = 0.5" in text and "width = " in text
+    for edit, words in ((("height = 0.5", "hieght = 0.5"), "the pyramid tile has no control 'hieght'"),
+                        (("height = 0.5", "height = 9.0"), "tile.height must lie in"),
+                        (("width = 48", 'width = "wide"'), "[render] width must be an integer, got 'wide'")):
+        bad = tmp_path / "bad.toml"
+        bad.write_text(text.replace(*edit, 1))
+        with pytest.raises(ValueError, match=f"^design {re.escape(str(bad))}: .*{re.escape(words)}") as err:
+            E.Editor.load(bad, backend="warp:cpu")
+        assert "\n" not in str(err.value)
+    field = _editor("heightfield")
+    field.save(tmp_path / "field.toml")
+    (tmp_path / "field_heights.png").unlink()
+    with pytest.raises(ValueError, match="its height image .*field_heights.png is missing"):
+        E.Editor.load(tmp_path / "field.toml", backend="warp:cpu")
 
 
 def test_screenshot_and_bad_targets(tmp_path, pyramid):

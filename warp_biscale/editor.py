@@ -681,7 +681,10 @@ class Editor:
         if design is None:
             raise ValueError(f"design {path} has no material of type \"bake\" to edit")
         render_ = data.get("render", {})
-        size = {"width": int(render_.get("width", 640)), "height": int(render_.get("height", 480))}
+        size = {"width": render_.get("width", 640), "height": render_.get("height", 480)}
+        for key, value in size.items():
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise ValueError(f"design {path}: [render] {key} must be an integer, got {value!r}")
         folder = os.path.dirname(os.path.abspath(path))
         tile_spec = design.get("tile", "pyramid")
         params = dict(design.get("tile_params", {}))
@@ -715,9 +718,16 @@ class Editor:
                 params.pop("spacing", None)
                 largest = rod_tilt({**state["tile"], **params, "lean": 1.0})
                 params["lean"] = min(tilt / largest, 1.0) if largest > 0 else 0.0
-            for k, v in params.items():
-                if k in state["tile"]:
-                    state["tile"][k] = tuple(v) if isinstance(v, list) else v
+            controls = ed._controls(state)
+            for k, v in params.items():  # each checked as its control checks it: a typo or a bad value is said
+                if f"tile.{k}" not in controls:
+                    raise ValueError(f"design {path}: the {state['family']} tile has no control {k!r} (tile_params "
+                                     f"may hold {', '.join(state['tile'])})")
+                _, kind, lo, hi, *_ = controls[f"tile.{k}"]
+                try:
+                    state["tile"][k] = _checked(f"tile.{k}", kind, lo, hi, tuple(v) if isinstance(v, list) else v)
+                except ValueError as exc:
+                    raise ValueError(f"design {path}: {exc}") from None
         for i, text in enumerate(design.get("brdf", [])[:N_MATERIALS]):
             state["materials"][i].update(_material_controls(text))
         for key, name in (("lobes", "lobes"), ("directions", "directions")):
