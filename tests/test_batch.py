@@ -624,6 +624,39 @@ def test_command_line(job_dir, tmp_path, capsys):
         with pytest.raises(ValueError, match="give one of --workers"):
             args = _parser().parse_args(["batch", job, *clash])
             args.func(args)
+    if distributed is not None:  # a malformed scheduler address: said before any work, the report left alone
+        before = open(os.path.join(out, "results.csv")).read()
+        with pytest.raises(ValueError, match=r"^--scheduler 'notanaddress': missing port number"):
+            args = _parser().parse_args(["batch", job, "-o", out, "--scheduler", "notanaddress", "--no-resume"])
+            args.func(args)
+        assert open(os.path.join(out, "results.csv")).read() == before
+    # a backend this machine cannot run, for a run here or on its own workers: said before any task (not a
+    # failure of each task, tried twice)
+    if not any(b["name"].startswith("warp:cuda") and b["usable"] for b in wb.backends()):
+        cuda_job = tmp_path / "cuda.toml"
+        cuda_job.write_text(open(job).read().replace("[bake]\n", '[bake]\nbackend = "warp:cuda"\n', 1))
+        with pytest.raises(ValueError, match=r"cuda.toml: \[bake\] backend 'warp:cuda' cannot run here"):
+            args = _parser().parse_args(["batch", str(cuda_job), "-o", str(tmp_path / "cuda-out")])
+            args.func(args)
+        assert not os.path.exists(tmp_path / "cuda-out")
+
+
+def test_a_run_whose_cluster_never_starts_leaves_the_last_report(job_dir, tmp_path, monkeypatch):
+    """A run that fails before any task ran (no cluster reached) keeps the last results.csv, whose finished tasks it
+    would otherwise list as pending; a run that ran tasks writes its report."""
+    jobs = load_jobs(os.path.join(job_dir, "jobs.toml"))
+    out = str(tmp_path / "results")
+    batch.run(jobs, out, progress=False)
+    before = open(os.path.join(out, "results.csv")).read()
+
+    def unreachable(*args, **kwargs):
+        raise OSError("Timed out trying to connect to tcp://127.0.0.1:1")
+
+    monkeypatch.setattr(batch, "_have", lambda name: True)
+    monkeypatch.setattr(batch, "_run_dask", unreachable)
+    with pytest.raises(OSError, match="Timed out"):
+        batch.run(jobs, out, workers=2, resume=False, progress=False)
+    assert open(os.path.join(out, "results.csv")).read() == before
 
 
 def test_cpu_threads_follow_the_variable_else_the_affinity(monkeypatch):

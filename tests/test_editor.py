@@ -271,14 +271,14 @@ def test_save_then_load_gives_the_same_frame(tmp_path, family):
         np.testing.assert_allclose(np.ptp(scene.tiles["design"].vertices[:, 2]), 0.3 * np.ptp(drawn), rtol=1e-6)
 
 
-def test_loading_a_bad_design_names_the_file_and_the_key(tmp_path, pyramid):
+def test_loading_a_bad_design_names_the_file_and_the_key(tmp_path):
     """Editor.load checks a design as its controls check values: a misspelt tile key, a value outside its control's
     range, a width that is not an integer and a height field's missing image are one-line errors naming the file
     (render refuses the same files), not a default silently put in their place."""
     path = tmp_path / "design.toml"
-    pyramid.save(path)
+    _editor("pyramid").save(path)
     text = path.read_text()
-    assert "height = 0.5" in text and "width = " in text
+    assert "height = 0.5" in text and "width = 48" in text
     for edit, words in ((("height = 0.5", "hieght = 0.5"), "the pyramid tile has no control 'hieght'"),
                         (("height = 0.5", "height = 9.0"), "tile.height must lie in"),
                         (("width = 48", 'width = "wide"'), "[render] width must be an integer, got 'wide'")):

@@ -461,6 +461,7 @@ def run(jobs, output=None, *, workers: int = 0, scheduler: str | None = None, re
         res.failed += 1
         line.update(res.done, res.failed, task.label, None, res.records[task.hash]["error"])
 
+    not_started = False
     try:
         if not todo:
             pass
@@ -472,11 +473,16 @@ def run(jobs, output=None, *, workers: int = 0, scheduler: str | None = None, re
     except KeyboardInterrupt:
         res.interrupted = True
         raise
+    except Exception:
+        not_started = res.done + res.failed == 0  # (no cluster reached: no task ran)
+        raise
     finally:
         res.ran = res.done + res.failed
         res.elapsed = time.perf_counter() - t0
         line.finish(res)
-        res.csv, res.html = write_report(output, jobs, res.records, TASKS_DIR)
+        csv = os.path.join(output, "results.csv")
+        if not (not_started and os.path.exists(csv)):  # (a run that never started leaves the last report alone)
+            res.csv, res.html = write_report(output, jobs, res.records, TASKS_DIR)
     return res
 
 
@@ -607,9 +613,31 @@ def cmd_batch(args):
     if sum(map(bool, (args.scheduler, args.workers, args.gpus))) > 1:
         raise ValueError("give one of --workers N (a local cluster), --gpus N (one worker per GPU) or "
                          "--scheduler ADDRESS (a running one)")
+    if args.scheduler and _have("distributed"):  # (its syntax before any work; whether one answers, on connecting)
+        from distributed.comm import parse_address, parse_host_port
+
+        try:
+            parse_host_port(parse_address(args.scheduler)[1])
+        except ValueError as exc:
+            raise ValueError(f"--scheduler {args.scheduler!r}: {exc} (e.g. tcp://host:8786)") from None
+    if args.gpus:
+        from .warp_backend import init_warp
+
+        found = init_warp().get_cuda_device_count()
+        if found < args.gpus:
+            warnings.warn(f"--gpus {args.gpus}, but {found or 'no'} CUDA GPU(s) are visible here: the workers beyond "
+                          "them see none, and the job's backend runs on the CPU there", stacklevel=2)
     if args.output:
         check_output_folder(os.path.abspath(args.output), lambda msg: ValueError(f"-o: {msg}"))
     jobs = load_jobs(args.jobs)
+    if not (args.scheduler or args.gpus or args.dry_run):  # (here or this machine's workers: its backends, now)
+        from .backend import get_backend
+
+        for name in sorted({t.bake["backend"] for t in jobs.tasks}):
+            try:
+                get_backend(name)
+            except (ValueError, RuntimeError) as exc:
+                raise ValueError(f"{args.jobs}: [bake] backend {name!r} cannot run here: {exc}") from None
     if args.dry_run:
         for t in jobs.tasks:
             print(f"{t.hash}  {t.label}")

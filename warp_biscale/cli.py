@@ -402,7 +402,8 @@ def _check_scene_options(args):
         return
     for flag, _, value in _mc_options(args):
         if value is not None and method != "mc":
-            raise ValueError(f"{flag} is for --method mc (the SG renderer has no such option)")
+            renderer = {"sg": "the SG renderer", "litsphere": "the lit-sphere shader"}[method]
+            raise ValueError(f"{flag} is for --method mc ({renderer} has no such option)")
     samples = args.samples if args.samples is not None else settings.get("samples")
     if method == "mc" and isinstance(samples, int) and not isinstance(samples, bool) and samples < 2:
         # (the reference's floor, 2 a sampling strategy: a scene's own count is known once its materials are
@@ -477,6 +478,9 @@ def load_material(spec: str):
         if not isinstance(material, EffectiveBRDF):
             raise ValueError(f"{spec} holds a {type(material).__name__}, not a baked material")
         return material
+    if os.path.isfile(spec):
+        raise ValueError(f"{spec} is not a material file: give a baked material (.wbm/.npz), a MERL table (.binary), "
+                         "a saved lit-sphere folder or a BRDF spec (e.g. blinnphong:exponent=50)")
     if ":" not in spec and not spec.isalpha():
         raise ValueError(f"material {spec!r} is neither a file nor a BRDF spec (e.g. blinnphong:exponent=50)")
     return parse_brdf(spec)
@@ -562,6 +566,10 @@ def cmd_edit(args):
 
     target = _edit_target(args)
     size = _frame_size(args.size)
+    if args.output is not None:  # (before the window opens: the design is written there when the user saves)
+        if not args.output.lower().endswith(".toml"):
+            raise ValueError(f"-o {args.output!r}: a design is saved as a scene file, which must end in .toml")
+        check_output(args.output)
     if args.screenshot:
         if not args.screenshot.lower().endswith(".png"):
             raise ValueError(f"--screenshot {args.screenshot!r} must be a .png")
@@ -720,7 +728,8 @@ def main(argv=None):
     _add_render_commands(sub)
     p = sub.add_parser("truth", help="ground-truth effective BRDF of a tile: table + PNG plot of slices")
     p.add_argument("tile", nargs="?", default="pyramid",
-                   help=f"mesh file (OBJ/PLY/STL/GLB) or built-in tile: {', '.join(BUILTIN_TILES)} "
+                   help=f"mesh file (OBJ/PLY/STL/GLB), greyscale image (a height field, heights 0..1 in tile units) "
+                        f"or built-in tile: {', '.join(BUILTIN_TILES)} "
                         "(default: pyramid)")
     p.add_argument("--brdf", action="append",
                    help="small-scale BRDF, once per material id, e.g. lambert:albedo=0.5, "
@@ -746,7 +755,8 @@ def main(argv=None):
     p.set_defaults(func=cmd_truth)
     k = sub.add_parser("bake", help="bake a tile's effective BRDF (SG, ASG or matrix method) into a material file")
     k.add_argument("tile", nargs="?", default="pyramid",
-                   help=f"mesh file (OBJ/PLY/STL/GLB) or built-in tile: {', '.join(BUILTIN_TILES)} (default: pyramid)")
+                   help=f"mesh file (OBJ/PLY/STL/GLB), greyscale image (a height field, heights 0..1 in tile units) "
+                        f"or built-in tile: {', '.join(BUILTIN_TILES)} (default: pyramid)")
     k.add_argument("--brdf", action="append", help="small-scale BRDF, once per material id (as for `truth`)")
     k.add_argument("--lobes", default="8", help="SG lobes J: 1-128 (past 16 a bake costs up to about J/16 "
                    "times more; a woven tile needs ~128 for 35 dB) or 'auto' (the smallest J meeting the NDF "
@@ -756,8 +766,8 @@ def main(argv=None):
     k.add_argument("--normal-res", type=int, default=128, help="normal cube-map resolution R (default 128)")
     k.add_argument("--method", default="sg", choices=["sg", "sg-exact", "asg", "matrix", "auto"],
                    help="sg = SG lobes, the specular term by the SG closure, Eq. 15 (default); sg-exact = Eq. 10; "
-                        "asg = anisotropic SG lobes (Xu 2013); matrix = Wu 2011's factored matrices (--lobes "
-                        "and --route unused); auto = sg or asg, whichever is nearer the exact f̄ of the bake's "
+                        "asg = anisotropic SG lobes (Xu 2013); matrix = Wu 2011's factored matrices (it takes "
+                        "no --lobes or --route); auto = sg or asg, whichever is nearer the exact f̄ of the bake's "
                         "facets (both bakes, that truth and both f̄ tables on the host: 63-91 ms on an H200 at the "
                         "defaults, where one bake takes 3.4-9.3 ms; on a 2-core CPU 16.5 s against 1.4 s for a "
                         "height field)")

@@ -645,6 +645,8 @@ class Editor:
         parameters (a painted height field as a 16-bit PNG beside it; a mesh file by its path), the
         small-scale BRDFs, the bake's quality, the light and environment. Written atomically."""
         path = os.fspath(path)
+        if not path.lower().endswith(".toml"):
+            raise ValueError(f"a design is saved as a scene file: {path} must end in .toml")
         check_output(path)
         stem = os.path.splitext(os.path.basename(path))[0]
         text = _design_toml(self._state, self.width, self.height,

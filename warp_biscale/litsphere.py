@@ -397,7 +397,9 @@ class LitSphere:
     # ------------------------------------------------------------------ files
     def save(self, path) -> None:
         """Write a folder `path` (by convention *.litsphere): `litsphere.json` (format, version, angles,
-        resolution, name, files) and one float32 EXR per angle, `phi_<degrees>.exr`. Atomic: the folder is
+        resolution, name, files, diffuse_files, source) and one float32 EXR per angle, `phi_<degrees>.exr`, and
+        where the material has a diffuse part apart (`diffuse`), one more per angle, `diffuse_<degrees>.exr`. Atomic:
+        the folder is
         built beside `path` and moved into place; an old one is replaced only once the new is whole."""
         path = os.fspath(path)
         if os.path.exists(path) and not os.path.isdir(path):

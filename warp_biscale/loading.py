@@ -14,6 +14,7 @@ from .effective import EffectiveBRDF
 from .io import read_npz
 from .litsphere import LitSphere
 from .matrix import MatrixBRDF
+from .measured import MeasuredBRDF
 from .truth import GroundTruth
 
 __all__ = ["load"]
@@ -31,10 +32,12 @@ def head_version(path):
 
 def load(path):
     """Load any saved warp_biscale object: a ground-truth table, a baked effective BRDF (an
-    `EffectiveBRDF`, a `MatrixBRDF` of bake(..., method="matrix") or an `ASGBRDF` of method="asg"), or a
-    lit-sphere folder (`LitSphere.save`'s)."""
+    `EffectiveBRDF`, a `MatrixBRDF` of bake(..., method="matrix") or an `ASGBRDF` of method="asg"), a
+    lit-sphere folder (`LitSphere.save`'s), or a measured BRDF in MERL's format (a `.binary`: `MeasuredBRDF.load`)."""
     if os.path.isdir(os.fspath(path)):
         return LitSphere.load(path)  # (its own one-line error for a folder that is not one)
+    if os.fspath(path).lower().endswith(".binary"):
+        return MeasuredBRDF.load(path)
 
     classes = {"warp_biscale.ground_truth": GroundTruth, "warp_biscale.effective_brdf": EffectiveBRDF,
                f"warp_biscale.{MatrixBRDF.FORMAT}": MatrixBRDF, f"warp_biscale.{ASGBRDF.FORMAT}": ASGBRDF}
