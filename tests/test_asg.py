@@ -136,6 +136,11 @@ def test_asg_other_errors():
         asg.rotate(axis_aligned(1.0, 1.0), 2.0 * np.eye(3))
     with pytest.raises(ValueError, match="parallel"):
         asg.ASG.from_axis([0, 0, 1], [0, 0, 2], 1.0, 1.0)
+    for bad in (1.5, [0.2, -1.01], np.nan):  # sin θd outside [-1, 1]: not silently clamped
+        with pytest.raises(ValueError, match=r"^visible_fraction: sin_theta_d must lie in \[-1, 1\]"):
+            asg.visible_fraction(axis_aligned(10.0, 10.0), bad)
+    assert asg.visible_fraction(axis_aligned(10.0, 10.0), 1.0 + 1e-12) == asg.visible_fraction(
+        axis_aligned(10.0, 10.0), 1.0)  # (a rounding's overshoot is the edge itself)
 
 
 def test_asg_reorthonormalises_and_broadcasts():

@@ -19,6 +19,7 @@ Tolerances, each measured here (Warp CPU and PoCL, numpy 2, this 2-core CPU) and
 - ASG against SG at the same J against a ground truth: see PSNR_CASES.
 """
 
+import os
 import pickle
 import sys
 
@@ -598,6 +599,11 @@ def test_rendered_by_the_lit_sphere_refused_by_the_mitsuba_export(backend):
     with pytest.raises(ValueError, match="method='sg' to export it") as info:
         mat.export_mitsuba("unused")
     assert "\n" not in str(info.value)
+    # over an anisotropic small-scale BRDF, which the SG bake refuses, it does not send the user there
+    aniso = mat.with_materials([wb.AnisotropicWard(0.5, 0.1, 0.4, kd=0.2)])
+    with pytest.raises(ValueError, match="over an anisotropic small-scale BRDF .* it cannot be exported$"):
+        aniso.export_mitsuba("unused")
+    assert not os.path.exists("unused")
 
 
 def test_bad_inputs_are_one_line_errors():

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from PIL import Image
 
-from warp_biscale.geometry import flat, grooves, heightfield, heightfield_from_image, pyramid, rods, woven
+from warp_biscale.geometry import flat, grooves, heightfield, heightfield_from_image, pyramid, relief, rods, woven
 from warp_biscale.smallscale import SmallScale, TileWarning
 
 FAST = settings(
@@ -589,6 +589,10 @@ INVALID = [
     (rods, dict(orientation=(1.2, 0.0)), "orientation"),
     (rods, dict(orientation=1.0), "orientation"),
     (rods, dict(seed=1.5), "seed"),
+    (rods, dict(seed=-1), "seed"),
+    (relief, dict(seed=-1), "seed"),
+    (relief, dict(amplitude=float("nan")), "relief: amplitude"),
+    (relief, dict(amplitude=1e9), "relief: shape=(64, 64), size=1, amplitude"),
     (rods, dict(segments=2), "segments"),
     (rods, dict(ground="yes"), "ground"),
     (rods, dict(ground_material=-1), "ground_material"),

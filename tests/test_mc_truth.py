@@ -542,6 +542,7 @@ def test_cli_truth_and_render_take_bounces_and_paths(tmp_path, capsys):
 
     for args, message in ((["truth", "flat", "--bounces", "0"], "--bounces must be an integer in [1, 16], got 0"),
                           (["truth", "flat", "--bounces", "2", "--paths", "0"], "--paths must be an integer in [1, "),
+                          (["truth", "flat", "--paths", "64"], "--paths is for --bounces above 1"),
                           (["bake", "flat", "--truth-bounces", "2"], "--truth-bounces is for the ground truth of "
                                                                      "--truth FACETS"),
                           (["render", str(scene), "--method", "mc", "--truth-bounces", "17"],

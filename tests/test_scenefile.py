@@ -369,6 +369,8 @@ def test_toml_syntax_error_has_line_and_column(tmp_path):
     ('[[light]]\ntype = "point"\nradius = -1\n', "radius", ["[[light]] #1", "radius must be > 0"]),
     ('[material.g]\ntype = "bake"\ntile = "pyramid"\nbrdf = ["glass"]\n', "brdf", ["unknown BRDF 'glass'"]),
     ('[material.g]\ntype = "bake"\ntile = "pyramid"\nfacets = 0\n', "facets", ["facets"]),
+    ('[material.g]\ntype = "bake"\ntile = "vgroove"\ntile_params = { profile = "u" }\n', "tile_params",
+     ["tile 'vgroove' is grooves with profile = 'v', got profile = 'u'"]),
     # unknown type names
     ('[material.g]\ntype = "glass"\n', 'type = "glass"', ["unknown material type 'glass'", "'blinnphong'"]),
     ('[environment]\ntype = "hdri"\n', 'type = "hdri"', ["unknown environment type 'hdri'"]),

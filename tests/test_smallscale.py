@@ -131,6 +131,24 @@ def test_save_round_trip(tmp_path):
     np.testing.assert_allclose(back.area, tile.area, rtol=1e-6)
 
 
+def test_a_ply_keeps_material_ids_and_colours_other_formats_warn(tmp_path):
+    """A .ply keeps each face's material id and colour weight (face properties, as its tangents): a two-material
+    woven tile comes back as two materials in their colours, not one white one. A format with no place for them
+    warns when the tile has several ids or colours; a one-material white tile saves there silently."""
+    tile = wb.geometry.woven(warp_color=(0.9, 0.25, 0.2), weft_color=(0.2, 0.35, 0.9))
+    assert tile.n_materials == 2 and not np.all(tile.colors == 1.0)
+    tile.save(tmp_path / "w.ply")
+    back = wb.SmallScale.load(tmp_path / "w.ply")
+    np.testing.assert_array_equal(back.material_ids, tile.material_ids)
+    np.testing.assert_array_equal(back.colors, tile.colors)
+    with pytest.warns(wb.TileWarning, match="saved as .obj: its 2 material id.s. and colour weights are not kept"):
+        tile.save(tmp_path / "w.obj")
+    assert wb.SmallScale.load(tmp_path / "w.obj").n_materials == 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        wb.geometry.grooves(profile="v").save(tmp_path / "g.obj")
+
+
 def test_origin_for_geometry_inside_its_cell():
     tri = np.array([[0.2, 0.2, 0.0], [0.4, 0.2, 0.0], [0.3, 0.4, 0.1]])
     with warnings.catch_warnings():

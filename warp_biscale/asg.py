@@ -1,6 +1,6 @@
 """Anisotropic spherical Gaussians (Xu et al. 2013): the float64 reference of their operators.
 
-Conventions (docs/design.md §4, §9; DESIGN.md §4, §11)
+Conventions (docs/design.md §4, §9)
 -------------------------------------------------------
     G(v; [x, y, z], [λ, μ], c) = c · max(v·z, 0) · exp(−λ(v·x)² − μ(v·y)²)          (Xu Eq. 1)
 
@@ -414,7 +414,8 @@ def convolve_sg(asg: ASG, sharpness, amplitude=1.0) -> ASG:
 
     Assumes (Eq. 14–15) the smooth term constant at p and v, p close to z (a tangent-plane Gaussian);
     the inner integral is taken as Eq. 11's planar π/√(...), as Xu does. Bandwidths are written in
-    harmonic form, so η = ∞ (a delta kernel, capped at sg.SHARPNESS_MAX) leaves λ, μ and a band (μ = 0)
+    harmonic form, so as η → ∞ (a delta kernel) they tend to λ, μ (at η = ∞ itself the amplitude, c·a·π/√(...),
+    is 0: a unit-amplitude SG's integral vanishes with its width; nothing caps η here), and a band (μ = 0)
     stays a band.
 
     Measured relative L2 error over p ∈ S² (tests/test_asg.py): Xu Fig. 6's examples (5, 5, ν = 1) 35 %,
@@ -596,7 +597,11 @@ def visible_fraction(asg: ASG, sin_theta_d):
     √(λμ) as η: 0.093, 0.078, 0.080, 0.020); (40, 10): 0.083; (100, 1): 0.21; (1000, 10): 0.25; a band
     (μ = 0, a uniform stand-in): 0.35 — the orientation dependence the effective bandwidth cannot carry.
     """
-    return sg.visible_fraction(np.asarray(sin_theta_d, np.float64), np.maximum(effective_sharpness(asg), 1e-9))
+    s = np.asarray(sin_theta_d, np.float64)
+    inside = np.abs(s) <= 1.0 + 1e-9  # (NaN is outside; a rounding's overshoot is clipped)
+    if not np.all(inside):
+        raise ValueError(f"visible_fraction: sin_theta_d must lie in [-1, 1], got {s.reshape(-1)[np.argmin(inside)]}")
+    return sg.visible_fraction(np.clip(s, -1.0, 1.0), np.maximum(effective_sharpness(asg), 1e-9))
 
 
 def occlude(asg: ASG, sin_theta_d) -> ASG:

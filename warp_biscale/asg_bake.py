@@ -716,6 +716,15 @@ class ASGBRDF(HostOnlyBRDF):
     def __repr__(self):
         return f"ASGBRDF(K={self.directions}, lobes={len(self.weight)}, materials={self.materials})"
 
+    def export_mitsuba(self, path) -> dict:
+        """Refused before anything is written (`NO_SG_LOBES`); with an anisotropic small-scale BRDF, which no SG
+        bake holds, the refusal says that nothing exports it."""
+        if any(m.anisotropic for m in self.materials):
+            raise ValueError("a material baked by the ASG method (Xu 2013) over an anisotropic small-scale BRDF has no "
+                             "form the Mitsuba export reads (it reads SG lobes, and the SG bake holds no anisotropic "
+                             "BRDF): it cannot be exported")
+        raise ValueError(self.no_sg_lobes)
+
     # ------------------------------------------------------------------ edits
     def with_materials(self, materials) -> ASGBRDF:
         """The same baked ASGs and amplitudes with other small-scale BRDFs (a material-only edit: no re-bake);

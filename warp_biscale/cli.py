@@ -121,9 +121,12 @@ def _bounce_args(bounces, paths, prefix=""):
     """(B, P) of --{prefix}bounces and --{prefix}paths (None: the library's defaults), checked as
     wb.ground_truth checks them before any work, the error naming the flag."""
     try:
-        return _check_bounces(1 if bounces is None else bounces, BOUNCE_PATHS if paths is None else paths)
+        checked = _check_bounces(1 if bounces is None else bounces, BOUNCE_PATHS if paths is None else paths)
     except ValueError as exc:
         raise ValueError(f"--{prefix}{exc}") from None
+    if paths is not None and checked[0] == 1:  # (a single bounce traces no paths: the option would do nothing)
+        raise ValueError(f"--{prefix}paths is for --{prefix}bounces above 1 (interreflection's paths a facet)")
+    return checked
 
 
 def cmd_truth(args):

@@ -41,7 +41,9 @@ def integer(fn, name, value, lo=None, hi=None) -> int:
         raise ValueError(f"{fn}: {name} must be an integer, got {value!r}")
     v = int(value)
     if (lo is not None and v < lo) or (hi is not None and v > hi):
-        raise ValueError(f"{fn}: {name} must be an integer in [{lo}, {hi}], got {value!r}")
+        bounds = f"in [{lo}, {hi}]" if lo is not None and hi is not None else f">= {lo}" if lo is not None \
+            else f"<= {hi}"
+        raise ValueError(f"{fn}: {name} must be an integer {bounds}, got {value!r}")
     return v
 
 

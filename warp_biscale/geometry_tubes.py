@@ -90,8 +90,8 @@ def rods(
     if count is None:
         count = 1 if perturbation == 0 else 4
     count = integer(fn, "count", count, 1, 64)
-    if isinstance(seed, bool) or not isinstance(seed, Integral):
-        raise ValueError(f"{fn}: seed must be an integer, got {seed!r}")
+    if isinstance(seed, bool) or not isinstance(seed, Integral) or seed < 0:
+        raise ValueError(f"{fn}: seed must be an integer >= 0, got {seed!r}")
     tilt, azimuth = _orientation(fn, orientation)
     segments = integer(fn, "segments", segments, 3, 256)
     if not isinstance(ground, (bool, np.bool_)):

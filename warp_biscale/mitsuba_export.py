@@ -159,6 +159,9 @@ def main():
     parser.add_argument("-o", "--output", default=os.path.join(here, "render.exr"),
                         help="image to write (.exr linear, .png tone-mapped; default render.exr here)")
     args = parser.parse_args()
+    if args.variant not in ("llvm_ad_rgb", "cuda_ad_rgb"):  # (the plugin runs in an RGB JIT variant only)
+        raise SystemExit(f"error: --variant {{args.variant!r}}: the warp_biscale plugin runs in llvm_ad_rgb or "
+                         "cuda_ad_rgb")
     mi.set_variant(args.variant)
     from warp_biscale.mitsuba_export import register
 

@@ -636,6 +636,10 @@ def _bake(ctx, table, v, sf, name, used, prog):
             tile = geometry.heightfield_from_image(ctx.resolve(image), **rest)
         elif spec in BUILTIN_TILES:  # ("heightfield" without an image: the default relief, geometry.relief)
             fn, kwargs = BUILTIN_TILES[spec]
+            for k in params:  # (a name that fixes a parameter, such as vgroove's profile, keeps it)
+                if k in kwargs and params[k] != kwargs[k]:
+                    raise ctx.error(table, ("tile_params", k), f"tile {spec!r} is {fn} with {k} = {kwargs[k]!r}, "
+                                                               f"got {k} = {params[k]!r}: use tile = {fn!r} for that")
             tile = getattr(geometry, fn)(**{**kwargs, **params})
         else:
             full = ctx.resolve(spec)

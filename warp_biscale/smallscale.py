@@ -331,7 +331,8 @@ class SmallScale:
 
         Vertex normals stored in the file are used (interpolated across faces); otherwise facets use
         face normals. Face tangents stored in a PLY file as the face properties tangent_x, tangent_y,
-        tangent_z (what `save` writes) are used; otherwise the default (`default_face_tangents`). Scenes
+        tangent_z (what `save` writes) are used; otherwise the default (`default_face_tangents`); so are its
+        material_id and color_r/g/b face properties, unless `material_ids` or `colors` is given. Scenes
         with several meshes are concatenated, each mesh getting the next material id unless
         `material_ids` is given.
         """
@@ -352,10 +353,14 @@ class SmallScale:
         offset = 0
         has_normals = all(_file_has_vertex_normals(m) for m in meshes)
         tangents = [_file_face_tangents(m) for m in meshes]
+        colours = []
         for k, m in enumerate(meshes):
             verts.append(np.asarray(m.vertices, np.float64))
             faces.append(np.asarray(m.faces, np.int64) + offset)
-            mats.append(np.full(len(m.faces), k, np.int32))
+            ids = _file_face_properties(m, (_MATERIAL_PROPERTY,))
+            mats.append(np.full(len(m.faces), k, np.int32) if ids is None or len(meshes) > 1
+                        else ids[:, 0].astype(np.int32))
+            colours.append(_file_face_properties(m, _COLOR_PROPERTIES))
             if has_normals:
                 normals.append(np.asarray(m.vertex_normals, np.float64))
             offset += len(m.vertices)
@@ -363,7 +368,7 @@ class SmallScale:
             np.concatenate(verts),
             np.concatenate(faces),
             material_ids=np.concatenate(mats) if material_ids is None else material_ids,
-            colors=colors,
+            colors=colors if colors is not None or any(c is None for c in colours) else np.concatenate(colours),
             period=period,
             vertex_normals=np.concatenate(normals) if has_normals else None,
             name=name or os.path.splitext(os.path.basename(path))[0],
@@ -371,17 +376,26 @@ class SmallScale:
         )
 
     def save(self, path) -> None:
-        """Write the tile as a mesh file (format from the extension), atomically. A .ply file also keeps the
-        face tangents (face properties tangent_x, tangent_y, tangent_z, which `load` reads back); other
-        formats have no place for them, and the tile reloads with the default tangents."""
+        """Write the tile as a mesh file (format from the extension), atomically. A .ply file also keeps each
+        face's material id, colour weight and tangent (face properties material_id, color_r/g/b and
+        tangent_x/y/z, which `load` reads back); other formats have no place for them: the tile reloads as one
+        white material with the default tangents, and saving a tile that has several ids or colours there
+        warns (TileWarning)."""
         # Checked before trimesh is imported: trimesh's own errors for a bad suffix or path are cryptic
         # ("object must be PointCloud", "exporter not available") or name the temporary file.
         check_output(path, SAVE_FORMATS, "tile mesh file")
         import trimesh
 
+        fmt = os.path.splitext(os.fspath(path))[1].lstrip(".").lower()
+        if fmt != "ply" and (self.n_materials > 1 or not np.all(self.colors == 1.0)):
+            warnings.warn(f"tile {self.name!r} saved as .{fmt}: its {self.n_materials} material id(s) and colour "
+                          "weights are not kept (a .ply keeps them)", TileWarning, stacklevel=2)
         mesh = trimesh.Trimesh(self.vertices, self.faces, process=False)
         if self.vertex_normals is not None:
             mesh.vertex_normals = self.vertex_normals
+        mesh.face_attributes[_MATERIAL_PROPERTY] = np.ascontiguousarray(self.material_ids, np.int32)
+        for axis, name in enumerate(_COLOR_PROPERTIES):
+            mesh.face_attributes[name] = np.ascontiguousarray(self.colors[:, axis], np.float64)
         for axis, name in enumerate(_TANGENT_PROPERTIES):
             mesh.face_attributes[name] = np.ascontiguousarray(self.face_tangents[:, axis])
         with atomic_path(path) as tmp:
@@ -452,18 +466,25 @@ def _covered(a: np.ndarray, b: np.ndarray, tol: float) -> bool:
 
 
 _TANGENT_PROPERTIES = ("tangent_x", "tangent_y", "tangent_z")  # the PLY face properties of the face tangents
+_MATERIAL_PROPERTY = "material_id"  # ... of the faces' material ids
+_COLOR_PROPERTIES = ("color_r", "color_g", "color_b")  # ... of their RGB colour weights
 
 
-def _file_face_tangents(mesh):
-    """(F, 3) face tangents a PLY file carried as face properties tangent_x/y/z, else None. trimesh hands a
-    PLY file's extra properties back only in metadata["_ply_raw"] (its raw elements)."""
+def _file_face_properties(mesh, names):
+    """(F, len(names)) float64 face properties a PLY file carried, else None. trimesh hands a PLY file's extra
+    properties back only in metadata["_ply_raw"] (its raw elements)."""
     try:
         data = mesh.metadata["_ply_raw"]["face"]["data"]
         if len(data) != len(mesh.faces):
             return None
-        return np.stack([np.asarray(data[name], np.float64).reshape(-1) for name in _TANGENT_PROPERTIES], 1)
+        return np.stack([np.asarray(data[name], np.float64).reshape(-1) for name in names], 1)
     except (KeyError, TypeError, ValueError, IndexError):
         return None
+
+
+def _file_face_tangents(mesh):
+    """(F, 3) face tangents a PLY file carried as face properties tangent_x/y/z, else None."""
+    return _file_face_properties(mesh, _TANGENT_PROPERTIES)
 
 
 def _file_has_vertex_normals(mesh) -> bool:
