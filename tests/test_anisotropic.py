@@ -226,6 +226,7 @@ def test_parse_brdf_anisotropic():
     ("as:nu=100", "ashikhminshirley needs both nu and nv .* got only nu"),
     ("as:nu=10,,nv=100", "has an empty parameter"),
     ("as:nu=10,nv=100,", "has an empty parameter"),
+    ("as:nu,nv=10", "BRDF parameter 'nu' must be key=value"),
     ("glossy:nu=1", r"unknown BRDF 'glossy'; choose one of .* ashikhminshirley \(as\)"),
 ])
 def test_parse_brdf_bad_values_are_one_line_errors(text, match):

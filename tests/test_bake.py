@@ -570,16 +570,19 @@ def test_lobes_auto():
     assert mat.info["lobes"] == 1
 
 
-@pytest.mark.parametrize("method", ["sg", "asg"])
+@pytest.mark.parametrize("method", ["sg", "asg", "auto"])
 def test_lobes_auto_says_when_no_j_meets_its_tolerance(method):
     """lobes="auto" keeps the J of the least NDF fit error where none meets the tolerance: a warning says so at the
-    caller's line, and info records the tolerance and whether it was met (a fixed J records neither)."""
+    caller's line, once (method="auto": of the bake it keeps), and info records the tolerance and whether it was met
+    (a fixed J records neither)."""
     tile, brdf = random_heightfield(4), wb.BlinnPhong(0.2, 64)
-    with pytest.warns(UserWarning, match=r"lobes='auto' found no J whose NDF fit error meets the tolerance 1e-06: "
+    with pytest.warns(UserWarning, match=r"lobes=.auto. found no J .of bake.AUTO_LOBES.* meets the tolerance 1e-06: "
                                          r"kept \d+ lobes, of the least error") as said:
         mat = wb.bake(tile, brdf, method=method, lobes="auto", directions=4, facets=1024, normal_res=16,
                       backend="warp:cpu", tolerance=1e-6)
-    assert [w.filename for w in said if "lobes='auto'" in str(w.message)] == [__file__]
+    said_auto = [w for w in said if "lobes='auto'" in str(w.message)]
+    assert [w.filename for w in said_auto] == [__file__]
+    assert f"kept {mat.info['lobes']} lobes" in str(said_auto[0].message)
     assert mat.info["ndf_tolerance"] == 1e-6 and mat.info["ndf_tolerance_met"] is False
     assert mat.info["ndf_error"] > 1e-6
     with warnings.catch_warnings():

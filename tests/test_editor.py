@@ -288,10 +288,21 @@ def test_loading_a_bad_design_names_the_file_and_the_key(tmp_path):
             E.Editor.load(bad, backend="warp:cpu")
         assert "\n" not in str(err.value)
     field = _editor("heightfield")
+    field.set("tile.smoothing", 1.0)
     field.save(tmp_path / "field.toml")
-    (tmp_path / "field_heights.png").unlink()
-    with pytest.raises(ValueError, match="its height image .*field_heights.png is missing"):
-        E.Editor.load(tmp_path / "field.toml", backend="warp:cpu")
+    text = (tmp_path / "field.toml").read_text()
+    (tmp_path / "bad.toml").write_text(text.replace('"smoothing": 1.0', '"smoothing": "x"'))
+    with pytest.raises(ValueError, match=r"bad.toml: its # editor: line is malformed"):
+        E.Editor.load(tmp_path / "bad.toml", backend="warp:cpu")
+    # a hand-edited scale: the scene's own field is what is edited (the editor line no longer describes it)
+    scale = re.search(r"scale = ([0-9.e-]+)", text).group(1)
+    (tmp_path / "edited.toml").write_text(text.replace(f"scale = {scale}", "scale = 0.1"))
+    edited = E.Editor.load(tmp_path / "edited.toml", backend="warp:cpu")
+    assert (edited.get("tile.amplitude"), edited.get("tile.smoothing")) == (0.1, 0.0)
+    for name, what in (("field_painted.png", "painted height image"), ("field_heights.png", "height image")):
+        (tmp_path / name).unlink()
+        with pytest.raises(ValueError, match=f"field.toml: its {what} .*{name} is missing"):
+            E.Editor.load(tmp_path / "field.toml", backend="warp:cpu")
 
 
 def test_screenshot_and_bad_targets(tmp_path, pyramid):

@@ -592,7 +592,7 @@ INVALID = [
     (rods, dict(seed=-1), "seed"),
     (relief, dict(seed=-1), "seed"),
     (relief, dict(amplitude=float("nan")), "relief: amplitude"),
-    (relief, dict(amplitude=1e9), "relief: shape=(64, 64), size=1, amplitude"),
+    (relief, dict(amplitude=1e9), "relief(amplitude=1e+09): heightfield: shape=(64, 64)"),
     (rods, dict(segments=2), "segments"),
     (rods, dict(ground="yes"), "ground"),
     (rods, dict(ground_material=-1), "ground_material"),

@@ -370,3 +370,16 @@ def test_bad_inputs_are_one_line_errors(tmp_path):
         mat.export_mitsuba(tmp_path / "mitsuba")
     assert not os.path.exists(tmp_path / "mitsuba")
     assert wb.compare(mat, types.SimpleNamespace(directions=4, table=mat.table()))["psnr"] == float("inf")
+
+
+def test_mc_renders_a_scene_that_lists_a_glossy_matrix_bake_no_object_uses():
+    """The Monte Carlo reference asks its sampling lobes only of the materials in view: a glossy matrix bake that no
+    object uses does not stop the render (it did not before the up-front refusal of those in view)."""
+    glossy = wb.bake(flat_tile(), wb.CookTorrance(1.0, 0.3), method="matrix", directions=4, facets=256,
+                     backend="warp:cpu", matrix={"normal_res": 9})
+    scene = wb.Scene(wb.Mesh.sphere(), [wb.Lambert(0.5), glossy], wb.Camera(eye=(0, 0, 4), width=8, height=6), None,
+                     [wb.PointLight((2, 3, 2), 20.0)])
+    out = wb.render(scene, method="mc", backend="warp:cpu", samples=4)
+    assert np.isfinite(out.image).all() and out.image.max() > 0
+    lit = wb.render(scene, method="litsphere", backend="warp:cpu", resolution=32, report_error=["mc"], samples=4)
+    assert "mc" in lit.info["error"]

@@ -359,7 +359,7 @@ def _bake_auto(tile, materials, lobes, directions, normal_res, facets, backend, 
     kw = dict(lobes=lobes, directions=directions, normal_res=normal_res, facets=facets, backend=backend, seed=seed,
               tolerance=tolerance, bvndf=bvndf, progress=progress)
     t0 = time.perf_counter()
-    said = []
+    said, both = [], False
     try:
         # (each bake and the truth check the materials: their warnings are said once, at the caller's line, not
         # three times; also when a step raises)
@@ -378,15 +378,19 @@ def _bake_auto(tile, materials, lobes, directions, normal_res, facets, backend, 
                 mat.info["method_choice"] = {"chosen": "sg", "why": "Lambertian small-scale BRDFs only, whose f̄ "
                                                                     "both bakes give alike"}
                 return mat
+            both = True
             baked = {name: bake(tile, materials, method=name, **kw) for name in ("sg", "asg")}
             truth = ground_truth(tile, materials, facets=facets, directions=directions, backend=backend, seed=seed,
                                  progress=progress)
             psnr = {name: float(compare(m, truth)["psnr"]) for name, m in baked.items()}
     finally:
         for warning in {(w.category, str(w.message)): w for w in said}.values():
-            warnings.warn(warning.message, stacklevel=3)
+            if not (both and str(warning.message).startswith(AUTO_LOBES_SAID)):  # (said below for the one kept)
+                warnings.warn(warning.message, stacklevel=3)
     chosen = "asg" if psnr["asg"] > psnr["sg"] + AUTO_MARGIN_DB else "sg"
     mat = baked[chosen]
+    if _tolerance_missed(mat):
+        warnings.warn(_tolerance_missed(mat), stacklevel=3)
     mat.info["method_choice"] = {
         "chosen": chosen, "psnr_sg": psnr["sg"], "psnr_asg": psnr["asg"],
         "why": f"PSNR of f̄ against the exact f̄ of the bake's {_check_count(facets)} facets: SG {psnr['sg']:.2f} dB, "
@@ -404,6 +408,9 @@ def _fit_measured(mats, backend) -> tuple[dict, float]:
     return fits, time.perf_counter() - t0
 
 
+AUTO_LOBES_SAID = "lobes='auto' found no J"  # (the start of _tolerance_missed's message)
+
+
 def _record_tolerance(mat, tolerance: float):
     """lobes="auto": whether its J met the NDF fit tolerance, in `info["ndf_tolerance_met"]` beside the tolerance;
     where no J of AUTO_LOBES did (the bake keeps the J of the least error), a warning says so at the caller's line."""
@@ -411,11 +418,19 @@ def _record_tolerance(mat, tolerance: float):
     if mat.info.get("lobes_requested") != "auto" or err is None:
         return mat
     mat.info["ndf_tolerance"], mat.info["ndf_tolerance_met"] = float(tolerance), bool(err <= tolerance)
-    if err > tolerance:
-        warnings.warn(f"lobes='auto' found no J whose NDF fit error meets the tolerance {tolerance:g}: kept "
-                      f"{mat.info['lobes']} lobes, of the least error ({err:.3g} at sharpness "
-                      f"{mat.info['ndf_probe_sharpness']:g}); give a larger tolerance or a fixed J", stacklevel=3)
+    if _tolerance_missed(mat):
+        warnings.warn(_tolerance_missed(mat), stacklevel=3)
     return mat
+
+
+def _tolerance_missed(mat) -> str | None:
+    """The warning of a lobes="auto" bake whose J met no tolerance (`_record_tolerance`), else None."""
+    if mat.info.get("ndf_tolerance_met", True):
+        return None
+    return (f"{AUTO_LOBES_SAID} (of bake.AUTO_LOBES, up to as many as the tile has distinct normals) whose NDF fit "
+            f"error meets the tolerance {mat.info['ndf_tolerance']:g}: kept {mat.info['lobes']} lobes, of the least "
+            f"error ({mat.info['ndf_error']:.3g} at sharpness {mat.info['ndf_probe_sharpness']:g}); give a larger "
+            "tolerance or a fixed J")
 
 
 def _record_fits(mat, fitted: tuple[dict, float]):

@@ -104,8 +104,9 @@ class BatchResult:
 _TILES: collections.OrderedDict = collections.OrderedDict()   # tile_key → SmallScale (the bake caches per tile object)
 _TRUTHS: collections.OrderedDict = collections.OrderedDict()  # truth key → GroundTruth
 _SCENES: collections.OrderedDict = collections.OrderedDict()  # scene key → (SceneFile, slot index)
+_MEASURED: collections.OrderedDict = collections.OrderedDict()  # (path, sha256, interpolation) → MeasuredBRDF
 _STATE = {"tasks": 0}
-CACHE_SIZES = {"tiles": 16, "truths": 8, "scenes": 4}
+CACHE_SIZES = {"tiles": 16, "truths": 8, "scenes": 4, "measured": 4}
 
 
 def _cached(cache, key, size, make):
@@ -127,9 +128,13 @@ def _task_brdf(d: dict):
 
     if d.get("type") != "MeasuredBRDF":
         return _brdf_from_dict(d)
-    if file_sha256(d["path"]) != d["sha256"]:
-        raise ValueError(f"the MERL file {d['path']} changed since the job was read (its SHA-256 differs)")
-    return MeasuredBRDF.load(d["path"], interpolation=d["interpolation"])
+
+    def load():  # (once a worker: the table, 33 MB, and its SG fit, which the bakes keep by table, are reused)
+        if file_sha256(d["path"]) != d["sha256"]:
+            raise ValueError(f"the MERL file {d['path']} changed since the job was read (its SHA-256 differs)")
+        return MeasuredBRDF.load(d["path"], interpolation=d["interpolation"])
+
+    return _cached(_MEASURED, (d["path"], d["sha256"], d["interpolation"]), CACHE_SIZES["measured"], load)[0]
 
 
 def _build_tile(spec):
@@ -603,6 +608,21 @@ def add_parser(subparsers):
     return p
 
 
+def _cuda_device_count() -> int:
+    """The GPUs the CUDA driver sees (0 without one), asked of the driver itself: no context is made in this
+    process, which hands the GPUs to its workers."""
+    import ctypes
+
+    try:
+        cuda = ctypes.CDLL("libcuda.so.1")
+        count = ctypes.c_int(0)
+        if cuda.cuInit(0) != 0 or cuda.cuDeviceGetCount(ctypes.byref(count)) != 0:
+            return 0
+        return int(count.value)
+    except OSError:
+        return 0
+
+
 def cmd_batch(args):
     """`warp-biscale batch`: 0 when every task is done, 1 when some failed, 2 for a bad job file or argument
     (raised as ValueError, which cli.main reports in one line)."""
@@ -621,16 +641,14 @@ def cmd_batch(args):
         except ValueError as exc:
             raise ValueError(f"--scheduler {args.scheduler!r}: {exc} (e.g. tcp://host:8786)") from None
     if args.gpus:
-        from .warp_backend import init_warp
-
-        found = init_warp().get_cuda_device_count()
+        found = _cuda_device_count()
         if found < args.gpus:
             warnings.warn(f"--gpus {args.gpus}, but {found or 'no'} CUDA GPU(s) are visible here: the workers beyond "
                           "them see none, and the job's backend runs on the CPU there", stacklevel=2)
     if args.output:
         check_output_folder(os.path.abspath(args.output), lambda msg: ValueError(f"-o: {msg}"))
     jobs = load_jobs(args.jobs)
-    if not (args.scheduler or args.gpus or args.dry_run):  # (here or this machine's workers: its backends, now)
+    if not (args.scheduler or args.gpus or args.workers or args.dry_run):  # (the tasks run here: its backends, now)
         from .backend import get_backend
 
         for name in sorted({t.bake["backend"] for t in jobs.tasks}):

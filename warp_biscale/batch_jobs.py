@@ -118,7 +118,7 @@ class Task:
     label: str
     tile: dict          # kind ("family" | "mesh" | "heightfield"), family/fn or path + sha256, params, label
     tile_key: str
-    materials: list     # the small-scale BRDFs, as effective._brdf_to_dict gives them
+    materials: list     # the small-scale BRDFs (_material_dict: analytic parameters, a MERL file's path and hash)
     material: dict      # label, name, params (the swept or given ones, for the table)
     bake: dict          # wb.bake's settings (BAKE_DEFAULTS' keys)
     truth: dict | None  # facets, directions, seed; None: no ground truth

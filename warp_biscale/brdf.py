@@ -687,6 +687,9 @@ def parse_brdf(text: str) -> Brdf:
     items = [s.strip() for s in rest.split(",")] if rest.strip() else []
     if "" in items:
         raise ValueError(f"BRDF spec {text!r} has an empty parameter (two commas in a row, or one at an end)")
+    for item in items:
+        if "=" not in item:
+            raise ValueError(f"BRDF parameter {item!r} must be key=value")
     keys = {item.partition("=")[0].strip() for item in items}
     if cls is Ward and keys & {"alpha_x", "alpha_y"}:  # "ward" with αx, αy is the anisotropic Ward
         if "alpha" in keys:

@@ -417,13 +417,14 @@ def _check_scene_options(args):
         raise _Ctx(text, args.scene, os.path.dirname(os.path.abspath(args.scene))).error(("render",), "samples",
                                                                                         f"samples {why}")
     if method == "litsphere":
-        for flag, value in (("--occlusion-samples", args.occlusion_samples),
-                            ("--block-rays", args.block_rays if args.block_rays == 2 else None),
-                            ("--block-side", args.block_side if args.block_side not in (None, 1) else None),
-                            ("--aa-shading", args.aa_shading)):
+        for flag, value, why in (
+                ("--occlusion-samples", args.occlusion_samples, "traces no occlusion rays"),
+                ("--block-rays", args.block_rays if args.block_rays == 2 else None, "shares no rays between pixels"),
+                ("--block-side", args.block_side if args.block_side not in (None, 1) else None,
+                 "shares no rays between pixels"),
+                ("--aa-shading", args.aa_shading if args.aa_shading == "pixel" else None, "shades each sample")):
             if value is not None:
-                raise ValueError(f"{flag} is for the SG renderer (--method sg); the lit-sphere shader traces no "
-                                 "occlusion rays and shades each sample")
+                raise ValueError(f"{flag} is for the SG renderer (--method sg); the lit-sphere shader {why}")
         materials = _table(doc, "material")
         names = dict.fromkeys(o.get("material") for o in _table(doc, "object", list) if isinstance(o, dict))
         for name, table in ((n, materials.get(n)) for n in names if isinstance(n, str)):  # the objects' materials
@@ -749,7 +750,7 @@ def main(argv=None):
     p.add_argument("--bounces", type=int, default=1, metavar="B",
                    help=f"bounces of light inside the infinitely tiled surface, 1..{MAX_BOUNCES} (default 1: the "
                         "single-bounce truth; B > 1 adds B-1 bounces of interreflection by Monte Carlo)")
-    p.add_argument("--paths", type=int, default=BOUNCE_PATHS, metavar="P",
+    p.add_argument("--paths", type=int, metavar="P",
                    help=f"paths per direction pair for the bounces 2..B, 1..{MAX_PATHS} (default {BOUNCE_PATHS}; "
                         "cost ∝ K⁴·P·(B-1))")
     p.add_argument("-o", "--output", default="truth.png", help="PNG plot of BRDF slices (default truth.png)")

@@ -29,6 +29,7 @@ import numpy as np
 from . import geometry, images
 from .bake import bake
 from .brdf import AnisotropicWard, AshikhminShirley, BlinnPhong, CookTorrance, Lambert, Ward
+from .device import one_line
 from .io import atomic_path, check_output
 from .render import OCCLUSION_SAMPLES, frame_lights, render, static_inputs
 from .scene import Camera, DirectionalLight, Mesh, Scene
@@ -695,14 +696,15 @@ class Editor:
             if not os.path.isfile(image):
                 raise ValueError(f"design {path}: its height image {image} is missing")
             ed = cls(image, backend=backend, **size)
-            meta = next((json.loads(line[len(EDITOR_LINE):]) for line in text.splitlines()
-                         if line.startswith(EDITOR_LINE)), None)
             scale = float(params.get("scale", 1.0))
+            meta = _editor_line(path, text, os.path.basename(image), scale)
             if meta is not None:  # the editor's own: the painted field (before smoothing) and its controls
-                smoothing = float(meta["smoothing"])
+                smoothing = meta["smoothing"]
                 painted = image[:-len("_heights.png")] + "_painted.png" if smoothing > 0 else image
-                heights = geometry.read_height_image(painted) * float(meta["painted_range"])
-                amplitude = float(meta["amplitude"])
+                if not os.path.isfile(painted):
+                    raise ValueError(f"design {path}: its painted height image {painted} is missing")
+                heights = geometry.read_height_image(painted) * meta["painted_range"]
+                amplitude = meta["amplitude"]
             else:  # another scene file's height field: its image at its scale, the amplitude within the control's
                 smoothing, amplitude = 0.0, min(scale, HEIGHTFIELD_AMPLITUDE_MAX)
                 heights = geometry.read_height_image(image) * (scale / amplitude if amplitude > 0 else 1.0)
@@ -754,6 +756,24 @@ class Editor:
             state["light"]["intensity"] = float(np.clip(np.mean(np.atleast_1d(sun.get("irradiance", 1.0))), 0, 10))
         ed._build(state, "bake", coarse=False)
         return ed
+
+
+def _editor_line(path, text, image_name: str, scale: float):
+    """The editor line of a saved height-field design → {amplitude, smoothing, painted_range}, or None where the
+    file has none or its tile_params no longer name the image and scale it was written with (a hand edit: the
+    scene's own field is then what is edited). A malformed line is a one-line error naming the design."""
+    line = next((ln for ln in text.splitlines() if ln.startswith(EDITOR_LINE)), None)
+    if line is None:
+        return None
+    try:
+        meta = json.loads(line[len(EDITOR_LINE):])
+        out = {k: float(meta[k]) for k in ("amplitude", "smoothing", "painted_range", "scale")}
+        written = str(meta["image"])
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"design {path}: its {EDITOR_LINE.strip()} line is malformed ({one_line(exc)})") from None
+    if written != image_name or not math.isclose(out["scale"], scale, rel_tol=1e-12, abs_tol=0.0):
+        return None
+    return out
 
 
 def _renderer(state) -> str:
@@ -850,7 +870,8 @@ def _design_toml(state, width, height, mesh_path, heights_name, n_brdfs: int = N
         params = {"image": heights_name, "scale": p["amplitude"] * float(drawn.max() - drawn.min()),
                   "material": p["material"], "color": p["color"]}
         editor_line = [EDITOR_LINE + json.dumps({"amplitude": p["amplitude"], "smoothing": p["smoothing"],
-                                                 "painted_range": float(painted.max() - painted.min())})]
+                                                 "painted_range": float(painted.max() - painted.min()),
+                                                 "image": heights_name, "scale": params["scale"]})]
     elif fam == "rods":
         p = state["tile"]
         tile = "rods"

@@ -33,7 +33,7 @@ from .model import Bvndf, DeviceArray
 from .io import check_output, read_npz, save_npz
 from .lobes import LobeSet
 from .measured import MeasuredBRDF
-from .smallscale import SmallScale, TileWarning, default_face_tangents
+from .smallscale import SmallScale, TileWarning
 
 __all__ = ["EffectiveBRDF", "Provenance", "compare", "METHODS"]
 
@@ -158,10 +158,10 @@ class Provenance:
                "tile_colors": t.colors, "tile_period": np.asarray(t.period, np.float64), "tile_origin": t.origin}
         if t.vertex_normals is not None:
             out["tile_vertex_normals"] = t.vertex_normals
-        if not np.array_equal(t.face_tangents, default_face_tangents(t.face_normals)):
-            # (a tile's own tangents, such as the woven tile's along its threads: an anisotropic BRDF's truth and
-            # bake follow them; a tile whose tangents are the default stores none, as before)
-            out["tile_face_tangents"] = t.face_tangents
+        # (the face tangents, such as the woven tile's along its threads, which an anisotropic BRDF's truth and bake
+        # follow: kept exactly, as a generator's own may differ from the default by an ulp, 24 bytes a face; a file
+        # written before them reloads with the default)
+        out["tile_face_tangents"] = t.face_tangents
         return out
 
     def header(self) -> dict:

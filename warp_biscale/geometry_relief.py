@@ -330,12 +330,11 @@ def relief_heights(n: int = RELIEF_GRID, seed: int = 0) -> np.ndarray:
 def relief(amplitude=0.15, seed=0, *, material=0, color=WHITE) -> SmallScale:
     """The default height field: `relief_heights(seed=seed)` raised to `amplitude` (the tile side is 1)."""
     seed = integer("relief", "seed", seed, 0)
-    try:  # (said as relief's amplitude, the argument given, not heightfield's scale)
+    amplitude = real("relief", "amplitude", amplitude)
+    try:
         tile = heightfield(relief_heights(seed=seed), scale=amplitude, material=material, color=color)
-    except ValueError as exc:
-        said = str(exc).replace("heightfield: scale", "relief: amplitude", 1).replace("heightfield: shape",
-                                                                                     "relief: shape", 1)
-        raise ValueError(said.replace("scale=", "amplitude=", 1)) from None
+    except ValueError as exc:  # (heightfield's check of the grid: said as relief's, whose amplitude is its scale)
+        raise ValueError(f"relief(amplitude={amplitude:g}): {exc}") from None
     tile.name = f"relief(amplitude={amplitude:g}, seed={seed})"
     return tile
 

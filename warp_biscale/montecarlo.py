@@ -239,9 +239,11 @@ class _EffectiveMaterial:
 
 
 def sampling_plan(mat: EffectiveBRDF) -> None:
-    """Refuse, as `render` would when it starts, a baked material whose glossy small-scale BRDFs' lobes cannot be
-    sampled (the matrix method's: no lobes), without computing its ground truth."""
-    _EffectiveMaterial(mat, None)
+    """Refuse, as `render` does for a material in view, a baked material whose glossy small-scale BRDFs' lobes
+    cannot be sampled (the matrix method's: no lobes), without computing its ground truth."""
+    strategy = _EffectiveMaterial(mat, None).strategy
+    if strategy is not None:
+        strategy.lobes()
 
 
 def fit_label(mat) -> str:
@@ -458,6 +460,8 @@ def render(scene, backend="auto", samples: int = 256, seed: int = 0, truths=None
         if not np.any(frame["mat"] == i):  # out of view: no truth is needed
             labels[i] = "not in view: no ground truth computed" if fallback is None else labels[i]
             continue
+        if materials[i].strategy is not None:  # (a glossy material it cannot sample refuses before its truth)
+            materials[i].strategy.lobes()
         if fallback == "sg":
             warnings.warn(f"Monte Carlo: no ground truth for effective material {i} (fallback='sg'); using "
                           f"{fit_label(scene.materials[i])} (its fit), so the reference is not exact for it",

@@ -277,15 +277,20 @@ class _LobeMixtureStrategy:
     def __init__(self, mat: EffectiveBRDF, speculars):
         self.mat = mat
         self.speculars = speculars  # [(sub-material index m, η_s)]
-        # (here, as the render starts: a material with no lobes to sample, the matrix method's, refuses before its
-        # ground truth is computed)
-        self.lobes = mat.sampling_lobes()
+        self._lobes = None
+
+    def lobes(self):
+        """The material's sampling lobes (`sampling_lobes`), asked once: a material with none (the matrix method's)
+        refuses here, which the reference asks of each material in view before computing its ground truth."""
+        if self._lobes is None:
+            self._lobes = self.mat.sampling_lobes()
+        return self._lobes
 
     def setup(self, ctx):
         mat = self.mat
         t, b, n, wo, wo_local = ctx["t"], ctx["b"], ctx["n"], ctx["wo"], ctx["wo_local"]
         npix = len(n)
-        ax, eta = self.lobes
+        ax, eta = self.lobes()
         nj = len(eta)
         xi = ax[None, :, 0:1] * t[:, None] + ax[None, :, 1:2] * b[:, None] + ax[None, :, 2:3] * n[:, None]  # (B, J, 3)
         c = _dot(xi, wo[:, None])  # (B, J)

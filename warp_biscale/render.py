@@ -525,9 +525,12 @@ def _check_references(scene: Scene, references) -> None:
     """What `litsphere_errors` needs, checked before the lit spheres are made: known references, and materials they
     render (a LitSphere by its source; the SG renderer takes no matrix bake, the Monte Carlo reference samples
     the lobes of a baked material's glossy small-scale BRDFs)."""
+    if not references:
+        return
     for ref in references:
         if ref not in ("sg", "mc"):
             raise ValueError(f"references must be 'sg' and/or 'mc', got {ref!r}")
+    used = set(np.unique(np.asarray(scene.mesh.face_material)).tolist())  # (mc asks only of the materials used)
     for i, m in enumerate(scene.materials):
         if isinstance(m, LitSphere):
             if m.source is None:
@@ -537,7 +540,7 @@ def _check_references(scene: Scene, references) -> None:
         try:
             if "sg" in references and hasattr(m, "shade_lobes"):
                 m.shade_lobes()
-            if "mc" in references and isinstance(m, EffectiveBRDF):
+            if "mc" in references and isinstance(m, EffectiveBRDF) and i in used:
                 montecarlo.sampling_plan(m)
         except ValueError as exc:
             raise ValueError(f"report_error: its references ({', '.join(references)}) cannot render "
@@ -549,14 +552,8 @@ def litsphere_errors(scene: Scene, image, backend="auto", references=("sg", "mc"
     pixels that see the object: {reference: compare_images(...)} for "sg" (our SG renderer, 1 sample a
     pixel, hard shadows: what the lit sphere reproduces) and "mc" (the Monte Carlo reference, `samples` a
     pixel). A LitSphere material stands for its `source`; one without (a loaded one) cannot be judged."""
-    materials = []
-    for i, m in enumerate(scene.materials):
-        if isinstance(m, LitSphere):
-            if m.source is None:
-                raise ValueError(f"Scene.materials[{i}] is a loaded LitSphere (no source material): its error "
-                                 "against an exact render cannot be measured")
-            m = m.source
-        materials.append(m)
+    _check_references(scene, references)
+    materials = [m.source if isinstance(m, LitSphere) else m for m in scene.materials]
     exact_scene = dataclasses.replace(scene, materials=materials, cache={})
     backend = get_backend(backend)
     mask = backend.trace_primary(scene.mesh, scene.camera).face.reshape(scene.camera.height, scene.camera.width) >= 0
@@ -564,10 +561,8 @@ def litsphere_errors(scene: Scene, image, backend="auto", references=("sg", "mc"
     for ref in references:
         if ref == "sg":
             exact = render(exact_scene, backend=backend, shadow_samples=1, block_rays=False).image
-        elif ref == "mc":
-            exact = render(exact_scene, method="mc", backend=backend, samples=samples).image
         else:
-            raise ValueError(f"references must be 'sg' and/or 'mc', got {ref!r}")
+            exact = render(exact_scene, method="mc", backend=backend, samples=samples).image
         out[ref] = compare_images(np.asarray(image)[mask][None], exact[mask][None])
     return out
 
@@ -594,8 +589,8 @@ def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str
     for i, m in enumerate(scene.materials):  # every material checked before any is made into a sphere
         if not isinstance(m, LitSphere):
             litsphere.check_holdable(m, f"materials[{i}]")
-    if report_error:
-        _check_references(scene, ("sg", "mc") if report_error is True else tuple(report_error))
+    refs = (("sg", "mc") if report_error is True else tuple(report_error)) if report_error else ()
+    _check_references(scene, refs)
     timings: dict = {"gbuffer": 0.0, "shade": 0.0}
     t_all = time.perf_counter()
     t0 = time.perf_counter()
@@ -632,8 +627,7 @@ def _render_litsphere(scene: Scene, backend, n_aa: int, n_shadow: int, view: str
             "lights": len(lights), "env_lights": len(lights) - len(scene.lights_packed), "width": cam.width,
             "height": cam.height, "aa": n_aa, "shadow_samples": n_shadow,
             "texture_bytes": int(sum(s.nbytes for s in {id(s): s for s in spheres}.values()))}
-    if report_error:
-        refs = ("sg", "mc") if report_error is True else tuple(report_error)
+    if refs:
         info["error"] = litsphere_errors(scene, image, backend, refs, samples)
     return Rendering(image, timings, info)
 

@@ -81,8 +81,9 @@ or ``warp-biscale render scene.toml -o out.png``. Every table and key is optiona
     brdf = ["blinnphong:exponent=256,ks=0.9"]                 # one per tile material id (or one for all);
                                                               #   a MERL file ("paint.binary") is one too
     lobes = 6                    # J, or "auto" ; directions (K), facets, normal_res, method, route, seed
-    method = "sg"                # "sg" (default), "asg", "auto" (SG or ASG, the nearer its facets' exact f̄) or
-                                 #   "matrix" (drawn by method = "litsphere"; the SG renderer refuses it)
+    method = "sg"                # "sg" (default), "sg-exact", "asg", "auto" (SG or ASG, the nearer its facets'
+                                 #   exact f̄) or "matrix" (drawn by method = "litsphere"; the SG renderer
+                                 #   refuses it)
 
     [material.steel]
     type = "file"                # a material file written by `warp-biscale bake` / EffectiveBRDF.save
@@ -274,7 +275,7 @@ def load_scene(path, backend=None, progress=None, method=None) -> SceneFile:
 def loads_scene(text: str, path: str | None = None, base_dir: str | None = None, backend=None,
                 progress=None, method=None) -> SceneFile:
     """`load_scene` on TOML text; `path` names it in messages, `base_dir` (default: path's folder, else
-    the working directory) anchors its relative paths."""
+    the working directory) anchors its relative paths; `method` as `load_scene`'s."""
     t_load = time.perf_counter()
     if base_dir is None:
         base_dir = os.path.dirname(os.path.abspath(path)) if path else os.getcwd()
