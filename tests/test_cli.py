@@ -353,6 +353,11 @@ def test_render_refuses_a_matrix_bake_for_the_sg_renderer_before_baking(tmp_path
         assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
         assert "[material.shiny] the SG renderer cannot shade a matrix bake" in r.stderr
         assert "render this scene by method 'litsphere'" in r.stderr and not out.exists()
+    # and the Monte Carlo reference, which samples the glossy small-scale BRDF (Ward here) by lobes it has not
+    r = run_cli_in_process(capsys, "render", str(_tiny_scene(tmp_path, text)), "-o", str(tmp_path / "m.exr"),
+                           "--method", "mc", "--samples", "4")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "[material.shiny] the Monte Carlo reference samples a glossy small-scale BRDF" in r.stderr
 
 
 BAKED_SCENE = TINY_SCENE.replace('[material.shiny]\ntype = "blinnphong"\nkd = [0.5, 0.2, 0.1]\nks = 0.5\n'

@@ -281,7 +281,8 @@ def test_loading_a_bad_design_names_the_file_and_the_key(tmp_path):
     assert "height = 0.5" in text and "width = 48" in text
     for edit, words in ((("height = 0.5", "hieght = 0.5"), "the pyramid tile has no control 'hieght'"),
                         (("height = 0.5", "height = 9.0"), "tile.height must lie in"),
-                        (("width = 48", 'width = "wide"'), "[render] width must be an integer, got 'wide'")):
+                        (("width = 48", 'width = "wide"'), "[render] width must be an integer, got 'wide'"),
+                        (("exponent=", "exponnt="), "brdf 0: BlinnPhong has no parameter 'exponnt'")):
         bad = tmp_path / "bad.toml"
         bad.write_text(text.replace(*edit, 1))
         with pytest.raises(ValueError, match=f"^design {re.escape(str(bad))}: .*{re.escape(words)}") as err:

@@ -82,7 +82,7 @@ from .geometry import BUILTIN_TILES
 from .io import check_output
 from .scenefile import _BRDF_KEYS, _MAPS, SceneError, _brdfs
 from .smallscale import SmallScale
-from .tomlschema import _build, _Ctx, _located_warnings, _read, _show
+from .tomlschema import _article, _build, _Ctx, _located_warnings, _read, _show
 from .truth import TRUTH_FACETS, _check_count
 
 try:  # Python >= 3.11
@@ -576,7 +576,7 @@ def _materials(ctx, data, tiles) -> list:
             kind = kind.lower()
             keys = {k: v for k, v in _BRDF_KEYS[kind].items() if k not in _MAPS}
             _read(ctx, table, item, {"type": _any, "zip": _BOOL, **common, **{k: _any for k in keys}},
-                  where=f" for a {kind} material")
+                  where=f" for {_article(kind)} {kind} material")
             axes = {k: _axis(ctx, table, k, v, vector=k in ("ks", "kd", "albedo")) for k, v in item.items()
                     if k in keys}
             cls = brdf_mod._BRDF_NAMES[kind]

@@ -733,7 +733,10 @@ class Editor:
                 except ValueError as exc:
                     raise ValueError(f"design {path}: {exc}") from None
         for i, text in enumerate(design.get("brdf", [])[:N_MATERIALS]):
-            state["materials"][i].update(_material_controls(text))
+            try:
+                state["materials"][i].update(_material_controls(text))
+            except ValueError as exc:
+                raise ValueError(f"design {path}: brdf {i}: {exc}") from None
         for key, name in (("lobes", "lobes"), ("directions", "directions")):
             if key in design:
                 state["quality"][name] = int(design[key])

@@ -542,9 +542,10 @@ def _check_references(scene: Scene, references) -> None:
                 m.shade_lobes()
             if "mc" in references and isinstance(m, EffectiveBRDF) and i in used:
                 montecarlo.sampling_plan(m)
-        except ValueError as exc:
+        except ValueError:  # (the material's own message advises another method: not what is wrong here)
             raise ValueError(f"report_error: its references ({', '.join(references)}) cannot render "
-                             f"materials[{i}]: {exc}") from None
+                             f"materials[{i}] ({type(m).__name__}, a {getattr(m, 'method', '?')} bake): leave "
+                             "report_error out, or ask only references that render it") from None
 
 
 def litsphere_errors(scene: Scene, image, backend="auto", references=("sg", "mc"), samples: int = 64) -> dict:

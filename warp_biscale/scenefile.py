@@ -116,7 +116,7 @@ from . import brdf as brdf_mod
 from . import geometry
 from .backend import get_backend
 from .bake import bake
-from .brdf import Lambert
+from .brdf import Lambert, parse_brdf
 from .geometry import BUILTIN_TILES
 from .effective import EffectiveBRDF
 from .environment import Environment, Softbox
@@ -132,8 +132,8 @@ from .scene import SETTINGS_UNITS, Scene, settings_ranges
 from .scene import Camera, DirectionalLight, Mesh, PointLight
 from .smallscale import SmallScale
 from .svbrdf import Textured
-from .tomlschema import (INT, INT2, LIST, LOBES, NUM, RGB, STR, STRLIST, TABLE, VEC3, SceneError, _build, _Ctx,
-                         _located, _located_warnings, _read, _show)
+from .tomlschema import (INT, INT2, LIST, LOBES, NUM, RGB, STR, STRLIST, TABLE, VEC3, SceneError, _article, _build,
+                         _Ctx, _located, _located_warnings, _read, _show)
 
 try:  # Python >= 3.11
     import tomllib
@@ -308,12 +308,19 @@ def loads_scene(text: str, path: str | None = None, base_dir: str | None = None,
     camera = _camera(ctx, cam, meshes, sf)
 
 
-    if (method or sf.method) == "sg":
-        for name, (kind, values) in defs.items():
-            if kind == "bake" and name in used and values.get("method") == "matrix":
-                raise ctx.error(("material", name), "method",
-                                "the SG renderer cannot shade a matrix bake (Wu's f̄ tables, not lobes): render "
-                                "this scene by method 'litsphere' (or 'mc'), or bake with method 'sg' or 'asg'")
+    renders_by = method or sf.method
+    for name, (kind, values) in defs.items():  # what the renderer cannot draw, before any bake
+        if kind != "bake" or name not in used or values.get("method") != "matrix":
+            continue
+        if renders_by == "sg":
+            raise ctx.error(("material", name), "method",
+                            "the SG renderer cannot shade a matrix bake (Wu's f̄ tables, not lobes): render "
+                            "this scene by method 'litsphere' (or 'mc'), or bake with method 'sg' or 'asg'")
+        if renders_by == "mc" and _glossy(values.get("brdf", [])):
+            raise ctx.error(("material", name), "method",
+                            "the Monte Carlo reference samples a glossy small-scale BRDF by its bake's lobes, which "
+                            "a matrix bake has not: render this scene by method 'litsphere', or bake with method "
+                            "'sg' or 'asg'")
     prog = as_progress(progress)
     for name, (kind, values) in defs.items():
         table = ("material", name)
@@ -395,7 +402,7 @@ def _typed(ctx, table, data, types: dict, what: str):
                                        f"{', '.join(map(repr, types))}")
     kind = kind.lower()
     rest = {k: v for k, v in data.items() if k != "type"}
-    return kind, _read(ctx, table, rest, types[kind], where=f" for a {kind} {what}")
+    return kind, _read(ctx, table, rest, types[kind], where=f" for {_article(kind)} {kind} {what}")
 
 
 def _environment(ctx, data):
@@ -622,6 +629,22 @@ def _material(ctx, table, kind, v, sf, name, used, prog):
         except (ValueError, OSError) as exc:
             raise ctx.error(table, "path", f"cannot read {kind} material {v['path']}: {one_line(exc)}") from None
     return _bake(ctx, table, v, sf, name, used, prog)
+
+
+def _glossy(specs) -> bool:
+    """Whether a bake table's brdf specs hold a small-scale BRDF other than a Lambertian one (a MERL table is
+    glossy); a spec that does not parse is left to the bake, which names it."""
+    for spec in [specs] if isinstance(specs, str) else specs:
+        if not isinstance(spec, str):
+            continue
+        if spec.lower().endswith(".binary"):
+            return True
+        try:
+            if not isinstance(parse_brdf(spec), Lambert):
+                return True
+        except ValueError:
+            continue
+    return False
 
 
 def _bake(ctx, table, v, sf, name, used, prog):

@@ -117,6 +117,11 @@ class _Ctx:
         return p if os.path.isabs(p) else os.path.normpath(os.path.join(self.base_dir, p))
 
 
+def _article(word: str) -> str:
+    """"an" before a vowel ("an anisotropicward material"), else "a"."""
+    return "an" if word[:1].lower() in "aeiou" else "a"
+
+
 def _table_name(table: tuple) -> str:
     if not table:
         return "(top level)"
