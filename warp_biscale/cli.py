@@ -714,7 +714,9 @@ def _add_render_commands(sub):
                                    "when you release the mouse), sliders for a light's azimuth/elevation and the "
                                    "first material's main parameter; right: the first baked material's tile.")
     v.add_argument("scene", help="the scene file (.toml)")
-    v.add_argument("--screenshot", metavar="PNG", help="render offscreen, write this PNG and exit (no window)")
+    v.add_argument("--screenshot", metavar="PNG", help="render offscreen, write this PNG and exit (no window); "
+                                                       "the viewer's frame: one sample a pixel and its own ray counts, "
+                                                       "whatever the file's [render] asks (`render` writes those)")
     v.add_argument("--size", type=int, nargs="+", metavar="N", help=SIZE_HELP + " of the window (default 1200 600)")
     v.add_argument("--backend", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name> (default: the file's)")
     v.add_argument("--render-scale", type=float, default=1.0, metavar="S",
