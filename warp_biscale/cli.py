@@ -35,7 +35,7 @@ from .scene import _integer
 from .trace import OCCLUSION_SAMPLES_MAX, check_occlusion_samples, check_shadow_samples
 from .scenefile import _MAPS as TEXTURE_MAPS  # (a material table's texture keys)
 from .scenefile import load_scene, tomllib  # (tomllib, or tomli before Python 3.11)
-from .truth import (BOUNCE_PATHS, MAX_BOUNCES, MAX_FACETS, MAX_PATHS, MAX_TRUTH_DIRECTIONS, _check_bounces,
+from .truth import (BOUNCE_PATHS, MAX_BOUNCES, MAX_PATHS, MAX_TRUTH_DIRECTIONS, _check_bounces, _check_count,
                     ground_truth)
 from .viewer import view
 
@@ -322,8 +322,11 @@ def cmd_render(args):
         _refuse_sg_options(args)
     if args.truth_bounces is not None or args.truth_paths is not None:
         _bounce_args(args.truth_bounces, args.truth_paths, "truth-")  # before the scene's bakes
-    if args.truth_facets is not None and not 1 <= args.truth_facets <= MAX_FACETS:  # (before the scene's bakes)
-        raise ValueError(f"--truth-facets must be an integer in [1, {MAX_FACETS}], got {args.truth_facets}")
+    if args.truth_facets is not None:  # (before the scene's bakes, as the truth checks it, named as the flag)
+        try:
+            _check_count(args.truth_facets)
+        except ValueError as exc:
+            raise ValueError(f"--truth-{exc}") from None
     if args.truth_directions is not None and not 2 <= args.truth_directions <= MAX_TRUTH_DIRECTIONS:
         raise ValueError(f"--truth-directions must be a grid size K in [2, {MAX_TRUTH_DIRECTIONS}], "
                          f"got {args.truth_directions}")
