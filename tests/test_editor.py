@@ -269,6 +269,11 @@ def test_save_then_load_gives_the_same_frame(tmp_path, family):
     if family == "heightfield":
         drawn = E._blur(ed._state["heights"], 2.0)
         np.testing.assert_allclose(np.ptp(scene.tiles["design"].vertices[:, 2]), 0.3 * np.ptp(drawn), rtol=1e-6)
+    # and it renders what the editor showed (with the editor's preview settings): the same tile, bit for bit (a
+    # height field's 16-bit image is what the editor baked too), so the same lobes and the same pixels
+    np.testing.assert_array_equal(scene.tiles["design"].vertices, ed.tile.vertices)
+    shown = wb.render(scene.scene, backend="warp:cpu", aa=1, shadow_samples=1, block_rays=False).image
+    np.testing.assert_array_equal(shown, ed.frame())
 
 
 def test_loading_a_bad_design_names_the_file_and_the_key(tmp_path):

@@ -519,8 +519,12 @@ class Editor:
         p = dict(state["tile"])
         fam = state["family"]
         if fam == "heightfield":
-            h = _blur(state["heights"], p["smoothing"])
-            return geometry.heightfield(h, scale=p["amplitude"], material=p["material"], color=p["color"])
+            # The tile of the 16-bit image a save writes, so that the saved design renders what the editor shows:
+            # the lobe fit can move by a few per cent when one facet crosses a bin (a float64 field differed
+            # from its PNG by 1.6e-6 of a height, and the two bakes by 6 % of f̄'s peak).
+            drawn = _blur(state["heights"], p["smoothing"])
+            return geometry.heightfield(_height_levels(drawn)[::-1] / 65535.0, scale=_height_scale(p, drawn),
+                                        material=p["material"], color=p["color"])
         if fam == "rods":
             return geometry.rods(radius=p["radius"], spacing=ROD_SPACING, length=p["length"], count=p["count"],
                                  perturbation=p["spread"], orientation=(rod_tilt(p), p["azimuth"]),
@@ -815,15 +819,24 @@ def _make_environment(kind):
     return Environment.sky(sun_irradiance=0.0, ground=(0.3, 0.28, 0.25), height=64, width=128)
 
 
+def _height_levels(h) -> np.ndarray:
+    """A height field's 16-bit levels as its image stores them: the full range, the top row (y = 1) first."""
+    lo, hi = float(h.min()), float(h.max())
+    return np.ascontiguousarray(np.round((h - lo) / max(hi - lo, 1e-12) * 65535).astype(np.uint16)[::-1])
+
+
+def _height_scale(p: dict, drawn) -> float:
+    """The tile's height scale of a field stored at the full range (the scene file's tile_params scale)."""
+    return p["amplitude"] * float(drawn.max() - drawn.min())
+
+
 def _write_heights(path, h):
-    """A height field as a 16-bit greyscale PNG, its top row at y = 1, scaled to the full range (the scale goes
-    into the scene file's tile_params, the painted field's range into its editor line)."""
+    """A height field as a 16-bit greyscale PNG (`_height_levels`; the scale goes into the scene file's
+    tile_params, the painted field's range into its editor line)."""
     from PIL import Image
 
-    lo, hi = float(h.min()), float(h.max())
-    grey = np.ascontiguousarray(np.round((h - lo) / max(hi - lo, 1e-12) * 65535).astype(np.uint16)[::-1])
     with atomic_path(path) as tmp:
-        Image.fromarray(grey).save(tmp, format="PNG")  # uint16: a 16-bit greyscale PNG
+        Image.fromarray(_height_levels(h)).save(tmp, format="PNG")  # uint16: a 16-bit greyscale PNG
 
 
 def _material_controls(text) -> dict:
@@ -870,7 +883,7 @@ def _design_toml(state, width, height, mesh_path, heights_name, n_brdfs: int = N
         p, painted = state["tile"], state["heights"]
         drawn = _blur(painted, p["smoothing"])
         tile = "heightfield"
-        params = {"image": heights_name, "scale": p["amplitude"] * float(drawn.max() - drawn.min()),
+        params = {"image": heights_name, "scale": _height_scale(p, drawn),
                   "material": p["material"], "color": p["color"]}
         editor_line = [EDITOR_LINE + json.dumps({"amplitude": p["amplitude"], "smoothing": p["smoothing"],
                                                  "painted_range": float(painted.max() - painted.min()),
