@@ -122,6 +122,11 @@ def test_load_errors(tmp_path):
     bad.write_text("this is not a mesh\n")
     with pytest.raises(ValueError, match="bad.obj"):
         wb.SmallScale.load(bad)
+    # a face naming a vertex the file lacks: said in those words (numpy's IndexError beneath), for a tile and a mesh
+    bad.write_text("v 0 0 0\nv 1 0 0\nf 1 2 3\n")
+    for load in (wb.SmallScale.load, wb.Mesh.load):
+        with pytest.raises(ValueError, match="bad.obj.*a face refers to a vertex the file does not have"):
+            load(bad)
 
 
 def test_save_round_trip(tmp_path):

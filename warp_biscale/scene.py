@@ -29,7 +29,7 @@ from .images import write_image
 from .io import check_output
 from .litsphere import LitSphere
 from .lobes import KERNEL_LOBES
-from .smallscale import _finite_array
+from .smallscale import _finite_array, mesh_read_reason
 from .svbrdf import Textured
 
 __all__ = ["Mesh", "Camera", "PointLight", "DirectionalLight", "light_sg"]
@@ -212,7 +212,7 @@ class Mesh:
         try:
             tm = trimesh.load(str(path), force="mesh", process=False)
         except Exception as exc:
-            raise ValueError(f"cannot read mesh {path}: {exc}") from None
+            raise ValueError(f"cannot read mesh {path}: {mesh_read_reason(exc)}") from None
         if not isinstance(tm, trimesh.Trimesh) or len(tm.faces) == 0:
             raise ValueError(f"{path} holds no triangles")
         return cls.from_trimesh(tm, material)

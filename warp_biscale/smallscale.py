@@ -54,6 +54,14 @@ def _finite_array(name: str, value, shape_tail: tuple, dtype) -> np.ndarray:
     return arr
 
 
+
+def mesh_read_reason(exc: Exception) -> str:
+    """Why trimesh could not read a mesh file, in a user's words where its own are numpy's (a face naming a
+    vertex the file lacks surfaces as numpy's IndexError)."""
+    if isinstance(exc, IndexError):
+        return f"a face refers to a vertex the file does not have ({exc})"
+    return str(exc)
+
 @dataclass(eq=False)
 class SmallScale:
     """One period of a small-scale surface, tiled in x and y (z up). Immutable once built (its
@@ -344,7 +352,7 @@ class SmallScale:
         try:
             loaded = trimesh.load(path, process=False, maintain_order=True)
         except Exception as exc:  # trimesh raises many types for unreadable files
-            raise ValueError(f"could not read tile mesh {path!r}: {exc}") from exc
+            raise ValueError(f"could not read tile mesh {path!r}: {mesh_read_reason(exc)}") from exc
         meshes = list(loaded.geometry.values()) if isinstance(loaded, trimesh.Scene) else [loaded]
         meshes = [m for m in meshes if isinstance(m, trimesh.Trimesh) and len(m.faces)]
         if not meshes:
