@@ -239,8 +239,9 @@ def register() -> type:
         raise ValueError("the Mitsuba plugin needs Mitsuba 3 (pip install mitsuba)") from None
     variant = mi.variant()
     if variant is None or not (mi.is_rgb and variant.split("_")[0] in ("llvm", "cuda")):
-        raise ValueError(f"the warp_biscale Mitsuba plugin runs in an RGB JIT variant ({', '.join(VARIANTS)}); "
-                         f"the current variant is {variant!r}: call mi.set_variant('llvm_ad_rgb') first")
+        # (no advice on how to change it: render.py's users choose it by its --variant option, not by a call)
+        raise ValueError(f"the warp_biscale Mitsuba plugin runs in an RGB JIT variant ({', '.join(VARIANTS)}), "
+                         f"not in {variant!r}")
     if variant not in _CLASSES:
         _CLASSES[variant] = _bsdf_class(mi)
     cls = _CLASSES[variant]
