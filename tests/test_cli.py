@@ -355,7 +355,7 @@ def test_render_refuses_a_matrix_bake_for_the_sg_renderer_before_baking(tmp_path
         assert "render this scene by method 'litsphere'" in r.stderr and not out.exists()
     # and the Monte Carlo reference, which samples the glossy small-scale BRDF (Ward here) by lobes it has not
     r = run_cli_in_process(capsys, "render", str(_tiny_scene(tmp_path, text)), "-o", str(tmp_path / "m.exr"),
-                           "--method", "mc", "--samples", "4")
+                           "--method", "mc", "--samples", "8")
     assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
     assert "[material.shiny] the Monte Carlo reference samples a glossy small-scale BRDF" in r.stderr
 
@@ -371,6 +371,12 @@ BAKED_SCENE = TINY_SCENE.replace('[material.shiny]\ntype = "blinnphong"\nkd = [0
      "error: --samples must be at least 2 for the Monte Carlo reference (2 a sampling strategy), got 1"),
     (("height = 24\n", 'height = 24\nmethod = "mc"\nsamples = 1\n'), [],
      "scene.toml:5: [render] samples must be at least 2 for the Monte Carlo reference"),
+    # the floor the file shows (its sky's 2 strategies and its light's, 2 samples each), before the bake
+    (None, ["--method", "mc", "--samples", "4"],
+     "error: --samples 4 is too few for the Monte Carlo reference of this scene: at least 6, 2 for each sampling "
+     "strategy (its environment's 2 and its 1 light; a glossy material's BRDF adds 2)"),
+    (("height = 24\n", 'height = 24\nmethod = "mc"\nsamples = 5\n'), [],
+     "error: [render] samples = 5 is too few for the Monte Carlo reference of this scene: at least 6"),
     (None, ["--backend", "nope"], "error: --backend: unknown backend 'nope'"),
     (None, ["--truth-facets", "256"], "error: --truth-facets is for --method mc"),
     (("albedo = 0.5\n", 'albedo = 0.5\nkd_map = "kd.png"\n'), ["--method", "litsphere"],

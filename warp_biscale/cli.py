@@ -392,6 +392,22 @@ def _table(doc, key, kind=dict):
     return value if isinstance(value, kind) else kind()
 
 
+def _check_mc_floor(doc, said: str, samples: int) -> None:
+    """The Monte Carlo reference's floor that the file alone shows, before its bakes: 2 samples for each light
+    and for each of a lit environment's two strategies (the map and the cosine lobe; a glossy material adds its
+    BRDF's, which the reference checks once its materials are made)."""
+    env = doc.get("environment")
+    lit = isinstance(env, dict) and env.get("scale", 1) != 0 and (
+        env.get("type") in ("sky", "studio") or (env.get("type") == "constant" and env.get("radiance", 1) != 0))
+    lights = sum(isinstance(x, dict) for x in _table(doc, "light", list))
+    floor = 2 * (2 * lit + lights)
+    if samples < floor:
+        what = " and ".join([*(["its environment's 2"] if lit else []),
+                             *([f"its {lights} light{'s' * (lights != 1)}"] if lights else [])])
+        raise ValueError(f"{said} is too few for the Monte Carlo reference of this scene: at least "
+                         f"{floor}, 2 for each sampling strategy ({what}; a glossy material's BRDF adds 2)")
+
+
 def _check_scene_options(args):
     """What render's options need of the scene, checked on the scene file's TOML before load_scene bakes its
     materials (seconds to minutes) rather than when the render starts. A file that cannot be read, or a
@@ -419,6 +435,9 @@ def _check_scene_options(args):
             raise ValueError(f"--samples {why}")
         raise _Ctx(text, args.scene, os.path.dirname(os.path.abspath(args.scene))).error(("render",), "samples",
                                                                                         f"samples {why}")
+    if method == "mc" and isinstance(samples, int) and not isinstance(samples, bool):
+        _check_mc_floor(doc, f"--samples {samples}" if args.samples is not None else f"[render] samples = {samples}",
+                        samples)
     if method == "litsphere":
         for flag, value, why in (
                 ("--occlusion-samples", args.occlusion_samples, "traces no occlusion rays"),
