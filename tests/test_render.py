@@ -51,24 +51,25 @@ def test_directional_light_on_lambert_sphere_closed_form(backend):
     cos_part = sg.cosine_fraction(n @ light.direction, eta[0, 0])
     expected = 0.5 / np.pi * np.asarray(light.irradiance)[None] * cos_part[:, None]
     # Shadow rays below the shading normal's horizon count as blocked (trace_shadows): near the terminator
-    # the light's disc is partly below it, and the light counts for the share of its 16 rays above. On a lone
-    # convex sphere nothing else blocks them (they leave from the hit lifted towards the smooth surface, so
-    # not even a ray that dips below its face's plane), so the share is computed here in float64 from the
-    # rays' directions (trace.disk_sample, disk_basis); pixels with a ray within 1e-5 of the horizon may round
+    # the light's disc is partly below it, and the light counts for the share of its 16 rays above over the
+    # disc's share above (shading.light_share: the cosine integral already leaves the rest out), at most 1. On a
+    # lone convex sphere nothing else blocks them (they leave from the hit lifted towards the smooth surface, so
+    # not even a ray that dips below its face's plane), so the rays' share is computed here in float64 from their
+    # directions (trace.disk_sample, disk_basis); pixels with a ray within 1e-5 of the horizon may round
     # either way in float32 and are left out.
     w = np.asarray(light.direction, np.float64) / np.linalg.norm(light.direction)
     a, b = disk_basis(w[None])
     q = disk_sample(np.arange(SHADOW_SAMPLES)[None], SHADOW_SAMPLES, np.flatnonzero(hit)[:, None])  # (P, S, 2)
     d = w + np.tan(np.radians(light.angular_radius)) * (q[..., :1] * a + q[..., 1:] * b)
     above = np.einsum("pc,psc->ps", n, d / np.linalg.norm(d, axis=-1, keepdims=True))
-    share = ((above > 0).sum(1) * 255 + SHADOW_SAMPLES // 2) // SHADOW_SAMPLES / 255.0
+    share = ((above > 0).sum(1) * 255 + SHADOW_SAMPLES // 2) // SHADOW_SAMPLES
     clear = np.abs(above).min(1) > 1e-5
-    expected *= share[:, None]
+    expected *= shading.light_share(light.packed()[None], np.zeros_like(n), n, share[:, None])
     assert clear.mean() > 0.99
     np.testing.assert_allclose(out[hit][clear], expected[clear], atol=1e-3 * 2.0, rtol=2e-3)
     lit = n @ light.direction > 0
     assert lit.sum() > 100 and (~lit).sum() > 100
-    assert ((share > 0) & (share < 1)).sum() > 10  # a soft terminator
+    assert ((share > 0) & (share < 255)).sum() > 10  # a soft terminator
     assert np.all(out[~hit] == 0)  # no environment: black background
 
 

@@ -347,3 +347,33 @@ def test_shade_only_one_material_reads_the_kept_visibility(backend, effective_ma
     assert m["visibility_read"] is False
     np.testing.assert_array_equal(again, backend.shade(scene.mesh, other_frame.inputs, frame.camera,
                                                        other_frame.lights))
+
+
+def test_back_faces_are_black(backend):
+    """A face seen from behind (the eye beyond its plane, on the side its normal turns from) is black in the kernels,
+    their float64 reference and the Monte Carlo reference alike: surfaces are one-sided, and the reference's rays
+    leave behind such a face and meet it. Before, the SG renderer lit a plane's underside (0.5 under a constant
+    map, where the reference gave 0) and a baked material there made fireflies. Seen here: a floor's underside, a
+    sphere below it seen from outside (lit), and the inside of a sphere."""
+    floor = Mesh.plane(size=2.0, height=0.0, divisions=4, material=0)
+    ball = Mesh.sphere(radius=0.5, center=(1.6, -0.6, 0.0), subdivisions=2, material=1)
+    scene = Scene(Mesh.merge([floor, ball]), [wb.Lambert(0.5), wb.BlinnPhong(0.4, 60, kd=0.3, normalization="energy")],
+                  Camera(eye=(0.0, -2.0, 3.0), target=(0.5, 0.0, 0.0), width=32, height=24),
+                  _sg_environment(), [PointLight((1.0, -2.0, 1.0), 5.0, 0.1)])
+    frame = pack_frame(scene, backend)
+    face = np.asarray(frame.gbuffer.face)
+    underside = (face >= 0) & (scene.mesh.face_material[np.maximum(face, 0)] == 0)
+    outside = (face >= 0) & (scene.mesh.face_material[np.maximum(face, 0)] == 1)
+    assert underside.sum() > 100 and outside.sum() > 20
+    ref = shade_reference(frame)
+    out = backend.shade(scene.mesh, frame.inputs, frame.camera, frame.lights, gbuffer=frame.gbuffer)
+    assert np.all(out[underside] == 0) and np.all(ref[underside] == 0)
+    assert ref[outside].min() > 0  # (a front face keeps its light)
+    # the rest as test_shade_kernel_matches_reference checks it
+    np.testing.assert_allclose(out, ref, rtol=2e-3, atol=1e-4 * ref.max())
+    mc = wb.render(scene, method="mc", samples=8, backend=backend).image.reshape(-1, 3)
+    assert np.all(mc[underside] == 0) and mc[outside].min() > 0
+    # the inside of a closed sphere, which needs no SSDF (convex) and so casts no ray
+    inside = Scene(Mesh.sphere(1.0), [wb.Lambert(0.5)], Camera(eye=(0, 0, 0.2), target=(0, 0, -1), width=16,
+                                                                 height=12), Environment.studio(), [])
+    assert wb.render(inside, backend=backend).image.max() == 0

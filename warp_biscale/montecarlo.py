@@ -79,7 +79,7 @@ from .measured import MeasuredBRDF, bin_centres
 from .progress import Progress
 from .scene import Rendering, Scene
 from .scene import light_sg, vertex_tangents
-from .shading import surface_frames
+from .shading import seen_from_behind, surface_frames
 from .montecarlo_sampling import (_AsgGlossyStrategy, _basis, _CosineStrategy, _dot,  # noqa: F401
                                   _EnvironmentStrategy, _GlossyStrategy, _LightStrategy, _LobeMixtureStrategy,
                                   sample_vmf, vmf_pdf)
@@ -309,7 +309,8 @@ def _check_truths(truths, materials) -> dict:
 
 
 def _gbuffer_frame(scene, g):
-    """Per hit pixel (P hits): the pixel indices and the shading inputs, built as shading.shade_reference does.
+    """Per hit pixel (P hits, back faces left out: black), the pixel indices and the shading inputs, built as
+    shading.shade_reference does.
 
     → dict pix (P,) int, mat (P,) int, pos, n, t, b, wo (ωo with ωo·n clamped to MIN_COS_VIEW, world),
     wo_local (tile frame), origin (where the rays leave: trace.ray_starts), all (P, 3) float64; uv (P, 2) the
@@ -333,8 +334,11 @@ def _gbuffer_frame(scene, g):
     start = ray_starts(mesh.vertices.astype(np.float32), mesh.normals.astype(np.float32), mesh.faces, f, bary, pos,
                        eye, offsets(mesh)[0])
     uv = interp(mesh.uvs.astype(np.float32)) if mesh.uvs is not None else np.zeros((len(pix), 2))  # texture lookups
-    return {"pix": pix, "mat": mesh.face_material[f], "pos": pos, "n": n, "t": t, "b": b, "wo": wo_clamped,
-            "wo_local": wo_local, "origin": start["origin"], "uv": uv}
+    frame = {"pix": pix, "mat": mesh.face_material[f], "pos": pos, "n": n, "t": t, "b": b, "wo": wo_clamped,
+             "wo_local": wo_local, "origin": start["origin"], "uv": uv}
+    # Back faces stay black, unsampled: every ray would leave behind the face and meet it (the SG renderer's rule)
+    front = ~seen_from_behind(mesh.vertices.astype(np.float32), mesh.faces, f, n, sf["wo"])
+    return {k: v[front] for k, v in frame.items()}
 
 
 def missing_provenance(scene, truths=None) -> list:
