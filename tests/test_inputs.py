@@ -60,6 +60,9 @@ BAD = [
     (lambda: wb.PointLight(radius=NAN), "PointLight.radius"),
     (lambda: wb.PointLight(position=(0, INF, 0)), "PointLight.position"),
     (lambda: wb.DirectionalLight(irradiance=-2.0), "DirectionalLight.irradiance"),
+    # past float32's room once a small light's sharp lobe scales it (1e38 rendered black, 1e39 failed unnamed)
+    (lambda: wb.PointLight(intensity=1e38), "PointLight.intensity must be at most 1e+20"),
+    (lambda: wb.DirectionalLight(irradiance=(1, 1, 1e21)), "DirectionalLight.irradiance must be at most 1e+20"),
     (lambda: wb.DirectionalLight(irradiance=NAN), "DirectionalLight.irradiance"),
     (lambda: wb.DirectionalLight(angular_radius=NAN), "DirectionalLight.angular_radius"),
     (lambda: wb.DirectionalLight(angular_radius="big"), "DirectionalLight.angular_radius"),
