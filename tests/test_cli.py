@@ -353,6 +353,7 @@ def test_render_refuses_a_matrix_bake_for_the_sg_renderer_before_baking(tmp_path
         assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
         assert "[material.shiny] the SG renderer cannot shade a matrix bake" in r.stderr
         assert "render this scene by method 'litsphere'" in r.stderr and not out.exists()
+        assert "'mc'" not in r.stderr  # (which refuses a glossy matrix bake too: not offered)
     # and the Monte Carlo reference, which samples the glossy small-scale BRDF (Ward here) by lobes it has not
     r = run_cli_in_process(capsys, "render", str(_tiny_scene(tmp_path, text)), "-o", str(tmp_path / "m.exr"),
                            "--method", "mc", "--samples", "8")
@@ -586,3 +587,17 @@ def test_quiet_means_quiet(tmp_path):
                  ["truth", "vgroove", "--facets", "1024", "--directions", "4", "-o", str(tmp_path / "t.png")]):
         r = run_cli(*args, "--backend", "warp:cpu", "-q")
         assert r.returncode == 0 and r.stdout == "" and r.stderr == "", (args, r.stdout, r.stderr)
+
+
+def test_ball_of_a_saved_lit_sphere_refuses_resolution_and_angles(tmp_path, capsys):
+    """A saved lit-sphere folder is drawn as it was saved: --resolution or --angles, which only a material made
+    into a lit sphere here takes, is refused in one line rather than silently ignored; without them it draws."""
+    folder = tmp_path / "ls"
+    wb.LitSphere.from_material(wb.Lambert(0.5), resolution=32, angles=[0, 60], backend="warp:cpu").save(folder)
+    out = tmp_path / "b.png"
+    r = run_cli_in_process(capsys, "ball", str(folder), "--resolution", "128", "-o", str(out), "--backend", "warp:cpu")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and not out.exists(), r.stderr
+    assert f"error: --resolution: {folder} is a saved lit sphere, drawn at its own resolution (32) and angles (0, 60)" \
+        in r.stderr
+    r = run_cli_in_process(capsys, "ball", str(folder), "--size", "16", "-o", str(out), "--backend", "warp:cpu")
+    assert r.returncode == 0 and out.exists(), r.stderr

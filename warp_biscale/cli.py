@@ -523,13 +523,21 @@ def cmd_export(args):
     return 0
 
 
+BALL_RESOLUTION, BALL_ANGLES = 512, (0.0, 45.0, 90.0, 135.0)  # a material made into a lit sphere for `ball`
+
+
 def cmd_ball(args):
     _check_output(args.output)
 
-    angles = check_angles(args.angles)
-    resolution = check_resolution(args.resolution)
+    angles = check_angles(BALL_ANGLES if args.angles is None else args.angles)
+    resolution = check_resolution(BALL_RESOLUTION if args.resolution is None else args.resolution)
     size = _integer("--size", args.size, 8, 8192)  # material_ball's range, checked before loading the material
     material = load_material(args.material)
+    given = [flag for flag, value in (("--resolution", args.resolution), ("--angles", args.angles))
+             if value is not None]
+    if isinstance(material, LitSphere) and given:  # (drawn as saved: the images are what the folder holds)
+        raise ValueError(f"{' and '.join(given)}: {args.material} is a saved lit sphere, drawn at its own resolution "
+                         f"({material.resolution}) and angles ({', '.join(f'{a:g}' for a in material.angles)})")
     check_holdable(material, remedy="show it on a scene's object with `warp-biscale render` (its SG renderer or "
                                     "--method mc) instead")
     _check_backend(args.backend)
@@ -724,9 +732,11 @@ def _add_render_commands(sub):
                                     "(.wbm), a MERL file (.binary) or a lit-sphere folder")
     a.add_argument("-o", "--output", default="ball.png", help="image to write: .png, .exr or .hdr (default ball.png)")
     a.add_argument("--size", type=int, default=256, help="image width and height in pixels (default 256)")
-    a.add_argument("--resolution", type=int, default=512, help="lit-sphere image resolution (default 512)")
-    a.add_argument("--angles", type=float, nargs="+", default=[0, 45, 90, 135],
-                   help="light polar angles of the lit-sphere images, degrees (default 0 45 90 135)")
+    a.add_argument("--resolution", type=int, help=f"lit-sphere image resolution (default {BALL_RESOLUTION}; "
+                                                   "a saved lit-sphere folder keeps its own)")
+    a.add_argument("--angles", type=float, nargs="+",
+                   help=f"light polar angles of the lit-sphere images, degrees (default "
+                        f"{' '.join(f'{x:g}' for x in BALL_ANGLES)}; a saved lit-sphere folder keeps its own)")
     a.add_argument("--exposure", type=float, default=0.0, help="PNG exposure in stops (default 0)")
     a.add_argument("--backend", default="auto", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name>")
     a.add_argument("-q", "--quiet", action="store_true", help="no summary")

@@ -315,9 +315,7 @@ class Editor:
                  "materials": copy.deepcopy(DEFAULT_MATERIALS),
                  "quality": {name: default for name, _, _, _, default, _, _ in QUALITY},
                  "light": {name: default for name, _, _, _, default, _ in LIGHT}}
-        spec = os.fspath(target) if isinstance(target, os.PathLike) else target
-        if not isinstance(spec, str):
-            raise ValueError(f"Editor target must be a tile family, an image or a mesh file, got {target!r}")
+        spec = check_target(target)
         family, fixed = ALIASES.get(spec, (spec, {}))
         if family in FAMILIES:
             state["family"] = family
@@ -329,12 +327,9 @@ class Editor:
             state["family"] = "heightfield"
             state["tile"] = {name: default for name, _, _, _, default, _ in FAMILIES["heightfield"]}
             state["heights"] = geometry.read_height_image(spec)  # its checks and one-line errors
-        elif os.path.isfile(spec):
+        else:
             self.mesh_tile = SmallScale.load(spec)
             self.mesh_path = os.path.abspath(spec)
-        else:
-            raise ValueError(f"Editor target {spec!r} is neither a tile family ({', '.join([*FAMILIES, *ALIASES])}), "
-                             "an image nor an existing mesh file")
         if not getattr(self.backend, "is_gpu", False):
             state["quality"].update(CPU_QUALITY)
         self._state = state
@@ -763,6 +758,20 @@ class Editor:
             state["light"]["intensity"] = float(np.clip(np.mean(np.atleast_1d(sun.get("irradiance", 1.0))), 0, 10))
         ed._build(state, "bake", coarse=False)
         return ed
+
+
+def check_target(target) -> str:
+    """An editor's target as a string: a tile family (or an alias) or an existing file (an image, a mesh, a saved
+    design), else a one-line ValueError; what `Editor` and `edit` check before any bake or window."""
+    spec = os.fspath(target) if isinstance(target, os.PathLike) else target
+    if not isinstance(spec, str):
+        raise ValueError(f"Editor target must be a tile family, an image or a mesh file, got {target!r}")
+    if ALIASES.get(spec, (spec, {}))[0] in FAMILIES or os.path.isfile(spec):
+        return spec
+    if spec.lower().endswith(".toml"):
+        raise ValueError(f"cannot read design {spec}: no such file")
+    raise ValueError(f"Editor target {spec!r} is neither a tile family ({', '.join([*FAMILIES, *ALIASES])}), "
+                     "an image nor an existing mesh file")
 
 
 def _editor_line(path, text, image_name: str, scale: float):

@@ -1005,10 +1005,11 @@ def open_editor(editor, off_screen=False, window_size=None, output=None, truth=T
 def edit(target, output=None, backend="auto", size=(640, 480), screenshot=None, inside=False):
     """`warp-biscale edit`: open the editor on a tile family, an image, a mesh file or a design (.toml); with
     `screenshot`, draw offscreen, write that PNG and return its pixels instead of opening a window."""
-    from .editor import Editor
+    from .editor import Editor, check_target
 
     if output is not None:
         check_output(os.fspath(output), (".toml",), "--output")
+    check_target(target)  # (a bad target is a bad argument, said before a missing display)
     if screenshot is None and not _has_display():
         raise RuntimeError("no display to open a window on (DISPLAY is not set): use --screenshot out.png to "
                            "draw offscreen, or run under X (e.g. xvfb-run)")

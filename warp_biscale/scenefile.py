@@ -312,10 +312,11 @@ def loads_scene(text: str, path: str | None = None, base_dir: str | None = None,
     for name, (kind, values) in defs.items():  # what the renderer cannot draw, before any bake
         if kind != "bake" or name not in used or values.get("method") != "matrix":
             continue
-        if renders_by == "sg":
+        if renders_by == "sg":  # ('mc' named only where it can render it: a Lambertian bake's)
+            also = "" if _glossy(values.get("brdf", [])) else " (or 'mc')"
             raise ctx.error(("material", name), "method",
                             "the SG renderer cannot shade a matrix bake (Wu's f̄ tables, not lobes): render "
-                            "this scene by method 'litsphere' (or 'mc'), or bake with method 'sg' or 'asg'")
+                            f"this scene by method 'litsphere'{also}, or bake with method 'sg' or 'asg'")
         if renders_by == "mc" and _glossy(values.get("brdf", [])):
             raise ctx.error(("material", name), "method",
                             "the Monte Carlo reference samples a glossy small-scale BRDF by its bake's lobes, which "

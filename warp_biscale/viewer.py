@@ -217,8 +217,7 @@ class Viewer:
         w, h = (int(x) for x in size)
         if w < 2 or h < 1:
             raise ValueError(f"window size must be at least 2 x 1 pixels, got {size}")
-        if not 0 < render_scale <= 1:
-            raise ValueError(f"render_scale must be in (0, 1], got {render_scale}")
+        check_render_scale(render_scale)
         self.sf = scenefile
         self.scene = scenefile.scene
         self.backend = backend or scenefile.backend
@@ -438,10 +437,18 @@ def _has_display() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
+def check_render_scale(render_scale) -> None:
+    if not 0 < render_scale <= 1:
+        raise ValueError(f"render_scale must be in (0, 1], got {render_scale}")
+
+
 def view(scene, screenshot=None, size=(1200, 600), backend=None, progress=None, render_scale=1.0):
     """Open the viewer on a scene file path (or a loaded SceneFile); with `screenshot`, render
     offscreen, write that PNG and return its pixels instead."""
 
+    check_render_scale(render_scale)  # (bad arguments are said before a missing display)
+    if not isinstance(scene, SceneFile) and not os.path.isfile(os.fspath(scene)):
+        raise FileNotFoundError(f"no such scene file: {os.fspath(scene)}")
     if screenshot is None and not _has_display():
         raise RuntimeError("no display to open a window on (DISPLAY is not set): use --screenshot out.png to "
                            "render offscreen, or run under X (e.g. xvfb-run)")
