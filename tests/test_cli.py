@@ -601,3 +601,17 @@ def test_ball_of_a_saved_lit_sphere_refuses_resolution_and_angles(tmp_path, caps
         in r.stderr
     r = run_cli_in_process(capsys, "ball", str(folder), "--size", "16", "-o", str(out), "--backend", "warp:cpu")
     assert r.returncode == 0 and out.exists(), r.stderr
+
+
+@pytest.mark.parametrize("args, message", [
+    (["view", "nosuch.toml"], "error: no such scene file: nosuch.toml"),
+    (["view", "SCENE", "--render-scale", "2"], "error: render_scale must be in (0, 1], got 2.0"),
+    (["edit", "nosuchfamily"], "error: Editor target 'nosuchfamily' is neither a tile family"),
+])
+def test_view_and_edit_say_a_bad_argument_before_a_missing_display(tmp_path, args, message, capsys, monkeypatch):
+    """Without a display, a bad argument is still a bad argument (exit 2, its own message), not "no display"."""
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    args = [str(_tiny_scene(tmp_path)) if a == "SCENE" else a for a in args]
+    r = run_cli_in_process(capsys, *args)
+    assert r.returncode == 2 and r.stderr.startswith(message) and r.stderr.count("\n") == 1, r.stderr
