@@ -153,6 +153,22 @@ CL_INLINE uint part_bits(int first, int stride, int samples)
 }
 
 /* a right-handed frame (a, b, w) (trace.disk_basis) */
+/* Disc point q moved into the part of a light's disc above the horizon (trace.above_horizon): m the horizon's
+ * normal in the disc's frame, wn its cosine to the disc's axis, reach the disc's radius times |m|. */
+CL_INLINE float2 above_horizon(float2 q, float2 m, float wn, float reach)
+{
+    if (reach <= fabs(wn))
+        return q;
+    float2 u = m / sqrt(m.x * m.x + m.y * m.y);
+    float2 v = (float2)(-u.y, u.x);
+    float s = q.x * u.x + q.y * u.y;
+    float t = q.x * v.x + q.y * v.y;
+    float d = wn / reach;
+    float s2 = -d + 0.5f * (s + 1.0f) * (1.0f + d);
+    float t2 = t * sqrt(fmax(1.0f - s2 * s2, 0.0f) / fmax(1.0f - s * s, 1.0e-12f));
+    return s2 * u + t2 * v;
+}
+
 CL_INLINE void disk_basis(float3 w, float3 *a, float3 *b)
 {
     float3 ref = absf(w.x) < 0.9f ? (float3)(1.0f, 0.0f, 0.0f) : (float3)(0.0f, 1.0f, 0.0f);

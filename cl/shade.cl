@@ -483,39 +483,13 @@ CL_INLINE float3 light_amplitude(__global const float *row, float3 pos, float et
     return power / sg_integral(eta);
 }
 
-/* A light's visible share at a point of normal n (shading.light_share): its shadow rays' share (vis, in 255ths)
- * over the share of its disc above n's horizon, at most 1. trace_shadows counts a ray below the horizon as unseen,
- * and the light's cosine integral leaves that part of the light out already: the horizon must not count twice.
- * The rays lie evenly over a disc that the horizon's plane cuts along a chord: the share above is a circle's
- * segment. */
-CL_INLINE float light_share(__global const float *row, float3 pos, float3 n, uchar vis)
-{
-    float share = (float)vis / 255.0f;
-    float3 w = normalize3((float3)(row[1], row[2], row[3]));
-    float spread = tan(sqrt(row[7] / SHADE_PI)); /* a directional light's disc: tan of its angular radius */
-    if (row[0] != 0.0f) { /* a point light's: its radius over its distance, as the rays aim */
-        float3 to_light = (float3)(row[1], row[2], row[3]) - pos;
-        float dist = maxf(sqrt(dot3(to_light, to_light)), 1.0e-30f);
-        w = to_light / dist;
-        spread = row[7] / dist;
-    }
-    float wn = dot3(w, n);
-    float reach = spread * sqrt(maxf(1.0f - wn * wn, 0.0f)); /* how far the disc's rays tilt along n */
-    if (wn >= reach || wn <= -reach || share <= 0.0f) /* the whole disc on one side of the horizon */
-        return share;
-    float d = wn / reach; /* the chord's distance from the disc's centre, in radii */
-    float above = 1.0f - (acos(d) - d * sqrt(maxf(1.0f - d * d, 0.0f))) / SHADE_PI;
-    return minf(share / maxf(above, 1.0e-6f), 1.0f);
-}
-
-/* A light's irradiance at a point of normal n, its cosine included (the light SG's cosine integral), times its
- * visible share (light_share of vis, its shadow rays' share in 255ths); axis and eta: light_axis,
- * light_sharpness. */
+/* A light's irradiance at a point of normal n, its cosine included (the light SG's cosine integral), times the
+ * share of its shadow rays that reached it (vis, in 255ths; the rays aim at the part of the light above the
+ * horizon, as the cosine integral counts it: trace_shadows); axis and eta: light_axis, light_sharpness. */
 CL_INLINE float3 light_irradiance(Table tab, __global const float *row, float3 pos, float3 n, float3 axis, float eta,
                                   uchar vis)
 {
-    return light_amplitude(row, pos, eta) * (cosine_integral(tab, axis, eta, eta_row(tab, eta), n)
-                                             * light_share(row, pos, n, vis));
+    return light_amplitude(row, pos, eta) * (cosine_integral(tab, axis, eta, eta_row(tab, eta), n) * (float)vis / 255.0f);
 }
 
 /* ∫ G(a1, e1)·G(a2, e2)·(n·ω)⁺: the product SG (sg.product) against the clamped cosine. */
@@ -785,8 +759,7 @@ CL_INLINE float3 lobe_from_lights(Table tab, float3 axis, float eta, SurfacePoin
         __global const float *row = lights + 8 * l;
         float3 la = light_axis(row, s.pos);
         float le = light_sharpness(row, s.pos);
-        out = out + light_amplitude(row, s.pos, le) * (product_integral(tab, axis, eta, la, le, s.n)
-                                                       * light_share(row, s.pos, s.n, vis[l]));
+        out = out + light_amplitude(row, s.pos, le) * (product_integral(tab, axis, eta, la, le, s.n) * (float)vis[l] / 255.0f);
     }
     return out;
 }
@@ -1015,7 +988,7 @@ CL_INLINE float3 analytic_from_lights(int kind, float3 ks, float p1, float p2, S
         float3 la = light_axis(row, s.pos);
         float le = light_sharpness(row, s.pos);
         float3 f = light_mean(kind, ks, p1, p2, s, wo, la, lobe, 1.0f / le);
-        out = out + f * light_amplitude(row, s.pos, le) * (sg_integral(le) * light_share(row, s.pos, s.n, vis[l]));
+        out = out + f * light_amplitude(row, s.pos, le) * (sg_integral(le) * (float)vis[l] / 255.0f);
     }
     return out;
 }

@@ -44,9 +44,14 @@ CL_INLINE float3 ray_start(__global const float *points, __global const float *n
     float3 x = load3(position, p);
     float3 fn = load3(face_normals, f);
     float3 g = seen_side(fn, x, eye);
-    float side = dot3(g, fn) < 0.0f ? -1.0f : 1.0f;
     float w1 = bary[2 * p], w2 = bary[2 * p + 1];
     float w[3] = {1.0f - w1 - w2, w1, w2};
+    /* the vertex normals turned to the eye's side of the face with their blend (not with the winding, which a
+     * mesh may have the other way round: its lights were then tested against the inside's horizon) */
+    float3 blend = (float3)(0.0f, 0.0f, 0.0f);
+    for (int k = 0; k < 3; ++k)
+        blend += w[k] * load3(normals, faces[3 * f + k]);
+    float side = dot3(g, blend) < 0.0f ? -1.0f : 1.0f;
     float3 lift = (float3)(0.0f, 0.0f, 0.0f), sum = (float3)(0.0f, 0.0f, 0.0f);
     for (int k = 0; k < 3; ++k) {
         int i = faces[3 * f + k];
@@ -163,14 +168,21 @@ __kernel void trace_shadows(
         float3 c = (float3)(light[1], light[2], light[3]);
         float3 w = normalize3(c);
         float spread = tan(sqrt(light[7] / 3.14159265358979f)); /* directional: tan of the angular radius */
+        float apparent = spread;                                /* the disc's radius over its distance */
         if (light[0] != 0.0f) {
-            w = normalize3(c - o);
+            float3 to_light = c - o;
+            w = normalize3(to_light);
             spread = light[7]; /* point: the radius */
+            apparent = spread / sqrt(dot3(to_light, to_light));
         }
         float3 a, b;
         disk_basis(w, &a, &b);
+        /* the rays aim at the part of the disc above the shading normal's horizon (above_horizon) */
+        float2 m = (float2)(dot3(a, n), dot3(b, n));
+        float wn = dot3(w, n);
+        float tilt = apparent * sqrt(m.x * m.x + m.y * m.y); /* how far the disc's rays tilt along n */
         for (int i = part.x; i < samples; i += part.y) {
-            float2 q = disk_sample(i, samples, part.z);
+            float2 q = above_horizon(disk_sample(i, samples, part.z), m, wn, tilt);
             float3 on_disc = spread * (q.x * a + q.y * b);
             float3 d = w + on_disc;
             float t_hi = INFINITY;

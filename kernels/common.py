@@ -418,6 +418,22 @@ def part_bits(first: int, stride: int, samples: int) -> wp.uint32:
 
 
 @wp.func
+def above_horizon(q: wp.vec2, m: wp.vec2, wn: float, reach: float) -> wp.vec2:
+    """Disc point q moved into the part of a light's disc above the horizon (trace.above_horizon): m the
+    horizon's normal in the disc's frame, wn its cosine to the disc's axis, reach the disc's radius times |m|."""
+    if reach <= wp.abs(wn):
+        return q
+    u = m / wp.length(m)
+    v = wp.vec2(-u[1], u[0])
+    s = wp.dot(q, u)
+    t = wp.dot(q, v)
+    d = wn / reach
+    s2 = -d + 0.5 * (s + 1.0) * (1.0 + d)
+    t2 = t * wp.sqrt(wp.max(1.0 - s2 * s2, 0.0) / wp.max(1.0 - s * s, 1.0e-12))
+    return s2 * u + t2 * v
+
+
+@wp.func
 def disk_basis(w: wp.vec3) -> wp.mat33:
     """Rows a, b, w: a right-handed frame whose third row is w (trace.disk_basis)."""
     ref = wp.vec3(0.0, 1.0, 0.0)

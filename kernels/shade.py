@@ -517,37 +517,13 @@ def light_amplitude(lights: wp.array2d(dtype=wp.float32), l: int, pos: wp.vec3, 
 
 
 @wp.func
-def light_share(lights: wp.array2d(dtype=wp.float32), l: int, pos: wp.vec3, n: wp.vec3, vis: wp.uint8) -> float:
-    """Light l's visible share at a point of normal n (shading.light_share): its shadow rays' share (vis, in
-    255ths) over the share of its disc above n's horizon, at most 1. trace_shadows counts a ray below the horizon
-    as unseen, and the light's cosine integral leaves that part of the light out already: the horizon must not
-    count twice. The rays lie evenly over a disc that the horizon's plane cuts along a chord: the share above
-    is a circle's segment."""
-    share = float(int(vis)) / 255.0
-    w = wp.normalize(wp.vec3(f32_at2(lights, l, 1), f32_at2(lights, l, 2), f32_at2(lights, l, 3)))
-    spread = wp.tan(wp.sqrt(f32_at2(lights, l, 7) / PI))  # a directional light's disc: tan of its angular radius
-    if f32_at2(lights, l, 0) != 0.0:  # a point light's: its radius over its distance, as the rays aim
-        to_light = wp.vec3(f32_at2(lights, l, 1), f32_at2(lights, l, 2), f32_at2(lights, l, 3)) - pos
-        dist = wp.max(wp.length(to_light), 1.0e-30)
-        w = to_light / dist
-        spread = f32_at2(lights, l, 7) / dist
-    wn = wp.dot(w, n)
-    reach = spread * wp.sqrt(wp.max(1.0 - wn * wn, 0.0))  # how far the disc's rays tilt along n
-    if wn >= reach or wn <= -reach or share <= 0.0:  # the whole disc on one side of the horizon
-        return share
-    d = wn / reach  # the chord's distance from the disc's centre, in radii
-    above = 1.0 - (wp.acos(d) - d * wp.sqrt(wp.max(1.0 - d * d, 0.0))) / PI
-    return wp.min(share / wp.max(above, 1.0e-6), 1.0)
-
-
-@wp.func
 def light_irradiance(table: wp.array3d(dtype=wp.float32), lights: wp.array2d(dtype=wp.float32), l: int,
                      pos: wp.vec3, n: wp.vec3, axis: wp.vec3, eta: float, vis: wp.uint8) -> wp.vec3:
     """Light l's irradiance at a point of normal n, its cosine included (the light SG's cosine integral), times
-    its visible share (light_share of vis, its shadow rays' share in 255ths); axis and η: light_axis,
-    light_sharpness."""
+    the share of its shadow rays that reached it (vis, in 255ths; the rays aim at the part of the light above the
+    horizon, as the cosine integral counts it: trace_shadows); axis and η: light_axis, light_sharpness."""
     return light_amplitude(lights, l, pos, eta) * (
-        cosine_integral(table, axis, eta, eta_row(table, eta), n) * light_share(lights, l, pos, n, vis))
+        cosine_integral(table, axis, eta, eta_row(table, eta), n) * float(int(vis)) / 255.0)
 
 
 @wp.func
@@ -894,8 +870,8 @@ def lobe_from_lights(table: wp.array3d(dtype=wp.float32), axis: wp.vec3, eta: fl
             continue
         la = light_axis(lights, l, s.pos)
         le = light_sharpness(lights, l, s.pos)
-        share = light_share(lights, l, s.pos, s.n, u8_at2(light_vis, p, l))
-        out = out + light_amplitude(lights, l, s.pos, le) * (product_integral(table, axis, eta, la, le, s.n) * share)
+        out = out + light_amplitude(lights, l, s.pos, le) * (
+            product_integral(table, axis, eta, la, le, s.n) * float(int(u8_at2(light_vis, p, l))) / 255.0)
     return out
 
 
@@ -1188,8 +1164,7 @@ def analytic_from_lights(kind: int, ks: wp.vec3, p1: float, p2: float, s: Surfac
         la = light_axis(lights, l, s.pos)
         le = light_sharpness(lights, l, s.pos)
         f = light_mean(kind, ks, p1, p2, s, wo, la, lobe, 1.0 / le)
-        power = light_amplitude(lights, l, s.pos, le) * (
-            sg_integral(le) * light_share(lights, l, s.pos, s.n, u8_at2(light_vis, p, l)))
+        power = light_amplitude(lights, l, s.pos, le) * (sg_integral(le) * float(u8_at2(light_vis, p, l)) / 255.0)
         out = out + wp.cw_mul(f, power)
     return out
 

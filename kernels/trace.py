@@ -19,8 +19,8 @@ import warp as wp
 
 from warp_biscale import trace as _trace
 
-from .common import (LOBE_RAYS, disk_basis, disk_sample, lobe_ray_direction, occlusion_direction, part_bits,
-                     pixel_part, set_block_side)
+from .common import (LOBE_RAYS, above_horizon, disk_basis, disk_sample, lobe_ray_direction, occlusion_direction,
+                     part_bits, pixel_part, set_block_side)
 
 # Nothing here is differentiated: no backward kernels, which take most of the compile time.
 wp.set_module_options({"enable_backward": False})
@@ -51,17 +51,19 @@ def seen_side(n: wp.vec3, x: wp.vec3, eye: wp.vec3) -> wp.vec3:
 def ray_start(points: wp.array(dtype=wp.vec3), normals: wp.array(dtype=wp.vec3), faces: wp.array2d(dtype=wp.int32),
               face_normal: wp.vec3, f: int, bary: wp.vec2, x: wp.vec3, eye: wp.vec3, eps: float):
     """(origin, ng, ns) of the rays leaving hit x of face f (trace.ray_starts, the float64 twin): ng the face's
-    normal turned to the eye (seen_side), ns the interpolated vertex normal turned with it, and the origin x
+    normal turned to the eye (seen_side), ns the interpolated vertex normal turned to ng's side, and the origin x
     lifted onto the curved surface of the vertex normals (Hanika's shadow-terminator offset), then eps along
     ng: so a light the shading normal sees past the face's own plane is reached over the neighbouring faces."""
     ng = seen_side(face_normal, x, eye)
-    side = wp.where(wp.dot(ng, face_normal) < 0.0, -1.0, 1.0)
     w1 = bary[0]
     w2 = bary[1]
     w0 = 1.0 - w1 - w2
     i0 = faces[f, 0]
     i1 = faces[f, 1]
     i2 = faces[f, 2]
+    # the vertex normals turned to the eye's side of the face with their blend (not with the winding, which a
+    # mesh may have the other way round: its lights were then tested against the inside's horizon)
+    side = wp.where(wp.dot(ng, w0 * normals[i0] + w1 * normals[i1] + w2 * normals[i2]) < 0.0, -1.0, 1.0)
     n0 = side * normals[i0]
     n1 = side * normals[i1]
     n2 = side * normals[i2]
@@ -177,12 +179,18 @@ def trace_shadows(
         c = wp.vec3(lights[k, 1], lights[k, 2], lights[k, 3])
         w = wp.normalize(c)
         spread = wp.tan(wp.sqrt(lights[k, 7] / 3.14159265358979))  # directional: tan of the angular radius
+        apparent = spread  # the disc's radius over its distance
         if lights[k, 0] != 0.0:
             w = wp.normalize(c - o)
             spread = lights[k, 7]  # point: the radius
+            apparent = spread / wp.length(c - o)
         frame = disk_basis(w)
+        # the rays aim at the part of the disc above the shading normal's horizon (above_horizon)
+        m = wp.vec2(wp.dot(frame[0], n), wp.dot(frame[1], n))
+        wn = wp.dot(w, n)
+        tilt = apparent * wp.length(m)  # how far the disc's rays tilt along n
         for i in range(first, samples, stride):
-            q = disk_sample(i, samples, part[2])
+            q = above_horizon(disk_sample(i, samples, part[2]), m, wn, tilt)
             offset_on_disc = spread * (q[0] * frame[0] + q[1] * frame[1])
             d = w + offset_on_disc
             t_hi = float(wp.inf)

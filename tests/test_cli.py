@@ -378,6 +378,7 @@ BAKED_SCENE = TINY_SCENE.replace('[material.shiny]\ntype = "blinnphong"\nkd = [0
      "strategy (its environment's 2 and its 1 light; a glossy material's BRDF adds 2)"),
     (("height = 24\n", 'height = 24\nmethod = "mc"\nsamples = 5\n'), [],
      "error: [render] samples = 5 is too few for the Monte Carlo reference of this scene: at least 6"),
+
     (None, ["--backend", "nope"], "error: --backend: unknown backend 'nope'"),
     (None, ["--truth-facets", "256"], "error: --truth-facets is for --method mc"),
     (("albedo = 0.5\n", 'albedo = 0.5\nkd_map = "kd.png"\n'), ["--method", "litsphere"],
@@ -615,3 +616,14 @@ def test_view_and_edit_say_a_bad_argument_before_a_missing_display(tmp_path, arg
     args = [str(_tiny_scene(tmp_path)) if a == "SCENE" else a for a in args]
     r = run_cli_in_process(capsys, *args)
     assert r.returncode == 2 and r.stderr.startswith(message) and r.stderr.count("\n") == 1, r.stderr
+
+
+def test_mc_samples_floor_skips_a_black_environment(tmp_path, capsys):
+    """A black environment is not sampled by the Monte Carlo reference, so the file's floor counts its light alone
+    (2): --samples 2 passes it, and the reference itself then asks 4 of the shiny material (its BRDF and the light)."""
+    text = TINY_SCENE.replace('type = "sky"\n', 'type = "constant"\nradiance = [0, 0, 0]\n')
+    text = text.replace("supersample = 1\n", "")
+    r = run_cli_in_process(capsys, "render", str(_tiny_scene(tmp_path, text)), "-o", str(tmp_path / "x.exr"),
+                           "--method", "mc", "--samples", "2")
+    assert r.returncode == 2 and "of this scene" not in r.stderr, r.stderr
+    assert "samples=2 is too few for material" in r.stderr and "give at least 4" in r.stderr, r.stderr

@@ -11,7 +11,7 @@ import warp_biscale as wb
 from warp_biscale import sg, shading
 from warp_biscale.render import SHADOW_SAMPLES, pack_frame
 from warp_biscale.scene import Scene
-from warp_biscale.trace import disk_basis, disk_sample
+from warp_biscale.trace import above_horizon, disk_basis, disk_sample
 
 
 def _hit_normals(frame, mesh):
@@ -50,26 +50,32 @@ def test_directional_light_on_lambert_sphere_closed_form(backend):
     _, eta, _, _ = wb.scene.light_sg(light.packed()[None], np.zeros((1, 3)))
     cos_part = sg.cosine_fraction(n @ light.direction, eta[0, 0])
     expected = 0.5 / np.pi * np.asarray(light.irradiance)[None] * cos_part[:, None]
-    # Shadow rays below the shading normal's horizon count as blocked (trace_shadows): near the terminator
-    # the light's disc is partly below it, and the light counts for the share of its 16 rays above over the
-    # disc's share above (shading.light_share: the cosine integral already leaves the rest out), at most 1. On a
-    # lone convex sphere nothing else blocks them (they leave from the hit lifted towards the smooth surface, so
-    # not even a ray that dips below its face's plane), so the rays' share is computed here in float64 from their
-    # directions (trace.disk_sample, disk_basis); pixels with a ray within 1e-5 of the horizon may round
-    # either way in float32 and are left out.
+    # Near the terminator the light's disc is partly below the shading normal's horizon: the shadow rays aim at
+    # the part above (trace.above_horizon), which is what the cosine integral counts, and one that still falls
+    # below counts as blocked (trace_shadows). On a lone convex sphere nothing else blocks them (they leave from the
+    # hit lifted towards the smooth surface, so not even a ray that dips below its face's plane): the rays' share is
+    # computed here in float64 from their directions (trace.disk_sample, disk_basis, above_horizon), 1 wherever part
+    # of the disc is above; pixels with a ray within 1e-5 of the horizon may round either way in float32 and are
+    # left out.
     w = np.asarray(light.direction, np.float64) / np.linalg.norm(light.direction)
     a, b = disk_basis(w[None])
     q = disk_sample(np.arange(SHADOW_SAMPLES)[None], SHADOW_SAMPLES, np.flatnonzero(hit)[:, None])  # (P, S, 2)
-    d = w + np.tan(np.radians(light.angular_radius)) * (q[..., :1] * a + q[..., 1:] * b)
+    spread = np.tan(np.radians(light.angular_radius))
+    m = np.stack([n @ a[0], n @ b[0]], 1)
+    q = above_horizon(q, m[:, None], (n @ w)[:, None], spread * np.linalg.norm(m, axis=1)[:, None])
+    d = w + spread * (q[..., :1] * a + q[..., 1:] * b)
     above = np.einsum("pc,psc->ps", n, d / np.linalg.norm(d, axis=-1, keepdims=True))
     share = ((above > 0).sum(1) * 255 + SHADOW_SAMPLES // 2) // SHADOW_SAMPLES
     clear = np.abs(above).min(1) > 1e-5
-    expected *= shading.light_share(light.packed()[None], np.zeros_like(n), n, share[:, None])
+    expected *= share[:, None] / 255.0
     assert clear.mean() > 0.99
     np.testing.assert_allclose(out[hit][clear], expected[clear], atol=1e-3 * 2.0, rtol=2e-3)
     lit = n @ light.direction > 0
     assert lit.sum() > 100 and (~lit).sum() > 100
-    assert ((share > 0) & (share < 255)).sum() > 10  # a soft terminator
+    # a soft terminator, all of whose pixels see their rays (before, the part of the disc below the horizon took
+    # its rays' share away again: half the light at the terminator's middle)
+    terminator = np.abs(n @ w) < spread * np.sqrt(1 - (n @ w) ** 2)
+    assert terminator.sum() > 10 and np.all(share[terminator & clear & (n @ w > -0.9 * spread)] == 255)
     assert np.all(out[~hit] == 0)  # no environment: black background
 
 

@@ -127,6 +127,13 @@ def test_load_errors(tmp_path):
     for load in (wb.SmallScale.load, wb.Mesh.load):
         with pytest.raises(ValueError, match="bad.obj.*a face refers to a vertex the file does not have"):
             load(bad)
+    ply = tmp_path / "bad.ply"  # (a PLY's bad index surfaces later, in the mesh's normals: said alike)
+    ply.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                   "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n")
+    with pytest.raises(ValueError, match="bad.ply.*a face refers to a vertex the file does not have"):
+        wb.Mesh.load(ply)
+    with pytest.raises(ValueError, match="bad.ply"):
+        wb.SmallScale.load(ply)
 
 
 def test_save_round_trip(tmp_path):

@@ -34,6 +34,7 @@ from .render import METHODS, OCCLUSION_SAMPLES, SHADOW_SAMPLES, check_aa, materi
 from .scene import _integer
 from .trace import OCCLUSION_SAMPLES_MAX, check_occlusion_samples, check_shadow_samples
 from .scenefile import _MAPS as TEXTURE_MAPS  # (a material table's texture keys)
+from .scenefile import _environment as scenefile_environment
 from .scenefile import load_scene, tomllib  # (tomllib, or tomli before Python 3.11)
 from .truth import (BOUNCE_PATHS, MAX_BOUNCES, MAX_PATHS, MAX_TRUTH_DIRECTIONS, _check_bounces, _check_count,
                     ground_truth)
@@ -392,13 +393,17 @@ def _table(doc, key, kind=dict):
     return value if isinstance(value, kind) else kind()
 
 
-def _check_mc_floor(doc, said: str, samples: int) -> None:
+def _check_mc_floor(ctx, doc, said: str, samples: int) -> None:
     """The Monte Carlo reference's floor that the file alone shows, before its bakes: 2 samples for each light
     and for each of a lit environment's two strategies (the map and the cosine lobe; a glossy material adds its
-    BRDF's, which the reference checks once its materials are made)."""
-    env = doc.get("environment")
-    lit = isinstance(env, dict) and env.get("scale", 1) != 0 and (
-        env.get("type") in ("sky", "studio") or (env.get("type") == "constant" and env.get("radiance", 1) != 0))
+    BRDF's, which the reference checks once its materials are made). The environment is made as the file says
+    (milliseconds; a black one is not sampled); one the file cannot make is left to load_scene to say."""
+    from .montecarlo import environment_is_sampled
+
+    try:
+        lit = environment_is_sampled(scenefile_environment(ctx, doc.get("environment")))
+    except (ValueError, OSError):
+        lit = False
     lights = sum(isinstance(x, dict) for x in _table(doc, "light", list))
     floor = 2 * (2 * lit + lights)
     if samples < floor:
@@ -436,8 +441,8 @@ def _check_scene_options(args):
         raise _Ctx(text, args.scene, os.path.dirname(os.path.abspath(args.scene))).error(("render",), "samples",
                                                                                         f"samples {why}")
     if method == "mc" and isinstance(samples, int) and not isinstance(samples, bool):
-        _check_mc_floor(doc, f"--samples {samples}" if args.samples is not None else f"[render] samples = {samples}",
-                        samples)
+        said = f"--samples {samples}" if args.samples is not None else f"[render] samples = {samples}"
+        _check_mc_floor(_Ctx(text, args.scene, os.path.dirname(os.path.abspath(args.scene))), doc, said, samples)
     if method == "litsphere":
         for flag, value, why in (
                 ("--occlusion-samples", args.occlusion_samples, "traces no occlusion rays"),

@@ -429,7 +429,7 @@ def render(scene, backend="auto", samples: int = 256, seed: int = 0, truths=None
     env = scene.environment
     env_strategy = _EnvironmentStrategy(env) if env is not None else None
     if env_strategy is not None and env_strategy.total <= 0:
-        env_strategy = None  # a black map: nothing to sample (its lookups are 0)
+        env_strategy = None  # a black map: nothing to sample (its lookups are 0; environment_is_sampled)
     lights = scene.lights_packed.astype(np.float64)
     materials, plans, labels = {}, {}, {}
     for i, m in enumerate(scene.materials):
@@ -517,6 +517,11 @@ def render(scene, backend="auto", samples: int = 256, seed: int = 0, truths=None
 
 MIN_SHARE = 0.1  # every strategy keeps at least this weight (before normalising): MIS stays robust
 LIGHT_SHARE = 0.25  # a light's weight: sampled exactly, it needs fewer samples (1 → 0.25: −28 % error on a bench scene)
+
+
+def environment_is_sampled(env) -> bool:
+    """Whether `render` samples environment `env` (None, or a black map, it does not): its two strategies."""
+    return env is not None and _EnvironmentStrategy(env).total > 0
 
 
 def _plan(env_strategy, mat, n_lights):

@@ -23,8 +23,9 @@ from .environment import (
 )
 from .lighting import prefiltered_lookup, sg_irradiance  # noqa: F401
 from .model import facet_shift, radical_inverse  # noqa: F401
-from .trace import (LOBE_RAYS, block_pixel, block_side, block_sub_lenders, check_ray_part, disk_basis, disk_sample,
-                    light_samples, lobe_ray_directions, occlusion_directions, part_rays, pixel_parts, ray_starts)
+from .trace import (LOBE_RAYS, above_horizon, block_pixel, block_side, block_sub_lenders, check_ray_part, disk_basis,
+                    disk_sample, light_samples, lobe_ray_directions, occlusion_directions, part_rays, pixel_parts,
+                    ray_starts)
 from .sg import one_minus_cos
 from .smallscale import (
     SmallScale,
@@ -871,23 +872,34 @@ def trace_lobe_rays(vertices, normals, faces, face, bary, position, eye, eps, t_
     return out
 
 
+def _above(q, a, b, w, n, apparent) -> np.ndarray:
+    """Disc points q moved above the horizon of normals n (trace.above_horizon), for a disc of axis w, frame
+    (a, b) and radius `apparent` over its distance."""
+    m = np.stack([np.sum(a * n, 1), np.sum(b * n, 1)], 1)
+    return above_horizon(q, m, np.sum(w * n, 1), apparent * np.linalg.norm(m, axis=1))
+
+
 def _shadow_rays(v, f, start, lights, eps, t_min, tol, turn, i, samples) -> np.ndarray:
     """(len(turn), L) bool: ray i of `samples` of trace_shadows unoccluded, per hit pixel and light, from the
     ray starts `start` (trace.ray_starts of the hit pixels), turned by pixels `turn` (trace.pixel_parts)."""
     o, n = start["origin"], start["ns"]
     out = np.zeros((len(turn), len(lights)), bool)
-    q = disk_sample(i, samples, turn)
+    q0 = disk_sample(i, samples, turn)
     for k, row in enumerate(lights):
         if row[0] == 0:
             w = np.broadcast_to(row[1:4] / np.linalg.norm(row[1:4]), o.shape)
             a, b = disk_basis(w)
-            d = w + np.tan(np.sqrt(row[7] / np.pi)) * (q[:, :1] * a + q[:, 1:] * b)
+            spread = np.tan(np.sqrt(row[7] / np.pi))
+            q = _above(q0, a, b, w, n, spread)
+            d = w + spread * (q[:, :1] * a + q[:, 1:] * b)
             d = d / np.linalg.norm(d, axis=1, keepdims=True)
             t_max = np.full(len(o), np.inf)
         else:
             w = row[1:4][None] - o
-            w = w / np.maximum(np.linalg.norm(w, axis=1), 1e-300)[:, None]
+            dist = np.maximum(np.linalg.norm(w, axis=1), 1e-300)
+            w = w / dist[:, None]
             a, b = disk_basis(w)
+            q = _above(q0, a, b, w, n, row[7] / dist)
             d = row[1:4][None] + row[7] * (q[:, :1] * a + q[:, 1:] * b) - o
             dist = np.linalg.norm(d, axis=1)
             d = d / np.maximum(dist, 1e-300)[:, None]

@@ -226,7 +226,10 @@ class Mesh:
             raise ValueError(f"cannot read mesh {path}: {mesh_read_reason(exc)}") from None
         if not isinstance(tm, trimesh.Trimesh) or len(tm.faces) == 0:
             raise ValueError(f"{path} holds no triangles")
-        return cls.from_trimesh(tm, material)
+        try:
+            return cls.from_trimesh(tm, material)
+        except IndexError as exc:  # (a PLY's bad face index surfaces only here, in its normals)
+            raise ValueError(f"cannot read mesh {path}: {mesh_read_reason(exc)}") from None
 
     @classmethod
     def sphere(cls, radius=1.0, center=(0.0, 0.0, 0.0), subdivisions=4, material: int = 0) -> Mesh:

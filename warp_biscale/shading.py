@@ -1210,7 +1210,7 @@ def shade_reference(frame: Frame) -> np.ndarray:
     rad = np.zeros((len(pix), 3))
     env = static.env_sgs.astype(np.float64)
     light_axis, light_eta, light_amp, _ = light_sg(frame.lights, pos)
-    light_vis = (light_share(frame.lights, pos, n, frame.gbuffer.light_vis[pix]) if len(frame.lights)
+    light_vis = (frame.gbuffer.light_vis[pix].astype(np.float64) / VISIBLE if len(frame.lights)
                  else np.zeros((len(pix), 0)))
 
     for mat in np.unique(static.face_material[f]):
@@ -1360,33 +1360,6 @@ def shade_reference(frame: Frame) -> np.ndarray:
     out[pix] = np.maximum(np.nan_to_num(rad, nan=0.0, posinf=0.0), 0.0)
     out[pix[seen_from_behind(static.positions, static.faces, f, n, wo)]] = 0.0  # back faces: one-sided, black
     return out
-
-
-def light_share(lights_packed, pos, n, light_vis) -> np.ndarray:
-    """(P, L) each light's visible share at points pos (P, 3) of normals n: the shadow rays' share (light_vis
-    (P, L), in 255ths) over the share of the light's disc above n's horizon, at most 1 (kernels/shade.py
-    `light_share`). trace_shadows counts a ray below the horizon as unseen, and the light's cosine integral
-    already leaves that part of the light out: without this the horizon counted twice (a plane 80° off a 30°
-    light's axis got 0.691 of the Monte Carlo reference's radiance, 0.978 with it). The rays lie evenly over a disc that
-    the horizon's plane cuts along a chord, so the share above is a circle's segment."""
-    share = np.asarray(light_vis, np.float64) / VISIBLE
-    lights = np.asarray(lights_packed, np.float64).reshape(-1, 8)
-    pos, n = np.asarray(pos, np.float64), np.asarray(n, np.float64)
-    for k, row in enumerate(lights):
-        if row[0] == 0:  # directional: its disc at tan of the angular radius
-            w = np.broadcast_to(row[1:4] / np.linalg.norm(row[1:4]), pos.shape)
-            spread = np.full(len(pos), np.tan(np.sqrt(row[7] / np.pi)))
-        else:  # a point light: its radius over its distance, as the rays aim
-            d = row[1:4][None] - pos
-            dist = np.maximum(np.linalg.norm(d, axis=1), 1e-30)
-            w, spread = d / dist[:, None], row[7] / dist
-        wn = _dot(w, n)
-        reach = spread * np.sqrt(np.maximum(1 - wn * wn, 0.0))
-        cut = (np.abs(wn) < reach) & (share[:, k] > 0)  # the horizon crosses the disc
-        d = wn[cut] / reach[cut]
-        above = 1 - (np.arccos(d) - d * np.sqrt(np.maximum(1 - d * d, 0.0))) / np.pi
-        share[cut, k] = np.minimum(share[cut, k] / np.maximum(above, 1e-6), 1.0)
-    return share
 
 
 def seen_from_behind(positions, faces, face, n, wo) -> np.ndarray:

@@ -372,16 +372,19 @@ class SmallScale:
             if has_normals:
                 normals.append(np.asarray(m.vertex_normals, np.float64))
             offset += len(m.vertices)
-        return cls(
-            np.concatenate(verts),
-            np.concatenate(faces),
-            material_ids=np.concatenate(mats) if material_ids is None else material_ids,
-            colors=colors if colors is not None or any(c is None for c in colours) else np.concatenate(colours),
-            period=period,
-            vertex_normals=np.concatenate(normals) if has_normals else None,
-            name=name or os.path.splitext(os.path.basename(path))[0],
-            face_tangents=np.concatenate(tangents) if all(t is not None for t in tangents) else None,
-        )
+        try:
+            return cls(
+                np.concatenate(verts),
+                np.concatenate(faces),
+                material_ids=np.concatenate(mats) if material_ids is None else material_ids,
+                colors=colors if colors is not None or any(c is None for c in colours) else np.concatenate(colours),
+                period=period,
+                vertex_normals=np.concatenate(normals) if has_normals else None,
+                name=name or os.path.splitext(os.path.basename(path))[0],
+                face_tangents=np.concatenate(tangents) if all(t is not None for t in tangents) else None,
+            )
+        except ValueError as exc:  # (the tile's own checks: say which file they were made on)
+            raise ValueError(f"tile mesh {path!r}: {exc}") from None
 
     def save(self, path) -> None:
         """Write the tile as a mesh file (format from the extension), atomically. A .ply file also keeps each

@@ -42,7 +42,7 @@ __all__ = ["T_MIN", "SHADOW_OFFSET", "CHUNK_RAYS", "offsets", "check_mesh", "che
            "pixel_parts", "block_side", "block_pixel", "share_block", "block_sub_lenders", "BLOCK_SLOTS", "BLOCK_SIDES",
            "SHARE_NORMAL_COS", "SHARE_PLANE",
            "same_surface", "changed_pixels",
-           "disk_sample", "disk_basis", "VISIBLE",
+           "disk_sample", "disk_basis", "above_horizon", "VISIBLE",
            "SHADOW_SAMPLES_MAX", "OCCLUSION_SAMPLES_MAX", "check_occlusion_samples", "occlusion_directions",
            "oriented_face_normals", "ray_starts", "LOBE_RAYS", "LOBE_RAY_LOBES", "lobe_ray_directions", "check_lobes"]
 
@@ -92,6 +92,28 @@ def disk_radii() -> np.ndarray:
 DISK_RADII = disk_radii()
 
 
+def above_horizon(q, m, wn, reach) -> np.ndarray:
+    """Disc points q (..., 2) moved into the part of a light's disc above a horizon (the kernels'
+    `above_horizon`): m (..., 2) the horizon's normal n in the disc's frame (n·a, n·b), wn = n·w, reach the
+    disc's radius (tan of a directional light's angular radius, a point light's radius over its distance) times
+    |m|, so that a ray to q is above the horizon where wn + reach·(q·m̂) > 0, i.e. along m̂ beyond −d, d =
+    wn/reach. Where the horizon cuts the disc (|d| < 1) a point's coordinate s along m̂ is squeezed linearly from
+    [−1, 1] onto [−d, 1] and its coordinate across scaled with the chord there: every ray aims at the part that
+    can light the point, the cosine integral's part, so none is lost below the horizon (a share taken over the
+    whole disc counted the horizon twice). Elsewhere q is kept (a disc wholly below lights nothing)."""
+    q, m = np.asarray(q, np.float64), np.asarray(m, np.float64)
+    wn, reach = np.asarray(wn, np.float64), np.asarray(reach, np.float64)
+    cut = reach > np.abs(wn)
+    length = np.linalg.norm(m, axis=-1)
+    u = m / np.where(cut, length, 1.0)[..., None]
+    v = np.stack([-u[..., 1], u[..., 0]], -1)
+    s, t = np.sum(q * u, -1), np.sum(q * v, -1)
+    d = wn / np.where(cut, reach, 1.0)
+    s2 = -d + 0.5 * (s + 1.0) * (1.0 + d)
+    t2 = t * np.sqrt(np.maximum(1.0 - s2 * s2, 0.0) / np.maximum(1.0 - s * s, 1e-12))
+    return np.where(cut[..., None], s2[..., None] * u + t2[..., None] * v, q)
+
+
 def disk_basis(w) -> tuple[np.ndarray, np.ndarray]:
     """(a, b), each (..., 3): with w (..., 3) unit, the right-handed frame (a, b, w) the kernels build
     (a = normalize(w × x̂), or w × ŷ where |w_x| ≥ 0.9; b = w × a)."""
@@ -134,7 +156,7 @@ def ray_starts(vertices, normals, faces, face, bary, position, eye, eps) -> dict
     face (R,), bary (R, 2) and position (R, 3) of the hits, eye (3,), eps the offset (`offsets`).
 
     → dict ng (R, 3): the unit geometric normal turned to the eye's side (`oriented_face_normals`); ns: the
-    interpolated vertex normal, turned with it; origin: the hit moved onto the curved surface that the vertex
+    interpolated vertex normal, turned to ng's side; origin: the hit moved onto the curved surface that the vertex
     normals describe, then eps along ng.
 
     The move is Hanika's ("Hacking the shadow terminator", Ray Tracing Gems II, 2021): for each vertex k of
@@ -147,11 +169,13 @@ def ray_starts(vertices, normals, faces, face, bary, position, eye, eps) -> dict
     tri = np.asarray(faces, np.int64)[np.asarray(face, np.int64)]
     x = np.asarray(position, np.float64).reshape(-1, 3)
     ng = _unit_face_normals(v[tri])
-    side = np.where(np.sum(ng * (np.asarray(eye, np.float64) - x), axis=1) < 0, -1.0, 1.0)
-    ng = side[:, None] * ng
+    ng = np.where((np.sum(ng * (np.asarray(eye, np.float64) - x), axis=1) < 0)[:, None], -ng, ng)
     u, w = np.asarray(bary, np.float64)[:, 0], np.asarray(bary, np.float64)[:, 1]
     weights = np.stack([1.0 - u - w, u, w], 1)  # (R, 3)
-    nk = side[:, None, None] * np.asarray(normals, np.float64)[tri]  # (R, 3, 3)
+    nk = np.asarray(normals, np.float64)[tri]  # (R, 3, 3)
+    # turned to the eye's side of the face with their blend (not with the winding, which may be the other way)
+    side = np.where(np.einsum("rk,rkc,rc->r", weights, nk, ng) < 0, -1.0, 1.0)
+    nk = side[:, None, None] * nk
     d = np.minimum(np.einsum("rkc,rkc->rk", x[:, None] - v[tri], nk), 0.0)
     lifted = x - np.einsum("rk,rk,rkc->rc", weights, d, nk)
     ns = np.einsum("rk,rkc->rc", weights, nk)
