@@ -153,27 +153,35 @@ CL_INLINE uint part_bits(int first, int stride, int samples)
 }
 
 /* a right-handed frame (a, b, w) (trace.disk_basis) */
-/* Disc point q moved into the part of a light's disc above the horizon (trace.above_horizon): m the horizon's
- * normal in the disc's frame, wn its cosine to the disc's axis, reach the disc's radius times |m|. */
-CL_INLINE float2 above_horizon(float2 q, float2 m, float wn, float reach)
-{
-    if (reach <= fabs(wn))
-        return q;
-    float2 u = m / sqrt(m.x * m.x + m.y * m.y);
-    float2 v = (float2)(-u.y, u.x);
-    float s = q.x * u.x + q.y * u.y;
-    float t = q.x * v.x + q.y * v.y;
-    float d = wn / reach;
-    float s2 = -d + 0.5f * (s + 1.0f) * (1.0f + d);
-    float t2 = t * sqrt(fmax(1.0f - s2 * s2, 0.0f) / fmax(1.0f - s * s, 1.0e-12f));
-    return s2 * u + t2 * v;
-}
-
 CL_INLINE void disk_basis(float3 w, float3 *a, float3 *b)
 {
     float3 ref = absf(w.x) < 0.9f ? (float3)(1.0f, 0.0f, 0.0f) : (float3)(0.0f, 1.0f, 0.0f);
     *a = normalize3(cross3(w, ref));
     *b = cross3(w, *a);
+}
+
+/* A light's disc frame (a, b) about w for shading normal n (trace.horizon_frame): where n's horizon cuts the
+ * disc, a is n's part across it and the result d = (n.w)/(apparent |that part|) lies in (-1, 1); else
+ * disk_basis(w) and 2. */
+CL_INLINE float horizon_frame(float3 w, float3 n, float apparent, float3 *a, float3 *b)
+{
+    float wn = dot3(w, n);
+    float3 across = n - wn * w;
+    float length = sqrt(dot3(across, across));
+    if (apparent * length > fabs(wn)) {
+        *a = across / length;
+        *b = cross3(w, *a);
+        return wn / (apparent * length);
+    }
+    disk_basis(w, a, b);
+    return 2.0f;
+}
+
+/* Disc point q moved into the disc's part q.x > -d above the horizon (trace.above_horizon), for |d| < 1. */
+CL_INLINE float2 above_horizon(float2 q, float d)
+{
+    float s2 = -d + 0.5f * (q.x + 1.0f) * (1.0f + d);
+    return (float2)(s2, q.y * sqrt(fmax(1.0f - s2 * s2, 0.0f) / fmax(1.0f - q.x * q.x, 1.0e-12f)));
 }
 
 /* Environment-occlusion ray i of `samples` (trace.occlusion_directions): disc sample i lifted to the

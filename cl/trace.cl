@@ -175,14 +175,13 @@ __kernel void trace_shadows(
             spread = light[7]; /* point: the radius */
             apparent = spread / sqrt(dot3(to_light, to_light));
         }
+        /* the rays aim at the part of the disc above the shading normal's horizon, q.x > -chord */
         float3 a, b;
-        disk_basis(w, &a, &b);
-        /* the rays aim at the part of the disc above the shading normal's horizon (above_horizon) */
-        float2 m = (float2)(dot3(a, n), dot3(b, n));
-        float wn = dot3(w, n);
-        float tilt = apparent * sqrt(m.x * m.x + m.y * m.y); /* how far the disc's rays tilt along n */
+        float chord = horizon_frame(w, n, apparent, &a, &b);
         for (int i = part.x; i < samples; i += part.y) {
-            float2 q = above_horizon(disk_sample(i, samples, part.z), m, wn, tilt);
+            float2 q = disk_sample(i, samples, part.z);
+            if (chord < 1.0f)
+                q = above_horizon(q, chord);
             float3 on_disc = spread * (q.x * a + q.y * b);
             float3 d = w + on_disc;
             float t_hi = INFINITY;

@@ -418,22 +418,6 @@ def part_bits(first: int, stride: int, samples: int) -> wp.uint32:
 
 
 @wp.func
-def above_horizon(q: wp.vec2, m: wp.vec2, wn: float, reach: float) -> wp.vec2:
-    """Disc point q moved into the part of a light's disc above the horizon (trace.above_horizon): m the
-    horizon's normal in the disc's frame, wn its cosine to the disc's axis, reach the disc's radius times |m|."""
-    if reach <= wp.abs(wn):
-        return q
-    u = m / wp.length(m)
-    v = wp.vec2(-u[1], u[0])
-    s = wp.dot(q, u)
-    t = wp.dot(q, v)
-    d = wn / reach
-    s2 = -d + 0.5 * (s + 1.0) * (1.0 + d)
-    t2 = t * wp.sqrt(wp.max(1.0 - s2 * s2, 0.0) / wp.max(1.0 - s * s, 1.0e-12))
-    return s2 * u + t2 * v
-
-
-@wp.func
 def disk_basis(w: wp.vec3) -> wp.mat33:
     """Rows a, b, w: a right-handed frame whose third row is w (trace.disk_basis)."""
     ref = wp.vec3(0.0, 1.0, 0.0)
@@ -441,6 +425,28 @@ def disk_basis(w: wp.vec3) -> wp.mat33:
         ref = wp.vec3(1.0, 0.0, 0.0)
     a = wp.normalize(wp.cross(w, ref))
     return wp.matrix_from_rows(a, wp.cross(w, a), w)
+
+
+@wp.func
+def horizon_frame(w: wp.vec3, n: wp.vec3, apparent: float) -> wp.mat33:
+    """Rows a, b and (d, 0, 0): a light's disc frame about w for shading normal n (trace.horizon_frame): where n's
+    horizon cuts the disc, a is n's part across it and d = (n·w)/(apparent·|that part|) in (−1, 1), else
+    disk_basis(w) and d = 2."""
+    wn = wp.dot(w, n)
+    across = n - wn * w
+    length = wp.length(across)
+    if apparent * length > wp.abs(wn):
+        a = across / length
+        return wp.matrix_from_rows(a, wp.cross(w, a), wp.vec3(wn / (apparent * length), 0.0, 0.0))
+    basis = disk_basis(w)
+    return wp.matrix_from_rows(basis[0], basis[1], wp.vec3(2.0, 0.0, 0.0))
+
+
+@wp.func
+def above_horizon(q: wp.vec2, d: float) -> wp.vec2:
+    """Disc point q moved into the disc's part q_x > −d above the horizon (trace.above_horizon), for |d| < 1."""
+    s2 = -d + 0.5 * (q[0] + 1.0) * (1.0 + d)
+    return wp.vec2(s2, q[1] * wp.sqrt(wp.max(1.0 - s2 * s2, 0.0) / wp.max(1.0 - q[0] * q[0], 1.0e-12)))
 
 
 @wp.func

@@ -19,8 +19,8 @@ import warp as wp
 
 from warp_biscale import trace as _trace
 
-from .common import (LOBE_RAYS, above_horizon, disk_basis, disk_sample, lobe_ray_direction, occlusion_direction,
-                     part_bits, pixel_part, set_block_side)
+from .common import (LOBE_RAYS, above_horizon, disk_basis, disk_sample, horizon_frame, lobe_ray_direction,
+                     occlusion_direction, part_bits, pixel_part, set_block_side)
 
 # Nothing here is differentiated: no backward kernels, which take most of the compile time.
 wp.set_module_options({"enable_backward": False})
@@ -184,13 +184,13 @@ def trace_shadows(
             w = wp.normalize(c - o)
             spread = lights[k, 7]  # point: the radius
             apparent = spread / wp.length(c - o)
-        frame = disk_basis(w)
-        # the rays aim at the part of the disc above the shading normal's horizon (above_horizon)
-        m = wp.vec2(wp.dot(frame[0], n), wp.dot(frame[1], n))
-        wn = wp.dot(w, n)
-        tilt = apparent * wp.length(m)  # how far the disc's rays tilt along n
+        # the rays aim at the part of the disc above the shading normal's horizon, q_x > −chord
+        frame = horizon_frame(w, n, apparent)
+        chord = frame[2, 0]
         for i in range(first, samples, stride):
-            q = above_horizon(disk_sample(i, samples, part[2]), m, wn, tilt)
+            q = disk_sample(i, samples, part[2])
+            if chord < 1.0:
+                q = above_horizon(q, chord)
             offset_on_disc = spread * (q[0] * frame[0] + q[1] * frame[1])
             d = w + offset_on_disc
             t_hi = float(wp.inf)

@@ -11,7 +11,7 @@ import warp_biscale as wb
 from warp_biscale import sg, shading
 from warp_biscale.render import SHADOW_SAMPLES, pack_frame
 from warp_biscale.scene import Scene
-from warp_biscale.trace import above_horizon, disk_basis, disk_sample
+from warp_biscale.trace import above_horizon, disk_sample, horizon_frame
 
 
 def _hit_normals(frame, mesh):
@@ -54,16 +54,15 @@ def test_directional_light_on_lambert_sphere_closed_form(backend):
     # the part above (trace.above_horizon), which is what the cosine integral counts, and one that still falls
     # below counts as blocked (trace_shadows). On a lone convex sphere nothing else blocks them (they leave from the
     # hit lifted towards the smooth surface, so not even a ray that dips below its face's plane): the rays' share is
-    # computed here in float64 from their directions (trace.disk_sample, disk_basis, above_horizon), 1 wherever part
+    # computed here in float64 from their directions (trace.disk_sample, horizon_frame, above_horizon), 1 wherever part
     # of the disc is above; pixels with a ray within 1e-5 of the horizon may round either way in float32 and are
     # left out.
     w = np.asarray(light.direction, np.float64) / np.linalg.norm(light.direction)
-    a, b = disk_basis(w[None])
     q = disk_sample(np.arange(SHADOW_SAMPLES)[None], SHADOW_SAMPLES, np.flatnonzero(hit)[:, None])  # (P, S, 2)
     spread = np.tan(np.radians(light.angular_radius))
-    m = np.stack([n @ a[0], n @ b[0]], 1)
-    q = above_horizon(q, m[:, None], (n @ w)[:, None], spread * np.linalg.norm(m, axis=1)[:, None])
-    d = w + spread * (q[..., :1] * a + q[..., 1:] * b)
+    a, b, chord = horizon_frame(np.broadcast_to(w, n.shape), n, spread)
+    q = above_horizon(q, chord[:, None])
+    d = w + spread * (q[..., :1] * a[:, None] + q[..., 1:] * b[:, None])
     above = np.einsum("pc,psc->ps", n, d / np.linalg.norm(d, axis=-1, keepdims=True))
     share = ((above > 0).sum(1) * 255 + SHADOW_SAMPLES // 2) // SHADOW_SAMPLES
     clear = np.abs(above).min(1) > 1e-5

@@ -25,7 +25,7 @@ from .lighting import prefiltered_lookup, sg_irradiance  # noqa: F401
 from .model import facet_shift, radical_inverse  # noqa: F401
 from .trace import (LOBE_RAYS, above_horizon, block_pixel, block_side, block_sub_lenders, check_ray_part, disk_basis,
                     disk_sample, light_samples, lobe_ray_directions, occlusion_directions, part_rays, pixel_parts,
-                    ray_starts)
+                    horizon_frame, ray_starts)
 from .sg import one_minus_cos
 from .smallscale import (
     SmallScale,
@@ -790,7 +790,8 @@ def trace_shadows(vertices, normals, faces, face, bary, position, eye, lights_pa
     `samples`: S rays a pixel for every light, or one count a light (trace.light_samples). Each shadow ray
     starts at trace.ray_starts' origin (the hit lifted towards the smooth surface of the vertex `normals`,
     then eps along the geometric normal turned to the side of `eye`). Ray i of light k's S aims at disc point
-    q = trace.disk_sample(i, S, p) in the frame (a, b) = trace.disk_basis(w).
+    q = trace.above_horizon(trace.disk_sample(i, S, p), d) in the frame (a, b, d) = trace.horizon_frame(w, ns, ·): the
+    part of the disc above the horizon of the shading normal ns.
     Directional light (row[0] = 0): w = row[1:4] normalised, direction w + tan(α)(q_x a + q_y b),
     α = √(row[7]/π) its angular radius, unbounded. Point light (row[0] = 1): w towards the centre c = row[1:4]
     from the origin, ray towards c + r(q_x a + q_y b) (r = row[7]) up to eps short of it. A ray counts if it
@@ -872,13 +873,6 @@ def trace_lobe_rays(vertices, normals, faces, face, bary, position, eye, eps, t_
     return out
 
 
-def _above(q, a, b, w, n, apparent) -> np.ndarray:
-    """Disc points q moved above the horizon of normals n (trace.above_horizon), for a disc of axis w, frame
-    (a, b) and radius `apparent` over its distance."""
-    m = np.stack([np.sum(a * n, 1), np.sum(b * n, 1)], 1)
-    return above_horizon(q, m, np.sum(w * n, 1), apparent * np.linalg.norm(m, axis=1))
-
-
 def _shadow_rays(v, f, start, lights, eps, t_min, tol, turn, i, samples) -> np.ndarray:
     """(len(turn), L) bool: ray i of `samples` of trace_shadows unoccluded, per hit pixel and light, from the
     ray starts `start` (trace.ray_starts of the hit pixels), turned by pixels `turn` (trace.pixel_parts)."""
@@ -888,9 +882,9 @@ def _shadow_rays(v, f, start, lights, eps, t_min, tol, turn, i, samples) -> np.n
     for k, row in enumerate(lights):
         if row[0] == 0:
             w = np.broadcast_to(row[1:4] / np.linalg.norm(row[1:4]), o.shape)
-            a, b = disk_basis(w)
             spread = np.tan(np.sqrt(row[7] / np.pi))
-            q = _above(q0, a, b, w, n, spread)
+            a, b, chord = horizon_frame(w, n, spread)
+            q = above_horizon(q0, chord)
             d = w + spread * (q[:, :1] * a + q[:, 1:] * b)
             d = d / np.linalg.norm(d, axis=1, keepdims=True)
             t_max = np.full(len(o), np.inf)
@@ -898,8 +892,8 @@ def _shadow_rays(v, f, start, lights, eps, t_min, tol, turn, i, samples) -> np.n
             w = row[1:4][None] - o
             dist = np.maximum(np.linalg.norm(w, axis=1), 1e-300)
             w = w / dist[:, None]
-            a, b = disk_basis(w)
-            q = _above(q0, a, b, w, n, row[7] / dist)
+            a, b, chord = horizon_frame(w, n, row[7] / dist)
+            q = above_horizon(q0, chord)
             d = row[1:4][None] + row[7] * (q[:, :1] * a + q[:, 1:] * b) - o
             dist = np.linalg.norm(d, axis=1)
             d = d / np.maximum(dist, 1e-300)[:, None]

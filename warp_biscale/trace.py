@@ -42,7 +42,7 @@ __all__ = ["T_MIN", "SHADOW_OFFSET", "CHUNK_RAYS", "offsets", "check_mesh", "che
            "pixel_parts", "block_side", "block_pixel", "share_block", "block_sub_lenders", "BLOCK_SLOTS", "BLOCK_SIDES",
            "SHARE_NORMAL_COS", "SHARE_PLANE",
            "same_surface", "changed_pixels",
-           "disk_sample", "disk_basis", "above_horizon", "VISIBLE",
+           "disk_sample", "disk_basis", "horizon_frame", "above_horizon", "VISIBLE",
            "SHADOW_SAMPLES_MAX", "OCCLUSION_SAMPLES_MAX", "check_occlusion_samples", "occlusion_directions",
            "oriented_face_normals", "ray_starts", "LOBE_RAYS", "LOBE_RAY_LOBES", "lobe_ray_directions", "check_lobes"]
 
@@ -92,26 +92,35 @@ def disk_radii() -> np.ndarray:
 DISK_RADII = disk_radii()
 
 
-def above_horizon(q, m, wn, reach) -> np.ndarray:
-    """Disc points q (..., 2) moved into the part of a light's disc above a horizon (the kernels'
-    `above_horizon`): m (..., 2) the horizon's normal n in the disc's frame (n·a, n·b), wn = n·w, reach the
-    disc's radius (tan of a directional light's angular radius, a point light's radius over its distance) times
-    |m|, so that a ray to q is above the horizon where wn + reach·(q·m̂) > 0, i.e. along m̂ beyond −d, d =
-    wn/reach. Where the horizon cuts the disc (|d| < 1) a point's coordinate s along m̂ is squeezed linearly from
-    [−1, 1] onto [−d, 1] and its coordinate across scaled with the chord there: every ray aims at the part that
-    can light the point, the cosine integral's part, so none is lost below the horizon (a share taken over the
-    whole disc counted the horizon twice). Elsewhere q is kept (a disc wholly below lights nothing)."""
-    q, m = np.asarray(q, np.float64), np.asarray(m, np.float64)
-    wn, reach = np.asarray(wn, np.float64), np.asarray(reach, np.float64)
-    cut = reach > np.abs(wn)
-    length = np.linalg.norm(m, axis=-1)
-    u = m / np.where(cut, length, 1.0)[..., None]
-    v = np.stack([-u[..., 1], u[..., 0]], -1)
-    s, t = np.sum(q * u, -1), np.sum(q * v, -1)
-    d = wn / np.where(cut, reach, 1.0)
+def horizon_frame(w, n, apparent) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(a, b, d), (..., 3), (..., 3), (...,): the frame a light's shadow rays spread over its disc in (the kernels'
+    `horizon_frame`), for disc axes w (..., 3) (unit, towards the light), shading normals n and the disc's
+    radius over its distance `apparent` (tan of a directional light's angular radius). Where the horizon of n cuts
+    the disc, a is n's part across the disc, normalised, b = w × a, and d = (n·w)/(apparent·|n − (n·w)w|) in
+    (−1, 1): a ray to disc point q is above the horizon where q_x > −d. Elsewhere (a, b) = disk_basis(w) and d = 2."""
+    w, n = np.asarray(w, np.float64), np.asarray(n, np.float64)
+    apparent = np.asarray(apparent, np.float64)
+    wn = np.sum(w * n, -1)
+    across = n - wn[..., None] * w
+    length = np.linalg.norm(across, axis=-1)
+    cut = apparent * length > np.abs(wn)
+    a0, b0 = disk_basis(w)
+    a = np.where(cut[..., None], across / np.where(cut, length, 1.0)[..., None], a0)
+    b = np.where(cut[..., None], np.cross(w, a), b0)
+    return a, b, np.where(cut, wn / np.where(cut, apparent * length, 1.0), 2.0)
+
+
+def above_horizon(q, d) -> np.ndarray:
+    """Disc points q (..., 2) moved into the part of the disc above the horizon, q_x > −d (`horizon_frame`; the
+    kernels' `above_horizon`): where |d| < 1 the coordinate q_x is squeezed linearly from [−1, 1] onto [−d, 1] and
+    q_y scaled with the chord there. Every ray then aims at the part of the light that the cosine integral counts
+    (rays over the whole disc, those below counted as blocked, counted the horizon twice). Elsewhere q is kept (a
+    disc wholly below lights nothing)."""
+    q, d = np.asarray(q, np.float64), np.asarray(d, np.float64)
+    s, t = q[..., 0], q[..., 1]
     s2 = -d + 0.5 * (s + 1.0) * (1.0 + d)
     t2 = t * np.sqrt(np.maximum(1.0 - s2 * s2, 0.0) / np.maximum(1.0 - s * s, 1e-12))
-    return np.where(cut[..., None], s2[..., None] * u + t2[..., None] * v, q)
+    return np.where((np.abs(d) < 1)[..., None], np.stack([s2, t2], -1), q)
 
 
 def disk_basis(w) -> tuple[np.ndarray, np.ndarray]:
