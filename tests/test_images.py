@@ -184,7 +184,7 @@ def test_hdr_truncated_and_corrupt_are_valueerrors(tmp_path):
     for name in ("rle", "flat"):
         data = (tmp_path / f"{name}.hdr").read_bytes()
         cases[f"cut-{name}"] = data[:-7], "truncated at scanline 3"
-        cases[f"header-only-{name}"] = data[:data.index(b"+X 64\n") + 6], "truncated at scanline 0"
+        cases[f"header-only-{name}"] = data[:data.index(b"+X 64\n") + 6], "truncated: 0 bytes of data for 4 x 64"
         cases[f"no-resolution-{name}"] = data[:data.index(b"\n\n") + 2], "no resolution line"
     rle = (tmp_path / "rle.hdr").read_bytes()
     start = rle.index(b"+X 64\n") + 6
@@ -198,6 +198,11 @@ def test_hdr_truncated_and_corrupt_are_valueerrors(tmp_path):
     cases["xyze"] = b"#?RADIANCE\nFORMAT=32-bit_rle_xyze\n\n-Y 1 +X 1\n" + bytes(4), "xyze is not supported"
     cases["flipped"] = b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n+Y 1 +X 1\n" + bytes(4), "only '-Y H \\+X W'"
     cases["empty"] = b"", "not a Radiance"
+    # a header that promises more than the file could hold, refused before the pixels' memory is taken (a 55-byte
+    # file said 99999 × 99999 and asked for 37 GiB)
+    head = b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n"
+    cases["huge"] = head + b"-Y 99999 +X 99999\n" + bytes(16), "99999×99999 pixels: at most 67,108,864 are read"
+    cases["short"] = head + b"-Y 2000 +X 2000\n" + bytes(16), "truncated: 16 bytes of data for 2000 x 2000"
     for name, (data, message) in cases.items():
         path = tmp_path / f"{name}.hdr"
         path.write_bytes(data)

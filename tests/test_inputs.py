@@ -60,6 +60,12 @@ BAD = [
     (lambda: wb.PointLight(radius=NAN), "PointLight.radius"),
     (lambda: wb.PointLight(position=(0, INF, 0)), "PointLight.position"),
     (lambda: wb.DirectionalLight(irradiance=-2.0), "DirectionalLight.irradiance"),
+    # a tile or mesh past the float32 kernels' range (a tile at 1e25 crashed the bake's kernels, at 1e-25 found no lobe)
+    (lambda: wb.SmallScale(wb.geometry.pyramid().vertices * 1e25, wb.geometry.pyramid().faces),
+     "spans 1e+25 with coordinates up to 1e+25: the kernels, in float32, take a period of at least 1e-12"),
+    (lambda: wb.SmallScale(wb.geometry.pyramid().vertices * 1e-25, wb.geometry.pyramid().faces), "rescale it"),
+    (lambda: wb.Mesh(np.array([[0, 0, 0], [1e30, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2]])),
+     "Mesh.vertices reach 1e+30: the float32 renderers take coordinates up to 1e+12"),
     # past float32's room once a small light's sharp lobe scales it (1e38 rendered black, 1e39 failed unnamed)
     (lambda: wb.PointLight(intensity=1e38), "PointLight.intensity must be at most 1e+20"),
     (lambda: wb.DirectionalLight(irradiance=(1, 1, 1e21)), "DirectionalLight.irradiance must be at most 1e+20"),
@@ -403,3 +409,18 @@ def test_an_unknown_render_option_is_one_line_for_every_method(method, monkeypat
     monkeypatch.setattr(render, "get_backend", no_backend)
     with pytest.raises(ValueError, match=r"unknown option\(s\) for .*'bogus'"):
         wb.render(_scene(), method=method, bogus=1)
+
+
+def test_images_too_large_to_read_are_refused_before_decoding(tmp_path):
+    """A small compressed file can stand for an image that fills the memory (a 165 KB PNG of 12000 × 12000 took all
+    24 GB as a height field): its header's size is checked first, one line naming the file and the limit."""
+    from PIL import Image
+
+    path = tmp_path / "flat.png"
+    Image.new("L", (2049, 2048)).save(path)  # 2049·2048 cells: one column past the height field's 2048²
+    assert path.stat().st_size < 100_000
+    with pytest.raises(ValueError, match="flat.png is 2049×2048 pixels: at most 4,194,304 are read"):
+        wb.geometry.heightfield_from_image(path)
+    Image.new("RGB", (8193, 8192)).save(path)
+    with pytest.raises(ValueError, match="flat.png is 8193×8192 pixels: at most 67,108,864 are read"):
+        wb.Environment.from_file(path)

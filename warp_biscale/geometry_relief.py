@@ -8,12 +8,14 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 
 import numpy as np
 from PIL import Image
 
 from .geometry_mesh import TriangleSoup, check_faces, following, lift, triangulate_ground
 from .geometry_params import WHITE, format_params, integer, material_id, one_of, real, rgb
+from .images import check_image_size
 from .smallscale import SmallScale
 
 __all__ = ["flat", "pyramid", "grooves", "heightfield", "heightfield_from_image", "relief", "relief_heights"]
@@ -312,6 +314,7 @@ def heightfield(heights, *, size=1.0, scale=1.0, material=0, color=WHITE) -> Sma
     )
 
 
+HEIGHT_PIXELS_MAX = 2048 * 2048  # a height image's cells, two faces each: past this a small PNG could fill the memory
 RELIEF_GRID = 64  # the default relief's grid: RELIEF_GRID² heights a period
 
 
@@ -362,7 +365,11 @@ def read_height_image(path, fn="read_height_image") -> np.ndarray:
     if not os.path.exists(path):
         raise FileNotFoundError(f"{fn}: image file not found: {path}")
     try:
-        with Image.open(path) as im:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # (its size is checked here)
+            im = Image.open(path)
+        with im:
+            check_image_size(path, im.size, HEIGHT_PIXELS_MAX)
             im.load()
             if im.mode == "F":
                 arr = np.asarray(im, np.float64)
@@ -370,7 +377,7 @@ def read_height_image(path, fn="read_height_image") -> np.ndarray:
                 arr = np.asarray(im, np.float64) / 65535.0
             else:
                 arr = np.asarray(im.convert("L"), np.float64) / 255.0
-    except (OSError, ValueError, SyntaxError) as exc:  # PIL signals unreadable files with any of these
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:  # PIL's signals of bad files
         raise ValueError(f"{fn}: could not read {path!r} as an image: {exc}") from exc
     if arr.ndim != 2:
         raise ValueError(f"{fn}: {path!r} did not decode to a 2-D greyscale image (shape {arr.shape})")

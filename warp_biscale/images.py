@@ -159,6 +159,10 @@ def _parse_hdr_header(data: bytes, path: str) -> tuple[int, int, int]:
     height, width = int(res[1]), int(res[3])
     if height < 1 or width < 1:
         raise ValueError(f"{path}: empty image ({height} x {width})")
+    check_image_size(path, (width, height), IMAGE_PIXELS_MAX)
+    # RLE packs a run of up to 127 equal bytes into 2: the data cannot be shorter than 4·H·W·2/128 bytes
+    if len(data) - (end + 1) < height * width // 16:
+        raise ValueError(f"{path}: truncated: {len(data) - end - 1} bytes of data for {height} x {width} pixels")
     return height, width, end + 1
 
 
@@ -329,17 +333,32 @@ def write_png(path, image, exposure: float = 0.0, operator: str = "aces") -> Non
         Image.fromarray(u8, "RGB").save(tmp, format="PNG")
 
 
+IMAGE_PIXELS_MAX = 8192 * 8192  # an image read whole, as float64 RGB: 1.6 GB at this size
+
+
 def _read_pillow(path: str) -> np.ndarray:
     try:
-        with Image.open(path) as im:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # (its size is checked here)
+            im = Image.open(path)
+        with im:
+            check_image_size(path, im.size, IMAGE_PIXELS_MAX)
             im.load()
             if im.mode in ("I;16", "I;16B", "I;16L", "I"):  # 16-bit grey PNG
                 a = np.asarray(im, np.float64) / 65535.0
             else:
                 a = np.asarray(im.convert("RGB"), np.float64) / 255.0
-    except (UnidentifiedImageError, OSError, SyntaxError) as exc:
+    except (UnidentifiedImageError, OSError, SyntaxError, Image.DecompressionBombError) as exc:
         raise ValueError(f"{path} is not a readable image (truncated or corrupt?): {exc}") from None
     return _as_rgb(srgb_to_linear(a), path)
+
+
+def check_image_size(path, size, most: int) -> None:
+    """Refuse, before decoding it, an image of more than `most` pixels (its header's `size`, (width, height)):
+    a small compressed file can stand for one that fills the memory."""
+    w, h = (int(x) for x in size)
+    if w * h > most:
+        raise ValueError(f"{os.fspath(path)} is {w}×{h} pixels: at most {most:,} are read (downsample it)")
 
 
 def read_image(path) -> np.ndarray:

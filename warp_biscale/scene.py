@@ -29,7 +29,7 @@ from .images import write_image
 from .io import check_output
 from .litsphere import LitSphere
 from .lobes import KERNEL_LOBES
-from .smallscale import _finite_array, mesh_read_reason
+from .smallscale import TILE_SCALE_MAX, _finite_array, mesh_read_reason
 from .svbrdf import Textured
 
 __all__ = ["Mesh", "Camera", "PointLight", "DirectionalLight", "light_sg"]
@@ -151,6 +151,9 @@ class Mesh:
 
     def __post_init__(self):
         self.vertices = _finite_array("Mesh.vertices", self.vertices, (3,), np.float64)
+        if len(self.vertices) and np.abs(self.vertices).max() > TILE_SCALE_MAX:
+            raise ValueError(f"Mesh.vertices reach {np.abs(self.vertices).max():.3g}: the float32 renderers take "
+                             f"coordinates up to {TILE_SCALE_MAX:g} (rescale the scene)")
         faces = np.asarray(self.faces)
         if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0 or not np.issubdtype(faces.dtype, np.integer):
             raise ValueError(f"Mesh.faces must be a non-empty (F, 3) integer array, got shape {faces.shape}")

@@ -54,13 +54,16 @@ def _finite_array(name: str, value, shape_tail: tuple, dtype) -> np.ndarray:
     return arr
 
 
-
 def mesh_read_reason(exc: Exception) -> str:
     """Why trimesh could not read a mesh file, in a user's words where its own are numpy's (a face naming a
     vertex the file lacks surfaces as numpy's IndexError)."""
     if isinstance(exc, IndexError):
         return f"a face refers to a vertex the file does not have ({exc})"
     return str(exc)
+
+
+TILE_SCALE_MIN, TILE_SCALE_MAX = 1e-12, 1e12  # float32 kernels: beyond, areas and squared lengths overflow or vanish
+
 
 @dataclass(eq=False)
 class SmallScale:
@@ -189,6 +192,13 @@ class SmallScale:
             raise ValueError(
                 f"tile period must be > 0 in x and y, got {tuple(period.tolist())}"
                 " (a tile needs an xy extent; give period= explicitly for a degenerate footprint)"
+            )
+        reach = float(np.abs(v).max())
+        if reach > TILE_SCALE_MAX or period.max() < TILE_SCALE_MIN:
+            raise ValueError(  # (beyond, float32 kernels overflowed their areas and squared lengths or lost them)
+                f"tile {self.name!r} spans {period.max():.3g} with coordinates up to {reach:.3g}: the kernels, in "
+                f"float32, take a period of at least {TILE_SCALE_MIN:g} and coordinates up to {TILE_SCALE_MAX:g} "
+                "(rescale it: a tile's size does not change its effective BRDF)"
             )
         self.vertices, self.faces = v, f.astype(np.int32)
         self.material_ids, self.colors, self.vertex_normals = mat, col, vn
