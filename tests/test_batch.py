@@ -542,6 +542,28 @@ def test_cluster_run_finishes_a_killed_workers_task_elsewhere(cluster_run):
 
 
 @needs_dask
+def test_a_task_that_kills_its_worker_every_time_ends_the_batch_anyway(tmp_path):
+    """A task that kills the worker process running it on every attempt (a crash in native code) is recorded as
+    failed (Dask's KilledWorker) and the batch ends. Before, it waited for ever: Dask keeps a task whose worker
+    restriction names a departed worker waiting for it even where others are allowed, and the nanny restarts a
+    killed worker at a new address (batch._resend_stranded). A task queued on the dying worker with it may fail
+    too; the other tasks finish."""
+    write(str(tmp_path), "jobs.toml", BASE.replace("height = [0.2, 0.4]", "height = [0.2, 0.4, 0.6]"))
+    jobs = load_jobs(str(tmp_path / "jobs.toml"))
+    assert len(jobs.tasks) == 3
+    victim = jobs.tasks[0].hash
+
+    def hook(task, victim=victim):
+        if task["hash"] == victim:
+            os.kill(os.getpid(), signal.SIGKILL)
+
+    res = batch.run(jobs, str(tmp_path / "results"), workers=2, hook=hook, progress=False, dashboard=False)
+    assert res.records[victim]["status"] == "failed" and "KilledWorker" in res.records[victim]["error"]
+    assert sum(r["status"] == "done" for r in res.records.values()) >= 1
+    assert set(res.records) == {t.hash for t in jobs.tasks}
+
+
+@needs_dask
 def test_rerun_resumes_on_a_running_scheduler(cluster_run, tmp_path):
     """A copy of the results run again, submitted to a running scheduler (an in-process LocalCluster):
     only the failed task runs; a third run runs nothing. Removing one output reruns that task alone."""

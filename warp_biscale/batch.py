@@ -38,7 +38,10 @@ settings and each scene file's text (not the files a scene file names in turn: e
 ``resume=False`` / ``--no-resume``).
 
 **Faults.** A task that raises is run once more (Dask ``retries=1``); if it fails again its error is
-recorded and the others go on. A worker that dies (killed, out of memory) has its tasks run elsewhere.
+recorded and the others go on. A worker that dies (killed, out of memory) has its tasks run elsewhere; a
+task that kills its worker on every attempt (a crash in native code) is recorded as failed after three
+deaths (Dask's KilledWorker), as may be a task queued on that worker beside it (a rerun tries them again).
+Without Dask (``workers=0``) such a crash ends the whole run: ``workers=1`` keeps it to its worker.
 Each task's files are written atomically, its task.json last; a rerun skips every task whose task.json
 has the same input hash and whose outputs are all there, so an interrupted run (Ctrl-C) resumes where it
 stopped.
@@ -526,10 +529,60 @@ def gpu_cluster(gpus: int, dashboard: bool = False):
     return SpecCluster(workers=workers, scheduler=scheduler, silence_logs=logging.CRITICAL)
 
 
+WATCH_S = 5.0  # seconds without a finished task before the batch looks for tasks stranded on a dead worker
+RESULT_S = 32.0  # a finished task's result may take up to twice this to come back (its files: up to hundreds of MB)
+
+
+def _collect(client, fut, task, done, failed) -> bool:
+    """A finished or failed future's result or error, to `done` or `failed`; then released. False, and nothing
+    said, where a finished task's result is held by no worker or did not come within RESULT_S: its worker died
+    holding it, and it is computed again (`_resend_stranded` sends it elsewhere if it was sent to that worker)."""
+    if fut.status == "finished":
+        wait, result = 1.0, None
+        while result is None:  # (waits that double: a worker that dies is seen in a second or two, a big result
+            if fut.status != "finished" or not client.who_has([fut]).get(fut.key):  # gets up to a minute)
+                return False
+            try:
+                result = fut.result(timeout=wait)
+            except TimeoutError:
+                if wait > RESULT_S:
+                    return False
+                wait *= 2
+            except Exception as exc:  # noqa: BLE001 - lost on the way back: recorded as a failure
+                failed(task, exc, traceback.format_exc())
+                break
+        if result is not None:
+            done(task, result)
+    else:
+        try:
+            exc, tb = fut.exception(), fut.traceback()
+        except Exception as lost:  # noqa: BLE001 - cancelled (the scheduler or the cluster went away)
+            exc, tb = lost, None
+        failed(task, exc, "".join(traceback.format_exception(type(exc), exc, tb)))
+    fut.release()
+    return True
+
+
+def _resend_stranded(client, futures, assignment, submit) -> None:
+    """Send again, to any worker, the unfinished tasks sent to a worker that has left the cluster. Dask keeps a
+    task whose worker restriction names a departed worker waiting for it ("no-worker") even where other workers
+    are allowed, and a local cluster's nanny restarts a killed worker at a new address: the batch waited for
+    ever once a task had killed its worker."""
+    alive = set(client.scheduler_info()["workers"])
+    for fut, task in list(futures.items()):
+        where = assignment.get(task.hash)
+        if where is None or where in alive or fut.done():
+            continue
+        client.cancel(fut)
+        del futures[fut]
+        del assignment[task.hash]
+        futures[submit(task, None)] = task
+
+
 def _run_dask(todo, workers, scheduler, hook, dashboard, pin, done, failed, line, res, gpus=0):
     import logging
 
-    from distributed import Client, LocalCluster, as_completed
+    from distributed import Client, LocalCluster
 
     cluster = None
     if scheduler:
@@ -548,28 +601,27 @@ def _run_dask(todo, workers, scheduler, hook, dashboard, pin, done, failed, line
                  (f", dashboard {res.dashboard}" if res.dashboard else ""))
         assignment = assign_workers(todo, sorted(client.scheduler_info()["workers"]))
         tag = uuid.uuid4().hex[:8]
+
+        def submit(task, where):
+            return client.submit(execute, task.payload(), hook, pin,
+                                 key=f"warp-biscale-{task.hash}-{tag}{'' if where else '-anywhere'}",
+                                 retries=RETRIES, pure=False,
+                                 **({"workers": [where], "allow_other_workers": True} if where else {}))
+
         for task in todo:
-            where = ({"workers": [assignment[task.hash]], "allow_other_workers": True} if task.hash in assignment
-                     else {})
-            fut = client.submit(execute, task.payload(), hook, pin, key=f"warp-biscale-{task.hash}-{tag}",
-                                retries=RETRIES, pure=False, **where)
-            futures[fut] = task
-        for fut in as_completed(list(futures)):
-            task = futures.pop(fut)
-            if fut.status == "finished":
-                try:
-                    result = fut.result()
-                except Exception as exc:  # noqa: BLE001 - lost on the way back: recorded as a failure
-                    failed(task, exc, traceback.format_exc())
-                    continue
-                done(task, result)
+            futures[submit(task, assignment.get(task.hash))] = task
+        quiet = time.monotonic()
+        while futures:  # (a future's state is local: polling it costs nothing beside tasks of seconds)
+            finished = [fut for fut in futures if fut.done() and _collect(client, fut, futures[fut], done, failed)]
+            for fut in finished:
+                del futures[fut]
+            if finished:
+                quiet = time.monotonic()
+            elif time.monotonic() - quiet > WATCH_S:  # a quiet spell: has a worker that tasks were sent to gone?
+                _resend_stranded(client, futures, assignment, submit)
+                quiet = time.monotonic()
             else:
-                try:
-                    exc, tb = fut.exception(), fut.traceback()
-                except Exception as lost:  # noqa: BLE001 - cancelled (the scheduler or the cluster went away)
-                    exc, tb = lost, None
-                failed(task, exc, "".join(traceback.format_exception(type(exc), exc, tb)))
-            fut.release()
+                time.sleep(0.05)
     finally:
         if futures:
             client.cancel(list(futures))
