@@ -354,6 +354,8 @@ brdf = "lambert:albedo=0.5"
     ("unknown tile key", lambda t: t.replace("height =", "heigth ="), "heigth", ["unknown key 'heigth'", "pyramid"]),
     ("empty list", lambda t: t.replace("[0.2, 0.4]", "[]"), "height", ["empty"]),
     ("empty range", lambda t: t.replace("[0.2, 0.4]", "{ from = 0.2, to = 0.6, steps = 0 }"), "height", ["empty"]),
+    ("huge range", lambda t: t.replace("[0.2, 0.4]", "{ from = 0.2, to = 0.6, steps = 1000000000000 }"), "height",
+     ["the range makes 1000000000000 values (more than 100000)"]),
     ("empty step range", lambda t: t.replace("[0.2, 0.4]", "{ from = 0.6, to = 0.2, step = 0.1 }"), "height",
      ["is empty"]),
     ("bad parameter value", lambda t: t.replace("[0.2, 0.4]", "[0.2, -0.4]"), "height", ["height", "-0.4"]),

@@ -346,6 +346,8 @@ def _range(ctx, table, key, r) -> list:
         if not isinstance(n, int) or isinstance(n, bool) or n < 1:
             raise ctx.error(table, (key, "steps"), f"{key}: steps must be an integer >= 1 (an empty range gives no "
                                                    f"task), got {_show(n)}")
+        if n > MAX_TASKS:  # (before the values are made: 1e12 of them asked for 7 TiB)
+            raise ctx.error(table, (key, "steps"), f"{key}: the range makes {n} values (more than {MAX_TASKS})")
         if log:
             if lo <= 0 or hi <= 0:
                 raise ctx.error(table, key, f"{key}: a log range needs from and to > 0, got {lo:g} and {hi:g}")

@@ -73,6 +73,9 @@ def _positive(name, v) -> float:
     return x
 
 
+MESH_QUADS_MAX = 2048 * 2048  # a built-in mesh's cells (two faces each): past this its arrays fill the memory
+
+
 def _integer(name, v, lo: int, hi: int | None = None, note: str = "") -> int:
     """An integer (an integral float is accepted) in lo..hi (hi None: >= lo), else a ValueError naming
     `name` (and `note`, what the range is)."""
@@ -239,7 +242,7 @@ class Mesh:
         """An icosphere with exact normals and equirectangular UVs."""
         radius = _positive("Mesh.sphere radius", radius)
         center = _vec3("Mesh.sphere center", center)
-        subdivisions = _integer("Mesh.sphere subdivisions", subdivisions, 0)
+        subdivisions = _integer("Mesh.sphere subdivisions", subdivisions, 0, 8, " (8: 1.3 M faces)")
         material = _integer("Mesh.sphere material", material, 0)
         n, faces = icosphere(subdivisions)
         uvs = np.stack([0.5 + np.arctan2(n[:, 0], n[:, 2]) / (2 * np.pi),
@@ -258,8 +261,11 @@ class Mesh:
         except (TypeError, ValueError):
             raise ValueError(f"Mesh.torus segments must be two integers >= 3 (around, across), "
                              f"got {segments!r}") from None
-        nu = _integer("Mesh.torus segments[0] (around)", nu, 3)
-        nv = _integer("Mesh.torus segments[1] (across)", nv, 3)
+        nu = _integer("Mesh.torus segments[0] (around)", nu, 3, 4096)
+        nv = _integer("Mesh.torus segments[1] (across)", nv, 3, 4096)
+        if nu * nv > MESH_QUADS_MAX:
+            raise ValueError(f"Mesh.torus segments {nu} x {nv} make {2 * nu * nv:,} faces: at most "
+                             f"{2 * MESH_QUADS_MAX:,}")
         u = np.arange(nu) * 2 * np.pi / nu
         v = np.arange(nv) * 2 * np.pi / nv
         uu, vv = np.meshgrid(u, v, indexing="ij")
@@ -280,7 +286,7 @@ class Mesh:
         """A square floor at y = height, facing +y, divided into divisions² quads (SSDF vertices)."""
         size = _positive("Mesh.plane size", size)
         height = _number("Mesh.plane height", height)
-        divisions = _integer("Mesh.plane divisions", divisions, 1)
+        divisions = _integer("Mesh.plane divisions", divisions, 1, 2048, " (2048: 8.4 M faces)")
         material = _integer("Mesh.plane material", material, 0)
         t = np.linspace(-size / 2, size / 2, divisions + 1)
         xx, zz = np.meshgrid(t, t, indexing="ij")
