@@ -429,3 +429,27 @@ def test_images_too_large_to_read_are_refused_before_decoding(tmp_path):
     Image.new("RGB", (8193, 8192)).save(path)
     with pytest.raises(ValueError, match="flat.png is 8193×8192 pixels: at most 67,108,864 are read"):
         wb.Environment.from_file(path)
+
+
+def test_a_material_file_with_a_malformed_material_list_or_zero_lobe_axes_is_refused(tmp_path):
+    """A .wbm whose `materials` holds a string (not a BRDF table) failed with an AttributeError traceback; one whose
+    lobe axes are zero loaded with a numpy warning and rendered without its specular term. Both now say the file
+    is not a valid material file, in one line."""
+    import json
+
+    mat = wb.bake(wb.geometry.pyramid(), [wb.Lambert(0.5)], lobes=2, directions=4, facets=1024, normal_res=16,
+                  backend="warp:cpu")
+    good = tmp_path / "good.wbm"
+    mat.save(good)
+    with np.load(good) as z:
+        arrays = {k: z[k] for k in z.files}
+    header = json.loads(str(arrays.pop("header")))
+    for name, edit in (("list", lambda h, a: h.update(materials=["phong:x=1"])),
+                       ("axes", lambda h, a: a.__setitem__("axes", np.zeros_like(a["axes"])))):
+        h, a = json.loads(json.dumps(header)), dict(arrays)
+        edit(h, a)
+        bad = tmp_path / f"{name}.wbm"
+        with open(bad, "wb") as fh:  # (a path would get .npz added)
+            np.savez_compressed(fh, header=np.array(json.dumps(h)), **a)
+        with pytest.raises(ValueError, match=f"{name}.wbm is not a valid material file: "):
+            wb.load(bad)

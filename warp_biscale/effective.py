@@ -124,6 +124,8 @@ def materials_from_file(dicts, arrays) -> list:
     """The BRDFs `materials_to_file` wrote. Their EnergyWarning (a BRDF reflecting more than it receives) is not
     given again: it was given when the material was built, and a warning at each load would point at this
     module, not at the caller, about a material the user did not just build."""
+    if not isinstance(dicts, list) or not all(isinstance(d, dict) for d in dicts):
+        raise ValueError(f"its materials must be a list of BRDF tables, got {str(dicts)[:80]}")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", brdf_mod.EnergyWarning)
         return [MeasuredBRDF.from_file(d, arrays) if d.get("type") == "MeasuredBRDF" else _brdf_from_dict(d)

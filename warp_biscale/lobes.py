@@ -50,7 +50,10 @@ class LobeSet:
             raise ValueError(f"a LobeSet needs 1..{MAX_LOBES} lobes with one sharpness and weight each")
         if not (np.all(np.isfinite(self.axes)) and np.all(self.sharpness > 0) and np.all(np.isfinite(self.sharpness))):
             raise ValueError("lobe axes must be finite and sharpness finite and > 0")
-        self.axes = self.axes / np.linalg.norm(self.axes, axis=1, keepdims=True)
+        length = np.linalg.norm(self.axes, axis=1, keepdims=True)
+        if not np.all(length > 1e-12):
+            raise ValueError(f"lobe axes must be non-zero directions (lobe {int(np.argmin(length))} is 0)")
+        self.axes = self.axes / length
 
     def __len__(self):
         return len(self.axes)
