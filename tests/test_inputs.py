@@ -71,6 +71,9 @@ BAD = [
     (lambda: wb.SmallScale(wb.geometry.pyramid().vertices * 1e-25, wb.geometry.pyramid().faces), "rescale it"),
     (lambda: wb.Mesh(np.array([[0, 0, 0], [1e30, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2]])),
      "Mesh.vertices reach 1e+30: the float32 renderers take coordinates up to 1e+12"),
+    # an environment as bright: its sun would become such a light (an EXR texel of 3e38 was refused as an internal
+    # light the user never wrote)
+    (lambda: wb.Environment.constant(1e38), "Environment 'constant' holds radiance up to 1e+38: the renderers"),
     # past float32's room once a small light's sharp lobe scales it (1e38 rendered black, 1e39 failed unnamed)
     (lambda: wb.PointLight(intensity=1e38), "PointLight.intensity must be at most 1e+20"),
     (lambda: wb.DirectionalLight(irradiance=(1, 1, 1e21)), "DirectionalLight.irradiance must be at most 1e+20"),

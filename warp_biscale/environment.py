@@ -64,6 +64,9 @@ def equirect_bilinear(image, d) -> np.ndarray:
     return out
 
 
+RADIANCE_MAX = 1e16  # a texel's radiance: times the solid angle of a source's few texels, a light under 1e20
+
+
 @dataclass(eq=False)
 class Environment:
     """An equirectangular radiance map, (H, W, 3) float32, finite and >= 0."""
@@ -80,6 +83,9 @@ class Environment:
             raise ValueError(f"Environment {self.name!r} holds NaN or inf radiance")
         if (r < 0).any():
             raise ValueError(f"Environment {self.name!r} holds negative radiance (min {float(r.min())})")
+        if r.max() > RADIANCE_MAX:  # (its sources become lights, of at most scene.LIGHT_POWER_MAX)
+            raise ValueError(f"Environment {self.name!r} holds radiance up to {float(r.max()):.3g}: the renderers, in "
+                             f"float32, take at most {RADIANCE_MAX:g} (scale the map down)")
         self.radiance = np.ascontiguousarray(r)
 
     def __repr__(self):  # (the map's size and range, not its every texel)
