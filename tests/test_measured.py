@@ -236,6 +236,8 @@ def test_coordinates_and_indices_follow_brdfread(random_table):
     ("big-endian header", ValueError, "big-endian"),
     ("nan", ValueError, "non-finite value(s), the first nan at channel g, θh index 1, θd index 2, φd index 3"),
     ("inf", ValueError, "non-finite value(s), the first -inf at channel b"),
+    # finite but past what its fits can square (1e300 failed late, naming a CookTorrance fit's inf kd)
+    ("huge", ValueError, "holds values up to 1e+300 (channel r, θh index 4, θd index 5, φd index 6): at most 1e+12"),
 ])
 def test_bad_files_give_one_line_errors(tmp_path, case, error, words):
     good = np.zeros(ms.SHAPE)
@@ -257,6 +259,10 @@ def test_bad_files_give_one_line_errors(tmp_path, case, error, words):
         bad = good.copy()
         bad[(1, 1, 2, 3) if case == "nan" else (2, 0, 0, 5)] = np.nan if case == "nan" else -np.inf
         bad[2, 80, 1, 1] = np.inf
+        path.write_bytes(header + bad.astype("<f8").tobytes())
+    elif case == "huge":
+        bad = good.copy()
+        bad[0, 4, 5, 6] = 1e300
         path.write_bytes(header + bad.astype("<f8").tobytes())
     elif case == "directory":
         path.mkdir()

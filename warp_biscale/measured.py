@@ -60,6 +60,7 @@ HEADER_BYTES = 3 * 4
 FILE_BYTES = HEADER_BYTES + 3 * SAMPLES * 8  # 34 992 012
 SCALES = np.array([1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0])  # stored × scale = f_r (red, green, blue)
 INTERPOLATIONS = ("trilinear", "nearest")
+VALUE_MAX = 1e12  # a file's largest value (f_r times ~1500): above any measured peak, below overflow in its fits
 INVALID = -1.0  # what `from_brdf` stores where a bin's centre is below the horizon (any negative marks it)
 KERNEL_MODES = {"trilinear": 0, "nearest": 1}  # the interpolation's code in the kernels' packed row
 
@@ -295,6 +296,10 @@ class MeasuredBRDF(Brdf):
             c, i, j, k = np.unravel_index(int(np.argmax(bad)), SHAPE)
             raise ValueError(f"{what} holds {int(bad.sum())} non-finite value(s), the first {data[np.argmax(bad)]} "
                              f"at channel {'rgb'[c]}, θh index {i}, θd index {j}, φd index {k}")
+        if data.max() > VALUE_MAX:  # (its fits overflowed to inf far from here, in the bake's BRDF checks)
+            c, i, j, k = np.unravel_index(int(np.argmax(data)), SHAPE)
+            raise ValueError(f"{what} holds values up to {data.max():.3g} (channel {'rgb'[c]}, θh index {i}, θd "
+                             f"index {j}, φd index {k}): at most {VALUE_MAX:g} in the file's units")
         return cls(data.reshape(SHAPE), interpolation=interpolation, source=path)
 
     def save(self, path) -> None:
