@@ -456,3 +456,13 @@ def test_a_material_file_with_a_malformed_material_list_or_zero_lobe_axes_is_ref
             np.savez_compressed(fh, header=np.array(json.dumps(h)), **a)
         with pytest.raises(ValueError, match=f"{name}.wbm is not a valid material file: "):
             wb.load(bad)
+
+
+@pytest.mark.parametrize("seed", [-1, 1.5, "7", True])
+def test_a_facet_sampling_seed_is_a_non_negative_integer(seed):
+    """numpy's SeedSequence said "expected non-negative integer" naming no argument for -1, and 1.5 was taken."""
+    tile = wb.geometry.pyramid()
+    for call in (lambda: wb.bake(tile, [wb.Lambert(0.5)], lobes=2, directions=4, facets=1024, seed=seed),
+                 lambda: wb.ground_truth(tile, [wb.Lambert(0.5)], directions=4, facets=1024, seed=seed)):
+        with pytest.raises(ValueError, match=r"^seed must be an integer in 0 \.\. 2\*\*63 - 1, got"):
+            call()

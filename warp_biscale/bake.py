@@ -28,7 +28,7 @@ from .device import OnDevice, once
 from .brdf import MEASURED, Lambert, refuse_anisotropic
 from .effective import METHODS, EffectiveBRDF, Provenance, compare, device_levels
 from .progress import as_progress
-from .truth import _check_count, _prepare, _Timer, ground_truth
+from .truth import _check_count, _prepare, _Timer, check_seed, ground_truth
 from .model import Bvndf, Facets
 
 __all__ = ["bake", "Bvndf", "ROUTES"]
@@ -267,6 +267,7 @@ def bake(tile, materials, method: str = "sg", lobes=8, directions: int = 12, nor
     """
     if method not in (*METHODS, "matrix", *METHOD_BAKES, "auto"):  # (first: a typo is not an anisotropy problem)
         raise ValueError(f"method must be one of {(*METHODS, 'matrix', *METHOD_BAKES, 'auto')}, got {method!r}")
+    seed = check_seed(seed)
     if method == "auto":
         return _bake_auto(tile, materials, lobes, directions, normal_res, facets, backend, seed, route, tolerance,
                           bvndf, progress, matrix)

@@ -55,6 +55,13 @@ def _check_count(facets) -> int:
     return n
 
 
+def check_seed(seed) -> int:
+    """A facet-sampling seed: an integer in 0 .. 2**63 − 1 (numpy's SeedSequence takes no negative one)."""
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**63:
+        raise ValueError(f"seed must be an integer in 0 .. 2**63 - 1, got {seed!r}")
+    return int(seed)
+
+
 def _prepare(tile, materials, anisotropic: bool = False, measured: bool = False):
     """The tile checked and its materials normalised (one BRDF or a list, indexed by the tile's material ids):
     → (list of Brdf, kinds, params). Fewer BRDFs than the tile's ids is an error; more (than one) is a
@@ -119,7 +126,7 @@ def effective_brdf_exact(tile, materials, wi, wo, facets: int = 1 << 20, backend
     inverse = inverse.reshape(-1)
     pair_i, pair_o = inverse[: len(wi)], inverse[len(wi):]
     prog.stage("facets", 1)
-    fac = be.sample_facets(tile, count, seed)
+    fac = be.sample_facets(tile, count, check_seed(seed))
     prog.stage(f"visibility ({len(unique)} dirs)", 1)
     vis = be.visibility(tile, fac, unique)
     prog.stage("effective BRDF", 1)
@@ -175,6 +182,7 @@ def ground_truth(tile, materials, facets: int = 1 << 20, directions: int = 12, b
     tangents = _tangents(tile, mats)
     measured = measured_tables(mats)  # (their tables go to the device once, kept there by identity)
     count = _check_count(facets)
+    seed = check_seed(seed)
     bounces, paths = _check_bounces(bounces, paths)
     k = int(directions)
     if k != directions or not (2 <= k <= MAX_TRUTH_DIRECTIONS):
