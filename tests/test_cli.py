@@ -443,6 +443,8 @@ def test_demo_writes_a_png(tmp_path, capsys):
     (["demo", "--size", "0"], "error: --size values must be integers in 1..16384, got 0"),
     # (the spec's energy warning comes with loading it: the size is refused before)
     (["ball", "blinnphong:exponent=50,ks=2", "--size", "0"], "error: --size must be an integer in 8..8192, got 0"),
+    # (0 facets ran no truth and said nothing)
+    (["bake", "pyramid", "--truth", "0"], "error: --truth facets must be an integer in [1, 67108864], got 0"),
     # (the SG renderer's ray options with --method litsphere, whose shader traces no such rays)
     (["render", "SCENE", "--method", "litsphere", "--occlusion-samples", "4"],
      "error: --occlusion-samples is for the SG renderer (--method sg); the lit-sphere shader traces no occlusion rays"),

@@ -154,6 +154,11 @@ def cmd_truth(args):
 
 
 def cmd_bake(args):
+    if args.truth is not None:  # (0 ran no truth and said nothing: refused as the truth's own count check does)
+        try:
+            _check_count(args.truth)
+        except ValueError as exc:
+            raise ValueError(f"--truth {exc}") from None
     check_output(args.output, (".wbm", ".npz"), "--output")
     for flag, value in (("--truth-bounces", args.truth_bounces), ("--truth-paths", args.truth_paths)):
         if value is not None and not args.truth:
