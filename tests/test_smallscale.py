@@ -179,3 +179,11 @@ def test_tile_is_immutable():
         tile.vertices[0, 2] = 5.0
     with pytest.raises(ValueError, match="read-only"):
         tile.material_ids[0] = 3
+
+
+def test_a_tile_with_no_face_looking_up_warns():
+    """A tile given upside down (or wound the other way round) shows only backs from above, and bakes to an
+    all-zero material: that used to happen in silence."""
+    tile = wb.geometry.pyramid()
+    with pytest.warns(wb.TileWarning, match="no face looks up"):
+        wb.SmallScale(tile.vertices, tile.faces[:, ::-1].copy())

@@ -226,6 +226,10 @@ class SmallScale:
         norm = row_norms(cross)
         self._face_areas = 0.5 * norm
         self._face_normals = cross / norm[:, None]
+        if not (self._face_normals[:, 2] > 0).any():  # (a mesh wound the other way round, or given upside down)
+            warnings.warn(f"tile {self.name!r}: no face looks up (+z): seen from above the surface shows only "
+                          "backs, and its effective BRDF is 0 (turn it over or reverse its faces' winding)",
+                          TileWarning, stacklevel=3)
         if tan is None:
             self.face_tangents = default_face_tangents(self._face_normals)
         else:
