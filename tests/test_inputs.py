@@ -2,6 +2,7 @@
 in scene construction (and their file:line in a scene file), an energy gain in a BRDF (a warning), BRDFs
 beyond a tile's material ids (a warning) and [render] settings beyond what the renderer takes."""
 
+import re
 import sys
 import textwrap
 import warnings
@@ -466,3 +467,18 @@ def test_a_facet_sampling_seed_is_a_non_negative_integer(seed):
                  lambda: wb.ground_truth(tile, [wb.Lambert(0.5)], directions=4, facets=1024, seed=seed)):
         with pytest.raises(ValueError, match=r"^seed must be an integer in 0 \.\. 2\*\*63 - 1, got"):
             call()
+
+
+def test_render_studio_and_image_reading_name_a_wrong_argument(tmp_path):
+    """wb.render(None) or of a path was an AttributeError; a studio light given as an incomplete table a bare
+    TypeError from Softbox; a folder read as an environment map an "unknown image extension ''"."""
+    for arg, words in ((None, "render takes a Scene, got NoneType"),
+                       ("scene.toml", "got str (a scene file: wb.load_scene(path).scene)")):
+        with pytest.raises(TypeError, match=re.escape(words)):
+            wb.render(arg)
+    with pytest.raises(ValueError, match=r"Environment.studio light #1: .*missing 3 required"):
+        wb.Environment.studio(lights=[{}])
+    box = {"direction": (0, 1, 0), "half_width": 10, "half_height": 10}  # (a table of a Softbox's fields works)
+    assert wb.Environment.studio(lights=[box], height=16, width=32).radiance.max() > 0
+    with pytest.raises(ValueError, match="is a folder, not an image file"):
+        wb.Environment.from_file(tmp_path)

@@ -67,6 +67,18 @@ def equirect_bilinear(image, d) -> np.ndarray:
 RADIANCE_MAX = 1e16  # a texel's radiance: times the solid angle of a source's few texels, a light under 1e20
 
 
+def _softbox(i: int, box):
+    """A studio light given as a Softbox, or as its fields (a tuple or a dict), named by its place when they are not
+    a Softbox's."""
+    if isinstance(box, Softbox):
+        return box
+    try:
+        return Softbox(**box) if isinstance(box, dict) else Softbox(*box)
+    except TypeError as exc:
+        raise ValueError(f"Environment.studio light #{i + 1}: {exc} (a Softbox: direction, half_width, half_height, "
+                         f"radiance)") from None
+
+
 @dataclass(eq=False)
 class Environment:
     """An equirectangular radiance map, (H, W, 3) float32, finite and >= 0."""
@@ -229,8 +241,7 @@ class Environment:
         fill (left), a narrow bright rim (behind). Texels are averaged over supersample² equal-area
         sub-cells so box edges are anti-aliased and each box's power is close to radiance × solid angle."""
         _check_size(height, width)
-        boxes = DEFAULT_STUDIO_LIGHTS if lights is None else [b if isinstance(b, Softbox) else Softbox(*b)
-                                                                 for b in lights]
+        boxes = DEFAULT_STUDIO_LIGHTS if lights is None else [_softbox(i, b) for i, b in enumerate(lights)]
         bg = _rgb(background, "Environment.studio background")
         n = _supersample(supersample)
 

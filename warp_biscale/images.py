@@ -368,6 +368,8 @@ def read_image(path) -> np.ndarray:
     ext = os.path.splitext(path)[1].lower()
     if not os.path.exists(path):
         raise FileNotFoundError(f"no such file: {path}")
+    if os.path.isdir(path):
+        raise ValueError(f"{path} is a folder, not an image file")
     if ext == ".exr":
         return read_exr(path)
     if ext in (".hdr", ".pic"):

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import os
 import time
 
 import numpy as np
@@ -336,6 +337,10 @@ def render(scene: Scene, method: str = "sg", backend="auto", progress=None, aa: 
     standing for the environment), `shadows` (False: every light seen whole, no shadow rays — the paper's frame)
     and `report_error` (True, or references among "sg", "mc": info["error"] then holds `litsphere_errors`, the
     Monte Carlo one at `samples` a pixel), with `aa`, `shadow_samples` and `split_rays` as "sg"."""
+    if not isinstance(scene, Scene):
+        hint = (" (a scene file: wb.load_scene(path).scene)" if isinstance(scene, (str, os.PathLike)) else
+                " (a loaded scene file: its .scene)" if isinstance(getattr(scene, "scene", None), Scene) else "")
+        raise TypeError(f"render takes a Scene, got {type(scene).__name__}{hint}")
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     # The ray options given for a method that traces no such rays are refused, not silently dropped.
