@@ -2,6 +2,7 @@
 their closed forms (sun and softbox power by analytic integrals), files, resizing, bad inputs."""
 
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -238,6 +239,17 @@ def test_from_file_rejects_bad_radiance_naming_the_file(tmp_path):
         Environment.from_file(tmp_path / "cut.hdr")
     with pytest.raises(FileNotFoundError):
         Environment.from_file(tmp_path / "missing.exr")
+
+
+def test_from_file_warns_when_a_map_is_not_two_to_one(tmp_path):
+    np.save(tmp_path / "cross.npy", np.ones((12, 16, 3), np.float32))  # a 4:3 cube-map cross's shape
+    with pytest.warns(UserWarning, match=r"cross.npy is 16 x 12 pixels, not 2:1: .*equirectangular"):
+        env = Environment.from_file(tmp_path / "cross.npy")
+    assert env.radiance.shape == (12, 16, 3)  # still loaded: a warning, not a refusal
+    np.save(tmp_path / "latlong.npy", np.ones((8, 16, 3), np.float32))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        Environment.from_file(tmp_path / "latlong.npy")
 
 
 # ---------------------------------------------------------------------------------------------

@@ -98,6 +98,11 @@ BAD = [
     (lambda: _scene(ssdf_resolution=129), "Scene.ssdf_resolution"),
     (lambda: _scene(ssdf_resolution=8, ssdf_terms=65), "Scene.ssdf_terms must be an integer in 1..64"),
     (lambda: _scene(ssdf_terms=0), "Scene.ssdf_terms"),
+    # a point light whose sphere reaches into the mesh (the unit sphere's icosahedron: faces ≥ 0.79 from 0)
+    (lambda: _scene(lights=[wb.PointLight((0, 0, 0), 1.0, 100.0)]),
+     r"Scene.lights[0]: the PointLight of radius 100 at (0.0, 0.0, 0.0) reaches into the mesh (a face 0.795 from "
+     "its centre): a light must lie outside the objects"),
+    (lambda: _scene(lights=[wb.PointLight((0, 0, 1.1), 1.0, 0.3)]), "Scene.lights[0]: the PointLight of radius 0.3"),
 ]
 
 
@@ -482,3 +487,21 @@ def test_render_studio_and_image_reading_name_a_wrong_argument(tmp_path):
     assert wb.Environment.studio(lights=[box], height=16, width=32).radiance.max() > 0
     with pytest.raises(ValueError, match="is a folder, not an image file"):
         wb.Environment.from_file(tmp_path)
+
+
+def test_mesh_distance_to_matches_dense_samples_and_a_light_outside_is_taken():
+    mesh = wb.Mesh.merge([wb.Mesh.sphere(1.0, (0, 1, 0), subdivisions=1), wb.Mesh.plane(4.0, 0.0, 4)])
+    tri = mesh.vertices[mesh.faces]
+    rng = np.random.default_rng(3)
+    u, v = rng.random((2, 400, 1))
+    flip = u + v > 1
+    u, v = np.where(flip, 1 - u, u), np.where(flip, 1 - v, v)
+    samples = tri[:, None, 0] + u * (tri[:, None, 1] - tri[:, None, 0]) + v * (tri[:, None, 2] - tri[:, None, 0])
+    for p in rng.uniform(-3, 3, (12, 3)):
+        dense = np.linalg.norm(samples - p, axis=2).min()
+        d = mesh.distance_to(p)
+        # the exact distance is below every sample's and within the samples' spacing (faces ≤ 1.1 across)
+        assert d <= dense + 1e-12 and dense - d < 0.1, (p, d, dense)
+    assert mesh.distance_to((0, 3, 0)) == pytest.approx(1.0, abs=0.02)  # above the sphere's top vertex
+    assert mesh.distance_to((0, 3, 0), within=0.5) == np.inf
+    wb.Scene(mesh, wb.Lambert(0.5), lights=[wb.PointLight((0, 2.3, 0), 1.0, 0.25)])  # 0.3 above the top: fine

@@ -333,6 +333,18 @@ def test_export_writes_the_files_atomically_and_leaves_the_material_alone(baked,
     assert "register()" in open(files["script"]).read()
     again = mat.export_mitsuba(tmp_path / "out")  # an existing folder: the files are replaced
     assert again == files
+    # a user's own file of one of those names is not replaced, and nothing else is written
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "render.py").write_text("print('my own renderer')\n")
+    with pytest.raises(ValueError, match=r"^Mitsuba export: '.*mine/render.py' exists and was not written by an "
+                                         r"export; give another folder or move the file$"):
+        mat.export_mitsuba(tmp_path / "mine")
+    assert os.listdir(tmp_path / "mine") == ["render.py"]
+    assert (tmp_path / "mine" / "render.py").read_text() == "print('my own renderer')\n"
+    (tmp_path / "mine" / "render.py").unlink()
+    (tmp_path / "mine" / "material.wbm").write_text("notes")
+    with pytest.raises(ValueError, match="material.wbm' exists and was not written by an export"):
+        mat.export_mitsuba(tmp_path / "mine")
 
 
 def test_export_bad_input_is_one_line_naming_it(baked, tmp_path):

@@ -9,6 +9,7 @@ wrapping in φ and clamping in θ.
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -146,6 +147,10 @@ class Environment:
             raise ValueError(f"environment file {path} holds negative radiance (min {float(img.min())})")
         if img.shape[0] < 2 or img.shape[1] < 2:
             raise ValueError(f"environment file {path} is {img.shape[0]} x {img.shape[1]}; need at least 2 x 2")
+        if img.shape[1] != 2 * img.shape[0]:  # a cube-map cross or a mirror-ball probe read as latitude-longitude
+            warnings.warn(f"environment file {path} is {img.shape[1]} x {img.shape[0]} pixels, not 2:1: it is read as "
+                          "an equirectangular (latitude-longitude) map, so a cube map or light probe comes out "
+                          "scrambled and other shapes stretched", stacklevel=2)
         return cls(img, name=name if name is not None else os.path.splitext(os.path.basename(path))[0])
 
     def save(self, path) -> None:

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import copy
 import os
+import zipfile
 
 import numpy as np
 
@@ -69,20 +70,36 @@ def _check_material(mat, what: str) -> EffectiveBRDF:
 
 def export(mat, path) -> dict:
     """Write the Mitsuba 3 files of baked material `mat` into folder `path` (made if missing; files of the
-    same names are replaced, each atomically) → {"material", "scene", "script": their paths}."""
+    same names an earlier export wrote are replaced, each atomically; other files of those names are a
+    ValueError, before anything is written) → {"material", "scene", "script": their paths}."""
     _check_material(mat, "export_mitsuba: the material")
     folder = os.fspath(path)
     if os.path.exists(folder) and not os.path.isdir(folder):
         raise ValueError(f"Mitsuba export folder {folder!r} is a file, not a folder")
     check_output(os.path.join(folder, FILES["scene"]), what="Mitsuba export")
     out = {key: os.path.join(folder, name) for key, name in FILES.items()}
+    texts = {"scene": SCENE_XML.format(plugin=PLUGIN, material=FILES["material"]),
+             "script": RENDER_SCRIPT.format(scene=FILES["scene"])}
+    for key, name in out.items():  # an earlier export's files are replaced; a user's own are not
+        if os.path.isfile(name) and not _written_by_export(name, texts.get(key)):
+            raise ValueError(f"Mitsuba export: {name!r} exists and was not written by an export; give another "
+                             "folder or move the file")
     copy.copy(mat).save(out["material"])  # a copy: saving sets `path`, which must stay the caller's file
-    for key, text in (("scene", SCENE_XML.format(plugin=PLUGIN, material=FILES["material"])),
-                      ("script", RENDER_SCRIPT.format(scene=FILES["scene"]))):
+    for key, text in texts.items():
         with atomic_path(out[key]) as tmp:
             with open(tmp, "w", encoding="utf-8") as fh:
                 fh.write(text)
     return out
+
+
+def _written_by_export(path, text) -> bool:
+    """Whether the file at `path` is one an export writes: the script or scene beginning with `text`'s
+    first line, or (text None) a saved material (an npz, a zip)."""
+    if text is None:
+        return zipfile.is_zipfile(path)
+    first = text.split("\n", 1)[0]
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        return fh.read(len(first)) == first
 
 
 SCENE_XML = """<!-- A sphere of a baked warp_biscale material. The BSDF type "{plugin}" is a Python plugin: register it

@@ -198,6 +198,33 @@ class Mesh:
         length = np.linalg.norm(n, axis=1, keepdims=True)
         return np.where(length > 0, n / np.where(length > 0, length, 1.0), 0.0)
 
+    def distance_to(self, point, within: float = np.inf) -> float:
+        """The distance from `point` to the nearest face (float64); faces whose bounding box lies
+        farther than `within` are skipped (inf when all are)."""
+        p = _vec3("point", point)
+        tri = self.vertices[self.faces]
+        near = np.all((tri.min(1) <= p + within) & (tri.max(1) >= p - within), axis=1)
+        a, b, c = (tri[near, k] for k in range(3))
+        if not len(a):
+            return np.inf
+
+        def segment(u, v):
+            e = v - u
+            t = np.clip(np.einsum("ij,ij->i", p - u, e) / np.maximum(np.einsum("ij,ij->i", e, e), 1e-300), 0, 1)
+            return np.linalg.norm(p - (u + t[:, None] * e), axis=1)
+
+        d = np.minimum(np.minimum(segment(a, b), segment(b, c)), segment(c, a))
+        n = np.cross(b - a, c - a)
+        nn = np.einsum("ij,ij->i", n, n)
+        ok = nn > 0  # the point's projection inside the triangle: the plane's distance
+        w = p - a
+        s1 = np.einsum("ij,ij->i", np.cross(w, c - a), n)  # barycentric weights ×|n|² of b and c
+        s2 = np.einsum("ij,ij->i", np.cross(b - a, w), n)
+        inside = ok & (s1 >= 0) & (s2 >= 0) & (s1 + s2 <= nn)
+        plane = np.abs(np.einsum("ij,ij->i", w, n)) / np.sqrt(np.where(ok, nn, 1.0))
+        d = np.where(inside, np.minimum(d, plane), d)
+        return float(d.min())
+
     @property
     def bounds(self) -> np.ndarray:
         return np.stack([self.vertices.min(0), self.vertices.max(0)])
@@ -559,6 +586,12 @@ class Scene:
         for i, light in enumerate(self.lights):
             if not isinstance(light, (PointLight, DirectionalLight)):
                 raise ValueError(f"Scene.lights[{i}] must be a PointLight or DirectionalLight, got {light!r}")
+            if isinstance(light, PointLight):  # its SG and its shadow rays see it from outside its sphere
+                d = self.mesh.distance_to(light.position, within=light.radius)
+                if d < light.radius:
+                    raise ValueError(f"Scene.lights[{i}]: the PointLight of radius {light.radius:g} at "
+                                     f"{tuple(float(x) for x in light.position)} reaches into the mesh (a face "
+                                     f"{d:.3g} from its centre): a light must lie outside the objects")
         for name, (lo, hi) in settings_ranges(self.ssdf_resolution).items():
             setattr(self, name, _integer(f"Scene.{name}", getattr(self, name), lo, hi, SETTINGS_UNITS[name]))
 
