@@ -12,8 +12,8 @@ use this emitter, so their images differ only by the rendering method, not by th
 - `DirectionalLight(direction, irradiance, angular_radius)`: l̂ = direction (towards the light),
   Ω = π·α² (α in radians), ∫G = irradiance.
 - `PointLight(position, intensity, radius)`: l̂ = (p − x)/d, Ω = π·r²/d², ∫G = intensity / d².
-  A point light must lie outside every object's convex hull (Wang §7): its shadow is a ray to
-  its centre.
+  A point light's sphere must stay clear of the mesh (a `Scene` refuses one with a face within
+  `radius` of its centre): its SG and its shadow rays, aimed over its disc, see it from outside.
 """
 
 from __future__ import annotations
