@@ -13,8 +13,11 @@ keeps the old one.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import math
 import os
+import sys
 import warnings
 
 import numpy as np
@@ -71,14 +74,35 @@ def write_exr(path, image) -> None:
             f.write(tmp)
 
 
+@contextlib.contextmanager
+def _c_output_silenced():
+    """Output to /dev/null for the block: OpenEXR prints its own lines for a corrupt file, before the
+    error we raise says the same in one line."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, 1)
+        os.dup2(null, 2)
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            yield  # (the binding prints its warning through Python's sys.stdout, the C++ library to the descriptors)
+    finally:
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in (*saved, null):
+            os.close(fd)
+
+
 def read_exr(path) -> np.ndarray:
     """→ (H, W, 3) float32 from an EXR with R, G, B channels (half or float; a lone Y channel is grey)."""
     path = os.fspath(path)
     if not os.path.exists(path):
         raise FileNotFoundError(f"no such file: {path}")
     try:
-        with OpenEXR.File(path, separate_channels=True) as f:
-            channels = {name: np.asarray(c.pixels) for name, c in f.channels().items()}
+        with _c_output_silenced():
+            with OpenEXR.File(path, separate_channels=True) as f:
+                channels = {name: np.asarray(c.pixels) for name, c in f.channels().items()}
     except (RuntimeError, ValueError, IndexError, OSError) as exc:
         # The binding raises RuntimeError for a file it cannot open, and for one whose pixel data is cut
         # it prints a warning, keeps no part, then fails on part 0 with a ValueError.
