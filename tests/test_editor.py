@@ -320,5 +320,9 @@ def test_screenshot_and_bad_targets(tmp_path, pyramid):
         E.Editor("no-such-tile", backend="warp:cpu", **SIZE)
     with pytest.raises(ValueError, match="width"):
         E.Editor("pyramid", backend="warp:cpu", width=0, height=10)
+    (tmp_path / "plain.toml").write_text("[render]\nwidth = 64\n")  # a scene file is opened by Editor.load
+    with pytest.raises(ValueError, match=r"^Editor target .*plain.toml is a scene file: open a saved design with "
+                                         r"Editor.load\('.*plain.toml'\)$"):
+        E.Editor(str(tmp_path / "plain.toml"), backend="warp:cpu", **SIZE)
     with pytest.raises(ValueError, match="no parameter"):
         pyramid.set("tile.nope", 1.0)

@@ -347,7 +347,10 @@ def test_toml_syntax_error_has_line_and_column(tmp_path):
      "intensty", ["[[light]] #2", "unknown key 'intensty' for a point light"]),
     ('[material.g]\ntype = "blinnphong"\nexponant = 30\n', "exponant", ["[material.g]", "exponant"]),
     ('[material.g]\ntype = "bake"\ntile = "pyramid"\ntile_params = { hieght = 0.2 }\n', "hieght",
-     ["[material.g]", "hieght"]),
+     ["[material.g]", "tile 'pyramid' has no parameter 'hieght'; its parameters: height, base_fraction"]),
+    ('[material.g]\ntype = "bake"\ntile = "heightfield"\ntile_params = { scale = 2.0 }\n', "scale",
+     ["tile 'heightfield' has no parameter 'scale' (a painted height field takes it, given tile_params.image); "
+      "its parameters: amplitude, seed, material, color"]),
     # wrong types
     ('[material.g]\ntype = "blinnphong"\nexponent = "high"\n', "exponent", ["exponent must be a number", "'high'"]),
     ('[camera]\neye = [0, 1]\n', "eye =", ["[camera]", "eye must be three numbers"]),

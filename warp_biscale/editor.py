@@ -316,6 +316,8 @@ class Editor:
                  "quality": {name: default for name, _, _, _, default, _, _ in QUALITY},
                  "light": {name: default for name, _, _, _, default, _ in LIGHT}}
         spec = check_target(target)
+        if spec.lower().endswith(".toml"):
+            raise ValueError(f"Editor target {spec} is a scene file: open a saved design with Editor.load({spec!r})")
         family, fixed = ALIASES.get(spec, (spec, {}))
         if family in FAMILIES:
             state["family"] = family

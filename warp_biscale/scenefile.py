@@ -104,6 +104,7 @@ receives (`brdf.EnergyWarning`) and of BRDFs beyond a tile's material ids (`Tile
 
 from __future__ import annotations
 
+import inspect
 import math
 import os
 import re
@@ -665,7 +666,16 @@ def _bake(ctx, table, v, sf, name, used, prog):
                 if k in kwargs and params[k] != kwargs[k]:
                     raise ctx.error(table, ("tile_params", k), f"tile {spec!r} is {fn} with {k} = {kwargs[k]!r}, "
                                                                f"got {k} = {params[k]!r}: use tile = {fn!r} for that")
-            tile = getattr(geometry, fn)(**{**kwargs, **params})
+            generator = getattr(geometry, fn)
+            taken = [k for k, p in inspect.signature(generator).parameters.items()
+                     if p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD) and k not in kwargs]
+            for k in params:
+                if k not in taken:
+                    also = (" (a painted height field takes it, given tile_params.image)" if spec == "heightfield"
+                            and k in inspect.signature(geometry.heightfield_from_image).parameters else "")
+                    raise ctx.error(table, ("tile_params", k), f"tile {spec!r} has no parameter {k!r}{also}; its "
+                                                               f"parameters: {', '.join(taken)}")
+            tile = generator(**{**kwargs, **params})
         else:
             full = ctx.resolve(spec)
             if not os.path.isfile(full):
