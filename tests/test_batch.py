@@ -609,6 +609,18 @@ def test_ctrl_c_keeps_finished_tasks_and_the_rerun_resumes(job_dir, tmp_path):
     res = batch.run(jobs, out, progress=False)
     assert (res.ran, res.done, res.skipped) == (4, 4, 2)
     check_outputs(out, res)
+    # an output cut since it was written is made again, with its task; the others stay skipped
+    rec = res.records[order[0]]
+    name = rec["outputs"]["material"]
+    path = os.path.join(out, "tasks", order[0], name)
+    whole = open(path, "rb").read()
+    with open(path, "wb") as fh:
+        fh.write(whole[:len(whole) // 2])
+    res = batch.run(jobs, out, progress=False)
+    assert (res.ran, res.done, res.skipped) == (1, 1, 5)
+    with open(tmp_path / "first.wbm", "wb") as fh:
+        fh.write(whole)
+    np.testing.assert_array_equal(wb.load(path).table(), wb.load(tmp_path / "first.wbm").table())  # made again
 
 
 def test_a_task_that_raises_here_is_retried_recorded_and_the_rest_finish(job_dir, tmp_path):

@@ -43,14 +43,15 @@ task that kills its worker on every attempt (a crash in native code) is recorded
 deaths (Dask's KilledWorker), as may be a task queued on that worker beside it (a rerun tries them again).
 Without Dask (``workers=0``) such a crash ends the whole run: ``workers=1`` keeps it to its worker.
 Each task's files are written atomically, its task.json last; a rerun skips every task whose task.json
-has the same input hash and whose outputs are all there, so an interrupted run (Ctrl-C) resumes where it
-stopped.
+has the same input hash and whose outputs are all there as written (their SHA-256 in task.json), so an
+interrupted run (Ctrl-C) resumes where it stopped and an output edited or cut since is made again.
 """
 
 from __future__ import annotations
 
 import collections
 import dataclasses
+import hashlib
 import json
 import os
 import socket
@@ -324,7 +325,8 @@ def task_dir(output, task_hash) -> str:
 
 
 def read_done(output, task: Task) -> dict | None:
-    """The task's record if it finished before with these inputs and every output is still there, else None."""
+    """The task's record if it finished before with these inputs and every output is still there as it was
+    written (its SHA-256 in the record), else None."""
     folder = task_dir(output, task.hash)
     try:
         with open(os.path.join(folder, RECORD)) as fh:
@@ -338,6 +340,11 @@ def read_done(output, task: Task) -> dict | None:
              *outs.get("thumbnails", {}).values()]
     if not all(os.path.isfile(os.path.join(folder, n)) for n in names if n):
         return None
+    sums = rec.get("sha256")
+    if not isinstance(sums, dict) or not all(n in sums for n in names if n):
+        return None  # (a record of an older version, without the sums: the task runs again)
+    if any(file_sha256(os.path.join(folder, n)) != h for n, h in sums.items()):
+        return None  # an output edited, cut or replaced since
     return rec
 
 
@@ -356,7 +363,8 @@ def _store(output, task: Task, result: dict, attempts) -> dict:
             with open(tmp, "wb") as fh:
                 fh.write(data)
     rec = {"format": "warp_biscale.batch_task", "version": 1, **result["record"], "attempts": attempts,
-           "finished": time.strftime("%Y-%m-%dT%H:%M:%S"), "task": task.payload()}
+           "finished": time.strftime("%Y-%m-%dT%H:%M:%S"), "task": task.payload(),
+           "sha256": {name: hashlib.sha256(data).hexdigest() for name, data in result["files"].items()}}
     _write_json(os.path.join(folder, RECORD), rec)
     if os.path.exists(os.path.join(folder, ERROR)):
         os.remove(os.path.join(folder, ERROR))
