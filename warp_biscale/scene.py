@@ -202,9 +202,11 @@ class Mesh:
         """The distance from `point` to the nearest face (float64); faces whose bounding box lies
         farther than `within` are skipped (inf when all are)."""
         p = _vec3("point", point)
-        tri = self.vertices[self.faces]
-        near = np.all((tri.min(1) <= p + within) & (tri.max(1) >= p - within), axis=1)
-        a, b, c = (tri[near, k] for k in range(3))
+        near = np.ones(len(self.faces), bool)
+        for axis in range(3):  # (one axis at a time: a big mesh's faces as (F, 3, 3) would take GBs)
+            x = self.vertices[:, axis][self.faces]
+            near &= (x.min(1) <= p[axis] + within) & (x.max(1) >= p[axis] - within)
+        a, b, c = (self.vertices[self.faces[near, k]] for k in range(3))
         if not len(a):
             return np.inf
 
