@@ -44,6 +44,24 @@ def test_every_entry_says_its_state():
     assert len(warp_cpu) == 1 and warp_cpu[0]["usable"], warp_cpu
 
 
+def test_opencl_selection_by_device_type_vendor_and_index():
+    usable = _usable_opencl()
+    for kind in ("cpu", "gpu"):
+        of_kind = [b for b in usable if b["type"] == kind]
+        if of_kind:  # the first usable device of that type, whatever its name
+            assert wb.get_backend(f"opencl:{kind}").name == of_kind[0]["name"]
+            assert wb.get_backend(f"opencl:{kind}#0").name == of_kind[0]["name"]
+        elif not [b for b in BACKEND_ENTRIES if b["kind"] == "opencl" and b["type"] == kind]:
+            with pytest.raises(ValueError, match=rf"^no OpenCL {kind.upper()} device here; available: opencl:"):
+                wb.get_backend(f"opencl:{kind}")
+    first = usable[0]["name"].partition(":")[2]  # by a name: "#1" is the second match, counting from 0
+    with pytest.raises(ValueError, match=r"no OpenCL device matches .*#9'; available: "):
+        wb.get_backend(f"opencl:{first}#9")
+    pocl = [b for b in usable if "PoCL" in b["device"]]
+    if pocl:  # its platform's vendor is "The pocl project", its name "Portable Computing Language"
+        assert wb.get_backend("opencl:pocl").name in [b["name"] for b in pocl]
+
+
 @pytest.mark.parametrize("name", [b["name"] for b in BACKEND_ENTRIES if b["usable"]])
 def test_probe_kernel_against_float64(name):
     """The probe passes on a usable backend because its kernel's output matches the float64 formula, and

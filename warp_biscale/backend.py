@@ -263,8 +263,8 @@ def _make(name: str) -> Backend:
         from .opencl_backend import OpenCLBackend
 
         return OpenCLBackend(rest or None)
-    raise ValueError(f"unknown backend {name!r}; use 'auto', 'warp', 'warp:cpu', 'warp:cuda', 'opencl' or "
-                     "'opencl:<platform or device substring>'")
+    raise ValueError(f"unknown backend {name!r}; use 'auto', 'warp', 'warp:cpu', 'warp:cuda', 'opencl', 'opencl:cpu', "
+                     "'opencl:gpu' or 'opencl:<platform, vendor or device substring>'")
 
 
 _BACKEND_TYPES = set()  # types that passed isinstance(·, Backend)

@@ -427,7 +427,7 @@ def _check_settings(ctx, table, s, bake=False):
         need("method", lambda v: v in BAKE_METHODS, f"one of {', '.join(map(repr, BAKE_METHODS))}")
         need("route", lambda v: v in ROUTES, f"one of {', '.join(map(repr, ROUTES))}")
         need("backend", lambda v: isinstance(v, str) and re.fullmatch(r"(auto|warp|opencl)(:.+)?", v) is not None,
-             "auto, warp, warp:cpu, warp:cuda, opencl or opencl:<name>")
+             "auto, warp, warp:cpu, warp:cuda, opencl, opencl:cpu, opencl:gpu or opencl:<name>")
 
 
 def _ok(check, v) -> bool:

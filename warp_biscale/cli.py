@@ -645,7 +645,7 @@ def _add_edit_command(sub):
                         "greyscale image (a height field to paint), a mesh file, or a design saved by the editor "
                         "(.toml)")
     e.add_argument("-o", "--output", metavar="TOML", help="where 's' saves the design (a scene file `render` reads)")
-    e.add_argument("--backend", default="auto", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name>")
+    e.add_argument("--backend", default="auto", help=BACKEND_HELP)
     e.add_argument("--size", nargs="+", metavar="N",
                    help=SIZE_HELP + " of the frame, or WIDTHxHEIGHT (default 640 480; a design file's own size wins)")
     e.add_argument("--screenshot", metavar="PNG", help="draw the window offscreen, write this PNG and exit")
@@ -656,6 +656,7 @@ def _add_edit_command(sub):
 
 
 SIZE_HELP = "WIDTH [HEIGHT] in pixels (a width alone keeps the aspect)"
+BACKEND_HELP = "auto, warp, warp:cpu, warp:cuda, opencl, opencl:cpu, opencl:gpu, opencl:<name>"
 FILE_AA = 4  # samples a pixel for an image written to a file (the interactive viewer takes 1)
 
 
@@ -721,7 +722,7 @@ def _add_render_commands(sub):
                         "bake's ASG lobes; not exact; with a warning) "
                         "instead of its exact ground truth, e.g. for a material file of format 1, which records "
                         "no tile to compute the truth from")
-    r.add_argument("--backend", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name> (default: the file's)")
+    r.add_argument("--backend", help=BACKEND_HELP + " (default: the file's)")
     r.add_argument("--size", type=int, nargs="+", metavar="N", help=SIZE_HELP + " (default: the file's)")
     r.add_argument("--exposure", type=float, help="PNG exposure in stops: 0 leaves the radiance, -1 halves it, "
                                                   "+1 doubles it (default: the file's, else 0)")
@@ -732,7 +733,7 @@ def _add_render_commands(sub):
     d.add_argument("--size", type=int, nargs="+", metavar="N", help=SIZE_HELP + " (default 512 384)")
     d.add_argument("--aa", type=int, metavar="N", default=FILE_AA,
                    help=f"anti-aliasing: N jittered samples a pixel (default {FILE_AA}; 1: pixel centres only)")
-    d.add_argument("--backend", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name> (default auto)")
+    d.add_argument("--backend", help=BACKEND_HELP + " (default auto)")
     d.add_argument("-q", "--quiet", action="store_true", help="no progress, no bake summary")
     d.set_defaults(func=cmd_demo)
     a = sub.add_parser("ball", help="a material-ball thumbnail of any material (lit-sphere shader)",
@@ -748,7 +749,7 @@ def _add_render_commands(sub):
                    help=f"light polar angles of the lit-sphere images, degrees (default "
                         f"{' '.join(f'{x:g}' for x in BALL_ANGLES)}; a saved lit-sphere folder keeps its own)")
     a.add_argument("--exposure", type=float, default=0.0, help="PNG exposure in stops (default 0)")
-    a.add_argument("--backend", default="auto", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name>")
+    a.add_argument("--backend", default="auto", help=BACKEND_HELP)
     a.add_argument("-q", "--quiet", action="store_true", help="no summary")
     a.set_defaults(func=cmd_ball)
     v = sub.add_parser("view", help="interactive viewer: our rendering + the small-scale tile (pyvista)",
@@ -760,7 +761,7 @@ def _add_render_commands(sub):
                                                        "the viewer's frame: one sample a pixel and its own ray counts, "
                                                        "whatever the file's [render] asks (`render` writes those)")
     v.add_argument("--size", type=int, nargs="+", metavar="N", help=SIZE_HELP + " of the window (default 1200 600)")
-    v.add_argument("--backend", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name> (default: the file's)")
+    v.add_argument("--backend", help=BACKEND_HELP + " (default: the file's)")
     v.add_argument("--render-scale", type=float, default=1.0, metavar="S",
                    help="render at S x the viewport's resolution, 0 < S <= 1 (e.g. 0.5 for quicker frames on a CPU; "
                         "default 1)")
@@ -789,7 +790,7 @@ def main(argv=None):
     p.add_argument("--facets", type=int, default=1 << 16,
                    help="number of facets Ns (default 2^16; raise it for a more accurate table)")
     p.add_argument("--directions", type=int, default=12, help="direction grid size K (K² directions, default 12)")
-    p.add_argument("--backend", default="auto", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name>")
+    p.add_argument("--backend", default="auto", help=BACKEND_HELP)
     p.add_argument("--seed", type=int, default=0, help="facet-sampling seed (default 0)")
     p.add_argument("--bounces", type=int, default=1, metavar="B",
                    help=f"bounces of light inside the infinitely tiled surface, 1..{MAX_BOUNCES} (default 1: the "
@@ -821,7 +822,7 @@ def main(argv=None):
                         "height field)")
     k.add_argument("--route", default="facets", choices=["facets", "histogram"],
                    help="amplitude right-hand sides from exact facet sums (default) or the BVNDF histogram")
-    k.add_argument("--backend", default="auto", help="auto, warp, warp:cpu, warp:cuda, opencl, opencl:<name>")
+    k.add_argument("--backend", default="auto", help=BACKEND_HELP)
     k.add_argument("--seed", type=int, default=0, help="facet-sampling seed (default 0)")
     k.add_argument("--truth", type=int, metavar="FACETS",
                    help="also compute the ground truth with this many facets and print the error against it")

@@ -94,36 +94,58 @@ def _ordered_devices():
     return gpus + [pd for pd in found if not pd[1].type & cl.device_type.GPU]
 
 
+DEVICE_TYPES = ("cpu", "gpu")  # selectors that pick by the device's type, as backends() lists it
+
+
 def _matches(selector: str, platform, device) -> bool:
     sel = selector.lower()
-    return sel in device.name.strip().lower() or sel in platform.name.strip().lower()
+    return any(sel in text.strip().lower() for text in (device.name, platform.name, platform.vendor))
+
+
+def _first_usable(devices, what: str):
+    reasons = []
+    for p, d in devices:
+        reason = probe(p, d)
+        if reason is None:
+            return p, d
+        reasons.append(f"{_name(p, d, devices)}: {reason}")
+    raise ValueError(f"no usable OpenCL {what}: " + "; ".join(reasons))
+
+
+def _listing(devices) -> str:
+    return "; ".join(f"{_name(p, d, devices)} ({d.name.strip()} on {p.name.strip()})" for p, d in devices)
 
 
 def _select(selector, devices):
-    """→ (platform, device) for a selector (None, 'substring' or 'substring#N'): None takes the first
-    usable device; a named device that is unusable is a ValueError saying why."""
+    """→ (platform, device) for a selector: None takes the first usable device; 'cpu' or 'gpu' the first
+    usable device of that type; 'substring' the first usable device whose name, platform or vendor holds it;
+    'cpu#N' or 'substring#N' the match at index N (from 0). A selector whose devices are all unusable is a
+    ValueError saying why."""
     if selector is None or not selector.strip():
-        reasons = []
-        for p, d in devices:
-            reason = probe(p, d)
-            if reason is None:
-                return p, d
-            reasons.append(f"{_name(p, d, devices)}: {reason}")
-        raise ValueError("no usable OpenCL device: " + "; ".join(reasons))
-    sel = selector.strip()
-    index = 0
+        return _first_usable(devices, "device")
+    sel, index = selector.strip(), None
     m = re.fullmatch(r"(.*?)#(\d+)", sel)
     if m and m.group(1).strip():
         sel, index = m.group(1).strip(), int(m.group(2))
-    hits = [pd for pd in devices if _matches(sel, *pd)]
-    if index < len(hits):
+    if sel.lower() in DEVICE_TYPES:
+        kind = getattr(_pyopencl().device_type, sel.upper())
+        hits, what = [pd for pd in devices if pd[1].type & kind], f"{sel.upper()} device"
+    else:
+        hits, what = [pd for pd in devices if _matches(sel, *pd)], f"device matching {sel!r}"
+    if index is None and hits:
+        if len(hits) == 1:  # (its own name: the reason alone)
+            index = 0
+        else:
+            return _first_usable(hits, what)
+    if index is not None and index < len(hits):
         p, d = hits[index]
         reason = probe(p, d)
         if reason is not None:
             raise ValueError(f"OpenCL device {_name(p, d, devices)!r} is unusable: {reason}")
         return p, d
-    listing = "; ".join(f"{_name(p, d, devices)} ({d.name.strip()} on {p.name.strip()})" for p, d in devices)
-    raise ValueError(f"no OpenCL device matches {selector!r}; available: {listing}")
+    if sel.lower() in DEVICE_TYPES and index is None:
+        raise ValueError(f"no OpenCL {what} here; available: {_listing(devices)}")
+    raise ValueError(f"no OpenCL device matches {selector!r}; available: {_listing(devices)}")
 
 
 def _name(platform, device, devices) -> str:
