@@ -669,7 +669,7 @@ class Editor:
     def load(cls, path, *, backend="auto") -> Editor:
         """An editor on a design `save` wrote (or any scene file whose first bake material is a tile family
         or a mesh file)."""
-        import tomllib
+        from .scenefile import tomllib  # (tomli before Python 3.11)
 
         path = os.fspath(path)
         try:
