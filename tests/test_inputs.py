@@ -75,6 +75,9 @@ BAD = [
     # an environment as bright: its sun would become such a light (an EXR texel of 3e38 was refused as an internal
     # light the user never wrote)
     (lambda: wb.Environment.constant(1e38), "Environment 'constant' holds radiance up to 1e+38: the renderers"),
+    (lambda: wb.Environment.sky(height=100000, width=200000),  # (it asked numpy for 149 GiB)
+     "environment size 100000 x 200000 is past the largest, 8192 x 16384"),
+    (lambda: wb.Environment.studio(height=64, width=20000), "environment size 64 x 20000 is past the largest"),
     # past float32's room once a small light's sharp lobe scales it (1e38 rendered black, 1e39 failed unnamed)
     (lambda: wb.PointLight(intensity=1e38), "PointLight.intensity must be at most 1e+20"),
     (lambda: wb.DirectionalLight(irradiance=(1, 1, 1e21)), "DirectionalLight.irradiance must be at most 1e+20"),

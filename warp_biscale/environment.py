@@ -194,7 +194,9 @@ class Environment:
 
         Texels are averaged over supersample² equal-solid-angle sub-cells (anti-aliasing the horizon),
         and texels near the sun over as many as needed to put ~16 sub-samples across the sun's radius
-        (up to 128²), so a sun smaller than a texel still has the right power at any resolution.
+        (up to 128²), then scaled so that they hold the sun's power exactly (a sun too small for those
+        sub-samples to meet lies in the texel of its centre), so a sun smaller than a texel still has the
+        right power at any resolution.
         All radiances are RGB (or scalars, meaning grey), in the caller's units.
         """
         _check_size(height, width)
@@ -235,7 +237,21 @@ class Environment:
             near = centre_angle <= alpha * (1 + edge / 2) + span
             rows, cols = np.nonzero(near)
             n_sun = int(np.clip(np.ceil(16 * max(np.pi / height, 2 * np.pi / width) / alpha), n, 128))
-            rad[rows, cols] += _texel_means(sun_fn, rows, cols, height, width, n_sun)
+            added = _texel_means(sun_fn, rows, cols, height, width, n_sun)
+            # The texels then hold the sun's power ∫L dω exactly: 128² sub-samples a texel miss a sun
+            # below ~1/100 of a texel (it vanished), and round a few-sample one up or down.
+            omega = equirect_row_solid_angles(height, width)[rows]
+            power = sun_integrals(alpha, edge)[0] * l_sun
+            held = omega @ added
+            if np.all(held > 0):
+                added *= power / held
+            else:  # no sub-sample met the sun: all of it in the texel it is centred in
+                added[:] = 0.0
+                row = min(int(np.arccos(np.clip(sun[1], -1.0, 1.0)) / np.pi * height), height - 1)
+                col = int(np.floor(np.arctan2(sun[2], sun[0]) % (2 * np.pi) / (2 * np.pi) * width)) % width
+                here = np.nonzero((rows == row) & (cols == col))[0]
+                added[here[0]] = power / omega[here[0]]
+            rad[rows, cols] += added
         return cls(rad.astype(np.float32), name=name)
 
     @classmethod
@@ -374,7 +390,7 @@ def sun_integrals(radius: float, edge: float = 0.2) -> tuple[float, float]:
     core is in closed form, the smoothstep ring by 64-point Gauss–Legendre (exact to rounding:
     the integrand is a cubic times sin/cos on a short interval)."""
     a, b = radius * (1 - edge / 2), radius * (1 + edge / 2)
-    power = 2 * np.pi * (1 - np.cos(a))
+    power = 4 * np.pi * np.sin(a / 2) ** 2  # 2π(1 − cos a), without its cancellation for a tiny sun
     irr = np.pi * np.sin(a) ** 2
     if b > a:
         x, w = np.polynomial.legendre.leggauss(64)
@@ -389,9 +405,14 @@ def sun_integrals(radius: float, edge: float = 0.2) -> tuple[float, float]:
 # helpers for the procedural maps
 
 
+SIZE_MAX = (8192, 16384)  # a procedural map's largest height × width (1.6 GB of float32 radiance)
+
+
 def _check_size(height, width) -> None:
     if int(height) != height or int(width) != width or height < 2 or width < 2:
         raise ValueError(f"environment size must be integers >= 2, got {height} x {width}")
+    if height > SIZE_MAX[0] or width > SIZE_MAX[1]:
+        raise ValueError(f"environment size {height} x {width} is past the largest, {SIZE_MAX[0]} x {SIZE_MAX[1]}")
 
 
 def _rgb(value, what: str) -> np.ndarray:
