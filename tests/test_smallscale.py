@@ -187,3 +187,10 @@ def test_a_tile_with_no_face_looking_up_warns():
     tile = wb.geometry.pyramid()
     with pytest.warns(wb.TileWarning, match="no face looks up"):
         wb.SmallScale(tile.vertices, tile.faces[:, ::-1].copy())
+    # faces wound to look up but the file's vertex normals all down: the facets, shaded by them, face down too
+    down = np.tile([0.0, 0.0, -1.0], (len(tile.vertices), 1))
+    with pytest.warns(wb.TileWarning, match=r"no vertex normal looks up \(\+z\).*negate the normals"):
+        wb.SmallScale(tile.vertices, tile.faces, vertex_normals=down)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        wb.SmallScale(tile.vertices, tile.faces, vertex_normals=-down)

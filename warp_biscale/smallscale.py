@@ -230,6 +230,10 @@ class SmallScale:
             warnings.warn(f"tile {self.name!r}: no face looks up (+z): seen from above the surface shows only "
                           "backs, and its effective BRDF is 0 (turn it over or reverse its faces' winding)",
                           TileWarning, stacklevel=3)
+        elif vn is not None and not (vn[self.faces].sum(1)[:, 2] > 0).any():  # (the file's normals flipped)
+            warnings.warn(f"tile {self.name!r}: no vertex normal looks up (+z): the facets, shaded by them, face "
+                          "down, and its effective BRDF is 0 (negate the normals, or drop them to shade by the "
+                          "faces)", TileWarning, stacklevel=3)
         if tan is None:
             self.face_tangents = default_face_tangents(self._face_normals)
         else:
