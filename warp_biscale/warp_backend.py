@@ -13,7 +13,7 @@ import os
 import sys
 import tempfile
 import weakref
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, wait
 
 import numpy as np
 import warp as wp
@@ -57,6 +57,7 @@ RAY_PIECES = 4  # slices per core of the visibility rays on the CPU (see _launch
 # costs nothing), so a frame cut in one slice a core leaves cores idle (bench/README.md, "What was tried").
 FRAME_PIECES = 8
 LAUNCH_MIN_ITEMS = 1024  # items of a slice beyond the first a core: each launch costs the host tens of µs
+LAUNCH_MAX_ITEMS = 1 << 22  # items of a slice at most: ~1 s of visibility rays on one core
 PINNED_BYTES = 1 << 20  # read-backs from a GPU at least this large go through a pinned host buffer
 
 
@@ -188,6 +189,8 @@ class WarpBackend(DeviceBackend):
         parts = 1
         if self._slices > 1:  # one slice a core, and up to `pieces` a core of at least LAUNCH_MIN_ITEMS items
             parts = min(self._slices * pieces, max(self._slices, n // LAUNCH_MIN_ITEMS), n)
+            # ... and slices of at most LAUNCH_MAX_ITEMS items: a Ctrl-C waits for the running ones (below)
+            parts = min(max(parts, -(-int(np.prod(dim)) // LAUNCH_MAX_ITEMS)), n)
         # Compile/load before the threads race to do it (the kernel's own Warp module: kernels made
         # by a factory live in a module of their own).
         self._load(kernel, block_dim)
@@ -199,8 +202,14 @@ class WarpBackend(DeviceBackend):
         futures = [self._pool.submit(wp.launch, kernel, dim=(*dim[:-1], int(b - a)), inputs=[*inputs, int(a)],
                                      outputs=outputs, device=self._device)
                    for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
-        for f in futures:
-            f.result()
+        try:
+            for f in futures:
+                f.result()
+        except BaseException:  # (Ctrl-C): the slices still running must end before their arrays are freed
+            for f in futures:
+                f.cancel()
+            wait(futures)
+            raise
 
     def _load(self, kernel, block_dim=None):
         """Load `kernel`'s Warp module before its first launch: on a first run that compiles it, which
