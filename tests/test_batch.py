@@ -623,6 +623,45 @@ def test_ctrl_c_keeps_finished_tasks_and_the_rerun_resumes(job_dir, tmp_path):
     np.testing.assert_array_equal(wb.load(path).table(), wb.load(tmp_path / "first.wbm").table())  # made again
 
 
+def test_a_folder_that_is_not_a_batchs_results_is_refused_before_any_task(job_dir, tmp_path):
+    """A run writes results.csv, index.html and job.toml into its folder: a folder holding the user's own files is
+    refused in one line naming it and a file, before any task runs and with nothing written; an earlier run's
+    results (its tasks/ of task folders) are reused, as a rerun does, and an empty folder is filled."""
+    jobs = load_jobs(os.path.join(job_dir, "jobs.toml"))
+    calls = []
+    own = tmp_path / "own"
+    own.mkdir()
+    (own / "index.html").write_text("my page")
+    (own / "notes.txt").write_text("mine")
+    with pytest.raises(ValueError, match=r"^output folder '.*own' holds 'index.html' and 1 more and is not an "
+                                         r"earlier batch's results \(no tasks/ folder of task folders\); give a new "
+                                         r"or empty folder$"):
+        batch.run(jobs, str(own), hook=calls.append, progress=False)
+    # a folder of the user's own called tasks/ is not a batch's either
+    (own / "tasks").mkdir()
+    (own / "tasks" / "todo.md").write_text("mine")
+    with pytest.raises(ValueError, match="holds 'index.html'"):
+        batch.run(jobs, str(own), hook=calls.append, progress=False)
+    assert calls == [] and sorted(os.listdir(own)) == ["index.html", "notes.txt", "tasks"]
+    assert (own / "index.html").read_text() == "my page" and os.listdir(own / "tasks") == ["todo.md"]
+    # the command line says so before it reads the job file
+    args = _parser().parse_args(["batch", os.path.join(job_dir, "jobs.toml"), "-o", str(own), "-q"])
+    with pytest.raises(ValueError, match=r"^-o: output folder '.*own' holds 'index.html'"):
+        args.func(args)
+    assert (own / "index.html").read_text() == "my page"
+    # what a run leaves, a run stopped before its first task (an empty tasks/) and an empty folder: accepted
+    done = tmp_path / "done"
+    os.makedirs(done / "tasks" / jobs.tasks[0].hash)
+    (done / "tasks" / ".DS_Store").write_text("a file browser's")
+    for name in ("results.csv", "index.html", "job.toml"):
+        (done / name).write_text("an earlier run's")
+    (tmp_path / "stopped" / "tasks").mkdir(parents=True)
+    (tmp_path / "stopped" / "job.toml").write_text("an earlier run's")
+    (tmp_path / "empty").mkdir()
+    for folder in ("done", "stopped", "empty", "missing"):
+        batch.check_results_folder(str(tmp_path / folder))
+
+
 def test_a_task_that_raises_here_is_retried_recorded_and_the_rest_finish(job_dir, tmp_path):
     jobs = load_jobs(os.path.join(job_dir, "jobs.toml"))
     bad = jobs.tasks[1].hash

@@ -2,8 +2,10 @@
 decoded from a file encoded by hand here, truncated/corrupt files refused, tone mapping, atomic
 writes, and compare_images on arrays whose errors are known."""
 
+import errno
 import math
 import os
+import re
 
 import numpy as np
 import pytest
@@ -331,16 +333,21 @@ def test_failed_exr_write_keeps_the_old_file(tmp_path, monkeypatch):
     images.write_exr(path, old)
 
     def broken_write(self, filename):
-        with open(filename, "wb") as fh:  # half a file, then the failure
+        with open(filename, "wb") as fh:  # half a file, then the failure, as the binding words it
             fh.write(b"v/1\x01partial")
-        raise RuntimeError("disk full")
+        raise RuntimeError(f'Failed to write pixel data to image file "{filename}". No space left on device.')
 
-    monkeypatch.setattr(OpenEXR.File, "write", broken_write)
-    with pytest.raises(RuntimeError, match="disk full"):
-        images.write_exr(path, hdr_image(seed=2))
-    monkeypatch.undo()
-    np.testing.assert_array_equal(images.read_exr(path), old)
-    _only(tmp_path, "keep.exr")
+    def empty_write(self, filename):  # what OpenEXR does on a full disk for an image its buffer holds
+        open(filename, "wb").close()
+
+    for write, words in ((broken_write, "No space left on device"), (empty_write, r"nothing was written")):
+        monkeypatch.setattr(OpenEXR.File, "write", write)
+        with pytest.raises(OSError, match=rf"^{re.escape(str(path))} could not be written: {words}") as info:
+            images.write_exr(path, hdr_image(seed=2))
+        assert info.value.errno in (errno.ENOSPC, errno.EIO)
+        monkeypatch.undo()
+        np.testing.assert_array_equal(images.read_exr(path), old)
+        _only(tmp_path, "keep.exr")
 
 
 def test_failed_png_and_hdr_writes_keep_the_old_file(tmp_path, monkeypatch):

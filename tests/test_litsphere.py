@@ -276,6 +276,67 @@ def test_bad_files(tmp_path):
         sphere.save(tmp_path / "file")
 
 
+def test_save_refuses_a_folder_it_did_not_write_and_loses_nothing(tmp_path):
+    """An existing folder is replaced only where an earlier save wrote it (or it is empty): a user's own files
+    are refused, in one line naming them, before anything is written."""
+    sphere = L.LitSphere.from_material(wb.Lambert(0.5), resolution=16)
+    own = tmp_path / "own"
+    own.mkdir()
+    (own / "notes.txt").write_text("mine")
+    with pytest.raises(ValueError, match=r"^LitSphere output '.*own' holds files LitSphere.save did not write "
+                                         r"\(notes.txt\); give another folder$"):
+        sphere.save(own)
+    assert os.listdir(own) == ["notes.txt"] and (own / "notes.txt").read_text() == "mine"
+    assert sorted(os.listdir(tmp_path)) == ["own"]  # no temporary folder either
+    # a lit sphere's folder with a file of the user's added to it: that file is named, and kept
+    path = tmp_path / "a.litsphere"
+    sphere.save(path)
+    (path / "README").write_text("mine")
+    with pytest.raises(ValueError, match=r"did not write \(README\)"):
+        sphere.save(path)
+    assert (path / "README").read_text() == "mine"
+    # a folder of images named as a save names them but without its header is not known to be a save's
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / "phi_000.00000.exr").write_text("mine")
+    with pytest.raises(ValueError, match=r"did not write \(phi_000.00000.exr\)"):
+        sphere.save(tmp_path / "b")
+    # an empty folder (mkdir first) is filled; an earlier save's, with other angles, is replaced
+    (tmp_path / "empty").mkdir()
+    sphere.save(tmp_path / "empty")
+    L.LitSphere.from_material(wb.Lambert(0.5), angles=(0, 90), resolution=16).save(tmp_path / "empty")
+    np.testing.assert_array_equal(L.LitSphere.load(tmp_path / "empty").angles, [0, 90])
+
+
+def test_save_on_a_full_disk_names_the_folder_and_keeps_the_old_one(tmp_path, monkeypatch):
+    import errno
+
+    sphere = L.LitSphere.from_material(wb.Lambert(0.5), resolution=16)
+    path = tmp_path / "a.litsphere"
+    sphere.save(path)
+    before = {n: (path / n).read_bytes() for n in os.listdir(path)}
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(L.images_mod, "write_exr", full)
+    with pytest.raises(OSError) as info:
+        L.LitSphere.from_material(wb.Lambert(0.2), resolution=16).save(path)
+    assert str(info.value) == f"{path} could not be written: No space left on device"
+    assert {n: (path / n).read_bytes() for n in os.listdir(path)} == before
+    assert os.listdir(tmp_path) == ["a.litsphere"]  # the temporary folder is gone
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="permissions do not stop root")
+def test_save_into_a_read_only_folder_names_the_folder(tmp_path):
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    path = locked / "a.litsphere"
+    with pytest.raises(PermissionError) as info:
+        L.LitSphere.from_material(wb.Lambert(0.5), resolution=16).save(path)
+    assert str(info.value) == f"{path} could not be written: Permission denied"  # (not its .tmp-litsphere-…)
+
+
 @pytest.mark.parametrize("angles, match", [
     ((0, 90, 45), "strictly increasing"), ((0, 45, 45), "strictly increasing"), ((-5, 45), r"\[0, 180\]"),
     ((0, 200), r"\[0, 180\]"), ((), "at least one"), (("a",), "numbers")])

@@ -347,6 +347,49 @@ def test_export_writes_the_files_atomically_and_leaves_the_material_alone(baked,
         mat.export_mitsuba(tmp_path / "mine")
 
 
+def _full_disk_on(monkeypatch, name):
+    """Writing the export's file `name` fails as on a full disk (the write's OSError(ENOSPC), naming no file),
+    inside io.atomic_path, which handles it; the files before it are written."""
+    import contextlib
+    import errno
+
+    from warp_biscale import io
+
+    @contextlib.contextmanager
+    def atomic_path(path):
+        with io.atomic_path(path) as tmp:
+            yield tmp
+            if os.path.basename(path) == name:
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(mitsuba_export, "atomic_path", atomic_path)
+
+
+def test_a_failed_export_names_the_file_and_leaves_no_folder_it_made(baked, tmp_path, monkeypatch, capsys):
+    mat, _ = baked["blinnphong+lambert", "sg"]
+    mat.save(tmp_path / "m.wbm")
+    _full_disk_on(monkeypatch, "scene.xml")  # (material.wbm, written before it, is in the folder by then)
+    out = tmp_path / "full" / "exp"
+    with pytest.raises(OSError) as info:
+        mat.export_mitsuba(out)
+    assert str(info.value) == f"{out / 'scene.xml'} could not be written: No space left on device"
+    assert os.listdir(tmp_path) == ["m.wbm"]  # the folders the export made, and the material in them, are gone
+    from warp_biscale import cli
+
+    assert cli.main(["export", str(tmp_path / "m.wbm"), "--to", "mitsuba", "-o", str(out)]) == 1
+    assert capsys.readouterr().err == f"error: {out / 'scene.xml'} could not be written: No space left on device\n"
+    assert os.listdir(tmp_path) == ["m.wbm"]
+    # a folder that was there (an earlier export's) stays, with the files the failed export did not replace
+    monkeypatch.undo()
+    files = mat.export_mitsuba(tmp_path / "earlier")
+    script = open(files["script"]).read()
+    _full_disk_on(monkeypatch, "render.py")
+    with pytest.raises(OSError, match="render.py could not be written: No space left on device"):
+        mat.export_mitsuba(tmp_path / "earlier")
+    assert sorted(os.listdir(tmp_path / "earlier")) == sorted(mitsuba_export.FILES.values())
+    assert open(files["script"]).read() == script
+
+
 def test_export_bad_input_is_one_line_naming_it(baked, tmp_path):
     mat, _ = baked["blinnphong+lambert", "sg"]
     with pytest.raises(ValueError, match="must be an EffectiveBRDF .* got Lambert"):

@@ -54,6 +54,7 @@ import dataclasses
 import hashlib
 import json
 import os
+import re
 import socket
 import sys
 import tempfile
@@ -320,6 +321,40 @@ def execute(task: dict, hook=None, pin: int = 0) -> dict:
 # the results folder
 
 
+REPORT_FILES = ("results.csv", "index.html", "job.toml")  # what a run writes beside tasks/ (and overwrites)
+_TASK_NAME = re.compile(r"[0-9a-f]{16}")  # a task folder's name: batch_jobs.digest's 16 hex digits
+
+
+def is_results_folder(folder) -> bool:
+    """Whether `folder` holds an earlier batch's results: a tasks/ folder (a run makes it before it writes anything
+    else) of task folders alone, each named by its task's hash; empty where a run stopped before its first task.
+    Hidden entries are passed over (a file browser's .DS_Store in a results folder someone looked through)."""
+    tasks = os.path.join(folder, TASKS_DIR)
+    try:
+        names = [n for n in os.listdir(tasks) if not n.startswith(".")]
+    except OSError:  # (none, or not a folder)
+        return False
+    return all(_TASK_NAME.fullmatch(n) and os.path.isdir(os.path.join(tasks, n)) for n in names)
+
+
+def check_results_folder(folder, error=None) -> None:
+    """Refuse, in one line naming the folder and a file in it, a results folder that holds files and is not an
+    earlier batch's (`is_results_folder`): a run writes results.csv, index.html and job.toml there and would
+    replace the user's own. An earlier batch's is reused (a rerun resumes there); a missing or empty one is made
+    or filled. `error(message)` builds the exception (default ValueError)."""
+    try:
+        names = sorted(os.listdir(folder))
+    except (FileNotFoundError, NotADirectoryError):
+        return  # (missing: made; a file in the way: check_output_folder says so)
+    if not names or is_results_folder(folder):
+        return
+    clash = [n for n in REPORT_FILES if n in names]  # name a file the run would replace, where there is one
+    more = f" and {len(names) - 1} more" if len(names) > 1 else ""
+    msg = (f"output folder {folder!r} holds {(clash or names)[0]!r}{more} and is not an earlier batch's results (no "
+           f"{TASKS_DIR}/ folder of task folders); give a new or empty folder")
+    raise error(msg) if error else ValueError(msg)
+
+
 def task_dir(output, task_hash) -> str:
     return os.path.join(output, TASKS_DIR, task_hash)
 
@@ -429,6 +464,7 @@ def run(jobs, output=None, *, workers: int = 0, scheduler: str | None = None, re
     off by default: on a machine that other work shares, a pinned worker cannot move off a busy core); an
     integer n does so for the workers numbered 0 … n − 1 of `scheduler` (a LocalCluster of the caller's).
     `hook(task dict)` runs before every attempt of every task, in the worker (for tests and benchmarks).
+    `output` must be missing, empty or an earlier run's results (`check_results_folder`, before any task runs).
     Ctrl-C stops the run; what finished is kept, and the report is written before KeyboardInterrupt goes on."""
     if isinstance(jobs, dict):
         jobs = jobs_from_dict(jobs)
@@ -436,6 +472,7 @@ def run(jobs, output=None, *, workers: int = 0, scheduler: str | None = None, re
         jobs = load_jobs(jobs)
     output = os.path.abspath(os.fspath(output or jobs.output or "results"))
     check_output_folder(output)
+    check_results_folder(output)
     workers, gpus = int(workers or 0), int(gpus or 0)
     if workers < 0 or gpus < 0:
         raise ValueError(f"workers and gpus must be >= 0, got {workers} and {gpus}")
@@ -707,6 +744,7 @@ def cmd_batch(args):
                           "them see none, and the job's backend runs on the CPU there", stacklevel=2)
     if args.output:
         check_output_folder(os.path.abspath(args.output), lambda msg: ValueError(f"-o: {msg}"))
+        check_results_folder(os.path.abspath(args.output), lambda msg: ValueError(f"-o: {msg}"))
     jobs = load_jobs(args.jobs)
     if not (args.scheduler or args.gpus or args.workers or args.dry_run):  # (the tasks run here: its backends, now)
         from .backend import get_backend

@@ -14,6 +14,7 @@ keeps the old one.
 from __future__ import annotations
 
 import contextlib
+import errno
 import io
 import math
 import os
@@ -70,8 +71,15 @@ def write_exr(path, image) -> None:
     _check_radiance(a, f"image for {os.fspath(path)}")
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     with atomic_path(path) as tmp:
-        with OpenEXR.File(header, {"RGB": np.ascontiguousarray(a)}) as f:
-            f.write(tmp)
+        try:
+            with OpenEXR.File(header, {"RGB": np.ascontiguousarray(a)}) as f:
+                f.write(tmp)
+        except RuntimeError as exc:  # (the binding's error for a failed write names the temporary)
+            full = "No space" in str(exc)
+            raise OSError(errno.ENOSPC if full else errno.EIO, os.strerror(errno.ENOSPC) if full else str(exc),
+                          tmp) from None
+        if os.path.getsize(tmp) == 0:  # a small image fails only when its buffer is flushed, unreported
+            raise OSError(errno.ENOSPC, "nothing was written (is the disk full?)", tmp)
 
 
 @contextlib.contextmanager

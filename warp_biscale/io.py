@@ -16,7 +16,7 @@ import zipfile
 import numpy as np
 
 
-__all__ = ["atomic_path", "cache_folder", "check_output", "save_npz", "read_npz"]
+__all__ = ["atomic_path", "cache_folder", "check_output", "save_npz", "read_npz", "write_error"]
 
 CACHE_ENV = "WARP_BISCALE_CACHE"
 
@@ -55,29 +55,58 @@ def cache_folder() -> str:
     return os.path.join(base, "warp_biscale")
 
 
+def write_error(path, exc: OSError) -> OSError:
+    """`exc`, a failed write's OSError, as one line naming the file or folder the user asked for,
+    "<path> could not be written: No space left on device": the system's own text names no file (ENOSPC), or a
+    temporary the user never asked for. Its type (PermissionError, …) and errno are kept, so that callers can
+    tell the causes apart; strerror and filename are left unset, as Python would otherwise print them in its own
+    "[Errno N] …: 'file'" form instead of this text."""
+    reason = exc.strerror or str(exc) or type(exc).__name__
+    message = f"{os.fspath(path)} could not be written: {reason}"
+    try:
+        out = type(exc)(message)
+    except TypeError:  # (a subclass whose constructor takes other arguments)
+        out = OSError(message)
+    out.errno = exc.errno
+    return out
+
+
 @contextlib.contextmanager
 def atomic_path(path):
     """Yield a temporary path beside `path`; on success move it into place, else remove it.
 
-    A reader never sees a half-written file, and a failed write leaves the old file untouched.
+    A reader never sees a half-written file, and a failed write leaves the old file untouched. An OSError of
+    the write (a full disk, a read-only folder) names `path` (`write_error`); one that names another file (an
+    input read inside the block) is left as it is.
     """
     path = os.fspath(path)
     folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    suffix = os.path.splitext(path)[1]
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=suffix, dir=folder)
-    os.close(fd)
+    tmp = None
     try:
+        os.makedirs(folder, exist_ok=True)
+        suffix = os.path.splitext(path)[1]
+        fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=suffix, dir=folder)
+        os.close(fd)
         yield tmp
         # mkstemp makes the file private (0600); give it the mode a plain open() would.
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, path)
+    except OSError as exc:
+        _remove(tmp)
+        if tmp is not None and exc.filename not in (None, tmp, path):
+            raise  # (about another file: its own message names it)
+        raise write_error(path, exc) from exc
     except BaseException:
+        _remove(tmp)
+        raise
+
+
+def _remove(tmp) -> None:
+    if tmp is not None:
         with contextlib.suppress(OSError):
             os.remove(tmp)
-        raise
 
 
 def save_npz(path, kind: str, version: int, header: dict, arrays: dict) -> None:
@@ -103,6 +132,9 @@ def read_npz(path, kind: str | None = None, versions=(1,)) -> tuple[dict, dict]:
             if "header" not in z.files:
                 raise ValueError(f"{path} is not a warp_biscale file (no header)")
             head = json.loads(str(z["header"]))
+            if not isinstance(head, dict):  # (valid JSON, but a list or a number: no format, no version)
+                raise ValueError(f"{path} is truncated or corrupt, or not a warp_biscale file (its header is a "
+                                 f"JSON {type(head).__name__}, not an object)")
             arrays = {k: z[k] for k in z.files if k != "header"}
     except (zipfile.BadZipFile, EOFError, OSError, json.JSONDecodeError, KeyError) as exc:
         raise ValueError(f"{path} is truncated or corrupt: {exc}") from None

@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import tempfile
 from dataclasses import dataclass, field
@@ -56,6 +57,7 @@ from . import images as images_mod
 from . import sg
 from .brdf import Brdf, Lambert, pack_materials
 from .effective import EffectiveBRDF
+from .io import write_error
 from .measured import MeasuredBRDF
 from .model import BACKENDS
 from .svbrdf import Textured
@@ -77,6 +79,8 @@ ERROR_RESOLUTION = 256  # its default grid: texel-level error shows at any grid 
 TOLERANCE_COUNTS = (2, 3, 4, 6, 8, 12, 16, 24)
 FORMAT = "warp_biscale.litsphere"
 VERSION = 1
+HEADER = "litsphere.json"  # a saved folder's header; its images are named as _IMAGE_NAME matches
+_IMAGE_NAME = re.compile(r"(phi|diffuse)_\d{3}\.\d{5}\.exr")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -399,27 +403,36 @@ class LitSphere:
         """Write a folder `path` (by convention *.litsphere): `litsphere.json` (format, version, angles,
         resolution, name, files, diffuse_files, source) and one float32 EXR per angle, `phi_<degrees>.exr`, and
         where the material has a diffuse part apart (`diffuse`), one more per angle, `diffuse_<degrees>.exr`. Atomic:
-        the folder is
-        built beside `path` and moved into place; an old one is replaced only once the new is whole."""
+        the folder is built beside `path` and moved into place; an old one is replaced only once the new is whole.
+        An existing folder is replaced only where it is empty or an earlier save's (`_not_saved_here`): one
+        holding anything else is refused, in one line, before anything is written. A failed write (a full
+        disk, a read-only folder) is an OSError naming `path` and leaves the old folder as it was."""
         path = os.fspath(path)
         if os.path.exists(path) and not os.path.isdir(path):
             raise ValueError(f"LitSphere output {path!r} is a file; a lit sphere is saved as a folder")
+        if os.path.isdir(path):
+            foreign = _not_saved_here(path)
+            if foreign:
+                shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
+                raise ValueError(f"LitSphere output {path!r} holds files LitSphere.save did not write ({shown}); "
+                                 "give another folder")
         parent = os.path.dirname(os.path.abspath(path))
-        os.makedirs(parent, exist_ok=True)
-        tmp = tempfile.mkdtemp(prefix=".tmp-litsphere-", dir=parent)
+        tmp = None
         try:
+            os.makedirs(parent, exist_ok=True)
+            tmp = tempfile.mkdtemp(prefix=".tmp-litsphere-", dir=parent)
             files, diffuse_files = [], []
             for a, phi in enumerate(self.angles):
-                files.append(f"phi_{phi:09.5f}.exr")
+                files.append(_image_name("phi", phi))
                 images_mod.write_exr(os.path.join(tmp, files[-1]), self.images[a])
                 if self.diffuse is not None:
-                    diffuse_files.append(f"diffuse_{phi:09.5f}.exr")
+                    diffuse_files.append(_image_name("diffuse", phi))
                     images_mod.write_exr(os.path.join(tmp, diffuse_files[-1]), self.diffuse[a])
             head = {"format": FORMAT, "version": VERSION, "angles": [float(x) for x in self.angles],
                     "resolution": self.resolution, "name": self.name, "files": files,
                     "diffuse_files": diffuse_files or None,
                     "source": repr(self.source) if self.source is not None else None}
-            with open(os.path.join(tmp, "litsphere.json"), "w") as fh:
+            with open(os.path.join(tmp, HEADER), "w") as fh:
                 json.dump(head, fh, indent=1)
             os.chmod(tmp, 0o777 & ~_umask())
             old = None
@@ -427,12 +440,21 @@ class LitSphere:
                 old = tempfile.mkdtemp(prefix=".tmp-old-litsphere-", dir=parent)
                 os.rmdir(old)
                 os.replace(path, old)
-            os.replace(tmp, path)
+            try:
+                os.replace(tmp, path)
+            except OSError:
+                if old is not None:  # (the old folder back where it was: a failed save loses nothing)
+                    os.replace(old, path)
+                raise
+            tmp = None
             if old is not None:
                 shutil.rmtree(old, ignore_errors=True)
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
+        except OSError as exc:
+            # (the system's text names no file, or the temporary folder the user never asked for)
+            raise write_error(path, exc) from exc
+        finally:
+            if tmp is not None:
+                shutil.rmtree(tmp, ignore_errors=True)
 
     @classmethod
     def load(cls, path) -> LitSphere:
@@ -440,7 +462,7 @@ class LitSphere:
         path = os.fspath(path)
         if not os.path.exists(path):
             raise FileNotFoundError(f"no such lit sphere: {path}")
-        head_path = os.path.join(path, "litsphere.json")
+        head_path = os.path.join(path, HEADER)
         if not os.path.isdir(path) or not os.path.isfile(head_path):
             raise ValueError(f"{path} is not a lit-sphere folder (no litsphere.json in it)")
         try:
@@ -481,6 +503,27 @@ class LitSphere:
             return cls(imgs, angles, diffuse=diffuse, name=str(head.get("name", "")))
         except ValueError as exc:
             raise ValueError(f"{path}: {exc}") from None
+
+
+def _image_name(kind: str, phi: float) -> str:
+    return f"{kind}_{phi:09.5f}.exr"
+
+
+def _not_saved_here(folder) -> list:
+    """The entries of an existing folder that LitSphere.save did not write, sorted: none where it is empty or holds
+    a lit-sphere header (litsphere.json of this FORMAT, any version) and images named as save names them; every
+    entry where it has no such header (what is in it then is not known to be a save's). The files a save wrote
+    are replaced with the folder; anything else in it would be lost."""
+    names = sorted(os.listdir(folder))
+    try:
+        with open(os.path.join(folder, HEADER)) as fh:
+            head = json.load(fh)
+    except (OSError, ValueError):
+        return names
+    if not isinstance(head, dict) or head.get("format") != FORMAT:
+        return names
+    return [n for n in names if n != HEADER and not (_IMAGE_NAME.fullmatch(n)
+                                                     and os.path.isfile(os.path.join(folder, n)))]
 
 
 def _umask() -> int:

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import copy
 import os
+import shutil
 import zipfile
 
 import numpy as np
@@ -71,7 +72,8 @@ def _check_material(mat, what: str) -> EffectiveBRDF:
 def export(mat, path) -> dict:
     """Write the Mitsuba 3 files of baked material `mat` into folder `path` (made if missing; files of the
     same names an earlier export wrote are replaced, each atomically; other files of those names are a
-    ValueError, before anything is written) → {"material", "scene", "script": their paths}."""
+    ValueError, before anything is written) → {"material", "scene", "script": their paths}. A failed write (a
+    full disk) is an OSError naming the file, and removes the folder where the export made it."""
     _check_material(mat, "export_mitsuba: the material")
     folder = os.fspath(path)
     if os.path.exists(folder) and not os.path.isdir(folder):
@@ -84,12 +86,28 @@ def export(mat, path) -> dict:
         if os.path.isfile(name) and not _written_by_export(name, texts.get(key)):
             raise ValueError(f"Mitsuba export: {name!r} exists and was not written by an export; give another "
                              "folder or move the file")
-    copy.copy(mat).save(out["material"])  # a copy: saving sets `path`, which must stay the caller's file
-    for key, text in texts.items():
-        with atomic_path(out[key]) as tmp:
-            with open(tmp, "w", encoding="utf-8") as fh:
-                fh.write(text)
+    made = _first_missing(folder)  # the folder the export makes, if any: a failed export removes it again
+    try:
+        copy.copy(mat).save(out["material"])  # a copy: saving sets `path`, which must stay the caller's file
+        for key, text in texts.items():
+            with atomic_path(out[key]) as tmp:
+                with open(tmp, "w", encoding="utf-8") as fh:
+                    fh.write(text)
+    except BaseException:
+        if made is not None:  # (all in it is this export's: a full disk leaves no empty folder behind)
+            shutil.rmtree(made, ignore_errors=True)
+        raise
     return out
+
+
+def _first_missing(folder) -> str | None:
+    """The outermost folder of `folder`'s path that does not exist yet (the one whose making makes the rest), or
+    None where `folder` exists."""
+    folder = os.path.abspath(folder)
+    missing = None
+    while not os.path.exists(folder):
+        missing, folder = folder, os.path.dirname(folder)
+    return missing
 
 
 def _written_by_export(path, text) -> bool:
