@@ -125,6 +125,9 @@ def test_good_sizes_still_build():
     np.testing.assert_allclose(np.linalg.norm(wb.Mesh.sphere(radius=np.float32(2.0)).vertices, axis=1), 2.0)
     s = _scene(env_lobes=KERNEL_LOBES, ssdf_resolution=8, ssdf_terms=64)
     assert (s.env_lobes, s.ssdf_resolution, s.ssdf_terms) == (KERNEL_LOBES, 8, 64)
+    # the default 16 PCA terms, or as many as a coarse SSDF has directions (2² = 4: it was refused over a default
+    # the user never wrote)
+    assert [_scene(ssdf_resolution=r).ssdf_terms for r in (2, 3, 4, 32)] == [4, 9, 16, 16]
 
 
 def test_ssdf_resolution_range_is_the_ssdf_modules():

@@ -530,6 +530,9 @@ SETTINGS_UNITS = {"env_lobes": " (the SG lighting kernels' lobe count)",
                   "ssdf_resolution": " (SSDF directions per side)", "ssdf_terms": " (at most ssdf_resolution²)"}
 
 
+SSDF_TERMS = 16  # the SSDF's PCA terms by default (Wang §5.7)
+
+
 def settings_ranges(ssdf_resolution=32) -> dict:
     """The valid (lo, hi) of Scene's env_lobes, ssdf_resolution and ssdf_terms (at most the texel count
     ssdf_resolution², computed from the given resolution when it is an in-range integer): checked by Scene
@@ -548,7 +551,8 @@ class Scene:
     """What to render: one mesh (merge several with `Mesh.merge`; each face's `face_material` indexes
     `materials`), analytic `Brdf`s or baked `EffectiveBRDF`s, a camera, an environment (None: black)
     and point/directional lights. `env_lobes` SG lobes fit the environment for the diffuse term (9 as
-    Iwasaki §5); the SSDF has `ssdf_resolution`² directions and `ssdf_terms` PCA terms."""
+    Iwasaki §5); the SSDF has `ssdf_resolution`² directions and `ssdf_terms` PCA terms (by default 16, or
+    ssdf_resolution² where that is fewer)."""
 
     mesh: Mesh
     materials: list
@@ -557,7 +561,7 @@ class Scene:
     lights: list = field(default_factory=list)
     env_lobes: int = 9
     ssdf_resolution: int = 32
-    ssdf_terms: int = 16
+    ssdf_terms: int | None = None  # None: SSDF_TERMS, or ssdf_resolution² where that is fewer
     cache: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self):
@@ -594,6 +598,10 @@ class Scene:
                     raise ValueError(f"Scene.lights[{i}]: the PointLight of radius {light.radius:g} at "
                                      f"{tuple(float(x) for x in light.position)} reaches into the mesh (a face "
                                      f"{d:.3g} from its centre): a light must lie outside the objects")
+        if self.ssdf_terms is None:  # (a coarse SSDF alone must not be refused over a default it cannot hold)
+            res = self.ssdf_resolution
+            fits = isinstance(res, int) and not isinstance(res, bool) and res >= 1
+            self.ssdf_terms = min(SSDF_TERMS, res * res) if fits else SSDF_TERMS
         for name, (lo, hi) in settings_ranges(self.ssdf_resolution).items():
             setattr(self, name, _integer(f"Scene.{name}", getattr(self, name), lo, hi, SETTINGS_UNITS[name]))
 

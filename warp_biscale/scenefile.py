@@ -21,7 +21,7 @@ or ``warp-biscale render scene.toml -o out.png``. Every table and key is optiona
     occlusion_samples = 16       # sg: environment-occlusion rays a pixel (0: the SSDF alone)
     block_rays = "auto"          # sg: true/false or a block side 1, 2, 4 (pixels sharing their rays; "auto": by size)
     env_lobes = 9                # SG lobes fitted to the environment (diffuse term), 1..16
-    ssdf_resolution = 32         # SSDF directions per side (2..128); ssdf_terms = 16 PCA terms (<= resolution²)
+    ssdf_resolution = 32         # SSDF directions per side (2..128); ssdf_terms: PCA terms (16, at most resolution²)
     backend = "auto"             # auto, warp, warp:cpu, warp:cuda, opencl, opencl:cpu, opencl:gpu, opencl:<name>
 
     [camera]                     # no [camera] / no eye: framed on the objects' bounding sphere
