@@ -414,6 +414,9 @@ def test_object_errors(tmp_path):
     # a typo'd built-in keeping the keys of the shape meant: the mesh is the error, not its keys
     expect_error(tmp_path, BASE + '\n[[object]]\nmesh = "spehre"\nradius = 0.5\nsubdivisions = 2\nmaterial = "m"\n',
                  'mesh = "spehre"', "mesh 'spehre' is neither a built-in (sphere, torus, plane)")
+    # placed past the renderers' coordinates: the object named, with what placed it (it came without file or line)
+    expect_error(tmp_path, BASE + '\n[[object]]\nmesh = "sphere"\nmaterial = "m"\nscale = 1e30\n', "[[object]]",
+                 "[[object]] #2 placed by its scale: Mesh.vertices reach 1e+30", nth=2)
 
 
 def test_a_scene_without_objects_is_refused(tmp_path):
@@ -511,3 +514,14 @@ def test_render_table_sets_the_rays_of_the_sg_renderer(tmp_path, capsys):
     assert np.abs(images[()] - images[("--aa", "2")]).max() > 0  # the flag wins over the file
     plain = load_scene(write(tmp_path, BASE, "plain.toml"), backend="warp:cpu")
     assert plain.render_options("sg") == {} and plain.aa is None
+
+
+def test_a_byte_order_mark_is_read_past(tmp_path):
+    """Some Windows editors start a UTF-8 file with a byte-order mark, which TOML's parser refused as
+    'Invalid statement' at 1:1; an error further down still gets its right line."""
+    path = tmp_path / "bom.toml"
+    path.write_bytes(b"\xef\xbb\xbf" + BASE.encode("utf-8"))
+    assert load_scene(str(path)).scene.materials[0].albedo[0] == 0.5
+    path.write_bytes(b"\xef\xbb\xbf" + (BASE + "\n[camera]\nfvo = 30\n").encode("utf-8"))
+    with pytest.raises(SceneError, match=rf"^bom.toml:{BASE.count(chr(10)) + 3}: \[camera\] unknown key 'fvo'"):
+        load_scene(str(path))

@@ -182,7 +182,7 @@ def load_jobs(path) -> Jobs:
     except IsADirectoryError:
         raise SceneError(f"{path} is a directory, not a job file", path) from None
     try:
-        text = data.decode("utf-8")
+        text = data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise SceneError(f"{os.path.basename(path)}: not UTF-8 text ({exc})", path) from None
     return loads_jobs(text, path=path)
@@ -717,7 +717,7 @@ def open_scene(path, slot, material, dry=False, backend=None):
     with open(path, "rb") as f:
         data = f.read()
     try:
-        text = data.decode("utf-8")
+        text = data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise SceneError(f"{os.path.basename(path)}: not UTF-8 text ({exc})", path) from None
     ctx = _Ctx(text, path, os.path.dirname(os.path.abspath(path)))

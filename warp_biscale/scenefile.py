@@ -267,7 +267,7 @@ def load_scene(path, backend=None, progress=None, method=None) -> SceneFile:
     except IsADirectoryError:
         raise SceneError(f"{path} is a directory, not a scene file", path) from None
     try:
-        text = data.decode("utf-8")
+        text = data.decode("utf-8-sig")  # (a byte-order mark, as some editors write, is no TOML error)
     except UnicodeDecodeError as exc:
         raise SceneError(f"{os.path.basename(path)}: not UTF-8 text ({exc})", path) from None
     return loads_scene(text, path=path, backend=backend, progress=progress, method=method)
@@ -550,7 +550,10 @@ def _place(ctx, table, mesh, place):
         raise ctx.error(table, "scale", f"scale must be > 0, got {s:g}")
     r = _rotation(place.get("rotate", (0.0, 0.0, 0.0)))
     t = np.asarray(place.get("translate", (0.0, 0.0, 0.0)))
-    return Mesh(mesh.vertices @ (s * r).T + t, mesh.faces, mesh.normals @ r.T, mesh.uvs, mesh.face_material)
+    try:
+        return Mesh(mesh.vertices @ (s * r).T + t, mesh.faces, mesh.normals @ r.T, mesh.uvs, mesh.face_material)
+    except ValueError as exc:  # (coordinates past the renderers' range)
+        raise ctx.error(table, None, f"placed by its {' and '.join(place)}: {exc}") from None
 
 
 def _camera(ctx, v, meshes, sf):
