@@ -1,6 +1,7 @@
 """Procedural tiles (warp_biscale.geometry): validity, seamless tiling, closed-form areas, materials."""
 
 import math
+import os
 import warnings
 
 import numpy as np
@@ -542,8 +543,12 @@ def test_heightfield_from_image_errors(tmp_path):
         heightfield_from_image(junk)
     tiny = tmp_path / "tiny.png"
     Image.fromarray(np.zeros((1, 5), np.uint8)).save(tiny)
-    with pytest.raises(ValueError, match="heights"):
-        heightfield_from_image(tiny)
+    with pytest.raises(ValueError, match=r"^height image .*tiny.png: heightfield: heights must be a 2-D array"):
+        heightfield_from_image(tiny)  # (the file named: the message came without it)
+    holed = tmp_path / "holed.tiff"
+    Image.fromarray(np.array([[0.0, np.nan], [0.5, 1.0]], np.float32), mode="F").save(holed)
+    with pytest.raises(ValueError, match=r"^height image .*holed.tiff: .*NaN"):
+        heightfield_from_image(holed)
 
 
 # --------------------------------------------------------------------------------------- invalid parameters
@@ -745,3 +750,12 @@ def test_tile_names_of_the_command_line_and_scene_files(tmp_path):
     np.testing.assert_array_equal(geometry.load_tile(str(path)).vertices, heightfield_from_image(path).vertices)
     with pytest.raises(ValueError, match="neither a mesh file, a height-field image nor a built-in tile .*grooves"):
         geometry.load_tile("groove")
+    # a path is a missing file, not a misspelt tile name; a GIF is an image like the others
+    with pytest.raises(FileNotFoundError, match=r"^no such tile file: .*missing.obj$"):
+        geometry.load_tile(str(tmp_path / "missing.obj"))
+    os.symlink(tmp_path / "gone.obj", tmp_path / "link.obj")
+    with pytest.raises(FileNotFoundError, match=r"link.obj' is a broken link \(to '.*gone.obj'\)$"):
+        geometry.load_tile(str(tmp_path / "link.obj"))
+    Image.open(path).save(tmp_path / "bumps.gif")
+    np.testing.assert_array_equal(geometry.load_tile(str(tmp_path / "bumps.gif")).vertices,
+                                  heightfield_from_image(path).vertices)

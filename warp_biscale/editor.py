@@ -325,7 +325,7 @@ class Editor:
             state["tile"].update(fixed)
             if family == "heightfield":
                 state["heights"] = geometry.relief_heights(HEIGHTS)
-        elif os.path.isfile(spec) and spec.lower().endswith((".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")):
+        elif os.path.isfile(spec) and spec.lower().endswith(geometry.IMAGE_SUFFIXES):
             state["family"] = "heightfield"
             state["tile"] = {name: default for name, _, _, _, default, _ in FAMILIES["heightfield"]}
             state["heights"] = geometry.read_height_image(spec)  # its checks and one-line errors
@@ -674,7 +674,7 @@ class Editor:
         path = os.fspath(path)
         try:
             with open(path, "rb") as f:
-                text = f.read().decode("utf-8")
+                text = f.read().decode("utf-8-sig")
             data = tomllib.loads(text)
         except OSError as exc:
             raise ValueError(f"cannot read design {path}: {exc.strerror or exc}") from None

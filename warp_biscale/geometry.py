@@ -45,7 +45,7 @@ BUILTIN_TILES = {
     "flat": ("flat", {}),
     "heightfield": ("relief", {}),
 }
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")  # a height field's greyscale image
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".gif", ".webp")  # a height field's image
 
 
 def load_tile(spec: str):
@@ -57,5 +57,9 @@ def load_tile(spec: str):
     if spec in BUILTIN_TILES:
         fn, kwargs = BUILTIN_TILES[spec]
         return globals()[fn](**kwargs)
+    if os.path.islink(spec):
+        raise FileNotFoundError(f"tile {spec!r} is a broken link (to {os.readlink(spec)!r})")
+    if os.path.splitext(spec)[1] or os.sep in spec:  # (a path, not a misspelt name)
+        raise FileNotFoundError(f"no such tile file: {spec}")
     raise ValueError(f"tile {spec!r} is neither a mesh file, a height-field image nor a built-in tile "
                      f"({', '.join(BUILTIN_TILES)})")

@@ -353,7 +353,10 @@ def heightfield_from_image(path, *, size=1.0, scale=1.0, material=0, color=WHITE
     Raises FileNotFoundError for a missing file and ValueError for one PIL cannot read.
     """
     arr = read_height_image(path, "heightfield_from_image")
-    tile = heightfield(arr, size=size, scale=scale, material=material, color=color)
+    try:
+        tile = heightfield(arr, size=size, scale=scale, material=material, color=color)
+    except ValueError as exc:  # (a 1-pixel or NaN image, too steep: the file named)
+        raise ValueError(f"height image {os.fspath(path)}: {exc}") from None
     tile.name = f"heightfield({os.path.basename(path)}, scale={scale:g})"
     return tile
 
