@@ -423,6 +423,8 @@ def test_render_errors_are_clear(tmp_path, edit, args, message, capsys):
 def test_render_refuses_unknown_extension_and_missing_file(tmp_path, capsys):
     r = run_cli_in_process(capsys, "render", str(_tiny_scene(tmp_path)), "-o", str(tmp_path / "x.jpg"))
     assert r.returncode != 0 and "must end in .png, .exr, .hdr" in r.stderr
+    r = run_cli_in_process(capsys, "render", str(_tiny_scene(tmp_path)), "-o", str(tmp_path / ".png"))
+    assert r.returncode == 2 and r.stderr.endswith(".png' has no name before its .png\n"), r.stderr
     r = run_cli_in_process(capsys, "render", str(tmp_path / "none.toml"))
     assert r.returncode != 0 and "no such scene file" in r.stderr
 
@@ -608,7 +610,7 @@ def test_ball_of_a_saved_lit_sphere_refuses_resolution_and_angles(tmp_path, caps
 
 @pytest.mark.parametrize("args, message", [
     (["view", "nosuch.toml"], "error: no such scene file: nosuch.toml"),
-    (["view", "SCENE", "--render-scale", "2"], "error: render_scale must be in (0, 1], got 2.0"),
+    (["view", "SCENE", "--render-scale", "2"], "error: --render-scale must be in (0, 1], got 2"),
     (["edit", "nosuchfamily"], "error: Editor target 'nosuchfamily' is neither a tile family"),
 ])
 def test_view_and_edit_say_a_bad_argument_before_a_missing_display(tmp_path, args, message, capsys, monkeypatch):

@@ -260,6 +260,8 @@ def _check_output(path, what="output"):
     check_output(path, what=what)
     ext = os.path.splitext(path)[1].lower()
     if ext not in IMAGE_EXTENSIONS:
+        if os.path.basename(path).lower() in IMAGE_EXTENSIONS:  # (".png": a suffix with no name before it)
+            raise ValueError(f"{what} {path!r} has no name before its {os.path.basename(path)}")
         raise ValueError(f"{what} {path!r} must end in {', '.join(IMAGE_EXTENSIONS)} (PNG is tone-mapped; EXR and "
                          "HDR keep the linear radiance)")
 
@@ -565,6 +567,8 @@ def cmd_view(args):
             raise ValueError(f"--screenshot {args.screenshot!r} must be a .png")
         _check_output(args.screenshot, "--screenshot")
     size = _size(args.size, 1200, 600)
+    if not 0 < args.render_scale <= 1:
+        raise ValueError(f"--render-scale must be in (0, 1], got {args.render_scale:g}")
     _check_backend(args.backend)
     try:
         view(args.scene, screenshot=args.screenshot, size=size, backend=args.backend,

@@ -31,6 +31,8 @@ def check_output(path, suffixes=None, what: str = "output") -> None:
     if os.path.isdir(path):
         raise ValueError(f"{what} {path!r} is a directory; give a file name")
     if suffixes is not None and os.path.splitext(path)[1].lower() not in suffixes:
+        if os.path.basename(path).lower() in suffixes:  # (".png": a suffix with no name before it)
+            raise ValueError(f"{what} {path!r} has no name before its {os.path.basename(path)}")
         raise ValueError(f"{what} {path!r} must end in {', '.join(suffixes)}")
     folder = os.path.dirname(os.path.abspath(path))
     while not os.path.exists(folder):
