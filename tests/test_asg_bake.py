@@ -638,6 +638,10 @@ def test_bad_inputs_are_one_line_errors():
         amps[0, 1, 2, 0, 1] = bad
         with pytest.raises(ValueError, match="amplitudes must be finite and >= 0"):
             wb.ASGBRDF(mat.asgs, mat.weight, amps, [lam], 4)
+    amps = mat.amplitudes.copy()
+    amps[0, 1, 2, 0, 1] = 3e38  # (a forged file's: it rendered black)
+    with pytest.raises(ValueError, match=r"^amplitudes hold values up to 3e\+38: at most 1e\+08"):
+        wb.ASGBRDF(mat.asgs, mat.weight, amps, [lam], 4)
     with pytest.raises(ValueError, match="energy must have shape"):
         wb.ASGBRDF(mat.asgs, mat.weight, mat.amplitudes, [lam], 4, energy=np.zeros((1, 16, 16)))
     with pytest.raises(ValueError, match="energy must be finite and >= 0"):

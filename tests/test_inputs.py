@@ -511,3 +511,80 @@ def test_mesh_distance_to_matches_dense_samples_and_a_light_outside_is_taken():
     assert mesh.distance_to((0, 3, 0)) == pytest.approx(1.0, abs=0.02)  # above the sphere's top vertex
     assert mesh.distance_to((0, 3, 0), within=0.5) == np.inf
     wb.Scene(mesh, wb.Lambert(0.5), lights=[wb.PointLight((0, 2.3, 0), 1.0, 0.25)])  # 0.3 above the top: fine
+
+
+def _forged_material(tmp_path, name, edit):
+    """A small baked material saved, then its file rewritten with `edit(header, arrays)` applied."""
+    import json
+
+    path = tmp_path / "good.wbm"
+    if not path.exists():
+        wb.bake(wb.geometry.pyramid(), [wb.Lambert(0.5)], lobes=2, directions=4, facets=1024, normal_res=16,
+                backend="warp:cpu").save(path)
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    header = json.loads(str(arrays.pop("header")))
+    edit(header, arrays)
+    bad = tmp_path / f"{name}.wbm"
+    with open(bad, "wb") as fh:  # (a path would get .npz added)
+        np.savez_compressed(fh, header=np.array(json.dumps(header)), **arrays)
+    return bad
+
+
+def test_a_material_file_with_amplitudes_past_float32s_room_is_refused(tmp_path):
+    """A forged .wbm with amplitudes of 3e38 loaded and rendered black in the SG renderer (1e38 elsewhere). Amplitudes
+    above effective.AMPLITUDE_MAX (1e8: 600 times the most a bake makes, SHARPNESS_MAX/(2π) ≈ 1.6e5, and low enough
+    that the SG renderer's float32 cannot overflow under the brightest light a scene takes; its comment) are refused
+    at load, one line naming the file and the largest value; the bound itself loads and renders finite."""
+    from warp_biscale.effective import AMPLITUDE_MAX
+
+    def fill(value):
+        return lambda h, a: a.__setitem__("amplitudes", np.full_like(a["amplitudes"], value))
+
+    for value, shown in ((3e38, "3e+38"), (AMPLITUDE_MAX * 1.01, "1.01e+08")):
+        bad = _forged_material(tmp_path, "big", fill(value))
+        with pytest.raises(ValueError) as info:
+            wb.load(bad)
+        message = str(info.value)
+        assert f"{bad} is not a valid material file: amplitudes hold values up to {shown}: at most 1e+08" in message
+        assert "\n" not in message
+    mat = wb.load(_forged_material(tmp_path, "bound", fill(AMPLITUDE_MAX)))
+    scene = wb.Scene(wb.Mesh.sphere(subdivisions=1), [mat], wb.Camera(eye=(0, 0.5, 3), width=16, height=12),
+                     wb.Environment.constant(1.0), [wb.DirectionalLight((0.3, 1.0, 0.2), 1e20)])
+    image = wb.render(scene, backend="warp:cpu").image
+    assert np.isfinite(image).all() and (image >= 0).all() and image.max() > 1e20
+
+
+def test_a_material_file_naming_a_parameter_its_brdf_lacks_says_which(tmp_path):
+    """A BRDF table with an extra key failed with "Lambert.__init__() got an unexpected keyword argument 'bogus'"; it
+    now names the material, the key and the parameters the BRDF has. A bad value names the material too."""
+    def bogus(h, a):
+        h["materials"][0]["bogus"] = 1
+
+    bad = _forged_material(tmp_path, "bogus", bogus)
+    with pytest.raises(ValueError) as info:
+        wb.load(bad)
+    assert str(info.value) == (f"{bad} is not a valid material file: material 0: Lambert has no parameter 'bogus'; "
+                               "its parameters: albedo")
+
+    def sharp(h, a):
+        h["materials"][0] = {"type": "BlinnPhong", "ks": [0.2] * 3, "exponent": 1e18, "kd": [0.0] * 3}
+
+    with pytest.raises(ValueError, match=r"sharp.wbm is not a valid material file: material 0: BlinnPhong.exponent "
+                                         r"must be <= 1e\+06, got 1e\+18"):
+        wb.load(_forged_material(tmp_path, "sharp", sharp))
+
+
+def test_a_material_file_with_lobes_outside_the_sg_forms_range_is_refused(tmp_path):
+    """A forged .wbm whose lobe sharpness was 1e300 loaded and rendered its sphere black in the SG renderer (float32
+    made it inf). A bake's lobes keep to [sg.SHARPNESS_MIN, sg.SHARPNESS_MAX] (its EM clamps them there), so a file's
+    must too: one line naming the file and the range found."""
+    for value, shown in ((1e300, "1e+300 to 1e+300"), (1e-300, "1e-300 to 1e-300")):
+        def edit(h, a, value=value):
+            a["sharpness"] = np.full_like(a["sharpness"], value)
+
+        bad = _forged_material(tmp_path, "sharpness", edit)
+        with pytest.raises(ValueError) as info:
+            wb.load(bad)
+        assert str(info.value) == (f"{bad} is not a valid material file: lobe sharpness must lie in [0.001, 1e+06], "
+                                   f"the SG forms' range, got {shown}")

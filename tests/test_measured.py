@@ -332,7 +332,8 @@ def test_invalid_bins_are_those_below_the_horizon(lambert):
 
 def test_invalid_samples_are_filled_from_theta_d_neighbours():
     """An invalid sample evaluates as its nearest valid θd neighbour in its (θh, φd) column; a column with no
-    valid sample as the nearest valid column along θh; a table with none evaluates to 0, not to the marker."""
+    valid sample as the nearest valid column along θh; a table with none is refused
+    (`test_a_table_without_a_valid_sample_is_refused`)."""
     data = np.full(ms.SHAPE, 100.0)
     data[:, 10, :, 20] = np.arange(90)[None, :] + 1.0
     data[:, 10, 41, 20] = -1.0  # one hole: nearest valid θd are 40 and 42, tie → the lower, value 41
@@ -349,7 +350,8 @@ def test_invalid_samples_are_filled_from_theta_d_neighbours():
     np.testing.assert_allclose(at(10, 41, 20), 41.0)
     np.testing.assert_allclose(at(10, 75, 20), 60.0)
     np.testing.assert_allclose(at(30, 3, 7), 5.0)
-    assert (MeasuredBRDF(np.full(ms.SHAPE, -1.0)).eval(Z, [0.3, 0, 0.95], [-0.2, 0.1, 0.97]) == 0).all()
+    with pytest.raises(ValueError, match="holds no valid measured sample"):
+        MeasuredBRDF(np.full(ms.SHAPE, -1.0))
 
 
 @pytest.mark.parametrize("mode", ms.INTERPOLATIONS)
@@ -501,3 +503,42 @@ def test_below_the_horizon_is_zero(paint):
     assert (paint.eval(3 * Z, 2 * np.array(up), 5 * np.array(up)) > 0).all()
     np.testing.assert_allclose(paint.eval(3 * Z, 2 * np.array(up), 5 * np.array(up)), paint.eval(Z, up, up),
                                rtol=1e-12)
+
+
+def test_a_table_without_a_valid_sample_is_refused(tmp_path):
+    """A MERL file whose every sample is marked invalid (−1: invalid_fraction 1.0) loaded and, filled with nothing,
+    made a black material in every result. It is refused at load in one line naming the file, and so is such a table
+    built by hand; one valid sample (in one sample, every channel ≥ 0) is enough to be taken."""
+    header = struct.pack("<3i", 90, 90, 180)
+    data = np.full(ms.SHAPE, -1.0)
+    data[:2, 3, 4, 5] = 7.0  # two channels of one sample valid: still not a measured sample
+    path = tmp_path / "unmeasured.binary"
+    path.write_bytes(header + data.astype("<f8").tobytes())
+    with pytest.raises(ValueError) as info:
+        MeasuredBRDF.load(path)
+    message = str(info.value)
+    assert f"MERL BRDF file {path} holds no valid measured sample" in message and "\n" not in message
+    with pytest.raises(ValueError, match="MeasuredBRDF data holds no valid measured sample"):
+        MeasuredBRDF(data)
+    data[2, 3, 4, 5] = 7.0
+    path.write_bytes(header + data.astype("<f8").tobytes())
+    one = MeasuredBRDF.load(path)
+    assert one.invalid_fraction == 1 - 1 / N_SAMPLES
+    th, td, pd = ms.bin_centres()
+    wi, wo = ms.directions_of(th[3], td[4], pd[5])
+    # at that sample's own bin centre, looked up nearest: 7 times the channel scales, one rounding (1e-12 is slack)
+    np.testing.assert_allclose(one.eval(Z, wi, wo, interpolation="nearest")[0], 7.0 * ms.SCALES, rtol=1e-12)
+
+
+def test_a_sharper_table_than_the_sg_forms_hold_is_fitted_at_their_limit():
+    """The SG fit's Cook–Torrance lobes keep m ≥ brdf.COOK_TORRANCE_ROUGHNESS_MIN (η = 2/m² ≤ sg.SHARPNESS_MAX), the
+    sharpest lobe the SG forms hold, which CookTorrance refuses to go below: a mirror-like table (everything in the
+    first θh bin, θh < 1.9e−4 rad, which a lobe of m ≈ 1e−4 would fit) is fitted there rather than failing, and a
+    fit read from a file written before the bound (m = 1e−4) is read at the bound."""
+    data = np.zeros(ms.SHAPE)
+    data[:, 0] = 1000.0
+    fit = ms.fit_sg(MeasuredBRDF(data), lobes=1)
+    assert [b.roughness for b in fit.lobes] == [pytest.approx(wb.brdf.COOK_TORRANCE_ROUGHNESS_MIN, rel=1e-12)]
+    assert max(fit.lobes[0].ks) > 0
+    old = {**fit.to_dict(), "lobes": [{"kd": [0, 0, 0], "ks": [1, 1, 1], "roughness": 1e-4, "f0": 0.5}]}
+    assert ms.SGFit.from_dict(old).lobes[0].roughness == wb.brdf.COOK_TORRANCE_ROUGHNESS_MIN

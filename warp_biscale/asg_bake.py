@@ -58,7 +58,8 @@ from . import lobes as lobes_mod
 from . import sg
 from .brdf import as_material_list, diffuse_albedo
 from .effective import (ASG_LOBES, DIFFUSE_LEVEL_ETAS, EFF_LOBE_WIDTH, EffectiveBRDF, HostOnlyBRDF, Provenance,
-                        device_levels, grid_amplitudes, interpolated_amplitudes, materials_from_file, materials_to_file)
+                        check_amplitudes, device_levels, grid_amplitudes, interpolated_amplitudes, materials_from_file,
+                        materials_to_file)
 from .io import check_output, read_npz, save_npz
 from .model import Bvndf, DeviceArray
 from .progress import as_progress
@@ -622,9 +623,8 @@ class ASGBRDF(HostOnlyBRDF):
         shape = self._amplitudes.shape
         if len(shape) != 5 or shape[1:] != (nd, nd, j, 3):
             raise ValueError(f"amplitudes must have shape (M, {nd}, {nd}, {j}, 3), got {shape}")
-        if (energy is None and self._amplitudes.size
-                and not (self.amplitudes.min() >= 0 and np.isfinite(self.amplitudes.max()))):
-            raise ValueError("amplitudes must be finite and >= 0")  # (a NaN fails min() >= 0)
+        if energy is None:
+            check_amplitudes(self.amplitudes)
         # Anisotropic small-scale BRDFs too: each lobe's facets' tangent order says how to turn their NDF's ASG
         # before it is convolved with the lobe (`asg.convolve_asg`).
         self.materials = as_material_list(materials, anisotropic=True)

@@ -35,7 +35,8 @@ import numpy as np
 __all__ = ["Lambert", "BlinnPhong", "CookTorrance", "Ward", "AnisotropicWard", "AshikhminShirley", "Brdf",
            "pack_materials", "measured_tables", "as_material_list", "refuse_anisotropic", "tangent_frame", "parse_brdf",
            "EnergyWarning", "NORMALIZATIONS", "sg_lobes", "diffuse_albedo", "blinn_phong_normal_albedo",
-           "cook_torrance_albedo"]
+           "cook_torrance_albedo", "SHARPNESS_MAX", "BLINN_PHONG_EXPONENT_MAX", "COOK_TORRANCE_ROUGHNESS_MIN",
+           "WARD_ALPHA_MIN", "ANISOTROPIC_WARD_ALPHA_MIN", "ASHIKHMIN_SHIRLEY_EXPONENT_MAX", "P1_BOUNDS"]
 
 LAMBERT, BLINN_PHONG, COOK_TORRANCE, WARD = 0, 1, 2, 3
 ANISOTROPIC_WARD, ASHIKHMIN_SHIRLEY = 4, 5
@@ -94,6 +95,45 @@ def _positive(name, value) -> float:
         raise ValueError(f"{name} must be a finite number > 0, got {value!r}") from None
     if not np.isfinite(x) or x <= 0:
         raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+    return x
+
+
+# How sharp a lobe may be. The SG closed forms hold up to sharpness SHARPNESS_MAX (sg.SHARPNESS_MAX is this one:
+# sg imports this module), and the renderers and bakes cap every lobe there: a sharper BRDF lobe would be rendered as
+# another, broader one (and past float32, fail late or render black). So each parameter is bounded where its lobe
+# reaches SHARPNESS_MAX, through the mapping that turns it into an SG (`sg.specular_lobe`) or an ASG
+# (`ndf_bandwidths`). An ASG exp(−λ(h·x)² − μ(h·y)²) is, along x, an SG of sharpness 2λ (λ(h·x)² = λ sin²θ ≈
+# 2λ(1 − cos θ)), which is how the renderers and the bakes read it (asg_bake.BANDWIDTH_MAX = SHARPNESS_MAX/2,
+# shading's η = 2√(λμ)): so its bandwidths are bounded by SHARPNESS_MAX/2, within the ASG forms' 1e6, and the
+# anisotropic models' isotropic cases get their isotropic twins' bounds.
+SHARPNESS_MAX = 1.0e6
+# Blinn–Phong: η = exponent.
+BLINN_PHONG_EXPONENT_MAX = SHARPNESS_MAX
+# Cook–Torrance: exp(−θh²/m²) ≈ exp((2/m²)(cos θh − 1)), η = 2/m² ≤ SHARPNESS_MAX ⇔ m ≥ √(2/SHARPNESS_MAX) ≈ 1.414e−3.
+COOK_TORRANCE_ROUGHNESS_MIN = math.sqrt(2.0 / SHARPNESS_MAX)
+# Ward: exp(−tan²θh/α²) ≈ exp((2/α²)(cos θh − 1)), η = 2/α²: the same bound as Cook–Torrance's m.
+WARD_ALPHA_MIN = math.sqrt(2.0 / SHARPNESS_MAX)
+# Anisotropic Ward: λ = 1/αx², μ = 1/αy², each ≤ SHARPNESS_MAX/2 ⇔ α ≥ √(2/SHARPNESS_MAX) (Ward's, as αx = αy is Ward).
+ANISOTROPIC_WARD_ALPHA_MIN = math.sqrt(2.0 / SHARPNESS_MAX)
+# Ashikhmin–Shirley: λ = nu/2, μ = nv/2, each ≤ SHARPNESS_MAX/2 ⇔ nu, nv ≤ SHARPNESS_MAX (Blinn–Phong's, as nu = nv
+# is the same (n·h)^n lobe).
+ASHIKHMIN_SHIRLEY_EXPONENT_MAX = SHARPNESS_MAX
+
+
+# The bounds of a packed row's p1 (name, least, most) for the kinds whose p1 a `svbrdf.Textured` parameter map scales.
+P1_BOUNDS = {BLINN_PHONG: ("exponent", 0.0, BLINN_PHONG_EXPONENT_MAX),
+             COOK_TORRANCE: ("roughness", COOK_TORRANCE_ROUGHNESS_MIN, math.inf),
+             WARD: ("alpha", WARD_ALPHA_MIN, math.inf)}
+
+
+def _lobe_parameter(name, value, least: float = 0.0, most: float = math.inf) -> float:
+    """`value` as a finite float > 0 in [least, most]: a lobe parameter whose lobe is no sharper than the SG and
+    ASG forms hold (SHARPNESS_MAX); a one-line ValueError naming `name` otherwise."""
+    x = _positive(name, value)
+    if x > most or x < least:
+        bound = f"<= {most:g}" if x > most else f">= {least:.4g}"
+        raise ValueError(f"{name} must be {bound}, got {value!r}: a sharper lobe than the SG and ASG forms hold "
+                         f"(sharpness up to {SHARPNESS_MAX:g}, sg.SHARPNESS_MAX)")
     return x
 
 
@@ -242,7 +282,8 @@ class Lambert(Brdf):
 
 @dataclass(frozen=True)
 class BlinnPhong(Brdf):
-    """Blinn–Phong as Iwasaki §4.1: f_r = kd/π + s·ks·(n+2)/(2π)·(n·h)^n, h the half vector, s = 1 by default.
+    """Blinn–Phong as Iwasaki §4.1: f_r = kd/π + s·ks·(n+2)/(2π)·(n·h)^n, h the half vector, s = 1 by default;
+    0 < n ≤ BLINN_PHONG_EXPONENT_MAX = 1e6 (its SG sharpness n at most SHARPNESS_MAX).
 
     **What it does to energy.** (n+2)/(2π) normalises the *distribution* of h (∫(n+2)/(2π)(n·h)^n (n·h) dω_h
     = 1), not the BRDF, so the specular directional albedo A = ∫ f_s·cos θi dωi exceeds ks. Measured by
@@ -278,7 +319,8 @@ class BlinnPhong(Brdf):
         object.__setattr__(self, "ks", _rgb("BlinnPhong.ks", self.ks))
         object.__setattr__(self, "kd", _rgb("BlinnPhong.kd", self.kd))
         kd_warned = warn_energy("BlinnPhong kd", self.kd, stacklevel=_CALLER)
-        object.__setattr__(self, "exponent", _positive("BlinnPhong.exponent", self.exponent))
+        object.__setattr__(self, "exponent", _lobe_parameter("BlinnPhong.exponent", self.exponent,
+                                                              most=BLINN_PHONG_EXPONENT_MAX))
         if not (isinstance(self.normalization, str) and self.normalization in NORMALIZATIONS):
             raise ValueError(f"BlinnPhong.normalization must be one of {', '.join(map(repr, NORMALIZATIONS))}, "
                              f"got {self.normalization!r}")
@@ -315,7 +357,8 @@ class CookTorrance(Brdf):
 
     f_r = kd/π + ks·F(h·ωi)·G·D(h) / (π (n·ωi)(n·ωo)),  D = exp(−(θh/m)²),
     F = f0 + (1 − f0)(1 − h·ωi)⁵,  G = min(1, 2(n·h)(n·ωo)/(ωo·h), 2(n·h)(n·ωi)/(ωo·h)).
-    `roughness` is m (radians of θh at which D falls to 1/e).
+    `roughness` is m (radians of θh at which D falls to 1/e), at least COOK_TORRANCE_ROUGHNESS_MIN ≈ 1.414e−3 (its
+    SG sharpness 2/m² at most SHARPNESS_MAX).
 
     **What it does to energy.** D is not normalised, so the specular directional albedo grows with m
     (≈ 4m²·F for a narrow lobe) and, for a rough lobe, towards grazing angles. Measured by float64
@@ -344,7 +387,8 @@ class CookTorrance(Brdf):
         object.__setattr__(self, "ks", _rgb("CookTorrance.ks", self.ks))
         object.__setattr__(self, "kd", _rgb("CookTorrance.kd", self.kd))
         kd_warned = warn_energy("CookTorrance kd", self.kd, stacklevel=_CALLER)
-        object.__setattr__(self, "roughness", _positive("CookTorrance.roughness", self.roughness))
+        object.__setattr__(self, "roughness", _lobe_parameter("CookTorrance.roughness", self.roughness,
+                                                               least=COOK_TORRANCE_ROUGHNESS_MIN))
         try:
             f0 = float(self.f0)
         except (TypeError, ValueError):
@@ -368,7 +412,8 @@ class CookTorrance(Brdf):
 
 @dataclass(frozen=True)
 class Ward(Brdf):
-    """Isotropic Ward: f_r = kd/π + ks·exp(−tan²θh/α²) / (4π α² √(cosθi cosθo))."""
+    """Isotropic Ward: f_r = kd/π + ks·exp(−tan²θh/α²) / (4π α² √(cosθi cosθo)); α ≥ WARD_ALPHA_MIN ≈ 1.414e−3 (its
+    SG sharpness 2/α² at most SHARPNESS_MAX)."""
 
     ks: object = 1.0
     alpha: float = 0.2
@@ -379,7 +424,7 @@ class Ward(Brdf):
         object.__setattr__(self, "ks", _rgb("Ward.ks", self.ks))
         object.__setattr__(self, "kd", _rgb("Ward.kd", self.kd))
         warn_energy("Ward kd", self.kd, stacklevel=_CALLER)
-        object.__setattr__(self, "alpha", _positive("Ward.alpha", self.alpha))
+        object.__setattr__(self, "alpha", _lobe_parameter("Ward.alpha", self.alpha, least=WARD_ALPHA_MIN))
 
     def packed(self):
         return np.array([*self.kd, *self.ks, self.alpha, 0], np.float64)
@@ -401,7 +446,8 @@ class AnisotropicWard(Brdf):
     θh, φh the half vector's polar angle and its azimuth from x; evaluated as
     exp(−((h·x/αx)² + (h·y/αy)²)/(h·n)²), which needs no trigonometry. `alpha_x` (αx) is the rms slope of the
     microfacets along the tangent x, `alpha_y` (αy) across it (along y = n × x): the highlight is wider along
-    the direction of the larger α. αx = αy = α is exactly the isotropic `Ward(alpha=α)`. (Xu 2013 §5.2 writes
+    the direction of the larger α; each ≥ ANISOTROPIC_WARD_ALPHA_MIN ≈ 1.414e−3 (its ASG bandwidth 1/α² at most
+    SHARPNESS_MAX/2). αx = αy = α is exactly the isotropic `Ward(alpha=α)`. (Xu 2013 §5.2 writes
     the exponent as 2((h·x/αx)² + (h·y/αy)²)/(1 + h·n), which agrees with tan² to second order in θh: his
     one-ASG fit, not this BRDF.)
 
@@ -435,8 +481,9 @@ class AnisotropicWard(Brdf):
         object.__setattr__(self, "ks", _rgb("AnisotropicWard.ks", self.ks))
         object.__setattr__(self, "kd", _rgb("AnisotropicWard.kd", self.kd))
         warn_energy("AnisotropicWard kd", self.kd, stacklevel=_CALLER)
-        object.__setattr__(self, "alpha_x", _positive("AnisotropicWard.alpha_x", self.alpha_x))
-        object.__setattr__(self, "alpha_y", _positive("AnisotropicWard.alpha_y", self.alpha_y))
+        for axis in ("alpha_x", "alpha_y"):
+            object.__setattr__(self, axis, _lobe_parameter(f"AnisotropicWard.{axis}", getattr(self, axis),
+                                                           least=ANISOTROPIC_WARD_ALPHA_MIN))
 
     def packed(self):
         return np.array([*self.kd, *self.ks, self.alpha_x, self.alpha_y], np.float64)
@@ -462,7 +509,8 @@ class AshikhminShirley(Brdf):
     F(c) = Rs + (1 − Rs)(1 − c)⁵  (Schlick),
     ρd = 28 Rd/(23π) · (1 − Rs) · (1 − (1 − n·k1/2)⁵) · (1 − (1 − n·k2/2)⁵).
 
-    `nu`, `nv` (> 0) are the Phong exponents of half vectors tilting towards u and towards v: the lobe is
+    `nu`, `nv` (in (0, ASHIKHMIN_SHIRLEY_EXPONENT_MAX = 1e6]: ASG bandwidths nu/2, nv/2 at most SHARPNESS_MAX/2) are
+    the Phong exponents of half vectors tilting towards u and towards v: the lobe is
     sharper along the direction of the larger exponent, so nu < nv stretches the highlight along u. `rs`
     (Rs, RGB in [0, 1]) is the specular reflectance at normal incidence, `rd` (Rd, RGB) the diffuse one;
     the diffuse term is not Lambertian: it gives way to the specular one at grazing angles, which is what
@@ -500,8 +548,9 @@ class AshikhminShirley(Brdf):
     def __post_init__(self):
         object.__setattr__(self, "rs", _unit_interval_rgb("AshikhminShirley.rs", self.rs))
         object.__setattr__(self, "rd", _rgb("AshikhminShirley.rd", self.rd))
-        object.__setattr__(self, "nu", _positive("AshikhminShirley.nu", self.nu))
-        object.__setattr__(self, "nv", _positive("AshikhminShirley.nv", self.nv))
+        for axis in ("nu", "nv"):
+            object.__setattr__(self, axis, _lobe_parameter(f"AshikhminShirley.{axis}", getattr(self, axis),
+                                                           most=ASHIKHMIN_SHIRLEY_EXPONENT_MAX))
         total = np.asarray(self.rs) + np.asarray(self.rd)
         if (total > 1 + _ALBEDO_SLACK).any():
             k = int(np.argmax(total))

@@ -35,7 +35,7 @@ from .lobes import LobeSet
 from .measured import MeasuredBRDF
 from .smallscale import SmallScale, TileWarning
 
-__all__ = ["EffectiveBRDF", "Provenance", "compare", "METHODS"]
+__all__ = ["EffectiveBRDF", "Provenance", "compare", "METHODS", "AMPLITUDE_MAX", "check_amplitudes"]
 
 METHODS = ("sg", "sg-exact")
 # The lobe types of `shade_lobes` (the shade stage's eff_info[:, 7]): SG lobes [axis, η] (Iwasaki), or ASG
@@ -54,6 +54,30 @@ EXPORTERS: dict = {}
 DIFFUSE_LEVEL_ETAS = (np.inf, 8.0, 1.0, 0.125, 0.015625)
 DIFFUSE_LEVEL_SHARP = 64.0  # η at level coordinate 0: the sharpest lobe that reads f̄d at its axis
 DIFFUSE_LEVEL_STEP = 8.0  # the ratio of neighbouring levels' η
+
+
+# The largest amplitude μ_mj a material may hold (a file's is checked when it is read). In a bake μ_mj·∫G_j is the
+# share of the view that lobe j's facets fill (≤ 1: 0.9994 the most measured over flat, pyramid, groove and rod
+# tiles), so μ_mj ≤ 1/∫G_j ≤ sg.SHARPNESS_MAX/(2π) ≈ 1.6e5 (1.59e5 measured: a flat facet's lobe); this bound leaves
+# 600 times that. Every amplitude of lobes.MAX_LOBES = 128 broad lobes (η = sg.SHARPNESS_MIN) at this bound, under the
+# brightest light a scene takes (scene.LIGHT_POWER_MAX = 1e20) and an environment of environment.RADIANCE_MAX, gave at
+# most 1.5e36 in the SG renderer (the largest small-scale factor tried: CookTorrance(ks=1, roughness=3, f0=1, kd=1),
+# whose M = ks·F/(π cos²θd) peaks at grazing view; the Monte Carlo reference reads the exact ground truth instead),
+# under float32's 3.4e38 with 200 times to spare. (A forged file's 3e38 rendered black in the SG renderer, its
+# overflow cleared, and 1e38 elsewhere.)
+AMPLITUDE_MAX = 1e8
+
+
+def check_amplitudes(amplitudes, name: str = "amplitudes") -> None:
+    """A one-line ValueError unless every value of an amplitude table is finite, >= 0 and at most AMPLITUDE_MAX."""
+    a = np.asarray(amplitudes)
+    if not a.size:
+        return
+    if not (a.min() >= 0 and np.isfinite(a.max())):  # (a NaN fails min() >= 0)
+        raise ValueError(f"{name} must be finite and >= 0")
+    if a.max() > AMPLITUDE_MAX:
+        raise ValueError(f"{name} hold values up to {float(a.max()):.3g}: at most {AMPLITUDE_MAX:g} (a bake's reach "
+                         f"about 1.6e5; more would overflow the renderers' float32)")
 
 
 def diffuse_level(eta):
@@ -126,16 +150,27 @@ def materials_from_file(dicts, arrays) -> list:
     module, not at the caller, about a material the user did not just build."""
     if not isinstance(dicts, list) or not all(isinstance(d, dict) for d in dicts):
         raise ValueError(f"its materials must be a list of BRDF tables, got {str(dicts)[:80]}")
+    out = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", brdf_mod.EnergyWarning)
-        return [MeasuredBRDF.from_file(d, arrays) if d.get("type") == "MeasuredBRDF" else _brdf_from_dict(d)
-                for d in dicts]
+        for i, d in enumerate(dicts):
+            try:
+                out.append(MeasuredBRDF.from_file(d, arrays) if d.get("type") == "MeasuredBRDF" else _brdf_from_dict(d))
+            except (TypeError, ValueError) as exc:  # (which of the file's materials, the loader names the file)
+                raise ValueError(f"material {i}: {exc}") from None
+    return out
 
 
 def _brdf_from_dict(d: dict):
+    """An analytic BRDF from its table (`_brdf_to_dict`): a one-line ValueError for an unknown type or a key that is
+    not one of its parameters (the class's own TypeError named neither the table nor the parameters it takes)."""
     cls = getattr(brdf_mod, d.get("type", ""), None)
-    if not (isinstance(cls, type) and issubclass(cls, brdf_mod.Brdf)):
+    if not (isinstance(cls, type) and issubclass(cls, brdf_mod.Brdf) and dataclasses.is_dataclass(cls)):
         raise ValueError(f"unknown BRDF type {d.get('type')!r} in material file")
+    names = [f.name for f in dataclasses.fields(cls)]
+    for key in d:
+        if key != "type" and key not in names:
+            raise ValueError(f"{cls.__name__} has no parameter {key!r}; its parameters: {', '.join(names)}")
     return cls(**{k: v for k, v in d.items() if k != "type"})
 
 
@@ -234,6 +269,11 @@ class EffectiveBRDF:
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
         self.lobes = lobes
+        sharp = np.asarray(lobes.sharpness)
+        if sharp.min() < sg.SHARPNESS_MIN or sharp.max() > sg.SHARPNESS_MAX:
+            # (a bake's EM keeps them there; the shade stage's float32 made a forged 1e300 inf, and the lobe black)
+            raise ValueError(f"lobe sharpness must lie in [{sg.SHARPNESS_MIN:g}, {sg.SHARPNESS_MAX:g}], the SG forms' "
+                             f"range, got {sharp.min():.3g} to {sharp.max():.3g}")
         # (a bake's tables may stay on its device, a DeviceArray: `amplitudes` reads them when first asked for)
         self._amplitudes = amplitudes if isinstance(amplitudes, DeviceArray) else np.asarray(amplitudes, np.float32)
         self.directions = int(directions)
@@ -242,8 +282,8 @@ class EffectiveBRDF:
         shape = self._amplitudes.shape
         if len(shape) != 5 or shape[1:] != (nd, nd, j, 3):
             raise ValueError(f"amplitudes must have shape (M, {nd}, {nd}, {j}, 3), got {shape}")
-        if _energy is None and (not np.all(np.isfinite(self.amplitudes)) or (self.amplitudes < 0).any()):
-            raise ValueError("amplitudes must be finite and >= 0")  # (checked once, where _energy was made)
+        if _energy is None:  # (checked once, where _energy was made: a bake's or an edit's tables are not again)
+            check_amplitudes(self.amplitudes)
         self.materials = brdf_mod.as_material_list(materials)
         if len(self.materials) != shape[0]:
             raise ValueError(f"{shape[0]} amplitude table(s) but {len(self.materials)} material(s)")

@@ -60,7 +60,7 @@ import numpy as np
 
 from . import directions as dirs
 from .brdf import BLINN_PHONG, COOK_TORRANCE, LAMBERT, MEASURED, WARD, as_material_list, pack_materials
-from .effective import HostOnlyBRDF, Provenance, materials_from_file, materials_to_file
+from .effective import HostOnlyBRDF, Provenance, check_amplitudes, materials_from_file, materials_to_file
 from .io import cache_folder, check_output, read_npz, save_npz
 from .model import Bvndf
 
@@ -1180,8 +1180,7 @@ class MatrixBRDF(HostOnlyBRDF):
         self.tables = np.asarray(tables, np.float32)
         if self.tables.ndim != 4 or self.tables.shape[1:] != (nd, nd, 3):
             raise ValueError(f"tables must have shape (M, {nd}, {nd}, 3), got {self.tables.shape}")
-        if not np.all(np.isfinite(self.tables)) or (self.tables < 0).any():
-            raise ValueError("tables must be finite and >= 0")
+        check_amplitudes(self.tables, "tables")
         self.materials = as_material_list(materials)
         if len(self.materials) != len(self.tables):
             raise ValueError(f"{len(self.tables)} table(s) but {len(self.materials)} material(s)")

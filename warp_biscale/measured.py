@@ -46,7 +46,7 @@ import warnings
 
 import numpy as np
 
-from .brdf import MEASURED, Brdf, CookTorrance, EnergyWarning, Lambert, parse_brdf
+from .brdf import COOK_TORRANCE_ROUGHNESS_MIN, MEASURED, Brdf, CookTorrance, EnergyWarning, Lambert, parse_brdf
 from .io import atomic_path, check_output
 from .model import BACKENDS
 
@@ -150,6 +150,16 @@ def _tangent_frames(n):
     return t, bt
 
 
+# Why a table none of whose samples is valid is refused: filling it (`_fill_invalid`) would make it 0 everywhere, a
+# black material in every result.
+_ALL_INVALID = "every sample has a negative channel, the data set's mark of a sample not measured: it would be black"
+
+
+def _all_invalid(table) -> bool:
+    """Whether every sample of a (3, 90, 90, 180) table is invalid (some channel negative)."""
+    return bool((table < 0).any(axis=0).all())
+
+
 def _fill_invalid(raw):
     """The table with its invalid (negative) samples replaced, for evaluation; `raw` itself is kept as read.
 
@@ -159,8 +169,8 @@ def _fill_invalid(raw):
     column, so this continues the last measured grazing value up to the horizon — a bin's centre can lie
     below the horizon while part of the bin lies above it, and lookups there (and trilinear weights that
     reach across) get a measured neighbour rather than the marker or a black 0 that would darken every
-    grazing highlight. A column with no valid sample takes the nearest valid column along θh; a table with
-    none at all evaluates to 0."""
+    grazing highlight. A column with no valid sample takes the nearest valid column along θh (a table with none
+    at all is refused when it is made, `_all_invalid`)."""
     invalid = (raw < 0).any(axis=0)  # (90, 90, 180)
     if not invalid.any():
         return raw
@@ -217,6 +227,8 @@ class MeasuredBRDF(Brdf):
             raise ValueError(f"MeasuredBRDF data must have shape {SHAPE} (channel, θh, θd, φd), got {a.shape}")
         if not np.isfinite(a).all():
             raise ValueError(f"MeasuredBRDF data holds {int((~np.isfinite(a)).sum())} non-finite value(s)")
+        if _all_invalid(a):
+            raise ValueError(f"MeasuredBRDF data holds no valid measured sample ({_ALL_INVALID})")
         a.setflags(write=False)
         self._data = a
         self._lut = None  # the filled table, made on the first eval
@@ -264,7 +276,7 @@ class MeasuredBRDF(Brdf):
         """Read a MERL binary file. One-line errors naming the file: FileNotFoundError if it is missing;
         ValueError if it is a directory, truncated (shorter than its header or than the table the header
         announces), has a wrong header (not 90, 90, 180 as little-endian int32; a big-endian file is named
-        as such), a wrong size (bytes after the table) or non-finite values."""
+        as such), a wrong size (bytes after the table), non-finite values or no valid (measured) sample."""
         path = os.fspath(path)
         what = f"MERL BRDF file {path}"
         if not os.path.exists(path):
@@ -300,6 +312,8 @@ class MeasuredBRDF(Brdf):
             c, i, j, k = np.unravel_index(int(np.argmax(data)), SHAPE)
             raise ValueError(f"{what} holds values up to {data.max():.3g} (channel {'rgb'[c]}, θh index {i}, θd "
                              f"index {j}, φd index {k}): at most {VALUE_MAX:g} in the file's units")
+        if _all_invalid(data.reshape(SHAPE)):
+            raise ValueError(f"{what} holds no valid measured sample ({_ALL_INVALID})")
         return cls(data.reshape(SHAPE), interpolation=interpolation, source=path)
 
     def save(self, path) -> None:
@@ -560,10 +574,13 @@ class SGFit:
 
 def _fitted_brdf(kd, ks, roughness, f0) -> CookTorrance:
     """The fit's Cook–Torrance, without an EnergyWarning: a table that reflects more than it receives is the
-    table's own doing, and its fit says what the table does."""
+    table's own doing, and its fit says what the table does. Its roughness is held at COOK_TORRANCE_ROUGHNESS_MIN
+    or above (`fit_sg` searches there only; a fit read from a file made before that bound may lie below it), the
+    sharpest lobe the SG forms hold, which the renderers capped a sharper fit's lobe to anyway."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", EnergyWarning)
-        return CookTorrance(ks=tuple(ks), roughness=float(roughness), f0=float(f0), kd=tuple(kd))
+        return CookTorrance(ks=tuple(ks), roughness=max(float(roughness), COOK_TORRANCE_ROUGHNESS_MIN), f0=float(f0),
+                            kd=tuple(kd))
 
 
 def fit_samples(table):
@@ -658,6 +675,12 @@ def _nonnegative_coefficients(sums) -> np.ndarray:
     return best.reshape(c, 9)
 
 
+def _log_roughness(log_m):
+    """The fit's search variable log m held at log COOK_TORRANCE_ROUGHNESS_MIN or above: a lobe sharper than the SG
+    forms hold (a mirror-like table) is fitted with the sharpest they do, and the objective sees that lobe."""
+    return np.maximum(log_m, np.log(COOK_TORRANCE_ROUGHNESS_MIN))
+
+
 def fit_sg(measured: MeasuredBRDF, backend=None, lobes="auto") -> SGFit:
     """The SG fit of a measured BRDF, Wang §4.1–4.2: kd/π + Σ_l ks_l·F_l(h·ωi)·G·D_l(h)/(π cosθi cosθo) over one
     or two lobes l, with D_l = exp((2/m_l²)(n·h − 1)) the NDF's SG, Schlick's F(f0_l) and Cook–Torrance's
@@ -694,10 +717,10 @@ def fit_sg(measured: MeasuredBRDF, backend=None, lobes="auto") -> SGFit:
         """params (C, 2) [log m, f0] or (C, 4) [log m1, f0_1, log m2, f0_2] → (coefficients (C, 9), residuals (C,))."""
         p = np.atleast_2d(np.asarray(params, np.float64))
         cand = np.zeros((len(p), 4))  # a one-lobe candidate's second lobe: η2 = 0, absent
-        cand[:, 0] = 2.0 / np.exp(2 * p[:, 0])
+        cand[:, 0] = 2.0 / np.exp(2 * _log_roughness(p[:, 0]))
         cand[:, 1] = np.clip(p[:, 1], 0.0, 1.0)
         if p.shape[1] == 4:
-            cand[:, 2] = 2.0 / np.exp(2 * p[:, 2])
+            cand[:, 2] = 2.0 / np.exp(2 * _log_roughness(p[:, 2]))
             cand[:, 3] = np.clip(p[:, 3], 0.0, 1.0)
         coef = _nonnegative_coefficients(sums(cand))
         return coef, sums(cand, coef)
@@ -732,7 +755,8 @@ def fit_sg(measured: MeasuredBRDF, backend=None, lobes="auto") -> SGFit:
                 params, coef, error = two, coef2, error2
     # (ks, m, f0) per lobe; a lobe the solve gave nothing is dropped (one is kept: a Lambertian table's); the
     # broader lobe comes first and carries kd.
-    found = [(coef[0, 3 * lobe + 3:3 * lobe + 6], np.exp(params[2 * lobe]), np.clip(params[2 * lobe + 1], 0, 1))
+    found = [(coef[0, 3 * lobe + 3:3 * lobe + 6], np.exp(_log_roughness(params[2 * lobe])),
+              np.clip(params[2 * lobe + 1], 0, 1))
              for lobe in range(len(params) // 2)]
     found = [x for x in found if x[0].max() > 0] or found[:1]
     found.sort(key=lambda x: -x[1])

@@ -16,13 +16,14 @@ import os
 
 import numpy as np
 
-from .brdf import BlinnPhong, CookTorrance, Ward, sg_lobes
+from .brdf import SHARPNESS_MAX, BlinnPhong, CookTorrance, Ward, sg_lobes
 from .io import atomic_path, cache_folder
 
 __all__ = ["evaluate", "integral", "inner_product", "product", "convolve", "one_minus_cos", "SHARPNESS_MAX",
            "SHARPNESS_MIN", "specular_lobe", "specular_lobes"]
 
-SHARPNESS_MAX = 1.0e6  # a delta NDF (a flat facet) is capped here; see `convolve` for why that is harmless
+# SHARPNESS_MAX (1e6, defined in brdf, whose BRDF parameters it bounds): a delta NDF (a flat facet) is capped
+# there; see `convolve` for why that is harmless
 SHARPNESS_MIN = 1.0e-3
 
 

@@ -12,7 +12,8 @@ each a multiplier of the wrapped BRDF's own values at a surface point with textu
 where p1 is the Blinn–Phong exponent, the Cook–Torrance roughness m or the Ward alpha (Cook–Torrance's f0
 is not textured). Maps are linear floats: (H, W, 3) for kd and ks, (H, W) for the parameter, or a path
 read with `images.read_image` (8-bit sRGB images are decoded to linear; the parameter map takes channel
-0). Values must be finite and >= 0, the parameter map's > 0.
+0). Values must be finite and >= 0, the parameter map's > 0, and the parameter it scales must stay within the
+BRDF's own bounds (`brdf.P1_BOUNDS`: no lobe sharper than the SG forms hold).
 
 Lookup convention (the kernels and `sample` agree): bilinear, wrapping (repeat) in u and v; texel (i, j)
 (row i, column j) is centred at (u, v) = ((j + ½)/W, (i + ½)/H), so row 0 sits at v = 0 — an image read
@@ -83,6 +84,23 @@ def _load_map(name, value, rgb: bool) -> np.ndarray | None:
     return np.ascontiguousarray(a, np.float32)
 
 
+def _check_scaled_parameter(brdf, parameter_map) -> None:
+    """Refuse a parameter map that scales the BRDF's p1 past the sharpest lobe the SG forms hold (`brdf.P1_BOUNDS`),
+    in one line naming the map's extreme value. The kernels interpolate the map bilinearly, so p1 · map lies between
+    p1 times the map's smallest and largest texels (the float32 texels the kernels read, as checked here)."""
+    bounds = brdf_mod.P1_BOUNDS.get(brdf.kind)
+    if bounds is None:
+        return
+    name, least, most = bounds
+    p1 = float(getattr(brdf, name))
+    lo, hi = float(parameter_map.min()), float(parameter_map.max())
+    for factor, bad, limit in ((hi, p1 * hi > most, f"<= {most:g}"), (lo, p1 * lo < least, f">= {least:.4g}")):
+        if bad:
+            raise ValueError(f"Textured.parameter_map reaches {factor:.6g}: it scales {type(brdf).__name__}.{name} "
+                             f"{p1:g} to {p1 * factor:.6g}, which must be {limit} (a sharper lobe than the SG forms "
+                             f"hold, sg.SHARPNESS_MAX)")
+
+
 class Textured:
     """An analytic `Brdf` whose kd, ks and model parameter p1 are scaled by texture maps (module docstring)."""
 
@@ -101,6 +119,8 @@ class Textured:
         self.kd_map = _load_map("kd_map", kd_map, True)
         self.ks_map = _load_map("ks_map", ks_map, True)
         self.parameter_map = _load_map("parameter_map", parameter_map, False)
+        if self.parameter_map is not None:
+            _check_scaled_parameter(brdf, self.parameter_map)
         if self.kd_map is not None:  # the diffuse reflectance kd ⊙ kd_map where the map is brightest
             lambert = isinstance(brdf, brdf_mod.Lambert)
             kd = np.asarray(brdf.albedo if lambert else brdf.kd, np.float64)
