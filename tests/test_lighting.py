@@ -309,6 +309,7 @@ class _ReferenceEM:
         self._backend = backend
         self.name = backend.name
         self.device = backend.device
+        self.is_gpu = backend.is_gpu  # (every data member of the protocol: Python 3.12 checks each one statically)
         self.calls = 0
 
     def __getattr__(self, attr):
