@@ -600,8 +600,8 @@ class Scene:
                                      f"{d:.3g} from its centre): a light must lie outside the objects")
         if self.ssdf_terms is None:  # (a coarse SSDF alone must not be refused over a default it cannot hold)
             res = self.ssdf_resolution
-            fits = isinstance(res, int) and not isinstance(res, bool) and res >= 1
-            self.ssdf_terms = min(SSDF_TERMS, res * res) if fits else SSDF_TERMS
+            fits = isinstance(res, (int, np.integer)) and not isinstance(res, bool) and res >= 1
+            self.ssdf_terms = min(SSDF_TERMS, int(res) ** 2) if fits else SSDF_TERMS
         for name, (lo, hi) in settings_ranges(self.ssdf_resolution).items():
             setattr(self, name, _integer(f"Scene.{name}", getattr(self, name), lo, hi, SETTINGS_UNITS[name]))
 
