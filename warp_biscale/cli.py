@@ -257,13 +257,7 @@ IMAGE_EXTENSIONS = (".png", ".exr", ".hdr", ".pic")
 
 
 def _check_output(path, what="output"):
-    check_output(path, what=what)
-    ext = os.path.splitext(path)[1].lower()
-    if ext not in IMAGE_EXTENSIONS:
-        if os.path.basename(path).lower() in IMAGE_EXTENSIONS:  # (".png": a suffix with no name before it)
-            raise ValueError(f"{what} {path!r} has no name before its {os.path.basename(path)}")
-        raise ValueError(f"{what} {path!r} must end in {', '.join(IMAGE_EXTENSIONS)} (PNG is tone-mapped; EXR and "
-                         "HDR keep the linear radiance)")
+    check_output(path, IMAGE_EXTENSIONS, what, "PNG is tone-mapped; EXR and HDR keep the linear radiance")
 
 
 def _size(values, width, height):

@@ -21,10 +21,10 @@ __all__ = ["atomic_path", "cache_folder", "check_output", "save_npz", "read_npz"
 CACHE_ENV = "WARP_BISCALE_CACHE"
 
 
-def check_output(path, suffixes=None, what: str = "output") -> None:
+def check_output(path, suffixes=None, what: str = "output", why: str = "") -> None:
     """Refuse, before any work, an output path that cannot be written, in one line naming it: a suffix not
-    in `suffixes` (lower-case, with the dot), an existing directory, or a folder (the nearest one that
-    exists: atomic_path makes the missing ones) that is not a directory or takes no new file. The
+    in `suffixes` (lower-case, with the dot; `why` says why those), an existing directory, or a folder (the
+    nearest one that exists: atomic_path makes the missing ones) that is not a directory or takes no new file. The
     folder is tried by creating and removing a temporary file in it, so what the system would refuse
     (a read-only file system, a folder without write permission for this user) is refused here."""
     path = os.fspath(path)
@@ -33,7 +33,7 @@ def check_output(path, suffixes=None, what: str = "output") -> None:
     if suffixes is not None and os.path.splitext(path)[1].lower() not in suffixes:
         if os.path.basename(path).lower() in suffixes:  # (".png": a suffix with no name before it)
             raise ValueError(f"{what} {path!r} has no name before its {os.path.basename(path)}")
-        raise ValueError(f"{what} {path!r} must end in {', '.join(suffixes)}")
+        raise ValueError(f"{what} {path!r} must end in {', '.join(suffixes)}" + (f" ({why})" if why else ""))
     folder = os.path.dirname(os.path.abspath(path))
     while not os.path.exists(folder):
         folder = os.path.dirname(folder)
